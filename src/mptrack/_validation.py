@@ -1,0 +1,138 @@
+"""Input validation at the public boundary.
+
+Each helper takes the argument's *name* so that error messages say which
+argument was wrong, what was expected and what was received.
+"""
+
+from __future__ import annotations
+
+import numbers
+
+import numpy as np
+
+from .errors import (
+    DTypeError,
+    NonFiniteError,
+    NotPositiveDefiniteError,
+    NotSymmetricError,
+    ParameterError,
+    ShapeError,
+)
+
+__all__ = [
+    "as_array",
+    "as_matrix",
+    "as_vector",
+    "as_sequence",
+    "check_covariance",
+    "check_positive",
+    "check_int",
+]
+
+
+def _shape_text(shape: tuple) -> str:
+    return "(" + ", ".join("?" if s is None else str(s) for s in shape) + (",)" if len(shape) == 1 else ")")
+
+
+def as_array(name: str, value, *, ndim: int | None = None, shape: tuple | None = None,
+             finite: bool = True, allow_nan: bool = False) -> np.ndarray:
+    """Convert ``value`` to a float64 array and check its shape and values.
+
+    ``shape`` may contain ``None`` for free sizes.  ``allow_nan`` lets NaN through
+    (missing measurements) while still rejecting infinities.
+    """
+    try:
+        arr = np.asarray(value)
+    except Exception as exc:  # pragma: no cover - numpy accepts almost anything
+        raise DTypeError(f"{name}: cannot be converted to an array ({exc})") from None
+    if arr.dtype == object or arr.dtype.kind not in "biuf":
+        raise DTypeError(f"{name}: expected real numbers, got dtype {arr.dtype}")
+    arr = arr.astype(np.float64, copy=False)
+    if shape is not None:
+        ndim = len(shape)
+    if ndim is not None and arr.ndim != ndim:
+        expected = _shape_text(shape) if shape is not None else f"{ndim}-D"
+        raise ShapeError(f"{name}: expected shape {expected}, got shape {arr.shape}")
+    if shape is not None:
+        for want, got in zip(shape, arr.shape):
+            if want is not None and want != got:
+                raise ShapeError(f"{name}: expected shape {_shape_text(shape)}, got shape {arr.shape}")
+    if finite:
+        bad = np.isinf(arr) if allow_nan else ~np.isfinite(arr)
+        if bad.any():
+            idx = tuple(int(i) for i in np.argwhere(bad)[0])
+            what = "infinite" if allow_nan else "non-finite"
+            raise NonFiniteError(f"{name}: contains {what} value {arr[idx]!r} at index {idx}")
+    return arr
+
+
+def as_matrix(name: str, value, rows: int | None = None, cols: int | None = None) -> np.ndarray:
+    """A finite 2-D float matrix; scalars and 1-element inputs are promoted for 1x1 shapes."""
+    arr = np.asarray(value, dtype=float) if np.isscalar(value) else value
+    if np.ndim(arr) == 0:
+        arr = np.reshape(arr, (1, 1))
+    return as_array(name, arr, shape=(rows, cols))
+
+
+def as_vector(name: str, value, size: int | None = None) -> np.ndarray:
+    if np.ndim(value) == 0:
+        value = np.reshape(np.asarray(value, dtype=float), (1,))
+    return as_array(name, value, shape=(size,))
+
+
+def as_sequence(name: str, value, width: int, *, allow_nan: bool = False) -> np.ndarray:
+    """A measurement sequence of shape (T, width); a 1-D input is accepted when width == 1."""
+    arr = np.asarray(value)
+    if arr.ndim == 1 and width == 1:
+        arr = arr[:, None]
+    arr = as_array(name, arr, shape=(None, width), allow_nan=allow_nan)
+    if arr.shape[0] == 0:
+        raise ShapeError(f"{name}: expected at least one time step, got shape {arr.shape}")
+    return arr
+
+
+def check_covariance(name: str, value, size: int | None = None, *, definite: bool = False,
+                     rtol: float = 1e-9) -> np.ndarray:
+    """A symmetric positive semi-definite (or definite) covariance matrix.
+
+    Symmetry is checked to ``rtol`` relative to the largest entry; the returned
+    matrix is exactly symmetrised.  Definiteness uses the eigenvalues with a
+    tolerance scaled to the matrix norm.
+    """
+    mat = as_matrix(name, value, size, size)
+    if mat.shape[0] != mat.shape[1]:
+        raise ShapeError(f"{name}: expected a square matrix, got shape {mat.shape}")
+    scale = max(float(np.max(np.abs(mat))), np.finfo(float).tiny)
+    asym = float(np.max(np.abs(mat - mat.T)))
+    if asym > rtol * scale:
+        raise NotSymmetricError(f"{name}: must be symmetric, max |{name} - {name}^T| = {asym:.3g}")
+    mat = 0.5 * (mat + mat.T)
+    eig = np.linalg.eigvalsh(mat)
+    tol = 1e-12 * scale * mat.shape[0]
+    if definite and eig[0] <= tol:
+        raise NotPositiveDefiniteError(
+            f"{name}: must be positive definite, smallest eigenvalue is {eig[0]:.3g}")
+    if eig[0] < -1e-9 * scale:
+        raise NotPositiveDefiniteError(
+            f"{name}: must be positive semi-definite, smallest eigenvalue is {eig[0]:.3g}")
+    return mat
+
+
+def check_positive(name: str, value, *, allow_zero: bool = False) -> float:
+    if isinstance(value, bool) or not isinstance(value, numbers.Real):
+        raise ParameterError(f"{name}: expected a real number, got {value!r}")
+    value = float(value)
+    ok = value >= 0 if allow_zero else value > 0
+    if not np.isfinite(value) or not ok:
+        bound = ">= 0" if allow_zero else "> 0"
+        raise ParameterError(f"{name}: expected a finite number {bound}, got {value!r}")
+    return value
+
+
+def check_int(name: str, value, *, minimum: int | None = None) -> int:
+    if isinstance(value, bool) or not isinstance(value, numbers.Integral):
+        raise ParameterError(f"{name}: expected an integer, got {value!r}")
+    value = int(value)
+    if minimum is not None and value < minimum:
+        raise ParameterError(f"{name}: expected an integer >= {minimum}, got {value}")
+    return value

@@ -1,0 +1,36 @@
+"""Linear filters: Kalman (KF), Lainiotis (LF), their join (JKLF), steady-state (SSKF,
+SSLF, JSSKLF), FIR steady-state, and per-axis running of model B."""
+
+from ._joint import join_results, per_axis
+from ._kalman import kalman_filter, kalman_step
+from ._lainiotis import lainiotis_filter, lainiotis_step
+from ._registry import (
+    FILTERS,
+    IMPLEMENTATIONS,
+    FilterSpec,
+    Implementation,
+    get_filter,
+    get_implementation,
+)
+from ._result import FilterResult
+from ._steady import fir_coefficients, fir_filter, fir_order, steady_state_filter
+
+__all__ = [
+    "FilterResult",
+    "kalman_filter",
+    "kalman_step",
+    "lainiotis_filter",
+    "lainiotis_step",
+    "steady_state_filter",
+    "fir_filter",
+    "fir_order",
+    "fir_coefficients",
+    "join_results",
+    "per_axis",
+    "FILTERS",
+    "FilterSpec",
+    "get_filter",
+    "IMPLEMENTATIONS",
+    "Implementation",
+    "get_implementation",
+]

@@ -1,0 +1,71 @@
+"""The time-invariant Kalman filter (seed 000 eq. 4)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..models import LinearGaussianModel
+from ._common import prepare_inputs
+from ._result import FilterResult
+
+__all__ = ["kalman_filter", "kalman_step"]
+
+_LOG2PI = np.log(2.0 * np.pi)
+
+
+def kalman_step(F, H, Q, R, x, P, z, joseph: bool = False):
+    """One KF iteration: from x(k/k), P(k/k) and z(k+1) to the next filtered pair.
+
+    Returns (x_filt, P_filt, x_pred, P_pred, loglik_increment).  Components of
+    z that are NaN are not used; a fully missing z only predicts.
+    """
+    x_pred = F @ x
+    P_pred = F @ P @ F.T + Q
+    ok = ~np.isnan(z)
+    if not ok.any():
+        return x_pred, P_pred, x_pred, P_pred, 0.0
+    if not ok.all():
+        H, R, z = H[ok], R[np.ix_(ok, ok)], z[ok]
+    PHt = P_pred @ H.T
+    S = H @ PHt + R
+    S_inv = np.linalg.inv(S)
+    K = PHt @ S_inv
+    innov = z - H @ x_pred
+    x_filt = x_pred + K @ innov
+    if joseph:
+        IKH = np.eye(len(x)) - K @ H
+        P_filt = IKH @ P_pred @ IKH.T + K @ R @ K.T
+    else:
+        P_filt = P_pred - K @ PHt.T
+    P_filt = 0.5 * (P_filt + P_filt.T)
+    _, logdet = np.linalg.slogdet(S)
+    ll = -0.5 * (innov @ S_inv @ innov + logdet + len(innov) * _LOG2PI)
+    return x_filt, P_filt, x_pred, P_pred, ll
+
+
+def kalman_filter(model: LinearGaussianModel, z, x0=None, P0=None, *, joseph: bool = False) -> FilterResult:
+    """Kalman filter with the per-step Riccati recursion (seed 000 eq. 4).
+
+    model   a LinearGaussianModel
+    z       (T, m) measurements z(1..T); rows with NaN are treated as missing
+            (NaN components are skipped, a full NaN row only predicts)
+    x0, P0  the prior x(0/0), P(0/0) (default zeros, as in the papers' example)
+    joseph  use the Joseph form (I-KH) P (I-KH)^T + K R K^T for P(k/k)
+
+    Returns a FilterResult with filtered and predicted means/covariances and
+    the measurement log-likelihood.
+    """
+    z, x, P, _ = prepare_inputs(model, z, x0, P0)
+    T, n = z.shape[0], model.n
+    xs = np.empty((T, n))
+    Ps = np.empty((T, n, n))
+    xp = np.empty((T, n))
+    Pp = np.empty((T, n, n))
+    F, H, Q, R = model.F, model.H, model.Q, model.R
+    loglik = 0.0
+    for k in range(T):
+        x, P, xp[k], Pp[k], ll = kalman_step(F, H, Q, R, x, P, z[k], joseph)
+        xs[k] = x
+        Ps[k] = P
+        loglik += ll
+    return FilterResult(x=xs, P=Ps, x_pred=xp, P_pred=Pp, loglik=float(loglik), method="KF")

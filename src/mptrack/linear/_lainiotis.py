@@ -1,0 +1,49 @@
+"""The Lainiotis filter (seed 000 eqs. 5-7)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..models import LinearGaussianModel
+from ..riccati import LainiotisParameters, lainiotis_parameters
+from ._common import prepare_inputs
+from ._result import FilterResult
+
+__all__ = ["lainiotis_filter", "lainiotis_step"]
+
+
+def lainiotis_step(lp: LainiotisParameters, F, Q, x, P, z, eye):
+    """One LF iteration (eqs. 5-6); a missing (NaN) measurement only predicts.
+
+    x(k+1/k+1) = Kn z + Fn [I + P On]^{-1} [P Km z + x]
+    P(k+1/k+1) = Pn + Fn [I + P On]^{-1} P Fn^T
+    """
+    if np.isnan(z).any():
+        P_new = F @ P @ F.T + Q
+        return F @ x, 0.5 * (P_new + P_new.T)
+    rhs = np.column_stack((P @ (lp.Km @ z) + x, P))
+    sol = lp.Fn @ np.linalg.solve(eye + P @ lp.On, rhs)
+    x_new = lp.Kn @ z + sol[:, 0]
+    P_new = lp.Pn + sol[:, 1:] @ lp.Fn.T
+    return x_new, 0.5 * (P_new + P_new.T)
+
+
+def lainiotis_filter(model: LinearGaussianModel, z, x0=None, P0=None, *,
+                     params: LainiotisParameters | None = None) -> FilterResult:
+    """Lainiotis filter (seed 000 eqs. 5-7): same estimates as the KF, other algebra.
+
+    ``params`` are the off-line Lainiotis parameters; computed from ``model``
+    when not given.  Measurements with any NaN component only predict (the LF
+    has no partial update).  Returns filtered means and covariances.
+    """
+    z, x, P, _ = prepare_inputs(model, z, x0, P0)
+    lp = lainiotis_parameters(model) if params is None else params
+    T, n = z.shape[0], model.n
+    xs = np.empty((T, n))
+    Ps = np.empty((T, n, n))
+    eye = np.eye(n)
+    for k in range(T):
+        x, P = lainiotis_step(lp, model.F, model.Q, x, P, z[k], eye)
+        xs[k] = x
+        Ps[k] = P
+    return FilterResult(x=xs, P=Ps, method="LF")

@@ -1,0 +1,37 @@
+"""The result record shared by every filter in mptrack."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = ["FilterResult"]
+
+
+@dataclass(frozen=True, eq=False)
+class FilterResult:
+    """Output of a filter run over T measurement times.
+
+    x       (T, n)     filtered means x(k/k), k = 1..T
+    P       (T, n, n)  filtered covariances P(k/k)
+    x_pred  (T, n)     predicted means x(k/k-1), where the algorithm forms them (else None)
+    P_pred  (T, n, n)  predicted covariances P(k/k-1) (else None)
+    loglik  log-likelihood of the measurements (Kalman-type filters; else None)
+    method  the filter's registry name ("KF", "LF", "SSKF", ...)
+    """
+
+    x: np.ndarray
+    P: np.ndarray
+    x_pred: np.ndarray | None = None
+    P_pred: np.ndarray | None = None
+    loglik: float | None = None
+    method: str = ""
+
+    @property
+    def T(self) -> int:
+        return self.x.shape[0]
+
+    @property
+    def n(self) -> int:
+        return self.x.shape[1]

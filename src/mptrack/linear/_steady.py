@@ -1,0 +1,141 @@
+"""Steady-state filters (seed 000 eqs. 9-16) and the FIR steady-state filter (eqs. 20-22)."""
+
+from __future__ import annotations
+
+from typing import Literal
+
+import numpy as np
+
+from .._validation import check_int, check_positive
+from ..errors import ConvergenceError, NonFiniteError, ParameterError
+from ..models import LinearGaussianModel
+from ..riccati import SteadyState, steady_state
+from ._common import prepare_inputs
+from ._result import FilterResult
+
+__all__ = ["steady_state_filter", "fir_filter", "fir_order", "fir_coefficients"]
+
+
+def _steady(model, steady, form):
+    if steady is not None:
+        if not isinstance(steady, SteadyState):
+            raise ParameterError(f"steady: expected a SteadyState, got {type(steady).__name__}")
+        if steady.A.shape != (model.n, model.n) or steady.B.shape != (model.n, model.m):
+            raise ParameterError("steady: its A, B do not match the model's dimensions")
+        return steady
+    if form == "kalman":
+        return steady_state(model, "dare")
+    return steady_state(model, "per-step", form="lainiotis")
+
+
+def steady_state_filter(model: LinearGaussianModel, z, x0=None, P0=None, *,
+                        form: Literal["kalman", "lainiotis"] = "kalman",
+                        steady: SteadyState | None = None,
+                        covariance: Literal["steady", "exact"] = "steady") -> FilterResult:
+    """Steady-state filter x(k+1/k+1) = A x(k/k) + B z(k+1) (SSKF eq. 9-10, SSLF eq. 12-13).
+
+    form        "kalman" (A, B from the REKF/DARE solution) or "lainiotis"
+                (A, B from the RELF solution, eq. 13); they are equal (eq. 15).
+    steady      a precomputed :func:`mptrack.riccati.steady_state` result (off-line part)
+    covariance  "steady": P(k/k) is the steady-state Pe at every step (the papers');
+                "exact": the actual error covariance of this constant-gain filter
+                started from P0, P <- (I-KH)(F P F^T + Q)(I-KH)^T + K R K^T.
+    A NaN measurement row only predicts (x <- F x; with "exact" the covariance too).
+    """
+    if covariance not in ("steady", "exact"):
+        raise ParameterError(f"covariance: expected 'steady' or 'exact', got {covariance!r}")
+    z, x, P, missing = prepare_inputs(model, z, x0, P0)
+    ss = _steady(model, steady, form)
+    A, B, F = ss.A, ss.B, model.F
+    T = z.shape[0]
+    xs = np.empty((T, model.n))
+    if missing.any():
+        for k in range(T):
+            x = F @ x if missing[k] else A @ x + B @ z[k]
+            xs[k] = x
+    else:
+        Bz = z @ B.T
+        for k in range(T):
+            x = A @ x + Bz[k]
+            xs[k] = x
+    if covariance == "steady":
+        Ps = np.broadcast_to(ss.P_filt, (T, model.n, model.n))
+    else:
+        Ps = np.empty((T, model.n, model.n))
+        IKH = np.eye(model.n) - ss.K @ model.H
+        KRK = ss.K @ model.R @ ss.K.T
+        for k in range(T):
+            P = F @ P @ F.T + model.Q
+            if not missing[k]:
+                P = IKH @ P @ IKH.T + KRK
+            Ps[k] = 0.5 * (P + P.T)
+    name = "SSKF" if ss.form == "kalman" else "SSLF"
+    return FilterResult(x=xs, P=Ps, method=name)
+
+
+def _matrix_norm(M: np.ndarray, norm) -> float:
+    return float(np.linalg.norm(M, norm))
+
+
+def fir_order(A, eps: float = 1e-3, norm=2, max_order: int = 100_000) -> int:
+    """FIR order M: the smallest M with ||A^M|| < eps (so ||A^{M-1}|| >= eps), seed 000 eq. 22.
+
+    ``norm`` is any ``numpy.linalg.norm`` matrix order (2, 'fro', 1, inf, ...).
+    The papers' example (eps = 1e-3, spectral norm) gives M = 17.
+    """
+    A = np.asarray(A, dtype=float)
+    eps = check_positive("eps", eps)
+    max_order = check_int("max_order", max_order, minimum=1)
+    rho = max(abs(np.linalg.eigvals(A))) if A.size else 0.0
+    if rho >= 1.0:
+        raise ConvergenceError(
+            f"A: spectral radius {rho:.6g} >= 1, ||A^M|| never falls below eps; the FIR form does not exist")
+    power = np.eye(A.shape[0])
+    for M in range(0, max_order + 1):
+        if _matrix_norm(power, norm) < eps:
+            return M
+        power = power @ A
+    raise ConvergenceError(f"max_order: ||A^M|| is still >= {eps:g} at M = {max_order}")
+
+
+def fir_coefficients(A, B, M: int) -> np.ndarray:
+    """The FIR impulse response C_j = A^j B, j = 0..M-1, as an (M, n, m) array."""
+    C = np.empty((M,) + np.shape(B))
+    C[0] = B
+    for j in range(1, M):
+        C[j] = A @ C[j - 1]
+    return C
+
+
+def fir_filter(model: LinearGaussianModel, z, x0=None, P0=None, *, eps: float = 1e-3, norm=2,
+               M: int | None = None, steady: SteadyState | None = None,
+               warmup: Literal["truncate", "steady-state"] = "truncate") -> FilterResult:
+    """FIR steady-state filter x(k/k) = sum_{j<M} A^j B z(k-j) (seed 000 eq. 22).
+
+    M       filter order; by default from ||A^M|| < eps in the given matrix ``norm``
+    warmup  for k < M, "truncate" uses the measurements available so far
+            (with x0 = 0 this equals the steady-state filter exactly) and
+            "steady-state" runs the recursive steady-state filter from x0 there.
+    The FIR form needs a complete measurement window: NaN is an error.
+    The covariance reported is the steady-state Pe.
+    """
+    z, x0, P0, missing = prepare_inputs(model, z, x0, P0)
+    if missing.any():
+        k = int(np.argmax(missing))
+        raise NonFiniteError(f"z: the FIR filter needs every measurement; row {k} has NaN "
+                             "(use steady_state_filter, which predicts through gaps)")
+    if warmup not in ("truncate", "steady-state"):
+        raise ParameterError(f"warmup: expected 'truncate' or 'steady-state', got {warmup!r}")
+    ss = _steady(model, steady, "kalman")
+    M = fir_order(ss.A, eps, norm) if M is None else check_int("M", M, minimum=1)
+    C = fir_coefficients(ss.A, ss.B, M)
+    T = z.shape[0]
+    xs = np.zeros((T, model.n))
+    for j in range(min(M, T)):
+        xs[j:] += z[: T - j] @ C[j].T
+    if warmup == "steady-state":
+        head = min(M - 1, T)
+        if head:
+            xs[:head] = steady_state_filter(model, z[:head], x0, steady=ss).x
+    Ps = np.broadcast_to(ss.P_filt, (T, model.n, model.n))
+    return FilterResult(x=xs, P=Ps, method="FIR")

@@ -1,0 +1,119 @@
+"""The immutable linear-Gaussian state-space model.
+
+    x(k+1) = F x(k) + w(k),   w ~ N(0, Q)      (Q = G Qw G^T when given as G, Qw)
+    z(k)   = H x(k) + v(k),   v ~ N(0, R)
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import scipy.linalg
+
+from .._validation import as_matrix, check_covariance
+from ..errors import ShapeError
+
+__all__ = ["LinearGaussianModel", "stack_axes"]
+
+
+def _frozen(arr: np.ndarray) -> np.ndarray:
+    arr = np.array(arr, dtype=np.float64, copy=True)
+    arr.setflags(write=False)
+    return arr
+
+
+@dataclass(frozen=True, eq=False)
+class LinearGaussianModel:
+    """A validated, immutable linear-Gaussian model (F, H, Q, R).
+
+    Give the process noise either as ``Q`` (n x n) or as a noise gain ``G``
+    (n x p) with the noise covariance ``Qw`` (p x p), in which case
+    ``Q = G Qw G^T`` is formed and ``G``/``Qw`` are kept for noise sampling
+    and for the papers' formulas written with ``G Q G^T``.
+
+    Arrays are copied and made read-only.  ``dt`` (seconds) and ``name`` are
+    descriptive metadata.
+    """
+
+    F: np.ndarray
+    H: np.ndarray
+    Q: np.ndarray | None
+    R: np.ndarray
+    G: np.ndarray | None = field(default=None, kw_only=True)
+    Qw: np.ndarray | None = field(default=None, kw_only=True)
+    dt: float | None = field(default=None, kw_only=True)
+    name: str = field(default="", kw_only=True)
+
+    def __post_init__(self) -> None:
+        F = as_matrix("F", self.F)
+        n = F.shape[0]
+        if F.shape != (n, n):
+            raise ShapeError(f"F: expected a square matrix, got shape {F.shape}")
+        H = as_matrix("H", self.H, None, n)
+        m = H.shape[0]
+        R = check_covariance("R", self.R, m, definite=True)
+        if (self.G is None) != (self.Qw is None):
+            raise ShapeError("G and Qw: give both (Q = G Qw G^T) or neither")
+        G = Qw = None
+        if self.G is not None:
+            G = as_matrix("G", self.G, n, None)
+            Qw = check_covariance("Qw", self.Qw, G.shape[1])
+            Q_from_g = G @ Qw @ G.T
+            Q_from_g = 0.5 * (Q_from_g + Q_from_g.T)
+            if self.Q is not None:
+                Q = check_covariance("Q", self.Q, n)
+                if not np.allclose(Q, Q_from_g, rtol=1e-10, atol=1e-14):
+                    raise ShapeError("Q: disagrees with G Qw G^T; give Q or (G, Qw), not both")
+            Q = Q_from_g
+        elif self.Q is None:
+            raise ShapeError("Q: the process noise is missing; give Q or (G, Qw)")
+        else:
+            Q = check_covariance("Q", self.Q, n)
+        for attr, value in (("F", F), ("H", H), ("Q", Q), ("R", R), ("G", G), ("Qw", Qw)):
+            object.__setattr__(self, attr, None if value is None else _frozen(value))
+        if self.dt is not None:
+            object.__setattr__(self, "dt", float(self.dt))
+
+    @classmethod
+    def from_noise_gain(cls, F, H, G, Qw, R, **meta) -> "LinearGaussianModel":
+        """Build the model with ``Q = G Qw G^T`` (the papers' ``G Q G^T``)."""
+        return cls(F, H, None, R, G=G, Qw=Qw, **meta)
+
+    @property
+    def n(self) -> int:
+        """State dimension."""
+        return self.F.shape[0]
+
+    @property
+    def m(self) -> int:
+        """Measurement dimension."""
+        return self.H.shape[0]
+
+    def noise_factor(self) -> np.ndarray:
+        """A matrix L with L L^T = Q (the noise gain times chol(Qw) when available)."""
+        if self.G is not None:
+            w, V = np.linalg.eigh(self.Qw)
+            return self.G @ (V * np.sqrt(np.clip(w, 0.0, None)))
+        w, V = np.linalg.eigh(self.Q)
+        return V * np.sqrt(np.clip(w, 0.0, None))
+
+    def __repr__(self) -> str:
+        label = f" {self.name!r}" if self.name else ""
+        return f"<LinearGaussianModel{label} n={self.n} m={self.m} dt={self.dt}>"
+
+
+def stack_axes(axis_model: LinearGaussianModel, axes: int, *, name: str = "") -> LinearGaussianModel:
+    """The joint model of ``axes`` independent copies of ``axis_model`` (block-diagonal).
+
+    The state is ordered axis by axis: ``[x_axis0, x_axis1, ...]``; this is how
+    the papers' model A arises from model B (seed 000 eq. 17-18).
+    """
+    blocks = lambda M: scipy.linalg.block_diag(*([M] * axes))  # noqa: E731
+    kwargs = dict(dt=axis_model.dt, name=name or f"{axes} x {axis_model.name or 'axis model'}")
+    if axis_model.G is not None:
+        return LinearGaussianModel.from_noise_gain(
+            blocks(axis_model.F), blocks(axis_model.H), blocks(axis_model.G),
+            blocks(axis_model.Qw), blocks(axis_model.R), **kwargs)
+    return LinearGaussianModel(blocks(axis_model.F), blocks(axis_model.H),
+                               blocks(axis_model.Q), blocks(axis_model.R), **kwargs)

@@ -1,0 +1,47 @@
+"""The Lainiotis parameters (seed 000 eq. 7), shared by the LF and the RELF."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import SingularMatrixError
+from ..models import LinearGaussianModel
+
+__all__ = ["LainiotisParameters", "lainiotis_parameters"]
+
+
+@dataclass(frozen=True, eq=False)
+class LainiotisParameters:
+    """Off-line quantities of the Lainiotis filter (seed 000 eq. 7).
+
+    A  = [H Q H^T + R]^{-1}     (Q is the papers' G Q G^T)
+    Kn = Q H^T A,   Km = F^T H^T A,   Pn = Q - Kn H Q,
+    Fn = F - Kn H F,   On = F^T H^T A H F.
+    """
+
+    A: np.ndarray
+    Kn: np.ndarray
+    Km: np.ndarray
+    Pn: np.ndarray
+    Fn: np.ndarray
+    On: np.ndarray
+
+
+def lainiotis_parameters(model: LinearGaussianModel) -> LainiotisParameters:
+    F, H, Q, R = model.F, model.H, model.Q, model.R
+    S = H @ Q @ H.T + R
+    try:
+        A = np.linalg.inv(S)
+    except np.linalg.LinAlgError:  # pragma: no cover - R is validated positive definite
+        raise SingularMatrixError("model: H Q H^T + R is singular") from None
+    A = 0.5 * (A + A.T)
+    Kn = Q @ H.T @ A
+    Km = F.T @ H.T @ A
+    Pn = Q - Kn @ H @ Q
+    Pn = 0.5 * (Pn + Pn.T)
+    Fn = F - Kn @ H @ F
+    On = F.T @ H.T @ A @ H @ F
+    On = 0.5 * (On + On.T)
+    return LainiotisParameters(A=A, Kn=Kn, Km=Km, Pn=Pn, Fn=Fn, On=On)

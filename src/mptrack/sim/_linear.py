@@ -1,0 +1,34 @@
+"""Sampling a linear-Gaussian model."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .._validation import as_vector, check_int
+from ..errors import ParameterError
+from ..models import LinearGaussianModel
+
+__all__ = ["simulate_linear"]
+
+
+def simulate_linear(model: LinearGaussianModel, steps: int, rng: np.random.Generator,
+                    x0=None) -> tuple[np.ndarray, np.ndarray]:
+    """Sample x(k+1) = F x(k) + w(k), z(k) = H x(k) + v(k) for k = 1..steps.
+
+    x0 is the initial state x(0) (default 0).  Returns (truth (steps, n),
+    measurements (steps, m)); row k-1 holds time k, matching the filters'
+    convention that the prior is x(0/0) and z[0] = z(1).
+    """
+    if not isinstance(rng, np.random.Generator):
+        raise ParameterError(f"rng: expected a numpy.random.Generator, got {type(rng).__name__}")
+    steps = check_int("steps", steps, minimum=1)
+    x = np.zeros(model.n) if x0 is None else as_vector("x0", x0, model.n)
+    Lq = model.noise_factor()
+    Lr = np.linalg.cholesky(model.R)
+    w = rng.standard_normal((steps, Lq.shape[1])) @ Lq.T
+    v = rng.standard_normal((steps, model.m)) @ Lr.T
+    truth = np.empty((steps, model.n))
+    for k in range(steps):
+        x = model.F @ x + w[k]
+        truth[k] = x
+    return truth, truth @ model.H.T + v
