@@ -1,0 +1,41 @@
+"""Benchmark suites run by ``mptrack bench``.
+
+A suite is ``fn(quick: bool) -> dict`` returning ``{"suite", "title",
+"columns", "rows", "notes"}``; modules in this package register theirs with
+:func:`register_suite`.  Every suite measures its ratios in the same run
+(against a memory-copy baseline and/or peers), never against stored numbers.
+"""
+
+from __future__ import annotations
+
+import importlib
+import pkgutil
+from typing import Callable
+
+from ..errors import UnknownNameError
+
+__all__ = ["register_suite", "suites", "run_suites"]
+
+_SUITES: dict[str, Callable[[bool], dict]] = {}
+
+
+def register_suite(name: str):
+    def deco(fn: Callable[[bool], dict]):
+        _SUITES[name] = fn
+        return fn
+    return deco
+
+
+def suites() -> dict[str, Callable[[bool], dict]]:
+    for mod in pkgutil.iter_modules(__path__):
+        if not mod.name.startswith("_"):
+            importlib.import_module(f"{__name__}.{mod.name}")
+    return dict(_SUITES)
+
+
+def run_suites(names, quick: bool = False) -> list[dict]:
+    reg = suites()
+    unknown = [n for n in names if n not in reg]
+    if unknown:
+        raise UnknownNameError(f"suite: unknown {unknown}; known: {', '.join(reg)}")
+    return [reg[n](quick) for n in names]

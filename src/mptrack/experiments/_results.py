@@ -1,0 +1,120 @@
+"""The record a paper reproduction returns, its results.json (see RESULTS.md) and its printout."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from .. import __version__
+from .._io import write_json
+
+__all__ = ["Table", "Reproduction", "differences"]
+
+
+def _same(ours: Any, paper: Any, rtol: float, atol: float) -> bool:
+    if paper is None:
+        return True
+    if isinstance(ours, (int, float)) and isinstance(paper, (int, float)) and not isinstance(ours, bool):
+        if not (math.isfinite(ours) and math.isfinite(paper)):
+            return ours == paper
+        return abs(ours - paper) <= atol + rtol * abs(paper)
+    return ours == paper
+
+
+@dataclass
+class Table:
+    """One table: our ``rows`` beside the ``paper``'s (same shape, None where unpublished).
+
+    ``rtol``/``atol`` say how close a number must be to count as reproduced
+    (exact by default, for counts such as flops); they are written to JSON so a
+    reader knows what "matches" meant.
+    """
+
+    title: str
+    columns: list[str]
+    rows: list[list[Any]]
+    paper: list[list[Any]] | None = None
+    notes: str = ""
+    rtol: float = 0.0
+    atol: float = 0.0
+
+    def __post_init__(self) -> None:
+        for row in self.rows:
+            if len(row) != len(self.columns):
+                raise ValueError(f"table {self.title!r}: row {row!r} does not have {len(self.columns)} cells")
+        if self.paper is not None:
+            if len(self.paper) != len(self.rows) or any(len(p) != len(r) for p, r in zip(self.paper, self.rows)):
+                raise ValueError(f"table {self.title!r}: paper values must have the shape of rows")
+
+    def mismatches(self) -> list[tuple[int, int]]:
+        """(row, column) cells where our number differs from the published one."""
+        if self.paper is None:
+            return []
+        return [(i, j) for i, (r, p) in enumerate(zip(self.rows, self.paper))
+                for j, (a, b) in enumerate(zip(r, p)) if j > 0 and not _same(a, b, self.rtol, self.atol)]
+
+    def to_json(self) -> dict:
+        out: dict[str, Any] = {"title": self.title, "columns": self.columns, "rows": _clean(self.rows)}
+        if self.paper is not None:
+            out["paper"] = _clean(self.paper)
+            out["tolerance"] = {"rtol": self.rtol, "atol": self.atol}
+            out["mismatches"] = [list(c) for c in self.mismatches()]
+        if self.notes:
+            out["notes"] = self.notes
+        return out
+
+
+def _clean(value):
+    """Plain JSON numbers: numpy scalars to Python, floats rounded to 12 significant digits."""
+    if isinstance(value, (list, tuple)):
+        return [_clean(v) for v in value]
+    if hasattr(value, "item") and not isinstance(value, (str, bytes)):
+        value = value.item()
+    if isinstance(value, float):
+        if not math.isfinite(value):
+            return None
+        return float(f"{value:.12g}")
+    return value
+
+
+@dataclass
+class Reproduction:
+    """Everything a reproduction produced; ``write`` stores results.json atomically."""
+
+    key: str
+    paper: str
+    seed: int | None
+    parameters: dict[str, Any]
+    tables: dict[str, Table] = field(default_factory=dict)
+    figures: dict[str, str] = field(default_factory=dict)
+    notes: list[str] = field(default_factory=list)
+    elapsed_s: float = 0.0
+
+    def to_json(self) -> dict:
+        out = {
+            "key": self.key,
+            "paper": self.paper,
+            "mptrack_version": __version__,
+            "seed": self.seed,
+            "parameters": _clean_dict(self.parameters),
+            "tables": {k: t.to_json() for k, t in self.tables.items()},
+            "figures": dict(self.figures),
+            "elapsed_s": round(self.elapsed_s, 3),
+        }
+        if self.notes:
+            out["notes"] = list(self.notes)
+        return out
+
+    def write(self, out_dir: str | Path) -> Path:
+        return write_json(Path(out_dir) / "results.json", self.to_json())
+
+
+def _clean_dict(d: dict) -> dict:
+    return {k: (_clean_dict(v) if isinstance(v, dict) else _clean(v)) for k, v in d.items()}
+
+
+def differences(rep: Reproduction) -> dict[str, list[tuple[int, int]]]:
+    """Tables with cells that differ from the paper."""
+    return {k: t.mismatches() for k, t in rep.tables.items() if t.mismatches()}
