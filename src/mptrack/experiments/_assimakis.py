@@ -238,7 +238,7 @@ def _figures(ctx: RunContext, model, truth, z, results, axes) -> dict[str, str]:
         for name in ("SSKF-A", "SSLF-A", "JSSKLF-A"):
             ax.plot(t, results[name].x[:, idx], "--", lw=1, label=name)
         ax.set_ylabel(label)
-    axs[0].legend(ncol=3, fontsize=7)
+    axs[0].legend(ncol=4, fontsize=6, loc="best", framealpha=0.6)
     axs[1].set_xlabel("time step k")
     fig.suptitle("Figure 1: estimation, solid KF/LF/JKLF, dashed SSKF/SSLF/JSSKLF (model A)")
     figures["Figure 1"] = save_figure(fig, ctx.figure_path("figure1.png"))
