@@ -71,7 +71,7 @@ def _matrix_norm(M: np.ndarray, norm) -> float:
 
 
 def fir_order(A, eps: float = 1e-3, norm=2, max_order: int = 100_000) -> int:
-    """FIR order M: the smallest M with ||A^M|| < eps (so ||A^{M-1}|| >= eps), seed 000 eq. 22.
+    """FIR order M: the smallest M >= 1 with ||A^M|| < eps (so ||A^{M-1}|| >= eps), seed 000 eq. 22.
 
     ``norm`` is any ``numpy.linalg.norm`` matrix order (2, 'fro', 1, inf, ...).
     The papers' example (eps = 1e-3, spectral norm) gives M = 17.
@@ -83,8 +83,8 @@ def fir_order(A, eps: float = 1e-3, norm=2, max_order: int = 100_000) -> int:
     if rho >= 1.0:
         raise ConvergenceError(
             f"A: spectral radius {rho:.6g} >= 1, ||A^M|| never falls below eps; the FIR form does not exist")
-    power = np.eye(A.shape[0])
-    for M in range(0, max_order + 1):
+    power = A.copy()
+    for M in range(1, max_order + 1):  # M >= 1: eq. 22 with M = 0 would be an empty sum
         if _matrix_norm(power, norm) < eps:
             return M
         power = power @ A
