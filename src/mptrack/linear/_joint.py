@@ -25,7 +25,7 @@ def per_axis(run: Callable[..., FilterResult], axis_model: LinearGaussianModel, 
 
     z   (T, axes * m_axis) measurements, axis by axis (columns [z_x, z_y, ...])
     x0  (axes * n_axis,) prior, axis by axis;  P0 block-diagonal (off-diagonal
-        blocks must be zero: the axes are independent in model B)
+        blocks must be zero to rounding, 1e-12 relative: the axes are independent)
     The joint state is [x_axis0, x_axis1, ...] with a block-diagonal covariance
     (seed 000 eqs. 17-18).
     """
