@@ -28,9 +28,9 @@ def sampling_intervals(times, t0: float = 0.0) -> np.ndarray:
     bad = np.flatnonzero(dts <= 0)
     if bad.size:
         k = int(bad[0])
-        before = t0 if k == 0 else t[k - 1]
+        before = t0 if k == 0 else float(t[k - 1])
         where = "t0" if k == 0 else f"times[{k - 1}]"
-        raise ParameterError(f"times: time stamps must increase strictly; times[{k}] = {t[k]!r} "
+        raise ParameterError(f"times: time stamps must increase strictly; times[{k}] = {float(t[k])!r} "
                              f"is not after {where} = {before!r}")
     return dts
 
