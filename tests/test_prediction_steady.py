@@ -11,7 +11,6 @@ from mptrack.linear import (
     predict_ahead,
     prediction_covariance,
     prediction_matrices,
-    steady_state_burden,
     steady_state_filter,
     steady_state_predictor,
 )
@@ -151,12 +150,6 @@ def test_forms_agree_for_random_cv_models(dt, q, r, N):
     np.testing.assert_allclose(a.x, b.x, rtol=0, atol=1e-8 * max(1.0, np.max(np.abs(b.x))))
 
 
-def test_burden_table_2():
-    assert steady_state_burden(2, 1) == 10   # CB_v
-    assert steady_state_burden(3, 1) == 21   # CB_a
-    assert steady_state_burden(4, 2) == 44
-
-
 @pytest.mark.parametrize("call,exc,match", [
     (lambda: steady_state_predictor(MODELS["cv"], np.zeros((5, 1)), 0), ParameterError, "N"),
     (lambda: steady_state_predictor(MODELS["cv"], np.zeros((5, 1)), -2), ParameterError, "N"),
@@ -167,7 +160,6 @@ def test_burden_table_2():
     (lambda: steady_state_predictor(MODELS["cv"], np.zeros((5, 1)), 1, method="magic"), ParameterError,
      "method"),
     (lambda: steady_state_predictor("cv", np.zeros((5, 1)), 1), ParameterError, "model"),
-    (lambda: steady_state_burden(0, 1), ParameterError, "n"),
 ])
 def test_bad_input(call, exc, match):
     with pytest.raises(exc, match=match):

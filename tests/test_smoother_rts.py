@@ -126,3 +126,12 @@ def test_bad_input():
         rts_smoother(model, res.x)
     with pytest.raises(ParameterError, match="model"):
         steady_state_smoother(None, res)
+
+
+def test_rts_on_the_steady_state_filter_has_the_steady_gains():
+    model = constant_acceleration(1.0, 0.01, 1, sigma_r2=0.1)
+    ss = steady_state(model)
+    _, z = simulate_linear(model, 60, np.random.default_rng(6))
+    filt = steady_state_filter(model, z, steady=ss)
+    np.testing.assert_allclose(rts_smoother(model, filt).x, steady_state_smoother(model, filt, steady=ss).x,
+                               rtol=1e-10, atol=1e-10)

@@ -39,7 +39,6 @@ from ._prediction import (
     predict_ahead,
     prediction_covariance,
     prediction_matrices,
-    steady_state_burden,
     steady_state_predictor,
 )
 from ._smoother import rts_smoother, steady_state_smoother
@@ -49,7 +48,6 @@ __all__ += [
     "prediction_matrices",
     "prediction_covariance",
     "predict_ahead",
-    "steady_state_burden",
     "rts_smoother",
     "steady_state_smoother",
     "kalman_filter_irregular",

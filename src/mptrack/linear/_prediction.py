@@ -25,6 +25,7 @@ from ..errors import ParameterError, ShapeError, SingularMatrixError
 from ..models import LinearGaussianModel
 from ..riccati import SteadyState
 from ._common import prepare_inputs
+from ._kernels import ss_loop
 from ._result import FilterResult
 from ._steady import _steady, steady_state_filter
 
@@ -33,7 +34,6 @@ __all__ = [
     "prediction_covariance",
     "steady_state_predictor",
     "predict_ahead",
-    "steady_state_burden",
 ]
 
 
@@ -106,7 +106,7 @@ def steady_state_predictor(model: LinearGaussianModel, z, N: int = 1, x0=None, *
     N = check_int("N", N, minimum=1)
     if method not in ("recursive", "inverse-free"):
         raise ParameterError(f"method: expected 'recursive' or 'inverse-free', got {method!r}")
-    z, x0, _, missing = prepare_inputs(model, z, x0, None)
+    z, x0, _, _ = prepare_inputs(model, z, x0, None)
     ss = _steady(model, steady, "kalman")
     T, n = z.shape[0], model.n
     FN = np.linalg.matrix_power(model.F, N)
@@ -114,12 +114,10 @@ def steady_state_predictor(model: LinearGaussianModel, z, N: int = 1, x0=None, *
         xs = steady_state_filter(model, z, x0, steady=ss).x @ FN.T
     else:
         A, B = prediction_matrices(model, N, steady=ss)
-        x = FN @ x0  # x(N/0)
         xs = np.empty((T, n))
-        for k in range(T):
-            # a missing z(k): x(k/k) = x(k/k-1), so x(k+N/k) = F x(k+N-1/k-1)
-            x = model.F @ x if missing[k] else A @ x + B @ z[k]
-            xs[k] = x
+        # eq. 19 is the steady-state filter's recursion with (A_N, B_N), from x(N/0) = F^N x0;
+        # a missing z(k) gives x(k/k) = x(k/k-1), so x(k+N/k) = F x(k+N-1/k-1)
+        ss_loop(A, B, model.F, z, FN @ x0, xs)
     P = np.broadcast_to(prediction_covariance(model, ss.P_filt, N), (T, n, n))
     return FilterResult(x=xs, P=P, method=f"SS-predictor(N={N})")
 
@@ -142,13 +140,3 @@ def predict_ahead(model: LinearGaussianModel, result: FilterResult, N: int) -> F
     return FilterResult(x=result.x @ FN.T, P=prediction_covariance(model, result.P, N),
                         method=f"{result.method}-predict(N={N})")
 
-
-def steady_state_burden(n: int, m: int) -> int:
-    """Per-iteration flops of the steady-state filter or N-step predictor, 2n^2 + 2nm - n
-    (seed 001 Table 2: A x costs 2n^2 - n, B z costs 2nm - n, the sum n).
-
-    Independent of N.  CV (n = 2, m = 1): 10; CA (n = 3, m = 1): 21.
-    """
-    n = check_int("n", n, minimum=1)
-    m = check_int("m", m, minimum=1)
-    return 2 * n * n + 2 * n * m - n
