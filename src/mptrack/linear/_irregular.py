@@ -9,7 +9,7 @@ from .._validation import as_array, as_sequence, as_vector, check_covariance
 from ..errors import ParameterError, ShapeError
 from ..models import ContinuousLinearModel
 from ..models._continuous import _van_loan
-from ._kalman import kalman_step
+from ._kernels import kf_loop
 from ._result import FilterResult
 
 __all__ = ["kalman_filter_irregular", "sampling_intervals"]
@@ -45,8 +45,10 @@ def kalman_filter_irregular(model: ContinuousLinearModel, times, z, x0=None, P0=
     x0, P0  the prior x(0/0), P(0/0) at time t0 (default zeros)
 
     Each step uses F = e^{Phi dt(k)}, Q = int_0^dt(k) e^{Phi s} L Qc L^T e^{Phi^T s} ds
-    (seed 001 sec. 2, Van Loan's method), cached per distinct interval.  With
-    equal intervals dt this is :func:`kalman_filter` on ``model.discretize(dt)``.
+    (seed 001 sec. 2, Van Loan's method), cached per distinct interval; each run
+    of equal intervals goes through the compiled KF loop of :func:`kalman_filter`
+    in one call.  With equal intervals dt this is :func:`kalman_filter` on
+    ``model.discretize(dt)``.
     """
     if not isinstance(model, ContinuousLinearModel):
         raise ParameterError(f"model: expected a ContinuousLinearModel, got {type(model).__name__}")
@@ -56,18 +58,20 @@ def kalman_filter_irregular(model: ContinuousLinearModel, times, z, x0=None, P0=
         raise ShapeError(f"z: expected {dts.shape[0]} rows (one per time stamp), got shape {z.shape}")
     x = np.zeros(model.n) if x0 is None else as_vector("x0", x0, model.n)
     P = np.zeros((model.n, model.n)) if P0 is None else check_covariance("P0", P0, model.n)
+    z = np.ascontiguousarray(z)
     T, n = z.shape[0], model.n
     xs, Ps = np.empty((T, n)), np.empty((T, n, n))
     xp, Pp = np.empty((T, n)), np.empty((T, n, n))
     LQL = model.L @ model.Qc @ model.L.T
     cache: dict[float, tuple[np.ndarray, np.ndarray]] = {}
     loglik = 0.0
-    for k in range(T):
-        dt = float(dts[k])
+    # runs of equal intervals share (F, Q) and go through the compiled KF loop in one call
+    bounds = np.concatenate(([0], np.flatnonzero(np.diff(dts)) + 1, [T]))
+    for a, b in zip(bounds[:-1], bounds[1:]):
+        dt = float(dts[a])
         if dt not in cache:
             cache[dt] = _van_loan(model.Phi, LQL, dt)
         F, Q = cache[dt]
-        x, P, xp[k], Pp[k], ll = kalman_step(F, model.H, Q, model.R, x, P, z[k], joseph)
-        xs[k], Ps[k] = x, P
-        loglik += ll
+        loglik += kf_loop(F, model.H, Q, model.R, z[a:b], x, P, bool(joseph), xs[a:b], Ps[a:b], xp[a:b], Pp[a:b])
+        x, P = xs[b - 1], Ps[b - 1]
     return FilterResult(x=xs, P=Ps, x_pred=xp, P_pred=Pp, loglik=float(loglik), method="KF-irregular")

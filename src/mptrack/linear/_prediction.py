@@ -18,7 +18,6 @@ from __future__ import annotations
 from typing import Literal
 
 import numpy as np
-import scipy.linalg
 
 from .._validation import check_int
 from ..errors import ParameterError, ShapeError, SingularMatrixError
@@ -71,7 +70,7 @@ def prediction_matrices(model: LinearGaussianModel, N: int, *,
                 f"A_N = F^N (I - KH) F^-(N-1) of seed 001 eq. 20 needs F^-1 for N = {N} >= 2 "
                 "because the recursion keeps x(k+N-1/k-1) instead of x(k/k); "
                 "use method='inverse-free' (x(k+N/k) = F^N x(k/k)) or predict_ahead")
-        A = scipy.linalg.solve(FN1.T, A.T).T  # A F^-(N-1)
+        A = np.linalg.solve(FN1.T, A.T).T  # A F^-(N-1)
     return A, FN @ K
 
 

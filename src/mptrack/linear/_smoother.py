@@ -33,13 +33,21 @@ def _check(model, result) -> None:
         raise ShapeError(f"result: state dimension {result.n} does not match the model's n = {model.n}")
 
 
-def _smoother_gain(P_filt: np.ndarray, F: np.ndarray, P_pred: np.ndarray) -> np.ndarray:
-    """C = P_filt F^T P_pred^{-1}; a pseudo-inverse where P_pred is singular (zero prior, rank-deficient Q)."""
+def _smoother_gains(P_filt: np.ndarray, F: np.ndarray, P_pred: np.ndarray) -> np.ndarray:
+    """C = P_filt F^T P_pred^{-1} for a stack (T, n, n) or a single (n, n).
+
+    One batched solve when every P_pred is positive definite (Cholesky succeeds);
+    otherwise, per matrix, a pseudo-inverse where P_pred is singular (zero prior,
+    rank-deficient Q).
+    """
     PFt = P_filt @ F.T
     try:
-        return scipy.linalg.solve(P_pred, PFt.T, assume_a="pos").T
-    except (np.linalg.LinAlgError, scipy.linalg.LinAlgError):
-        return PFt @ np.linalg.pinv(P_pred)
+        np.linalg.cholesky(P_pred)
+        return np.swapaxes(np.linalg.solve(P_pred, np.swapaxes(PFt, -1, -2)), -1, -2)
+    except np.linalg.LinAlgError:
+        if P_pred.ndim == 2:
+            return PFt @ np.linalg.pinv(P_pred, hermitian=True)
+        return np.stack([_smoother_gains(a, F, b) for a, b in zip(P_filt, P_pred)])
 
 
 def rts_smoother(model: LinearGaussianModel, result: FilterResult) -> FilterResult:
@@ -55,17 +63,19 @@ def rts_smoother(model: LinearGaussianModel, result: FilterResult) -> FilterResu
     """
     _check(model, result)
     F, Q = model.F, model.Q
-    T, n = result.T, result.n
-    xs = np.array(result.x, dtype=float)
-    Ps = np.array(result.P, dtype=float)
+    T = result.T
+    x_filt = np.asarray(result.x, dtype=float)
+    P_filt = np.asarray(result.P, dtype=float)
+    # off the backward loop: x(k+1/k), P(k+1/k) and the gains C(k) for k = 1..T-1
+    x_pred = x_filt[:-1] @ F.T
+    P_pred = F @ P_filt[:-1] @ F.T + Q
+    P_pred = 0.5 * (P_pred + np.swapaxes(P_pred, -1, -2))
+    C = _smoother_gains(P_filt[:-1], F, P_pred)
+    xs = x_filt.copy()
+    Ps = P_filt.copy()
     for k in range(T - 2, -1, -1):
-        P_filt = Ps[k]
-        x_pred = F @ result.x[k]
-        P_pred = F @ P_filt @ F.T + Q
-        P_pred = 0.5 * (P_pred + P_pred.T)
-        C = _smoother_gain(P_filt, F, P_pred)
-        xs[k] = result.x[k] + C @ (xs[k + 1] - x_pred)
-        P = P_filt + C @ (Ps[k + 1] - P_pred) @ C.T
+        xs[k] = x_filt[k] + C[k] @ (xs[k + 1] - x_pred[k])
+        P = P_filt[k] + C[k] @ (Ps[k + 1] - P_pred[k]) @ C[k].T
         Ps[k] = 0.5 * (P + P.T)
     return FilterResult(x=xs, P=Ps, method="RTS")
 
@@ -83,7 +93,7 @@ def steady_state_smoother(model: LinearGaussianModel, result: FilterResult, *,
     _check(model, result)
     ss = _steady(model, steady, "kalman")
     F, Pe, Pp = model.F, ss.P_filt, ss.P_pred
-    C = _smoother_gain(Pe, F, Pp)
+    C = _smoother_gains(Pe, F, Pp)
     T = result.T
     xs = np.array(result.x, dtype=float)
     x_pred = result.x @ F.T  # row k: x(k+1/k) = F x(k/k)

@@ -106,7 +106,7 @@ def _van_loan(Phi: np.ndarray, LQL: np.ndarray, dt: float) -> tuple[np.ndarray, 
     M[:n, n:] = LQL
     M[n:, n:] = Phi.T
     E = scipy.linalg.expm(M * dt)
-    F = E[n:, n:].T
+    F = np.ascontiguousarray(E[n:, n:].T)
     Q = F @ E[:n, n:]
     return F, 0.5 * (Q + Q.T)
 
