@@ -1,5 +1,5 @@
 """Speed of N-step prediction (seed 001), RTS smoothing and irregular-time filtering on the
-2-D constant-velocity model, against FilterPy's and pykalman's smoothers, in one run."""
+2-D constant-velocity model, against FilterPy's RTS smoother, in one run."""
 
 from __future__ import annotations
 
@@ -29,17 +29,6 @@ def _filterpy_rts(model, kf):
     smoother = KalmanFilter(dim_x=model.n, dim_z=model.m)
     smoother.F, smoother.Q = np.array(model.F), np.array(model.Q)
     return smoother.rts_smoother(kf.x, kf.P)[0]
-
-
-def _pykalman_smooth(model, z, x0, P0):
-    from pykalman import KalmanFilter
-
-    # pykalman's prior is x(1/0): predict our x(0/0) once.
-    kf = KalmanFilter(transition_matrices=model.F, observation_matrices=model.H,
-                      transition_covariance=model.Q, observation_covariance=model.R,
-                      initial_state_mean=model.F @ x0,
-                      initial_state_covariance=model.F @ P0 @ model.F.T + model.Q)
-    return kf.smooth(z)[0]
 
 
 @register_suite("prediction")
@@ -73,9 +62,7 @@ def prediction_suite(quick: bool) -> dict:
         t = _best(fn, repeats)
         rows.append([name, t / steps * 1e6, steps / t, t / t_ss, None])
     t_rts = _best(lambda: rts_smoother(model, kf), repeats)
-    peers = (("FilterPy KalmanFilter.rts_smoother", lambda: _filterpy_rts(model, kf)),
-             ("pykalman KalmanFilter.smooth (filter + smoother)", lambda: _pykalman_smooth(model, z, x0, P0)))
-    for name, fn in peers:
+    for name, fn in (("FilterPy KalmanFilter.rts_smoother", lambda: _filterpy_rts(model, kf)),):
         try:
             peer = fn()
         except ImportError:

@@ -154,12 +154,7 @@ def _single_run(kind: str, motion, seed: int, index: int) -> dict:
 
 
 def _plot_run(path, run: dict, kind: str, N: int, title: str) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    from .._io import atomic_path
+    from ._plotting import plt, save_figure
 
     truth = run["truth"]
     est = run["estimate"] if N == 0 else run["predictions"][N]
@@ -181,9 +176,7 @@ def _plot_run(path, run: dict, kind: str, N: int, title: str) -> None:
     bottom.set_ylim(np.percentile(est - s, 1) * 1.5, np.percentile(est - s, 99) * 1.5)
     top.set_title(title)
     fig.tight_layout()
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=110, format="png")
-    plt.close(fig)
+    save_figure(fig, path, dpi=110)
 
 
 # ---------------------------------------------------------------- sweeps
@@ -226,12 +219,7 @@ def _sweep(ctx: RunContext, name: str, runs: int, motions: dict) -> dict:
 
 
 def _plot_sweep(path, name: str, data: dict) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    from .._io import atomic_path
+    from ._plotting import plt, save_figure
 
     spec = SWEEPS[name]
     x = spec["values"]
@@ -251,18 +239,11 @@ def _plot_sweep(path, name: str, data: dict) -> None:
     left.legend(fontsize=7)
     fig.suptitle(f"Seed 001 sweep over {name} ({STEPS} steps, Monte-Carlo mean)")
     fig.tight_layout()
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=110, format="png")
-    plt.close(fig)
+    save_figure(fig, path, dpi=110)
 
 
 def _plot_n_sweep(path, data: dict) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    from .._io import atomic_path
+    from ._plotting import plt, save_figure
 
     N = np.arange(0, N_SWEEP + 1)
     fig, (left, right) = plt.subplots(1, 2, figsize=(11, 4.2))
@@ -279,9 +260,7 @@ def _plot_n_sweep(path, data: dict) -> None:
         ax.legend(fontsize=8)
     fig.suptitle(f"Seed 001 sweep over the prediction horizon N ({STEPS} steps, Monte-Carlo mean)")
     fig.tight_layout()
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=110, format="png")
-    plt.close(fig)
+    save_figure(fig, path, dpi=110)
 
 
 # ---------------------------------------------------------------- conclusions of the sweeps
