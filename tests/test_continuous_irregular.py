@@ -4,7 +4,14 @@ import numpy as np
 import pytest
 
 from mptrack.errors import ParameterError, ShapeError
-from mptrack.linear import kalman_filter, kalman_filter_irregular, kalman_step, sampling_intervals
+from mptrack.linear import (
+    kalman_filter,
+    kalman_filter_irregular,
+    kalman_step,
+    rts_smoother,
+    rts_smoother_irregular,
+    sampling_intervals,
+)
 from mptrack.models import constant_acceleration_continuous, constant_velocity_continuous, discretize
 from mptrack.sim import simulate_linear
 
@@ -77,3 +84,52 @@ def test_bad_shapes_and_model(cv2):
         kalman_filter_irregular(cv2, [[1.0, 2.0]], np.zeros((2, 2)))
     with pytest.raises(ParameterError, match="model"):
         kalman_filter_irregular(discretize(cv2, 1.0), [1.0], np.zeros((1, 2)))
+
+
+def _batch_smoother(Fs, Qs, H, R, z, x0, P0):
+    """Whole-trajectory least squares with per-step (F, Q): the reference smoother."""
+    n, T = len(x0), z.shape[0]
+    J = np.zeros(((T + 1) * n, (T + 1) * n))
+    h = np.zeros((T + 1) * n)
+    blk = lambda k: slice(k * n, (k + 1) * n)  # noqa: E731
+    J[blk(0), blk(0)] += np.linalg.inv(P0)
+    h[blk(0)] += np.linalg.solve(P0, x0)
+    Ri = np.linalg.inv(R)
+    for k in range(1, T + 1):
+        F, Qi = Fs[k - 1], np.linalg.inv(Qs[k - 1])
+        a, b = blk(k - 1), blk(k)
+        J[a, a] += F.T @ Qi @ F
+        J[a, b] -= F.T @ Qi
+        J[b, a] -= Qi @ F
+        J[b, b] += Qi + H.T @ Ri @ H
+        h[b] += H.T @ Ri @ z[k - 1]
+    cov = np.linalg.inv(J)
+    return (cov @ h).reshape(T + 1, n)[1:], np.array([cov[blk(k), blk(k)] for k in range(1, T + 1)])
+
+
+def test_irregular_smoother_equals_batch_least_squares():
+    cont = constant_acceleration_continuous(0.5, 1, sigma_r2=0.3)
+    rng = np.random.default_rng(5)
+    dts = rng.uniform(0.1, 1.5, size=10)
+    times = np.cumsum(dts)
+    z = rng.normal(size=(10, 1)) + times[:, None] ** 2
+    x0, P0 = np.array([0.0, 1.0, 0.5]), np.eye(3)
+    res = kalman_filter_irregular(cont, times, z, x0, P0)
+    sm = rts_smoother_irregular(cont, times, res)
+    models = [discretize(cont, dt) for dt in dts]
+    mean, cov = _batch_smoother([m.F for m in models], [m.Q for m in models], cont.H, cont.R, z, x0, P0)
+    np.testing.assert_allclose(sm.x, mean, rtol=1e-8, atol=1e-8)
+    np.testing.assert_allclose(sm.P, cov, rtol=1e-7, atol=1e-10)
+
+
+def test_irregular_smoother_with_equal_stamps_is_rts(cv2):
+    model = discretize(cv2, 0.5)
+    _, z = simulate_linear(model, 30, np.random.default_rng(6))
+    times = 0.5 * np.arange(1, 31)
+    kf = kalman_filter(model, z, None, np.eye(4))
+    np.testing.assert_allclose(rts_smoother_irregular(cv2, times, kf).x, rts_smoother(model, kf).x,
+                               rtol=1e-10, atol=1e-10)
+    one = kalman_filter_irregular(cv2, [2.0], z[:1])
+    np.testing.assert_array_equal(rts_smoother_irregular(cv2, [2.0], one).x, one.x)
+    with pytest.raises(ShapeError, match="result"):
+        rts_smoother_irregular(cv2, times[:-1], kf)

@@ -34,7 +34,7 @@ __all__ = [
     "Implementation",
     "get_implementation",
 ]
-from ._irregular import kalman_filter_irregular, sampling_intervals
+from ._irregular import kalman_filter_irregular, rts_smoother_irregular, sampling_intervals
 from ._prediction import (
     predict_ahead,
     prediction_covariance,
@@ -51,5 +51,6 @@ __all__ += [
     "rts_smoother",
     "steady_state_smoother",
     "kalman_filter_irregular",
+    "rts_smoother_irregular",
     "sampling_intervals",
 ]

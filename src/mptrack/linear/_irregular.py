@@ -11,8 +11,9 @@ from ..models import ContinuousLinearModel
 from ..models._continuous import _van_loan
 from ._kernels import kf_loop
 from ._result import FilterResult
+from ._smoother import _rts_backward
 
-__all__ = ["kalman_filter_irregular", "sampling_intervals"]
+__all__ = ["kalman_filter_irregular", "rts_smoother_irregular", "sampling_intervals"]
 
 
 def sampling_intervals(times, t0: float = 0.0) -> np.ndarray:
@@ -35,6 +36,24 @@ def sampling_intervals(times, t0: float = 0.0) -> np.ndarray:
     return dts
 
 
+def _transitions(model: ContinuousLinearModel, dts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per-step (F, Q) stacks (T, n, n) for the intervals ``dts``, one Van Loan exponential
+    per distinct interval."""
+    values, index = np.unique(dts, return_inverse=True)
+    if values.size == 0:
+        return np.empty((0, model.n, model.n)), np.empty((0, model.n, model.n))
+    LQL = model.L @ model.Qc @ model.L.T
+    pairs = [_van_loan(model.Phi, LQL, float(dt)) for dt in values]
+    F = np.stack([f for f, _ in pairs])
+    Q = np.stack([q for _, q in pairs])
+    return F[index], Q[index]
+
+
+def _check_model(model) -> None:
+    if not isinstance(model, ContinuousLinearModel):
+        raise ParameterError(f"model: expected a ContinuousLinearModel, got {type(model).__name__}")
+
+
 def kalman_filter_irregular(model: ContinuousLinearModel, times, z, x0=None, P0=None, *,
                             t0: float = 0.0, joseph: bool = False) -> FilterResult:
     """Kalman filter for measurements at arbitrary increasing time stamps.
@@ -50,8 +69,7 @@ def kalman_filter_irregular(model: ContinuousLinearModel, times, z, x0=None, P0=
     in one call.  With equal intervals dt this is :func:`kalman_filter` on
     ``model.discretize(dt)``.
     """
-    if not isinstance(model, ContinuousLinearModel):
-        raise ParameterError(f"model: expected a ContinuousLinearModel, got {type(model).__name__}")
+    _check_model(model)
     dts = sampling_intervals(times, t0)
     z = as_sequence("z", z, model.m, allow_nan=True)
     if z.shape[0] != dts.shape[0]:
@@ -62,16 +80,31 @@ def kalman_filter_irregular(model: ContinuousLinearModel, times, z, x0=None, P0=
     T, n = z.shape[0], model.n
     xs, Ps = np.empty((T, n)), np.empty((T, n, n))
     xp, Pp = np.empty((T, n)), np.empty((T, n, n))
-    LQL = model.L @ model.Qc @ model.L.T
-    cache: dict[float, tuple[np.ndarray, np.ndarray]] = {}
+    Fs, Qs = _transitions(model, dts)
     loglik = 0.0
     # runs of equal intervals share (F, Q) and go through the compiled KF loop in one call
     bounds = np.concatenate(([0], np.flatnonzero(np.diff(dts)) + 1, [T]))
     for a, b in zip(bounds[:-1], bounds[1:]):
-        dt = float(dts[a])
-        if dt not in cache:
-            cache[dt] = _van_loan(model.Phi, LQL, dt)
-        F, Q = cache[dt]
-        loglik += kf_loop(F, model.H, Q, model.R, z[a:b], x, P, bool(joseph), xs[a:b], Ps[a:b], xp[a:b], Pp[a:b])
+        loglik += kf_loop(Fs[a], model.H, Qs[a], model.R, z[a:b], x, P, bool(joseph),
+                          xs[a:b], Ps[a:b], xp[a:b], Pp[a:b])
         x, P = xs[b - 1], Ps[b - 1]
     return FilterResult(x=xs, P=Ps, x_pred=xp, P_pred=Pp, loglik=float(loglik), method="KF-irregular")
+
+
+def rts_smoother_irregular(model: ContinuousLinearModel, times, result: FilterResult, *,
+                           t0: float = 0.0) -> FilterResult:
+    """Fixed-interval RTS smoother for a filter run at irregular time stamps
+    (e.g. :func:`kalman_filter_irregular`): the backward pass of
+    :func:`rts_smoother` with F, Q rediscretised for every interval.
+
+    ``times`` and ``t0`` are those the filter ran with.
+    """
+    _check_model(model)
+    if not isinstance(result, FilterResult):
+        raise ParameterError(f"result: expected a FilterResult, got {type(result).__name__}")
+    dts = sampling_intervals(times, t0)
+    if result.T != dts.shape[0] or result.n != model.n:
+        raise ShapeError(f"result: expected {dts.shape[0]} steps of an n = {model.n} state "
+                         f"(one per time stamp), got x of shape {result.x.shape}")
+    Fs, Qs = _transitions(model, dts[1:])
+    return _rts_backward(result, Fs, Qs)

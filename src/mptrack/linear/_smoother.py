@@ -33,21 +33,42 @@ def _check(model, result) -> None:
         raise ShapeError(f"result: state dimension {result.n} does not match the model's n = {model.n}")
 
 
-def _smoother_gains(P_filt: np.ndarray, F: np.ndarray, P_pred: np.ndarray) -> np.ndarray:
-    """C = P_filt F^T P_pred^{-1} for a stack (T, n, n) or a single (n, n).
+def _smoother_gains(PFt: np.ndarray, P_pred: np.ndarray) -> np.ndarray:
+    """C = P_filt F^T P_pred^{-1} from PFt = P_filt F^T, for a stack (T, n, n) or one (n, n).
 
     One batched solve when every P_pred is positive definite (Cholesky succeeds);
     otherwise, per matrix, a pseudo-inverse where P_pred is singular (zero prior,
     rank-deficient Q).
     """
-    PFt = P_filt @ F.T
     try:
         np.linalg.cholesky(P_pred)
         return np.swapaxes(np.linalg.solve(P_pred, np.swapaxes(PFt, -1, -2)), -1, -2)
     except np.linalg.LinAlgError:
         if P_pred.ndim == 2:
             return PFt @ np.linalg.pinv(P_pred, hermitian=True)
-        return np.stack([_smoother_gains(a, F, b) for a, b in zip(P_filt, P_pred)])
+        return np.stack([_smoother_gains(a, b) for a, b in zip(PFt, P_pred)])
+
+
+def _rts_backward(result: FilterResult, F: np.ndarray, Q: np.ndarray) -> FilterResult:
+    """The RTS backward pass; F, Q are one (n, n) pair or per-step stacks (T-1, n, n)
+    where F[k], Q[k] take x(k) to x(k+1) (row k = time k+1 of the result)."""
+    T = result.T
+    x_filt = np.asarray(result.x, dtype=float)
+    P_filt = np.asarray(result.P, dtype=float)
+    Ft = np.swapaxes(F, -1, -2)
+    # off the backward loop: x(k+1/k), P(k+1/k) and the gains C(k) for k = 1..T-1
+    x_pred = (F @ x_filt[:-1, :, None])[..., 0]
+    PFt = P_filt[:-1] @ Ft
+    P_pred = F @ PFt + Q
+    P_pred = 0.5 * (P_pred + np.swapaxes(P_pred, -1, -2))
+    C = _smoother_gains(PFt, P_pred)
+    xs = x_filt.copy()
+    Ps = P_filt.copy()
+    for k in range(T - 2, -1, -1):
+        xs[k] = x_filt[k] + C[k] @ (xs[k + 1] - x_pred[k])
+        P = P_filt[k] + C[k] @ (Ps[k + 1] - P_pred[k]) @ C[k].T
+        Ps[k] = 0.5 * (P + P.T)
+    return FilterResult(x=xs, P=Ps, method="RTS")
 
 
 def rts_smoother(model: LinearGaussianModel, result: FilterResult) -> FilterResult:
@@ -59,25 +80,11 @@ def rts_smoother(model: LinearGaussianModel, result: FilterResult) -> FilterResu
             the steady-state filters' constant Pe gives the steady-state smoother)
 
     Returns a FilterResult with the smoothed x(k/T), P(k/T) (method "RTS").
-    P(k/T) <= P(k/k) in the positive semi-definite order.
+    P(k/T) <= P(k/k) in the positive semi-definite order.  For irregular time
+    stamps use :func:`rts_smoother_irregular`.
     """
     _check(model, result)
-    F, Q = model.F, model.Q
-    T = result.T
-    x_filt = np.asarray(result.x, dtype=float)
-    P_filt = np.asarray(result.P, dtype=float)
-    # off the backward loop: x(k+1/k), P(k+1/k) and the gains C(k) for k = 1..T-1
-    x_pred = x_filt[:-1] @ F.T
-    P_pred = F @ P_filt[:-1] @ F.T + Q
-    P_pred = 0.5 * (P_pred + np.swapaxes(P_pred, -1, -2))
-    C = _smoother_gains(P_filt[:-1], F, P_pred)
-    xs = x_filt.copy()
-    Ps = P_filt.copy()
-    for k in range(T - 2, -1, -1):
-        xs[k] = x_filt[k] + C[k] @ (xs[k + 1] - x_pred[k])
-        P = P_filt[k] + C[k] @ (Ps[k + 1] - P_pred[k]) @ C[k].T
-        Ps[k] = 0.5 * (P + P.T)
-    return FilterResult(x=xs, P=Ps, method="RTS")
+    return _rts_backward(result, model.F, model.Q)
 
 
 def steady_state_smoother(model: LinearGaussianModel, result: FilterResult, *,
@@ -93,7 +100,7 @@ def steady_state_smoother(model: LinearGaussianModel, result: FilterResult, *,
     _check(model, result)
     ss = _steady(model, steady, "kalman")
     F, Pe, Pp = model.F, ss.P_filt, ss.P_pred
-    C = _smoother_gains(Pe, F, Pp)
+    C = _smoother_gains(Pe @ F.T, Pp)
     T = result.T
     xs = np.array(result.x, dtype=float)
     x_pred = result.x @ F.T  # row k: x(k+1/k) = F x(k/k)
