@@ -153,7 +153,7 @@ def _single_run(kind: str, motion, seed: int, index: int) -> dict:
     return out
 
 
-def _plot_run(path, run: dict, kind: str, N: int, title: str) -> None:
+def _plot_run(path, run: dict, N: int, title: str) -> None:
     from ._plotting import plt, save_figure
 
     truth = run["truth"]
@@ -173,7 +173,8 @@ def _plot_run(path, run: dict, kind: str, N: int, title: str) -> None:
     bottom.set_xlabel("time step k (dt = 1 s)")
     top.legend(fontsize=8, ncol=2)
     bottom.legend(fontsize=8, ncol=2)
-    bottom.set_ylim(np.percentile(est - s, 1) * 1.5, np.percentile(est - s, 99) * 1.5)
+    lim = 1.5 * np.percentile(np.abs(est - s), 99)  # the first steps' transient may leave the frame
+    bottom.set_ylim(-lim, lim)
     top.set_title(title)
     fig.tight_layout()
     save_figure(fig, path, dpi=110)
@@ -429,7 +430,7 @@ def run(ctx: RunContext) -> Reproduction:
     }
     for label, (kind, N, title) in titles.items():
         name = label.lower().replace(" ", "") + ".png"
-        _plot_run(ctx.figure_path(name), single[kind], kind, N, title)
+        _plot_run(ctx.figure_path(name), single[kind], N, title)
         rep.figures[label] = name
 
     # Sweeps the paper describes in words
