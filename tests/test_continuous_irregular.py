@@ -2,8 +2,10 @@
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
-from mptrack.errors import ParameterError, ShapeError
+from mptrack.errors import MptrackError, ParameterError, ShapeError
 from mptrack.linear import (
     kalman_filter,
     kalman_filter_irregular,
@@ -71,6 +73,8 @@ def test_sampling_intervals():
     ([1.0, 0.5, 2.0], 0.0, r"times\[1\]"),
     ([0.0, 1.0], 0.0, r"times\[0\] = 0.0 is not after t0"),
     ([-1.0, 1.0], 0.0, "t0"),
+    ([-1.7e308, 1.7e308], -1.8e300, r"times\[0\]"),
+    ([1.7e308], -1.7e308, r"overflows"),
 ])
 def test_non_increasing_time_stamps_are_rejected(cv2, times, t0, match):
     with pytest.raises(ParameterError, match=match):
@@ -133,3 +137,16 @@ def test_irregular_smoother_with_equal_stamps_is_rts(cv2):
     np.testing.assert_array_equal(rts_smoother_irregular(cv2, [2.0], one).x, one.x)
     with pytest.raises(ShapeError, match="result"):
         rts_smoother_irregular(cv2, times[:-1], kf)
+
+
+@settings(max_examples=80, deadline=None)
+@given(times=st.lists(st.floats(allow_nan=True, allow_infinity=True, width=64), min_size=0, max_size=8),
+       t0=st.floats(-10, 10))
+def test_time_stamp_validation_never_crashes(times, t0):
+    """Any list of numbers: either strictly increasing positive intervals or a clear mptrack error."""
+    try:
+        dts = sampling_intervals(times, t0)
+    except MptrackError as err:
+        assert "times" in str(err)
+    else:
+        assert dts.shape == (len(times),) and np.all(dts > 0)

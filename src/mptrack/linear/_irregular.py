@@ -25,14 +25,19 @@ def sampling_intervals(times, t0: float = 0.0) -> np.ndarray:
     if t.shape[0] == 0:
         raise ShapeError("times: expected at least one time stamp, got shape (0,)")
     t0 = float(as_array("t0", t0, ndim=0))
-    dts = np.diff(np.concatenate(([t0], t)))
-    bad = np.flatnonzero(dts <= 0)
+    stamps = np.concatenate(([t0], t))
+    bad = np.flatnonzero(~(stamps[1:] > stamps[:-1]))
     if bad.size:
         k = int(bad[0])
         before = t0 if k == 0 else float(t[k - 1])
         where = "t0" if k == 0 else f"times[{k - 1}]"
         raise ParameterError(f"times: time stamps must increase strictly; times[{k}] = {float(t[k])!r} "
                              f"is not after {where} = {before!r}")
+    with np.errstate(over="ignore"):
+        dts = np.diff(stamps)
+    if not np.all(np.isfinite(dts)):
+        k = int(np.flatnonzero(~np.isfinite(dts))[0])
+        raise ParameterError(f"times: the interval before times[{k}] overflows float64")
     return dts
 
 
