@@ -155,6 +155,8 @@ def test_continuous_model_is_frozen_and_discretizes():
     (lambda: constant_acceleration(1.0, 0.1, 0), ParameterError, "axes"),
     (lambda: constant_velocity(1.0, 0.1, sigma_r2=0.0), ParameterError, "sigma_r2"),
     (lambda: cv_discrete_white_noise(-0.5, 0.1), ParameterError, "dt"),
+    (lambda: constant_velocity(1e120, 1.0), ParameterError, "dt: 1e.120 s is too long"),
+    (lambda: van_loan([[50.0]], [[1.0]], [[1.0]], 100.0), ParameterError, "overflows"),
     (lambda: van_loan([[0, 1]], [[0], [1]], [[1.0]], 1.0), ShapeError, "Phi"),
     (lambda: van_loan([[0, 1], [0, 0]], [[0], [1]], [[-1.0]], 1.0), NotPositiveDefiniteError, "Qc"),
     (lambda: van_loan([[0, 1], [0, 0]], [[0], [1]], [[1.0]], -0.1), ParameterError, "dt"),

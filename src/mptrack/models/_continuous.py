@@ -105,9 +105,12 @@ def _van_loan(Phi: np.ndarray, LQL: np.ndarray, dt: float) -> tuple[np.ndarray, 
     M[:n, :n] = -Phi
     M[:n, n:] = LQL
     M[n:, n:] = Phi.T
-    E = scipy.linalg.expm(M * dt)
-    F = np.ascontiguousarray(E[n:, n:].T)
-    Q = F @ E[:n, n:]
+    with np.errstate(over="ignore", invalid="ignore"):
+        E = scipy.linalg.expm(M * dt)
+        F = np.ascontiguousarray(E[n:, n:].T)
+        Q = F @ E[:n, n:]
+    if not (np.all(np.isfinite(F)) and np.all(np.isfinite(Q))):
+        raise ParameterError(f"dt: {dt!r} s is too long for this model; e^(Phi dt) or Q overflows float64")
     return F, 0.5 * (Q + Q.T)
 
 
