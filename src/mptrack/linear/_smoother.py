@@ -14,10 +14,12 @@ from __future__ import annotations
 
 import numpy as np
 import scipy.linalg
+from numba import njit
 
 from ..errors import ParameterError, ShapeError
 from ..models import LinearGaussianModel
 from ..riccati import SteadyState
+from ._kernels import ss_loop
 from ._result import FilterResult
 from ._steady import _steady
 
@@ -62,13 +64,26 @@ def _rts_backward(result: FilterResult, F: np.ndarray, Q: np.ndarray) -> FilterR
     P_pred = F @ PFt + Q
     P_pred = 0.5 * (P_pred + np.swapaxes(P_pred, -1, -2))
     C = _smoother_gains(PFt, P_pred)
-    xs = x_filt.copy()
-    Ps = P_filt.copy()
-    for k in range(T - 2, -1, -1):
-        xs[k] = x_filt[k] + C[k] @ (xs[k + 1] - x_pred[k])
-        P = P_filt[k] + C[k] @ (Ps[k + 1] - P_pred[k]) @ C[k].T
-        Ps[k] = 0.5 * (P + P.T)
+    xs = np.empty_like(x_filt)
+    Ps = np.empty_like(P_filt)
+    c = np.ascontiguousarray
+    _rts_loop(c(x_filt), c(P_filt), c(x_pred), c(P_pred), c(C), xs, Ps)
     return FilterResult(x=xs, P=Ps, method="RTS")
+
+
+@njit(cache=True)
+def _rts_loop(x_filt, P_filt, x_pred, P_pred, C, xs, Ps):  # pragma: no cover - compiled
+    """The backward recursion of the module docstring, compiled; row k of x_pred, P_pred, C
+    belongs to the step from time k+1 to k+2."""
+    T = x_filt.shape[0]
+    xs[T - 1] = x_filt[T - 1]
+    Ps[T - 1] = P_filt[T - 1]
+    for k in range(T - 2, -1, -1):
+        Ck = C[k]
+        Ckt = np.ascontiguousarray(Ck.T)
+        xs[k] = x_filt[k] + Ck @ (xs[k + 1] - x_pred[k])
+        P = P_filt[k] + Ck @ (Ps[k + 1] - P_pred[k]) @ Ckt
+        Ps[k] = 0.5 * (P + P.T)
 
 
 def rts_smoother(model: LinearGaussianModel, result: FilterResult) -> FilterResult:
@@ -102,10 +117,13 @@ def steady_state_smoother(model: LinearGaussianModel, result: FilterResult, *,
     F, Pe, Pp = model.F, ss.P_filt, ss.P_pred
     C = _smoother_gains(Pe @ F.T, Pp)
     T = result.T
-    xs = np.array(result.x, dtype=float)
-    x_pred = result.x @ F.T  # row k: x(k+1/k) = F x(k/k)
-    for k in range(T - 2, -1, -1):
-        xs[k] = result.x[k] + C @ (xs[k + 1] - x_pred[k])
+    x_filt = np.asarray(result.x, dtype=float)
+    # x(k/T) = C x(k+1/T) + [x(k/k) - C F x(k/k)]: the steady-state filter's compiled recursion
+    # run backwards in time, with A = C, B = I and input u(k) = (I - C F) x(k/k)
+    u = np.ascontiguousarray((x_filt @ (np.eye(model.n) - C @ F).T)[-2::-1])
+    xs = np.empty_like(x_filt)
+    xs[-1] = x_filt[-1]
+    ss_loop(C, np.eye(model.n), C, u, x_filt[-1].copy(), xs[-2::-1])
     Psm = scipy.linalg.solve_discrete_lyapunov(C, Pe - C @ Pp @ C.T)
     Psm = 0.5 * (Psm + Psm.T)
     return FilterResult(x=xs, P=np.broadcast_to(Psm, (T, model.n, model.n)), method="SS-RTS")
