@@ -10,8 +10,7 @@ import os
 for _var in ("OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
 
-import json  # noqa: E402
-from pathlib import Path
+from pathlib import Path  # noqa: E402
 from typing import Optional
 
 import typer
