@@ -9,6 +9,15 @@ from ._ekf import (
     motion_matrix,
     range_measurement,
 )
+from ._fekf import (
+    bouzera_fcs_fis,
+    bouzera_fekf_fis,
+    fcs_ranges,
+    fcs_ranges_batch,
+    fekf_ranges,
+    fekf_ranges_batch,
+    fuse_local_solutions,
+)
 
 __all__ = [
     "BatchFilterResult",
@@ -17,4 +26,11 @@ __all__ = [
     "ekf_ranges_batch",
     "motion_matrix",
     "range_measurement",
+    "bouzera_fekf_fis",
+    "bouzera_fcs_fis",
+    "fekf_ranges",
+    "fekf_ranges_batch",
+    "fcs_ranges",
+    "fcs_ranges_batch",
+    "fuse_local_solutions",
 ]
