@@ -28,7 +28,7 @@ from ..radio import arfcn_to_frequency, distance_from_rss
 from ._registry import RunContext, register
 from ._results import Reproduction, Table
 
-__all__ = ["Setup", "trajectory", "simulate", "run_filters", "table_viii", "run"]
+__all__ = ["Setup", "trajectory", "simulate", "ranges", "run_filters", "table_viii", "run"]
 
 KEY = "bouzera2017"
 PAPER = ("Bouzera, Oussalah, Mezhoud & Khireddine (2017), Fuzzy extended Kalman filter for dynamic mobile "
