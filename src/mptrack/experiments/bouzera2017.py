@@ -22,13 +22,14 @@ import numpy as np
 from scipy import stats
 
 from .._io import atomic_path
+from ..fuzzy import anfis_train
 from ..metrics import pcrb_ranges, position_error
-from ..nonlinear import ekf_ranges_batch, fcs_ranges_batch, fekf_ranges_batch
+from ..nonlinear import ekf_ranges_batch, fcs_ranges_batch, fekf_ranges_batch, local_solutions
 from ..radio import arfcn_to_frequency, distance_from_rss
 from ._registry import RunContext, register
 from ._results import Reproduction, Table
 
-__all__ = ["Setup", "trajectory", "simulate", "ranges", "run_filters", "table_viii", "run"]
+__all__ = ["Setup", "trajectory", "simulate", "ranges", "run_filters", "anfis_training_data", "table_viii", "run"]
 
 KEY = "bouzera2017"
 PAPER = ("Bouzera, Oussalah, Mezhoud & Khireddine (2017), Fuzzy extended Kalman filter for dynamic mobile "
@@ -57,6 +58,8 @@ class Setup:
     R0_sweep: tuple = (1e-4, 1e-3, 1e-2, 0.05, 0.222, 1.0, 10.0)
     P0_sweep: tuple = (1e-4, 1e-3, 1e-2, 0.1, 1.0)
     Q0_sweep: tuple = (1e-3, 1e-2, 0.02, 0.1, 1.0, 10.0, 5050.0)
+    anfis_runs: int = 20                            # training runs (own seed stream), linear trajectory
+    anfis_epochs: int = 40
     nlos_bias_km: tuple = (0.0, 0.1, 0.3, 0.6)      # our robustness check: bias on station 2, steps 30-69
     fis: dict = field(default_factory=lambda: {"inn_universe_km": (0.0, 1.5), "s_universe_km2": (0.22, 0.32),
                                                "distance_universe_km": (0.0, 1.5)})
@@ -107,7 +110,28 @@ def ranges(setup: Setup, truth, eps, sigma_km: float, bias=None) -> np.ndarray:
     return np.maximum(d, 0.0)
 
 
-def run_filters(setup: Setup, z, x0, *, R0=None, P0=None, Q0=None, which=FILTERS, covariance="paper"):
+def anfis_training_data(setup: Setup, truth, z, x0, result):
+    """ANFIS training samples from filter runs with known truth (paper section 3.4).
+
+    For every run, step and station: the inputs |Inn_i|, S_i (FEKF) and d_i (FCS) that the
+    filter saw, and the target confidence y_i = min_j e_j / e_i, where e_i is the error of
+    local solution i (eq. 14) against the true position: 1 for the best station of the step.
+    Returns (inputs_fekf (N, 2), inputs_fcs (N, 1), target (N,)).
+    """
+    B, T, m = z.shape
+    n = x0.shape[1]
+    x_prev = np.concatenate([x0[:, None], result.x[:, :-1]], axis=1).reshape(B * T, n)
+    P_prev = np.concatenate([np.broadcast_to(np.diag(setup.P0_diag), (B, 1, n, n)), result.P[:, :-1]], axis=1)
+    P_pred = P_prev.reshape(B * T, n, n) + np.diag(setup.Q0_diag)
+    x_loc, _, _, innov, S = local_solutions(x_prev, P_pred, z.reshape(B * T, m), setup.stations,
+                                            np.full(m, setup.R0))
+    err = np.linalg.norm(x_loc - np.broadcast_to(truth, (B, T, n)).reshape(B * T, 1, n), axis=-1)
+    target = err.min(axis=1, keepdims=True) / np.maximum(err, 1e-12)
+    return (np.column_stack([np.abs(innov).ravel(), S.ravel()]), z.reshape(-1, 1), target.ravel())
+
+
+def run_filters(setup: Setup, z, x0, *, R0=None, P0=None, Q0=None, which=FILTERS, covariance="paper",
+                fis_fekf=None, fis_fcs=None):
     """Run the filters on a batch of ranges; returns {name: BatchFilterResult}."""
     from ..nonlinear import bouzera_fcs_fis, bouzera_fekf_fis
 
@@ -120,11 +144,12 @@ def run_filters(setup: Setup, z, x0, *, R0=None, P0=None, Q0=None, which=FILTERS
         if name == "EKF":
             out[name] = ekf_ranges_batch(z, setup.stations, x0, P0, Q0, R0)
         elif name == "FEKF":
-            out[name] = fekf_ranges_batch(z, setup.stations, x0, P0, Q0, R0, covariance=covariance,
-                                          fis=bouzera_fekf_fis(fis["inn_universe_km"], fis["s_universe_km2"]))
+            out[name] = fekf_ranges_batch(
+                z, setup.stations, x0, P0, Q0, R0, covariance=covariance,
+                fis=fis_fekf or bouzera_fekf_fis(fis["inn_universe_km"], fis["s_universe_km2"]))
         else:
             out[name] = fcs_ranges_batch(z, setup.stations, x0, P0, Q0, R0, covariance=covariance,
-                                         fis=bouzera_fcs_fis(fis["distance_universe_km"]))
+                                         fis=fis_fcs or bouzera_fcs_fis(fis["distance_universe_km"]))
     return out
 
 
@@ -189,10 +214,11 @@ def run(ctx: RunContext, setup: Setup | None = None) -> Reproduction:
     setup = setup or Setup()
     if ctx.quick:
         setup = replace(setup, runs=12, steps=60, noise_levels=(0.001, 0.1, 0.6), R0_sweep=(1e-3, 0.222, 10.0),
-                        P0_sweep=(1e-3, 0.1), Q0_sweep=(0.02, 5050.0), nlos_bias_km=(0.0, 0.3))
+                        P0_sweep=(1e-3, 0.1), Q0_sweep=(0.02, 5050.0), nlos_bias_km=(0.0, 0.3), anfis_runs=4,
+                        anfis_epochs=5)
     paper = _load_paper()
     root = np.random.SeedSequence(ctx.seed)
-    seeds = dict(zip(KINDS, root.spawn(len(KINDS))))
+    seeds = dict(zip(KINDS + ("anfis",), root.spawn(len(KINDS) + 1)))
     sims = {kind: simulate(setup, kind, seeds[kind], setup.runs) for kind in KINDS}
     tables: dict[str, Table] = {}
     notes: list[str] = []
@@ -319,6 +345,7 @@ def run(ctx: RunContext, setup: Setup | None = None) -> Reproduction:
                                         [name, "EKF", "FEKF"],
                                         [[v, e, f] for v, e, f in zip(values, res["EKF"], res["FEKF"])])
 
+    tables.update(_anfis_tables(ctx, setup, seeds["anfis"], sims, per_run))
     tables["Table VIII"] = table_viii(paper)
 
     figures = _figures(ctx, setup, sims, base, sweeps)
@@ -335,6 +362,49 @@ def run(ctx: RunContext, setup: Setup | None = None) -> Reproduction:
     ]
     return Reproduction(key=KEY, paper=PAPER, seed=ctx.seed, parameters=parameters, tables=tables,
                         figures=figures, notes=notes)
+
+
+def _anfis_tables(ctx, setup, seed_seq, sims, per_run) -> dict[str, Table]:
+    """Tune FIS1 and FIS2 by ANFIS on separate training runs; show the rules beside Tables I and III."""
+    from ..nonlinear._fekf import TABLE_I, TABLE_III
+
+    fis = setup.fis
+    with ctx.progress.task("ANFIS training", total=2) as advance:
+        truth, x0, eps = simulate(setup, "linear", seed_seq, setup.anfis_runs)
+        z = ranges(setup, truth, eps, setup.sigma_km)
+        base = run_filters(setup, z, x0, which=("FEKF",))["FEKF"]
+        in_fekf, in_fcs, target = anfis_training_data(setup, truth, z, x0, base)
+        tuned1 = anfis_train(in_fekf, target, sets_per_input=(5, 2), epochs=setup.anfis_epochs, bounds=(0.0, 1.0),
+                             universes=(fis["inn_universe_km"], fis["s_universe_km2"]), names=("|innovation|", "S"))
+        advance()
+        tuned2 = anfis_train(in_fcs, target, sets_per_input=(5,), epochs=setup.anfis_epochs, bounds=(0.0, 1.0),
+                             universes=(fis["distance_universe_km"],), names=("distance",))
+        advance()
+    labels = ("very small", "small", "neutral", "large", "very large")
+    c1 = tuned1.fis.consequents
+    rows1 = [[lab, TABLE_I[i][0], float(c1[i, 0]), TABLE_I[i][1], float(c1[i, 1])] for i, lab in enumerate(labels)]
+    rows3 = [[lab, TABLE_III[i], float(tuned2.fis.consequents[i])] for i, lab in enumerate(labels)]
+    rows_r = []
+    for kind in KINDS:
+        truth, x0, eps = sims[kind]
+        out = run_filters(setup, ranges(setup, truth, eps, setup.sigma_km), x0,
+                          fis_fekf=tuned1.fis, fis_fcs=tuned2.fis)
+        r = per_run[setup.sigma_km, kind]
+        rows_r.append([kind, float(r["FCS"].mean()), float(_run_rmse(out["FCS"], truth).mean()),
+                       float(r["FEKF"].mean()), float(_run_rmse(out["FEKF"], truth).mean())])
+    note = (f"ANFIS hybrid learning (least squares + gradient, Gaussian sets) on {setup.anfis_runs} training runs "
+            f"({len(target)} samples, own seed stream); target y_i = min_j e_j / e_i from the local solutions' "
+            f"errors. Training RMSE {tuned1.rmse[0]:.4f} -> {tuned1.rmse[-1]:.4f} (FIS1), "
+            f"{tuned2.rmse[0]:.4f} -> {tuned2.rmse[-1]:.4f} (FIS2).")
+    return {
+        "ANFIS rules (FEKF)": Table("Rule constants: paper Table I vs ANFIS-tuned (rows: |innovation| set)",
+                                    ["|Inn|", "S small: Table I", "S small: ANFIS", "S large: Table I",
+                                     "S large: ANFIS"], rows1, notes=note),
+        "ANFIS rules (FCS)": Table("Rule constants: paper Table III vs ANFIS-tuned (rows: distance set)",
+                                   ["distance", "Table III", "ANFIS"], rows3),
+        "ANFIS effect": Table("Average RMSE (km) with the paper's rules and with the ANFIS-tuned systems",
+                              ["trajectory", "FCS Table III", "FCS ANFIS", "FEKF Table I", "FEKF ANFIS"], rows_r),
+    }
 
 
 def _figures(ctx, setup, sims, base, sweeps) -> dict[str, str]:

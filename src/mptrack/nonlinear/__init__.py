@@ -17,6 +17,7 @@ from ._fekf import (
     fekf_ranges,
     fekf_ranges_batch,
     fuse_local_solutions,
+    local_solutions,
 )
 
 __all__ = [
@@ -33,4 +34,5 @@ __all__ = [
     "fcs_ranges",
     "fcs_ranges_batch",
     "fuse_local_solutions",
+    "local_solutions",
 ]

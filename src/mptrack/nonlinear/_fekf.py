@@ -35,6 +35,7 @@ __all__ = [
     "fcs_ranges",
     "fcs_ranges_batch",
     "fuse_local_solutions",
+    "local_solutions",
 ]
 
 #: Table I read with five innovation sets (columns) and two covariance sets (rows), as the text says;
@@ -62,6 +63,20 @@ def bouzera_fcs_fis(distance_universe_km=(0.0, 1.5), consequents=TABLE_III) -> T
     """FIS2 of the FCS (paper Table III, Fig. 7): input the measured range (km), 5 uniform triangular sets."""
     d = uniform_partition(*distance_universe_km, 5, labels=_FIVE)
     return TakagiSugeno((d,), np.asarray(consequents), universes=(tuple(distance_universe_km),), names=("distance",))
+
+
+def local_solutions(x_pred, P_pred, z, stations, R_diag):
+    """One-station EKF updates from a common prediction (eqs. 4, 11, 12, 14), batched over a leading axis.
+
+    x_pred (B, n), P_pred (B, n, n), z (B, m) ranges (NaN = missing), stations (m, d), R_diag (m,).
+    Returns (x_local (B, m, n), K (B, m, n), H (B, m, n), innov (B, m) (0 where missing), S (B, m)).
+    """
+    h, H = range_measurement(x_pred, stations)                       # eqs. 7-10
+    PHt = np.einsum("bnk,bmk->bmn", P_pred, H)                       # rows P^- H_i^T
+    S = np.einsum("bmn,bmn->bm", H, PHt) + R_diag                    # eq. 12, per station
+    K = PHt / S[..., None]                                           # eq. 4, per station
+    innov = np.where(np.isnan(z), 0.0, z - h)                        # eq. 11
+    return x_pred[:, None, :] + K * innov[..., None], K, H, innov, S  # eq. 14
 
 
 def fuse_local_solutions(x_pred, P_pred, K, H, innov, S, R_diag, y, *, covariance: str = "paper"):
@@ -103,11 +118,7 @@ def _fused_core(z, stations, x0, P0, F, Q, R, weights: Callable, covariance: str
         P = F @ P @ F.T + Q                                          # eq. 3
         dk = z[:, k]
         ok = ~np.isnan(dk)
-        h, H = range_measurement(x, stations)                        # eqs. 7-10
-        PHt = np.einsum("bnk,bmk->bmn", P, H)                        # rows P^- H_i^T
-        S = np.einsum("bmn,bmn->bm", H, PHt) + R_diag                # eq. 12, per station
-        K = PHt / S[..., None]                                       # eq. 4, per station
-        innov = np.where(ok, dk - h, 0.0)                            # eq. 11
+        _, K, H, innov, S = local_solutions(x, P, dk, stations, R_diag)
         y = np.where(ok, weights(np.abs(innov), S, np.where(ok, dk, 0.0)), 0.0)
         x, P = fuse_local_solutions(x, P, K, H, innov, S, R_diag, y, covariance=covariance)
         xs[:, k] = x
