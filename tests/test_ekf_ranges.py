@@ -135,3 +135,35 @@ def test_bad_input():
         ekf_ranges(z, STATIONS, np.zeros(2), *args[1:])
     with pytest.raises(ParameterError, match="dt"):
         motion_matrix("cv", 2, dt=-1.0)
+
+
+def test_range_fix_2d_3d_and_with_known_height():
+    from mptrack.errors import SingularMatrixError
+    from mptrack.nonlinear import range_fix
+
+    p = np.array([0.7, 0.5, 0.0015])
+    z = np.linalg.norm(p - STATIONS, axis=1)
+    np.testing.assert_allclose(range_fix(z, STATIONS, height=0.0015), p, atol=1e-10)
+    np.testing.assert_allclose(range_fix(np.linalg.norm(p[:2] - STATIONS[:, :2], axis=1), STATIONS[:, :2]), p[:2],
+                               atol=1e-10)
+    st4 = np.vstack([STATIONS, [1.0, 0.5, 0.5]])
+    np.testing.assert_allclose(range_fix(np.linalg.norm(p - st4, axis=1), st4), p, atol=1e-8)
+    with pytest.raises(ParameterError, match="at least 3 stations"):
+        range_fix(z[:2], STATIONS[:2, :2])
+    with pytest.raises(ParameterError, match="at least 4 stations"):
+        range_fix(z, STATIONS)
+    line = np.array([[0.0, 0.0], [1.0, 0.0], [2.0, 0.0]])
+    with pytest.raises(SingularMatrixError, match="collinear"):
+        range_fix([1.0, 1.0, 1.0], line)
+
+
+def test_wild_ranges_never_give_nan_estimates():
+    from mptrack.nonlinear import fcs_ranges, fekf_ranges
+
+    rng = np.random.default_rng(9)
+    truth, z = _track(T=30)
+    wild = np.abs(z + rng.standard_normal(z.shape) * 2.0)
+    wild[rng.uniform(size=wild.shape) < 0.2] = np.nan
+    for run in (ekf_ranges, fekf_ranges, fcs_ranges):
+        res = run(wild, STATIONS, truth[0], 1e-3 * np.eye(3), Q0, 0.222)
+        assert np.isfinite(res.x).all() and np.isfinite(res.P).all()

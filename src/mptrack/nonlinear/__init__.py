@@ -7,6 +7,7 @@ from ._ekf import (
     ekf_ranges,
     ekf_ranges_batch,
     motion_matrix,
+    range_fix,
     range_measurement,
 )
 from ._fekf import (
@@ -27,6 +28,7 @@ __all__ = [
     "ekf_ranges_batch",
     "motion_matrix",
     "range_measurement",
+    "range_fix",
     "bouzera_fekf_fis",
     "bouzera_fcs_fis",
     "fekf_ranges",

@@ -15,9 +15,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.optimize import least_squares
 
 from .._validation import as_array, check_covariance, check_positive
-from ..errors import ParameterError, ShapeError
+from ..errors import ParameterError, ShapeError, SingularMatrixError
 from ..linear import FilterResult
 
 __all__ = [
@@ -27,6 +28,7 @@ __all__ = [
     "range_measurement",
     "motion_matrix",
     "check_stations",
+    "range_fix",
 ]
 
 _LOG2PI = np.log(2.0 * np.pi)
@@ -175,3 +177,39 @@ def ekf_ranges_batch(z, stations, x0, P0, Q, R, *, motion: str = "random-walk",
     """:func:`ekf_ranges` on B independent tracks at once: z (B, T, m), x0 (B, n)."""
     xs, Ps, ll = _ekf_core(*_prepare(z, stations, x0, P0, Q, R, motion, dt, batch=True))
     return BatchFilterResult(x=xs, P=Ps, loglik=ll, method="EKF")
+
+
+def range_fix(ranges, stations, *, height=None) -> np.ndarray:
+    """Snapshot position from one scan of ranges (nonlinear least squares, scipy.optimize.least_squares).
+
+    ranges    (m,) measured ranges to ``stations`` (m, d)
+    height    for 3-D stations, the handset's known height: the fix is then 2-D (x, y) with z = height,
+              which is how a ground handset is fixed from masts of similar height
+    A fix needs at least (unknowns + 1) stations (3 for a 2-D fix, 4 for 3-D) not all on one line
+    (or plane): otherwise ParameterError / SingularMatrixError.  The linearised
+    solution (differences of squared ranges) starts the Gauss–Newton iterations.
+    Useful to initialise :func:`ekf_ranges`.
+    """
+    st = check_stations(stations)
+    r = as_array("ranges", ranges, shape=(st.shape[0],))
+    if np.any(r < 0):
+        raise ParameterError("ranges: must be >= 0")
+    d = st.shape[1]
+    fixed = None
+    if height is not None:
+        if d != 3:
+            raise ParameterError("height: only meaningful with 3-D stations")
+        fixed = float(height)
+        dz2 = (fixed - st[:, 2]) ** 2
+        r = np.sqrt(np.maximum(r ** 2 - dz2, 0.0))
+        st = st[:, :2]
+    k = st.shape[1]
+    if st.shape[0] < k + 1:
+        raise ParameterError(f"stations: a {k}-D fix needs at least {k + 1} stations, got {st.shape[0]}")
+    A = 2.0 * (st[1:] - st[0])
+    if np.linalg.matrix_rank(A) < k:
+        raise SingularMatrixError(f"stations: the stations are collinear/coplanar; a {k}-D fix is not determined")
+    b = r[0] ** 2 - r[1:] ** 2 + np.sum(st[1:] ** 2, axis=1) - np.sum(st[0] ** 2)
+    guess = np.linalg.lstsq(A, b, rcond=None)[0]
+    sol = least_squares(lambda p: np.linalg.norm(p - st, axis=1) - r, guess, method="lm").x
+    return sol if fixed is None else np.append(sol, fixed)
