@@ -36,8 +36,12 @@ def test_trajectories_and_common_random_numbers():
     np.testing.assert_allclose(two[:11], lin[:11])
     d1, d2 = np.diff(two[9:12], axis=0)
     assert abs(d1 @ d2) < 1e-12  # a 90-degree turn at mid-track
-    a = simulate(setup, "linear", np.random.SeedSequence(3), 4)
-    b = simulate(setup, "linear", np.random.SeedSequence(3), 4)
+    seq = np.random.SeedSequence(3)
+    a = simulate(setup, "linear", seq, 4)
+    b = simulate(setup, "linear", seq, 4)  # reusing a sequence gives the same runs
     np.testing.assert_array_equal(a[2], b[2])
+    c = simulate(setup, "linear", seq, 6)  # more runs extend, not reshuffle
+    np.testing.assert_array_equal(a[2], c[2][:4])
+    assert np.all(a[2][0] != a[2][1])
     z = ranges(setup, a[0], a[2], 0.001)
     assert z.shape == (4, 20, 3) and np.all(z >= 0)

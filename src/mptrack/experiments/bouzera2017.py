@@ -88,15 +88,18 @@ def trajectory(setup: Setup, kind: str) -> np.ndarray:
 def simulate(setup: Setup, kind: str, seed_seq: np.random.SeedSequence, runs: int):
     """Truth (T, 3), initial estimates x0 (B, 3) ~ N(X(0), P0) and standard-normal range noise (B, T, m).
 
-    Each run has its own stream (``SeedSequence.spawn``); the noise is returned
-    unscaled so every noise level and filter sees the same draws (common random numbers).
+    Run b draws from the child stream b of ``seed_seq`` (the children ``spawn`` would make, derived
+    without mutating ``seed_seq``, so the same sequence always gives the same runs); the noise is
+    returned unscaled so every noise level, speed and filter sees the same draws (common random numbers).
     """
     path = trajectory(setup, kind)
     m = len(setup.stations_km)
     L = np.sqrt(np.asarray(setup.P0_diag))
     x0 = np.empty((runs, 3))
     eps = np.empty((runs, setup.steps, m))
-    for b, child in enumerate(seed_seq.spawn(runs)):
+    for b in range(runs):
+        child = np.random.SeedSequence(seed_seq.entropy, spawn_key=seed_seq.spawn_key + (b,),
+                                       pool_size=seed_seq.pool_size)
         rng = np.random.default_rng(child)
         x0[b] = path[0] + L * rng.standard_normal(3)
         eps[b] = rng.standard_normal((setup.steps, m))
@@ -324,7 +327,7 @@ def run(ctx: RunContext, setup: Setup | None = None) -> Reproduction:
         for v in setup.speed_sweep_km_s:
             sv = replace(setup, speed_km_s=v)
             row = [v * 3600.0]
-            for kind in KINDS:
+            for kind in KINDS:  # the main runs' noise and x0 at every speed
                 truth, x0, eps = simulate(sv, kind, seeds[kind], setup.runs)
                 out = run_filters(sv, ranges(sv, truth, eps, sv.sigma_km), x0)
                 row += [float(_run_rmse(out[f], truth).mean()) for f in FILTERS]
