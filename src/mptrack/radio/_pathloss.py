@@ -189,8 +189,16 @@ def hata_mobile_correction(frequency_mhz, h_mobile_m, *, large_city: bool = Fals
     return _out((1.1 * lf - 0.7) * hm - (1.56 * lf - 0.8))
 
 
-def _hata_core(d, f, hb, a_hm, a, b):
-    return a + b * np.log10(f) - 13.82 * np.log10(hb) - a_hm + (44.9 - 6.55 * np.log10(hb)) * np.log10(d)
+def _hata_loss(model, freq_limits, on_invalid, distance_km, frequency_mhz, h_base_m, h_mobile_m, a, b,
+               large_city=False):
+    """A + B log f - 13.82 log h_b - a(h_m) + (44.9 - 6.55 log h_b) log d after the validity checks."""
+    _check(model, {**HATA_LIMITS, "frequency_mhz": freq_limits}, on_invalid,
+           distance_km=distance_km, frequency_mhz=frequency_mhz, h_base_m=h_base_m, h_mobile_m=h_mobile_m)
+    d = _positive("distance_km", distance_km)
+    f = _positive("frequency_mhz", frequency_mhz)
+    hb = _positive("h_base_m", h_base_m)
+    a_hm = hata_mobile_correction(f, h_mobile_m, large_city=large_city)
+    return a + b * np.log10(f) - 13.82 * np.log10(hb) - a_hm + (44.9 - 6.55 * np.log10(hb)) * np.log10(d), f
 
 
 def okumura_hata(distance_km, frequency_mhz, *, h_base_m, h_mobile_m=1.5, environment: str = "urban",
@@ -206,14 +214,9 @@ def okumura_hata(distance_km, frequency_mhz, *, h_base_m, h_mobile_m=1.5, enviro
     envs = ("urban", "urban-large", "suburban", "rural")
     if environment not in envs:
         raise ParameterError(f"environment: expected one of {envs}, got {environment!r}")
-    _check("Okumura-Hata", {**HATA_LIMITS, "frequency_mhz": OKUMURA_HATA_FREQ}, on_invalid,
-           distance_km=distance_km, frequency_mhz=frequency_mhz, h_base_m=h_base_m, h_mobile_m=h_mobile_m)
-    d = _positive("distance_km", distance_km)
-    f = _positive("frequency_mhz", frequency_mhz)
-    hb = _positive("h_base_m", h_base_m)
-    large = environment == "urban-large"
     # suburban and open-area corrections are applied to the small/medium-city urban loss (Hata eqs. 5, 6)
-    loss = _hata_core(d, f, hb, hata_mobile_correction(f, h_mobile_m, large_city=large), 69.55, 26.16)
+    loss, f = _hata_loss("Okumura-Hata", OKUMURA_HATA_FREQ, on_invalid, distance_km, frequency_mhz, h_base_m,
+                         h_mobile_m, 69.55, 26.16, large_city=environment == "urban-large")
     if environment == "suburban":
         loss = loss - 2.0 * np.log10(f / 28.0) ** 2 - 5.4
     elif environment == "rural":
@@ -232,10 +235,6 @@ def cost231_hata(distance_km, frequency_mhz, *, h_base_m, h_mobile_m=1.5, city: 
     """
     if city not in ("medium", "metropolitan"):
         raise ParameterError(f"city: expected 'medium' or 'metropolitan', got {city!r}")
-    _check("COST-231 Hata", {**HATA_LIMITS, "frequency_mhz": COST231_HATA_FREQ}, on_invalid,
-           distance_km=distance_km, frequency_mhz=frequency_mhz, h_base_m=h_base_m, h_mobile_m=h_mobile_m)
-    d = _positive("distance_km", distance_km)
-    f = _positive("frequency_mhz", frequency_mhz)
-    hb = _positive("h_base_m", h_base_m)
-    c_m = 0.0 if city == "medium" else 3.0
-    return _out(_hata_core(d, f, hb, hata_mobile_correction(f, h_mobile_m), 46.3, 33.9) + c_m)
+    loss, _ = _hata_loss("COST-231 Hata", COST231_HATA_FREQ, on_invalid, distance_km, frequency_mhz, h_base_m,
+                         h_mobile_m, 46.3, 33.9)
+    return _out(loss + (0.0 if city == "medium" else 3.0))
