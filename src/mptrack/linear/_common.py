@@ -19,7 +19,7 @@ def prepare_inputs(model, z, x0, P0, *, allow_nan: bool = True):
     """
     if not isinstance(model, LinearGaussianModel):
         raise ParameterError(f"model: expected a LinearGaussianModel, got {type(model).__name__}")
-    z = as_sequence("z", z, model.m, allow_nan=allow_nan)
+    z = np.ascontiguousarray(as_sequence("z", z, model.m, allow_nan=allow_nan))  # compiled loops stream rows
     x0 = np.zeros(model.n) if x0 is None else as_vector("x0", x0, model.n)
     P0 = np.zeros((model.n, model.n)) if P0 is None else check_covariance("P0", P0, model.n)
     missing = np.isnan(z).any(axis=1)

@@ -11,6 +11,7 @@ from ..errors import ConvergenceError, NonFiniteError, ParameterError
 from ..models import LinearGaussianModel
 from ..riccati import SteadyState, steady_state
 from ._common import prepare_inputs
+from ._kernels import ss_loop
 from ._result import FilterResult
 
 __all__ = ["steady_state_filter", "fir_filter", "fir_order", "fir_coefficients"]
@@ -49,15 +50,7 @@ def steady_state_filter(model: LinearGaussianModel, z, x0=None, P0=None, *,
     A, B, F = ss.A, ss.B, model.F
     T = z.shape[0]
     xs = np.empty((T, model.n))
-    if missing.any():
-        for k in range(T):
-            x = F @ x if missing[k] else A @ x + B @ z[k]
-            xs[k] = x
-    else:
-        Bz = z @ B.T
-        for k in range(T):
-            x = A @ x + Bz[k]
-            xs[k] = x
+    ss_loop(A, B, F, z, x, xs)
     if covariance == "steady":
         Ps = np.broadcast_to(ss.P_filt, (T, model.n, model.n))
     else:
@@ -78,7 +71,7 @@ def _matrix_norm(M: np.ndarray, norm) -> float:
 
 
 def fir_order(A, eps: float = 1e-3, norm=2, max_order: int = 100_000) -> int:
-    """FIR order M: the smallest M with ||A^M|| < eps (so ||A^{M-1}|| >= eps), seed 000 eq. 22.
+    """FIR order M: the smallest M >= 1 with ||A^M|| < eps (so ||A^{M-1}|| >= eps), seed 000 eq. 22.
 
     ``norm`` is any ``numpy.linalg.norm`` matrix order (2, 'fro', 1, inf, ...).
     The papers' example (eps = 1e-3, spectral norm) gives M = 17.
@@ -90,8 +83,8 @@ def fir_order(A, eps: float = 1e-3, norm=2, max_order: int = 100_000) -> int:
     if rho >= 1.0:
         raise ConvergenceError(
             f"A: spectral radius {rho:.6g} >= 1, ||A^M|| never falls below eps; the FIR form does not exist")
-    power = np.eye(A.shape[0])
-    for M in range(0, max_order + 1):
+    power = A.copy()
+    for M in range(1, max_order + 1):  # M >= 1: eq. 22 with M = 0 would be an empty sum
         if _matrix_norm(power, norm) < eps:
             return M
         power = power @ A
