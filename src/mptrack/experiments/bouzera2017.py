@@ -21,7 +21,6 @@ from importlib import resources
 import numpy as np
 from scipy import stats
 
-from .._io import atomic_path
 from ..fuzzy import anfis_train
 from ..metrics import pcrb_ranges, position_error
 from ..nonlinear import ekf_ranges_batch, fcs_ranges_batch, fekf_ranges_batch, local_solutions
@@ -184,17 +183,9 @@ def table_viii(paper: dict) -> Table:
 
 
 def _figure(ctx: RunContext, name: str, draw) -> str:
-    import matplotlib
+    from ._plotting import plt, save_figure
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig = draw(plt)
-    path = ctx.figure_path(name)
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=110, bbox_inches="tight", format="png")
-    plt.close(fig)
-    return path.name
+    return save_figure(draw(plt), ctx.figure_path(name), dpi=110)
 
 
 def _load_paper() -> dict:
