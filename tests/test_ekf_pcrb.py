@@ -5,7 +5,7 @@ import pytest
 
 from mptrack.errors import ShapeError, SingularMatrixError
 from mptrack.linear import kalman_filter
-from mptrack.metrics import pcrb, pcrb_ranges, pcrb_tichavsky, position_error, range_fisher_information, rmse
+from mptrack.metrics import nees, pcrb, pcrb_ranges, pcrb_tichavsky, position_error, range_fisher_information, rmse
 from mptrack.models import LinearGaussianModel
 from mptrack.nonlinear import ekf_ranges_batch
 
@@ -56,3 +56,9 @@ def test_matched_ekf_rmse_is_near_and_above_the_bound():
     assert np.all(ours[5:] > 0.85 * bound[5:])   # >= up to Monte-Carlo error
     assert np.mean(ours / bound) < 1.15
     assert position_error(res.x, truth).shape == (B, T)
+    # consistency: average NEES over the runs inside the two-sided 99 % chi-square band (n = 2, B runs)
+    from scipy.stats import chi2
+
+    avg = nees(res.x, res.P, truth).mean(axis=0)
+    lo, hi = chi2.ppf([0.005, 0.995], 2 * B) / B
+    assert np.mean((avg > lo) & (avg < hi)) > 0.9

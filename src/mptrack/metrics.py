@@ -20,7 +20,7 @@ import numpy as np
 from ._validation import as_array, check_covariance
 from .errors import ShapeError, SingularMatrixError
 
-__all__ = ["position_error", "rmse", "pcrb", "pcrb_tichavsky", "range_fisher_information", "pcrb_ranges"]
+__all__ = ["position_error", "rmse", "nees", "pcrb", "pcrb_tichavsky", "range_fisher_information", "pcrb_ranges"]
 
 
 def position_error(x_est, truth, dims: int | None = None) -> np.ndarray:
@@ -38,6 +38,16 @@ def rmse(x_est, truth, dims: int | None = None, axis: int = 0) -> np.ndarray:
     """Root-mean-square position error over Monte-Carlo runs (``axis``) of a batch (B, T, n): (T,)."""
     e = position_error(x_est, truth, dims)
     return np.sqrt(np.mean(e ** 2, axis=axis))
+
+
+def nees(x_est, P, truth) -> np.ndarray:
+    """Normalised estimation error squared (x̂ - x)^T P^{-1} (x̂ - x) per step: (..., T).
+
+    For a consistent filter its mean over runs is the state dimension n
+    (chi-square with n degrees of freedom per run; Bar-Shalom et al. 2001, §5.4).
+    """
+    e = np.asarray(x_est, dtype=float) - np.asarray(truth, dtype=float)
+    return np.einsum("...i,...i->...", e, np.linalg.solve(np.asarray(P, dtype=float), e[..., None])[..., 0])
 
 
 def pcrb(F, Q, P0, info) -> np.ndarray:
