@@ -167,3 +167,11 @@ def test_wild_ranges_never_give_nan_estimates():
     for run in (ekf_ranges, fekf_ranges, fcs_ranges):
         res = run(wild, STATIONS, truth[0], 1e-3 * np.eye(3), Q0, 0.222)
         assert np.isfinite(res.x).all() and np.isfinite(res.P).all()
+
+
+def test_predictions_are_recorded():
+    truth, z = _track(T=6)
+    res = ekf_ranges(z, STATIONS, truth[0], 1e-3 * np.eye(3), Q0, 0.222)
+    np.testing.assert_allclose(res.x_pred[1:], res.x[:-1])          # random walk: x(k/k-1) = x(k-1/k-1)
+    np.testing.assert_allclose(res.P_pred[1:], res.P[:-1] + Q0)
+    np.testing.assert_allclose(res.x_pred[0], truth[0])

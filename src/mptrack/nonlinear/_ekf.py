@@ -38,17 +38,20 @@ _TINY_RANGE = 1e-12
 
 @dataclass(frozen=True, eq=False)
 class BatchFilterResult:
-    """A batch of B filter runs: x (B, T, n), P (B, T, n, n), loglik (B,) or None."""
+    """A batch of B filter runs: x, x_pred (B, T, n), P, P_pred (B, T, n, n), loglik (B,) or None."""
 
     x: np.ndarray
     P: np.ndarray
+    x_pred: np.ndarray
+    P_pred: np.ndarray
     loglik: np.ndarray | None = None
     method: str = ""
 
     def run(self, b: int) -> FilterResult:
         """Run ``b`` as a FilterResult."""
         ll = None if self.loglik is None else float(self.loglik[b])
-        return FilterResult(x=self.x[b], P=self.P[b], loglik=ll, method=self.method)
+        return FilterResult(x=self.x[b], P=self.P[b], x_pred=self.x_pred[b], P_pred=self.P_pred[b], loglik=ll,
+                            method=self.method)
 
 
 def range_measurement(x, stations):
@@ -120,11 +123,11 @@ def _prepare(z, stations, x0, P0, Q, R, motion, dt, *, batch: bool):
 
 
 def _ekf_core(z, stations, x0, P0, F, Q, R):
-    """Batched EKF: z (B, T, m) with NaN = missing range; returns (x, P, loglik)."""
+    """Batched EKF: z (B, T, m) with NaN = missing range; returns (x, P, x_pred, P_pred, loglik)."""
     B, T, m = z.shape
     n = F.shape[0]
-    xs = np.empty((B, T, n))
-    Ps = np.empty((B, T, n, n))
+    xs, xp = np.empty((B, T, n)), np.empty((B, T, n))
+    Ps, Pp = np.empty((B, T, n, n)), np.empty((B, T, n, n))
     loglik = np.zeros(B)
     x = x0.copy()
     P = np.broadcast_to(P0, (B, n, n)).copy()
@@ -132,6 +135,7 @@ def _ekf_core(z, stations, x0, P0, F, Q, R):
     for k in range(T):
         x = x @ F.T                                   # eq. 2 (F = I for the paper's model)
         P = F @ P @ F.T + Q                           # eq. 3
+        xp[:, k], Pp[:, k] = x, P
         dk = z[:, k]
         ok = ~np.isnan(dk)                            # (B, m)
         h, H = range_measurement(x, stations)         # eqs. 7-10
@@ -150,7 +154,7 @@ def _ekf_core(z, stations, x0, P0, F, Q, R):
         _, logdet = np.linalg.slogdet(S)
         quad = np.einsum("bm,bm->b", innov, np.linalg.solve(S, innov[..., None])[..., 0])
         loglik -= 0.5 * (quad + logdet + ok.sum(axis=1) * _LOG2PI)
-    return xs, Ps, loglik
+    return xs, Ps, xp, Pp, loglik
 
 
 def ekf_ranges(z, stations, x0, P0, Q, R, *, motion: str = "random-walk", dt: float = 1.0) -> FilterResult:
@@ -167,16 +171,18 @@ def ekf_ranges(z, stations, x0, P0, Q, R, *, motion: str = "random-walk", dt: fl
     not observable from one scan and the prior and motion model carry the
     unobserved directions (the covariance shows it).
     """
-    args = _prepare(z, stations, x0, P0, Q, R, motion, dt, batch=False)
-    xs, Ps, ll = _ekf_core(*args)
-    return FilterResult(x=xs[0], P=Ps[0], loglik=float(ll[0]), method="EKF")
+    return _ekf(z, stations, x0, P0, Q, R, motion, dt, batch=False).run(0)
 
 
 def ekf_ranges_batch(z, stations, x0, P0, Q, R, *, motion: str = "random-walk",
                      dt: float = 1.0) -> BatchFilterResult:
     """:func:`ekf_ranges` on B independent tracks at once: z (B, T, m), x0 (B, n)."""
-    xs, Ps, ll = _ekf_core(*_prepare(z, stations, x0, P0, Q, R, motion, dt, batch=True))
-    return BatchFilterResult(x=xs, P=Ps, loglik=ll, method="EKF")
+    return _ekf(z, stations, x0, P0, Q, R, motion, dt, batch=True)
+
+
+def _ekf(z, stations, x0, P0, Q, R, motion, dt, *, batch: bool) -> BatchFilterResult:
+    xs, Ps, xp, Pp, ll = _ekf_core(*_prepare(z, stations, x0, P0, Q, R, motion, dt, batch=batch))
+    return BatchFilterResult(x=xs, P=Ps, x_pred=xp, P_pred=Pp, loglik=ll, method="EKF")
 
 
 def range_fix(ranges, stations, *, height=None) -> np.ndarray:

@@ -109,13 +109,14 @@ def _fused_core(z, stations, x0, P0, F, Q, R, weights: Callable, covariance: str
     R_diag = np.diag(R)
     B, T, m = z.shape
     n = F.shape[0]
-    xs = np.empty((B, T, n))
-    Ps = np.empty((B, T, n, n))
+    xs, xp = np.empty((B, T, n)), np.empty((B, T, n))
+    Ps, Pp = np.empty((B, T, n, n)), np.empty((B, T, n, n))
     x = x0.copy()
     P = np.broadcast_to(P0, (B, n, n)).copy()
     for k in range(T):
         x = x @ F.T                                                  # eq. 2
         P = F @ P @ F.T + Q                                          # eq. 3
+        xp[:, k], Pp[:, k] = x, P
         dk = z[:, k]
         ok = ~np.isnan(dk)
         _, K, H, innov, S = local_solutions(x, P, dk, stations, R_diag)
@@ -123,7 +124,7 @@ def _fused_core(z, stations, x0, P0, F, Q, R, weights: Callable, covariance: str
         x, P = fuse_local_solutions(x, P, K, H, innov, S, R_diag, y, covariance=covariance)
         xs[:, k] = x
         Ps[:, k] = P
-    return xs, Ps
+    return xs, Ps, xp, Pp
 
 
 def _fis_weights(fis, kind: str):
@@ -138,10 +139,9 @@ def _fis_weights(fis, kind: str):
 
 def _run(kind, z, stations, x0, P0, Q, R, fis, motion, dt, covariance, batch):
     args = _prepare(z, stations, x0, P0, Q, R, motion, dt, batch=batch)
-    xs, Ps = _fused_core(*args, weights=_fis_weights(fis, kind), covariance=covariance)
-    if batch:
-        return BatchFilterResult(x=xs, P=Ps, method=kind)
-    return FilterResult(x=xs[0], P=Ps[0], method=kind)
+    xs, Ps, xp, Pp = _fused_core(*args, weights=_fis_weights(fis, kind), covariance=covariance)
+    out = BatchFilterResult(x=xs, P=Ps, x_pred=xp, P_pred=Pp, method=kind)
+    return out if batch else out.run(0)
 
 
 def fekf_ranges(z, stations, x0, P0, Q, R, *, fis: TakagiSugeno | None = None, motion: str = "random-walk",
