@@ -3,6 +3,8 @@ the exact vs printed covariance (eq. 16), missing ranges, batching and bad input
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from mptrack.errors import ParameterError
 from mptrack.fuzzy import TakagiSugeno, uniform_partition
@@ -139,3 +141,21 @@ def test_custom_fis_and_bad_input():
         fekf_ranges(z, STATIONS, truth[0], P0, Q0, 0.2 * np.eye(3) + 0.01)
     with pytest.raises(ParameterError, match="covariance"):
         fcs_ranges(z, STATIONS, truth[0], P0, Q0, 0.222, covariance="joseph")
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.lists(st.floats(0.0, 1.0), min_size=3, max_size=3).filter(lambda y: sum(y) > 1e-3),
+       st.integers(0, 1000))
+def test_exact_fused_covariance_is_psd_and_estimate_in_hull(y, seed):
+    rng = np.random.default_rng(seed)
+    x = rng.uniform(0.2, 1.8, 3) * np.array([1, 1, 0.01])
+    A = rng.standard_normal((3, 3))
+    P = A @ A.T * 0.01 + 1e-4 * np.eye(3)
+    H, S, K, inn = _locals(x, P, STATIONS, rng.uniform(0.1, 2.0, 3), 0.05)
+    y = np.array(y)
+    xf, Pf = fuse_local_solutions(*(a[None] for a in (x, P, K, H, inn, S)), np.full(3, 0.05), y[None],
+                                  covariance="exact")
+    assert np.linalg.eigvalsh(Pf[0]).min() > -1e-12
+    local = x + K * inn[:, None]
+    lo, hi = local.min(axis=0) - 1e-12, local.max(axis=0) + 1e-12
+    assert np.all((xf[0] >= lo) & (xf[0] <= hi))  # Proposition 2 (inside the bounding box of the hull)
