@@ -62,3 +62,13 @@ def test_matched_ekf_rmse_is_near_and_above_the_bound():
     avg = nees(res.x, res.P, truth).mean(axis=0)
     lo, hi = chi2.ppf([0.005, 0.995], 2 * B) / B
     assert np.mean((avg > lo) & (avg < hi)) > 0.9
+
+
+def test_pcrb_with_zero_process_noise_accumulates_information():
+    rng = np.random.default_rng(3)
+    A = rng.standard_normal((10, 2, 2))
+    info = A @ A.transpose(0, 2, 1)
+    P0 = np.diag([0.5, 2.0])
+    bound = pcrb(np.eye(2), np.zeros((2, 2)), P0, info)
+    expect = np.linalg.inv(np.linalg.inv(P0) + np.cumsum(info, axis=0))
+    np.testing.assert_allclose(bound, expect, rtol=1e-10)
