@@ -24,6 +24,8 @@ def test_quick_reproduction_writes_all_tables_and_figures(tmp_path):
     for row in (t5[0], t5[2]):
         assert row[1] > max(row[2], row[3])
     assert 0 <= rep.tables["Table VI"].rows[0][1] <= 1
+    for row in rep.tables["Table VII"].rows:  # the scenario PCRB bounds every filter
+        assert row[4] < min(row[1:4])
 
 
 def test_trajectories_and_common_random_numbers():
@@ -57,8 +59,9 @@ def test_full_reproduction_findings(tmp_path):
         assert ekf < fekf < fcs
     assert abs(t5[0][2] - 0.0518) < 0.005  # the speed was chosen for this
     t7 = {r[0]: r[1:] for r in rep.tables["Table VII"].rows}
-    fcs, ekf, fekf = t7["0.5 (one-Linear Traj.)"]
+    fcs, ekf, fekf, bound = t7["0.5 (one-Linear Traj.)"]
     assert fekf < ekf  # high noise: the FEKF's smaller gain wins
+    assert bound < min(fcs, ekf, fekf)
     assert rep.tables["Table VIII"].mismatches() == []
     assert all(r[1] > r[3] for r in rep.tables["Speed sweep (ours)"].rows)  # FCS worst at every speed
     assert all(r[2] < r[3] for r in rep.tables["Speed sweep (ours)"].rows)  # EKF < FEKF at every speed

@@ -221,17 +221,44 @@ def run(ctx: RunContext, setup: Setup | None = None) -> Reproduction:
     setup = setup or Setup()
     if ctx.quick:
         setup = replace(setup, runs=12, steps=60, noise_levels=(0.001, 0.1, 0.6), R0_sweep=(1e-3, 0.222, 10.0),
-                        P0_sweep=(1e-3, 0.1), Q0_sweep=(0.02, 5050.0), nlos_bias_km=(0.0, 0.3), anfis_runs=4,
-                        speed_sweep_km_s=(0.005, 0.0175),
-                        anfis_epochs=5)
+                        P0_sweep=(1e-3, 0.1), Q0_sweep=(0.02, 5050.0), nlos_bias_km=(0.0, 0.3),
+                        speed_sweep_km_s=(0.005, 0.0175), anfis_runs=4, anfis_epochs=5)
     paper = _load_paper()
     root = np.random.SeedSequence(ctx.seed)
     seeds = dict(zip(KINDS + ("anfis",), root.spawn(len(KINDS) + 1)))
     sims = {kind: simulate(setup, kind, seeds[kind], setup.runs) for kind in KINDS}
-    tables: dict[str, Table] = {}
-    notes: list[str] = []
+    per_run, base = _noise_runs(ctx, setup, sims)
+    tables = _published_tables(setup, paper, sims, per_run)
+    tables.update(_ordering_tables(ctx, setup, sims, seeds, per_run))
+    sweeps = _sensitivity(ctx, setup, sims)
+    for label, (name, (values, res)) in zip(("Figure 11", "Figure 12", "Figure 13"), sweeps.items()):
+        tables[f"{label} data"] = Table(f"Average RMSE (km) vs {name} (diagonal elements equal for P0, Q0)",
+                                        [name, "EKF", "FEKF"],
+                                        [[v, e, f] for v, e, f in zip(values, res["EKF"], res["FEKF"])])
+    tables.update(_anfis_tables(ctx, setup, seeds["anfis"], sims, per_run))
+    tables["Table VIII"] = table_viii(paper)
 
-    # Tables V and VII: every noise level, both trajectories, the three filters
+    figures = _figures(ctx, setup, sims, base, sweeps)
+    parameters = {k: v for k, v in asdict(setup).items()}
+    parameters["fis"] = {k: list(v) for k, v in setup.fis.items()}
+    notes = [
+        "Station positions, start, heading, turn, speed (63 km/h, chosen so the EKF's linear RMSE is near the "
+        "paper's 0.052 km), duration and handset height are not in the paper: see parameters.",
+        "FEKF/FCS fuzzy sets: uniform triangular partitions over the universes the paper reports "
+        "(|Inn| in [0, 1.5] km, S in [0.22, 0.32] km^2; distance in [0, 1.5] km); Table I read with 5 innovation "
+        "and 2 covariance sets (docs/errata.md).",
+        "Ordering: FCS worst is reproduced; EKF beats FEKF at low noise (see 'Ordering evidence'); the FEKF wins "
+        "only where R0 under-states the noise or a station is biased (Table VII high sigma, 'NLOS bias').",
+    ]
+    return Reproduction(key=KEY, paper=PAPER, seed=ctx.seed, parameters=parameters, tables=tables,
+                        figures=figures, notes=notes)
+
+
+def _noise_runs(ctx, setup, sims):
+    """Tables V and VII: every noise level, both trajectories, the three filters.
+
+    Returns per-run average RMSEs {(sigma, kind): {filter: (B,)}} and the filter results at setup.sigma_km.
+    """
     per_run: dict[tuple, dict[str, np.ndarray]] = {}
     base: dict[str, dict] = {}
     with ctx.progress.task("Monte-Carlo (Tables V, VII)", total=len(setup.noise_levels) * len(KINDS)) as advance:
@@ -248,7 +275,12 @@ def run(ctx: RunContext, setup: Setup | None = None) -> Reproduction:
             truth, x0, eps = sims[kind]
             base[kind] = run_filters(setup, ranges(setup, truth, eps, setup.sigma_km), x0)
             per_run[setup.sigma_km, kind] = {f: _run_rmse(r, truth) for f, r in base[kind].items()}
+    return per_run, base
 
+
+def _published_tables(setup, paper, sims, per_run) -> dict[str, Table]:
+    """Tables V, VI (with its detail) and VII beside the published numbers."""
+    tables: dict[str, Table] = {}
     t5 = paper["table5"]
     labels = {"linear": "one-Linear Traj.", "two-linear": "two-Linear Traj."}
     rows5, paper5 = [], []
@@ -301,7 +333,12 @@ def run(ctx: RunContext, setup: Setup | None = None) -> Reproduction:
                                 notes=("Same runs and noise draws at every sigma (common random numbers). PCRB: "
                                        "Tichavsky bound for the scenario (known path shape, unknown start ~ P0, "
                                        "range variance sigma^2), averaged over the trajectory."))
+    return tables
 
+
+def _ordering_tables(ctx, setup, sims, seeds, per_run) -> dict[str, Table]:
+    """Our evidence on the EKF/FEKF ordering: filter variants with the PCRB, a speed sweep, an NLOS bias."""
+    tables: dict[str, Table] = {}
     # Evidence for the ordering: the FEKF's fused update is a convex combination of one-station updates
     rows_g = []
     for kind in KINDS:
@@ -356,8 +393,11 @@ def run(ctx: RunContext, setup: Setup | None = None) -> Reproduction:
     tables["NLOS bias (ours)"] = Table(
         "Average RMSE (km), linear trajectory, range bias on station 2 for the middle 40 % of the track",
         ["bias (km)", *FILTERS], rows_n)
+    return tables
 
-    # Figures 11-13: sensitivity to R0, P0, Q0 (linear trajectory, EKF and FEKF)
+
+def _sensitivity(ctx, setup, sims) -> dict:
+    """Figures 11-13: average RMSE of EKF and FEKF vs R0, P0, Q0 (linear trajectory)."""
     truth, x0, eps = sims["linear"]
     sweeps = {}
     with ctx.progress.task("Sensitivity (figures 11-13)", total=3) as advance:
@@ -367,28 +407,7 @@ def run(ctx: RunContext, setup: Setup | None = None) -> Reproduction:
         advance()
         sweeps["Q0"] = (setup.Q0_sweep, _sweep(setup, truth, x0, eps, "Q0", setup.Q0_sweep, lambda v: v * np.eye(3)))
         advance()
-    for label, (name, (values, res)) in zip(("Figure 11", "Figure 12", "Figure 13"), sweeps.items()):
-        tables[f"{label} data"] = Table(f"Average RMSE (km) vs {name} (diagonal elements equal for P0, Q0)",
-                                        [name, "EKF", "FEKF"],
-                                        [[v, e, f] for v, e, f in zip(values, res["EKF"], res["FEKF"])])
-
-    tables.update(_anfis_tables(ctx, setup, seeds["anfis"], sims, per_run))
-    tables["Table VIII"] = table_viii(paper)
-
-    figures = _figures(ctx, setup, sims, base, sweeps)
-    parameters = {k: v for k, v in asdict(setup).items()}
-    parameters["fis"] = {k: list(v) for k, v in setup.fis.items()}
-    notes += [
-        "Station positions, start, heading, turn, speed (63 km/h, chosen so the EKF's linear RMSE is near the "
-        "paper's 0.052 km), duration and handset height are not in the paper: see parameters.",
-        "FEKF/FCS fuzzy sets: uniform triangular partitions over the universes the paper reports "
-        "(|Inn| in [0, 1.5] km, S in [0.22, 0.32] km^2; distance in [0, 1.5] km); Table I read with 5 innovation "
-        "and 2 covariance sets (docs/errata.md).",
-        "Ordering: FCS worst is reproduced; EKF beats FEKF at low noise (see 'Ordering evidence'); the FEKF wins "
-        "only where R0 under-states the noise or a station is biased (Table VII high sigma, 'NLOS bias').",
-    ]
-    return Reproduction(key=KEY, paper=PAPER, seed=ctx.seed, parameters=parameters, tables=tables,
-                        figures=figures, notes=notes)
+    return sweeps
 
 
 def _anfis_tables(ctx, setup, seed_seq, sims, per_run) -> dict[str, Table]:
