@@ -159,3 +159,23 @@ def test_exact_fused_covariance_is_psd_and_estimate_in_hull(y, seed):
     local = x + K * inn[:, None]
     lo, hi = local.min(axis=0) - 1e-12, local.max(axis=0) + 1e-12
     assert np.all((xf[0] >= lo) & (xf[0] <= hi))  # Proposition 2 (inside the bounding box of the hull)
+
+
+def test_printed_eq16_can_go_indefinite_and_exact_cannot():
+    truth, z = _track(T=40)
+    Qbig = 5050.0 * np.eye(3)
+    paper = fekf_ranges(z, STATIONS, truth[0], P0, Qbig, 0.222, covariance="paper")
+    exact = fekf_ranges(z, STATIONS, truth[0], P0, Qbig, 0.222)
+    assert np.linalg.eigvalsh(paper.P)[:, 0].min() < 0
+    assert np.linalg.eigvalsh(exact.P)[:, 0].min() > -1e-9
+    assert np.isfinite(paper.x).all()
+
+
+def test_indefinite_prediction_raises_instead_of_nan():
+    from mptrack.errors import NotPositiveDefiniteError
+    from mptrack.nonlinear import local_solutions
+
+    x = np.array([[0.8, 0.6, 0.0015]])
+    P = -np.eye(3)[None]
+    with pytest.raises(NotPositiveDefiniteError, match="covariance='exact'"):
+        local_solutions(x, P, np.ones((1, 3)), STATIONS, np.full(3, 0.1))

@@ -12,7 +12,11 @@ zero-order Takagi–Sugeno system and fuse them (eqs. 15–16):
 Eq. 16 drops the cross terms w_i w_j K_i H_i P^- H_j^T K_j^T (i != j) that the
 shared prediction error puts into eq. 24; ``covariance="exact"`` keeps them,
 P_est = A P^- A^T + sum_i w_i^2 R_i K_i K_i^T with A = I - sum_i w_i K_i H_i,
-the true covariance of the fused estimate under the linearisation.
+the true covariance of the fused estimate under the linearisation, which is
+positive semi-definite by construction.  Eq. 16 is not: over the paper's own
+Q0 sensitivity range (Q0 = 5050, Fig. 13) about half of its covariances are
+indefinite (docs/errata.md), so ``"exact"`` is the default and ``"paper"``
+reproduces the published algorithm.
 When no station gives a positive weight (all ranges missing) the step only predicts.
 """
 
@@ -22,7 +26,7 @@ from typing import Callable
 
 import numpy as np
 
-from ..errors import ParameterError
+from ..errors import NotPositiveDefiniteError, ParameterError
 from ..fuzzy import TakagiSugeno, uniform_partition
 from ..linear import FilterResult
 from ._ekf import BatchFilterResult, _prepare, range_measurement
@@ -74,12 +78,16 @@ def local_solutions(x_pred, P_pred, z, stations, R_diag):
     h, H = range_measurement(x_pred, stations)                       # eqs. 7-10
     PHt = np.einsum("bnk,bmk->bmn", P_pred, H)                       # rows P^- H_i^T
     S = np.einsum("bmn,bmn->bm", H, PHt) + R_diag                    # eq. 12, per station
+    if np.any(S <= 0):
+        raise NotPositiveDefiniteError(
+            "P_pred: an innovation variance H P H^T + R is <= 0; the predicted covariance is indefinite "
+            "(eq. 16 of the paper can make it so: use covariance='exact')")
     K = PHt / S[..., None]                                           # eq. 4, per station
     innov = np.where(np.isnan(z), 0.0, z - h)                        # eq. 11
     return x_pred[:, None, :] + K * innov[..., None], K, H, innov, S  # eq. 14
 
 
-def fuse_local_solutions(x_pred, P_pred, K, H, innov, S, R_diag, y, *, covariance: str = "paper"):
+def fuse_local_solutions(x_pred, P_pred, K, H, innov, S, R_diag, y, *, covariance: str = "exact"):
     """Fuse local single-station solutions with weights y (eqs. 15–16), batched.
 
     x_pred (B, n), P_pred (B, n, n), K (B, m, n) local gains, H (B, m, n), innov (B, m), S (B, m),
@@ -145,29 +153,29 @@ def _run(kind, z, stations, x0, P0, Q, R, fis, motion, dt, covariance, batch):
 
 
 def fekf_ranges(z, stations, x0, P0, Q, R, *, fis: TakagiSugeno | None = None, motion: str = "random-walk",
-                dt: float = 1.0, covariance: str = "paper") -> FilterResult:
+                dt: float = 1.0, covariance: str = "exact") -> FilterResult:
     """Fuzzy EKF (paper Table II): local per-station EKF updates fused with weights FIS1(|Inn_i|, S_i).
 
     Arguments as :func:`mptrack.nonlinear.ekf_ranges` (R scalar or diagonal); any number of stations.
     fis         the two-input TS system (default :func:`bouzera_fekf_fis`, Table I)
-    covariance  "paper" (eq. 16) or "exact" (eq. 16 with the cross-station terms; see module doc)
+    covariance  "exact" (eq. 16 with the cross-station terms, always PSD) or "paper" (eq. 16 as printed)
     """
     return _run("FEKF", z, stations, x0, P0, Q, R, fis, motion, dt, covariance, False)
 
 
 def fekf_ranges_batch(z, stations, x0, P0, Q, R, *, fis=None, motion="random-walk", dt=1.0,
-                      covariance="paper") -> BatchFilterResult:
+                      covariance="exact") -> BatchFilterResult:
     """:func:`fekf_ranges` on B tracks at once: z (B, T, m), x0 (B, n)."""
     return _run("FEKF", z, stations, x0, P0, Q, R, fis, motion, dt, covariance, True)
 
 
 def fcs_ranges(z, stations, x0, P0, Q, R, *, fis: TakagiSugeno | None = None, motion: str = "random-walk",
-               dt: float = 1.0, covariance: str = "paper") -> FilterResult:
+               dt: float = 1.0, covariance: str = "exact") -> FilterResult:
     """Fuzzy controller system (paper Table IV): as the FEKF but with weights FIS2(d_i) of the measured range."""
     return _run("FCS", z, stations, x0, P0, Q, R, fis, motion, dt, covariance, False)
 
 
 def fcs_ranges_batch(z, stations, x0, P0, Q, R, *, fis=None, motion="random-walk", dt=1.0,
-                     covariance="paper") -> BatchFilterResult:
+                     covariance="exact") -> BatchFilterResult:
     """:func:`fcs_ranges` on B tracks at once: z (B, T, m), x0 (B, n)."""
     return _run("FCS", z, stations, x0, P0, Q, R, fis, motion, dt, covariance, True)
