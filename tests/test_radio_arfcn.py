@@ -5,7 +5,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from mptrack.errors import DTypeError, ParameterError, UnknownNameError
+from mptrack.errors import DTypeError, NonFiniteError, ParameterError, UnknownNameError
 from mptrack.radio import GSM_BANDS, arfcn_to_frequency, frequency_to_arfcn
 
 EDGES = [  # band, arfcn, uplink MHz, downlink MHz
@@ -54,6 +54,8 @@ def test_bad_inputs():
         arfcn_to_frequency(10, "P-GSM", link="sideways")
     with pytest.raises(ParameterError, match="frequency_mhz"):
         frequency_to_arfcn(935.1, "P-GSM")
+    with pytest.raises(NonFiniteError, match="frequency_mhz"):
+        frequency_to_arfcn(np.nan, "P-GSM")
 
 
 @given(st.sampled_from(sorted(GSM_BANDS)), st.data())

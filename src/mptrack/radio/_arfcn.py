@@ -14,6 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .._validation import as_array
 from ..errors import DTypeError, ParameterError, UnknownNameError
 
 __all__ = ["GsmBand", "GSM_BANDS", "arfcn_to_frequency", "frequency_to_arfcn"]
@@ -91,7 +92,7 @@ def frequency_to_arfcn(frequency_mhz, band: str, link: str = "downlink"):
     Raises ParameterError when the frequency is not on the band's 200 kHz raster.
     """
     spec, link = _band(band), _link(link)
-    f = np.asarray(frequency_mhz, dtype=float)
+    f = as_array("frequency_mhz", frequency_mhz)
     f_up = f - (spec.duplex_mhz if link == "downlink" else 0.0)
     out = np.full(f.shape, -1, dtype=np.int64)
     for lo, hi, n0, f0 in spec.segments:

@@ -153,6 +153,8 @@ def cost231_wi_nlos(distance_km, frequency_mhz, *, h_base_m, h_mobile_m=1.5, h_r
     """
     _check("COST-231 Walfisch-Ikegami", WI_LIMITS, on_invalid, distance_km=distance_km,
            frequency_mhz=frequency_mhz, h_base_m=h_base_m, h_mobile_m=h_mobile_m)
+    _positive("h_base_m", h_base_m)
+    _positive("h_mobile_m", h_mobile_m)
     l0 = wi_free_space_loss(distance_km, frequency_mhz, constant_db=free_space_constant_db)
     extra = (wi_rooftop_to_street_loss(frequency_mhz, street_width_m=street_width_m, h_roof_m=h_roof_m,
                                        h_mobile_m=h_mobile_m, street_angle_deg=street_angle_deg)
