@@ -394,9 +394,11 @@ def test_filter_registry_names():
         get_filter("EKF")
 
 
-def test_jklf_is_the_average_of_kf_and_lf(simulated):
+@pytest.mark.parametrize("model", [assimakis_model_a(2), assimakis_model_b(measurement="position")],
+                         ids=["A2", "B-position"])
+def test_jklf_is_the_average_of_kf_and_lf(model):
     """Eq. 8 (and eq. 16 for the steady-state join): weight 50 % each."""
-    model, _, z = simulated
+    _, z = simulate_linear(model, 80, np.random.default_rng(17))
     x0, P0 = _prior(model)
     kf, lf = FILTERS["KF"].run(model, z, x0, P0), FILTERS["LF"].run(model, z, x0, P0)
     j = FILTERS["JKLF"].run(model, z, x0, P0)
