@@ -296,8 +296,6 @@ def test_fir_order_is_the_first_power_below_eps(norm, eps):
     assert np.linalg.norm(np.linalg.matrix_power(A, M - 1), norm) >= eps
 
 
-@pytest.mark.xfail(strict=True, reason="bug: fir_order returns M = 0 when eps > ||I|| and "
-                   "fir_filter then fails with IndexError in fir_coefficients")
 def test_fir_order_is_at_least_one():
     """Eq. 22 needs M >= 1 (M = 0 is an empty sum); with eps above ||A^0|| = 1 the order is 1."""
     A = 0.5 * np.eye(2)
@@ -453,8 +451,6 @@ def test_per_axis_keeps_predictions_and_sums_logliks():
     assert lf.x_pred is None and lf.loglik is None
 
 
-@pytest.mark.xfail(strict=True, reason="bug: per_axis rejects a P0 whose off-block entries are "
-                   "rounding noise (e.g. model A's steady-state Pe, off-blocks ~1e-18)")
 def test_per_axis_accepts_p0_block_diagonal_to_rounding():
     """A steady-state Pe of model A has off-block entries of ~1e-18 (rounding); it is the natural
     prior for the model B filters and should be accepted."""
