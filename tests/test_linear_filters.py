@@ -552,3 +552,23 @@ def test_filters_accept_general_models():
     np.testing.assert_allclose(kf.x, ref["x"], rtol=1e-12, atol=1e-14)
     lf = lainiotis_filter(model, z, x0, P0)
     np.testing.assert_allclose(lf.x, kf.x, rtol=1e-10, atol=1e-14)
+
+
+@pytest.mark.parametrize("name", ["KF", "LF", "SSKF", "SSLF", "FIR"])
+def test_input_layouts_and_dtypes_do_not_change_results(name):
+    """Strided, Fortran-ordered, read-only, integer and float32 inputs give the same numbers as
+    contiguous float64 ones (the compiled loops must not depend on memory layout)."""
+    model = assimakis_model_a(3)
+    big = np.random.default_rng(30).standard_normal((40, 6))
+    ref = FILTERS[name].run(model, np.ascontiguousarray(big[::2, ::2]), np.arange(6.0), 2.0 * np.eye(6))
+    read_only = np.ascontiguousarray(big[::2, ::2])
+    read_only.setflags(write=False)
+    for z in (big[::2, ::2], np.asfortranarray(big[::2, ::2]), read_only):
+        res = FILTERS[name].run(model, z, np.arange(6), 2 * np.eye(6, dtype=int))
+        np.testing.assert_array_equal(res.x, ref.x)
+        np.testing.assert_array_equal(res.P, ref.P)
+    z32 = big[::2, ::2].astype(np.float32)
+    res = FILTERS[name].run(model, z32, np.arange(6.0), 2.0 * np.eye(6))
+    assert res.x.dtype == np.float64
+    np.testing.assert_allclose(res.x, FILTERS[name].run(model, z32.astype(np.float64), np.arange(6.0),
+                                                        2.0 * np.eye(6)).x, rtol=0, atol=0)
