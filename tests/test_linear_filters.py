@@ -563,7 +563,9 @@ def test_input_layouts_and_dtypes_do_not_change_results(name):
     ref = FILTERS[name].run(model, np.ascontiguousarray(big[::2, ::2]), np.arange(6.0), 2.0 * np.eye(6))
     read_only = np.ascontiguousarray(big[::2, ::2])
     read_only.setflags(write=False)
-    for z in (big[::2, ::2], np.asfortranarray(big[::2, ::2]), read_only):
+    # a read-only z is its own numba specialisation (a compile of several seconds on a cold
+    # cache): checked for the KF only
+    for z in (big[::2, ::2], np.asfortranarray(big[::2, ::2])) + ((read_only,) if name == "KF" else ()):
         res = FILTERS[name].run(model, z, np.arange(6), 2 * np.eye(6, dtype=int))
         np.testing.assert_array_equal(res.x, ref.x)
         np.testing.assert_array_equal(res.P, ref.P)
