@@ -77,20 +77,20 @@ MODEL_CASES = [
     ("Q-not-symmetric", dict(Q=[[1.0, 0.5], [0.0, 1.0]]), NotSymmetricError, "Q"),
     ("Q-indefinite", dict(Q=[[1.0, 0.0], [0.0, -0.1]]), NotPositiveDefiniteError, "Q"),
     ("Q-nan", dict(Q=NAN2), NonFiniteError, "Q"),
-    ("Q-missing", dict(Q=None), ShapeError, "Q"),
+    ("Q-missing", dict(Q=None), ParameterError, "Q"),
     ("R-wrong-size", dict(R=np.eye(2)), ShapeError, "R"),
     ("R-zero", dict(R=[[0.0]]), NotPositiveDefiniteError, "R"),
     ("R-negative", dict(R=[[-0.1]]), NotPositiveDefiniteError, "R"),
     ("R-inf", dict(R=[[np.inf]]), NonFiniteError, "R"),
     ("R-singular-2x2", dict(H=np.eye(2), R=[[1.0, 1.0], [1.0, 1.0]]), NotPositiveDefiniteError, "R"),
     ("R-not-symmetric", dict(H=np.eye(2), R=[[1.0, 0.2], [0.0, 1.0]]), NotSymmetricError, "R"),
-    ("G-without-Qw", dict(G=[[0.5], [1.0]]), ShapeError, "G"),
-    ("Qw-without-G", dict(Q=None, Qw=[[1.0]]), ShapeError, "Qw"),
+    ("G-without-Qw", dict(G=[[0.5], [1.0]]), ParameterError, "G"),
+    ("Qw-without-G", dict(Q=None, Qw=[[1.0]]), ParameterError, "Qw"),
     ("G-wrong-rows", dict(GAIN, G=np.ones((3, 1))), ShapeError, "G"),
     ("G-nan", dict(GAIN, G=[[np.nan], [1.0]]), NonFiniteError, "G"),
     ("Qw-wrong-size", dict(GAIN, Qw=np.eye(2)), ShapeError, "Qw"),
     ("Qw-indefinite", dict(GAIN, Qw=[[-0.01]]), NotPositiveDefiniteError, "Qw"),
-    ("Q-disagrees-with-G-Qw", dict(GAIN, Q=np.eye(2)), ShapeError, "Q"),
+    ("Q-disagrees-with-G-Qw", dict(GAIN, Q=np.eye(2)), ParameterError, "Q"),
     ("F-scalar-string", dict(F="abc"), DTypeError, "F"),
     ("F-scalar-complex", dict(F=1j, H=[[1.0]], Q=[[1.0]]), DTypeError, "F"),
     ("H-no-rows", dict(H=np.zeros((0, 2)), R=np.zeros((0, 0))), ShapeError, "H"),
@@ -245,7 +245,7 @@ def test_bad_fir_order_arguments(A, kwargs, cls, name):
     (dict(z=np.zeros(5)), ShapeError, "z"),
     (dict(z=np.zeros((5, 2, 1))), ShapeError, "z"),
     (dict(x0=np.zeros(3)), ShapeError, "x0"),
-    (dict(P0=np.ones((4, 4)) + np.eye(4)), ShapeError, "P0"),  # not block-diagonal
+    (dict(P0=np.ones((4, 4)) + np.eye(4)), ParameterError, "P0"),  # not block-diagonal
     (dict(P0=-np.eye(4)), NotPositiveDefiniteError, "P0"),
     (dict(z=[[np.inf, 0.0]]), NonFiniteError, "z"),
 ])
@@ -388,3 +388,11 @@ def test_fuzzed_inputs_give_a_result_or_an_mptrack_error(z, x0, P0, runner):
         assert re.match(r"^(z|x0|P0)\b", str(err)), str(err)
     else:
         assert isinstance(res, FilterResult) and res.x.shape[1] == 4
+
+
+def test_unknown_name_is_also_a_value_error():
+    """A bad name is a bad argument value: ``except ValueError`` catches it like every other mptrack error."""
+    with pytest.raises(ValueError, match="filter"):
+        get_filter("nope")
+    with pytest.raises(ValueError, match="implementation"):
+        get_implementation(99)

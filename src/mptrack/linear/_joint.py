@@ -7,7 +7,7 @@ from typing import Callable
 import numpy as np
 
 from .._validation import as_sequence, as_vector, check_covariance, check_int
-from ..errors import ShapeError
+from ..errors import ParameterError, ShapeError
 from ..models import LinearGaussianModel
 from ._result import FilterResult
 
@@ -44,7 +44,7 @@ def per_axis(run: Callable[..., FilterResult], axis_model: LinearGaussianModel, 
         off[s, s] = 0.0
     worst = float(np.max(np.abs(off)))
     if worst > 1e-12 * max(float(np.max(np.abs(P0))), np.finfo(float).tiny):
-        raise ShapeError("P0: model B runs the axes independently; P0 must be block-diagonal "
+        raise ParameterError("P0: model B runs the axes independently; P0 must be block-diagonal "
                          f"(largest off-block entry {worst:.3g})")
     parts = [run(axis_model, z[:, i * ma:(i + 1) * ma], x0[s], P0[s, s], **kwargs)
              for i, s in enumerate(blocks)]

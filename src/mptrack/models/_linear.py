@@ -54,7 +54,7 @@ class LinearGaussianModel:
         m = H.shape[0]
         R = check_covariance("R", self.R, m, definite=True)
         if (self.G is None) != (self.Qw is None):
-            raise ShapeError("G and Qw: give both (Q = G Qw G^T) or neither")
+            raise ParameterError("G and Qw: give both (Q = G Qw G^T) or neither")
         G = Qw = None
         if self.G is not None:
             G = as_matrix("G", self.G, n, None)
@@ -64,10 +64,10 @@ class LinearGaussianModel:
             if self.Q is not None:
                 Q = check_covariance("Q", self.Q, n)
                 if not np.allclose(Q, Q_from_g, rtol=1e-10, atol=1e-14):
-                    raise ShapeError("Q: disagrees with G Qw G^T; give Q or (G, Qw), not both")
+                    raise ParameterError("Q: disagrees with G Qw G^T; give Q or (G, Qw), not both")
             Q = Q_from_g
         elif self.Q is None:
-            raise ShapeError("Q: the process noise is missing; give Q or (G, Qw)")
+            raise ParameterError("Q: the process noise is missing; give Q or (G, Qw)")
         else:
             Q = check_covariance("Q", self.Q, n)
         for attr, value in (("F", F), ("H", H), ("Q", Q), ("R", R), ("G", G), ("Qw", Qw)):
