@@ -11,6 +11,7 @@ from ..errors import ConvergenceError, NonFiniteError, ParameterError
 from ..models import LinearGaussianModel
 from ..riccati import SteadyState, steady_state
 from ._common import prepare_inputs
+from ._kernels import ss_loop
 from ._result import FilterResult
 
 __all__ = ["steady_state_filter", "fir_filter", "fir_order", "fir_coefficients"]
@@ -49,15 +50,7 @@ def steady_state_filter(model: LinearGaussianModel, z, x0=None, P0=None, *,
     A, B, F = ss.A, ss.B, model.F
     T = z.shape[0]
     xs = np.empty((T, model.n))
-    if missing.any():
-        for k in range(T):
-            x = F @ x if missing[k] else A @ x + B @ z[k]
-            xs[k] = x
-    else:
-        Bz = z @ B.T
-        for k in range(T):
-            x = A @ x + Bz[k]
-            xs[k] = x
+    ss_loop(A, B, F, z, x, xs)
     if covariance == "steady":
         Ps = np.broadcast_to(ss.P_filt, (T, model.n, model.n))
     else:
