@@ -316,7 +316,7 @@ def _box(model, m, P, width, floor):
     P = (V * np.maximum(w, floor * floor)) @ V.T
     s = np.sqrt(np.diag(P))
     X, Wm, Wc = sigma_points(m, P)
-    Y = model.flow(X, steps=max(4, model.substeps // 4))
+    Y = model.flow(X)
     mp = Wm @ Y
     sp = np.sqrt(np.clip(Wc @ (Y - mp) ** 2 + np.diag(model.Q) * model.dt, 0.0, None))
     lo = np.minimum(m - width * s, mp - width * sp)
@@ -331,7 +331,7 @@ def _gaussian_on(grid: FEMGrid, m, P):
 
 
 def fem_steps(model: ContinuousDiscreteModel, z, x0, P0, *, grid: tuple[int, int] = (20, 20),
-              width: float = 5.0, substeps: int = 4, scheme: str = "sdirk2",
+              width: float = 4.0, substeps: int = 16, scheme: str = "sdirk2",
               stabilise: bool = False, box: tuple | None = None) -> Iterator[FEMStep]:
     """Run the grid filter step by step, yielding a FEMStep (densities included) per measurement.
 

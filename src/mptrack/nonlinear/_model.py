@@ -130,18 +130,19 @@ class ContinuousDiscreteModel:
         return -0.5 * (np.sum(w * w, axis=-1) + logdet + ok.sum() * _LOG2PI)
 
     def flow(self, X: np.ndarray, duration: float | None = None, steps: int | None = None) -> np.ndarray:
-        """The noise-free flow of dx = f(x) dt over ``duration`` (default dt): classical RK4 sub-steps."""
+        """The noise-free flow of dx = f(x) dt over ``duration`` (default dt), Heun sub-steps.
+
+        Drift increments are capped at length 1 per sub-step as in
+        :meth:`sample_transition`, so stiff or superlinear drifts cannot overflow.
+        """
         duration = self.dt if duration is None else duration
         steps = self.substeps if steps is None else steps
         h = duration / steps
         X = np.array(X, dtype=float)
         f = self.drift
         for _ in range(steps):
-            k1 = f(X)
-            k2 = f(X + 0.5 * h * k1)
-            k3 = f(X + 0.5 * h * k2)
-            k4 = f(X + h * k3)
-            X = X + (h / 6.0) * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
+            fx = f(X)
+            X = X + _cap(0.5 * h * (fx + f(X + _cap(h * fx))))
         return X
 
     def sample_transition(self, X: np.ndarray, rng: np.random.Generator, steps: int | None = None) -> np.ndarray:

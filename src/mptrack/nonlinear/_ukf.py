@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..errors import NotPositiveDefiniteError
+from ..errors import ConvergenceError, NotPositiveDefiniteError
 from ..linear import FilterResult
 from ._common import prepare_nonlinear
 from ._model import ContinuousDiscreteModel
@@ -125,6 +125,8 @@ def ukf_filter(model: ContinuousDiscreteModel, z, x0, P0, *, alpha: float = 1.0,
     alpha, beta, kappa   scaled unscented transform parameters
     substeps             RK4 sub-steps of the moment equations per dt (default model.substeps)
     NaN measurement components are skipped; a NaN row only predicts.
+    Raises ConvergenceError when the moment equations blow up (stiff drift,
+    far from the sigma points) and NotPositiveDefiniteError when P loses PSD.
     """
     z, x, P, substeps = prepare_nonlinear(model, z, x0, P0, substeps)
     ut = {"alpha": alpha, "beta": beta, "kappa": kappa}
@@ -133,9 +135,13 @@ def ukf_filter(model: ContinuousDiscreteModel, z, x0, P0, *, alpha: float = 1.0,
     xp, Pp = np.empty((T, n)), np.empty((T, n, n))
     loglik = 0.0
     for k in range(T):
-        x, P = ukf_predict(model, x, P, substeps=substeps, ut=ut)
-        xp[k], Pp[k] = x, P
-        x, P, ll = ukf_update(model, x, P, z[k], ut=ut)
+        try:
+            with np.errstate(over="raise", invalid="raise"):
+                x, P = ukf_predict(model, x, P, substeps=substeps, ut=ut)
+                xp[k], Pp[k] = x, P
+                x, P, ll = ukf_update(model, x, P, z[k], ut=ut)
+        except (FloatingPointError, np.linalg.LinAlgError) as exc:
+            raise ConvergenceError(f"UKF diverged at measurement {k} ({exc})") from None
         xs[k], Ps[k] = x, P
         loglik += ll
     return FilterResult(x=xs, P=Ps, x_pred=xp, P_pred=Pp, loglik=loglik, method="UKF")
