@@ -32,7 +32,7 @@ def test_printed_model_diverges():
     X = np.tile(ZHAO2013_X0, (200, 1))
     rng = np.random.default_rng(0)
     for _ in range(30):
-        X = model.sample_transition(X, rng)
+        X = model.sample_transition(X, rng, 100)
     assert np.all(np.isfinite(X))
     assert np.mean(np.abs(X).max(axis=1) > 1e3) > 0.9
 

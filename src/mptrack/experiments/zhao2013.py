@@ -190,7 +190,8 @@ def _plot_figure3(ctx, fig3) -> str:
     for row, bearing in enumerate(("atan2", "atan")):
         for col, (t, (U, V, P, mean)) in enumerate(zip(fig3["times"], fig3[bearing])):
             ax = axes[row, col]
-            cs = ax.contourf(U, V, np.clip(P, 0, None), levels=20, cmap="viridis")
+            P = np.clip(P, 0, None)
+            cs = ax.contourf(U, V, P, levels=np.linspace(0.0, P.max() * (1 + 1e-9), 21), cmap="viridis")
             fig.colorbar(cs, ax=ax, shrink=0.8)
             x = fig3["truth"][t - 1]
             ax.plot(x[0], x[1], "r*", ms=12, label="true state")
