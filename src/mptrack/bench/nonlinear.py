@@ -3,8 +3,6 @@ seed 004 eq. 42 example (standard Van der Pol variant, Q = 0.01·diag(10, 0.1)),
 
 from __future__ import annotations
 
-import time
-
 import numpy as np
 
 from ..nonlinear import (
@@ -18,17 +16,9 @@ from ..nonlinear import (
 )
 from ..nonlinear._fem import _Propagator
 from . import register_suite
+from .linear import _best  # best-of-repeats wall clock, shared with the linear suite
 
 __all__ = ["nonlinear_suite"]
-
-
-def _best(fn, repeats: int) -> float:
-    best = np.inf
-    for _ in range(repeats):
-        start = time.perf_counter()
-        fn()
-        best = min(best, time.perf_counter() - start)
-    return best
 
 
 @register_suite("nonlinear")
@@ -44,6 +34,10 @@ def nonlinear_suite(quick: bool) -> dict:
         ("UKF (RK4 moment equations, 20 sub-steps)", lambda: ukf_filter(model, z, x0, P0)),
         ("PF, 200 particles (20 Heun sub-steps)", lambda: particle_filter(model, z, x0, P0, rng, particles=200)),
         ("PF, 10^4 particles", lambda: particle_filter(model, z, x0, P0, rng, particles=10_000)),
+        ("PF, 10^4 particles, 5 Heun sub-steps", lambda: particle_filter(model, z, x0, P0, rng, particles=10_000,
+                                                                         substeps=5)),
+        ("FEM 20x20, fixed box, Crank-Nicolson, 4 sub-steps (fast, less accurate)",
+         lambda: fem_filter(model, z, x0, P0, grid=(20, 20), box=box, scheme="cn", substeps=4)),
     ]
     for g in ((20, 40) if not quick else (20,)):
         cases.append((f"FEM {g}x{g}, moving grid (assembly + LU when it moves)",
@@ -59,9 +53,9 @@ def nonlinear_suite(quick: bool) -> dict:
         rows.append([name, t * 1e3, None])
     for g in ((20, 40) if not quick else (20,)):
         grid = FEMGrid(box[0], box[1], g, g)
-        t = _best(lambda grid=grid: _Propagator(grid, model, 16, "sdirk2"), repeats)
+        t = _best(lambda g=g: _Propagator(FEMGrid(box[0], box[1], g, g), model, 16, "sdirk2", False), repeats)
         rows.append([f"FEM {g}x{g}: grid set-up, assembly and sparse LU", t * 1e3, grid.size])
-        prop = _Propagator(grid, model, 16, "sdirk2")
+        prop = _Propagator(grid, model, 16, "sdirk2", False)
         p = np.ones(grid.size)
         t = _best(lambda prop=prop, p=p: prop(p), repeats)
         rows.append([f"FEM {g}x{g}: 16 SDIRK2 time steps (32 sparse triangular solves)", t * 1e3, grid.size])

@@ -22,6 +22,7 @@ import scipy.linalg
 from .._validation import as_matrix, as_vector, check_covariance, check_int, check_positive
 from ..errors import ParameterError, ShapeError
 from ..models import LinearGaussianModel
+from ..models._linear import _frozen
 
 __all__ = [
     "ContinuousDiscreteModel",
@@ -35,12 +36,6 @@ _LOG2PI = np.log(2.0 * np.pi)
 
 #: Seed 004 section 6: initial state [-0.6, -1].
 ZHAO2013_X0 = (-0.6, -1.0)
-
-
-def _frozen(arr) -> np.ndarray:
-    arr = np.array(arr, dtype=np.float64, copy=True)
-    arr.setflags(write=False)
-    return arr
 
 
 def _cap(inc: np.ndarray) -> np.ndarray:
