@@ -80,3 +80,16 @@ def test_pf_bad_input():
         particle_filter(model, z, X0, P0, np.random.default_rng(0), particles=1)
     with pytest.raises(ParameterError, match="ess_threshold"):
         particle_filter(model, z, X0, P0, np.random.default_rng(0), ess_threshold=2.0)
+
+
+@pytest.mark.slow
+def test_fem_and_pf_converge_to_a_large_reference_over_many_runs():
+    """Monte-Carlo version: 5 runs, 10^5-particle reference, FE 30 x 30 and PF 10^4 both within 0.05."""
+    model = zhao2013_model(variant="vdp", diffusion_scale=0.1)
+    for seed in range(5):
+        _, z = simulate_sde(model, 15, np.random.default_rng(100 + seed), X0)
+        ref = reference_filter(model, z, X0, P0, np.random.default_rng(200 + seed), particles=100_000).x
+        fe = fem_filter(model, z, X0, P0, grid=(30, 30), substeps=24).x
+        pf = particle_filter(model, z, X0, P0, np.random.default_rng(300 + seed), particles=10_000).x
+        assert np.sqrt(np.mean((fe - ref) ** 2)) < 0.05
+        assert np.sqrt(np.mean((pf - ref) ** 2)) < 0.05

@@ -62,6 +62,8 @@ def test_ukf_bad_input():
         ukf_filter(model, np.zeros((2, 2)), [0.0, 0.0], [[1.0, 2.0], [2.0, 1.0]])
     with pytest.raises(ParameterError, match="model"):
         ukf_filter("not a model", np.zeros((2, 2)), [0.0, 0.0], np.eye(2))
+    with pytest.raises(NotPositiveDefiniteError, match="Q"):
+        linear_sde_model(np.eye(2), np.diag([1.0, -0.5]), np.eye(2), np.eye(2), 1.0)
     with pytest.raises(NotPositiveDefiniteError, match="R"):
         linear_sde_model(np.eye(2), np.eye(2), np.eye(2), np.diag([1.0, -1.0]), 1.0)
     with pytest.raises(ParameterError, match="variant"):

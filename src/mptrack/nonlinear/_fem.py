@@ -343,7 +343,8 @@ def fem_steps(model: ContinuousDiscreteModel, z, x0, P0, *, grid: tuple[int, int
               eq. 42 example its O(h) smearing costs more accuracy than the clipped
               Galerkin wiggles do (docs/nonlinear.md)
     box       ((lo1, lo2), (hi1, hi2)): a fixed rectangle instead of the moving grid;
-              it must cover the prior mean ± 3σ
+              it must cover the prior mean ± 3σ, and as its boundary is zero-flux no
+              mass can leave it: choose it to contain the whole track
     """
     z, m, P, substeps = prepare_nonlinear(model, z, x0, P0, substeps, definite=True)
     if model.n != 2:
