@@ -162,9 +162,9 @@ class FEMGrid:
         W = [np.bincount(flat, weights=np.broadcast_to(pw.sum(0), conn.shape).ravel(), minlength=N)]
         W += [np.bincount(flat, weights=(v @ pw).ravel(), minlength=N) for v in xx]
         W0, W1, W2 = W[0], np.stack(W[1:3], axis=-1), np.stack(W[3:], axis=-1)
-        set_(self, "W0", W0)
-        set_(self, "W1", W1)
-        set_(self, "W2", W2)
+        for name, val in (("W0", W0), ("W1", W1), ("W2", W2), ("lo", lo), ("hi", hi), ("nodes", nodes)):
+            val.setflags(write=False)
+            set_(self, name, val)
 
     @property
     def size(self) -> int:
