@@ -264,7 +264,7 @@ def _plot_divergence(ctx, sample) -> str:
                       "divergence of the printed model, convergence and cost per step")
 def run(ctx: RunContext) -> Reproduction:
     paper = _paper()
-    runs = 4 if ctx.quick else paper["example"]["runs"]
+    runs = 3 if ctx.quick else paper["example"]["runs"]
     variants = VARIANTS[:1] if ctx.quick else VARIANTS
     grids = (10, 20) if ctx.quick else (10, 14, 20, 28)
     particle_counts = (100, 1000) if ctx.quick else (100, 300, 1000, 3000, 10000)
