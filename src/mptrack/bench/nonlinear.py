@@ -36,6 +36,8 @@ def nonlinear_suite(quick: bool) -> dict:
         ("PF, 10^4 particles", lambda: particle_filter(model, z, x0, P0, rng, particles=10_000)),
         ("PF, 10^4 particles, 5 Heun sub-steps", lambda: particle_filter(model, z, x0, P0, rng, particles=10_000,
                                                                          substeps=5)),
+        ("PF, 10^4 particles, 1 sub-step (weighting + resampling floor)",
+         lambda: particle_filter(model, z, x0, P0, rng, particles=10_000, substeps=1)),
         ("FEM 20x20, fixed box, Crank-Nicolson, 4 sub-steps (fast, less accurate)",
          lambda: fem_filter(model, z, x0, P0, grid=(20, 20), box=box, scheme="cn", substeps=4)),
     ]

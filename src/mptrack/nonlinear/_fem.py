@@ -14,29 +14,31 @@ boundary, so the semi-discrete system M dp/dt = A p,
 conserves ∫p exactly (Σ_i φ_i = 1).  Matrices are assembled from 3 × 3 Gauss
 quadrature into a fixed sparse pattern (scipy.sparse CSC).
 
-Time: the paper's RK4 stages (eq. 21) are wrong (K2 = F(p) + Δt/2·K1); we
-use Crank–Nicolson (θ = ½, second order, A-stable) with ``substeps`` steps per
-dt, solving (M − θτA) p⁺ = (M + (1−θ)τA) p with one sparse LU factorisation
-(scipy.sparse.linalg.splu) reused across sub-steps and across measurement
-steps while the grid does not move.  Explicit RK4 would need τ ≲ h²/‖Q‖
-(hundreds of steps per second on a 20 × 20 grid under Q = diag(10, 0.1)).
+Time: the paper's RK4 stages (eq. 21) are wrong (K2 = F(p) + Δt/2·K1), and
+explicit RK4 would need τ ≲ h²/‖Q‖ anyway.  We use ``substeps`` steps per dt
+of the L-stable, second-order SDIRK2 (Alexander; γ = 1 − 1/√2), whose two
+stages both solve with M − γτA: one sparse LU (scipy.sparse.linalg.splu) is
+reused across sub-steps and across measurement steps while the grid does
+not move.  Crank–Nicolson is available (``scheme="cn"``): as accurate on
+eq. 42 and cheaper, but not L-stable, so more negative mass to clip after a
+sharp update (docs/design.md).
 
 Update: Bayes' rule at the nodes (eqs. 24–26: nodal prior × likelihood),
 normalised so the interpolant integrates to 1.  Moments (eq. 27) are exact
 integrals of the interpolant: precomputed ∫φ_j, ∫φ_j x, ∫φ_j x x^T.
 
-Negative overshoot: Galerkin/CN can produce small negative nodal values
-where the density is steep; after each prediction and re-interpolation they
+Negative overshoot: the Galerkin solution has negative nodal values where
+the drift dominates the diffusion on the element scale (wiggles); after each prediction and re-interpolation they
 are set to zero and the density renormalised (the removed mass is reported
 as ``clipped``).  All nodal values are therefore ≥ 0 and ∫p = 1; the
 serendipity interpolant between nodes can still dip slightly below zero
 (its corner shape functions are negative inside the element).
 
 Grid placement (section 3.1): the box is the union of posterior mean ± c·σ
-and predicted mean ± c·σ (an unscented prediction of the moments); the grid
-moves only when the required box leaves the current one or becomes less
-than half its size, and the density is then re-interpolated onto the new
-nodes (mass outside the new box is dropped and reported).
+and predicted mean ± c·σ (sigma points through the noise-free flow, plus
+Q·dt); the grid moves only when the required box leaves the current one or
+becomes less than 40 % of its size, and the density is then re-interpolated
+onto the new nodes (mass outside the new box is dropped and reported).
 """
 
 from __future__ import annotations
