@@ -400,7 +400,9 @@ def fem_steps(model: ContinuousDiscreteModel, z, x0, P0, *, grid: tuple[int, int
 
 def fem_filter(model: ContinuousDiscreteModel, z, x0, P0, **options) -> FilterResult:
     """The FEM grid filter (seed 004) as a FilterResult; options as for :func:`fem_steps`."""
-    steps = list(fem_steps(model, z, x0, P0, **options))
-    return FilterResult(x=np.array([s.x for s in steps]), P=np.array([s.P for s in steps]),
-                        x_pred=np.array([s.x_pred for s in steps]), P_pred=np.array([s.P_pred for s in steps]),
-                        loglik=float(sum(s.loglik for s in steps)), method="FEM")
+    rows, loglik = [], 0.0
+    for step in fem_steps(model, z, x0, P0, **options):  # the densities are not kept
+        rows.append((step.x, step.P, step.x_pred, step.P_pred))
+        loglik += step.loglik
+    x, P, x_pred, P_pred = (np.array(col) for col in zip(*rows))
+    return FilterResult(x=x, P=P, x_pred=x_pred, P_pred=P_pred, loglik=float(loglik), method="FEM")
