@@ -310,7 +310,7 @@ def _box(model, m, P, width, floor):
     """Rectangle covering mean ± width·σ now and after one dt.
 
     The predicted moments come from sigma points pushed through the noise-free
-    flow (RK4) plus Q·dt: cheap, good enough to place a grid.  P is projected
+    flow plus Q·dt: cheap, good enough to place a grid.  P is projected
     onto the PSD cone and its eigenvalues floored at ``floor``² first (a
     posterior narrower than an element has moments that are not trustworthy).
     """
