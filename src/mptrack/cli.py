@@ -2,8 +2,15 @@
 
 from __future__ import annotations
 
-import json
-from pathlib import Path
+import os
+
+# mptrack's matrices are small (n <= 10): BLAS threads only add synchronisation cost
+# (milliseconds per call on a loaded machine). Parallelism is over tracks (numba).
+# Set before NumPy is imported; a value the user exported is kept.
+for _var in ("OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
+
+from pathlib import Path  # noqa: E402
 from typing import Optional
 
 import typer

@@ -5,8 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from .._validation import as_sequence, as_vector, check_covariance
-from ..errors import ParameterError
-from ..models import LinearGaussianModel
+from ..models import require_model
 
 __all__ = ["prepare_inputs"]
 
@@ -17,9 +16,8 @@ def prepare_inputs(model, z, x0, P0, *, allow_nan: bool = True):
     Returns (z (T, m), x0 (n,), P0 (n, n), missing (T,) bool) where ``missing``
     marks time steps whose measurement has a NaN (those steps only predict).
     """
-    if not isinstance(model, LinearGaussianModel):
-        raise ParameterError(f"model: expected a LinearGaussianModel, got {type(model).__name__}")
-    z = as_sequence("z", z, model.m, allow_nan=allow_nan)
+    require_model(model)
+    z = np.ascontiguousarray(as_sequence("z", z, model.m, allow_nan=allow_nan))  # compiled loops stream rows
     x0 = np.zeros(model.n) if x0 is None else as_vector("x0", x0, model.n)
     P0 = np.zeros((model.n, model.n)) if P0 is None else check_covariance("P0", P0, model.n)
     missing = np.isnan(z).any(axis=1)
