@@ -17,11 +17,10 @@ from dataclasses import dataclass, field
 from typing import Callable
 
 import numpy as np
-import scipy.linalg
 
 from .._validation import as_matrix, as_vector, check_covariance, check_int, check_positive
 from ..errors import ParameterError, ShapeError
-from ..models import LinearGaussianModel
+from ..models import LinearGaussianModel, van_loan
 from ..models._linear import _frozen
 
 __all__ = [
@@ -169,20 +168,14 @@ class ContinuousDiscreteModel:
         return V * np.sqrt(np.clip(w, 0.0, None))
 
     def to_linear_gaussian(self) -> LinearGaussianModel:
-        """The exact discretisation F = e^{AΔt}, Q_d = ∫ e^{As} Q e^{A^T s} ds (Van Loan) of a linear model."""
+        """The exact discretisation F = e^{AΔt}, Q_d = ∫ e^{As} Q e^{A^T s} ds of a linear model
+        (Van Loan, via :func:`mptrack.models.van_loan`)."""
         if self.linear is None:
             raise ParameterError("model: only a linear model (built with linear_sde_model) has an exact "
                                  "discretisation")
         A, H = self.linear
-        n = self.n
-        block = np.zeros((2 * n, 2 * n))
-        block[:n, :n] = -A
-        block[:n, n:] = self.Q
-        block[n:, n:] = A.T
-        E = scipy.linalg.expm(block * self.dt)
-        F = E[n:, n:].T
-        Qd = F @ E[:n, n:]
-        return LinearGaussianModel(F, H, 0.5 * (Qd + Qd.T), self.R, dt=self.dt, name=f"{self.name} (exact)")
+        F, Qd = van_loan(A, np.eye(self.n), self.Q, self.dt)
+        return LinearGaussianModel(F, H, Qd, self.R, dt=self.dt, name=f"{self.name} (exact)")
 
 
 def zhao2013_model(*, variant: str = "printed", diffusion_scale: float = 1.0, bearing: str = "atan2",
