@@ -1,5 +1,10 @@
-"""Nonlinear filtering for cellular localisation: EKF on base-station ranges, and the
-fuzzy-weighted fusion filters FEKF and FCS of Bouzera et al. (2017)."""
+"""Nonlinear filtering.
+
+Cellular localisation (Bouzera et al. 2017): EKF on base-station ranges and the
+fuzzy-weighted fusion filters FEKF and FCS.  Continuous-discrete models (Zhao et
+al. 2013): the FEM (Fokker–Planck) grid filter, the unscented Kalman filter, the
+bootstrap particle filter and a high-accuracy reference.
+"""
 
 from ._ekf import (
     BatchFilterResult,
@@ -20,8 +25,14 @@ from ._fekf import (
     fuse_local_solutions,
     local_solutions,
 )
+from ._fem import FEMGrid, FEMStep, GridDensity, fem_filter, fem_steps, shape_functions
+from ._model import ZHAO2013_X0, ContinuousDiscreteModel, linear_sde_model, simulate_sde, zhao2013_model
+from ._pf import particle_filter, systematic_resample
+from ._reference import reference_filter
+from ._ukf import sigma_points, ukf_filter
 
 __all__ = [
+    # cellular (seed 003)
     "BatchFilterResult",
     "check_stations",
     "ekf_ranges",
@@ -37,4 +48,21 @@ __all__ = [
     "fcs_ranges_batch",
     "fuse_local_solutions",
     "local_solutions",
+    # continuous-discrete (seed 004)
+    "ContinuousDiscreteModel",
+    "zhao2013_model",
+    "linear_sde_model",
+    "simulate_sde",
+    "ZHAO2013_X0",
+    "FEMGrid",
+    "GridDensity",
+    "FEMStep",
+    "fem_filter",
+    "fem_steps",
+    "shape_functions",
+    "ukf_filter",
+    "sigma_points",
+    "particle_filter",
+    "systematic_resample",
+    "reference_filter",
 ]
