@@ -4,3 +4,26 @@ from ._linear import LinearGaussianModel, stack_axes
 from ._paper import assimakis_model_a, assimakis_model_b
 
 __all__ = ["LinearGaussianModel", "stack_axes", "assimakis_model_a", "assimakis_model_b"]
+from ._continuous import (
+    ContinuousLinearModel,
+    ca_discrete_white_noise,
+    constant_acceleration,
+    constant_acceleration_continuous,
+    constant_velocity,
+    constant_velocity_continuous,
+    cv_discrete_white_noise,
+    discretize,
+    van_loan,
+)
+
+__all__ += [
+    "ContinuousLinearModel",
+    "van_loan",
+    "discretize",
+    "constant_velocity_continuous",
+    "constant_acceleration_continuous",
+    "constant_velocity",
+    "constant_acceleration",
+    "cv_discrete_white_noise",
+    "ca_discrete_white_noise",
+]
