@@ -17,6 +17,7 @@ from ._filters import (
     predict,
     steady_state_filter,
 )
+from ._runner import EXECUTORS, Chunk, MonteCarloTask, filter_chunked, make_chunks, monte_carlo, run_chunks
 
 __all__ = [
     "steady_state_filter",
@@ -26,4 +27,11 @@ __all__ = [
     "per_axis",
     "gain_sequence",
     "GainSequence",
+    "run_chunks",
+    "make_chunks",
+    "Chunk",
+    "monte_carlo",
+    "MonteCarloTask",
+    "filter_chunked",
+    "EXECUTORS",
 ]
