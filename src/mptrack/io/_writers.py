@@ -1,0 +1,148 @@
+"""Writers for Parquet, CSV and GeoJSON, atomic (temporary file, then rename), and a
+per-track part store that makes long runs resumable.
+
+Every output is written beside its destination and renamed over it only when
+complete (:func:`mptrack._io.atomic_path`), so an interrupted or failed run
+never leaves a half-written result.  :class:`PartStore` keeps each finished
+track in ``.<out>.parts/`` until :meth:`PartStore.finish` streams them, one
+track at a time, into the final file.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import shutil
+from pathlib import Path
+from typing import Iterable, Iterator
+from urllib.parse import quote
+
+import numpy as np
+import pandas as pd
+
+from .._io import atomic_path
+from ..errors import ParameterError
+
+__all__ = ["OUTPUT_FORMATS", "output_format", "write_table", "PartStore", "geojson_features"]
+
+OUTPUT_FORMATS = {".parquet": "parquet", ".pq": "parquet", ".csv": "csv", ".geojson": "geojson",
+                  ".json": "geojson"}
+
+
+def output_format(path) -> str:
+    suffix = Path(path).suffix.lower()
+    if suffix not in OUTPUT_FORMATS:
+        raise ParameterError(f"out: unknown output format {suffix!r}; expected one of "
+                             f"{', '.join(sorted(OUTPUT_FORMATS))}")
+    return OUTPUT_FORMATS[suffix]
+
+
+def _plain(value):
+    """A JSON-safe scalar: NaN -> null, numpy -> Python, timestamps -> ISO 8601."""
+    if value is None or value is pd.NaT:
+        return None
+    if isinstance(value, pd.Timestamp):
+        return value.isoformat().replace("+00:00", "Z")
+    if isinstance(value, (np.bool_, bool)):
+        return bool(value)
+    if isinstance(value, (np.integer,)):
+        return int(value)
+    if isinstance(value, (float, np.floating)):
+        return None if not math.isfinite(value) else float(value)
+    return value if isinstance(value, (int, str)) else str(value)
+
+
+def geojson_features(df: pd.DataFrame, *, lat: str = "lat", lon: str = "lon") -> Iterator[dict]:
+    """GeoJSON features of one track table: a LineString per track, then a Point per row.
+
+    Coordinates are [longitude, latitude] (RFC 7946, WGS-84); every other column
+    becomes a property of the point.
+    """
+    props = [c for c in df.columns if c not in (lat, lon)]
+    for tid, grp in df.groupby("track_id", sort=False):
+        coords = np.column_stack([grp[lon].to_numpy(float), grp[lat].to_numpy(float)])
+        coords = coords[np.isfinite(coords).all(axis=1)]
+        if len(coords) >= 2:
+            yield {"type": "Feature", "geometry": {"type": "LineString", "coordinates": coords.tolist()},
+                   "properties": {"track_id": str(tid), "kind": "track", "points": int(len(grp))}}
+        records = grp[props].to_dict("records")
+        for (x, y), rec in zip(zip(grp[lon].to_numpy(float), grp[lat].to_numpy(float)), records):
+            geometry = {"type": "Point", "coordinates": [x, y]} if np.isfinite(x) and np.isfinite(y) else None
+            yield {"type": "Feature", "geometry": geometry,
+                   "properties": {"kind": "point", **{k: _plain(v) for k, v in rec.items()}}}
+
+
+def _write_parts(frames: Iterable[pd.DataFrame], tmp: Path, fmt: str) -> None:
+    if fmt == "parquet":
+        import pyarrow as pa
+        import pyarrow.parquet as pq
+
+        writer = None
+        try:
+            for df in frames:
+                table = pa.Table.from_pandas(df, preserve_index=False)
+                if writer is None:
+                    writer = pq.ParquetWriter(tmp, table.schema)
+                writer.write_table(table.cast(writer.schema))
+        finally:
+            if writer is not None:
+                writer.close()
+        if writer is None:
+            pd.DataFrame().to_parquet(tmp, index=False)
+    elif fmt == "csv":
+        with open(tmp, "w", newline="") as fh:
+            for i, df in enumerate(frames):
+                df.to_csv(fh, header=i == 0, index=False)
+    else:
+        with open(tmp, "w") as fh:
+            fh.write('{"type": "FeatureCollection", "features": [\n')
+            first = True
+            for df in frames:
+                for feat in geojson_features(df):
+                    fh.write(("" if first else ",\n") + json.dumps(feat, allow_nan=False))
+                    first = False
+            fh.write("\n]}\n")
+
+
+def write_table(df: pd.DataFrame | Iterable[pd.DataFrame], path) -> Path:
+    """Write a table (or an iterable of tables with the same columns) atomically as
+    Parquet, CSV or GeoJSON, chosen by the file suffix."""
+    path = Path(path)
+    fmt = output_format(path)
+    frames = [df] if isinstance(df, pd.DataFrame) else df
+    with atomic_path(path) as tmp:
+        _write_parts(frames, tmp, fmt)
+    return path
+
+
+class PartStore:
+    """Finished tracks of one run, one Parquet file each, beside the final output."""
+
+    def __init__(self, out) -> None:
+        self.out = Path(out)
+        output_format(self.out)
+        self.dir = self.out.parent / f".{self.out.name}.parts"
+
+    def _path(self, track_id: str) -> Path:
+        return self.dir / (quote(str(track_id), safe="") + ".parquet")
+
+    def has(self, track_id: str) -> bool:
+        return self._path(track_id).exists()
+
+    def put(self, track_id: str, df: pd.DataFrame) -> None:
+        self.dir.mkdir(parents=True, exist_ok=True)
+        with atomic_path(self._path(track_id)) as tmp:
+            df.to_parquet(tmp, index=False)
+
+    def get(self, track_id: str) -> pd.DataFrame:
+        return pd.read_parquet(self._path(track_id))
+
+    def finish(self, track_ids: Iterable[str]) -> Path:
+        """Stream the parts of ``track_ids`` (in that order) into the output, then delete the parts."""
+        ids = list(track_ids)
+        write_table((self.get(t) for t in ids), self.out)
+        self.discard()
+        return self.out
+
+    def discard(self) -> None:
+        shutil.rmtree(self.dir, ignore_errors=True)
