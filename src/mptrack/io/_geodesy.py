@@ -45,12 +45,21 @@ class LocalFrame:
         e, n, _ = pymap3d.geodetic2enu(lat, lon, np.broadcast_to(h, lat.shape), self.lat0, self.lon0, self.h0)
         return np.asarray(e, dtype=float), np.asarray(n, dtype=float)
 
-    def to_geodetic(self, east, north, up=0.0) -> tuple[np.ndarray, np.ndarray]:
-        """WGS-84 latitude, longitude (degrees) of local points (m)."""
+    def to_geodetic(self, east, north) -> tuple[np.ndarray, np.ndarray]:
+        """WGS-84 latitude, longitude (degrees) of the points on the ellipsoid (h = 0) whose local
+        east/north coordinates are ``east``, ``north`` (m): the exact inverse of :meth:`to_enu`.
+
+        A point of the tangent plane lies above the ellipsoid (~31 m at 20 km); its
+        surface point is found by iterating on the up coordinate (three passes
+        reach round-off within 100 km).
+        """
         import pymap3d
 
         east = as_array("east", east)
-        north = as_array("north", north, allow_nan=True)
-        lat, lon, _ = pymap3d.enu2geodetic(east, north, np.broadcast_to(up, east.shape), self.lat0, self.lon0,
-                                           self.h0)
+        north = as_array("north", north)
+        up = np.zeros_like(east)
+        for _ in range(3):
+            lat, lon, _h = pymap3d.enu2geodetic(east, north, up, self.lat0, self.lon0, self.h0)
+            _e, _n, up = pymap3d.geodetic2enu(lat, lon, np.zeros_like(east), self.lat0, self.lon0, self.h0)
+        lat, lon, _h = pymap3d.enu2geodetic(east, north, up, self.lat0, self.lon0, self.h0)
         return np.asarray(lat, dtype=float), np.asarray(lon, dtype=float)

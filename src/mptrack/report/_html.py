@@ -45,6 +45,7 @@ def _fig_tracks(df: pd.DataFrame):
     import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(figsize=(7.5, 6.0))
+    rejected_shown = False
     for i, (tid, g) in enumerate(df.groupby("track_id", sort=False)):
         if i >= _MAX_TRACKS_DRAWN:
             break
@@ -58,7 +59,9 @@ def _fig_tracks(df: pd.DataFrame):
             ax.plot(mlo, mla, ".", color="0.6", ms=3, label="measurements" if first else None)
             out = (g["flag"].to_numpy()[ok] == "outlier")
             if out.any():
-                ax.plot(mlo[out], mla[out], "x", color="tab:orange", ms=6, label="rejected (NIS gate)")
+                ax.plot(mlo[out], mla[out], "x", color="tab:orange", ms=6,
+                        label=None if rejected_shown else "rejected (NIS gate)")
+                rejected_shown = True
         if "true_lat" in g.columns and np.isfinite(g["true_lat"].to_numpy(float)).any():
             ax.plot(g["true_lon"], g["true_lat"], "--", color="k", lw=1, label="truth" if first else None)
         ax.plot(g["lon"], g["lat"], "-", color=TRACK_COLOR, lw=2.2, label="estimate" if first else None)
