@@ -13,8 +13,11 @@ which for a consistent filter is chi-square with m = dim z degrees of freedom
 (Bar-Shalom, Li & Kirubarajan 2001, sec. 5.4).  A measurement whose NIS exceeds
 the chi-square quantile ``gate_probability`` (default 0.999: 13.82 for a 2-D
 fix) is rejected: the step only predicts and the point is flagged "outlier".
-After ``max_rejections`` consecutive rejections the filter re-initialises at the
-measurement (flag "reset") so a manoeuvre or a long gap cannot lose the track.
+After ``max_rejections`` consecutive rejections that agree with each other (a
+least-squares straight line through them leaves every residual inside the gate)
+the filter re-initialises from that line, position and velocity at the last of
+them (flag "reset"), so a manoeuvre or a long gap cannot lose the track while
+scattered outliers never re-initialise it.
 """
 
 from __future__ import annotations
@@ -92,7 +95,7 @@ class GatedResult:
 
 
 def kalman_filter_gated(model: ContinuousLinearModel, times, z, x0, P0, *, t0: float | None = None, R=None,
-                        gate_probability: float | None = 0.999, max_rejections: int = 5,
+                        gate_probability: float | None = 0.999, max_rejections: int = 3,
                         reset_P0=None) -> GatedResult:
     """Kalman filter at irregular times with NIS outlier gating (see the module doc).
 
@@ -123,7 +126,7 @@ def kalman_filter_gated(model: ContinuousLinearModel, times, z, x0, P0, *, t0: f
         Rs = np.broadcast_to(model.R, (T, m, m))
     else:
         Rs = as_array("R", R, shape=(T, m, m))
-    check_int("max_rejections", max_rejections, minimum=1)
+    check_int("max_rejections", max_rejections, minimum=2)
     gates = None if gate_probability is None else {d: nis_threshold(gate_probability, d) for d in range(1, m + 1)}
     H = model.H
     # the position rows of H pick the state entries a reset sets from z
@@ -133,7 +136,8 @@ def kalman_filter_gated(model: ContinuousLinearModel, times, z, x0, P0, *, t0: f
     nis = np.full(T, np.nan)
     flag = np.zeros(T, dtype=np.int8)
     Fs, Qs = transitions(model, dts)
-    loglik, rejected = 0.0, 0
+    loglik, rejected = 0.0, []  # indices of the consecutive rejected measurements
+    vel = [p + 1 if p + 1 < n and model.Phi[p, p + 1] != 0 else None for p in picks]
     for k in range(T):
         F, Q = Fs[k], Qs[k]
         zk = z[k]
@@ -145,18 +149,22 @@ def kalman_filter_gated(model: ContinuousLinearModel, times, z, x0, P0, *, t0: f
             S = Hk @ P_pred @ Hk.T + Rk
             nis[k] = float(nu @ scipy.linalg.solve(S, nu, assume_a="pos"))
             if gates is not None and nis[k] > gates[int(ok.sum())]:
-                rejected += 1
-                if rejected >= max_rejections:
-                    flag[k], rejected = 3, 0
+                rejected = (rejected + [k])[-max_rejections:]
+                fit = _line_fit(t, z, Rs, rejected, gates) if len(rejected) == max_rejections else None
+                if fit is not None:  # the rejected fixes agree with each other: the terminal moved
+                    flag[k], rejected = 3, []
                     x = x_pred.copy()
-                    x[[picks[i] for i in np.flatnonzero(ok)]] = zk[ok]
+                    for i, p in enumerate(picks):
+                        x[p] = fit[0][i]
+                        if vel[i] is not None:
+                            x[vel[i]] = fit[1][i]
                     xs[k], Ps[k], xp[k], Pp[k] = x, reset_P, x_pred, P_pred
                     P = reset_P.copy()
                     continue
                 flag[k] = 1
                 zk = np.full(m, np.nan)
             else:
-                rejected = 0
+                rejected = []
         else:
             flag[k] = 2
         x, P, xp[k], Pp[k], ll = kalman_step(F, H, Q, Rs[k], x, P, zk)
@@ -164,6 +172,22 @@ def kalman_filter_gated(model: ContinuousLinearModel, times, z, x0, P0, *, t0: f
         loglik += ll
     res = FilterResult(x=xs, P=Ps, x_pred=xp, P_pred=Pp, loglik=float(loglik), method="KF-gated")
     return GatedResult(result=res, nis=nis, flag=flag, F=Fs, Q=Qs)
+
+
+def _line_fit(t, z, Rs, idx, gates):
+    """Least-squares straight line (position, velocity at the last time) through the measurements
+    ``idx``, or None if some of them are not consistent with it (NIS of the residual over the gate)."""
+    tt = t[idx] - t[idx[-1]]
+    zz = z[idx]
+    if np.isnan(zz).any():
+        return None
+    A = np.column_stack([np.ones_like(tt), tt])
+    coef, *_ = np.linalg.lstsq(A, zz, rcond=None)  # (2, m): intercept, slope per component
+    resid = zz - A @ coef
+    for r, R in zip(resid, Rs[idx]):
+        if float(r @ np.linalg.solve(R, r)) > gates[len(r)]:
+            return None
+    return coef[0], coef[1]
 
 
 def rts_smoother_irregular(gated: GatedResult) -> FilterResult:
