@@ -110,14 +110,16 @@ def _fig_nis(df: pd.DataFrame):
     if (ok & outl).any():
         ax.plot(el[ok & outl], nis[ok & outl], "x", ms=5, color="tab:orange", label="rejected")
     text = "no measurements"
-    if ok.any():
-        d = int(np.median(dof[ok]))
+    use = ok & ~outl  # the measurements the filter accepted
+    if use.any():
+        d = int(np.median(dof[use]))
         lo, hi = scipy.stats.chi2.ppf([0.025, 0.975], d)
         ax.axhline(lo, color="k", ls=":", lw=1)
         ax.axhline(hi, color="k", ls=":", lw=1, label=f"95 % chi-square band ({d} dof)")
-        inside = np.mean((nis[ok] >= scipy.stats.chi2.ppf(0.025, dof[ok]))
-                         & (nis[ok] <= scipy.stats.chi2.ppf(0.975, dof[ok])))
-        text = f"mean NIS {nis[ok].mean():.2f} (expected {dof[ok].mean():.2f}); {100 * inside:.1f} % inside the band"
+        inside = np.mean((nis[use] >= scipy.stats.chi2.ppf(0.025, dof[use]))
+                         & (nis[use] <= scipy.stats.chi2.ppf(0.975, dof[use])))
+        text = (f"accepted measurements: mean NIS {nis[use].mean():.2f} (expected {dof[use].mean():.2f}), "
+                f"{100 * inside:.1f} % inside the 95 % band; {int((ok & outl).sum())} rejected by the gate")
         ax.set_yscale("log")
     ax.set_xlabel("time since track start (s)")
     ax.set_ylabel("NIS")
@@ -164,9 +166,11 @@ def write_report(tracks: pd.DataFrame, path, *, summary: dict | None = None, tit
     if summary is None:
         summary, _ = evaluate_tracks(tracks)
     fig_nis, nis_text = _fig_nis(tracks)
-    images = [("tracks", "Tracks: estimates (red), measurements (grey), truth (dashed)", _png(_fig_tracks(tracks))),
-              ("uncertainty", "Uncertainty over time", _png(_fig_uncertainty(tracks))),
-              ("nis", nis_text, _png(fig_nis))]
+    images = [("tracks", "Tracks", "Estimates (red), measurements (grey), truth (dashed) and fixes rejected "
+               "by the NIS gate (orange)", _png(_fig_tracks(tracks))),
+              ("uncertainty", "Uncertainty over time", "1-sigma position uncertainty sqrt(var_e + var_n)"
+               + (" and error against truth" if "error_m" in tracks.columns else ""), _png(_fig_uncertainty(tracks))),
+              ("nis", "NIS consistency", nis_text, _png(fig_nis))]
     rows = {"all": summary["overall"], **dict(list(summary["tracks"].items())[:200])}
     parts = [f"<!DOCTYPE html><html lang='en'><head><meta charset='utf-8'><title>{html.escape(title)}</title>",
              f"<style>{_CSS}</style></head><body><h1>{html.escape(title)}</h1>",
@@ -174,8 +178,8 @@ def write_report(tracks: pd.DataFrame, path, *, summary: dict | None = None, tit
              f"methods: {html.escape(', '.join(map(str, pd.unique(tracks['method']))))}</p>"]
     for note in notes or []:
         parts.append(f"<p class='note'>{html.escape(note)}</p>")
-    for key, caption, data in images:
-        parts.append(f"<h2>{html.escape(caption.split(':')[0])}</h2><figure><img id='{key}' alt='{key}' "
+    for key, heading, caption, data in images:
+        parts.append(f"<h2>{html.escape(heading)}</h2><figure><img id='{key}' alt='{key}' "
                      f"src='data:image/png;base64,{data}'><figcaption>{html.escape(caption)}</figcaption></figure>")
     parts.append("<h2>Summary</h2>" + _table(rows) + "</body></html>\n")
     path = Path(path)
