@@ -63,7 +63,9 @@ def _fig_tracks(df: pd.DataFrame):
                         label=None if rejected_shown else "rejected (NIS gate)")
                 rejected_shown = True
         if "true_lat" in g.columns and np.isfinite(g["true_lat"].to_numpy(float)).any():
-            ax.plot(g["true_lon"], g["true_lat"], "--", color="k", lw=1, label="truth" if first else None)
+            known = np.isfinite(g["true_lat"].to_numpy(float))
+            ax.plot(g["true_lon"][known], g["true_lat"][known], "--", color="k", lw=1,
+                    label="truth" if first else None)
         ax.plot(g["lon"], g["lat"], "-", color=TRACK_COLOR, lw=2.2, label="estimate" if first else None)
     lat0 = float(np.nanmean(df["lat"]))
     ax.set_aspect(1.0 / max(math.cos(math.radians(lat0)), 1e-3))

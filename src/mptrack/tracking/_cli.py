@@ -69,7 +69,7 @@ def track(
     filter: str = typer.Option("kf", "--filter", help="Position-fix filter: kf (gated, irregular times) or a "
                                                       "linear filter name (lf, sskf, ...) on a regular grid."),
     smooth: bool = typer.Option(False, "--smooth", help="Add an RTS smoothing pass."),
-    q: float = typer.Option(0.5, help="Process-noise density (m^2/s^3 for cv)."),
+    q: float = typer.Option(2.0, help="Process-noise density (m^2/s^3 for cv; 2 suits road vehicles)."),
     sigma: float = typer.Option(5.0, help="Fix accuracy (1-sigma, m) where the input has no accuracy_m."),
     gate: float = typer.Option(0.999, help="NIS gate probability (chi-square); 1 disables gating."),
     report: Optional[Path] = typer.Option(None, "--report", help="Also write a self-contained HTML report."),

@@ -37,7 +37,7 @@ class TrackOptions:
 
     model: str = "cv"
     filter: str = "kf"
-    q: float = 0.5
+    q: float = 2.0
     sigma_m: float = 5.0
     gate_probability: float | None = 0.999
     smooth: bool = False
