@@ -190,7 +190,7 @@ def test_measurement_rows_need_one_measurement(tmp_path):
 def test_schemas_render_as_markdown():
     for schema in (FIXES, MEASUREMENTS, CELLS):
         md = schema.markdown()
-        assert md.startswith("| column |") and "`time`" in md or "`mcc`" in md
+        assert md.startswith("| column | required | unit |") and ("`time`" in md or "`mcc`" in md)
 
 
 # ---- geodesy ---------------------------------------------------------------------------------------
@@ -274,3 +274,9 @@ def test_part_store_resumes_and_cleans_up(tmp_path):
     assert pd.read_parquet(tmp_path / "o.parquet")["track_id"].tolist() == ["a", "a", "b"]
     with pytest.raises(ParameterError, match="unknown output format"):
         PartStore(tmp_path / "o.xlsx")
+
+
+def test_user_guide_shows_the_current_schemas():
+    guide = (Path(__file__).parents[1] / "docs" / "tracking.md").read_text()
+    for schema in (FIXES, MEASUREMENTS, CELLS):
+        assert schema.markdown() in guide

@@ -69,8 +69,9 @@ class Schema:
             rng = "" if c.lo is None and c.hi is None else f"{'' if c.lo is None else c.lo} .. " \
                                                            f"{'' if c.hi is None else c.hi}"
             lines.append(f"| `{c.name}` | {'yes' if c.required else 'no'} | {c.unit} | {rng} | {c.description} |")
-        for group in self.one_of:
-            lines.append(f"\nAt least one of {' / '.join('+'.join(g) for g in [group])} must be present.")
+        if self.one_of:
+            lines.append(f"\nAt least one of {' / '.join('+'.join(g) for g in self.one_of)} must be present"
+                         + (", and filled in each row." if self.row_needs_one_of else "."))
         return "\n".join(lines)
 
 
@@ -80,8 +81,8 @@ def cell_key(mcc, net, area, cell) -> pd.Series:
     return parts[0] + "-" + parts[1] + "-" + parts[2] + "-" + parts[3]
 
 
-_TRACK = Column("track_id", "id", "", "track (terminal) identifier; rows of a track must be contiguous "
-                "and in increasing time", required=False)
+_TRACK = Column("track_id", "id", "", "track (terminal) identifier, default \"1\"; rows of a track must be "
+                "contiguous and in increasing time", required=False)
 _TIME = Column("time", "time", "s or ISO 8601", "time stamp: ISO 8601 text (no zone = UTC) or seconds")
 
 FIXES = Schema("position fixes", (
@@ -101,7 +102,7 @@ MEASUREMENTS = Schema("cellular measurements", (
            nullable=True),
     Column("range_m", "float", "m", "measured range to the cell's antenna", required=False, lo=0.0,
            nullable=True),
-    Column("ta", "int", "GSM TA steps", "timing advance (range = ta x 553.5 m, 3GPP TS 45.010)",
+    Column("ta", "int", "GSM TA steps", "timing advance; range = (ta + 0.5) x 553.5 m, 3GPP TS 45.010",
            required=False, lo=0, hi=63, nullable=True),
 ), one_of=(("rss_dbm",), ("range_m",), ("ta",)), row_needs_one_of=("rss_dbm", "range_m", "ta"))
 
