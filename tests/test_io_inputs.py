@@ -264,12 +264,14 @@ def test_write_is_atomic(tmp_path):
     assert list(tmp_path.iterdir()) == []
 
 
-def test_part_store_resumes_and_cleans_up(tmp_path):
-    store = PartStore(tmp_path / "o.parquet")
-    store.put("a/b", _table().iloc[:2])
-    assert store.has("a/b") and not store.has("b")
-    store.put("b", _table().iloc[2:])
-    store.finish(["a/b", "b"])
+def test_part_store_batches_resumes_and_cleans_up(tmp_path):
+    store = PartStore(tmp_path / "o.parquet", flush_rows=2)
+    store.add(_table().iloc[:2])  # 2 rows: written as part 1
+    store.add(_table().iloc[2:])  # 1 row: buffered
+    assert store.finished() == {"a"} and len(list(store.dir.iterdir())) == 1
+    store.flush()
+    assert PartStore(tmp_path / "o.parquet").finished() == {"a", "b"}
+    store.finish()
     assert not store.dir.exists()
     assert pd.read_parquet(tmp_path / "o.parquet")["track_id"].tolist() == ["a", "a", "b"]
     with pytest.raises(ParameterError, match="unknown output format"):

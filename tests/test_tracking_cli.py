@@ -12,7 +12,7 @@ import pytest
 from typer.testing import CliRunner
 
 import mptrack.tracking._pipeline as pipeline
-from mptrack.io import iter_tracks
+from mptrack.io import PartStore, iter_tracks
 from mptrack.tracking import TrackOptions, track_file, track_fixes
 from mptrack.tracking._cli import app
 
@@ -128,7 +128,7 @@ def test_resume_after_interruption(tmp_path, sim, monkeypatch):
     monkeypatch.setattr(pipeline, "track_fixes", interrupted)
     with pytest.raises(KeyboardInterrupt):
         track_file(sim / "sim.parquet", out)
-    assert not out.exists() and len(list((tmp_path / ".t.parquet.parts").iterdir())) == 2
+    assert not out.exists() and PartStore(out).finished() == {"sim0001", "sim0002"}
     calls.clear()
     monkeypatch.setattr(pipeline, "track_fixes", lambda *a: calls.append(a[0]) or real(*a))
     res = run("track", sim / "sim.parquet", "--out", out, "--resume", "--json")
@@ -199,3 +199,48 @@ def test_real_subprocess(tmp_path):
     bad = subprocess.run(cmd + ["track", str(_bad_csv(tmp_path)), "--out", str(tmp_path / "b.parquet")],
                          capture_output=True, text=True, env=env, timeout=120)
     assert bad.returncode == 2 and "row 42" in bad.stderr and not (tmp_path / "b.parquet").exists()
+
+
+def _long_log(path, n_tracks, per=40):
+    rng = np.random.default_rng(0)
+    rows = n_tracks * per
+    pd.DataFrame({"track_id": np.repeat([f"t{i:05d}" for i in range(n_tracks)], per),
+                  "time": np.tile(np.cumsum(rng.uniform(0.5, 2.0, per)), n_tracks),
+                  "x": rng.normal(0, 5, rows) + np.tile(np.arange(per) * 10.0, n_tracks),
+                  "y": rng.normal(0, 5, rows)}).to_csv(path, index=False)
+
+
+def _peak_bytes(path, out):
+    import tracemalloc
+
+    tracemalloc.start()
+    try:
+        track_file(path, out, chunk_rows=500, flush_rows=500)
+        return tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+
+
+def test_memory_does_not_grow_with_the_file(tmp_path):
+    """Streaming: 8x the rows (and tracks) must need far less than 8x the memory (chunks of 500
+    rows; what grows is the list of finished track ids and the Parquet footer, ~0.5 KB a track)."""
+    _long_log(tmp_path / "small.csv", 25)
+    _long_log(tmp_path / "large.csv", 200)
+    track_file(tmp_path / "small.csv", tmp_path / "warm.parquet")  # imports, numba compilation
+    small = _peak_bytes(tmp_path / "small.csv", tmp_path / "s.parquet")
+    large = _peak_bytes(tmp_path / "large.csv", tmp_path / "l.parquet")
+    assert len(pd.read_parquet(tmp_path / "l.parquet")) == 8000
+    assert large < 2.0 * small, (small, large)
+
+
+@pytest.mark.slow
+def test_a_million_rows_in_bounded_memory(tmp_path):
+    """10^6 rows (25 000 tracks) in a subprocess: peak resident memory well under 1 GiB."""
+    _long_log(tmp_path / "big.csv", 25_000)
+    code = ("import resource, sys; from mptrack.tracking import track_file; "
+            "track_file(sys.argv[1], sys.argv[2]); "
+            "print(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss)")
+    proc = subprocess.run([sys.executable, "-c", code, str(tmp_path / "big.csv"), str(tmp_path / "o.parquet")],
+                          capture_output=True, text=True, timeout=3600)
+    assert proc.returncode == 0, proc.stderr
+    assert int(proc.stdout.split()[-1]) < 1024 * 1024  # KiB

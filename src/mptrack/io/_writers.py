@@ -15,7 +15,6 @@ import math
 import shutil
 from pathlib import Path
 from typing import Iterable, Iterator
-from urllib.parse import quote
 
 import numpy as np
 import pandas as pd
@@ -116,33 +115,59 @@ def write_table(df: pd.DataFrame | Iterable[pd.DataFrame], path) -> Path:
 
 
 class PartStore:
-    """Finished tracks of one run, one Parquet file each, beside the final output."""
+    """Finished tracks of one run, in numbered Parquet part files beside the final output.
 
-    def __init__(self, out) -> None:
+    ``add(df)`` buffers complete tracks and writes a part (atomically) once
+    ``flush_rows`` rows are buffered, so a run over many small tracks makes few
+    files and memory stays bounded; ``flush()`` writes the rest (also on an
+    interruption, so little work is lost).  ``finished()`` lists the track ids
+    already on disk (for ``--resume``); ``finish()`` streams the parts, in
+    order, into the output and deletes them.
+    """
+
+    def __init__(self, out, flush_rows: int = 100_000) -> None:
         self.out = Path(out)
         output_format(self.out)
         self.dir = self.out.parent / f".{self.out.name}.parts"
+        self.flush_rows = flush_rows
+        self._buffer: list[pd.DataFrame] = []
+        self._rows = 0
 
-    def _path(self, track_id: str) -> Path:
-        return self.dir / (quote(str(track_id), safe="") + ".parquet")
+    def _parts(self) -> list[Path]:
+        return sorted(self.dir.glob("part-*.parquet")) if self.dir.exists() else []
 
-    def has(self, track_id: str) -> bool:
-        return self._path(track_id).exists()
+    def finished(self) -> set[str]:
+        """Track ids already written by this or an interrupted earlier run."""
+        import pyarrow.parquet as pq
 
-    def put(self, track_id: str, df: pd.DataFrame) -> None:
+        done: set[str] = set()
+        for part in self._parts():
+            done.update(pq.read_table(part, columns=["track_id"]).column(0).to_pylist())
+        return done
+
+    def add(self, df: pd.DataFrame) -> None:
+        self._buffer.append(df)
+        self._rows += len(df)
+        if self._rows >= self.flush_rows:
+            self.flush()
+
+    def flush(self) -> None:
+        if not self._buffer:
+            return
         self.dir.mkdir(parents=True, exist_ok=True)
-        with atomic_path(self._path(track_id)) as tmp:
-            df.to_parquet(tmp, index=False)
+        parts = self._parts()
+        number = int(parts[-1].stem.split("-")[1]) + 1 if parts else 1
+        with atomic_path(self.dir / f"part-{number:06d}.parquet") as tmp:
+            pd.concat(self._buffer, ignore_index=True).to_parquet(tmp, index=False)
+        self._buffer, self._rows = [], 0
 
-    def get(self, track_id: str) -> pd.DataFrame:
-        return pd.read_parquet(self._path(track_id))
-
-    def finish(self, track_ids: Iterable[str]) -> Path:
-        """Stream the parts of ``track_ids`` (in that order) into the output, then delete the parts."""
-        ids = list(track_ids)
-        write_table((self.get(t) for t in ids), self.out)
+    def finish(self) -> Path:
+        """Write the output from all parts (one part in memory at a time), then delete the parts."""
+        self.flush()
+        write_table((pd.read_parquet(p) for p in self._parts()), self.out)
         self.discard()
         return self.out
 
     def discard(self) -> None:
+        self._buffer, self._rows = [], 0
         shutil.rmtree(self.dir, ignore_errors=True)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -60,6 +61,14 @@ class TrackOptions:
             raise ParameterError(f"scan_interval_s: expected a positive number, got {self.scan_interval_s!r}")
 
 
+_FLAG_NAMES = np.array(FLAGS, dtype=object)
+
+
+@functools.lru_cache(maxsize=32)
+def _model(name: str, q: float, sigma_r2: float):
+    return get_model(name).build(q, sigma_r2)
+
+
 def _ellipse(P2: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """1-sigma ellipse of (T, 2, 2) east/north covariances: semi-axes (m) and azimuth of the major axis
     (degrees clockwise from north, in [0, 180))."""
@@ -79,16 +88,16 @@ def point_table(track_id: str, frame: LocalFrame, times, t, xy: np.ndarray, vel:
     T = len(t)
     gap = np.r_[False, np.diff(t) > gap_s]
     cols = {
-        "track_id": pd.array([track_id] * T, dtype="string"), "time": times, "t": t, "lat": lat, "lon": lon,
+        "track_id": np.full(T, track_id, dtype=object), "time": times, "t": t, "lat": lat, "lon": lon,
         "east_m": xy[:, 0], "north_m": xy[:, 1],
         "vel_east_mps": np.full(T, np.nan) if vel is None else vel[:, 0],
         "vel_north_mps": np.full(T, np.nan) if vel is None else vel[:, 1],
         "var_east_m2": P2[:, 0, 0], "cov_en_m2": P2[:, 0, 1], "var_north_m2": P2[:, 1, 1],
         "ell_major_m": major, "ell_minor_m": minor, "ell_azimuth_deg": az,
         "nis": nis, "nis_dof": nis_dof.astype(np.int64),
-        "flag": pd.array([FLAGS[f] for f in flags], dtype="string"), "gap": gap,
+        "flag": _FLAG_NAMES[flags], "gap": gap,
         "origin_lat": np.full(T, frame.lat0), "origin_lon": np.full(T, frame.lon0),
-        "method": pd.array([method] * T, dtype="string"),
+        "method": np.full(T, method, dtype=object),
     }
     cols.update(extra or {})
     return pd.DataFrame(cols)
@@ -127,7 +136,7 @@ def track_fixes(track_id: str, rows: pd.DataFrame, options: TrackOptions = Track
     if "accuracy_m" in rows.columns:
         acc = rows["accuracy_m"].to_numpy(float)
         sig = np.where(np.isfinite(acc) & (acc > 0), acc, sig)
-    model = spec.build(options.q, options.sigma_m ** 2)
+    model = _model(options.model, options.q, options.sigma_m ** 2)
     n_state = model.n
     pos = [int(np.flatnonzero(model.H[i])[0]) for i in range(2)]
     x0 = np.zeros(n_state)

@@ -30,8 +30,9 @@ import scipy.stats
 
 from .._validation import as_array, as_sequence, as_vector, check_covariance, check_int
 from ..errors import ParameterError, ShapeError
-from ..linear import FilterResult, kalman_step
+from ..linear import FilterResult
 from ..models import ContinuousLinearModel, van_loan
+from ._kernels import gated_loop
 
 __all__ = ["transitions", "GatedResult", "kalman_filter_gated", "rts_smoother_irregular", "nis_threshold", "FLAGS"]
 
@@ -127,67 +128,22 @@ def kalman_filter_gated(model: ContinuousLinearModel, times, z, x0, P0, *, t0: f
     else:
         Rs = as_array("R", R, shape=(T, m, m))
     check_int("max_rejections", max_rejections, minimum=2)
-    gates = None if gate_probability is None else {d: nis_threshold(gate_probability, d) for d in range(1, m + 1)}
-    H = model.H
-    # the position rows of H pick the state entries a reset sets from z
-    picks = [int(np.flatnonzero(H[i])[0]) for i in range(m)]
+    gates = np.array([np.inf] + [nis_threshold(gate_probability, d) if gate_probability is not None else np.inf
+                                 for d in range(1, m + 1)])
+    H = np.ascontiguousarray(model.H)
+    # the state entries measured by the rows of H, and their velocities (set by a reset)
+    picks = np.array([int(np.flatnonzero(H[i])[0]) for i in range(m)], dtype=np.int64)
+    vels = np.array([p + 1 if p + 1 < n and model.Phi[p, p + 1] != 0 else -1 for p in picks], dtype=np.int64)
     xs, Ps = np.empty((T, n)), np.empty((T, n, n))
     xp, Pp = np.empty((T, n)), np.empty((T, n, n))
     nis = np.full(T, np.nan)
     flag = np.zeros(T, dtype=np.int8)
     Fs, Qs = transitions(model, dts)
-    loglik, rejected = 0.0, []  # indices of the consecutive rejected measurements
-    vel = [p + 1 if p + 1 < n and model.Phi[p, p + 1] != 0 else None for p in picks]
-    for k in range(T):
-        F, Q = Fs[k], Qs[k]
-        zk = z[k]
-        ok = ~np.isnan(zk)
-        if ok.any():
-            x_pred, P_pred = F @ x, F @ P @ F.T + Q
-            Hk, Rk = H[ok], Rs[k][np.ix_(ok, ok)]
-            nu = zk[ok] - Hk @ x_pred
-            S = Hk @ P_pred @ Hk.T + Rk
-            nis[k] = float(nu @ scipy.linalg.solve(S, nu, assume_a="pos"))
-            if gates is not None and nis[k] > gates[int(ok.sum())]:
-                rejected = (rejected + [k])[-max_rejections:]
-                fit = _line_fit(t, z, Rs, rejected, gates) if len(rejected) == max_rejections else None
-                if fit is not None:  # the rejected fixes agree with each other: the terminal moved
-                    flag[k], rejected = 3, []
-                    x = x_pred.copy()
-                    for i, p in enumerate(picks):
-                        x[p] = fit[0][i]
-                        if vel[i] is not None:
-                            x[vel[i]] = fit[1][i]
-                    xs[k], Ps[k], xp[k], Pp[k] = x, reset_P, x_pred, P_pred
-                    P = reset_P.copy()
-                    continue
-                flag[k] = 1
-                zk = np.full(m, np.nan)
-            else:
-                rejected = []
-        else:
-            flag[k] = 2
-        x, P, xp[k], Pp[k], ll = kalman_step(F, H, Q, Rs[k], x, P, zk)
-        xs[k], Ps[k] = x, P
-        loglik += ll
+    loglik = gated_loop(t, Fs, Qs, H, np.ascontiguousarray(Rs), z, x.copy(), P.copy(), gates,
+                        gate_probability is not None, int(max_rejections), reset_P, picks, vels,
+                        xs, Ps, xp, Pp, nis, flag)
     res = FilterResult(x=xs, P=Ps, x_pred=xp, P_pred=Pp, loglik=float(loglik), method="KF-gated")
     return GatedResult(result=res, nis=nis, flag=flag, F=Fs, Q=Qs)
-
-
-def _line_fit(t, z, Rs, idx, gates):
-    """Least-squares straight line (position, velocity at the last time) through the measurements
-    ``idx``, or None if some of them are not consistent with it (NIS of the residual over the gate)."""
-    tt = t[idx] - t[idx[-1]]
-    zz = z[idx]
-    if np.isnan(zz).any():
-        return None
-    A = np.column_stack([np.ones_like(tt), tt])
-    coef, *_ = np.linalg.lstsq(A, zz, rcond=None)  # (2, m): intercept, slope per component
-    resid = zz - A @ coef
-    for r, R in zip(resid, Rs[idx]):
-        if float(r @ np.linalg.solve(R, r)) > gates[len(r)]:
-            return None
-    return coef[0], coef[1]
 
 
 def rts_smoother_irregular(gated: GatedResult) -> FilterResult:

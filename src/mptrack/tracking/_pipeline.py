@@ -22,12 +22,14 @@ class _NullProgress:
 
 
 def track_file(input, out, *, cells=None, options: TrackOptions = TrackOptions(), on_error: str = "raise",
-               resume: bool = False, chunk_rows: int = 200_000, progress=None) -> dict:
+               resume: bool = False, chunk_rows: int = 200_000, flush_rows: int = 100_000,
+               progress=None) -> dict:
     """Track every track of ``input`` and write the point table to ``out`` (.parquet, .csv or .geojson).
 
     input    position fixes (CSV/Parquet/GPX) or, with ``cells``, a cellular measurement log (CSV/Parquet)
     cells    cell table in the OpenCelliD layout (CSV/Parquet) -> cellular tracking (options.method)
-    resume   keep the tracks finished by an interrupted run (kept in ``.<out>.parts/``) and skip them
+    resume   keep the tracks finished by an interrupted run (kept in ``.<out>.parts/``, written every
+             ``flush_rows`` rows and on interruption) and skip them
     on_error "raise": the first bad row stops the run (DataError naming file/row/column, nothing written);
              "skip": bad rows are dropped, counted and reported in the returned summary
 
@@ -36,7 +38,7 @@ def track_file(input, out, *, cells=None, options: TrackOptions = TrackOptions()
     """
     start = time.perf_counter()
     input, out = Path(input), Path(out)
-    store = PartStore(out)
+    store = PartStore(out, flush_rows=flush_rows)
     if not resume:
         store.discard()
     report = ReadReport()
@@ -49,12 +51,13 @@ def track_file(input, out, *, cells=None, options: TrackOptions = TrackOptions()
                                  report=ReadReport()):
             wanted.update(chunk["cell_id"].dropna().unique())
         cell_table = read_cells(cells, wanted=wanted, on_error=on_error, report=cell_report)
+    finished = store.finished() if resume else set()
     done, resumed, points, outliers = [], 0, 0, 0
     try:
         with progress.task(f"tracking {input.name}", total=None) as advance:
             schema = MEASUREMENTS if cell_table is not None else FIXES
             for tid, rows in iter_tracks(input, schema, on_error=on_error, chunk_rows=chunk_rows, report=report):
-                if resume and store.has(tid):
+                if tid in finished:
                     resumed += 1
                     done.append(tid)
                     advance()
@@ -66,14 +69,17 @@ def track_file(input, out, *, cells=None, options: TrackOptions = TrackOptions()
                     table = track_cells(tid, rows, cell_table, options)
                 else:
                     table = track_fixes(tid, rows, options)
-                store.put(tid, table)
+                store.add(table)
                 done.append(tid)
                 points += len(table)
                 outliers += int((table["flag"] == "outlier").sum())
                 advance()
-        store.finish(done)
+        store.finish()
     except MptrackError:
         store.discard()  # bad input: nothing to resume from, nothing left behind
+        raise
+    except BaseException:
+        store.flush()  # interrupted: keep the finished tracks for --resume
         raise
     summary = {"input": str(input), "output": str(out), "tracks": len(done), "tracks_resumed": resumed,
                "points_written": points, "outliers_rejected": outliers, "read": report.to_dict(),
