@@ -6,7 +6,8 @@ Scenarios (by name, :data:`SCENARIOS`):
                  Gaussian noise of ``accuracy_m`` (5 m) per axis, 2 % outliers displaced 50-150 m.
 * ``urban-3bts`` three base stations on a 1 km circle around the start (120 deg apart); every second
                  each station's RSS = P_tx - L(d) + N(0, 4 dB) shadowing, L the COST-231 Walfisch-Ikegami
-                 NLOS loss (h_base 30 m, DCS 1800 ARFCN 700 = 1842.8 MHz, P_tx 43 dBm); cell table in the OpenCelliD layout.
+                 NLOS loss (h_base 30 m, DCS 1800 ARFCN 700 = 1842.8 MHz, P_tx 43 dBm); cell table in
+                 the OpenCelliD layout.
 
 Truth is a constant-velocity trajectory (white acceleration density 0.5 m^2/s^3, start speed
 10 m/s) or, with ``along=``, the tracks of a real position-fix file (time stamps and positions
