@@ -76,3 +76,14 @@ def test_report_renders_the_tracks_in_headless_chromium(report, tmp_path):
     subprocess.run(cmd, capture_output=True, timeout=120)
     assert _colour_fraction(tmp_path / "blank.png", TRACK_COLOR) == 0.0
     shutil.rmtree(tmp_path / "ud", ignore_errors=True)
+
+
+def test_report_of_local_xy_tracks(tmp_path):
+    import pandas as pd
+
+    pd.DataFrame({"time": [0.0, 1.0, 2.5, 4.0], "x": [0.0, 10.0, 25.0, 41.0], "y": [0.0, 1.0, 0.0, 2.0]}).to_csv(
+        tmp_path / "xy.csv", index=False)
+    track_file(tmp_path / "xy.csv", tmp_path / "t.parquet")
+    table = read_output(tmp_path / "t.parquet")
+    assert table["lat"].isna().all() and np.isfinite(table["east_m"]).all()
+    assert "<img id='tracks'" in write_report(table, tmp_path / "r.html").read_text()

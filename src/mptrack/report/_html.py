@@ -45,32 +45,40 @@ def _fig_tracks(df: pd.DataFrame):
     import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(figsize=(7.5, 6.0))
+    geodetic = bool(np.isfinite(df["lat"].to_numpy(float)).any())  # else x/y input: local metres
     rejected_shown = False
     for i, (tid, g) in enumerate(df.groupby("track_id", sort=False)):
         if i >= _MAX_TRACKS_DRAWN:
             break
         first = i == 0
         if {"meas_east_m", "meas_north_m"} <= set(g.columns):
-            from ..io import LocalFrame
-
             ok = np.isfinite(g["meas_east_m"].to_numpy(float))
-            fr = LocalFrame(g["origin_lat"].iloc[0], g["origin_lon"].iloc[0])
-            mla, mlo = fr.to_geodetic(g["meas_east_m"].to_numpy(float)[ok], g["meas_north_m"].to_numpy(float)[ok])
-            ax.plot(mlo, mla, ".", color="0.6", ms=3, label="measurements" if first else None)
+            me, mn = g["meas_east_m"].to_numpy(float)[ok], g["meas_north_m"].to_numpy(float)[ok]
+            if geodetic:
+                from ..io import LocalFrame
+
+                mn, me = LocalFrame(g["origin_lat"].iloc[0], g["origin_lon"].iloc[0]).to_geodetic(me, mn)
+            ax.plot(me, mn, ".", color="0.6", ms=3, label="measurements" if first else None)
             out = (g["flag"].to_numpy()[ok] == "outlier")
             if out.any():
-                ax.plot(mlo[out], mla[out], "x", color="tab:orange", ms=6,
+                ax.plot(me[out], mn[out], "x", color="tab:orange", ms=6,
                         label=None if rejected_shown else "rejected (NIS gate)")
                 rejected_shown = True
-        if "true_lat" in g.columns and np.isfinite(g["true_lat"].to_numpy(float)).any():
+        if geodetic and "true_lat" in g.columns and np.isfinite(g["true_lat"].to_numpy(float)).any():
             known = np.isfinite(g["true_lat"].to_numpy(float))
             ax.plot(g["true_lon"][known], g["true_lat"][known], "--", color="k", lw=1,
                     label="truth" if first else None)
-        ax.plot(g["lon"], g["lat"], "-", color=TRACK_COLOR, lw=2.2, label="estimate" if first else None)
-    lat0 = float(np.nanmean(df["lat"]))
-    ax.set_aspect(1.0 / max(math.cos(math.radians(lat0)), 1e-3))
-    ax.set_xlabel("longitude (deg)")
-    ax.set_ylabel("latitude (deg)")
+        x, y = (g["lon"], g["lat"]) if geodetic else (g["east_m"], g["north_m"])
+        ax.plot(x, y, "-", color=TRACK_COLOR, lw=2.2, label="estimate" if first else None)
+    if geodetic:
+        lat0 = float(np.nanmean(df["lat"]))
+        ax.set_aspect(1.0 / max(math.cos(math.radians(lat0)), 1e-3))
+        ax.set_xlabel("longitude (deg)")
+        ax.set_ylabel("latitude (deg)")
+    else:
+        ax.set_aspect(1.0)
+        ax.set_xlabel("east (m)")
+        ax.set_ylabel("north (m)")
     ax.ticklabel_format(useOffset=False)
     ax.legend(loc="best", fontsize=8)
     ax.set_title("Tracks")

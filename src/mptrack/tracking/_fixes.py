@@ -8,7 +8,7 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
-from ..errors import ParameterError
+from .._validation import check_positive
 from ..io import LocalFrame
 from ..linear import FilterResult, get_filter
 from ._gated import FLAGS, kalman_filter_gated, rts_smoother_irregular
@@ -53,12 +53,11 @@ class TrackOptions:
     def __post_init__(self) -> None:
         get_model(self.model)
         object.__setattr__(self, "filter", get_fix_filter(self.filter))
-        for name in ("q", "sigma_m", "gap_s", "q_km2", "r_km2"):
-            value = getattr(self, name)
-            if not np.isfinite(value) or value <= 0 and name not in ("q", "q_km2") or value < 0:
-                raise ParameterError(f"{name}: expected a positive number, got {value!r}")
-        if self.scan_interval_s is not None and not self.scan_interval_s > 0:
-            raise ParameterError(f"scan_interval_s: expected a positive number, got {self.scan_interval_s!r}")
+        for name, allow_zero in (("q", True), ("sigma_m", False), ("gap_s", False), ("q_km2", True),
+                                 ("r_km2", False)):
+            check_positive(name, getattr(self, name), allow_zero=allow_zero)
+        if self.scan_interval_s is not None:
+            check_positive("scan_interval_s", self.scan_interval_s)
 
 
 _FLAG_NAMES = np.array(FLAGS, dtype=object)
@@ -79,11 +78,16 @@ def _ellipse(P2: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return major, minor, az
 
 
-def point_table(track_id: str, frame: LocalFrame, times, t, xy: np.ndarray, vel: np.ndarray | None,
+def point_table(track_id: str, frame: LocalFrame | None, times, t, xy: np.ndarray, vel: np.ndarray | None,
                 P2: np.ndarray, nis: np.ndarray, nis_dof: np.ndarray, flags: np.ndarray, gap_s: float,
                 method: str, extra: dict | None = None) -> pd.DataFrame:
-    """The output table of one track (one row per estimate; columns documented in docs/tracking.md)."""
-    lat, lon = frame.to_geodetic(xy[:, 0], xy[:, 1])
+    """The output table of one track (one row per estimate; columns documented in docs/tracking.md).
+    ``frame`` None (x/y input): lat, lon and the origin are NaN."""
+    if frame is None:  # x/y input: positions are local only
+        lat = lon = origin_lat = origin_lon = np.full(len(t), np.nan)
+    else:
+        lat, lon = frame.to_geodetic(xy[:, 0], xy[:, 1])
+        origin_lat, origin_lon = np.full(len(t), frame.lat0), np.full(len(t), frame.lon0)
     major, minor, az = _ellipse(P2)
     T = len(t)
     gap = np.r_[False, np.diff(t) > gap_s]
@@ -96,7 +100,7 @@ def point_table(track_id: str, frame: LocalFrame, times, t, xy: np.ndarray, vel:
         "ell_major_m": major, "ell_minor_m": minor, "ell_azimuth_deg": az,
         "nis": nis, "nis_dof": nis_dof.astype(np.int64),
         "flag": _FLAG_NAMES[flags], "gap": gap,
-        "origin_lat": np.full(T, frame.lat0), "origin_lon": np.full(T, frame.lon0),
+        "origin_lat": origin_lat, "origin_lon": origin_lon,
         "method": np.full(T, method, dtype=object),
     }
     cols.update(extra or {})
@@ -127,7 +131,7 @@ def track_fixes(track_id: str, rows: pd.DataFrame, options: TrackOptions = Track
         frame = LocalFrame.at(rows["lat"], rows["lon"])
         e, n = frame.to_enu(rows["lat"].to_numpy(), rows["lon"].to_numpy())
     else:
-        frame = LocalFrame(0.0, 0.0)
+        frame = None
         e, n = rows["x"].to_numpy(float), rows["y"].to_numpy(float)
     z = np.column_stack([e, n])
     t = rows["t"].to_numpy(float)

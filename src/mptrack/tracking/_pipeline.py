@@ -52,14 +52,14 @@ def track_file(input, out, *, cells=None, options: TrackOptions = TrackOptions()
             wanted.update(chunk["cell_id"].dropna().unique())
         cell_table = read_cells(cells, wanted=wanted, on_error=on_error, report=cell_report)
     finished = store.finished() if resume else set()
-    done, resumed, points, outliers = [], 0, 0, 0
+    done, resumed, points, outliers = 0, 0, 0, 0
     try:
         with progress.task(f"tracking {input.name}", total=None) as advance:
             schema = MEASUREMENTS if cell_table is not None else FIXES
             for tid, rows in iter_tracks(input, schema, on_error=on_error, chunk_rows=chunk_rows, report=report):
                 if tid in finished:
                     resumed += 1
-                    done.append(tid)
+                    done += 1
                     advance()
                     continue
                 if cell_table is not None:
@@ -70,7 +70,7 @@ def track_file(input, out, *, cells=None, options: TrackOptions = TrackOptions()
                 else:
                     table = track_fixes(tid, rows, options)
                 store.add(table)
-                done.append(tid)
+                done += 1
                 points += len(table)
                 outliers += int((table["flag"] == "outlier").sum())
                 advance()
@@ -81,7 +81,7 @@ def track_file(input, out, *, cells=None, options: TrackOptions = TrackOptions()
     except BaseException:
         store.flush()  # interrupted: keep the finished tracks for --resume
         raise
-    summary = {"input": str(input), "output": str(out), "tracks": len(done), "tracks_resumed": resumed,
+    summary = {"input": str(input), "output": str(out), "tracks": done, "tracks_resumed": resumed,
                "points_written": points, "outliers_rejected": outliers, "read": report.to_dict(),
                "options": {k: v for k, v in vars(options).items()}, "elapsed_s": time.perf_counter() - start}
     if cell_table is not None:
