@@ -282,3 +282,18 @@ def test_user_guide_shows_the_current_schemas():
     guide = (Path(__file__).parents[1] / "docs" / "tracking.md").read_text()
     for schema in (FIXES, MEASUREMENTS, CELLS):
         assert schema.markdown() in guide
+
+
+def test_time_zones_and_datetime_columns(tmp_path):
+    times = pd.to_datetime(["2024-01-01T00:00:00", "2024-01-01T00:00:01.5", "2024-01-01T00:00:03"], format="ISO8601")
+    df = pd.DataFrame({"track_id": "a", "time": times, "lat": [45.0, 45.0001, 45.0002], "lon": 13.0})
+    df.to_parquet(tmp_path / "naive.parquet")  # naive datetimes are UTC
+    df.assign(time=times.tz_localize("Europe/Zagreb")).to_parquet(tmp_path / "zoned.parquet")
+    df.assign(time=["2024-01-01T01:00:00+01:00", "2024-01-01T00:00:01.5Z", "2024-01-01 00:00:03"]).to_csv(
+        tmp_path / "mixed.csv", index=False)
+    starts = {}
+    for name in ("naive.parquet", "zoned.parquet", "mixed.csv"):
+        (_, g), = iter_tracks(tmp_path / name)
+        assert np.diff(g["t"]).tolist() == [1.5, 1.5]
+        starts[name] = g["t"].iloc[0]
+    assert starts["naive.parquet"] == starts["mixed.csv"] == starts["zoned.parquet"] + 3600.0
