@@ -160,6 +160,9 @@ def test_cellular_pipeline_on_the_real_trace(tmp_path):
     res = run("track", log, "--cells", cells, "--out", tmp_path / "x.parquet")
     assert res.exit_code == 2 and "column 'cell_id'" in res.stderr and "unknown cell" in res.stderr
     assert not (tmp_path / "x.parquet").exists()
+    res = run("track", log, "--cells", cells, "--out", tmp_path / "x.parquet", "--on-error", "skip", "--json")
+    assert res.exit_code == 0, res.output
+    assert json.loads(res.stdout)["read"]["skipped_by_reason"] == {"cell_id: unknown cell id": 104}
 
 
 def test_evaluate_against_truth(tmp_path, sim):
