@@ -20,7 +20,7 @@ from ._schema import CELLS, FIXES, ReadReport, Schema, cell_key, check_on_error,
 __all__ = ["read_chunks", "iter_tracks", "read_table", "read_cells", "input_format", "FORMATS"]
 
 FORMATS = {".csv": "csv", ".txt": "csv", ".gz": "csv", ".parquet": "parquet", ".pq": "parquet", ".gpx": "gpx"}
-DEFAULT_CHUNK_ROWS = 200_000
+DEFAULT_CHUNK_ROWS = 50_000
 
 
 def input_format(path) -> str:

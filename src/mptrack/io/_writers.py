@@ -125,7 +125,7 @@ class PartStore:
     order, into the output and deletes them.
     """
 
-    def __init__(self, out, flush_rows: int = 100_000) -> None:
+    def __init__(self, out, flush_rows: int = 50_000) -> None:
         self.out = Path(out)
         output_format(self.out)
         self.dir = self.out.parent / f".{self.out.name}.parts"

@@ -22,7 +22,7 @@ class _NullProgress:
 
 
 def track_file(input, out, *, cells=None, options: TrackOptions = TrackOptions(), on_error: str = "raise",
-               resume: bool = False, chunk_rows: int = 200_000, flush_rows: int = 100_000,
+               resume: bool = False, chunk_rows: int = 50_000, flush_rows: int = 50_000,
                progress=None) -> dict:
     """Track every track of ``input`` and write the point table to ``out`` (.parquet, .csv or .geojson).
 
