@@ -21,6 +21,7 @@ __all__ = [
     "SingularMatrixError",
     "UnknownNameError",
     "ParameterError",
+    "DataError",
 ]
 
 
@@ -76,3 +77,21 @@ class UnknownNameError(MptrackError, KeyError, ValueError):
 
 class ParameterError(MptrackError, ValueError):
     """A scalar parameter is out of its valid range (negative time step, N < 1, ...)."""
+
+
+class DataError(MptrackError, ValueError):
+    """A record in an input file is invalid: names the file, the row and the column.
+
+    ``row`` is the 1-based number of the data record (the header line of a CSV
+    file is not counted; for GPX it is the track point's number), or None when
+    the problem concerns the whole file (a missing column, an unreadable file).
+    """
+
+    def __init__(self, message: str, *, file=None, row: int | None = None, column: str | None = None):
+        self.file, self.row, self.column, self.reason = file, row, column, message
+        where = [str(file)] if file is not None else []
+        if row is not None:
+            where.append(f"row {row}")
+        if column is not None:
+            where.append(f"column {column!r}")
+        super().__init__(f"{', '.join(where)}: {message}" if where else message)

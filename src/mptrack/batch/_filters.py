@@ -1,0 +1,237 @@
+"""Batched linear filters: many tracks sharing one model, in compiled kernels.
+
+Each function here is the batch twin of the reference filter of the same name
+in :mod:`mptrack.linear` and is tested against it track by track.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+
+from .._validation import check_covariance, check_int, check_positive
+from ..errors import NonFiniteError, ParameterError, ShapeError
+from ..linear import fir_coefficients, fir_order
+from ..models import LinearGaussianModel
+from ..riccati import SteadyState, steady_state
+from . import _kernels as K
+from ._inputs import as_batch, check_out, prepare_batch
+
+__all__ = [
+    "GainSequence",
+    "gain_sequence",
+    "steady_state_filter",
+    "kalman_filter",
+    "fir_filter",
+    "predict",
+    "per_axis",
+]
+
+
+def _steady(model: LinearGaussianModel, steady: SteadyState | None) -> SteadyState:
+    if steady is None:
+        return steady_state(model, "dare")
+    if not isinstance(steady, SteadyState):
+        raise ParameterError(f"steady: expected a SteadyState, got {type(steady).__name__}")
+    if steady.A.shape != (model.n, model.n) or steady.B.shape != (model.n, model.m):
+        raise ParameterError("steady: its A, B do not match the model's dimensions")
+    return steady
+
+
+def _is_21(model: LinearGaussianModel) -> bool:
+    return model.n == 2 and model.m == 1
+
+
+def _steady_state_filter(model, z, x0=None, out=None, *, lengths=None, steady=None, axes=1):
+    bi = prepare_batch(model, z, x0, out, lengths, axes=axes)
+    ss = _steady(model, steady)
+    kernel = K.ss_kernel_21 if _is_21(model) else K.ss_kernel
+    kernel(bi.z, bi.out, np.ascontiguousarray(ss.A), np.ascontiguousarray(ss.B),
+           np.ascontiguousarray(model.F), bi.x0, bi.lengths, bi.axes)
+    return bi.out
+
+
+def steady_state_filter(model: LinearGaussianModel, z, x0=None, out=None, *, lengths=None,
+                        steady: SteadyState | None = None) -> np.ndarray:
+    """Steady-state filter x(k/k) = A x(k-1/k-1) + B z(k) on a batch (seed 000 eqs. 9-10).
+
+    model    the LinearGaussianModel shared by all tracks
+    z        (B, T, m) measurements z(1..T) of B tracks, float64 or float32
+             (other real dtypes are converted to float64); a row with NaN only
+             predicts, x(k/k) = F x(k-1/k-1)
+    x0       prior x(0/0): None (zeros), (n,) for all tracks, or (B, n)
+    out      optional C-contiguous (B, T, n) array of z's dtype, written in place
+    lengths  optional (B,) track lengths; out[b, lengths[b]:] is NaN
+    steady   a precomputed :func:`mptrack.riccati.steady_state` (default: DARE)
+
+    Returns the (B, T, n) filtered states x(k/k) (``out`` when given); track b
+    equals ``mptrack.linear.steady_state_filter(model, z[b], x0[b]).x``.
+    The state is carried in float64; float32 input halves the memory traffic.
+    """
+    return _steady_state_filter(model, z, x0, out, lengths=lengths, steady=steady)
+
+
+@dataclass(frozen=True, eq=False)
+class GainSequence:
+    """The data-independent part of the Kalman filter for a model and P(0/0).
+
+    K       (T, n, m) gains K(k), k = 1..T
+    P_pred  (T, n, n) predicted covariances P(k/k-1)
+    P_filt  (T, n, n) filtered covariances P(k/k) of a track with complete measurements
+    P0      (n, n) the prior covariance P(0/0) they start from
+    """
+
+    K: np.ndarray
+    P_pred: np.ndarray
+    P_filt: np.ndarray
+    P0: np.ndarray
+
+    @property
+    def T(self) -> int:
+        return self.K.shape[0]
+
+
+def gain_sequence(model: LinearGaussianModel, steps: int, P0=None) -> GainSequence:
+    """The Kalman gains K(1..steps) and covariances from P(0/0) = P0 (seed 000 eq. 4).
+
+    They do not depend on the measurements, so one sequence serves every track
+    that shares the model and the prior covariance.  Same formulas and order
+    of operations as :func:`mptrack.linear.kalman_step`.
+    """
+    if not isinstance(model, LinearGaussianModel):
+        raise ParameterError(f"model: expected a LinearGaussianModel, got {type(model).__name__}")
+    steps = check_int("steps", steps, minimum=1)
+    n, m = model.n, model.m
+    P = np.zeros((n, n)) if P0 is None else check_covariance("P0", P0, n)
+    P0 = P.copy()
+    F, H, Q, R = model.F, model.H, model.Q, model.R
+    Ks = np.empty((steps, n, m))
+    Pp = np.empty((steps, n, n))
+    Pf = np.empty((steps, n, n))
+    for k in range(steps):
+        P_pred = F @ P @ F.T + Q
+        PHt = P_pred @ H.T
+        S = H @ PHt + R
+        gain = PHt @ np.linalg.inv(S)
+        P = P_pred - gain @ PHt.T
+        P = 0.5 * (P + P.T)
+        Ks[k], Pp[k], Pf[k] = gain, P_pred, P
+    return GainSequence(K=Ks, P_pred=Pp, P_filt=Pf, P0=P0)
+
+
+def _kalman_filter(model, z, x0=None, P0=None, out=None, *, lengths=None, gains=None, axes=1):
+    bi = prepare_batch(model, z, x0, out, lengths, axes=axes)
+    T = bi.z.shape[1]
+    if gains is None:
+        gains = gain_sequence(model, T, P0)
+    elif not isinstance(gains, GainSequence):
+        raise ParameterError(f"gains: expected a GainSequence, got {type(gains).__name__}")
+    elif gains.K.shape[1:] != (model.n, model.m) or gains.T < T:
+        raise ShapeError(f"gains: expected at least {T} gains of shape ({model.n}, {model.m}), "
+                         f"got K of shape {gains.K.shape}")
+    elif P0 is not None:
+        raise ParameterError("P0: give P0 or gains (which already fix P0), not both")
+    kernel = K.kf_kernel_21 if _is_21(model) else K.kf_kernel
+    c = np.ascontiguousarray
+    kernel(bi.z, bi.out, c(model.F), c(model.H), c(model.Q), c(model.R), c(gains.K),
+           c(gains.P_filt), c(gains.P0), bi.x0, bi.lengths, bi.axes)
+    return bi.out
+
+
+def kalman_filter(model: LinearGaussianModel, z, x0=None, P0=None, out=None, *, lengths=None,
+                  gains: GainSequence | None = None) -> np.ndarray:
+    """Time-varying Kalman filter on a batch with one shared gain sequence (seed 000 eq. 4).
+
+    All tracks share the model and the prior covariance P0 (default 0), so the
+    gains K(k) are computed once (:func:`gain_sequence`, or pass ``gains``) and
+    applied to every track: x(k/k) = F x + K(k) [z(k) - H F x].  A track whose
+    measurement has a NaN component leaves the shared sequence there and runs
+    its own covariance recursion from that step on (NaN components skipped, a
+    full NaN row only predicts), exactly as :func:`mptrack.linear.kalman_filter`.
+
+    z, x0, out, lengths as in :func:`steady_state_filter`.  Returns the (B, T, n)
+    filtered states; the covariances of complete tracks are ``gains.P_filt``.
+    """
+    return _kalman_filter(model, z, x0, P0, out, lengths=lengths, gains=gains)
+
+
+def _fir_filter(model, z, out=None, *, lengths=None, eps=1e-3, norm=2, M=None, steady=None, axes=1):
+    bi = prepare_batch(model, z, None, out, lengths, axes=axes)
+    ss = _steady(model, steady)
+    eps = check_positive("eps", eps)
+    M = fir_order(ss.A, eps, norm) if M is None else check_int("M", M, minimum=1)
+    C = np.ascontiguousarray(fir_coefficients(ss.A, ss.B, M))
+    bad = np.zeros(bi.z.shape[0], dtype=np.int64)
+    K.fir_kernel(bi.z, bi.out, C, bi.lengths, bi.axes, bad)
+    if bad.any():
+        b = int(np.flatnonzero(bad)[0])
+        raise NonFiniteError(f"z: the FIR filter needs every measurement; track {b} has NaN at time "
+                             f"index {bad[b] - 1} (use steady_state_filter, which predicts through gaps)")
+    return bi.out
+
+
+def fir_filter(model: LinearGaussianModel, z, out=None, *, lengths=None, eps: float = 1e-3, norm=2,
+               M: int | None = None, steady: SteadyState | None = None) -> np.ndarray:
+    """FIR steady-state filter x(k/k) = sum_{j<M} A^j B z(k-j) on a batch (seed 000 eq. 22).
+
+    The warm-up k < M uses the measurements available so far (the reference's
+    ``warmup="truncate"``, which equals the steady-state filter from x0 = 0).
+    M defaults to the smallest order with ||A^M|| < eps in the matrix ``norm``.
+    NaN inside a track's length is an error (NonFiniteError).
+    """
+    return _fir_filter(model, z, out, lengths=lengths, eps=eps, norm=norm, M=M, steady=steady)
+
+
+def predict(model: LinearGaussianModel, x, steps: int = 1, out=None) -> np.ndarray:
+    """N-step prediction x(k+N/k) = F^N x(k/k) of a batch of filtered states.
+
+    x      (B, T, n) filtered states (or (B, T, axes * n) from :func:`per_axis`
+           with an axis model: each axis block is predicted with F^N)
+    steps  the horizon N >= 1 (time steps of model.dt)
+    out    optional C-contiguous output of x's shape and dtype (may be x itself)
+    """
+    if not isinstance(model, LinearGaussianModel):
+        raise ParameterError(f"model: expected a LinearGaussianModel, got {type(model).__name__}")
+    steps = check_int("steps", steps, minimum=1)
+    x = np.asarray(x)
+    if x.ndim != 3 or x.shape[2] == 0 or x.shape[2] % model.n:
+        raise ShapeError(f"x: expected shape (B, T, axes * {model.n}), got shape {x.shape}")
+    axes = x.shape[2] // model.n
+    xs = as_batch("x", x, x.shape[2])
+    out = np.empty_like(xs) if out is None else check_out(out, xs.shape, xs.dtype, None if out is x else xs)
+    FN = np.linalg.matrix_power(model.F, steps)
+    K.matvec_kernel(xs, out, np.ascontiguousarray(FN), axes)
+    return out
+
+
+_PER_AXIS: dict[Callable, Callable] = {
+    steady_state_filter: _steady_state_filter,
+    kalman_filter: _kalman_filter,
+    fir_filter: _fir_filter,
+}
+
+
+def per_axis(run: Callable[..., np.ndarray], axis_model: LinearGaussianModel, z, *args,
+             **kwargs) -> np.ndarray:
+    """Run a batch filter per axis with an axis model (model B; seed 000 eqs. 17-18).
+
+    run         :func:`steady_state_filter`, :func:`kalman_filter` or :func:`fir_filter`
+    axis_model  the one-axis model (n_a, m_a), e.g. ``assimakis_model_b()``
+    z           (B, T, axes * m_a), columns axis by axis [z_x, z_y, ...]
+    The axes are run as extra tracks of the same kernel, without copying z;
+    the result is (B, T, axes * n_a), state axis by axis, and equals
+    ``mptrack.linear.per_axis(reference, axis_model, z[b], ...)`` track by track.
+    Other arguments are those of ``run`` (x0 of width axes * n_a).
+    """
+    impl = _PER_AXIS.get(run)
+    if impl is None:
+        raise ParameterError("run: expected mptrack.batch.steady_state_filter, kalman_filter or fir_filter")
+    if not isinstance(axis_model, LinearGaussianModel):
+        raise ParameterError(f"axis_model: expected a LinearGaussianModel, got {type(axis_model).__name__}")
+    shape = np.shape(z)
+    if len(shape) != 3 or shape[2] == 0 or shape[2] % axis_model.m:
+        raise ShapeError(f"z: expected shape (B, T, axes * {axis_model.m}), got shape {shape}")
+    return impl(axis_model, z, *args, axes=shape[2] // axis_model.m, **kwargs)
+

@@ -1,0 +1,308 @@
+"""Scale-out: split a batch or a Monte-Carlo study into chunks and run them
+serially, in local processes (``concurrent.futures``) or on a Dask cluster
+(``dask.distributed``), with resumable Parquet output.
+
+Determinism: run ``i`` of a study draws from the stream
+``SeedSequence(seed, spawn_key=(i,))`` -- the i-th child that
+``SeedSequence(seed).spawn`` would give -- so a run's numbers do not depend on
+the chunking, the executor or the order in which chunks finish.  Chunks are
+concatenated in index order.
+
+Resumability: with ``out_dir`` every finished chunk is written atomically to
+``out_dir/chunk-NNNNNN.parquet`` (by the worker that computed it) and a later
+call with the same ``manifest`` skips it; the result is always read back from
+those files, so a resumed run returns exactly what an uninterrupted one does.
+"""
+
+from __future__ import annotations
+
+import concurrent.futures
+import json
+import multiprocessing
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable, Literal
+
+import numpy as np
+import pandas as pd
+
+from .._io import atomic_path, write_json
+from .._validation import check_int
+from ..errors import DTypeError, ParameterError
+from ..models import LinearGaussianModel
+from ._filters import gain_sequence, kalman_filter, steady_state_filter
+
+__all__ = ["Chunk", "make_chunks", "run_chunks", "MonteCarloTask", "monte_carlo", "filter_chunked",
+           "EXECUTORS"]
+
+Executor = Literal["serial", "processes", "dask"]
+EXECUTORS: tuple[str, ...] = ("serial", "processes", "dask")
+
+
+@dataclass(frozen=True, eq=False)
+class Chunk:
+    """Items ``start .. stop-1`` of a study, handed to a task.
+
+    seed  the study's root entropy (None when the task draws nothing)
+    data  the slice ``data[start:stop]`` of the array given to :func:`run_chunks`, or None
+    """
+
+    index: int
+    start: int
+    stop: int
+    seed: int | None = None
+    data: Any = field(default=None, repr=False)
+
+    @property
+    def size(self) -> int:
+        return self.stop - self.start
+
+    def seed_sequences(self) -> list[np.random.SeedSequence]:
+        """Per-item streams: item i gets ``SeedSequence(seed, spawn_key=(i,))``."""
+        if self.seed is None:
+            raise ParameterError("seed: this study was started without a seed")
+        return [np.random.SeedSequence(self.seed, spawn_key=(i,)) for i in range(self.start, self.stop)]
+
+    def generators(self) -> list[np.random.Generator]:
+        return [np.random.default_rng(s) for s in self.seed_sequences()]
+
+
+def make_chunks(n_items: int, chunk_size: int, seed: int | None = None) -> list[Chunk]:
+    """Split ``range(n_items)`` into consecutive chunks of ``chunk_size`` (the last may be shorter)."""
+    n_items = check_int("n_items", n_items, minimum=1)
+    chunk_size = check_int("chunk_size", chunk_size, minimum=1)
+    if seed is not None:
+        seed = check_int("seed", seed, minimum=0)
+    return [Chunk(i, lo, min(lo + chunk_size, n_items), seed)
+            for i, lo in enumerate(range(0, n_items, chunk_size))]
+
+
+def _chunk_path(out_dir: Path, index: int) -> Path:
+    return out_dir / f"chunk-{index:06d}.parquet"
+
+
+def _run_one(task: Callable[[Chunk], pd.DataFrame], chunk: Chunk, out_dir: str | None):
+    """Worker side: compute one chunk; with ``out_dir`` write it atomically and return its path."""
+    df = task(chunk)
+    if not isinstance(df, pd.DataFrame):
+        raise DTypeError(f"task: expected a pandas.DataFrame from chunk {chunk.index}, "
+                         f"got {type(df).__name__}")
+    if out_dir is None:
+        return df
+    path = _chunk_path(Path(out_dir), chunk.index)
+    with atomic_path(path) as tmp:
+        df.to_parquet(tmp, engine="pyarrow", index=False)
+    return str(path)
+
+
+def _check_manifest(out_dir: Path, manifest: dict) -> None:
+    path = out_dir / "manifest.json"
+    if path.exists():
+        old = json.loads(path.read_text())
+        if old != manifest:
+            raise ParameterError(
+                f"out_dir: {out_dir} holds chunks of a different study ({old}); "
+                f"this one is {manifest}. Use another directory or delete it.")
+    else:
+        write_json(path, manifest)
+
+
+def _with_data(chunks: list[Chunk], data) -> list[Chunk]:
+    if data is None:
+        return chunks
+    return [Chunk(c.index, c.start, c.stop, c.seed, data[c.start:c.stop]) for c in chunks]
+
+
+def run_chunks(task: Callable[[Chunk], pd.DataFrame], n_items: int, *, chunk_size: int,
+               seed: int | None = None, data=None, out_dir=None, executor: Executor = "serial",
+               max_workers: int | None = None, client=None, manifest: dict | None = None,
+               progress: Callable[[int], None] | None = None) -> pd.DataFrame:
+    """Run ``task(chunk) -> DataFrame`` on every chunk of ``range(n_items)``; concatenate in order.
+
+    task        a picklable callable (a module-level function or a dataclass instance)
+    chunk_size  items per chunk; ``seed`` the study's root entropy (see :class:`Chunk`)
+    data        optional array with ``n_items`` leading rows: chunk i gets its slice as ``chunk.data``
+    out_dir     optional directory: finished chunks are written there atomically as Parquet
+                and skipped when the call is repeated (resume after an interruption)
+    executor    "serial", "processes" (a spawn-context ProcessPoolExecutor of ``max_workers``)
+                or "dask" (``client``, a dask.distributed.Client; without one a LocalCluster
+                of ``max_workers`` single-threaded workers is started for the call)
+    manifest    extra JSON-able description of the study stored with the chunks; a
+                later call on the same ``out_dir`` must describe the same study
+    progress    called with the number of chunks finished, as they finish
+    """
+    if executor not in EXECUTORS:
+        raise ParameterError(f"executor: expected one of {EXECUTORS}, got {executor!r}")
+    if not callable(task):
+        raise ParameterError(f"task: expected a callable, got {type(task).__name__}")
+    chunks = make_chunks(n_items, chunk_size, seed)
+    if data is not None and len(data) != n_items:
+        raise ParameterError(f"data: expected {n_items} leading rows, got {len(data)}")
+    if max_workers is not None:
+        max_workers = check_int("max_workers", max_workers, minimum=1)
+    done: dict[int, Any] = {}
+    todo = chunks
+    if out_dir is not None:
+        out_dir = Path(out_dir)
+        out_dir.mkdir(parents=True, exist_ok=True)
+        _check_manifest(out_dir, {"n_items": n_items, "chunk_size": chunk_size, "seed": seed,
+                                  "task": getattr(task, "__qualname__", type(task).__qualname__),
+                                  **(manifest or {})})
+        for c in chunks:
+            if _chunk_path(out_dir, c.index).exists():
+                done[c.index] = str(_chunk_path(out_dir, c.index))
+        todo = [c for c in chunks if c.index not in done]
+        if progress is not None and done:
+            progress(len(done))
+    todo = _with_data(todo, data)
+    target = None if out_dir is None else str(out_dir)
+    if todo:
+        if executor == "serial":
+            for c in todo:
+                done[c.index] = _run_one(task, c, target)
+                if progress is not None:
+                    progress(1)
+        elif executor == "processes":
+            _run_processes(task, todo, target, max_workers, done, progress)
+        else:
+            _run_dask(task, todo, target, max_workers, client, done, progress)
+    parts = [done[c.index] for c in chunks]
+    frames = [pd.read_parquet(p, engine="pyarrow") if isinstance(p, str) else p for p in parts]
+    return pd.concat(frames, ignore_index=True)
+
+
+def _run_processes(task, todo, target, max_workers, done, progress) -> None:
+    ctx = multiprocessing.get_context("spawn")  # fork is unsafe with numba's threads
+    with concurrent.futures.ProcessPoolExecutor(max_workers=max_workers, mp_context=ctx) as pool:
+        futures = {pool.submit(_run_one, task, c, target): c.index for c in todo}
+        try:
+            for fut in concurrent.futures.as_completed(futures):
+                done[futures[fut]] = fut.result()
+                if progress is not None:
+                    progress(1)
+        except BaseException:
+            for fut in futures:
+                fut.cancel()
+            raise
+
+
+def _run_dask(task, todo, target, max_workers, client, done, progress) -> None:
+    from dask.distributed import Client, LocalCluster, as_completed
+
+    own = client is None
+    if own:
+        cluster = LocalCluster(n_workers=max_workers or 2, threads_per_worker=1, processes=True,
+                               dashboard_address=None)
+        client = Client(cluster)
+    try:
+        futures = client.map(_run_one, [task] * len(todo), todo, [target] * len(todo), pure=False)
+        index = {fut.key: c.index for fut, c in zip(futures, todo)}
+        try:
+            for fut in as_completed(futures):
+                done[index[fut.key]] = fut.result()
+                if progress is not None:
+                    progress(1)
+        except BaseException:
+            client.cancel(futures)
+            raise
+    finally:
+        if own:
+            client.close()
+            cluster.close()
+
+
+@dataclass(frozen=True)
+class MonteCarloTask:
+    """One chunk of a Monte-Carlo study: simulate, filter with the batch engine, score.
+
+    Run i draws, from its own stream, the process noise (steps, p) and then the
+    measurement noise (steps, m), exactly as :func:`mptrack.sim.simulate_linear`
+    does, from x(0) = 0; the filter starts from x(0/0) = 0 (and P0 for "kalman").
+    Returns one row per run: ``run`` and the RMSE over time of each state component.
+    """
+
+    model: LinearGaussianModel
+    steps: int
+    method: Literal["steady-state", "kalman"] = "steady-state"
+    P0: np.ndarray | None = None
+
+    def __call__(self, chunk: Chunk) -> pd.DataFrame:
+        model, T = self.model, self.steps
+        Lq = model.noise_factor()
+        Lr = np.linalg.cholesky(model.R)
+        runs = chunk.size
+        w = np.empty((runs, T, Lq.shape[1]))
+        v = np.empty((runs, T, model.m))
+        for j, rng in enumerate(chunk.generators()):
+            w[j] = rng.standard_normal((T, Lq.shape[1]))
+            v[j] = rng.standard_normal((T, model.m))
+        w = w @ Lq.T
+        truth = np.empty((runs, T, model.n))
+        x = np.zeros((runs, model.n))
+        for k in range(T):
+            x = x @ model.F.T + w[:, k]
+            truth[:, k] = x
+        z = truth @ model.H.T + v @ Lr.T
+        if self.method == "kalman":
+            est = kalman_filter(model, z, gains=gain_sequence(model, T, self.P0))
+        else:
+            est = steady_state_filter(model, z)
+        rmse = np.sqrt(np.mean((est - truth) ** 2, axis=1))
+        cols = {"run": np.arange(chunk.start, chunk.stop)}
+        cols.update({f"rmse_x{i}": rmse[:, i] for i in range(model.n)})
+        return pd.DataFrame(cols)
+
+
+def monte_carlo(model: LinearGaussianModel, steps: int, runs: int, *, seed: int,
+                method: Literal["steady-state", "kalman"] = "steady-state", P0=None,
+                chunk_size: int = 1000, executor: Executor = "serial", out_dir=None,
+                max_workers: int | None = None, client=None, progress=None) -> pd.DataFrame:
+    """A Monte-Carlo study of ``runs`` simulated tracks of ``steps`` steps, chunked.
+
+    Returns one row per run (``run``, ``rmse_x0`` ..): see :class:`MonteCarloTask`.
+    The numbers depend on ``seed`` only (not on chunking or executor).
+    """
+    if method not in ("steady-state", "kalman"):
+        raise ParameterError(f"method: expected 'steady-state' or 'kalman', got {method!r}")
+    if not isinstance(model, LinearGaussianModel):
+        raise ParameterError(f"model: expected a LinearGaussianModel, got {type(model).__name__}")
+    steps = check_int("steps", steps, minimum=1)
+    task = MonteCarloTask(model, steps, method, None if P0 is None else np.asarray(P0, dtype=float))
+    desc = {"steps": steps, "method": method, "model": repr(model)}
+    return run_chunks(task, runs, chunk_size=chunk_size, seed=seed, out_dir=out_dir, executor=executor,
+                      max_workers=max_workers, client=client, manifest=desc, progress=progress)
+
+
+@dataclass(frozen=True)
+class _FilterTask:
+    run: Callable[..., np.ndarray]
+    model: LinearGaussianModel
+    kwargs: dict
+
+    def __call__(self, chunk: Chunk) -> pd.DataFrame:
+        x = self.run(self.model, chunk.data, **self.kwargs)
+        B, T, n = x.shape
+        cols = {"track": np.repeat(np.arange(chunk.start, chunk.stop), T), "t": np.tile(np.arange(T), B)}
+        flat = x.reshape(B * T, n)
+        cols.update({f"x{i}": flat[:, i] for i in range(n)})
+        return pd.DataFrame(cols)
+
+
+def filter_chunked(run: Callable[..., np.ndarray], model: LinearGaussianModel, z, *, chunk_size: int,
+                   executor: Executor = "serial", out_dir=None, max_workers: int | None = None,
+                   client=None, progress=None, **kwargs) -> np.ndarray:
+    """Filter a large batch ``z`` (B, T, m) in chunks of tracks with ``run`` (a batch filter).
+
+    Each chunk's states go to a long table (track, t, x0 ..), Parquet in ``out_dir``
+    when given.  Returns the (B, T, n) states in z's dtype; equal to ``run(model, z)``.
+    """
+    z = np.asarray(z)
+    if z.ndim != 3:
+        raise ParameterError(f"z: expected shape (B, T, m), got shape {z.shape}")
+    df = run_chunks(_FilterTask(run, model, kwargs), z.shape[0], chunk_size=chunk_size, data=z,
+                    out_dir=out_dir, executor=executor, max_workers=max_workers, client=client,
+                    manifest={"run": run.__qualname__, "model": repr(model), "shape": list(z.shape)},
+                    progress=progress)
+    cols = [c for c in df.columns if c.startswith("x")]
+    return df[cols].to_numpy().reshape(z.shape[0], z.shape[1], len(cols))
+

@@ -1,0 +1,204 @@
+"""Chunked readers for CSV, Parquet and GPX inputs, and a track-by-track iterator.
+
+Memory stays bounded: CSV is read ``chunk_rows`` rows at a time, Parquet one
+record batch at a time, and :func:`iter_tracks` holds one track (plus one
+chunk) at once, which is why the rows of a track must be contiguous.  GPX
+files (XML, usually small) are parsed whole with gpxpy.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Iterator
+
+import numpy as np
+import pandas as pd
+
+from ..errors import DataError
+from ._schema import CELLS, FIXES, ReadReport, Schema, cell_key, check_on_error, validate_chunk
+
+__all__ = ["read_chunks", "iter_tracks", "read_table", "read_cells", "input_format", "FORMATS"]
+
+FORMATS = {".csv": "csv", ".txt": "csv", ".gz": "csv", ".parquet": "parquet", ".pq": "parquet", ".gpx": "gpx"}
+DEFAULT_CHUNK_ROWS = 50_000
+
+
+def input_format(path) -> str:
+    """"csv", "parquet" or "gpx" from the file name (".csv.gz" is CSV)."""
+    suffix = Path(path).suffix.lower()
+    if suffix not in FORMATS:
+        raise DataError(f"unknown input format {suffix!r}; expected one of {', '.join(sorted(FORMATS))}",
+                        file=path)
+    return FORMATS[suffix]
+
+
+def _raw_chunks(path: Path, chunk_rows: int) -> Iterator[pd.DataFrame]:
+    fmt = input_format(path)
+    if not path.exists():
+        raise DataError("file not found", file=path)
+    try:
+        if fmt == "csv":
+            reader = pd.read_csv(path, chunksize=chunk_rows, dtype={"track_id": "string", "cell_id": "string",
+                                                                     "radio": "string"},
+                                 skipinitialspace=True)
+            with reader:
+                yield from reader
+        elif fmt == "parquet":
+            import pyarrow.parquet as pq
+
+            with pq.ParquetFile(path) as pf:
+                for batch in pf.iter_batches(batch_size=chunk_rows):
+                    yield batch.to_pandas()
+        else:
+            yield _gpx_frame(path)
+    except (pd.errors.ParserError, UnicodeDecodeError, OSError) as exc:
+        raise DataError(f"cannot be read as {fmt}: {exc}", file=path) from None
+    except Exception as exc:  # pyarrow / gpxpy raise their own types for corrupt files
+        if type(exc).__module__.split(".")[0] in ("pyarrow", "gpxpy"):
+            raise DataError(f"cannot be read as {fmt}: {exc}", file=path) from None
+        raise
+
+
+def _gpx_frame(path: Path) -> pd.DataFrame:
+    """All track points of a GPX file: one track_id per <trk> (its name, else "trk<i>")."""
+    import gpxpy
+    import gpxpy.gpx
+
+    try:
+        with open(path, encoding="utf-8-sig") as fh:
+            gpx = gpxpy.parse(fh)
+    except gpxpy.gpx.GPXException as exc:
+        raise DataError(f"not a valid GPX file: {exc}", file=path) from None
+    rows = []
+    for i, trk in enumerate(gpx.tracks, start=1):
+        name = trk.name or f"trk{i}"
+        for seg in trk.segments:
+            for p in seg.points:
+                rows.append((name, pd.Timestamp(p.time) if p.time is not None else pd.NaT,
+                             p.latitude, p.longitude, p.elevation))
+    df = pd.DataFrame(rows, columns=["track_id", "time", "lat", "lon", "elevation_m"])
+    if df.empty:
+        raise DataError("no track points (<trkpt>) in the file", file=path)
+    df["time"] = pd.to_datetime(df["time"], utc=True)
+    return df
+
+
+def read_chunks(path, schema: Schema = FIXES, *, on_error: str = "raise", chunk_rows: int = DEFAULT_CHUNK_ROWS,
+                report: ReadReport | None = None) -> Iterator[pd.DataFrame]:
+    """Validated chunks of ``path`` (CSV, Parquet or GPX) against ``schema``.
+
+    Each chunk has the schema's columns, ``t`` (seconds, float) and ``row`` (the
+    1-based record number in the file).  Bad rows raise DataError naming file,
+    row and column, or with ``on_error="skip"`` are dropped and counted in ``report``.
+    """
+    check_on_error(on_error)
+    path = Path(path)
+    report = report if report is not None else ReadReport()
+    report.file = str(path)
+    first = 1
+    for raw in _raw_chunks(path, chunk_rows):
+        n = len(raw)
+        yield validate_chunk(raw, schema, file=path, first_row=first, on_error=on_error, report=report)
+        first += n
+
+
+def read_table(path, schema: Schema = FIXES, *, on_error: str = "raise", report: ReadReport | None = None,
+               chunk_rows: int = DEFAULT_CHUNK_ROWS) -> pd.DataFrame:
+    """The whole validated file as one DataFrame (see :func:`read_chunks`); for small inputs."""
+    parts = list(read_chunks(path, schema, on_error=on_error, report=report, chunk_rows=chunk_rows))
+    return pd.concat(parts, ignore_index=True) if parts else pd.DataFrame()
+
+
+def iter_tracks(path, schema: Schema = FIXES, *, on_error: str = "raise", chunk_rows: int = DEFAULT_CHUNK_ROWS,
+                report: ReadReport | None = None, strict: bool | None = None) -> Iterator[tuple[str, pd.DataFrame]]:
+    """Yield (track_id, rows) one track at a time, holding at most one track and one chunk in memory.
+
+    The rows of a track must be contiguous and their times increasing
+    (strictly for position fixes; non-decreasing for measurement logs, where a
+    scan has one row per cell).  A violation raises DataError naming the row
+    and column, or is skipped and counted with ``on_error="skip"``.
+    """
+    strict = (schema is FIXES) if strict is None else strict
+    report = report if report is not None else ReadReport()
+    path = Path(path)
+    finished: set[str] = set()
+    current, parts, last_t = None, [], -np.inf
+    for chunk in read_chunks(path, schema, on_error=on_error, chunk_rows=chunk_rows, report=report):
+        if chunk.empty:
+            continue
+        ids = chunk["track_id"].to_numpy(dtype=object)
+        starts = np.flatnonzero(np.r_[True, ids[1:] != ids[:-1]])
+        ends = np.r_[starts[1:], len(ids)]
+        for a, b in zip(starts, ends):
+            run = chunk.iloc[a:b]
+            tid = str(ids[a])
+            if tid != current:
+                if tid in finished:
+                    err = DataError(f"track {tid!r} appears again after other tracks; the rows of a track "
+                                    "must be contiguous (sort the file by track_id, time)", file=path,
+                                    row=int(run["row"].iloc[0]), column="track_id")
+                    if on_error == "raise":
+                        raise err
+                    err.kind = "track rows not contiguous"
+                    for _ in range(len(run)):
+                        report.skip(err)
+                    continue
+                if current is not None and parts:
+                    yield current, pd.concat(parts, ignore_index=True)
+                if current is not None:
+                    finished.add(current)
+                current, parts, last_t = tid, [], -np.inf
+            run, last_t = _ordered(run, last_t, strict, path, on_error, report)
+            if len(run):
+                parts.append(run)
+    if current is not None and parts:
+        yield current, pd.concat(parts, ignore_index=True)
+
+
+def _ordered(run: pd.DataFrame, last_t: float, strict: bool, path, on_error: str, report: ReadReport):
+    """Keep rows whose time is after every earlier row's of the track (>= if not strict)."""
+    t = run["t"].to_numpy()
+    before = np.maximum.accumulate(np.r_[last_t, t[:-1]])
+    ok = t > before if strict else t >= before
+    if not ok.all():
+        i = int(np.flatnonzero(~ok)[0])
+        err = DataError(f"time {run['time'].iloc[i]!s} is not after the track's previous time stamp; rows of a "
+                        f"track must be in {'strictly ' if strict else ''}increasing time",
+                        file=path, row=int(run["row"].iloc[i]), column="time")
+        if on_error == "raise":
+            raise err
+        err.kind = "time not increasing"
+        for _ in range(int((~ok).sum())):
+            report.skip(err)
+        run = run.loc[ok]
+    return run, max(last_t, float(t.max()))
+
+
+def read_cells(path, *, wanted=None, on_error: str = "raise", report: ReadReport | None = None,
+               chunk_rows: int = DEFAULT_CHUNK_ROWS) -> pd.DataFrame:
+    """A cell table in the OpenCelliD CSV layout, indexed by ``cell_id`` = "mcc-net-area-cell".
+
+    ``wanted``: keep only these cell ids (so a country-sized table is streamed,
+    not held).  Missing optional columns get their documented defaults:
+    height_m 30 m, power_dbm 43 dBm, arfcn empty (1800 MHz carrier).
+    A cell id listed twice raises DataError naming the second row.
+    """
+    wanted = None if wanted is None else set(wanted)
+    keep = []
+    for chunk in read_chunks(path, CELLS, on_error=on_error, report=report, chunk_rows=chunk_rows):
+        chunk["cell_id"] = cell_key(chunk["mcc"], chunk["net"], chunk["area"], chunk["cell"]).to_numpy()
+        if wanted is not None:
+            chunk = chunk.loc[chunk["cell_id"].isin(wanted)]
+        keep.append(chunk)
+    cells = pd.concat(keep, ignore_index=True) if keep else pd.DataFrame(columns=["cell_id", "row"])
+    dup = cells["cell_id"].duplicated()
+    if dup.any():
+        i = int(np.flatnonzero(dup.to_numpy())[0])
+        raise DataError(f"cell {cells['cell_id'].iloc[i]!r} is listed twice", file=Path(path),
+                        row=int(cells["row"].iloc[i]), column="cell")
+    for name, default in (("height_m", 30.0), ("power_dbm", 43.0), ("arfcn", np.nan)):
+        if name not in cells.columns:
+            cells[name] = default
+        elif name != "arfcn":
+            cells[name] = cells[name].fillna(default)
+    return cells.set_index("cell_id")

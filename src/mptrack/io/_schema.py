@@ -1,0 +1,250 @@
+"""Schemas of the input tables and the row-level validation that enforces them.
+
+Three kinds of input, each a table with one record per row:
+
+* position fixes (GPS logs):       track_id, time, lat/lon (or x/y), accuracy_m
+* cellular measurement logs:       track_id, time, cell_id, rss_dbm / range_m / ta
+* cell tables (OpenCelliD layout): radio, mcc, net, area, cell, lon, lat, range, ...
+
+A :class:`Schema` lists the columns with their unit and valid range; its
+``markdown()`` renders the table used in docs/tracking.md.  Validation works on
+one chunk at a time (so memory stays bounded) and either raises a
+:class:`~mptrack.errors.DataError` naming file, row and column, or — with
+``on_error="skip"`` — drops the bad rows and counts them in a :class:`ReadReport`.
+"""
+
+from __future__ import annotations
+
+from collections import Counter
+from dataclasses import dataclass, field
+
+import numpy as np
+import pandas as pd
+
+from ..errors import DataError, ParameterError
+
+__all__ = ["Column", "Schema", "ReadReport", "FIXES", "MEASUREMENTS", "CELLS", "ON_ERROR", "check_on_error",
+           "cell_key"]
+
+ON_ERROR = ("raise", "skip")
+_MAX_EXAMPLES = 20
+
+
+def check_on_error(on_error: str) -> str:
+    if on_error not in ON_ERROR:
+        raise ParameterError(f"on_error: expected one of {ON_ERROR}, got {on_error!r}")
+    return on_error
+
+
+@dataclass(frozen=True)
+class Column:
+    """One column: kind is "id" (text key), "time", "float" or "int"; lo/hi the valid closed range."""
+
+    name: str
+    kind: str
+    unit: str
+    description: str
+    required: bool = True
+    lo: float | None = None
+    hi: float | None = None
+    nullable: bool = False  # an optional column whose cells may be empty
+
+
+@dataclass(frozen=True)
+class Schema:
+    """Columns of one input kind; ``one_of`` are groups of which at least one must be present."""
+
+    name: str
+    columns: tuple[Column, ...]
+    one_of: tuple[tuple[str, ...], ...] = ()
+    row_needs_one_of: tuple[str, ...] = ()  # per row, at least one of these must be non-empty
+
+    def column(self, name: str) -> Column:
+        return next(c for c in self.columns if c.name == name)
+
+    def markdown(self) -> str:
+        """The schema as a Markdown table (for the user guide)."""
+        lines = ["| column | required | unit | valid range | meaning |", "|---|---|---|---|---|"]
+        for c in self.columns:
+            rng = "" if c.lo is None and c.hi is None else f"{'' if c.lo is None else c.lo} .. " \
+                                                           f"{'' if c.hi is None else c.hi}"
+            lines.append(f"| `{c.name}` | {'yes' if c.required else 'no'} | {c.unit} | {rng} | {c.description} |")
+        if self.one_of:
+            lines.append(f"\nAt least one of {' / '.join('+'.join(g) for g in self.one_of)} must be present"
+                         + (", and filled in each row." if self.row_needs_one_of else "."))
+        return "\n".join(lines)
+
+
+def cell_key(mcc, net, area, cell) -> pd.Series:
+    """The cell identifier used to join measurement logs and cell tables: "mcc-net-area-cell"."""
+    parts = [pd.Series(v).astype("Int64").astype(str) for v in (mcc, net, area, cell)]
+    return parts[0] + "-" + parts[1] + "-" + parts[2] + "-" + parts[3]
+
+
+_TRACK = Column("track_id", "id", "", "track (terminal) identifier, default \"1\"; rows of a track must be "
+                "contiguous and in increasing time", required=False)
+_TIME = Column("time", "time", "s or ISO 8601", "time stamp: ISO 8601 text (no zone = UTC) or seconds")
+
+FIXES = Schema("position fixes", (
+    _TRACK, _TIME,
+    Column("lat", "float", "degrees", "WGS-84 latitude", required=False, lo=-90.0, hi=90.0),
+    Column("lon", "float", "degrees", "WGS-84 longitude", required=False, lo=-180.0, hi=180.0),
+    Column("x", "float", "m", "local east coordinate (instead of lat/lon)", required=False),
+    Column("y", "float", "m", "local north coordinate (instead of lat/lon)", required=False),
+    Column("accuracy_m", "float", "m", "1-sigma horizontal accuracy of the fix; empty = filter default",
+           required=False, lo=0.0, nullable=True),
+), one_of=(("lat", "lon"), ("x", "y")))
+
+MEASUREMENTS = Schema("cellular measurements", (
+    _TRACK, _TIME,
+    Column("cell_id", "id", "", "serving/neighbour cell, \"mcc-net-area-cell\" as in the cell table"),
+    Column("rss_dbm", "float", "dBm", "received signal strength", required=False, lo=-160.0, hi=0.0,
+           nullable=True),
+    Column("range_m", "float", "m", "measured range to the cell's antenna", required=False, lo=0.0,
+           nullable=True),
+    Column("ta", "int", "GSM TA steps", "timing advance; range = (ta + 0.5) x 553.5 m, 3GPP TS 45.010",
+           required=False, lo=0, hi=63, nullable=True),
+), one_of=(("rss_dbm",), ("range_m",), ("ta",)), row_needs_one_of=("rss_dbm", "range_m", "ta"))
+
+CELLS = Schema("cell table (OpenCelliD layout)", (
+    Column("radio", "id", "", "GSM, UMTS, LTE, NR, CDMA"),
+    Column("mcc", "int", "", "mobile country code", lo=0, hi=999),
+    Column("net", "int", "", "mobile network code (MNC)", lo=0, hi=999),
+    Column("area", "int", "", "LAC / TAC", lo=0),
+    Column("cell", "int", "", "cell identity (CID / ECI)", lo=0),
+    Column("lon", "float", "degrees", "antenna longitude (WGS-84)", lo=-180.0, hi=180.0),
+    Column("lat", "float", "degrees", "antenna latitude (WGS-84)", lo=-90.0, hi=90.0),
+    Column("range", "float", "m", "OpenCelliD's coverage estimate (not used by the filters)", required=False,
+           lo=0.0, nullable=True),
+    Column("height_m", "float", "m", "antenna height above ground (default 30)", required=False, lo=0.0,
+           nullable=True),
+    Column("power_dbm", "float", "dBm", "transmit power incl. antenna gain (default 43)", required=False,
+           nullable=True),
+    Column("arfcn", "int", "", "GSM channel number; sets the carrier frequency (default 1800 MHz)",
+           required=False, lo=0, hi=1023, nullable=True),
+))
+
+
+@dataclass
+class ReadReport:
+    """Counts of what a reader did; skipped rows are counted by reason and never dropped silently."""
+
+    file: str = ""
+    rows_read: int = 0
+    rows_skipped: int = 0
+    reasons: Counter = field(default_factory=Counter)
+    examples: list[str] = field(default_factory=list)
+
+    def skip(self, error: DataError) -> None:
+        self.rows_skipped += 1
+        reason = getattr(error, "kind", error.reason).rstrip(":")
+        self.reasons[f"{error.column}: {reason}" if error.column else reason] += 1
+        if len(self.examples) < _MAX_EXAMPLES:
+            self.examples.append(str(error))
+
+    def to_dict(self) -> dict:
+        return {"file": self.file, "rows_read": self.rows_read, "rows_skipped": self.rows_skipped,
+                "skipped_by_reason": dict(self.reasons), "examples": list(self.examples)}
+
+
+def _parse_time(values: pd.Series) -> tuple[pd.Series, np.ndarray]:
+    """(parsed column, seconds as float64 with NaN where unparseable)."""
+    if pd.api.types.is_numeric_dtype(values):
+        t = pd.to_numeric(values, errors="coerce").astype(float)
+        return t, t.to_numpy()
+    if not pd.api.types.is_datetime64_any_dtype(values):
+        num = pd.to_numeric(values, errors="coerce")
+        if num.notna().sum() * 2 > values.notna().sum():  # mostly numbers: seconds, the rest is bad
+            return num.astype(float), num.to_numpy(dtype=float)
+    if pd.api.types.is_datetime64_any_dtype(values):
+        ts = values.dt.tz_localize("UTC") if values.dt.tz is None else values.dt.tz_convert("UTC")
+    else:
+        ts = pd.to_datetime(values.astype("string"), errors="coerce", utc=True, format="ISO8601")
+    ns = ts.to_numpy(dtype="datetime64[ns]").astype("int64").astype(float)
+    secs = np.where(ts.isna().to_numpy(), np.nan, ns / 1e9)
+    return ts, secs
+
+
+def validate_chunk(df: pd.DataFrame, schema: Schema, *, file, first_row: int, on_error: str,
+                   report: ReadReport) -> pd.DataFrame:
+    """Check one chunk against ``schema``; return the good rows with a float column ``t`` (seconds).
+
+    ``first_row`` is the 1-based record number of the chunk's first row.  Raises
+    DataError for the first bad cell (on_error="raise") or drops and counts bad rows.
+    """
+    present = set(df.columns)
+    for col in schema.columns:
+        if col.required and col.name not in present:
+            raise DataError(f"missing column (the file has: {', '.join(map(str, df.columns))})",
+                            file=file, column=col.name)
+    if schema.one_of and not any(all(c in present for c in g) for g in schema.one_of):
+        want = " or ".join("+".join(g) for g in schema.one_of)
+        raise DataError(f"missing columns: need {want}", file=file,
+                        column="+".join(schema.one_of[0]))
+    df = df.reset_index(drop=True)
+    rows = np.arange(first_row, first_row + len(df))
+    report.rows_read += len(df)
+    bad = np.zeros(len(df), dtype=bool)
+    errors: list[DataError] = []
+
+    def flag(mask: np.ndarray, column: str, reason: str, values: pd.Series | None = None) -> None:
+        new = mask & ~bad
+        for i in np.flatnonzero(new):
+            text = reason if values is None else f"{reason} {values.iloc[i]!r}"
+            err = DataError(text, file=file, row=int(rows[i]), column=column)
+            err.kind = reason
+            errors.append(err)
+        bad[new] = True
+
+    out = {}
+    for col in schema.columns:
+        if col.name not in present:
+            continue
+        values = df[col.name]
+        if col.kind == "id":
+            missing = values.isna().to_numpy()
+            flag(missing, col.name, "empty identifier")
+            out[col.name] = values.astype("string").str.strip()
+        elif col.kind == "time":
+            parsed, secs = _parse_time(values)
+            flag(~np.isfinite(secs), col.name, "bad time stamp", values)
+            out[col.name] = parsed
+            out["t"] = secs
+        else:
+            num = pd.to_numeric(values, errors="coerce").to_numpy(dtype=float)
+            empty = values.isna().to_numpy()
+            notnum = np.isnan(num) & ~empty
+            flag(notnum, col.name, "not a number:", values)
+            if not col.nullable:
+                flag(empty, col.name, "empty value (NaN)")
+            with np.errstate(invalid="ignore"):
+                lo = (num < col.lo) if col.lo is not None else np.zeros(len(num), bool)
+                hi = (num > col.hi) if col.hi is not None else np.zeros(len(num), bool)
+                flag(np.isinf(num), col.name, "infinite value")
+            outside = (lo | hi) & np.isfinite(num)
+            flag(outside, col.name, f"outside {col.lo} .. {col.hi} {col.unit}:", values)
+            if col.kind == "int":
+                frac = np.isfinite(num) & (num != np.round(num))
+                flag(frac, col.name, "not an integer:", values)
+            out[col.name] = num
+    if schema.row_needs_one_of:
+        have = [c for c in schema.row_needs_one_of if c in out]
+        none = np.all([np.isnan(out[c]) for c in have], axis=0) if have else np.ones(len(df), bool)
+        flag(none, "/".join(have), "no measurement: all of these are empty")
+    clean = pd.DataFrame(out)
+    if "track_id" not in clean.columns and any(c.name == "track_id" for c in schema.columns):
+        clean.insert(0, "track_id", pd.array(["1"] * len(clean), dtype="string"))
+    clean["row"] = rows
+    return _apply(clean, bad, errors, on_error, report)
+
+
+def _apply(clean: pd.DataFrame, bad: np.ndarray, errors: list, on_error: str, report: ReadReport):
+    if errors:
+        errors.sort(key=lambda e: e.row)
+        if on_error == "raise":
+            raise errors[0]
+        for e in errors:
+            report.skip(e)
+        clean = clean.loc[~bad].reset_index(drop=True)
+    return clean
+

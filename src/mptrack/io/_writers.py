@@ -1,0 +1,173 @@
+"""Writers for Parquet, CSV and GeoJSON, atomic (temporary file, then rename), and a
+per-track part store that makes long runs resumable.
+
+Every output is written beside its destination and renamed over it only when
+complete (:func:`mptrack._io.atomic_path`), so an interrupted or failed run
+never leaves a half-written result.  :class:`PartStore` keeps each finished
+track in ``.<out>.parts/`` until :meth:`PartStore.finish` streams them, one
+track at a time, into the final file.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import shutil
+from pathlib import Path
+from typing import Iterable, Iterator
+
+import numpy as np
+import pandas as pd
+
+from .._io import atomic_path
+from ..errors import ParameterError
+
+__all__ = ["OUTPUT_FORMATS", "output_format", "write_table", "PartStore", "geojson_features"]
+
+OUTPUT_FORMATS = {".parquet": "parquet", ".pq": "parquet", ".csv": "csv", ".geojson": "geojson",
+                  ".json": "geojson"}
+
+
+def output_format(path) -> str:
+    suffix = Path(path).suffix.lower()
+    if suffix not in OUTPUT_FORMATS:
+        raise ParameterError(f"out: unknown output format {suffix!r}; expected one of "
+                             f"{', '.join(sorted(OUTPUT_FORMATS))}")
+    return OUTPUT_FORMATS[suffix]
+
+
+def _plain(value):
+    """A JSON-safe scalar: NaN -> null, numpy -> Python, timestamps -> ISO 8601."""
+    if value is None or value is pd.NaT:
+        return None
+    if isinstance(value, pd.Timestamp):
+        return value.isoformat().replace("+00:00", "Z")
+    if isinstance(value, (np.bool_, bool)):
+        return bool(value)
+    if isinstance(value, (np.integer,)):
+        return int(value)
+    if isinstance(value, (float, np.floating)):
+        return None if not math.isfinite(value) else float(value)
+    return value if isinstance(value, (int, str)) else str(value)
+
+
+def geojson_features(df: pd.DataFrame, *, lat: str = "lat", lon: str = "lon") -> Iterator[dict]:
+    """GeoJSON features of one track table: a LineString per track, then a Point per row.
+
+    Coordinates are [longitude, latitude] (RFC 7946, WGS-84); every other column
+    becomes a property of the point.
+    """
+    props = [c for c in df.columns if c not in (lat, lon)]
+    for tid, grp in df.groupby("track_id", sort=False):
+        coords = np.column_stack([grp[lon].to_numpy(float), grp[lat].to_numpy(float)])
+        coords = coords[np.isfinite(coords).all(axis=1)]
+        if len(coords) >= 2:
+            yield {"type": "Feature", "geometry": {"type": "LineString", "coordinates": coords.tolist()},
+                   "properties": {"track_id": str(tid), "kind": "track", "points": int(len(grp))}}
+        records = grp[props].to_dict("records")
+        for (x, y), rec in zip(zip(grp[lon].to_numpy(float), grp[lat].to_numpy(float)), records):
+            geometry = {"type": "Point", "coordinates": [x, y]} if np.isfinite(x) and np.isfinite(y) else None
+            yield {"type": "Feature", "geometry": geometry,
+                   "properties": {"kind": "point", **{k: _plain(v) for k, v in rec.items()}}}
+
+
+def _write_parts(frames: Iterable[pd.DataFrame], tmp: Path, fmt: str) -> None:
+    if fmt == "parquet":
+        import pyarrow as pa
+        import pyarrow.parquet as pq
+
+        writer = None
+        try:
+            for df in frames:
+                table = pa.Table.from_pandas(df, preserve_index=False)
+                if writer is None:
+                    writer = pq.ParquetWriter(tmp, table.schema)
+                writer.write_table(table.cast(writer.schema))
+        finally:
+            if writer is not None:
+                writer.close()
+        if writer is None:
+            pd.DataFrame().to_parquet(tmp, index=False)
+    elif fmt == "csv":
+        with open(tmp, "w", newline="") as fh:
+            for i, df in enumerate(frames):
+                df.to_csv(fh, header=i == 0, index=False)
+    else:
+        with open(tmp, "w") as fh:
+            fh.write('{"type": "FeatureCollection", "features": [\n')
+            first = True
+            for df in frames:
+                for feat in geojson_features(df):
+                    fh.write(("" if first else ",\n") + json.dumps(feat, allow_nan=False))
+                    first = False
+            fh.write("\n]}\n")
+
+
+def write_table(df: pd.DataFrame | Iterable[pd.DataFrame], path) -> Path:
+    """Write a table (or an iterable of tables with the same columns) atomically as
+    Parquet, CSV or GeoJSON, chosen by the file suffix."""
+    path = Path(path)
+    fmt = output_format(path)
+    frames = [df] if isinstance(df, pd.DataFrame) else df
+    with atomic_path(path) as tmp:
+        _write_parts(frames, tmp, fmt)
+    return path
+
+
+class PartStore:
+    """Finished tracks of one run, in numbered Parquet part files beside the final output.
+
+    ``add(df)`` buffers complete tracks and writes a part (atomically) once
+    ``flush_rows`` rows are buffered, so a run over many small tracks makes few
+    files and memory stays bounded; ``flush()`` writes the rest (also on an
+    interruption, so little work is lost).  ``finished()`` lists the track ids
+    already on disk (for ``--resume``); ``finish()`` streams the parts, in
+    order, into the output and deletes them.
+    """
+
+    def __init__(self, out, flush_rows: int = 50_000) -> None:
+        self.out = Path(out)
+        output_format(self.out)
+        self.dir = self.out.parent / f".{self.out.name}.parts"
+        self.flush_rows = flush_rows
+        self._buffer: list[pd.DataFrame] = []
+        self._rows = 0
+
+    def _parts(self) -> list[Path]:
+        return sorted(self.dir.glob("part-*.parquet")) if self.dir.exists() else []
+
+    def finished(self) -> set[str]:
+        """Track ids already written by this or an interrupted earlier run."""
+        import pyarrow.parquet as pq
+
+        done: set[str] = set()
+        for part in self._parts():
+            done.update(pq.read_table(part, columns=["track_id"]).column(0).to_pylist())
+        return done
+
+    def add(self, df: pd.DataFrame) -> None:
+        self._buffer.append(df)
+        self._rows += len(df)
+        if self._rows >= self.flush_rows:
+            self.flush()
+
+    def flush(self) -> None:
+        if not self._buffer:
+            return
+        self.dir.mkdir(parents=True, exist_ok=True)
+        parts = self._parts()
+        number = int(parts[-1].stem.split("-")[1]) + 1 if parts else 1
+        with atomic_path(self.dir / f"part-{number:06d}.parquet") as tmp:
+            pd.concat(self._buffer, ignore_index=True).to_parquet(tmp, index=False)
+        self._buffer, self._rows = [], 0
+
+    def finish(self) -> Path:
+        """Write the output from all parts (one part in memory at a time), then delete the parts."""
+        self.flush()
+        write_table((pd.read_parquet(p) for p in self._parts()), self.out)
+        self.discard()
+        return self.out
+
+    def discard(self) -> None:
+        self._buffer, self._rows = [], 0
+        shutil.rmtree(self.dir, ignore_errors=True)

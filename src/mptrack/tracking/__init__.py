@@ -1,0 +1,48 @@
+"""Tracking real logs: position fixes at irregular times (gated KF, optional RTS smoothing),
+cellular measurements through the EKF/FEKF/FCS range filters, simulation of synthetic logs
+with truth, and evaluation against truth.  ``mptrack track/simulate/evaluate`` are in ``_cli``."""
+
+from ._cellular import TA_STEP_M, band_of_arfcn, check_cell_ids, ranges_km, track_cells
+from ._evaluate import attach_truth, evaluate_tracks
+from ._fixes import TrackOptions, point_table, track_fixes
+from ._gated import FLAGS, GatedResult, kalman_filter_gated, nis_threshold, rts_smoother_irregular
+from ._pipeline import read_output, track_file
+from ._simulate import SCENARIOS, simulate
+from ._registry import (
+    CELL_METHODS,
+    FIX_FILTERS,
+    MODELS,
+    MotionModel,
+    get_cell_method,
+    get_fix_filter,
+    get_model,
+)
+
+__all__ = [
+    "TrackOptions",
+    "simulate",
+    "SCENARIOS",
+    "evaluate_tracks",
+    "attach_truth",
+    "track_file",
+    "read_output",
+    "track_fixes",
+    "track_cells",
+    "point_table",
+    "check_cell_ids",
+    "ranges_km",
+    "band_of_arfcn",
+    "TA_STEP_M",
+    "kalman_filter_gated",
+    "rts_smoother_irregular",
+    "nis_threshold",
+    "GatedResult",
+    "FLAGS",
+    "MODELS",
+    "MotionModel",
+    "get_model",
+    "FIX_FILTERS",
+    "get_fix_filter",
+    "CELL_METHODS",
+    "get_cell_method",
+]

@@ -1,0 +1,154 @@
+"""Tracking one cellular measurement track with the EKF / FEKF / FCS of :mod:`mptrack.nonlinear`.
+
+Each row is one cell heard at one time.  Its range to the cell's antenna is,
+in this order of preference: ``range_m``; the timing advance, as the middle of
+its ring, (ta + 0.5) x 553.5 m (one GSM TA step is c x 48/13 us / 2 = 553.5 m,
+3GPP TS 45.010 sec. 5.4); or the RSS inverted through the path-loss model
+(:func:`mptrack.radio.distance_from_rss`) with the cell's transmit power,
+antenna height and carrier (from its ARFCN).  Rows at the same time form one
+scan; scans are placed on a regular grid (step ``scan_interval_s``, default the
+median interval) because the range filters have a fixed step; an empty grid
+slot only predicts.  Filtering runs in kilometres (the unit the FEKF's fuzzy
+sets are defined in, paper Table I), in a local frame at the centroid of the
+track's cells.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+
+from ..errors import DataError
+from ..io import LocalFrame, ReadReport
+from ..models import constant_velocity_continuous
+from ..nonlinear import range_measurement
+from ..radio import arfcn_to_frequency, distance_from_rss
+from ._fixes import TrackOptions, _time_like, point_table
+from ._registry import get_cell_method
+
+__all__ = ["track_cells", "check_cell_ids", "ranges_km", "TA_STEP_M", "band_of_arfcn"]
+
+TA_STEP_M = 553.5
+DEFAULT_FREQUENCY_MHZ = 1800.0
+
+
+def band_of_arfcn(arfcn: int) -> str:
+    """The GSM band of a channel number: 0-124 and 975-1023 E-GSM, 128-251 GSM850, 512-885 DCS1800
+    (PCS1900 reuses 512-810; give ``range_m`` or a frequency-consistent table for PCS networks)."""
+    a = int(arfcn)
+    if a <= 124 or 975 <= a <= 1023:
+        return "E-GSM"
+    if 128 <= a <= 251:
+        return "GSM850"
+    return "DCS1800"
+
+
+def check_cell_ids(rows: pd.DataFrame, cells: pd.DataFrame, *, file, on_error: str,
+                   report: ReadReport) -> pd.DataFrame:
+    """Rows whose cell_id is in the cell table; an unknown id raises DataError (file, row, "cell_id")
+    or is skipped and counted."""
+    known = rows["cell_id"].isin(cells.index).to_numpy()
+    if known.all():
+        return rows
+    for i in np.flatnonzero(~known):
+        err = DataError(f"unknown cell {rows['cell_id'].iloc[i]!r} (not in the cell table)", file=file,
+                        row=int(rows["row"].iloc[i]), column="cell_id")
+        if on_error == "raise":
+            raise err
+        err.kind = "unknown cell id"
+        report.skip(err)
+    return rows.loc[known]
+
+
+def ranges_km(rows: pd.DataFrame, cells: pd.DataFrame, path_loss: str = "cost231-wi-nlos") -> np.ndarray:
+    """Range (km) of every row: range_m, else timing advance, else RSS through ``path_loss``."""
+    r = np.full(len(rows), np.nan)
+    if "range_m" in rows.columns:
+        r = rows["range_m"].to_numpy(float) / 1e3
+    if "ta" in rows.columns:
+        ta = rows["ta"].to_numpy(float)
+        r = np.where(np.isnan(r), (ta + 0.5) * TA_STEP_M / 1e3, r)
+    if "rss_dbm" in rows.columns:
+        need = np.isnan(r) & np.isfinite(rows["rss_dbm"].to_numpy(float))
+        for cid in pd.unique(rows["cell_id"][need]):
+            sel = need & (rows["cell_id"] == cid).to_numpy()
+            cell = cells.loc[cid]
+            arfcn = cell["arfcn"]
+            f = DEFAULT_FREQUENCY_MHZ if pd.isna(arfcn) else float(arfcn_to_frequency(int(arfcn),
+                                                                                       band_of_arfcn(arfcn)))
+            params = {"frequency_mhz": f}
+            if path_loss != "free-space":
+                params["h_base_m"] = float(cell["height_m"])
+            r[sel] = distance_from_rss(rows["rss_dbm"].to_numpy(float)[sel], float(cell["power_dbm"]),
+                                       path_loss, on_invalid="ignore", **params)
+    return r
+
+
+def _cv_Q(q: float, dt: float) -> np.ndarray:
+    """CV process noise in the range filters' state order [p_e, p_n, v_e, v_n] (km, km/s)."""
+    Q = constant_velocity_continuous(q, axes=2).discretize(dt).Q  # order [p_e, v_e, p_n, v_n]
+    order = [0, 2, 1, 3]
+    return Q[np.ix_(order, order)]
+
+
+def track_cells(track_id: str, rows: pd.DataFrame, cells: pd.DataFrame,
+                options: TrackOptions = TrackOptions()) -> pd.DataFrame:
+    """Filter one track of cellular measurements (rows with known cell ids); returns its point table."""
+    filt = get_cell_method(options.method)
+    ids = list(pd.unique(rows["cell_id"]))
+    tab = cells.loc[ids]
+    frame = LocalFrame(float(tab["lat"].mean()), float(tab["lon"].mean()))
+    se, sn = frame.to_enu(tab["lat"].to_numpy(float), tab["lon"].to_numpy(float))
+    stations = np.column_stack([se, sn]) / 1e3
+    r = ranges_km(rows, cells, options.path_loss)
+    scans = pd.DataFrame({"t": rows["t"].to_numpy(float), "cell": pd.Categorical(rows["cell_id"], ids), "r": r})
+    z_scan = scans.pivot_table(index="t", columns="cell", values="r", aggfunc="mean", observed=False,
+                               dropna=False).reindex(columns=ids)
+    t_scan = z_scan.index.to_numpy(float)
+    dt = options.scan_interval_s or (float(np.median(np.diff(t_scan))) if len(t_scan) > 1 else 1.0)
+    bins = np.rint((t_scan - t_scan[0]) / dt).astype(np.int64)
+    zs = z_scan.to_numpy(float)
+    sums = np.zeros((bins[-1] + 1, len(ids)))
+    counts = np.zeros_like(sums)
+    np.add.at(sums, bins, np.nan_to_num(zs))  # scans falling in one slot: mean range per cell
+    np.add.at(counts, bins, np.isfinite(zs))
+    z = np.divide(sums, counts, out=np.full_like(sums, np.nan), where=counts > 0)
+    t = t_scan[0] + dt * np.arange(len(z))
+    seen = np.isfinite(z[0])
+    start = stations[seen].mean(axis=0)
+    if options.motion == "cv":
+        x0, P0, Q = np.r_[start, 0.0, 0.0], np.diag([1.0, 1.0, 1e-4, 1e-4]), _cv_Q(options.q_km2, dt)
+    else:
+        x0, P0, Q = start, np.eye(2), options.q_km2 * np.eye(2)
+    # the filters' prior is one step before z[0]
+    res = filt(z, stations, x0, P0, Q, options.r_km2, motion=options.motion, dt=dt)
+    nis, dof = _range_nis(res.x, res.P, z, stations, x0, P0, Q, options.r_km2, options.motion, dt)
+    flags = np.where(np.isfinite(z).any(axis=1), 0, 2).astype(np.int8)
+    vel = res.x[:, 2:4] * 1e3 if options.motion == "cv" else None
+    P2 = res.P[:, :2, :2] * 1e6
+    extra = {"n_cells": np.isfinite(z).sum(axis=1)}
+    return point_table(track_id, frame, _time_like(t, rows["time"]), t, res.x[:, :2] * 1e3, vel, P2, nis, dof,
+                       flags, max(options.gap_s, 1.5 * dt), f"{options.method.upper()}-{options.motion}", extra)
+
+
+def _range_nis(x, P, z, stations, x0, P0, Q, r_km2, motion, dt):
+    """NIS of each scan's ranges against the one-step EKF prediction from the previous estimate."""
+    from ..nonlinear import motion_matrix
+
+    F = motion_matrix(motion, 2, dt)
+    x_prev = np.vstack([x0, x[:-1]])
+    P_prev = np.concatenate([P0[None], P[:-1]])
+    x_pred = x_prev @ F.T
+    P_pred = F @ P_prev @ F.T + Q
+    h, H = range_measurement(x_pred, stations)
+    nis = np.full(len(z), np.nan)
+    dof = np.zeros(len(z), dtype=np.int64)
+    for k in range(len(z)):
+        ok = np.isfinite(z[k])
+        if ok.any():
+            Hk = H[k][ok]
+            S = Hk @ P_pred[k] @ Hk.T + r_km2 * np.eye(int(ok.sum()))
+            nu = z[k][ok] - h[k][ok]
+            nis[k] = float(nu @ np.linalg.solve(S, nu))
+            dof[k] = int(ok.sum())
+    return nis, dof

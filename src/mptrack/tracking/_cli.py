@@ -1,0 +1,204 @@
+"""``mptrack track``, ``mptrack simulate`` and ``mptrack evaluate``.
+
+The three commands are plain functions, mounted on the main app with
+``app.command()(track)`` etc.; :data:`app` here mounts them alone (tests, and
+``python -m mptrack.tracking._cli``).  Errors in the input exit with status 2
+and a message naming file, row and column; nothing is written then.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+from typing import Optional
+
+import typer
+from rich.console import Console
+from rich.table import Table as RichTable
+
+from ..errors import MptrackError
+
+__all__ = ["track", "simulate", "evaluate", "app"]
+
+_out = Console()
+_err = Console(stderr=True)
+
+
+def _fail(exc: Exception) -> None:
+    _err.print(f"[red]error:[/red] {exc}", highlight=False, soft_wrap=True)
+    raise typer.Exit(2)
+
+
+def _json(data) -> None:
+    sys.stdout.write(json.dumps(data, indent=2, default=str, allow_nan=True) + "\n")
+
+
+def _skipped(read: dict) -> None:
+    if read.get("rows_skipped"):
+        _err.print(f"[yellow]skipped {read['rows_skipped']} of {read['rows_read']} rows of {read['file']}:[/yellow]",
+                   highlight=False)
+        for reason, count in read["skipped_by_reason"].items():
+            _err.print(f"  {count} × {reason}", highlight=False)
+
+
+_TERMINAL_COLUMNS = ("points", "outliers", "rmse_m", "cdf95_m", "mean_nees", "nees_in_95", "mean_nis", "nis_in_95")
+
+
+def _summary_table(summary: dict, title: str) -> RichTable:
+    rows = {"all": summary["overall"], **dict(list(summary["tracks"].items())[:30])}
+    cols = [c for c in _TERMINAL_COLUMNS if any(c in r for r in rows.values())]
+    rt = RichTable(title=title, title_justify="left")
+    rt.add_column("track")
+    for c in cols:
+        rt.add_column(c, justify="right")
+    for k, r in rows.items():
+        rt.add_row(k, *[f"{r[c]:.4g}" if isinstance(r.get(c), float) else str(r.get(c, "")) for c in cols])
+    return rt
+
+
+def track(
+    input: Path = typer.Argument(..., help="Position fixes (.csv/.parquet/.gpx) or, with --cells, a cellular "
+                                           "measurement log (.csv/.parquet)."),
+    out: Path = typer.Option(..., "--out", "-o", help="Result: .parquet, .csv or .geojson (written atomically)."),
+    cells: Optional[Path] = typer.Option(None, "--cells", help="Cell table (OpenCelliD layout): track cellular "
+                                                               "measurements with --method."),
+    method: str = typer.Option("ekf", help="Cellular filter: ekf, fekf or fcs."),
+    motion: str = typer.Option("random-walk", help="Cellular motion model: random-walk or cv."),
+    model: str = typer.Option("cv", help="Motion model for position fixes: cv or ca."),
+    filter: str = typer.Option("kf", "--filter", help="Position-fix filter: kf (gated, irregular times) or a "
+                                                      "linear filter name (lf, sskf, ...) on a regular grid."),
+    smooth: bool = typer.Option(False, "--smooth", help="Add an RTS smoothing pass."),
+    q: float = typer.Option(2.0, help="Process-noise density (m^2/s^3 for cv; 2 suits road vehicles)."),
+    sigma: float = typer.Option(5.0, help="Fix accuracy (1-sigma, m) where the input has no accuracy_m."),
+    gate: float = typer.Option(0.999, help="NIS gate probability (chi-square); 1 disables gating."),
+    report: Optional[Path] = typer.Option(None, "--report", help="Also write a self-contained HTML report."),
+    on_error: str = typer.Option("raise", "--on-error", help="raise: stop at the first bad row; skip: drop bad "
+                                                             "rows, count and report them."),
+    resume: bool = typer.Option(False, "--resume", help="Skip tracks finished by an interrupted run."),
+    quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar; only the one-line summary."),
+    json_out: bool = typer.Option(False, "--json", help="Print the run summary as JSON on stdout."),
+) -> None:
+    """Track position fixes or cellular measurements; write estimates, covariances, NIS and flags."""
+    from .._progress import RichProgress
+    from ._fixes import TrackOptions
+    from ._pipeline import read_output, track_file
+
+    try:
+        options = TrackOptions(model=model, filter=filter, q=q, sigma_m=sigma, smooth=smooth,
+                               gate_probability=None if gate >= 1 else gate, method=method, motion=motion)
+        with RichProgress(console=_err, disable=quiet or json_out) as progress:
+            summary = track_file(input, out, cells=cells, options=options, on_error=on_error, resume=resume,
+                                 progress=progress)
+        if report is not None:
+            from ..report import write_report
+
+            write_report(read_output(out), report, title=f"mptrack track {input.name}")
+            summary["report"] = str(report)
+    except MptrackError as exc:
+        _fail(exc)
+    if json_out:
+        _json(summary)
+        return
+    _skipped(summary["read"])
+    _out.print(f"{summary['tracks']} tracks ({summary['tracks_resumed']} resumed), {summary['points_written']} "
+               f"points, {summary['outliers_rejected']} outliers rejected → {out}"
+               + (f"; report {report}" if report else ""), highlight=False)
+
+
+def simulate(
+    scenario: str = typer.Option("gps", "--scenario", help="gps or urban-3bts."),
+    tracks: int = typer.Option(10, "--tracks", help="Number of simulated tracks (ignored with --along)."),
+    out: Path = typer.Option(..., "--out", "-o", help="Log with truth columns: .parquet or .csv."),
+    cells_out: Optional[Path] = typer.Option(None, "--cells-out", help="Cell table (cellular scenarios); "
+                                                                       "default OUT with suffix .cells.csv."),
+    along: Optional[Path] = typer.Option(None, "--along", help="Use the real tracks of this position-fix file "
+                                                               "as truth."),
+    duration: float = typer.Option(300.0, help="Seconds per simulated track."),
+    seed: int = typer.Option(0, help="Seed of the random generator."),
+    quiet: bool = typer.Option(False, "--quiet", "-q"),
+    json_out: bool = typer.Option(False, "--json", help="Print what was written as JSON."),
+) -> None:
+    """Simulate measurement logs with truth (GPS fixes or cellular RSS scans)."""
+    import numpy as np
+
+    from ..io import write_table
+    from ._simulate import simulate as run
+
+    try:
+        with _err.status("simulating…", spinner="dots") if not (quiet or json_out) else _nullctx():
+            log, cell_table = run(scenario, tracks, np.random.default_rng(seed), duration_s=duration, along=along)
+            write_table(log, out)
+            written = {"scenario": scenario, "log": str(out), "rows": int(len(log)),
+                       "tracks": int(log["track_id"].nunique()), "seed": seed}
+            if cell_table is not None:
+                cpath = cells_out or out.with_suffix(".cells.csv")
+                write_table(cell_table, cpath)
+                written["cells"] = str(cpath)
+    except MptrackError as exc:
+        _fail(exc)
+    if json_out:
+        _json(written)
+    else:
+        _out.print(f"{written['tracks']} tracks, {written['rows']} rows → {out}"
+                   + (f"; cells → {written['cells']}" if "cells" in written else ""), highlight=False)
+
+
+def _nullctx():
+    import contextlib
+
+    return contextlib.nullcontext()
+
+
+def evaluate(
+    tracks: Path = typer.Argument(..., help="Output of mptrack track (.parquet/.csv/.geojson)."),
+    truth: Optional[Path] = typer.Option(None, "--truth", help="Log with truth (true_lat/true_lon or lat/lon)."),
+    report: Optional[Path] = typer.Option(None, "--report", help="Write a self-contained HTML report."),
+    tolerance: float = typer.Option(0.5, help="Max time difference (s) to match an estimate with truth."),
+    quiet: bool = typer.Option(False, "--quiet", "-q", help="Only the overall line."),
+    json_out: bool = typer.Option(False, "--json", help="Print the metrics as JSON on stdout."),
+) -> None:
+    """RMSE, NEES/NIS consistency and the error CDF of a track table against truth."""
+    import pandas as pd
+
+    from ..errors import DataError
+    from ._evaluate import evaluate_tracks
+    from ._pipeline import read_output
+
+    try:
+        if not tracks.exists():
+            raise DataError("file not found", file=tracks)
+        est = read_output(tracks)
+        ref = None
+        if truth is not None:
+            if not truth.exists():
+                raise DataError("file not found", file=truth)
+            ref = pd.read_parquet(truth) if truth.suffix in (".parquet", ".pq") else \
+                pd.read_csv(truth, dtype={"track_id": "string"})
+        summary, table = evaluate_tracks(est, ref, tolerance_s=tolerance, truth_file=truth)
+        if report is not None:
+            from ..report import write_report
+
+            write_report(table, report, summary=summary, title=f"mptrack evaluate {tracks.name}")
+    except MptrackError as exc:
+        _fail(exc)
+    if json_out:
+        _json(summary)
+        return
+    o = summary["overall"]
+    if not quiet:
+        _out.print(_summary_table(summary, f"Evaluation of {tracks.name}"))
+    line = f"{len(summary['tracks'])} tracks, {o['points']} points"
+    if "rmse_m" in o:
+        line += f", RMSE {o['rmse_m']:.2f} m, 95 % error {o['cdf95_m']:.2f} m, mean NEES {o['mean_nees']:.2f}"
+    line += f", mean NIS {o['mean_nis']:.2f} (dof {o['mean_nis_dof']:.2f})"
+    _out.print(line, highlight=False)
+
+
+app = typer.Typer(add_completion=False, no_args_is_help=True, help="mptrack tracking commands.")
+app.command()(track)
+app.command()(simulate)
+app.command()(evaluate)
+
+if __name__ == "__main__":  # pragma: no cover
+    app()

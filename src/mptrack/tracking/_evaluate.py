@@ -1,0 +1,100 @@
+"""Evaluation of a track table against truth: horizontal error, NEES, NIS, error CDF.
+
+For each estimate the truth at the same time (nearest time stamp within
+``tolerance_s``, per track) is expressed in the estimate's local frame and
+
+    error  = ||p_hat - p|| (m),                      RMSE = sqrt(mean error^2)
+    NEES   = (p_hat - p)^T P^{-1} (p_hat - p)         chi-square, 2 dof, for a consistent filter
+    NIS    as written by the filter, of the measurements it accepted (not the gated outliers)
+
+(Bar-Shalom, Li & Kirubarajan 2001, sec. 5.4).  Reported are the mean NEES and
+NIS, the fraction inside their two-sided 95 % chi-square interval, and the
+50/67/95 % points of the error CDF.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+import scipy.stats
+
+from ..errors import DataError
+from ..io import LocalFrame
+from ..io._schema import _parse_time
+
+__all__ = ["attach_truth", "evaluate_tracks"]
+
+
+def _truth_table(truth: pd.DataFrame, file) -> pd.DataFrame:
+    lat, lon = ("true_lat", "true_lon") if "true_lat" in truth.columns else ("lat", "lon")
+    for col in ("track_id", "time", lat, lon):
+        if col not in truth.columns:
+            raise DataError("missing column in the truth file", file=file, column=col)
+    _, secs = _parse_time(truth["time"])
+    out = pd.DataFrame({"track_id": truth["track_id"].astype("string"), "t": secs,
+                        "true_lat": truth[lat].to_numpy(float), "true_lon": truth[lon].to_numpy(float)})
+    return out.dropna().drop_duplicates(["track_id", "t"]).sort_values("t", kind="stable")
+
+
+def attach_truth(tracks: pd.DataFrame, truth: pd.DataFrame, *, tolerance_s: float = 0.5,
+                 file="truth") -> pd.DataFrame:
+    """``tracks`` with error_m, nees and true east/north columns from the nearest truth sample."""
+    tt = _truth_table(truth, file)
+    est = tracks.assign(track_id=tracks["track_id"].astype("string"), _order=np.arange(len(tracks)))
+    merged = pd.merge_asof(est.sort_values("t", kind="stable"), tt, on="t", by="track_id",
+                           direction="nearest", tolerance=tolerance_s).sort_values("_order")
+    e = np.full(len(merged), np.nan)
+    n = np.full(len(merged), np.nan)
+    for (la, lo), idx in merged.groupby(["origin_lat", "origin_lon"]).indices.items():
+        ok = idx[np.isfinite(merged["true_lat"].to_numpy()[idx])]
+        if ok.size:
+            e[ok], n[ok] = LocalFrame(la, lo).to_enu(merged["true_lat"].to_numpy()[ok],
+                                                     merged["true_lon"].to_numpy()[ok])
+    de, dn = merged["east_m"].to_numpy() - e, merged["north_m"].to_numpy() - n
+    a, b, c = (merged[k].to_numpy() for k in ("var_east_m2", "cov_en_m2", "var_north_m2"))
+    det = a * c - b * b
+    with np.errstate(invalid="ignore", divide="ignore"):
+        nees = (c * de * de - 2 * b * de * dn + a * dn * dn) / det
+    return merged.drop(columns="_order").assign(true_east_m=e, true_north_m=n, error_m=np.hypot(de, dn),
+                                                nees=nees).reset_index(drop=True)
+
+
+def _inside(values: np.ndarray, dof: np.ndarray) -> float:
+    ok = np.isfinite(values) & (dof > 0)
+    if not ok.any():
+        return float("nan")
+    lo = scipy.stats.chi2.ppf(0.025, dof[ok])
+    hi = scipy.stats.chi2.ppf(0.975, dof[ok])
+    return float(np.mean((values[ok] >= lo) & (values[ok] <= hi)))
+
+
+def _stats(g: pd.DataFrame) -> dict:
+    err = g["error_m"].to_numpy(float) if "error_m" in g else np.array([])
+    err = err[np.isfinite(err)]
+    accepted = (g["flag"] != "outlier").to_numpy()  # NIS of the measurements the filter used
+    nis = g["nis"].to_numpy(float)[accepted]
+    dof = g["nis_dof"].to_numpy()[accepted]
+    row = {"points": int(len(g)), "outliers": int((g["flag"] == "outlier").sum())}
+    if err.size:
+        nees = g["nees"].to_numpy(float)
+        row.update(rmse_m=float(np.sqrt(np.mean(err ** 2))), mean_error_m=float(err.mean()),
+                   cdf50_m=float(np.percentile(err, 50)), cdf67_m=float(np.percentile(err, 67)),
+                   cdf95_m=float(np.percentile(err, 95)), mean_nees=float(np.nanmean(nees)),
+                   nees_in_95=_inside(nees, np.full(len(nees), 2)))
+    fin = np.isfinite(nis)
+    row.update(mean_nis=float(nis[fin].mean()) if fin.any() else float("nan"),
+               mean_nis_dof=float(dof[fin].mean()) if fin.any() else float("nan"),
+               nis_in_95=_inside(nis, dof))
+    return row
+
+
+def evaluate_tracks(tracks: pd.DataFrame, truth: pd.DataFrame | None = None, *, tolerance_s: float = 0.5,
+                    truth_file="truth") -> tuple[dict, pd.DataFrame]:
+    """(summary {"overall": {...}, "tracks": {id: {...}}}, tracks with error columns if truth given)."""
+    if truth is not None:
+        tracks = attach_truth(tracks, truth, tolerance_s=tolerance_s, file=truth_file)
+    per = {str(tid): _stats(g) for tid, g in tracks.groupby("track_id", sort=False)}
+    summary = {"overall": _stats(tracks), "tracks": per}
+    if truth is not None:
+        summary["overall"]["matched_points"] = int(np.isfinite(tracks["error_m"]).sum())
+    return summary, tracks

@@ -1,0 +1,70 @@
+"""Registries of what ``mptrack track`` can run, by name: motion models, position-fix filters
+and cellular (range) filters."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable
+
+from ..errors import UnknownNameError
+from ..linear import FILTERS as LINEAR_FILTERS
+from ..models import ContinuousLinearModel, constant_acceleration_continuous, constant_velocity_continuous
+from ..nonlinear import ekf_ranges, fcs_ranges, fekf_ranges
+
+__all__ = ["MotionModel", "MODELS", "get_model", "FIX_FILTERS", "get_fix_filter", "CELL_METHODS",
+           "get_cell_method"]
+
+
+@dataclass(frozen=True)
+class MotionModel:
+    """A 2-D continuous motion model: ``build(q, sigma_r2)``; ``order`` states per axis
+    (2 = position, velocity; 3 = + acceleration); ``prior_sigmas`` the 1-sigma spread of the
+    unmeasured states at start (m/s, m/s^2); ``q_unit`` the unit of the noise density q."""
+
+    name: str
+    description: str
+    build: Callable[[float, float], ContinuousLinearModel]
+    order: int
+    prior_sigmas: tuple[float, ...]
+    q_unit: str
+
+
+MODELS: dict[str, MotionModel] = {m.name: m for m in (
+    MotionModel("cv", "constant velocity, white-noise acceleration (seed 001 sec. 2.1)",
+                lambda q, r: constant_velocity_continuous(q, axes=2, sigma_r2=r), 2, (30.0,), "m^2/s^3"),
+    MotionModel("ca", "constant acceleration, white-noise jerk (seed 001 sec. 2.2)",
+                lambda q, r: constant_acceleration_continuous(q, axes=2, sigma_r2=r), 3, (30.0, 5.0),
+                "m^2/s^5"),
+)}
+
+#: Position-fix filters: "kf" is the gated irregular-time KF; the others are the registered linear
+#: filters of :data:`mptrack.linear.FILTERS`, run on the track resampled to a regular grid.
+FIX_FILTERS: dict[str, str] = {
+    "kf": "Kalman filter at the fixes' own (irregular) times, exact discretisation per interval, NIS gating",
+    **{name.lower(): f"{spec.description}; on a regular grid at the median interval, no gating"
+       for name, spec in LINEAR_FILTERS.items() if name != "KF"},
+}
+
+#: Cellular-range filters of :mod:`mptrack.nonlinear` (Bouzera et al. 2017).
+CELL_METHODS: dict[str, Callable] = {"ekf": ekf_ranges, "fekf": fekf_ranges, "fcs": fcs_ranges}
+
+
+def _get(registry: dict, kind: str, name: str):
+    key = name.lower()
+    if key not in registry:
+        raise UnknownNameError(f"{kind}: unknown name {name!r}; known: {', '.join(registry)}")
+    return registry[key]
+
+
+def get_model(name: str) -> MotionModel:
+    return _get(MODELS, "model", name)
+
+
+def get_fix_filter(name: str) -> str:
+    """The canonical name of a position-fix filter (validated)."""
+    _get(FIX_FILTERS, "filter", name)
+    return name.lower()
+
+
+def get_cell_method(name: str) -> Callable:
+    return _get(CELL_METHODS, "method", name)

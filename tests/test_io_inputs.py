@@ -1,0 +1,299 @@
+"""Input schemas, chunked readers, file/row/column errors, skipping, ENU frames and atomic writers."""
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from mptrack.errors import DataError, ParameterError
+from mptrack.io import (
+    CELLS,
+    FIXES,
+    MEASUREMENTS,
+    LocalFrame,
+    PartStore,
+    ReadReport,
+    iter_tracks,
+    read_cells,
+    read_table,
+    write_table,
+)
+
+DATA = Path(__file__).parent / "data"
+GPX = DATA / "around-visnjan-with-car.gpx"
+
+
+def fixes_frame(n_tracks=3, n=6):
+    rows = []
+    for k in range(n_tracks):
+        for i in range(n):
+            rows.append({"track_id": f"t{k}", "time": f"2024-01-01T00:{k:02d}:{2 * i:02d}Z",
+                         "lat": 45.0 + 1e-4 * i, "lon": 13.0 + 1e-4 * k, "accuracy_m": 4.0})
+    return pd.DataFrame(rows)
+
+
+@pytest.fixture
+def fixes_csv(tmp_path):
+    path = tmp_path / "fixes.csv"
+    fixes_frame().to_csv(path, index=False)
+    return path
+
+
+def test_gpx_real_trace_reads_with_irregular_times():
+    tracks = list(iter_tracks(GPX))
+    assert len(tracks) == 1
+    tid, df = tracks[0]
+    assert tid == "2020-12-18 07:24:29" and len(df) == 104
+    dt = np.diff(df["t"].to_numpy())
+    assert dt.min() == 1.0 and dt.max() == 49.0  # a Garmin eTrex logging at irregular intervals
+    assert df["lat"].iloc[0] == pytest.approx(45.2735188510)
+
+
+@pytest.mark.parametrize("fmt", ["csv", "parquet"])
+def test_csv_and_parquet_give_the_same_tracks(tmp_path, fmt):
+    df = fixes_frame()
+    path = tmp_path / f"f.{fmt}"
+    df.to_csv(path, index=False) if fmt == "csv" else df.to_parquet(path, index=False)
+    got = dict(iter_tracks(path, chunk_rows=4))  # chunks cut through tracks
+    assert list(got) == ["t0", "t1", "t2"]
+    for k, (tid, g) in enumerate(got.items()):
+        assert g["row"].tolist() == list(range(6 * k + 1, 6 * k + 7))
+        assert np.allclose(np.diff(g["t"]), 2.0)
+
+
+def test_numeric_seconds_and_xy_columns(tmp_path):
+    path = tmp_path / "xy.csv"
+    pd.DataFrame({"time": [0.0, 1.5, 4.0], "x": [0, 1, 2], "y": [0, 0, 1]}).to_csv(path, index=False)
+    (tid, g), = iter_tracks(path)
+    assert tid == "1" and g["t"].tolist() == [0.0, 1.5, 4.0]
+
+
+def _edit(tmp_path, name, fn, frame=None):
+    df = fixes_frame() if frame is None else frame
+    df = fn(df) if fn else df
+    path = tmp_path / name
+    df.to_csv(path, index=False)
+    return path
+
+
+ERRORS = [
+    ("missing column", lambda d: d.drop(columns="time"), None, "time", "missing column"),
+    ("no position", lambda d: d.drop(columns=["lat"]), None, "lat+lon", "missing columns"),
+    ("bad time", lambda d: d.assign(time=d["time"].where(d.index != 4, "yesterday")), 5, "time", "bad time stamp"),
+    ("NaN latitude", lambda d: d.assign(lat=d["lat"].where(d.index != 7)), 8, "lat", "empty value"),
+    ("latitude range", lambda d: d.assign(lat=d["lat"].where(d.index != 2, 91.0)), 3, "lat", "outside"),
+    ("not a number", lambda d: d.assign(lon=d["lon"].astype(object).where(d.index != 9, "east")), 10, "lon",
+     "not a number"),
+    ("unsorted", lambda d: d.iloc[[0, 1, 3, 2, 4, 5] + list(range(6, 18))], 4, "time", "not after"),
+    ("not contiguous", lambda d: d.iloc[list(range(0, 6)) + list(range(12, 18)) + list(range(6, 12))]
+     .assign(track_id=lambda x: ["t0"] * 6 + ["t2"] * 6 + ["t0"] * 6), 13, "track_id", "appears again"),
+]
+
+
+@pytest.mark.parametrize("case", ERRORS, ids=[c[0] for c in ERRORS])
+def test_errors_name_file_row_and_column(tmp_path, case):
+    _, edit, row, column, text = case
+    path = _edit(tmp_path, "bad.csv", edit)
+    with pytest.raises(DataError) as info:
+        for _ in iter_tracks(path, chunk_rows=5):
+            pass
+    err = info.value
+    assert err.file == path and err.row == row and err.column == column
+    assert str(path) in str(err) and text in str(err) and isinstance(err, ValueError)
+    if row is not None:
+        assert f"row {row}" in str(err)
+
+
+def test_skip_counts_every_bad_row_by_reason(tmp_path):
+    def edit(d):
+        d = d.copy()
+        d.loc[1, "time"] = "garbage"
+        d.loc[3, "lat"] = np.nan
+        d.loc[8, "lat"] = -95.0
+        return d.iloc[[0, 1, 2, 3, 5, 4] + list(range(6, 18))]  # row 6 (index 4) goes back in time
+
+    path = _edit(tmp_path, "bad.csv", edit)
+    report = ReadReport()
+    tracks = dict(iter_tracks(path, on_error="skip", report=report, chunk_rows=4))
+    assert report.rows_read == 18 and report.rows_skipped == 4
+    assert sum(len(g) for g in tracks.values()) == 14
+    assert report.reasons == {"time: bad time stamp": 1, "lat: empty value (NaN)": 1,
+                              "lat: outside -90.0 .. 90.0 degrees": 1, "time: time not increasing": 1}
+    assert any("row 2" in e for e in report.examples)
+    assert json.dumps(report.to_dict())
+
+
+def test_unknown_on_error_policy_is_rejected(fixes_csv):
+    with pytest.raises(ParameterError, match="on_error"):
+        read_table(fixes_csv, on_error="ignore")
+
+
+def test_missing_and_unreadable_files(tmp_path):
+    with pytest.raises(DataError, match="file not found"):
+        read_table(tmp_path / "nope.csv")
+    bad = tmp_path / "x.parquet"
+    bad.write_text("not parquet")
+    with pytest.raises(DataError, match="cannot be read as parquet"):
+        read_table(bad)
+    with pytest.raises(DataError, match="unknown input format"):
+        read_table(tmp_path / "x.xlsx")
+    gpx = tmp_path / "t.gpx"
+    gpx.write_text("<gpx><trk><trkseg><trkpt lat='45' lon='13'></trkpt></trkseg></trk></gpx>")
+    with pytest.raises(DataError) as info:
+        read_table(gpx)
+    assert info.value.row == 1 and info.value.column == "time"
+
+
+def cell_table():
+    return pd.DataFrame({"radio": ["GSM"] * 3, "mcc": [262] * 3, "net": [1] * 3, "area": [7] * 3,
+                         "cell": [1, 2, 3], "unit": 0, "lon": [13.0, 13.01, 13.02], "lat": [45.0, 45.01, 45.0],
+                         "range": 1000, "samples": 3, "changeable": 1, "created": 0, "updated": 0,
+                         "averageSignal": 0, "arfcn": [700, None, 30]})
+
+
+def test_cell_table_opencellid_layout_and_defaults(tmp_path):
+    path = tmp_path / "cells.csv"
+    cell_table().to_csv(path, index=False)
+    cells = read_cells(path, wanted={"262-1-7-1", "262-1-7-3", "999-1-1-1"})
+    assert list(cells.index) == ["262-1-7-1", "262-1-7-3"]
+    assert cells["height_m"].tolist() == [30.0, 30.0] and cells["power_dbm"].tolist() == [43.0, 43.0]
+    assert cells["arfcn"].tolist() == [700, 30]
+
+
+def test_cell_table_errors(tmp_path):
+    path = tmp_path / "cells.csv"
+    cell_table().assign(cell=[1, 2, 1]).to_csv(path, index=False)
+    with pytest.raises(DataError) as info:
+        read_cells(path)
+    assert info.value.row == 3 and info.value.column == "cell" and "listed twice" in str(info.value)
+    cell_table().drop(columns="mcc").to_csv(path, index=False)
+    with pytest.raises(DataError, match="'mcc': missing column"):
+        read_cells(path)
+
+
+def test_measurement_rows_need_one_measurement(tmp_path):
+    path = tmp_path / "m.csv"
+    pd.DataFrame({"track_id": "a", "time": [1.0, 1.0, 2.0], "cell_id": ["262-1-7-1"] * 3,
+                  "rss_dbm": [-70.0, np.nan, -71.0], "ta": [np.nan, np.nan, 3]}).to_csv(path, index=False)
+    with pytest.raises(DataError) as info:
+        read_table(path, MEASUREMENTS)
+    assert info.value.row == 2 and info.value.column == "rss_dbm/ta"
+    # equal times within a track are one scan: allowed for measurement logs
+    (tid, g), = iter_tracks(path, MEASUREMENTS, on_error="skip")
+    assert len(g) == 2
+
+
+def test_schemas_render_as_markdown():
+    for schema in (FIXES, MEASUREMENTS, CELLS):
+        md = schema.markdown()
+        assert md.startswith("| column | required | unit |") and ("`time`" in md or "`mcc`" in md)
+
+
+# ---- geodesy ---------------------------------------------------------------------------------------
+
+def test_enu_against_the_meridian_radius():
+    """0.001 deg of latitude at 45 deg is M * pi/180e3 with the WGS-84 meridian radius M."""
+    a, f = 6378137.0, 1 / 298.257223563
+    e2 = f * (2 - f)
+    phi = np.radians(45.0)
+    M = a * (1 - e2) / (1 - e2 * np.sin(phi) ** 2) ** 1.5
+    frame = LocalFrame(45.0, 13.0)
+    e, n = frame.to_enu([45.0005], [13.0])  # midpoint latitude 45.00025: use the arc from 45 to 45.0005
+    assert e[0] == pytest.approx(0.0, abs=1e-9)
+    assert n[0] == pytest.approx(M * np.radians(0.0005), rel=2e-5)
+    N = a / np.sqrt(1 - e2 * np.sin(phi) ** 2)
+    e, n = frame.to_enu([45.0], [13.001])
+    assert e[0] == pytest.approx(N * np.cos(phi) * np.radians(0.001), rel=1e-6)
+
+
+@settings(max_examples=40, deadline=None)
+@given(lat0=st.floats(-80, 80), lon0=st.floats(-179, 179), de=st.floats(-20e3, 20e3), dn=st.floats(-20e3, 20e3))
+def test_enu_round_trip(lat0, lon0, de, dn):
+    frame = LocalFrame(lat0, lon0)
+    lat, lon = frame.to_geodetic([de], [dn])
+    e, n = frame.to_enu(lat, lon)
+    assert e[0] == pytest.approx(de, abs=1e-6) and n[0] == pytest.approx(dn, abs=1e-6)
+
+
+def test_frame_origin_validated():
+    with pytest.raises(ParameterError, match="origin"):
+        LocalFrame(95.0, 0.0)
+
+
+# ---- writers ---------------------------------------------------------------------------------------
+
+def _table():
+    return pd.DataFrame({"track_id": ["a", "a", "b"], "t": [0.0, 1.0, 0.0], "lat": [45.0, 45.001, 46.0],
+                         "lon": [13.0, 13.001, 14.0], "nis": [np.nan, 1.5, 0.3],
+                         "time": pd.to_datetime([0, 1, 0], unit="s", utc=True)})
+
+
+@pytest.mark.parametrize("suffix", [".parquet", ".csv", ".geojson"])
+def test_writers_roundtrip(tmp_path, suffix):
+    path = write_table(_table(), tmp_path / f"out{suffix}")
+    if suffix == ".parquet":
+        back = pd.read_parquet(path)
+        assert back["nis"].isna().tolist() == [True, False, False]
+    elif suffix == ".csv":
+        back = pd.read_csv(path)
+        assert back["lat"].tolist() == [45.0, 45.001, 46.0]
+    else:
+        geojson = pytest.importorskip("geojson")
+        fc = geojson.loads(path.read_text())
+        assert fc.is_valid and fc["type"] == "FeatureCollection"
+        lines = [f for f in fc["features"] if f["properties"]["kind"] == "track"]
+        points = [f for f in fc["features"] if f["properties"]["kind"] == "point"]
+        assert len(lines) == 1 and len(points) == 3
+        assert points[1]["geometry"]["coordinates"] == [13.001, 45.001]
+        assert points[0]["properties"]["nis"] is None
+        assert points[1]["properties"]["time"] == "1970-01-01T00:00:01Z"
+
+
+def test_write_is_atomic(tmp_path):
+    def frames():
+        yield _table()
+        raise RuntimeError("interrupted")
+
+    out = tmp_path / "out.csv"
+    with pytest.raises(RuntimeError):
+        write_table(frames(), out)
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_part_store_batches_resumes_and_cleans_up(tmp_path):
+    store = PartStore(tmp_path / "o.parquet", flush_rows=2)
+    store.add(_table().iloc[:2])  # 2 rows: written as part 1
+    store.add(_table().iloc[2:])  # 1 row: buffered
+    assert store.finished() == {"a"} and len(list(store.dir.iterdir())) == 1
+    store.flush()
+    assert PartStore(tmp_path / "o.parquet").finished() == {"a", "b"}
+    store.finish()
+    assert not store.dir.exists()
+    assert pd.read_parquet(tmp_path / "o.parquet")["track_id"].tolist() == ["a", "a", "b"]
+    with pytest.raises(ParameterError, match="unknown output format"):
+        PartStore(tmp_path / "o.xlsx")
+
+
+def test_user_guide_shows_the_current_schemas():
+    guide = (Path(__file__).parents[1] / "docs" / "tracking.md").read_text()
+    for schema in (FIXES, MEASUREMENTS, CELLS):
+        assert schema.markdown() in guide
+
+
+def test_time_zones_and_datetime_columns(tmp_path):
+    times = pd.to_datetime(["2024-01-01T00:00:00", "2024-01-01T00:00:01.5", "2024-01-01T00:00:03"], format="ISO8601")
+    df = pd.DataFrame({"track_id": "a", "time": times, "lat": [45.0, 45.0001, 45.0002], "lon": 13.0})
+    df.to_parquet(tmp_path / "naive.parquet")  # naive datetimes are UTC
+    df.assign(time=times.tz_localize("Europe/Zagreb")).to_parquet(tmp_path / "zoned.parquet")
+    df.assign(time=["2024-01-01T01:00:00+01:00", "2024-01-01T00:00:01.5Z", "2024-01-01 00:00:03"]).to_csv(
+        tmp_path / "mixed.csv", index=False)
+    starts = {}
+    for name in ("naive.parquet", "zoned.parquet", "mixed.csv"):
+        (_, g), = iter_tracks(tmp_path / name)
+        assert np.diff(g["t"]).tolist() == [1.5, 1.5]
+        starts[name] = g["t"].iloc[0]
+    assert starts["naive.parquet"] == starts["mixed.csv"] == starts["zoned.parquet"] + 3600.0
