@@ -155,6 +155,14 @@ def bench(
         console.print(f"wrote {json_out}")
 
 
+# Real data in, tracks out (docs/tracking.md); the heavy imports happen inside the commands.
+from .tracking._cli import evaluate, simulate, track  # noqa: E402
+
+app.command()(track)
+app.command()(simulate)
+app.command()(evaluate)
+
+
 def main() -> None:  # pragma: no cover
     app()
 
