@@ -11,7 +11,12 @@ from hypothesis import strategies as st
 from mptrack.errors import ParameterError, UnknownNameError
 from mptrack.io import LocalFrame, iter_tracks
 from mptrack.linear import kalman_filter, kalman_filter_irregular, rts_smoother
-from mptrack.models import constant_acceleration_continuous, constant_velocity_continuous, van_loan
+from mptrack.models import (
+    constant_acceleration_continuous,
+    constant_velocity_continuous,
+    discretize_intervals,
+    van_loan,
+)
 from mptrack.nonlinear import ekf_ranges, fekf_ranges
 from mptrack.radio import arfcn_to_frequency, path_loss
 from mptrack.tracking import (
@@ -23,12 +28,11 @@ from mptrack.tracking import (
     kalman_filter_gated,
     nis_threshold,
     ranges_km,
-    rts_smoother_irregular,
+    smooth_gated,
     simulate,
     track_cells,
     track_fixes,
 )
-from mptrack.tracking._gated import transitions
 
 GPX = Path(__file__).parent / "data" / "around-visnjan-with-car.gpx"
 
@@ -54,7 +58,7 @@ def test_nis_gate_is_the_chi_square_quantile():
 @given(dt=st.floats(1e-3, 100.0), q=st.floats(1e-3, 10.0))
 def test_closed_series_transitions_equal_van_loan(dt, q):
     for model in (constant_velocity_continuous(q, axes=2), constant_acceleration_continuous(q, axes=1)):
-        F, Q = transitions(model, np.array([dt]))
+        F, Q = discretize_intervals(model, np.array([dt]))
         F1, Q1 = van_loan(model.Phi, model.L, model.Qc, dt)
         np.testing.assert_allclose(F[0], F1, rtol=1e-12, atol=1e-12)
         np.testing.assert_allclose(Q[0], Q1, rtol=1e-9, atol=1e-12 * np.abs(Q1).max())
@@ -67,7 +71,7 @@ def test_ungated_regular_equals_the_reference_kalman_filter():
     np.testing.assert_allclose(g.result.x, ref.x, rtol=1e-10, atol=1e-9)
     np.testing.assert_allclose(g.result.P, ref.P, rtol=1e-10, atol=1e-10)
     assert g.result.loglik == pytest.approx(ref.loglik, rel=1e-10)
-    sm = rts_smoother_irregular(g)
+    sm = smooth_gated(g)
     ref_sm = rts_smoother(model.discretize(1.0), ref)
     np.testing.assert_allclose(sm.x, ref_sm.x, rtol=1e-9, atol=1e-8)
     np.testing.assert_allclose(sm.P, ref_sm.P, rtol=1e-8, atol=1e-9)
@@ -81,7 +85,7 @@ def test_ungated_irregular_equals_kalman_filter_irregular():
     np.testing.assert_allclose(g.result.x, ref.x, rtol=1e-10, atol=1e-9)
     np.testing.assert_allclose(g.result.P, ref.P, rtol=1e-10, atol=1e-10)
     assert g.flag[5] == 2 and np.isnan(g.nis[5])
-    sm = rts_smoother_irregular(g)
+    sm = smooth_gated(g)
     assert np.all(np.linalg.eigvalsh(g.result.P - sm.P) > -1e-9)  # smoothing never adds uncertainty
 
 
@@ -121,7 +125,7 @@ def test_nis_is_chi_square_for_the_true_model():
     rng = np.random.default_rng(7)
     model = constant_velocity_continuous(0.5, axes=2, sigma_r2=9.0)
     t = np.cumsum(rng.uniform(0.5, 4.0, 800))
-    F, Q = transitions(model, np.diff(np.r_[0.0, t]))
+    F, Q = discretize_intervals(model, np.diff(np.r_[0.0, t]))
     x = np.zeros(4)
     z = np.empty((len(t), 2))
     for k in range(len(t)):

@@ -7,8 +7,7 @@ import numpy as np
 
 from .._validation import as_array, as_sequence, as_vector, check_covariance
 from ..errors import ParameterError, ShapeError
-from ..models import ContinuousLinearModel
-from ..models._continuous import _van_loan
+from ..models import ContinuousLinearModel, discretize_intervals
 from ._kernels import kf_loop
 from ._result import FilterResult
 from ._smoother import _rts_backward
@@ -41,19 +40,6 @@ def sampling_intervals(times, t0: float = 0.0) -> np.ndarray:
     return dts
 
 
-def _transitions(model: ContinuousLinearModel, dts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Per-step (F, Q) stacks (T, n, n) for the intervals ``dts``, one Van Loan exponential
-    per distinct interval."""
-    values, index = np.unique(dts, return_inverse=True)
-    if values.size == 0:
-        return np.empty((0, model.n, model.n)), np.empty((0, model.n, model.n))
-    LQL = model.L @ model.Qc @ model.L.T
-    pairs = [_van_loan(model.Phi, LQL, float(dt)) for dt in values]
-    F = np.stack([f for f, _ in pairs])
-    Q = np.stack([q for _, q in pairs])
-    return F[index], Q[index]
-
-
 def _check_model(model) -> None:
     if not isinstance(model, ContinuousLinearModel):
         raise ParameterError(f"model: expected a ContinuousLinearModel, got {type(model).__name__}")
@@ -69,7 +55,7 @@ def kalman_filter_irregular(model: ContinuousLinearModel, times, z, x0=None, P0=
     x0, P0  the prior x(0/0), P(0/0) at time t0 (default zeros)
 
     Each step uses F = e^{Phi dt(k)}, Q = int_0^dt(k) e^{Phi s} L Qc L^T e^{Phi^T s} ds
-    (seed 001 sec. 2, Van Loan's method), cached per distinct interval; each run
+    (seed 001 sec. 2, Van Loan's method; :func:`mptrack.models.discretize_intervals`); each run
     of equal intervals goes through the compiled KF loop of :func:`kalman_filter`
     in one call.  With equal intervals dt this is :func:`kalman_filter` on
     ``model.discretize(dt)``.
@@ -85,7 +71,7 @@ def kalman_filter_irregular(model: ContinuousLinearModel, times, z, x0=None, P0=
     T, n = z.shape[0], model.n
     xs, Ps = np.empty((T, n)), np.empty((T, n, n))
     xp, Pp = np.empty((T, n)), np.empty((T, n, n))
-    Fs, Qs = _transitions(model, dts)
+    Fs, Qs = discretize_intervals(model, dts)
     loglik = 0.0
     # runs of equal intervals share (F, Q) and go through the compiled KF loop in one call
     bounds = np.concatenate(([0], np.flatnonzero(np.diff(dts)) + 1, [T]))
@@ -111,5 +97,5 @@ def rts_smoother_irregular(model: ContinuousLinearModel, times, result: FilterRe
     if result.T != dts.shape[0] or result.n != model.n:
         raise ShapeError(f"result: expected {dts.shape[0]} steps of an n = {model.n} state "
                          f"(one per time stamp), got x of shape {result.x.shape}")
-    Fs, Qs = _transitions(model, dts[1:])
+    Fs, Qs = discretize_intervals(model, dts[1:])
     return _rts_backward(result, Fs, Qs)

@@ -10,6 +10,7 @@ from ._continuous import (
     constant_velocity_continuous,
     cv_discrete_white_noise,
     discretize,
+    discretize_intervals,
     van_loan,
 )
 from ._linear import LinearGaussianModel, require_model, stack_axes
@@ -24,6 +25,7 @@ __all__ = [
     "ContinuousLinearModel",
     "van_loan",
     "discretize",
+    "discretize_intervals",
     "constant_velocity_continuous",
     "constant_acceleration_continuous",
     "constant_velocity",

@@ -132,6 +132,41 @@ def van_loan(Phi, L, Qc, dt: float) -> tuple[np.ndarray, np.ndarray]:
     return _van_loan(Phi, L @ Qc @ L.T, dt)
 
 
+def discretize_intervals(model: ContinuousLinearModel, dts) -> tuple[np.ndarray, np.ndarray]:
+    """(F (T, n, n), Q (T, n, n)) of ``model`` over each interval ``dts[k] >= 0`` seconds (Van Loan).
+
+    For the integrator chains of the CV/CA models Phi is nilpotent, and so is
+    Van Loan's block matrix M = [[-Phi, L Qc L^T], [0, Phi^T]]; e^{M dt} is
+    then the finite sum of (M dt)^j / j!, j < 2n, evaluated for all intervals
+    at once (exact, and ~1000x faster than one expm per interval).  Other
+    models take one :func:`van_loan` exponential per distinct interval.
+    """
+    n = model.n
+    dts = np.asarray(dts, dtype=float)
+    if dts.size == 0:
+        return np.empty((0, n, n)), np.empty((0, n, n))
+    LQL = model.L @ model.Qc @ model.L.T
+    M = np.zeros((2 * n, 2 * n))
+    M[:n, :n] = -model.Phi
+    M[:n, n:] = LQL
+    M[n:, n:] = model.Phi.T
+    powers = [np.eye(2 * n)]
+    for _ in range(2 * n):
+        powers.append(powers[-1] @ M)
+    if not np.any(powers[-1]):
+        factorial = np.cumprod(np.r_[1.0, np.arange(1, 2 * n)])
+        coef = dts[:, None] ** np.arange(2 * n) / factorial  # (T, 2n)
+        E = np.einsum("tj,jab->tab", coef, np.stack(powers[:-1]))
+        F = np.ascontiguousarray(E[:, n:, n:].transpose(0, 2, 1))
+        Q = F @ E[:, :n, n:]
+    else:
+        values, index = np.unique(dts, return_inverse=True)
+        pairs = [_van_loan(model.Phi, LQL, float(dt)) for dt in values]
+        F = np.stack([f for f, _ in pairs])[index]
+        Q = np.stack([q for _, q in pairs])[index]
+    return F, 0.5 * (Q + Q.transpose(0, 2, 1))
+
+
 def discretize(model: ContinuousLinearModel, dt: float) -> LinearGaussianModel:
     """The exact discrete-time model of ``model`` sampled every ``dt`` > 0 seconds.
 

@@ -5,7 +5,7 @@ with truth, and evaluation against truth.  ``mptrack track/simulate/evaluate`` a
 from ._cellular import TA_STEP_M, band_of_arfcn, check_cell_ids, ranges_km, track_cells
 from ._evaluate import attach_truth, evaluate_tracks
 from ._fixes import TrackOptions, point_table, track_fixes
-from ._gated import FLAGS, GatedResult, kalman_filter_gated, nis_threshold, rts_smoother_irregular
+from ._gated import FLAGS, GatedResult, kalman_filter_gated, nis_threshold, smooth_gated
 from ._pipeline import read_output, track_file
 from ._simulate import SCENARIOS, simulate
 from ._registry import (
@@ -34,7 +34,7 @@ __all__ = [
     "band_of_arfcn",
     "TA_STEP_M",
     "kalman_filter_gated",
-    "rts_smoother_irregular",
+    "smooth_gated",
     "nis_threshold",
     "GatedResult",
     "FLAGS",

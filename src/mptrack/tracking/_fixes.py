@@ -11,7 +11,7 @@ import pandas as pd
 from .._validation import check_positive
 from ..io import LocalFrame
 from ..linear import FilterResult, get_filter
-from ._gated import FLAGS, kalman_filter_gated, rts_smoother_irregular
+from ._gated import FLAGS, kalman_filter_gated, smooth_gated
 from ._registry import get_fix_filter, get_model
 
 __all__ = ["TrackOptions", "track_fixes", "point_table"]
@@ -153,7 +153,7 @@ def track_fixes(track_id: str, rows: pd.DataFrame, options: TrackOptions = Track
         R = sig[:, None, None] ** 2 * np.eye(2)
         gated = kalman_filter_gated(model, t, z, x0, P0, R=R, gate_probability=options.gate_probability,
                                     reset_P0=P0)
-        res = rts_smoother_irregular(gated) if options.smooth else gated.result
+        res = smooth_gated(gated) if options.smooth else gated.result
         flags, nis = gated.flag, gated.nis
         times = rows["time"].to_numpy() if not pd.api.types.is_datetime64_any_dtype(rows["time"]) \
             else rows["time"].reset_index(drop=True)

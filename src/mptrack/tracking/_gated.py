@@ -25,16 +25,16 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.linalg
 import scipy.stats
 
 from .._validation import as_array, as_sequence, as_vector, check_covariance, check_int
 from ..errors import ParameterError, ShapeError
 from ..linear import FilterResult
-from ..models import ContinuousLinearModel, van_loan
+from ..models import ContinuousLinearModel, discretize_intervals
+from ..linear._smoother import _rts_backward
 from ._kernels import gated_loop
 
-__all__ = ["transitions", "GatedResult", "kalman_filter_gated", "rts_smoother_irregular", "nis_threshold", "FLAGS"]
+__all__ = ["GatedResult", "kalman_filter_gated", "smooth_gated", "nis_threshold", "FLAGS"]
 
 #: Per-point flags of a tracking result.
 FLAGS = ("update", "outlier", "predicted", "reset")
@@ -45,38 +45,6 @@ def nis_threshold(probability: float, dof: int) -> float:
     if not 0.0 < probability < 1.0:
         raise ParameterError(f"gate_probability: expected a probability in (0, 1), got {probability!r}")
     return float(scipy.stats.chi2.ppf(probability, dof))
-
-
-def transitions(model: ContinuousLinearModel, dts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(F (T, n, n), Q (T, n, n)) of ``model`` over each interval dts[k] >= 0 seconds (Van Loan).
-
-    For the integrator chains of the CV/CA models Phi is nilpotent, and so is
-    Van Loan's block matrix M = [[-Phi, L Qc L^T], [0, Phi^T]]; e^{M dt} is
-    then the finite sum of (M dt)^j / j!, j < 2n, evaluated for all intervals
-    at once (exact, and ~1000x faster than one expm per interval).  Other
-    models fall back to :func:`mptrack.models.van_loan` per distinct interval.
-    """
-    n = model.n
-    dts = np.asarray(dts, dtype=float)
-    M = np.zeros((2 * n, 2 * n))
-    M[:n, :n] = -model.Phi
-    M[:n, n:] = model.L @ model.Qc @ model.L.T
-    M[n:, n:] = model.Phi.T
-    powers = [np.eye(2 * n)]
-    for _ in range(2 * n):
-        powers.append(powers[-1] @ M)
-    if np.allclose(powers[-1], 0.0, atol=0.0):
-        coef = np.stack([dts ** j / np.prod(np.arange(1, j + 1)) for j in range(2 * n)], axis=1)  # (T, 2n)
-        E = np.einsum("tj,jab->tab", coef, np.stack(powers[:-1]))
-        F = E[:, n:, n:].transpose(0, 2, 1)
-        Q = F @ E[:, :n, n:]
-    else:
-        cache: dict[float, tuple[np.ndarray, np.ndarray]] = {}
-        for dt in np.unique(dts):
-            cache[float(dt)] = van_loan(model.Phi, model.L, model.Qc, dt)
-        F = np.stack([cache[float(dt)][0] for dt in dts])
-        Q = np.stack([cache[float(dt)][1] for dt in dts])
-    return F, 0.5 * (Q + Q.transpose(0, 2, 1))
 
 
 @dataclass(frozen=True, eq=False)
@@ -138,7 +106,7 @@ def kalman_filter_gated(model: ContinuousLinearModel, times, z, x0, P0, *, t0: f
     xp, Pp = np.empty((T, n)), np.empty((T, n, n))
     nis = np.full(T, np.nan)
     flag = np.zeros(T, dtype=np.int8)
-    Fs, Qs = transitions(model, dts)
+    Fs, Qs = discretize_intervals(model, dts)
     loglik = gated_loop(t, Fs, Qs, H, np.ascontiguousarray(Rs), z, x.copy(), P.copy(), gates,
                         gate_probability is not None, int(max_rejections), reset_P, picks, vels,
                         xs, Ps, xp, Pp, nis, flag)
@@ -146,29 +114,18 @@ def kalman_filter_gated(model: ContinuousLinearModel, times, z, x0, P0, *, t0: f
     return GatedResult(result=res, nis=nis, flag=flag, F=Fs, Q=Qs)
 
 
-def rts_smoother_irregular(gated: GatedResult) -> FilterResult:
-    """Rauch-Tung-Striebel smoother with a different (F, Q) per step (Anderson & Moore 1979, sec. 7.4):
-
-        C(k)   = P(k/k) F(k+1)^T P(k+1/k)^{-1}
-        x(k/T) = x(k/k) + C(k) [x(k+1/T) - x(k+1/k)]
-        P(k/T) = P(k/k) + C(k) [P(k+1/T) - P(k+1/k)] C(k)^T
-
-    Each stretch between filter resets is smoothed on its own (a reset breaks
-    the chain of predictions).  Equal intervals give :func:`mptrack.linear.rts_smoother`.
+def smooth_gated(gated: GatedResult) -> FilterResult:
+    """RTS smoothing of a gated run: the backward pass of :func:`mptrack.linear.rts_smoother`
+    with the per-step (F, Q) the filter used, run separately on each stretch between
+    filter resets (a reset breaks the chain of predictions).  Rejected and missing
+    measurements are prediction-only steps and need no special case.
     """
     r = gated.result
-    xs, Ps = np.array(r.x), np.array(r.P)
-    T = r.T
-    for k in range(T - 2, -1, -1):
-        if gated.flag[k + 1] == 3:
-            continue
-        P_pred = r.P_pred[k + 1]
-        PFt = r.P[k] @ gated.F[k + 1].T
-        try:
-            C = scipy.linalg.solve(P_pred, PFt.T, assume_a="pos").T
-        except (np.linalg.LinAlgError, scipy.linalg.LinAlgError):
-            C = PFt @ np.linalg.pinv(P_pred)
-        xs[k] = r.x[k] + C @ (xs[k + 1] - r.x_pred[k + 1])
-        Pk = r.P[k] + C @ (Ps[k + 1] - P_pred) @ C.T
-        Ps[k] = 0.5 * (Pk + Pk.T)
-    return FilterResult(x=xs, P=Ps, method="RTS-irregular")
+    xs, Ps = np.empty_like(r.x), np.empty_like(r.P)
+    starts = np.flatnonzero(gated.flag == FLAGS.index("reset"))
+    bounds = np.unique(np.r_[0, starts, r.T])
+    for a, b in zip(bounds[:-1], bounds[1:]):
+        part = FilterResult(x=r.x[a:b], P=r.P[a:b])
+        sm = _rts_backward(part, gated.F[a + 1:b], gated.Q[a + 1:b])
+        xs[a:b], Ps[a:b] = sm.x, sm.P
+    return FilterResult(x=xs, P=Ps, method="RTS-gated")
