@@ -28,6 +28,7 @@ __all__ = ["ss_kernel", "ss_kernel_21", "kf_kernel", "kf_kernel_21", "fir_kernel
            "copy_kernel"]
 
 _OPTS = dict(parallel=True, cache=True, nogil=True, boundscheck=False)
+LANES = 4   # tracks advanced together by the n = 2, m = 1 kernels
 
 
 @nb.njit(**_OPTS)
@@ -73,32 +74,72 @@ def ss_kernel(z, out, A, Bm, F, x0, lengths, axes):
                 out[b, t, xo + r] = np.nan
 
 
-@nb.njit(**_OPTS)
-def ss_kernel_21(z, out, A, Bm, F, x0, lengths, axes):
-    """:func:`ss_kernel` written out for n = 2, m = 1 (model B per axis): the state
-    lives in registers, so the loop runs at memory speed."""
-    nb_, T = z.shape[0], z.shape[1]
+@nb.njit(cache=True, nogil=True)
+def _ss21_track(z, out, b, a, t0, p, v, L, A, Bm, F):
+    """Track (b, axis a) of :func:`ss_kernel_21` from time index t0 with state (p, v)."""
     a00, a01, a10, a11 = A[0, 0], A[0, 1], A[1, 0], A[1, 1]
     b0, b1 = Bm[0, 0], Bm[1, 0]
-    f00, f01, f10, f11 = F[0, 0], F[0, 1], F[1, 0], F[1, 1]
-    for i in nb.prange(nb_ * axes):
-        b = i // axes
-        a = i - b * axes
-        o = 2 * a
-        p = x0[b, o]
-        v = x0[b, o + 1]
-        L = lengths[b]
-        for t in range(L):
-            zz = z[b, t, a]
-            if np.isnan(zz):
-                p, v = f00 * p + f01 * v, f10 * p + f11 * v
-            else:
-                p, v = (a00 * p + a01 * v) + b0 * zz, (a10 * p + a11 * v) + b1 * zz
-            out[b, t, o] = p
-            out[b, t, o + 1] = v
-        for t in range(L, T):
-            out[b, t, o] = np.nan
-            out[b, t, o + 1] = np.nan
+    o = 2 * a
+    for t in range(t0, L):
+        zz = z[b, t, a]
+        if np.isnan(zz):
+            p, v = F[0, 0] * p + F[0, 1] * v, F[1, 0] * p + F[1, 1] * v
+        else:
+            p, v = (a00 * p + a01 * v) + b0 * zz, (a10 * p + a11 * v) + b1 * zz
+        out[b, t, o] = p
+        out[b, t, o + 1] = v
+    for t in range(L, z.shape[1]):
+        out[b, t, o] = np.nan
+        out[b, t, o + 1] = np.nan
+
+
+@nb.njit(**_OPTS)
+def ss_kernel_21(z, out, A, Bm, F, x0, lengths, axes):
+    """:func:`ss_kernel` written out for n = 2, m = 1 (model B per axis).
+
+    Four tracks advance together (``LANES``): their states live in registers
+    and their four independent recursions hide the floating-point latency, so
+    the loop runs at memory speed.  When a lane meets a NaN, or the shortest
+    of the four tracks ends, each lane finishes on its own (:func:`_ss21_track`).
+    """
+    nb_ = z.shape[0]
+    ntr = nb_ * axes
+    a00, a01, a10, a11 = A[0, 0], A[0, 1], A[1, 0], A[1, 1]
+    b0, b1 = Bm[0, 0], Bm[1, 0]
+    ngroups = (ntr + LANES - 1) // LANES
+    for g in nb.prange(ngroups):
+        i0 = g * LANES
+        if i0 + LANES > ntr:            # the last, incomplete group: one track at a time
+            for i in range(i0, ntr):
+                b = i // axes
+                a = i - b * axes
+                _ss21_track(z, out, b, a, 0, x0[b, 2 * a], x0[b, 2 * a + 1], lengths[b], A, Bm, F)
+            continue
+        b1_, b2_, b3_, b4_ = i0 // axes, (i0 + 1) // axes, (i0 + 2) // axes, (i0 + 3) // axes
+        c1, c2, c3, c4 = i0 - b1_ * axes, i0 + 1 - b2_ * axes, i0 + 2 - b3_ * axes, i0 + 3 - b4_ * axes
+        p1, v1 = x0[b1_, 2 * c1], x0[b1_, 2 * c1 + 1]
+        p2, v2 = x0[b2_, 2 * c2], x0[b2_, 2 * c2 + 1]
+        p3, v3 = x0[b3_, 2 * c3], x0[b3_, 2 * c3 + 1]
+        p4, v4 = x0[b4_, 2 * c4], x0[b4_, 2 * c4 + 1]
+        Lmin = min(min(lengths[b1_], lengths[b2_]), min(lengths[b3_], lengths[b4_]))
+        t = 0
+        while t < Lmin:
+            z1, z2, z3, z4 = z[b1_, t, c1], z[b2_, t, c2], z[b3_, t, c3], z[b4_, t, c4]
+            if np.isnan(z1) or np.isnan(z2) or np.isnan(z3) or np.isnan(z4):
+                break
+            p1, v1 = (a00 * p1 + a01 * v1) + b0 * z1, (a10 * p1 + a11 * v1) + b1 * z1
+            p2, v2 = (a00 * p2 + a01 * v2) + b0 * z2, (a10 * p2 + a11 * v2) + b1 * z2
+            p3, v3 = (a00 * p3 + a01 * v3) + b0 * z3, (a10 * p3 + a11 * v3) + b1 * z3
+            p4, v4 = (a00 * p4 + a01 * v4) + b0 * z4, (a10 * p4 + a11 * v4) + b1 * z4
+            out[b1_, t, 2 * c1], out[b1_, t, 2 * c1 + 1] = p1, v1
+            out[b2_, t, 2 * c2], out[b2_, t, 2 * c2 + 1] = p2, v2
+            out[b3_, t, 2 * c3], out[b3_, t, 2 * c3 + 1] = p3, v3
+            out[b4_, t, 2 * c4], out[b4_, t, 2 * c4 + 1] = p4, v4
+            t += 1
+        _ss21_track(z, out, b1_, c1, t, p1, v1, lengths[b1_], A, Bm, F)
+        _ss21_track(z, out, b2_, c2, t, p2, v2, lengths[b2_], A, Bm, F)
+        _ss21_track(z, out, b3_, c3, t, p3, v3, lengths[b3_], A, Bm, F)
+        _ss21_track(z, out, b4_, c4, t, p4, v4, lengths[b4_], A, Bm, F)
 
 
 @nb.njit(cache=True, nogil=True)
@@ -247,44 +288,90 @@ def kf_kernel(z, out, F, H, Q, R, K, Pf, P0, x0, lengths, axes):
                 out[b, t, xo + r] = np.nan
 
 
-@nb.njit(**_OPTS)
-def kf_kernel_21(z, out, F, H, Q, R, K, Pf, P0, x0, lengths, axes):
-    """:func:`kf_kernel` written out for n = 2, m = 1 (model B per axis)."""
-    nb_, T = z.shape[0], z.shape[1]
+@nb.njit(cache=True, nogil=True)
+def _kf21_track(z, out, b, a, t0, p, v, L, F, H, Q, R, K, Pf, P0):
+    """Track (b, axis a) of :func:`kf_kernel_21` from time index t0 with state (p, v)."""
     f00, f01, f10, f11 = F[0, 0], F[0, 1], F[1, 0], F[1, 1]
     h0, h1 = H[0, 0], H[0, 1]
-    for i in nb.prange(nb_ * axes):
-        b = i // axes
-        a = i - b * axes
-        o = 2 * a
-        p = x0[b, o]
-        v = x0[b, o + 1]
-        L = lengths[b]
-        t0 = L
-        for t in range(L):
-            zz = z[b, t, a]
-            if np.isnan(zz):
-                t0 = t
+    o = 2 * a
+    t1 = L
+    for t in range(t0, L):
+        zz = z[b, t, a]
+        if np.isnan(zz):
+            t1 = t
+            break
+        pp = f00 * p + f01 * v
+        vp = f10 * p + f11 * v
+        e = zz - (h0 * pp + h1 * vp)
+        p = pp + K[t, 0, 0] * e
+        v = vp + K[t, 1, 0] * e
+        out[b, t, o] = p
+        out[b, t, o + 1] = v
+    if t1 < L:                          # first gap: leave the shared gains
+        x = np.empty(2)
+        x[0] = p
+        x[1] = v
+        P = P0.copy() if t1 == 0 else Pf[t1 - 1].copy()
+        for t in range(t1, L):
+            _kf_full_update(F, H, Q, R, x, P, z[b, t], a)
+            out[b, t, o] = x[0]
+            out[b, t, o + 1] = x[1]
+    for t in range(L, z.shape[1]):
+        out[b, t, o] = np.nan
+        out[b, t, o + 1] = np.nan
+
+
+@nb.njit(**_OPTS)
+def kf_kernel_21(z, out, F, H, Q, R, K, Pf, P0, x0, lengths, axes):
+    """:func:`kf_kernel` written out for n = 2, m = 1, four tracks at a time (see :func:`ss_kernel_21`)."""
+    nb_ = z.shape[0]
+    ntr = nb_ * axes
+    f00, f01, f10, f11 = F[0, 0], F[0, 1], F[1, 0], F[1, 1]
+    h0, h1 = H[0, 0], H[0, 1]
+    ngroups = (ntr + LANES - 1) // LANES
+    for g in nb.prange(ngroups):
+        i0 = g * LANES
+        if i0 + LANES > ntr:
+            for i in range(i0, ntr):
+                b = i // axes
+                a = i - b * axes
+                _kf21_track(z, out, b, a, 0, x0[b, 2 * a], x0[b, 2 * a + 1], lengths[b],
+                            F, H, Q, R, K, Pf, P0)
+            continue
+        b1_, b2_, b3_, b4_ = i0 // axes, (i0 + 1) // axes, (i0 + 2) // axes, (i0 + 3) // axes
+        c1, c2, c3, c4 = i0 - b1_ * axes, i0 + 1 - b2_ * axes, i0 + 2 - b3_ * axes, i0 + 3 - b4_ * axes
+        p1, v1 = x0[b1_, 2 * c1], x0[b1_, 2 * c1 + 1]
+        p2, v2 = x0[b2_, 2 * c2], x0[b2_, 2 * c2 + 1]
+        p3, v3 = x0[b3_, 2 * c3], x0[b3_, 2 * c3 + 1]
+        p4, v4 = x0[b4_, 2 * c4], x0[b4_, 2 * c4 + 1]
+        Lmin = min(min(lengths[b1_], lengths[b2_]), min(lengths[b3_], lengths[b4_]))
+        t = 0
+        while t < Lmin:
+            z1, z2, z3, z4 = z[b1_, t, c1], z[b2_, t, c2], z[b3_, t, c3], z[b4_, t, c4]
+            if np.isnan(z1) or np.isnan(z2) or np.isnan(z3) or np.isnan(z4):
                 break
-            pp = f00 * p + f01 * v
-            vp = f10 * p + f11 * v
-            e = zz - (h0 * pp + h1 * vp)
-            p = pp + K[t, 0, 0] * e
-            v = vp + K[t, 1, 0] * e
-            out[b, t, o] = p
-            out[b, t, o + 1] = v
-        if t0 < L:
-            x = np.empty(2)
-            x[0] = p
-            x[1] = v
-            P = P0.copy() if t0 == 0 else Pf[t0 - 1].copy()
-            for t in range(t0, L):
-                _kf_full_update(F, H, Q, R, x, P, z[b, t], a)
-                out[b, t, o] = x[0]
-                out[b, t, o + 1] = x[1]
-        for t in range(L, T):
-            out[b, t, o] = np.nan
-            out[b, t, o + 1] = np.nan
+            k0, k1 = K[t, 0, 0], K[t, 1, 0]
+            pp1, vp1 = f00 * p1 + f01 * v1, f10 * p1 + f11 * v1
+            pp2, vp2 = f00 * p2 + f01 * v2, f10 * p2 + f11 * v2
+            pp3, vp3 = f00 * p3 + f01 * v3, f10 * p3 + f11 * v3
+            pp4, vp4 = f00 * p4 + f01 * v4, f10 * p4 + f11 * v4
+            e1 = z1 - (h0 * pp1 + h1 * vp1)
+            e2 = z2 - (h0 * pp2 + h1 * vp2)
+            e3 = z3 - (h0 * pp3 + h1 * vp3)
+            e4 = z4 - (h0 * pp4 + h1 * vp4)
+            p1, v1 = pp1 + k0 * e1, vp1 + k1 * e1
+            p2, v2 = pp2 + k0 * e2, vp2 + k1 * e2
+            p3, v3 = pp3 + k0 * e3, vp3 + k1 * e3
+            p4, v4 = pp4 + k0 * e4, vp4 + k1 * e4
+            out[b1_, t, 2 * c1], out[b1_, t, 2 * c1 + 1] = p1, v1
+            out[b2_, t, 2 * c2], out[b2_, t, 2 * c2 + 1] = p2, v2
+            out[b3_, t, 2 * c3], out[b3_, t, 2 * c3 + 1] = p3, v3
+            out[b4_, t, 2 * c4], out[b4_, t, 2 * c4 + 1] = p4, v4
+            t += 1
+        _kf21_track(z, out, b1_, c1, t, p1, v1, lengths[b1_], F, H, Q, R, K, Pf, P0)
+        _kf21_track(z, out, b2_, c2, t, p2, v2, lengths[b2_], F, H, Q, R, K, Pf, P0)
+        _kf21_track(z, out, b3_, c3, t, p3, v3, lengths[b3_], F, H, Q, R, K, Pf, P0)
+        _kf21_track(z, out, b4_, c4, t, p4, v4, lengths[b4_], F, H, Q, R, K, Pf, P0)
 
 
 @nb.njit(**_OPTS)
