@@ -223,3 +223,27 @@ def test_integer_input_is_converted_to_float64():
     got = batch.steady_state_filter(model, z)
     assert got.dtype == np.float64
     close(got[0], linear.steady_state_filter(model, z[0]).x)
+
+
+@pytest.mark.parametrize("axes", [1, 3])
+def test_interleaved_groups_with_mixed_lengths_and_gaps(axes):
+    """The n=2, m=1 kernels advance four tracks together; lanes leave the group at gaps and ends."""
+    model = assimakis_model_b()
+    rng = np.random.default_rng(10 + axes)
+    B, T = 11, 45
+    z = 4 * rng.standard_normal((B, T, axes))
+    z[rng.random(z.shape) < 0.03] = np.nan
+    lengths = rng.integers(0, T + 1, B)
+    lengths[:3] = T
+    x0 = rng.standard_normal((B, 2 * axes))
+    P0 = 0.5 * np.eye(2)
+    for run, ref, extra in ((batch.steady_state_filter, linear.steady_state_filter, ()),
+                            (batch.kalman_filter, linear.kalman_filter, (P0,))):
+        got = batch.per_axis(run, model, z, x0, *extra, lengths=lengths)
+        for b in range(B):
+            L = lengths[b]
+            assert np.isnan(got[b, L:]).all()
+            for a in range(axes):
+                if L:
+                    want = ref(model, z[b, :L, a:a + 1], x0[b, 2 * a:2 * a + 2], *extra).x
+                    close(got[b, :L, 2 * a:2 * a + 2], want)

@@ -50,7 +50,7 @@ def copy_rate(nbytes: int, repeats: int) -> float:
     return 16 * words / seconds
 
 
-def compile_times() -> list[list]:
+def compile_times(dtypes=(np.float64, np.float32)) -> list[list]:
     """First call of each kernel on a tiny input in this process: compile (or cache load) time."""
     model_b, model_a = assimakis_model_b(), assimakis_model_a(2)
     rows = []
@@ -62,7 +62,7 @@ def compile_times() -> list[list]:
     ]
     dispatchers = [_kernels.ss_kernel_21, _kernels.ss_kernel, _kernels.kf_kernel_21, _kernels.fir_kernel]
     for (name, fn), disp in zip(cases, dispatchers):
-        for dtype in (np.float64, np.float32):
+        for dtype in dtypes:
             hits = sum(disp.stats.cache_hits.values())
             t0 = time.perf_counter()
             fn(np.zeros((2, 3, 1), dtype=dtype))
