@@ -75,6 +75,22 @@ def ss_kernel(z, out, A, Bm, F, x0, lengths, axes):
 
 
 @nb.njit(cache=True, nogil=True)
+def _lanes(i0, axes, lengths):
+    """Tracks i0 .. i0+3 of a group as (b, axis) pairs, and the shortest of their lengths."""
+    b1, b2, b3, b4 = i0 // axes, (i0 + 1) // axes, (i0 + 2) // axes, (i0 + 3) // axes
+    c1, c2, c3, c4 = i0 - b1 * axes, i0 + 1 - b2 * axes, i0 + 2 - b3 * axes, i0 + 3 - b4 * axes
+    Lmin = min(min(lengths[b1], lengths[b2]), min(lengths[b3], lengths[b4]))
+    return b1, b2, b3, b4, c1, c2, c3, c4, Lmin
+
+
+@nb.njit(cache=True, nogil=True)
+def _lane_priors(x0, b1, b2, b3, b4, c1, c2, c3, c4):
+    """The priors (position, velocity) of the four lanes."""
+    return (x0[b1, 2 * c1], x0[b1, 2 * c1 + 1], x0[b2, 2 * c2], x0[b2, 2 * c2 + 1],
+            x0[b3, 2 * c3], x0[b3, 2 * c3 + 1], x0[b4, 2 * c4], x0[b4, 2 * c4 + 1])
+
+
+@nb.njit(cache=True, nogil=True)
 def _ss21_track(z, out, b, a, t0, p, v, L, A, Bm, F):
     """Track (b, axis a) of :func:`ss_kernel_21` from time index t0 with state (p, v)."""
     a00, a01, a10, a11 = A[0, 0], A[0, 1], A[1, 0], A[1, 1]
@@ -115,13 +131,8 @@ def ss_kernel_21(z, out, A, Bm, F, x0, lengths, axes):
                 a = i - b * axes
                 _ss21_track(z, out, b, a, 0, x0[b, 2 * a], x0[b, 2 * a + 1], lengths[b], A, Bm, F)
             continue
-        b1_, b2_, b3_, b4_ = i0 // axes, (i0 + 1) // axes, (i0 + 2) // axes, (i0 + 3) // axes
-        c1, c2, c3, c4 = i0 - b1_ * axes, i0 + 1 - b2_ * axes, i0 + 2 - b3_ * axes, i0 + 3 - b4_ * axes
-        p1, v1 = x0[b1_, 2 * c1], x0[b1_, 2 * c1 + 1]
-        p2, v2 = x0[b2_, 2 * c2], x0[b2_, 2 * c2 + 1]
-        p3, v3 = x0[b3_, 2 * c3], x0[b3_, 2 * c3 + 1]
-        p4, v4 = x0[b4_, 2 * c4], x0[b4_, 2 * c4 + 1]
-        Lmin = min(min(lengths[b1_], lengths[b2_]), min(lengths[b3_], lengths[b4_]))
+        b1_, b2_, b3_, b4_, c1, c2, c3, c4, Lmin = _lanes(i0, axes, lengths)
+        p1, v1, p2, v2, p3, v3, p4, v4 = _lane_priors(x0, b1_, b2_, b3_, b4_, c1, c2, c3, c4)
         t = 0
         while t < Lmin:
             z1, z2, z3, z4 = z[b1_, t, c1], z[b2_, t, c2], z[b3_, t, c3], z[b4_, t, c4]
@@ -338,13 +349,8 @@ def kf_kernel_21(z, out, F, H, Q, R, K, Pf, P0, x0, lengths, axes):
                 _kf21_track(z, out, b, a, 0, x0[b, 2 * a], x0[b, 2 * a + 1], lengths[b],
                             F, H, Q, R, K, Pf, P0)
             continue
-        b1_, b2_, b3_, b4_ = i0 // axes, (i0 + 1) // axes, (i0 + 2) // axes, (i0 + 3) // axes
-        c1, c2, c3, c4 = i0 - b1_ * axes, i0 + 1 - b2_ * axes, i0 + 2 - b3_ * axes, i0 + 3 - b4_ * axes
-        p1, v1 = x0[b1_, 2 * c1], x0[b1_, 2 * c1 + 1]
-        p2, v2 = x0[b2_, 2 * c2], x0[b2_, 2 * c2 + 1]
-        p3, v3 = x0[b3_, 2 * c3], x0[b3_, 2 * c3 + 1]
-        p4, v4 = x0[b4_, 2 * c4], x0[b4_, 2 * c4 + 1]
-        Lmin = min(min(lengths[b1_], lengths[b2_]), min(lengths[b3_], lengths[b4_]))
+        b1_, b2_, b3_, b4_, c1, c2, c3, c4, Lmin = _lanes(i0, axes, lengths)
+        p1, v1, p2, v2, p3, v3, p4, v4 = _lane_priors(x0, b1_, b2_, b3_, b4_, c1, c2, c3, c4)
         t = 0
         while t < Lmin:
             z1, z2, z3, z4 = z[b1_, t, c1], z[b2_, t, c2], z[b3_, t, c3], z[b4_, t, c4]
