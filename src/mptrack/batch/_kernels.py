@@ -154,15 +154,9 @@ def ss_kernel_21(z, out, A, Bm, F, x0, lengths, axes):
 
 
 @nb.njit(cache=True, nogil=True)
-def _kf_full_update(F, H, Q, R, x, P, zrow, zo):
-    """One Kalman step (seed 000 eq. 4) with this track's own covariance P (in place).
-
-    NaN components of the measurement are skipped; a fully missing row only
-    predicts.  The gain solves S K^T = (P H^T)^T by Cholesky (S is positive
-    definite); written with explicit loops to keep compile time low.
-    """
+def kf_predict(F, Q, x, P):
+    """x(k/k-1) = F x, P(k/k-1) = F P F^T + Q (new arrays)."""
     n = F.shape[0]
-    m = H.shape[0]
     xp = np.zeros(n)
     FP = np.zeros((n, n))
     Pp = np.empty((n, n))
@@ -177,38 +171,42 @@ def _kf_full_update(F, H, Q, R, x, P, zrow, zo):
             for j in range(n):
                 s += FP[r, j] * F[c, j]
             Pp[r, c] = s + Q[r, c]
+    return xp, Pp
+
+
+@nb.njit(cache=True, nogil=True)
+def observed(zrow, zo, m):
+    """Indices c < m with zrow[zo + c] not NaN, and their count."""
     ok = np.empty(m, dtype=np.int64)
     k = 0
     for c in range(m):
         if not np.isnan(zrow[zo + c]):
             ok[k] = c
             k += 1
-    if k == 0:
-        for r in range(n):
-            x[r] = xp[r]
-            for c in range(n):
-                P[r, c] = Pp[r, c]
-        return
+    return ok, k
+
+
+@nb.njit(cache=True, nogil=True)
+def kf_update(xp, Pp, Hs, Rs, innov, x, P):
+    """Measurement update with the (k, n) matrix Hs, (k, k) noise Rs and innovation (k,):
+    K = P H^T S^{-1} (S = H P H^T + R by Cholesky), x = xp + K innov, P = Pp - K H Pp,
+    written into x and P (symmetrised).  Explicit loops keep numba's compile time low."""
+    n = xp.shape[0]
+    k = innov.shape[0]
     PHt = np.zeros((n, k))          # P(k/k-1) H^T
     for r in range(n):
         for i in range(k):
             for j in range(n):
-                PHt[r, i] += Pp[r, j] * H[ok[i], j]
+                PHt[r, i] += Pp[r, j] * Hs[i, j]
     Lc = np.zeros((k, k))           # S = H P H^T + R = Lc Lc^T
     for i in range(k):
         for j in range(i + 1):
-            s = R[ok[i], ok[j]]
+            s = Rs[i, j]
             for c in range(n):
-                s += H[ok[i], c] * PHt[c, j]
+                s += Hs[i, c] * PHt[c, j]
             for c in range(j):
                 s -= Lc[i, c] * Lc[j, c]
             Lc[i, j] = np.sqrt(s) if i == j else s / Lc[j, j]
-    innov = np.empty(k)
-    for i in range(k):
-        s = zrow[zo + ok[i]]
-        for j in range(n):
-            s -= H[ok[i], j] * xp[j]
-        innov[i] = s
     G = np.empty((n, k))            # K = PHt S^{-1}: solve Lc Lc^T K^T = PHt^T row by row
     for r in range(n):
         for i in range(k):
@@ -237,6 +235,35 @@ def _kf_full_update(F, H, Q, R, x, P, zrow, zo):
             avg = 0.5 * (P[r, c] + P[c, r])
             P[r, c] = avg
             P[c, r] = avg
+
+
+@nb.njit(cache=True, nogil=True)
+def _kf_full_update(F, H, Q, R, x, P, zrow, zo):
+    """One Kalman step (seed 000 eq. 4) with this track's own covariance P (in place).
+
+    NaN components of the measurement are skipped; a fully missing row only predicts.
+    """
+    n = F.shape[0]
+    xp, Pp = kf_predict(F, Q, x, P)
+    ok, k = observed(zrow, zo, H.shape[0])
+    if k == 0:
+        x[:] = xp
+        for r in range(n):
+            for c in range(n):
+                P[r, c] = Pp[r, c]
+        return
+    Hs = np.empty((k, n))
+    Rs = np.empty((k, k))
+    innov = np.empty(k)
+    for i in range(k):
+        s = zrow[zo + ok[i]]
+        for j in range(n):
+            Hs[i, j] = H[ok[i], j]
+            s -= H[ok[i], j] * xp[j]
+        innov[i] = s
+        for j in range(k):
+            Rs[i, j] = R[ok[i], ok[j]]
+    kf_update(xp, Pp, Hs, Rs, innov, x, P)
 
 
 @nb.njit(**_OPTS)
