@@ -53,7 +53,8 @@ def check_out(out, shape: tuple, dtype, source: np.ndarray | None) -> np.ndarray
     return out
 
 
-def prepare_batch(model, z, x0, out, lengths, *, axes: int = 1) -> BatchInputs:
+def prepare_batch(model, z, x0, out, lengths, *, axes: int = 1,
+                  model_type: type = LinearGaussianModel) -> BatchInputs:
     """Check and normalise the arguments every batch filter takes.
 
     z        (B, T, axes * model.m) measurements; NaN marks a missing value
@@ -62,8 +63,8 @@ def prepare_batch(model, z, x0, out, lengths, *, axes: int = 1) -> BatchInputs:
     lengths  None (all T) or (B,) integers in [0, T]: track b uses z[b, :lengths[b]]
              and gets NaN after it
     """
-    if not isinstance(model, LinearGaussianModel):
-        raise ParameterError(f"model: expected a LinearGaussianModel, got {type(model).__name__}")
+    if not isinstance(model, model_type):
+        raise ParameterError(f"model: expected a {model_type.__name__}, got {type(model).__name__}")
     n, m = axes * model.n, axes * model.m
     z = as_batch("z", z, m)
     B, T = z.shape[:2]
