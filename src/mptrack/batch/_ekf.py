@@ -21,7 +21,7 @@ import numpy as np
 
 from .._validation import as_matrix, check_covariance, check_positive
 from ..errors import ParameterError, ShapeError
-from ._inputs import prepare_batch
+from ._inputs import launch, prepare_batch
 from ._kernels import _OPTS, kf_predict, kf_update, observed
 
 __all__ = ["RangeModel", "range_ekf"]
@@ -57,7 +57,8 @@ class RangeModel:
         S, d = st.shape
         pos = tuple(int(i) for i in self.position)
         if len(pos) != d or any(not 0 <= i < n for i in pos) or len(set(pos)) != d:
-            raise ShapeError(f"position: expected {d} distinct state indices in [0, {n}), got {self.position}")
+            raise ShapeError(f"position: expected {d} distinct state indices in [0, {n}), "
+                             f"got {self.position}")
         R = check_covariance("R", self.R, S, definite=True)
         for name, value in (("F", F), ("Q", Q), ("stations", st), ("R", R)):
             object.__setattr__(self, name, _frozen(value))
@@ -138,7 +139,7 @@ def range_ekf(model: RangeModel, z, x0, P0, out=None, *, lengths=None) -> np.nda
         raise ParameterError("x0: the EKF needs a prior state (the Jacobian at 0 may be undefined)")
     bi = prepare_batch(model, z, x0, out, lengths, model_type=RangeModel)
     P0 = check_covariance("P0", P0, model.n)
-    ekf_kernel(bi.z, bi.out, model.F, model.Q, model.R, model.stations,
-               np.asarray(model.position, dtype=np.int64), bi.x0, P0, bi.lengths)
+    launch(ekf_kernel, bi.out.size * model.m * model.n, bi.z, bi.out, model.F, model.Q, model.R,
+           model.stations, np.asarray(model.position, dtype=np.int64), bi.x0, P0, bi.lengths)
     return bi.out
 

@@ -17,7 +17,7 @@ from ..linear import fir_coefficients, fir_order
 from ..models import LinearGaussianModel
 from ..riccati import SteadyState, steady_state
 from . import _kernels as K
-from ._inputs import as_batch, check_out, prepare_batch
+from ._inputs import as_batch, check_out, launch, prepare_batch
 
 __all__ = [
     "GainSequence",
@@ -48,7 +48,7 @@ def _steady_state_filter(model, z, x0=None, out=None, *, lengths=None, steady=No
     bi = prepare_batch(model, z, x0, out, lengths, axes=axes)
     ss = _steady(model, steady)
     kernel = K.ss_kernel_21 if _is_21(model) else K.ss_kernel
-    kernel(bi.z, bi.out, np.ascontiguousarray(ss.A), np.ascontiguousarray(ss.B),
+    launch(kernel, bi.out.size, bi.z, bi.out, np.ascontiguousarray(ss.A), np.ascontiguousarray(ss.B),
            np.ascontiguousarray(model.F), bi.x0, bi.lengths, bi.axes)
     return bi.out
 
@@ -135,7 +135,7 @@ def _kalman_filter(model, z, x0=None, P0=None, out=None, *, lengths=None, gains=
         raise ParameterError("P0: give P0 or gains (which already fix P0), not both")
     kernel = K.kf_kernel_21 if _is_21(model) else K.kf_kernel
     c = np.ascontiguousarray
-    kernel(bi.z, bi.out, c(model.F), c(model.H), c(model.Q), c(model.R), c(gains.K),
+    launch(kernel, bi.out.size, bi.z, bi.out, c(model.F), c(model.H), c(model.Q), c(model.R), c(gains.K),
            c(gains.P_filt), c(gains.P0), bi.x0, bi.lengths, bi.axes)
     return bi.out
 
@@ -164,7 +164,7 @@ def _fir_filter(model, z, out=None, *, lengths=None, eps=1e-3, norm=2, M=None, s
     M = fir_order(ss.A, eps, norm) if M is None else check_int("M", M, minimum=1)
     C = np.ascontiguousarray(fir_coefficients(ss.A, ss.B, M))
     bad = np.zeros(bi.z.shape[0], dtype=np.int64)
-    K.fir_kernel(bi.z, bi.out, C, bi.lengths, bi.axes, bad)
+    launch(K.fir_kernel, bi.out.size * M, bi.z, bi.out, C, bi.lengths, bi.axes, bad)
     if bad.any():
         b = int(np.flatnonzero(bad)[0])
         raise NonFiniteError(f"z: the FIR filter needs every measurement; track {b} has NaN at time "
@@ -202,7 +202,7 @@ def predict(model: LinearGaussianModel, x, steps: int = 1, out=None) -> np.ndarr
     xs = as_batch("x", x, x.shape[2])
     out = np.empty_like(xs) if out is None else check_out(out, xs.shape, xs.dtype, None if out is x else xs)
     FN = np.linalg.matrix_power(model.F, steps)
-    K.matvec_kernel(xs, out, np.ascontiguousarray(FN), axes)
+    launch(K.matvec_kernel, out.size, xs, out, np.ascontiguousarray(FN), axes)
     return out
 
 

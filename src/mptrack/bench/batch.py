@@ -22,7 +22,7 @@ from ..models import assimakis_model_a, assimakis_model_b
 from ..riccati import steady_state
 from . import register_suite
 
-__all__ = ["batch_suite", "batch_scaling_suite", "copy_rate", "compile_times"]
+__all__ = ["batch_suite", "batch_scaling_suite", "compile_times"]
 
 AGREE_RTOL = 1e-8
 
@@ -36,18 +36,35 @@ def _best(fn: Callable[[], object], repeats: int) -> float:
     return best
 
 
-def copy_rate(nbytes: int, repeats: int) -> float:
-    """Bytes/s of a copy reading ``nbytes/2`` and writing ``nbytes/2`` (memory traffic ``nbytes``).
+class _Copier:
+    """The memory-copy baseline: buffers for up to ``max_bytes`` of traffic (read half, write half)."""
 
-    The faster of numpy's copy (memcpy) and a parallel numba copy on the same threads.
-    """
-    words = max(1, nbytes // 16)
-    src = np.ones(words)
-    dst = np.empty(words)
-    _kernels.copy_kernel(src, dst)
-    seconds = min(_best(lambda: _kernels.copy_kernel(src, dst), repeats),
-                  _best(lambda: np.copyto(dst, src), repeats))
-    return 16 * words / seconds
+    def __init__(self, max_bytes: int):
+        words = max(1, max_bytes // 16)
+        self.src = np.ones(words)
+        self.dst = np.empty(words)
+        _kernels.copy_kernel(self.src[:1], self.dst[:1])
+
+    def copy_seconds(self, nbytes: int) -> float:
+        """Time of the faster of memcpy (numpy) and a parallel numba copy moving ``nbytes``."""
+        w = max(1, nbytes // 16)
+        src, dst = self.src[:w], self.dst[:w]
+        t0 = time.perf_counter()
+        np.copyto(dst, src)
+        t1 = time.perf_counter()
+        _kernels.copy_kernel(src, dst)
+        return min(t1 - t0, time.perf_counter() - t1)
+
+    def paired(self, fn: Callable[[], object], nbytes: int, repeats: int) -> tuple[float, float]:
+        """Best times of ``fn`` and of the copy, run alternately (so both see the same machine load)."""
+        fn()
+        t_fn = t_copy = np.inf
+        for _ in range(repeats):
+            t0 = time.perf_counter()
+            fn()
+            t_fn = min(t_fn, time.perf_counter() - t0)
+            t_copy = min(t_copy, self.copy_seconds(nbytes))
+        return t_fn, t_copy
 
 
 def compile_times(dtypes=(np.float64, np.float32)) -> list[list]:
@@ -93,7 +110,8 @@ def _pykalman_run(model, z, x0, P0):
     # pykalman's prior is for the first measurement's time: pass x(1/0), P(1/0)
     kf = KalmanFilter(transition_matrices=model.F, observation_matrices=model.H,
                       transition_covariance=model.Q, observation_covariance=model.R,
-                      initial_state_mean=model.F @ x0, initial_state_covariance=model.F @ P0 @ model.F.T + model.Q)
+                      initial_state_mean=model.F @ x0,
+                      initial_state_covariance=model.F @ P0 @ model.F.T + model.Q)
     return kf.filter(z)[0]
 
 
@@ -103,7 +121,8 @@ def _simdkalman_run(model, z, x0, P0):
     kf = simdkalman.KalmanFilter(state_transition=model.F, process_noise=model.Q,
                                  observation_model=model.H, observation_noise=model.R)
     data = z[..., 0] if model.m == 1 else z
-    res = kf.compute(data, 0, initial_value=model.F @ x0, initial_covariance=model.F @ P0 @ model.F.T + model.Q,
+    res = kf.compute(data, 0, initial_value=model.F @ x0,
+                     initial_covariance=model.F @ P0 @ model.F.T + model.Q,
                      smoothed=False, filtered=True, covariances=False, observations=False)
     return res.filtered.states.mean
 
@@ -120,7 +139,8 @@ def _check(name: str, got: np.ndarray, want: np.ndarray) -> float:
     diff = float(np.max(np.abs(got - want)))
     scale = max(1.0, float(np.max(np.abs(want))))
     if not diff <= AGREE_RTOL * scale:
-        raise ConvergenceError(f"bench: {name} disagrees with mptrack.batch by {diff:.3g} (scale {scale:.3g})")
+        raise ConvergenceError(
+            f"bench: {name} disagrees with mptrack.batch by {diff:.3g} (scale {scale:.3g})")
     return diff
 
 
@@ -168,72 +188,79 @@ def batch_suite(quick: bool) -> dict:
             "FilterPy SS", np.stack([_filterpy_run(model, zb, x0, ss.P_filt) for zb in sub]), ss_sub)
 
     updates = B * T
-    rates: dict[str, tuple[float, float, str]] = {}   # name -> (updates/s, bytes per update, data)
+    copier = _Copier(24 * updates)
+    rates: dict[str, tuple] = {}     # name -> (updates/s, copy updates/s of the same bytes or None, data)
+
+    def paired(name, fn, nbytes, shape, n_upd=updates):
+        t_fn, t_copy = copier.paired(fn, nbytes * n_upd, reps)
+        rates[name] = (n_upd / t_fn, n_upd / t_copy, shape)
+
+    full = f"{B}x{T}"
     z32, out32 = z.astype(np.float32), np.empty((B, T, 2), np.float32)
-    rates["batch SS f64"] = (updates / _best(
-        lambda: batch.steady_state_filter(model, z, out=out, steady=ss), reps), 24, f"{B}x{T}")
-    rates["batch SS f32"] = (updates / _best(
-        lambda: batch.steady_state_filter(model, z32, out=out32, steady=ss), reps), 12, f"{B}x{T}")
-    rates["batch KF shared gains"] = (updates / _best(
-        lambda: batch.kalman_filter(model, z, out=out, gains=gains), reps), 24, f"{B}x{T}")
+    paired("batch SS f64", lambda: batch.steady_state_filter(model, z, out=out, steady=ss), 24, full)
+    paired("batch SS f32", lambda: batch.steady_state_filter(model, z32, out=out32, steady=ss), 12, full)
+    paired("batch KF shared gains", lambda: batch.kalman_filter(model, z, out=out, gains=gains), 24, full)
+    paired("batch KF shared gains f32",
+           lambda: batch.kalman_filter(model, z32, out=out32, gains=gains), 12, full)
     del z32, out32
     zA = z.reshape(B // 2, T, 2)     # the same bytes read as two-axis tracks
     outA = out.reshape(B // 2, T, 4)
-    rates["batch SS per-axis (2 axes)"] = (updates / _best(
-        lambda: batch.per_axis(batch.steady_state_filter, model, zA, out=outA, steady=ss), reps), 24,
-        f"{B // 2}x{T}x2 axes")
+    paired("batch SS per-axis (2 axes)",
+           lambda: batch.per_axis(batch.steady_state_filter, model, zA, out=outA, steady=ss), 24,
+           f"{B // 2}x{T}x2 axes")
     model_a = assimakis_model_a(2)
     ss_a = steady_state(model_a)
-    rates["batch SS model A (generic)"] = (updates / _best(
-        lambda: batch.steady_state_filter(model_a, zA, out=outA, steady=ss_a), reps), 24,
-        f"{B // 2}x{T} (n=4, m=2)")
+    paired("batch SS model A (generic)",
+           lambda: batch.steady_state_filter(model_a, zA, out=outA, steady=ss_a), 24,
+           f"{B // 2}x{T} (n=4, m=2)")
     M = linear.fir_order(ss.A)
-    rates[f"batch FIR M={M}"] = (updates / _best(
-        lambda: batch.fir_filter(model, z, out=out, M=M, steady=ss), reps), 24, f"{B}x{T}")
+    paired(f"batch FIR M={M}", lambda: batch.fir_filter(model, z, out=out, M=M, steady=ss), 24, full)
     del zA, outA
 
     # per-track engines on the subset (they are 10^3-10^5 times slower)
     sub_upd = sub.shape[0] * sub.shape[1]
+    sub_shape = f"{sub.shape[0]}x{sub.shape[1]}"
     rates["reference SS per track"] = (sub_upd / _best(
-        lambda: [linear.steady_state_filter(model, zb, steady=ss) for zb in sub], reps), 24,
-        f"{sub.shape[0]}x{sub.shape[1]}")
+        lambda: [linear.steady_state_filter(model, zb, steady=ss) for zb in sub], reps), None, sub_shape)
     rates["reference KF per track"] = (sub_upd / _best(
-        lambda: [linear.kalman_filter(model, zb, P0=P0) for zb in sub], reps), 24,
-        f"{sub.shape[0]}x{sub.shape[1]}")
+        lambda: [linear.kalman_filter(model, zb, P0=P0) for zb in sub], reps), None, sub_shape)
     for name in ("FilterPy", "pykalman"):
         run = peers[name]
         if run is not None:
             rates[f"{name} KF per track"] = (sub_upd / _best(
-                lambda run=run: [run(model, zb, x0, P0) for zb in sub], reps), 24,
-                f"{sub.shape[0]}x{sub.shape[1]}")
+                lambda run=run: [run(model, zb, x0, P0) for zb in sub], reps), None, sub_shape)
     if peers["simdkalman"] is not None:
         zs = np.ascontiguousarray(z[: s["simd_B"]])
         outs = np.empty((zs.shape[0], T, 2))
-        rates["simdkalman KF batch"] = (zs.shape[0] * T / _best(
-            lambda: _simdkalman_run(model, zs, x0, P0), max(1, reps - 1)), 24, f"{zs.shape[0]}x{T}")
-        rates["batch KF (simdkalman batch)"] = (zs.shape[0] * T / _best(
-            lambda: batch.kalman_filter(model, zs, out=outs, gains=gains), reps), 24, f"{zs.shape[0]}x{T}")
-    del z, out
+        n_simd = zs.shape[0] * T
+        rates["simdkalman KF batch"] = (n_simd / _best(
+            lambda: _simdkalman_run(model, zs, x0, P0), max(1, reps - 2)), None, f"{zs.shape[0]}x{T}")
+        paired("batch KF (simdkalman batch)", lambda: batch.kalman_filter(model, zs, out=outs, gains=gains),
+               24, f"{zs.shape[0]}x{T}", n_simd)
+    del z, out, copier
 
-    copy = {nbytes: copy_rate(nbytes * updates, reps) for nbytes in sorted({r[1] for r in rates.values()})}
     peer_rate = {p: rates.get(f"{p} KF per track", (None,))[0] for p in ("FilterPy", "pykalman")}
     peer_rate["simdkalman"] = rates.get("simdkalman KF batch", (None,))[0]
 
     def ratio(r, p):
         return None if p is None else r / p
 
-    rows = []
-    for nbytes, bps in copy.items():
-        rows.append([f"memory copy {nbytes} B/upd", f"{B}x{T}", bps / nbytes, 1.0,
-                     ratio(bps / nbytes, peer_rate["FilterPy"]), ratio(bps / nbytes, peer_rate["pykalman"]),
-                     ratio(bps / nbytes, peer_rate["simdkalman"])])
-    for name, (rate, nbytes, shape) in rates.items():
-        rows.append([name, shape, rate, rate / (copy[nbytes] / nbytes), ratio(rate, peer_rate["FilterPy"]),
-                     ratio(rate, peer_rate["pykalman"]), ratio(rate, peer_rate["simdkalman"])])
+    def peer_ratios(r):
+        return [ratio(r, peer_rate[p]) for p in ("FilterPy", "pykalman", "simdkalman")]
+
+    best_copy: dict[str, float] = {}
+    for name, (rate, crate, shape) in rates.items():
+        if crate is not None and shape == full:
+            key = "12" if name.endswith("f32") else "24"
+            best_copy[key] = max(best_copy.get(key, 0.0), crate)
+    rows = [[f"memory copy {k} B/upd", full, c, 1.0, *peer_ratios(c)] for k, c in sorted(best_copy.items())]
+    for name, (rate, crate, shape) in rates.items():
+        rows.append([name, shape, rate, ratio(rate, crate), *peer_ratios(rate)])
     notes = ["SS: steady-state filter, KF: Kalman filter; f32: float32 storage",
              f"model B (n=2, m=1, H printed), float64 unless noted; best of {reps} runs; "
              f"{_numba_threads()} numba threads",
-             "x copy: updates/s over the rate of a parallel copy moving the same bytes (read z + write x)",
+             "x copy: updates/s over that of a copy moving the same bytes (read z + write x), timed "
+             "alternately with the kernel (best of each); copy rows: the best copy rate seen",
              "per-track engines and pykalman/FilterPy timed on a subset (same data), simdkalman on a "
              "smaller batch; mptrack is timed on that same batch for the simdkalman ratio",
              "agreement before timing (max |diff|): " + ", ".join(f"{k} {v:.2g}" for k, v in agree.items()),
@@ -261,7 +288,7 @@ def batch_scaling_suite(quick: bool) -> dict:
     """Throughput vs batch size B (T fixed) for the SS and shared-gain KF kernels and the copy."""
     T = 200 if quick else 1000
     sizes = [1, 4, 16, 64, 256, 1024] if quick else [1, 4, 16, 64, 256, 1024, 4096, 16384, 65536]
-    reps = 3
+    reps = 5
     model = assimakis_model_b()
     ss = steady_state(model)
     gains = batch.gain_sequence(model, T)
@@ -270,11 +297,11 @@ def batch_scaling_suite(quick: bool) -> dict:
     for B in sizes:
         z = rng.standard_normal((B, T, 1))
         out = np.empty((B, T, 2))
-        batch.steady_state_filter(model, z, out=out, steady=ss)
-        batch.kalman_filter(model, z, out=out, gains=gains)
-        r_ss = B * T / _best(lambda: batch.steady_state_filter(model, z, out=out, steady=ss), reps)
-        r_kf = B * T / _best(lambda: batch.kalman_filter(model, z, out=out, gains=gains), reps)
-        r_copy = copy_rate(24 * B * T, reps) / 24
+        copier = _Copier(24 * B * T)
+        nbytes = 24 * B * T
+        t_ss, c1 = copier.paired(lambda: batch.steady_state_filter(model, z, out=out, steady=ss), nbytes, reps)
+        t_kf, c2 = copier.paired(lambda: batch.kalman_filter(model, z, out=out, gains=gains), nbytes, reps)
+        r_ss, r_kf, r_copy = B * T / t_ss, B * T / t_kf, B * T / min(c1, c2)
         rows.append([B, T, r_copy, r_ss, r_kf])
     return {"suite": "batch-scaling", "title": "Throughput vs batch size (model B, float64)",
             "columns": ["tracks B", "steps T", "copy updates/s", "steady-state updates/s",
