@@ -238,3 +238,19 @@ def test_interleaved_groups_with_mixed_lengths_and_gaps(axes):
                 if L:
                     want = ref(model, z[b, :L, a:a + 1], x0[b, 2 * a:2 * a + 2], *extra).x
                     close(got[b, :L, 2 * a:2 * a + 2], want)
+
+
+def test_parallel_launch_equals_single_thread_bitwise(monkeypatch):
+    """Large batches run on all threads, small ones on one: the numbers must not depend on it."""
+    from mptrack.batch import _inputs
+
+    model = assimakis_model_b()
+    z = np.random.default_rng(9).standard_normal((401, 200, 1))   # > SMALL_WORK updates
+    z[7, 50:60] = np.nan
+    assert z.shape[0] * z.shape[1] * model.n >= _inputs.SMALL_WORK
+    parallel = [batch.steady_state_filter(model, z), batch.kalman_filter(model, z, P0=np.eye(2))]
+    monkeypatch.setattr(_inputs, "SMALL_WORK", 10**12)
+    single = [batch.steady_state_filter(model, z), batch.kalman_filter(model, z, P0=np.eye(2))]
+    for p, s in zip(parallel, single):
+        np.testing.assert_array_equal(p, s)
+    close(parallel[1][7], linear.kalman_filter(model, z[7], P0=np.eye(2)).x)
