@@ -449,12 +449,15 @@ def matvec_kernel(x, out, M, axes):
     for i in nb.prange(nb_ * axes):
         b = i // axes
         o = (i - b * axes) * n
+        y = np.empty(n)                 # out may be x itself: read the state before writing
         for t in range(T):
             for r in range(n):
                 s = 0.0
                 for c in range(n):
                     s += M[r, c] * x[b, t, o + c]
-                out[b, t, o + r] = s
+                y[r] = s
+            for r in range(n):
+                out[b, t, o + r] = y[r]
 
 
 @nb.njit(**_OPTS)
