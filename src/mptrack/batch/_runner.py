@@ -129,7 +129,8 @@ def run_chunks(task: Callable[[Chunk], pd.DataFrame], n_items: int, *, chunk_siz
                 of ``max_workers`` single-threaded workers is started for the call)
     manifest    extra JSON-able description of the study stored with the chunks; a
                 later call on the same ``out_dir`` must describe the same study
-    progress    called with the number of chunks finished, as they finish
+    progress    ``progress(k)`` each time k more chunks are done (skipped ones included),
+                e.g. the ``advance`` of ``RunContext.progress.task``
     """
     if executor not in EXECUTORS:
         raise ParameterError(f"executor: expected one of {EXECUTORS}, got {executor!r}")

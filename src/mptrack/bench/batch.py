@@ -147,7 +147,7 @@ def _check(name: str, got: np.ndarray, want: np.ndarray) -> float:
 def _sizes(quick: bool) -> dict:
     if quick:
         return dict(B=2000, T=200, sub_B=4, sub_T=100, simd_B=500, repeats=2)
-    return dict(B=100_000, T=1000, sub_B=20, sub_T=500, simd_B=10_000, repeats=3)
+    return dict(B=100_000, T=1000, sub_B=20, sub_T=500, simd_B=10_000, repeats=5)
 
 
 @register_suite("batch")
