@@ -15,7 +15,7 @@ __all__ = ["BatchInputs", "prepare_batch", "as_batch", "check_out", "launch"]
 
 _FLOATS = (np.dtype(np.float64), np.dtype(np.float32))
 
-SMALL_WORK = 1 << 16   # updates below which one thread beats waking the others
+SMALL_WORK = 1 << 20   # output values below which one thread beats waking the others
 
 
 def launch(kernel, work: int, *args) -> None:
