@@ -41,10 +41,7 @@ def as_array(name: str, value, *, ndim: int | None = None, shape: tuple | None =
     ``shape`` may contain ``None`` for free sizes.  ``allow_nan`` lets NaN through
     (missing measurements) while still rejecting infinities.
     """
-    try:
-        arr = np.asarray(value)
-    except Exception as exc:  # pragma: no cover - numpy accepts almost anything
-        raise DTypeError(f"{name}: cannot be converted to an array ({exc})") from None
+    arr = _to_array(name, value)
     if arr.dtype == object or arr.dtype.kind not in "biuf":
         raise DTypeError(f"{name}: expected real numbers, got dtype {arr.dtype}")
     arr = arr.astype(np.float64, copy=False)
@@ -66,18 +63,30 @@ def as_array(name: str, value, *, ndim: int | None = None, shape: tuple | None =
     return arr
 
 
+def _to_array(name: str, value) -> np.ndarray:
+    """np.asarray with NumPy's conversion errors (ragged lists, ...) turned into ours."""
+    try:
+        return np.asarray(value)
+    except (ValueError, TypeError) as exc:
+        raise DTypeError(f"{name}: cannot be converted to an array of numbers ({exc})") from None
+
+
 def as_matrix(name: str, value, rows: int | None = None, cols: int | None = None) -> np.ndarray:
-    """A finite 2-D float matrix; scalars and 1-element inputs are promoted for 1x1 shapes."""
-    arr = np.asarray(value, dtype=float) if np.isscalar(value) else value
-    if np.ndim(arr) == 0:
-        arr = np.reshape(arr, (1, 1))
-    return as_array(name, arr, shape=(rows, cols))
+    """A finite 2-D float matrix with at least one row and column; a scalar is a 1x1 matrix."""
+    arr = _to_array(name, value)
+    if arr.ndim == 0:
+        arr = arr.reshape(1, 1)
+    arr = as_array(name, arr, shape=(rows, cols))
+    if 0 in arr.shape:
+        raise ShapeError(f"{name}: expected a non-empty matrix, got shape {arr.shape}")
+    return arr
 
 
 def as_vector(name: str, value, size: int | None = None) -> np.ndarray:
-    if np.ndim(value) == 0:
-        value = np.reshape(np.asarray(value, dtype=float), (1,))
-    return as_array(name, value, shape=(size,))
+    arr = _to_array(name, value)
+    if arr.ndim == 0:
+        arr = arr.reshape(1)
+    return as_array(name, arr, shape=(size,))
 
 
 def as_sequence(name: str, value, width: int, *, allow_nan: bool = False) -> np.ndarray:

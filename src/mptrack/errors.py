@@ -64,8 +64,11 @@ class SingularMatrixError(MptrackError, ValueError):
     """A matrix that has to be inverted is singular (or numerically so)."""
 
 
-class UnknownNameError(MptrackError, KeyError):
-    """A name looked up in a registry (filter, experiment, ...) does not exist."""
+class UnknownNameError(MptrackError, KeyError, ValueError):
+    """A name looked up in a registry (filter, experiment, ...) does not exist.
+
+    A KeyError (it is a failed look-up) and a ValueError (it is a bad argument
+    value), so both ``except KeyError`` and ``except ValueError`` catch it."""
 
     def __str__(self) -> str:  # KeyError quotes its message; keep it readable
         return str(self.args[0]) if self.args else ""

@@ -34,3 +34,23 @@ __all__ = [
     "Implementation",
     "get_implementation",
 ]
+from ._irregular import kalman_filter_irregular, rts_smoother_irregular, sampling_intervals
+from ._prediction import (
+    predict_ahead,
+    prediction_covariance,
+    prediction_matrices,
+    steady_state_predictor,
+)
+from ._smoother import rts_smoother, steady_state_smoother
+
+__all__ += [
+    "steady_state_predictor",
+    "prediction_matrices",
+    "prediction_covariance",
+    "predict_ahead",
+    "rts_smoother",
+    "steady_state_smoother",
+    "kalman_filter_irregular",
+    "rts_smoother_irregular",
+    "sampling_intervals",
+]

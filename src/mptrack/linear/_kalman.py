@@ -6,6 +6,7 @@ import numpy as np
 
 from ..models import LinearGaussianModel
 from ._common import prepare_inputs
+from ._kernels import kf_loop
 from ._result import FilterResult
 
 __all__ = ["kalman_filter", "kalman_step"]
@@ -15,6 +16,9 @@ _LOG2PI = np.log(2.0 * np.pi)
 
 def kalman_step(F, H, Q, R, x, P, z, joseph: bool = False):
     """One KF iteration: from x(k/k), P(k/k) and z(k+1) to the next filtered pair.
+
+    The readable NumPy form of the equations; :func:`kalman_filter` runs the
+    same equations in a compiled loop (tests check that the two agree).
 
     Returns (x_filt, P_filt, x_pred, P_pred, loglik_increment).  Components of
     z that are NaN are not used; a fully missing z only predicts.
@@ -53,7 +57,8 @@ def kalman_filter(model: LinearGaussianModel, z, x0=None, P0=None, *, joseph: bo
     joseph  use the Joseph form (I-KH) P (I-KH)^T + K R K^T for P(k/k)
 
     Returns a FilterResult with filtered and predicted means/covariances and
-    the measurement log-likelihood.
+    the measurement log-likelihood.  The time loop is compiled (numba); see
+    :func:`kalman_step` for the same equations step by step in NumPy.
     """
     z, x, P, _ = prepare_inputs(model, z, x0, P0)
     T, n = z.shape[0], model.n
@@ -61,11 +66,5 @@ def kalman_filter(model: LinearGaussianModel, z, x0=None, P0=None, *, joseph: bo
     Ps = np.empty((T, n, n))
     xp = np.empty((T, n))
     Pp = np.empty((T, n, n))
-    F, H, Q, R = model.F, model.H, model.Q, model.R
-    loglik = 0.0
-    for k in range(T):
-        x, P, xp[k], Pp[k], ll = kalman_step(F, H, Q, R, x, P, z[k], joseph)
-        xs[k] = x
-        Ps[k] = P
-        loglik += ll
+    loglik = kf_loop(model.F, model.H, model.Q, model.R, z, x, P, bool(joseph), xs, Ps, xp, Pp)
     return FilterResult(x=xs, P=Ps, x_pred=xp, P_pred=Pp, loglik=float(loglik), method="KF")

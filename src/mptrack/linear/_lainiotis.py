@@ -7,6 +7,7 @@ import numpy as np
 from ..models import LinearGaussianModel
 from ..riccati import LainiotisParameters, lainiotis_parameters
 from ._common import prepare_inputs
+from ._kernels import lf_loop
 from ._result import FilterResult
 
 __all__ = ["lainiotis_filter", "lainiotis_step"]
@@ -14,6 +15,8 @@ __all__ = ["lainiotis_filter", "lainiotis_step"]
 
 def lainiotis_step(lp: LainiotisParameters, F, Q, x, P, z, eye):
     """One LF iteration (eqs. 5-6); a missing (NaN) measurement only predicts.
+
+    The readable NumPy form; :func:`lainiotis_filter` runs it compiled.
 
     x(k+1/k+1) = Kn z + Fn [I + P On]^{-1} [P Km z + x]
     P(k+1/k+1) = Pn + Fn [I + P On]^{-1} P Fn^T
@@ -41,9 +44,5 @@ def lainiotis_filter(model: LinearGaussianModel, z, x0=None, P0=None, *,
     T, n = z.shape[0], model.n
     xs = np.empty((T, n))
     Ps = np.empty((T, n, n))
-    eye = np.eye(n)
-    for k in range(T):
-        x, P = lainiotis_step(lp, model.F, model.Q, x, P, z[k], eye)
-        xs[k] = x
-        Ps[k] = P
+    lf_loop(model.F, model.Q, lp.Kn, lp.Km, lp.Pn, lp.Fn, lp.On, z, x, P, xs, Ps)
     return FilterResult(x=xs, P=Ps, method="LF")

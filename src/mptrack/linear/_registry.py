@@ -80,7 +80,7 @@ FILTERS: dict[str, FilterSpec] = {spec.name: spec for spec in (
 def get_filter(name: str) -> FilterSpec:
     try:
         return FILTERS[name.upper()]
-    except KeyError:
+    except (KeyError, AttributeError):
         raise UnknownNameError(f"filter: unknown name {name!r}; known: {', '.join(FILTERS)}") from None
 
 

@@ -6,17 +6,20 @@ from typing import Literal
 
 import numpy as np
 
-from .._validation import check_int, check_positive
-from ..errors import ConvergenceError, NonFiniteError, ParameterError
+from .._validation import as_matrix, check_int, check_positive
+from ..errors import ConvergenceError, NonFiniteError, ParameterError, ShapeError
 from ..models import LinearGaussianModel
 from ..riccati import SteadyState, steady_state
 from ._common import prepare_inputs
+from ._kernels import ss_loop
 from ._result import FilterResult
 
 __all__ = ["steady_state_filter", "fir_filter", "fir_order", "fir_coefficients"]
 
 
 def _steady(model, steady, form):
+    if form not in ("kalman", "lainiotis"):
+        raise ParameterError(f"form: expected 'kalman' or 'lainiotis', got {form!r}")
     if steady is not None:
         if not isinstance(steady, SteadyState):
             raise ParameterError(f"steady: expected a SteadyState, got {type(steady).__name__}")
@@ -49,15 +52,7 @@ def steady_state_filter(model: LinearGaussianModel, z, x0=None, P0=None, *,
     A, B, F = ss.A, ss.B, model.F
     T = z.shape[0]
     xs = np.empty((T, model.n))
-    if missing.any():
-        for k in range(T):
-            x = F @ x if missing[k] else A @ x + B @ z[k]
-            xs[k] = x
-    else:
-        Bz = z @ B.T
-        for k in range(T):
-            x = A @ x + Bz[k]
-            xs[k] = x
+    ss_loop(A, B, F, z, x, xs)
     if covariance == "steady":
         Ps = np.broadcast_to(ss.P_filt, (T, model.n, model.n))
     else:
@@ -73,25 +68,32 @@ def steady_state_filter(model: LinearGaussianModel, z, x0=None, P0=None, *,
     return FilterResult(x=xs, P=Ps, method=name)
 
 
+_NORMS = (2, -2, 1, -1, np.inf, -np.inf, "fro", "nuc")
+
+
 def _matrix_norm(M: np.ndarray, norm) -> float:
     return float(np.linalg.norm(M, norm))
 
 
 def fir_order(A, eps: float = 1e-3, norm=2, max_order: int = 100_000) -> int:
-    """FIR order M: the smallest M with ||A^M|| < eps (so ||A^{M-1}|| >= eps), seed 000 eq. 22.
+    """FIR order M: the smallest M >= 1 with ||A^M|| < eps (so ||A^{M-1}|| >= eps), seed 000 eq. 22.
 
     ``norm`` is any ``numpy.linalg.norm`` matrix order (2, 'fro', 1, inf, ...).
     The papers' example (eps = 1e-3, spectral norm) gives M = 17.
     """
-    A = np.asarray(A, dtype=float)
+    A = as_matrix("A", A)
+    if A.shape[0] != A.shape[1]:
+        raise ShapeError(f"A: expected a square matrix, got shape {A.shape}")
+    if norm not in _NORMS:
+        raise ParameterError(f"norm: expected one of {_NORMS}, got {norm!r}")
     eps = check_positive("eps", eps)
     max_order = check_int("max_order", max_order, minimum=1)
-    rho = max(abs(np.linalg.eigvals(A))) if A.size else 0.0
+    rho = max(abs(np.linalg.eigvals(A)))
     if rho >= 1.0:
         raise ConvergenceError(
             f"A: spectral radius {rho:.6g} >= 1, ||A^M|| never falls below eps; the FIR form does not exist")
-    power = np.eye(A.shape[0])
-    for M in range(0, max_order + 1):
+    power = A.copy()
+    for M in range(1, max_order + 1):  # M >= 1: eq. 22 with M = 0 would be an empty sum
         if _matrix_norm(power, norm) < eps:
             return M
         power = power @ A

@@ -1,6 +1,33 @@
-"""Linear-Gaussian state-space models and the papers' model constructors."""
+"""Linear-Gaussian state-space models: the validated model record, the papers' models,
+and continuous-time motion models discretised exactly."""
 
-from ._linear import LinearGaussianModel, stack_axes
+from ._continuous import (
+    ContinuousLinearModel,
+    ca_discrete_white_noise,
+    constant_acceleration,
+    constant_acceleration_continuous,
+    constant_velocity,
+    constant_velocity_continuous,
+    cv_discrete_white_noise,
+    discretize,
+    van_loan,
+)
+from ._linear import LinearGaussianModel, require_model, stack_axes
 from ._paper import assimakis_model_a, assimakis_model_b
 
-__all__ = ["LinearGaussianModel", "stack_axes", "assimakis_model_a", "assimakis_model_b"]
+__all__ = [
+    "LinearGaussianModel",
+    "require_model",
+    "stack_axes",
+    "assimakis_model_a",
+    "assimakis_model_b",
+    "ContinuousLinearModel",
+    "van_loan",
+    "discretize",
+    "constant_velocity_continuous",
+    "constant_acceleration_continuous",
+    "constant_velocity",
+    "constant_acceleration",
+    "cv_discrete_white_noise",
+    "ca_discrete_white_noise",
+]

@@ -11,10 +11,10 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.linalg
 
-from .._validation import as_matrix, check_covariance
-from ..errors import ShapeError
+from .._validation import as_matrix, check_covariance, check_int, check_positive
+from ..errors import ParameterError, ShapeError
 
-__all__ = ["LinearGaussianModel", "stack_axes"]
+__all__ = ["LinearGaussianModel", "stack_axes", "require_model"]
 
 
 def _frozen(arr: np.ndarray) -> np.ndarray:
@@ -54,7 +54,7 @@ class LinearGaussianModel:
         m = H.shape[0]
         R = check_covariance("R", self.R, m, definite=True)
         if (self.G is None) != (self.Qw is None):
-            raise ShapeError("G and Qw: give both (Q = G Qw G^T) or neither")
+            raise ParameterError("G and Qw: give both (Q = G Qw G^T) or neither")
         G = Qw = None
         if self.G is not None:
             G = as_matrix("G", self.G, n, None)
@@ -64,16 +64,16 @@ class LinearGaussianModel:
             if self.Q is not None:
                 Q = check_covariance("Q", self.Q, n)
                 if not np.allclose(Q, Q_from_g, rtol=1e-10, atol=1e-14):
-                    raise ShapeError("Q: disagrees with G Qw G^T; give Q or (G, Qw), not both")
+                    raise ParameterError("Q: disagrees with G Qw G^T; give Q or (G, Qw), not both")
             Q = Q_from_g
         elif self.Q is None:
-            raise ShapeError("Q: the process noise is missing; give Q or (G, Qw)")
+            raise ParameterError("Q: the process noise is missing; give Q or (G, Qw)")
         else:
             Q = check_covariance("Q", self.Q, n)
         for attr, value in (("F", F), ("H", H), ("Q", Q), ("R", R), ("G", G), ("Qw", Qw)):
             object.__setattr__(self, attr, None if value is None else _frozen(value))
         if self.dt is not None:
-            object.__setattr__(self, "dt", float(self.dt))
+            object.__setattr__(self, "dt", check_positive("dt", self.dt))
 
     @classmethod
     def from_noise_gain(cls, F, H, G, Qw, R, **meta) -> "LinearGaussianModel":
@@ -109,6 +109,8 @@ def stack_axes(axis_model: LinearGaussianModel, axes: int, *, name: str = "") ->
     The state is ordered axis by axis: ``[x_axis0, x_axis1, ...]``; this is how
     the papers' model A arises from model B (seed 000 eq. 17-18).
     """
+    axis_model = require_model(axis_model, "axis_model")
+    axes = check_int("axes", axes, minimum=1)
     blocks = lambda M: scipy.linalg.block_diag(*([M] * axes))  # noqa: E731
     kwargs = dict(dt=axis_model.dt, name=name or f"{axes} x {axis_model.name or 'axis model'}")
     if axis_model.G is not None:
@@ -117,3 +119,10 @@ def stack_axes(axis_model: LinearGaussianModel, axes: int, *, name: str = "") ->
             blocks(axis_model.Qw), blocks(axis_model.R), **kwargs)
     return LinearGaussianModel(blocks(axis_model.F), blocks(axis_model.H),
                                blocks(axis_model.Q), blocks(axis_model.R), **kwargs)
+
+
+def require_model(model, name: str = "model") -> LinearGaussianModel:
+    """``model`` itself if it is a LinearGaussianModel, else a ParameterError naming ``name``."""
+    if not isinstance(model, LinearGaussianModel):
+        raise ParameterError(f"{name}: expected a LinearGaussianModel, got {type(model).__name__}")
+    return model

@@ -7,7 +7,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import SingularMatrixError
-from ..models import LinearGaussianModel
+from ..models import LinearGaussianModel, require_model
 
 __all__ = ["LainiotisParameters", "lainiotis_parameters"]
 
@@ -30,7 +30,7 @@ class LainiotisParameters:
 
 
 def lainiotis_parameters(model: LinearGaussianModel) -> LainiotisParameters:
-    F, H, Q, R = model.F, model.H, model.Q, model.R
+    F, H, Q, R = (require_model(model).F, model.H, model.Q, model.R)
     S = H @ Q @ H.T + R
     try:
         A = np.linalg.inv(S)

@@ -21,7 +21,7 @@ import scipy.linalg
 
 from .._validation import check_covariance, check_int, check_positive
 from ..errors import ConvergenceError, NotDetectableError, ParameterError
-from ..models import LinearGaussianModel
+from ..models import LinearGaussianModel, require_model
 from ._checks import check_detectable, check_stabilisable
 from ._lainiotis import lainiotis_parameters
 
@@ -178,8 +178,7 @@ def steady_state(model: LinearGaussianModel, method: Method = "dare", *,
     Raises NotDetectableError / NotStabilisableError when no stabilising
     steady state exists, ConvergenceError when an iteration does not converge.
     """
-    if not isinstance(model, LinearGaussianModel):
-        raise ParameterError(f"model: expected a LinearGaussianModel, got {type(model).__name__}")
+    require_model(model)
     if method not in METHODS:
         raise ParameterError(f"method: expected one of {METHODS}, got {method!r}")
     if form not in ("kalman", "lainiotis"):

@@ -6,7 +6,7 @@ import numpy as np
 
 from .._validation import as_vector, check_int
 from ..errors import ParameterError
-from ..models import LinearGaussianModel
+from ..models import LinearGaussianModel, require_model
 
 __all__ = ["simulate_linear"]
 
@@ -19,6 +19,7 @@ def simulate_linear(model: LinearGaussianModel, steps: int, rng: np.random.Gener
     measurements (steps, m)); row k-1 holds time k, matching the filters'
     convention that the prior is x(0/0) and z[0] = z(1).
     """
+    require_model(model)
     if not isinstance(rng, np.random.Generator):
         raise ParameterError(f"rng: expected a numpy.random.Generator, got {type(rng).__name__}")
     steps = check_int("steps", steps, minimum=1)

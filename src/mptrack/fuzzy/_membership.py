@@ -1,0 +1,105 @@
+"""Membership functions: triangular, trapezoidal and Gaussian, broadcasting over numpy arrays."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import ParameterError
+
+__all__ = ["MembershipFunction", "triangular", "trapezoidal", "gaussian", "uniform_partition"]
+
+
+def _ramp(x, lo, hi, rising: bool):
+    """Linear ramp from 0 at lo to 1 at hi (rising) or 1 at lo to 0 at hi; a step when lo == hi."""
+    if hi > lo:
+        t = np.clip((x - lo) / (hi - lo), 0.0, 1.0)
+    else:
+        t = (x >= lo).astype(float)
+    return t if rising else 1.0 - t
+
+
+def trapezoidal(x, a: float, b: float, c: float, d: float):
+    """Trapezoid: 0 below a, rising to 1 on [a, b], 1 on [b, c], falling to 0 on [c, d], 0 above d.
+
+    a = b (or c = d) gives a vertical edge; a = b = -inf (c = d = +inf) a left (right) shoulder.
+    """
+    x = np.asarray(x, dtype=float)
+    up = np.ones_like(x) if np.isneginf(b) else _ramp(x, a, b, True)
+    down = np.ones_like(x) if np.isposinf(c) else np.where(x <= c, 1.0, _ramp(x, c, d, False))
+    return np.minimum(up, down)
+
+
+def triangular(x, a: float, b: float, c: float):
+    """Triangle with feet a, c and peak b (a <= b <= c); a = b or b = c gives a right-angled shoulder."""
+    return trapezoidal(x, a, b, b, c)
+
+
+def gaussian(x, mean: float, sigma: float):
+    """exp(-(x - mean)^2 / (2 sigma^2))."""
+    x = np.asarray(x, dtype=float)
+    return np.exp(-0.5 * ((x - mean) / sigma) ** 2)
+
+
+_KINDS = {"triangular": (triangular, 3), "trapezoidal": (trapezoidal, 4), "gaussian": (gaussian, 2)}
+
+
+@dataclass(frozen=True)
+class MembershipFunction:
+    """A named fuzzy set: ``kind`` in {"triangular", "trapezoidal", "gaussian"} with its parameters."""
+
+    kind: str
+    params: tuple[float, ...]
+    label: str = ""
+
+    def __post_init__(self) -> None:
+        if self.kind not in _KINDS:
+            raise ParameterError(f"kind: expected one of {tuple(_KINDS)}, got {self.kind!r}")
+        want = _KINDS[self.kind][1]
+        if len(self.params) != want:
+            raise ParameterError(f"params: a {self.kind} membership function takes {want} parameters, "
+                                 f"got {len(self.params)}")
+        p = tuple(float(v) for v in self.params)
+        object.__setattr__(self, "params", p)
+        if self.kind == "gaussian":
+            if not (np.isfinite(p[0]) and p[1] > 0):
+                raise ParameterError(f"params: gaussian needs a finite mean and sigma > 0, got {p}")
+        elif any(np.isnan(p)) or list(p) != sorted(p):
+            raise ParameterError(f"params: {self.kind} corners must be non-decreasing, got {p}")
+
+    def __call__(self, x):
+        return _KINDS[self.kind][0](x, *self.params)
+
+
+def uniform_partition(lo: float, hi: float, count: int, *, labels=None, kind: str = "triangular"):
+    """``count`` fuzzy sets evenly covering [lo, hi] (a Ruspini partition: memberships sum to 1).
+
+    Triangular: peaks at lo + i (hi - lo)/(count - 1), feet at the neighbouring peaks;
+    the first and last sets are shoulders (1 outside the universe).  Gaussian:
+    same centres, sigma = spacing / 2 (memberships then only approximately sum to 1).
+    """
+    if count < 2 or not hi > lo:
+        raise ParameterError(f"count, lo, hi: need count >= 2 and hi > lo, got {count}, {lo}, {hi}")
+    labels = list(labels) if labels is not None else [f"A{i}" for i in range(count)]
+    if len(labels) != count:
+        raise ParameterError(f"labels: expected {count} labels, got {len(labels)}")
+    centres = np.linspace(lo, hi, count)
+    step = centres[1] - centres[0]
+    out = []
+    for i, (c, lab) in enumerate(zip(centres, labels)):
+        if kind == "gaussian":
+            out.append(MembershipFunction("gaussian", (c, step / 2), lab))
+            continue
+        left = -np.inf if i == 0 else centres[i - 1]
+        right = np.inf if i == count - 1 else centres[i + 1]
+        if kind == "triangular":
+            if i == 0:
+                out.append(MembershipFunction("trapezoidal", (-np.inf, -np.inf, c, right), lab))
+            elif i == count - 1:
+                out.append(MembershipFunction("trapezoidal", (left, c, np.inf, np.inf), lab))
+            else:
+                out.append(MembershipFunction("triangular", (left, c, right), lab))
+        else:
+            raise ParameterError(f"kind: expected 'triangular' or 'gaussian', got {kind!r}")
+    return tuple(out)

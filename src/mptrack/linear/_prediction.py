@@ -1,0 +1,141 @@
+"""N-step prediction: the steady-state predictor of seed 001 (eqs. 13-20) and the
+inverse-free prediction from any filter's estimates.
+
+Seed 001 predicts N >= 1 steps ahead with a recursion of the same cost as the
+steady-state filter (eq. 19):
+
+    x(k+N/k) = A_N x(k+N-1/k-1) + B_N z(k),
+    A_N = F^N (I - K H) F^{-(N-1)},   B_N = F^N K                       (eq. 20)
+
+started from x(N/0) = F^N x(0/0).  It equals x(k+N/k) = F^N x(k/k) with the
+steady-state filter's x(k/k) (eqs. 13-14): substituting x(k/k) = (I - KH)
+x(k/k-1) + K z(k) and x(k/k-1) = F^{-(N-1)} x(k+N-1/k-1) gives eq. 19, which
+is why A_N needs F^{-1} for N >= 2 and the inverse-free form does not.
+"""
+
+from __future__ import annotations
+
+from typing import Literal
+
+import numpy as np
+
+from .._validation import check_int
+from ..errors import ParameterError, ShapeError, SingularMatrixError
+from ..models import LinearGaussianModel
+from ..riccati import SteadyState
+from ._common import prepare_inputs
+from ._kernels import ss_loop
+from ._result import FilterResult
+from ._steady import _steady, steady_state_filter
+
+__all__ = [
+    "prediction_matrices",
+    "prediction_covariance",
+    "steady_state_predictor",
+    "predict_ahead",
+]
+
+
+def _check_model(model) -> None:
+    if not isinstance(model, LinearGaussianModel):
+        raise ParameterError(f"model: expected a LinearGaussianModel, got {type(model).__name__}")
+
+
+def prediction_matrices(model: LinearGaussianModel, N: int, *,
+                        steady: SteadyState | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """(A_N, B_N) of the steady-state N-step predictor (seed 001 eq. 20).
+
+    A_N = F^N (I - K H) F^{-(N-1)} and B_N = F^N K, with K the steady-state
+    Kalman gain (``steady`` or solved here with the DARE).  N = 1 gives
+    A_1 = F (I - KH), B_1 = F K (eq. 16).
+
+    Raises SingularMatrixError when F is singular and N >= 2: the recursion
+    carries x(k+N-1/k-1) = F^{N-1} x(k/k-1), from which x(k/k-1) can only be
+    recovered through F^{-(N-1)}.  Use :func:`steady_state_predictor` with
+    ``method="inverse-free"`` then.
+    """
+    _check_model(model)
+    N = check_int("N", N, minimum=1)
+    ss = _steady(model, steady, "kalman")
+    F, K, H = model.F, ss.K, model.H
+    FN = np.linalg.matrix_power(F, N)
+    A = FN @ (np.eye(model.n) - K @ H)
+    if N >= 2:
+        FN1 = np.linalg.matrix_power(F, N - 1)
+        cond = np.linalg.cond(FN1)
+        if not np.isfinite(cond) or cond > 1e12:
+            rank = np.linalg.matrix_rank(F)
+            raise SingularMatrixError(
+                f"model.F: singular (rank {rank} < n = {model.n}, cond(F^{N - 1}) = {cond:.3g}); "
+                f"A_N = F^N (I - KH) F^-(N-1) of seed 001 eq. 20 needs F^-1 for N = {N} >= 2 "
+                "because the recursion keeps x(k+N-1/k-1) instead of x(k/k); "
+                "use method='inverse-free' (x(k+N/k) = F^N x(k/k)) or predict_ahead")
+        A = np.linalg.solve(FN1.T, A.T).T  # A F^-(N-1)
+    return A, FN @ K
+
+
+def prediction_covariance(model: LinearGaussianModel, P_filt, N: int) -> np.ndarray:
+    """P(k+N/k) = F^N P(k/k) F^{N T} + sum_{j<N} F^j Q F^{j T} for a single (n, n) P_filt
+    or a sequence (T, n, n)."""
+    F, Q = model.F, model.Q
+    P = np.asarray(P_filt, dtype=float)
+    for _ in range(N):
+        P = F @ P @ F.T + Q
+    return 0.5 * (P + np.swapaxes(P, -1, -2))
+
+
+def steady_state_predictor(model: LinearGaussianModel, z, N: int = 1, x0=None, *,
+                           steady: SteadyState | None = None,
+                           method: Literal["recursive", "inverse-free"] = "recursive") -> FilterResult:
+    """Steady-state N-step prediction x(k+N/k), k = 1..T (seed 001 eqs. 15-20).
+
+    model   a LinearGaussianModel (the steady state must exist)
+    z       (T, m) measurements z(1..T); a NaN row only predicts
+    N       steps ahead, N >= 1
+    x0      the prior x(0/0) (default 0, as in the paper)
+    method  "recursive": the paper's x(k+N/k) = A_N x(k+N-1/k-1) + B_N z(k)
+            from x(N/0) = F^N x0 (needs F invertible for N >= 2);
+            "inverse-free": x(k+N/k) = F^N x(k/k) from the steady-state filter.
+            Both give the same numbers (to rounding).
+
+    Returns a FilterResult whose row k-1 holds x(k+N/k) and the steady-state
+    N-step prediction covariance F^N Pe F^{N T} + sum_{j<N} F^j Q F^{j T}.
+    """
+    _check_model(model)
+    N = check_int("N", N, minimum=1)
+    if method not in ("recursive", "inverse-free"):
+        raise ParameterError(f"method: expected 'recursive' or 'inverse-free', got {method!r}")
+    z, x0, _, _ = prepare_inputs(model, z, x0, None)
+    ss = _steady(model, steady, "kalman")
+    T, n = z.shape[0], model.n
+    FN = np.linalg.matrix_power(model.F, N)
+    if method == "inverse-free":
+        xs = steady_state_filter(model, z, x0, steady=ss).x @ FN.T
+    else:
+        A, B = prediction_matrices(model, N, steady=ss)
+        xs = np.empty((T, n))
+        # eq. 19 is the steady-state filter's recursion with (A_N, B_N), from x(N/0) = F^N x0;
+        # a missing z(k) gives x(k/k) = x(k/k-1), so x(k+N/k) = F x(k+N-1/k-1)
+        ss_loop(A, B, model.F, z, FN @ x0, xs)
+    P = np.broadcast_to(prediction_covariance(model, ss.P_filt, N), (T, n, n))
+    return FilterResult(x=xs, P=P, method=f"SS-predictor(N={N})")
+
+
+def predict_ahead(model: LinearGaussianModel, result: FilterResult, N: int) -> FilterResult:
+    """N-step predictions from any filter's estimates: x(k+N/k) = F^N x(k/k) (seed 001 eq. 14),
+    P(k+N/k) = F^N P(k/k) F^{N T} + sum_{j<N} F^j Q F^{j T}.
+
+    With a :func:`kalman_filter` result this is the time-varying Kalman
+    N-step predictor; with :func:`steady_state_filter` it is the inverse-free
+    steady-state predictor.  Row k-1 holds x(k+N/k).
+    """
+    _check_model(model)
+    N = check_int("N", N, minimum=1)
+    if not isinstance(result, FilterResult):
+        raise ParameterError(f"result: expected a FilterResult, got {type(result).__name__}")
+    if result.n != model.n:
+        raise ShapeError(f"result: state dimension {result.n} does not match the model's n = {model.n}")
+    FN = np.linalg.matrix_power(model.F, N)
+    return FilterResult(x=result.x @ FN.T, P=prediction_covariance(model, result.P, N),
+                        method=f"{result.method}-predict(N={N})")
+

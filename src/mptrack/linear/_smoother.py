@@ -1,0 +1,129 @@
+"""Fixed-interval Rauch-Tung-Striebel smoothing of a filter's estimates, and its steady state.
+
+RTS (Rauch, Tung & Striebel 1965; Anderson & Moore 1979, sec. 7.4), for
+k = T-1 down to 1, from x(T/T), P(T/T):
+
+    C(k)   = P(k/k) F^T P(k+1/k)^{-1}
+    x(k/T) = x(k/k) + C(k) [x(k+1/T) - x(k+1/k)]
+    P(k/T) = P(k/k) + C(k) [P(k+1/T) - P(k+1/k)] C(k)^T
+
+with x(k+1/k) = F x(k/k) and P(k+1/k) = F P(k/k) F^T + Q.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.linalg
+from numba import njit
+
+from ..errors import ParameterError, ShapeError
+from ..models import LinearGaussianModel
+from ..riccati import SteadyState
+from ._kernels import ss_loop
+from ._result import FilterResult
+from ._steady import _steady
+
+__all__ = ["rts_smoother", "steady_state_smoother"]
+
+
+def _check(model, result) -> None:
+    if not isinstance(model, LinearGaussianModel):
+        raise ParameterError(f"model: expected a LinearGaussianModel, got {type(model).__name__}")
+    if not isinstance(result, FilterResult):
+        raise ParameterError(f"result: expected a FilterResult, got {type(result).__name__}")
+    if result.n != model.n:
+        raise ShapeError(f"result: state dimension {result.n} does not match the model's n = {model.n}")
+
+
+def _smoother_gains(PFt: np.ndarray, P_pred: np.ndarray) -> np.ndarray:
+    """C = P_filt F^T P_pred^{-1} from PFt = P_filt F^T, for a stack (T, n, n) or one (n, n).
+
+    One batched solve when every P_pred is positive definite (Cholesky succeeds);
+    otherwise, per matrix, a pseudo-inverse where P_pred is singular (zero prior,
+    rank-deficient Q).
+    """
+    try:
+        np.linalg.cholesky(P_pred)
+        return np.swapaxes(np.linalg.solve(P_pred, np.swapaxes(PFt, -1, -2)), -1, -2)
+    except np.linalg.LinAlgError:
+        if P_pred.ndim == 2:
+            return PFt @ np.linalg.pinv(P_pred, hermitian=True)
+        return np.stack([_smoother_gains(a, b) for a, b in zip(PFt, P_pred)])
+
+
+def _rts_backward(result: FilterResult, F: np.ndarray, Q: np.ndarray) -> FilterResult:
+    """The RTS backward pass; F, Q are one (n, n) pair or per-step stacks (T-1, n, n)
+    where F[k], Q[k] take x(k) to x(k+1) (row k = time k+1 of the result)."""
+    T = result.T
+    x_filt = np.asarray(result.x, dtype=float)
+    P_filt = np.asarray(result.P, dtype=float)
+    Ft = np.swapaxes(F, -1, -2)
+    # off the backward loop: x(k+1/k), P(k+1/k) and the gains C(k) for k = 1..T-1
+    x_pred = (F @ x_filt[:-1, :, None])[..., 0]
+    PFt = P_filt[:-1] @ Ft
+    P_pred = F @ PFt + Q
+    P_pred = 0.5 * (P_pred + np.swapaxes(P_pred, -1, -2))
+    C = _smoother_gains(PFt, P_pred)
+    xs = np.empty_like(x_filt)
+    Ps = np.empty_like(P_filt)
+    c = np.ascontiguousarray
+    _rts_loop(c(x_filt), c(P_filt), c(x_pred), c(P_pred), c(C), xs, Ps)
+    return FilterResult(x=xs, P=Ps, method="RTS")
+
+
+@njit(cache=True)
+def _rts_loop(x_filt, P_filt, x_pred, P_pred, C, xs, Ps):  # pragma: no cover - compiled
+    """The backward recursion of the module docstring, compiled; row k of x_pred, P_pred, C
+    belongs to the step from time k+1 to k+2."""
+    T = x_filt.shape[0]
+    xs[T - 1] = x_filt[T - 1]
+    Ps[T - 1] = P_filt[T - 1]
+    for k in range(T - 2, -1, -1):
+        Ck = C[k]
+        Ckt = np.ascontiguousarray(Ck.T)
+        xs[k] = x_filt[k] + Ck @ (xs[k + 1] - x_pred[k])
+        P = P_filt[k] + Ck @ (Ps[k + 1] - P_pred[k]) @ Ckt
+        Ps[k] = 0.5 * (P + P.T)
+
+
+def rts_smoother(model: LinearGaussianModel, result: FilterResult) -> FilterResult:
+    """Fixed-interval RTS smoother on a filter result (x(k/k), P(k/k), k = 1..T).
+
+    model   the LinearGaussianModel the filter ran with (F, Q)
+    result  a FilterResult with filtered means and covariances, e.g. from
+            :func:`kalman_filter` (any filter returning the exact P(k/k) works;
+            the steady-state filters' constant Pe gives the steady-state smoother)
+
+    Returns a FilterResult with the smoothed x(k/T), P(k/T) (method "RTS").
+    P(k/T) <= P(k/k) in the positive semi-definite order.  For irregular time
+    stamps use :func:`rts_smoother_irregular`.
+    """
+    _check(model, result)
+    return _rts_backward(result, model.F, model.Q)
+
+
+def steady_state_smoother(model: LinearGaussianModel, result: FilterResult, *,
+                          steady: SteadyState | None = None) -> FilterResult:
+    """Steady-state RTS smoother: constant gain C = Pe F^T Pp^{-1} on the
+    steady-state filter's estimates, x(k/T) = x(k/k) + C [x(k+1/T) - F x(k/k)].
+
+    The covariance reported is the steady-state smoothed covariance Ps, the
+    solution of the Lyapunov equation Ps = C Ps C^T + Pe - C Pp C^T (the
+    fixed point of the RTS covariance recursion, valid away from both ends).
+    ``result`` is typically :func:`steady_state_filter`'s output.
+    """
+    _check(model, result)
+    ss = _steady(model, steady, "kalman")
+    F, Pe, Pp = model.F, ss.P_filt, ss.P_pred
+    C = _smoother_gains(Pe @ F.T, Pp)
+    T = result.T
+    x_filt = np.asarray(result.x, dtype=float)
+    # x(k/T) = C x(k+1/T) + [x(k/k) - C F x(k/k)]: the steady-state filter's compiled recursion
+    # run backwards in time, with A = C, B = I and input u(k) = (I - C F) x(k/k)
+    u = np.ascontiguousarray((x_filt @ (np.eye(model.n) - C @ F).T)[-2::-1])
+    xs = np.empty_like(x_filt)
+    xs[-1] = x_filt[-1]
+    ss_loop(C, np.eye(model.n), C, u, x_filt[-1].copy(), xs[-2::-1])
+    Psm = scipy.linalg.solve_discrete_lyapunov(C, Pe - C @ Pp @ C.T)
+    Psm = 0.5 * (Psm + Psm.T)
+    return FilterResult(x=xs, P=np.broadcast_to(Psm, (T, model.n, model.n)), method="SS-RTS")

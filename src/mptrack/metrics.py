@@ -1,0 +1,127 @@
+"""Accuracy metrics: position errors, RMSE, and the posterior Cramér–Rao bound (PCRB).
+
+PCRB (Tichavský, Muravchik & Nehorai 1998, IEEE Trans. Signal Process. 46(5), eq. 21):
+for x(k+1) = F x(k) + w, w ~ N(0, Q) and measurements with Fisher information
+I_z(k) = E[H(k)^T R^{-1} H(k)] (H the measurement Jacobian at the true state),
+
+    J(k+1) = D22 - D21 (J(k) + D11)^{-1} D12,   D11 = F^T Q^{-1} F,  D12 = D21^T = -F^T Q^{-1},
+                                               D22 = Q^{-1} + I_z(k+1),     J(0) = P0^{-1},
+
+and any unbiased estimator has E[(x̂ - x)(x̂ - x)^T] >= J(k)^{-1}.  By the matrix
+inversion lemma this is J(k+1) = (Q + F J(k)^{-1} F^T)^{-1} + I_z(k+1), the
+information form of the Kalman covariance recursion, which we use (it also
+allows a singular Q).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ._validation import as_array, check_covariance
+from .errors import ShapeError, SingularMatrixError
+
+__all__ = ["position_error", "rmse", "nees", "pcrb", "pcrb_tichavsky", "range_fisher_information", "pcrb_ranges"]
+
+
+def position_error(x_est, truth, dims: int | None = None) -> np.ndarray:
+    """Euclidean position error ||x̂ - x|| per time step (seed 003 eq. 25): (..., T).
+
+    ``dims`` = number of leading state components that are the position (default: all of truth's).
+    """
+    x_est = np.asarray(x_est, dtype=float)
+    truth = np.asarray(truth, dtype=float)
+    d = truth.shape[-1] if dims is None else dims
+    return np.linalg.norm(x_est[..., :d] - truth[..., :d], axis=-1)
+
+
+def rmse(x_est, truth, dims: int | None = None, axis: int = 0) -> np.ndarray:
+    """Root-mean-square position error over Monte-Carlo runs (``axis``) of a batch (B, T, n): (T,)."""
+    e = position_error(x_est, truth, dims)
+    return np.sqrt(np.mean(e ** 2, axis=axis))
+
+
+def nees(x_est, P, truth) -> np.ndarray:
+    """Normalised estimation error squared (x̂ - x)^T P^{-1} (x̂ - x) per step: (..., T).
+
+    For a consistent filter its mean over runs is the state dimension n
+    (chi-square with n degrees of freedom per run; Bar-Shalom et al. 2001, §5.4).
+    """
+    e = np.asarray(x_est, dtype=float) - np.asarray(truth, dtype=float)
+    return np.einsum("...i,...i->...", e, np.linalg.solve(np.asarray(P, dtype=float), e[..., None])[..., 0])
+
+
+def pcrb(F, Q, P0, info) -> np.ndarray:
+    """PCRB covariances J(k)^{-1}, k = 1..T, for linear-Gaussian dynamics (covariance form).
+
+    F, Q (n, n); P0 (n, n) prior covariance (positive definite); info (T, n, n)
+    the measurement Fisher information I_z(k).  Returns (T, n, n).
+    """
+    F = as_array("F", F, ndim=2)
+    n = F.shape[0]
+    Q = check_covariance("Q", Q, n)
+    P = check_covariance("P0", P0, n, definite=True)
+    info = as_array("info", info, ndim=3)
+    if info.shape[1:] != (n, n):
+        raise ShapeError(f"info: expected shape (T, {n}, {n}), got {info.shape}")
+    out = np.empty_like(info)
+    for k in range(info.shape[0]):
+        M = F @ P @ F.T + Q
+        J = np.linalg.inv(M) + info[k]
+        P = np.linalg.inv(J)
+        out[k] = 0.5 * (P + P.T)
+    return out
+
+
+def pcrb_tichavsky(F, Q, P0, info) -> np.ndarray:
+    """The same bound by Tichavský's D11/D12/D22 recursion (needs Q invertible); a cross-check of :func:`pcrb`."""
+    F = as_array("F", F, ndim=2)
+    n = F.shape[0]
+    Q = check_covariance("Q", Q, n, definite=True)
+    J = np.linalg.inv(check_covariance("P0", P0, n, definite=True))
+    info = as_array("info", info, ndim=3)
+    Qi = np.linalg.inv(Q)
+    D11, D12, D22_0 = F.T @ Qi @ F, -F.T @ Qi, Qi
+    out = np.empty_like(info)
+    for k in range(info.shape[0]):
+        J = D22_0 + info[k] - D12.T @ np.linalg.solve(J + D11, D12)
+        out[k] = np.linalg.inv(J)
+    return out
+
+
+def range_fisher_information(positions, stations, R, n: int | None = None) -> np.ndarray:
+    """Fisher information of ranges at the true positions: sum_i H_i^T H_i / R_ii, (T, n, n).
+
+    positions (T, d) or a batch (B, T, d) (the expectation is then the mean over runs);
+    stations (m, d); R scalar or (m,) range variances; n state size (position first, default d).
+    """
+    pos = np.asarray(positions, dtype=float)
+    st = np.asarray(stations, dtype=float)
+    d = st.shape[1]
+    if pos.shape[-1] != d:
+        raise ShapeError(f"positions: expected last axis {d} (as stations), got shape {pos.shape}")
+    n = d if n is None else n
+    diff = pos[..., None, :] - st
+    rng = np.linalg.norm(diff, axis=-1)
+    if np.any(rng <= 0):
+        raise SingularMatrixError("positions: a position coincides with a station; range information is undefined")
+    u = diff / rng[..., None]
+    r = np.broadcast_to(np.asarray(R, dtype=float), (st.shape[0],))
+    info_pos = np.einsum("...mi,...mj,m->...ij", u, u, 1.0 / r)
+    if info_pos.ndim == 4:
+        info_pos = info_pos.mean(axis=0)
+    info = np.zeros(info_pos.shape[:-2] + (n, n))
+    info[..., :d, :d] = info_pos
+    return info
+
+
+def pcrb_ranges(truth, stations, P0, Q, R, F=None) -> np.ndarray:
+    """PCRB of the position RMSE, sqrt(trace of the position block of J^{-1}), per time step: (T,).
+
+    truth (T, d) or (B, T, d) true positions; F defaults to the identity (random walk, seed 003 eq. 1).
+    """
+    Q = np.asarray(Q, dtype=float)
+    n = Q.shape[0]
+    F = np.eye(n) if F is None else F
+    d = np.asarray(stations).shape[1]
+    bound = pcrb(F, Q, P0, range_fisher_information(truth, stations, R, n))
+    return np.sqrt(np.trace(bound[:, :d, :d], axis1=1, axis2=2))

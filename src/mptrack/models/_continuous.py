@@ -1,0 +1,263 @@
+"""Continuous-time linear motion models and their exact discretisation.
+
+A continuous-time linear time-invariant (LTI) model driven by white noise,
+
+    dx = Phi x dt + L dbeta,     E[dbeta dbeta^T] = Qc dt,
+    z(k) = H x(t_k) + v(k),      v(k) ~ N(0, R),
+
+sampled every dt seconds has the exact discrete transition (seed 001 sec. 2)
+
+    F = e^{Phi dt},      Q = int_0^dt e^{Phi s} L Qc L^T e^{Phi^T s} ds,
+
+which :func:`van_loan` computes with one matrix exponential (Van Loan 1978,
+"Computing integrals involving the matrix exponential", IEEE TAC 23(3)).
+The constant-velocity (CV) and constant-acceleration (CA) models of seed 001
+(eqs. 5-6) are special cases; their closed forms are what this general method
+gives.  The *discrete white-noise* variants (Q = q G G^T, the noise a
+piecewise-constant acceleration or acceleration increment per sample; seeds
+000/002 use the CV one) are a different model and carry that in their names.
+
+Multi-axis models are block-diagonal with the state ordered axis by axis,
+``[s_x, v_x, (a_x,) s_y, v_y, (a_y,) ...]``, as :func:`stack_axes` orders it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import scipy.linalg
+
+from .._validation import as_matrix, check_covariance, check_int, check_positive
+from ..errors import ParameterError, ShapeError
+from ._linear import LinearGaussianModel, _frozen, stack_axes
+
+__all__ = [
+    "ContinuousLinearModel",
+    "van_loan",
+    "discretize",
+    "constant_velocity_continuous",
+    "constant_acceleration_continuous",
+    "constant_velocity",
+    "constant_acceleration",
+    "cv_discrete_white_noise",
+    "ca_discrete_white_noise",
+]
+
+
+@dataclass(frozen=True, eq=False)
+class ContinuousLinearModel:
+    """A validated, immutable continuous-time LTI model (seed 001 eqs. 1-2).
+
+    Phi  (n, n)  drift matrix of dx = Phi x dt + L dbeta
+    L    (n, p)  noise gain (the paper's G)
+    Qc   (p, p)  spectral density of the white noise dbeta/dt (units of x^2 per
+                 second, per unit of L); the paper's sigma_q^2
+    H    (m, n)  measurement matrix of the sampled measurements z(k) = H x(t_k) + v(k)
+    R    (m, m)  covariance of the sampled measurement noise v(k) (not a density)
+
+    ``discretize(dt)`` gives the exact :class:`LinearGaussianModel` for a
+    sampling interval of ``dt`` seconds.
+    """
+
+    Phi: np.ndarray
+    L: np.ndarray
+    Qc: np.ndarray
+    H: np.ndarray
+    R: np.ndarray
+    name: str = field(default="", kw_only=True)
+
+    def __post_init__(self) -> None:
+        Phi = as_matrix("Phi", self.Phi)
+        n = Phi.shape[0]
+        if Phi.shape != (n, n):
+            raise ShapeError(f"Phi: expected a square matrix, got shape {Phi.shape}")
+        L = as_matrix("L", self.L, n, None)
+        Qc = check_covariance("Qc", self.Qc, L.shape[1])
+        H = as_matrix("H", self.H, None, n)
+        R = check_covariance("R", self.R, H.shape[0], definite=True)
+        for attr, value in (("Phi", Phi), ("L", L), ("Qc", Qc), ("H", H), ("R", R)):
+            object.__setattr__(self, attr, _frozen(value))
+
+    @property
+    def n(self) -> int:
+        """State dimension."""
+        return self.Phi.shape[0]
+
+    @property
+    def m(self) -> int:
+        """Measurement dimension."""
+        return self.H.shape[0]
+
+    def discretize(self, dt: float) -> LinearGaussianModel:
+        """The exact discrete model for sampling interval ``dt`` seconds (see :func:`discretize`)."""
+        return discretize(self, dt)
+
+    def __repr__(self) -> str:
+        label = f" {self.name!r}" if self.name else ""
+        return f"<ContinuousLinearModel{label} n={self.n} m={self.m}>"
+
+
+def _van_loan(Phi: np.ndarray, LQL: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
+    """(F, Q) from Phi and L Qc L^T for one dt, without validation."""
+    n = Phi.shape[0]
+    M = np.zeros((2 * n, 2 * n))
+    M[:n, :n] = -Phi
+    M[:n, n:] = LQL
+    M[n:, n:] = Phi.T
+    with np.errstate(over="ignore", invalid="ignore"):
+        E = scipy.linalg.expm(M * dt)
+        F = np.ascontiguousarray(E[n:, n:].T)
+        Q = F @ E[:n, n:]
+    if not (np.all(np.isfinite(F)) and np.all(np.isfinite(Q))):
+        raise ParameterError(f"dt: {dt!r} s is too long for this model; e^(Phi dt) or Q overflows float64")
+    return F, 0.5 * (Q + Q.T)
+
+
+def van_loan(Phi, L, Qc, dt: float) -> tuple[np.ndarray, np.ndarray]:
+    """Exact discretisation (F, Q) of dx = Phi x dt + L dbeta over ``dt`` seconds.
+
+    Van Loan's method: with M = [[-Phi, L Qc L^T], [0, Phi^T]] dt and
+    E = e^M = [[., E12], [0, E22]],  F = E22^T = e^{Phi dt} and
+    Q = F E12 = int_0^dt e^{Phi s} L Qc L^T e^{Phi^T s} ds.
+    ``dt = 0`` gives F = I, Q = 0.
+    """
+    Phi = as_matrix("Phi", Phi)
+    n = Phi.shape[0]
+    if Phi.shape != (n, n):
+        raise ShapeError(f"Phi: expected a square matrix, got shape {Phi.shape}")
+    L = as_matrix("L", L, n, None)
+    Qc = check_covariance("Qc", Qc, L.shape[1])
+    dt = check_positive("dt", dt, allow_zero=True)
+    return _van_loan(Phi, L @ Qc @ L.T, dt)
+
+
+def discretize(model: ContinuousLinearModel, dt: float) -> LinearGaussianModel:
+    """The exact discrete-time model of ``model`` sampled every ``dt`` > 0 seconds.
+
+    F = e^{Phi dt} and Q = int_0^dt e^{Phi s} L Qc L^T e^{Phi^T s} ds (seed 001
+    sec. 2.1-2.2, computed by :func:`van_loan`); H and R are kept.
+    """
+    if not isinstance(model, ContinuousLinearModel):
+        raise ParameterError(f"model: expected a ContinuousLinearModel, got {type(model).__name__}")
+    dt = check_positive("dt", dt)
+    F, Q = _van_loan(model.Phi, model.L @ model.Qc @ model.L.T, dt)
+    return LinearGaussianModel(F, model.H, Q, model.R, dt=dt, name=model.name)
+
+
+def _axes(axes) -> int:
+    axes = check_int("axes", axes, minimum=1)
+    if axes > 3:
+        raise ParameterError(f"axes: expected 1, 2 or 3 spatial axes, got {axes}")
+    return axes
+
+
+def _integrator_chain(order: int, q: float, sigma_r2: float, axes: int, name: str) -> ContinuousLinearModel:
+    """``axes`` independent chains of ``order`` integrators driven at the last state, position measured."""
+    Phi1 = np.eye(order, k=1)
+    L1 = np.zeros((order, 1))
+    L1[-1, 0] = 1.0
+    H1 = np.zeros((1, order))
+    H1[0, 0] = 1.0
+    blocks = lambda M: scipy.linalg.block_diag(*([M] * axes))  # noqa: E731
+    return ContinuousLinearModel(blocks(Phi1), blocks(L1), q * np.eye(axes), blocks(H1),
+                                 sigma_r2 * np.eye(axes), name=name)
+
+
+def constant_velocity_continuous(q: float, axes: int = 1, *, sigma_r2: float = 1.0) -> ContinuousLinearModel:
+    """Continuous constant-velocity (white-noise acceleration) model, seed 001 sec. 2.1.
+
+    Per axis, state [s, v] (metres, m/s): Phi = [[0, 1], [0, 0]], L = [0, 1]^T,
+    white acceleration noise of spectral density ``q`` (m^2/s^3; the paper's
+    sigma_q^2); position measured with variance ``sigma_r2`` (m^2).
+    ``axes`` = 1, 2 or 3, block-diagonal.
+    """
+    q = check_positive("q", q, allow_zero=True)
+    sigma_r2 = check_positive("sigma_r2", sigma_r2)
+    axes = _axes(axes)
+    return _integrator_chain(2, q, sigma_r2, axes, f"CV continuous white noise ({axes} axes)")
+
+
+def constant_acceleration_continuous(q: float, axes: int = 1, *,
+                                     sigma_r2: float = 1.0) -> ContinuousLinearModel:
+    """Continuous constant-acceleration (white-noise jerk) model, seed 001 sec. 2.2.
+
+    Per axis, state [s, v, a] (m, m/s, m/s^2): Phi = [[0,1,0],[0,0,1],[0,0,0]],
+    L = [0, 0, 1]^T, white jerk noise of spectral density ``q`` (m^2/s^5; the
+    paper's sigma_q^2); position measured with variance ``sigma_r2`` (m^2).
+    """
+    q = check_positive("q", q, allow_zero=True)
+    sigma_r2 = check_positive("sigma_r2", sigma_r2)
+    axes = _axes(axes)
+    return _integrator_chain(3, q, sigma_r2, axes, f"CA continuous white noise ({axes} axes)")
+
+
+def constant_velocity(dt: float, q: float, axes: int = 1, *, sigma_r2: float = 1.0) -> LinearGaussianModel:
+    """Exactly discretised constant-velocity model (seed 001 eq. 5), per axis
+
+    F = [[1, dt], [0, 1]],  Q = q [[dt^3/3, dt^2/2], [dt^2/2, dt]],  H = [1, 0],  R = sigma_r2.
+
+    dt in seconds, q the continuous acceleration-noise density (m^2/s^3),
+    sigma_r2 the position-measurement variance (m^2).  Obtained from
+    :func:`constant_velocity_continuous` by Van Loan's method, not typed in.
+    For Q = q G G^T with G = [dt^2/2, dt]^T use :func:`cv_discrete_white_noise`.
+    """
+    return discretize(constant_velocity_continuous(q, axes, sigma_r2=sigma_r2), dt)
+
+
+def constant_acceleration(dt: float, q: float, axes: int = 1, *, sigma_r2: float = 1.0) -> LinearGaussianModel:
+    """Exactly discretised constant-acceleration model (seed 001 eq. 6, with the (1,3)
+    entry corrected to dt^3/6, see docs/errata.md), per axis
+
+    F = [[1, dt, dt^2/2], [0, 1, dt], [0, 0, 1]],
+    Q = q [[dt^5/20, dt^4/8, dt^3/6], [dt^4/8, dt^3/3, dt^2/2], [dt^3/6, dt^2/2, dt]],
+    H = [1, 0, 0],  R = sigma_r2.
+
+    q is the continuous jerk-noise density (m^2/s^5).  For Q = q G G^T with
+    G = [dt^2/2, dt, 1]^T use :func:`ca_discrete_white_noise`.
+    """
+    return discretize(constant_acceleration_continuous(q, axes, sigma_r2=sigma_r2), dt)
+
+
+def _discrete_white_noise(F1, G1, q, sigma_r2, axes, name) -> LinearGaussianModel:
+    H1 = np.zeros((1, F1.shape[0]))
+    H1[0, 0] = 1.0
+    axis = LinearGaussianModel.from_noise_gain(F1, H1, G1, [[q]], [[sigma_r2]], dt=F1[0, 1], name=name)
+    return axis if axes == 1 else stack_axes(axis, axes, name=f"{name} ({axes} axes)")
+
+
+def cv_discrete_white_noise(dt: float, q: float, axes: int = 1, *, sigma_r2: float = 1.0) -> LinearGaussianModel:
+    """Constant velocity with *discrete* white-noise acceleration (piecewise-constant
+    acceleration over each sample; Bar-Shalom et al. 2001, sec. 6.3.2), per axis
+
+    F = [[1, dt], [0, 1]],  G = [dt^2/2, dt]^T,  Q = q G G^T,  H = [1, 0],  R = sigma_r2.
+
+    q is the acceleration variance (m^2/s^4).  Q has rank 1 per axis.  At dt = 1
+    this is the Q of seeds 000/002 (they print G = [dt/2, 1]^T, which agrees
+    only at dt = 1; :func:`assimakis_model_b` keeps their printed form).
+    """
+    dt = check_positive("dt", dt)
+    q = check_positive("q", q, allow_zero=True)
+    sigma_r2 = check_positive("sigma_r2", sigma_r2)
+    axes = _axes(axes)
+    F1 = np.array([[1.0, dt], [0.0, 1.0]])
+    G1 = np.array([[0.5 * dt * dt], [dt]])
+    return _discrete_white_noise(F1, G1, q, sigma_r2, axes, "CV discrete white noise")
+
+
+def ca_discrete_white_noise(dt: float, q: float, axes: int = 1, *, sigma_r2: float = 1.0) -> LinearGaussianModel:
+    """Constant acceleration with *discrete* white-noise acceleration increments
+    (Bar-Shalom et al. 2001, sec. 6.3.3, the "Wiener-process acceleration"), per axis
+
+    F = [[1, dt, dt^2/2], [0, 1, dt], [0, 0, 1]],  G = [dt^2/2, dt, 1]^T,  Q = q G G^T,
+    H = [1, 0, 0],  R = sigma_r2.
+
+    q is the variance of the acceleration increment per sample (m^2/s^4).
+    """
+    dt = check_positive("dt", dt)
+    q = check_positive("q", q, allow_zero=True)
+    sigma_r2 = check_positive("sigma_r2", sigma_r2)
+    axes = _axes(axes)
+    F1 = np.array([[1.0, dt, 0.5 * dt * dt], [0.0, 1.0, dt], [0.0, 0.0, 1.0]])
+    G1 = np.array([[0.5 * dt * dt], [dt], [1.0]])
+    return _discrete_white_noise(F1, G1, q, sigma_r2, axes, "CA discrete white noise")

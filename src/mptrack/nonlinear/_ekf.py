@@ -1,0 +1,221 @@
+"""Extended Kalman filter on ranges to base stations (Bouzera et al. 2017, eqs. 1–10).
+
+    X(k+1) = F X(k) + w(k),   w ~ N(0, Q)         motion: "random-walk" (F = I, the paper's eq. 1)
+                                                  or "cv" (constant velocity, X = [position, velocity])
+    d_i(k) = ||p(k) - B_i|| + v_i(k),  v ~ N(0, R)  p = position part of X, B_i = station i
+
+Units are the caller's (the paper works in km).  Every filter here runs a
+batch of B independent tracks at once (leading axis), which is how the
+Monte-Carlo reproduction stays fast; the single-track functions call the
+batch core with B = 1 and return the shared :class:`mptrack.linear.FilterResult`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import least_squares
+
+from .._validation import as_array, check_covariance, check_positive
+from ..errors import ParameterError, ShapeError, SingularMatrixError
+from ..linear import FilterResult
+
+__all__ = [
+    "BatchFilterResult",
+    "ekf_ranges",
+    "ekf_ranges_batch",
+    "range_measurement",
+    "motion_matrix",
+    "check_stations",
+    "range_fix",
+]
+
+_LOG2PI = np.log(2.0 * np.pi)
+MOTIONS = ("random-walk", "cv")
+_TINY_RANGE = 1e-12
+
+
+@dataclass(frozen=True, eq=False)
+class BatchFilterResult:
+    """A batch of B filter runs: x, x_pred (B, T, n), P, P_pred (B, T, n, n), loglik (B,) or None."""
+
+    x: np.ndarray
+    P: np.ndarray
+    x_pred: np.ndarray
+    P_pred: np.ndarray
+    loglik: np.ndarray | None = None
+    method: str = ""
+
+    def run(self, b: int) -> FilterResult:
+        """Run ``b`` as a FilterResult."""
+        ll = None if self.loglik is None else float(self.loglik[b])
+        return FilterResult(x=self.x[b], P=self.P[b], x_pred=self.x_pred[b], P_pred=self.P_pred[b], loglik=ll,
+                            method=self.method)
+
+
+def range_measurement(x, stations):
+    """Ranges from the position part of states ``x`` to ``stations`` and their Jacobian (eqs. 7–10).
+
+    x         (..., n) states whose first d entries are the position
+    stations  (m, d) station positions, d = 2 or 3
+    Returns (ranges (..., m), H (..., m, n)) with H[..., i, :d] = (p - B_i)/||p - B_i||
+    and zeros for non-position states.  At a station (range 0) the gradient is
+    undefined; the range is floored at 1e-12 there so H stays finite.
+    """
+    x = np.asarray(x, dtype=float)
+    d = stations.shape[1]
+    diff = x[..., None, :d] - stations  # (..., m, d)
+    rng = np.sqrt(np.einsum("...md,...md->...m", diff, diff))
+    H = np.zeros(x.shape[:-1] + (stations.shape[0], x.shape[-1]))
+    H[..., :d] = diff / np.maximum(rng, _TINY_RANGE)[..., None]
+    return rng, H
+
+
+def motion_matrix(motion: str, dim: int, dt: float = 1.0) -> np.ndarray:
+    """Transition matrix F: identity (random walk, eq. 2) or constant velocity [[I, dt I], [0, I]]."""
+    if motion not in MOTIONS:
+        raise ParameterError(f"motion: expected one of {MOTIONS}, got {motion!r}")
+    if motion == "random-walk":
+        return np.eye(dim)
+    dt = check_positive("dt", dt)
+    F = np.eye(2 * dim)
+    F[:dim, dim:] = dt * np.eye(dim)
+    return F
+
+
+def check_stations(stations, *, min_count: int = 1) -> np.ndarray:
+    """Validate station positions (m, d): d in {2, 3}, finite, at least ``min_count``, no duplicates."""
+    s = as_array("stations", stations, ndim=2)
+    if s.shape[1] not in (2, 3):
+        raise ShapeError(f"stations: expected shape (m, 2) or (m, 3), got {s.shape}")
+    if s.shape[0] < min_count:
+        raise ParameterError(f"stations: need at least {min_count} base stations, got {s.shape[0]}")
+    gap = np.linalg.norm(s[:, None, :] - s[None, :, :], axis=-1) + np.eye(s.shape[0])
+    if np.any(gap <= 0):
+        i, j = np.argwhere(gap <= 0)[0]
+        raise ParameterError(f"stations: stations {i} and {j} are at the same position {s[i].tolist()}")
+    return s
+
+
+def _prepare(z, stations, x0, P0, Q, R, motion, dt, *, batch: bool):
+    stations = check_stations(stations)
+    m, d = stations.shape
+    F = motion_matrix(motion, d, dt)
+    n = F.shape[0]
+    z = as_array("z", z, ndim=3 if batch else 2, allow_nan=True)
+    if z.shape[-1] != m:
+        raise ShapeError(f"z: expected {m} ranges per time step (one per station), got shape {z.shape}")
+    if z.shape[-2] == 0:
+        raise ShapeError(f"z: expected at least one time step, got shape {z.shape}")
+    if np.any(z < 0):
+        raise ParameterError("z: ranges must be >= 0 (NaN marks a missing range)")
+    if not batch:
+        z = z[None]
+    B = z.shape[0]
+    x0 = as_array("x0", x0, shape=(B, n) if batch else (n,))
+    x0 = np.broadcast_to(x0, (B, n)).copy()
+    P0 = check_covariance("P0", P0, n)
+    Q = check_covariance("Q", Q, n)
+    R = np.asarray(R, dtype=float)
+    R = check_covariance("R", R * np.eye(m) if R.ndim == 0 else R, m, definite=True)
+    return z, stations, x0, P0, F, Q, R
+
+
+def _ekf_core(z, stations, x0, P0, F, Q, R):
+    """Batched EKF: z (B, T, m) with NaN = missing range; returns (x, P, x_pred, P_pred, loglik)."""
+    B, T, m = z.shape
+    n = F.shape[0]
+    xs, xp = np.empty((B, T, n)), np.empty((B, T, n))
+    Ps, Pp = np.empty((B, T, n, n)), np.empty((B, T, n, n))
+    loglik = np.zeros(B)
+    x = x0.copy()
+    P = np.broadcast_to(P0, (B, n, n)).copy()
+    eye = np.eye(n)
+    for k in range(T):
+        x = x @ F.T                                   # eq. 2 (F = I for the paper's model)
+        P = F @ P @ F.T + Q                           # eq. 3
+        xp[:, k], Pp[:, k] = x, P
+        dk = z[:, k]
+        ok = ~np.isnan(dk)                            # (B, m)
+        h, H = range_measurement(x, stations)         # eqs. 7-10
+        H = H * ok[..., None]                         # missing ranges: zero rows ...
+        Rk = np.where(ok[:, :, None] & ok[:, None, :], R, 0.0) + np.eye(m) * (~ok)[:, None, :]  # ... unit noise
+        innov = np.where(ok, dk - h, 0.0)             # eq. 11
+        PHt = P @ H.transpose(0, 2, 1)
+        S = H @ PHt + Rk                              # eq. 12
+        K = np.linalg.solve(S, PHt.transpose(0, 2, 1)).transpose(0, 2, 1)  # eq. 4 (S symmetric)
+        x = x + np.einsum("bnm,bm->bn", K, innov)     # eq. 5
+        IKH = eye - K @ H
+        P = IKH @ P @ IKH.transpose(0, 2, 1) + K @ Rk @ K.transpose(0, 2, 1)  # eq. 6, Joseph form
+        P = 0.5 * (P + P.transpose(0, 2, 1))
+        xs[:, k] = x
+        Ps[:, k] = P
+        _, logdet = np.linalg.slogdet(S)
+        quad = np.einsum("bm,bm->b", innov, np.linalg.solve(S, innov[..., None])[..., 0])
+        loglik -= 0.5 * (quad + logdet + ok.sum(axis=1) * _LOG2PI)
+    return xs, Ps, xp, Pp, loglik
+
+
+def ekf_ranges(z, stations, x0, P0, Q, R, *, motion: str = "random-walk", dt: float = 1.0) -> FilterResult:
+    """EKF from ranges to base stations (paper eqs. 2–10), joint update of all ranges.
+
+    z         (T, m) measured ranges d_i(k), k = 1..T; NaN = range missing (skipped; an all-NaN row predicts)
+    stations  (m, d) base-station positions (d = 2 or 3), distinct
+    x0, P0    prior X(0/0) (n,) and P(0/0) (n, n); n = d (random walk) or 2d (cv)
+    Q         (n, n) process-noise covariance (paper: Q0 = diag(0.02, 0.02, 0.002) km^2)
+    R         range-noise variance (scalar, paper R0 = 0.222 km^2) or (m, m) covariance
+    motion    "random-walk" (the paper's X(k+1) = X(k) + w) or "cv" (constant velocity, step dt)
+
+    Any number of stations is accepted: with fewer than d + 1 the position is
+    not observable from one scan and the prior and motion model carry the
+    unobserved directions (the covariance shows it).
+    """
+    return _ekf(z, stations, x0, P0, Q, R, motion, dt, batch=False).run(0)
+
+
+def ekf_ranges_batch(z, stations, x0, P0, Q, R, *, motion: str = "random-walk",
+                     dt: float = 1.0) -> BatchFilterResult:
+    """:func:`ekf_ranges` on B independent tracks at once: z (B, T, m), x0 (B, n)."""
+    return _ekf(z, stations, x0, P0, Q, R, motion, dt, batch=True)
+
+
+def _ekf(z, stations, x0, P0, Q, R, motion, dt, *, batch: bool) -> BatchFilterResult:
+    xs, Ps, xp, Pp, ll = _ekf_core(*_prepare(z, stations, x0, P0, Q, R, motion, dt, batch=batch))
+    return BatchFilterResult(x=xs, P=Ps, x_pred=xp, P_pred=Pp, loglik=ll, method="EKF")
+
+
+def range_fix(ranges, stations, *, height=None) -> np.ndarray:
+    """Snapshot position from one scan of ranges (nonlinear least squares, scipy.optimize.least_squares).
+
+    ranges    (m,) measured ranges to ``stations`` (m, d)
+    height    for 3-D stations, the handset's known height: the fix is then 2-D (x, y) with z = height,
+              which is how a ground handset is fixed from masts of similar height
+    A fix needs at least (unknowns + 1) stations (3 for a 2-D fix, 4 for 3-D) not all on one line
+    (or plane): otherwise ParameterError / SingularMatrixError.  The linearised
+    solution (differences of squared ranges) starts the Gauss–Newton iterations.
+    Useful to initialise :func:`ekf_ranges`.
+    """
+    st = check_stations(stations)
+    r = as_array("ranges", ranges, shape=(st.shape[0],))
+    if np.any(r < 0):
+        raise ParameterError("ranges: must be >= 0")
+    d = st.shape[1]
+    fixed = None
+    if height is not None:
+        if d != 3:
+            raise ParameterError("height: only meaningful with 3-D stations")
+        fixed = float(height)
+        dz2 = (fixed - st[:, 2]) ** 2
+        r = np.sqrt(np.maximum(r ** 2 - dz2, 0.0))
+        st = st[:, :2]
+    k = st.shape[1]
+    if st.shape[0] < k + 1:
+        raise ParameterError(f"stations: a {k}-D fix needs at least {k + 1} stations, got {st.shape[0]}")
+    A = 2.0 * (st[1:] - st[0])
+    if np.linalg.matrix_rank(A) < k:
+        raise SingularMatrixError(f"stations: the stations are collinear/coplanar; a {k}-D fix is not determined")
+    b = r[0] ** 2 - r[1:] ** 2 + np.sum(st[1:] ** 2, axis=1) - np.sum(st[0] ** 2)
+    guess = np.linalg.lstsq(A, b, rcond=None)[0]
+    sol = least_squares(lambda p: np.linalg.norm(p - st, axis=1) - r, guess, method="lm").x
+    return sol if fixed is None else np.append(sol, fixed)

@@ -1,0 +1,181 @@
+"""Fuzzy extended Kalman filter (FEKF) and fuzzy controller system (FCS) of Bouzera et al. (2017).
+
+Both run one local single-station EKF update per base station from the common
+prediction (eq. 14, Tables II and IV), weight the local solutions with a
+zero-order Takagi–Sugeno system and fuse them (eqs. 15–16):
+
+    X_i   = X^- + K_i Inn_i,   K_i = P^- H_i^T / S_i,   S_i = H_i P^- H_i^T + R_i      (eqs. 4, 11, 12, 14)
+    y_i   = FIS1(|Inn_i|, S_i)   (FEKF, Table I)     or   FIS2(d_i)   (FCS, Table III)
+    X_est = sum_i y_i X_i / sum_i y_i                                                   (eq. 15)
+    P_est = P^- - sum_i w_i (P^- H_i^T K_i^T + K_i H_i P^-) + sum_i w_i^2 K_i S_i K_i^T  (eq. 16, w = y / sum y)
+
+Eq. 16 drops the cross terms w_i w_j K_i H_i P^- H_j^T K_j^T (i != j) that the
+shared prediction error puts into eq. 24; ``covariance="exact"`` keeps them,
+P_est = A P^- A^T + sum_i w_i^2 R_i K_i K_i^T with A = I - sum_i w_i K_i H_i,
+the true covariance of the fused estimate under the linearisation, which is
+positive semi-definite by construction.  Eq. 16 is not: over the paper's own
+Q0 sensitivity range (Q0 = 5050, Fig. 13) about half of its covariances are
+indefinite (docs/errata.md), so ``"exact"`` is the default and ``"paper"``
+reproduces the published algorithm.
+When no station gives a positive weight (all ranges missing) the step only predicts.
+"""
+
+from __future__ import annotations
+
+from typing import Callable
+
+import numpy as np
+
+from ..errors import NotPositiveDefiniteError, ParameterError
+from ..fuzzy import TakagiSugeno, uniform_partition
+from ..linear import FilterResult
+from ._ekf import BatchFilterResult, _prepare, range_measurement
+
+__all__ = [
+    "bouzera_fekf_fis",
+    "bouzera_fcs_fis",
+    "fekf_ranges",
+    "fekf_ranges_batch",
+    "fcs_ranges",
+    "fcs_ranges_batch",
+    "fuse_local_solutions",
+    "local_solutions",
+]
+
+#: Table I read with five innovation sets (columns) and two covariance sets (rows), as the text says;
+#: rows of this array: innovation Very Small .. Very Large; columns: S Small, S Large.
+TABLE_I = ((1.0, 0.75), (0.75, 0.5), (0.5, 0.5), (0.25, 0.5), (0.0, 0.25))
+#: Table III: distance Very Small .. Very Large.
+TABLE_III = (1.0, 0.75, 0.5, 0.25, 0.0)
+_FIVE = ("very small", "small", "neutral", "large", "very large")
+
+
+def bouzera_fekf_fis(inn_universe_km=(0.0, 1.5), s_universe_km2=(0.22, 0.32), consequents=TABLE_I) -> TakagiSugeno:
+    """FIS1 of the FEKF (paper Table I, Figs. 5–6): inputs |innovation| (km) and its variance S (km^2).
+
+    The universes are the ranges the paper reports (section 3.4: |Inn| in [0, 1.5] km,
+    S in [0.22, 0.32]); the printed membership figures are not legible, so
+    the sets are uniform triangular partitions (5 for |Inn|, 2 for S) over them.
+    """
+    inn = uniform_partition(*inn_universe_km, 5, labels=_FIVE)
+    s = uniform_partition(*s_universe_km2, 2, labels=("small", "large"))
+    return TakagiSugeno((inn, s), np.asarray(consequents), universes=(tuple(inn_universe_km), tuple(s_universe_km2)),
+                        names=("|innovation|", "S"))
+
+
+def bouzera_fcs_fis(distance_universe_km=(0.0, 1.5), consequents=TABLE_III) -> TakagiSugeno:
+    """FIS2 of the FCS (paper Table III, Fig. 7): input the measured range (km), 5 uniform triangular sets."""
+    d = uniform_partition(*distance_universe_km, 5, labels=_FIVE)
+    return TakagiSugeno((d,), np.asarray(consequents), universes=(tuple(distance_universe_km),), names=("distance",))
+
+
+def local_solutions(x_pred, P_pred, z, stations, R_diag):
+    """One-station EKF updates from a common prediction (eqs. 4, 11, 12, 14), batched over a leading axis.
+
+    x_pred (B, n), P_pred (B, n, n), z (B, m) ranges (NaN = missing), stations (m, d), R_diag (m,).
+    Returns (x_local (B, m, n), K (B, m, n), H (B, m, n), innov (B, m) (0 where missing), S (B, m)).
+    """
+    h, H = range_measurement(x_pred, stations)                       # eqs. 7-10
+    PHt = np.einsum("bnk,bmk->bmn", P_pred, H)                       # rows P^- H_i^T
+    S = np.einsum("bmn,bmn->bm", H, PHt) + R_diag                    # eq. 12, per station
+    if np.any(S <= 0):
+        raise NotPositiveDefiniteError(
+            "P_pred: an innovation variance H P H^T + R is <= 0; the predicted covariance is indefinite "
+            "(eq. 16 of the paper can make it so: use covariance='exact')")
+    K = PHt / S[..., None]                                           # eq. 4, per station
+    innov = np.where(np.isnan(z), 0.0, z - h)                        # eq. 11
+    return x_pred[:, None, :] + K * innov[..., None], K, H, innov, S  # eq. 14
+
+
+def fuse_local_solutions(x_pred, P_pred, K, H, innov, S, R_diag, y, *, covariance: str = "exact"):
+    """Fuse local single-station solutions with weights y (eqs. 15–16), batched.
+
+    x_pred (B, n), P_pred (B, n, n), K (B, m, n) local gains, H (B, m, n), innov (B, m), S (B, m),
+    R_diag (m,), y (B, m) >= 0.  Rows with sum(y) = 0 return the prediction.
+    Returns (x_est (B, n), P_est (B, n, n)).
+    """
+    total = y.sum(axis=1)
+    live = total > 0
+    w = np.where(live[:, None], y / np.where(live, total, 1.0)[:, None], 0.0)
+    x = x_pred + np.einsum("bm,bmn,bm->bn", w, K, innov)                           # eq. 15 (via eq. 19)
+    KH = np.einsum("bm,bmn,bmk->bnk", w, K, H)                                      # sum_i w_i K_i H_i
+    if covariance == "paper":
+        KHP = KH @ P_pred
+        P = P_pred - KHP - KHP.transpose(0, 2, 1) + np.einsum("bm,bmn,bmk->bnk", w ** 2 * S, K, K)  # eq. 16
+    elif covariance == "exact":
+        A = np.eye(x.shape[1]) - KH
+        P = A @ P_pred @ A.transpose(0, 2, 1) + np.einsum("bm,bmn,bmk->bnk", w ** 2 * R_diag, K, K)
+    else:
+        raise ParameterError(f"covariance: expected 'paper' or 'exact', got {covariance!r}")
+    P = 0.5 * (P + P.transpose(0, 2, 1))
+    return np.where(live[:, None], x, x_pred), np.where(live[:, None, None], P, P_pred)
+
+
+def _fused_core(z, stations, x0, P0, F, Q, R, weights: Callable, covariance: str):
+    if np.any(R - np.diag(np.diag(R))):
+        raise ParameterError("R: the FEKF/FCS local filters use one range each, so R must be diagonal")
+    R_diag = np.diag(R)
+    B, T, m = z.shape
+    n = F.shape[0]
+    xs, xp = np.empty((B, T, n)), np.empty((B, T, n))
+    Ps, Pp = np.empty((B, T, n, n)), np.empty((B, T, n, n))
+    x = x0.copy()
+    P = np.broadcast_to(P0, (B, n, n)).copy()
+    for k in range(T):
+        x = x @ F.T                                                  # eq. 2
+        P = F @ P @ F.T + Q                                          # eq. 3
+        xp[:, k], Pp[:, k] = x, P
+        dk = z[:, k]
+        ok = ~np.isnan(dk)
+        _, K, H, innov, S = local_solutions(x, P, dk, stations, R_diag)
+        y = np.where(ok, weights(np.abs(innov), S, np.where(ok, dk, 0.0)), 0.0)
+        x, P = fuse_local_solutions(x, P, K, H, innov, S, R_diag, y, covariance=covariance)
+        xs[:, k] = x
+        Ps[:, k] = P
+    return xs, Ps, xp, Pp
+
+
+def _fis_weights(fis, kind: str):
+    if fis is None:
+        fis = bouzera_fekf_fis() if kind == "FEKF" else bouzera_fcs_fis()
+    if not isinstance(fis, TakagiSugeno) or fis.n_inputs != (2 if kind == "FEKF" else 1):
+        raise ParameterError(f"fis: expected a TakagiSugeno system with {2 if kind == 'FEKF' else 1} input(s)")
+    if kind == "FEKF":
+        return lambda inn, S, d: fis(inn, S)
+    return lambda inn, S, d: fis(d)
+
+
+def _run(kind, z, stations, x0, P0, Q, R, fis, motion, dt, covariance, batch):
+    args = _prepare(z, stations, x0, P0, Q, R, motion, dt, batch=batch)
+    xs, Ps, xp, Pp = _fused_core(*args, weights=_fis_weights(fis, kind), covariance=covariance)
+    out = BatchFilterResult(x=xs, P=Ps, x_pred=xp, P_pred=Pp, method=kind)
+    return out if batch else out.run(0)
+
+
+def fekf_ranges(z, stations, x0, P0, Q, R, *, fis: TakagiSugeno | None = None, motion: str = "random-walk",
+                dt: float = 1.0, covariance: str = "exact") -> FilterResult:
+    """Fuzzy EKF (paper Table II): local per-station EKF updates fused with weights FIS1(|Inn_i|, S_i).
+
+    Arguments as :func:`mptrack.nonlinear.ekf_ranges` (R scalar or diagonal); any number of stations.
+    fis         the two-input TS system (default :func:`bouzera_fekf_fis`, Table I)
+    covariance  "exact" (eq. 16 with the cross-station terms, always PSD) or "paper" (eq. 16 as printed)
+    """
+    return _run("FEKF", z, stations, x0, P0, Q, R, fis, motion, dt, covariance, False)
+
+
+def fekf_ranges_batch(z, stations, x0, P0, Q, R, *, fis=None, motion="random-walk", dt=1.0,
+                      covariance="exact") -> BatchFilterResult:
+    """:func:`fekf_ranges` on B tracks at once: z (B, T, m), x0 (B, n)."""
+    return _run("FEKF", z, stations, x0, P0, Q, R, fis, motion, dt, covariance, True)
+
+
+def fcs_ranges(z, stations, x0, P0, Q, R, *, fis: TakagiSugeno | None = None, motion: str = "random-walk",
+               dt: float = 1.0, covariance: str = "exact") -> FilterResult:
+    """Fuzzy controller system (paper Table IV): as the FEKF but with weights FIS2(d_i) of the measured range."""
+    return _run("FCS", z, stations, x0, P0, Q, R, fis, motion, dt, covariance, False)
+
+
+def fcs_ranges_batch(z, stations, x0, P0, Q, R, *, fis=None, motion="random-walk", dt=1.0,
+                     covariance="exact") -> BatchFilterResult:
+    """:func:`fcs_ranges` on B tracks at once: z (B, T, m), x0 (B, n)."""
+    return _run("FCS", z, stations, x0, P0, Q, R, fis, motion, dt, covariance, True)

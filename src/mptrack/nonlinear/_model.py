@@ -1,0 +1,259 @@
+"""The continuous-discrete nonlinear model (seed 004 eq. 1) and its named examples.
+
+    dx = f(x) dt + dβ,          E[dβ dβ^T] = Q dt     (Q constant, per second)
+    z(k) = h(x(t_k)) + e(k),    e(k) ~ N(0, R),       t_k = k·dt
+
+``f`` and ``h`` are vectorised: they map an array of points (..., n) to
+(..., n) and (..., m), so the grid filter evaluates them on every node and
+quadrature point at once and the particle filter on every particle.
+Measurement components that are angles carry a wrap period (2π for an
+``arctan2`` bearing): innovations of those components are wrapped into
+[-period/2, period/2).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+
+from .._validation import as_matrix, as_vector, check_covariance, check_int, check_positive
+from ..errors import ParameterError, ShapeError
+from ..models import LinearGaussianModel, van_loan
+from ..models._linear import _frozen
+
+__all__ = [
+    "ContinuousDiscreteModel",
+    "zhao2013_model",
+    "linear_sde_model",
+    "simulate_sde",
+    "ZHAO2013_X0",
+]
+
+_LOG2PI = np.log(2.0 * np.pi)
+
+#: Seed 004 section 6: initial state [-0.6, -1].
+ZHAO2013_X0 = (-0.6, -1.0)
+
+
+def _cap(inc: np.ndarray) -> np.ndarray:
+    """Scale increments longer than 1 back to length 1 (rows of (..., n))."""
+    norm = np.sqrt(np.sum(inc * inc, axis=-1, keepdims=True))
+    return inc / np.maximum(norm, 1.0)
+
+
+@dataclass(frozen=True, eq=False)
+class ContinuousDiscreteModel:
+    """A validated continuous-time SDE with discrete-time measurements (seed 004 eq. 1).
+
+    drift        f: (..., n) -> (..., n), state units per second
+    Q            (n, n) diffusion covariance per second (g Q g^T of eq. 3, constant)
+    measurement  h: (..., n) -> (..., m)
+    R            (m, n) measurement noise covariance, positive definite
+    dt           seconds between measurements
+    periods      per measurement component: wrap period of an angle (2π for a
+                 bearing), or None for an ordinary component
+    substeps     sub-steps per dt used when sampling the SDE (simulation, particle filter)
+    linear       (A, H) when f(x) = A x and h(x) = H x (enables the exact discretisation)
+    """
+
+    drift: Callable[[np.ndarray], np.ndarray]
+    Q: np.ndarray
+    measurement: Callable[[np.ndarray], np.ndarray]
+    R: np.ndarray
+    dt: float
+    periods: tuple = field(default=None, kw_only=True)
+    substeps: int = field(default=20, kw_only=True)
+    linear: tuple | None = field(default=None, kw_only=True)
+    name: str = field(default="", kw_only=True)
+
+    def __post_init__(self) -> None:
+        if not callable(self.drift):
+            raise ParameterError(f"drift: expected a callable f(x), got {type(self.drift).__name__}")
+        if not callable(self.measurement):
+            raise ParameterError(f"measurement: expected a callable h(x), got {type(self.measurement).__name__}")
+        Q = check_covariance("Q", self.Q)
+        n = Q.shape[0]
+        R = check_covariance("R", self.R, definite=True)
+        m = R.shape[0]
+        set_ = object.__setattr__
+        set_(self, "Q", _frozen(Q))
+        set_(self, "R", _frozen(R))
+        set_(self, "dt", check_positive("dt", self.dt))
+        set_(self, "substeps", check_int("substeps", self.substeps, minimum=1))
+        probe = np.zeros((3, n)) + np.linspace(-0.5, 0.5, 3)[:, None]
+        for name, fn, width in (("drift", self.drift, n), ("measurement", self.measurement, m)):
+            out = np.asarray(fn(probe))
+            if out.shape != (3, width):
+                raise ShapeError(f"{name}: must map points (k, {n}) to (k, {width}), got shape {out.shape} "
+                                 f"for k = 3")
+        periods = (None,) * m if self.periods is None else tuple(self.periods)
+        if len(periods) != m:
+            raise ShapeError(f"periods: expected {m} entries (one per measurement component), got {len(periods)}")
+        set_(self, "periods", tuple(None if p is None else check_positive("periods", p) for p in periods))
+        if self.linear is not None:
+            A = as_matrix("linear[0] (A)", self.linear[0], n, n)
+            H = as_matrix("linear[1] (H)", self.linear[1], m, n)
+            set_(self, "linear", (_frozen(A), _frozen(H)))
+
+    @property
+    def n(self) -> int:
+        return self.Q.shape[0]
+
+    @property
+    def m(self) -> int:
+        return self.R.shape[0]
+
+    def innovation(self, z, zhat) -> np.ndarray:
+        """z - h, with angle components wrapped into [-period/2, period/2)."""
+        nu = np.asarray(z, dtype=float) - np.asarray(zhat, dtype=float)
+        for i, period in enumerate(self.periods):
+            if period is not None:
+                nu[..., i] = (nu[..., i] + 0.5 * period) % period - 0.5 * period
+        return nu
+
+    def log_likelihood(self, z: np.ndarray, X: np.ndarray) -> np.ndarray:
+        """log p(z | x) at points X (..., n) (seed 004 eq. 25); NaN components of z are skipped."""
+        ok = ~np.isnan(z)
+        nu = self.innovation(z, self.measurement(X))[..., ok]
+        R = self.R[np.ix_(ok, ok)]
+        L = np.linalg.cholesky(R)
+        w = nu @ np.linalg.inv(L).T
+        logdet = 2.0 * np.log(np.diag(L)).sum()
+        return -0.5 * (np.sum(w * w, axis=-1) + logdet + ok.sum() * _LOG2PI)
+
+    def flow(self, X: np.ndarray, duration: float | None = None, steps: int | None = None) -> np.ndarray:
+        """The noise-free flow of dx = f(x) dt over ``duration`` (default dt), Heun sub-steps.
+
+        Drift increments are capped at length 1 per sub-step as in
+        :meth:`sample_transition`, so stiff or superlinear drifts cannot overflow.
+        """
+        duration = self.dt if duration is None else duration
+        steps = self.substeps if steps is None else steps
+        h = duration / steps
+        X = np.array(X, dtype=float)
+        f = self.drift
+        for _ in range(steps):
+            fx = f(X)
+            X = X + _cap(0.5 * h * (fx + f(X + _cap(h * fx))))
+        return X
+
+    def sample_transition(self, X: np.ndarray, rng: np.random.Generator, steps: int | None = None) -> np.ndarray:
+        """Sample x(t + dt) given x(t) = X (..., n) with ``steps`` stochastic Heun sub-steps.
+
+        Heun's predictor–corrector for additive noise (weak order 2):
+        x̃ = x + h f(x) + ΔW,  x⁺ = x + h/2 (f(x) + f(x̃)) + ΔW, ΔW ~ N(0, Q h).
+        As a guard against the superlinear printed eq. 42 drift, each drift
+        increment is capped at length 1 (state units) per sub-step ("taming",
+        Hutzenthaler, Jentzen & Kloeden 2012), which is inactive on ordinary
+        paths and lets diverging ones grow without overflowing.
+        """
+        steps = self.substeps if steps is None else steps
+        h = self.dt / steps
+        L = self.noise_factor()
+        X = np.array(X, dtype=float)
+        sqh = np.sqrt(h)
+        f = self.drift
+        for _ in range(steps):
+            dW = sqh * (rng.standard_normal(X.shape) @ L.T)
+            fx = f(X)
+            Xp = X + _cap(h * fx) + dW
+            X = X + _cap(0.5 * h * (fx + f(Xp))) + dW
+        return X
+
+    def noise_factor(self) -> np.ndarray:
+        """L with L L^T = Q (eigen-decomposition, so a singular Q is fine)."""
+        w, V = np.linalg.eigh(self.Q)
+        return V * np.sqrt(np.clip(w, 0.0, None))
+
+    def to_linear_gaussian(self) -> LinearGaussianModel:
+        """The exact discretisation F = e^{AΔt}, Q_d = ∫ e^{As} Q e^{A^T s} ds of a linear model
+        (Van Loan, via :func:`mptrack.models.van_loan`)."""
+        if self.linear is None:
+            raise ParameterError("model: only a linear model (built with linear_sde_model) has an exact "
+                                 "discretisation")
+        A, H = self.linear
+        F, Qd = van_loan(A, np.eye(self.n), self.Q, self.dt)
+        return LinearGaussianModel(F, H, Qd, self.R, dt=self.dt, name=f"{self.name} (exact)")
+
+
+def zhao2013_model(*, variant: str = "printed", diffusion_scale: float = 1.0, bearing: str = "atan2",
+                   dt: float = 1.0, substeps: int = 20) -> ContinuousDiscreteModel:
+    """Seed 004 eq. 42: a Van der Pol-type drift observed by range and bearing.
+
+    variant "printed"  f(x) = [-x2, 0.2(x1² - 1)x2 + x1] as printed: a time-reversed
+                       Van der Pol oscillator (stable origin inside an *unstable*
+                       limit cycle); with Q = diag(10, 0.1) almost every path diverges.
+            "vdp"      the standard orientation of the cited source (Beard et al. 1999):
+                       f(x) = [x2, -x1 + 0.2(1 - x1²)x2] (stable limit cycle).
+    diffusion_scale    Q = diffusion_scale · diag(10, 0.1) per second (1 = as printed)
+    bearing "atan2"    h2 = arctan2(x1, x2), wrapped modulo 2π (quadrant-correct; our default)
+            "atan"     h2 = arctan(x1/x2) as printed, ambiguous modulo π (wrapped modulo π):
+                       x and -x give the same measurement, the source of the paper's bimodality
+    R = diag(0.1, 1) (range in state units, bearing in rad), dt = 1 s, x0 = ZHAO2013_X0.
+    """
+    if variant == "printed":
+        def drift(X):
+            x1, x2 = X[..., 0], X[..., 1]
+            return np.stack([-x2, 0.2 * (x1 * x1 - 1.0) * x2 + x1], axis=-1)
+    elif variant == "vdp":
+        def drift(X):
+            x1, x2 = X[..., 0], X[..., 1]
+            return np.stack([x2, -x1 + 0.2 * (1.0 - x1 * x1) * x2], axis=-1)
+    else:
+        raise ParameterError(f"variant: expected 'printed' or 'vdp', got {variant!r}")
+    if bearing == "atan2":
+        def measurement(X):
+            x1, x2 = X[..., 0], X[..., 1]
+            return np.stack([np.hypot(x1, x2), np.arctan2(x1, x2)], axis=-1)
+        period = 2.0 * np.pi
+    elif bearing == "atan":
+        def measurement(X):
+            x1, x2 = X[..., 0], X[..., 1]
+            # arctan(x1/x2) without dividing by zero: arctan2 folded into (-π/2, π/2]
+            b = np.arctan2(x1, x2)
+            return np.stack([np.hypot(x1, x2), (b + 0.5 * np.pi) % np.pi - 0.5 * np.pi], axis=-1)
+        period = np.pi
+    else:
+        raise ParameterError(f"bearing: expected 'atan2' or 'atan', got {bearing!r}")
+    scale = check_positive("diffusion_scale", diffusion_scale)
+    return ContinuousDiscreteModel(drift, scale * np.diag([10.0, 0.1]), measurement, np.diag([0.1, 1.0]), dt,
+                                   periods=(None, period), substeps=substeps,
+                                   name=f"zhao2013 eq. 42 ({variant}, Q x {scale:g}, {bearing})")
+
+
+def linear_sde_model(A, Q, H, R, dt: float, *, substeps: int = 20, name: str = "") -> ContinuousDiscreteModel:
+    """dx = A x dt + dβ (E dβ dβ^T = Q dt), z = H x + e: the linear-Gaussian test case of the grid filters."""
+    A = as_matrix("A", A)
+    if A.shape[0] != A.shape[1]:
+        raise ShapeError(f"A: expected a square matrix, got shape {A.shape}")
+    H = as_matrix("H", H, None, A.shape[0])
+    At, Ht = A.T.copy(), H.T.copy()
+    return ContinuousDiscreteModel(lambda X: X @ At, Q, lambda X: X @ Ht, R, dt, substeps=substeps,
+                                   linear=(A, H), name=name or "linear SDE")
+
+
+def simulate_sde(model: ContinuousDiscreteModel, steps: int, rng: np.random.Generator, x0,
+                 *, substeps: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Sample the truth x(t_k) and measurements z(k), k = 1..steps, from x(0) = x0.
+
+    The path is integrated with ``model.sample_transition`` (tamed Euler–Maruyama,
+    ``substeps`` per dt, default 5 × model.substeps).  Returns (truth (steps, n),
+    z (steps, m)); row k-1 is time k, as for the linear filters.
+    """
+    if not isinstance(rng, np.random.Generator):
+        raise ParameterError(f"rng: expected a numpy.random.Generator, got {type(rng).__name__}")
+    steps = check_int("steps", steps, minimum=1)
+    x = as_vector("x0", x0, model.n)
+    substeps = 5 * model.substeps if substeps is None else check_int("substeps", substeps, minimum=1)
+    truth = np.empty((steps, model.n))
+    for k in range(steps):
+        x = model.sample_transition(x, rng, substeps)
+        truth[k] = x
+    Lr = np.linalg.cholesky(model.R)
+    z = model.measurement(truth) + rng.standard_normal((steps, model.m)) @ Lr.T
+    for i, period in enumerate(model.periods):
+        if period is not None:
+            z[:, i] = (z[:, i] + 0.5 * period) % period - 0.5 * period
+    return truth, z

@@ -1,0 +1,105 @@
+"""GSM channel plans: ARFCN <-> carrier frequency (3GPP TS 45.005 §2).
+
+Each band maps an absolute radio-frequency channel number n to the uplink
+(mobile transmit) carrier F_l(n) and the downlink (base transmit) carrier
+F_u(n) = F_l(n) + duplex spacing, on a 200 kHz raster.  ARFCN ranges overlap
+between bands (512–810 is both DCS 1800 and PCS 1900; 0–124 is P/E/R-GSM), so
+the band is always an argument.  Bouzera et al. (2017) use
+f = 1805 + 0.2 (ARFCN - 511), which is the DCS 1800 downlink.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .._validation import as_array
+from ..errors import DTypeError, ParameterError, UnknownNameError
+
+__all__ = ["GsmBand", "GSM_BANDS", "arfcn_to_frequency", "frequency_to_arfcn"]
+
+
+@dataclass(frozen=True)
+class GsmBand:
+    """One contiguous ARFCN segment: F_l(n) = f0_mhz + 0.2 (n - n0) for n_min <= n <= n_max."""
+
+    name: str
+    segments: tuple[tuple[int, int, int, float], ...]  # (n_min, n_max, n0, f0_mhz)
+    duplex_mhz: float
+
+    def contains(self, arfcn) -> np.ndarray:
+        n = np.asarray(arfcn)
+        return np.logical_or.reduce([(n >= lo) & (n <= hi) for lo, hi, _, _ in self.segments])
+
+
+#: The bands of 3GPP TS 45.005 §2 used in Europe and the Americas.
+GSM_BANDS: dict[str, GsmBand] = {
+    "P-GSM": GsmBand("P-GSM 900", ((1, 124, 0, 890.0),), 45.0),
+    "E-GSM": GsmBand("E-GSM 900", ((0, 124, 0, 890.0), (975, 1023, 1024, 890.0)), 45.0),
+    "R-GSM": GsmBand("R-GSM 900", ((0, 124, 0, 890.0), (955, 1023, 1024, 890.0)), 45.0),
+    "DCS1800": GsmBand("DCS 1800", ((512, 885, 512, 1710.2),), 95.0),
+    "PCS1900": GsmBand("PCS 1900", ((512, 810, 512, 1850.2),), 80.0),
+    "GSM850": GsmBand("GSM 850", ((128, 251, 128, 824.2),), 45.0),
+}
+
+_LINKS = ("downlink", "uplink")
+
+
+def _band(band: str) -> GsmBand:
+    if band not in GSM_BANDS:
+        raise UnknownNameError(f"band: unknown GSM band {band!r}; known: {', '.join(GSM_BANDS)}")
+    return GSM_BANDS[band]
+
+
+def _link(link: str) -> str:
+    if link not in _LINKS:
+        raise ParameterError(f"link: expected 'downlink' or 'uplink', got {link!r}")
+    return link
+
+
+def arfcn_to_frequency(arfcn, band: str, link: str = "downlink"):
+    """Carrier frequency in MHz of ``arfcn`` (int or integer array) in ``band`` (3GPP TS 45.005 §2).
+
+    band  one of GSM_BANDS: "P-GSM", "E-GSM", "R-GSM", "DCS1800", "PCS1900", "GSM850"
+    link  "downlink" (base station transmit, what a handset measures) or "uplink"
+    Raises UnknownNameError for an unknown band, ParameterError for a channel outside it.
+    """
+    spec, link = _band(band), _link(link)
+    n = np.asarray(arfcn)
+    if n.dtype.kind not in "iu":
+        if n.dtype.kind == "f" and np.all(np.isfinite(n)) and np.all(n == np.round(n)):
+            n = n.astype(np.int64)
+        else:
+            raise DTypeError(f"arfcn: expected integer channel numbers, got {arfcn!r}")
+    ok = spec.contains(n)
+    if not np.all(ok):
+        bad = n[~ok].flat[0] if n.ndim else int(n)
+        ranges = ", ".join(f"{lo}-{hi}" for lo, hi, _, _ in spec.segments)
+        raise ParameterError(f"arfcn: {bad} is not a {spec.name} channel (valid: {ranges})")
+    f_up = np.zeros(n.shape)
+    for lo, hi, n0, f0 in spec.segments:
+        seg = (n >= lo) & (n <= hi)
+        f_up = np.where(seg, f0 + 0.2 * (n - n0), f_up)
+    f = f_up + (spec.duplex_mhz if link == "downlink" else 0.0)
+    f = np.round(f, 1)  # the raster is exactly 0.1 MHz-representable; remove binary noise
+    return f[()] if f.ndim == 0 else f
+
+
+def frequency_to_arfcn(frequency_mhz, band: str, link: str = "downlink"):
+    """ARFCN of a carrier ``frequency_mhz`` in ``band`` (inverse of :func:`arfcn_to_frequency`).
+
+    Raises ParameterError when the frequency is not on the band's 200 kHz raster.
+    """
+    spec, link = _band(band), _link(link)
+    f = as_array("frequency_mhz", frequency_mhz)
+    f_up = f - (spec.duplex_mhz if link == "downlink" else 0.0)
+    out = np.full(f.shape, -1, dtype=np.int64)
+    for lo, hi, n0, f0 in spec.segments:
+        n = np.rint((f_up - f0) / 0.2).astype(np.int64) + n0
+        hit = (n >= lo) & (n <= hi) & (np.abs(f0 + 0.2 * (n - n0) - f_up) < 1e-6)
+        out = np.where(hit & (out < 0), n, out)
+    if np.any(out < 0):
+        bad = f[out < 0].flat[0]
+        raise ParameterError(f"frequency_mhz: {bad} MHz is not a {spec.name} {link} carrier")
+    return out[()] if out.ndim == 0 else out

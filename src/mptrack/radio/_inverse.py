@@ -1,0 +1,120 @@
+"""Received signal strength -> path loss -> distance, inverting the path-loss models.
+
+Log-linear models (L = A + B log10 d: free space, WI line of sight, Hata,
+COST-231 Hata) are inverted in closed form; COST-231 Walfisch–Ikegami NLOS
+(piecewise in d through k_a and the L0 floor, but strictly increasing) by a
+bracketed root (scipy.optimize.brentq) over the model's distance range.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+from scipy.optimize import brentq
+
+from .._validation import as_array
+from ..errors import ParameterError, UnknownNameError
+from . import _pathloss as pl
+from ._validity import check_policy, check_range
+
+__all__ = ["PATH_LOSS_MODELS", "path_loss", "distance_from_path_loss", "distance_from_rss", "path_loss_from_rss"]
+
+
+@dataclass(frozen=True)
+class _Model:
+    fn: Callable
+    distance_km: tuple[float, float]
+    log_linear: bool
+    has_policy: bool = True
+
+
+#: Path-loss models by name, with their valid distance range (km).
+PATH_LOSS_MODELS: dict[str, _Model] = {
+    "free-space": _Model(pl.free_space_loss, (1e-6, 1e6), True, has_policy=False),
+    "cost231-wi-los": _Model(pl.cost231_wi_los, (0.02, 5.0), True),
+    "cost231-wi-nlos": _Model(pl.cost231_wi_nlos, (0.02, 5.0), False),
+    "cost231-hata": _Model(pl.cost231_hata, (1.0, 20.0), True),
+    "okumura-hata": _Model(pl.okumura_hata, (1.0, 20.0), True),
+}
+
+
+def _model(model: str) -> _Model:
+    if model not in PATH_LOSS_MODELS:
+        raise UnknownNameError(f"model: unknown path-loss model {model!r}; known: {', '.join(PATH_LOSS_MODELS)}")
+    return PATH_LOSS_MODELS[model]
+
+
+def path_loss(distance_km, model: str = "cost231-wi-nlos", **params):
+    """Path loss in dB of the named model (see PATH_LOSS_MODELS) at ``distance_km``."""
+    return _model(model).fn(distance_km, **params)
+
+
+def path_loss_from_rss(rss_dbm, tx_power_dbm, *, tx_gain_dbi=0.0, rx_gain_dbi=0.0, losses_db=0.0):
+    """Link budget: L = P_tx + G_tx + G_rx - losses - RSS, in dB (paper Appendix: Loss = Tx - Rx)."""
+    rss = as_array("rss_dbm", rss_dbm)
+    out = np.asarray(tx_power_dbm, dtype=float) + tx_gain_dbi + rx_gain_dbi - losses_db - rss
+    return out[()] if out.ndim == 0 else out
+
+
+def distance_from_path_loss(loss_db, model: str = "cost231-wi-nlos", *, on_invalid: str = "raise", **params):
+    """The distance in km at which ``model`` (with ``params``) predicts the loss ``loss_db``.
+
+    Every path-loss model here is strictly increasing in distance, so the
+    inverse is unique.  With ``on_invalid="raise"`` a loss that no distance in
+    the model's valid range explains raises ParameterError (saying which range
+    of losses the model covers); "warn"/"ignore" extrapolate outside the range
+    (log-linear models exactly; WI NLOS within 1 m .. 100 km).  Model parameters
+    other than the loss must be scalars for WI NLOS (root finding per value).
+    """
+    spec = _model(model)
+    check_policy(on_invalid)
+    loss = as_array("loss_db", loss_db)
+    lo, hi = spec.distance_km
+    kwargs = dict(params)
+    if spec.has_policy:
+        spec.fn(np.sqrt(lo * hi) if hi < 1e3 else 1.0, on_invalid=on_invalid, **kwargs)  # checks f, heights
+        kwargs["on_invalid"] = "ignore"
+    fn = lambda d: spec.fn(d, **kwargs)  # noqa: E731
+    if spec.log_linear:
+        a = np.asarray(fn(1.0))
+        b = np.asarray(fn(10.0)) - a
+        d = 10.0 ** ((loss - a) / b)
+    else:
+        for name, value in params.items():
+            if np.ndim(value) != 0:
+                raise ParameterError(f"{name}: must be a scalar for the {model} inverse, got shape {np.shape(value)}")
+        blo, bhi = (lo, hi) if on_invalid == "raise" else (1e-3, 100.0)
+        llo, lhi = float(fn(blo)), float(fn(bhi))
+        flat = loss.ravel()
+        outside = (flat < llo) | (flat > lhi)
+        if outside.any():
+            raise ParameterError(
+                f"loss_db: {flat[outside][0]:.2f} dB is not explained by {model} for {blo:g}..{bhi:g} km "
+                f"(it covers {llo:.2f}..{lhi:.2f} dB)")
+        d = np.array([brentq(lambda x, L=L: float(fn(x)) - L, blo, bhi, xtol=1e-12, rtol=1e-13)
+                      for L in flat]).reshape(loss.shape)
+    lo_tol, hi_tol = lo * (1 - 1e-9), hi * (1 + 1e-9)  # round-off at the range edges
+    if on_invalid == "raise" and np.any((d < lo_tol) | (d > hi_tol)):
+        bad = np.asarray(d)[(d < lo_tol) | (d > hi_tol)].flat[0]
+        llo, lhi = float(fn(lo)), float(fn(hi))
+        raise ParameterError(
+            f"loss_db: no distance in {lo:g}..{hi:g} km explains it under {model} (needs {bad:.4g} km; "
+            f"the model covers {llo:.2f}..{lhi:.2f} dB)")
+    check_range(model, "distance_km", d, lo_tol, hi_tol, "km", on_invalid)
+    d = np.asarray(d, dtype=float)
+    return d[()] if d.ndim == 0 else d
+
+
+def distance_from_rss(rss_dbm, tx_power_dbm, model: str = "cost231-wi-nlos", *, tx_gain_dbi=0.0,
+                      rx_gain_dbi=0.0, losses_db=0.0, on_invalid: str = "raise", **params):
+    """Distance in km from a received signal strength (dBm) and the transmit power (dBm).
+
+    Path loss L = P_tx + G_tx + G_rx - losses - RSS (:func:`path_loss_from_rss`), inverted with
+    :func:`distance_from_path_loss`.  Example (paper Table VIII, DCS 1800 channel 764):
+    ``distance_from_rss(-69, 43, h_base_m=52, frequency_mhz=arfcn_to_frequency(764, "DCS1800"))``.
+    """
+    loss = path_loss_from_rss(rss_dbm, tx_power_dbm, tx_gain_dbi=tx_gain_dbi, rx_gain_dbi=rx_gain_dbi,
+                              losses_db=losses_db)
+    return distance_from_path_loss(loss, model, on_invalid=on_invalid, **params)

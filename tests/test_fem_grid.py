@@ -1,0 +1,134 @@
+"""The FEM grid filter: shape functions, conservation, agreement with the Kalman filter, bad input."""
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from mptrack.errors import NotPositiveDefiniteError, ParameterError, ShapeError
+from mptrack.linear import kalman_filter
+from mptrack.nonlinear import FEMGrid, fem_filter, fem_steps, linear_sde_model, shape_functions, simulate_sde
+
+A = np.array([[0.0, 1.0], [-1.0, -0.5]])
+Q = np.diag([0.1, 0.2])
+X0, P0 = np.array([1.0, 0.0]), 0.3 * np.eye(2)
+
+
+@pytest.fixture(scope="module")
+def linear_case():
+    model = linear_sde_model(A, Q, np.eye(2), 0.5 * np.eye(2), 1.0)
+    _, z = simulate_sde(model, 12, np.random.default_rng(1), X0)
+    return model, z, kalman_filter(model.to_linear_gaussian(), z, X0, P0)
+
+
+def test_shape_functions_are_nodal_and_partition_unity():
+    xi = np.array([-1, 1, 1, -1, 0, 1, 0, -1.0])
+    eta = np.array([-1, -1, 1, 1, -1, 0, 1, 0.0])
+    N, dx, dy = shape_functions(xi, eta)
+    np.testing.assert_allclose(N, np.eye(8), atol=1e-15)
+    pts = np.random.default_rng(0).uniform(-1, 1, (50, 2))
+    N, dx, dy = shape_functions(pts[:, 0], pts[:, 1])
+    np.testing.assert_allclose(N.sum(1), 1.0)
+    np.testing.assert_allclose(dx.sum(1), 0.0, atol=1e-13)
+    e = 1e-6
+    num = (shape_functions(pts[:, 0] + e, pts[:, 1])[0] - shape_functions(pts[:, 0] - e, pts[:, 1])[0]) / (2 * e)
+    np.testing.assert_allclose(num, dx, atol=1e-8)
+    num = (shape_functions(pts[:, 0], pts[:, 1] + e)[0] - shape_functions(pts[:, 0], pts[:, 1] - e)[0]) / (2 * e)
+    np.testing.assert_allclose(num, dy, atol=1e-8)
+
+
+def test_grid_integrates_quadratics_exactly():
+    g = FEMGrid([-1.0, -2.0], [3.0, 1.0], 5, 4)
+    x, y = g.nodes[:, 0], g.nodes[:, 1]
+    assert g.size == 11 * 9 - 20
+    # ∫ 1, ∫ x, ∫ x y over [-1,3]x[-2,1]: 12, 12, 12*... exact for the serendipity space
+    assert g.W0 @ np.ones(g.size) == pytest.approx(12.0)
+    assert g.W0 @ x == pytest.approx(3 * (9 - 1) / 2 * 1)
+    assert g.W0 @ (x * y) == pytest.approx((9 - 1) / 2 * (1 - 4) / 2)
+    assert g.W0 @ (x * x * y) == pytest.approx((27 + 1) / 3 * (1 - 4) / 2)
+    # interpolant reproduces a quadratic anywhere inside, zero outside
+    pts = np.array([[0.3, -0.7], [2.9, 0.9], [5.0, 0.0]])
+    q = lambda P: 1 + P[..., 0] - 2 * P[..., 1] + P[..., 0] * P[..., 1] + P[..., 0] ** 2  # noqa: E731
+    np.testing.assert_allclose(g.evaluate(q(g.nodes), pts), [q(pts[0]), q(pts[1]), 0.0])
+
+
+def test_operator_conserves_mass():
+    model = linear_sde_model(A, Q, np.eye(2), np.eye(2), 1.0)
+    g = FEMGrid([-4.0, -4.0], [4.0, 4.0], 6, 6)
+    M, Aop = g.operators(model)
+    ones = np.ones(g.size)
+    np.testing.assert_allclose(ones @ Aop.toarray(), 0.0, atol=1e-12)
+    np.testing.assert_allclose(ones @ M.toarray(), g.W0, atol=1e-12)
+
+
+def test_mass_and_nonnegativity_after_prediction_and_update(linear_case):
+    model, z, _ = linear_case
+    for step in fem_steps(model, z, X0, P0, grid=(12, 12)):
+        for dens in (step.prior, step.posterior):
+            assert np.all(dens.p >= 0)
+            assert dens.grid.W0 @ dens.p == pytest.approx(1.0, rel=1e-12)
+        assert 0 <= step.clipped < 0.05
+
+
+@pytest.mark.parametrize("scheme", ["sdirk2", "cn"])
+def test_fem_matches_kalman_on_linear_model(linear_case, scheme):
+    model, z, kf = linear_case
+    fe = fem_filter(model, z, X0, P0, grid=(24, 24), substeps=16, scheme=scheme)
+    assert fe.method == "FEM"
+    np.testing.assert_allclose(fe.x, kf.x, atol=2e-3)
+    np.testing.assert_allclose(fe.P, kf.P, atol=2e-3)
+    np.testing.assert_allclose(fe.x_pred, kf.x_pred, atol=2e-3)
+    assert fe.loglik == pytest.approx(kf.loglik, abs=0.05)
+
+
+def test_fem_error_falls_with_grid_refinement(linear_case):
+    """Observed spatial order (fine time steps) is reported and is at least 2."""
+    model, z, kf = linear_case
+    sizes = (8, 16, 32)
+    err = [np.abs(fem_filter(model, z, X0, P0, grid=(n, n), substeps=32).x - kf.x).max() for n in sizes]
+    order = -np.polyfit(np.log(sizes), np.log(err), 1)[0]
+    print(f"FEM vs KF max mean error {err}, observed order {order:.2f}")
+    assert err[0] > err[1] > err[2]
+    assert order > 2.0
+
+
+def test_fixed_box_must_cover_the_prior(linear_case):
+    model, z, _ = linear_case
+    with pytest.raises(ParameterError, match="box"):
+        fem_filter(model, z, X0, P0, box=((0.5, -1.0), (3.0, 1.0)))
+    res = fem_filter(model, z[:3], X0, P0, grid=(10, 10), box=((-5.0, -5.0), (5.0, 5.0)))
+    assert res.x.shape == (3, 2)
+
+
+def test_nan_measurement_only_predicts(linear_case):
+    model, z, _ = linear_case
+    z = z.copy()
+    z[2] = np.nan
+    steps = list(fem_steps(model, z[:4], X0, P0, grid=(12, 12)))
+    np.testing.assert_allclose(steps[2].x, steps[2].x_pred)
+    assert steps[2].loglik == 0.0
+
+
+def test_bad_input(linear_case):
+    model, z, _ = linear_case
+    with pytest.raises(NotPositiveDefiniteError, match="P0"):
+        fem_filter(model, z, X0, np.diag([1.0, -1.0]))
+    with pytest.raises(ShapeError, match="z"):
+        fem_filter(model, z[:, :1], X0, P0)
+    with pytest.raises(ParameterError, match="scheme"):
+        fem_filter(model, z, X0, P0, scheme="rk4")
+    with pytest.raises(ParameterError, match="hi"):
+        FEMGrid([0.0, 0.0], [0.0, 1.0], 2, 2)
+    three = linear_sde_model(np.eye(3), np.eye(3), np.eye(3), np.eye(3), 1.0)
+    with pytest.raises(ShapeError, match="2-D"):
+        fem_filter(three, np.zeros((2, 3)), np.zeros(3), np.eye(3))
+
+
+@settings(max_examples=15, deadline=None)
+@given(st.floats(-3, 3), st.floats(-3, 3), st.floats(0.2, 2.0))
+def test_interpolated_gaussian_moments(mx, my, s):
+    g = FEMGrid([mx - 6 * s, my - 6 * s], [mx + 6 * s, my + 6 * s], 24, 24)
+    p = np.exp(-0.5 * np.sum((g.nodes - [mx, my]) ** 2, axis=1) / s**2)
+    mass, mean, cov = g.moments(p)
+    np.testing.assert_allclose(mean, [mx, my], atol=1e-3 * s)
+    np.testing.assert_allclose(cov, s * s * np.eye(2), atol=1e-3 * s * s)

@@ -1,0 +1,72 @@
+"""The continuous-discrete UKF: ≡ KF on a linear model, angle handling, bad input."""
+
+import numpy as np
+import pytest
+
+from mptrack.errors import NotPositiveDefiniteError, ParameterError
+from mptrack.linear import kalman_filter
+from mptrack.nonlinear import linear_sde_model, sigma_points, simulate_sde, ukf_filter, zhao2013_model
+
+
+def test_ukf_equals_kalman_on_linear_model():
+    A = np.array([[0.0, 1.0], [-2.0, -0.3]])
+    model = linear_sde_model(A, np.diag([0.2, 0.5]), [[1.0, 0.5]], [[0.3]], 0.5, substeps=40)
+    _, z = simulate_sde(model, 25, np.random.default_rng(3), [1.0, -1.0])
+    kf = kalman_filter(model.to_linear_gaussian(), z, [0.5, 0.0], np.eye(2))
+    uk = ukf_filter(model, z, [0.5, 0.0], np.eye(2))
+    np.testing.assert_allclose(uk.x, kf.x, atol=1e-7)
+    np.testing.assert_allclose(uk.P, kf.P, atol=1e-7)
+    assert uk.loglik == pytest.approx(kf.loglik, abs=1e-6)
+    assert uk.method == "UKF"
+
+
+def test_sigma_points_reproduce_mean_and_covariance():
+    m, P = np.array([1.0, -2.0]), np.array([[2.0, 0.3], [0.3, 0.5]])
+    for alpha, kappa in ((1.0, 0.0), (0.5, 1.0), (1e-3, 0.0)):
+        X, Wm, Wc = sigma_points(m, P, alpha=alpha, kappa=kappa)
+        np.testing.assert_allclose(Wm @ X, m)
+        np.testing.assert_allclose((Wc[:, None] * (X - m)).T @ (X - m), P, atol=1e-9)
+
+
+def test_bearing_innovation_is_wrapped():
+    model = zhao2013_model()
+    # truth just across the ±π branch cut from the estimate: the innovation is small
+    nu = model.innovation([1.0, np.pi - 0.01], [1.0, -np.pi + 0.01])
+    assert nu[1] == pytest.approx(-0.02)
+    printed = zhao2013_model(bearing="atan")
+    np.testing.assert_allclose(printed.measurement(np.array([[1.0, 1.0], [-1.0, -1.0]]))[:, 1], np.pi / 4)
+    assert zhao2013_model().measurement(np.array([-1.0, -1.0]))[1] == pytest.approx(-3 * np.pi / 4)
+
+
+def test_ukf_tracks_across_the_branch_cut():
+    """A state crossing bearing ±π (x2 < 0, x1 changing sign) is tracked without a jump."""
+    model = zhao2013_model(variant="vdp", diffusion_scale=0.001)
+    truth = np.stack([np.linspace(-0.5, 0.5, 11), -np.ones(11)], axis=1)
+    z = model.measurement(truth)
+    res = ukf_filter(model, z, truth[0], 0.01 * np.eye(2))
+    assert np.abs(res.x[:, 0] - model.flow(truth[0])[0]).max() < 5  # finite, no branch-cut blow-up
+    assert np.all(np.isfinite(res.x))
+
+
+def test_ukf_nan_row_only_predicts():
+    model = zhao2013_model(variant="vdp", diffusion_scale=0.1)
+    z = np.array([[1.0, 0.1], [np.nan, np.nan], [1.1, np.nan]])
+    res = ukf_filter(model, z, [-0.6, -1.0], 0.1 * np.eye(2))
+    np.testing.assert_allclose(res.x[1], res.x_pred[1])
+    assert not np.allclose(res.x[2], res.x_pred[2])
+
+
+def test_ukf_bad_input():
+    model = zhao2013_model()
+    with pytest.raises(NotPositiveDefiniteError, match="P0"):
+        ukf_filter(model, np.zeros((2, 2)), [0.0, 0.0], [[1.0, 2.0], [2.0, 1.0]])
+    with pytest.raises(ParameterError, match="model"):
+        ukf_filter("not a model", np.zeros((2, 2)), [0.0, 0.0], np.eye(2))
+    with pytest.raises(NotPositiveDefiniteError, match="Q"):
+        linear_sde_model(np.eye(2), np.diag([1.0, -0.5]), np.eye(2), np.eye(2), 1.0)
+    with pytest.raises(NotPositiveDefiniteError, match="R"):
+        linear_sde_model(np.eye(2), np.eye(2), np.eye(2), np.diag([1.0, -1.0]), 1.0)
+    with pytest.raises(ParameterError, match="variant"):
+        zhao2013_model(variant="reversed")
+    with pytest.raises(ParameterError, match="diffusion_scale"):
+        zhao2013_model(diffusion_scale=-1.0)

@@ -1,0 +1,50 @@
+"""The zhao2013 reproduction (quick run) and the published numbers it is compared with."""
+
+import json
+
+import numpy as np
+import pytest
+
+from mptrack.experiments import run_experiment
+from mptrack.experiments.zhao2013 import _paper, _table1_rows
+from mptrack.nonlinear import ZHAO2013_X0, zhao2013_model
+
+
+def test_published_table1_is_pinned():
+    t = _paper()["table1"]
+    assert t["rows"][0] == ["FE", 0.1817, 0.2250, 0.0956, 0.1194]
+    assert t["rows"][2] == ["UKF", 0.5366, 0.4965, 0.2857, 0.3223]
+
+
+def test_metrics_eq43_44():
+    truth = np.zeros((4, 2))
+    x = np.array([[1.0, 0.0]] * 4)
+    P = np.tile(np.diag([4.0, 1.0]), (4, 1, 1))
+    run = {"truth": truth, "FE": (x, P, 0.0), "PF": (2 * x, P, 0.0), "UKF": None}
+    rows, failed = _table1_rows([run, run])
+    assert rows[0] == ["FE", 1.0, 0.0, 2.0, 1.0]
+    assert rows[1][1] == 2.0
+    assert failed["UKF"] == 2
+
+
+def test_printed_model_diverges():
+    model = zhao2013_model()
+    X = np.tile(ZHAO2013_X0, (200, 1))
+    rng = np.random.default_rng(0)
+    for _ in range(30):
+        X = model.sample_transition(X, rng, 100)
+    assert np.all(np.isfinite(X))
+    assert np.mean(np.abs(X).max(axis=1) > 1e3) > 0.9
+
+
+def test_quick_reproduction(tmp_path):
+    rep = run_experiment("zhao2013", tmp_path, quick=True)
+    data = json.loads((tmp_path / "zhao2013" / "results.json").read_text())
+    table = data["tables"]["Table 1"]
+    assert [r[0] for r in table["rows"]] == ["FE", "PF", "UKF"]
+    assert table["paper"][0][1] == pytest.approx(0.1817)
+    assert all(v is None or v > 0 for r in table["rows"] for v in r[1:])
+    div = data["tables"]["Divergence of eq. 42"]["rows"]
+    assert div[0][1] > 0.9 and div[-1][1] == 0.0
+    for name in rep.figures.values():
+        assert (tmp_path / "zhao2013" / name).stat().st_size > 1000
