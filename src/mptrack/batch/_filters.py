@@ -14,7 +14,7 @@ import numpy as np
 from .._validation import check_covariance, check_int, check_positive
 from ..errors import NonFiniteError, ParameterError, ShapeError
 from ..linear import fir_coefficients, fir_order
-from ..models import LinearGaussianModel
+from ..models import LinearGaussianModel, require_model
 from ..riccati import SteadyState, steady_state
 from . import _kernels as K
 from ._inputs import as_batch, check_out, launch, prepare_batch
@@ -100,8 +100,7 @@ def gain_sequence(model: LinearGaussianModel, steps: int, P0=None) -> GainSequen
     that shares the model and the prior covariance.  Same formulas and order
     of operations as :func:`mptrack.linear.kalman_step`.
     """
-    if not isinstance(model, LinearGaussianModel):
-        raise ParameterError(f"model: expected a LinearGaussianModel, got {type(model).__name__}")
+    require_model(model)
     steps = check_int("steps", steps, minimum=1)
     n, m = model.n, model.m
     P = np.zeros((n, n)) if P0 is None else check_covariance("P0", P0, n)
@@ -192,8 +191,7 @@ def predict(model: LinearGaussianModel, x, steps: int = 1, out=None) -> np.ndarr
     steps  the horizon N >= 1 (time steps of model.dt)
     out    optional C-contiguous output of x's shape and dtype (may be x itself)
     """
-    if not isinstance(model, LinearGaussianModel):
-        raise ParameterError(f"model: expected a LinearGaussianModel, got {type(model).__name__}")
+    require_model(model)
     steps = check_int("steps", steps, minimum=1)
     x = np.asarray(x)
     if x.ndim != 3 or x.shape[2] == 0 or x.shape[2] % model.n:
@@ -228,8 +226,7 @@ def per_axis(run: Callable[..., np.ndarray], axis_model: LinearGaussianModel, z,
     impl = _PER_AXIS.get(run)
     if impl is None:
         raise ParameterError("run: expected mptrack.batch.steady_state_filter, kalman_filter or fir_filter")
-    if not isinstance(axis_model, LinearGaussianModel):
-        raise ParameterError(f"axis_model: expected a LinearGaussianModel, got {type(axis_model).__name__}")
+    require_model(axis_model, "axis_model")
     shape = np.shape(z)
     if len(shape) != 3 or shape[2] == 0 or shape[2] % axis_model.m:
         raise ShapeError(f"z: expected shape (B, T, axes * {axis_model.m}), got shape {shape}")

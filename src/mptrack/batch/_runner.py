@@ -29,7 +29,7 @@ import pandas as pd
 from .._io import atomic_path, write_json
 from .._validation import check_int
 from ..errors import DTypeError, ParameterError
-from ..models import LinearGaussianModel
+from ..models import LinearGaussianModel, require_model
 from ._filters import gain_sequence, kalman_filter, steady_state_filter
 
 __all__ = ["Chunk", "make_chunks", "run_chunks", "MonteCarloTask", "monte_carlo", "filter_chunked",
@@ -265,8 +265,7 @@ def monte_carlo(model: LinearGaussianModel, steps: int, runs: int, *, seed: int,
     """
     if method not in ("steady-state", "kalman"):
         raise ParameterError(f"method: expected 'steady-state' or 'kalman', got {method!r}")
-    if not isinstance(model, LinearGaussianModel):
-        raise ParameterError(f"model: expected a LinearGaussianModel, got {type(model).__name__}")
+    require_model(model)
     steps = check_int("steps", steps, minimum=1)
     task = MonteCarloTask(model, steps, method, None if P0 is None else np.asarray(P0, dtype=float))
     desc = {"steps": steps, "method": method, "model": repr(model)}

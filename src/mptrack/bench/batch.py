@@ -21,19 +21,11 @@ from ..errors import ConvergenceError
 from ..models import assimakis_model_a, assimakis_model_b
 from ..riccati import steady_state
 from . import register_suite
+from .linear import _best, _filterpy, _pykalman  # the same peers and timing as the 'linear' suite
 
 __all__ = ["batch_suite", "batch_scaling_suite", "compile_times"]
 
 AGREE_RTOL = 1e-8
-
-
-def _best(fn: Callable[[], object], repeats: int) -> float:
-    best = np.inf
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        fn()
-        best = min(best, time.perf_counter() - t0)
-    return best
 
 
 class _Copier:
@@ -90,31 +82,6 @@ def compile_times(dtypes=(np.float64, np.float32)) -> list[list]:
     return rows
 
 
-def _filterpy_run(model, z, x0, P0):
-    from filterpy.kalman import KalmanFilter
-
-    kf = KalmanFilter(dim_x=model.n, dim_z=model.m)
-    kf.F, kf.H, kf.Q, kf.R = (np.array(a) for a in (model.F, model.H, model.Q, model.R))
-    kf.x, kf.P = np.array(x0, dtype=float), np.array(P0, dtype=float)
-    out = np.empty((z.shape[0], model.n))
-    for k in range(z.shape[0]):
-        kf.predict()
-        kf.update(z[k])
-        out[k] = kf.x
-    return out
-
-
-def _pykalman_run(model, z, x0, P0):
-    from pykalman import KalmanFilter
-
-    # pykalman's prior is for the first measurement's time: pass x(1/0), P(1/0)
-    kf = KalmanFilter(transition_matrices=model.F, observation_matrices=model.H,
-                      transition_covariance=model.Q, observation_covariance=model.R,
-                      initial_state_mean=model.F @ x0,
-                      initial_state_covariance=model.F @ P0 @ model.F.T + model.Q)
-    return kf.filter(z)[0]
-
-
 def _simdkalman_run(model, z, x0, P0):
     import simdkalman
 
@@ -132,7 +99,7 @@ def _peer(name: str):
         __import__({"FilterPy": "filterpy", "pykalman": "pykalman", "simdkalman": "simdkalman"}[name])
     except ImportError:
         return None
-    return {"FilterPy": _filterpy_run, "pykalman": _pykalman_run, "simdkalman": _simdkalman_run}[name]
+    return {"FilterPy": _filterpy, "pykalman": _pykalman, "simdkalman": _simdkalman_run}[name]
 
 
 def _check(name: str, got: np.ndarray, want: np.ndarray) -> float:
@@ -185,7 +152,7 @@ def batch_suite(quick: bool) -> dict:
     # FilterPy started at the steady-state covariance is the steady-state filter
     if peers["FilterPy"] is not None:
         agree["FilterPy (P0 = Pe) vs SS"] = _check(
-            "FilterPy SS", np.stack([_filterpy_run(model, zb, x0, ss.P_filt) for zb in sub]), ss_sub)
+            "FilterPy SS", np.stack([_filterpy(model, zb, x0, ss.P_filt) for zb in sub]), ss_sub)
 
     updates = B * T
     copier = _Copier(24 * updates)
