@@ -96,3 +96,16 @@ def test_runner_argument_errors():
         batch.make_chunks(4, 2)[0].generators()
     with pytest.raises(ParameterError, match="method: expected"):
         batch.monte_carlo(MODEL, 10, 4, seed=1, method="fir")
+
+
+def test_filter_chunked_resumes_and_refuses_other_data(tmp_path):
+    z = np.random.default_rng(2).standard_normal((9, 15, 1))
+    first = batch.filter_chunked(batch.kalman_filter, MODEL, z, chunk_size=4, out_dir=tmp_path, P0=np.eye(2))
+    np.testing.assert_array_equal(first, batch.kalman_filter(MODEL, z, P0=np.eye(2)))
+    (tmp_path / "chunk-000001.parquet").unlink()          # as if interrupted
+    again = batch.filter_chunked(batch.kalman_filter, MODEL, z, chunk_size=4, out_dir=tmp_path, P0=np.eye(2))
+    np.testing.assert_array_equal(first, again)
+    with pytest.raises(ParameterError, match="different study"):
+        batch.filter_chunked(batch.kalman_filter, MODEL, z + 1.0, chunk_size=4, out_dir=tmp_path, P0=np.eye(2))
+    with pytest.raises(ParameterError, match="different study"):
+        batch.filter_chunked(batch.kalman_filter, MODEL, z, chunk_size=4, out_dir=tmp_path, P0=2 * np.eye(2))

@@ -36,7 +36,7 @@ def launch(kernel, work: int, *args) -> None:
         numba.set_num_threads(previous)
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class BatchInputs:
     z: np.ndarray        # (B, T, axes * m) C-contiguous float64/float32
     out: np.ndarray      # (B, T, axes * n) same dtype
