@@ -154,9 +154,8 @@ def test_n_step_prediction_is_F_power_N_and_works_per_axis():
     np.testing.assert_array_equal(y, got)
     mixing = LinearGaussianModel([[0.9, 0.2], [0.3, 0.8]], [[1.0, 0.0]], np.eye(2), [[1.0]])
     x4 = x.copy()                                  # every component of F^N x uses every component of x
-    np.testing.assert_allclose(batch.predict(mixing, x4, 2, out=x4),
-                               (x.reshape(2, 5, 2, 2) @ np.linalg.matrix_power(mixing.F, 2).T).reshape(x.shape),
-                               rtol=1e-14, atol=1e-15)
+    want = (x.reshape(2, 5, 2, 2) @ np.linalg.matrix_power(mixing.F, 2).T).reshape(x.shape)
+    np.testing.assert_allclose(batch.predict(mixing, x4, 2, out=x4), want, rtol=1e-14, atol=1e-15)
 
 
 def test_float32_within_single_precision_and_out_in_place():

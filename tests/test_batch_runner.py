@@ -106,6 +106,7 @@ def test_filter_chunked_resumes_and_refuses_other_data(tmp_path):
     again = batch.filter_chunked(batch.kalman_filter, MODEL, z, chunk_size=4, out_dir=tmp_path, P0=np.eye(2))
     np.testing.assert_array_equal(first, again)
     with pytest.raises(ParameterError, match="different study"):
-        batch.filter_chunked(batch.kalman_filter, MODEL, z + 1.0, chunk_size=4, out_dir=tmp_path, P0=np.eye(2))
+        batch.filter_chunked(batch.kalman_filter, MODEL, z + 1.0, chunk_size=4, out_dir=tmp_path,
+                             P0=np.eye(2))
     with pytest.raises(ParameterError, match="different study"):
         batch.filter_chunked(batch.kalman_filter, MODEL, z, chunk_size=4, out_dir=tmp_path, P0=2 * np.eye(2))
