@@ -8,6 +8,7 @@ chunks run serially, in local processes or on a Dask cluster, with resumable
 Parquet output.
 """
 
+from ._ekf import RangeModel, range_ekf
 from ._filters import (
     GainSequence,
     fir_filter,
@@ -34,4 +35,6 @@ __all__ = [
     "MonteCarloTask",
     "filter_chunked",
     "EXECUTORS",
+    "RangeModel",
+    "range_ekf",
 ]

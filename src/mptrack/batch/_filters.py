@@ -14,10 +14,10 @@ import numpy as np
 from .._validation import check_covariance, check_int, check_positive
 from ..errors import NonFiniteError, ParameterError, ShapeError
 from ..linear import fir_coefficients, fir_order
-from ..models import LinearGaussianModel
+from ..models import LinearGaussianModel, require_model
 from ..riccati import SteadyState, steady_state
 from . import _kernels as K
-from ._inputs import as_batch, check_out, prepare_batch
+from ._inputs import as_batch, check_out, launch, prepare_batch
 
 __all__ = [
     "GainSequence",
@@ -48,7 +48,7 @@ def _steady_state_filter(model, z, x0=None, out=None, *, lengths=None, steady=No
     bi = prepare_batch(model, z, x0, out, lengths, axes=axes)
     ss = _steady(model, steady)
     kernel = K.ss_kernel_21 if _is_21(model) else K.ss_kernel
-    kernel(bi.z, bi.out, np.ascontiguousarray(ss.A), np.ascontiguousarray(ss.B),
+    launch(kernel, bi.out.size, bi.z, bi.out, np.ascontiguousarray(ss.A), np.ascontiguousarray(ss.B),
            np.ascontiguousarray(model.F), bi.x0, bi.lengths, bi.axes)
     return bi.out
 
@@ -100,8 +100,7 @@ def gain_sequence(model: LinearGaussianModel, steps: int, P0=None) -> GainSequen
     that shares the model and the prior covariance.  Same formulas and order
     of operations as :func:`mptrack.linear.kalman_step`.
     """
-    if not isinstance(model, LinearGaussianModel):
-        raise ParameterError(f"model: expected a LinearGaussianModel, got {type(model).__name__}")
+    require_model(model)
     steps = check_int("steps", steps, minimum=1)
     n, m = model.n, model.m
     P = np.zeros((n, n)) if P0 is None else check_covariance("P0", P0, n)
@@ -135,7 +134,7 @@ def _kalman_filter(model, z, x0=None, P0=None, out=None, *, lengths=None, gains=
         raise ParameterError("P0: give P0 or gains (which already fix P0), not both")
     kernel = K.kf_kernel_21 if _is_21(model) else K.kf_kernel
     c = np.ascontiguousarray
-    kernel(bi.z, bi.out, c(model.F), c(model.H), c(model.Q), c(model.R), c(gains.K),
+    launch(kernel, bi.out.size, bi.z, bi.out, c(model.F), c(model.H), c(model.Q), c(model.R), c(gains.K),
            c(gains.P_filt), c(gains.P0), bi.x0, bi.lengths, bi.axes)
     return bi.out
 
@@ -164,7 +163,7 @@ def _fir_filter(model, z, out=None, *, lengths=None, eps=1e-3, norm=2, M=None, s
     M = fir_order(ss.A, eps, norm) if M is None else check_int("M", M, minimum=1)
     C = np.ascontiguousarray(fir_coefficients(ss.A, ss.B, M))
     bad = np.zeros(bi.z.shape[0], dtype=np.int64)
-    K.fir_kernel(bi.z, bi.out, C, bi.lengths, bi.axes, bad)
+    launch(K.fir_kernel, bi.out.size * M, bi.z, bi.out, C, bi.lengths, bi.axes, bad)
     if bad.any():
         b = int(np.flatnonzero(bad)[0])
         raise NonFiniteError(f"z: the FIR filter needs every measurement; track {b} has NaN at time "
@@ -192,8 +191,7 @@ def predict(model: LinearGaussianModel, x, steps: int = 1, out=None) -> np.ndarr
     steps  the horizon N >= 1 (time steps of model.dt)
     out    optional C-contiguous output of x's shape and dtype (may be x itself)
     """
-    if not isinstance(model, LinearGaussianModel):
-        raise ParameterError(f"model: expected a LinearGaussianModel, got {type(model).__name__}")
+    require_model(model)
     steps = check_int("steps", steps, minimum=1)
     x = np.asarray(x)
     if x.ndim != 3 or x.shape[2] == 0 or x.shape[2] % model.n:
@@ -202,7 +200,7 @@ def predict(model: LinearGaussianModel, x, steps: int = 1, out=None) -> np.ndarr
     xs = as_batch("x", x, x.shape[2])
     out = np.empty_like(xs) if out is None else check_out(out, xs.shape, xs.dtype, None if out is x else xs)
     FN = np.linalg.matrix_power(model.F, steps)
-    K.matvec_kernel(xs, out, np.ascontiguousarray(FN), axes)
+    launch(K.matvec_kernel, out.size, xs, out, np.ascontiguousarray(FN), axes)
     return out
 
 
@@ -228,8 +226,7 @@ def per_axis(run: Callable[..., np.ndarray], axis_model: LinearGaussianModel, z,
     impl = _PER_AXIS.get(run)
     if impl is None:
         raise ParameterError("run: expected mptrack.batch.steady_state_filter, kalman_filter or fir_filter")
-    if not isinstance(axis_model, LinearGaussianModel):
-        raise ParameterError(f"axis_model: expected a LinearGaussianModel, got {type(axis_model).__name__}")
+    require_model(axis_model, "axis_model")
     shape = np.shape(z)
     if len(shape) != 3 or shape[2] == 0 or shape[2] % axis_model.m:
         raise ShapeError(f"z: expected shape (B, T, axes * {axis_model.m}), got shape {shape}")

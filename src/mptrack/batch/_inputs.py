@@ -4,18 +4,39 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 
 from .._validation import as_array, as_vector
 from ..errors import DTypeError, ParameterError, ShapeError
 from ..models import LinearGaussianModel
 
-__all__ = ["BatchInputs", "prepare_batch", "as_batch", "check_out"]
+__all__ = ["BatchInputs", "prepare_batch", "as_batch", "check_out", "launch"]
 
 _FLOATS = (np.dtype(np.float64), np.dtype(np.float32))
 
+SMALL_WORK = 1 << 20   # output values below which one thread beats waking the others
 
-@dataclass(frozen=True)
+
+def launch(kernel, work: int, *args) -> None:
+    """Call a parallel kernel; for less than SMALL_WORK updates on one thread only.
+
+    Waking the worker threads costs microseconds on an idle machine but a
+    scheduler time slice (milliseconds) on a busy one; small batches do not
+    need them.
+    """
+    if work >= SMALL_WORK or numba.get_num_threads() == 1:
+        kernel(*args)
+        return
+    previous = numba.get_num_threads()
+    numba.set_num_threads(1)
+    try:
+        kernel(*args)
+    finally:
+        numba.set_num_threads(previous)
+
+
+@dataclass(frozen=True, eq=False)
 class BatchInputs:
     z: np.ndarray        # (B, T, axes * m) C-contiguous float64/float32
     out: np.ndarray      # (B, T, axes * n) same dtype
@@ -53,7 +74,8 @@ def check_out(out, shape: tuple, dtype, source: np.ndarray | None) -> np.ndarray
     return out
 
 
-def prepare_batch(model, z, x0, out, lengths, *, axes: int = 1) -> BatchInputs:
+def prepare_batch(model, z, x0, out, lengths, *, axes: int = 1,
+                  model_type: type = LinearGaussianModel) -> BatchInputs:
     """Check and normalise the arguments every batch filter takes.
 
     z        (B, T, axes * model.m) measurements; NaN marks a missing value
@@ -62,8 +84,8 @@ def prepare_batch(model, z, x0, out, lengths, *, axes: int = 1) -> BatchInputs:
     lengths  None (all T) or (B,) integers in [0, T]: track b uses z[b, :lengths[b]]
              and gets NaN after it
     """
-    if not isinstance(model, LinearGaussianModel):
-        raise ParameterError(f"model: expected a LinearGaussianModel, got {type(model).__name__}")
+    if not isinstance(model, model_type):
+        raise ParameterError(f"model: expected a {model_type.__name__}, got {type(model).__name__}")
     n, m = axes * model.n, axes * model.m
     z = as_batch("z", z, m)
     B, T = z.shape[:2]
@@ -82,7 +104,8 @@ def prepare_batch(model, z, x0, out, lengths, *, axes: int = 1) -> BatchInputs:
         if raw.shape != (B,):
             raise ShapeError(f"lengths: expected shape ({B},), got shape {raw.shape}")
         if raw.size and (raw.min() < 0 or raw.max() > T):
-            raise ParameterError(f"lengths: expected values in [0, {T}], got min {raw.min()}, max {raw.max()}")
+            raise ParameterError(f"lengths: expected values in [0, {T}], "
+                                 f"got min {raw.min()}, max {raw.max()}")
         lengths = np.ascontiguousarray(raw, dtype=np.int64)
     if out is None:
         out = np.empty((B, T, n), dtype=z.dtype)

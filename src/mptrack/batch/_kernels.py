@@ -28,6 +28,7 @@ __all__ = ["ss_kernel", "ss_kernel_21", "kf_kernel", "kf_kernel_21", "fir_kernel
            "copy_kernel"]
 
 _OPTS = dict(parallel=True, cache=True, nogil=True, boundscheck=False)
+LANES = 4   # tracks advanced together by the n = 2, m = 1 kernels
 
 
 @nb.njit(**_OPTS)
@@ -73,44 +74,89 @@ def ss_kernel(z, out, A, Bm, F, x0, lengths, axes):
                 out[b, t, xo + r] = np.nan
 
 
-@nb.njit(**_OPTS)
-def ss_kernel_21(z, out, A, Bm, F, x0, lengths, axes):
-    """:func:`ss_kernel` written out for n = 2, m = 1 (model B per axis): the state
-    lives in registers, so the loop runs at memory speed."""
-    nb_, T = z.shape[0], z.shape[1]
-    a00, a01, a10, a11 = A[0, 0], A[0, 1], A[1, 0], A[1, 1]
-    b0, b1 = Bm[0, 0], Bm[1, 0]
-    f00, f01, f10, f11 = F[0, 0], F[0, 1], F[1, 0], F[1, 1]
-    for i in nb.prange(nb_ * axes):
-        b = i // axes
-        a = i - b * axes
-        o = 2 * a
-        p = x0[b, o]
-        v = x0[b, o + 1]
-        L = lengths[b]
-        for t in range(L):
-            zz = z[b, t, a]
-            if np.isnan(zz):
-                p, v = f00 * p + f01 * v, f10 * p + f11 * v
-            else:
-                p, v = (a00 * p + a01 * v) + b0 * zz, (a10 * p + a11 * v) + b1 * zz
-            out[b, t, o] = p
-            out[b, t, o + 1] = v
-        for t in range(L, T):
-            out[b, t, o] = np.nan
-            out[b, t, o + 1] = np.nan
+@nb.njit(cache=True, nogil=True)
+def _lanes(i0, axes, lengths):
+    """Tracks i0 .. i0+3 of a group as (b, axis) pairs, and the shortest of their lengths."""
+    b1, b2, b3, b4 = i0 // axes, (i0 + 1) // axes, (i0 + 2) // axes, (i0 + 3) // axes
+    c1, c2, c3, c4 = i0 - b1 * axes, i0 + 1 - b2 * axes, i0 + 2 - b3 * axes, i0 + 3 - b4 * axes
+    Lmin = min(min(lengths[b1], lengths[b2]), min(lengths[b3], lengths[b4]))
+    return b1, b2, b3, b4, c1, c2, c3, c4, Lmin
 
 
 @nb.njit(cache=True, nogil=True)
-def _kf_full_update(F, H, Q, R, x, P, zrow, zo):
-    """One Kalman step (seed 000 eq. 4) with this track's own covariance P (in place).
+def _lane_priors(x0, b1, b2, b3, b4, c1, c2, c3, c4):
+    """The priors (position, velocity) of the four lanes."""
+    return (x0[b1, 2 * c1], x0[b1, 2 * c1 + 1], x0[b2, 2 * c2], x0[b2, 2 * c2 + 1],
+            x0[b3, 2 * c3], x0[b3, 2 * c3 + 1], x0[b4, 2 * c4], x0[b4, 2 * c4 + 1])
 
-    NaN components of the measurement are skipped; a fully missing row only
-    predicts.  The gain solves S K^T = (P H^T)^T by Cholesky (S is positive
-    definite); written with explicit loops to keep compile time low.
+
+@nb.njit(cache=True, nogil=True)
+def _ss21_track(z, out, b, a, t0, p, v, L, A, Bm, F):
+    """Track (b, axis a) of :func:`ss_kernel_21` from time index t0 with state (p, v)."""
+    a00, a01, a10, a11 = A[0, 0], A[0, 1], A[1, 0], A[1, 1]
+    b0, b1 = Bm[0, 0], Bm[1, 0]
+    o = 2 * a
+    for t in range(t0, L):
+        zz = z[b, t, a]
+        if np.isnan(zz):
+            p, v = F[0, 0] * p + F[0, 1] * v, F[1, 0] * p + F[1, 1] * v
+        else:
+            p, v = (a00 * p + a01 * v) + b0 * zz, (a10 * p + a11 * v) + b1 * zz
+        out[b, t, o] = p
+        out[b, t, o + 1] = v
+    for t in range(L, z.shape[1]):
+        out[b, t, o] = np.nan
+        out[b, t, o + 1] = np.nan
+
+
+@nb.njit(**_OPTS)
+def ss_kernel_21(z, out, A, Bm, F, x0, lengths, axes):
+    """:func:`ss_kernel` written out for n = 2, m = 1 (model B per axis).
+
+    Four tracks advance together (``LANES``): their states live in registers
+    and their four independent recursions hide the floating-point latency, so
+    the loop runs at memory speed.  When a lane meets a NaN, or the shortest
+    of the four tracks ends, each lane finishes on its own (:func:`_ss21_track`).
     """
+    nb_ = z.shape[0]
+    ntr = nb_ * axes
+    a00, a01, a10, a11 = A[0, 0], A[0, 1], A[1, 0], A[1, 1]
+    b0, b1 = Bm[0, 0], Bm[1, 0]
+    ngroups = (ntr + LANES - 1) // LANES
+    for g in nb.prange(ngroups):
+        i0 = g * LANES
+        if i0 + LANES > ntr:            # the last, incomplete group: one track at a time
+            for i in range(i0, ntr):
+                b = i // axes
+                a = i - b * axes
+                _ss21_track(z, out, b, a, 0, x0[b, 2 * a], x0[b, 2 * a + 1], lengths[b], A, Bm, F)
+            continue
+        b1_, b2_, b3_, b4_, c1, c2, c3, c4, Lmin = _lanes(i0, axes, lengths)
+        p1, v1, p2, v2, p3, v3, p4, v4 = _lane_priors(x0, b1_, b2_, b3_, b4_, c1, c2, c3, c4)
+        t = 0
+        while t < Lmin:
+            z1, z2, z3, z4 = z[b1_, t, c1], z[b2_, t, c2], z[b3_, t, c3], z[b4_, t, c4]
+            if np.isnan(z1) or np.isnan(z2) or np.isnan(z3) or np.isnan(z4):
+                break
+            p1, v1 = (a00 * p1 + a01 * v1) + b0 * z1, (a10 * p1 + a11 * v1) + b1 * z1
+            p2, v2 = (a00 * p2 + a01 * v2) + b0 * z2, (a10 * p2 + a11 * v2) + b1 * z2
+            p3, v3 = (a00 * p3 + a01 * v3) + b0 * z3, (a10 * p3 + a11 * v3) + b1 * z3
+            p4, v4 = (a00 * p4 + a01 * v4) + b0 * z4, (a10 * p4 + a11 * v4) + b1 * z4
+            out[b1_, t, 2 * c1], out[b1_, t, 2 * c1 + 1] = p1, v1
+            out[b2_, t, 2 * c2], out[b2_, t, 2 * c2 + 1] = p2, v2
+            out[b3_, t, 2 * c3], out[b3_, t, 2 * c3 + 1] = p3, v3
+            out[b4_, t, 2 * c4], out[b4_, t, 2 * c4 + 1] = p4, v4
+            t += 1
+        _ss21_track(z, out, b1_, c1, t, p1, v1, lengths[b1_], A, Bm, F)
+        _ss21_track(z, out, b2_, c2, t, p2, v2, lengths[b2_], A, Bm, F)
+        _ss21_track(z, out, b3_, c3, t, p3, v3, lengths[b3_], A, Bm, F)
+        _ss21_track(z, out, b4_, c4, t, p4, v4, lengths[b4_], A, Bm, F)
+
+
+@nb.njit(cache=True, nogil=True)
+def kf_predict(F, Q, x, P):
+    """x(k/k-1) = F x, P(k/k-1) = F P F^T + Q (new arrays)."""
     n = F.shape[0]
-    m = H.shape[0]
     xp = np.zeros(n)
     FP = np.zeros((n, n))
     Pp = np.empty((n, n))
@@ -125,38 +171,42 @@ def _kf_full_update(F, H, Q, R, x, P, zrow, zo):
             for j in range(n):
                 s += FP[r, j] * F[c, j]
             Pp[r, c] = s + Q[r, c]
+    return xp, Pp
+
+
+@nb.njit(cache=True, nogil=True)
+def observed(zrow, zo, m):
+    """Indices c < m with zrow[zo + c] not NaN, and their count."""
     ok = np.empty(m, dtype=np.int64)
     k = 0
     for c in range(m):
         if not np.isnan(zrow[zo + c]):
             ok[k] = c
             k += 1
-    if k == 0:
-        for r in range(n):
-            x[r] = xp[r]
-            for c in range(n):
-                P[r, c] = Pp[r, c]
-        return
+    return ok, k
+
+
+@nb.njit(cache=True, nogil=True)
+def kf_update(xp, Pp, Hs, Rs, innov, x, P):
+    """Measurement update with the (k, n) matrix Hs, (k, k) noise Rs and innovation (k,):
+    K = P H^T S^{-1} (S = H P H^T + R by Cholesky), x = xp + K innov, P = Pp - K H Pp,
+    written into x and P (symmetrised).  Explicit loops keep numba's compile time low."""
+    n = xp.shape[0]
+    k = innov.shape[0]
     PHt = np.zeros((n, k))          # P(k/k-1) H^T
     for r in range(n):
         for i in range(k):
             for j in range(n):
-                PHt[r, i] += Pp[r, j] * H[ok[i], j]
+                PHt[r, i] += Pp[r, j] * Hs[i, j]
     Lc = np.zeros((k, k))           # S = H P H^T + R = Lc Lc^T
     for i in range(k):
         for j in range(i + 1):
-            s = R[ok[i], ok[j]]
+            s = Rs[i, j]
             for c in range(n):
-                s += H[ok[i], c] * PHt[c, j]
+                s += Hs[i, c] * PHt[c, j]
             for c in range(j):
                 s -= Lc[i, c] * Lc[j, c]
             Lc[i, j] = np.sqrt(s) if i == j else s / Lc[j, j]
-    innov = np.empty(k)
-    for i in range(k):
-        s = zrow[zo + ok[i]]
-        for j in range(n):
-            s -= H[ok[i], j] * xp[j]
-        innov[i] = s
     G = np.empty((n, k))            # K = PHt S^{-1}: solve Lc Lc^T K^T = PHt^T row by row
     for r in range(n):
         for i in range(k):
@@ -185,6 +235,35 @@ def _kf_full_update(F, H, Q, R, x, P, zrow, zo):
             avg = 0.5 * (P[r, c] + P[c, r])
             P[r, c] = avg
             P[c, r] = avg
+
+
+@nb.njit(cache=True, nogil=True)
+def _kf_full_update(F, H, Q, R, x, P, zrow, zo):
+    """One Kalman step (seed 000 eq. 4) with this track's own covariance P (in place).
+
+    NaN components of the measurement are skipped; a fully missing row only predicts.
+    """
+    n = F.shape[0]
+    xp, Pp = kf_predict(F, Q, x, P)
+    ok, k = observed(zrow, zo, H.shape[0])
+    if k == 0:
+        x[:] = xp
+        for r in range(n):
+            for c in range(n):
+                P[r, c] = Pp[r, c]
+        return
+    Hs = np.empty((k, n))
+    Rs = np.empty((k, k))
+    innov = np.empty(k)
+    for i in range(k):
+        s = zrow[zo + ok[i]]
+        for j in range(n):
+            Hs[i, j] = H[ok[i], j]
+            s -= H[ok[i], j] * xp[j]
+        innov[i] = s
+        for j in range(k):
+            Rs[i, j] = R[ok[i], ok[j]]
+    kf_update(xp, Pp, Hs, Rs, innov, x, P)
 
 
 @nb.njit(**_OPTS)
@@ -247,44 +326,85 @@ def kf_kernel(z, out, F, H, Q, R, K, Pf, P0, x0, lengths, axes):
                 out[b, t, xo + r] = np.nan
 
 
-@nb.njit(**_OPTS)
-def kf_kernel_21(z, out, F, H, Q, R, K, Pf, P0, x0, lengths, axes):
-    """:func:`kf_kernel` written out for n = 2, m = 1 (model B per axis)."""
-    nb_, T = z.shape[0], z.shape[1]
+@nb.njit(cache=True, nogil=True)
+def _kf21_track(z, out, b, a, t0, p, v, L, F, H, Q, R, K, Pf, P0):
+    """Track (b, axis a) of :func:`kf_kernel_21` from time index t0 with state (p, v)."""
     f00, f01, f10, f11 = F[0, 0], F[0, 1], F[1, 0], F[1, 1]
     h0, h1 = H[0, 0], H[0, 1]
-    for i in nb.prange(nb_ * axes):
-        b = i // axes
-        a = i - b * axes
-        o = 2 * a
-        p = x0[b, o]
-        v = x0[b, o + 1]
-        L = lengths[b]
-        t0 = L
-        for t in range(L):
-            zz = z[b, t, a]
-            if np.isnan(zz):
-                t0 = t
+    o = 2 * a
+    t1 = L
+    for t in range(t0, L):
+        zz = z[b, t, a]
+        if np.isnan(zz):
+            t1 = t
+            break
+        pp = f00 * p + f01 * v
+        vp = f10 * p + f11 * v
+        e = zz - (h0 * pp + h1 * vp)
+        p = pp + K[t, 0, 0] * e
+        v = vp + K[t, 1, 0] * e
+        out[b, t, o] = p
+        out[b, t, o + 1] = v
+    if t1 < L:                          # first gap: leave the shared gains
+        x = np.empty(2)
+        x[0] = p
+        x[1] = v
+        P = P0.copy() if t1 == 0 else Pf[t1 - 1].copy()
+        for t in range(t1, L):
+            _kf_full_update(F, H, Q, R, x, P, z[b, t], a)
+            out[b, t, o] = x[0]
+            out[b, t, o + 1] = x[1]
+    for t in range(L, z.shape[1]):
+        out[b, t, o] = np.nan
+        out[b, t, o + 1] = np.nan
+
+
+@nb.njit(**_OPTS)
+def kf_kernel_21(z, out, F, H, Q, R, K, Pf, P0, x0, lengths, axes):
+    """:func:`kf_kernel` written out for n = 2, m = 1, four tracks at a time (see :func:`ss_kernel_21`)."""
+    nb_ = z.shape[0]
+    ntr = nb_ * axes
+    f00, f01, f10, f11 = F[0, 0], F[0, 1], F[1, 0], F[1, 1]
+    h0, h1 = H[0, 0], H[0, 1]
+    ngroups = (ntr + LANES - 1) // LANES
+    for g in nb.prange(ngroups):
+        i0 = g * LANES
+        if i0 + LANES > ntr:
+            for i in range(i0, ntr):
+                b = i // axes
+                a = i - b * axes
+                _kf21_track(z, out, b, a, 0, x0[b, 2 * a], x0[b, 2 * a + 1], lengths[b],
+                            F, H, Q, R, K, Pf, P0)
+            continue
+        b1_, b2_, b3_, b4_, c1, c2, c3, c4, Lmin = _lanes(i0, axes, lengths)
+        p1, v1, p2, v2, p3, v3, p4, v4 = _lane_priors(x0, b1_, b2_, b3_, b4_, c1, c2, c3, c4)
+        t = 0
+        while t < Lmin:
+            z1, z2, z3, z4 = z[b1_, t, c1], z[b2_, t, c2], z[b3_, t, c3], z[b4_, t, c4]
+            if np.isnan(z1) or np.isnan(z2) or np.isnan(z3) or np.isnan(z4):
                 break
-            pp = f00 * p + f01 * v
-            vp = f10 * p + f11 * v
-            e = zz - (h0 * pp + h1 * vp)
-            p = pp + K[t, 0, 0] * e
-            v = vp + K[t, 1, 0] * e
-            out[b, t, o] = p
-            out[b, t, o + 1] = v
-        if t0 < L:
-            x = np.empty(2)
-            x[0] = p
-            x[1] = v
-            P = P0.copy() if t0 == 0 else Pf[t0 - 1].copy()
-            for t in range(t0, L):
-                _kf_full_update(F, H, Q, R, x, P, z[b, t], a)
-                out[b, t, o] = x[0]
-                out[b, t, o + 1] = x[1]
-        for t in range(L, T):
-            out[b, t, o] = np.nan
-            out[b, t, o + 1] = np.nan
+            k0, k1 = K[t, 0, 0], K[t, 1, 0]
+            pp1, vp1 = f00 * p1 + f01 * v1, f10 * p1 + f11 * v1
+            pp2, vp2 = f00 * p2 + f01 * v2, f10 * p2 + f11 * v2
+            pp3, vp3 = f00 * p3 + f01 * v3, f10 * p3 + f11 * v3
+            pp4, vp4 = f00 * p4 + f01 * v4, f10 * p4 + f11 * v4
+            e1 = z1 - (h0 * pp1 + h1 * vp1)
+            e2 = z2 - (h0 * pp2 + h1 * vp2)
+            e3 = z3 - (h0 * pp3 + h1 * vp3)
+            e4 = z4 - (h0 * pp4 + h1 * vp4)
+            p1, v1 = pp1 + k0 * e1, vp1 + k1 * e1
+            p2, v2 = pp2 + k0 * e2, vp2 + k1 * e2
+            p3, v3 = pp3 + k0 * e3, vp3 + k1 * e3
+            p4, v4 = pp4 + k0 * e4, vp4 + k1 * e4
+            out[b1_, t, 2 * c1], out[b1_, t, 2 * c1 + 1] = p1, v1
+            out[b2_, t, 2 * c2], out[b2_, t, 2 * c2 + 1] = p2, v2
+            out[b3_, t, 2 * c3], out[b3_, t, 2 * c3 + 1] = p3, v3
+            out[b4_, t, 2 * c4], out[b4_, t, 2 * c4 + 1] = p4, v4
+            t += 1
+        _kf21_track(z, out, b1_, c1, t, p1, v1, lengths[b1_], F, H, Q, R, K, Pf, P0)
+        _kf21_track(z, out, b2_, c2, t, p2, v2, lengths[b2_], F, H, Q, R, K, Pf, P0)
+        _kf21_track(z, out, b3_, c3, t, p3, v3, lengths[b3_], F, H, Q, R, K, Pf, P0)
+        _kf21_track(z, out, b4_, c4, t, p4, v4, lengths[b4_], F, H, Q, R, K, Pf, P0)
 
 
 @nb.njit(**_OPTS)
@@ -329,12 +449,15 @@ def matvec_kernel(x, out, M, axes):
     for i in nb.prange(nb_ * axes):
         b = i // axes
         o = (i - b * axes) * n
+        y = np.empty(n)                 # out may be x itself: read the state before writing
         for t in range(T):
             for r in range(n):
                 s = 0.0
                 for c in range(n):
                     s += M[r, c] * x[b, t, o + c]
-                out[b, t, o + r] = s
+                y[r] = s
+            for r in range(n):
+                out[b, t, o + r] = y[r]
 
 
 @nb.njit(**_OPTS)

@@ -17,6 +17,7 @@ those files, so a resumed run returns exactly what an uninterrupted one does.
 from __future__ import annotations
 
 import concurrent.futures
+import hashlib
 import json
 import multiprocessing
 from dataclasses import dataclass, field
@@ -28,8 +29,8 @@ import pandas as pd
 
 from .._io import atomic_path, write_json
 from .._validation import check_int
-from ..errors import DTypeError, ParameterError
-from ..models import LinearGaussianModel
+from ..errors import DTypeError, ParameterError, ShapeError
+from ..models import LinearGaussianModel, require_model
 from ._filters import gain_sequence, kalman_filter, steady_state_filter
 
 __all__ = ["Chunk", "make_chunks", "run_chunks", "MonteCarloTask", "monte_carlo", "filter_chunked",
@@ -75,6 +76,16 @@ def make_chunks(n_items: int, chunk_size: int, seed: int | None = None) -> list[
         seed = check_int("seed", seed, minimum=0)
     return [Chunk(i, lo, min(lo + chunk_size, n_items), seed)
             for i, lo in enumerate(range(0, n_items, chunk_size))]
+
+
+def _digest(*arrays) -> str:
+    """A short fingerprint of arrays' contents, to tell one study's chunks from another's."""
+    h = hashlib.sha256()
+    for a in arrays:
+        a = np.ascontiguousarray(a)
+        h.update(str((a.dtype.str, a.shape)).encode())
+        h.update(a.tobytes())
+    return h.hexdigest()[:16]
 
 
 def _chunk_path(out_dir: Path, index: int) -> Path:
@@ -129,7 +140,8 @@ def run_chunks(task: Callable[[Chunk], pd.DataFrame], n_items: int, *, chunk_siz
                 of ``max_workers`` single-threaded workers is started for the call)
     manifest    extra JSON-able description of the study stored with the chunks; a
                 later call on the same ``out_dir`` must describe the same study
-    progress    called with the number of chunks finished, as they finish
+    progress    ``progress(k)`` each time k more chunks are done (skipped ones included),
+                e.g. the ``advance`` of ``RunContext.progress.task``
     """
     if executor not in EXECUTORS:
         raise ParameterError(f"executor: expected one of {EXECUTORS}, got {executor!r}")
@@ -211,7 +223,7 @@ def _run_dask(task, todo, target, max_workers, client, done, progress) -> None:
             cluster.close()
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class MonteCarloTask:
     """One chunk of a Monte-Carlo study: simulate, filter with the batch engine, score.
 
@@ -264,16 +276,16 @@ def monte_carlo(model: LinearGaussianModel, steps: int, runs: int, *, seed: int,
     """
     if method not in ("steady-state", "kalman"):
         raise ParameterError(f"method: expected 'steady-state' or 'kalman', got {method!r}")
-    if not isinstance(model, LinearGaussianModel):
-        raise ParameterError(f"model: expected a LinearGaussianModel, got {type(model).__name__}")
+    require_model(model)
     steps = check_int("steps", steps, minimum=1)
     task = MonteCarloTask(model, steps, method, None if P0 is None else np.asarray(P0, dtype=float))
-    desc = {"steps": steps, "method": method, "model": repr(model)}
+    desc = {"steps": steps, "method": method, "model": _digest(model.F, model.H, model.Q, model.R),
+            "P0": None if P0 is None else _digest(task.P0)}
     return run_chunks(task, runs, chunk_size=chunk_size, seed=seed, out_dir=out_dir, executor=executor,
                       max_workers=max_workers, client=client, manifest=desc, progress=progress)
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class _FilterTask:
     run: Callable[..., np.ndarray]
     model: LinearGaussianModel
@@ -296,13 +308,16 @@ def filter_chunked(run: Callable[..., np.ndarray], model: LinearGaussianModel, z
     Each chunk's states go to a long table (track, t, x0 ..), Parquet in ``out_dir``
     when given.  Returns the (B, T, n) states in z's dtype; equal to ``run(model, z)``.
     """
+    require_model(model)
     z = np.asarray(z)
     if z.ndim != 3:
-        raise ParameterError(f"z: expected shape (B, T, m), got shape {z.shape}")
+        raise ShapeError(f"z: expected shape (B, T, m), got shape {z.shape}")
+    sample = z.reshape(-1)[::max(1, z.size // 65536)]   # a fingerprint, not a full pass over z
+    manifest = {"run": run.__qualname__, "model": _digest(model.F, model.H, model.Q, model.R),
+                "shape": list(z.shape), "data": _digest(sample), "kwargs": repr(sorted(kwargs.items()))}
     df = run_chunks(_FilterTask(run, model, kwargs), z.shape[0], chunk_size=chunk_size, data=z,
                     out_dir=out_dir, executor=executor, max_workers=max_workers, client=client,
-                    manifest={"run": run.__qualname__, "model": repr(model), "shape": list(z.shape)},
-                    progress=progress)
+                    manifest=manifest, progress=progress)
     cols = [c for c in df.columns if c.startswith("x")]
     return df[cols].to_numpy().reshape(z.shape[0], z.shape[1], len(cols))
 

@@ -1,0 +1,145 @@
+"""Batched extended Kalman filter for range measurements (many Monte-Carlo runs at once).
+
+The measurement model is our own, kept deliberately simple: a linear-Gaussian
+motion model and the ranges (metres) from the position to fixed stations,
+
+    x(k+1) = F x(k) + w(k),          w ~ N(0, Q)
+    z_s(k) = || p(k) - b_s || + v_s,  v ~ N(0, R),  p = x[position]
+
+The EKF (e.g. Bar-Shalom, Li & Kirubarajan 2001, sec. 10.3) linearises h at
+x(k/k-1): H_s = (p - b_s)^T / ||p - b_s|| in the position columns.  Every track
+has its own covariance (the Jacobian depends on the state), so the kernel runs
+the full recursion per track; the batch axis is the Monte-Carlo run.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numba as nb
+import numpy as np
+
+from .._validation import as_matrix, check_covariance, check_positive
+from ..errors import ParameterError, ShapeError
+from ._inputs import launch, prepare_batch
+from ._kernels import _OPTS, kf_predict, kf_update, observed
+
+__all__ = ["RangeModel", "range_ekf"]
+
+
+def _frozen(a: np.ndarray) -> np.ndarray:
+    a = np.array(a, dtype=np.float64)
+    a.setflags(write=False)
+    return a
+
+
+@dataclass(frozen=True, eq=False)
+class RangeModel:
+    """Motion (F, Q) observed through ranges to ``stations`` (S, d) with noise R (S, S).
+
+    position  the d state indices holding the position (metres), e.g. (0, 2)
+              for the state [p_x, v_x, p_y, v_y]
+    """
+
+    F: np.ndarray
+    Q: np.ndarray
+    stations: np.ndarray
+    R: np.ndarray
+    position: tuple = field(default=(0, 2))
+
+    def __post_init__(self) -> None:
+        F = as_matrix("F", self.F)
+        n = F.shape[0]
+        if F.shape != (n, n):
+            raise ShapeError(f"F: expected a square matrix, got shape {F.shape}")
+        Q = check_covariance("Q", self.Q, n)
+        st = as_matrix("stations", self.stations)
+        S, d = st.shape
+        pos = tuple(int(i) for i in self.position)
+        if len(pos) != d or any(not 0 <= i < n for i in pos) or len(set(pos)) != d:
+            raise ShapeError(f"position: expected {d} distinct state indices in [0, {n}), "
+                             f"got {self.position}")
+        R = check_covariance("R", self.R, S, definite=True)
+        for name, value in (("F", F), ("Q", Q), ("stations", st), ("R", R)):
+            object.__setattr__(self, name, _frozen(value))
+        object.__setattr__(self, "position", pos)
+
+    @property
+    def n(self) -> int:
+        return self.F.shape[0]
+
+    @property
+    def m(self) -> int:
+        return self.stations.shape[0]
+
+    @classmethod
+    def constant_velocity(cls, dt: float, sigma_a2: float, stations, sigma_r2: float) -> "RangeModel":
+        """2-D constant velocity, state [p_x, v_x, p_y, v_y] (m, m/s), white acceleration of
+        variance sigma_a2 (m^2/s^4) with the noise gain [dt^2/2, dt]; range noise sigma_r2 (m^2)."""
+        dt = check_positive("dt", dt)
+        sigma_a2 = check_positive("sigma_a2", sigma_a2, allow_zero=True)
+        sigma_r2 = check_positive("sigma_r2", sigma_r2)
+        Fa = np.array([[1.0, dt], [0.0, 1.0]])
+        g = np.array([0.5 * dt * dt, dt])
+        Qa = sigma_a2 * np.outer(g, g)
+        z2 = np.zeros((2, 2))
+        F = np.block([[Fa, z2], [z2, Fa]])
+        Q = np.block([[Qa, z2], [z2, Qa]])
+        st = as_matrix("stations", stations)
+        return cls(F, Q, st, sigma_r2 * np.eye(st.shape[0]), (0, 2))
+
+
+@nb.njit(**_OPTS)
+def ekf_kernel(z, out, F, Q, R, stations, pos, x0, P0, lengths):
+    nb_, T = z.shape[0], z.shape[1]
+    n = F.shape[0]
+    S, d = stations.shape
+    for b in nb.prange(nb_):
+        x = x0[b].copy()
+        P = P0.copy()
+        for t in range(lengths[b]):
+            xp, Pp = kf_predict(F, Q, x, P)
+            ok, k = observed(z[b, t], 0, S)
+            if k == 0:
+                x[:] = xp
+                P[:, :] = Pp
+            else:
+                Hs = np.zeros((k, n))
+                Rs = np.empty((k, k))
+                innov = np.empty(k)
+                for i in range(k):
+                    r2 = 0.0
+                    for j in range(d):
+                        diff = xp[pos[j]] - stations[ok[i], j]
+                        r2 += diff * diff
+                    r = np.sqrt(r2)
+                    for j in range(d):
+                        Hs[i, pos[j]] = (xp[pos[j]] - stations[ok[i], j]) / r
+                    innov[i] = z[b, t, ok[i]] - r
+                    for j in range(k):
+                        Rs[i, j] = R[ok[i], ok[j]]
+                kf_update(xp, Pp, Hs, Rs, innov, x, P)
+            for r in range(n):
+                out[b, t, r] = x[r]
+        for t in range(lengths[b], T):
+            for r in range(n):
+                out[b, t, r] = np.nan
+
+
+def range_ekf(model: RangeModel, z, x0, P0, out=None, *, lengths=None) -> np.ndarray:
+    """Extended Kalman filter of a batch of range tracks (one covariance per track).
+
+    z        (B, T, S) ranges (metres) to the model's S stations; NaN = that range missing
+    x0       the prior x(0/0), (n,) for all tracks or (B, n); it must not sit on a station
+    P0       (n, n) prior covariance, shared
+    out, lengths  as in :func:`mptrack.batch.steady_state_filter`
+    Returns the (B, T, n) filtered states x(k/k).
+    """
+    if x0 is None:
+        raise ParameterError("x0: the EKF needs a prior state (the Jacobian at 0 may be undefined)")
+    bi = prepare_batch(model, z, x0, out, lengths, model_type=RangeModel)
+    P0 = check_covariance("P0", P0, model.n)
+    launch(ekf_kernel, bi.out.size * model.m * model.n, bi.z, bi.out, model.F, model.Q, model.R,
+           model.stations, np.asarray(model.position, dtype=np.int64), bi.x0, P0, bi.lengths)
+    return bi.out
+

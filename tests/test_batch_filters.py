@@ -1,0 +1,260 @@
+"""Batch engine ≡ the reference filters of mptrack.linear, track by track."""
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from mptrack import batch, linear
+from mptrack.errors import DTypeError, NonFiniteError, ParameterError, ShapeError
+from mptrack.models import LinearGaussianModel, assimakis_model_a, assimakis_model_b
+from mptrack.riccati import steady_state
+
+TOL = 1e-12
+SETTINGS = settings(max_examples=12, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+
+
+def random_model(rng, n, m):
+    F = rng.standard_normal((n, n))
+    F *= rng.uniform(0.5, 1.1) / max(abs(np.linalg.eigvals(F)))
+    H = rng.standard_normal((m, n))
+    L = rng.standard_normal((n, n))
+    Q = L @ L.T / n + 0.1 * np.eye(n)
+    Lr = rng.standard_normal((m, m))
+    R = Lr @ Lr.T / m + 0.5 * np.eye(m)
+    return LinearGaussianModel(F, H, Q, R)
+
+
+def close(a, b, tol=TOL):
+    scale = max(1.0, float(np.nanmax(np.abs(b))))
+    np.testing.assert_array_equal(np.isnan(a), np.isnan(b))
+    assert float(np.nanmax(np.abs(a - b))) <= tol * scale
+
+
+def with_gaps(rng, z, frac=0.1):
+    z = z.copy()
+    z[rng.random(z.shape) < frac] = np.nan
+    return z
+
+
+dims = st.tuples(st.integers(1, 4), st.integers(1, 3)).filter(lambda d: d[1] <= d[0] + 1)
+
+
+@pytest.mark.parametrize("kind", ["steady-state", "kalman"])
+@SETTINGS
+@given(seed=st.integers(0, 2**32 - 1), dims=dims, B=st.integers(1, 5), T=st.integers(1, 30),
+       gaps=st.booleans())
+def test_batch_filters_match_reference_on_random_models(kind, seed, dims, B, T, gaps):
+    rng = np.random.default_rng(seed)
+    model = random_model(rng, *dims)
+    z = 3.0 * rng.standard_normal((B, T, model.m))
+    if gaps:
+        z = with_gaps(rng, z, 0.15)
+    x0 = rng.standard_normal((B, model.n))
+    if kind == "steady-state":
+        ss = steady_state(model)
+        got = batch.steady_state_filter(model, z, x0, steady=ss)
+        want = [linear.steady_state_filter(model, z[b], x0[b], steady=ss).x for b in range(B)]
+    else:
+        P0 = np.eye(model.n) * rng.uniform(0.0, 2.0)
+        got = batch.kalman_filter(model, z, x0, P0)
+        want = [linear.kalman_filter(model, z[b], x0[b], P0).x for b in range(B)]
+    for b in range(B):
+        close(got[b], want[b])
+
+
+@pytest.mark.parametrize("model", [assimakis_model_b(), assimakis_model_a(2)], ids=["B", "A"])
+def test_paper_models_complete_and_gappy(model):
+    rng = np.random.default_rng(3)
+    z = 10 * rng.standard_normal((7, 80, model.m))
+    z[1, 5:9] = np.nan           # a gap
+    z[2, 0] = np.nan             # missing first measurement
+    z[3, 40:, :] = np.nan        # lost track
+    if model.m > 1:
+        z[4, 10, 0] = np.nan     # one component only
+    P0 = np.eye(model.n)
+    ss_b = batch.steady_state_filter(model, z, np.ones(model.n))
+    kf_b = batch.kalman_filter(model, z, np.ones(model.n), P0)
+    for b in range(7):
+        close(ss_b[b], linear.steady_state_filter(model, z[b], np.ones(model.n)).x)
+        close(kf_b[b], linear.kalman_filter(model, z[b], np.ones(model.n), P0).x)
+
+
+def test_complete_tracks_use_the_shared_gains_and_covariances():
+    model = assimakis_model_b()
+    gains = batch.gain_sequence(model, 50, np.eye(2))
+    ref = linear.kalman_filter(model, np.zeros((50, 1)), P0=np.eye(2))
+    np.testing.assert_allclose(gains.P_filt, ref.P, rtol=0, atol=1e-14)
+    np.testing.assert_allclose(gains.P_pred, ref.P_pred, rtol=0, atol=1e-14)
+    z = np.random.default_rng(0).standard_normal((3, 40, 1))
+    np.testing.assert_array_equal(batch.kalman_filter(model, z, gains=gains),
+                                  batch.kalman_filter(model, z, P0=np.eye(2)))
+
+
+def test_ragged_lengths_equal_truncated_reference_and_nan_tail():
+    model = assimakis_model_b()
+    rng = np.random.default_rng(5)
+    z = rng.standard_normal((4, 30, 1))
+    lengths = np.array([30, 0, 17, 1])
+    z_padded = z.copy()
+    for b, L in enumerate(lengths):
+        z_padded[b, L:] = np.nan     # padding is ignored whatever it holds
+    for run, ref in ((batch.steady_state_filter, linear.steady_state_filter),
+                     (batch.kalman_filter, linear.kalman_filter),
+                     (batch.fir_filter, linear.fir_filter)):
+        got = run(model, z_padded, lengths=lengths)
+        for b, L in enumerate(lengths):
+            assert np.isnan(got[b, L:]).all()
+            if L:
+                close(got[b, :L], ref(model, z[b, :L]).x)
+
+
+def test_fir_filter_matches_reference_and_rejects_gaps():
+    model = assimakis_model_a(2)
+    z = np.random.default_rng(2).standard_normal((3, 40, 2))
+    got = batch.fir_filter(model, z, M=12)
+    for b in range(3):
+        close(got[b], linear.fir_filter(model, z[b], M=12).x)
+    default = batch.fir_filter(model, z)          # order from ||A^M|| < eps
+    close(default[0], linear.fir_filter(model, z[0]).x)
+    z[1, 7, 1] = np.nan
+    with pytest.raises(NonFiniteError, match="track 1 has NaN at time index 7"):
+        batch.fir_filter(model, z)
+
+
+def test_per_axis_model_b_equals_reference_per_axis_and_model_a():
+    axis = assimakis_model_b()
+    rng = np.random.default_rng(4)
+    z = rng.standard_normal((3, 60, 3))
+    z[0, 10, 1] = np.nan
+    x0 = rng.standard_normal(6)
+    for run, ref, extra in ((batch.steady_state_filter, linear.steady_state_filter, ()),
+                            (batch.kalman_filter, linear.kalman_filter, (np.eye(2),))):
+        got = batch.per_axis(run, axis, z, x0, *extra)
+        assert got.shape == (3, 60, 6)
+        for b in range(3):
+            close(got[b], linear.per_axis(ref, axis, z[b], x0, *(np.eye(6) for _ in extra)).x)
+    # model B per axis and model A jointly are the same filter on complete data (seed 000
+    # eq. 17-18); with a gap in one axis the joint SS filter predicts every axis, per axis only one
+    zc = np.nan_to_num(z)
+    joint = batch.steady_state_filter(assimakis_model_a(3), zc, x0)
+    close(batch.per_axis(batch.steady_state_filter, axis, zc, x0), joint, 1e-10)
+    close(batch.per_axis(batch.fir_filter, axis, zc, M=9), batch.fir_filter(assimakis_model_a(3), zc, M=9))
+
+
+def test_n_step_prediction_is_F_power_N_and_works_per_axis():
+    model = assimakis_model_b()
+    x = np.random.default_rng(6).standard_normal((2, 5, 4))
+    got = batch.predict(model, x, 3)
+    F3 = np.linalg.matrix_power(model.F, 3)
+    np.testing.assert_allclose(got[..., :2], x[..., :2] @ F3.T, rtol=1e-15, atol=1e-15)
+    np.testing.assert_allclose(got[..., 2:], x[..., 2:] @ F3.T, rtol=1e-15, atol=1e-15)
+    y = x.copy()
+    assert batch.predict(model, y, 3, out=y) is y  # in place
+    np.testing.assert_array_equal(y, got)
+    mixing = LinearGaussianModel([[0.9, 0.2], [0.3, 0.8]], [[1.0, 0.0]], np.eye(2), [[1.0]])
+    x4 = x.copy()                                  # every component of F^N x uses every component of x
+    want = (x.reshape(2, 5, 2, 2) @ np.linalg.matrix_power(mixing.F, 2).T).reshape(x.shape)
+    np.testing.assert_allclose(batch.predict(mixing, x4, 2, out=x4), want, rtol=1e-14, atol=1e-15)
+
+
+def test_float32_within_single_precision_and_out_in_place():
+    model = assimakis_model_b()
+    rng = np.random.default_rng(7)
+    z = (5 * rng.standard_normal((6, 200, 1))).astype(np.float32)
+    z[2, 50:60] = np.nan
+    out = np.empty((6, 200, 2), dtype=np.float32)
+    got = batch.steady_state_filter(model, z, out=out)
+    assert got is out and got.dtype == np.float32
+    ref = batch.steady_state_filter(model, z.astype(np.float64))
+    close(got.astype(np.float64), ref, 1e-6)
+    kf = batch.kalman_filter(model, z, P0=np.eye(2))
+    assert kf.dtype == np.float32
+    close(kf.astype(np.float64), batch.kalman_filter(model, z.astype(np.float64), P0=np.eye(2)), 1e-6)
+
+
+def test_bad_shapes_and_dtypes_raise_named_errors():
+    model = assimakis_model_b()
+    z = np.zeros((2, 5, 1))
+    with pytest.raises(ShapeError, match=r"z: expected shape \(B, T, 1\), got shape \(5, 1\)"):
+        batch.steady_state_filter(model, np.zeros((5, 1)))
+    with pytest.raises(ShapeError, match="z: expected shape"):
+        batch.kalman_filter(model, np.zeros((2, 5, 2)))
+    with pytest.raises(ShapeError, match="at least one track"):
+        batch.steady_state_filter(model, np.zeros((0, 5, 1)))
+    with pytest.raises(DTypeError, match="z: expected real numbers"):
+        batch.steady_state_filter(model, z.astype(complex))
+    with pytest.raises(DTypeError, match="out: expected dtype float64"):
+        batch.steady_state_filter(model, z, out=np.empty((2, 5, 2), np.float32))
+    with pytest.raises(ShapeError, match=r"out: expected shape \(2, 5, 2\)"):
+        batch.steady_state_filter(model, z, out=np.empty((2, 5, 3)))
+    with pytest.raises(ShapeError, match="C-contiguous"):
+        batch.steady_state_filter(model, z, out=np.empty((2, 2, 5)).transpose(0, 2, 1))
+    with pytest.raises(ShapeError, match=r"x0: expected shape \(2, 2\)"):
+        batch.steady_state_filter(model, z, np.zeros((3, 2)))
+    with pytest.raises(ShapeError, match=r"lengths: expected shape \(2,\)"):
+        batch.steady_state_filter(model, z, lengths=[5])
+    with pytest.raises(ParameterError, match=r"lengths: expected values in \[0, 5\]"):
+        batch.steady_state_filter(model, z, lengths=[5, 6])
+    with pytest.raises(DTypeError, match="lengths: expected integers"):
+        batch.steady_state_filter(model, z, lengths=[5.0, 5.0])
+    with pytest.raises(ParameterError, match="model: expected a LinearGaussianModel"):
+        batch.steady_state_filter("model B", z)
+    with pytest.raises(ParameterError, match="run: expected"):
+        batch.per_axis(linear.steady_state_filter, model, z)
+    with pytest.raises(ShapeError, match=r"x: expected shape \(B, T, axes \* 2\)"):
+        batch.predict(model, np.zeros((2, 5, 3)))
+    with pytest.raises(ParameterError, match="steps: expected an integer >= 1"):
+        batch.predict(model, np.zeros((2, 5, 2)), 0)
+    with pytest.raises(ShapeError, match="gains: expected at least 5 gains"):
+        batch.kalman_filter(model, z, gains=batch.gain_sequence(model, 3))
+    with pytest.raises(ParameterError, match="P0: give P0 or gains"):
+        batch.kalman_filter(model, z, P0=np.eye(2), gains=batch.gain_sequence(model, 5))
+
+
+def test_integer_input_is_converted_to_float64():
+    model = assimakis_model_b()
+    z = np.arange(10).reshape(1, 10, 1)
+    got = batch.steady_state_filter(model, z)
+    assert got.dtype == np.float64
+    close(got[0], linear.steady_state_filter(model, z[0]).x)
+
+
+@pytest.mark.parametrize("axes", [1, 3])
+def test_interleaved_groups_with_mixed_lengths_and_gaps(axes):
+    """The n=2, m=1 kernels advance four tracks together; lanes leave the group at gaps and ends."""
+    model = assimakis_model_b()
+    rng = np.random.default_rng(10 + axes)
+    B, T = 11, 45
+    z = 4 * rng.standard_normal((B, T, axes))
+    z[rng.random(z.shape) < 0.03] = np.nan
+    lengths = rng.integers(0, T + 1, B)
+    lengths[:3] = T
+    x0 = rng.standard_normal((B, 2 * axes))
+    P0 = 0.5 * np.eye(2)
+    for run, ref, extra in ((batch.steady_state_filter, linear.steady_state_filter, ()),
+                            (batch.kalman_filter, linear.kalman_filter, (P0,))):
+        got = batch.per_axis(run, model, z, x0, *extra, lengths=lengths)
+        for b in range(B):
+            L = lengths[b]
+            assert np.isnan(got[b, L:]).all()
+            for a in range(axes):
+                if L:
+                    want = ref(model, z[b, :L, a:a + 1], x0[b, 2 * a:2 * a + 2], *extra).x
+                    close(got[b, :L, 2 * a:2 * a + 2], want)
+
+
+def test_parallel_launch_equals_single_thread_bitwise(monkeypatch):
+    """Large batches run on all threads, small ones on one: the numbers must not depend on it."""
+    from mptrack.batch import _inputs
+
+    model = assimakis_model_b()
+    z = np.random.default_rng(9).standard_normal((401, 200, 1))
+    z[7, 50:60] = np.nan
+    monkeypatch.setattr(_inputs, "SMALL_WORK", 0)
+    parallel = [batch.steady_state_filter(model, z), batch.kalman_filter(model, z, P0=np.eye(2))]
+    monkeypatch.setattr(_inputs, "SMALL_WORK", 10**12)
+    single = [batch.steady_state_filter(model, z), batch.kalman_filter(model, z, P0=np.eye(2))]
+    for p, s in zip(parallel, single):
+        np.testing.assert_array_equal(p, s)
+    close(parallel[1][7], linear.kalman_filter(model, z[7], P0=np.eye(2)).x)

@@ -1,0 +1,112 @@
+"""The chunked runner: executors agree bitwise, output resumes without loss or duplication."""
+
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from mptrack import batch, linear
+from mptrack.errors import DTypeError, ParameterError
+from mptrack.models import assimakis_model_b
+from mptrack.sim import simulate_linear
+
+MODEL = assimakis_model_b()
+
+
+def test_monte_carlo_runs_equal_the_reference_per_run_and_ignore_chunking():
+    a = batch.monte_carlo(MODEL, 40, 9, seed=11, chunk_size=4)
+    b = batch.monte_carlo(MODEL, 40, 9, seed=11, chunk_size=9)
+    pd.testing.assert_frame_equal(a, b, check_exact=True)
+    assert list(a["run"]) == list(range(9))
+    truth, z = simulate_linear(MODEL, 40, np.random.default_rng(np.random.SeedSequence(11, spawn_key=(5,))))
+    x = linear.steady_state_filter(MODEL, z).x
+    np.testing.assert_allclose(a.loc[5, ["rmse_x0", "rmse_x1"]].to_numpy(float),
+                               np.sqrt(np.mean((x - truth) ** 2, axis=0)), rtol=1e-12)
+    kf = batch.monte_carlo(MODEL, 40, 3, seed=11, chunk_size=2, method="kalman", P0=np.eye(2))
+    assert not kf.equals(a.iloc[:3])
+
+
+def test_dask_and_process_executors_equal_serial_bitwise():
+    from dask.distributed import Client, LocalCluster
+
+    serial = batch.monte_carlo(MODEL, 30, 10, seed=3, chunk_size=3)
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=False,
+                      dashboard_address=None) as cluster, Client(cluster) as client:
+        on_dask = batch.monte_carlo(MODEL, 30, 10, seed=3, chunk_size=3, executor="dask", client=client)
+        z = np.random.default_rng(1).standard_normal((7, 20, 1))
+        x = batch.filter_chunked(batch.steady_state_filter, MODEL, z, chunk_size=2, executor="dask",
+                                 client=client)
+    pd.testing.assert_frame_equal(serial, on_dask, check_exact=True)
+    np.testing.assert_array_equal(x, batch.steady_state_filter(MODEL, z))
+    in_processes = batch.monte_carlo(MODEL, 30, 10, seed=3, chunk_size=3, executor="processes",
+                                     max_workers=2)
+    pd.testing.assert_frame_equal(serial, in_processes, check_exact=True)
+
+
+class FlakyTask:
+    """Counts its calls in files (works across processes); fails on chunk ``fail_at`` if asked."""
+
+    def __init__(self, log_dir, fail_at=None):
+        self.log_dir, self.fail_at = str(log_dir), fail_at
+
+    def __call__(self, chunk):
+        if chunk.index == self.fail_at:
+            raise RuntimeError("interrupted")
+        Path(self.log_dir, f"call-{chunk.index}-{len(list(Path(self.log_dir).iterdir()))}").touch()
+        rng = chunk.generators()
+        return pd.DataFrame({"item": np.arange(chunk.start, chunk.stop),
+                             "value": [g.standard_normal() for g in rng]})
+
+
+def test_resume_after_interruption_loses_and_duplicates_nothing(tmp_path):
+    log = tmp_path / "log"
+    log.mkdir()
+    out = tmp_path / "out"
+    with pytest.raises(RuntimeError, match="interrupted"):
+        batch.run_chunks(FlakyTask(log, fail_at=2), 10, chunk_size=2, seed=5, out_dir=out)
+    assert sorted(p.name for p in out.glob("*.parquet")) == ["chunk-000000.parquet", "chunk-000001.parquet"]
+    assert not list(out.glob(".*"))        # no temporary left behind
+    result = batch.run_chunks(FlakyTask(log), 10, chunk_size=2, seed=5, out_dir=out)
+    calls = sorted(p.name.split("-")[1] for p in log.iterdir())
+    assert calls == ["0", "1", "2", "3", "4"]          # each chunk computed exactly once
+    assert list(result["item"]) == list(range(10))    # nothing lost, nothing twice
+    fresh = batch.run_chunks(FlakyTask(tmp_path), 10, chunk_size=2, seed=5)
+    pd.testing.assert_frame_equal(result, fresh, check_exact=True)
+    again = batch.run_chunks(FlakyTask(log, fail_at=0), 10, chunk_size=2, seed=5, out_dir=out)
+    pd.testing.assert_frame_equal(result, again, check_exact=True)   # all skipped: nothing recomputed
+
+
+def test_a_different_study_in_the_same_directory_is_refused(tmp_path):
+    batch.monte_carlo(MODEL, 10, 4, seed=1, chunk_size=2, out_dir=tmp_path)
+    with pytest.raises(ParameterError, match="out_dir: .* different study"):
+        batch.monte_carlo(MODEL, 10, 4, seed=2, chunk_size=2, out_dir=tmp_path)
+
+
+def test_runner_argument_errors():
+    with pytest.raises(ParameterError, match="executor: expected one of"):
+        batch.run_chunks(FlakyTask("."), 4, chunk_size=2, executor="threads")
+    with pytest.raises(ParameterError, match="chunk_size: expected an integer >= 1"):
+        batch.run_chunks(FlakyTask("."), 4, chunk_size=0)
+    with pytest.raises(ParameterError, match="data: expected 4 leading rows"):
+        batch.run_chunks(FlakyTask("."), 4, chunk_size=2, data=np.zeros(3))
+    with pytest.raises(DTypeError, match="task: expected a pandas.DataFrame"):
+        batch.run_chunks(lambda c: c.size, 4, chunk_size=2)
+    with pytest.raises(ParameterError, match="seed: this study was started without a seed"):
+        batch.make_chunks(4, 2)[0].generators()
+    with pytest.raises(ParameterError, match="method: expected"):
+        batch.monte_carlo(MODEL, 10, 4, seed=1, method="fir")
+
+
+def test_filter_chunked_resumes_and_refuses_other_data(tmp_path):
+    z = np.random.default_rng(2).standard_normal((9, 15, 1))
+    first = batch.filter_chunked(batch.kalman_filter, MODEL, z, chunk_size=4, out_dir=tmp_path, P0=np.eye(2))
+    np.testing.assert_array_equal(first, batch.kalman_filter(MODEL, z, P0=np.eye(2)))
+    (tmp_path / "chunk-000001.parquet").unlink()          # as if interrupted
+    again = batch.filter_chunked(batch.kalman_filter, MODEL, z, chunk_size=4, out_dir=tmp_path, P0=np.eye(2))
+    np.testing.assert_array_equal(first, again)
+    with pytest.raises(ParameterError, match="different study"):
+        batch.filter_chunked(batch.kalman_filter, MODEL, z + 1.0, chunk_size=4, out_dir=tmp_path,
+                             P0=np.eye(2))
+    with pytest.raises(ParameterError, match="different study"):
+        batch.filter_chunked(batch.kalman_filter, MODEL, z, chunk_size=4, out_dir=tmp_path, P0=2 * np.eye(2))
