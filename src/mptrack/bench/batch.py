@@ -21,7 +21,8 @@ from ..errors import ConvergenceError
 from ..models import assimakis_model_a, assimakis_model_b
 from ..riccati import steady_state
 from . import register_suite
-from .linear import _best, _filterpy, _pykalman  # the same peers and timing as the 'linear' suite
+from ._timing import best_time
+from .linear import _filterpy, _pykalman  # the same peers as the 'linear' suite
 
 __all__ = ["batch_suite", "batch_scaling_suite", "compile_times"]
 
@@ -187,20 +188,20 @@ def batch_suite(quick: bool) -> dict:
     # per-track engines on the subset (they are 10^3-10^5 times slower)
     sub_upd = sub.shape[0] * sub.shape[1]
     sub_shape = f"{sub.shape[0]}x{sub.shape[1]}"
-    rates["reference SS per track"] = (sub_upd / _best(
+    rates["reference SS per track"] = (sub_upd / best_time(
         lambda: [linear.steady_state_filter(model, zb, steady=ss) for zb in sub], reps), None, sub_shape)
-    rates["reference KF per track"] = (sub_upd / _best(
+    rates["reference KF per track"] = (sub_upd / best_time(
         lambda: [linear.kalman_filter(model, zb, P0=P0) for zb in sub], reps), None, sub_shape)
     for name in ("FilterPy", "pykalman"):
         run = peers[name]
         if run is not None:
-            rates[f"{name} KF per track"] = (sub_upd / _best(
+            rates[f"{name} KF per track"] = (sub_upd / best_time(
                 lambda run=run: [run(model, zb, x0, P0) for zb in sub], reps), None, sub_shape)
     if peers["simdkalman"] is not None:
         zs = np.ascontiguousarray(z[: s["simd_B"]])
         outs = np.empty((zs.shape[0], T, 2))
         n_simd = zs.shape[0] * T
-        rates["simdkalman KF batch"] = (n_simd / _best(
+        rates["simdkalman KF batch"] = (n_simd / best_time(
             lambda: _simdkalman_run(model, zs, x0, P0), max(1, reps - 2)), None, f"{zs.shape[0]}x{T}")
         paired("batch KF (simdkalman batch)", lambda: batch.kalman_filter(model, zs, out=outs, gains=gains),
                24, f"{zs.shape[0]}x{T}", n_simd)

@@ -3,7 +3,6 @@ time, and the batched EKF against FilterPy's ExtendedKalmanFilter on the same tr
 
 from __future__ import annotations
 
-import timeit
 
 import numpy as np
 
@@ -18,13 +17,11 @@ from ..nonlinear import (
     range_measurement,
 )
 from . import register_suite
+from ._timing import best_time
 
 __all__ = ["cellular_suite"]
 
 
-def _best(fn, repeats: int) -> float:
-    """Best wall time of ``repeats`` single calls (s)."""
-    return min(timeit.repeat(fn, number=1, repeat=repeats))
 
 
 def _filterpy_runs(z, st, x0, P0, Q0, R0):
@@ -50,14 +47,14 @@ def cellular_suite(quick: bool) -> dict:
     rows = []
     for name, batch, single in (("EKF", ekf_ranges_batch, ekf_ranges), ("FEKF", fekf_ranges_batch, fekf_ranges),
                                 ("FCS", fcs_ranges_batch, fcs_ranges)):
-        tb = _best(lambda: batch(z, st, x0, P0, Q0, R0), repeats)
-        ts = _best(lambda: [single(z[b], st, x0[b], P0, Q0, R0) for b in range(single_runs)], repeats) / single_runs
+        tb = best_time(lambda: batch(z, st, x0, P0, Q0, R0), repeats)
+        ts = best_time(lambda: [single(z[b], st, x0[b], P0, Q0, R0) for b in range(single_runs)], repeats) / single_runs
         rows.append([name, setup.steps, runs / tb, 1.0 / ts, (runs / tb) * ts])
     notes = [f"{runs} runs of {setup.steps} steps, 3 stations (bouzera2017 linear scenario); best of {repeats}.",
              "runs/s batched: all runs advanced together in numpy; one at a time: the same code with B = 1."]
     try:
         fp_runs = min(runs, 10)
-        t_fp = _best(lambda: _filterpy_runs(z[:fp_runs], st, x0[:fp_runs], P0, Q0, R0), repeats) / fp_runs
+        t_fp = best_time(lambda: _filterpy_runs(z[:fp_runs], st, x0[:fp_runs], P0, Q0, R0), repeats) / fp_runs
         rows.append(["EKF (FilterPy, per run)", setup.steps, 1.0 / t_fp, 1.0 / t_fp, 1.0])
         notes.append(f"batched EKF vs FilterPy ExtendedKalmanFilter: {rows[0][2] * t_fp:.1f}x the runs/s.")
     except ImportError:  # pragma: no cover - filterpy is in the bench extra

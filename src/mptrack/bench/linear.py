@@ -3,7 +3,6 @@ KF against FilterPy's and pykalman's on the same 4-state model, in one run."""
 
 from __future__ import annotations
 
-import time
 
 import numpy as np
 
@@ -11,17 +10,11 @@ from ..linear import IMPLEMENTATIONS, kalman_filter
 from ..models import assimakis_model_a
 from ..sim import simulate_linear
 from . import register_suite
+from ._timing import best_time
 
 __all__ = ["linear_suite"]
 
 
-def _best(fn, repeats: int) -> float:
-    best = np.inf
-    for _ in range(repeats):
-        start = time.perf_counter()
-        fn()
-        best = min(best, time.perf_counter() - start)
-    return best
 
 
 def _filterpy(model, z, x0, P0):
@@ -58,8 +51,8 @@ def linear_suite(quick: bool) -> dict:
     x0, P0 = np.zeros(model.n), np.eye(model.n)
     notes = []
     ours = kalman_filter(model, z, x0, P0)  # also compiles/loads the kernel before timing
-    t_kf = _best(lambda: kalman_filter(model, z, x0, P0), repeats)
-    copy_t = _best(lambda: (z.copy(), ours.x.copy(), ours.P.copy()), repeats)
+    t_kf = best_time(lambda: kalman_filter(model, z, x0, P0), repeats)
+    copy_t = best_time(lambda: (z.copy(), ours.x.copy(), ours.P.copy()), repeats)
     rows = [["memory copy of z, x, P (baseline)", copy_t / steps * 1e6, steps / copy_t, t_kf / copy_t, None]]
     rows.append(["mptrack kalman_filter (KF-A)", t_kf / steps * 1e6, steps / t_kf, 1.0, None])
     for name, fn in (("FilterPy KalmanFilter", _filterpy), ("pykalman KalmanFilter.filter", _pykalman)):
@@ -71,12 +64,12 @@ def linear_suite(quick: bool) -> dict:
         err = float(np.max(np.abs(peer - ours.x)))
         if err > 1e-8 * max(1.0, float(np.max(np.abs(ours.x)))):
             raise AssertionError(f"{name} disagrees with mptrack by {err:g}; not timing it")
-        t = _best(lambda fn=fn: fn(model, z, x0, P0), max(1, repeats // 2))
+        t = best_time(lambda fn=fn: fn(model, z, x0, P0), max(1, repeats // 2))
         rows.append([name, t / steps * 1e6, steps / t, t_kf / t, t / t_kf])
     for imp in IMPLEMENTATIONS:
         runner = imp.prepare(2)
         runner(z, x0, np.zeros((4, 4)))
-        t = _best(lambda runner=runner: runner(z, x0, np.zeros((4, 4))), repeats)
+        t = best_time(lambda runner=runner: runner(z, x0, np.zeros((4, 4))), repeats)
         rows.append([f"implementation {imp.number}: {imp.name}", t / steps * 1e6, steps / t, t_kf / t, None])
     notes.append(f"{steps} steps of the 2-D model A (n=4, m=2); best of {repeats}; peers checked to agree "
                  "with mptrack to 1e-8 before timing. 'time ratio' = time(KF-A) / time(row); "

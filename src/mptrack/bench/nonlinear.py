@@ -16,7 +16,7 @@ from ..nonlinear import (
 )
 from ..nonlinear._fem import _Propagator
 from . import register_suite
-from .linear import _best  # best-of-repeats wall clock, shared with the linear suite
+from ._timing import best_time
 
 __all__ = ["nonlinear_suite"]
 
@@ -47,19 +47,19 @@ def nonlinear_suite(quick: bool) -> dict:
         cases.append((f"FEM {g}x{g}, fixed box (one LU reused)",
                       lambda g=g: fem_filter(model, z, x0, P0, grid=(g, g), box=box)))
     rows = []
-    base = _best(lambda: z.copy(), repeats) / steps
+    base = best_time(lambda: z.copy(), repeats) / steps
     rows.append(["memory copy of z (baseline)", base * 1e3, None])
     for name, fn in cases:
         fn()
-        t = _best(fn, repeats) / steps
+        t = best_time(fn, repeats) / steps
         rows.append([name, t * 1e3, None])
     for g in ((20, 40) if not quick else (20,)):
         grid = FEMGrid(box[0], box[1], g, g)
-        t = _best(lambda g=g: _Propagator(FEMGrid(box[0], box[1], g, g), model, 16, "sdirk2", False), repeats)
+        t = best_time(lambda g=g: _Propagator(FEMGrid(box[0], box[1], g, g), model, 16, "sdirk2", False), repeats)
         rows.append([f"FEM {g}x{g}: grid set-up, assembly and sparse LU", t * 1e3, grid.size])
         prop = _Propagator(grid, model, 16, "sdirk2", False)
         p = np.ones(grid.size)
-        t = _best(lambda prop=prop, p=p: prop(p), repeats)
+        t = best_time(lambda prop=prop, p=p: prop(p), repeats)
         rows.append([f"FEM {g}x{g}: 16 SDIRK2 time steps (32 sparse triangular solves)", t * 1e3, grid.size])
     notes = [
         "ms per measurement step (predict + update), best of the repeats; 'nodes' = FEM node count.",

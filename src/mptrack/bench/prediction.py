@@ -18,7 +18,7 @@ from ..models import constant_velocity, constant_velocity_continuous
 from ..riccati import steady_state
 from ..sim import simulate_linear
 from . import register_suite
-from .linear import _best
+from ._timing import best_time
 
 __all__ = ["prediction_suite"]
 
@@ -44,7 +44,7 @@ def prediction_suite(quick: bool) -> dict:
     kf = kalman_filter(model, z, x0, P0)
     filt = steady_state_filter(model, z, x0, steady=ss)
     steady_state_predictor(model, z, 5, x0, steady=ss)  # compile the kernels before timing
-    t_ss = _best(lambda: steady_state_filter(model, z, x0, steady=ss), repeats)
+    t_ss = best_time(lambda: steady_state_filter(model, z, x0, steady=ss), repeats)
     cases = [
         ("steady-state filter (SSKF, reference)", lambda: steady_state_filter(model, z, x0, steady=ss)),
         ("SS predictor N=5, eq. 19 (A_N, B_N)", lambda: steady_state_predictor(model, z, 5, x0, steady=ss)),
@@ -59,9 +59,9 @@ def prediction_suite(quick: bool) -> dict:
     rows, notes = [], []
     ours_rts = rts_smoother(model, kf).x
     for name, fn in cases:
-        t = _best(fn, repeats)
+        t = best_time(fn, repeats)
         rows.append([name, t / steps * 1e6, steps / t, t / t_ss, None])
-    t_rts = _best(lambda: rts_smoother(model, kf), repeats)
+    t_rts = best_time(lambda: rts_smoother(model, kf), repeats)
     for name, fn in (("FilterPy KalmanFilter.rts_smoother", lambda: _filterpy_rts(model, kf)),):
         try:
             peer = fn()
@@ -71,7 +71,7 @@ def prediction_suite(quick: bool) -> dict:
         err = float(np.max(np.abs(peer - ours_rts)))
         if err > 1e-7 * max(1.0, float(np.max(np.abs(ours_rts)))):
             raise AssertionError(f"{name} disagrees with mptrack's RTS smoother by {err:g}; not timing it")
-        t = _best(fn, max(1, repeats // 2))
+        t = best_time(fn, max(1, repeats // 2))
         rows.append([name, t / steps * 1e6, steps / t, t / t_ss, t / t_rts])
     notes.append(f"{steps} steps of the 2-D CV model (n=4, m=2), best of {repeats}; peers checked to agree "
                  "with mptrack's RTS smoother before timing. 'time ratio' = time(row) / time(SSKF); "

@@ -121,9 +121,9 @@ def anfis_train(inputs, target, *, sets_per_input, universes, epochs: int = 40, 
         grad_m, grad_s = _premise_gradient(u, means, sigmas, c, y)
         new_means = [m - eta * g for m, g in zip(means, grad_m)]
         new_sigmas = [np.maximum(s - eta * g, 1e-3) for s, g in zip(sigmas, grad_s)]
-        trial, w_t, c_t, _ = loss(new_means, new_sigmas)
+        trial, _, c_t, _ = loss(new_means, new_sigmas)
         if trial <= current:
-            means, sigmas, current, w, c = new_means, new_sigmas, trial, w_t, c_t
+            means, sigmas, current, c = new_means, new_sigmas, trial, c_t
             eta *= 1.1
         else:
             eta *= 0.5

@@ -54,7 +54,6 @@ def _smoother_gains(PFt: np.ndarray, P_pred: np.ndarray) -> np.ndarray:
 def _rts_backward(result: FilterResult, F: np.ndarray, Q: np.ndarray) -> FilterResult:
     """The RTS backward pass; F, Q are one (n, n) pair or per-step stacks (T-1, n, n)
     where F[k], Q[k] take x(k) to x(k+1) (row k = time k+1 of the result)."""
-    T = result.T
     x_filt = np.asarray(result.x, dtype=float)
     P_filt = np.asarray(result.P, dtype=float)
     Ft = np.swapaxes(F, -1, -2)

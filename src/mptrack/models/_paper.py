@@ -4,7 +4,6 @@ from __future__ import annotations
 
 from typing import Literal
 
-import numpy as np
 
 from .._validation import check_int, check_positive
 from ..errors import ParameterError
