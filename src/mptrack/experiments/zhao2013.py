@@ -4,7 +4,7 @@ The example of eq. 42 is ill-posed as printed (its drift is a time-reversed
 Van der Pol oscillator and with Q = diag(10, 0.1) almost every path diverges):
 we show that divergence, then reproduce Table 1 on documented stable
 variants (the standard Van der Pol orientation of the cited source, and the
-printed drift with a small diffusion scale), see docs/_errata-zhao2013.md.
+printed drift with a small diffusion scale), see docs/errata.md (Zhao, Chen & Ma).
 
 Metrics (eqs. 43–44, our reading):
     R_i = (1/ST) Σ_runs sqrt( (1/t) Σ_k (x_i(k) − x̂_i(k|k))² )      per-run RMSE over time, averaged over runs
