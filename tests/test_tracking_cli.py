@@ -183,6 +183,31 @@ def test_evaluate_against_truth(tmp_path, sim):
     assert res.exit_code == 2 and "file not found" in res.stderr
 
 
+def test_evaluate_in_local_xy_metres(tmp_path, sim):
+    """The same log given as x/y metres (with x/y truth) evaluates like the lat/lon log."""
+    from mptrack.io import LocalFrame
+
+    df = pd.read_parquet(sim / "sim.parquet")
+    frame = LocalFrame(float(df["lat"].iloc[0]), float(df["lon"].iloc[0]))
+    x, y = frame.to_enu(df["lat"].to_numpy(), df["lon"].to_numpy())
+    tx, ty = frame.to_enu(df["true_lat"].to_numpy(), df["true_lon"].to_numpy())
+    xy = df.drop(columns=["lat", "lon", "true_lat", "true_lon"]).assign(x=x, y=y, true_x=tx, true_y=ty)
+    xy.to_parquet(tmp_path / "xy.parquet")
+    geo_out, xy_out = tmp_path / "geo.parquet", tmp_path / "xy_tracks.parquet"
+    assert run("track", sim / "sim.parquet", "--out", geo_out, "--quiet").exit_code == 0
+    assert run("track", tmp_path / "xy.parquet", "--out", xy_out, "--quiet").exit_code == 0
+    geo = json.loads(run("evaluate", geo_out, "--truth", sim / "sim.parquet", "--json").stdout)["overall"]
+    res = run("evaluate", xy_out, "--truth", tmp_path / "xy.parquet", "--json")
+    assert res.exit_code == 0, res.output
+    flat = json.loads(res.stdout)["overall"]
+    assert flat["matched_points"] == flat["points"] == geo["points"]
+    assert flat["rmse_m"] == pytest.approx(geo["rmse_m"], rel=1e-3)
+    assert flat["mean_nees"] == pytest.approx(geo["mean_nees"], rel=1e-2)
+    # truth and tracks in different kinds of coordinates is an error, not a silent NaN
+    res = run("evaluate", geo_out, "--truth", tmp_path / "xy.parquet")
+    assert res.exit_code == 2 and "x/y" in res.stderr
+
+
 def test_unknown_names_exit_2(tmp_path):
     res = run("track", GPX, "--out", tmp_path / "o.parquet", "--model", "ctrv")
     assert res.exit_code == 2 and "unknown name 'ctrv'" in res.stderr

@@ -64,9 +64,10 @@ def _fig_tracks(df: pd.DataFrame):
                 ax.plot(me[out], mn[out], "x", color="tab:orange", ms=6,
                         label=None if rejected_shown else "rejected (NIS gate)")
                 rejected_shown = True
-        if geodetic and "true_lat" in g.columns and np.isfinite(g["true_lat"].to_numpy(float)).any():
-            known = np.isfinite(g["true_lat"].to_numpy(float))
-            ax.plot(g["true_lon"][known], g["true_lat"][known], "--", color="k", lw=1,
+        truth_cols = ("true_lon", "true_lat") if geodetic else ("true_east_m", "true_north_m")
+        if truth_cols[1] in g.columns and np.isfinite(g[truth_cols[1]].to_numpy(float)).any():
+            known = np.isfinite(g[truth_cols[1]].to_numpy(float))
+            ax.plot(g[truth_cols[0]][known], g[truth_cols[1]][known], "--", color="k", lw=1,
                     label="truth" if first else None)
         x, y = (g["lon"], g["lat"]) if geodetic else (g["east_m"], g["north_m"])
         ax.plot(x, y, "-", color=TRACK_COLOR, lw=2.2, label="estimate" if first else None)

@@ -152,7 +152,7 @@ def _nullctx():
 
 def evaluate(
     tracks: Path = typer.Argument(..., help="Output of mptrack track (.parquet/.csv/.geojson)."),
-    truth: Optional[Path] = typer.Option(None, "--truth", help="Log with truth (true_lat/true_lon or lat/lon)."),
+    truth: Optional[Path] = typer.Option(None, "--truth", help="Log with truth (true_lat/true_lon or lat/lon; true_x/true_y or x/y in metres)."),
     report: Optional[Path] = typer.Option(None, "--report", help="Write a self-contained HTML report."),
     tolerance: float = typer.Option(0.5, help="Max time difference (s) to match an estimate with truth."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="Only the overall line."),

@@ -25,36 +25,62 @@ from ..io._schema import _parse_time
 __all__ = ["attach_truth", "evaluate_tracks"]
 
 
-def _truth_table(truth: pd.DataFrame, file) -> pd.DataFrame:
-    lat, lon = ("true_lat", "true_lon") if "true_lat" in truth.columns else ("lat", "lon")
-    for col in ("track_id", "time", lat, lon):
-        if col not in truth.columns:
+def _truth_table(truth: pd.DataFrame, file) -> tuple[pd.DataFrame, bool]:
+    """(truth as track_id, t, true_a, true_b sorted by t; True if a, b are lat/lon, False if x/y in m)."""
+    cols = set(truth.columns)
+    for a, b, geographic in (("true_lat", "true_lon", True), ("lat", "lon", True),
+                             ("true_x", "true_y", False), ("x", "y", False)):
+        if {a, b} <= cols:
+            break
+    else:
+        raise DataError("missing columns in the truth file: expected lat/lon (or true_lat/true_lon) "
+                        "or x/y in metres (or true_x/true_y)", file=file, column="lat")
+    for col in ("track_id", "time"):
+        if col not in cols:
             raise DataError("missing column in the truth file", file=file, column=col)
     _, secs = _parse_time(truth["time"])
     out = pd.DataFrame({"track_id": truth["track_id"].astype("string"), "t": secs,
-                        "true_lat": truth[lat].to_numpy(float), "true_lon": truth[lon].to_numpy(float)})
-    return out.dropna().drop_duplicates(["track_id", "t"]).sort_values("t", kind="stable")
+                        "true_a": truth[a].to_numpy(float), "true_b": truth[b].to_numpy(float)})
+    return out.dropna().drop_duplicates(["track_id", "t"]).sort_values("t", kind="stable"), geographic
 
 
 def attach_truth(tracks: pd.DataFrame, truth: pd.DataFrame, *, tolerance_s: float = 0.5,
                  file="truth") -> pd.DataFrame:
-    """``tracks`` with error_m, nees and true east/north columns from the nearest truth sample."""
-    tt = _truth_table(truth, file)
+    """``tracks`` with error_m, nees and true east/north columns from the nearest truth sample.
+
+    Truth in lat/lon is projected into each track's local frame; truth in x/y (metres) is
+    compared directly with tracks that were computed in x/y (no geographic origin).
+    """
+    tt, geographic = _truth_table(truth, file)
     est = tracks.assign(track_id=tracks["track_id"].astype("string"), _order=np.arange(len(tracks)))
     merged = pd.merge_asof(est.sort_values("t", kind="stable"), tt, on="t", by="track_id",
                            direction="nearest", tolerance=tolerance_s).sort_values("_order")
+    has_origin = np.isfinite(merged["origin_lat"].to_numpy(float))
+    if geographic and not has_origin.all():
+        raise DataError("the truth is in lat/lon but some tracks were computed in x/y (no geographic "
+                        "origin); give the truth as x/y in metres", file=file, column="lat")
+    if not geographic and has_origin.any():
+        raise DataError("the truth is in x/y but the tracks are in lat/lon; give the truth as lat/lon",
+                        file=file, column="x")
+    a, b = merged["true_a"].to_numpy(), merged["true_b"].to_numpy()
     e = np.full(len(merged), np.nan)
     n = np.full(len(merged), np.nan)
-    for (la, lo), idx in merged.groupby(["origin_lat", "origin_lon"]).indices.items():
-        ok = idx[np.isfinite(merged["true_lat"].to_numpy()[idx])]
-        if ok.size:
-            e[ok], n[ok] = LocalFrame(la, lo).to_enu(merged["true_lat"].to_numpy()[ok],
-                                                     merged["true_lon"].to_numpy()[ok])
+    if geographic:
+        for (la, lo), idx in merged.groupby(["origin_lat", "origin_lon"]).indices.items():
+            ok = idx[np.isfinite(a[idx])]
+            if ok.size:
+                e[ok], n[ok] = LocalFrame(la, lo).to_enu(a[ok], b[ok])
+    else:
+        e, n = a, b
     de, dn = merged["east_m"].to_numpy() - e, merged["north_m"].to_numpy() - n
     a, b, c = (merged[k].to_numpy() for k in ("var_east_m2", "cov_en_m2", "var_north_m2"))
     det = a * c - b * b
     with np.errstate(invalid="ignore", divide="ignore"):
         nees = (c * de * de - 2 * b * de * dn + a * dn * dn) / det
+    if geographic:
+        merged = merged.rename(columns={"true_a": "true_lat", "true_b": "true_lon"})
+    else:
+        merged = merged.drop(columns=["true_a", "true_b"])
     return merged.drop(columns="_order").assign(true_east_m=e, true_north_m=n, error_m=np.hypot(de, dn),
                                                 nees=nees).reset_index(drop=True)
 
