@@ -7,7 +7,7 @@ import numpy as np
 
 from .._validation import as_array, as_sequence, as_vector, check_covariance
 from ..errors import ParameterError, ShapeError
-from ..models import ContinuousLinearModel, discretize_intervals
+from ..models import ContinuousLinearModel, discretize_intervals, require_model
 from ._kernels import kf_loop
 from ._result import FilterResult
 from ._smoother import _rts_backward
@@ -40,11 +40,6 @@ def sampling_intervals(times, t0: float = 0.0) -> np.ndarray:
     return dts
 
 
-def _check_model(model) -> None:
-    if not isinstance(model, ContinuousLinearModel):
-        raise ParameterError(f"model: expected a ContinuousLinearModel, got {type(model).__name__}")
-
-
 def kalman_filter_irregular(model: ContinuousLinearModel, times, z, x0=None, P0=None, *,
                             t0: float = 0.0, joseph: bool = False) -> FilterResult:
     """Kalman filter for measurements at arbitrary increasing time stamps.
@@ -60,7 +55,7 @@ def kalman_filter_irregular(model: ContinuousLinearModel, times, z, x0=None, P0=
     in one call.  With equal intervals dt this is :func:`kalman_filter` on
     ``model.discretize(dt)``.
     """
-    _check_model(model)
+    require_model(model, kind=ContinuousLinearModel)
     dts = sampling_intervals(times, t0)
     z = as_sequence("z", z, model.m, allow_nan=True)
     if z.shape[0] != dts.shape[0]:
@@ -90,7 +85,7 @@ def rts_smoother_irregular(model: ContinuousLinearModel, times, result: FilterRe
 
     ``times`` and ``t0`` are those the filter ran with.
     """
-    _check_model(model)
+    require_model(model, kind=ContinuousLinearModel)
     if not isinstance(result, FilterResult):
         raise ParameterError(f"result: expected a FilterResult, got {type(result).__name__}")
     dts = sampling_intervals(times, t0)

@@ -21,7 +21,7 @@ import numpy as np
 
 from .._validation import check_int
 from ..errors import ParameterError, ShapeError, SingularMatrixError
-from ..models import LinearGaussianModel
+from ..models import LinearGaussianModel, require_model
 from ..riccati import SteadyState
 from ._common import prepare_inputs
 from ._kernels import ss_loop
@@ -34,11 +34,6 @@ __all__ = [
     "steady_state_predictor",
     "predict_ahead",
 ]
-
-
-def _check_model(model) -> None:
-    if not isinstance(model, LinearGaussianModel):
-        raise ParameterError(f"model: expected a LinearGaussianModel, got {type(model).__name__}")
 
 
 def prediction_matrices(model: LinearGaussianModel, N: int, *,
@@ -54,7 +49,7 @@ def prediction_matrices(model: LinearGaussianModel, N: int, *,
     recovered through F^{-(N-1)}.  Use :func:`steady_state_predictor` with
     ``method="inverse-free"`` then.
     """
-    _check_model(model)
+    require_model(model)
     N = check_int("N", N, minimum=1)
     ss = _steady(model, steady, "kalman")
     F, K, H = model.F, ss.K, model.H
@@ -101,7 +96,7 @@ def steady_state_predictor(model: LinearGaussianModel, z, N: int = 1, x0=None, *
     Returns a FilterResult whose row k-1 holds x(k+N/k) and the steady-state
     N-step prediction covariance F^N Pe F^{N T} + sum_{j<N} F^j Q F^{j T}.
     """
-    _check_model(model)
+    require_model(model)
     N = check_int("N", N, minimum=1)
     if method not in ("recursive", "inverse-free"):
         raise ParameterError(f"method: expected 'recursive' or 'inverse-free', got {method!r}")
@@ -129,7 +124,7 @@ def predict_ahead(model: LinearGaussianModel, result: FilterResult, N: int) -> F
     N-step predictor; with :func:`steady_state_filter` it is the inverse-free
     steady-state predictor.  Row k-1 holds x(k+N/k).
     """
-    _check_model(model)
+    require_model(model)
     N = check_int("N", N, minimum=1)
     if not isinstance(result, FilterResult):
         raise ParameterError(f"result: expected a FilterResult, got {type(result).__name__}")

@@ -17,7 +17,7 @@ import scipy.linalg
 from numba import njit
 
 from ..errors import ParameterError, ShapeError
-from ..models import LinearGaussianModel
+from ..models import LinearGaussianModel, require_model
 from ..riccati import SteadyState
 from ._kernels import ss_loop
 from ._result import FilterResult
@@ -27,8 +27,7 @@ __all__ = ["rts_smoother", "steady_state_smoother"]
 
 
 def _check(model, result) -> None:
-    if not isinstance(model, LinearGaussianModel):
-        raise ParameterError(f"model: expected a LinearGaussianModel, got {type(model).__name__}")
+    require_model(model)
     if not isinstance(result, FilterResult):
         raise ParameterError(f"result: expected a FilterResult, got {type(result).__name__}")
     if result.n != model.n:

@@ -30,7 +30,7 @@ import scipy.linalg
 
 from .._validation import as_matrix, check_covariance, check_int, check_positive
 from ..errors import ParameterError, ShapeError
-from ._linear import LinearGaussianModel, _frozen, stack_axes
+from ._linear import LinearGaussianModel, _frozen, require_model, stack_axes
 
 __all__ = [
     "ContinuousLinearModel",
@@ -173,8 +173,7 @@ def discretize(model: ContinuousLinearModel, dt: float) -> LinearGaussianModel:
     F = e^{Phi dt} and Q = int_0^dt e^{Phi s} L Qc L^T e^{Phi^T s} ds (seed 001
     sec. 2.1-2.2, computed by :func:`van_loan`); H and R are kept.
     """
-    if not isinstance(model, ContinuousLinearModel):
-        raise ParameterError(f"model: expected a ContinuousLinearModel, got {type(model).__name__}")
+    require_model(model, kind=ContinuousLinearModel)
     dt = check_positive("dt", dt)
     F, Q = _van_loan(model.Phi, model.L @ model.Qc @ model.L.T, dt)
     return LinearGaussianModel(F, model.H, Q, model.R, dt=dt, name=model.name)

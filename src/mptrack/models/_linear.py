@@ -121,8 +121,9 @@ def stack_axes(axis_model: LinearGaussianModel, axes: int, *, name: str = "") ->
                                blocks(axis_model.Q), blocks(axis_model.R), **kwargs)
 
 
-def require_model(model, name: str = "model") -> LinearGaussianModel:
-    """``model`` itself if it is a LinearGaussianModel, else a ParameterError naming ``name``."""
-    if not isinstance(model, LinearGaussianModel):
-        raise ParameterError(f"{name}: expected a LinearGaussianModel, got {type(model).__name__}")
+def require_model(model, name: str = "model", kind: type = LinearGaussianModel):
+    """``model`` itself if it is a ``kind`` (a LinearGaussianModel by default), else a
+    ParameterError naming ``name``."""
+    if not isinstance(model, kind):
+        raise ParameterError(f"{name}: expected a {kind.__name__}, got {type(model).__name__}")
     return model

@@ -30,7 +30,7 @@ import scipy.stats
 from .._validation import as_array, as_sequence, as_vector, check_covariance, check_int
 from ..errors import ParameterError, ShapeError
 from ..linear import FilterResult
-from ..models import ContinuousLinearModel, discretize_intervals
+from ..models import ContinuousLinearModel, discretize_intervals, require_model
 from ..linear._smoother import _rts_backward
 from ._kernels import gated_loop
 
@@ -76,8 +76,7 @@ def kalman_filter_gated(model: ContinuousLinearModel, times, z, x0, P0, *, t0: f
     gate_probability  chi-square probability of the NIS gate; None disables gating
     reset_P0 covariance used when re-initialising at a measurement (default P0)
     """
-    if not isinstance(model, ContinuousLinearModel):
-        raise ParameterError(f"model: expected a ContinuousLinearModel, got {type(model).__name__}")
+    require_model(model, kind=ContinuousLinearModel)
     t = as_array("times", times, ndim=1)
     z = as_sequence("z", z, model.m, allow_nan=True)
     if z.shape[0] != t.shape[0] or t.shape[0] == 0:
