@@ -17,6 +17,8 @@ from mptrack.linear import (
 from mptrack.models import constant_acceleration_continuous, constant_velocity_continuous, discretize
 from mptrack.sim import simulate_linear
 
+from _oracles import batch_least_squares
+
 
 @pytest.fixture
 def cv2():
@@ -90,27 +92,6 @@ def test_bad_shapes_and_model(cv2):
         kalman_filter_irregular(discretize(cv2, 1.0), [1.0], np.zeros((1, 2)))
 
 
-def _batch_smoother(Fs, Qs, H, R, z, x0, P0):
-    """Whole-trajectory least squares with per-step (F, Q): the reference smoother."""
-    n, T = len(x0), z.shape[0]
-    J = np.zeros(((T + 1) * n, (T + 1) * n))
-    h = np.zeros((T + 1) * n)
-    blk = lambda k: slice(k * n, (k + 1) * n)  # noqa: E731
-    J[blk(0), blk(0)] += np.linalg.inv(P0)
-    h[blk(0)] += np.linalg.solve(P0, x0)
-    Ri = np.linalg.inv(R)
-    for k in range(1, T + 1):
-        F, Qi = Fs[k - 1], np.linalg.inv(Qs[k - 1])
-        a, b = blk(k - 1), blk(k)
-        J[a, a] += F.T @ Qi @ F
-        J[a, b] -= F.T @ Qi
-        J[b, a] -= Qi @ F
-        J[b, b] += Qi + H.T @ Ri @ H
-        h[b] += H.T @ Ri @ z[k - 1]
-    cov = np.linalg.inv(J)
-    return (cov @ h).reshape(T + 1, n)[1:], np.array([cov[blk(k), blk(k)] for k in range(1, T + 1)])
-
-
 def test_irregular_smoother_equals_batch_least_squares():
     cont = constant_acceleration_continuous(0.5, 1, sigma_r2=0.3)
     rng = np.random.default_rng(5)
@@ -121,7 +102,7 @@ def test_irregular_smoother_equals_batch_least_squares():
     res = kalman_filter_irregular(cont, times, z, x0, P0)
     sm = rts_smoother_irregular(cont, times, res)
     models = [discretize(cont, dt) for dt in dts]
-    mean, cov = _batch_smoother([m.F for m in models], [m.Q for m in models], cont.H, cont.R, z, x0, P0)
+    mean, cov = batch_least_squares([m.F for m in models], [m.Q for m in models], cont.H, cont.R, z, x0, P0)
     np.testing.assert_allclose(sm.x, mean, rtol=1e-8, atol=1e-8)
     np.testing.assert_allclose(sm.P, cov, rtol=1e-7, atol=1e-10)
 

@@ -17,28 +17,13 @@ from mptrack.models import constant_acceleration, constant_velocity, cv_discrete
 from mptrack.riccati import steady_state
 from mptrack.sim import simulate_linear
 
+from _oracles import batch_least_squares
 
-def batch_least_squares(model, z, x0, P0):
-    """Smoothed means/covariances of x(1..T) by solving the whole-trajectory normal equations."""
-    n, T = model.n, z.shape[0]
-    F, H = model.F, model.H
-    Qi, Ri, P0i = np.linalg.inv(model.Q), np.linalg.inv(model.R), np.linalg.inv(P0)
-    J = np.zeros(((T + 1) * n, (T + 1) * n))
-    h = np.zeros((T + 1) * n)
-    blk = lambda k: slice(k * n, (k + 1) * n)  # noqa: E731
-    J[blk(0), blk(0)] += P0i
-    h[blk(0)] += P0i @ x0
-    for k in range(1, T + 1):
-        a, b = blk(k - 1), blk(k)
-        J[a, a] += F.T @ Qi @ F
-        J[a, b] -= F.T @ Qi
-        J[b, a] -= Qi @ F
-        J[b, b] += Qi + H.T @ Ri @ H
-        h[b] += H.T @ Ri @ z[k - 1]
-    cov = np.linalg.inv(J)
-    mean = cov @ h
-    return (mean.reshape(T + 1, n)[1:],
-            np.array([cov[blk(k), blk(k)] for k in range(1, T + 1)]))
+
+def model_least_squares(model, z, x0, P0):
+    """The batch least-squares smoother with the model's (F, Q) at every step."""
+    T = z.shape[0]
+    return batch_least_squares([model.F] * T, [model.Q] * T, model.H, model.R, z, x0, P0)
 
 
 @pytest.mark.parametrize("model", [constant_velocity(1.0, 0.3, 1, sigma_r2=0.5),
@@ -48,7 +33,7 @@ def test_rts_equals_batch_least_squares(model):
     _, z = simulate_linear(model, 12, rng, x0=rng.normal(size=model.n))
     x0, P0 = rng.normal(size=model.n), 2.0 * np.eye(model.n)
     smooth = rts_smoother(model, kalman_filter(model, z, x0, P0))
-    mean, cov = batch_least_squares(model, z, x0, P0)
+    mean, cov = model_least_squares(model, z, x0, P0)
     np.testing.assert_allclose(smooth.x, mean, rtol=1e-8, atol=1e-9)
     np.testing.assert_allclose(smooth.P, cov, rtol=1e-8, atol=1e-10)
     assert smooth.method == "RTS"
