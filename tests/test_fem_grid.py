@@ -132,3 +132,67 @@ def test_interpolated_gaussian_moments(mx, my, s):
     mass, mean, cov = g.moments(p)
     np.testing.assert_allclose(mean, [mx, my], atol=1e-3 * s)
     np.testing.assert_allclose(cov, s * s * np.eye(2), atol=1e-3 * s * s)
+
+
+@pytest.mark.parametrize("n", [6, 30])
+def test_band_and_sparse_factorisations_solve_the_assembled_system(n, monkeypatch):
+    """The band LU (small grids) and SuperLU (large grids) both solve (M − γτA) x = b."""
+    import scipy.sparse.linalg
+
+    from mptrack.nonlinear import _fem
+
+    model = linear_sde_model(A, Q, np.eye(2), np.eye(2), 1.0)
+    g = FEMGrid([-4.0, -3.0], [4.0, 5.0], n, n)
+    Me, Ae = g.element_matrices(model)
+    Be = Me - 0.3 * Ae
+    b = np.random.default_rng(n).standard_normal(g.size)
+    expected = scipy.sparse.linalg.spsolve(g.assemble(Be), b)
+    for limit in (0, 2**40):  # force SuperLU, then the band LU
+        monkeypatch.setattr(_fem, "_BAND_BYTES", limit)
+        np.testing.assert_allclose(_fem._factorise(g, Be)(b.copy()), expected, rtol=1e-10, atol=1e-12)
+
+
+def test_moment_weights_are_exact_integrals():
+    """W1, W2 (mapped from element units) equal direct quadrature of x φ_j and x xᵀ φ_j."""
+    g = FEMGrid([-1.5, 2.0], [2.5, 3.5], 4, 3)
+    rng = np.random.default_rng(3)
+    p = rng.random(g.size)
+    x, y = g.nodes[:, 0], g.nodes[:, 1]
+    # the interpolant of p·(1, x, x², x y, y²) is not p times those, so compare against a fine Riemann sum
+    u = np.linspace(0, 1, 801)[1:] - 1 / 1600
+    X, Y = np.meshgrid(-1.5 + 4 * u, 2.0 + 1.5 * u, indexing="ij")
+    pts = np.stack([X, Y], axis=-1)
+    dens = g.evaluate(p, pts)
+    area = 4 * 1.5 / dens.size
+    for weights, fn in ((g.W0, 1.0), (g.W1[:, 0], X), (g.W1[:, 1], Y), (g.W2[:, 0], X * X), (g.W2[:, 1], X * Y),
+                        (g.W2[:, 2], Y * Y)):
+        assert weights @ p == pytest.approx(np.sum(dens * fn) * area, rel=1e-5)
+    mass, mean, cov = g.moments(p)
+    assert mass == pytest.approx(g.W0 @ p)
+    np.testing.assert_allclose(mean, g.W1.T @ p / mass, rtol=1e-12)
+    s = g.W2.T @ p / mass
+    np.testing.assert_allclose(cov, [[s[0] - mean[0] ** 2, s[1] - mean[0] * mean[1]],
+                                     [s[1] - mean[0] * mean[1], s[2] - mean[1] ** 2]], atol=1e-12)
+
+
+def test_a_moving_grid_refactorises_only_when_it_moves(linear_case):
+    model, z, _ = linear_case
+    steps = list(fem_steps(model, z, X0, P0, grid=(12, 12)))
+    assert steps[0].factorised
+    assert [s.factorised for s in steps[1:]] == [s.regridded for s in steps[1:]]
+    fixed = list(fem_steps(model, z, X0, P0, grid=(12, 12), box=((-5.0, -5.0), (5.0, 5.0))))
+    assert [s.factorised for s in fixed] == [True] + [False] * (len(z) - 1)
+
+
+def test_default_substeps_follow_the_grid():
+    from mptrack.nonlinear._fem import default_substeps
+
+    assert default_substeps((20, 20)) == 8
+    assert default_substeps((40, 10)) == 16
+    assert default_substeps((2, 2)) == 4
+
+
+def test_grid_must_be_two_counts(linear_case):
+    model, z, _ = linear_case
+    with pytest.raises(ShapeError, match="grid"):
+        fem_filter(model, z, X0, P0, grid=(10, 10, 10))
