@@ -147,9 +147,27 @@ def test_band_and_sparse_factorisations_solve_the_assembled_system(n, monkeypatc
     Be = Me - 0.3 * Ae
     b = np.random.default_rng(n).standard_normal(g.size)
     expected = scipy.sparse.linalg.spsolve(g.assemble(Be), b)
-    for limit in (0, 2**40):  # force SuperLU, then the band LU
-        monkeypatch.setattr(_fem, "_BAND_BYTES", limit)
-        np.testing.assert_allclose(_fem._factorise(g, Be)(b.copy()), expected, rtol=1e-10, atol=1e-12)
+    for dtype, tol in ((np.float64, 1e-10), (np.float32, 1e-5)):
+        monkeypatch.setattr(_fem, "_SOLVE_DTYPE", dtype)
+        for limit in (0, 2**40):  # force SuperLU, then the band LU
+            monkeypatch.setattr(_fem, "_BAND_BYTES", limit)
+            x = _fem._factorise(g, Be)(b.copy())
+            assert x.dtype == np.float64
+            np.testing.assert_allclose(x, expected, rtol=0, atol=tol * np.abs(expected).max())
+
+
+def test_single_precision_solves_change_the_filter_by_far_less_than_its_discretisation_error(linear_case,
+                                                                                             monkeypatch):
+    from mptrack.nonlinear import _fem
+
+    model, z, kf = linear_case
+    single = fem_filter(model, z, X0, P0, grid=(24, 24))
+    monkeypatch.setattr(_fem, "_SOLVE_DTYPE", np.float64)
+    double = fem_filter(model, z, X0, P0, grid=(24, 24))
+    rounding = np.abs(single.x - double.x).max()
+    discretisation = np.abs(double.x - kf.x).max()
+    print(f"single vs double {rounding:.1e}, double vs KF {discretisation:.1e}")
+    assert rounding < 0.01 * discretisation
 
 
 def test_moment_weights_are_exact_integrals():
@@ -187,9 +205,9 @@ def test_a_moving_grid_refactorises_only_when_it_moves(linear_case):
 def test_default_substeps_follow_the_grid():
     from mptrack.nonlinear._fem import default_substeps
 
-    assert default_substeps((20, 20)) == 8
-    assert default_substeps((40, 10)) == 16
-    assert default_substeps((2, 2)) == 4
+    assert default_substeps((20, 20)) == 16
+    assert default_substeps((40, 10)) == 32
+    assert default_substeps((2, 2)) == 8
 
 
 def test_grid_must_be_two_counts(linear_case):

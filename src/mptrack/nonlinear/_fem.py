@@ -319,40 +319,45 @@ _GAMMA = 1.0 - np.sqrt(0.5)
 _MARGIN = 0.15   # a new box is the required one widened by this fraction on each side ...
 _SHRINK = 0.4    # ... and it is redrawn when the required box falls below this fraction of it
 _BAND_BYTES = 4 * 2**20   # largest band-LU factors; SuperLU beyond (see _factorise)
+_SOLVE_DTYPE = np.float32  # precision of the factorisation and solves (see _factorise)
 _PLACEMENT_STEPS = 4        # Heun steps of the noise-free flow used to place the grid
 
 
 def _factorise(grid: FEMGrid, Be: np.ndarray):
     """A solver x = B⁻¹b for the matrix assembled from element matrices Be (E, 8, 8).
 
-    A band LU (LAPACK dgbtrf/dgbtrs, partial pivoting) in the natural lattice
+    A band LU (LAPACK ?gbtrf/?gbtrs, partial pivoting) in the natural lattice
     order, half-bandwidth ≈ 3·n2, while its factors fit in _BAND_BYTES; SuperLU
-    with a fill-reducing ordering beyond.  Measured (docs/design.md): on 20 × 20
-    the band LU factorises 1.5–2× faster than SuperLU and solves as fast; on
-    40 × 40 its 15 MB of factors make every solve 2–3× slower than SuperLU's.
+    with a fill-reducing ordering beyond.  Factors and solves are in _SOLVE_DTYPE
+    (single precision); b and x stay double.  Measured (docs/design.md): on
+    20 × 20 the band LU factorises 1.5–2× faster than SuperLU and solves as fast;
+    on 40 × 40 its factors make every solve slower than SuperLU's.
     """
     width, slot = grid._top["band"]
     ld, N = 3 * width + 1, grid.size
-    if ld * N * 8 <= _BAND_BYTES:
-        ab = np.bincount(slot, weights=Be.ravel(), minlength=ld * N).reshape(N, ld).T  # Fortran order
-        lu, piv, info = scipy.linalg.lapack.dgbtrf(ab, width, width, overwrite_ab=True)
+    dtype = np.dtype(_SOLVE_DTYPE)
+    if ld * N * dtype.itemsize <= _BAND_BYTES:
+        gbtrf, gbtrs = scipy.linalg.lapack.get_lapack_funcs(("gbtrf", "gbtrs"), dtype=dtype)
+        ab = np.bincount(slot, weights=Be.ravel(), minlength=ld * N).reshape(N, ld).T.astype(dtype, order="F")
+        lu, piv, info = gbtrf(ab, width, width, overwrite_ab=True)
         if info != 0:
             raise ConvergenceError(f"grid filter: the time-step matrix is singular (pivot {info}); "
                                    "use more substeps")
-        return lambda b: scipy.linalg.lapack.dgbtrs(lu, width, width, b, piv, overwrite_b=True)[0]
+        return lambda b: gbtrs(lu, width, width, b.astype(dtype), piv, overwrite_b=True)[0].astype(float)
     try:
-        return scipy.sparse.linalg.splu(grid.assemble(Be), permc_spec="MMD_AT_PLUS_A").solve
+        solve = scipy.sparse.linalg.splu(grid.assemble(Be).astype(dtype), permc_spec="MMD_AT_PLUS_A").solve
     except RuntimeError as exc:  # "Factor is exactly singular"
         raise ConvergenceError(f"grid filter: the time-step matrix is singular ({exc}); use more substeps") \
             from None
+    return lambda b: solve(b.astype(dtype)).astype(float)
 
 
 class _Propagator:
-    """Time steps of M dp/dt = A p on one grid, with the LU factorisation kept.
+    """The prediction p ↦ p(t + dt) of M dp/dt = A p on one grid, with one LU factorisation kept.
 
-    "sdirk2": Alexander's 2-stage SDIRK (γ = 1 − 1/√2): second order, L-stable,
-              both stages solve with the same matrix M − γτA.
-    "cn":     Crank–Nicolson (θ = ½): second order, A-stable but not L-stable.
+    "sdirk2": ``substeps`` steps of Alexander's 2-stage SDIRK (γ = 1 − 1/√2): second
+              order, L-stable, both stages solve with the same matrix M − γτA.
+    "cn":     ``substeps`` Crank–Nicolson steps (θ = ½): second order, A-stable, not L-stable.
     Both conserve 1ᵀM p (Σφ = 1 makes 1ᵀA = 0), i.e. the probability mass.
     """
 
@@ -379,9 +384,9 @@ class _Propagator:
 
 
 def default_substeps(grid: tuple[int, int]) -> int:
-    """Time steps per dt of the grid filter by default: 0.4·max(n1, n2), at least 4 (a fixed Courant
-    number; 8 on 20 × 20)."""
-    return max(4, round(0.4 * max(grid)))
+    """Time steps per dt of the grid filter by default: 0.8·max(n1, n2), at least 8 (a fixed Courant
+    number; 16 on 20 × 20)."""
+    return max(8, round(0.8 * max(grid)))
 
 
 def _box(model, m, P, width, floor):
@@ -417,9 +422,9 @@ def fem_steps(model: ContinuousDiscreteModel, z, x0, P0, *, grid: tuple[int, int
 
     grid      (n1, n2) elements per axis (seed 004: 20 × 20)
     width     half-width of the box in posterior standard deviations (section 3.1)
-    substeps  time steps per dt; default 0.4·max(n1, n2), at least 4: a fixed Courant
-              number, 8 on the paper's 20 × 20 grid, where more do not reduce the error
-              on eq. 42 (docs/nonlinear.md)
+    substeps  time steps per dt; default 0.8·max(n1, n2), at least 8: a fixed Courant
+              number, 16 on the paper's 20 × 20 grid, where 32 are no more accurate on
+              eq. 42 and 8 are measurably less (docs/design.md)
     scheme    "sdirk2" (L-stable, default) or "cn" (Crank–Nicolson)
     stabilise add streamline diffusion (see FEMGrid.element_matrices); off by default: on the
               eq. 42 example its O(h) smearing costs more accuracy than the clipped
