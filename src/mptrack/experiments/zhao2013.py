@@ -140,7 +140,7 @@ def _convergence(ctx: RunContext, runs: int, grids, particle_counts, ref_particl
         for i, g in enumerate(grids):
             start = time.perf_counter()
             try:
-                x = fem_filter(model, z, x0, P0, grid=(g, g), substeps=_substeps(g)).x
+                x = fem_filter(model, z, x0, P0, grid=(g, g)).x  # sub-steps at a fixed Courant number
             except MptrackError:  # a grid too coarse to resolve the likelihood
                 fe[i, r] = np.nan
                 continue
@@ -349,11 +349,6 @@ def run(ctx: RunContext) -> Reproduction:
                   "variants": [_label(*v) for v in variants], "reference_particles": ref_particles}
     return Reproduction(key=KEY, paper=PAPER, seed=ctx.seed, parameters=parameters, tables=tables,
                         figures=figures, notes=notes)
-
-
-def _substeps(elements: int) -> int:
-    """Time steps per second for a grid refinement at a fixed Courant number (16 at 20 x 20)."""
-    return max(8, round(0.8 * elements))
 
 
 def _local_orders(sizes, errors) -> list[float]:
