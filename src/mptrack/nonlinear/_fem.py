@@ -56,6 +56,7 @@ from .._validation import as_array, check_int, check_positive
 from ..errors import ConvergenceError, ParameterError, ShapeError
 from ..linear import FilterResult
 from ._common import prepare_nonlinear
+from ._fem_kernels import band_cn, band_sdirk2, band_solve
 from ._model import ContinuousDiscreteModel
 from ._ukf import sigma_points
 
@@ -324,32 +325,34 @@ _PLACEMENT_STEPS = 4        # Heun steps of the noise-free flow used to place th
 
 
 def _factorise(grid: FEMGrid, Be: np.ndarray):
-    """A solver x = B⁻¹b for the matrix assembled from element matrices Be (E, 8, 8).
+    """Factorise the matrix assembled from element matrices Be (E, 8, 8): (solve, band).
 
-    A band LU (LAPACK ?gbtrf/?gbtrs, partial pivoting) in the natural lattice
-    order, half-bandwidth ≈ 3·n2, while its factors fit in _BAND_BYTES; SuperLU
-    with a fill-reducing ordering beyond.  Factors and solves are in _SOLVE_DTYPE
-    (single precision); b and x stay double.  Measured (docs/design.md): on
-    20 × 20 the band LU factorises 1.5–2× faster than SuperLU and solves as fast;
-    on 40 × 40 its factors make every solve slower than SuperLU's.
+    A band LU (LAPACK ?gbtrf, partial pivoting) in the natural lattice order,
+    half-bandwidth ≈ 3·n2, while its factors fit in _BAND_BYTES; ``band`` is then
+    (F, piv, kl) for the compiled kernels of _fem_kernels.  SuperLU with a
+    fill-reducing ordering beyond (band None).  Factors are in _SOLVE_DTYPE
+    (single precision); right-hand sides and solutions stay double.  Measured
+    (docs/design.md): on 20 × 20 the band LU factorises 2× faster than SuperLU
+    and solves faster; on 40 × 40 its factors make every solve slower.
     """
     width, slot = grid._top["band"]
     ld, N = 3 * width + 1, grid.size
     dtype = np.dtype(_SOLVE_DTYPE)
     if ld * N * dtype.itemsize <= _BAND_BYTES:
-        gbtrf, gbtrs = scipy.linalg.lapack.get_lapack_funcs(("gbtrf", "gbtrs"), dtype=dtype)
+        gbtrf = scipy.linalg.lapack.get_lapack_funcs("gbtrf", dtype=dtype)
         ab = np.bincount(slot, weights=Be.ravel(), minlength=ld * N).reshape(N, ld).T.astype(dtype, order="F")
         lu, piv, info = gbtrf(ab, width, width, overwrite_ab=True)
         if info != 0:
             raise ConvergenceError(f"grid filter: the time-step matrix is singular (pivot {info}); "
                                    "use more substeps")
-        return lambda b: gbtrs(lu, width, width, b.astype(dtype), piv, overwrite_b=True)[0].astype(float)
+        band = (np.ascontiguousarray(lu.T), piv, width)
+        return (lambda b: band_solve(*band, b.astype(dtype)).astype(float)), band
     try:
         solve = scipy.sparse.linalg.splu(grid.assemble(Be).astype(dtype), permc_spec="MMD_AT_PLUS_A").solve
     except RuntimeError as exc:  # "Factor is exactly singular"
         raise ConvergenceError(f"grid filter: the time-step matrix is singular ({exc}); use more substeps") \
             from None
-    return lambda b: solve(b.astype(dtype)).astype(float)
+    return (lambda b: solve(b.astype(dtype)).astype(float)), None
 
 
 class _Propagator:
@@ -359,6 +362,7 @@ class _Propagator:
               order, L-stable, both stages solve with the same matrix M − γτA.
     "cn":     ``substeps`` Crank–Nicolson steps (θ = ½): second order, A-stable, not L-stable.
     Both conserve 1ᵀM p (Σφ = 1 makes 1ᵀA = 0), i.e. the probability mass.
+    On a band LU the sub-steps run compiled (_fem_kernels); with SuperLU in the loop below.
     """
 
     def __init__(self, grid: FEMGrid, model: ContinuousDiscreteModel, substeps: int, scheme: str,
@@ -366,16 +370,24 @@ class _Propagator:
         Me, Ae = grid.element_matrices(model, stabilise)
         tau = model.dt / substeps
         gamma = _GAMMA if scheme == "sdirk2" else 0.5
-        self.solve = _factorise(grid, Me - gamma * tau * Ae)
-        self.A = grid.assemble(Ae).tocsr()
-        self.rhs = grid.assemble(Me + 0.5 * tau * Ae).tocsr() if scheme == "cn" else None
+        self.solve, self.band = _factorise(grid, Me - gamma * tau * Ae)
+        self.conn, self.Ae = grid.conn, Ae
+        self.Re = Me + 0.5 * tau * Ae if scheme == "cn" else None
+        if self.band is None:  # the loop below multiplies with assembled matrices
+            self.A = grid.assemble(Ae).tocsr()
+            self.rhs = None if self.Re is None else grid.assemble(self.Re).tocsr()
         self.tau, self.substeps = tau, substeps
 
     def __call__(self, p):
-        tau, solve, A = self.tau, self.solve, self.A
+        tau, solve = self.tau, self.solve
+        if self.band is not None:
+            if self.Re is not None:
+                return band_cn(*self.band, self.conn, self.Re, p, self.substeps)
+            return band_sdirk2(*self.band, self.conn, self.Ae, p, tau, _GAMMA, self.substeps)
+        A, R = self.A, self.rhs
         for _ in range(self.substeps):
-            if self.rhs is not None:
-                p = solve(self.rhs @ p)
+            if R is not None:
+                p = solve(R @ p)
             else:
                 k1 = solve(A @ p)
                 k2 = solve(A @ (p + (1.0 - _GAMMA) * tau * k1))
