@@ -345,7 +345,7 @@ def _factorise(grid: FEMGrid, Be: np.ndarray):
         if info != 0:
             raise ConvergenceError(f"grid filter: the time-step matrix is singular (pivot {info}); "
                                    "use more substeps")
-        band = (np.ascontiguousarray(lu.T), piv, width)
+        band = (lu.T, piv, width)  # C-contiguous view: row j is column j of the band
         return (lambda b: band_solve(*band, b.astype(dtype)).astype(float)), band
     try:
         solve = scipy.sparse.linalg.splu(grid.assemble(Be).astype(dtype), permc_spec="MMD_AT_PLUS_A").solve
