@@ -8,7 +8,7 @@ from scipy.linalg import expm
 from mptrack.errors import ParameterError
 from mptrack.nonlinear import (
     ContinuousDiscreteModel,
-    PointKernels,
+    BlockKernels,
     linear_sde_model,
     particle_filter,
     pf_substep_study,
@@ -199,9 +199,12 @@ def test_split_scheme_covariance_is_second_order():
 
 
 def test_default_substeps_and_bad_input():
+    small = zhao2013_model(variant="vdp", diffusion_scale=0.01)
+    assert pf_substeps(small) == 2 and pf_substeps(small, "heun") == 20
+    assert pf_substeps(zhao2013_model(variant="vdp", diffusion_scale=0.01, substeps=25)) == 3
+    assert pf_substeps(zhao2013_model(variant="vdp", diffusion_scale=0.1)) == 5     # tr Q = 1.01
     model = zhao2013_model()
-    assert pf_substeps(model) == 2 and pf_substeps(model, "heun") == 20
-    assert pf_substeps(zhao2013_model(substeps=25)) == 3
+    assert pf_substeps(model) == 41                                                  # tr Q = 10.1
     z = np.zeros((2, 2))
     with pytest.raises(ParameterError, match="scheme"):
         particle_filter(model, z, X0, P0, np.random.default_rng(0), scheme="euler")
@@ -210,7 +213,7 @@ def test_default_substeps_and_bad_input():
     with pytest.raises(ParameterError, match="substeps"):
         particle_filter(model, z, X0, P0, np.random.default_rng(0), substeps=0)
     with pytest.raises(ParameterError, match="kernels.drift"):
-        PointKernels(lambda X, p, out: None, model.kernels.measurement, (), ())
+        BlockKernels(lambda X, p, out: None, model.kernels.measurement, (), ())
     with pytest.raises(ParameterError, match="kernels"):
         ContinuousDiscreteModel(model.drift, model.Q, model.measurement, model.R, 1.0, kernels="fast")
 
@@ -228,7 +231,7 @@ def test_reference_default_is_finer_than_the_pf():
     model = zhao2013_model(variant="vdp", diffusion_scale=0.1)
     z = np.array([[1.1, -0.5]])
     a = reference_filter(model, z, X0, P0, np.random.default_rng(0), particles=500)
-    b = particle_filter(model, z, X0, P0, np.random.default_rng(0), particles=500, substeps=8,
+    b = particle_filter(model, z, X0, P0, np.random.default_rng(0), particles=500, substeps=4 * pf_substeps(model),
                         ess_threshold=0.5)
     np.testing.assert_array_equal(a.x, b.x)
 

@@ -29,7 +29,7 @@ from ._fem import FEMGrid, FEMStep, GridDensity, fem_filter, fem_steps, shape_fu
 from ._model import (
     ZHAO2013_X0,
     ContinuousDiscreteModel,
-    PointKernels,
+    BlockKernels,
     linear_sde_model,
     simulate_sde,
     zhao2013_model,
@@ -57,7 +57,7 @@ __all__ = [
     "local_solutions",
     # continuous-discrete (seed 004)
     "ContinuousDiscreteModel",
-    "PointKernels",
+    "BlockKernels",
     "zhao2013_model",
     "linear_sde_model",
     "simulate_sde",

@@ -1,6 +1,6 @@
 """Compiled (numba) particle-filter kernels and the model kernels they call.
 
-A model may carry :class:`PointKernels`: njit functions that evaluate the drift
+A model may carry :class:`BlockKernels`: njit functions that evaluate the drift
 and the measurement at a *block* of points stored column-wise,
 ``drift(X, params, out)`` and ``measurement(X, params, out)`` with X (n, B),
 out (n, B) resp. (m, B) written in place and params a float64 vector (e.g. the
@@ -40,18 +40,18 @@ from numba.extending import is_jitted
 
 from ..errors import ParameterError
 
-__all__ = ["PointKernels", "CompiledModel", "weighted_moments", "reweight", "systematic_indices", "resample",
+__all__ = ["BlockKernels", "CompiledModel", "weighted_moments", "reweight", "systematic_indices", "resample",
            "SCHEMES"]
 
 _LOG2PI = np.log(2.0 * np.pi)
 #: sub-step schemes of the SDE sampler: stochastic Heun, and Strang splitting with RK4 drift flows
 SCHEMES = ("heun", "rk4-split")
 _HEUN, _SPLIT = 0, 1
-_BLOCK = 512  # points per block: the (n, B) scratch arrays stay in L1
+_BLOCK = 256  # points per block: the (n, B) scratch arrays stay in L1
 
 
 @dataclass(frozen=True, eq=False)
-class PointKernels:
+class BlockKernels:
     """Compiled block versions of a model's drift and measurement (see the module docstring)."""
 
     drift: object
@@ -276,7 +276,7 @@ class CompiledModel:
     def __init__(self, model) -> None:
         if model.kernels is None:
             raise ParameterError("model: has no compiled kernels (build it with zhao2013_model or "
-                                 "linear_sde_model, or pass kernels=PointKernels(...))")
+                                 "linear_sde_model, or pass kernels=BlockKernels(...))")
         self.model = model
         self.kernels = model.kernels
         self.L = np.ascontiguousarray(model.noise_factor())

@@ -6,6 +6,8 @@
 ``f`` and ``h`` are vectorised: they map an array of points (..., n) to
 (..., n) and (..., m), so the grid filter evaluates them on every node and
 quadrature point at once and the particle filter on every particle.
+The named models also carry compiled block kernels (:class:`BlockKernels`,
+``mptrack.nonlinear._kernels``) that the particle filter uses instead.
 Measurement components that are angles carry a wrap period (2π for an
 ``arctan2`` bearing): innovations of those components are wrapped into
 [-period/2, period/2).
@@ -23,7 +25,7 @@ from ..errors import ParameterError, ShapeError
 from ..models import LinearGaussianModel, van_loan
 from ..models._linear import _frozen
 from . import _kernels as kern
-from ._kernels import SCHEMES, PointKernels
+from ._kernels import SCHEMES, BlockKernels
 
 __all__ = [
     "ContinuousDiscreteModel",
@@ -31,7 +33,7 @@ __all__ = [
     "linear_sde_model",
     "simulate_sde",
     "ZHAO2013_X0",
-    "PointKernels",
+    "BlockKernels",
 ]
 
 _LOG2PI = np.log(2.0 * np.pi)
@@ -69,9 +71,9 @@ class ContinuousDiscreteModel:
                  bearing), or None for an ordinary component
     substeps     sub-steps per dt used when sampling the SDE (simulation, particle filter)
     linear       (A, H) when f(x) = A x and h(x) = H x (enables the exact discretisation)
-    kernels      optional :class:`PointKernels`: numba-compiled point-wise drift and
-                 measurement; the particle filter then runs compiled (same numbers as
-                 the NumPy path, which models without kernels use)
+    kernels      optional :class:`BlockKernels`: numba-compiled drift and measurement on
+                 blocks of points (X (n, B) column-wise); the particle filter then runs
+                 compiled (same numbers as the NumPy path, which models without kernels use)
     """
 
     drift: Callable[[np.ndarray], np.ndarray]
@@ -83,7 +85,7 @@ class ContinuousDiscreteModel:
     substeps: int = field(default=20, kw_only=True)
     linear: tuple | None = field(default=None, kw_only=True)
     name: str = field(default="", kw_only=True)
-    kernels: PointKernels | None = field(default=None, kw_only=True)
+    kernels: BlockKernels | None = field(default=None, kw_only=True)
 
     def __post_init__(self) -> None:
         if not callable(self.drift):
@@ -113,8 +115,8 @@ class ContinuousDiscreteModel:
             A = as_matrix("linear[0] (A)", self.linear[0], n, n)
             H = as_matrix("linear[1] (H)", self.linear[1], m, n)
             set_(self, "linear", (_frozen(A), _frozen(H)))
-        if self.kernels is not None and not isinstance(self.kernels, PointKernels):
-            raise ParameterError(f"kernels: expected a PointKernels or None, got {type(self.kernels).__name__}")
+        if self.kernels is not None and not isinstance(self.kernels, BlockKernels):
+            raise ParameterError(f"kernels: expected a BlockKernels or None, got {type(self.kernels).__name__}")
 
     @property
     def n(self) -> int:
@@ -269,7 +271,7 @@ def zhao2013_model(*, variant: str = "printed", diffusion_scale: float = 1.0, be
     return ContinuousDiscreteModel(drift, scale * np.diag([10.0, 0.1]), measurement, np.diag([0.1, 1.0]), dt,
                                    periods=(None, period), substeps=substeps,
                                    name=f"zhao2013 eq. 42 ({variant}, Q x {scale:g}, {bearing})",
-                                   kernels=PointKernels(drift_kernel, measurement_kernel, np.zeros(0), np.zeros(0)))
+                                   kernels=BlockKernels(drift_kernel, measurement_kernel, np.zeros(0), np.zeros(0)))
 
 
 def linear_sde_model(A, Q, H, R, dt: float, *, substeps: int = 20, name: str = "") -> ContinuousDiscreteModel:
@@ -279,7 +281,7 @@ def linear_sde_model(A, Q, H, R, dt: float, *, substeps: int = 20, name: str = "
         raise ShapeError(f"A: expected a square matrix, got shape {A.shape}")
     H = as_matrix("H", H, None, A.shape[0])
     At, Ht = A.T.copy(), H.T.copy()
-    kernels = PointKernels(kern.linear_map, kern.linear_map, A, H)  # row-major A, H: out = M x
+    kernels = BlockKernels(kern.linear_map, kern.linear_map, A, H)  # row-major A, H: out = M x
     return ContinuousDiscreteModel(lambda X: X @ At, Q, lambda X: X @ Ht, R, dt, substeps=substeps,
                                    linear=(A, H), name=name or "linear SDE", kernels=kernels)
 

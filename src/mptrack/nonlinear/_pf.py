@@ -14,9 +14,13 @@ from ._model import ContinuousDiscreteModel
 
 __all__ = ["particle_filter", "systematic_resample", "pf_substeps"]
 
-#: the "rk4-split" scheme takes 1/SPLIT_RATIO of model.substeps by default (2 for the usual 20 per second):
-#: on eq. 42 its bias at 2 sub-steps is below the Monte-Carlo noise of 10^4 particles (docs/nonlinear.md)
+#: default sub-steps of the "rk4-split" scheme (docs/nonlinear.md, study on eq. 42): at least
+#: model.substeps / SPLIT_RATIO (2 for the usual 20 per second: the bias of the 2-step split on
+#: the Q x 0.01 example is a third of the Monte-Carlo error of 10^4 particles), and enough that the
+#: noise per sub-step, sqrt(tr(Q) h), is at most NOISE_STEP state units (the weak error grows
+#: with it: Q x 0.1 needs 4-5 sub-steps, Q x 1 about 20-40)
 SPLIT_RATIO = 10
+NOISE_STEP = 0.5
 
 
 def systematic_resample(weights: np.ndarray, rng: np.random.Generator) -> np.ndarray:
@@ -28,11 +32,15 @@ def systematic_resample(weights: np.ndarray, rng: np.random.Generator) -> np.nda
 
 
 def pf_substeps(model: ContinuousDiscreteModel, scheme: str = "rk4-split") -> int:
-    """The particle filter's default sub-steps per dt: model.substeps for "heun",
-    ceil(model.substeps / SPLIT_RATIO) for "rk4-split"."""
+    """The particle filter's default sub-steps per dt: model.substeps for "heun"; for "rk4-split"
+    max(ceil(model.substeps / SPLIT_RATIO), ceil(tr(Q)·dt / NOISE_STEP²)) (2 for eq. 42 with
+    Q x 0.01, 5 with Q x 0.1, 41 with Q x 1)."""
     if scheme not in SCHEMES:
         raise ParameterError(f"scheme: expected one of {SCHEMES}, got {scheme!r}")
-    return model.substeps if scheme == "heun" else -(-model.substeps // SPLIT_RATIO)
+    if scheme == "heun":
+        return model.substeps
+    noise = int(np.ceil(np.trace(model.Q) * model.dt / NOISE_STEP ** 2 - 1e-12))
+    return max(-(-model.substeps // SPLIT_RATIO), noise)
 
 
 def particle_filter(model: ContinuousDiscreteModel, z, x0, P0, rng: np.random.Generator, *,
@@ -49,7 +57,8 @@ def particle_filter(model: ContinuousDiscreteModel, z, x0, P0, rng: np.random.Ge
                    bandwidth (N(n+2)/4)^(-1/(n+4)) (regularised PF, Musso et al. 2001)
     scheme         SDE sub-step scheme of :meth:`ContinuousDiscreteModel.sample_transition`:
                    "rk4-split" (default; RK4 drift flows around the noise) or "heun"
-    substeps       sub-steps per dt (default :func:`pf_substeps`: 2 for the named models)
+    substeps       sub-steps per dt (default :func:`pf_substeps`: 2 for eq. 42 with Q x 0.01,
+                   more when the diffusion is large)
     compiled       None: use the model's compiled kernels when it has them (zhao2013_model,
                    linear_sde_model), else NumPy; False: NumPy; True: require the kernels.
                    Both paths draw the same numbers and give the same result up to rounding.
@@ -67,7 +76,7 @@ def particle_filter(model: ContinuousDiscreteModel, z, x0, P0, rng: np.random.Ge
     if thr > 1:
         raise ParameterError(f"ess_threshold: expected a number in [0, 1], got {ess_threshold!r}")
     if compiled and model.kernels is None:
-        raise ParameterError("compiled: the model has no compiled kernels (PointKernels)")
+        raise ParameterError("compiled: the model has no compiled kernels (BlockKernels)")
     use_kernels = model.kernels is not None if compiled is None else bool(compiled)
     if use_kernels:
         compiled_model = kern.CompiledModel(model)
