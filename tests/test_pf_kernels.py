@@ -107,14 +107,36 @@ def test_weighting_moments_and_resampling_equal_numpy_oracles():
         w0 = w.copy()
         w0[::7] = 0.0
         w0 /= w0.sum()
-        cdf = np.cumsum(w0)
-        cdf[-1] = 1.0
-        want = np.searchsorted(cdf, (u + np.arange(len(w0))) / len(w0), side="right")
+        want = _systematic_oracle(w0, u)
         np.testing.assert_array_equal(kern.systematic_indices(w0, u), want)
         assert not np.isin(np.flatnonzero(w0 == 0), want[want < len(w0) - 1]).any()
     np.testing.assert_array_equal(kern.resample(X, w, 0.37), X[kern.systematic_indices(w, 0.37)])
     np.testing.assert_array_equal(systematic_resample(w, np.random.default_rng(1)),
                                   kern.systematic_indices(w, np.random.default_rng(1).random()))
+
+
+def _systematic_oracle(w, u):
+    """np.searchsorted on the running sum (capped at 1, last = 1), index capped at N - 1."""
+    cdf = np.minimum(np.cumsum(w), 1.0)
+    cdf[-1] = 1.0
+    return np.minimum(np.searchsorted(cdf, (u + np.arange(len(w))) / len(w), side="right"), len(w) - 1)
+
+
+def test_systematic_indices_match_searchsorted_on_random_and_tied_weights():
+    rng = np.random.default_rng(11)
+    for trial in range(300):
+        N = int(rng.integers(1, 3000))
+        w = rng.random(N) ** 8
+        if trial % 3 == 0:
+            w[rng.random(N) < 0.5] = 0.0
+        w[0] += 1e-300
+        w /= w.sum()
+        u = (0.0, rng.random(), 1 - 1e-16)[trial % 3]
+        np.testing.assert_array_equal(kern.systematic_indices(w, u), _systematic_oracle(w, u))
+    for N in (3, 10, 1000, 4096):  # equal weights: with u = 0 every t_i lies on a cdf step (ties)
+        w = np.full(N, 1.0 / N)
+        np.testing.assert_array_equal(kern.systematic_indices(w, 0.0), _systematic_oracle(w, 0.0))
+        np.testing.assert_array_equal(kern.systematic_indices(w, 0.5), np.arange(N))  # one copy of each
 
 
 @pytest.mark.parametrize("scheme", ["heun", "rk4-split"])

@@ -10,23 +10,26 @@ instructions (AVX2/AVX-512): ~10× faster than one point at a time, which is
 latency-bound (measured on eq. 42: 0.27 ms against 2.5 ms for 4·10⁴ RK4 steps).
 
 :class:`CompiledModel` runs the same stochastic schemes as
-:meth:`ContinuousDiscreteModel.sample_transition` and the same weighting as :meth:`ContinuousDiscreteModel.log_likelihood`, compiled,
-with the same arithmetic in the same order (no fastmath, so no reordering or
-FMA contraction): the tests check them against the NumPy methods, which stay
-the readable definition and the path for models without kernels.
+:meth:`ContinuousDiscreteModel.sample_transition` and the same weighting as
+:meth:`ContinuousDiscreteModel.log_likelihood`, compiled, with the same
+arithmetic in the same order (no fastmath, so no reordering or FMA
+contraction): the tests check them against the NumPy methods, which stay the
+readable definition and the path for models without kernels.
 
 Randomness: the normal increments of all sub-steps are drawn first from the
 caller's ``numpy.random.Generator``; numba's ``standard_normal`` is NumPy's
 ziggurat on the same bit generator, so the draws are exactly NumPy's, in
 NumPy's order (sub-step, particle, component), and the state of the generator
 advances as with NumPy.  The kernels are serial: on the shared 2-core machine a
-parallel (``prange``) version was 2–10× *slower* whenever the other core was
+parallel (``prange``) version was 3–12× *slower* whenever the other core was
 busy (OpenMP threads waiting for a descheduled peer), and serial SIMD code
 already meets the budget.
 
-The kernels that take a model kernel as an argument are specialised per model
-kernel and compiled once per process (numba cannot cache functions with
-function arguments, ~1 s each); the model-independent ones are cached on disk.
+The kernels that call a model kernel are bound to it once per process
+(:func:`_bound`) and compiled then (~1–2 s per model kernel pair): numba
+cannot cache functions that call a function passed in, and passing it at
+every call costs ~15 µs of dispatcher typing.  The model-independent kernels
+are cached on disk.
 """
 
 from __future__ import annotations
@@ -366,18 +369,31 @@ def weighted_moments(X, w):  # pragma: no cover - compiled
 
 @njit(cache=True, nogil=True)
 def systematic_indices(weights, u):  # pragma: no cover - compiled
-    """Indices of systematic resampling with the offset u in [0, 1): draw i takes the first j
-    with cdf[j] > (u + i)/N (cdf[-1] set to 1), one merge pass."""
+    """Indices of systematic resampling with the offset u in [0, 1): draw i takes the first j with
+    cdf[j] > t_i = (u + i)/N, i.e. ``np.searchsorted(cdf, t, side="right")`` with the running sum
+    capped at 1 (rounding can push it past 1 before the end), cdf[-1] = 1, and the index capped at
+    N - 1 (t_i can round to 1 when u is within 1e-16 of 1).
+
+    Without a data-dependent branch per draw (those mispredict): k_j = #{i: t_i < cdf[j]} from
+    ceil(N cdf[j] - u), corrected against the exact comparison, then idx[i] = #{j: k_j <= i} by a
+    histogram of k and its running sum."""
     N = weights.shape[0]
+    hist = np.zeros(N + 1, np.int64)
+    c = 0.0
+    for j in range(N):
+        c = min(c + weights[j], 1.0) if j < N - 1 else 1.0
+        k = min(max(np.ceil(c * N - u), 0.0), float(N))
+        k = int(k)
+        while k > 0 and (u + (k - 1)) / N >= c:
+            k -= 1
+        while k < N and (u + k) / N < c:
+            k += 1
+        hist[k] += 1
     idx = np.empty(N, np.int64)
-    j = 0
-    c = weights[0] if N > 1 else 1.0
+    run = 0
     for i in range(N):
-        t = (u + i) / N
-        while c <= t and j < N - 1:
-            j += 1
-            c = c + weights[j] if j < N - 1 else 1.0
-        idx[i] = j
+        run += hist[i]
+        idx[i] = min(run, N - 1)
     return idx
 
 
@@ -385,7 +401,9 @@ def systematic_indices(weights, u):  # pragma: no cover - compiled
 def resample(X, w, u):  # pragma: no cover - compiled
     """The particles X[systematic_indices(w, u)] (a new array)."""
     idx = systematic_indices(w, u)
+    N, n = X.shape
     out = np.empty_like(X)
-    for i in range(X.shape[0]):
-        out[i] = X[idx[i]]
+    for i in range(N):
+        for r in range(n):
+            out[i, r] = X[idx[i], r]
     return out
