@@ -325,10 +325,9 @@ def reweight(logw, w, ll):  # pragma: no cover - compiled
         logw[i] = logw[i] + ll[i] - a_max
         w[i] = np.exp(logw[i])
         total += w[i]
-    for i in range(N):
-        w[i] /= total
     lt = np.log(total)
     for i in range(N):
+        w[i] /= total
         logw[i] -= lt
     return a_max + lt
 
