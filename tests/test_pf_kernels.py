@@ -240,6 +240,21 @@ def test_default_substeps_and_bad_input():
         ContinuousDiscreteModel(model.drift, model.Q, model.measurement, model.R, 1.0, kernels="fast")
 
 
+def test_kernels_that_disagree_with_the_numpy_model_are_rejected():
+    named = zhao2013_model(variant="vdp", diffusion_scale=0.1)
+    wrong = BlockKernels(kern.printed_drift, named.kernels.measurement, (), ())
+    model = ContinuousDiscreteModel(named.drift, named.Q, named.measurement, named.R, 1.0, periods=named.periods,
+                                    kernels=wrong)
+    with pytest.raises(ParameterError, match="kernels.drift: the compiled kernel disagrees"):
+        particle_filter(model, np.zeros((2, 2)), X0, P0, np.random.default_rng(0))
+    wrong = BlockKernels(named.kernels.drift, kern.range_atan, (), ())   # bearing folded modulo π
+    model = ContinuousDiscreteModel(named.drift, named.Q, named.measurement, named.R, 1.0, periods=named.periods,
+                                    kernels=wrong)
+    with pytest.raises(ParameterError, match="kernels.measurement"):
+        particle_filter(model, np.zeros((2, 2)), X0, P0, np.random.default_rng(0))
+    assert particle_filter(model, np.zeros((2, 2)), X0, P0, np.random.default_rng(0), compiled=False).x.shape == (2, 2)
+
+
 @pytest.mark.filterwarnings("ignore:overflow encountered")
 @pytest.mark.parametrize("compiled", [True, False])
 def test_zero_likelihood_is_an_error_in_both_paths(compiled):

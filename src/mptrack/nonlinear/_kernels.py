@@ -284,8 +284,22 @@ class CompiledModel:
         self.kernels = model.kernels
         self.L = np.ascontiguousarray(model.noise_factor())
         self.periods = np.array([0.0 if p is None else p for p in model.periods])
+        self._check_against_numpy()
         self._advance, self._loglik = _bound(self.kernels.drift, self.kernels.measurement)
         self._weighting = {}  # pattern of observed components -> (indices, Linv, log det, k log 2π)
+
+    def _check_against_numpy(self) -> None:
+        """The kernels must compute what the model's NumPy callables compute: compare on a few points."""
+        model, kn = self.model, self.kernels
+        probe = np.linspace(-1.3, 1.7, 5)[:, None] * np.linspace(1.0, -0.6, model.n)[None, :] + 0.1
+        f, h = np.empty((model.n, 5)), np.empty((model.m, 5))
+        kn.drift(np.ascontiguousarray(probe.T), kn.drift_params, f)
+        kn.measurement(np.ascontiguousarray(probe.T), kn.measurement_params, h)
+        for name, got, want in (("drift", f.T, model.drift(probe)),
+                                ("measurement", model.innovation(h.T, model.measurement(probe)), 0.0)):
+            if not np.allclose(got, want, rtol=1e-9, atol=1e-9):
+                raise ParameterError(f"kernels.{name}: the compiled kernel disagrees with model.{name} "
+                                     f"(largest difference {np.max(np.abs(got - want)):.3g} on probe points)")
 
     def propagate(self, X: np.ndarray, rng: np.random.Generator, steps: int, scheme: str) -> np.ndarray:
         """Advance the particles X (N, n) (C-contiguous float64) in place by ``steps`` sub-steps."""
