@@ -49,7 +49,7 @@ __all__ = ["BlockKernels", "CompiledModel", "weighted_moments", "reweight", "sys
 _LOG2PI = np.log(2.0 * np.pi)
 #: sub-step schemes of the SDE sampler: stochastic Heun, and Strang splitting with RK4 drift flows
 SCHEMES = ("heun", "rk4-split")
-_HEUN, _SPLIT = 0, 1
+_HEUN = SCHEMES.index("heun")  # the other scheme, "rk4-split", is 1
 _BLOCK = 256  # points per block: the (n, B) scratch arrays stay in L1
 
 
@@ -349,19 +349,36 @@ def reweight(logw, w, ll):  # pragma: no cover - compiled
 @njit(cache=True, nogil=True)
 def _wsum(w, X, r, c, m_r, m_c):  # pragma: no cover - compiled
     """Σ_i w_i (X[i, r] - m_r)(X[i, c] - m_c), or Σ_i w_i X[i, r] if c < 0, or Σ_i w_i² if r < 0; in four
-    interleaved partial sums (a fixed order, so deterministic; four add chains instead of one
-    latency-bound chain)."""
+    interleaved partial sums (lane i mod 4; a fixed order, so deterministic; four add chains instead of
+    one latency-bound chain)."""
     N = w.shape[0]
-    s = np.zeros(4)
-    for i in range(N):
-        if r < 0:
-            t = w[i] * w[i]
-        elif c < 0:
-            t = w[i] * X[i, r]
-        else:
-            t = w[i] * (X[i, r] - m_r) * (X[i, c] - m_c)
-        s[i & 3] += t
-    return (s[0] + s[1]) + (s[2] + s[3])
+    N4 = N - N % 4
+    s0 = s1 = s2 = s3 = 0.0
+    if r < 0:
+        for i in range(0, N4, 4):
+            s0 += w[i] * w[i]
+            s1 += w[i + 1] * w[i + 1]
+            s2 += w[i + 2] * w[i + 2]
+            s3 += w[i + 3] * w[i + 3]
+        for i in range(N4, N):
+            s0 += w[i] * w[i]
+    elif c < 0:
+        for i in range(0, N4, 4):
+            s0 += w[i] * X[i, r]
+            s1 += w[i + 1] * X[i + 1, r]
+            s2 += w[i + 2] * X[i + 2, r]
+            s3 += w[i + 3] * X[i + 3, r]
+        for i in range(N4, N):
+            s0 += w[i] * X[i, r]
+    else:
+        for i in range(0, N4, 4):
+            s0 += w[i] * (X[i, r] - m_r) * (X[i, c] - m_c)
+            s1 += w[i + 1] * (X[i + 1, r] - m_r) * (X[i + 1, c] - m_c)
+            s2 += w[i + 2] * (X[i + 2, r] - m_r) * (X[i + 2, c] - m_c)
+            s3 += w[i + 3] * (X[i + 3, r] - m_r) * (X[i + 3, c] - m_c)
+        for i in range(N4, N):
+            s0 += w[i] * (X[i, r] - m_r) * (X[i, c] - m_c)
+    return (s0 + s1) + (s2 + s3)
 
 
 @njit(cache=True, nogil=True)
