@@ -122,14 +122,19 @@ def linear_map(X, p, out):  # pragma: no cover - compiled
 def _add_capped(x, a, k, out, d):  # pragma: no cover - compiled
     """out = x + inc / max(|inc|, 1) per column with inc = a·k (``_model._cap``); d is scratch (B,)."""
     n, B = x.shape
-    for j in range(B):
-        d[j] = 0.0
-    for r in range(n):
-        for j in range(B):
-            d[j] += (a * k[r, j]) * (a * k[r, j])
     capped = 0
-    for j in range(B):
-        capped += d[j] > 1.0
+    if n == 2:  # the usual case in one pass (the same sum in the same order)
+        for j in range(B):
+            d[j] = 0.0 + (a * k[0, j]) * (a * k[0, j]) + (a * k[1, j]) * (a * k[1, j])
+            capped += d[j] > 1.0
+    else:
+        for j in range(B):
+            d[j] = 0.0
+        for r in range(n):
+            for j in range(B):
+                d[j] += (a * k[r, j]) * (a * k[r, j])
+        for j in range(B):
+            capped += d[j] > 1.0
     if capped == 0:  # the usual case: dividing by max(|inc|, 1) = 1 would change nothing
         for r in range(n):
             for j in range(B):
