@@ -26,9 +26,16 @@ from ._fekf import (
     local_solutions,
 )
 from ._fem import FEMGrid, FEMStep, GridDensity, fem_filter, fem_steps, shape_functions
-from ._model import ZHAO2013_X0, ContinuousDiscreteModel, linear_sde_model, simulate_sde, zhao2013_model
-from ._pf import particle_filter, systematic_resample
-from ._reference import reference_filter
+from ._model import (
+    ZHAO2013_X0,
+    ContinuousDiscreteModel,
+    BlockKernels,
+    linear_sde_model,
+    simulate_sde,
+    zhao2013_model,
+)
+from ._pf import particle_filter, pf_substeps, systematic_resample
+from ._reference import pf_substep_study, reference_filter
 from ._ukf import sigma_points, ukf_filter
 
 __all__ = [
@@ -50,6 +57,7 @@ __all__ = [
     "local_solutions",
     # continuous-discrete (seed 004)
     "ContinuousDiscreteModel",
+    "BlockKernels",
     "zhao2013_model",
     "linear_sde_model",
     "simulate_sde",
@@ -63,6 +71,8 @@ __all__ = [
     "ukf_filter",
     "sigma_points",
     "particle_filter",
+    "pf_substeps",
     "systematic_resample",
     "reference_filter",
+    "pf_substep_study",
 ]

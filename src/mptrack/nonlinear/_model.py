@@ -6,6 +6,8 @@
 ``f`` and ``h`` are vectorised: they map an array of points (..., n) to
 (..., n) and (..., m), so the grid filter evaluates them on every node and
 quadrature point at once and the particle filter on every particle.
+The named models also carry compiled block kernels (:class:`BlockKernels`,
+``mptrack.nonlinear._kernels``) that the particle filter uses instead.
 Measurement components that are angles carry a wrap period (2π for an
 ``arctan2`` bearing): innovations of those components are wrapped into
 [-period/2, period/2).
@@ -22,6 +24,8 @@ from .._validation import as_matrix, as_vector, check_covariance, check_int, che
 from ..errors import ParameterError, ShapeError
 from ..models import LinearGaussianModel, van_loan
 from ..models._linear import _frozen
+from . import _kernels as kern
+from ._kernels import SCHEMES, BlockKernels
 
 __all__ = [
     "ContinuousDiscreteModel",
@@ -29,6 +33,7 @@ __all__ = [
     "linear_sde_model",
     "simulate_sde",
     "ZHAO2013_X0",
+    "BlockKernels",
 ]
 
 _LOG2PI = np.log(2.0 * np.pi)
@@ -41,6 +46,16 @@ def _cap(inc: np.ndarray) -> np.ndarray:
     """Scale increments longer than 1 back to length 1 (rows of (..., n))."""
     norm = np.sqrt(np.sum(inc * inc, axis=-1, keepdims=True))
     return inc / np.maximum(norm, 1.0)
+
+
+def _rk4_step(f, X: np.ndarray, h: float) -> np.ndarray:
+    """One RK4 step of length h of the drift flow dx = f(x) dt, every stage increment and the
+    step capped at length 1 (:func:`_cap`)."""
+    k1 = f(X)
+    k2 = f(X + _cap(0.5 * h * k1))
+    k3 = f(X + _cap(0.5 * h * k2))
+    k4 = f(X + _cap(h * k3))
+    return X + _cap(h / 6 * (k1 + 2.0 * k2 + 2.0 * k3 + k4))
 
 
 @dataclass(frozen=True, eq=False)
@@ -56,6 +71,9 @@ class ContinuousDiscreteModel:
                  bearing), or None for an ordinary component
     substeps     sub-steps per dt used when sampling the SDE (simulation, particle filter)
     linear       (A, H) when f(x) = A x and h(x) = H x (enables the exact discretisation)
+    kernels      optional :class:`BlockKernels`: numba-compiled drift and measurement on
+                 blocks of points (X (n, B) column-wise); the particle filter then runs
+                 compiled (same numbers as the NumPy path, which models without kernels use)
     """
 
     drift: Callable[[np.ndarray], np.ndarray]
@@ -67,6 +85,7 @@ class ContinuousDiscreteModel:
     substeps: int = field(default=20, kw_only=True)
     linear: tuple | None = field(default=None, kw_only=True)
     name: str = field(default="", kw_only=True)
+    kernels: BlockKernels | None = field(default=None, kw_only=True)
 
     def __post_init__(self) -> None:
         if not callable(self.drift):
@@ -96,6 +115,8 @@ class ContinuousDiscreteModel:
             A = as_matrix("linear[0] (A)", self.linear[0], n, n)
             H = as_matrix("linear[1] (H)", self.linear[1], m, n)
             set_(self, "linear", (_frozen(A), _frozen(H)))
+        if self.kernels is not None and not isinstance(self.kernels, BlockKernels):
+            raise ParameterError(f"kernels: expected a BlockKernels or None, got {type(self.kernels).__name__}")
 
     @property
     def n(self) -> int:
@@ -139,16 +160,25 @@ class ContinuousDiscreteModel:
             X = X + _cap(0.5 * h * (fx + f(X + _cap(h * fx))))
         return X
 
-    def sample_transition(self, X: np.ndarray, rng: np.random.Generator, steps: int | None = None) -> np.ndarray:
-        """Sample x(t + dt) given x(t) = X (..., n) with ``steps`` stochastic Heun sub-steps.
+    def sample_transition(self, X: np.ndarray, rng: np.random.Generator, steps: int | None = None,
+                          scheme: str = "heun") -> np.ndarray:
+        """Sample x(t + dt) given x(t) = X (..., n) with ``steps`` sub-steps of length h = dt/steps.
 
-        Heun's predictor–corrector for additive noise (weak order 2):
-        x̃ = x + h f(x) + ΔW,  x⁺ = x + h/2 (f(x) + f(x̃)) + ΔW, ΔW ~ N(0, Q h).
+        Both schemes have weak order 2 for additive noise; ΔW ~ N(0, Q h), one draw per sub-step.
+
+        "heun"       stochastic Heun predictor–corrector:
+                     x̃ = x + h f(x) + ΔW,  x⁺ = x + h/2 (f(x) + f(x̃)) + ΔW.
+        "rk4-split"  Strang splitting of the generator: half a sub-step of the drift flow
+                     (one RK4 step), the noise ΔW, the other half (one RK4 step). Deterministic
+                     part of order 4, so far fewer sub-steps (the particle filter's default).
+
         As a guard against the superlinear printed eq. 42 drift, each drift
-        increment is capped at length 1 (state units) per sub-step ("taming",
-        Hutzenthaler, Jentzen & Kloeden 2012), which is inactive on ordinary
-        paths and lets diverging ones grow without overflowing.
+        increment (and each RK4 stage increment) is capped at length 1 (state
+        units) ("taming", Hutzenthaler, Jentzen & Kloeden 2012), which is
+        inactive on ordinary paths and lets diverging ones grow without overflowing.
         """
+        if scheme not in SCHEMES:
+            raise ParameterError(f"scheme: expected one of {SCHEMES}, got {scheme!r}")
         steps = self.substeps if steps is None else steps
         h = self.dt / steps
         L = self.noise_factor()
@@ -157,10 +187,22 @@ class ContinuousDiscreteModel:
         f = self.drift
         for _ in range(steps):
             dW = sqh * (rng.standard_normal(X.shape) @ L.T)
-            fx = f(X)
-            Xp = X + _cap(h * fx) + dW
-            X = X + _cap(0.5 * h * (fx + f(Xp))) + dW
+            if scheme == "heun":
+                fx = f(X)
+                Xp = X + _cap(h * fx) + dW
+                X = X + _cap(0.5 * h * (fx + f(Xp))) + dW
+            else:
+                X = _rk4_step(f, _rk4_step(f, X, 0.5 * h) + dW, 0.5 * h)
         return X
+
+    def sample_transition_compiled(self, X: np.ndarray, rng: np.random.Generator, steps: int | None = None,
+                                   scheme: str = "heun") -> np.ndarray:
+        """:meth:`sample_transition` for particles X (N, n) with the model's compiled kernels: the same
+        draws and arithmetic (equal up to rounding)."""
+        X = np.array(X, dtype=float, order="C")
+        if X.ndim != 2 or X.shape[1] != self.n:
+            raise ShapeError(f"X: expected particles (N, {self.n}), got shape {X.shape}")
+        return kern.CompiledModel(self).propagate(X, rng, self.substeps if steps is None else steps, scheme)
 
     def noise_factor(self) -> np.ndarray:
         """L with L L^T = Q (eigen-decomposition, so a singular Q is fine)."""
@@ -194,21 +236,29 @@ def zhao2013_model(*, variant: str = "printed", diffusion_scale: float = 1.0, be
     R = diag(0.1, 1) (range in state units, bearing in rad), dt = 1 s, x0 = ZHAO2013_X0.
     """
     if variant == "printed":
+        drift_kernel = kern.printed_drift
+
         def drift(X):
             x1, x2 = X[..., 0], X[..., 1]
             return np.stack([-x2, 0.2 * (x1 * x1 - 1.0) * x2 + x1], axis=-1)
     elif variant == "vdp":
+        drift_kernel = kern.vdp_drift
+
         def drift(X):
             x1, x2 = X[..., 0], X[..., 1]
             return np.stack([x2, -x1 + 0.2 * (1.0 - x1 * x1) * x2], axis=-1)
     else:
         raise ParameterError(f"variant: expected 'printed' or 'vdp', got {variant!r}")
     if bearing == "atan2":
+        measurement_kernel = kern.range_atan2
+
         def measurement(X):
             x1, x2 = X[..., 0], X[..., 1]
             return np.stack([np.hypot(x1, x2), np.arctan2(x1, x2)], axis=-1)
         period = 2.0 * np.pi
     elif bearing == "atan":
+        measurement_kernel = kern.range_atan
+
         def measurement(X):
             x1, x2 = X[..., 0], X[..., 1]
             # arctan(x1/x2) without dividing by zero: arctan2 folded into (-π/2, π/2]
@@ -220,7 +270,8 @@ def zhao2013_model(*, variant: str = "printed", diffusion_scale: float = 1.0, be
     scale = check_positive("diffusion_scale", diffusion_scale)
     return ContinuousDiscreteModel(drift, scale * np.diag([10.0, 0.1]), measurement, np.diag([0.1, 1.0]), dt,
                                    periods=(None, period), substeps=substeps,
-                                   name=f"zhao2013 eq. 42 ({variant}, Q x {scale:g}, {bearing})")
+                                   name=f"zhao2013 eq. 42 ({variant}, Q x {scale:g}, {bearing})",
+                                   kernels=BlockKernels(drift_kernel, measurement_kernel, np.zeros(0), np.zeros(0)))
 
 
 def linear_sde_model(A, Q, H, R, dt: float, *, substeps: int = 20, name: str = "") -> ContinuousDiscreteModel:
@@ -230,8 +281,9 @@ def linear_sde_model(A, Q, H, R, dt: float, *, substeps: int = 20, name: str = "
         raise ShapeError(f"A: expected a square matrix, got shape {A.shape}")
     H = as_matrix("H", H, None, A.shape[0])
     At, Ht = A.T.copy(), H.T.copy()
+    kernels = BlockKernels(kern.linear_map, kern.linear_map, A, H)  # row-major A, H: out = M x
     return ContinuousDiscreteModel(lambda X: X @ At, Q, lambda X: X @ Ht, R, dt, substeps=substeps,
-                                   linear=(A, H), name=name or "linear SDE")
+                                   linear=(A, H), name=name or "linear SDE", kernels=kernels)
 
 
 def simulate_sde(model: ContinuousDiscreteModel, steps: int, rng: np.random.Generator, x0,
