@@ -57,7 +57,7 @@ def test_compiled_propagation_equals_numpy(model, scheme, scale):
     X = _points(model.n, scale=scale)
     a_rng, b_rng = np.random.default_rng(3), np.random.default_rng(3)
     a = model.sample_transition(X, a_rng, 3, scheme)
-    b = model.sample_transition_compiled(X, b_rng, 3, scheme)
+    b = kern.CompiledModel(model).propagate(X.copy(), b_rng, 3, scheme)
     np.testing.assert_allclose(b, a, rtol=1e-13, atol=1e-13)
     assert a_rng.random() == b_rng.random()  # the same draws were consumed
     if scale > 1 and model.linear is None:  # the cap was active: uncapped steps would differ
@@ -69,7 +69,7 @@ def test_propagation_uses_numpys_normals():
     NumPy's own draws (sub-step, particle, component order)."""
     model = linear_sde_model(np.zeros((2, 2)), np.diag([4.0, 1.0]), np.eye(2), np.eye(2), 1.0)
     X = _points(2, count=5)
-    out = model.sample_transition_compiled(X, np.random.default_rng(9), 1, "rk4-split")
+    out = kern.CompiledModel(model).propagate(X.copy(), np.random.default_rng(9), 1, "rk4-split")
     Z = np.random.default_rng(9).standard_normal((5, 2))
     L = model.noise_factor()  # eigen-factor of diag(4, 1): a scaled permutation, so Z @ L.T is exact
     np.testing.assert_array_equal(out, X + Z @ L.T)
@@ -166,7 +166,7 @@ def test_user_model_without_kernels_gives_the_same_filter():
     with pytest.raises(ParameterError, match="compiled"):
         particle_filter(plain, z, X0, P0, np.random.default_rng(8), compiled=True)
     with pytest.raises(ParameterError, match="kernels"):
-        plain.sample_transition_compiled(np.zeros((3, 2)), np.random.default_rng(0))
+        kern.CompiledModel(plain)
 
 
 def test_seeded_reproducibility_and_thread_independence():

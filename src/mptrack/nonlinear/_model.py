@@ -195,15 +195,6 @@ class ContinuousDiscreteModel:
                 X = _rk4_step(f, _rk4_step(f, X, 0.5 * h) + dW, 0.5 * h)
         return X
 
-    def sample_transition_compiled(self, X: np.ndarray, rng: np.random.Generator, steps: int | None = None,
-                                   scheme: str = "heun") -> np.ndarray:
-        """:meth:`sample_transition` for particles X (N, n) with the model's compiled kernels: the same
-        draws and arithmetic (equal up to rounding)."""
-        X = np.array(X, dtype=float, order="C")
-        if X.ndim != 2 or X.shape[1] != self.n:
-            raise ShapeError(f"X: expected particles (N, {self.n}), got shape {X.shape}")
-        return kern.CompiledModel(self).propagate(X, rng, self.substeps if steps is None else steps, scheme)
-
     def noise_factor(self) -> np.ndarray:
         """L with L L^T = Q (eigen-decomposition, so a singular Q is fine)."""
         w, V = np.linalg.eigh(self.Q)
