@@ -11,14 +11,15 @@ boundary, so the semi-discrete system M dp/dt = A p,
 
     M_ij = ∫ φ_i φ_j,   A_ij = −½ ∫ ∇φ_i · Q ∇φ_j + ∫ (f · ∇φ_i) φ_j,
 
-conserves ∫p exactly (Σ_i φ_i = 1).  Matrices are assembled from 3 × 3 Gauss
-quadrature into a fixed sparse pattern (scipy.sparse CSC).
+conserves ∫p exactly (Σ_i φ_i = 1).  Element matrices come from 3 × 3 Gauss
+quadrature; the geometry-free data of an n1 × n2 grid is computed once.
 
 Time: the paper's RK4 stages (eq. 21) are wrong (K2 = F(p) + Δt/2·K1), and
 explicit RK4 would need τ ≲ h²/‖Q‖ anyway.  We use ``substeps`` steps per dt
 of the L-stable, second-order SDIRK2 (Alexander; γ = 1 − 1/√2), whose two
-stages both solve with M − γτA: one sparse LU (scipy.sparse.linalg.splu) is
-reused across sub-steps and across measurement steps while the grid does
+stages both solve with M − γτA: one LU (a single-precision LAPACK band LU
+with compiled sub-steps on small grids, SuperLU on large ones: _factorise)
+is reused across sub-steps and across measurement steps while the grid does
 not move.  Crank–Nicolson is available (``scheme="cn"``): as accurate on
 eq. 42 and cheaper, but not L-stable, so more negative mass to clip after a
 sharp update (docs/design.md).
