@@ -219,7 +219,8 @@ class FEMGrid:
         m0 = top["V0"] @ p
         mu = (top["V1"].T @ p) / m0
         s = (top["V2"].T @ p) / m0
-        cov_u = np.array([[s[0] - mu[0] * mu[0], s[1] - mu[0] * mu[1]], [s[1] - mu[0] * mu[1], s[2] - mu[1] * mu[1]]])
+        cross = s[1] - mu[0] * mu[1]
+        cov_u = np.array([[s[0] - mu[0] * mu[0], cross], [cross, s[2] - mu[1] * mu[1]]])
         return (h[0] * h[1]) * m0, self.lo + h * mu, cov_u * np.outer(h, h)
 
     def evaluate(self, p: np.ndarray, X) -> np.ndarray:
