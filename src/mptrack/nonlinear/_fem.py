@@ -423,6 +423,17 @@ def _box(model, m, P, width, floor):
     return lo, hi
 
 
+def _bayes_update(grid: FEMGrid, p: np.ndarray, logl: np.ndarray, k: int):
+    """Posterior nodal values (prior p × likelihood exp(logl), normalised) and the log evidence."""
+    top = logl.max()
+    post = p * np.exp(logl - top)
+    evidence = grid.W0 @ post
+    if not np.isfinite(evidence) or evidence <= 0.0:
+        raise ConvergenceError(f"z: measurement {k} has no likelihood mass on the grid")
+    post, _ = _clip_normalise(grid, post, "update")
+    return post, float(top + np.log(evidence))
+
+
 def _gaussian_on(grid: FEMGrid, m, P):
     D = grid.nodes - m
     w = np.linalg.solve(P, D.T).T
@@ -489,14 +500,7 @@ def fem_steps(model: ContinuousDiscreteModel, z, x0, P0, *, grid: tuple[int, int
         _, x_pred, P_pred = g.moments(p)
         ll = 0.0
         if not np.isnan(z[k]).all():
-            logl = model.log_likelihood(z[k], g.nodes)
-            top = logl.max()
-            post = p * np.exp(logl - top)
-            evidence = g.W0 @ post
-            if not np.isfinite(evidence) or evidence <= 0.0:
-                raise ConvergenceError(f"z: measurement {k} has no likelihood mass on the grid")
-            ll = float(top + np.log(evidence))
-            p, _ = _clip_normalise(g, post, "update")
+            p, ll = _bayes_update(g, p, model.log_likelihood(z[k], g.nodes), k)
         _, m, P = g.moments(p)
         yield FEMStep(k=k, prior=prior, posterior=GridDensity(g, p), x_pred=x_pred, P_pred=P_pred, x=m, P=P,
                       loglik=ll, clipped=clipped, lost=lost, regridded=regridded, factorised=factorised)
