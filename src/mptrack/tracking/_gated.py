@@ -16,8 +16,13 @@ fix) is rejected: the step only predicts and the point is flagged "outlier".
 After ``max_rejections`` consecutive rejections that agree with each other (a
 least-squares straight line through them leaves every residual inside the gate)
 the filter re-initialises from that line, position and velocity at the last of
-them (flag "reset"), so a manoeuvre or a long gap cannot lose the track while
-scattered outliers never re-initialise it.
+them with the line fit's covariance, every other state from 0 (flag "reset"),
+so a manoeuvre or a long gap cannot lose the track while scattered outliers
+never re-initialise it.
+
+:func:`track_gated` is the per-track reference of the tracking engine
+(:mod:`._engine`): it starts at a track's first fix (flag "init") and runs
+:func:`kalman_filter_gated` from there.
 """
 
 from __future__ import annotations
@@ -32,12 +37,10 @@ from ..errors import ParameterError, ShapeError
 from ..linear import FilterResult
 from ..models import ContinuousLinearModel, discretize_intervals, require_model
 from ..linear._smoother import _rts_backward
+from ._engine import FLAGS, INIT
 from ._kernels import gated_loop
 
-__all__ = ["GatedResult", "kalman_filter_gated", "smooth_gated", "nis_threshold", "FLAGS"]
-
-#: Per-point flags of a tracking result.
-FLAGS = ("update", "outlier", "predicted", "reset")
+__all__ = ["GatedResult", "kalman_filter_gated", "smooth_gated", "track_gated", "nis_threshold", "FLAGS"]
 
 
 def nis_threshold(probability: float, dof: int) -> float:
@@ -52,7 +55,8 @@ class GatedResult:
     """A gated irregular-time KF run: ``result`` (FilterResult) plus per-step data.
 
     nis   (T,) NIS of each measurement (NaN where there was none)
-    flag  (T,) index into FLAGS: 0 update, 1 outlier (rejected), 2 predicted (no measurement), 3 reset
+    flag  (T,) index into FLAGS: 0 update, 1 outlier (rejected), 2 predicted (no measurement), 3 reset,
+          4 init (the first fix of a track, :func:`track_gated`)
     F, Q  (T, n, n) the transition used to reach step k from step k-1 (for smoothing)
     """
 
@@ -69,12 +73,12 @@ def kalman_filter_gated(model: ContinuousLinearModel, times, z, x0, P0, *, t0: f
     """Kalman filter at irregular times with NIS outlier gating (see the module doc).
 
     model    ContinuousLinearModel (e.g. constant_velocity_continuous(q, axes=2, sigma_r2=...))
-    times    (T,) seconds, strictly increasing, >= t0
+    times    (T,) seconds, non-decreasing, >= t0 (fixes at one time are sequential updates)
     z        (T, m) measurements; NaN components skipped, a NaN row only predicts
     x0, P0   prior x(t0), P(t0); t0 defaults to times[0] (first step then has dt = 0)
     R        None (model.R), or (T, m, m) per-measurement noise covariances (e.g. from GPS accuracy)
     gate_probability  chi-square probability of the NIS gate; None disables gating
-    reset_P0 covariance used when re-initialising at a measurement (default P0)
+    reset_P0 covariance of the states a reset does not take from the line (default P0)
     """
     require_model(model, kind=ContinuousLinearModel)
     t = as_array("times", times, ndim=1)
@@ -87,9 +91,9 @@ def kalman_filter_gated(model: ContinuousLinearModel, times, z, x0, P0, *, t0: f
     reset_P = P.copy() if reset_P0 is None else check_covariance("reset_P0", reset_P0, n)
     t0 = float(t[0]) if t0 is None else float(t0)
     dts = np.diff(np.r_[t0, t])
-    if dts[0] < 0 or np.any(dts[1:] <= 0):
-        k = int(np.flatnonzero(np.r_[dts[0] < 0, dts[1:] <= 0])[0])
-        raise ParameterError(f"times: time stamps must increase strictly from t0; times[{k}] = {t[k]!r}")
+    if np.any(dts < 0):
+        k = int(np.flatnonzero(dts < 0)[0])
+        raise ParameterError(f"times: time stamps must not decrease (from t0); times[{k}] = {t[k]!r}")
     if R is None:
         Rs = np.broadcast_to(model.R, (T, m, m))
     else:
@@ -128,3 +132,41 @@ def smooth_gated(gated: GatedResult) -> FilterResult:
         sm = _rts_backward(part, gated.F[a + 1:b], gated.Q[a + 1:b])
         xs[a:b], Ps[a:b] = sm.x, sm.P
     return FilterResult(x=xs, P=Ps, method="RTS-gated")
+
+
+def track_gated(model: ContinuousLinearModel, times, z, R, prior_variances, *,
+                gate_probability: float | None = 0.999, max_rejections: int = 3) -> GatedResult:
+    """One track from its first fix: the per-track reference of the tracking engine.
+
+    The first fix initialises the state (flag "init", no NIS): the measured
+    entries are the fix with covariance R[0], every other state is 0 with the
+    variance ``prior_variances[i]`` (state order of ``model``; the entries of
+    the measured states are not used).  The other fixes go through
+    :func:`kalman_filter_gated` from that prior, which is also the covariance
+    of the states a reset does not take from its line.  The result covers all
+    T fixes; ``F[0]`` = I and ``Q[0]`` = 0.
+    """
+    require_model(model, kind=ContinuousLinearModel)
+    t = as_array("times", times, ndim=1)
+    z = as_sequence("z", z, model.m)
+    if z.shape[0] != t.shape[0] or t.shape[0] == 0:
+        raise ShapeError(f"z: expected {t.shape[0]} rows (one per time stamp, at least one), got shape {z.shape}")
+    n, T = model.n, t.shape[0]
+    Rs = as_array("R", R, shape=(T, model.m, model.m))
+    P0 = np.diag(as_vector("prior_variances", prior_variances, n))
+    picks = [int(np.flatnonzero(model.H[i])[0]) for i in range(model.m)]
+    x0 = np.zeros(n)
+    x0[picks] = z[0]
+    P0[np.ix_(picks, picks)] = Rs[0]
+    flag0 = np.array([INIT], dtype=np.int8)
+    if T == 1:
+        return GatedResult(FilterResult(x=x0[None], P=P0[None], loglik=0.0, method="KF-gated"),
+                           np.full(1, np.nan), flag0, np.eye(n)[None], np.zeros((1, n, n)))
+    g = kalman_filter_gated(model, t[1:], z[1:], x0, P0, t0=float(t[0]), R=Rs[1:],
+                            gate_probability=gate_probability, max_rejections=max_rejections, reset_P0=P0)
+    r = g.result
+    res = FilterResult(x=np.vstack([x0[None], r.x]), P=np.concatenate([P0[None], r.P]),
+                       x_pred=np.vstack([x0[None], r.x_pred]), P_pred=np.concatenate([P0[None], r.P_pred]),
+                       loglik=r.loglik, method="KF-gated")
+    return GatedResult(res, np.r_[np.nan, g.nis], np.r_[flag0, g.flag], np.concatenate([np.eye(n)[None], g.F]),
+                       np.concatenate([np.zeros((1, n, n)), g.Q]))

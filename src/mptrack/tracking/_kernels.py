@@ -14,9 +14,10 @@ _LOG2PI = np.log(2.0 * np.pi)
 
 
 @njit(cache=True)
-def _line_consistent(t, z, R, rej, gate, coef):
-    """Fit z = a + b (t - t_last) per component through rows ``rej``; coef <- (a, b); True if every
-    residual's NIS is within ``gate``."""
+def _line_consistent(t, z, R, rej, gate, coef, cov):
+    """Fit z = a + b (t - t_last) per component through rows ``rej`` (unweighted least squares);
+    coef <- (a, b), cov[i] <- (var a, cov ab, var b) of component i given the fixes' variances
+    R[j, i, i]; True if every residual's NIS is within ``gate``."""
     N = rej.shape[0]
     m = z.shape[1]
     t_last = t[rej[N - 1]]
@@ -48,6 +49,17 @@ def _line_consistent(t, z, R, rej, gate, coef):
             r[i] = z[rej[j], i] - coef[0, i] - coef[1, i] * d
         if r @ np.linalg.solve(R[rej[j]], r) > gate:
             return False
+    # cov = G M G, G = (A^T A)^-1 = [[s2, -s1], [-s1, N]] / det, M = sum_j R_jii [[1, d], [d, d^2]]
+    G = np.array([[s2, -s1], [-s1, float(N)]]) / det
+    for i in range(m):
+        M = np.zeros((2, 2))
+        for j in range(N):
+            d = t[rej[j]] - t_last
+            M += R[rej[j], i, i] * np.array([[1.0, d], [d, d * d]])
+        C = G @ M @ G
+        cov[i, 0] = C[0, 0]
+        cov[i, 1] = C[0, 1]
+        cov[i, 2] = C[1, 1]
     return True
 
 
@@ -63,6 +75,7 @@ def gated_loop(t, F, Q, H, R, z, x, P, gates, use_gate, max_rej, reset_P, picks,
     rej = np.empty(max_rej, dtype=np.int64)
     nrej = 0
     coef = np.empty((2, m))
+    cov = np.empty((m, 3))
     loglik = 0.0
     for k in range(T):
         x_pred = F[k] @ x
@@ -94,15 +107,27 @@ def gated_loop(t, F, Q, H, R, z, x, P, gates, use_gate, max_rej, reset_P, picks,
                 nrej -= 1
             rej[nrej] = k
             nrej += 1
-            if nrej == max_rej and _line_consistent(t, z, R, rej, gates[m], coef):
+            if nrej == max_rej and _line_consistent(t, z, R, rej, gates[m], coef, cov):
                 flag[k] = 3
                 nrej = 0
-                x = x_pred.copy()
-                for i in range(m):
-                    x[picks[i]] = coef[0, i]
-                    if vels[i] >= 0:
-                        x[vels[i]] = coef[1, i]
+                # restart from the line: its position, velocity and their covariance; every
+                # other state from 0 with its reset_P variance
+                x = np.zeros_like(x_pred)
                 P = reset_P.copy()
+                for i in range(m):
+                    for s_ in (picks[i], vels[i]):
+                        if s_ >= 0:
+                            P[s_, :] = 0.0
+                            P[:, s_] = 0.0
+                for i in range(m):
+                    p_, v_ = picks[i], vels[i]
+                    x[p_] = coef[0, i]
+                    P[p_, p_] = cov[i, 0]
+                    if v_ >= 0:
+                        x[v_] = coef[1, i]
+                        P[p_, v_] = cov[i, 1]
+                        P[v_, p_] = cov[i, 1]
+                        P[v_, v_] = cov[i, 2]
                 xs[k] = x
                 Ps[k] = P
                 continue

@@ -1,0 +1,602 @@
+"""The columnar tracking engine: one compiled pass over all tracks of a table of position fixes.
+
+Layout (shared/DESIGN.md, "Many tracks"): the fixes of B tracks are flat
+columns sorted by (track, time); track b is rows ``offsets[b]:offsets[b+1]``.
+Every kernel here loops over tracks with ``prange`` and over a track's fixes
+in order; nothing is allocated per fix and no Python runs per track.
+
+The motion models of ``mptrack track`` are integrator chains per axis (cv:
+position, velocity; ca: + acceleration) driven by white noise of density q on
+the highest derivative, with the same model on the east and north axes and an
+isotropic fix noise R = r I.  Then the 2-D Kalman filter splits exactly into
+two per-axis filters that share one covariance (it depends on the times and
+r only), so the engine carries one (order x order) covariance and two means.
+Each interval is discretised in closed form, F_ij = dt^(j-i)/(j-i)! and
+Q_ij = q dt^p / (p (r-1-i)! (r-1-j)!), p = 2r-1-i-j (the exact Van Loan
+result for an integrator chain of order r; seed 001 sec. 2 for r = 2, 3).
+Other models take the per-track reference path (:func:`~._fixes.track_fixes`).
+
+Two kernels:
+
+* :func:`filter_tracks` -- the gated filter of :mod:`._gated` (NIS gate,
+  straight-line reset), optional RTS smoothing, per-track log-likelihood;
+  equal to the per-track reference to rounding (tests).
+* :func:`loglik_tracks` -- the log-likelihood pieces that noise estimation
+  (:mod:`._noise`) maximises: the innovations of the fixes a mask accepts,
+  conditional on the first ``order`` fixes of each segment (exact diffuse
+  start in information form, Durbin & Koopman 2012, sec. 5.2), so the noise
+  scale can be concentrated out of the likelihood.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba as nb
+import numpy as np
+
+__all__ = ["FLAGS", "INIT", "UPDATE", "OUTLIER", "PREDICTED", "RESET", "MAX_ORDER", "filter_tracks",
+           "loglik_tracks", "moment_guess", "chain_transition"]
+
+#: Per-point flags of a tracking result (the output's ``flag`` column), by index.
+FLAGS = ("update", "outlier", "predicted", "reset", "init")
+UPDATE, OUTLIER, PREDICTED, RESET, INIT = range(5)
+MAX_ORDER = 3
+_LOG2PI = math.log(2.0 * math.pi)
+_FACT = np.array([1.0, 1.0, 2.0, 6.0, 24.0, 120.0])
+# mask codes of loglik_tracks
+USE, SKIP, RESTART = 0, 1, 2
+
+_PAR = dict(parallel=True, cache=True, nogil=True, boundscheck=False)
+_SEQ = dict(cache=True, nogil=True, boundscheck=False)
+
+
+@nb.njit(**_SEQ)
+def chain_transition(order, dt, F, Qu):
+    """F and the unit-density Q (q = 1) of an integrator chain of ``order`` over ``dt`` seconds."""
+    for i in range(order):
+        for j in range(order):
+            F[i, j] = dt ** (j - i) / _FACT[j - i] if j >= i else 0.0
+            p = 2 * order - 1 - i - j
+            Qu[i, j] = dt ** p / (p * _FACT[order - 1 - i] * _FACT[order - 1 - j])
+
+
+@nb.njit(**_SEQ)
+def _predict(order, F, Qu, q, x, P, xp, Pp, T):
+    """xp = F x (both axes), Pp = F P F^T + q Qu (T is scratch)."""
+    for a in range(2):
+        for i in range(order):
+            s = 0.0
+            for j in range(order):
+                s += F[i, j] * x[a, j]
+            xp[a, i] = s
+    for i in range(order):
+        for j in range(order):
+            s = 0.0
+            for k in range(order):
+                s += F[i, k] * P[k, j]
+            T[i, j] = s
+    for i in range(order):
+        for j in range(i, order):
+            s = 0.0
+            for k in range(order):
+                s += T[i, k] * F[j, k]
+            s += q * Qu[i, j]
+            Pp[i, j] = s
+            Pp[j, i] = s
+
+
+@nb.njit(**_SEQ)
+def _update(order, xp, Pp, r, ze, zn, x, P):
+    """Kalman update of both axes with the fix (ze, zn) of variance r; returns (NIS, S)."""
+    S = Pp[0, 0] + r
+    ne = ze - xp[0, 0]
+    nn = zn - xp[1, 0]
+    for i in range(order):
+        k = Pp[i, 0] / S
+        x[0, i] = xp[0, i] + k * ne
+        x[1, i] = xp[1, i] + k * nn
+        for j in range(i, order):
+            v = Pp[i, j] - Pp[i, 0] * Pp[j, 0] / S
+            P[i, j] = v
+            P[j, i] = v
+    return (ne * ne + nn * nn) / S, S
+
+
+@nb.njit(**_SEQ)
+def _copy_state(order, xs, Ps, xd, Pd):
+    for i in range(order):
+        xd[0, i] = xs[0, i]
+        xd[1, i] = xs[1, i]
+        for j in range(order):
+            Pd[i, j] = Ps[i, j]
+
+
+@nb.njit(**_SEQ)
+def _line_reset(t, ze, zn, r, rej, nrej, gate, order, prior, x, P):
+    """The straight-line reset of :mod:`._gated`: least-squares line z = a + b (t - t_last) per axis
+    through the rejected fixes ``rej``; if every residual's NIS is within ``gate``, set x to
+    position a, velocity b (higher derivatives 0) and P to the fit's covariance (higher
+    derivatives: ``prior``), and return True."""
+    last = rej[nrej - 1]
+    s1 = 0.0
+    s2 = 0.0
+    for j in range(nrej):
+        d = t[rej[j]] - t[last]
+        s1 += d
+        s2 += d * d
+    det = nrej * s2 - s1 * s1
+    if not det > 0.0:
+        return False
+    ae = be = an = bn = 0.0
+    sze = stze = szn = stzn = 0.0
+    for j in range(nrej):
+        d = t[rej[j]] - t[last]
+        sze += ze[rej[j]]
+        stze += d * ze[rej[j]]
+        szn += zn[rej[j]]
+        stzn += d * zn[rej[j]]
+    ae = (s2 * sze - s1 * stze) / det
+    be = (nrej * stze - s1 * sze) / det
+    an = (s2 * szn - s1 * stzn) / det
+    bn = (nrej * stzn - s1 * szn) / det
+    m00 = m01 = m11 = 0.0
+    for j in range(nrej):
+        d = t[rej[j]] - t[last]
+        re = ze[rej[j]] - ae - be * d
+        rn = zn[rej[j]] - an - bn * d
+        rj = r[rej[j]]
+        if (re * re + rn * rn) / rj > gate:
+            return False
+        m00 += rj
+        m01 += rj * d
+        m11 += rj * d * d
+    # cov = G M G with G = (A^T A)^-1 = [[s2, -s1], [-s1, n]] / det
+    g00 = s2 / det
+    g01 = -s1 / det
+    g11 = nrej / det
+    h00 = g00 * m00 + g01 * m01
+    h01 = g00 * m01 + g01 * m11
+    h10 = g01 * m00 + g11 * m01
+    h11 = g01 * m01 + g11 * m11
+    for i in range(order):
+        x[0, i] = 0.0
+        x[1, i] = 0.0
+        for j in range(order):
+            P[i, j] = 0.0
+        if i >= 2:
+            P[i, i] = prior[i]
+    x[0, 0] = ae
+    x[1, 0] = an
+    x[0, 1] = be
+    x[1, 1] = bn
+    P[0, 0] = h00 * g00 + h01 * g01
+    P[0, 1] = h00 * g01 + h01 * g11
+    P[1, 0] = P[0, 1]
+    P[1, 1] = h10 * g01 + h11 * g11
+    return True
+
+
+@nb.njit(**_SEQ)
+def _inverse(n, A, out):
+    """out = A^-1 for n <= 3 (Gauss-Jordan, partial pivoting); False if A is numerically singular."""
+    W = np.empty((MAX_ORDER, 2 * MAX_ORDER))
+    scale = 0.0
+    for i in range(n):
+        for j in range(n):
+            W[i, j] = A[i, j]
+            W[i, n + j] = 1.0 if i == j else 0.0
+            scale = max(scale, abs(A[i, j]))
+    if not scale > 0.0:
+        return False
+    for col in range(n):
+        piv = col
+        for i in range(col + 1, n):
+            if abs(W[i, col]) > abs(W[piv, col]):
+                piv = i
+        if not abs(W[piv, col]) > 1e-13 * scale:
+            return False
+        if piv != col:
+            for j in range(2 * n):
+                tmp = W[col, j]
+                W[col, j] = W[piv, j]
+                W[piv, j] = tmp
+        d = W[col, col]
+        for j in range(2 * n):
+            W[col, j] /= d
+        for i in range(n):
+            if i != col:
+                f = W[i, col]
+                if f != 0.0:
+                    for j in range(2 * n):
+                        W[i, j] -= f * W[col, j]
+    for i in range(n):
+        for j in range(n):
+            out[i, j] = W[i, n + j]
+    return True
+
+
+@nb.njit(**_SEQ)
+def _smooth_track(t, q, order, flag, X, P):
+    """RTS backward pass over one track's X, P (filtered -> smoothed, in place), separately on
+    each stretch that starts at the track's first fix or at a reset."""
+    F = np.empty((order, order))
+    Qu = np.empty((order, order))
+    Pp = np.empty((order, order))
+    Pi = np.empty((order, order))
+    T = np.empty((order, order))
+    C = np.empty((order, order))
+    D = np.empty((order, order))
+    xp = np.empty((2, order))
+    dx = np.empty((2, order))
+    for k in range(t.shape[0] - 2, -1, -1):
+        if flag[k + 1] == RESET:
+            continue  # k ends a stretch: its filtered state is its smoothed state
+        chain_transition(order, t[k + 1] - t[k], F, Qu)
+        _predict(order, F, Qu, q, X[k], P[k], xp, Pp, T)
+        if not _inverse(order, Pp, Pi):
+            continue  # cannot happen for q > 0 or r > 0; keep the filtered state
+        # C = P F^T Pp^-1 ; T already holds F P, so P F^T = T^T
+        for i in range(order):
+            for j in range(order):
+                s = 0.0
+                for m in range(order):
+                    s += T[m, i] * Pi[m, j]
+                C[i, j] = s
+        for ax in range(2):
+            for i in range(order):
+                dx[ax, i] = X[k + 1, ax, i] - xp[ax, i]
+        for ax in range(2):
+            for i in range(order):
+                s = 0.0
+                for j in range(order):
+                    s += C[i, j] * dx[ax, j]
+                X[k, ax, i] += s
+        # P += C (Ps(k+1) - Pp) C^T
+        for i in range(order):
+            for j in range(order):
+                D[i, j] = P[k + 1, i, j] - Pp[i, j]
+        for i in range(order):
+            for j in range(order):
+                s = 0.0
+                for m in range(order):
+                    s += C[i, m] * D[m, j]
+                T[i, j] = s
+        for i in range(order):
+            for j in range(i, order):
+                s = 0.0
+                for m in range(order):
+                    s += T[i, m] * C[j, m]
+                v = P[k, i, j] + s
+                P[k, i, j] = v
+                P[k, j, i] = v
+
+
+@nb.njit(**_SEQ)
+def _filter_track(t, ze, zn, r, q, order, prior, gate, max_rej, store, X, P, nis, flag, stats):
+    """The gated filter over one track's rows (see filter_tracks); stats <- (loglik, updates,
+    outliers, resets, NIS sum of the updates)."""
+    F = np.empty((order, order))
+    Qu = np.empty((order, order))
+    T = np.empty((order, order))
+    x = np.zeros((2, order))
+    Pc = np.zeros((order, order))
+    xp = np.empty((2, order))
+    Pp = np.empty((order, order))
+    rej = np.empty(max_rej, dtype=np.int64)
+    nrej = 0
+    loglik = 0.0
+    updates = outliers = resets = 0
+    nis_sum = 0.0
+    x[0, 0] = ze[0]
+    x[1, 0] = zn[0]
+    Pc[0, 0] = r[0]
+    for i in range(1, order):
+        Pc[i, i] = prior[i]
+    nis[0] = np.nan
+    flag[0] = INIT
+    if store:
+        _copy_state(order, x, Pc, X[0], P[0])
+    for k in range(1, t.shape[0]):
+        chain_transition(order, t[k] - t[k - 1], F, Qu)
+        _predict(order, F, Qu, q, x, Pc, xp, Pp, T)
+        S = Pp[0, 0] + r[k]
+        ne = ze[k] - xp[0, 0]
+        nn = zn[k] - xp[1, 0]
+        e = (ne * ne + nn * nn) / S
+        nis[k] = e
+        if e > gate:
+            if nrej == max_rej:
+                for j in range(max_rej - 1):
+                    rej[j] = rej[j + 1]
+                nrej -= 1
+            rej[nrej] = k
+            nrej += 1
+            if nrej == max_rej and _line_reset(t, ze, zn, r, rej, nrej, gate, order, prior, x, Pc):
+                flag[k] = RESET
+                nrej = 0
+                resets += 1
+            else:
+                flag[k] = OUTLIER
+                outliers += 1
+                _copy_state(order, xp, Pp, x, Pc)
+        else:
+            nrej = 0
+            e, S = _update(order, xp, Pp, r[k], ze[k], zn[k], x, Pc)
+            flag[k] = UPDATE
+            updates += 1
+            nis_sum += e
+            loglik -= 0.5 * (e + 2.0 * math.log(S) + 2.0 * _LOG2PI)
+        if store:
+            _copy_state(order, x, Pc, X[k], P[k])
+    stats[0] = loglik
+    stats[1] = updates
+    stats[2] = outliers
+    stats[3] = resets
+    stats[4] = nis_sum
+
+
+@nb.njit(**_PAR)
+def filter_tracks(offsets, t, ze, zn, w, c, q, order, prior, gate, max_rej, store, smooth,
+                  X, P, nis, flag, stats):
+    """Gated Kalman filter (and RTS smoother) of every track; fills the outputs in place.
+
+    offsets  (B+1,) track b is rows offsets[b]:offsets[b+1]; rows in time order
+    t, ze, zn  (N,) seconds, east and north metres of the fixes
+    w, c     fix variance of row k in track b is r = c[b] w[k] (m^2 per axis)
+    q        (B,) process-noise density of each track (m^2/s^3 for order 2)
+    prior    (order,) prior variances of the derivatives at a track's first fix (entry 0 unused)
+    gate     NIS threshold (inf: no gating); max_rej rejections in a row may reset the track
+    X, P     (N, 2, order), (N, order, order): the states, written if ``store`` (else left as they are)
+    smooth   replace the stored filtered states by RTS-smoothed ones
+    nis, flag (N,)  NIS of each fix (NaN at a track's first fix), index into FLAGS
+    stats    (B, 5)  loglik, updates, outliers, resets, NIS sum of the updates
+    """
+    B = offsets.shape[0] - 1
+    for b in nb.prange(B):
+        a0 = offsets[b]
+        b0 = offsets[b + 1]
+        if b0 <= a0:
+            continue
+        r = np.empty(b0 - a0)
+        for k in range(a0, b0):
+            r[k - a0] = c[b] * w[k]
+        _filter_track(t[a0:b0], ze[a0:b0], zn[a0:b0], r, q[b], order, prior, gate, max_rej, store,
+                      X[a0:b0], P[a0:b0], nis[a0:b0], flag[a0:b0], stats[b])
+        if smooth and store:
+            _smooth_track(t[a0:b0], q[b], order, flag[a0:b0], X[a0:b0], P[a0:b0])
+
+
+# ---- noise estimation: the conditional (diffuse-start) log-likelihood ---------------------------------
+
+@nb.njit(**_SEQ)
+def _info_predict(order, dt, q, Y, ye, yn, F, Qu, A, M, Mi, tmp):
+    """Information-form prediction over dt of a possibly singular information matrix Y:
+    Y <- A (I + Q A)^-1, y <- (I + A Q)^-1 F^-T y with A = F^-T Y F^-1 (exact also for singular
+    Y or Q, since I + Q A is invertible for PSD Q, A)."""
+    if dt == 0.0:
+        return True
+    chain_transition(order, -dt, F, Qu)   # F(-dt) = F(dt)^-1; Qu of -dt is not used
+    chain_transition(order, dt, M, Qu)    # only Qu(dt) is kept (M is overwritten below)
+    for i in range(order):                # tmp = Y Fi
+        for j in range(order):
+            s = 0.0
+            for m in range(order):
+                s += Y[i, m] * F[m, j]
+            tmp[i, j] = s
+    for i in range(order):                # A = Fi^T Y Fi
+        for j in range(order):
+            s = 0.0
+            for m in range(order):
+                s += F[m, i] * tmp[m, j]
+            A[i, j] = s
+    for i in range(order):                # M = I + Q A
+        for j in range(order):
+            s = 1.0 if i == j else 0.0
+            for m in range(order):
+                s += q * Qu[i, m] * A[m, j]
+            M[i, j] = s
+    if not _inverse(order, M, Mi):
+        return False
+    for i in range(order):                # Y = A M^-1 (symmetric)
+        for j in range(order):
+            s = 0.0
+            for m in range(order):
+                s += A[i, m] * Mi[m, j]
+            tmp[i, j] = s
+    for i in range(order):
+        for j in range(order):
+            Y[i, j] = 0.5 * (tmp[i, j] + tmp[j, i])
+    for ax in range(2):                   # y = M^-T Fi^T y
+        y = ye if ax == 0 else yn
+        v = np.empty(order)
+        for i in range(order):
+            s = 0.0
+            for m in range(order):
+                s += F[m, i] * y[m]
+            v[i] = s
+        for i in range(order):
+            s = 0.0
+            for m in range(order):
+                s += Mi[m, i] * v[m]
+            y[i] = s
+    return True
+
+
+@nb.njit(**_SEQ)
+def _track_loglik(t, ze, zn, w, mask, c, q, order, out):
+    """out <- (E, L, N): sum of NIS, sum of log det S and number of scalar innovations of the fixes
+    ``mask`` accepts, conditional on the first ``order`` accepted fixes of each segment (a segment
+    starts at row 0 and at each RESTART)."""
+    F = np.empty((order, order))
+    Qu = np.empty((order, order))
+    A = np.empty((order, order))
+    M = np.empty((order, order))
+    Mi = np.empty((order, order))
+    tmp = np.empty((order, order))
+    Y = np.zeros((order, order))
+    ye = np.zeros(order)
+    yn = np.zeros(order)
+    x = np.zeros((2, order))
+    Pc = np.zeros((order, order))
+    xp = np.empty((2, order))
+    Pp = np.empty((order, order))
+    E = 0.0
+    L = 0.0
+    N = 0.0
+    diffuse = True
+    count = 0
+    t_last = 0.0
+    for k in range(t.shape[0]):
+        code = mask[k]
+        if code == SKIP:
+            continue
+        if code == RESTART or k == 0:
+            diffuse = True
+            count = 0
+        r = c * w[k]
+        if diffuse:
+            if count == 0:
+                for i in range(order):
+                    ye[i] = 0.0
+                    yn[i] = 0.0
+                    for j in range(order):
+                        Y[i, j] = 0.0
+            elif not _info_predict(order, t[k] - t_last, q, Y, ye, yn, F, Qu, A, M, Mi, tmp):
+                count = 0  # numerically lost: start the segment again at this fix
+                for i in range(order):
+                    ye[i] = 0.0
+                    yn[i] = 0.0
+                    for j in range(order):
+                        Y[i, j] = 0.0
+            Y[0, 0] += 1.0 / r
+            ye[0] += ze[k] / r
+            yn[0] += zn[k] / r
+            count += 1
+            t_last = t[k]
+            if count >= order and _inverse(order, Y, Pc):
+                for i in range(order):
+                    for j in range(i + 1, order):
+                        v = 0.5 * (Pc[i, j] + Pc[j, i])
+                        Pc[i, j] = v
+                        Pc[j, i] = v
+                for i in range(order):
+                    se = 0.0
+                    sn = 0.0
+                    for j in range(order):
+                        se += Pc[i, j] * ye[j]
+                        sn += Pc[i, j] * yn[j]
+                    x[0, i] = se
+                    x[1, i] = sn
+                diffuse = False
+            continue
+        chain_transition(order, t[k] - t_last, F, Qu)
+        _predict(order, F, Qu, q, x, Pc, xp, Pp, tmp)
+        e, S = _update(order, xp, Pp, r, ze[k], zn[k], x, Pc)
+        E += e
+        L += 2.0 * math.log(S)
+        N += 2.0
+        t_last = t[k]
+    out[0] = E
+    out[1] = L
+    out[2] = N
+
+
+@nb.njit(**_PAR)
+def loglik_tracks(offsets, active, t, ze, zn, w, mask, c, q, order, out):
+    """(E, L, N) of :func:`_track_loglik` for every track b with active[b] (out (B, 3)); track b
+    uses fix variances c[b] w[k] and process-noise density q[b]."""
+    B = offsets.shape[0] - 1
+    for b in nb.prange(B):
+        if not active[b]:
+            continue
+        a0 = offsets[b]
+        b0 = offsets[b + 1]
+        _track_loglik(t[a0:b0], ze[a0:b0], zn[a0:b0], w[a0:b0], mask[a0:b0], c[b], q[b], order, out[b])
+
+
+@nb.njit(**_SEQ)
+def _track_moments(t, ze, zn, w, mask, guess):
+    """Method-of-moments start for (c, q): second divided differences D of the positions over
+    consecutive accepted fixes have variance c (w2/h2^2 + w1 (1/h1 + 1/h2)^2 + w0/h1^2) +
+    q (h1 + h2)/3 for a cv chain (integrated Brownian velocity); fitted by iteratively
+    reweighted least squares with large residuals down-weighted.  guess <- (c, q, count)."""
+    n = t.shape[0]
+    idx = np.empty(n, dtype=np.int64)
+    m = 0
+    for k in range(n):
+        if mask[k] != SKIP:
+            idx[m] = k
+            m += 1
+    K = max(m - 2, 0)
+    d2 = np.empty(2 * K)
+    al = np.empty(2 * K)
+    be = np.empty(2 * K)
+    cnt = 0
+    for j in range(1, m - 1):
+        k0, k1, k2 = idx[j - 1], idx[j], idx[j + 1]
+        if mask[k1] == RESTART or mask[k2] == RESTART:
+            continue
+        h1 = t[k1] - t[k0]
+        h2 = t[k2] - t[k1]
+        if not (h1 > 0.0 and h2 > 0.0):
+            continue
+        coef_c = w[k2] / (h2 * h2) + w[k1] * (1.0 / h1 + 1.0 / h2) ** 2 + w[k0] / (h1 * h1)
+        coef_q = (h1 + h2) / 3.0
+        for ax in range(2):
+            z = ze if ax == 0 else zn
+            d = (z[k2] - z[k1]) / h2 - (z[k1] - z[k0]) / h1
+            d2[cnt] = d * d
+            al[cnt] = coef_c
+            be[cnt] = coef_q
+            cnt += 1
+    guess[2] = cnt
+    if cnt < 2:
+        guess[0] = np.nan
+        guess[1] = np.nan
+        return
+    ra = np.empty(cnt)
+    for i in range(cnt):
+        ra[i] = d2[i] / al[i]
+    c = max(np.median(ra) / 0.455, 1e-300)
+    for i in range(cnt):
+        ra[i] = d2[i] / be[i]
+    q = max(np.median(ra) / 0.455, 1e-300)
+    c *= 0.5
+    q *= 0.5
+    for _ in range(8):
+        s_aa = s_ab = s_bb = s_ay = s_by = 0.0
+        for i in range(cnt):
+            v = c * al[i] + q * be[i]
+            u = d2[i] / v
+            wt = 1.0 / (v * v) * (1.0 if u < 9.0 else 9.0 / u)
+            s_aa += wt * al[i] * al[i]
+            s_ab += wt * al[i] * be[i]
+            s_bb += wt * be[i] * be[i]
+            s_ay += wt * al[i] * d2[i]
+            s_by += wt * be[i] * d2[i]
+        det = s_aa * s_bb - s_ab * s_ab
+        if not det > 0.0:
+            break
+        cn = (s_bb * s_ay - s_ab * s_by) / det
+        qn = (s_aa * s_by - s_ab * s_ay) / det
+        # a negative component means the data do not resolve it: keep it small, not zero
+        if cn <= 0.0:
+            cn = 1e-3 * c
+            qn = s_by / s_bb
+        if qn <= 0.0:
+            qn = 1e-3 * q
+            cn = s_ay / s_aa
+        c, q = max(cn, 1e-300), max(qn, 1e-300)
+    guess[0] = c
+    guess[1] = q
+
+
+@nb.njit(**_PAR)
+def moment_guess(offsets, t, ze, zn, w, mask, out):
+    """out (B, 3) <- :func:`_track_moments` of every track."""
+    B = offsets.shape[0] - 1
+    for b in nb.prange(B):
+        a0 = offsets[b]
+        b0 = offsets[b + 1]
+        _track_moments(t[a0:b0], ze[a0:b0], zn[a0:b0], w[a0:b0], mask[a0:b0], out[b])
