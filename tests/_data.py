@@ -1,0 +1,28 @@
+"""Paths of the real GPS traces shipped in tests/data (sources and licences: docs/data.md).
+
+``REAL_TRACES[kind]`` is the GPX file of one real recording of each kind.
+``REAL_TRACK_IDS[kind]`` names the <trk> elements that hold the timed recording
+(the ``track_id`` values that ``mptrack.io`` gives them).
+"""
+
+from pathlib import Path
+
+DATA = Path(__file__).parent / "data"
+
+REAL_TRACES = {
+    # One <trk>, 104 points, Garmin eTrex 20x, irregular 1-49 s intervals.
+    "car": DATA / "around-visnjan-with-car.gpx",
+    # The recording is the two <trk> "ACTIVE LOG" (176 points) and "ACTIVE LOG #2"
+    # (337 points), 4 min 48 s apart. The file also holds "03-OCT-10" (empty) and
+    # "03-OCT-10 #2" (358 points, no <time>, another walk 13 km away), so read it
+    # with on_error="skip" or keep only REAL_TRACK_IDS["hike"].
+    "hike": DATA / "korita-zbevnica-hike.gpx",
+    # One <trk> "Berkelland Fietsen", 5159 points at 1 s (Garmin Forerunner 935).
+    "bike": DATA / "berkelland-bike-ride.gpx",
+}
+
+REAL_TRACK_IDS = {
+    "car": ("2020-12-18 07:24:29",),
+    "hike": ("ACTIVE LOG", "ACTIVE LOG #2"),
+    "bike": ("Berkelland Fietsen",),
+}
