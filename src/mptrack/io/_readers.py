@@ -17,7 +17,7 @@ import pandas as pd
 from ..errors import DataError
 from ._schema import CELLS, FIXES, ReadReport, Schema, cell_key, check_on_error, validate_chunk
 
-__all__ = ["read_chunks", "iter_tracks", "read_table", "read_cells", "input_format", "FORMATS"]
+__all__ = ["read_chunks", "iter_track_chunks", "iter_tracks", "read_table", "read_cells", "input_format", "FORMATS"]
 
 FORMATS = {".csv": "csv", ".txt": "csv", ".gz": "csv", ".parquet": "parquet", ".pq": "parquet", ".gpx": "gpx"}
 DEFAULT_CHUNK_ROWS = 50_000
@@ -109,69 +109,124 @@ def read_table(path, schema: Schema = FIXES, *, on_error: str = "raise", report:
     return pd.concat(parts, ignore_index=True) if parts else pd.DataFrame()
 
 
-def iter_tracks(path, schema: Schema = FIXES, *, on_error: str = "raise", chunk_rows: int = DEFAULT_CHUNK_ROWS,
-                report: ReadReport | None = None, strict: bool | None = None) -> Iterator[tuple[str, pd.DataFrame]]:
-    """Yield (track_id, rows) one track at a time, holding at most one track and one chunk in memory.
+def iter_track_chunks(path, schema: Schema = FIXES, *, on_error: str = "raise",
+                      chunk_rows: int = DEFAULT_CHUNK_ROWS, report: ReadReport | None = None,
+                      strict: bool | None = None) -> Iterator[pd.DataFrame]:
+    """Validated rows of ``path`` in chunks of whole tracks: each chunk holds at least ``chunk_rows``
+    rows (the last one may hold fewer) and never cuts a track, so memory is bounded by
+    ``chunk_rows`` plus the largest track.
 
-    The rows of a track must be contiguous and their times increasing
-    (strictly for position fixes; non-decreasing for measurement logs, where a
-    scan has one row per cell).  A violation raises DataError naming the row
-    and column, or is skipped and counted with ``on_error="skip"``.
+    The rows of a track must be contiguous and their times increasing (strictly
+    for position fixes; non-decreasing for measurement logs, where a scan has
+    one row per cell).  A violation raises DataError naming the row and column,
+    or is skipped and counted with ``on_error="skip"``.
     """
     strict = (schema is FIXES) if strict is None else strict
     report = report if report is not None else ReadReport()
     path = Path(path)
     finished: set[str] = set()
-    current, parts, last_t = None, [], -np.inf
+    ready: list[pd.DataFrame] = []          # complete tracks not yet yielded
+    ready_rows = 0
+    carry: list[pd.DataFrame] = []          # the rows so far of the track still open
+    carry_id, carry_t = None, -np.inf
     for chunk in read_chunks(path, schema, on_error=on_error, chunk_rows=chunk_rows, report=report):
+        if chunk.empty:
+            continue
+        chunk = _contiguous(chunk, carry_id, finished, path, on_error, report)
+        chunk = _ordered(chunk, carry_id, carry_t, strict, path, on_error, report)
         if chunk.empty:
             continue
         ids = chunk["track_id"].to_numpy(dtype=object)
         starts = np.flatnonzero(np.r_[True, ids[1:] != ids[:-1]])
-        ends = np.r_[starts[1:], len(ids)]
-        for a, b in zip(starts, ends):
-            run = chunk.iloc[a:b]
-            tid = str(ids[a])
-            if tid != current:
-                if tid in finished:
-                    err = DataError(f"track {tid!r} appears again after other tracks; the rows of a track "
-                                    "must be contiguous (sort the file by track_id, time)", file=path,
-                                    row=int(run["row"].iloc[0]), column="track_id")
-                    if on_error == "raise":
-                        raise err
-                    err.kind = "track rows not contiguous"
-                    for _ in range(len(run)):
-                        report.skip(err)
-                    continue
-                if current is not None and parts:
-                    yield current, pd.concat(parts, ignore_index=True)
-                if current is not None:
-                    finished.add(current)
-                current, parts, last_t = tid, [], -np.inf
-            run, last_t = _ordered(run, last_t, strict, path, on_error, report)
-            if len(run):
-                parts.append(run)
-    if current is not None and parts:
-        yield current, pd.concat(parts, ignore_index=True)
+        continues = ids[0] == carry_id
+        if len(starts) > 1 or not continues:
+            # the open track ends in this chunk: it and every run but the last are complete
+            last = int(starts[-1])
+            complete = carry + ([chunk.iloc[:last]] if last else [])
+            ready.extend(complete)
+            ready_rows += sum(len(c) for c in complete)
+            if carry_id is not None:
+                finished.add(carry_id)
+            finished.update(str(i) for i in ids[starts[:-1]])
+            carry, carry_t = [], -np.inf
+            chunk = chunk.iloc[last:]
+        carry.append(chunk)
+        carry_id = str(ids[-1])
+        carry_t = max(carry_t, float(chunk["t"].max()))
+        if ready_rows >= chunk_rows:
+            yield pd.concat(ready, ignore_index=True)
+            ready, ready_rows = [], 0
+    ready.extend(carry)
+    if ready:
+        yield pd.concat(ready, ignore_index=True)
 
 
-def _ordered(run: pd.DataFrame, last_t: float, strict: bool, path, on_error: str, report: ReadReport):
-    """Keep rows whose time is after every earlier row's of the track (>= if not strict)."""
-    t = run["t"].to_numpy()
-    before = np.maximum.accumulate(np.r_[last_t, t[:-1]])
-    ok = t > before if strict else t >= before
-    if not ok.all():
-        i = int(np.flatnonzero(~ok)[0])
-        err = DataError(f"time {run['time'].iloc[i]!s} is not after the track's previous time stamp; rows of a "
-                        f"track must be in {'strictly ' if strict else ''}increasing time",
-                        file=path, row=int(run["row"].iloc[i]), column="time")
+def iter_tracks(path, schema: Schema = FIXES, *, on_error: str = "raise", chunk_rows: int = DEFAULT_CHUNK_ROWS,
+                report: ReadReport | None = None, strict: bool | None = None) -> Iterator[tuple[str, pd.DataFrame]]:
+    """Yield (track_id, rows) one track at a time (see :func:`iter_track_chunks` for the checks)."""
+    for chunk in iter_track_chunks(path, schema, on_error=on_error, chunk_rows=chunk_rows, report=report,
+                                   strict=strict):
+        ids = chunk["track_id"].to_numpy(dtype=object)
+        bounds = np.r_[np.flatnonzero(np.r_[True, ids[1:] != ids[:-1]]), len(ids)]
+        for a, b in zip(bounds[:-1], bounds[1:]):
+            yield str(ids[a]), chunk.iloc[a:b].reset_index(drop=True)
+
+
+def _contiguous(chunk: pd.DataFrame, open_id, finished: set, path, on_error: str, report: ReadReport):
+    """Drop (or raise on) runs of rows whose track already ended earlier in the file."""
+    ids = chunk["track_id"].to_numpy(dtype=object)
+    starts = np.flatnonzero(np.r_[True, ids[1:] != ids[:-1]])
+    seen = set(finished)
+    bad_runs = []
+    for j, a in enumerate(starts):
+        tid = str(ids[a])
+        if tid in seen or (tid == open_id and j > 0):
+            bad_runs.append(j)
+        seen.add(tid)
+        if j == 0 and tid != open_id and open_id is not None:
+            seen.add(open_id)
+    if not bad_runs:
+        return chunk
+    ends = np.r_[starts[1:], len(ids)]
+    keep = np.ones(len(ids), dtype=bool)
+    for j in bad_runs:
+        a, b = starts[j], ends[j]
+        err = DataError(f"track {str(ids[a])!r} appears again after other tracks; the rows of a track "
+                        "must be contiguous (sort the file by track_id, time)", file=path,
+                        row=int(chunk["row"].iloc[a]), column="track_id")
         if on_error == "raise":
             raise err
-        err.kind = "time not increasing"
-        for _ in range(int((~ok).sum())):
-            report.skip(err)
-        run = run.loc[ok]
-    return run, max(last_t, float(t.max()))
+        err.kind = "track rows not contiguous"
+        report.skip(err, count=int(b - a))
+        keep[a:b] = False
+    return chunk.loc[keep].reset_index(drop=True)
+
+
+def _ordered(chunk: pd.DataFrame, open_id, open_t: float, strict: bool, path, on_error: str,
+             report: ReadReport) -> pd.DataFrame:
+    """Keep rows whose time is after every earlier row's of the same track (>= if not strict)."""
+    ids = chunk["track_id"].to_numpy(dtype=object)
+    t = chunk["t"].to_numpy(dtype=float)
+    new_run = np.r_[True, ids[1:] != ids[:-1]]
+    run_no = np.cumsum(new_run) - 1
+    running = pd.Series(t).groupby(run_no).cummax().to_numpy()
+    before = np.r_[-np.inf, running[:-1]]
+    before[new_run] = -np.inf
+    if len(ids) and ids[0] == open_id:
+        first_run = run_no == 0
+        before[first_run] = np.maximum(before[first_run], open_t)
+    ok = t > before if strict else t >= before
+    if ok.all():
+        return chunk
+    i = int(np.flatnonzero(~ok)[0])
+    err = DataError(f"time {chunk['time'].iloc[i]!s} is not after the track's previous time stamp; rows of a "
+                    f"track must be in {'strictly ' if strict else ''}increasing time",
+                    file=path, row=int(chunk["row"].iloc[i]), column="time")
+    if on_error == "raise":
+        raise err
+    err.kind = "time not increasing"
+    report.skip(err, count=int((~ok).sum()))
+    return chunk.loc[ok].reset_index(drop=True)
 
 
 def read_cells(path, *, wanted=None, on_error: str = "raise", report: ReadReport | None = None,

@@ -135,10 +135,11 @@ class ReadReport:
     reasons: Counter = field(default_factory=Counter)
     examples: list[str] = field(default_factory=list)
 
-    def skip(self, error: DataError) -> None:
-        self.rows_skipped += 1
+    def skip(self, error: DataError, count: int = 1) -> None:
+        """Count ``count`` rows dropped for ``error`` (its message kept as an example)."""
+        self.rows_skipped += count
         reason = getattr(error, "kind", error.reason).rstrip(":")
-        self.reasons[f"{error.column}: {reason}" if error.column else reason] += 1
+        self.reasons[f"{error.column}: {reason}" if error.column else reason] += count
         if len(self.examples) < _MAX_EXAMPLES:
             self.examples.append(str(error))
 

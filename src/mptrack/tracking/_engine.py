@@ -43,25 +43,47 @@ FLAGS = ("update", "outlier", "predicted", "reset", "init")
 UPDATE, OUTLIER, PREDICTED, RESET, INIT = range(5)
 MAX_ORDER = 3
 _LOG2PI = math.log(2.0 * math.pi)
-_FACT = np.array([1.0, 1.0, 2.0, 6.0, 24.0, 120.0])
 # mask codes of loglik_tracks
 USE, SKIP, RESTART = 0, 1, 2
 
 _PAR = dict(parallel=True, cache=True, nogil=True, boundscheck=False)
 _SEQ = dict(cache=True, nogil=True, boundscheck=False)
+_INLINE = dict(_SEQ, inline="always")   # the per-fix steps: no call (and array refcount) per fix
 
 
-@nb.njit(**_SEQ)
+@nb.njit(**_INLINE)
 def chain_transition(order, dt, F, Qu):
-    """F and the unit-density Q (q = 1) of an integrator chain of ``order`` over ``dt`` seconds."""
-    for i in range(order):
-        for j in range(order):
-            F[i, j] = dt ** (j - i) / _FACT[j - i] if j >= i else 0.0
-            p = 2 * order - 1 - i - j
-            Qu[i, j] = dt ** p / (p * _FACT[order - 1 - i] * _FACT[order - 1 - j])
+    """F and the unit-density Q (q = 1) of an integrator chain of ``order`` (2 or 3) over ``dt`` seconds:
+    F_ij = dt^(j-i)/(j-i)!, Qu_ij = dt^p / (p (r-1-i)! (r-1-j)!), p = 2r-1-i-j (written out)."""
+    d2 = dt * dt
+    d3 = d2 * dt
+    if order == 2:
+        F[0, 0] = 1.0
+        F[0, 1] = dt
+        F[1, 0] = 0.0
+        F[1, 1] = 1.0
+        Qu[0, 0] = d3 / 3.0
+        Qu[0, 1] = d2 / 2.0
+        Qu[1, 0] = d2 / 2.0
+        Qu[1, 1] = dt
+        return
+    d4 = d3 * dt
+    d5 = d4 * dt
+    for i in range(3):
+        for j in range(3):
+            F[i, j] = 0.0
+    F[0, 0] = F[1, 1] = F[2, 2] = 1.0
+    F[0, 1] = F[1, 2] = dt
+    F[0, 2] = d2 / 2.0
+    Qu[0, 0] = d5 / 20.0
+    Qu[0, 1] = Qu[1, 0] = d4 / 8.0
+    Qu[0, 2] = Qu[2, 0] = d3 / 6.0
+    Qu[1, 1] = d3 / 3.0
+    Qu[1, 2] = Qu[2, 1] = d2 / 2.0
+    Qu[2, 2] = dt
 
 
-@nb.njit(**_SEQ)
+@nb.njit(**_INLINE)
 def _predict(order, F, Qu, q, x, P, xp, Pp, T):
     """xp = F x (both axes), Pp = F P F^T + q Qu (T is scratch)."""
     for a in range(2):
@@ -86,7 +108,7 @@ def _predict(order, F, Qu, q, x, P, xp, Pp, T):
             Pp[j, i] = s
 
 
-@nb.njit(**_SEQ)
+@nb.njit(**_INLINE)
 def _update(order, xp, Pp, r, ze, zn, x, P):
     """Kalman update of both axes with the fix (ze, zn) of variance r; returns (NIS, S)."""
     S = Pp[0, 0] + r
@@ -103,7 +125,7 @@ def _update(order, xp, Pp, r, ze, zn, x, P):
     return (ne * ne + nn * nn) / S, S
 
 
-@nb.njit(**_SEQ)
+@nb.njit(**_INLINE)
 def _copy_state(order, xs, Ps, xd, Pd):
     for i in range(order):
         xd[0, i] = xs[0, i]
@@ -336,37 +358,6 @@ def _filter_track(t, ze, zn, r, q, order, prior, gate, max_rej, store, X, P, nis
     stats[4] = nis_sum
 
 
-@nb.njit(**_PAR)
-def filter_tracks(offsets, t, ze, zn, w, c, q, order, prior, gate, max_rej, store, smooth,
-                  X, P, nis, flag, stats):
-    """Gated Kalman filter (and RTS smoother) of every track; fills the outputs in place.
-
-    offsets  (B+1,) track b is rows offsets[b]:offsets[b+1]; rows in time order
-    t, ze, zn  (N,) seconds, east and north metres of the fixes
-    w, c     fix variance of row k in track b is r = c[b] w[k] (m^2 per axis)
-    q        (B,) process-noise density of each track (m^2/s^3 for order 2)
-    prior    (order,) prior variances of the derivatives at a track's first fix (entry 0 unused)
-    gate     NIS threshold (inf: no gating); max_rej rejections in a row may reset the track
-    X, P     (N, 2, order), (N, order, order): the states, written if ``store`` (else left as they are)
-    smooth   replace the stored filtered states by RTS-smoothed ones
-    nis, flag (N,)  NIS of each fix (NaN at a track's first fix), index into FLAGS
-    stats    (B, 5)  loglik, updates, outliers, resets, NIS sum of the updates
-    """
-    B = offsets.shape[0] - 1
-    for b in nb.prange(B):
-        a0 = offsets[b]
-        b0 = offsets[b + 1]
-        if b0 <= a0:
-            continue
-        r = np.empty(b0 - a0)
-        for k in range(a0, b0):
-            r[k - a0] = c[b] * w[k]
-        _filter_track(t[a0:b0], ze[a0:b0], zn[a0:b0], r, q[b], order, prior, gate, max_rej, store,
-                      X[a0:b0], P[a0:b0], nis[a0:b0], flag[a0:b0], stats[b])
-        if smooth and store:
-            _smooth_track(t[a0:b0], q[b], order, flag[a0:b0], X[a0:b0], P[a0:b0])
-
-
 # ---- noise estimation: the conditional (diffuse-start) log-likelihood ---------------------------------
 
 @nb.njit(**_SEQ)
@@ -424,10 +415,11 @@ def _info_predict(order, dt, q, Y, ye, yn, F, Qu, A, M, Mi, tmp):
 
 
 @nb.njit(**_SEQ)
-def _track_loglik(t, ze, zn, w, mask, c, q, order, out):
-    """out <- (E, L, N): sum of NIS, sum of log det S and number of scalar innovations of the fixes
-    ``mask`` accepts, conditional on the first ``order`` accepted fixes of each segment (a segment
-    starts at row 0 and at each RESTART)."""
+def _diffuse_start(k, t, ze, zn, w, mask, c, q, order, x, P):
+    """Consume the fixes from row k on until ``order`` accepted ones (in information form, from zero
+    information) determine the state; x, P <- that state at the last of them.  Returns the next
+    row, or -1 if the rows run out first."""
+    n = t.shape[0]
     F = np.empty((order, order))
     Qu = np.empty((order, order))
     A = np.empty((order, order))
@@ -437,82 +429,157 @@ def _track_loglik(t, ze, zn, w, mask, c, q, order, out):
     Y = np.zeros((order, order))
     ye = np.zeros(order)
     yn = np.zeros(order)
+    count = 0
+    t_last = 0.0
+    while k < n:
+        if mask[k] == SKIP:
+            k += 1
+            continue
+        if count > 0 and mask[k] == RESTART:
+            count = 0
+        if count == 0 or not _info_predict(order, t[k] - t_last, q, Y, ye, yn, F, Qu, A, M, Mi, tmp):
+            count = 0  # a new stretch (or one numerically lost): start again at this fix
+            for i in range(order):
+                ye[i] = 0.0
+                yn[i] = 0.0
+                for j in range(order):
+                    Y[i, j] = 0.0
+        r = c * w[k]
+        Y[0, 0] += 1.0 / r
+        ye[0] += ze[k] / r
+        yn[0] += zn[k] / r
+        count += 1
+        t_last = t[k]
+        k += 1
+        if count >= order and _inverse(order, Y, P):
+            for i in range(order):
+                for j in range(i + 1, order):
+                    v = 0.5 * (P[i, j] + P[j, i])
+                    P[i, j] = v
+                    P[j, i] = v
+            for i in range(order):
+                se = 0.0
+                sn = 0.0
+                for j in range(order):
+                    se += P[i, j] * ye[j]
+                    sn += P[i, j] * yn[j]
+                x[0, i] = se
+                x[1, i] = sn
+            return k
+    return -1
+
+
+@nb.njit(**_SEQ)
+def _track_loglik(t, ze, zn, w, mask, c, q, order, out):
+    """out <- (E, L, N): sum of NIS, sum of log det S and number of scalar innovations of the fixes
+    ``mask`` accepts, conditional on the first ``order`` accepted fixes of each stretch (a stretch
+    starts at row 0 and at each RESTART)."""
+    F = np.empty((order, order))
+    Qu = np.empty((order, order))
+    tmp = np.empty((order, order))
     x = np.zeros((2, order))
-    Pc = np.zeros((order, order))
+    P = np.zeros((order, order))
+    xs = np.zeros((2, order))
+    Ps = np.zeros((order, order))
     xp = np.empty((2, order))
     Pp = np.empty((order, order))
     E = 0.0
     L = 0.0
     N = 0.0
-    diffuse = True
-    count = 0
-    t_last = 0.0
-    for k in range(t.shape[0]):
-        code = mask[k]
-        if code == SKIP:
-            continue
-        if code == RESTART or k == 0:
-            diffuse = True
-            count = 0
-        r = c * w[k]
-        if diffuse:
-            if count == 0:
-                for i in range(order):
-                    ye[i] = 0.0
-                    yn[i] = 0.0
-                    for j in range(order):
-                        Y[i, j] = 0.0
-            elif not _info_predict(order, t[k] - t_last, q, Y, ye, yn, F, Qu, A, M, Mi, tmp):
-                count = 0  # numerically lost: start the segment again at this fix
-                for i in range(order):
-                    ye[i] = 0.0
-                    yn[i] = 0.0
-                    for j in range(order):
-                        Y[i, j] = 0.0
-            Y[0, 0] += 1.0 / r
-            ye[0] += ze[k] / r
-            yn[0] += zn[k] / r
-            count += 1
-            t_last = t[k]
-            if count >= order and _inverse(order, Y, Pc):
-                for i in range(order):
-                    for j in range(i + 1, order):
-                        v = 0.5 * (Pc[i, j] + Pc[j, i])
-                        Pc[i, j] = v
-                        Pc[j, i] = v
-                for i in range(order):
-                    se = 0.0
-                    sn = 0.0
-                    for j in range(order):
-                        se += Pc[i, j] * ye[j]
-                        sn += Pc[i, j] * yn[j]
-                    x[0, i] = se
-                    x[1, i] = sn
-                diffuse = False
-            continue
-        chain_transition(order, t[k] - t_last, F, Qu)
-        _predict(order, F, Qu, q, x, Pc, xp, Pp, tmp)
-        e, S = _update(order, xp, Pp, r, ze[k], zn[k], x, Pc)
-        E += e
-        L += 2.0 * math.log(S)
-        N += 2.0
-        t_last = t[k]
+    n = t.shape[0]
+    k = 0
+    while k < n:
+        k = _diffuse_start(k, t, ze, zn, w, mask, c, q, order, xs, Ps)
+        if k < 0:
+            break
+        _copy_state(order, xs, Ps, x, P)
+        t_last = t[k - 1]
+        while k < n:           # the hot loop: no calls that are not inlined
+            code = mask[k]
+            if code == RESTART:
+                break
+            if code != SKIP:
+                chain_transition(order, t[k] - t_last, F, Qu)
+                _predict(order, F, Qu, q, x, P, xp, Pp, tmp)
+                e, S = _update(order, xp, Pp, c * w[k], ze[k], zn[k], x, P)
+                E += e
+                L += 2.0 * math.log(S)
+                N += 2.0
+                t_last = t[k]
+            k += 1
     out[0] = E
     out[1] = L
     out[2] = N
 
 
-@nb.njit(**_PAR)
+# ---- the parallel kernels, compiled once per model order ------------------------------------------------
+
+def _make_kernels(order: int):
+    """The parallel kernels with ``order`` a compile-time constant (the small per-fix loops unroll;
+    a runtime order made them 3x slower).  numba caches each closure per constant."""
+
+    @nb.njit(**_PAR)
+    def filter_kernel(offsets, t, ze, zn, w, c, q, prior, gate, max_rej, store, smooth, X, P, nis, flag, stats):
+        B = offsets.shape[0] - 1
+        for b in nb.prange(B):
+            a0 = offsets[b]
+            b0 = offsets[b + 1]
+            if b0 <= a0:
+                continue
+            r = np.empty(b0 - a0)
+            for k in range(a0, b0):
+                r[k - a0] = c[b] * w[k]
+            _filter_track(t[a0:b0], ze[a0:b0], zn[a0:b0], r, q[b], order, prior, gate, max_rej, store,
+                          X[a0:b0], P[a0:b0], nis[a0:b0], flag[a0:b0], stats[b])
+            if smooth and store:
+                _smooth_track(t[a0:b0], q[b], order, flag[a0:b0], X[a0:b0], P[a0:b0])
+
+    @nb.njit(**_PAR)
+    def loglik_kernel(offsets, active, t, ze, zn, w, mask, c, q, out):
+        B = offsets.shape[0] - 1
+        for b in nb.prange(B):
+            if not active[b]:
+                continue
+            a0 = offsets[b]
+            b0 = offsets[b + 1]
+            _track_loglik(t[a0:b0], ze[a0:b0], zn[a0:b0], w[a0:b0], mask[a0:b0], c[b], q[b], order, out[b])
+
+    return filter_kernel, loglik_kernel
+
+
+_KERNELS = {}
+
+
+def _kernels(order: int):
+    if order not in _KERNELS:
+        if order not in (2, 3):
+            raise ValueError(f"order: the engine runs integrator chains of order 2 or 3, got {order}")
+        _KERNELS[order] = _make_kernels(order)
+    return _KERNELS[order]
+
+
+def filter_tracks(offsets, t, ze, zn, w, c, q, order, prior, gate, max_rej, store, smooth, X, P, nis, flag, stats):
+    """Gated Kalman filter (and RTS smoother) of every track; fills the outputs in place.
+
+    offsets  (B+1,) track b is rows offsets[b]:offsets[b+1]; rows in time order
+    t, ze, zn  (N,) seconds, east and north metres of the fixes
+    w, c     fix variance of row k in track b is r = c[b] w[k] (m^2 per axis)
+    q        (B,) process-noise density of each track (m^2/s^3 for order 2)
+    order    states per axis: 2 (cv) or 3 (ca)
+    prior    (order,) prior variances of the derivatives at a track's first fix (entry 0 unused)
+    gate     NIS threshold (inf: no gating); max_rej rejections in a row may reset the track
+    store    write X (N, 2, order) and P (N, order, order) (else they are not touched)
+    smooth   replace the stored filtered states by RTS-smoothed ones
+    nis, flag (N,)  NIS of each fix (NaN at a track's first fix), index into FLAGS
+    stats    (B, 5)  loglik, updates, outliers, resets, NIS sum of the updates
+    """
+    _kernels(order)[0](offsets, t, ze, zn, w, c, q, prior, gate, max_rej, store, smooth, X, P, nis, flag, stats)
+
+
 def loglik_tracks(offsets, active, t, ze, zn, w, mask, c, q, order, out):
     """(E, L, N) of :func:`_track_loglik` for every track b with active[b] (out (B, 3)); track b
     uses fix variances c[b] w[k] and process-noise density q[b]."""
-    B = offsets.shape[0] - 1
-    for b in nb.prange(B):
-        if not active[b]:
-            continue
-        a0 = offsets[b]
-        b0 = offsets[b + 1]
-        _track_loglik(t[a0:b0], ze[a0:b0], zn[a0:b0], w[a0:b0], mask[a0:b0], c[b], q[b], order, out[b])
+    _kernels(order)[1](offsets, active, t, ze, zn, w, mask, c, q, out)
 
 
 @nb.njit(**_SEQ)

@@ -1,0 +1,388 @@
+"""Automatic noise calibration: maximum-likelihood fix noise and process noise for each track.
+
+Model.  Fix k of track b has variance ``c_b w_k`` per axis: w_k = accuracy_k^2
+where the input gives an accuracy (then sqrt(c_b) is the factor by which the
+device under- or over-states it), else w_k = 1 (then c_b = sigma_b^2).  The
+motion is the model's integrator chain with white-noise density q_b.
+
+Likelihood.  The Gaussian log-likelihood of the innovations of the accepted
+fixes, conditional on the first ``order`` fixes of each stretch (a diffuse
+start: :func:`._engine.loglik_tracks`), so it depends on the data and (c, q)
+only, not on a prior.  R and Q are both proportional to c at a fixed ratio
+lambda = q/c, so for fixed lambda the maximising c is E/N (NIS sum over its
+count, at c = 1) and the scale is concentrated out (Harvey 1989, sec. 3.4):
+the search is one-dimensional, over ln lambda.  With ``sigma_m`` or ``q``
+given, the other parameter is searched alone on the full likelihood.
+
+Search.  A grid of decades around a method-of-moments start
+(:func:`._engine.moment_guess`), widened while the best point is at its edge,
+then golden-section search to 0.01 in ln lambda; all groups in lockstep, each
+step one compiled pass over the tracks.
+
+Outliers.  Round 0 uses every fix.  Each later round gates the tracks with the
+current estimates (the filter's NIS gate and straight-line reset), drops the
+rejected fixes and restarts the likelihood at the resets, and estimates again,
+until the accepted fixes stop changing (at most ``MAX_ROUNDS`` rounds).
+
+Standard errors.  The observed information of (ln c, ln q): central second
+differences of the log-likelihood, step 0.1.
+
+Short and degenerate tracks.  A track with fewer than ``MIN_FIXES`` fixes does
+not carry its own estimate: all such tracks of the table (grouped by whether
+they have accuracies) share one pooled estimate.  A pool with fewer than
+``MIN_POOLED_DOF`` innovations, and a track whose estimate collapses (all
+fixes on one point or one exact line), fall back to the stated defaults.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import ParameterError
+from ._columns import FixTable
+from ._engine import OUTLIER, RESET, RESTART, SKIP, USE, filter_tracks, loglik_tracks, moment_guess
+
+__all__ = ["NoiseSpec", "NoiseEstimate", "SOURCES", "fix_weights", "estimate_noise", "MIN_FIXES"]
+
+#: How a track's parameter was set (the ``*_source`` columns of the track summary).
+SOURCES = ("estimated", "pooled", "default", "given")
+ESTIMATED, POOLED, DEFAULT, GIVEN = range(4)
+MIN_FIXES = 30
+MIN_POOLED_DOF = 40
+MAX_ROUNDS = 4
+SCOPES = ("track", "file")
+_DECADE = math.log(10.0)
+_GOLD = (math.sqrt(5.0) - 1.0) / 2.0
+_TOL = 0.01
+_H = 0.1
+_LOG2PI = math.log(2.0 * math.pi)
+# search bounds: ln lambda (1/s^3 for cv), ln q, ln c
+_BOUNDS = {"ratio": (math.log(1e-16), math.log(1e8)), "q": (math.log(1e-12), math.log(1e8)),
+           "c": (math.log(1e-8), math.log(1e12))}
+_C_FLOOR = 1e-6   # an estimated fix variance below (1 mm)^2 means a degenerate track
+
+
+@dataclass(frozen=True)
+class NoiseSpec:
+    """What to estimate and how (see the module doc).
+
+    order       states per axis of the motion model (2 cv, 3 ca)
+    prior       (order,) prior variances of the derivatives at a track's start (entry 0 unused)
+    sigma_m     given fix noise (m, 1-sigma per axis) where a fix has no accuracy; None: estimate
+    q           given process-noise density; None: estimate
+    scope       "track": one estimate per track (short tracks pooled); "file": one for all tracks
+    gate        NIS gate of the outlier rounds (inf: none); max_rej as in the filter
+    default_sigma_m, default_q   the fallbacks for tracks that cannot be calibrated
+    """
+
+    order: int
+    prior: np.ndarray
+    sigma_m: float | None = None
+    q: float | None = None
+    scope: str = "track"
+    gate: float = math.inf
+    max_rej: int = 3
+    default_sigma_m: float = 5.0
+    default_q: float = 2.0
+
+    def __post_init__(self) -> None:
+        if self.scope not in SCOPES:
+            raise ParameterError(f"noise: expected one of {SCOPES}, got {self.scope!r}")
+
+
+@dataclass(frozen=True, eq=False)
+class NoiseEstimate:
+    """Per-track noise parameters: fix variance factor ``c`` (fix k has variance c w_k), process-noise
+    density ``q``, standard errors of ln c and ln q (NaN where not estimated), how each was set
+    (index into SOURCES), and the outlier rounds run."""
+
+    c: np.ndarray
+    q: np.ndarray
+    se_log_c: np.ndarray
+    se_log_q: np.ndarray
+    source_c: np.ndarray
+    source_q: np.ndarray
+    rounds: int
+
+
+def fix_weights(table: FixTable, sigma_m: float | None) -> tuple[np.ndarray, np.ndarray]:
+    """(w (N,), has_accuracy (B,)): the unit fix variances of every row.
+
+    With ``sigma_m`` given, w = accuracy^2 where a fix has one, else sigma_m^2 (and c = 1).
+    Without it, w = accuracy^2, a fix without one takes its track's median accuracy, and a
+    track with none has w = 1 (then c is sigma^2).
+    """
+    acc = table.accuracy
+    if acc is None:
+        acc = np.full(table.N, np.nan)
+    good = np.isfinite(acc) & (acc > 0)
+    w = np.where(good, acc * acc, np.nan)
+    has = np.add.reduceat(good.astype(np.int64), table.offsets[:-1]) > 0 if table.N else np.zeros(0, bool)
+    has &= table.counts > 0
+    if sigma_m is not None:
+        return np.where(good, w, float(sigma_m) ** 2), has
+    if not good.all():
+        fill = np.ones(table.B)
+        for b in np.flatnonzero(has & (np.add.reduceat(good, table.offsets[:-1]) < table.counts)):
+            a0, b0 = table.offsets[b], table.offsets[b + 1]
+            fill[b] = np.median(w[a0:b0][good[a0:b0]])
+        w = np.where(good, w, table.per_row(fill))
+    return w, has
+
+
+class _Problem:
+    """The likelihood of one table as a function of per-group search coordinates."""
+
+    def __init__(self, table: FixTable, w: np.ndarray, spec: NoiseSpec, c_fixed: np.ndarray,
+                 group: np.ndarray, n_groups: int) -> None:
+        self.table, self.w, self.spec = table, w, spec
+        self.group, self.G = group, n_groups
+        self.c_fixed = c_fixed
+        self.mask = np.zeros(table.N, dtype=np.int8)
+        self.mode = "ratio" if spec.sigma_m is None and spec.q is None else ("q" if spec.q is None else "c")
+
+    def params(self, groups: np.ndarray, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(active tracks, c, q) of the tracks of ``groups`` at search coordinates ``theta``."""
+        th = np.full(self.G, np.nan)
+        th[groups] = theta
+        tb = th[np.maximum(self.group, 0)]
+        active = np.isin(self.group, groups) & (self.group >= 0)
+        if self.mode == "ratio":
+            c, q = np.ones(self.table.B), np.exp(tb)
+        elif self.mode == "q":
+            c, q = self.c_fixed, np.exp(tb)
+        else:
+            c, q = np.exp(tb), np.full(self.table.B, float(self.spec.q))
+        return active, c, np.where(active, q, 1.0)
+
+    def pieces(self, groups: np.ndarray, theta: np.ndarray) -> np.ndarray:
+        """(len(groups), 3) sums of (E, L, N) of each group at ``theta``."""
+        tab = self.table
+        active, c, q = self.params(groups, theta)
+        out = np.zeros((tab.B, 3))
+        loglik_tracks(tab.offsets, active, tab.t, tab.east, tab.north, self.w, self.mask, c, q,
+                      self.spec.order, out)
+        gid = np.where(active, self.group, self.G)
+        sums = np.stack([np.bincount(gid, weights=out[:, j], minlength=self.G + 1)[:self.G] for j in range(3)], 1)
+        return sums[groups]
+
+    def loglik(self, groups: np.ndarray, theta: np.ndarray) -> np.ndarray:
+        """The (concentrated, in mode "ratio") log-likelihood of each group at ``theta``."""
+        E, L, N = self.pieces(groups, theta).T
+        with np.errstate(divide="ignore", invalid="ignore"):
+            if self.mode == "ratio":
+                ll = -0.5 * (N * np.log(E / N) + L + N * (1.0 + _LOG2PI))
+            else:
+                ll = -0.5 * (E + L + N * _LOG2PI)
+        return np.where((N > 0) & np.isfinite(ll), ll, -np.inf)
+
+
+def _maximise(problem: _Problem, groups: np.ndarray, theta0: np.ndarray, half: float, step: float) -> np.ndarray:
+    """The maximiser of each group's log-likelihood: grid of ``step`` around theta0 (+- half, widened
+    while the best point is at an edge), then golden-section search between the grid neighbours."""
+    lo, hi = _BOUNDS[problem.mode]
+    theta0 = np.clip(theta0, lo, hi)
+    offs = np.arange(-half, half + step / 2, step)
+    grid = np.clip(theta0[:, None] + offs[None, :], lo, hi)
+    vals = np.stack([problem.loglik(groups, grid[:, j]) for j in range(grid.shape[1])], axis=1)
+    for _ in range(int(8 * _DECADE / step)):          # widen at most 8 decades each way
+        best = np.argmax(vals, axis=1)
+        left = (best == 0) & (grid[:, 0] > lo)
+        right = (best == grid.shape[1] - 1) & (grid[:, -1] < hi)
+        if not (left.any() or right.any()):
+            break
+        new_l = np.clip(grid[:, 0] - step, lo, hi)
+        new_r = np.clip(grid[:, -1] + step, lo, hi)
+        val_l = np.full(len(groups), -np.inf)
+        val_r = np.full(len(groups), -np.inf)
+        if left.any():
+            val_l[left] = problem.loglik(groups[left], new_l[left])
+        if right.any():
+            val_r[right] = problem.loglik(groups[right], new_r[right])
+        grid = np.column_stack([np.where(left, new_l, grid[:, 0]), grid, np.where(right, new_r, grid[:, -1])])
+        vals = np.column_stack([val_l, vals, val_r])
+    best = np.argmax(vals, axis=1)
+    rows = np.arange(len(groups))
+    a = np.clip(grid[rows, best] - step, lo, hi)
+    b = np.clip(grid[rows, best] + step, lo, hi)
+    x1 = b - _GOLD * (b - a)
+    x2 = a + _GOLD * (b - a)
+    f1 = problem.loglik(groups, x1)
+    f2 = problem.loglik(groups, x2)
+    for _ in range(int(math.ceil(math.log(_TOL / (2 * step)) / math.log(_GOLD)))):
+        left = f1 >= f2                  # the maximum lies in [a, x2]
+        b = np.where(left, x2, b)
+        a = np.where(left, a, x1)
+        x_new = np.where(left, b - _GOLD * (b - a), a + _GOLD * (b - a))
+        f_new = problem.loglik(groups, x_new)
+        x1, x2, f1, f2 = (np.where(left, x_new, x2), np.where(left, x1, x_new),
+                          np.where(left, f_new, f2), np.where(left, f1, f_new))
+    theta = np.where(f1 >= f2, x1, x2)
+    fbest = np.maximum(f1, f2)
+    # a grid point can beat the bracket's interior only at a bound (a flat or monotone likelihood)
+    gbest = vals[rows, best]
+    return np.where(gbest > fbest, grid[rows, best], theta)
+
+
+def _start(problem: _Problem, groups: np.ndarray, guess: np.ndarray) -> np.ndarray:
+    """Search coordinates of the method-of-moments start of each group (median over its tracks)."""
+    tab = problem.table
+    c, q = guess[:, 0], guess[:, 1]
+    if problem.mode == "ratio":
+        x = np.log(q / c)
+    elif problem.mode == "q":
+        x = np.log(q)
+    else:
+        x = np.log(c)
+    default = {"ratio": math.log(2.0 / 25.0), "q": math.log(problem.spec.default_q),
+               "c": math.log(problem.spec.default_sigma_m ** 2)}[problem.mode]
+    out = np.full(len(groups), default)
+    ok = np.isfinite(x) & (tab.counts > 2)
+    for i, g in enumerate(groups):
+        sel = ok & (problem.group == g)
+        if sel.any():
+            out[i] = float(np.median(x[sel]))
+    return out
+
+
+def _resolve(problem: _Problem, groups: np.ndarray, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(c, q, N) of each group at its optimum ``theta``."""
+    E, L, N = problem.pieces(groups, theta).T
+    if problem.mode == "ratio":
+        with np.errstate(divide="ignore", invalid="ignore"):
+            c = E / N
+        return c, c * np.exp(theta), N
+    if problem.mode == "q":
+        c = np.array([problem.c_fixed[problem.group == g][0] for g in groups])
+        return c, np.exp(theta), N
+    return np.exp(theta), np.full(len(groups), float(problem.spec.q)), N
+
+
+def _standard_errors(problem: _Problem, groups: np.ndarray, c: np.ndarray, q: np.ndarray):
+    """(se ln c, se ln q) of each group from the observed information (central differences)."""
+    h = _H
+    u, v = np.log(c), np.log(q)
+    nan = np.full(len(groups), np.nan)
+    if problem.mode == "ratio":
+        lam = v - u
+        runs = {k: problem.pieces(groups, lam + k * h) for k in (-2, -1, 0, 1, 2)}
+
+        def ll(du, dv):  # l(u + du h, v + dv h) from the unit-scale run at ln lambda + (dv - du) h
+            E1, L1, N = runs[dv - du].T
+            uu = u + du * h
+            return -0.5 * (E1 * np.exp(-uu) + L1 + N * uu + N * _LOG2PI)
+
+        f0 = ll(0, 0)
+        huu = (ll(1, 0) - 2 * f0 + ll(-1, 0)) / h ** 2
+        hvv = (ll(0, 1) - 2 * f0 + ll(0, -1)) / h ** 2
+        huv = (ll(1, 1) - ll(1, -1) - ll(-1, 1) + ll(-1, -1)) / (4 * h ** 2)
+        det = huu * hvv - huv ** 2
+        with np.errstate(divide="ignore", invalid="ignore"):
+            var_u, var_v = -hvv / det, -huu / det
+        ok = (huu < 0) & (det > 0)
+        return np.where(ok, np.sqrt(np.abs(var_u)), np.nan), np.where(ok, np.sqrt(np.abs(var_v)), np.nan)
+    x = v if problem.mode == "q" else u
+    f = [problem.loglik(groups, x + k * h) for k in (-1, 0, 1)]
+    d2 = (f[0] - 2 * f[1] + f[2]) / h ** 2
+    with np.errstate(divide="ignore", invalid="ignore"):
+        se = np.where(d2 < 0, np.sqrt(-1.0 / d2), np.nan)
+    return (nan, se) if problem.mode == "q" else (se, nan)
+
+
+def _groups(table: FixTable, spec: NoiseSpec, has_acc: np.ndarray) -> tuple[np.ndarray, int, np.ndarray]:
+    """(group of each track (-1: none), number of groups, is-pooled flag per group)."""
+    B = table.B
+    group = np.full(B, -1, dtype=np.int64)
+    usable = table.counts >= 2
+    own = usable & (table.counts >= MIN_FIXES) if spec.scope == "track" else np.zeros(B, bool)
+    group[own] = np.arange(int(own.sum()))
+    G = int(own.sum())
+    pooled = [False] * G
+    for kind in (False, True):
+        sel = usable & ~own & (has_acc == kind)
+        if sel.any():
+            group[sel] = G
+            pooled.append(True)
+            G += 1
+    return group, G, np.array(pooled, dtype=bool)
+
+
+def estimate_noise(table: FixTable, w: np.ndarray, has_acc: np.ndarray, spec: NoiseSpec) -> NoiseEstimate:
+    """Noise parameters of every track of ``table`` (see the module doc); ``w``, ``has_acc`` from
+    :func:`fix_weights` with ``spec.sigma_m``."""
+    B = table.B
+    default_c = np.where(has_acc, 1.0, spec.default_sigma_m ** 2)
+    c = np.ones(B) if spec.sigma_m is not None else default_c
+    q = np.full(B, spec.default_q if spec.q is None else float(spec.q))
+    se_c, se_q = np.full(B, np.nan), np.full(B, np.nan)
+    src_c = np.full(B, GIVEN if spec.sigma_m is not None else DEFAULT, dtype=np.int8)
+    src_q = np.full(B, GIVEN if spec.q is not None else DEFAULT, dtype=np.int8)
+    if spec.sigma_m is not None and spec.q is not None:
+        return NoiseEstimate(c, q, se_c, se_q, src_c, src_q, 0)
+    group, G, pooled = _groups(table, spec, has_acc)
+    problem = _Problem(table, w, spec, c.copy(), group, G)
+    guess = np.zeros((B, 3))
+    moment_guess(table.offsets, table.t, table.east, table.north, w, problem.mask, guess)
+    todo = np.arange(G)
+    theta = _start(problem, todo, guess)
+    rounds = 0
+    g_c, g_q, g_n = np.full(G, np.nan), np.full(G, np.nan), np.zeros(G)
+    for rounds in range(1, MAX_ROUNDS + 1):
+        if len(todo) == 0:
+            break
+        half, step = (5 * _DECADE, _DECADE) if rounds == 1 else (_DECADE, 0.5 * _DECADE)
+        theta[todo] = _maximise(problem, todo, theta[todo], half, step)
+        g_c[todo], g_q[todo], g_n[todo] = _resolve(problem, todo, theta[todo])
+        if not math.isfinite(spec.gate):
+            break
+        c_b, q_b = _track_values(problem, g_c, g_q, c, q)
+        flag = np.empty(table.N, dtype=np.int8)
+        nis = np.empty(table.N)
+        stats = np.zeros((B, 5))
+        X = np.empty((1, 2, spec.order))
+        P = np.empty((1, spec.order, spec.order))
+        filter_tracks(table.offsets, table.t, table.east, table.north, w, c_b, q_b, spec.order, spec.prior,
+                      spec.gate, spec.max_rej, False, False, X, P, nis, flag, stats)
+        mask = np.where(flag == OUTLIER, SKIP, np.where(flag == RESET, RESTART, USE)).astype(np.int8)
+        changed = mask != problem.mask
+        problem.mask = mask
+        if not changed.any():
+            break
+        moved = np.unique(group[np.repeat(np.arange(B), table.counts)[changed]])
+        todo = moved[moved >= 0]
+    se_gc, se_gq = np.full(G, np.nan), np.full(G, np.nan)
+    ok = np.isfinite(g_c) & (g_c > _C_FLOOR * np.array([_typical_w(problem, g) for g in range(G)])) \
+        & np.isfinite(g_q) & (g_q > 0) & ~(pooled & (g_n < MIN_POOLED_DOF))
+    if ok.any():
+        se_gc[ok], se_gq[ok] = _standard_errors(problem, np.flatnonzero(ok), g_c[ok], g_q[ok])
+    for g in np.flatnonzero(ok):
+        sel = group == g
+        how = POOLED if pooled[g] else ESTIMATED
+        if spec.sigma_m is None:
+            c[sel], se_c[sel], src_c[sel] = g_c[g], se_gc[g], how
+        if spec.q is None:
+            q[sel], se_q[sel], src_q[sel] = g_q[g], se_gq[g], how
+    return NoiseEstimate(c, q, se_c, se_q, src_c, src_q, rounds)
+
+
+def _typical_w(problem: _Problem, g: int) -> float:
+    sel = problem.table.per_row(problem.group == g)
+    return float(np.median(problem.w[sel])) if sel.any() else 1.0
+
+
+def _track_values(problem: _Problem, g_c, g_q, c, q) -> tuple[np.ndarray, np.ndarray]:
+    """Per-track (c, q): the group estimates where there are, else the current values."""
+    grp = problem.group
+    has = grp >= 0
+    c_b, q_b = c.copy(), q.copy()
+    gc = g_c[np.maximum(grp, 0)]
+    gq = g_q[np.maximum(grp, 0)]
+    use = has & np.isfinite(gc) & (gc > 0) & np.isfinite(gq) & (gq > 0)
+    if problem.spec.sigma_m is None:
+        c_b[use] = gc[use]
+    if problem.spec.q is None:
+        q_b[use] = gq[use]
+    return c_b, q_b
