@@ -1,4 +1,5 @@
-"""Input schemas, chunked readers, file/row/column errors, skipping, ENU frames and atomic writers."""
+"""Input schemas, chunked readers, file/row/column errors, skipping and atomic writers
+(the ENU frames are tested in test_io_geodesy.py)."""
 
 import json
 from pathlib import Path
@@ -6,15 +7,12 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
-from hypothesis import given, settings
-from hypothesis import strategies as st
 
 from mptrack.errors import DataError, ParameterError
 from mptrack.io import (
     CELLS,
     FIXES,
     MEASUREMENTS,
-    LocalFrame,
     PartStore,
     ReadReport,
     iter_tracks,
@@ -191,37 +189,6 @@ def test_schemas_render_as_markdown():
     for schema in (FIXES, MEASUREMENTS, CELLS):
         md = schema.markdown()
         assert md.startswith("| column | required | unit |") and ("`time`" in md or "`mcc`" in md)
-
-
-# ---- geodesy ---------------------------------------------------------------------------------------
-
-def test_enu_against_the_meridian_radius():
-    """0.001 deg of latitude at 45 deg is M * pi/180e3 with the WGS-84 meridian radius M."""
-    a, f = 6378137.0, 1 / 298.257223563
-    e2 = f * (2 - f)
-    phi = np.radians(45.0)
-    M = a * (1 - e2) / (1 - e2 * np.sin(phi) ** 2) ** 1.5
-    frame = LocalFrame(45.0, 13.0)
-    e, n = frame.to_enu([45.0005], [13.0])  # midpoint latitude 45.00025: use the arc from 45 to 45.0005
-    assert e[0] == pytest.approx(0.0, abs=1e-9)
-    assert n[0] == pytest.approx(M * np.radians(0.0005), rel=2e-5)
-    N = a / np.sqrt(1 - e2 * np.sin(phi) ** 2)
-    e, n = frame.to_enu([45.0], [13.001])
-    assert e[0] == pytest.approx(N * np.cos(phi) * np.radians(0.001), rel=1e-6)
-
-
-@settings(max_examples=40, deadline=None)
-@given(lat0=st.floats(-80, 80), lon0=st.floats(-179, 179), de=st.floats(-20e3, 20e3), dn=st.floats(-20e3, 20e3))
-def test_enu_round_trip(lat0, lon0, de, dn):
-    frame = LocalFrame(lat0, lon0)
-    lat, lon = frame.to_geodetic([de], [dn])
-    e, n = frame.to_enu(lat, lon)
-    assert e[0] == pytest.approx(de, abs=1e-6) and n[0] == pytest.approx(dn, abs=1e-6)
-
-
-def test_frame_origin_validated():
-    with pytest.raises(ParameterError, match="origin"):
-        LocalFrame(95.0, 0.0)
 
 
 # ---- writers ---------------------------------------------------------------------------------------

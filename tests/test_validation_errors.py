@@ -396,3 +396,43 @@ def test_unknown_name_is_also_a_value_error():
         get_filter("nope")
     with pytest.raises(ValueError, match="implementation"):
         get_implementation(99)
+
+
+# --------------------------------------------------------------------------- shared helpers
+
+from mptrack._validation import as_array, broadcast_shape  # noqa: E402
+
+
+@settings(max_examples=300, deadline=None)
+@given(values=hnp.arrays(np.float64, hnp.array_shapes(min_dims=0, max_dims=2, max_side=4),
+                         elements=st.sampled_from([0.0, -1.0, 1.0, 2.5, -3.0, np.nan, np.inf, -np.inf])),
+       allow_nan=st.booleans(), bounded=st.booleans())
+def test_as_array_verdict_equals_plain_numpy(values, allow_nan, bounded):
+    """The min/max fast path refuses exactly what the element-wise definition refuses:
+    infinities always, NaN unless allowed, values outside [low, high] (NaN not compared)."""
+    low, high = (-1.0, 2.5) if bounded else (-np.inf, np.inf)
+    non_finite = np.isinf(values) if allow_nan else ~np.isfinite(values)
+    outside = (values < low) | (values > high)
+    if non_finite.any():
+        check_raises(NonFiniteError, "v", as_array, "v", values, allow_nan=allow_nan, low=low, high=high)
+    elif outside.any():
+        err = check_raises(ParameterError, "v", as_array, "v", values, allow_nan=allow_nan, low=low, high=high)
+        assert "[-1, 2.5]" in str(err)
+    else:
+        np.testing.assert_array_equal(as_array("v", values, allow_nan=allow_nan, low=low, high=high), values)
+
+
+def test_as_array_range_message_names_value_index_and_unit():
+    err = check_raises(ParameterError, "lat", as_array, "lat", [10.0, 95.0], low=-90, high=90, unit="degrees")
+    assert str(err) == "lat: expected values in [-90, 90] degrees, got 95.0 at index (1,)"
+    assert str(check_raises(ParameterError, "lat0", as_array, "lat0", 91.0, low=-90, high=90)) == \
+        "lat0: expected values in [-90, 90], got 91.0"
+
+
+def test_broadcast_shape_names_the_argument_that_does_not_fit():
+    a, b, s = np.zeros(3), np.zeros((2, 1)), np.float64(1.0)
+    assert broadcast_shape(a=a, s=s) == (3,)
+    assert broadcast_shape(a=a, b=b, s=s) == (2, 3)
+    assert broadcast_shape(s=s, t=s) == ()
+    err = check_raises(ShapeError, "c", broadcast_shape, a=a, s=s, c=np.zeros(4))
+    assert "(3,)" in str(err) and "(4,)" in str(err) and "a, s" in str(err)

@@ -76,7 +76,8 @@ class UnknownNameError(MptrackError, KeyError, ValueError):
 
 
 class ParameterError(MptrackError, ValueError):
-    """A scalar parameter is out of its valid range (negative time step, N < 1, ...)."""
+    """A parameter, or a value of an array argument, is out of its valid range (negative time
+    step, N < 1, a latitude outside [-90, 90] degrees, ...)."""
 
 
 class DataError(MptrackError, ValueError):

@@ -1,12 +1,12 @@
 """Input and output of real data: schemas and validation of position-fix logs
 (CSV/Parquet/GPX), cellular measurement logs and OpenCelliD cell tables;
-WGS-84 <-> local ENU per track; atomic Parquet/CSV/GeoJSON writers.
+WGS-84 <-> local ENU (compiled, one origin per row); atomic Parquet/CSV/GeoJSON writers.
 
 Errors name the file, the row and the column (:class:`mptrack.errors.DataError`);
 with ``on_error="skip"`` bad rows are dropped and counted in a :class:`ReadReport`.
 """
 
-from ._geodesy import LocalFrame
+from ._geodesy import LocalFrame, enu_to_geodetic, geodetic_to_enu
 from ._readers import FORMATS, input_format, iter_tracks, read_cells, read_chunks, read_table
 from ._schema import CELLS, FIXES, MEASUREMENTS, ON_ERROR, Column, ReadReport, Schema, cell_key
 from ._writers import OUTPUT_FORMATS, PartStore, geojson_features, output_format, write_table
@@ -27,6 +27,8 @@ __all__ = [
     "iter_tracks",
     "read_cells",
     "LocalFrame",
+    "geodetic_to_enu",
+    "enu_to_geodetic",
     "OUTPUT_FORMATS",
     "output_format",
     "write_table",
