@@ -336,24 +336,3 @@ class LocalFrame:
         (see :func:`enu_to_geodetic`)."""
         lat, lon = enu_to_geodetic(east, north, self.lat0, self.lon0, h0=self.h0)
         return np.asarray(lat, dtype=float), np.asarray(lon, dtype=float)
-
-
-def geodetic_to_enu(lat, lon, lat0, lon0, h=0.0, h0=0.0):  # TEMPORARY: replaced by the compiled version
-    import pymap3d
-
-    e, n, _ = pymap3d.geodetic2enu(np.asarray(lat, float), np.asarray(lon, float), h, np.asarray(lat0, float),
-                                   np.asarray(lon0, float), h0)
-    return np.asarray(e, dtype=float), np.asarray(n, dtype=float)
-
-
-def enu_to_geodetic(east, north, lat0, lon0, h0=0.0):  # TEMPORARY
-    import pymap3d
-
-    east, north = np.asarray(east, float), np.asarray(north, float)
-    lat0, lon0 = np.asarray(lat0, float), np.asarray(lon0, float)
-    up = np.zeros_like(east)
-    for _ in range(3):
-        lat, lon, _h = pymap3d.enu2geodetic(east, north, up, lat0, lon0, h0)
-        _e, _n, up = pymap3d.geodetic2enu(lat, lon, np.zeros_like(east), lat0, lon0, h0)
-    lat, lon, _h = pymap3d.enu2geodetic(east, north, up, lat0, lon0, h0)
-    return np.asarray(lat, dtype=float), np.asarray(lon, dtype=float)
