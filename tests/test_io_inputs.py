@@ -219,6 +219,28 @@ def test_enu_round_trip(lat0, lon0, de, dn):
     assert e[0] == pytest.approx(de, abs=1e-6) and n[0] == pytest.approx(dn, abs=1e-6)
 
 
+def test_closed_form_inverse_matches_the_iterated_one_and_broadcasts_origins():
+    """to_geodetic (closed form) = pymap3d's enu2geodetic iterated on the up coordinate until the point
+    is on the ellipsoid (the former implementation); per-point origins give each point's own frame."""
+    pymap3d = pytest.importorskip("pymap3d")
+    from mptrack.io._geodesy import enu_to_surface
+
+    rng = np.random.default_rng(0)
+    e, n = rng.uniform(-50e3, 50e3, 200), rng.uniform(-50e3, 50e3, 200)
+    for lat0, lon0, h0 in [(45.2735, 13.7142, 0.0), (-80.0, -179.0, 0.0), (89.9, 30.0, 0.0), (60.0, 100.0, 500.0)]:
+        up = np.zeros_like(e)
+        for _ in range(6):
+            lat, lon, _h = pymap3d.enu2geodetic(e, n, up, lat0, lon0, h0)
+            _e, _n, up = pymap3d.geodetic2enu(lat, lon, 0.0, lat0, lon0, h0)
+        lat, lon, _h = pymap3d.enu2geodetic(e, n, up, lat0, lon0, h0)
+        got = LocalFrame(lat0, lon0, h0).to_geodetic(e, n)
+        np.testing.assert_allclose(got, (lat, lon), rtol=0, atol=1e-11)  # degrees: ~1 micrometre
+    lat0, lon0 = rng.uniform(-80, 80, 200), rng.uniform(-180, 180, 200)
+    lat, lon = enu_to_surface(e / 2, n / 2, lat0, lon0)
+    back_e, back_n, _ = pymap3d.geodetic2enu(lat, lon, 0.0, lat0, lon0, 0.0)
+    np.testing.assert_allclose(np.c_[back_e, back_n], np.c_[e / 2, n / 2], rtol=0, atol=1e-6)
+
+
 def test_frame_origin_validated():
     with pytest.raises(ParameterError, match="origin"):
         LocalFrame(95.0, 0.0)
