@@ -289,8 +289,9 @@ def test_csv_writer_round_trips_times_floats_and_text(tmp_path):
     assert text[1].startswith('"a,1","1970-01-01T00:00:00.000Z",') and "2024-01-01T00:00:01Z" in text[1]
     assert text[3].endswith('"1970-01-01T00:00:02.000000001Z"')
     write_table(df.iloc[2:], tmp_path / "plain.csv")  # nothing to quote: plain fields, like pandas
-    assert (tmp_path / "plain.csv").read_text().splitlines()[1] == \
-        f"3,1970-01-01T00:00:02Z,{float(df['lat'].iloc[2])!r},13.1,true,2024-01-01T00:00:02Z,1970-01-01T00:00:02.000000001Z"
+    assert (tmp_path / "plain.csv").read_text().splitlines()[1] == (
+        f"3,1970-01-01T00:00:02Z,{float(df['lat'].iloc[2])!r},13.1,true,2024-01-01T00:00:02Z,"
+        "1970-01-01T00:00:02.000000001Z")
     back = pd.read_csv(path, dtype={"track_id": "string"})
     assert back["track_id"].tolist() == df["track_id"].tolist() and back["flag"].tolist() == [True, False, True]
     np.testing.assert_array_equal(back["lat"], df["lat"])
