@@ -231,6 +231,14 @@ def test_invalid_parameters(kwargs, match):
         simulate("gps", args.pop("tracks"), np.random.default_rng(0), **args)
 
 
+def test_along_needs_tracks(tmp_path):
+    from mptrack.errors import DataError
+
+    (tmp_path / "empty.csv").write_text("track_id,time,lat,lon\n")
+    with pytest.raises(DataError, match="no tracks"):
+        simulate("gps", 1, np.random.default_rng(0), along=tmp_path / "empty.csv")
+
+
 def test_options_of_another_scenario_are_refused():
     with pytest.raises(ParameterError, match="sigma_m: not an option of scenario 'urban-3bts'"):
         simulate("urban-3bts", 1, np.random.default_rng(0), sigma_m=3.0)

@@ -17,7 +17,7 @@ random direction, sampled at times 0, then after each interval (:class:`Interval
 or, with ``along=``, the tracks of a real position-fix file (its time stamps and positions).
 
 All tracks are simulated at once, as flat columns with track offsets (rows ``offsets[b]:offsets[b+1]`` are
-track b), in chunks of whole tracks (about :data:`CHUNK_ROWS` rows) so that memory stays bounded:
+track b), in chunks of whole tracks (about :data:`CHUNK_ROWS` fixes or scans) so that memory stays bounded:
 :func:`simulate_chunks` yields the chunks, :func:`simulate` concatenates them.  The truth uses the exact
 discretisation per interval dt, x_{k+1} = F(dt) x_k + w_k with F = [[1, dt], [0, 1]] and
 w_k ~ N(0, q [[dt^3/3, dt^2/2], [dt^2/2, dt]]), drawn for all rows at once through the closed-form Cholesky
@@ -265,6 +265,8 @@ def _along_chunks(path) -> Iterator[_Truth]:
             first, parts, rows_held = first + len(parts), [], 0
     if parts:
         yield chunk(first)
+    elif not first:
+        raise DataError("along: no tracks in the file", file=path)
 
 
 # --------------------------------------------------------------------------- scenarios
