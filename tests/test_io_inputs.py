@@ -220,6 +220,35 @@ def test_writers_roundtrip(tmp_path, suffix):
         assert points[1]["properties"]["time"] == "1970-01-01T00:00:01Z"
 
 
+def test_csv_writer_round_trips_times_floats_and_text(tmp_path):
+    """Times come back as the same instants through the readers (ISO 8601 with Z, coarsest exact unit);
+    floats bit for bit; text with commas and quotes, booleans and missing values survive pandas' reader."""
+    rng = np.random.default_rng(1)
+    ns = pd.to_datetime([0, 1_500_000_000, 2_000_000_001], unit="ns", utc=True)
+    df = pd.DataFrame({"track_id": ["a,1", 'b"2', "3"], "time": pd.to_datetime([0, 1250, 2000], unit="ms", utc=True),
+                       "lat": 45.0 + rng.random(3), "lon": [13.0, np.nan, 13.1], "flag": [True, False, True],
+                       "naive": pd.to_datetime(["2024-01-01T00:00:01", None, "2024-01-01T00:00:02"]), "t_ns": ns})
+    path = write_table(df, tmp_path / "o.csv")
+    text = path.read_text().splitlines()
+    assert text[0] == "track_id,time,lat,lon,flag,naive,t_ns"
+    assert text[1].startswith('"a,1","1970-01-01T00:00:00.000Z",') and "2024-01-01T00:00:01Z" in text[1]
+    assert text[3].endswith('"1970-01-01T00:00:02.000000001Z"')
+    write_table(df.iloc[2:], tmp_path / "plain.csv")  # nothing to quote: plain fields, like pandas
+    assert (tmp_path / "plain.csv").read_text().splitlines()[1] == (
+        f"3,1970-01-01T00:00:02Z,{float(df['lat'].iloc[2])!r},13.1,true,2024-01-01T00:00:02Z,"
+        "1970-01-01T00:00:02.000000001Z")
+    back = pd.read_csv(path, dtype={"track_id": "string"})
+    assert back["track_id"].tolist() == df["track_id"].tolist() and back["flag"].tolist() == [True, False, True]
+    np.testing.assert_array_equal(back["lat"], df["lat"])
+    assert back["lon"].isna().tolist() == [False, True, False]
+    for col in ("time", "naive", "t_ns"):
+        got = pd.to_datetime(back[col], utc=True, format="ISO8601")
+        pd.testing.assert_series_equal(got, df[col].dt.tz_localize("UTC") if df[col].dt.tz is None else df[col],
+                                       check_names=False, check_dtype=False)
+    t = read_table(write_table(df.assign(lon=13.0), tmp_path / "fixes.csv"))["t"].to_numpy()
+    np.testing.assert_array_equal(t, [0.0, 1.25, 2.0])
+
+
 def test_write_is_atomic(tmp_path):
     def frames():
         yield _table()

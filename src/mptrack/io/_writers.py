@@ -6,10 +6,17 @@ complete (:func:`mptrack._io.atomic_path`), so an interrupted or failed run
 never leaves a half-written result.  :class:`PartStore` keeps each finished
 track in ``.<out>.parts/`` until :meth:`PartStore.finish` streams them, one
 track at a time, into the final file.
+
+CSV goes through pyarrow's CSV writer (fields quoted only where needed,
+booleans as true/false, floats in shortest round-trip form), with datetime
+columns as ISO 8601 text ending in ``Z`` (:func:`iso_utc`), which the readers
+parse back to the same instants.
 """
 
 from __future__ import annotations
 
+import csv
+import io
 import json
 import math
 import shutil
@@ -22,7 +29,7 @@ import pandas as pd
 from .._io import atomic_path
 from ..errors import ParameterError
 
-__all__ = ["OUTPUT_FORMATS", "output_format", "write_table", "PartStore", "geojson_features"]
+__all__ = ["OUTPUT_FORMATS", "output_format", "write_table", "PartStore", "geojson_features", "iso_utc"]
 
 OUTPUT_FORMATS = {".parquet": "parquet", ".pq": "parquet", ".csv": "csv", ".geojson": "geojson",
                   ".json": "geojson"}
@@ -51,6 +58,26 @@ def _plain(value):
     return value if isinstance(value, (int, str)) else str(value)
 
 
+def iso_utc(values) -> np.ndarray:
+    """ISO 8601 text with a ``Z`` suffix of a datetime column (naive times are UTC), vectorised, at the
+    coarsest of s / ms / us / ns that keeps every value exact ("2024-01-01T00:00:01.250Z"); NaT -> ""."""
+    times = pd.Series(values)
+    if times.dt.tz is not None:
+        times = times.dt.tz_convert("UTC").dt.tz_localize(None)
+    arr = times.to_numpy()
+    nat = np.isnat(arr)
+    unit = next((u for u in ("s", "ms", "us") if (arr[~nat].astype(f"datetime64[{u}]") == arr[~nat]).all()), "ns")
+    text = np.datetime_as_string(arr, unit=unit, timezone="UTC")  # "...Z"
+    text[nat] = ""
+    return text
+
+
+def _csv_ready(df: pd.DataFrame) -> pd.DataFrame:
+    """Datetime columns as ISO 8601 text with Z (what the readers parse back to the same instant)."""
+    times = [c for c in df.columns if pd.api.types.is_datetime64_any_dtype(df[c])]
+    return df.assign(**{c: iso_utc(df[c]) for c in times}) if times else df
+
+
 def geojson_features(df: pd.DataFrame, *, lat: str = "lat", lon: str = "lon") -> Iterator[dict]:
     """GeoJSON features of one track table: a LineString per track, then a Point per row.
 
@@ -71,27 +98,59 @@ def geojson_features(df: pd.DataFrame, *, lat: str = "lat", lon: str = "lon") ->
                    "properties": {"kind": "point", **{k: _plain(v) for k, v in rec.items()}}}
 
 
+def _write_arrow(frames: Iterable[pd.DataFrame], open_writer, prepare=None) -> bool:
+    """Stream frames into a pyarrow writer opened on the first frame's schema; False if there was none."""
+    import pyarrow as pa
+
+    writer = schema = None
+    try:
+        for df in frames:
+            table = pa.Table.from_pandas(prepare(df) if prepare else df, preserve_index=False)
+            if writer is None:
+                schema, writer = table.schema, open_writer(table.schema)
+            writer.write_table(table.cast(schema))
+    finally:
+        if writer is not None:
+            writer.close()
+    return writer is not None
+
+
+class _CsvWriter:
+    """pyarrow's CSV writer with pandas' conventions: a plain header, and text quoted only in the chunks
+    where some value holds a delimiter, quote or line break (arrow's "needed" quotes every string)."""
+
+    def __init__(self, fh, schema) -> None:
+        import pyarrow as pa
+
+        self.fh = fh
+        line = io.StringIO()
+        csv.writer(line, lineterminator="\n").writerow(schema.names)
+        fh.write(line.getvalue().encode())
+        self.text = [f.name for f in schema if pa.types.is_string(f.type) or pa.types.is_large_string(f.type)]
+
+    def write_table(self, table) -> None:
+        import pyarrow.compute as pc
+        import pyarrow.csv as pacsv
+
+        quote = any(pc.any(pc.match_substring_regex(table[c], '[,"\r\n]')).as_py() for c in self.text)
+        pacsv.write_csv(table, self.fh, pacsv.WriteOptions(include_header=False,
+                                                           quoting_style="needed" if quote else "none"))
+
+    def close(self) -> None:
+        pass
+
+
 def _write_parts(frames: Iterable[pd.DataFrame], tmp: Path, fmt: str) -> None:
     if fmt == "parquet":
-        import pyarrow as pa
         import pyarrow.parquet as pq
 
-        writer = None
-        try:
-            for df in frames:
-                table = pa.Table.from_pandas(df, preserve_index=False)
-                if writer is None:
-                    writer = pq.ParquetWriter(tmp, table.schema)
-                writer.write_table(table.cast(writer.schema))
-        finally:
-            if writer is not None:
-                writer.close()
-        if writer is None:
+        if not _write_arrow(frames, lambda schema: pq.ParquetWriter(tmp, schema)):
             pd.DataFrame().to_parquet(tmp, index=False)
     elif fmt == "csv":
-        with open(tmp, "w", newline="") as fh:
-            for i, df in enumerate(frames):
-                df.to_csv(fh, header=i == 0, index=False)
+        import pyarrow.csv as pacsv
+
+        with open(tmp, "wb") as fh:
+            _write_arrow(frames, lambda schema: _CsvWriter(fh, schema), _csv_ready)
     else:
         with open(tmp, "w") as fh:
             fh.write('{"type": "FeatureCollection", "features": [\n')

@@ -7,7 +7,7 @@ from ._evaluate import attach_truth, evaluate_tracks
 from ._fixes import TrackOptions, point_table, track_fixes
 from ._gated import FLAGS, GatedResult, kalman_filter_gated, nis_threshold, smooth_gated
 from ._pipeline import read_output, track_file
-from ._simulate import SCENARIOS, simulate
+from ._simulate import SCENARIOS, Intervals, simulate, simulate_chunks
 from ._registry import (
     CELL_METHODS,
     FIX_FILTERS,
@@ -21,6 +21,8 @@ from ._registry import (
 __all__ = [
     "TrackOptions",
     "simulate",
+    "simulate_chunks",
+    "Intervals",
     "SCENARIOS",
     "evaluate_tracks",
     "attach_truth",

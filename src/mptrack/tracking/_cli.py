@@ -106,6 +106,11 @@ def track(
                + (f"; report {report}" if report else ""), highlight=False)
 
 
+_SIMULATE_OPTIONS = {"tracks": "--tracks", "duration_s": "--duration", "interval": "--interval", "q": "--q",
+                     "speed_mps": "--speed", "sigma_m": "--sigma", "outlier_rate": "--outliers",
+                     "accuracy_column": "--no-accuracy"}
+
+
 def simulate(
     scenario: str = typer.Option("gps", "--scenario", help="gps or urban-3bts."),
     tracks: int = typer.Option(10, "--tracks", help="Number of simulated tracks (ignored with --along)."),
@@ -115,25 +120,51 @@ def simulate(
     along: Optional[Path] = typer.Option(None, "--along", help="Use the real tracks of this position-fix file "
                                                                "as truth."),
     duration: float = typer.Option(300.0, help="Seconds per simulated track."),
+    interval: Optional[str] = typer.Option(None, help="Time between fixes (s): exp:MEAN[:MIN] (gps default "
+                                                      "exp:2:0.2), uniform:MIN:MAX or MIN:MAX, or DT (a regular "
+                                                      "grid; urban-3bts default 1)."),
+    q: float = typer.Option(0.5, "--q", help="Process-noise density of the truth (m^2/s^3)."),
+    speed: float = typer.Option(10.0, help="Start speed of the truth (m/s)."),
+    sigma: Optional[float] = typer.Option(None, help="gps: fix noise, 1-sigma per axis (m; default 5)."),
+    outliers: Optional[float] = typer.Option(None, help="gps: fraction of outliers (default 0.02)."),
+    accuracy: Optional[bool] = typer.Option(None, "--accuracy/--no-accuracy",
+                                            help="gps: write the accuracy_m column (default: yes)."),
     seed: int = typer.Option(0, help="Seed of the random generator."),
     quiet: bool = typer.Option(False, "--quiet", "-q"),
     json_out: bool = typer.Option(False, "--json", help="Print what was written as JSON."),
 ) -> None:
     """Simulate measurement logs with truth (GPS fixes or cellular RSS scans)."""
     import numpy as np
+    import pandas as pd
 
+    from ..errors import ParameterError
     from ..io import write_table
-    from ._simulate import simulate as run
+    from ._simulate import simulate_chunks
+
+    written = {"scenario": scenario, "log": str(out), "rows": 0, "tracks": 0, "seed": seed}
+    cell_tables = []
+
+    def logs(chunks):
+        for log, cells in chunks:
+            written["rows"] += len(log)
+            written["tracks"] += log["track_id"].nunique()  # a chunk holds whole tracks
+            if cells is not None:
+                cell_tables.append(cells)
+            yield log
 
     try:
+        try:
+            chunks = simulate_chunks(scenario, tracks, np.random.default_rng(seed), duration_s=duration,
+                                     along=along, interval=interval, q=q, speed_mps=speed, sigma_m=sigma,
+                                     outlier_rate=outliers, accuracy_column=accuracy)
+        except ParameterError as exc:  # name the option, not the library's argument
+            name, _, rest = str(exc).partition(":")
+            raise ParameterError(f"{_SIMULATE_OPTIONS.get(name, name)}:{rest}") from None
         with _err.status("simulating…", spinner="dots") if not (quiet or json_out) else _nullctx():
-            log, cell_table = run(scenario, tracks, np.random.default_rng(seed), duration_s=duration, along=along)
-            write_table(log, out)
-            written = {"scenario": scenario, "log": str(out), "rows": int(len(log)),
-                       "tracks": int(log["track_id"].nunique()), "seed": seed}
-            if cell_table is not None:
+            write_table(logs(chunks), out)
+            if cell_tables:
                 cpath = cells_out or out.with_suffix(".cells.csv")
-                write_table(cell_table, cpath)
+                write_table(pd.concat(cell_tables, ignore_index=True), cpath)
                 written["cells"] = str(cpath)
     except MptrackError as exc:
         _fail(exc)
