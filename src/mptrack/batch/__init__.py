@@ -18,7 +18,17 @@ from ._filters import (
     predict,
     steady_state_filter,
 )
-from ._runner import EXECUTORS, Chunk, MonteCarloTask, filter_chunked, make_chunks, monte_carlo, run_chunks
+from ._runner import (
+    EXECUTORS,
+    Chunk,
+    MonteCarloTask,
+    filter_chunked,
+    make_chunks,
+    monte_carlo,
+    part_path,
+    run_chunks,
+    run_stream,
+)
 
 __all__ = [
     "steady_state_filter",
@@ -29,6 +39,8 @@ __all__ = [
     "gain_sequence",
     "GainSequence",
     "run_chunks",
+    "run_stream",
+    "part_path",
     "make_chunks",
     "Chunk",
     "monte_carlo",

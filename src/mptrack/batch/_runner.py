@@ -20,9 +20,10 @@ import concurrent.futures
 import hashlib
 import json
 import multiprocessing
+import os
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Literal
+from typing import Any, Callable, Iterable, Literal
 
 import numpy as np
 import pandas as pd
@@ -33,8 +34,8 @@ from ..errors import DTypeError, ParameterError, ShapeError
 from ..models import LinearGaussianModel, require_model
 from ._filters import gain_sequence, kalman_filter, steady_state_filter
 
-__all__ = ["Chunk", "make_chunks", "run_chunks", "MonteCarloTask", "monte_carlo", "filter_chunked",
-           "EXECUTORS"]
+__all__ = ["Chunk", "make_chunks", "run_chunks", "run_stream", "part_path", "MonteCarloTask", "monte_carlo",
+           "filter_chunked", "EXECUTORS"]
 
 Executor = Literal["serial", "processes", "dask"]
 EXECUTORS: tuple[str, ...] = ("serial", "processes", "dask")
@@ -88,22 +89,38 @@ def _digest(*arrays) -> str:
     return h.hexdigest()[:16]
 
 
-def _chunk_path(out_dir: Path, index: int) -> Path:
-    return out_dir / f"chunk-{index:06d}.parquet"
+def part_path(out_dir: Path, name: str, index: int) -> Path:
+    """The file of part ``name`` of chunk ``index`` in a run directory."""
+    return Path(out_dir) / f"{name}-{index:06d}.parquet"
 
 
-def _run_one(task: Callable[[Chunk], pd.DataFrame], chunk: Chunk, out_dir: str | None):
-    """Worker side: compute one chunk; with ``out_dir`` write it atomically and return its path."""
-    df = task(chunk)
-    if not isinstance(df, pd.DataFrame):
-        raise DTypeError(f"task: expected a pandas.DataFrame from chunk {chunk.index}, "
-                         f"got {type(df).__name__}")
-    if out_dir is None:
-        return df
-    path = _chunk_path(Path(out_dir), chunk.index)
+def _write_part(table, path: Path) -> None:
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
     with atomic_path(path) as tmp:
-        df.to_parquet(tmp, engine="pyarrow", index=False)
-    return str(path)
+        if isinstance(table, pa.Table):
+            pq.write_table(table, tmp, compression="none")
+        else:
+            table.to_parquet(tmp, engine="pyarrow", index=False)
+
+
+def _run_one(task: Callable[[Chunk], Any], chunk: Chunk, out_dir: str | None, parts: tuple[str, ...]):
+    """Worker side: compute one chunk; with ``out_dir`` write its parts atomically (the last one
+    last, so its presence means the chunk is done) and return their paths."""
+    result = task(chunk)
+    named = {parts[0]: result} if len(parts) == 1 and not isinstance(result, dict) else result
+    if not isinstance(named, dict) or set(named) != set(parts) or not all(
+            hasattr(v, "num_rows") or isinstance(v, pd.DataFrame) for v in named.values()):
+        raise DTypeError(f"task: expected {'a pandas.DataFrame' if parts == ('chunk',) else 'tables ' + str(parts)}"
+                         f" from chunk {chunk.index}, got {type(result).__name__}")
+    if out_dir is None:
+        return result
+    paths = {}
+    for name in parts:
+        paths[name] = str(part_path(Path(out_dir), name, chunk.index))
+        _write_part(named[name], Path(paths[name]))
+    return paths if len(parts) > 1 else paths[parts[0]]
 
 
 def _check_manifest(out_dir: Path, manifest: dict) -> None:
@@ -143,62 +160,115 @@ def run_chunks(task: Callable[[Chunk], pd.DataFrame], n_items: int, *, chunk_siz
     progress    ``progress(k)`` each time k more chunks are done (skipped ones included),
                 e.g. the ``advance`` of ``RunContext.progress.task``
     """
-    if executor not in EXECUTORS:
-        raise ParameterError(f"executor: expected one of {EXECUTORS}, got {executor!r}")
-    if not callable(task):
-        raise ParameterError(f"task: expected a callable, got {type(task).__name__}")
     chunks = make_chunks(n_items, chunk_size, seed)
     if data is not None and len(data) != n_items:
         raise ParameterError(f"data: expected {n_items} leading rows, got {len(data)}")
-    if max_workers is not None:
-        max_workers = check_int("max_workers", max_workers, minimum=1)
-    done: dict[int, Any] = {}
-    todo = chunks
     if out_dir is not None:
-        out_dir = Path(out_dir)
-        out_dir.mkdir(parents=True, exist_ok=True)
-        _check_manifest(out_dir, {"n_items": n_items, "chunk_size": chunk_size, "seed": seed,
-                                  "task": getattr(task, "__qualname__", type(task).__qualname__),
-                                  **(manifest or {})})
-        for c in chunks:
-            if _chunk_path(out_dir, c.index).exists():
-                done[c.index] = str(_chunk_path(out_dir, c.index))
-        todo = [c for c in chunks if c.index not in done]
-        if progress is not None and done:
-            progress(len(done))
-    todo = _with_data(todo, data)
-    target = None if out_dir is None else str(out_dir)
-    if todo:
-        if executor == "serial":
-            for c in todo:
-                done[c.index] = _run_one(task, c, target)
-                if progress is not None:
-                    progress(1)
-        elif executor == "processes":
-            _run_processes(task, todo, target, max_workers, done, progress)
-        else:
-            _run_dask(task, todo, target, max_workers, client, done, progress)
-    parts = [done[c.index] for c in chunks]
+        manifest = {"n_items": n_items, "chunk_size": chunk_size, "seed": seed,
+                    "task": getattr(task, "__qualname__", type(task).__qualname__), **(manifest or {})}
+    parts = run_stream(task, _with_data(chunks, data), out_dir=out_dir, executor=executor,
+                       max_workers=max_workers, client=client, manifest=manifest, progress=progress)
     frames = [pd.read_parquet(p, engine="pyarrow") if isinstance(p, str) else p for p in parts]
     return pd.concat(frames, ignore_index=True)
 
 
-def _run_processes(task, todo, target, max_workers, done, progress) -> None:
-    ctx = multiprocessing.get_context("spawn")  # fork is unsafe with numba's threads
-    with concurrent.futures.ProcessPoolExecutor(max_workers=max_workers, mp_context=ctx) as pool:
-        futures = {pool.submit(_run_one, task, c, target): c.index for c in todo}
-        try:
-            for fut in concurrent.futures.as_completed(futures):
-                done[futures[fut]] = fut.result()
+def run_stream(task: Callable[[Chunk], Any], chunks: Iterable[Chunk], *, parts: tuple[str, ...] = ("chunk",),
+               out_dir=None, executor: Executor = "serial", max_workers: int | None = None, client=None,
+               manifest: dict | None = None, progress: Callable[[int], None] | None = None,
+               max_pending: int | None = None) -> list:
+    """Run ``task`` on chunks as an iterable produces them (so a reader can stream a file larger
+    than memory); returns the results in chunk order.
+
+    task      ``task(chunk)`` returns a table (``parts`` = ("chunk",)) or a dict of tables named by
+              ``parts`` (pandas DataFrames or pyarrow Tables)
+    out_dir   each chunk's tables are written there by the worker, atomically, as
+              ``<part>-NNNNNN.parquet``, and the result is their path (one part) or a dict of paths;
+              a chunk whose parts all exist is skipped (resume), the chunk itself never computed
+    manifest  a JSON-able description stored as ``out_dir/manifest.json``; a later run on the
+              same directory must describe the same run (else ParameterError)
+    executor  as for :func:`run_chunks`; at most ``max_pending`` chunks (default twice the
+              workers) are in flight, so memory stays bounded by the chunk size
+    The results do not depend on the executor: every chunk is computed by the same function
+    from the same data.
+    """
+    if executor not in EXECUTORS:
+        raise ParameterError(f"executor: expected one of {EXECUTORS}, got {executor!r}")
+    if not callable(task):
+        raise ParameterError(f"task: expected a callable, got {type(task).__name__}")
+    if max_workers is not None:
+        max_workers = check_int("max_workers", max_workers, minimum=1)
+    target = None
+    if out_dir is not None:
+        out_dir = Path(out_dir)
+        out_dir.mkdir(parents=True, exist_ok=True)
+        _check_manifest(out_dir, manifest or {})
+        target = str(out_dir)
+    done: dict[int, Any] = {}
+
+    def finished(c: Chunk):
+        if target is None or not part_path(out_dir, parts[-1], c.index).exists():
+            return None
+        paths = {p: str(part_path(out_dir, p, c.index)) for p in parts}
+        return paths if len(parts) > 1 else paths[parts[0]]
+
+    def pending_chunks():
+        for c in chunks:
+            old = finished(c)
+            if old is not None:
+                done[c.index] = old
                 if progress is not None:
                     progress(1)
+                continue
+            yield c
+
+    todo = pending_chunks()
+    if executor == "serial":
+        for c in todo:
+            done[c.index] = _run_one(task, c, target, parts)
+            if progress is not None:
+                progress(1)
+    elif executor == "processes":
+        _run_processes(task, todo, target, parts, max_workers, max_pending, done, progress)
+    else:
+        _run_dask(task, todo, target, parts, max_workers, max_pending, client, done, progress)
+    return [done[i] for i in sorted(done)]
+
+
+def _run_processes(task, todo, target, parts, max_workers, max_pending, done, progress) -> None:
+    workers = max_workers or os.cpu_count() or 1
+    limit = max_pending or 2 * workers
+    ctx = multiprocessing.get_context("spawn")  # fork is unsafe with numba's threads
+    with concurrent.futures.ProcessPoolExecutor(max_workers=workers, mp_context=ctx,
+                                                initializer=_single_threaded) as pool:
+        futures: dict = {}
+        try:
+            for c in todo:
+                if len(futures) >= limit:
+                    _collect(futures, done, progress, concurrent.futures.FIRST_COMPLETED)
+                futures[pool.submit(_run_one, task, c, target, parts)] = c.index
+            _collect(futures, done, progress, concurrent.futures.ALL_COMPLETED)
         except BaseException:
             for fut in futures:
                 fut.cancel()
             raise
 
 
-def _run_dask(task, todo, target, max_workers, client, done, progress) -> None:
+def _collect(futures: dict, done: dict, progress, when) -> None:
+    finished, _ = concurrent.futures.wait(futures, return_when=when)
+    for fut in finished:
+        done[futures.pop(fut)] = fut.result()
+        if progress is not None:
+            progress(1)
+
+
+def _single_threaded() -> None:
+    """Worker processes share the machine: one numba thread each."""
+    import numba
+
+    numba.set_num_threads(1)
+
+
+def _run_dask(task, todo, target, parts, max_workers, max_pending, client, done, progress) -> None:
     from dask.distributed import Client, LocalCluster, as_completed
 
     own = client is None
@@ -207,15 +277,27 @@ def _run_dask(task, todo, target, max_workers, client, done, progress) -> None:
                                dashboard_address=None)
         client = Client(cluster)
     try:
-        futures = client.map(_run_one, [task] * len(todo), todo, [target] * len(todo), pure=False)
-        index = {fut.key: c.index for fut, c in zip(futures, todo)}
+        limit = max_pending or 2 * max(1, len(client.scheduler_info().get("workers", {})) or 1)
+        index: dict = {}
+        submitted: list = []
+        queue = as_completed()
         try:
-            for fut in as_completed(futures):
-                done[index[fut.key]] = fut.result()
+            for c in todo:
+                while queue.count() >= limit:
+                    fut = next(queue)
+                    done[index.pop(fut.key)] = fut.result()
+                    if progress is not None:
+                        progress(1)
+                fut = client.submit(_run_one, task, c, target, parts, pure=False)
+                index[fut.key] = c.index
+                submitted.append(fut)
+                queue.add(fut)
+            for fut in queue:
+                done[index.pop(fut.key)] = fut.result()
                 if progress is not None:
                     progress(1)
         except BaseException:
-            client.cancel(futures)
+            client.cancel(submitted)
             raise
     finally:
         if own:

@@ -32,7 +32,20 @@ def input_format(path) -> str:
     return FORMATS[suffix]
 
 
-def _raw_chunks(path: Path, chunk_rows: int) -> Iterator[pd.DataFrame]:
+#: The name errors give a DataFrame passed instead of a file.
+FRAME_LABEL = "<DataFrame>"
+
+
+def _raw_chunks(source, chunk_rows: int) -> Iterator[pd.DataFrame]:
+    """Raw chunks of ``chunk_rows`` rows of a DataFrame, a file, or a directory of Parquet files."""
+    if isinstance(source, pd.DataFrame):
+        for i in range(0, max(len(source), 1), chunk_rows):
+            yield source.iloc[i:i + chunk_rows]
+        return
+    path = Path(source)
+    if path.is_dir():
+        yield from _dataset_chunks(path, chunk_rows)
+        return
     fmt = input_format(path)
     if not path.exists():
         raise DataError("file not found", file=path)
@@ -56,6 +69,29 @@ def _raw_chunks(path: Path, chunk_rows: int) -> Iterator[pd.DataFrame]:
     except Exception as exc:  # pyarrow / gpxpy raise their own types for corrupt files
         if type(exc).__module__.split(".")[0] in ("pyarrow", "gpxpy"):
             raise DataError(f"cannot be read as {fmt}: {exc}", file=path) from None
+        raise
+
+
+def _dataset_chunks(path: Path, chunk_rows: int) -> Iterator[pd.DataFrame]:
+    """A directory of Parquet files (hive-partitioned or not: ``key=value`` directories become
+    columns), in file-path order, ``chunk_rows`` rows at a time."""
+    import pyarrow.dataset as ds
+
+    try:
+        dataset = ds.dataset(path, format="parquet", partitioning="hive", exclude_invalid_files=False)
+        files = sorted(dataset.files)
+        if not files:
+            raise DataError("no Parquet files in the directory", file=path)
+        dataset = ds.dataset(files, format="parquet", partitioning=ds.HivePartitioning.discover(),
+                             partition_base_dir=str(path))
+        for batch in dataset.to_batches(batch_size=chunk_rows, use_threads=False):
+            if batch.num_rows:
+                yield batch.to_pandas()
+    except DataError:
+        raise
+    except Exception as exc:
+        if type(exc).__module__.split(".")[0] == "pyarrow" or isinstance(exc, OSError):
+            raise DataError(f"cannot be read as a Parquet dataset: {exc}", file=path) from None
         raise
 
 
@@ -85,20 +121,21 @@ def _gpx_frame(path: Path) -> pd.DataFrame:
 
 def read_chunks(path, schema: Schema = FIXES, *, on_error: str = "raise", chunk_rows: int = DEFAULT_CHUNK_ROWS,
                 report: ReadReport | None = None) -> Iterator[pd.DataFrame]:
-    """Validated chunks of ``path`` (CSV, Parquet or GPX) against ``schema``.
+    """Validated chunks of ``path`` (a CSV, Parquet or GPX file, a directory of Parquet files, or a
+    DataFrame) against ``schema``.
 
     Each chunk has the schema's columns, ``t`` (seconds, float) and ``row`` (the
     1-based record number in the file).  Bad rows raise DataError naming file,
     row and column, or with ``on_error="skip"`` are dropped and counted in ``report``.
     """
     check_on_error(on_error)
-    path = Path(path)
+    label = FRAME_LABEL if isinstance(path, pd.DataFrame) else Path(path)
     report = report if report is not None else ReadReport()
-    report.file = str(path)
+    report.file = str(label)
     first = 1
     for raw in _raw_chunks(path, chunk_rows):
         n = len(raw)
-        yield validate_chunk(raw, schema, file=path, first_row=first, on_error=on_error, report=report)
+        yield validate_chunk(raw, schema, file=label, first_row=first, on_error=on_error, report=report)
         first += n
 
 
@@ -123,7 +160,7 @@ def iter_track_chunks(path, schema: Schema = FIXES, *, on_error: str = "raise",
     """
     strict = (schema is FIXES) if strict is None else strict
     report = report if report is not None else ReadReport()
-    path = Path(path)
+    label = FRAME_LABEL if isinstance(path, pd.DataFrame) else Path(path)
     finished: set[str] = set()
     ready: list[pd.DataFrame] = []          # complete tracks not yet yielded
     ready_rows = 0
@@ -132,8 +169,8 @@ def iter_track_chunks(path, schema: Schema = FIXES, *, on_error: str = "raise",
     for chunk in read_chunks(path, schema, on_error=on_error, chunk_rows=chunk_rows, report=report):
         if chunk.empty:
             continue
-        chunk = _contiguous(chunk, carry_id, finished, path, on_error, report)
-        chunk = _ordered(chunk, carry_id, carry_t, strict, path, on_error, report)
+        chunk = _contiguous(chunk, carry_id, finished, label, on_error, report)
+        chunk = _ordered(chunk, carry_id, carry_t, strict, label, on_error, report)
         if chunk.empty:
             continue
         ids = chunk["track_id"].to_numpy(dtype=object)
@@ -249,7 +286,8 @@ def read_cells(path, *, wanted=None, on_error: str = "raise", report: ReadReport
     dup = cells["cell_id"].duplicated()
     if dup.any():
         i = int(np.flatnonzero(dup.to_numpy())[0])
-        raise DataError(f"cell {cells['cell_id'].iloc[i]!r} is listed twice", file=Path(path),
+        raise DataError(f"cell {cells['cell_id'].iloc[i]!r} is listed twice",
+                        file=FRAME_LABEL if isinstance(path, pd.DataFrame) else Path(path),
                         row=int(cells["row"].iloc[i]), column="cell")
     for name, default in (("height_m", 30.0), ("power_dbm", 43.0), ("arfcn", np.nan)):
         if name not in cells.columns:

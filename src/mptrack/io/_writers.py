@@ -72,10 +72,16 @@ def iso_utc(values) -> np.ndarray:
     return text
 
 
-def _csv_ready(df: pd.DataFrame) -> pd.DataFrame:
-    """Datetime columns as ISO 8601 text with Z (what the readers parse back to the same instant)."""
-    times = [c for c in df.columns if pd.api.types.is_datetime64_any_dtype(df[c])]
-    return df.assign(**{c: iso_utc(df[c]) for c in times}) if times else df
+def _csv_ready(table):
+    """Timestamp columns of an Arrow table as ISO 8601 text with Z (what the readers parse back to
+    the same instant)."""
+    import pyarrow as pa
+
+    for i, field in enumerate(table.schema):
+        if pa.types.is_timestamp(field.type):
+            values = table.column(i).to_numpy()
+            table = table.set_column(i, field.name, pa.array(iso_utc(values), type=pa.string()))
+    return table
 
 
 def geojson_features(df: pd.DataFrame, *, lat: str = "lat", lon: str = "lon") -> Iterator[dict]:
@@ -98,14 +104,16 @@ def geojson_features(df: pd.DataFrame, *, lat: str = "lat", lon: str = "lon") ->
                    "properties": {"kind": "point", **{k: _plain(v) for k, v in rec.items()}}}
 
 
-def _write_arrow(frames: Iterable[pd.DataFrame], open_writer, prepare=None) -> bool:
-    """Stream frames into a pyarrow writer opened on the first frame's schema; False if there was none."""
+def _write_arrow(frames: Iterable, open_writer, prepare=None) -> bool:
+    """Stream tables (pandas or pyarrow) into a pyarrow writer opened on the first one's schema;
+    False if there was none."""
     import pyarrow as pa
 
     writer = schema = None
     try:
         for df in frames:
-            table = pa.Table.from_pandas(prepare(df) if prepare else df, preserve_index=False)
+            table = df if isinstance(df, pa.Table) else pa.Table.from_pandas(df, preserve_index=False)
+            table = prepare(table) if prepare else table
             if writer is None:
                 schema, writer = table.schema, open_writer(table.schema)
             writer.write_table(table.cast(schema))
@@ -156,77 +164,52 @@ def _write_parts(frames: Iterable[pd.DataFrame], tmp: Path, fmt: str) -> None:
             fh.write('{"type": "FeatureCollection", "features": [\n')
             first = True
             for df in frames:
+                df = df if isinstance(df, pd.DataFrame) else df.to_pandas()
                 for feat in geojson_features(df):
                     fh.write(("" if first else ",\n") + json.dumps(feat, allow_nan=False))
                     first = False
             fh.write("\n]}\n")
 
 
-def write_table(df: pd.DataFrame | Iterable[pd.DataFrame], path) -> Path:
-    """Write a table (or an iterable of tables with the same columns) atomically as
-    Parquet, CSV or GeoJSON, chosen by the file suffix."""
+def write_table(df, path) -> Path:
+    """Write a table (pandas DataFrame or pyarrow Table), or an iterable of tables with the same
+    columns, atomically as Parquet, CSV or GeoJSON, chosen by the file suffix."""
     path = Path(path)
     fmt = output_format(path)
-    frames = [df] if isinstance(df, pd.DataFrame) else df
+    frames = [df] if isinstance(df, pd.DataFrame) or hasattr(df, "schema") else df
     with atomic_path(path) as tmp:
         _write_parts(frames, tmp, fmt)
     return path
 
 
 class PartStore:
-    """Finished tracks of one run, in numbered Parquet part files beside the final output.
+    """The resumable parts of one run writing ``out``: the directory ``.<out>.parts/`` beside it.
 
-    ``add(df)`` buffers complete tracks and writes a part (atomically) once
-    ``flush_rows`` rows are buffered, so a run over many small tracks makes few
-    files and memory stays bounded; ``flush()`` writes the rest (also on an
-    interruption, so little work is lost).  ``finished()`` lists the track ids
-    already on disk (for ``--resume``); ``finish()`` streams the parts, in
-    order, into the output and deletes them.
+    A run's chunks write their tables there (``<name>-NNNNNN.parquet``, by
+    :func:`mptrack.batch.run_stream`, each atomically) with a ``manifest.json``
+    describing the run; a resumed run skips the chunks found there.
+    :meth:`finish` streams one kind of part, in chunk order and one part in
+    memory at a time, into the output (atomically); :meth:`discard` removes
+    the directory.
     """
 
-    def __init__(self, out, flush_rows: int = 50_000) -> None:
+    def __init__(self, out) -> None:
         self.out = Path(out)
         output_format(self.out)
         self.dir = self.out.parent / f".{self.out.name}.parts"
-        self.flush_rows = flush_rows
-        self._buffer: list[pd.DataFrame] = []
-        self._rows = 0
 
-    def _parts(self) -> list[Path]:
-        return sorted(self.dir.glob("part-*.parquet")) if self.dir.exists() else []
+    def parts(self, name: str) -> list[Path]:
+        """The part files of kind ``name``, in chunk order."""
+        return sorted(self.dir.glob(f"{name}-*.parquet")) if self.dir.exists() else []
 
-    def finished(self) -> set[str]:
-        """Track ids already written by this or an interrupted earlier run."""
+    def finish(self, name: str, to=None, *, empty=None) -> Path:
+        """Write the parts of kind ``name`` into ``to`` (default: the output); ``empty`` is the
+        (schema-only) table to write when there are none."""
         import pyarrow.parquet as pq
 
-        done: set[str] = set()
-        for part in self._parts():
-            done.update(pq.read_table(part, columns=["track_id"]).column(0).to_pylist())
-        return done
-
-    def add(self, df: pd.DataFrame) -> None:
-        self._buffer.append(df)
-        self._rows += len(df)
-        if self._rows >= self.flush_rows:
-            self.flush()
-
-    def flush(self) -> None:
-        if not self._buffer:
-            return
-        self.dir.mkdir(parents=True, exist_ok=True)
-        parts = self._parts()
-        number = int(parts[-1].stem.split("-")[1]) + 1 if parts else 1
-        with atomic_path(self.dir / f"part-{number:06d}.parquet") as tmp:
-            pd.concat(self._buffer, ignore_index=True).to_parquet(tmp, index=False)
-        self._buffer, self._rows = [], 0
-
-    def finish(self) -> Path:
-        """Write the output from all parts (one part in memory at a time), then delete the parts."""
-        self.flush()
-        write_table((pd.read_parquet(p) for p in self._parts()), self.out)
-        self.discard()
-        return self.out
+        files = self.parts(name)
+        tables = (pq.read_table(p) for p in files) if files else [empty if empty is not None else pd.DataFrame()]
+        return write_table(tables, self.out if to is None else to)
 
     def discard(self) -> None:
-        self._buffer, self._rows = [], 0
         shutil.rmtree(self.dir, ignore_errors=True)

@@ -4,9 +4,13 @@ with truth, and evaluation against truth.  ``mptrack track/simulate/evaluate`` a
 
 from ._cellular import TA_STEP_M, band_of_arfcn, check_cell_ids, ranges_km, track_cells
 from ._evaluate import attach_truth, evaluate_tracks
-from ._fixes import TrackOptions, point_table, track_fixes
-from ._gated import FLAGS, GatedResult, kalman_filter_gated, nis_threshold, smooth_gated
-from ._pipeline import read_output, track_file
+from ._engine import FLAGS
+from ._fixes import TrackOptions, track_fixes
+from ._gated import GatedResult, kalman_filter_gated, nis_threshold, smooth_gated, track_gated
+from ._noise import SOURCES as NOISE_SOURCES
+from ._output import POINT_COLUMNS, point_table
+from ._pipeline import read_output, track, track_file
+from ._run import TRACK_COLUMNS
 from ._simulate import SCENARIOS, Intervals, simulate, simulate_chunks
 from ._registry import (
     CELL_METHODS,
@@ -27,6 +31,11 @@ __all__ = [
     "evaluate_tracks",
     "attach_truth",
     "track_file",
+    "track",
+    "track_gated",
+    "POINT_COLUMNS",
+    "TRACK_COLUMNS",
+    "NOISE_SOURCES",
     "read_output",
     "track_fixes",
     "track_cells",

@@ -35,12 +35,15 @@ import math
 import numba as nb
 import numpy as np
 
-__all__ = ["FLAGS", "INIT", "UPDATE", "OUTLIER", "PREDICTED", "RESET", "MAX_ORDER", "filter_tracks",
+__all__ = ["FLAGS", "INIT", "UPDATE", "OUTLIER", "PREDICTED", "RESET", "MANOEUVRE", "MANOEUVRE_FACTOR",
+           "MAX_ORDER", "filter_tracks",
            "loglik_tracks", "moment_guess", "chain_transition"]
 
 #: Per-point flags of a tracking result (the output's ``flag`` column), by index.
-FLAGS = ("update", "outlier", "predicted", "reset", "init")
-UPDATE, OUTLIER, PREDICTED, RESET, INIT = range(5)
+FLAGS = ("update", "outlier", "predicted", "reset", "init", "manoeuvre")
+UPDATE, OUTLIER, PREDICTED, RESET, INIT, MANOEUVRE = range(6)
+#: Process noise of the manoeuvre hypothesis, as a multiple of the model's density q.
+MANOEUVRE_FACTOR = 10.0
 MAX_ORDER = 3
 _LOG2PI = math.log(2.0 * math.pi)
 # mask codes of loglik_tracks
@@ -132,71 +135,6 @@ def _copy_state(order, xs, Ps, xd, Pd):
         xd[1, i] = xs[1, i]
         for j in range(order):
             Pd[i, j] = Ps[i, j]
-
-
-@nb.njit(**_SEQ)
-def _line_reset(t, ze, zn, r, rej, nrej, gate, order, prior, x, P):
-    """The straight-line reset of :mod:`._gated`: least-squares line z = a + b (t - t_last) per axis
-    through the rejected fixes ``rej``; if every residual's NIS is within ``gate``, set x to
-    position a, velocity b (higher derivatives 0) and P to the fit's covariance (higher
-    derivatives: ``prior``), and return True."""
-    last = rej[nrej - 1]
-    s1 = 0.0
-    s2 = 0.0
-    for j in range(nrej):
-        d = t[rej[j]] - t[last]
-        s1 += d
-        s2 += d * d
-    det = nrej * s2 - s1 * s1
-    if not det > 0.0:
-        return False
-    ae = be = an = bn = 0.0
-    sze = stze = szn = stzn = 0.0
-    for j in range(nrej):
-        d = t[rej[j]] - t[last]
-        sze += ze[rej[j]]
-        stze += d * ze[rej[j]]
-        szn += zn[rej[j]]
-        stzn += d * zn[rej[j]]
-    ae = (s2 * sze - s1 * stze) / det
-    be = (nrej * stze - s1 * sze) / det
-    an = (s2 * szn - s1 * stzn) / det
-    bn = (nrej * stzn - s1 * szn) / det
-    m00 = m01 = m11 = 0.0
-    for j in range(nrej):
-        d = t[rej[j]] - t[last]
-        re = ze[rej[j]] - ae - be * d
-        rn = zn[rej[j]] - an - bn * d
-        rj = r[rej[j]]
-        if (re * re + rn * rn) / rj > gate:
-            return False
-        m00 += rj
-        m01 += rj * d
-        m11 += rj * d * d
-    # cov = G M G with G = (A^T A)^-1 = [[s2, -s1], [-s1, n]] / det
-    g00 = s2 / det
-    g01 = -s1 / det
-    g11 = nrej / det
-    h00 = g00 * m00 + g01 * m01
-    h01 = g00 * m01 + g01 * m11
-    h10 = g01 * m00 + g11 * m01
-    h11 = g01 * m01 + g11 * m11
-    for i in range(order):
-        x[0, i] = 0.0
-        x[1, i] = 0.0
-        for j in range(order):
-            P[i, j] = 0.0
-        if i >= 2:
-            P[i, i] = prior[i]
-    x[0, 0] = ae
-    x[1, 0] = an
-    x[0, 1] = be
-    x[1, 1] = bn
-    P[0, 0] = h00 * g00 + h01 * g01
-    P[0, 1] = h00 * g01 + h01 * g11
-    P[1, 0] = P[0, 1]
-    P[1, 1] = h10 * g01 + h11 * g11
-    return True
 
 
 @nb.njit(**_SEQ)
@@ -297,7 +235,7 @@ def _smooth_track(t, q, order, flag, X, P):
 @nb.njit(**_SEQ)
 def _filter_track(t, ze, zn, r, q, order, prior, gate, max_rej, store, X, P, nis, flag, stats):
     """The gated filter over one track's rows (see filter_tracks); stats <- (loglik, updates,
-    outliers, resets, NIS sum of the updates)."""
+    outliers, resets, NIS sum of the updates and manoeuvres, manoeuvres)."""
     F = np.empty((order, order))
     Qu = np.empty((order, order))
     T = np.empty((order, order))
@@ -308,8 +246,9 @@ def _filter_track(t, ze, zn, r, q, order, prior, gate, max_rej, store, X, P, nis
     rej = np.empty(max_rej, dtype=np.int64)
     nrej = 0
     loglik = 0.0
-    updates = outliers = resets = 0
+    updates = outliers = resets = manoeuvres = 0
     nis_sum = 0.0
+    qm = MANOEUVRE_FACTOR * q
     x[0, 0] = ze[0]
     x[1, 0] = zn[0]
     Pc[0, 0] = r[0]
@@ -326,6 +265,15 @@ def _filter_track(t, ze, zn, r, q, order, prior, gate, max_rej, store, X, P, nis
         ne = ze[k] - xp[0, 0]
         nn = zn[k] - xp[1, 0]
         e = (ne * ne + nn * nn) / S
+        f = UPDATE
+        if e > gate:
+            # the manoeuvre hypothesis: the same prediction with process noise qm
+            for i in range(order):
+                for j in range(order):
+                    Pp[i, j] += (qm - q) * Qu[i, j]
+            S = Pp[0, 0] + r[k]
+            e = (ne * ne + nn * nn) / S
+            f = MANOEUVRE
         nis[k] = e
         if e > gate:
             if nrej == max_rej:
@@ -334,19 +282,25 @@ def _filter_track(t, ze, zn, r, q, order, prior, gate, max_rej, store, X, P, nis
                 nrej -= 1
             rej[nrej] = k
             nrej += 1
-            if nrej == max_rej and _line_reset(t, ze, zn, r, rej, nrej, gate, order, prior, x, Pc):
+            if nrej == max_rej and _restart(t, ze, zn, r, rej, nrej, qm, order, gate, x, Pc):
                 flag[k] = RESET
                 nrej = 0
                 resets += 1
             else:
+                for i in range(order):   # coast on the nominal prediction
+                    for j in range(order):
+                        Pp[i, j] -= (qm - q) * Qu[i, j]
                 flag[k] = OUTLIER
                 outliers += 1
                 _copy_state(order, xp, Pp, x, Pc)
         else:
             nrej = 0
             e, S = _update(order, xp, Pp, r[k], ze[k], zn[k], x, Pc)
-            flag[k] = UPDATE
-            updates += 1
+            flag[k] = f
+            if f == UPDATE:
+                updates += 1
+            else:
+                manoeuvres += 1
             nis_sum += e
             loglik -= 0.5 * (e + 2.0 * math.log(S) + 2.0 * _LOG2PI)
         if store:
@@ -356,6 +310,7 @@ def _filter_track(t, ze, zn, r, q, order, prior, gate, max_rej, store, X, P, nis
     stats[2] = outliers
     stats[3] = resets
     stats[4] = nis_sum
+    stats[5] = manoeuvres
 
 
 # ---- noise estimation: the conditional (diffuse-start) log-likelihood ---------------------------------
@@ -415,11 +370,10 @@ def _info_predict(order, dt, q, Y, ye, yn, F, Qu, A, M, Mi, tmp):
 
 
 @nb.njit(**_SEQ)
-def _diffuse_start(k, t, ze, zn, w, mask, c, q, order, x, P):
-    """Consume the fixes from row k on until ``order`` accepted ones (in information form, from zero
-    information) determine the state; x, P <- that state at the last of them.  Returns the next
-    row, or -1 if the rows run out first."""
-    n = t.shape[0]
+def _info_start(t, ze, zn, w, c, rows, n_rows, q, order, x, P):
+    """The exact state after the fixes ``rows[:n_rows]`` from zero information (a diffuse start):
+    information-form predictions between them (density q), x, P <- the state at the last one.
+    False if their information is singular (too few distinct times) or numerically lost."""
     F = np.empty((order, order))
     Qu = np.empty((order, order))
     A = np.empty((order, order))
@@ -429,43 +383,83 @@ def _diffuse_start(k, t, ze, zn, w, mask, c, q, order, x, P):
     Y = np.zeros((order, order))
     ye = np.zeros(order)
     yn = np.zeros(order)
+    for j in range(n_rows):
+        k = rows[j]
+        if j > 0 and not _info_predict(order, t[k] - t[rows[j - 1]], q, Y, ye, yn, F, Qu, A, M, Mi, tmp):
+            return False
+        rk = c * w[k]
+        Y[0, 0] += 1.0 / rk
+        ye[0] += ze[k] / rk
+        yn[0] += zn[k] / rk
+    if not _inverse(order, Y, P):
+        return False
+    for i in range(order):
+        for j in range(i + 1, order):
+            v = 0.5 * (P[i, j] + P[j, i])
+            P[i, j] = v
+            P[j, i] = v
+    for i in range(order):
+        se = 0.0
+        sn = 0.0
+        for j in range(order):
+            se += P[i, j] * ye[j]
+            sn += P[i, j] * yn[j]
+        x[0, i] = se
+        x[1, i] = sn
+    return True
+
+
+@nb.njit(**_SEQ)
+def _restart(t, ze, zn, r, rej, nrej, qm, order, gate, x, P):
+    """The restart test of a run of ``nrej`` rejected fixes ``rej``: a diffuse start on the first
+    ``order`` of them under the manoeuvre density ``qm``, then each further one must pass the NIS
+    gate against the prediction from those before it.  If all do, x, P <- the state at the last
+    one and True (the track restarts there); the fixes are left alone otherwise."""
+    xs = np.empty((2, order))
+    Ps = np.empty((order, order))
+    if not _info_start(t, ze, zn, r, 1.0, rej, order, qm, order, xs, Ps):
+        return False
+    F = np.empty((order, order))
+    Qu = np.empty((order, order))
+    T = np.empty((order, order))
+    xp = np.empty((2, order))
+    Pp = np.empty((order, order))
+    for j in range(order, nrej):
+        k = rej[j]
+        chain_transition(order, t[k] - t[rej[j - 1]], F, Qu)
+        _predict(order, F, Qu, qm, xs, Ps, xp, Pp, T)
+        S = Pp[0, 0] + r[k]
+        ne = ze[k] - xp[0, 0]
+        nn = zn[k] - xp[1, 0]
+        if (ne * ne + nn * nn) / S > gate:
+            return False
+        _update(order, xp, Pp, r[k], ze[k], zn[k], xs, Ps)
+    _copy_state(order, xs, Ps, x, P)
+    return True
+
+
+@nb.njit(**_SEQ)
+def _diffuse_start(k, t, ze, zn, w, mask, c, q, order, x, P):
+    """Collect the next ``order`` accepted fixes from row k on (a RESTART begins the collection
+    again) and start from them (:func:`_info_start`).  Returns the row after the last of them, or
+    -1 if the rows run out first."""
+    n = t.shape[0]
+    rows = np.empty(order, dtype=np.int64)
     count = 0
-    t_last = 0.0
     while k < n:
-        if mask[k] == SKIP:
-            k += 1
-            continue
-        if count > 0 and mask[k] == RESTART:
-            count = 0
-        if count == 0 or not _info_predict(order, t[k] - t_last, q, Y, ye, yn, F, Qu, A, M, Mi, tmp):
-            count = 0  # a new stretch (or one numerically lost): start again at this fix
-            for i in range(order):
-                ye[i] = 0.0
-                yn[i] = 0.0
-                for j in range(order):
-                    Y[i, j] = 0.0
-        r = c * w[k]
-        Y[0, 0] += 1.0 / r
-        ye[0] += ze[k] / r
-        yn[0] += zn[k] / r
-        count += 1
-        t_last = t[k]
+        code = mask[k]
+        if code != SKIP:
+            if code == RESTART:
+                count = 0
+            rows[count] = k
+            count += 1
+            if count == order:
+                if _info_start(t, ze, zn, w, c, rows, order, q, order, x, P):
+                    return k + 1
+                for j in range(order - 1):  # singular (equal times): slide the window on
+                    rows[j] = rows[j + 1]
+                count -= 1
         k += 1
-        if count >= order and _inverse(order, Y, P):
-            for i in range(order):
-                for j in range(i + 1, order):
-                    v = 0.5 * (P[i, j] + P[j, i])
-                    P[i, j] = v
-                    P[j, i] = v
-            for i in range(order):
-                se = 0.0
-                sn = 0.0
-                for j in range(order):
-                    se += P[i, j] * ye[j]
-                    sn += P[i, j] * yn[j]
-                x[0, i] = se
-                x[1, i] = sn
-            return k
     return -1
 
 
@@ -567,11 +561,13 @@ def filter_tracks(offsets, t, ze, zn, w, c, q, order, prior, gate, max_rej, stor
     q        (B,) process-noise density of each track (m^2/s^3 for order 2)
     order    states per axis: 2 (cv) or 3 (ca)
     prior    (order,) prior variances of the derivatives at a track's first fix (entry 0 unused)
-    gate     NIS threshold (inf: no gating); max_rej rejections in a row may reset the track
+    gate     NIS threshold (inf: no gating): a fix above it is tried against the manoeuvre
+             hypothesis (density MANOEUVRE_FACTOR q) and else rejected; ``max_rej`` rejections in a
+             row restart the track if they agree with each other (:func:`_restart`)
     store    write X (N, 2, order) and P (N, order, order) (else they are not touched)
     smooth   replace the stored filtered states by RTS-smoothed ones
     nis, flag (N,)  NIS of each fix (NaN at a track's first fix), index into FLAGS
-    stats    (B, 5)  loglik, updates, outliers, resets, NIS sum of the updates
+    stats    (B, 6)  loglik, updates, outliers, resets, NIS sum of the updates and manoeuvres, manoeuvres
     """
     _kernels(order)[0](offsets, t, ze, zn, w, c, q, prior, gate, max_rej, store, smooth, X, P, nis, flag, stats)
 

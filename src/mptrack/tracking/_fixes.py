@@ -1,20 +1,29 @@
-"""Tracking one position-fix track: local ENU frame, filter by name, optional smoothing, output table."""
+"""Tracking one position-fix track: the readable per-track reference of the tracking engine.
+
+:func:`track_fixes` filters one track with given noise parameters through the
+library's general filters (:func:`._gated.track_gated` on the continuous
+model, 4 x 4 state, Van Loan discretisation per interval; or a registered
+linear filter on a regular grid) and builds the same point table as the
+engine.  The engine (:mod:`._run`) is tested against it.
+"""
 
 from __future__ import annotations
 
-import functools
 from dataclasses import dataclass
 
 import numpy as np
 import pandas as pd
 
 from .._validation import check_positive
-from ..io import LocalFrame
+from ..errors import ParameterError
 from ..linear import FilterResult, get_filter
-from ._gated import FLAGS, kalman_filter_gated, smooth_gated
+from ._columns import FixTable
+from ._gated import nis_threshold, smooth_gated, track_gated
+from ._noise import SCOPES
+from ._output import point_table
 from ._registry import get_fix_filter, get_model
 
-__all__ = ["TrackOptions", "track_fixes", "point_table"]
+__all__ = ["TrackOptions", "track_fixes", "fix_variances", "grid_filter_track"]
 
 
 @dataclass(frozen=True)
@@ -23,8 +32,11 @@ class TrackOptions:
 
     model             motion model name (MODELS): "cv" or "ca"
     filter            position-fix filter (FIX_FILTERS): "kf" (gated, irregular times) or a linear filter name
-    q                 process-noise spectral density (m^2/s^3 for cv, m^2/s^5 for ca)
-    sigma_m           1-sigma fix accuracy used where a fix has no accuracy_m (m)
+    q                 process-noise spectral density (m^2/s^3 for cv, m^2/s^5 for ca); None: estimated
+    sigma_m           1-sigma fix noise per axis (m) where a fix has no accuracy_m; None: estimated
+                      (with accuracy_m, a scale factor on it is estimated instead)
+    noise             "track": noise estimated per track (short tracks share one estimate);
+                      "file": one estimate for the whole input
     gate_probability  chi-square probability of the NIS gate (None: no gating); 0.999 -> 13.82 for 2-D fixes
     smooth            add an RTS smoothing pass (fixed interval, whole track)
     gap_s             an interval longer than this flags the point after it as following a gap (s)
@@ -38,8 +50,9 @@ class TrackOptions:
 
     model: str = "cv"
     filter: str = "kf"
-    q: float = 2.0
-    sigma_m: float = 5.0
+    q: float | None = None
+    sigma_m: float | None = None
+    noise: str = "track"
     gate_probability: float | None = 0.999
     smooth: bool = False
     gap_s: float = 30.0
@@ -53,144 +66,110 @@ class TrackOptions:
     def __post_init__(self) -> None:
         get_model(self.model)
         object.__setattr__(self, "filter", get_fix_filter(self.filter))
+        if self.noise not in SCOPES:
+            raise ParameterError(f"noise: expected one of {', '.join(SCOPES)}, got {self.noise!r}")
         for name, allow_zero in (("q", True), ("sigma_m", False), ("gap_s", False), ("q_km2", True),
                                  ("r_km2", False)):
-            check_positive(name, getattr(self, name), allow_zero=allow_zero)
+            if getattr(self, name) is not None:
+                check_positive(name, getattr(self, name), allow_zero=allow_zero)
         if self.scan_interval_s is not None:
             check_positive("scan_interval_s", self.scan_interval_s)
+        if self.gate_probability is not None:
+            nis_threshold(self.gate_probability, 2)
+
+    @property
+    def gate(self) -> float:
+        """The NIS threshold of a 2-D fix (inf without gating)."""
+        return np.inf if self.gate_probability is None else nis_threshold(self.gate_probability, 2)
 
 
-_FLAG_NAMES = np.array(FLAGS, dtype=object)
+def fix_variances(rows: pd.DataFrame, options: TrackOptions) -> np.ndarray:
+    """Variance (m^2 per axis) of each fix of one track when the noise is not estimated: accuracy_m^2
+    where given, else sigma_m^2 (or the default 5 m)."""
+    sigma = 5.0 if options.sigma_m is None else options.sigma_m
+    if "accuracy_m" not in rows.columns:
+        return np.full(len(rows), sigma ** 2)
+    acc = rows["accuracy_m"].to_numpy(float)
+    return np.where(np.isfinite(acc) & (acc > 0), acc ** 2, sigma ** 2)
 
 
-@functools.lru_cache(maxsize=32)
-def _model(name: str, q: float, sigma_r2: float):
-    return get_model(name).build(q, sigma_r2)
+def _enu(rows: pd.DataFrame) -> tuple[FixTable, np.ndarray]:
+    table = FixTable.from_frame(rows.assign(track_id="_"))
+    return table, np.column_stack([table.east, table.north])
 
 
-def _ellipse(P2: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """1-sigma ellipse of (T, 2, 2) east/north covariances: semi-axes (m) and azimuth of the major axis
-    (degrees clockwise from north, in [0, 180))."""
-    w, v = np.linalg.eigh(P2)
-    major = np.sqrt(np.clip(w[:, 1], 0.0, None))
-    minor = np.sqrt(np.clip(w[:, 0], 0.0, None))
-    az = np.degrees(np.arctan2(v[:, 0, 1], v[:, 1, 1])) % 180.0
-    return major, minor, az
+def track_fixes(track_id: str, rows: pd.DataFrame, options: TrackOptions = TrackOptions(), *,
+                fix_var=None, q: float | None = None) -> pd.DataFrame:
+    """Filter (and optionally smooth) one track of validated position fixes; returns its point table.
 
-
-def point_table(track_id: str, frame: LocalFrame | None, times, t, xy: np.ndarray, vel: np.ndarray | None,
-                P2: np.ndarray, nis: np.ndarray, nis_dof: np.ndarray, flags: np.ndarray, gap_s: float,
-                method: str, extra: dict | None = None) -> pd.DataFrame:
-    """The output table of one track (one row per estimate; columns documented in docs/tracking.md).
-    ``frame`` None (x/y input): lat, lon and the origin are NaN."""
-    if frame is None:  # x/y input: positions are local only
-        lat = lon = origin_lat = origin_lon = np.full(len(t), np.nan)
+    rows: a track from :func:`mptrack.io.iter_tracks` (columns t, time, row, lat/lon or x/y,
+    accuracy_m?).  Positions are east/north metres in the track's local frame (origin at the
+    first fix).  ``fix_var`` (T,) m^2 and ``q`` are the noise to use (default:
+    :func:`fix_variances` and ``options.q`` or the model's default; no estimation here).
+    """
+    spec = get_model(options.model)
+    table, z = _enu(rows)
+    t = table.t
+    r = fix_variances(rows, options) if fix_var is None else np.asarray(fix_var, dtype=float)
+    q = (spec.default_q if options.q is None else options.q) if q is None else float(q)
+    model = spec.build(q, 1.0)
+    pos = [int(np.flatnonzero(model.H[i])[0]) for i in range(2)]
+    extra = {"meas_east_m": z[:, 0], "meas_north_m": z[:, 1], "fix_sigma_m": np.sqrt(r)}
+    if table.geographic:
+        extra["meas_lat"], extra["meas_lon"] = table.lat, table.lon
+    if options.filter == "kf":
+        gated = track_gated(model, t, z, r[:, None, None] * np.eye(2), np.tile(spec.prior_variances, 2),
+                            gate_probability=options.gate_probability)
+        res = smooth_gated(gated) if options.smooth else gated.result
+        flags, nis, times, t_out = gated.flag, gated.nis, table.time, t
+        method = "KF-gated" + ("+RTS" if options.smooth else "")
     else:
-        lat, lon = frame.to_geodetic(xy[:, 0], xy[:, 1])
-        origin_lat, origin_lon = np.full(len(t), frame.lat0), np.full(len(t), frame.lon0)
-    major, minor, az = _ellipse(P2)
-    T = len(t)
-    gap = np.r_[False, np.diff(t) > gap_s]
-    cols = {
-        "track_id": np.full(T, track_id, dtype=object), "time": times, "t": t, "lat": lat, "lon": lon,
-        "east_m": xy[:, 0], "north_m": xy[:, 1],
-        "vel_east_mps": np.full(T, np.nan) if vel is None else vel[:, 0],
-        "vel_north_mps": np.full(T, np.nan) if vel is None else vel[:, 1],
-        "var_east_m2": P2[:, 0, 0], "cov_en_m2": P2[:, 0, 1], "var_north_m2": P2[:, 1, 1],
-        "ell_major_m": major, "ell_minor_m": minor, "ell_azimuth_deg": az,
-        "nis": nis, "nis_dof": nis_dof.astype(np.int64),
-        "flag": _FLAG_NAMES[flags], "gap": gap,
-        "origin_lat": origin_lat, "origin_lon": origin_lon,
-        "method": np.full(T, method, dtype=object),
-    }
-    cols.update(extra or {})
-    return pd.DataFrame(cols)
+        res, flags, nis, t_out, extra = grid_filter_track(model, options, t, z, r, spec)
+        times = _time_like(t_out, table.time)
+        method = options.filter.upper() + ("+RTS" if options.smooth else "")
+    vel = res.x[:, [p + 1 for p in pos]]
+    P = res.P
+    dof = np.where(np.isnan(nis), 0, 2)
+    offsets = np.array([0, len(t_out)])
+    return point_table([track_id], offsets, times, t_out, res.x[:, pos[0]], res.x[:, pos[1]], vel,
+                       P[:, pos[0], pos[0]], P[:, pos[0], pos[1]], P[:, pos[1], pos[1]], nis, dof, flags,
+                       options.gap_s, table.origin if table.geographic else None, method, extra).to_pandas()
 
 
-def _grid(t: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
-    """Regular grid at the median interval: (grid times, bin of each sample, dt); a bin keeps its first sample."""
-    dt = float(np.median(np.diff(t))) if len(t) > 1 else 1.0
-    bins = np.rint((t - t[0]) / dt).astype(np.int64)
-    return t[0] + dt * np.arange(bins[-1] + 1), bins, dt
-
-
-def _time_like(t_grid: np.ndarray, times: pd.Series):
-    if pd.api.types.is_datetime64_any_dtype(times):
-        return pd.to_datetime(np.rint(t_grid * 1e9).astype("int64"), utc=True)
+def _time_like(t_grid: np.ndarray, times: np.ndarray) -> np.ndarray:
+    if np.issubdtype(times.dtype, np.datetime64):
+        return np.rint(t_grid * 1e9).astype("int64").astype("datetime64[ns]")
     return t_grid
 
 
-def track_fixes(track_id: str, rows: pd.DataFrame, options: TrackOptions = TrackOptions()) -> pd.DataFrame:
-    """Filter (and optionally smooth) one track of validated position fixes; returns its point table.
-
-    rows: a track from :func:`mptrack.io.iter_tracks` (columns t, time, lat/lon or x/y, accuracy_m?).
-    Positions are east/north metres in the track's local frame (origin at the first fix).
-    """
-    spec = get_model(options.model)
-    if "lat" in rows.columns and "lon" in rows.columns:
-        frame = LocalFrame.at(rows["lat"], rows["lon"])
-        e, n = frame.to_enu(rows["lat"].to_numpy(), rows["lon"].to_numpy())
-    else:
-        frame = None
-        e, n = rows["x"].to_numpy(float), rows["y"].to_numpy(float)
-    z = np.column_stack([e, n])
-    t = rows["t"].to_numpy(float)
-    T = len(t)
-    sig = np.full(T, options.sigma_m)
-    if "accuracy_m" in rows.columns:
-        acc = rows["accuracy_m"].to_numpy(float)
-        sig = np.where(np.isfinite(acc) & (acc > 0), acc, sig)
-    model = _model(options.model, options.q, options.sigma_m ** 2)
-    n_state = model.n
-    pos = [int(np.flatnonzero(model.H[i])[0]) for i in range(2)]
-    x0 = np.zeros(n_state)
-    x0[pos] = z[0]
-    p_axis = np.array([options.sigma_m ** 2] + [s ** 2 for s in spec.prior_sigmas])
-    P0 = np.diag(np.tile(p_axis, 2))
-    P0[np.ix_(pos, pos)] = np.diag([sig[0] ** 2] * 2)
-    extra = {"meas_east_m": e, "meas_north_m": n}
-    if options.filter == "kf":
-        R = sig[:, None, None] ** 2 * np.eye(2)
-        gated = kalman_filter_gated(model, t, z, x0, P0, R=R, gate_probability=options.gate_probability,
-                                    reset_P0=P0)
-        res = smooth_gated(gated) if options.smooth else gated.result
-        flags, nis = gated.flag, gated.nis
-        times = rows["time"].to_numpy() if not pd.api.types.is_datetime64_any_dtype(rows["time"]) \
-            else rows["time"].reset_index(drop=True)
-        method = "KF-gated" + ("+RTS" if options.smooth else "")
-    else:
-        res, flags, nis, t_out, extra = _grid_filter(model, options, t, z, x0, P0, extra)
-        times = _time_like(t_out, rows["time"])
-        t = t_out
-        method = options.filter.upper() + ("+RTS" if options.smooth else "")
-    vel = res.x[:, [p + 1 for p in pos]]
-    P2 = res.P[:, pos][:, :, pos]
-    dof = np.where(np.isnan(nis), 0, 2)
-    if "lat" in rows.columns and options.filter == "kf":
-        extra["meas_lat"], extra["meas_lon"] = rows["lat"].to_numpy(float), rows["lon"].to_numpy(float)
-    return point_table(track_id, frame, times, t, res.x[:, pos], vel, P2, nis, dof, flags, options.gap_s,
-                       method, extra)
-
-
-def _grid_filter(model, options, t, z, x0, P0, extra):
-    """A registered linear filter on the track resampled to a regular grid (NaN rows predict only)."""
+def grid_filter_track(model, options: TrackOptions, t, z, r, spec):
+    """A registered linear filter on the track resampled to a regular grid at the median interval
+    (a grid slot keeps its first fix; empty slots predict only; no gating; R = the median fix
+    variance): (result, flags, NIS, grid times, extra columns)."""
     from ..linear import rts_smoother
 
-    t_grid, bins, dt = _grid(t)
+    dt = float(np.median(np.diff(t))) if len(t) > 1 else 1.0
+    bins = np.rint((t - t[0]) / dt).astype(np.int64)
+    t_grid = t[0] + dt * np.arange(bins[-1] + 1)
     zg = np.full((len(t_grid), 2), np.nan)
     first = np.r_[True, bins[1:] != bins[:-1]]
     zg[bins[first]] = z[first]
-    disc = model.discretize(dt)
+    disc = spec.build(model.Qc[0, 0], float(np.median(r))).discretize(dt)
+    pos = [int(np.flatnonzero(disc.H[i])[0]) for i in range(2)]
+    x0 = np.zeros(disc.n)
+    x0[pos] = z[0]
+    P0 = np.diag(np.tile(spec.prior_variances, 2))
+    P0[pos, pos] = r[0]
     # the prior is at the first fix: start one step before it
-    res: FilterResult = get_filter(options.filter).run(disc, zg, np.linalg.solve(disc.F, x0), P0)
+    x_start = np.linalg.solve(disc.F, x0)
+    res: FilterResult = get_filter(options.filter).run(disc, zg, x_start, P0)
     # NIS of each grid measurement against the one-step prediction of the estimate before it
-    x_prev = np.vstack([np.linalg.solve(disc.F, x0), res.x[:-1]])
+    x_prev = np.vstack([x_start, res.x[:-1]])
     P_prev = np.concatenate([P0[None], res.P[:-1]])
     x_pred = x_prev @ disc.F.T
     P_pred = disc.F @ P_prev @ disc.F.T + disc.Q
-    H, R = disc.H, disc.R
-    S = H @ P_pred @ H.T + R
-    nu = zg - x_pred @ H.T
+    S = disc.H @ P_pred @ disc.H.T + disc.R
+    nu = zg - x_pred @ disc.H.T
     ok = np.isfinite(nu).all(axis=1)
     nis = np.full(len(t_grid), np.nan)
     nis[ok] = np.einsum("ti,ti->t", nu[ok], np.linalg.solve(S[ok], nu[ok][..., None])[..., 0])

@@ -1,24 +1,28 @@
 """Kalman filtering of position fixes at irregular times, with NIS gating, and its RTS smoother.
 
 For every interval dt(k) = t(k) - t(k-1) the continuous motion model is
-discretised exactly (F = e^{Phi dt}, Q by Van Loan's method, seed 001 sec. 2;
-:func:`mptrack.models.van_loan`), so gaps need no special case: a long interval
-simply predicts further and the covariance grows.
+discretised exactly (F = e^{Phi dt}, Q by Van Loan's method, Assimakis et al.
+2016, sec. 2; :func:`mptrack.models.van_loan`), so gaps need no special case: a
+long interval simply predicts further and the covariance grows.
 
-Outlier gating uses the normalised innovation squared (NIS)
+Gating uses the normalised innovation squared (NIS)
 
     eps(k) = nu(k)^T S(k)^{-1} nu(k),   nu = z - H x(k/k-1),   S = H P(k/k-1) H^T + R(k),
 
 which for a consistent filter is chi-square with m = dim z degrees of freedom
-(Bar-Shalom, Li & Kirubarajan 2001, sec. 5.4).  A measurement whose NIS exceeds
-the chi-square quantile ``gate_probability`` (default 0.999: 13.82 for a 2-D
-fix) is rejected: the step only predicts and the point is flagged "outlier".
-After ``max_rejections`` consecutive rejections that agree with each other (a
-least-squares straight line through them leaves every residual inside the gate)
-the filter re-initialises from that line, position and velocity at the last of
-them with the line fit's covariance, every other state from 0 (flag "reset"),
-so a manoeuvre or a long gap cannot lose the track while scattered outliers
-never re-initialise it.
+(Bar-Shalom, Li & Kirubarajan 2001, sec. 5.4), at two levels of process noise
+(the same book, sec. 11.2): a measurement whose NIS exceeds the chi-square
+quantile ``gate_probability`` (default 0.999: 13.82 for a 2-D fix) is tested
+again against the prediction with ``manoeuvre_factor`` times the process noise
+(default 10); if it passes there it updates the filter from that prediction
+(flag "manoeuvre"), otherwise it is rejected: the step only predicts and the
+point is flagged "outlier".  Real motion has heavier tails than the Gaussian
+model (turns, braking): without the second level a turn is rejected fix after
+fix.  After ``max_rejections`` rejections in a row that agree with each other
+(a diffuse start on the first of them under the manoeuvre process noise
+predicts every further one inside the gate) the filter restarts from them,
+at the last of them (flag "reset"), so a jump or a long gap cannot lose the
+track while scattered outliers never restart it.
 
 :func:`track_gated` is the per-track reference of the tracking engine
 (:mod:`._engine`): it starts at a track's first fix (flag "init") and runs
@@ -32,12 +36,12 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.stats
 
-from .._validation import as_array, as_sequence, as_vector, check_covariance, check_int
+from .._validation import as_array, as_sequence, as_vector, check_covariance, check_int, check_positive
 from ..errors import ParameterError, ShapeError
 from ..linear import FilterResult
 from ..models import ContinuousLinearModel, discretize_intervals, require_model
 from ..linear._smoother import _rts_backward
-from ._engine import FLAGS, INIT
+from ._engine import FLAGS, INIT, MANOEUVRE_FACTOR
 from ._kernels import gated_loop
 
 __all__ = ["GatedResult", "kalman_filter_gated", "smooth_gated", "track_gated", "nis_threshold", "FLAGS"]
@@ -68,9 +72,9 @@ class GatedResult:
 
 
 def kalman_filter_gated(model: ContinuousLinearModel, times, z, x0, P0, *, t0: float | None = None, R=None,
-                        gate_probability: float | None = 0.999, max_rejections: int = 3,
-                        reset_P0=None) -> GatedResult:
-    """Kalman filter at irregular times with NIS outlier gating (see the module doc).
+                        gate_probability: float | None = 0.999, max_rejections: int | None = None,
+                        manoeuvre_factor: float = MANOEUVRE_FACTOR) -> GatedResult:
+    """Kalman filter at irregular times with two-level NIS gating (see the module doc).
 
     model    ContinuousLinearModel (e.g. constant_velocity_continuous(q, axes=2, sigma_r2=...))
     times    (T,) seconds, non-decreasing, >= t0 (fixes at one time are sequential updates)
@@ -78,7 +82,9 @@ def kalman_filter_gated(model: ContinuousLinearModel, times, z, x0, P0, *, t0: f
     x0, P0   prior x(t0), P(t0); t0 defaults to times[0] (first step then has dt = 0)
     R        None (model.R), or (T, m, m) per-measurement noise covariances (e.g. from GPS accuracy)
     gate_probability  chi-square probability of the NIS gate; None disables gating
-    reset_P0 covariance of the states a reset does not take from the line (default P0)
+    max_rejections    rejections in a row that may restart the filter (default and minimum: the
+                      fixes a diffuse start needs, n / m, plus one)
+    manoeuvre_factor  process noise of the manoeuvre hypothesis, as a multiple of the model's
     """
     require_model(model, kind=ContinuousLinearModel)
     t = as_array("times", times, ndim=1)
@@ -88,7 +94,10 @@ def kalman_filter_gated(model: ContinuousLinearModel, times, z, x0, P0, *, t0: f
     n, m, T = model.n, model.m, t.shape[0]
     x = as_vector("x0", x0, n)
     P = check_covariance("P0", P0, n)
-    reset_P = P.copy() if reset_P0 is None else check_covariance("reset_P0", reset_P0, n)
+    start = n // m
+    max_rejections = check_int("max_rejections", start + 1 if max_rejections is None else max_rejections,
+                               minimum=start + 1)
+    manoeuvre_factor = check_positive("manoeuvre_factor", manoeuvre_factor)
     t0 = float(t[0]) if t0 is None else float(t0)
     dts = np.diff(np.r_[t0, t])
     if np.any(dts < 0):
@@ -98,20 +107,16 @@ def kalman_filter_gated(model: ContinuousLinearModel, times, z, x0, P0, *, t0: f
         Rs = np.broadcast_to(model.R, (T, m, m))
     else:
         Rs = as_array("R", R, shape=(T, m, m))
-    check_int("max_rejections", max_rejections, minimum=2)
     gates = np.array([np.inf] + [nis_threshold(gate_probability, d) if gate_probability is not None else np.inf
                                  for d in range(1, m + 1)])
     H = np.ascontiguousarray(model.H)
-    # the state entries measured by the rows of H, and their velocities (set by a reset)
-    picks = np.array([int(np.flatnonzero(H[i])[0]) for i in range(m)], dtype=np.int64)
-    vels = np.array([p + 1 if p + 1 < n and model.Phi[p, p + 1] != 0 else -1 for p in picks], dtype=np.int64)
     xs, Ps = np.empty((T, n)), np.empty((T, n, n))
     xp, Pp = np.empty((T, n)), np.empty((T, n, n))
     nis = np.full(T, np.nan)
     flag = np.zeros(T, dtype=np.int8)
     Fs, Qs = discretize_intervals(model, dts)
     loglik = gated_loop(t, Fs, Qs, H, np.ascontiguousarray(Rs), z, x.copy(), P.copy(), gates,
-                        gate_probability is not None, int(max_rejections), reset_P, picks, vels,
+                        gate_probability is not None, max_rejections, float(manoeuvre_factor), start,
                         xs, Ps, xp, Pp, nis, flag)
     res = FilterResult(x=xs, P=Ps, x_pred=xp, P_pred=Pp, loglik=float(loglik), method="KF-gated")
     return GatedResult(result=res, nis=nis, flag=flag, F=Fs, Q=Qs)
@@ -135,16 +140,16 @@ def smooth_gated(gated: GatedResult) -> FilterResult:
 
 
 def track_gated(model: ContinuousLinearModel, times, z, R, prior_variances, *,
-                gate_probability: float | None = 0.999, max_rejections: int = 3) -> GatedResult:
+                gate_probability: float | None = 0.999, max_rejections: int | None = None,
+                manoeuvre_factor: float = MANOEUVRE_FACTOR) -> GatedResult:
     """One track from its first fix: the per-track reference of the tracking engine.
 
     The first fix initialises the state (flag "init", no NIS): the measured
     entries are the fix with covariance R[0], every other state is 0 with the
     variance ``prior_variances[i]`` (state order of ``model``; the entries of
     the measured states are not used).  The other fixes go through
-    :func:`kalman_filter_gated` from that prior, which is also the covariance
-    of the states a reset does not take from its line.  The result covers all
-    T fixes; ``F[0]`` = I and ``Q[0]`` = 0.
+    :func:`kalman_filter_gated` from that prior.  The result covers all T
+    fixes; ``F[0]`` = I and ``Q[0]`` = 0.
     """
     require_model(model, kind=ContinuousLinearModel)
     t = as_array("times", times, ndim=1)
@@ -163,7 +168,8 @@ def track_gated(model: ContinuousLinearModel, times, z, R, prior_variances, *,
         return GatedResult(FilterResult(x=x0[None], P=P0[None], loglik=0.0, method="KF-gated"),
                            np.full(1, np.nan), flag0, np.eye(n)[None], np.zeros((1, n, n)))
     g = kalman_filter_gated(model, t[1:], z[1:], x0, P0, t0=float(t[0]), R=Rs[1:],
-                            gate_probability=gate_probability, max_rejections=max_rejections, reset_P0=P0)
+                            gate_probability=gate_probability, max_rejections=max_rejections,
+                            manoeuvre_factor=manoeuvre_factor)
     r = g.result
     res = FilterResult(x=np.vstack([x0[None], r.x]), P=np.concatenate([P0[None], r.P]),
                        x_pred=np.vstack([x0[None], r.x_pred]), P_pred=np.concatenate([P0[None], r.P_pred]),

@@ -1,8 +1,11 @@
 """The gated irregular-time Kalman loop of :func:`kalman_filter_gated`, compiled (numba).
 
 Same equations as :func:`mptrack.linear.kalman_step` per step (tests check the
-result against :func:`mptrack.linear.kalman_filter_irregular`), plus the NIS
-gate and the straight-line reset of the module doc of ``_gated``.
+result against :func:`mptrack.linear.kalman_filter_irregular`), plus the
+two-level NIS gate and the restart of the module doc of ``_gated``, on the
+general (n, m) matrices of a continuous model.  This is the readable reference
+of the tracking engine (:mod:`._engine`), which specialises the same rules to
+integrator chains.
 """
 
 from __future__ import annotations
@@ -14,68 +17,69 @@ _LOG2PI = np.log(2.0 * np.pi)
 
 
 @njit(cache=True)
-def _line_consistent(t, z, R, rej, gate, coef, cov):
-    """Fit z = a + b (t - t_last) per component through rows ``rej`` (unweighted least squares);
-    coef <- (a, b), cov[i] <- (var a, cov ab, var b) of component i given the fixes' variances
-    R[j, i, i]; True if every residual's NIS is within ``gate``."""
-    N = rej.shape[0]
-    m = z.shape[1]
-    t_last = t[rej[N - 1]]
-    s1 = 0.0
-    s2 = 0.0
-    for j in range(N):
-        d = t[rej[j]] - t_last
-        s1 += d
-        s2 += d * d
-        for i in range(m):
-            if np.isnan(z[rej[j], i]):
-                return False
-    det = N * s2 - s1 * s1
-    if det <= 0.0:
-        return False
-    for i in range(m):
-        sz = 0.0
-        stz = 0.0
-        for j in range(N):
-            d = t[rej[j]] - t_last
-            sz += z[rej[j], i]
-            stz += d * z[rej[j], i]
-        coef[0, i] = (s2 * sz - s1 * stz) / det
-        coef[1, i] = (N * stz - s1 * sz) / det
-    for j in range(N):
-        d = t[rej[j]] - t_last
-        r = np.empty(m)
-        for i in range(m):
-            r[i] = z[rej[j], i] - coef[0, i] - coef[1, i] * d
-        if r @ np.linalg.solve(R[rej[j]], r) > gate:
+def _restart(t, z, R, Fs, Qs, H, rej, nrej, factor, start, gate, x_out, P_out):
+    """The rejected fixes ``rej`` (consecutive rows) agree with each other under the manoeuvre
+    process noise factor * Q: a diffuse start (information form, from zero information) on the
+    first ``start`` of them, then every further one passes the NIS gate against the prediction
+    from those before it.  If so, x_out, P_out <- the state at the last one and True."""
+    n = H.shape[1]
+    for j in range(nrej):
+        if np.isnan(z[rej[j]]).any():
             return False
-    # cov = G M G, G = (A^T A)^-1 = [[s2, -s1], [-s1, N]] / det, M = sum_j R_jii [[1, d], [d, d^2]]
-    G = np.array([[s2, -s1], [-s1, float(N)]]) / det
-    for i in range(m):
-        M = np.zeros((2, 2))
-        for j in range(N):
-            d = t[rej[j]] - t_last
-            M += R[rej[j], i, i] * np.array([[1.0, d], [d, d * d]])
-        C = G @ M @ G
-        cov[i, 0] = C[0, 0]
-        cov[i, 1] = C[0, 1]
-        cov[i, 2] = C[1, 1]
+    eye = np.eye(n)
+    Y = np.zeros((n, n))
+    y = np.zeros(n)
+    for j in range(start):
+        k = rej[j]
+        if j > 0:
+            Fi = np.linalg.inv(Fs[k])
+            A = Fi.T @ Y @ Fi
+            Mi = np.linalg.inv(eye + factor * Qs[k] @ A)
+            Y = A @ Mi
+            Y = 0.5 * (Y + Y.T)
+            y = Mi.T @ (Fi.T @ y)
+        Ri = np.linalg.inv(R[k])
+        Y = Y + H.T @ Ri @ H
+        y = y + H.T @ Ri @ z[k]
+    w = np.linalg.eigvalsh(Y)
+    if not w[0] > 1e-13 * w[-1]:
+        return False
+    P = np.linalg.inv(Y)
+    P = 0.5 * (P + P.T)
+    x = P @ y
+    for j in range(start, nrej):
+        k = rej[j]
+        x = Fs[k] @ x
+        P = Fs[k] @ P @ Fs[k].T + factor * Qs[k]
+        nu = z[k] - H @ x
+        S = H @ P @ H.T + R[k]
+        S_inv = np.linalg.inv(S)
+        if nu @ S_inv @ nu > gate:
+            return False
+        K = P @ H.T @ S_inv
+        x = x + K @ nu
+        P = P - K @ H @ P
+        P = 0.5 * (P + P.T)
+    x_out[:] = x
+    P_out[:, :] = P
     return True
 
 
 @njit(cache=True)
-def gated_loop(t, F, Q, H, R, z, x, P, gates, use_gate, max_rej, reset_P, picks, vels,
-               xs, Ps, xp, Pp, nis, flag):
+def gated_loop(t, F, Q, H, R, z, x, P, gates, use_gate, max_rej, factor, start, xs, Ps, xp, Pp, nis, flag):
     """Run the gated filter; fills xs, Ps, xp, Pp, nis, flag in place; returns the log-likelihood.
 
-    gates[d] is the NIS threshold for d measured components; picks[i] the state entry measured
-    by row i of H, vels[i] its velocity entry (-1 if none).
+    gates[d] is the NIS threshold for d measured components; a measurement above it is tried
+    against the prediction with process noise factor * Q[k] (flag 5, manoeuvre) and else rejected
+    (flag 1); ``max_rej`` rejections in a row restart the filter from them (flag 3) if they agree
+    (:func:`_restart`, diffuse start on ``start`` of them).
     """
     T, m = z.shape
+    n = x.shape[0]
     rej = np.empty(max_rej, dtype=np.int64)
     nrej = 0
-    coef = np.empty((2, m))
-    cov = np.empty((m, 3))
+    x_new = np.empty(n)
+    P_new = np.empty((n, n))
     loglik = 0.0
     for k in range(T):
         x_pred = F[k] @ x
@@ -96,10 +100,14 @@ def gated_loop(t, F, Q, H, R, z, x, P, gates, use_gate, max_rej, reset_P, picks,
             for b in range(mk):
                 Rk[a, b] = R[k, idx[a], idx[b]]
         nu = z[k][idx] - Hk @ x_pred
-        PHt = P_pred @ Hk.T
-        S = Hk @ PHt + Rk
-        S_inv = np.linalg.inv(S)
-        e = nu @ S_inv @ nu
+        S = Hk @ P_pred @ Hk.T + Rk
+        e = nu @ np.linalg.inv(S) @ nu
+        f = 0
+        if use_gate and e > gates[mk]:
+            P_pred = P_pred + (factor - 1.0) * Q[k]
+            S = Hk @ P_pred @ Hk.T + Rk
+            e = nu @ np.linalg.inv(S) @ nu
+            f = 5
         nis[k] = e
         if use_gate and e > gates[mk]:
             if nrej == max_rej:
@@ -107,40 +115,25 @@ def gated_loop(t, F, Q, H, R, z, x, P, gates, use_gate, max_rej, reset_P, picks,
                 nrej -= 1
             rej[nrej] = k
             nrej += 1
-            if nrej == max_rej and _line_consistent(t, z, R, rej, gates[m], coef, cov):
+            if nrej == max_rej and mk == m and _restart(t, z, R, F, Q, H, rej, nrej, factor, start, gates[m],
+                                                        x_new, P_new):
                 flag[k] = 3
                 nrej = 0
-                # restart from the line: its position, velocity and their covariance; every
-                # other state from 0 with its reset_P variance
-                x = np.zeros_like(x_pred)
-                P = reset_P.copy()
-                for i in range(m):
-                    for s_ in (picks[i], vels[i]):
-                        if s_ >= 0:
-                            P[s_, :] = 0.0
-                            P[:, s_] = 0.0
-                for i in range(m):
-                    p_, v_ = picks[i], vels[i]
-                    x[p_] = coef[0, i]
-                    P[p_, p_] = cov[i, 0]
-                    if v_ >= 0:
-                        x[v_] = coef[1, i]
-                        P[p_, v_] = cov[i, 1]
-                        P[v_, p_] = cov[i, 1]
-                        P[v_, v_] = cov[i, 2]
-                xs[k] = x
-                Ps[k] = P
-                continue
-            flag[k] = 1
-            x, P = x_pred, P_pred
+                x, P = x_new.copy(), P_new.copy()
+            else:
+                flag[k] = 1
+                x, P = x_pred, Pp[k]
             xs[k] = x
             Ps[k] = P
             continue
         nrej = 0
+        S_inv = np.linalg.inv(S)
+        PHt = P_pred @ Hk.T
         K = PHt @ S_inv
         x = x_pred + K @ nu
         P = P_pred - K @ PHt.T
         P = 0.5 * (P + P.T)
+        flag[k] = f
         xs[k] = x
         Ps[k] = P
         loglik -= 0.5 * (e + np.log(np.linalg.det(S)) + mk * _LOG2PI)

@@ -43,7 +43,7 @@ import numpy as np
 
 from ..errors import ParameterError
 from ._columns import FixTable
-from ._engine import OUTLIER, RESET, RESTART, SKIP, USE, filter_tracks, loglik_tracks, moment_guess
+from ._engine import MANOEUVRE, OUTLIER, RESET, RESTART, SKIP, USE, filter_tracks, loglik_tracks, moment_guess
 
 __all__ = ["NoiseSpec", "NoiseEstimate", "SOURCES", "fix_weights", "estimate_noise", "MIN_FIXES"]
 
@@ -62,7 +62,7 @@ _LOG2PI = math.log(2.0 * math.pi)
 # search bounds: ln lambda (1/s^3 for cv), ln q, ln c
 _BOUNDS = {"ratio": (math.log(1e-16), math.log(1e8)), "q": (math.log(1e-12), math.log(1e8)),
            "c": (math.log(1e-8), math.log(1e12))}
-_C_FLOOR = 1e-6   # an estimated fix variance below (1 mm)^2 means a degenerate track
+_C_FLOOR = 1e-6   # the smallest fix variance an estimate may take: (1 mm)^2
 
 
 @dataclass(frozen=True)
@@ -106,6 +106,7 @@ class NoiseEstimate:
     source_c: np.ndarray
     source_q: np.ndarray
     rounds: int
+    pooled: dict = None  # has-accuracy kind -> (c, q, se ln c, se ln q) of its pooled estimate, if any
 
 
 def fix_weights(table: FixTable, sigma_m: float | None) -> tuple[np.ndarray, np.ndarray]:
@@ -261,8 +262,9 @@ def _resolve(problem: _Problem, groups: np.ndarray, theta: np.ndarray) -> tuple[
     return np.exp(theta), np.full(len(groups), float(problem.spec.q)), N
 
 
-def _standard_errors(problem: _Problem, groups: np.ndarray, c: np.ndarray, q: np.ndarray):
-    """(se ln c, se ln q) of each group from the observed information (central differences)."""
+def _standard_errors(problem: _Problem, groups: np.ndarray, c: np.ndarray, q: np.ndarray, floored: np.ndarray):
+    """(se ln c, se ln q) of each group from the observed information (central differences); a
+    group whose c was held at its floor (not a maximum in c) gets the se of ln q given c."""
     h = _H
     u, v = np.log(c), np.log(q)
     nan = np.full(len(groups), np.nan)
@@ -282,8 +284,12 @@ def _standard_errors(problem: _Problem, groups: np.ndarray, c: np.ndarray, q: np
         det = huu * hvv - huv ** 2
         with np.errstate(divide="ignore", invalid="ignore"):
             var_u, var_v = -hvv / det, -huu / det
+            var_v_given_u = -1.0 / hvv
         ok = (huu < 0) & (det > 0)
-        return np.where(ok, np.sqrt(np.abs(var_u)), np.nan), np.where(ok, np.sqrt(np.abs(var_v)), np.nan)
+        se_u = np.where(ok & ~floored, np.sqrt(np.abs(var_u)), np.nan)
+        se_v = np.where(floored, np.where(hvv < 0, np.sqrt(np.abs(var_v_given_u)), np.nan),
+                        np.where(ok, np.sqrt(np.abs(var_v)), np.nan))
+        return se_u, se_v
     x = v if problem.mode == "q" else u
     f = [problem.loglik(groups, x + k * h) for k in (-1, 0, 1)]
     d2 = (f[0] - 2 * f[1] + f[2]) / h ** 2
@@ -292,28 +298,33 @@ def _standard_errors(problem: _Problem, groups: np.ndarray, c: np.ndarray, q: np
     return (nan, se) if problem.mode == "q" else (se, nan)
 
 
-def _groups(table: FixTable, spec: NoiseSpec, has_acc: np.ndarray) -> tuple[np.ndarray, int, np.ndarray]:
-    """(group of each track (-1: none), number of groups, is-pooled flag per group)."""
+def _groups(table: FixTable, spec: NoiseSpec, has_acc: np.ndarray, fixed: dict) -> tuple[np.ndarray, int, np.ndarray, list]:
+    """(group of each track (-1: none), number of groups, is-pooled flag per group, kind of each
+    pooled group)."""
     B = table.B
     group = np.full(B, -1, dtype=np.int64)
-    usable = table.counts >= 2
+    usable = (table.counts >= 2) & ~np.isin(has_acc, list(fixed))
     own = usable & (table.counts >= MIN_FIXES) if spec.scope == "track" else np.zeros(B, bool)
     group[own] = np.arange(int(own.sum()))
     G = int(own.sum())
-    pooled = [False] * G
+    pooled, kinds = [False] * G, [None] * G
     for kind in (False, True):
         sel = usable & ~own & (has_acc == kind)
         if sel.any():
             group[sel] = G
             pooled.append(True)
+            kinds.append(kind)
             G += 1
-    return group, G, np.array(pooled, dtype=bool)
+    return group, G, np.array(pooled, dtype=bool), kinds
 
 
-def estimate_noise(table: FixTable, w: np.ndarray, has_acc: np.ndarray, spec: NoiseSpec) -> NoiseEstimate:
+def estimate_noise(table: FixTable, w: np.ndarray, has_acc: np.ndarray, spec: NoiseSpec,
+                   fixed: dict | None = None) -> NoiseEstimate:
     """Noise parameters of every track of ``table`` (see the module doc); ``w``, ``has_acc`` from
-    :func:`fix_weights` with ``spec.sigma_m``."""
+    :func:`fix_weights` with ``spec.sigma_m``.  ``fixed`` (an earlier table's ``pooled``) gives the
+    tracks of a kind (with/without accuracies) that pooled estimate instead of a new one."""
     B = table.B
+    fixed = fixed or {}
     default_c = np.where(has_acc, 1.0, spec.default_sigma_m ** 2)
     c = np.ones(B) if spec.sigma_m is not None else default_c
     q = np.full(B, spec.default_q if spec.q is None else float(spec.q))
@@ -321,8 +332,14 @@ def estimate_noise(table: FixTable, w: np.ndarray, has_acc: np.ndarray, spec: No
     src_c = np.full(B, GIVEN if spec.sigma_m is not None else DEFAULT, dtype=np.int8)
     src_q = np.full(B, GIVEN if spec.q is not None else DEFAULT, dtype=np.int8)
     if spec.sigma_m is not None and spec.q is not None:
-        return NoiseEstimate(c, q, se_c, se_q, src_c, src_q, 0)
-    group, G, pooled = _groups(table, spec, has_acc)
+        return NoiseEstimate(c, q, se_c, se_q, src_c, src_q, 0, {})
+    for kind, (fc, fq, fsc, fsq) in fixed.items():
+        sel = (has_acc == kind) & (table.counts >= 2)
+        if spec.sigma_m is None:
+            c[sel], se_c[sel], src_c[sel] = fc, fsc, POOLED
+        if spec.q is None:
+            q[sel], se_q[sel], src_q[sel] = fq, fsq, POOLED
+    group, G, pooled, kinds = _groups(table, spec, has_acc, fixed)
     problem = _Problem(table, w, spec, c.copy(), group, G)
     guess = np.zeros((B, 3))
     moment_guess(table.offsets, table.t, table.east, table.north, w, problem.mask, guess)
@@ -341,12 +358,12 @@ def estimate_noise(table: FixTable, w: np.ndarray, has_acc: np.ndarray, spec: No
         c_b, q_b = _track_values(problem, g_c, g_q, c, q)
         flag = np.empty(table.N, dtype=np.int8)
         nis = np.empty(table.N)
-        stats = np.zeros((B, 5))
+        stats = np.zeros((B, 6))
         X = np.empty((1, 2, spec.order))
         P = np.empty((1, spec.order, spec.order))
         filter_tracks(table.offsets, table.t, table.east, table.north, w, c_b, q_b, spec.order, spec.prior,
                       spec.gate, spec.max_rej, False, False, X, P, nis, flag, stats)
-        mask = np.where(flag == OUTLIER, SKIP, np.where(flag == RESET, RESTART, USE)).astype(np.int8)
+        mask = np.where((flag == OUTLIER) | (flag == MANOEUVRE), SKIP, np.where(flag == RESET, RESTART, USE)).astype(np.int8)
         changed = mask != problem.mask
         problem.mask = mask
         if not changed.any():
@@ -354,10 +371,15 @@ def estimate_noise(table: FixTable, w: np.ndarray, has_acc: np.ndarray, spec: No
         moved = np.unique(group[np.repeat(np.arange(B), table.counts)[changed]])
         todo = moved[moved >= 0]
     se_gc, se_gq = np.full(G, np.nan), np.full(G, np.nan)
-    ok = np.isfinite(g_c) & (g_c > _C_FLOOR * np.array([_typical_w(problem, g) for g in range(G)])) \
-        & np.isfinite(g_q) & (g_q > 0) & ~(pooled & (g_n < MIN_POOLED_DOF))
+    # a fix variance that collapses towards 0 (the motion explains every fix) is held at (1 mm)^2;
+    # exactly 0 (every fix on one point or one line) cannot be calibrated
+    floor = _C_FLOOR / np.array([_typical_w(problem, g) for g in range(G)])
+    ok = np.isfinite(g_c) & (g_c > 0) & np.isfinite(g_q) & (g_q > 0) & ~(pooled & (g_n < MIN_POOLED_DOF))
+    floored = ok & (g_c < floor) & (problem.mode != "q")
+    g_c = np.where(floored, floor, g_c)
     if ok.any():
-        se_gc[ok], se_gq[ok] = _standard_errors(problem, np.flatnonzero(ok), g_c[ok], g_q[ok])
+        se_gc[ok], se_gq[ok] = _standard_errors(problem, np.flatnonzero(ok), g_c[ok], g_q[ok], floored[ok])
+    found = {}
     for g in np.flatnonzero(ok):
         sel = group == g
         how = POOLED if pooled[g] else ESTIMATED
@@ -365,7 +387,9 @@ def estimate_noise(table: FixTable, w: np.ndarray, has_acc: np.ndarray, spec: No
             c[sel], se_c[sel], src_c[sel] = g_c[g], se_gc[g], how
         if spec.q is None:
             q[sel], se_q[sel], src_q[sel] = g_q[g], se_gq[g], how
-    return NoiseEstimate(c, q, se_c, se_q, src_c, src_q, rounds)
+        if pooled[g]:
+            found[kinds[g]] = (float(g_c[g]), float(g_q[g]), float(se_gc[g]), float(se_gq[g]))
+    return NoiseEstimate(c, q, se_c, se_q, src_c, src_q, rounds, found)
 
 
 def _typical_w(problem: _Problem, g: int) -> float:

@@ -1,98 +1,281 @@
-"""``track``: stream an input file track by track, filter each, write the result atomically (resumable)."""
+"""Running ``track`` over an input: chunks of whole tracks through the engine, on any executor,
+resumable, written atomically; and the in-memory Python API.
+
+The input (a file, a directory of Parquet files / a hive-partitioned dataset,
+or a DataFrame) is read in chunks of whole tracks
+(:func:`mptrack.io.iter_track_chunks`); each chunk is one unit of work
+(:class:`TrackTask`): position fixes go through the columnar engine
+(:func:`._run.track_table`), cellular measurements through the range filters
+track by track.  :func:`mptrack.batch.run_stream` runs the chunks serially, in
+local processes or on Dask, each writing its point and track tables as parts
+in ``.<out>.parts/``; the output is then streamed from the parts.  Every
+chunk is computed by the same function from the same rows, so the output does
+not depend on the executor.
+"""
 
 from __future__ import annotations
 
 import time
-from contextlib import nullcontext
+from dataclasses import asdict, dataclass
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
+import pyarrow as pa
 
+from ..batch import Chunk, run_stream
 from ..errors import MptrackError
-from ..io import FIXES, MEASUREMENTS, PartStore, ReadReport, iter_tracks, read_cells, read_chunks
+from ..io import FIXES, MEASUREMENTS, PartStore, ReadReport, iter_track_chunks, read_cells, read_chunks
+from ..io._writers import output_format
 from ._cellular import check_cell_ids, track_cells
-from ._fixes import TrackOptions, track_fixes
+from ._columns import FixTable
+from ._fixes import TrackOptions
+from ._output import nis_band, point_table
+from ._run import TRACK_COLUMNS, track_table
 
-__all__ = ["track_file"]
+__all__ = ["track_file", "track", "read_output", "TrackTask", "DEFAULT_CHUNK_ROWS"]
+
+#: Rows of whole tracks per unit of work (memory per chunk ~0.5 KB a row in flight).
+DEFAULT_CHUNK_ROWS = 200_000
+_PARTS = ("points", "tracks")
 
 
-class _NullProgress:
-    def task(self, description, total=None):
-        return nullcontext(lambda n=1: None)
+@dataclass(frozen=True, eq=False)
+class TrackTask:
+    """One chunk of whole tracks -> {"points": point table, "tracks": track table} (picklable).
+
+    cells   the cell table (cellular logs) or None (position fixes)
+    fixed   pooled noise estimates to use instead of estimating (``noise="file"``)
+    """
+
+    options: TrackOptions
+    cells: pd.DataFrame | None = None
+    fixed: dict | None = None
+    source: str = "input"
+
+    def __call__(self, chunk: Chunk) -> dict:
+        rows = chunk.data
+        if self.cells is None:
+            points, tracks = track_table(FixTable.from_frame(rows), self.options, self.fixed)
+            return {"points": points, "tracks": tracks}
+        return self._cellular(rows)
+
+    def _cellular(self, rows: pd.DataFrame) -> dict:
+        report = ReadReport()  # unknown ids were counted when the chunk was read
+        ids = rows["track_id"].to_numpy(dtype=object)
+        bounds = np.r_[np.flatnonzero(np.r_[True, ids[1:] != ids[:-1]]), len(ids)]
+        tables = []
+        for a, b in zip(bounds[:-1], bounds[1:]):
+            track = check_cell_ids(rows.iloc[a:b], self.cells, file=self.source, on_error="skip", report=report)
+            if len(track):
+                tables.append(pa.Table.from_pandas(track_cells(str(ids[a]), track, self.cells, self.options),
+                                                   preserve_index=False))
+        points = pa.concat_tables(tables) if tables else None
+        return {"points": points if points is not None else _empty_points(), "tracks": _cell_tracks(points)}
+
+
+def _empty_points() -> pa.Table:
+    z = np.zeros(0)
+    return point_table([], np.zeros(1, np.int64), z, z, z, z, None, z, z, z, z, z.astype(np.int64),
+                       z.astype(np.int8), 30.0, (z, z), "", {})
+
+
+def _cell_tracks(points: pa.Table | None) -> pa.Table:
+    """Track table of cellular tracks: counts and NIS consistency (no noise estimation)."""
+    if points is None or points.num_rows == 0:
+        return pa.table({"track_id": pa.array([], pa.string()), "fixes": pa.array([], pa.int64())})
+    df = points.select(["track_id", "flag", "nis", "nis_dof"]).to_pandas()
+    g = df.assign(upd=df["flag"].eq("update"), nis=df["nis"].where(df["flag"].eq("update"))) \
+        .groupby("track_id", sort=False)
+    out = pd.DataFrame({"fixes": g.size(), "updates": g["upd"].sum(), "mean_nis": g["nis"].mean(),
+                        "dof": g["nis_dof"].mean()}).reset_index()
+    lo, hi = nis_band(out["updates"].to_numpy(), 1)
+    dof = out["dof"].to_numpy()
+    out["nis_lo"], out["nis_hi"] = lo * dof, hi * dof
+    out["nis_consistent"] = (out["mean_nis"] >= out["nis_lo"]) & (out["mean_nis"] <= out["nis_hi"])
+    return pa.Table.from_pandas(out.drop(columns="dof"), preserve_index=False)
+
+
+def _source_chunks(source, schema, on_error: str, chunk_rows: int, report: ReadReport):
+    """Chunks of whole tracks of a path or a DataFrame, numbered."""
+    for i, rows in enumerate(iter_track_chunks(source, schema, on_error=on_error, chunk_rows=chunk_rows,
+                                               report=report)):
+        yield Chunk(i, 0, len(rows), data=rows)
+
+
+def _manifest(input, options: TrackOptions, cells, chunk_rows: int) -> dict:
+    """What a resumed run must share with the interrupted one: the input file(s) as they were, the
+    options and the chunking."""
+    path = Path(input)
+    files = sorted(p for p in path.rglob("*") if p.is_file()) if path.is_dir() else [path]
+    stamp = [[str(p), p.stat().st_size, p.stat().st_mtime_ns] for p in files]
+    return {"input": stamp, "cells": None if cells is None else str(cells), "chunk_rows": chunk_rows,
+            "options": {k: v for k, v in asdict(options).items()}}
+
+
+def _cell_table(input, cells, on_error: str, chunk_rows: int) -> tuple[pd.DataFrame, ReadReport]:
+    cell_report = ReadReport()
+    wanted = set()
+    for chunk in read_chunks(input, MEASUREMENTS, on_error="skip", chunk_rows=chunk_rows, report=ReadReport()):
+        wanted.update(chunk["cell_id"].dropna().unique())
+    return read_cells(cells, wanted=wanted, on_error=on_error, report=cell_report), cell_report
+
+
+def _file_noise(chunks, options: TrackOptions):
+    """For ``noise="file"``: the pooled estimate of the first chunk, and the chunks (that one again
+    first)."""
+    first = next(chunks, None)
+    if first is None:
+        return None, iter(())
+    from ._noise import estimate_noise, fix_weights
+    from ._run import noise_spec
+
+    table = FixTable.from_frame(first.data)
+    w, has = fix_weights(table, options.sigma_m)
+    fixed = estimate_noise(table, w, has, noise_spec(options)).pooled
+
+    def again():
+        yield first
+        yield from chunks
+    return fixed, again()
+
+
+def _run(source, options: TrackOptions, *, cells_table, on_error, chunk_rows, executor, max_workers, client,
+         store: PartStore | None, manifest: dict | None, progress, report: ReadReport):
+    """Run every chunk; returns the per-chunk results (paths with a store, else tables)."""
+    schema = MEASUREMENTS if cells_table is not None else FIXES
+    chunks = _source_chunks(source, schema, on_error, chunk_rows, report)
+    fixed = None
+    if cells_table is None and options.noise == "file" and (options.sigma_m is None or options.q is None):
+        fixed, chunks = _file_noise(chunks, options)
+    task = TrackTask(options, cells_table, fixed, str(source) if not isinstance(source, pd.DataFrame) else "data")
+    return run_stream(task, chunks, parts=_PARTS, out_dir=None if store is None else store.dir, executor=executor,
+                      max_workers=max_workers, client=client, manifest=manifest, progress=progress)
 
 
 def track_file(input, out, *, cells=None, options: TrackOptions = TrackOptions(), on_error: str = "raise",
-               resume: bool = False, chunk_rows: int = 50_000, flush_rows: int = 50_000,
-               progress=None) -> dict:
+               resume: bool = False, chunk_rows: int = DEFAULT_CHUNK_ROWS, executor: str = "serial",
+               max_workers: int | None = None, client=None, track_summary=None, progress=None) -> dict:
     """Track every track of ``input`` and write the point table to ``out`` (.parquet, .csv or .geojson).
 
-    input    position fixes (CSV/Parquet/GPX) or, with ``cells``, a cellular measurement log (CSV/Parquet)
-    cells    cell table in the OpenCelliD layout (CSV/Parquet) -> cellular tracking (options.method)
-    resume   keep the tracks finished by an interrupted run (kept in ``.<out>.parts/``, written every
-             ``flush_rows`` rows and on interruption) and skip them
-    on_error "raise": the first bad row stops the run (DataError naming file/row/column, nothing written);
-             "skip": bad rows are dropped, counted and reported in the returned summary
+    input          position fixes (CSV/Parquet/GPX, or a directory of Parquet files, hive-partitioned
+                   or not) or, with ``cells``, a cellular measurement log (CSV/Parquet)
+    cells          cell table in the OpenCelliD layout (CSV/Parquet) -> cellular tracking (options.method)
+    resume         keep the chunks finished by an interrupted run of the same input and options (parts
+                   in ``.<out>.parts/``) and compute only the rest
+    on_error       "raise": the first bad row stops the run (DataError naming file/row/column, nothing
+                   written); "skip": bad rows are dropped, counted and reported in the returned summary
+    executor       "serial", "processes" or "dask" (see :func:`mptrack.batch.run_stream`); the output
+                   is the same whichever runs it
+    track_summary  optional path: the track table (one row per track: noise estimates, counts, NIS)
 
-    The input is read in chunks and one track is held at a time, so memory is
-    bounded by the largest track.  Returns a summary dict (JSON-safe).
+    Memory is bounded by ``chunk_rows`` (rows of whole tracks per chunk) and the largest track, not
+    by the input.  Returns a summary dict (JSON-safe).
     """
     start = time.perf_counter()
     input, out = Path(input), Path(out)
-    store = PartStore(out, flush_rows=flush_rows)
+    store = PartStore(out)
+    if track_summary is not None:
+        output_format(track_summary)
     if not resume:
         store.discard()
     report = ReadReport()
+    cell_table, cell_report = (None, None) if cells is None else _cell_table(input, cells, on_error, chunk_rows)
     progress = progress or _NullProgress()
-    cell_table = None
-    if cells is not None:
-        cell_report = ReadReport()
-        wanted = set()
-        for chunk in read_chunks(input, MEASUREMENTS, on_error="skip", chunk_rows=chunk_rows,
-                                 report=ReadReport()):
-            wanted.update(chunk["cell_id"].dropna().unique())
-        cell_table = read_cells(cells, wanted=wanted, on_error=on_error, report=cell_report)
-    finished = store.finished() if resume else set()
-    done, resumed, points, outliers = 0, 0, 0, 0
     try:
         with progress.task(f"tracking {input.name}", total=None) as advance:
-            schema = MEASUREMENTS if cell_table is not None else FIXES
-            for tid, rows in iter_tracks(input, schema, on_error=on_error, chunk_rows=chunk_rows, report=report):
-                if tid in finished:
-                    resumed += 1
-                    done += 1
-                    advance()
-                    continue
-                if cell_table is not None:
-                    rows = check_cell_ids(rows, cell_table, file=input, on_error=on_error, report=report)
-                    if rows.empty:
-                        continue
-                    table = track_cells(tid, rows, cell_table, options)
-                else:
-                    table = track_fixes(tid, rows, options)
-                store.add(table)
-                done += 1
-                points += len(table)
-                outliers += int((table["flag"] == "outlier").sum())
-                advance()
-        store.finish()
+            results = _run(input, options, cells_table=cell_table, on_error=on_error, chunk_rows=chunk_rows,
+                           executor=executor, max_workers=max_workers, client=client, store=store,
+                           manifest=_manifest(input, options, cells, chunk_rows), progress=advance, report=report)
+        store.finish("points", empty=_empty_points())
+        tracks = _read_tracks(store)
+        if track_summary is not None:
+            store.finish("tracks", to=track_summary, empty=pa.Table.from_pandas(tracks, preserve_index=False))
+        store.discard()
     except MptrackError:
         store.discard()  # bad input: nothing to resume from, nothing left behind
         raise
-    except BaseException:
-        store.flush()  # interrupted: keep the finished tracks for --resume
-        raise
-    summary = {"input": str(input), "output": str(out), "tracks": done, "tracks_resumed": resumed,
-               "points_written": points, "outliers_rejected": outliers, "read": report.to_dict(),
-               "options": {k: v for k, v in vars(options).items()}, "elapsed_s": time.perf_counter() - start}
+    summary = _summary(tracks, report, options, len(results))
+    summary.update(input=str(input), output=str(out), elapsed_s=time.perf_counter() - start)
+    if track_summary is not None:
+        summary["track_summary"] = str(track_summary)
     if cell_table is not None:
         summary["cells"] = {"file": str(cells), "cells_used": int(len(cell_table)), "read": cell_report.to_dict()}
     return summary
 
 
+def _read_tracks(store: PartStore) -> pd.DataFrame:
+    import pyarrow.parquet as pq
+
+    files = store.parts("tracks")
+    return pa.concat_tables([pq.read_table(p) for p in files]).to_pandas() if files else \
+        pd.DataFrame(columns=list(TRACK_COLUMNS))
+
+
+class _NullProgress:
+    def task(self, description, total=None):
+        from contextlib import nullcontext
+
+        return nullcontext(lambda n=1: None)
+
+
+def _summary(tracks: pd.DataFrame, report: ReadReport, options: TrackOptions, chunks: int) -> dict:
+    """The run summary (JSON-safe): counts, the noise estimates' distribution, NIS consistency."""
+    n = len(tracks)
+    fixes = int(tracks["fixes"].sum()) if n else 0
+    out = {"tracks": n, "chunks": chunks, "fixes": fixes,
+           "outliers_rejected": int(tracks["outliers"].sum()) if "outliers" in tracks and n else 0,
+           "resets": int(tracks["resets"].sum()) if "resets" in tracks and n else 0,
+           "read": report.to_dict(), "options": asdict(options)}
+    if n and "sigma_m" in tracks:
+        out["noise"] = {name: _distribution(tracks[name].to_numpy(float)) for name in ("sigma_m", "q")}
+        for name in ("sigma_source", "q_source"):
+            out["noise"][name] = {str(k): int(v) for k, v in tracks[name].value_counts().items()}
+    if n and "nis_consistent" in tracks:
+        bad = tracks.loc[~tracks["nis_consistent"].astype(bool) & (tracks["updates"] > 0)]
+        out["nis"] = {"tracks_outside_band": int(len(bad)),
+                      "low": int((bad["mean_nis"] < bad["nis_lo"]).sum()),
+                      "high": int((bad["mean_nis"] > bad["nis_hi"]).sum())}
+    return out
+
+
+def _distribution(x: np.ndarray) -> dict:
+    x = x[np.isfinite(x)]
+    if not len(x):
+        return {}
+    return {"median": float(np.median(x)), "p5": float(np.percentile(x, 5)), "p95": float(np.percentile(x, 95))}
+
+
+def track(data, *, cells=None, on_error: str = "raise", chunk_rows: int = DEFAULT_CHUNK_ROWS,
+          executor: str = "serial", max_workers: int | None = None, client=None, **options) -> pd.DataFrame:
+    """Track a log in memory: the point table as a pandas DataFrame (no files written).
+
+    data     a DataFrame of position fixes (columns as in a file: track_id, time, lat/lon or x/y,
+             accuracy_m) or cellular measurements, or the path of a file / Parquet dataset
+    cells    with cellular measurements: the cell table (a DataFrame in the OpenCelliD layout, or a path)
+    options  the fields of :class:`TrackOptions` (model, filter, q, sigma_m, noise, smooth, ...)
+
+    The DataFrame's ``attrs["tracks"]`` holds the track table (one row per track: the noise
+    estimates with their standard errors, counts, NIS consistency) and ``attrs["summary"]`` the
+    run summary (as :func:`track_file` returns).
+    """
+    opts = TrackOptions(**options)
+    report = ReadReport()
+    cell_table = None if cells is None else _cell_table(data, cells, on_error, chunk_rows)[0]
+    results = _run(data, opts, cells_table=cell_table, on_error=on_error, chunk_rows=chunk_rows,
+                   executor=executor, max_workers=max_workers, client=client, store=None, manifest=None,
+                   progress=None, report=report)
+    points = pa.concat_tables([r["points"] for r in results]) if results else _empty_points()
+    tracks = pa.concat_tables([r["tracks"] for r in results]).to_pandas() if results else \
+        pd.DataFrame(columns=list(TRACK_COLUMNS))
+    df = points.to_pandas()
+    df.attrs["tracks"] = tracks
+    df.attrs["summary"] = _summary(tracks, report, opts, len(results))
+    return df
+
+
 def read_output(path) -> pd.DataFrame:
     """A track table written by :func:`track_file` (Parquet or CSV; GeoJSON points)."""
-    from ..io._writers import output_format
-
     fmt = output_format(path)
     if fmt == "parquet":
         return pd.read_parquet(path)
@@ -104,3 +287,4 @@ def read_output(path) -> pd.DataFrame:
     recs = [dict(f["properties"], lon=f["geometry"]["coordinates"][0], lat=f["geometry"]["coordinates"][1])
             for f in feats if f["properties"].get("kind") == "point" and f["geometry"]]
     return pd.DataFrame(recs)
+

@@ -19,7 +19,8 @@ __all__ = ["MotionModel", "MODELS", "get_model", "FIX_FILTERS", "get_fix_filter"
 class MotionModel:
     """A 2-D continuous motion model: ``build(q, sigma_r2)``; ``order`` states per axis
     (2 = position, velocity; 3 = + acceleration); ``prior_sigmas`` the 1-sigma spread of the
-    unmeasured states at start (m/s, m/s^2); ``q_unit`` the unit of the noise density q."""
+    unmeasured states at start (m/s, m/s^2); ``q_unit`` the unit of the noise density q;
+    ``default_q`` the density used where it can be neither estimated nor was given."""
 
     name: str
     description: str
@@ -27,14 +28,22 @@ class MotionModel:
     order: int
     prior_sigmas: tuple[float, ...]
     q_unit: str
+    default_q: float
+
+    @property
+    def prior_variances(self):
+        """(order,) prior variances per axis: position (set from the first fix), then prior_sigmas^2."""
+        import numpy as np
+
+        return np.r_[0.0, np.square(self.prior_sigmas)]
 
 
 MODELS: dict[str, MotionModel] = {m.name: m for m in (
-    MotionModel("cv", "constant velocity, white-noise acceleration (seed 001 sec. 2.1)",
-                lambda q, r: constant_velocity_continuous(q, axes=2, sigma_r2=r), 2, (30.0,), "m^2/s^3"),
-    MotionModel("ca", "constant acceleration, white-noise jerk (seed 001 sec. 2.2)",
+    MotionModel("cv", "constant velocity, white-noise acceleration (Assimakis et al. 2016, sec. 2.1)",
+                lambda q, r: constant_velocity_continuous(q, axes=2, sigma_r2=r), 2, (30.0,), "m^2/s^3", 2.0),
+    MotionModel("ca", "constant acceleration, white-noise jerk (Assimakis et al. 2016, sec. 2.2)",
                 lambda q, r: constant_acceleration_continuous(q, axes=2, sigma_r2=r), 3, (30.0, 5.0),
-                "m^2/s^5"),
+                "m^2/s^5", 0.1),
 )}
 
 #: Position-fix filters: "kf" is the gated irregular-time KF; the others are the registered linear

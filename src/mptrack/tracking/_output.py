@@ -1,0 +1,106 @@
+"""The output tables of ``mptrack track``, built once from flat columns (no per-track frames).
+
+* the point table: one row per estimate (columns documented in docs/tracking.md);
+* the track table: one row per track (noise estimates, counts, NIS consistency).
+
+Every path (the engine, the per-track reference, the grid filters, the
+cellular filters) builds its points through :func:`point_table`.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pyarrow as pa
+import scipy.stats
+
+from ..io._geodesy import enu_to_geodetic
+from ._engine import FLAGS
+
+__all__ = ["point_table", "ellipse", "nis_band", "POINT_COLUMNS"]
+
+#: Columns of the point table, in order (extra per-method columns follow).
+POINT_COLUMNS = ("track_id", "time", "t", "lat", "lon", "east_m", "north_m", "vel_east_mps", "vel_north_mps",
+                 "var_east_m2", "cov_en_m2", "var_north_m2", "ell_major_m", "ell_minor_m", "ell_azimuth_deg",
+                 "nis", "nis_dof", "flag", "gap", "origin_lat", "origin_lon", "method")
+_FLAG_NAMES = pa.array(FLAGS, type=pa.string())
+
+
+def ellipse(var_e: np.ndarray, cov_en: np.ndarray, var_n: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """1-sigma ellipse of east/north covariances: semi-axes (m) and azimuth of the major axis
+    (degrees clockwise from north, in [0, 180)); a circle has azimuth 0."""
+    half_tr = 0.5 * (var_e + var_n)
+    rad = np.hypot(0.5 * (var_e - var_n), cov_en)
+    major = np.sqrt(np.clip(half_tr + rad, 0.0, None))
+    minor = np.sqrt(np.clip(half_tr - rad, 0.0, None))
+    lam = half_tr + rad
+    # eigenvector of the larger eigenvalue, from the better-conditioned row of (P - lam I)
+    east_dominant = var_e >= var_n
+    ve = np.where(east_dominant, lam - var_n, cov_en)
+    vn = np.where(east_dominant, cov_en, lam - var_e)
+    az = np.degrees(np.arctan2(ve, vn)) % 180.0
+    return major, minor, az
+
+
+def _repeat(values, counts: np.ndarray, dtype=None) -> pa.Array:
+    """Per-track values as a per-row Arrow array (dictionary-indexed, then decoded)."""
+    idx = pa.array(np.repeat(np.arange(len(counts), dtype=np.int32), counts))
+    dictionary = pa.array(values, type=dtype)
+    return pa.DictionaryArray.from_arrays(idx, dictionary).dictionary_decode()
+
+
+def _time_array(time: np.ndarray) -> pa.Array:
+    if np.issubdtype(time.dtype, np.datetime64):
+        return pa.array(time.astype("datetime64[ns]"), type=pa.timestamp("ns", tz="UTC"))
+    return pa.array(np.asarray(time, dtype=float))
+
+
+def point_table(ids, offsets: np.ndarray, time: np.ndarray, t: np.ndarray, east: np.ndarray, north: np.ndarray,
+                vel: np.ndarray | None, var_e: np.ndarray, cov_en: np.ndarray, var_n: np.ndarray, nis: np.ndarray,
+                nis_dof: np.ndarray, flag: np.ndarray, gap_s: float, origin: tuple | None, method,
+                extra: dict | None = None) -> pa.Table:
+    """The point table of B tracks (rows offsets[b]:offsets[b+1] of the flat columns).
+
+    vel      (N, 2) east/north velocity (m/s) or None (written as NaN)
+    flag     (N,) index into FLAGS
+    origin   (lat0 (B,), lon0 (B,)) of each track's frame, or None for x/y tracks (lat/lon NaN)
+    method   one name for all tracks, or (B,) names
+    extra    further columns (name -> (N,) array), appended in order
+    """
+    counts = np.diff(offsets)
+    N = len(t)
+    if origin is None:
+        nan = np.full(N, np.nan)
+        lat = lon = lat0 = lon0 = nan
+    else:
+        lat0, lon0 = np.repeat(origin[0], counts), np.repeat(origin[1], counts)
+        lat, lon = enu_to_geodetic(east, north, lat0, lon0)
+    major, minor, az = ellipse(var_e, cov_en, var_n)
+    gap = np.zeros(N, dtype=bool)
+    gap[1:] = np.diff(t) > gap_s
+    gap[offsets[:-1][counts > 0]] = False
+    methods = [method] * len(counts) if isinstance(method, str) else list(method)
+    cols = {
+        "track_id": _repeat([str(i) for i in ids], counts, pa.string()),
+        "time": _time_array(time), "t": t, "lat": lat, "lon": lon, "east_m": east, "north_m": north,
+        "vel_east_mps": np.full(N, np.nan) if vel is None else vel[:, 0],
+        "vel_north_mps": np.full(N, np.nan) if vel is None else vel[:, 1],
+        "var_east_m2": var_e, "cov_en_m2": cov_en, "var_north_m2": var_n,
+        "ell_major_m": major, "ell_minor_m": minor, "ell_azimuth_deg": az,
+        "nis": nis, "nis_dof": np.asarray(nis_dof, dtype=np.int64),
+        "flag": _FLAG_NAMES.take(pa.array(np.asarray(flag, dtype=np.int32))), "gap": gap,
+        "origin_lat": lat0, "origin_lon": lon0,
+        "method": _repeat(methods, counts, pa.string()),
+    }
+    cols.update(extra or {})
+    return pa.table({k: v if isinstance(v, pa.Array) else pa.array(np.ascontiguousarray(v)) for k, v in cols.items()})
+
+
+def nis_band(updates: np.ndarray, dof: int = 2, probability: float = 0.95) -> tuple[np.ndarray, np.ndarray]:
+    """Two-sided ``probability`` interval of the mean NIS over ``updates`` fixes of ``dof`` each
+    (chi-square with dof * updates degrees of freedom, divided by updates); NaN without updates."""
+    n = np.asarray(updates, dtype=float)
+    k = dof * n
+    with np.errstate(invalid="ignore", divide="ignore"):
+        lo = scipy.stats.chi2.ppf((1 - probability) / 2, k) / n
+        hi = scipy.stats.chi2.ppf((1 + probability) / 2, k) / n
+    return np.where(n > 0, lo, np.nan), np.where(n > 0, hi, np.nan)
