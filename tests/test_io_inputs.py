@@ -260,19 +260,20 @@ def test_write_is_atomic(tmp_path):
     assert list(tmp_path.iterdir()) == []
 
 
-def test_part_store_batches_resumes_and_cleans_up(tmp_path):
-    store = PartStore(tmp_path / "o.parquet", flush_rows=2)
-    store.add(_table().iloc[:2])  # 2 rows: written as part 1
-    store.add(_table().iloc[2:])  # 1 row: buffered
-    assert store.finished() == {"a"} and len(list(store.dir.iterdir())) == 1
-    store.flush()
-    assert PartStore(tmp_path / "o.parquet").finished() == {"a", "b"}
-    store.finish()
-    assert not store.dir.exists()
+def test_part_store_streams_its_parts_in_order_and_cleans_up(tmp_path):
+    from mptrack.batch import part_path
+
+    store = PartStore(tmp_path / "o.parquet")
+    store.dir.mkdir()
+    for i, part in ((1, _table().iloc[2:]), (0, _table().iloc[:2])):  # written out of order
+        part.to_parquet(part_path(store.dir, "points", i))
+    assert [p.name for p in store.parts("points")] == ["points-000000.parquet", "points-000001.parquet"]
+    store.finish("points")
     assert pd.read_parquet(tmp_path / "o.parquet")["track_id"].tolist() == ["a", "a", "b"]
+    store.discard()
+    assert not store.dir.exists()
     with pytest.raises(ParameterError, match="unknown output format"):
         PartStore(tmp_path / "o.xlsx")
-
 
 def test_user_guide_shows_the_current_schemas():
     guide = (Path(__file__).parents[1] / "docs" / "tracking.md").read_text()

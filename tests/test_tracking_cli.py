@@ -12,8 +12,9 @@ import pytest
 from typer.testing import CliRunner
 
 import mptrack.tracking._pipeline as pipeline
+from mptrack.errors import ParameterError
 from mptrack.io import PartStore, iter_tracks
-from mptrack.tracking import TrackOptions, track_file, track_fixes
+from mptrack.tracking import TrackOptions, track, track_file, track_fixes
 from mptrack.tracking._cli import app
 
 GPX = Path(__file__).parent / "data" / "around-visnjan-with-car.gpx"
@@ -47,31 +48,41 @@ def test_each_input_format_tracks(tmp_path, sim, source):
     df = pd.read_parquet(out)
     assert summary["points_written"] == len(df) and summary["read"]["rows_skipped"] == 0
     assert df["track_id"].nunique() == (1 if source == "gpx" else 3)
-    assert set(df["flag"]) <= {"update", "outlier", "predicted", "reset"}
+    assert set(df["flag"]) <= {"init", "update", "manoeuvre", "outlier", "reset"}
+    assert (df.groupby("track_id", sort=False)["flag"].first() == "init").all()
+    assert summary["noise"]["sigma_source"] and summary["tracks"] == df["track_id"].nunique()
     assert not list(tmp_path.glob(".*"))  # no temporary files or parts left
 
 
 def test_results_equal_the_library_api(tmp_path):
+    """The CLI writes what the Python API returns, to the last bit (CSV keeps 17 digits), and what the
+    per-track reference computes to rounding."""
     out = tmp_path / "t.csv"
-    res = run("track", GPX, "--out", out, "--smooth", "--q", 2.0, "--quiet")
+    res = run("track", GPX, "--out", out, "--smooth", "--quiet")
     assert res.exit_code == 0, res.output
-    (tid, rows), = iter_tracks(GPX)
-    ref = track_fixes(tid, rows, TrackOptions(q=2.0, smooth=True))
+    api = track(GPX, smooth=True)
     got = pd.read_csv(out)
+    for col in ("lat", "lon", "east_m", "var_east_m2", "nis", "vel_north_mps"):
+        np.testing.assert_array_equal(got[col].to_numpy(), api[col].to_numpy())
+    assert got["flag"].tolist() == api["flag"].tolist()
+    est = api.attrs["tracks"].iloc[0]
+    (tid, rows), = iter_tracks(GPX)
+    ref = track_fixes(tid, rows, TrackOptions(smooth=True), fix_var=np.full(len(rows), est["sigma_m"] ** 2),
+                      q=est["q"])
     np.testing.assert_allclose(got["lat"], ref["lat"], rtol=0, atol=1e-12)
-    np.testing.assert_allclose(got["var_east_m2"], ref["var_east_m2"], rtol=1e-12)
-    assert got["flag"].tolist() == ref["flag"].tolist()
+    # at the 1 mm noise floor P = Pp - Pp^2/S cancels ~7 digits: compare on the scale of Pp (~10 m^2)
+    np.testing.assert_allclose(got["var_east_m2"], ref["var_east_m2"], rtol=1e-10, atol=1e-10)
 
 
 def test_geojson_output_is_valid_and_round_trips(tmp_path):
     geojson = pytest.importorskip("geojson")
     out = tmp_path / "t.geojson"
-    res = run("track", GPX, "--out", out, "--smooth", "--quiet")
+    res = run("track", GPX, "--out", out, "--smooth", "--sigma", 5.0, "--q", 2.0, "--quiet")
     assert res.exit_code == 0, res.output
     fc = geojson.loads(out.read_text())
     assert fc.is_valid
     (tid, rows), = iter_tracks(GPX)
-    ref = track_fixes(tid, rows, TrackOptions(smooth=True))
+    ref = track_fixes(tid, rows, TrackOptions(smooth=True, sigma_m=5.0, q=2.0))
     line = [f for f in fc["features"] if f["properties"]["kind"] == "track"]
     points = [f for f in fc["features"] if f["properties"]["kind"] == "point"]
     assert len(line) == 1 and line[0]["geometry"]["type"] == "LineString"
@@ -115,31 +126,51 @@ def test_skip_counts_and_reports_bad_rows(tmp_path):
 
 
 def test_resume_after_interruption(tmp_path, sim, monkeypatch):
+    """An interrupted run keeps its finished chunks; --resume computes only the rest, and the output
+    equals an uninterrupted run's."""
     out = tmp_path / "t.parquet"
     calls = []
-    real = pipeline.track_fixes
+    real = pipeline.TrackTask.__call__
 
-    def interrupted(tid, rows, options):
+    def interrupted(self, chunk):
         if len(calls) == 2:
             raise KeyboardInterrupt
-        calls.append(tid)
-        return real(tid, rows, options)
+        calls.append(chunk.index)
+        return real(self, chunk)
 
-    monkeypatch.setattr(pipeline, "track_fixes", interrupted)
+    monkeypatch.setattr(pipeline.TrackTask, "__call__", interrupted)
     with pytest.raises(KeyboardInterrupt):
-        track_file(sim / "sim.parquet", out)
-    assert not out.exists() and PartStore(out).finished() == {"sim0001", "sim0002"}
+        track_file(sim / "sim.parquet", out, chunk_rows=50)
+    assert not out.exists() and len(PartStore(out).parts("points")) == 2
     calls.clear()
-    monkeypatch.setattr(pipeline, "track_fixes", lambda *a: calls.append(a[0]) or real(*a))
-    res = run("track", sim / "sim.parquet", "--out", out, "--resume", "--json")
+    monkeypatch.setattr(pipeline.TrackTask, "__call__", lambda self, c: calls.append(c.index) or real(self, c))
+    res = run("track", sim / "sim.parquet", "--out", out, "--resume", "--chunk-rows", 50, "--json")
     assert res.exit_code == 0, res.output
     summary = json.loads(res.stdout)
-    assert summary["tracks"] == 3 and summary["tracks_resumed"] == 2 and calls == ["sim0003"]
+    assert summary["tracks"] == 3 and summary["chunks_resumed"] == 2 and calls == [2]
     monkeypatch.undo()
     fresh = tmp_path / "fresh.parquet"
-    track_file(sim / "sim.parquet", fresh)
+    track_file(sim / "sim.parquet", fresh, chunk_rows=50)
     pd.testing.assert_frame_equal(pd.read_parquet(out), pd.read_parquet(fresh))
     assert not (tmp_path / ".t.parquet.parts").exists()
+
+
+def test_resume_with_other_options_is_refused(tmp_path, sim, monkeypatch):
+    out = tmp_path / "t.parquet"
+    real = pipeline.TrackTask.__call__
+
+    def interrupted(self, chunk):
+        if chunk.index == 1:
+            raise KeyboardInterrupt
+        return real(self, chunk)
+
+    monkeypatch.setattr(pipeline.TrackTask, "__call__", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        track_file(sim / "sim.parquet", out, chunk_rows=50)
+    monkeypatch.undo()
+    with pytest.raises(ParameterError, match="different"):
+        track_file(sim / "sim.parquet", out, chunk_rows=50, resume=True, options=TrackOptions(smooth=True))
+    assert not out.exists()
 
 
 def test_cellular_pipeline_on_the_real_trace(tmp_path):
@@ -242,7 +273,7 @@ def _peak_bytes(path, out):
 
     tracemalloc.start()
     try:
-        track_file(path, out, chunk_rows=500, flush_rows=500)
+        track_file(path, out, chunk_rows=500)
         return tracemalloc.get_traced_memory()[1]
     finally:
         tracemalloc.stop()

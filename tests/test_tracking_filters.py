@@ -167,6 +167,8 @@ def test_real_trace_every_filter_follows_the_fixes(name, smooth):
 
 
 def test_track_fixes_equals_the_library_filter_on_the_same_data():
+    """The per-track reference is the library's gated filter started at the first fix: the first fix
+    sets the position (variance sigma^2, velocity 0 +- 30 m/s) and is not used a second time."""
     (tid, rows), = iter_tracks(GPX)
     opts = TrackOptions(q=2.0, sigma_m=5.0)
     out = track_fixes(tid, rows, opts)
@@ -175,11 +177,14 @@ def test_track_fixes_equals_the_library_filter_on_the_same_data():
     model = get_model("cv").build(2.0, 25.0)
     x0 = np.array([e[0], 0.0, n[0], 0.0])
     P0 = np.diag([25.0, 900.0, 25.0, 900.0])
-    g = kalman_filter_gated(model, rows["t"].to_numpy(), np.column_stack([e, n]), x0, P0, reset_P0=P0)
-    np.testing.assert_allclose(out["east_m"], g.result.x[:, 0], atol=1e-9)
-    np.testing.assert_allclose(out["var_north_m2"], g.result.P[:, 2, 2], rtol=1e-12)
+    t = rows["t"].to_numpy()
+    g = kalman_filter_gated(model, t[1:], np.column_stack([e, n])[1:], x0, P0, t0=t[0])
+    np.testing.assert_allclose(out["east_m"].iloc[1:], g.result.x[:, 0], atol=1e-9)
+    np.testing.assert_allclose(out["var_north_m2"].iloc[1:], g.result.P[:, 2, 2], rtol=1e-12)
+    assert out["flag"].iloc[0] == "init" and np.isnan(out["nis"].iloc[0])
+    assert out["east_m"].iloc[0] == e[0] and out["var_east_m2"].iloc[0] == 25.0
     lat, lon = frame.to_geodetic(g.result.x[:, 0], g.result.x[:, 2])
-    np.testing.assert_allclose(out["lat"], lat, atol=1e-12)
+    np.testing.assert_allclose(out["lat"].iloc[1:], lat, atol=1e-12)
 
 
 # ---- cellular -----------------------------------------------------------------------------------------

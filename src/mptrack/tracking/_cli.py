@@ -58,8 +58,8 @@ def _summary_table(summary: dict, title: str) -> RichTable:
 
 
 def track(
-    input: Path = typer.Argument(..., help="Position fixes (.csv/.parquet/.gpx) or, with --cells, a cellular "
-                                           "measurement log (.csv/.parquet)."),
+    input: Path = typer.Argument(..., help="Position fixes (.csv/.parquet/.gpx, or a directory of Parquet files) "
+                                           "or, with --cells, a cellular measurement log (.csv/.parquet)."),
     out: Path = typer.Option(..., "--out", "-o", help="Result: .parquet, .csv or .geojson (written atomically)."),
     cells: Optional[Path] = typer.Option(None, "--cells", help="Cell table (OpenCelliD layout): track cellular "
                                                                "measurements with --method."),
@@ -69,27 +69,43 @@ def track(
     filter: str = typer.Option("kf", "--filter", help="Position-fix filter: kf (gated, irregular times) or a "
                                                       "linear filter name (lf, sskf, ...) on a regular grid."),
     smooth: bool = typer.Option(False, "--smooth", help="Add an RTS smoothing pass."),
-    q: float = typer.Option(2.0, help="Process-noise density (m^2/s^3 for cv; 2 suits road vehicles)."),
-    sigma: float = typer.Option(5.0, help="Fix accuracy (1-sigma, m) where the input has no accuracy_m."),
+    q: Optional[float] = typer.Option(None, help="Process-noise density (m^2/s^3 for cv). Default: estimated "
+                                                 "from each track."),
+    sigma: Optional[float] = typer.Option(None, help="Fix noise (1-sigma per axis, m) where the input has no "
+                                                     "accuracy_m. Default: estimated from each track (with "
+                                                     "accuracy_m: a scale factor on it)."),
+    noise: str = typer.Option("track", help="track: estimate the noise per track (short tracks share one "
+                                            "estimate); file: one estimate for the whole input."),
     gate: float = typer.Option(0.999, help="NIS gate probability (chi-square); 1 disables gating."),
     report: Optional[Path] = typer.Option(None, "--report", help="Also write a self-contained HTML report."),
+    track_summary: Optional[Path] = typer.Option(None, "--track-summary", help="Also write the per-track table "
+                                                 "(noise estimates with standard errors, counts, NIS): "
+                                                 ".parquet or .csv."),
     on_error: str = typer.Option("raise", "--on-error", help="raise: stop at the first bad row; skip: drop bad "
                                                              "rows, count and report them."),
-    resume: bool = typer.Option(False, "--resume", help="Skip tracks finished by an interrupted run."),
-    quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar; only the one-line summary."),
+    resume: bool = typer.Option(False, "--resume", help="Keep the work of an interrupted run of the same input "
+                                                        "and options."),
+    executor: str = typer.Option("serial", help="serial, processes or dask: who runs the chunks (the output "
+                                                "is the same)."),
+    workers: Optional[int] = typer.Option(None, "--workers", help="Processes / Dask workers (default: cores)."),
+    chunk_rows: int = typer.Option(200_000, "--chunk-rows", help="Rows of whole tracks per chunk (memory)."),
+    quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar; only the summary lines."),
     json_out: bool = typer.Option(False, "--json", help="Print the run summary as JSON on stdout."),
 ) -> None:
-    """Track position fixes or cellular measurements; write estimates, covariances, NIS and flags."""
+    """Track position fixes or cellular measurements; write estimates, covariances, NIS and flags.
+
+    With no --sigma/--q the fix noise and the process noise are estimated from each track."""
     from .._progress import RichProgress
     from ._fixes import TrackOptions
     from ._pipeline import read_output, track_file
 
     try:
-        options = TrackOptions(model=model, filter=filter, q=q, sigma_m=sigma, smooth=smooth,
+        options = TrackOptions(model=model, filter=filter, q=q, sigma_m=sigma, noise=noise, smooth=smooth,
                                gate_probability=None if gate >= 1 else gate, method=method, motion=motion)
         with RichProgress(console=_err, disable=quiet or json_out) as progress:
             summary = track_file(input, out, cells=cells, options=options, on_error=on_error, resume=resume,
-                                 progress=progress)
+                                 executor=executor, max_workers=workers, chunk_rows=chunk_rows,
+                                 track_summary=track_summary, progress=progress)
         if report is not None:
             from ..report import write_report
 
@@ -103,7 +119,32 @@ def track(
     _skipped(summary["read"])
     _out.print(f"{summary['tracks']} tracks ({summary['tracks_resumed']} resumed), {summary['points_written']} "
                f"points, {summary['outliers_rejected']} outliers rejected → {out}"
-               + (f"; report {report}" if report else ""), highlight=False)
+               + (f"; report {report}" if report else "") + (f"; tracks {track_summary}" if track_summary else ""),
+               highlight=False, soft_wrap=True)
+    for line in _noise_lines(summary, track_summary):
+        _out.print(line, highlight=False, soft_wrap=True)
+
+
+def _noise_lines(summary: dict, track_summary) -> list[str]:
+    """The noise the run used, in a sentence (one track) or as medians and ranges (many), and the NIS advice."""
+    noise = summary.get("noise")
+    lines = []
+    if noise:
+        src = ", ".join(f"{n} {k}" for k, n in noise["sigma_source"].items())
+        s, q = noise["sigma_m"], noise["q"]
+        if summary["tracks"] == 1:
+            lines.append(f"noise: fixes {s['median']:.3g} m (1-sigma per axis, {src}), process noise "
+                         f"q = {q['median']:.3g} ({', '.join(noise['q_source'])})")
+        else:
+            lines.append(f"noise over {summary['tracks']} tracks ({src}): fixes {s['median']:.3g} m median "
+                         f"(5-95 %: {s['p5']:.3g}-{s['p95']:.3g}), q {q['median']:.3g} median "
+                         f"({q['p5']:.3g}-{q['p95']:.3g})"
+                         + ("" if track_summary else "; --track-summary FILE writes every track's estimate"))
+        if noise.get("sigma_at_floor"):
+            lines.append(f"{noise['sigma_at_floor']} track(s) show no independent fix noise (sigma at its 1 mm "
+                         "floor): the receiver already smooths its fixes, and the estimate follows them")
+    lines += summary.get("nis", {}).get("advice", [])
+    return lines
 
 
 _SIMULATE_OPTIONS = {"tracks": "--tracks", "duration_s": "--duration", "interval": "--interval", "q": "--q",

@@ -233,9 +233,34 @@ def _smooth_track(t, q, order, flag, X, P):
 
 
 @nb.njit(**_SEQ)
+def _reject(k, t, ze, zn, r, rej, count, qm, order, gate, x, P, x_coast, P_coast):
+    """Fix k is rejected: add it to the run of rejections ``rej`` (count[0] of them); if the run is
+    full and its fixes agree (:func:`_restart`), x, P <- the restart state and RESET, else x, P <-
+    the coasting state and OUTLIER."""
+    max_rej = rej.shape[0]
+    if count[0] == max_rej:
+        for j in range(max_rej - 1):
+            rej[j] = rej[j + 1]
+        count[0] -= 1
+    rej[count[0]] = k
+    count[0] += 1
+    if count[0] == max_rej and _restart(t, ze, zn, r, rej, max_rej, qm, order, gate, x, P):
+        count[0] = 0
+        return RESET
+    _copy_state(order, x_coast, P_coast, x, P)
+    return OUTLIER
+
+
+@nb.njit(**_SEQ)
 def _filter_track(t, ze, zn, r, q, order, prior, gate, max_rej, store, X, P, nis, flag, stats):
     """The gated filter over one track's rows (see filter_tracks); stats <- (loglik, updates,
-    outliers, resets, NIS sum of the updates and manoeuvres, manoeuvres)."""
+    outliers, resets, NIS sum of the updates and manoeuvres, manoeuvres).
+
+    A fix that fails the gate but passes it under the manoeuvre density qm is a candidate: the
+    filter goes on from its manoeuvre update, and the next fix decides: inside the (nominal) gate
+    of that track, the candidate is a manoeuvre; otherwise it was an outlier and the filter goes
+    back to coasting through it.  A candidate at a track's last fix is taken as a manoeuvre."""
+    n = t.shape[0]
     F = np.empty((order, order))
     Qu = np.empty((order, order))
     T = np.empty((order, order))
@@ -243,12 +268,16 @@ def _filter_track(t, ze, zn, r, q, order, prior, gate, max_rej, store, X, P, nis
     Pc = np.zeros((order, order))
     xp = np.empty((2, order))
     Pp = np.empty((order, order))
+    x_coast = np.empty((2, order))       # a candidate's coasting state (prediction through it)
+    P_coast = np.empty((order, order))
     rej = np.empty(max_rej, dtype=np.int64)
-    nrej = 0
+    count = np.zeros(1, dtype=np.int64)
     loglik = 0.0
     updates = outliers = resets = manoeuvres = 0
     nis_sum = 0.0
     qm = MANOEUVRE_FACTOR * q
+    pending = False
+    cand_e = cand_em = cand_sm = 0.0
     x[0, 0] = ze[0]
     x[1, 0] = zn[0]
     Pc[0, 0] = r[0]
@@ -258,51 +287,70 @@ def _filter_track(t, ze, zn, r, q, order, prior, gate, max_rej, store, X, P, nis
     flag[0] = INIT
     if store:
         _copy_state(order, x, Pc, X[0], P[0])
-    for k in range(1, t.shape[0]):
-        chain_transition(order, t[k] - t[k - 1], F, Qu)
+    for k in range(1, n):
+        dt = t[k] - t[k - 1]
+        chain_transition(order, dt, F, Qu)
         _predict(order, F, Qu, q, x, Pc, xp, Pp, T)
         S = Pp[0, 0] + r[k]
         ne = ze[k] - xp[0, 0]
         nn = zn[k] - xp[1, 0]
         e = (ne * ne + nn * nn) / S
-        f = UPDATE
-        if e > gate:
-            # the manoeuvre hypothesis: the same prediction with process noise qm
-            for i in range(order):
-                for j in range(order):
-                    Pp[i, j] += (qm - q) * Qu[i, j]
-            S = Pp[0, 0] + r[k]
-            e = (ne * ne + nn * nn) / S
-            f = MANOEUVRE
-        nis[k] = e
-        if e > gate:
-            if nrej == max_rej:
-                for j in range(max_rej - 1):
-                    rej[j] = rej[j + 1]
-                nrej -= 1
-            rej[nrej] = k
-            nrej += 1
-            if nrej == max_rej and _restart(t, ze, zn, r, rej, nrej, qm, order, gate, x, Pc):
-                flag[k] = RESET
-                nrej = 0
-                resets += 1
-            else:
-                for i in range(order):   # coast on the nominal prediction
-                    for j in range(order):
-                        Pp[i, j] -= (qm - q) * Qu[i, j]
-                flag[k] = OUTLIER
-                outliers += 1
-                _copy_state(order, xp, Pp, x, Pc)
-        else:
-            nrej = 0
-            e, S = _update(order, xp, Pp, r[k], ze[k], zn[k], x, Pc)
-            flag[k] = f
-            if f == UPDATE:
-                updates += 1
-            else:
+        if pending:
+            pending = False
+            if e <= gate:                 # fix k confirms the manoeuvre at k - 1
+                flag[k - 1] = MANOEUVRE
+                nis[k - 1] = cand_em
                 manoeuvres += 1
+                nis_sum += cand_em
+                loglik -= 0.5 * (cand_em + 2.0 * math.log(cand_sm) + 2.0 * _LOG2PI)
+                count[0] = 0
+            else:                         # it does not: k - 1 was an outlier
+                nis[k - 1] = cand_e
+                flag[k - 1] = _reject(k - 1, t, ze, zn, r, rej, count, qm, order, gate, x, Pc, x_coast, P_coast)
+                if flag[k - 1] == RESET:
+                    resets += 1
+                else:
+                    outliers += 1
+                if store:
+                    _copy_state(order, x, Pc, X[k - 1], P[k - 1])
+                _predict(order, F, Qu, q, x, Pc, xp, Pp, T)
+                S = Pp[0, 0] + r[k]
+                ne = ze[k] - xp[0, 0]
+                nn = zn[k] - xp[1, 0]
+                e = (ne * ne + nn * nn) / S
+        nis[k] = e
+        if e <= gate:
+            count[0] = 0
+            e, S = _update(order, xp, Pp, r[k], ze[k], zn[k], x, Pc)
+            flag[k] = UPDATE
+            updates += 1
             nis_sum += e
             loglik -= 0.5 * (e + 2.0 * math.log(S) + 2.0 * _LOG2PI)
+        else:
+            _copy_state(order, xp, Pp, x_coast, P_coast)
+            for i in range(order):        # the manoeuvre hypothesis: the prediction with density qm
+                for j in range(order):
+                    Pp[i, j] += (qm - q) * Qu[i, j]
+            Sm = Pp[0, 0] + r[k]
+            em = (ne * ne + nn * nn) / Sm
+            if em <= gate:
+                em, Sm = _update(order, xp, Pp, r[k], ze[k], zn[k], x, Pc)
+                if k == n - 1:
+                    flag[k] = MANOEUVRE
+                    nis[k] = em
+                    manoeuvres += 1
+                    nis_sum += em
+                    loglik -= 0.5 * (em + 2.0 * math.log(Sm) + 2.0 * _LOG2PI)
+                else:
+                    pending = True
+                    cand_e, cand_em, cand_sm = e, em, Sm
+                    flag[k] = MANOEUVRE
+            else:
+                flag[k] = _reject(k, t, ze, zn, r, rej, count, qm, order, gate, x, Pc, x_coast, P_coast)
+                if flag[k] == RESET:
+                    resets += 1
+                else:
+                    outliers += 1
         if store:
             _copy_state(order, x, Pc, X[k], P[k])
     stats[0] = loglik

@@ -66,75 +66,127 @@ def _restart(t, z, R, Fs, Qs, H, rej, nrej, factor, start, gate, x_out, P_out):
 
 
 @njit(cache=True)
+def _reject(k, t, z, R, F, Q, H, rej, count, factor, start, gate, x_coast, P_coast, x_new, P_new):
+    """Measurement k is rejected: add it to the run ``rej`` (count[0] long); returns (flag, x, P):
+    3 and the restart state if the full run agrees (:func:`_restart`), else 1 and the coasting state."""
+    max_rej = rej.shape[0]
+    if count[0] == max_rej:
+        rej[:-1] = rej[1:]
+        count[0] -= 1
+    rej[count[0]] = k
+    count[0] += 1
+    if count[0] == max_rej and _restart(t, z, R, F, Q, H, rej, max_rej, factor, start, gate, x_new, P_new):
+        count[0] = 0
+        return 3, x_new.copy(), P_new.copy()
+    return 1, x_coast.copy(), P_coast.copy()
+
+
+@njit(cache=True)
+def _innovation(x_pred, P_pred, H, R, zk):
+    """(observed component indices, innovation, its covariance S, NIS) of measurement zk."""
+    idx = np.flatnonzero(~np.isnan(zk))
+    mk = idx.shape[0]
+    Hk = H[idx]
+    Rk = np.empty((mk, mk))
+    for a in range(mk):
+        for b in range(mk):
+            Rk[a, b] = R[idx[a], idx[b]]
+    nu = zk[idx] - Hk @ x_pred
+    S = Hk @ P_pred @ Hk.T + Rk
+    e = nu @ np.linalg.inv(S) @ nu if mk else 0.0
+    return idx, nu, S, e
+
+
+@njit(cache=True)
+def _kalman_update(x_pred, P_pred, H, idx, nu, S):
+    Hk = H[idx]
+    PHt = P_pred @ Hk.T
+    K = PHt @ np.linalg.inv(S)
+    x = x_pred + K @ nu
+    P = P_pred - K @ PHt.T
+    return x, 0.5 * (P + P.T)
+
+
+@njit(cache=True)
 def gated_loop(t, F, Q, H, R, z, x, P, gates, use_gate, max_rej, factor, start, xs, Ps, xp, Pp, nis, flag):
     """Run the gated filter; fills xs, Ps, xp, Pp, nis, flag in place; returns the log-likelihood.
 
-    gates[d] is the NIS threshold for d measured components; a measurement above it is tried
-    against the prediction with process noise factor * Q[k] (flag 5, manoeuvre) and else rejected
+    gates[d] is the NIS threshold for d measured components.  A measurement above it that passes
+    against the prediction with process noise factor * Q[k] is a manoeuvre candidate: the filter
+    goes on from that update and the next measurement decides (inside the gate of that track: flag
+    5, manoeuvre; else the candidate was an outlier, flag 1, and the filter coasts through it); a
+    candidate at the last step is a manoeuvre.  Other measurements above the gate are rejected
     (flag 1); ``max_rej`` rejections in a row restart the filter from them (flag 3) if they agree
     (:func:`_restart`, diffuse start on ``start`` of them).
     """
     T, m = z.shape
     n = x.shape[0]
     rej = np.empty(max_rej, dtype=np.int64)
-    nrej = 0
+    count = np.zeros(1, dtype=np.int64)
     x_new = np.empty(n)
     P_new = np.empty((n, n))
+    x_coast = np.empty(n)
+    P_coast = np.empty((n, n))
+    pending = False
+    cand_e = cand_em = cand_ll = 0.0
     loglik = 0.0
     for k in range(T):
         x_pred = F[k] @ x
         P_pred = F[k] @ P @ F[k].T + Q[k]
         xp[k] = x_pred
         Pp[k] = P_pred
-        idx = np.flatnonzero(~np.isnan(z[k]))
+        idx, nu, S, e = _innovation(x_pred, P_pred, H, R[k], z[k])
         mk = idx.shape[0]
+        if pending:
+            pending = False
+            if mk == 0 or e <= gates[mk]:      # confirms the manoeuvre at k - 1
+                flag[k - 1] = 5
+                nis[k - 1] = cand_em
+                loglik += cand_ll
+                count[0] = 0
+            else:                              # the candidate at k - 1 was an outlier
+                nis[k - 1] = cand_e
+                f1, x, P = _reject(k - 1, t, z, R, F, Q, H, rej, count, factor, start, gates[m],
+                                   x_coast, P_coast, x_new, P_new)
+                flag[k - 1] = f1
+                xs[k - 1] = x
+                Ps[k - 1] = P
+                x_pred = F[k] @ x
+                P_pred = F[k] @ P @ F[k].T + Q[k]
+                xp[k] = x_pred
+                Pp[k] = P_pred
+                idx, nu, S, e = _innovation(x_pred, P_pred, H, R[k], z[k])
         if mk == 0:
             flag[k] = 2
             x, P = x_pred, P_pred
             xs[k] = x
             Ps[k] = P
             continue
-        Hk = H[idx]
-        Rk = np.empty((mk, mk))
-        for a in range(mk):
-            for b in range(mk):
-                Rk[a, b] = R[k, idx[a], idx[b]]
-        nu = z[k][idx] - Hk @ x_pred
-        S = Hk @ P_pred @ Hk.T + Rk
-        e = nu @ np.linalg.inv(S) @ nu
-        f = 0
-        if use_gate and e > gates[mk]:
-            P_pred = P_pred + (factor - 1.0) * Q[k]
-            S = Hk @ P_pred @ Hk.T + Rk
-            e = nu @ np.linalg.inv(S) @ nu
-            f = 5
         nis[k] = e
-        if use_gate and e > gates[mk]:
-            if nrej == max_rej:
-                rej[:-1] = rej[1:]
-                nrej -= 1
-            rej[nrej] = k
-            nrej += 1
-            if nrej == max_rej and mk == m and _restart(t, z, R, F, Q, H, rej, nrej, factor, start, gates[m],
-                                                        x_new, P_new):
-                flag[k] = 3
-                nrej = 0
-                x, P = x_new.copy(), P_new.copy()
+        if not use_gate or e <= gates[mk]:
+            count[0] = 0
+            x, P = _kalman_update(x_pred, P_pred, H, idx, nu, S)
+            flag[k] = 0
+            loglik -= 0.5 * (e + np.log(np.linalg.det(S)) + mk * _LOG2PI)
+        else:
+            x_coast[:] = x_pred
+            P_coast[:, :] = P_pred
+            P_m = P_pred + (factor - 1.0) * Q[k]
+            idx, nu, S_m, em = _innovation(x_pred, P_m, H, R[k], z[k])
+            if em <= gates[mk]:
+                x, P = _kalman_update(x_pred, P_m, H, idx, nu, S_m)
+                ll = -0.5 * (em + np.log(np.linalg.det(S_m)) + mk * _LOG2PI)
+                flag[k] = 5
+                if k == T - 1:
+                    nis[k] = em
+                    loglik += ll
+                else:
+                    pending = True
+                    cand_e, cand_em, cand_ll = e, em, ll
             else:
-                flag[k] = 1
-                x, P = x_pred, Pp[k]
-            xs[k] = x
-            Ps[k] = P
-            continue
-        nrej = 0
-        S_inv = np.linalg.inv(S)
-        PHt = P_pred @ Hk.T
-        K = PHt @ S_inv
-        x = x_pred + K @ nu
-        P = P_pred - K @ PHt.T
-        P = 0.5 * (P + P.T)
-        flag[k] = f
+                f1, x, P = _reject(k, t, z, R, F, Q, H, rej, count, factor, start, gates[m],
+                                   x_coast, P_coast, x_new, P_new)
+                flag[k] = f1
         xs[k] = x
         Ps[k] = P
-        loglik -= 0.5 * (e + np.log(np.linalg.det(S)) + mk * _LOG2PI)
     return loglik

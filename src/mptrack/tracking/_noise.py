@@ -45,13 +45,15 @@ from ..errors import ParameterError
 from ._columns import FixTable
 from ._engine import MANOEUVRE, OUTLIER, RESET, RESTART, SKIP, USE, filter_tracks, loglik_tracks, moment_guess
 
-__all__ = ["NoiseSpec", "NoiseEstimate", "SOURCES", "fix_weights", "estimate_noise", "MIN_FIXES"]
+__all__ = ["NoiseSpec", "NoiseEstimate", "SOURCES", "fix_weights", "estimate_noise", "MIN_FIXES", "SIGMA_FLOOR_M"]
 
 #: How a track's parameter was set (the ``*_source`` columns of the track summary).
 SOURCES = ("estimated", "pooled", "default", "given")
 ESTIMATED, POOLED, DEFAULT, GIVEN = range(4)
 MIN_FIXES = 30
 MIN_POOLED_DOF = 40
+MAX_SE_LN_SIGMA = 0.3   # a track's own estimate is used when sigma is known to ~30 %
+MAX_SE_LN_Q = 0.7       # and q to a factor of ~2; otherwise the pooled estimate
 MAX_ROUNDS = 4
 SCOPES = ("track", "file")
 _DECADE = math.log(10.0)
@@ -62,7 +64,8 @@ _LOG2PI = math.log(2.0 * math.pi)
 # search bounds: ln lambda (1/s^3 for cv), ln q, ln c
 _BOUNDS = {"ratio": (math.log(1e-16), math.log(1e8)), "q": (math.log(1e-12), math.log(1e8)),
            "c": (math.log(1e-8), math.log(1e12))}
-_C_FLOOR = 1e-6   # the smallest fix variance an estimate may take: (1 mm)^2
+SIGMA_FLOOR_M = 1e-3   # the smallest fix noise an estimate may take (m)
+_C_FLOOR = SIGMA_FLOOR_M ** 2
 
 
 @dataclass(frozen=True)
@@ -298,24 +301,41 @@ def _standard_errors(problem: _Problem, groups: np.ndarray, c: np.ndarray, q: np
     return (nan, se) if problem.mode == "q" else (se, nan)
 
 
-def _groups(table: FixTable, spec: NoiseSpec, has_acc: np.ndarray, fixed: dict) -> tuple[np.ndarray, int, np.ndarray, list]:
-    """(group of each track (-1: none), number of groups, is-pooled flag per group, kind of each
-    pooled group)."""
-    B = table.B
-    group = np.full(B, -1, dtype=np.int64)
-    usable = (table.counts >= 2) & ~np.isin(has_acc, list(fixed))
-    own = usable & (table.counts >= MIN_FIXES) if spec.scope == "track" else np.zeros(B, bool)
-    group[own] = np.arange(int(own.sum()))
-    G = int(own.sum())
-    pooled, kinds = [False] * G, [None] * G
-    for kind in (False, True):
-        sel = usable & ~own & (has_acc == kind)
-        if sel.any():
-            group[sel] = G
-            pooled.append(True)
-            kinds.append(kind)
-            G += 1
-    return group, G, np.array(pooled, dtype=bool), kinds
+def _estimate(problem: _Problem, todo: np.ndarray, theta: np.ndarray, first: bool, est: dict) -> None:
+    """Search the groups ``todo`` of ``problem`` (from ``theta``, in place) and store their
+    (c, q, N, se ln c, se ln q, floored) in ``est`` (arrays over all groups)."""
+    if not len(todo):
+        return
+    half, step = (5 * _DECADE, _DECADE) if first else (_DECADE, 0.5 * _DECADE)
+    theta[todo] = _maximise(problem, todo, theta[todo], half, step)
+    c, q, n = _resolve(problem, todo, theta[todo])
+    floor = _C_FLOOR / np.array([_typical_w(problem, g) for g in todo])
+    ok = np.isfinite(c) & (c > 0) & np.isfinite(q) & (q > 0)
+    # a fix variance that collapses towards 0 (the motion explains every fix) is held at (1 mm)^2
+    floored = ok & (c < floor) & (problem.mode != "q")
+    c = np.where(floored, floor, c)
+    se_c, se_q = np.full(len(todo), np.nan), np.full(len(todo), np.nan)
+    if ok.any():
+        se_c[ok], se_q[ok] = _standard_errors(problem, todo[ok], c[ok], q[ok], floored[ok])
+    for name, values in (("c", c), ("q", q), ("n", n), ("se_c", se_c), ("se_q", se_q), ("floored", floored),
+                         ("ok", ok)):
+        est[name][todo] = values
+
+
+def _new_estimates(G: int) -> dict:
+    return {"c": np.full(G, np.nan), "q": np.full(G, np.nan), "n": np.zeros(G), "se_c": np.full(G, np.nan),
+            "se_q": np.full(G, np.nan), "floored": np.zeros(G, bool), "ok": np.zeros(G, bool)}
+
+
+def _determined(est: dict, spec: NoiseSpec) -> np.ndarray:
+    """Groups whose estimate is usable on its own: finite, and each estimated parameter known to
+    within MAX_SE_LN_SIGMA (ln sigma) and MAX_SE_LN_Q (ln q)."""
+    ok = est["ok"].copy()
+    if spec.sigma_m is None:
+        ok &= est["floored"] | (est["se_c"] / 2.0 <= MAX_SE_LN_SIGMA)
+    if spec.q is None:
+        ok &= est["se_q"] <= MAX_SE_LN_Q
+    return ok
 
 
 def estimate_noise(table: FixTable, w: np.ndarray, has_acc: np.ndarray, spec: NoiseSpec,
@@ -339,74 +359,85 @@ def estimate_noise(table: FixTable, w: np.ndarray, has_acc: np.ndarray, spec: No
             c[sel], se_c[sel], src_c[sel] = fc, fsc, POOLED
         if spec.q is None:
             q[sel], se_q[sel], src_q[sel] = fq, fsq, POOLED
-    group, G, pooled, kinds = _groups(table, spec, has_acc, fixed)
-    problem = _Problem(table, w, spec, c.copy(), group, G)
+    usable = (table.counts >= 2) & ~np.isin(has_acc, list(fixed))
+    own = usable & (table.counts >= MIN_FIXES) if spec.scope == "track" else np.zeros(B, bool)
+    own_group = np.where(own, np.cumsum(own) - 1, -1)
+    kinds = [k for k in (False, True) if (usable & (has_acc == k)).any()]
+    pool_group = np.where(usable, np.searchsorted(kinds, has_acc), -1) if kinds else np.full(B, -1)
+    mine = _Problem(table, w, spec, c.copy(), own_group, int(own.sum()))
+    pool = _Problem(table, w, spec, c.copy(), pool_group, len(kinds))
     guess = np.zeros((B, 3))
-    moment_guess(table.offsets, table.t, table.east, table.north, w, problem.mask, guess)
-    todo = np.arange(G)
-    theta = _start(problem, todo, guess)
-    rounds = 0
-    g_c, g_q, g_n = np.full(G, np.nan), np.full(G, np.nan), np.zeros(G)
+    moment_guess(table.offsets, table.t, table.east, table.north, w, mine.mask, guess)
+    th_own, th_pool = _start(mine, np.arange(mine.G), guess), _start(pool, np.arange(pool.G), guess)
+    e_own, e_pool = _new_estimates(mine.G), _new_estimates(pool.G)
+    todo, rounds = np.arange(mine.G), 0
+    pool_todo = np.arange(pool.G)
+    row_track = np.repeat(np.arange(B), table.counts)
     for rounds in range(1, MAX_ROUNDS + 1):
-        if len(todo) == 0:
-            break
-        half, step = (5 * _DECADE, _DECADE) if rounds == 1 else (_DECADE, 0.5 * _DECADE)
-        theta[todo] = _maximise(problem, todo, theta[todo], half, step)
-        g_c[todo], g_q[todo], g_n[todo] = _resolve(problem, todo, theta[todo])
+        _estimate(mine, todo, th_own, rounds == 1, e_own)
+        alone = np.zeros(B, bool)
+        alone[own] = _determined(e_own, spec)[own_group[own]]
+        needs_pool = usable & ~alone
+        if rounds == 1:
+            pool_todo = np.unique(pool_group[needs_pool])
+        _estimate(pool, pool_todo, th_pool, rounds == 1, e_pool)
+        c_b, q_b, how = _assign(spec, c, q, alone, own_group, e_own, needs_pool, pool_group, e_pool)
         if not math.isfinite(spec.gate):
             break
-        c_b, q_b = _track_values(problem, g_c, g_q, c, q)
-        flag = np.empty(table.N, dtype=np.int8)
-        nis = np.empty(table.N)
-        stats = np.zeros((B, 6))
-        X = np.empty((1, 2, spec.order))
-        P = np.empty((1, spec.order, spec.order))
-        filter_tracks(table.offsets, table.t, table.east, table.north, w, c_b, q_b, spec.order, spec.prior,
-                      spec.gate, spec.max_rej, False, False, X, P, nis, flag, stats)
-        mask = np.where((flag == OUTLIER) | (flag == MANOEUVRE), SKIP, np.where(flag == RESET, RESTART, USE)).astype(np.int8)
-        changed = mask != problem.mask
-        problem.mask = mask
+        mask = _gated_mask(table, w, c_b, q_b, spec)
+        changed = mask != mine.mask
+        mine.mask = pool.mask = mask
         if not changed.any():
             break
-        moved = np.unique(group[np.repeat(np.arange(B), table.counts)[changed]])
-        todo = moved[moved >= 0]
-    se_gc, se_gq = np.full(G, np.nan), np.full(G, np.nan)
-    # a fix variance that collapses towards 0 (the motion explains every fix) is held at (1 mm)^2;
-    # exactly 0 (every fix on one point or one line) cannot be calibrated
-    floor = _C_FLOOR / np.array([_typical_w(problem, g) for g in range(G)])
-    ok = np.isfinite(g_c) & (g_c > 0) & np.isfinite(g_q) & (g_q > 0) & ~(pooled & (g_n < MIN_POOLED_DOF))
-    floored = ok & (g_c < floor) & (problem.mode != "q")
-    g_c = np.where(floored, floor, g_c)
-    if ok.any():
-        se_gc[ok], se_gq[ok] = _standard_errors(problem, np.flatnonzero(ok), g_c[ok], g_q[ok], floored[ok])
-    found = {}
-    for g in np.flatnonzero(ok):
-        sel = group == g
-        how = POOLED if pooled[g] else ESTIMATED
+        moved = np.zeros(B, bool)
+        moved[row_track[changed]] = True
+        todo = np.flatnonzero(np.isin(np.arange(mine.G), own_group[moved & own]))
+        # a pool is re-estimated when any of its members moved and some track still needs it
+        needed = np.unique(pool_group[needs_pool])
+        pool_todo = np.intersect1d(np.unique(pool_group[moved & usable]), needed)
+    c_b, q_b, how = _assign(spec, c, q, alone, own_group, e_own, needs_pool, pool_group, e_pool)
+    for sel, e, g, src in ((alone, e_own, own_group, ESTIMATED), (how == POOLED, e_pool, pool_group, POOLED)):
         if spec.sigma_m is None:
-            c[sel], se_c[sel], src_c[sel] = g_c[g], se_gc[g], how
+            c[sel], se_c[sel], src_c[sel] = c_b[sel], e["se_c"][g[sel]], src
         if spec.q is None:
-            q[sel], se_q[sel], src_q[sel] = g_q[g], se_gq[g], how
-        if pooled[g]:
-            found[kinds[g]] = (float(g_c[g]), float(g_q[g]), float(se_gc[g]), float(se_gq[g]))
+            q[sel], se_q[sel], src_q[sel] = q_b[sel], e["se_q"][g[sel]], src
+    found = {kind: (float(e_pool["c"][i]), float(e_pool["q"][i]), float(e_pool["se_c"][i]), float(e_pool["se_q"][i]))
+             for i, kind in enumerate(kinds) if _pool_usable(e_pool, i)}
     return NoiseEstimate(c, q, se_c, se_q, src_c, src_q, rounds, found)
+
+
+def _pool_usable(e_pool: dict, i: int) -> bool:
+    return bool(e_pool["ok"][i] and e_pool["n"][i] >= MIN_POOLED_DOF)
+
+
+def _assign(spec, c, q, alone, own_group, e_own, needs_pool, pool_group, e_pool):
+    """Per-track (c, q) and how each was set: its own estimate, the pooled one, or the default."""
+    c_b, q_b = c.copy(), q.copy()
+    how = np.full(len(c), DEFAULT, dtype=np.int8)
+    pooled = needs_pool & np.array([_pool_usable(e_pool, g) if g >= 0 else False for g in pool_group], bool)
+    for sel, e, g, src in ((alone, e_own, own_group, ESTIMATED), (pooled, e_pool, pool_group, POOLED)):
+        if spec.sigma_m is None:
+            c_b[sel] = e["c"][g[sel]]
+        if spec.q is None:
+            q_b[sel] = e["q"][g[sel]]
+        how[sel] = src
+    return c_b, q_b, how
+
+
+def _gated_mask(table: FixTable, w, c, q, spec: NoiseSpec) -> np.ndarray:
+    """The likelihood mask of the gated filter run with (c, q): its outliers and manoeuvres are left
+    out, and a reset starts a new stretch."""
+    flag = np.empty(table.N, dtype=np.int8)
+    nis = np.empty(table.N)
+    stats = np.zeros((table.B, 6))
+    X = np.empty((1, 2, spec.order))
+    P = np.empty((1, spec.order, spec.order))
+    filter_tracks(table.offsets, table.t, table.east, table.north, w, c, q, spec.order, spec.prior,
+                  spec.gate, spec.max_rej, False, False, X, P, nis, flag, stats)
+    return np.where((flag == OUTLIER) | (flag == MANOEUVRE), SKIP,
+                    np.where(flag == RESET, RESTART, USE)).astype(np.int8)
 
 
 def _typical_w(problem: _Problem, g: int) -> float:
     sel = problem.table.per_row(problem.group == g)
     return float(np.median(problem.w[sel])) if sel.any() else 1.0
-
-
-def _track_values(problem: _Problem, g_c, g_q, c, q) -> tuple[np.ndarray, np.ndarray]:
-    """Per-track (c, q): the group estimates where there are, else the current values."""
-    grp = problem.group
-    has = grp >= 0
-    c_b, q_b = c.copy(), q.copy()
-    gc = g_c[np.maximum(grp, 0)]
-    gq = g_q[np.maximum(grp, 0)]
-    use = has & np.isfinite(gc) & (gc > 0) & np.isfinite(gq) & (gq > 0)
-    if problem.spec.sigma_m is None:
-        c_b[use] = gc[use]
-    if problem.spec.q is None:
-        q_b[use] = gq[use]
-    return c_b, q_b

@@ -26,11 +26,13 @@ import pyarrow as pa
 from ..batch import Chunk, run_stream
 from ..errors import MptrackError
 from ..io import FIXES, MEASUREMENTS, PartStore, ReadReport, iter_track_chunks, read_cells, read_chunks
+from ..io._readers import FRAME_LABEL
 from ..io._writers import output_format
 from ._cellular import check_cell_ids, track_cells
 from ._columns import FixTable
 from ._fixes import TrackOptions
 from ._output import nis_band, point_table
+from ._noise import SIGMA_FLOOR_M
 from ._run import TRACK_COLUMNS, track_table
 
 __all__ = ["track_file", "track", "read_output", "TrackTask", "DEFAULT_CHUNK_ROWS"]
@@ -61,15 +63,11 @@ class TrackTask:
         return self._cellular(rows)
 
     def _cellular(self, rows: pd.DataFrame) -> dict:
-        report = ReadReport()  # unknown ids were counted when the chunk was read
+        """Track by track through the range filters (rows with unknown cells were removed on reading)."""
         ids = rows["track_id"].to_numpy(dtype=object)
-        bounds = np.r_[np.flatnonzero(np.r_[True, ids[1:] != ids[:-1]]), len(ids)]
-        tables = []
-        for a, b in zip(bounds[:-1], bounds[1:]):
-            track = check_cell_ids(rows.iloc[a:b], self.cells, file=self.source, on_error="skip", report=report)
-            if len(track):
-                tables.append(pa.Table.from_pandas(track_cells(str(ids[a]), track, self.cells, self.options),
-                                                   preserve_index=False))
+        bounds = np.r_[np.flatnonzero(np.r_[True, ids[1:] != ids[:-1]]), len(ids)] if len(ids) else [0]
+        tables = [pa.Table.from_pandas(track_cells(str(ids[a]), rows.iloc[a:b], self.cells, self.options),
+                                       preserve_index=False) for a, b in zip(bounds[:-1], bounds[1:])]
         points = pa.concat_tables(tables) if tables else None
         return {"points": points if points is not None else _empty_points(), "tracks": _cell_tracks(points)}
 
@@ -88,18 +86,23 @@ def _cell_tracks(points: pa.Table | None) -> pa.Table:
     g = df.assign(upd=df["flag"].eq("update"), nis=df["nis"].where(df["flag"].eq("update"))) \
         .groupby("track_id", sort=False)
     out = pd.DataFrame({"fixes": g.size(), "updates": g["upd"].sum(), "mean_nis": g["nis"].mean(),
-                        "dof": g["nis_dof"].mean()}).reset_index()
-    lo, hi = nis_band(out["updates"].to_numpy(), 1)
-    dof = out["dof"].to_numpy()
+                        "nis_dof": g["nis_dof"].mean()}).reset_index()
+    # the band of the mean of scans with (about) nis_dof ranges each
+    dof = out["nis_dof"].to_numpy()
+    lo, hi = nis_band(out["updates"].to_numpy() * dof, 1)
     out["nis_lo"], out["nis_hi"] = lo * dof, hi * dof
     out["nis_consistent"] = (out["mean_nis"] >= out["nis_lo"]) & (out["mean_nis"] <= out["nis_hi"])
-    return pa.Table.from_pandas(out.drop(columns="dof"), preserve_index=False)
+    return pa.Table.from_pandas(out, preserve_index=False)
 
 
-def _source_chunks(source, schema, on_error: str, chunk_rows: int, report: ReadReport):
-    """Chunks of whole tracks of a path or a DataFrame, numbered."""
+def _source_chunks(source, schema, on_error: str, chunk_rows: int, report: ReadReport, cells=None):
+    """Chunks of whole tracks of a path or a DataFrame, numbered; with a cell table, rows of unknown
+    cells raise or are dropped and counted (a track left without rows is dropped)."""
+    label = source if not isinstance(source, pd.DataFrame) else FRAME_LABEL
     for i, rows in enumerate(iter_track_chunks(source, schema, on_error=on_error, chunk_rows=chunk_rows,
                                                report=report)):
+        if cells is not None:
+            rows = check_cell_ids(rows, cells, file=label, on_error=on_error, report=report)
         yield Chunk(i, 0, len(rows), data=rows)
 
 
@@ -144,7 +147,7 @@ def _run(source, options: TrackOptions, *, cells_table, on_error, chunk_rows, ex
          store: PartStore | None, manifest: dict | None, progress, report: ReadReport):
     """Run every chunk; returns the per-chunk results (paths with a store, else tables)."""
     schema = MEASUREMENTS if cells_table is not None else FIXES
-    chunks = _source_chunks(source, schema, on_error, chunk_rows, report)
+    chunks = _source_chunks(source, schema, on_error, chunk_rows, report, cells_table)
     fixed = None
     if cells_table is None and options.noise == "file" and (options.sigma_m is None or options.q is None):
         fixed, chunks = _file_noise(chunks, options)
@@ -182,11 +185,14 @@ def track_file(input, out, *, cells=None, options: TrackOptions = TrackOptions()
     report = ReadReport()
     cell_table, cell_report = (None, None) if cells is None else _cell_table(input, cells, on_error, chunk_rows)
     progress = progress or _NullProgress()
+    resumed = store.parts("tracks")
     try:
         with progress.task(f"tracking {input.name}", total=None) as advance:
             results = _run(input, options, cells_table=cell_table, on_error=on_error, chunk_rows=chunk_rows,
                            executor=executor, max_workers=max_workers, client=client, store=store,
                            manifest=_manifest(input, options, cells, chunk_rows), progress=advance, report=report)
+        points = sum(_rows(p) for p in store.parts("points"))
+        tracks_resumed = sum(_rows(p) for p in resumed)
         store.finish("points", empty=_empty_points())
         tracks = _read_tracks(store)
         if track_summary is not None:
@@ -196,12 +202,19 @@ def track_file(input, out, *, cells=None, options: TrackOptions = TrackOptions()
         store.discard()  # bad input: nothing to resume from, nothing left behind
         raise
     summary = _summary(tracks, report, options, len(results))
-    summary.update(input=str(input), output=str(out), elapsed_s=time.perf_counter() - start)
+    summary.update(input=str(input), output=str(out), points_written=points, chunks_resumed=len(resumed),
+                   tracks_resumed=tracks_resumed, elapsed_s=time.perf_counter() - start)
     if track_summary is not None:
         summary["track_summary"] = str(track_summary)
     if cell_table is not None:
         summary["cells"] = {"file": str(cells), "cells_used": int(len(cell_table)), "read": cell_report.to_dict()}
     return summary
+
+
+def _rows(path) -> int:
+    import pyarrow.parquet as pq
+
+    return pq.ParquetFile(path).metadata.num_rows
 
 
 def _read_tracks(store: PartStore) -> pd.DataFrame:
@@ -220,23 +233,50 @@ class _NullProgress:
 
 
 def _summary(tracks: pd.DataFrame, report: ReadReport, options: TrackOptions, chunks: int) -> dict:
-    """The run summary (JSON-safe): counts, the noise estimates' distribution, NIS consistency."""
+    """The run summary (JSON-safe): counts, the noise estimates' distribution, NIS consistency and
+    what to do about tracks far outside their band."""
     n = len(tracks)
-    fixes = int(tracks["fixes"].sum()) if n else 0
-    out = {"tracks": n, "chunks": chunks, "fixes": fixes,
-           "outliers_rejected": int(tracks["outliers"].sum()) if "outliers" in tracks and n else 0,
-           "resets": int(tracks["resets"].sum()) if "resets" in tracks and n else 0,
-           "read": report.to_dict(), "options": asdict(options)}
+    total = (lambda col: int(tracks[col].sum()) if col in tracks and n else 0)  # noqa: E731
+    out = {"tracks": n, "chunks": chunks, "fixes": total("fixes"), "outliers_rejected": total("outliers"),
+           "manoeuvres": total("manoeuvres"), "resets": total("resets"), "read": report.to_dict(),
+           "options": asdict(options)}
     if n and "sigma_m" in tracks:
-        out["noise"] = {name: _distribution(tracks[name].to_numpy(float)) for name in ("sigma_m", "q")}
+        noise = {name: _distribution(tracks[name].to_numpy(float)) for name in ("sigma_m", "q")}
         for name in ("sigma_source", "q_source"):
-            out["noise"][name] = {str(k): int(v) for k, v in tracks[name].value_counts().items()}
+            noise[name] = {str(k): int(v) for k, v in tracks[name].value_counts().items()}
+        noise["sigma_at_floor"] = int(((tracks["sigma_source"] != "given")
+                                       & (tracks["sigma_m"] <= SIGMA_FLOOR_M * 1.0001)).sum())
+        out["noise"] = noise
     if n and "nis_consistent" in tracks:
-        bad = tracks.loc[~tracks["nis_consistent"].astype(bool) & (tracks["updates"] > 0)]
-        out["nis"] = {"tracks_outside_band": int(len(bad)),
-                      "low": int((bad["mean_nis"] < bad["nis_lo"]).sum()),
-                      "high": int((bad["mean_nis"] > bad["nis_hi"]).sum())}
+        used = tracks["updates"] + tracks.get("manoeuvres", 0)
+        ratio = tracks["mean_nis"] / tracks["nis_dof"]
+        outside = ~tracks["nis_consistent"].astype(bool) & (used > 0)
+        far = outside & ((ratio < 0.5) | (ratio > 2.0))
+        low = far & (tracks["mean_nis"] < tracks["nis_lo"])
+        out["nis"] = {"tracks_outside_band": int(outside.sum()), "far_low": int(low.sum()),
+                      "far_high": int((far & ~low).sum()),
+                      "advice": nis_advice(int(low.sum()), int((far & ~low).sum()), options)}
     return out
+
+
+def nis_advice(low: int, high: int, options: TrackOptions) -> list[str]:
+    """What a mean NIS far below (``low`` tracks) or above (``high``) its band usually means, and
+    the option to change."""
+    given = [f for f, v in (("--sigma", options.sigma_m), ("--q", options.q)) if v is not None]
+    notes = []
+    if low:
+        cause = (f"the filter assumes more noise than the fixes show ({' and '.join(given)} too large); leave "
+                 f"{' and '.join(given)} out to estimate {'it' if len(given) == 1 else 'them'} from the data"
+                 if given else "the fixes' errors are correlated in time (a receiver that smooths its output), "
+                 "which the filter cannot tell from motion")
+        notes.append(f"{low} track(s) have a mean NIS far below its band: {cause}")
+    if high:
+        cause = (f"the fixes are noisier or the motion more agile than {' and '.join(given)} say; leave "
+                 f"{' and '.join(given)} out to estimate {'it' if len(given) == 1 else 'them'} from the data"
+                 if given else "the motion has sharper manoeuvres than the model allows (try --model ca) or "
+                 "outliers passed the gate")
+        notes.append(f"{high} track(s) have a mean NIS far above its band: {cause}")
+    return notes
 
 
 def _distribution(x: np.ndarray) -> dict:

@@ -26,7 +26,7 @@ __all__ = ["noise_spec", "track_table", "TRACK_COLUMNS"]
 TRACK_COLUMNS = ("track_id", "fixes", "duration_s", "updates", "manoeuvres", "outliers", "resets", "sigma_m",
                  "sigma_se_m",
                  "accuracy_scale", "accuracy_scale_se", "q", "q_se", "sigma_source", "q_source", "mean_nis",
-                 "nis_lo", "nis_hi", "nis_consistent", "loglik")
+                 "nis_dof", "nis_lo", "nis_hi", "nis_consistent", "loglik")
 DEFAULT_SIGMA_M = 5.0
 
 
@@ -126,7 +126,7 @@ def _tracks(table: FixTable, noise: NoiseEstimate, w: np.ndarray, has_acc: np.nd
         "q": noise.q, "q_se": noise.q * noise.se_log_q,
         "sigma_source": pa.array(src[noise.source_c].tolist(), type=pa.string()),
         "q_source": pa.array(src[noise.source_q].tolist(), type=pa.string()),
-        "mean_nis": mean_nis, "nis_lo": lo, "nis_hi": hi,
+        "mean_nis": mean_nis, "nis_dof": np.full(B, 2.0), "nis_lo": lo, "nis_hi": hi,
         "nis_consistent": (mean_nis >= lo) & (mean_nis <= hi),
         "loglik": loglik,
     }
