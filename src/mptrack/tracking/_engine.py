@@ -421,7 +421,13 @@ def _info_predict(order, dt, q, Y, ye, yn, F, Qu, A, M, Mi, tmp):
 def _info_start(t, ze, zn, w, c, rows, n_rows, q, order, x, P):
     """The exact state after the fixes ``rows[:n_rows]`` from zero information (a diffuse start):
     information-form predictions between them (density q), x, P <- the state at the last one.
-    False if their information is singular (too few distinct times) or numerically lost."""
+    False if their information is singular (fewer than ``order`` distinct times) or numerically lost."""
+    distinct = 1
+    for j in range(1, n_rows):
+        if t[rows[j]] != t[rows[j - 1]]:
+            distinct += 1
+    if distinct < order:  # a chain of order r needs fixes at r distinct times
+        return False
     F = np.empty((order, order))
     Qu = np.empty((order, order))
     A = np.empty((order, order))

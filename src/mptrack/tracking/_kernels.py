@@ -26,6 +26,12 @@ def _restart(t, z, R, Fs, Qs, H, rej, nrej, factor, start, gate, x_out, P_out):
     for j in range(nrej):
         if np.isnan(z[rej[j]]).any():
             return False
+    distinct = 1
+    for j in range(1, start):
+        if t[rej[j]] != t[rej[j - 1]]:
+            distinct += 1
+    if distinct < start:  # the diffuse start needs measurements at ``start`` distinct times
+        return False
     eye = np.eye(n)
     Y = np.zeros((n, n))
     y = np.zeros(n)
