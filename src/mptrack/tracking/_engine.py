@@ -49,8 +49,9 @@ _LOG2PI = math.log(2.0 * math.pi)
 # mask codes of loglik_tracks
 USE, SKIP, RESTART = 0, 1, 2
 
-_PAR = dict(parallel=True, cache=True, nogil=True, boundscheck=False)
-_SEQ = dict(cache=True, nogil=True, boundscheck=False)
+# error_model="numpy": a division by zero gives inf/NaN as in NumPy (checked by the callers), not an exception
+_PAR = dict(parallel=True, cache=True, nogil=True, boundscheck=False, error_model="numpy")
+_SEQ = dict(cache=True, nogil=True, boundscheck=False, error_model="numpy")
 _INLINE = dict(_SEQ, inline="always")   # the per-fix steps: no call (and array refcount) per fix
 
 
@@ -675,12 +676,14 @@ def _track_moments(t, ze, zn, w, mask, guess):
     ra = np.empty(cnt)
     for i in range(cnt):
         ra[i] = d2[i] / al[i]
-    c = max(np.median(ra) / 0.455, 1e-300)
+    c = 0.5 * np.median(ra) / 0.455
     for i in range(cnt):
         ra[i] = d2[i] / be[i]
-    q = max(np.median(ra) / 0.455, 1e-300)
-    c *= 0.5
-    q *= 0.5
+    q = 0.5 * np.median(ra) / 0.455
+    if not (c > 0.0 and q > 0.0 and np.isfinite(c) and np.isfinite(q)):
+        guess[0] = np.nan   # fixes on one point or one exact line: no start (the search's default)
+        guess[1] = np.nan
+        return
     for _ in range(8):
         s_aa = s_ab = s_bb = s_ay = s_by = 0.0
         for i in range(cnt):
@@ -704,7 +707,9 @@ def _track_moments(t, ze, zn, w, mask, guess):
         if qn <= 0.0:
             qn = 1e-3 * q
             cn = s_ay / s_aa
-        c, q = max(cn, 1e-300), max(qn, 1e-300)
+        if not (cn > 0.0 and qn > 0.0 and np.isfinite(cn) and np.isfinite(qn)):
+            break
+        c, q = cn, qn
     guess[0] = c
     guess[1] = q
 
