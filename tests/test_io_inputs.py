@@ -261,13 +261,17 @@ def test_write_is_atomic(tmp_path):
 
 
 def test_part_store_streams_its_parts_in_order_and_cleans_up(tmp_path):
+    import pyarrow as pa
+    import pyarrow.feather as feather
+
     from mptrack.batch import part_path
 
     store = PartStore(tmp_path / "o.parquet")
     store.dir.mkdir()
     for i, part in ((1, _table().iloc[2:]), (0, _table().iloc[:2])):  # written out of order
-        part.to_parquet(part_path(store.dir, "points", i))
-    assert [p.name for p in store.parts("points")] == ["points-000000.parquet", "points-000001.parquet"]
+        feather.write_feather(pa.Table.from_pandas(part, preserve_index=False),
+                              part_path(store.dir, "points", i, "arrow"))
+    assert [p.name for p in store.parts("points")] == ["points-000000.arrow", "points-000001.arrow"]
     store.finish("points")
     assert pd.read_parquet(tmp_path / "o.parquet")["track_id"].tolist() == ["a", "a", "b"]
     store.discard()

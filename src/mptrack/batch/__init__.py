@@ -26,6 +26,7 @@ from ._runner import (
     make_chunks,
     monte_carlo,
     part_path,
+    read_part,
     run_chunks,
     run_stream,
 )
@@ -41,6 +42,7 @@ __all__ = [
     "run_chunks",
     "run_stream",
     "part_path",
+    "read_part",
     "make_chunks",
     "Chunk",
     "monte_carlo",

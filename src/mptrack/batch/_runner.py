@@ -34,7 +34,7 @@ from ..errors import DTypeError, ParameterError, ShapeError
 from ..models import LinearGaussianModel, require_model
 from ._filters import gain_sequence, kalman_filter, steady_state_filter
 
-__all__ = ["Chunk", "make_chunks", "run_chunks", "run_stream", "part_path", "MonteCarloTask", "monte_carlo",
+__all__ = ["Chunk", "make_chunks", "run_chunks", "run_stream", "part_path", "read_part", "MonteCarloTask", "monte_carlo",
            "filter_chunked", "EXECUTORS"]
 
 Executor = Literal["serial", "processes", "dask"]
@@ -89,23 +89,39 @@ def _digest(*arrays) -> str:
     return h.hexdigest()[:16]
 
 
-def part_path(out_dir: Path, name: str, index: int) -> Path:
+#: File formats of a run's parts: Parquet (compact) or Arrow IPC (uncompressed, memory-mapped on reading:
+#: the fastest to write and read back for a run that is about to rewrite them into its output).
+PART_FORMATS = {"parquet": ".parquet", "arrow": ".arrow"}
+
+
+def part_path(out_dir: Path, name: str, index: int, fmt: str = "parquet") -> Path:
     """The file of part ``name`` of chunk ``index`` in a run directory."""
-    return Path(out_dir) / f"{name}-{index:06d}.parquet"
+    return Path(out_dir) / f"{name}-{index:06d}{PART_FORMATS[fmt]}"
+
+
+def read_part(path):
+    """A part written by :func:`run_stream`, as a pyarrow Table."""
+    import pyarrow.feather as feather
+    import pyarrow.parquet as pq
+
+    path = Path(path)
+    return feather.read_table(path, memory_map=True) if path.suffix == ".arrow" else pq.read_table(path)
 
 
 def _write_part(table, path: Path) -> None:
     import pyarrow as pa
-    import pyarrow.parquet as pq
+    import pyarrow.feather as feather
 
     with atomic_path(path) as tmp:
-        if isinstance(table, pa.Table):
-            pq.write_table(table, tmp, compression="none")
+        if path.suffix == ".arrow":
+            table = table if isinstance(table, pa.Table) else pa.Table.from_pandas(table, preserve_index=False)
+            feather.write_feather(table, tmp, compression="uncompressed")
         else:
             table.to_parquet(tmp, engine="pyarrow", index=False)
 
 
-def _run_one(task: Callable[[Chunk], Any], chunk: Chunk, out_dir: str | None, parts: tuple[str, ...]):
+def _run_one(task: Callable[[Chunk], Any], chunk: Chunk, out_dir: str | None, parts: tuple[str, ...],
+             fmt: str = "parquet"):
     """Worker side: compute one chunk; with ``out_dir`` write its parts atomically (the last one
     last, so its presence means the chunk is done) and return their paths."""
     result = task(chunk)
@@ -118,7 +134,7 @@ def _run_one(task: Callable[[Chunk], Any], chunk: Chunk, out_dir: str | None, pa
         return result
     paths = {}
     for name in parts:
-        paths[name] = str(part_path(Path(out_dir), name, chunk.index))
+        paths[name] = str(part_path(Path(out_dir), name, chunk.index, fmt))
         _write_part(named[name], Path(paths[name]))
     return paths if len(parts) > 1 else paths[parts[0]]
 
@@ -173,17 +189,18 @@ def run_chunks(task: Callable[[Chunk], pd.DataFrame], n_items: int, *, chunk_siz
 
 
 def run_stream(task: Callable[[Chunk], Any], chunks: Iterable[Chunk], *, parts: tuple[str, ...] = ("chunk",),
-               out_dir=None, executor: Executor = "serial", max_workers: int | None = None, client=None,
-               manifest: dict | None = None, progress: Callable[[int], None] | None = None,
-               max_pending: int | None = None) -> list:
+               out_dir=None, part_format: str = "parquet", executor: Executor = "serial",
+               max_workers: int | None = None, client=None, manifest: dict | None = None,
+               progress: Callable[[int], None] | None = None, max_pending: int | None = None) -> list:
     """Run ``task`` on chunks as an iterable produces them (so a reader can stream a file larger
     than memory); returns the results in chunk order.
 
     task      ``task(chunk)`` returns a table (``parts`` = ("chunk",)) or a dict of tables named by
               ``parts`` (pandas DataFrames or pyarrow Tables)
     out_dir   each chunk's tables are written there by the worker, atomically, as
-              ``<part>-NNNNNN.parquet``, and the result is their path (one part) or a dict of paths;
-              a chunk whose parts all exist is skipped (resume), the chunk itself never computed
+              ``<part>-NNNNNN.parquet`` (or ``.arrow``, ``part_format``), and the result is their
+              path (one part) or a dict of paths; a chunk whose parts all exist is skipped (resume),
+              the chunk itself never computed
     manifest  a JSON-able description stored as ``out_dir/manifest.json``; a later run on the
               same directory must describe the same run (else ParameterError)
     executor  as for :func:`run_chunks`; at most ``max_pending`` chunks (default twice the
@@ -205,10 +222,13 @@ def run_stream(task: Callable[[Chunk], Any], chunks: Iterable[Chunk], *, parts: 
         target = str(out_dir)
     done: dict[int, Any] = {}
 
+    if part_format not in PART_FORMATS:
+        raise ParameterError(f"part_format: expected one of {tuple(PART_FORMATS)}, got {part_format!r}")
+
     def finished(c: Chunk):
-        if target is None or not part_path(out_dir, parts[-1], c.index).exists():
+        if target is None or not part_path(out_dir, parts[-1], c.index, part_format).exists():
             return None
-        paths = {p: str(part_path(out_dir, p, c.index)) for p in parts}
+        paths = {p: str(part_path(out_dir, p, c.index, part_format)) for p in parts}
         return paths if len(parts) > 1 else paths[parts[0]]
 
     def pending_chunks():
@@ -224,17 +244,17 @@ def run_stream(task: Callable[[Chunk], Any], chunks: Iterable[Chunk], *, parts: 
     todo = pending_chunks()
     if executor == "serial":
         for c in todo:
-            done[c.index] = _run_one(task, c, target, parts)
+            done[c.index] = _run_one(task, c, target, parts, part_format)
             if progress is not None:
                 progress(1)
     elif executor == "processes":
-        _run_processes(task, todo, target, parts, max_workers, max_pending, done, progress)
+        _run_processes(task, todo, (target, parts, part_format), max_workers, max_pending, done, progress)
     else:
-        _run_dask(task, todo, target, parts, max_workers, max_pending, client, done, progress)
+        _run_dask(task, todo, (target, parts, part_format), max_workers, max_pending, client, done, progress)
     return [done[i] for i in sorted(done)]
 
 
-def _run_processes(task, todo, target, parts, max_workers, max_pending, done, progress) -> None:
+def _run_processes(task, todo, where, max_workers, max_pending, done, progress) -> None:
     workers = max_workers or os.cpu_count() or 1
     limit = max_pending or 2 * workers
     ctx = multiprocessing.get_context("spawn")  # fork is unsafe with numba's threads
@@ -245,7 +265,7 @@ def _run_processes(task, todo, target, parts, max_workers, max_pending, done, pr
             for c in todo:
                 if len(futures) >= limit:
                     _collect(futures, done, progress, concurrent.futures.FIRST_COMPLETED)
-                futures[pool.submit(_run_one, task, c, target, parts)] = c.index
+                futures[pool.submit(_run_one, task, c, *where)] = c.index
             _collect(futures, done, progress, concurrent.futures.ALL_COMPLETED)
         except BaseException:
             for fut in futures:
@@ -268,7 +288,7 @@ def _single_threaded() -> None:
     numba.set_num_threads(1)
 
 
-def _run_dask(task, todo, target, parts, max_workers, max_pending, client, done, progress) -> None:
+def _run_dask(task, todo, where, max_workers, max_pending, client, done, progress) -> None:
     from dask.distributed import Client, LocalCluster, as_completed
 
     own = client is None
@@ -288,7 +308,7 @@ def _run_dask(task, todo, target, parts, max_workers, max_pending, client, done,
                     done[index.pop(fut.key)] = fut.result()
                     if progress is not None:
                         progress(1)
-                fut = client.submit(_run_one, task, c, target, parts, pure=False)
+                fut = client.submit(_run_one, task, c, *where, pure=False)
                 index[fut.key] = c.index
                 submitted.append(fut)
                 queue.add(fut)

@@ -190,12 +190,26 @@ def iter_track_chunks(path, schema: Schema = FIXES, *, on_error: str = "raise",
         carry.append(chunk)
         carry_id = str(ids[-1])
         carry_t = max(carry_t, float(chunk["t"].max()))
-        if ready_rows >= chunk_rows:
-            yield pd.concat(ready, ignore_index=True)
-            ready, ready_rows = [], 0
+        while ready_rows >= chunk_rows:
+            head, ready = _cut(pd.concat(ready, ignore_index=True), chunk_rows)
+            ready_rows = sum(len(r) for r in ready)
+            yield head
     ready.extend(carry)
-    if ready:
-        yield pd.concat(ready, ignore_index=True)
+    rest = pd.concat(ready, ignore_index=True) if ready else None
+    while rest is not None and len(rest):
+        head, tail = _cut(rest, chunk_rows)
+        yield head
+        rest = tail[0] if tail else None
+
+
+def _cut(rows: pd.DataFrame, chunk_rows: int) -> tuple[pd.DataFrame, list]:
+    """(the first whole tracks of ``rows`` that reach ``chunk_rows`` rows, [the rest] or []): chunks
+    depend on the tracks alone, not on how the file was split into batches or files."""
+    ids = rows["track_id"].to_numpy(dtype=object)
+    ends = np.r_[np.flatnonzero(ids[1:] != ids[:-1]) + 1, len(ids)]
+    cut = int(ends[np.searchsorted(ends, chunk_rows)]) if ends[-1] >= chunk_rows else len(ids)
+    head = rows.iloc[:cut].reset_index(drop=True)
+    return head, ([rows.iloc[cut:].reset_index(drop=True)] if cut < len(ids) else [])
 
 
 def iter_tracks(path, schema: Schema = FIXES, *, on_error: str = "raise", chunk_rows: int = DEFAULT_CHUNK_ROWS,

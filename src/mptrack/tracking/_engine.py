@@ -3,7 +3,9 @@
 Layout (shared/DESIGN.md, "Many tracks"): the fixes of B tracks are flat
 columns sorted by (track, time); track b is rows ``offsets[b]:offsets[b+1]``.
 Every kernel here loops over tracks with ``prange`` and over a track's fixes
-in order; nothing is allocated per fix and no Python runs per track.
+in order; the kernels split the tracks into blocks, and each block allocates
+one workspace (:func:`_work`) for all its tracks, so nothing is allocated per
+track or per fix and no Python runs per track.
 
 The motion models of ``mptrack track`` are integrator chains per axis (cv:
 position, velocity; ca: + acceleration) driven by white noise of density q on
@@ -18,9 +20,9 @@ Other models take the per-track reference path (:func:`~._fixes.track_fixes`).
 
 Two kernels:
 
-* :func:`filter_tracks` -- the gated filter of :mod:`._gated` (NIS gate,
-  straight-line reset), optional RTS smoothing, per-track log-likelihood;
-  equal to the per-track reference to rounding (tests).
+* :func:`filter_tracks` -- the gated filter of :mod:`._gated` (two-level NIS
+  gate with a one-fix lookahead, restarts), optional RTS smoothing, per-track
+  log-likelihood; equal to the per-track reference to rounding (tests).
 * :func:`loglik_tracks` -- the log-likelihood pieces that noise estimation
   (:mod:`._noise`) maximises: the innovations of the fixes a mask accepts,
   conditional on the first ``order`` fixes of each segment (exact diffuse
@@ -52,7 +54,10 @@ USE, SKIP, RESTART = 0, 1, 2
 # error_model="numpy": a division by zero gives inf/NaN as in NumPy (checked by the callers), not an exception
 _PAR = dict(parallel=True, cache=True, nogil=True, boundscheck=False, error_model="numpy")
 _SEQ = dict(cache=True, nogil=True, boundscheck=False, error_model="numpy")
-_INLINE = dict(_SEQ, inline="always")   # the per-fix steps: no call (and array refcount) per fix
+# Inlined: the per-fix steps and the diffuse start (once per track, several calls): a call passes
+# every array as ~7 scalars (the workspace tuple as ~240), which made short tracks 5x slower; the
+# rest stays a call, as inlining everything took minutes to compile.
+_INLINE = dict(_SEQ, inline="always")
 
 
 @nb.njit(**_INLINE)
@@ -138,10 +143,26 @@ def _copy_state(order, xs, Ps, xd, Pd):
             Pd[i, j] = Ps[i, j]
 
 
+# ---- the workspace: every small array the per-track functions use, allocated once per block ----------
+# Five arrays (so a call passes ~35 scalars, not ~240 as a tuple of 34 named arrays did): slots of
+# (order, order) matrices, (2, order) states, (order,) vectors, the Gauss-Jordan work, and ints.
+# Nested functions use disjoint slots (R*: _restart, I*: _info_start / _info_predict).
+(_F, _QU, _T, _P, _PP, _PC, _PI, _C, _D, _RF, _RQU, _RT, _RPP, _RP, _IF, _IQU, _IA, _IM, _IMI, _IT,
+ _IY) = range(21)
+(_X, _XP, _XC, _DX, _RX, _RXP) = range(6)
+(_IYE, _IYN, _IV) = range(3)
+
+
 @nb.njit(**_SEQ)
-def _inverse(n, A, out):
-    """out = A^-1 for n <= 3 (Gauss-Jordan, partial pivoting); False if A is numerically singular."""
-    W = np.empty((MAX_ORDER, 2 * MAX_ORDER))
+def _work(order, max_rej):
+    """The workspace of one block: (mats, states, vectors, W, ints); ints = rej[max_rej], rows[order], count."""
+    return (np.zeros((21, order, order)), np.zeros((6, 2, order)), np.zeros((3, order)),
+            np.zeros((MAX_ORDER, 2 * MAX_ORDER)), np.zeros(max(max_rej, 1) + order + 1, dtype=np.int64))
+
+
+@nb.njit(**_SEQ)
+def _inverse(n, A, out, W):
+    """out = A^-1 for n <= 3 (Gauss-Jordan, partial pivoting, W work); False if A is numerically singular."""
     scale = 0.0
     for i in range(n):
         for j in range(n):
@@ -178,24 +199,18 @@ def _inverse(n, A, out):
 
 
 @nb.njit(**_SEQ)
-def _smooth_track(t, q, order, flag, X, P):
+def _smooth_track(t, q, order, flag, X, P, wk):
     """RTS backward pass over one track's X, P (filtered -> smoothed, in place), separately on
     each stretch that starts at the track's first fix or at a reset."""
-    F = np.empty((order, order))
-    Qu = np.empty((order, order))
-    Pp = np.empty((order, order))
-    Pi = np.empty((order, order))
-    T = np.empty((order, order))
-    C = np.empty((order, order))
-    D = np.empty((order, order))
-    xp = np.empty((2, order))
-    dx = np.empty((2, order))
+    mats, st, _, W, _ = wk
+    F, Qu, Pp, Pi, T, C, D = mats[_F], mats[_QU], mats[_PP], mats[_PI], mats[_T], mats[_C], mats[_D]
+    xp, dx = st[_XP], st[_DX]
     for k in range(t.shape[0] - 2, -1, -1):
         if flag[k + 1] == RESET:
             continue  # k ends a stretch: its filtered state is its smoothed state
         chain_transition(order, t[k + 1] - t[k], F, Qu)
         _predict(order, F, Qu, q, X[k], P[k], xp, Pp, T)
-        if not _inverse(order, Pp, Pi):
+        if not _inverse(order, Pp, Pi, W):
             continue  # cannot happen for q > 0 or r > 0; keep the filtered state
         # C = P F^T Pp^-1 ; T already holds F P, so P F^T = T^T
         for i in range(order):
@@ -234,18 +249,21 @@ def _smooth_track(t, q, order, flag, X, P):
 
 
 @nb.njit(**_SEQ)
-def _reject(k, t, ze, zn, r, rej, count, qm, order, gate, x, P, x_coast, P_coast):
-    """Fix k is rejected: add it to the run of rejections ``rej`` (count[0] of them); if the run is
-    full and its fixes agree (:func:`_restart`), x, P <- the restart state and RESET, else x, P <-
-    the coasting state and OUTLIER."""
-    max_rej = rej.shape[0]
+def _reject(k, t, ze, zn, w, c, qm, order, gate, x, P, x_coast, P_coast, wk):
+    """Fix k is rejected: add it to the run of rejections (the workspace's rej, count); if the
+    run is full and its fixes agree (:func:`_restart`), x, P <- the restart state and RESET, else
+    x, P <- the coasting state and OUTLIER."""
+    ints = wk[4]
+    max_rej = ints.shape[0] - order - 1
+    rej = ints[:max_rej]
+    count = ints[max_rej + order:]
     if count[0] == max_rej:
         for j in range(max_rej - 1):
             rej[j] = rej[j + 1]
         count[0] -= 1
     rej[count[0]] = k
     count[0] += 1
-    if count[0] == max_rej and _restart(t, ze, zn, r, rej, max_rej, qm, order, gate, x, P):
+    if count[0] == max_rej and _restart(t, ze, zn, w, c, rej, max_rej, qm, order, gate, x, P, wk):
         count[0] = 0
         return RESET
     _copy_state(order, x_coast, P_coast, x, P)
@@ -253,35 +271,34 @@ def _reject(k, t, ze, zn, r, rej, count, qm, order, gate, x, P, x_coast, P_coast
 
 
 @nb.njit(**_SEQ)
-def _filter_track(t, ze, zn, r, q, order, prior, gate, max_rej, store, X, P, nis, flag, stats):
-    """The gated filter over one track's rows (see filter_tracks); stats <- (loglik, updates,
-    outliers, resets, NIS sum of the updates and manoeuvres, manoeuvres).
+def _filter_track(t, ze, zn, w, c, q, order, prior, gate, store, X, P, nis, flag, stats, wk):
+    """The gated filter over one track's rows (see filter_tracks), fix variances c w[k]; stats <-
+    (loglik, updates, outliers, resets, NIS sum of the updates and manoeuvres, manoeuvres).
 
     A fix that fails the gate but passes it under the manoeuvre density qm is a candidate: the
     filter goes on from its manoeuvre update, and the next fix decides: inside the (nominal) gate
     of that track, the candidate is a manoeuvre; otherwise it was an outlier and the filter goes
     back to coasting through it.  A candidate at a track's last fix is taken as a manoeuvre."""
     n = t.shape[0]
-    F = np.empty((order, order))
-    Qu = np.empty((order, order))
-    T = np.empty((order, order))
-    x = np.zeros((2, order))
-    Pc = np.zeros((order, order))
-    xp = np.empty((2, order))
-    Pp = np.empty((order, order))
-    x_coast = np.empty((2, order))       # a candidate's coasting state (prediction through it)
-    P_coast = np.empty((order, order))
-    rej = np.empty(max_rej, dtype=np.int64)
-    count = np.zeros(1, dtype=np.int64)
+    mats, st, _, _, ints = wk
+    F, Qu, T, Pc, Pp, P_coast = mats[_F], mats[_QU], mats[_T], mats[_P], mats[_PP], mats[_PC]
+    x, xp, x_coast = st[_X], st[_XP], st[_XC]
+    count = ints[ints.shape[0] - 1:]
+    count[0] = 0
     loglik = 0.0
     updates = outliers = resets = manoeuvres = 0
     nis_sum = 0.0
     qm = MANOEUVRE_FACTOR * q
     pending = False
     cand_e = cand_em = cand_sm = 0.0
+    for i in range(order):
+        x[0, i] = 0.0
+        x[1, i] = 0.0
+        for j in range(order):
+            Pc[i, j] = 0.0
     x[0, 0] = ze[0]
     x[1, 0] = zn[0]
-    Pc[0, 0] = r[0]
+    Pc[0, 0] = c * w[0]
     for i in range(1, order):
         Pc[i, i] = prior[i]
     nis[0] = np.nan
@@ -289,10 +306,10 @@ def _filter_track(t, ze, zn, r, q, order, prior, gate, max_rej, store, X, P, nis
     if store:
         _copy_state(order, x, Pc, X[0], P[0])
     for k in range(1, n):
-        dt = t[k] - t[k - 1]
-        chain_transition(order, dt, F, Qu)
+        rk = c * w[k]
+        chain_transition(order, t[k] - t[k - 1], F, Qu)
         _predict(order, F, Qu, q, x, Pc, xp, Pp, T)
-        S = Pp[0, 0] + r[k]
+        S = Pp[0, 0] + rk
         ne = ze[k] - xp[0, 0]
         nn = zn[k] - xp[1, 0]
         e = (ne * ne + nn * nn) / S
@@ -307,7 +324,7 @@ def _filter_track(t, ze, zn, r, q, order, prior, gate, max_rej, store, X, P, nis
                 count[0] = 0
             else:                         # it does not: k - 1 was an outlier
                 nis[k - 1] = cand_e
-                flag[k - 1] = _reject(k - 1, t, ze, zn, r, rej, count, qm, order, gate, x, Pc, x_coast, P_coast)
+                flag[k - 1] = _reject(k - 1, t, ze, zn, w, c, qm, order, gate, x, Pc, x_coast, P_coast, wk)
                 if flag[k - 1] == RESET:
                     resets += 1
                 else:
@@ -315,14 +332,14 @@ def _filter_track(t, ze, zn, r, q, order, prior, gate, max_rej, store, X, P, nis
                 if store:
                     _copy_state(order, x, Pc, X[k - 1], P[k - 1])
                 _predict(order, F, Qu, q, x, Pc, xp, Pp, T)
-                S = Pp[0, 0] + r[k]
+                S = Pp[0, 0] + rk
                 ne = ze[k] - xp[0, 0]
                 nn = zn[k] - xp[1, 0]
                 e = (ne * ne + nn * nn) / S
         nis[k] = e
         if e <= gate:
             count[0] = 0
-            e, S = _update(order, xp, Pp, r[k], ze[k], zn[k], x, Pc)
+            e, S = _update(order, xp, Pp, rk, ze[k], zn[k], x, Pc)
             flag[k] = UPDATE
             updates += 1
             nis_sum += e
@@ -332,10 +349,10 @@ def _filter_track(t, ze, zn, r, q, order, prior, gate, max_rej, store, X, P, nis
             for i in range(order):        # the manoeuvre hypothesis: the prediction with density qm
                 for j in range(order):
                     Pp[i, j] += (qm - q) * Qu[i, j]
-            Sm = Pp[0, 0] + r[k]
+            Sm = Pp[0, 0] + rk
             em = (ne * ne + nn * nn) / Sm
             if em <= gate:
-                em, Sm = _update(order, xp, Pp, r[k], ze[k], zn[k], x, Pc)
+                em, Sm = _update(order, xp, Pp, rk, ze[k], zn[k], x, Pc)
                 if k == n - 1:
                     flag[k] = MANOEUVRE
                     nis[k] = em
@@ -347,7 +364,7 @@ def _filter_track(t, ze, zn, r, q, order, prior, gate, max_rej, store, X, P, nis
                     cand_e, cand_em, cand_sm = e, em, Sm
                     flag[k] = MANOEUVRE
             else:
-                flag[k] = _reject(k, t, ze, zn, r, rej, count, qm, order, gate, x, Pc, x_coast, P_coast)
+                flag[k] = _reject(k, t, ze, zn, w, c, qm, order, gate, x, Pc, x_coast, P_coast, wk)
                 if flag[k] == RESET:
                     resets += 1
                 else:
@@ -364,13 +381,15 @@ def _filter_track(t, ze, zn, r, q, order, prior, gate, max_rej, store, X, P, nis
 
 # ---- noise estimation: the conditional (diffuse-start) log-likelihood ---------------------------------
 
-@nb.njit(**_SEQ)
-def _info_predict(order, dt, q, Y, ye, yn, F, Qu, A, M, Mi, tmp):
+@nb.njit(**_INLINE)
+def _info_predict(order, dt, q, Y, ye, yn, wk):
     """Information-form prediction over dt of a possibly singular information matrix Y:
     Y <- A (I + Q A)^-1, y <- (I + A Q)^-1 F^-T y with A = F^-T Y F^-1 (exact also for singular
     Y or Q, since I + Q A is invertible for PSD Q, A)."""
     if dt == 0.0:
         return True
+    mats, _, vec, W, _ = wk
+    F, Qu, A, M, Mi, tmp, v = mats[_IF], mats[_IQU], mats[_IA], mats[_IM], mats[_IMI], mats[_IT], vec[_IV]
     chain_transition(order, -dt, F, Qu)   # F(-dt) = F(dt)^-1; Qu of -dt is not used
     chain_transition(order, dt, M, Qu)    # only Qu(dt) is kept (M is overwritten below)
     for i in range(order):                # tmp = Y Fi
@@ -391,7 +410,7 @@ def _info_predict(order, dt, q, Y, ye, yn, F, Qu, A, M, Mi, tmp):
             for m in range(order):
                 s += q * Qu[i, m] * A[m, j]
             M[i, j] = s
-    if not _inverse(order, M, Mi):
+    if not _inverse(order, M, Mi, W):
         return False
     for i in range(order):                # Y = A M^-1 (symmetric)
         for j in range(order):
@@ -404,7 +423,6 @@ def _info_predict(order, dt, q, Y, ye, yn, F, Qu, A, M, Mi, tmp):
             Y[i, j] = 0.5 * (tmp[i, j] + tmp[j, i])
     for ax in range(2):                   # y = M^-T Fi^T y
         y = ye if ax == 0 else yn
-        v = np.empty(order)
         for i in range(order):
             s = 0.0
             for m in range(order):
@@ -418,8 +436,8 @@ def _info_predict(order, dt, q, Y, ye, yn, F, Qu, A, M, Mi, tmp):
     return True
 
 
-@nb.njit(**_SEQ)
-def _info_start(t, ze, zn, w, c, rows, n_rows, q, order, x, P):
+@nb.njit(**_INLINE)
+def _info_start(t, ze, zn, w, c, rows, n_rows, q, order, x, P, wk):
     """The exact state after the fixes ``rows[:n_rows]`` from zero information (a diffuse start):
     information-form predictions between them (density q), x, P <- the state at the last one.
     False if their information is singular (fewer than ``order`` distinct times) or numerically lost."""
@@ -429,24 +447,22 @@ def _info_start(t, ze, zn, w, c, rows, n_rows, q, order, x, P):
             distinct += 1
     if distinct < order:  # a chain of order r needs fixes at r distinct times
         return False
-    F = np.empty((order, order))
-    Qu = np.empty((order, order))
-    A = np.empty((order, order))
-    M = np.empty((order, order))
-    Mi = np.empty((order, order))
-    tmp = np.empty((order, order))
-    Y = np.zeros((order, order))
-    ye = np.zeros(order)
-    yn = np.zeros(order)
+    mats, _, vec, W, _ = wk
+    Y, ye, yn = mats[_IY], vec[_IYE], vec[_IYN]
+    for i in range(order):
+        ye[i] = 0.0
+        yn[i] = 0.0
+        for j in range(order):
+            Y[i, j] = 0.0
     for j in range(n_rows):
         k = rows[j]
-        if j > 0 and not _info_predict(order, t[k] - t[rows[j - 1]], q, Y, ye, yn, F, Qu, A, M, Mi, tmp):
+        if j > 0 and not _info_predict(order, t[k] - t[rows[j - 1]], q, Y, ye, yn, wk):
             return False
         rk = c * w[k]
         Y[0, 0] += 1.0 / rk
         ye[0] += ze[k] / rk
         yn[0] += zn[k] / rk
-    if not _inverse(order, Y, P):
+    if not _inverse(order, Y, P, W):
         return False
     for i in range(order):
         for j in range(i + 1, order):
@@ -465,41 +481,38 @@ def _info_start(t, ze, zn, w, c, rows, n_rows, q, order, x, P):
 
 
 @nb.njit(**_SEQ)
-def _restart(t, ze, zn, r, rej, nrej, qm, order, gate, x, P):
+def _restart(t, ze, zn, w, c, rej, nrej, qm, order, gate, x, P, wk):
     """The restart test of a run of ``nrej`` rejected fixes ``rej``: a diffuse start on the first
     ``order`` of them under the manoeuvre density ``qm``, then each further one must pass the NIS
     gate against the prediction from those before it.  If all do, x, P <- the state at the last
     one and True (the track restarts there); the fixes are left alone otherwise."""
-    xs = np.empty((2, order))
-    Ps = np.empty((order, order))
-    if not _info_start(t, ze, zn, r, 1.0, rej, order, qm, order, xs, Ps):
+    mats, st, _, _, _ = wk
+    xs, Ps = st[_RX], mats[_RP]
+    if not _info_start(t, ze, zn, w, c, rej, order, qm, order, xs, Ps, wk):
         return False
-    F = np.empty((order, order))
-    Qu = np.empty((order, order))
-    T = np.empty((order, order))
-    xp = np.empty((2, order))
-    Pp = np.empty((order, order))
+    F, Qu, T, xp, Pp = mats[_RF], mats[_RQU], mats[_RT], st[_RXP], mats[_RPP]
     for j in range(order, nrej):
         k = rej[j]
         chain_transition(order, t[k] - t[rej[j - 1]], F, Qu)
         _predict(order, F, Qu, qm, xs, Ps, xp, Pp, T)
-        S = Pp[0, 0] + r[k]
+        S = Pp[0, 0] + c * w[k]
         ne = ze[k] - xp[0, 0]
         nn = zn[k] - xp[1, 0]
         if (ne * ne + nn * nn) / S > gate:
             return False
-        _update(order, xp, Pp, r[k], ze[k], zn[k], xs, Ps)
+        _update(order, xp, Pp, c * w[k], ze[k], zn[k], xs, Ps)
     _copy_state(order, xs, Ps, x, P)
     return True
 
 
-@nb.njit(**_SEQ)
-def _diffuse_start(k, t, ze, zn, w, mask, c, q, order, x, P):
+@nb.njit(**_INLINE)
+def _diffuse_start(k, t, ze, zn, w, mask, c, q, order, x, P, wk):
     """Collect the next ``order`` accepted fixes from row k on (a RESTART begins the collection
     again) and start from them (:func:`_info_start`).  Returns the row after the last of them, or
     -1 if the rows run out first."""
     n = t.shape[0]
-    rows = np.empty(order, dtype=np.int64)
+    ints = wk[4]
+    rows = ints[ints.shape[0] - order - 1:ints.shape[0] - 1]
     count = 0
     while k < n:
         code = mask[k]
@@ -509,7 +522,7 @@ def _diffuse_start(k, t, ze, zn, w, mask, c, q, order, x, P):
             rows[count] = k
             count += 1
             if count == order:
-                if _info_start(t, ze, zn, w, c, rows, order, q, order, x, P):
+                if _info_start(t, ze, zn, w, c, rows, order, q, order, x, P, wk):
                     return k + 1
                 for j in range(order - 1):  # singular (equal times): slide the window on
                     rows[j] = rows[j + 1]
@@ -518,27 +531,21 @@ def _diffuse_start(k, t, ze, zn, w, mask, c, q, order, x, P):
     return -1
 
 
-@nb.njit(**_SEQ)
-def _track_loglik(t, ze, zn, w, mask, c, q, order, out):
+@nb.njit(**_INLINE)
+def _track_loglik(t, ze, zn, w, mask, c, q, order, out, wk):
     """out <- (E, L, N): sum of NIS, sum of log det S and number of scalar innovations of the fixes
     ``mask`` accepts, conditional on the first ``order`` accepted fixes of each stretch (a stretch
     starts at row 0 and at each RESTART)."""
-    F = np.empty((order, order))
-    Qu = np.empty((order, order))
-    tmp = np.empty((order, order))
-    x = np.zeros((2, order))
-    P = np.zeros((order, order))
-    xs = np.zeros((2, order))
-    Ps = np.zeros((order, order))
-    xp = np.empty((2, order))
-    Pp = np.empty((order, order))
+    mats, st, _, _, _ = wk
+    F, Qu, tmp, P, Ps, Pp = mats[_F], mats[_QU], mats[_T], mats[_P], mats[_PC], mats[_PP]
+    x, xs, xp = st[_X], st[_XC], st[_XP]
     E = 0.0
     L = 0.0
     N = 0.0
     n = t.shape[0]
     k = 0
     while k < n:
-        k = _diffuse_start(k, t, ze, zn, w, mask, c, q, order, xs, Ps)
+        k = _diffuse_start(k, t, ze, zn, w, mask, c, q, order, xs, Ps, wk)
         if k < 0:
             break
         _copy_state(order, xs, Ps, x, P)
@@ -563,6 +570,9 @@ def _track_loglik(t, ze, zn, w, mask, c, q, order, out):
 
 # ---- the parallel kernels, compiled once per model order ------------------------------------------------
 
+_BLOCKS = 256   # tracks are split into at most this many blocks; each allocates one workspace
+
+
 def _make_kernels(order: int):
     """The parallel kernels with ``order`` a compile-time constant (the small per-fix loops unroll;
     a runtime order made them 3x slower).  numba caches each closure per constant."""
@@ -570,28 +580,31 @@ def _make_kernels(order: int):
     @nb.njit(**_PAR)
     def filter_kernel(offsets, t, ze, zn, w, c, q, prior, gate, max_rej, store, smooth, X, P, nis, flag, stats):
         B = offsets.shape[0] - 1
-        for b in nb.prange(B):
-            a0 = offsets[b]
-            b0 = offsets[b + 1]
-            if b0 <= a0:
-                continue
-            r = np.empty(b0 - a0)
-            for k in range(a0, b0):
-                r[k - a0] = c[b] * w[k]
-            _filter_track(t[a0:b0], ze[a0:b0], zn[a0:b0], r, q[b], order, prior, gate, max_rej, store,
-                          X[a0:b0], P[a0:b0], nis[a0:b0], flag[a0:b0], stats[b])
-            if smooth and store:
-                _smooth_track(t[a0:b0], q[b], order, flag[a0:b0], X[a0:b0], P[a0:b0])
+        nblk = min(B, _BLOCKS)
+        for blk in nb.prange(nblk):
+            wk = _work(order, max_rej)
+            for b in range(blk * B // nblk, (blk + 1) * B // nblk):
+                a0 = offsets[b]
+                b0 = offsets[b + 1]
+                if b0 <= a0:
+                    continue
+                _filter_track(t[a0:b0], ze[a0:b0], zn[a0:b0], w[a0:b0], c[b], q[b], order, prior, gate, store,
+                              X[a0:b0], P[a0:b0], nis[a0:b0], flag[a0:b0], stats[b], wk)
+                if smooth and store:
+                    _smooth_track(t[a0:b0], q[b], order, flag[a0:b0], X[a0:b0], P[a0:b0], wk)
 
     @nb.njit(**_PAR)
     def loglik_kernel(offsets, active, t, ze, zn, w, mask, c, q, out):
         B = offsets.shape[0] - 1
-        for b in nb.prange(B):
-            if not active[b]:
-                continue
-            a0 = offsets[b]
-            b0 = offsets[b + 1]
-            _track_loglik(t[a0:b0], ze[a0:b0], zn[a0:b0], w[a0:b0], mask[a0:b0], c[b], q[b], order, out[b])
+        nblk = min(B, _BLOCKS)
+        for blk in nb.prange(nblk):
+            wk = _work(order, 1)
+            for b in range(blk * B // nblk, (blk + 1) * B // nblk):
+                if not active[b]:
+                    continue
+                a0 = offsets[b]
+                b0 = offsets[b + 1]
+                _track_loglik(t[a0:b0], ze[a0:b0], zn[a0:b0], w[a0:b0], mask[a0:b0], c[b], q[b], order, out[b], wk)
 
     return filter_kernel, loglik_kernel
 
@@ -619,7 +632,7 @@ def filter_tracks(offsets, t, ze, zn, w, c, q, order, prior, gate, max_rej, stor
     gate     NIS threshold (inf: no gating): a fix above it is tried against the manoeuvre
              hypothesis (density MANOEUVRE_FACTOR q) and else rejected; ``max_rej`` rejections in a
              row restart the track if they agree with each other (:func:`_restart`)
-    store    write X (N, 2, order) and P (N, order, order) (else they are not touched)
+    X, P     (N, 2, order), (N, order, order): the states, written if ``store`` (else left as they are)
     smooth   replace the stored filtered states by RTS-smoothed ones
     nis, flag (N,)  NIS of each fix (NaN at a track's first fix), index into FLAGS
     stats    (B, 6)  loglik, updates, outliers, resets, NIS sum of the updates and manoeuvres, manoeuvres

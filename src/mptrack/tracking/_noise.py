@@ -40,6 +40,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+import pandas as pd
 
 from ..errors import ParameterError
 from ._columns import FixTable
@@ -148,6 +149,14 @@ class _Problem:
         self.mask = np.zeros(table.N, dtype=np.int8)
         self.mode = "ratio" if spec.sigma_m is None and spec.q is None else ("q" if spec.q is None else "c")
 
+    def typical_w(self, groups: np.ndarray) -> np.ndarray:
+        """The median unit fix variance over the rows of each group (1 for an empty one)."""
+        rows_group = self.table.per_row(self.group)
+        sel = np.isin(rows_group, groups)
+        frame = pd.DataFrame({"g": rows_group[sel], "w": self.w[sel]})
+        med = frame.groupby("g")["w"].median()
+        return med.reindex(groups).fillna(1.0).to_numpy(dtype=float, copy=True)
+
     def params(self, groups: np.ndarray, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(active tracks, c, q) of the tracks of ``groups`` at search coordinates ``theta``."""
         th = np.full(self.G, np.nan)
@@ -243,13 +252,9 @@ def _start(problem: _Problem, groups: np.ndarray, guess: np.ndarray) -> np.ndarr
         x = np.log(c)
     default = {"ratio": math.log(2.0 / 25.0), "q": math.log(problem.spec.default_q),
                "c": math.log(problem.spec.default_sigma_m ** 2)}[problem.mode]
-    out = np.full(len(groups), default)
-    ok = np.isfinite(x) & (tab.counts > 2)
-    for i, g in enumerate(groups):
-        sel = ok & (problem.group == g)
-        if sel.any():
-            out[i] = float(np.median(x[sel]))
-    return out
+    ok = np.isfinite(x) & (tab.counts > 2) & np.isin(problem.group, groups)
+    med = pd.Series(x[ok]).groupby(problem.group[ok]).median()
+    return med.reindex(groups).fillna(default).to_numpy(dtype=float, copy=True)
 
 
 def _resolve(problem: _Problem, groups: np.ndarray, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -259,9 +264,8 @@ def _resolve(problem: _Problem, groups: np.ndarray, theta: np.ndarray) -> tuple[
         with np.errstate(divide="ignore", invalid="ignore"):
             c = E / N
         return c, c * np.exp(theta), N
-    if problem.mode == "q":
-        c = np.array([problem.c_fixed[problem.group == g][0] for g in groups])
-        return c, np.exp(theta), N
+    if problem.mode == "q":  # c is 1 for every track when sigma is given (w carries it)
+        return np.ones(len(groups)), np.exp(theta), N
     return np.exp(theta), np.full(len(groups), float(problem.spec.q)), N
 
 
@@ -301,25 +305,36 @@ def _standard_errors(problem: _Problem, groups: np.ndarray, c: np.ndarray, q: np
     return (nan, se) if problem.mode == "q" else (se, nan)
 
 
-def _estimate(problem: _Problem, todo: np.ndarray, theta: np.ndarray, first: bool, est: dict) -> None:
+def _estimate(problem: _Problem, todo: np.ndarray, theta: np.ndarray, first: bool, est: dict,
+              with_se: bool) -> None:
     """Search the groups ``todo`` of ``problem`` (from ``theta``, in place) and store their
-    (c, q, N, se ln c, se ln q, floored) in ``est`` (arrays over all groups)."""
+    (c, q, N, floored, ok) in ``est`` (arrays over all groups), and their standard errors if
+    ``with_se``.  The first search spans +-4 decades of the start (widened if needed); later ones,
+    after the outlier mask changed a little, +-half a decade of the last estimate."""
     if not len(todo):
         return
-    half, step = (5 * _DECADE, _DECADE) if first else (_DECADE, 0.5 * _DECADE)
+    half, step = (4 * _DECADE, _DECADE) if first else (0.5 * _DECADE, 0.5 * _DECADE)
     theta[todo] = _maximise(problem, todo, theta[todo], half, step)
     c, q, n = _resolve(problem, todo, theta[todo])
-    floor = _C_FLOOR / np.array([_typical_w(problem, g) for g in todo])
+    floor = _C_FLOOR / problem.typical_w(todo)
     ok = np.isfinite(c) & (c > 0) & np.isfinite(q) & (q > 0)
     # a fix variance that collapses towards 0 (the motion explains every fix) is held at (1 mm)^2
     floored = ok & (c < floor) & (problem.mode != "q")
     c = np.where(floored, floor, c)
-    se_c, se_q = np.full(len(todo), np.nan), np.full(len(todo), np.nan)
-    if ok.any():
-        se_c[ok], se_q[ok] = _standard_errors(problem, todo[ok], c[ok], q[ok], floored[ok])
-    for name, values in (("c", c), ("q", q), ("n", n), ("se_c", se_c), ("se_q", se_q), ("floored", floored),
-                         ("ok", ok)):
+    for name, values in (("c", c), ("q", q), ("n", n), ("floored", floored), ("ok", ok)):
         est[name][todo] = values
+    if with_se:
+        _estimate_se(problem, todo, est)
+
+
+def _estimate_se(problem: _Problem, todo: np.ndarray, est: dict) -> None:
+    """Standard errors of the estimates of the groups ``todo`` (NaN where there is none)."""
+    se_c, se_q = np.full(len(todo), np.nan), np.full(len(todo), np.nan)
+    ok = est["ok"][todo]
+    if ok.any():
+        g = todo[ok]
+        se_c[ok], se_q[ok] = _standard_errors(problem, g, est["c"][g], est["q"][g], est["floored"][g])
+    est["se_c"][todo], est["se_q"][todo] = se_c, se_q
 
 
 def _new_estimates(G: int) -> dict:
@@ -374,13 +389,14 @@ def estimate_noise(table: FixTable, w: np.ndarray, has_acc: np.ndarray, spec: No
     pool_todo = np.arange(pool.G)
     row_track = np.repeat(np.arange(B), table.counts)
     for rounds in range(1, MAX_ROUNDS + 1):
-        _estimate(mine, todo, th_own, rounds == 1, e_own)
-        alone = np.zeros(B, bool)
-        alone[own] = _determined(e_own, spec)[own_group[own]]
-        needs_pool = usable & ~alone
+        # which tracks carry their own estimate is decided on the first round's standard errors
+        _estimate(mine, todo, th_own, rounds == 1, e_own, with_se=rounds == 1)
         if rounds == 1:
+            alone = np.zeros(B, bool)
+            alone[own] = _determined(e_own, spec)[own_group[own]]
+            needs_pool = usable & ~alone
             pool_todo = np.unique(pool_group[needs_pool])
-        _estimate(pool, pool_todo, th_pool, rounds == 1, e_pool)
+        _estimate(pool, pool_todo, th_pool, rounds == 1, e_pool, with_se=False)
         c_b, q_b, how = _assign(spec, c, q, alone, own_group, e_own, needs_pool, pool_group, e_pool)
         if not math.isfinite(spec.gate):
             break
@@ -395,6 +411,9 @@ def estimate_noise(table: FixTable, w: np.ndarray, has_acc: np.ndarray, spec: No
         # a pool is re-estimated when any of its members moved and some track still needs it
         needed = np.unique(pool_group[needs_pool])
         pool_todo = np.intersect1d(np.unique(pool_group[moved & usable]), needed)
+    if rounds > 1:  # the standard errors at the final estimates
+        _estimate_se(mine, np.unique(own_group[alone]), e_own)
+    _estimate_se(pool, np.unique(pool_group[needs_pool]), e_pool)
     c_b, q_b, how = _assign(spec, c, q, alone, own_group, e_own, needs_pool, pool_group, e_pool)
     for sel, e, g, src in ((alone, e_own, own_group, ESTIMATED), (how == POOLED, e_pool, pool_group, POOLED)):
         if spec.sigma_m is None:
@@ -414,7 +433,8 @@ def _assign(spec, c, q, alone, own_group, e_own, needs_pool, pool_group, e_pool)
     """Per-track (c, q) and how each was set: its own estimate, the pooled one, or the default."""
     c_b, q_b = c.copy(), q.copy()
     how = np.full(len(c), DEFAULT, dtype=np.int8)
-    pooled = needs_pool & np.array([_pool_usable(e_pool, g) if g >= 0 else False for g in pool_group], bool)
+    usable = np.array([_pool_usable(e_pool, i) for i in range(len(e_pool["ok"]))] + [False], bool)
+    pooled = needs_pool & usable[pool_group]   # pool_group -1 (no pool) picks the trailing False
     for sel, e, g, src in ((alone, e_own, own_group, ESTIMATED), (pooled, e_pool, pool_group, POOLED)):
         if spec.sigma_m is None:
             c_b[sel] = e["c"][g[sel]]
@@ -438,6 +458,3 @@ def _gated_mask(table: FixTable, w, c, q, spec: NoiseSpec) -> np.ndarray:
                     np.where(flag == RESET, RESTART, USE)).astype(np.int8)
 
 
-def _typical_w(problem: _Problem, g: int) -> float:
-    sel = problem.table.per_row(problem.group == g)
-    return float(np.median(problem.w[sel])) if sel.any() else 1.0

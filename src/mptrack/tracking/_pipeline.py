@@ -23,7 +23,7 @@ import numpy as np
 import pandas as pd
 import pyarrow as pa
 
-from ..batch import Chunk, run_stream
+from ..batch import Chunk, read_part, run_stream
 from ..errors import MptrackError
 from ..io import FIXES, MEASUREMENTS, PartStore, ReadReport, iter_track_chunks, read_cells, read_chunks
 from ..io._readers import FRAME_LABEL
@@ -152,8 +152,9 @@ def _run(source, options: TrackOptions, *, cells_table, on_error, chunk_rows, ex
     if cells_table is None and options.noise == "file" and (options.sigma_m is None or options.q is None):
         fixed, chunks = _file_noise(chunks, options)
     task = TrackTask(options, cells_table, fixed, str(source) if not isinstance(source, pd.DataFrame) else "data")
-    return run_stream(task, chunks, parts=_PARTS, out_dir=None if store is None else store.dir, executor=executor,
-                      max_workers=max_workers, client=client, manifest=manifest, progress=progress)
+    return run_stream(task, chunks, parts=_PARTS, out_dir=None if store is None else store.dir, part_format="arrow",
+                      executor=executor, max_workers=max_workers, client=client, manifest=manifest,
+                      progress=progress)
 
 
 def track_file(input, out, *, cells=None, options: TrackOptions = TrackOptions(), on_error: str = "raise",
@@ -212,16 +213,12 @@ def track_file(input, out, *, cells=None, options: TrackOptions = TrackOptions()
 
 
 def _rows(path) -> int:
-    import pyarrow.parquet as pq
-
-    return pq.ParquetFile(path).metadata.num_rows
+    return read_part(path).num_rows
 
 
 def _read_tracks(store: PartStore) -> pd.DataFrame:
-    import pyarrow.parquet as pq
-
     files = store.parts("tracks")
-    return pa.concat_tables([pq.read_table(p) for p in files]).to_pandas() if files else \
+    return pa.concat_tables([read_part(p) for p in files]).to_pandas() if files else \
         pd.DataFrame(columns=list(TRACK_COLUMNS))
 
 

@@ -11,6 +11,7 @@ estimates.
 from __future__ import annotations
 
 import numpy as np
+import pandas as pd
 import pyarrow as pa
 
 from ._columns import FixTable
@@ -109,7 +110,7 @@ def _tracks(table: FixTable, noise: NoiseEstimate, w: np.ndarray, has_acc: np.nd
         updates, outliers, resets, manoeuvres = (stats[:, i].astype(np.int64) for i in (1, 2, 3, 5))
         nis_sum, loglik = stats[:, 4], stats[:, 0]
     starts, ends = table.offsets[:-1], table.offsets[1:] - 1
-    typical_w = np.array([np.median(w[a:b + 1]) for a, b in zip(starts, ends)]) if B else np.zeros(0)
+    typical_w = pd.Series(w).groupby(table.per_row(np.arange(B))).median().to_numpy() if B else np.zeros(0)
     sigma = np.sqrt(noise.c * typical_w)
     scale = np.where(has_acc, np.sqrt(noise.c), np.nan)
     used = updates + manoeuvres
