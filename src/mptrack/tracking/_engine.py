@@ -93,28 +93,40 @@ def chain_transition(order, dt, F, Qu):
 
 
 @nb.njit(**_INLINE)
+def _product(order, A, B, out, ta, tb):
+    """out = op(A) op(B) for order x order matrices, op(X) = X^T where ta / tb."""
+    for i in range(order):
+        for j in range(order):
+            s = 0.0
+            for m in range(order):
+                s += (A[m, i] if ta else A[i, m]) * (B[j, m] if tb else B[m, j])
+            out[i, j] = s
+
+
+@nb.njit(**_INLINE)
+def _congruence(order, A, B, T, base, scale, out):
+    """out = A B A^T + scale * base, symmetric (T is scratch: it holds A B afterwards)."""
+    _product(order, A, B, T, False, False)
+    for i in range(order):
+        for j in range(i, order):
+            s = 0.0
+            for m in range(order):
+                s += T[i, m] * A[j, m]
+            s += scale * base[i, j]
+            out[i, j] = s
+            out[j, i] = s
+
+
+@nb.njit(**_INLINE)
 def _predict(order, F, Qu, q, x, P, xp, Pp, T):
-    """xp = F x (both axes), Pp = F P F^T + q Qu (T is scratch)."""
+    """xp = F x (both axes), Pp = F P F^T + q Qu (T is scratch: F P afterwards)."""
     for a in range(2):
         for i in range(order):
             s = 0.0
             for j in range(order):
                 s += F[i, j] * x[a, j]
             xp[a, i] = s
-    for i in range(order):
-        for j in range(order):
-            s = 0.0
-            for k in range(order):
-                s += F[i, k] * P[k, j]
-            T[i, j] = s
-    for i in range(order):
-        for j in range(i, order):
-            s = 0.0
-            for k in range(order):
-                s += T[i, k] * F[j, k]
-            s += q * Qu[i, j]
-            Pp[i, j] = s
-            Pp[j, i] = s
+    _congruence(order, F, P, T, Qu, q, Pp)
 
 
 @nb.njit(**_INLINE)
@@ -212,13 +224,7 @@ def _smooth_track(t, q, order, flag, X, P, wk):
         _predict(order, F, Qu, q, X[k], P[k], xp, Pp, T)
         if not _inverse(order, Pp, Pi, W):
             continue  # cannot happen for q > 0 or r > 0; keep the filtered state
-        # C = P F^T Pp^-1 ; T already holds F P, so P F^T = T^T
-        for i in range(order):
-            for j in range(order):
-                s = 0.0
-                for m in range(order):
-                    s += T[m, i] * Pi[m, j]
-                C[i, j] = s
+        _product(order, T, Pi, C, True, False)   # C = P F^T Pp^-1; T holds F P, so P F^T = T^T
         for ax in range(2):
             for i in range(order):
                 dx[ax, i] = X[k + 1, ax, i] - xp[ax, i]
@@ -228,24 +234,10 @@ def _smooth_track(t, q, order, flag, X, P, wk):
                 for j in range(order):
                     s += C[i, j] * dx[ax, j]
                 X[k, ax, i] += s
-        # P += C (Ps(k+1) - Pp) C^T
-        for i in range(order):
+        for i in range(order):                   # P <- P + C (Ps(k+1) - Pp) C^T
             for j in range(order):
                 D[i, j] = P[k + 1, i, j] - Pp[i, j]
-        for i in range(order):
-            for j in range(order):
-                s = 0.0
-                for m in range(order):
-                    s += C[i, m] * D[m, j]
-                T[i, j] = s
-        for i in range(order):
-            for j in range(i, order):
-                s = 0.0
-                for m in range(order):
-                    s += T[i, m] * C[j, m]
-                v = P[k, i, j] + s
-                P[k, i, j] = v
-                P[k, j, i] = v
+        _congruence(order, C, D, T, P[k], 1.0, P[k])
 
 
 @nb.njit(**_SEQ)
@@ -392,18 +384,8 @@ def _info_predict(order, dt, q, Y, ye, yn, wk):
     F, Qu, A, M, Mi, tmp, v = mats[_IF], mats[_IQU], mats[_IA], mats[_IM], mats[_IMI], mats[_IT], vec[_IV]
     chain_transition(order, -dt, F, Qu)   # F(-dt) = F(dt)^-1; Qu of -dt is not used
     chain_transition(order, dt, M, Qu)    # only Qu(dt) is kept (M is overwritten below)
-    for i in range(order):                # tmp = Y Fi
-        for j in range(order):
-            s = 0.0
-            for m in range(order):
-                s += Y[i, m] * F[m, j]
-            tmp[i, j] = s
-    for i in range(order):                # A = Fi^T Y Fi
-        for j in range(order):
-            s = 0.0
-            for m in range(order):
-                s += F[m, i] * tmp[m, j]
-            A[i, j] = s
+    _product(order, Y, F, tmp, False, False)   # A = Fi^T Y Fi
+    _product(order, F, tmp, A, True, False)
     for i in range(order):                # M = I + Q A
         for j in range(order):
             s = 1.0 if i == j else 0.0
@@ -412,12 +394,7 @@ def _info_predict(order, dt, q, Y, ye, yn, wk):
             M[i, j] = s
     if not _inverse(order, M, Mi, W):
         return False
-    for i in range(order):                # Y = A M^-1 (symmetric)
-        for j in range(order):
-            s = 0.0
-            for m in range(order):
-                s += A[i, m] * Mi[m, j]
-            tmp[i, j] = s
+    _product(order, A, Mi, tmp, False, False)  # Y = A M^-1 (symmetric)
     for i in range(order):
         for j in range(order):
             Y[i, j] = 0.5 * (tmp[i, j] + tmp[j, i])
