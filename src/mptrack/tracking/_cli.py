@@ -121,8 +121,27 @@ def track(
                f"points, {summary['outliers_rejected']} outliers rejected → {out}"
                + (f"; report {report}" if report else "") + (f"; tracks {track_summary}" if track_summary else ""),
                highlight=False, soft_wrap=True)
+    if 1 < len(summary.get("track_noise", ())) <= 10:
+        _out.print(_noise_table(summary["track_noise"]))
     for line in _noise_lines(summary, track_summary):
         _out.print(line, highlight=False, soft_wrap=True)
+
+
+def _noise_table(rows: list[dict]) -> RichTable:
+    """The noise of each track (a few tracks): estimate ± standard error and where it came from."""
+    rt = RichTable(title="noise per track", title_justify="left")
+    for col in ("track", "fixes", "sigma (m)", "q", "from", "mean NIS"):
+        rt.add_column(col, justify="left" if col in ("track", "from") else "right")
+
+    def pm(v, se):
+        return f"{v:.3g}" + (f" ± {se:.2g}" if se is not None else "")
+
+    for r in rows:
+        src = r["sigma_source"] if r["sigma_source"] == r["q_source"] else f"{r['sigma_source']}/{r['q_source']}"
+        nis = "" if r["mean_nis"] is None else f"{r['mean_nis']:.2f}"
+        rt.add_row(str(r["track_id"]), str(r["fixes"]), pm(r["sigma_m"], r["sigma_se_m"]), pm(r["q"], r["q_se"]),
+                   src, nis)
+    return rt
 
 
 def _noise_lines(summary: dict, track_summary) -> list[str]:

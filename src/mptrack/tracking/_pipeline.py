@@ -39,6 +39,8 @@ __all__ = ["track_file", "track", "read_output", "TrackTask", "DEFAULT_CHUNK_ROW
 
 #: Rows of whole tracks per unit of work (memory per chunk ~0.5 KB a row in flight).
 DEFAULT_CHUNK_ROWS = 200_000
+#: Up to this many tracks the run summary lists each track's noise estimates (beyond: the track table).
+MAX_LISTED_TRACKS = 1000
 _PARTS = ("points", "tracks")
 
 
@@ -238,6 +240,11 @@ def _summary(tracks: pd.DataFrame, report: ReadReport, options: TrackOptions, ch
            "manoeuvres": total("manoeuvres"), "resets": total("resets"), "read": report.to_dict(),
            "options": asdict(options)}
     if n and "sigma_m" in tracks:
+        if n <= MAX_LISTED_TRACKS:
+            cols = ["track_id", "fixes", "sigma_m", "sigma_se_m", "accuracy_scale", "q", "q_se", "sigma_source",
+                    "q_source", "mean_nis", "nis_consistent"]
+            out["track_noise"] = [{k: (None if isinstance(v, float) and not np.isfinite(v) else v)
+                                   for k, v in row.items()} for row in tracks[cols].to_dict("records")]
         noise = {name: _distribution(tracks[name].to_numpy(float)) for name in ("sigma_m", "q")}
         for name in ("sigma_source", "q_source"):
             noise[name] = {str(k): int(v) for k, v in tracks[name].value_counts().items()}
