@@ -289,7 +289,11 @@ def _single_threaded() -> None:
 
 
 def _run_dask(task, todo, where, max_workers, max_pending, client, done, progress) -> None:
-    from dask.distributed import Client, LocalCluster, as_completed
+    try:
+        from dask.distributed import Client, LocalCluster, as_completed
+    except ImportError:
+        raise ParameterError("executor: 'dask' needs the dask.distributed package "
+                             "(pip install 'mptrack[dask]')") from None
 
     own = client is None
     if own:

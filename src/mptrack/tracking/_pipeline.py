@@ -16,15 +16,16 @@ not depend on the executor.
 from __future__ import annotations
 
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 import pyarrow as pa
 
+from .._validation import check_int
 from ..batch import Chunk, read_part, run_stream
-from ..errors import MptrackError
+from ..errors import MptrackError, ParameterError
 from ..io import FIXES, MEASUREMENTS, PartStore, ReadReport, iter_track_chunks, read_cells, read_chunks
 from ..io._readers import FRAME_LABEL
 from ..io._writers import output_format
@@ -180,6 +181,7 @@ def track_file(input, out, *, cells=None, options: TrackOptions = TrackOptions()
     """
     start = time.perf_counter()
     input, out = Path(input), Path(out)
+    chunk_rows = check_int("chunk_rows", chunk_rows, minimum=1)
     store = PartStore(out)
     if track_summary is not None:
         output_format(track_summary)
@@ -303,7 +305,13 @@ def track(data, *, cells=None, on_error: str = "raise", chunk_rows: int = DEFAUL
     estimates with their standard errors, counts, NIS consistency) and ``attrs["summary"]`` the
     run summary (as :func:`track_file` returns).
     """
+    known = {f.name for f in fields(TrackOptions)}
+    unknown = sorted(set(options) - known)
+    if unknown:
+        raise ParameterError(f"{unknown[0]}: not an option of track; the options are data, cells, on_error, "
+                             f"chunk_rows, executor, max_workers, client and {', '.join(sorted(known))}")
     opts = TrackOptions(**options)
+    chunk_rows = check_int("chunk_rows", chunk_rows, minimum=1)
     report = ReadReport()
     cell_table = None if cells is None else _cell_table(data, cells, on_error, chunk_rows)[0]
     results = _run(data, opts, cells_table=cell_table, on_error=on_error, chunk_rows=chunk_rows,
