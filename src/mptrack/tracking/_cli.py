@@ -161,7 +161,8 @@ def _noise_lines(summary: dict, track_summary) -> list[str]:
                          + ("" if track_summary else "; --track-summary FILE writes every track's estimate"))
         if noise.get("sigma_at_floor"):
             lines.append(f"{noise['sigma_at_floor']} track(s) show no independent fix noise (sigma at its 1 mm "
-                         "floor): the receiver already smooths its fixes, and the estimate follows them")
+                         "floor): the receiver already smooths its fixes, the estimate follows them, and its "
+                         "covariance covers the noise between fixes, not the receiver's own error (metres)")
     lines += summary.get("nis", {}).get("advice", [])
     return lines
 
