@@ -132,7 +132,8 @@ def test_single_fix_tracks_and_first_fixes():
 @given(dt=st.floats(-100.0, 100.0), q=st.floats(1e-3, 10.0))
 def test_closed_form_transitions_equal_van_loan(dt, q):
     """The engine's F and Q (q = 1, scaled) equal the exact Van Loan discretisation of the models."""
-    for order, model in ((2, constant_velocity_continuous(q, axes=1)), (3, constant_acceleration_continuous(q, axes=1))):
+    for order, model in ((2, constant_velocity_continuous(q, axes=1)),
+                         (3, constant_acceleration_continuous(q, axes=1))):
         F, Qu = np.empty((order, order)), np.empty((order, order))
         chain_transition(order, dt, F, Qu)
         F_ref, Q_ref = discretize_intervals(model, np.array([abs(dt)]))

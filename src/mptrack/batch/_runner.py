@@ -34,8 +34,8 @@ from ..errors import DTypeError, ParameterError, ShapeError
 from ..models import LinearGaussianModel, require_model
 from ._filters import gain_sequence, kalman_filter, steady_state_filter
 
-__all__ = ["Chunk", "make_chunks", "run_chunks", "run_stream", "part_path", "read_part", "MonteCarloTask", "monte_carlo",
-           "filter_chunked", "EXECUTORS"]
+__all__ = ["Chunk", "make_chunks", "run_chunks", "run_stream", "part_path", "read_part", "MonteCarloTask",
+           "monte_carlo", "filter_chunked", "EXECUTORS"]
 
 Executor = Literal["serial", "processes", "dask"]
 EXECUTORS: tuple[str, ...] = ("serial", "processes", "dask")

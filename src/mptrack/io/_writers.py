@@ -160,7 +160,6 @@ def _write_parts(frames: Iterable[pd.DataFrame], tmp: Path, fmt: str) -> None:
         if not _write_arrow(frames, parquet_writer):
             pd.DataFrame().to_parquet(tmp, index=False)
     elif fmt == "csv":
-        import pyarrow.csv as pacsv
 
         with open(tmp, "wb") as fh:
             _write_arrow(frames, lambda schema: _CsvWriter(fh, schema), _csv_ready)

@@ -14,24 +14,29 @@ count, at c = 1) and the scale is concentrated out (Harvey 1989, sec. 3.4):
 the search is one-dimensional, over ln lambda.  With ``sigma_m`` or ``q``
 given, the other parameter is searched alone on the full likelihood.
 
-Search.  A grid of decades around a method-of-moments start
+Search.  A grid of decades (+-4) around a method-of-moments start
 (:func:`._engine.moment_guess`), widened while the best point is at its edge,
 then golden-section search to 0.01 in ln lambda; all groups in lockstep, each
-step one compiled pass over the tracks.
+step one compiled pass over the tracks.  Later rounds start from the last
+estimate (+-half a decade).
 
-Outliers.  Round 0 uses every fix.  Each later round gates the tracks with the
-current estimates (the filter's NIS gate and straight-line reset), drops the
-rejected fixes and restarts the likelihood at the resets, and estimates again,
+Outliers.  Round 1 uses every fix.  Each later round runs the gated filter with
+the current estimates, leaves out the fixes it rejects and its manoeuvre
+candidates, restarts the likelihood at its restarts, and estimates again,
 until the accepted fixes stop changing (at most ``MAX_ROUNDS`` rounds).
 
 Standard errors.  The observed information of (ln c, ln q): central second
-differences of the log-likelihood, step 0.1.
+differences of the log-likelihood, step 0.1 (for a sigma held at its floor,
+the standard error of ln q given it).
 
-Short and degenerate tracks.  A track with fewer than ``MIN_FIXES`` fixes does
-not carry its own estimate: all such tracks of the table (grouped by whether
-they have accuracies) share one pooled estimate.  A pool with fewer than
-``MIN_POOLED_DOF`` innovations, and a track whose estimate collapses (all
-fixes on one point or one exact line), fall back to the stated defaults.
+Pooling and fallbacks.  A track keeps its own estimate when it has at least
+``MIN_FIXES`` fixes and its estimate is determined (standard error of
+ln sigma <= ``MAX_SE_LN_SIGMA`` and of ln q <= ``MAX_SE_LN_Q``, on the first
+round); the other tracks take the pooled estimate of all tracks of the table
+(grouped by whether they have accuracies).  A pool with fewer than
+``MIN_POOLED_DOF`` innovations, and a track whose fixes are all one point or
+one exact line, fall back to the stated defaults.  An estimated fix noise that
+collapses towards 0 (receivers that smooth their output) is held at 1 mm.
 """
 
 from __future__ import annotations
