@@ -15,8 +15,10 @@ two per-axis filters that share one covariance (it depends on the times and
 r only), so the engine carries one (order x order) covariance and two means.
 Each interval is discretised in closed form, F_ij = dt^(j-i)/(j-i)! and
 Q_ij = q dt^p / (p (r-1-i)! (r-1-j)!), p = 2r-1-i-j (the exact Van Loan
-result for an integrator chain of order r; seed 001 sec. 2 for r = 2, 3).
-Other models take the per-track reference path (:func:`~._fixes.track_fixes`).
+result for an integrator chain of order r; Assimakis et al. 2016, sec. 2, for
+r = 2, 3).  These are the models of ``mptrack track`` (:data:`MODELS`: cv, ca);
+the per-track reference (:func:`~._fixes.track_fixes`) runs the general
+continuous model and is what the engine is tested against.
 
 Two kernels:
 
