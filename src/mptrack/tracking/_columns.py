@@ -16,7 +16,7 @@ import pandas as pd
 
 from ..io._geodesy import geodetic_to_enu
 
-__all__ = ["FixTable"]
+__all__ = ["FixTable", "median_by"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -73,6 +73,10 @@ class FixTable:
         """Per-track values repeated for each of the track's rows."""
         return np.repeat(values, self.counts)
 
+    def per_track_median(self, values: np.ndarray, where: np.ndarray | None = None) -> np.ndarray:
+        """(B,) median of each track's ``values`` (over the rows ``where`` is true; NaN where none is)."""
+        return median_by(self.per_row(np.arange(self.B)), values, np.arange(self.B), where)
+
     @classmethod
     def from_frame(cls, rows: pd.DataFrame) -> "FixTable":
         """The table of validated rows of whole tracks (columns track_id, time, t, row, lat/lon or x/y,
@@ -96,3 +100,11 @@ class FixTable:
         return cls(ids=np.array([str(i) for i in ids[starts]], dtype=object), offsets=offsets, t=t, time=time,
                    east=np.ascontiguousarray(east), north=np.ascontiguousarray(north), lat=lat, lon=lon,
                    accuracy=accuracy, row=rows["row"].to_numpy(dtype=np.int64))
+
+
+def median_by(keys: np.ndarray, values: np.ndarray, wanted: np.ndarray, where: np.ndarray | None = None) -> np.ndarray:
+    """The median of ``values`` over the rows of each key in ``wanted`` (rows ``where`` is true; NaN
+    for a key without rows), one vectorised group-by."""
+    sel = np.ones(len(keys), bool) if where is None else np.asarray(where, bool)
+    med = pd.Series(values[sel]).groupby(keys[sel]).median()
+    return med.reindex(wanted).to_numpy(dtype=float, copy=True)

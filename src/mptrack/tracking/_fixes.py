@@ -21,7 +21,7 @@ from ._columns import FixTable
 from ._gated import nis_threshold, smooth_gated, track_gated
 from ._noise import SCOPES
 from ._output import point_table
-from ._registry import get_fix_filter, get_model
+from ._registry import DEFAULT_SIGMA_M, get_fix_filter, get_model
 
 __all__ = ["TrackOptions", "track_fixes", "fix_variances", "grid_filter_track"]
 
@@ -85,8 +85,8 @@ class TrackOptions:
 
 def fix_variances(rows: pd.DataFrame, options: TrackOptions) -> np.ndarray:
     """Variance (m^2 per axis) of each fix of one track when the noise is not estimated: accuracy_m^2
-    where given, else sigma_m^2 (or the default 5 m)."""
-    sigma = 5.0 if options.sigma_m is None else options.sigma_m
+    where given, else sigma_m^2 (or DEFAULT_SIGMA_M)."""
+    sigma = DEFAULT_SIGMA_M if options.sigma_m is None else options.sigma_m
     if "accuracy_m" not in rows.columns:
         return np.full(len(rows), sigma ** 2)
     acc = rows["accuracy_m"].to_numpy(float)
@@ -124,7 +124,7 @@ def track_fixes(track_id: str, rows: pd.DataFrame, options: TrackOptions = Track
         flags, nis, times, t_out = gated.flag, gated.nis, table.time, t
         method = "KF-gated" + ("+RTS" if options.smooth else "")
     else:
-        res, flags, nis, t_out, extra = grid_filter_track(model, options, t, z, r, spec)
+        res, flags, nis, t_out, extra = grid_filter_track(spec, q, options, t, z, r)
         times = _time_like(t_out, table.time)
         method = options.filter.upper() + ("+RTS" if options.smooth else "")
     vel = res.x[:, [p + 1 for p in pos]]
@@ -142,10 +142,10 @@ def _time_like(t_grid: np.ndarray, times: np.ndarray) -> np.ndarray:
     return t_grid
 
 
-def grid_filter_track(model, options: TrackOptions, t, z, r, spec):
-    """A registered linear filter on the track resampled to a regular grid at the median interval
-    (a grid slot keeps its first fix; empty slots predict only; no gating; R = the median fix
-    variance): (result, flags, NIS, grid times, extra columns)."""
+def grid_filter_track(spec, q: float, options: TrackOptions, t, z, r):
+    """A registered linear filter with motion model ``spec`` (density q) on the track resampled to a
+    regular grid at the median interval (a grid slot keeps its first fix; empty slots predict only;
+    no gating; R = the median fix variance): (result, flags, NIS, grid times, extra columns)."""
     from ..linear import rts_smoother
 
     dt = float(np.median(np.diff(t))) if len(t) > 1 else 1.0
@@ -154,7 +154,7 @@ def grid_filter_track(model, options: TrackOptions, t, z, r, spec):
     zg = np.full((len(t_grid), 2), np.nan)
     first = np.r_[True, bins[1:] != bins[:-1]]
     zg[bins[first]] = z[first]
-    disc = spec.build(model.Qc[0, 0], float(np.median(r))).discretize(dt)
+    disc = spec.build(q, float(np.median(r))).discretize(dt)
     pos = [int(np.flatnonzero(disc.H[i])[0]) for i in range(2)]
     x0 = np.zeros(disc.n)
     x0[pos] = z[0]

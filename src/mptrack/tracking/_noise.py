@@ -45,11 +45,10 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-import pandas as pd
 
-from ..errors import ParameterError
-from ._columns import FixTable
+from ._columns import FixTable, median_by
 from ._engine import MANOEUVRE, OUTLIER, RESET, RESTART, SKIP, USE, filter_tracks, loglik_tracks, moment_guess
+from ._registry import DEFAULT_SIGMA_M
 
 __all__ = ["NoiseSpec", "NoiseEstimate", "SOURCES", "fix_weights", "estimate_noise", "MIN_FIXES", "SIGMA_FLOOR_M"]
 
@@ -83,6 +82,7 @@ class NoiseSpec:
     sigma_m     given fix noise (m, 1-sigma per axis) where a fix has no accuracy; None: estimate
     q           given process-noise density; None: estimate
     scope       "track": one estimate per track (short tracks pooled); "file": one for all tracks
+                (one of SCOPES; checked where the user gives it, TrackOptions)
     gate        NIS gate of the outlier rounds (inf: none); max_rej as in the filter
     default_sigma_m, default_q   the fallbacks for tracks that cannot be calibrated
     """
@@ -94,12 +94,8 @@ class NoiseSpec:
     scope: str = "track"
     gate: float = math.inf
     max_rej: int = 3
-    default_sigma_m: float = 5.0
+    default_sigma_m: float = DEFAULT_SIGMA_M
     default_q: float = 2.0
-
-    def __post_init__(self) -> None:
-        if self.scope not in SCOPES:
-            raise ParameterError(f"noise: expected one of {SCOPES}, got {self.scope!r}")
 
 
 @dataclass(frozen=True, eq=False)
@@ -135,10 +131,7 @@ def fix_weights(table: FixTable, sigma_m: float | None) -> tuple[np.ndarray, np.
     if sigma_m is not None:
         return np.where(good, w, float(sigma_m) ** 2), has
     if not good.all():
-        fill = np.ones(table.B)
-        for b in np.flatnonzero(has & (np.add.reduceat(good, table.offsets[:-1]) < table.counts)):
-            a0, b0 = table.offsets[b], table.offsets[b + 1]
-            fill[b] = np.median(w[a0:b0][good[a0:b0]])
+        fill = np.where(has, table.per_track_median(w, good), 1.0)
         w = np.where(good, w, table.per_row(fill))
     return w, has
 
@@ -146,21 +139,16 @@ def fix_weights(table: FixTable, sigma_m: float | None) -> tuple[np.ndarray, np.
 class _Problem:
     """The likelihood of one table as a function of per-group search coordinates."""
 
-    def __init__(self, table: FixTable, w: np.ndarray, spec: NoiseSpec, c_fixed: np.ndarray,
-                 group: np.ndarray, n_groups: int) -> None:
+    def __init__(self, table: FixTable, w: np.ndarray, spec: NoiseSpec, group: np.ndarray, n_groups: int) -> None:
         self.table, self.w, self.spec = table, w, spec
         self.group, self.G = group, n_groups
-        self.c_fixed = c_fixed
         self.mask = np.zeros(table.N, dtype=np.int8)
         self.mode = "ratio" if spec.sigma_m is None and spec.q is None else ("q" if spec.q is None else "c")
 
     def typical_w(self, groups: np.ndarray) -> np.ndarray:
         """The median unit fix variance over the rows of each group (1 for an empty one)."""
-        rows_group = self.table.per_row(self.group)
-        sel = np.isin(rows_group, groups)
-        frame = pd.DataFrame({"g": rows_group[sel], "w": self.w[sel]})
-        med = frame.groupby("g")["w"].median()
-        return med.reindex(groups).fillna(1.0).to_numpy(dtype=float, copy=True)
+        med = median_by(self.table.per_row(self.group), self.w, groups)
+        return np.where(np.isnan(med), 1.0, med)
 
     def params(self, groups: np.ndarray, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(active tracks, c, q) of the tracks of ``groups`` at search coordinates ``theta``."""
@@ -168,10 +156,8 @@ class _Problem:
         th[groups] = theta
         tb = th[np.maximum(self.group, 0)]
         active = np.isin(self.group, groups) & (self.group >= 0)
-        if self.mode == "ratio":
+        if self.mode in ("ratio", "q"):  # "q": sigma given, w carries it and c is 1
             c, q = np.ones(self.table.B), np.exp(tb)
-        elif self.mode == "q":
-            c, q = self.c_fixed, np.exp(tb)
         else:
             c, q = np.exp(tb), np.full(self.table.B, float(self.spec.q))
         return active, c, np.where(active, q, 1.0)
@@ -257,9 +243,8 @@ def _start(problem: _Problem, groups: np.ndarray, guess: np.ndarray) -> np.ndarr
         x = np.log(c)
     default = {"ratio": math.log(2.0 / 25.0), "q": math.log(problem.spec.default_q),
                "c": math.log(problem.spec.default_sigma_m ** 2)}[problem.mode]
-    ok = np.isfinite(x) & (tab.counts > 2) & np.isin(problem.group, groups)
-    med = pd.Series(x[ok]).groupby(problem.group[ok]).median()
-    return med.reindex(groups).fillna(default).to_numpy(dtype=float, copy=True)
+    med = median_by(problem.group, x, groups, np.isfinite(x) & (tab.counts > 2))
+    return np.where(np.isnan(med), default, med)
 
 
 def _resolve(problem: _Problem, groups: np.ndarray, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -384,8 +369,8 @@ def estimate_noise(table: FixTable, w: np.ndarray, has_acc: np.ndarray, spec: No
     own_group = np.where(own, np.cumsum(own) - 1, -1)
     kinds = [k for k in (False, True) if (usable & (has_acc == k)).any()]
     pool_group = np.where(usable, np.searchsorted(kinds, has_acc), -1) if kinds else np.full(B, -1)
-    mine = _Problem(table, w, spec, c.copy(), own_group, int(own.sum()))
-    pool = _Problem(table, w, spec, c.copy(), pool_group, len(kinds))
+    mine = _Problem(table, w, spec, own_group, int(own.sum()))
+    pool = _Problem(table, w, spec, pool_group, len(kinds))
     guess = np.zeros((B, 3))
     moment_guess(table.offsets, table.t, table.east, table.north, w, mine.mask, guess)
     th_own, th_pool = _start(mine, np.arange(mine.G), guess), _start(pool, np.arange(pool.G), guess)

@@ -16,6 +16,7 @@ not depend on the executor.
 from __future__ import annotations
 
 import time
+from contextlib import nullcontext
 from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 
@@ -228,8 +229,6 @@ def _read_tracks(store: PartStore) -> pd.DataFrame:
 
 class _NullProgress:
     def task(self, description, total=None):
-        from contextlib import nullcontext
-
         return nullcontext(lambda n=1: None)
 
 

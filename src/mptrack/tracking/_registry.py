@@ -12,7 +12,10 @@ from ..models import ContinuousLinearModel, constant_acceleration_continuous, co
 from ..nonlinear import ekf_ranges, fcs_ranges, fekf_ranges
 
 __all__ = ["MotionModel", "MODELS", "get_model", "FIX_FILTERS", "get_fix_filter", "CELL_METHODS",
-           "get_cell_method"]
+           "get_cell_method", "DEFAULT_SIGMA_M"]
+
+#: Fix noise (1-sigma per axis, m) used where it can be neither estimated nor was given.
+DEFAULT_SIGMA_M = 5.0
 
 
 @dataclass(frozen=True)

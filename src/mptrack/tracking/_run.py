@@ -19,7 +19,7 @@ from ._engine import filter_tracks
 from ._fixes import TrackOptions, track_fixes
 from ._noise import SOURCES, NoiseEstimate, NoiseSpec, estimate_noise, fix_weights
 from ._output import nis_band, point_table
-from ._registry import get_model
+from ._registry import DEFAULT_SIGMA_M, get_model
 
 __all__ = ["noise_spec", "track_table", "TRACK_COLUMNS"]
 
@@ -28,7 +28,6 @@ TRACK_COLUMNS = ("track_id", "fixes", "duration_s", "updates", "manoeuvres", "ou
                  "sigma_se_m",
                  "accuracy_scale", "accuracy_scale_se", "q", "q_se", "sigma_source", "q_source", "mean_nis",
                  "nis_dof", "nis_lo", "nis_hi", "nis_consistent", "loglik")
-DEFAULT_SIGMA_M = 5.0
 
 
 def noise_spec(options: TrackOptions) -> NoiseSpec:
@@ -76,8 +75,6 @@ def track_table(table: FixTable, options: TrackOptions, fixed: dict | None = Non
 
 def _per_track(table: FixTable, options: TrackOptions, noise: NoiseEstimate, r: np.ndarray) -> pa.Table:
     """The fixed-step linear filters: the reference path, one track at a time."""
-    import pandas as pd
-
     frames = []
     for b in range(table.B):
         a0, b0 = table.offsets[b], table.offsets[b + 1]
@@ -110,8 +107,7 @@ def _tracks(table: FixTable, noise: NoiseEstimate, w: np.ndarray, has_acc: np.nd
         updates, outliers, resets, manoeuvres = (stats[:, i].astype(np.int64) for i in (1, 2, 3, 5))
         nis_sum, loglik = stats[:, 4], stats[:, 0]
     starts, ends = table.offsets[:-1], table.offsets[1:] - 1
-    typical_w = pd.Series(w).groupby(table.per_row(np.arange(B))).median().to_numpy() if B else np.zeros(0)
-    sigma = np.sqrt(noise.c * typical_w)
+    sigma = np.sqrt(noise.c * table.per_track_median(w))
     scale = np.where(has_acc, np.sqrt(noise.c), np.nan)
     used = updates + manoeuvres
     with np.errstate(invalid="ignore", divide="ignore"):
