@@ -8,7 +8,7 @@ import pytest
 import scipy.stats
 
 from _data import REAL_TRACES, REAL_TRACK_IDS
-from mptrack.io._geodesy import geodetic_to_enu
+from mptrack.bench.tracking import rmse_vs_truth
 from mptrack.tracking import Intervals, simulate, track
 from mptrack.tracking._columns import FixTable
 from mptrack.tracking._noise import NoiseSpec, estimate_noise, fix_weights
@@ -18,16 +18,6 @@ def sim(seed, tracks, duration_s, *, sigma=5.0, q=0.5, interval=None, outliers=0
     log, _ = simulate("gps", tracks, np.random.default_rng(seed), duration_s=duration_s, sigma_m=sigma, q=q,
                       interval=interval, outlier_rate=outliers, accuracy_column=accuracy)
     return log
-
-
-def errors(points: pd.DataFrame, log: pd.DataFrame) -> tuple[float, float]:
-    """(RMSE of the estimates, RMSE of the raw fixes) against the truth, in metres."""
-    lat0, lon0 = points["origin_lat"].to_numpy(), points["origin_lon"].to_numpy()
-    te, tn = geodetic_to_enu(log["true_lat"].to_numpy(), log["true_lon"].to_numpy(), lat0, lon0)
-    me, mn = geodetic_to_enu(log["lat"].to_numpy(), log["lon"].to_numpy(), lat0, lon0)
-    est = np.hypot(points["east_m"].to_numpy() - te, points["north_m"].to_numpy() - tn)
-    raw = np.hypot(me - te, mn - tn)
-    return float(np.sqrt(np.mean(est ** 2))), float(np.sqrt(np.mean(raw ** 2)))
 
 
 @pytest.fixture(scope="module")
@@ -59,7 +49,7 @@ def test_the_calibrated_filter_is_consistent(fifty_tracks):
     nis = points.loc[used, "nis"].to_numpy()
     lo, hi = scipy.stats.chi2.ppf([0.025, 0.975], 2 * len(nis)) / len(nis)
     assert lo <= nis.mean() <= hi
-    est, raw = errors(points, log)
+    est, raw = rmse_vs_truth(points, log)
     assert est < 0.85 * raw
 
 
@@ -144,9 +134,9 @@ def test_no_flags_is_close_to_the_oracle_and_never_worse_than_the_fixes(sigma, q
     """The benchmark's sweep in small (benchmarks/bench_tracking.py runs the full one): intervals 0.5-30 s,
     no flags against the same filter given the true sigma and q."""
     log = sim(int(sigma * 10 + q * 100), 8, 3000.0, sigma=sigma, q=q, interval=Intervals.uniform(0.5, 30.0))
-    auto, raw = errors(track(log), log)
-    oracle, _ = errors(track(log, sigma_m=sigma, q=q), log)
+    auto, raw = rmse_vs_truth(track(log), log)
+    oracle, _ = rmse_vs_truth(track(log, sigma_m=sigma, q=q), log)
     assert auto <= 1.1 * oracle and auto <= raw
-    smooth, _ = errors(track(log, smooth=True), log)
-    smooth_oracle, _ = errors(track(log, smooth=True, sigma_m=sigma, q=q), log)
+    smooth, _ = rmse_vs_truth(track(log, smooth=True), log)
+    smooth_oracle, _ = rmse_vs_truth(track(log, smooth=True, sigma_m=sigma, q=q), log)
     assert smooth <= 1.1 * smooth_oracle and smooth <= raw

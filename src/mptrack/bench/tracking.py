@@ -22,7 +22,7 @@ import pandas as pd
 
 from . import register_suite
 
-__all__ = ["tracking_suite", "tracking_accuracy_suite"]
+__all__ = ["tracking_suite", "tracking_accuracy_suite", "rmse_vs_truth"]
 
 
 def _log(path: Path, tracks: int, per_track: int, seed: int = 1) -> int:
@@ -93,14 +93,14 @@ def tracking_suite(quick: bool) -> dict:
             "notes": notes}
 
 
-def _errors(points: pd.DataFrame, log: pd.DataFrame) -> tuple[float, float]:
-    from ..io._geodesy import geodetic_to_enu
+def rmse_vs_truth(points: pd.DataFrame, log: pd.DataFrame) -> tuple[float, float]:
+    """(RMSE of the estimates, RMSE of the raw fixes) against a simulated log's truth, in metres,
+    over every fix (the truth matched by :func:`mptrack.tracking.attach_truth`)."""
+    from ..tracking import attach_truth
 
-    lat0, lon0 = points["origin_lat"].to_numpy(), points["origin_lon"].to_numpy()
-    te, tn = geodetic_to_enu(log["true_lat"].to_numpy(), log["true_lon"].to_numpy(), lat0, lon0)
-    me, mn = geodetic_to_enu(log["lat"].to_numpy(), log["lon"].to_numpy(), lat0, lon0)
-    est = np.hypot(points["east_m"].to_numpy() - te, points["north_m"].to_numpy() - tn)
-    return float(np.sqrt(np.mean(est ** 2))), float(np.sqrt(np.mean((me - te) ** 2 + (mn - tn) ** 2)))
+    table = attach_truth(points, log)
+    raw = np.hypot(table["meas_east_m"] - table["true_east_m"], table["meas_north_m"] - table["true_north_m"])
+    return float(np.sqrt(np.mean(table["error_m"] ** 2))), float(np.sqrt(np.mean(raw ** 2)))
 
 
 @register_suite("tracking-accuracy")
@@ -115,10 +115,10 @@ def tracking_accuracy_suite(quick: bool) -> dict:
             for q in (0.01, 0.5, 10.0):
                 log, _ = simulate("gps", tracks, rng, duration_s=duration, interval=Intervals.uniform(0.5, 30.0),
                                   q=q, sigma_m=sigma, outlier_rate=outliers, accuracy_column=False)
-                auto, raw = _errors(track(log), log)
-                oracle, _ = _errors(track(log, sigma_m=sigma, q=q), log)
-                auto_s, _ = _errors(track(log, smooth=True), log)
-                oracle_s, _ = _errors(track(log, smooth=True, sigma_m=sigma, q=q), log)
+                auto, raw = rmse_vs_truth(track(log), log)
+                oracle, _ = rmse_vs_truth(track(log, sigma_m=sigma, q=q), log)
+                auto_s, _ = rmse_vs_truth(track(log, smooth=True), log)
+                oracle_s, _ = rmse_vs_truth(track(log, smooth=True, sigma_m=sigma, q=q), log)
                 rows.append([f"{outliers:.0%}", sigma, q, raw, oracle, auto / oracle, auto_s / oracle_s, auto / raw,
                              auto_s / raw])
     table = np.array([r[3:] for r in rows], dtype=float)
