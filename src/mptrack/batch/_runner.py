@@ -212,6 +212,8 @@ def run_stream(task: Callable[[Chunk], Any], chunks: Iterable[Chunk], *, parts: 
         raise ParameterError(f"executor: expected one of {EXECUTORS}, got {executor!r}")
     if not callable(task):
         raise ParameterError(f"task: expected a callable, got {type(task).__name__}")
+    if part_format not in PART_FORMATS:
+        raise ParameterError(f"part_format: expected one of {tuple(PART_FORMATS)}, got {part_format!r}")
     if max_workers is not None:
         max_workers = check_int("max_workers", max_workers, minimum=1)
     target = None
@@ -221,9 +223,6 @@ def run_stream(task: Callable[[Chunk], Any], chunks: Iterable[Chunk], *, parts: 
         _check_manifest(out_dir, manifest or {})
         target = str(out_dir)
     done: dict[int, Any] = {}
-
-    if part_format not in PART_FORMATS:
-        raise ParameterError(f"part_format: expected one of {tuple(PART_FORMATS)}, got {part_format!r}")
 
     def finished(c: Chunk):
         if target is None or not part_path(out_dir, parts[-1], c.index, part_format).exists():

@@ -102,7 +102,7 @@ class NoiseSpec:
 class NoiseEstimate:
     """Per-track noise parameters: fix variance factor ``c`` (fix k has variance c w_k), process-noise
     density ``q``, standard errors of ln c and ln q (NaN where not estimated), how each was set
-    (index into SOURCES), and the outlier rounds run."""
+    (index into SOURCES), and the pooled estimates made."""
 
     c: np.ndarray
     q: np.ndarray
@@ -110,8 +110,7 @@ class NoiseEstimate:
     se_log_q: np.ndarray
     source_c: np.ndarray
     source_q: np.ndarray
-    rounds: int
-    pooled: dict = None  # has-accuracy kind -> (c, q, se ln c, se ln q) of its pooled estimate, if any
+    pooled: dict  # has-accuracy kind -> (c, q, se ln c, se ln q) of its pooled estimate, if any
 
 
 def fix_weights(table: FixTable, sigma_m: float | None) -> tuple[np.ndarray, np.ndarray]:
@@ -357,7 +356,7 @@ def estimate_noise(table: FixTable, w: np.ndarray, has_acc: np.ndarray, spec: No
     src_c = np.full(B, GIVEN if spec.sigma_m is not None else DEFAULT, dtype=np.int8)
     src_q = np.full(B, GIVEN if spec.q is not None else DEFAULT, dtype=np.int8)
     if spec.sigma_m is not None and spec.q is not None:
-        return NoiseEstimate(c, q, se_c, se_q, src_c, src_q, 0, {})
+        return NoiseEstimate(c, q, se_c, se_q, src_c, src_q, {})
     for kind, (fc, fq, fsc, fsq) in fixed.items():
         sel = (has_acc == kind) & (table.counts >= 2)
         if spec.sigma_m is None:
@@ -375,8 +374,7 @@ def estimate_noise(table: FixTable, w: np.ndarray, has_acc: np.ndarray, spec: No
     moment_guess(table.offsets, table.t, table.east, table.north, w, mine.mask, guess)
     th_own, th_pool = _start(mine, np.arange(mine.G), guess), _start(pool, np.arange(pool.G), guess)
     e_own, e_pool = _new_estimates(mine.G), _new_estimates(pool.G)
-    todo, rounds = np.arange(mine.G), 0
-    pool_todo = np.arange(pool.G)
+    todo = np.arange(mine.G)
     row_track = np.repeat(np.arange(B), table.counts)
     for rounds in range(1, MAX_ROUNDS + 1):
         # which tracks carry their own estimate is decided on the first round's standard errors
@@ -397,22 +395,23 @@ def estimate_noise(table: FixTable, w: np.ndarray, has_acc: np.ndarray, spec: No
             break
         moved = np.zeros(B, bool)
         moved[row_track[changed]] = True
-        todo = np.flatnonzero(np.isin(np.arange(mine.G), own_group[moved & own]))
+        todo = np.unique(own_group[moved & own])
         # a pool is re-estimated when any of its members moved and some track still needs it
         needed = np.unique(pool_group[needs_pool])
         pool_todo = np.intersect1d(np.unique(pool_group[moved & usable]), needed)
     if rounds > 1:  # the standard errors at the final estimates
         _estimate_se(mine, np.unique(own_group[alone]), e_own)
     _estimate_se(pool, np.unique(pool_group[needs_pool]), e_pool)
-    c_b, q_b, how = _assign(spec, c, q, alone, own_group, e_own, needs_pool, pool_group, e_pool)
-    for sel, e, g, src in ((alone, e_own, own_group, ESTIMATED), (how == POOLED, e_pool, pool_group, POOLED)):
+    c, q, how = _assign(spec, c, q, alone, own_group, e_own, needs_pool, pool_group, e_pool)
+    for src, e, g in ((ESTIMATED, e_own, own_group), (POOLED, e_pool, pool_group)):
+        sel = how == src
         if spec.sigma_m is None:
-            c[sel], se_c[sel], src_c[sel] = c_b[sel], e["se_c"][g[sel]], src
+            se_c[sel], src_c[sel] = e["se_c"][g[sel]], src
         if spec.q is None:
-            q[sel], se_q[sel], src_q[sel] = q_b[sel], e["se_q"][g[sel]], src
+            se_q[sel], src_q[sel] = e["se_q"][g[sel]], src
     found = {kind: (float(e_pool["c"][i]), float(e_pool["q"][i]), float(e_pool["se_c"][i]), float(e_pool["se_q"][i]))
              for i, kind in enumerate(kinds) if _pool_usable(e_pool, i)}
-    return NoiseEstimate(c, q, se_c, se_q, src_c, src_q, rounds, found)
+    return NoiseEstimate(c, q, se_c, se_q, src_c, src_q, found)
 
 
 def _pool_usable(e_pool: dict, i: int) -> bool:
