@@ -23,6 +23,7 @@ from ..io import LocalFrame, ReadReport
 from ..models import constant_velocity_continuous
 from ..nonlinear import range_measurement
 from ..radio import arfcn_to_frequency, distance_from_rss
+from ._columns import time_values
 from ._fixes import TrackOptions, _time_like
 from ._output import point_table
 from ._registry import get_cell_method
@@ -128,10 +129,7 @@ def track_cells(track_id: str, rows: pd.DataFrame, cells: pd.DataFrame,
     vel = res.x[:, 2:4] * 1e3 if options.motion == "cv" else None
     P2 = res.P[:, :2, :2] * 1e6
     extra = {"n_cells": np.isfinite(z).sum(axis=1)}
-    time = rows["time"]
-    time = time.to_numpy(dtype="datetime64[ns]") if pd.api.types.is_datetime64_any_dtype(time) \
-        else time.to_numpy(dtype=float)
-    return point_table([track_id], np.array([0, len(t)]), _time_like(t, time), t, res.x[:, 0] * 1e3,
+    return point_table([track_id], np.array([0, len(t)]), _time_like(t, time_values(rows["time"])), t, res.x[:, 0] * 1e3,
                        res.x[:, 1] * 1e3, vel, P2[:, 0, 0], P2[:, 0, 1], P2[:, 1, 1], nis, dof, flags,
                        max(options.gap_s, 1.5 * dt), (np.array([frame.lat0]), np.array([frame.lon0])),
                        f"{options.method.upper()}-{options.motion}", extra).to_pandas()

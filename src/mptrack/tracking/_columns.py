@@ -16,7 +16,7 @@ import pandas as pd
 
 from ..io._geodesy import geodetic_to_enu
 
-__all__ = ["FixTable", "median_by"]
+__all__ = ["FixTable", "median_by", "time_values"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -84,9 +84,7 @@ class FixTable:
         ids = rows["track_id"].to_numpy(dtype=object)
         starts = np.flatnonzero(np.r_[True, ids[1:] != ids[:-1]]) if len(ids) else np.zeros(0, np.int64)
         offsets = np.r_[starts, len(ids)].astype(np.int64)
-        time = rows["time"]
-        time = time.to_numpy(dtype="datetime64[ns]") if pd.api.types.is_datetime64_any_dtype(time) \
-            else time.to_numpy(dtype=float)
+        time = time_values(rows["time"])
         t = rows["t"].to_numpy(dtype=float)
         if "lat" in rows.columns and "lon" in rows.columns:
             lat = rows["lat"].to_numpy(dtype=float)
@@ -108,3 +106,10 @@ def median_by(keys: np.ndarray, values: np.ndarray, wanted: np.ndarray, where: n
     sel = np.ones(len(keys), bool) if where is None else np.asarray(where, bool)
     med = pd.Series(values[sel]).groupby(keys[sel]).median()
     return med.reindex(wanted).to_numpy(dtype=float, copy=True)
+
+
+def time_values(times: pd.Series) -> np.ndarray:
+    """A validated time column as written back out: datetime64[ns] (UTC) or float seconds."""
+    if pd.api.types.is_datetime64_any_dtype(times):
+        return times.to_numpy(dtype="datetime64[ns]")
+    return times.to_numpy(dtype=float)

@@ -15,8 +15,11 @@ which for a consistent filter is chi-square with m = dim z degrees of freedom
 quantile ``gate_probability`` (default 0.999: 13.82 for a 2-D fix) is tested
 again against the prediction with ``manoeuvre_factor`` times the process noise
 (default 10); if it passes there it updates the filter from that prediction
-(flag "manoeuvre"), otherwise it is rejected: the step only predicts and the
-point is flagged "outlier".  Real motion has heavier tails than the Gaussian
+as a candidate, and the next measurement decides: inside the gate of the
+track it leads to, the candidate is a manoeuvre (flag "manoeuvre"); otherwise
+it was an outlier and the filter coasts through it.  A measurement outside
+both gates is rejected: the step only predicts and the point is flagged
+"outlier".  Real motion has heavier tails than the Gaussian
 model (turns, braking): without the second level a turn is rejected fix after
 fix.  After ``max_rejections`` rejections in a row that agree with each other
 (a diffuse start on the first of them under the manoeuvre process noise
@@ -60,7 +63,7 @@ class GatedResult:
 
     nis   (T,) NIS of each measurement (NaN where there was none)
     flag  (T,) index into FLAGS: 0 update, 1 outlier (rejected), 2 predicted (no measurement), 3 reset,
-          4 init (the first fix of a track, :func:`track_gated`)
+          4 init (the first fix of a track, :func:`track_gated`), 5 manoeuvre
     F, Q  (T, n, n) the transition used to reach step k from step k-1 (for smoothing)
     """
 
