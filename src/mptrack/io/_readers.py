@@ -36,6 +36,14 @@ def input_format(path) -> str:
 FRAME_LABEL = "<DataFrame>"
 
 
+def track_offsets(ids) -> np.ndarray:
+    """(B+1,) int64 offsets of the runs of equal track ids (track b is rows offsets[b]:offsets[b+1]);
+    [0] for no rows."""
+    ids = np.asarray(ids, dtype=object)
+    return np.r_[0, np.flatnonzero(ids[1:] != ids[:-1]) + 1, len(ids)].astype(np.int64) if len(ids) \
+        else np.zeros(1, np.int64)
+
+
 def _raw_chunks(source, chunk_rows: int) -> Iterator[pd.DataFrame]:
     """Raw chunks of ``chunk_rows`` rows of a DataFrame, a file, or a directory of Parquet files."""
     if isinstance(source, pd.DataFrame):
@@ -174,7 +182,7 @@ def iter_track_chunks(path, schema: Schema = FIXES, *, on_error: str = "raise",
         if chunk.empty:
             continue
         ids = chunk["track_id"].to_numpy(dtype=object)
-        starts = np.flatnonzero(np.r_[True, ids[1:] != ids[:-1]])
+        starts = track_offsets(ids)[:-1]
         continues = ids[0] == carry_id
         if len(starts) > 1 or not continues:
             # the open track ends in this chunk: it and every run but the last are complete
@@ -206,7 +214,7 @@ def _cut(rows: pd.DataFrame, chunk_rows: int) -> tuple[pd.DataFrame, list]:
     """(the first whole tracks of ``rows`` that reach ``chunk_rows`` rows, [the rest] or []): chunks
     depend on the tracks alone, not on how the file was split into batches or files."""
     ids = rows["track_id"].to_numpy(dtype=object)
-    ends = np.r_[np.flatnonzero(ids[1:] != ids[:-1]) + 1, len(ids)]
+    ends = track_offsets(ids)[1:]
     cut = int(ends[np.searchsorted(ends, chunk_rows)]) if ends[-1] >= chunk_rows else len(ids)
     head = rows.iloc[:cut].reset_index(drop=True)
     return head, ([rows.iloc[cut:].reset_index(drop=True)] if cut < len(ids) else [])
@@ -218,7 +226,7 @@ def iter_tracks(path, schema: Schema = FIXES, *, on_error: str = "raise", chunk_
     for chunk in iter_track_chunks(path, schema, on_error=on_error, chunk_rows=chunk_rows, report=report,
                                    strict=strict):
         ids = chunk["track_id"].to_numpy(dtype=object)
-        bounds = np.r_[np.flatnonzero(np.r_[True, ids[1:] != ids[:-1]]), len(ids)]
+        bounds = track_offsets(ids)
         for a, b in zip(bounds[:-1], bounds[1:]):
             yield str(ids[a]), chunk.iloc[a:b].reset_index(drop=True)
 
@@ -226,7 +234,7 @@ def iter_tracks(path, schema: Schema = FIXES, *, on_error: str = "raise", chunk_
 def _contiguous(chunk: pd.DataFrame, open_id, finished: set, path, on_error: str, report: ReadReport):
     """Drop (or raise on) runs of rows whose track already ended earlier in the file."""
     ids = chunk["track_id"].to_numpy(dtype=object)
-    starts = np.flatnonzero(np.r_[True, ids[1:] != ids[:-1]])
+    starts = track_offsets(ids)[:-1]
     seen = set(finished)
     bad_runs = []
     for j, a in enumerate(starts):

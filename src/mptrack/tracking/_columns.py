@@ -15,6 +15,7 @@ import numpy as np
 import pandas as pd
 
 from ..io._geodesy import geodetic_to_enu
+from ..io._readers import track_offsets
 
 __all__ = ["FixTable", "median_by", "time_values"]
 
@@ -82,8 +83,8 @@ class FixTable:
         """The table of validated rows of whole tracks (columns track_id, time, t, row, lat/lon or x/y,
         optional accuracy_m)."""
         ids = rows["track_id"].to_numpy(dtype=object)
-        starts = np.flatnonzero(np.r_[True, ids[1:] != ids[:-1]]) if len(ids) else np.zeros(0, np.int64)
-        offsets = np.r_[starts, len(ids)].astype(np.int64)
+        offsets = track_offsets(ids)
+        starts = offsets[:-1]
         time = time_values(rows["time"])
         t = rows["t"].to_numpy(dtype=float)
         if "lat" in rows.columns and "lon" in rows.columns:

@@ -28,7 +28,7 @@ from .._validation import check_int
 from ..batch import Chunk, read_part, run_stream
 from ..errors import MptrackError, ParameterError
 from ..io import FIXES, MEASUREMENTS, PartStore, ReadReport, iter_track_chunks, read_cells, read_chunks
-from ..io._readers import FRAME_LABEL
+from ..io._readers import FRAME_LABEL, track_offsets
 from ..io._writers import output_format
 from ._cellular import check_cell_ids, track_cells
 from ._columns import FixTable
@@ -69,7 +69,7 @@ class TrackTask:
     def _cellular(self, rows: pd.DataFrame) -> dict:
         """Track by track through the range filters (rows with unknown cells were removed on reading)."""
         ids = rows["track_id"].to_numpy(dtype=object)
-        bounds = np.r_[np.flatnonzero(np.r_[True, ids[1:] != ids[:-1]]), len(ids)] if len(ids) else [0]
+        bounds = track_offsets(ids)
         tables = [pa.Table.from_pandas(track_cells(str(ids[a]), rows.iloc[a:b], self.cells, self.options),
                                        preserve_index=False) for a, b in zip(bounds[:-1], bounds[1:])]
         points = pa.concat_tables(tables) if tables else None

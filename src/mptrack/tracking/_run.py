@@ -14,6 +14,7 @@ import numpy as np
 import pandas as pd
 import pyarrow as pa
 
+from ..io._readers import track_offsets
 from ._columns import FixTable
 from ._engine import filter_tracks
 from ._fixes import TrackOptions, track_fixes
@@ -95,8 +96,7 @@ def _tracks(table: FixTable, noise: NoiseEstimate, w: np.ndarray, has_acc: np.nd
     if flag is None:  # per-track path: counts from the point table (its rows are grid slots)
         names = points.column("flag").to_numpy(zero_copy_only=False)
         nis = points.column("nis").to_numpy()
-        tid = points.column("track_id").to_numpy(zero_copy_only=False)
-        starts = np.flatnonzero(np.r_[True, tid[1:] != tid[:-1]])
+        starts = track_offsets(points.column("track_id").to_numpy(zero_copy_only=False))[:-1]
         used = (names == "update") | (names == "manoeuvre")
         count = lambda m: np.add.reduceat(m.astype(np.int64), starts)  # noqa: E731
         updates, outliers, resets = count(names == "update"), count(names == "outlier"), count(names == "reset")
