@@ -280,11 +280,9 @@ def _filter_track(t, ze, zn, w, c, q, order, prior, gate, store, X, P, nis, flag
     count = ints[ints.shape[0] - 1:]
     count[0] = 0
     loglik = 0.0
-    updates = outliers = resets = manoeuvres = 0
-    nis_sum = 0.0
     qm = MANOEUVRE_FACTOR * q
-    pending = False
-    cand_e = cand_em = cand_sm = 0.0
+    pending = False               # fix k - 1 is a manoeuvre candidate
+    cand_e = cand_ll = 0.0        # its nominal NIS and its log-likelihood as a manoeuvre
     for i in range(order):
         x[0, i] = 0.0
         x[1, i] = 0.0
@@ -310,19 +308,11 @@ def _filter_track(t, ze, zn, w, c, q, order, prior, gate, store, X, P, nis, flag
         if pending:
             pending = False
             if e <= gate:                 # fix k confirms the manoeuvre at k - 1
-                flag[k - 1] = MANOEUVRE
-                nis[k - 1] = cand_em
-                manoeuvres += 1
-                nis_sum += cand_em
-                loglik -= 0.5 * (cand_em + 2.0 * math.log(cand_sm) + 2.0 * _LOG2PI)
+                loglik += cand_ll
                 count[0] = 0
             else:                         # it does not: k - 1 was an outlier
                 nis[k - 1] = cand_e
                 flag[k - 1] = _reject(k - 1, t, ze, zn, w, c, qm, order, gate, x, Pc, x_coast, P_coast, wk)
-                if flag[k - 1] == RESET:
-                    resets += 1
-                else:
-                    outliers += 1
                 if store:
                     _copy_state(order, x, Pc, X[k - 1], P[k - 1])
                 _predict(order, F, Qu, q, x, Pc, xp, Pp, T)
@@ -335,8 +325,6 @@ def _filter_track(t, ze, zn, w, c, q, order, prior, gate, store, X, P, nis, flag
             count[0] = 0
             e, S = _update(order, xp, Pp, rk, ze[k], zn[k], x, Pc)
             flag[k] = UPDATE
-            updates += 1
-            nis_sum += e
             loglik -= 0.5 * (e + 2.0 * math.log(S) + 2.0 * _LOG2PI)
         else:
             _copy_state(order, xp, Pp, x_coast, P_coast)
@@ -345,32 +333,33 @@ def _filter_track(t, ze, zn, w, c, q, order, prior, gate, store, X, P, nis, flag
                     Pp[i, j] += (qm - q) * Qu[i, j]
             Sm = Pp[0, 0] + rk
             em = (ne * ne + nn * nn) / Sm
-            if em <= gate:
+            if em <= gate:                # a candidate: the next fix decides
                 em, Sm = _update(order, xp, Pp, rk, ze[k], zn[k], x, Pc)
-                if k == n - 1:
-                    flag[k] = MANOEUVRE
-                    nis[k] = em
-                    manoeuvres += 1
-                    nis_sum += em
-                    loglik -= 0.5 * (em + 2.0 * math.log(Sm) + 2.0 * _LOG2PI)
-                else:
-                    pending = True
-                    cand_e, cand_em, cand_sm = e, em, Sm
-                    flag[k] = MANOEUVRE
+                flag[k] = MANOEUVRE
+                nis[k] = em
+                pending = True
+                cand_e, cand_ll = e, -0.5 * (em + 2.0 * math.log(Sm) + 2.0 * _LOG2PI)
             else:
                 flag[k] = _reject(k, t, ze, zn, w, c, qm, order, gate, x, Pc, x_coast, P_coast, wk)
-                if flag[k] == RESET:
-                    resets += 1
-                else:
-                    outliers += 1
         if store:
             _copy_state(order, x, Pc, X[k], P[k])
+    if pending:                           # a candidate at the last fix is a manoeuvre
+        loglik += cand_ll
     stats[0] = loglik
-    stats[1] = updates
-    stats[2] = outliers
-    stats[3] = resets
-    stats[4] = nis_sum
-    stats[5] = manoeuvres
+    for i in range(1, 6):
+        stats[i] = 0.0
+    for k in range(1, n):                 # counts and NIS sum from the flags
+        f = flag[k]
+        if f == UPDATE or f == MANOEUVRE:
+            stats[4] += nis[k]
+        if f == UPDATE:
+            stats[1] += 1.0
+        elif f == OUTLIER:
+            stats[2] += 1.0
+        elif f == RESET:
+            stats[3] += 1.0
+        elif f == MANOEUVRE:
+            stats[5] += 1.0
 
 
 # ---- noise estimation: the conditional (diffuse-start) log-likelihood ---------------------------------
