@@ -140,3 +140,14 @@ def test_no_flags_is_close_to_the_oracle_and_never_worse_than_the_fixes(sigma, q
     smooth, _ = rmse_vs_truth(track(log, smooth=True), log)
     smooth_oracle, _ = rmse_vs_truth(track(log, smooth=True, sigma_m=sigma, q=q), log)
     assert smooth <= 1.1 * smooth_oracle and smooth <= raw
+
+
+def test_advice_names_the_option_and_ignores_tracks_of_a_few_fixes():
+    log = sim(6, 3, 600.0)
+    advice = track(log, sigma_m=50.0).attrs["summary"]["nis"]["advice"]
+    assert len(advice) == 1 and "far below" in advice[0] and "--sigma" in advice[0]
+    assert track(log).attrs["summary"]["nis"]["advice"] == []
+    # three tracks of two fixes: their mean NIS of one fix is no evidence of anything
+    tiny = pd.DataFrame({"track_id": ["a", "a", "b", "b", "c", "c"], "time": [0.0, 1.0] * 3,
+                         "x": [0.0, 10.0, 0.0, 10.0, 0.0, 10.0], "y": [0.0, 0.0, 5.0, 5.0, 9.0, 9.0]})
+    assert track(tiny, sigma_m=50.0).attrs["summary"]["nis"]["advice"] == []

@@ -306,7 +306,7 @@ def _estimate(problem: _Problem, todo: np.ndarray, theta: np.ndarray, first: boo
     theta[todo] = _maximise(problem, todo, theta[todo], half, step)
     c, q, n = _resolve(problem, todo, theta[todo])
     floor = _C_FLOOR / problem.typical_w(todo)
-    ok = np.isfinite(c) & (c > 0) & np.isfinite(q) & (q > 0)
+    ok = (n > 0) & np.isfinite(c) & (c > 0) & np.isfinite(q) & (q > 0)  # n = 0: no innovation to go by
     # a fix variance that collapses towards 0 (the motion explains every fix) is held at (1 mm)^2
     floored = ok & (c < floor) & (problem.mode != "q")
     c = np.where(floored, floor, c)

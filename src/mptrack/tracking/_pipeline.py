@@ -43,6 +43,8 @@ __all__ = ["track_file", "track", "read_output", "TrackTask", "DEFAULT_CHUNK_ROW
 DEFAULT_CHUNK_ROWS = 200_000
 #: Up to this many tracks the run summary lists each track's noise estimates (beyond: the track table).
 MAX_LISTED_TRACKS = 1000
+#: A track's mean NIS is judged (advice in the summary) from this many used fixes on.
+MIN_ADVISED_FIXES = 10
 _PARTS = ("points", "tracks")
 
 
@@ -256,7 +258,8 @@ def _summary(tracks: pd.DataFrame, report: ReadReport, options: TrackOptions, ch
         used = tracks["updates"] + tracks.get("manoeuvres", 0)
         ratio = tracks["mean_nis"] / tracks["nis_dof"]
         outside = ~tracks["nis_consistent"].astype(bool) & (used > 0)
-        far = outside & ((ratio < 0.5) | (ratio > 2.0))
+        # advice only where the mean says something: a handful of fixes is far out by chance
+        far = outside & ((ratio < 0.5) | (ratio > 2.0)) & (used >= MIN_ADVISED_FIXES)
         low = far & (tracks["mean_nis"] < tracks["nis_lo"])
         out["nis"] = {"tracks_outside_band": int(outside.sum()), "far_low": int(low.sum()),
                       "far_high": int((far & ~low).sum()),
