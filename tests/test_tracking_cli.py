@@ -302,3 +302,20 @@ def test_a_million_rows_in_bounded_memory(tmp_path):
                           capture_output=True, text=True, timeout=3600)
     assert proc.returncode == 0, proc.stderr
     assert int(proc.stdout.split()[-1]) < 1024 * 1024  # KiB
+
+
+def test_an_output_that_is_the_input_is_refused(tmp_path):
+    src = tmp_path / "log.csv"
+    _bad_csv(tmp_path).replace(src)
+    before = src.read_bytes()
+    for args in (["--out", src], ["--out", tmp_path / "o.parquet", "--track-summary", src],
+                 ["--out", tmp_path / "o.parquet", "--report", src]):
+        res = run("track", src, *args)
+        assert res.exit_code == 2 and "overwrite the input" in res.stderr, res.output
+    assert src.read_bytes() == before and sorted(p.name for p in tmp_path.iterdir()) == ["log.csv"]
+
+
+def test_an_empty_file_is_a_clear_error(tmp_path):
+    (tmp_path / "empty.csv").write_text("")
+    res = run("track", tmp_path / "empty.csv", "--out", tmp_path / "o.parquet")
+    assert res.exit_code == 2 and "empty.csv" in res.stderr and "cannot be read as csv" in res.stderr

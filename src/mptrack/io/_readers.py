@@ -72,7 +72,7 @@ def _raw_chunks(source, chunk_rows: int) -> Iterator[pd.DataFrame]:
                     yield batch.to_pandas()
         else:
             yield _gpx_frame(path)
-    except (pd.errors.ParserError, UnicodeDecodeError, OSError) as exc:
+    except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError, OSError) as exc:
         raise DataError(f"cannot be read as {fmt}: {exc}", file=path) from None
     except Exception as exc:  # pyarrow / gpxpy raise their own types for corrupt files
         if type(exc).__module__.split(".")[0] in ("pyarrow", "gpxpy"):

@@ -97,9 +97,10 @@ def track(
     With no --sigma/--q the fix noise and the process noise are estimated from each track."""
     from .._progress import RichProgress
     from ._fixes import TrackOptions
-    from ._pipeline import read_output, track_file
+    from ._pipeline import check_outputs, read_output, track_file
 
     try:
+        check_outputs(input, cells, report=report)
         options = TrackOptions(model=model, filter=filter, q=q, sigma_m=sigma, noise=noise, smooth=smooth,
                                gate_probability=None if gate >= 1 else gate, method=method, motion=motion)
         with RichProgress(console=_err, disable=quiet or json_out) as progress:

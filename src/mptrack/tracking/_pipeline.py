@@ -37,7 +37,7 @@ from ._output import nis_band, point_table
 from ._noise import SIGMA_FLOOR_M
 from ._run import TRACK_COLUMNS, track_table
 
-__all__ = ["track_file", "track", "read_output", "TrackTask", "DEFAULT_CHUNK_ROWS"]
+__all__ = ["track_file", "track", "read_output", "check_outputs", "TrackTask", "DEFAULT_CHUNK_ROWS"]
 
 #: Rows of whole tracks per unit of work (memory per chunk ~0.5 KB a row in flight).
 DEFAULT_CHUNK_ROWS = 200_000
@@ -184,6 +184,7 @@ def track_file(input, out, *, cells=None, options: TrackOptions = TrackOptions()
     """
     start = time.perf_counter()
     input, out = Path(input), Path(out)
+    check_outputs(input, cells, out=out, track_summary=track_summary)
     chunk_rows = check_int("chunk_rows", chunk_rows, minimum=1)
     store = PartStore(out)
     if track_summary is not None:
@@ -217,6 +218,14 @@ def track_file(input, out, *, cells=None, options: TrackOptions = TrackOptions()
     if cell_table is not None:
         summary["cells"] = {"file": str(cells), "cells_used": int(len(cell_table)), "read": cell_report.to_dict()}
     return summary
+
+
+def check_outputs(*inputs, **outputs) -> None:
+    """Refuse an output (name=path) that is one of the inputs: it would overwrite the user's data."""
+    sources = {Path(p).resolve() for p in inputs if p is not None and not isinstance(p, pd.DataFrame)}
+    for name, path in outputs.items():
+        if path is not None and Path(path).resolve() in sources:
+            raise ParameterError(f"{name}: {path} is an input of this run; writing it would overwrite the input")
 
 
 def _rows(path) -> int:
