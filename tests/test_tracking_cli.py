@@ -312,6 +312,14 @@ def test_an_output_that_is_the_input_is_refused(tmp_path):
                  ["--out", tmp_path / "o.parquet", "--report", src]):
         res = run("track", src, *args)
         assert res.exit_code == 2 and "overwrite the input" in res.stderr, res.output
+    for args in (["simulate", "--along", src, "--out", src],
+                 ["simulate", "--scenario", "urban-3bts", "--along", src, "--out", tmp_path / "s.csv",
+                  "--cells-out", src],
+                 ["evaluate", src, "--report", src], ["evaluate", tmp_path / "t.csv", "--truth", src, "--report", src]):
+        res = run(*args)
+        assert res.exit_code == 2 and "overwrite the input" in res.stderr, res.output
+    with pytest.raises(ParameterError, match="out: .* overwrite the input"):
+        track_file(src, src)
     assert src.read_bytes() == before and sorted(p.name for p in tmp_path.iterdir()) == ["log.csv"]
 
 

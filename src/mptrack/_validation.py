@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import math
 import numbers
+import os
+from pathlib import Path
 
 import numpy as np
 
@@ -29,6 +31,7 @@ __all__ = [
     "check_covariance",
     "check_positive",
     "check_int",
+    "check_outputs",
 ]
 
 
@@ -206,3 +209,13 @@ def check_int(name: str, value, *, minimum: int | None = None) -> int:
     if minimum is not None and value < minimum:
         raise ParameterError(f"{name}: expected an integer >= {minimum}, got {value}")
     return value
+
+
+def check_outputs(*inputs, **outputs) -> None:
+    """Refuse an output (name=path) that is one of the input files: writing it would overwrite the user's data.
+
+    Inputs that are not paths (None, a table in memory) are ignored."""
+    sources = {Path(p).resolve() for p in inputs if isinstance(p, (str, os.PathLike))}
+    for name, path in outputs.items():
+        if path is not None and Path(path).resolve() in sources:
+            raise ParameterError(f"{name}: {path} is an input of this run; writing it would overwrite the input")

@@ -97,7 +97,8 @@ def track(
     With no --sigma/--q the fix noise and the process noise are estimated from each track."""
     from .._progress import RichProgress
     from ._fixes import TrackOptions
-    from ._pipeline import check_outputs, read_output, track_file
+    from .._validation import check_outputs
+    from ._pipeline import read_output, track_file
 
     try:
         check_outputs(input, cells, report=report)
@@ -199,6 +200,7 @@ def simulate(
     import numpy as np
     import pandas as pd
 
+    from .._validation import check_outputs
     from ..errors import ParameterError
     from ..io import write_table
     from ._simulate import simulate_chunks
@@ -215,6 +217,7 @@ def simulate(
             yield log
 
     try:
+        check_outputs(along, out=out, cells_out=cells_out)
         try:
             chunks = simulate_chunks(scenario, tracks, np.random.default_rng(seed), duration_s=duration,
                                      along=along, interval=interval, q=q, speed_mps=speed, sigma_m=sigma,
@@ -254,11 +257,13 @@ def evaluate(
     """RMSE, NEES/NIS consistency and the error CDF of a track table against truth."""
     import pandas as pd
 
+    from .._validation import check_outputs
     from ..errors import DataError
     from ._evaluate import evaluate_tracks
     from ._pipeline import read_output
 
     try:
+        check_outputs(tracks, truth, report=report)
         if not tracks.exists():
             raise DataError("file not found", file=tracks)
         est = read_output(tracks)

@@ -24,7 +24,7 @@ import numpy as np
 import pandas as pd
 import pyarrow as pa
 
-from .._validation import check_int
+from .._validation import check_int, check_outputs
 from ..batch import Chunk, read_part, run_stream
 from ..errors import MptrackError, ParameterError
 from ..io import FIXES, MEASUREMENTS, PartStore, ReadReport, iter_track_chunks, read_cells, read_chunks
@@ -37,7 +37,7 @@ from ._output import nis_band, point_table
 from ._noise import SIGMA_FLOOR_M
 from ._run import TRACK_COLUMNS, track_table
 
-__all__ = ["track_file", "track", "read_output", "check_outputs", "TrackTask", "DEFAULT_CHUNK_ROWS"]
+__all__ = ["track_file", "track", "read_output", "TrackTask", "DEFAULT_CHUNK_ROWS"]
 
 #: Rows of whole tracks per unit of work (memory per chunk ~0.5 KB a row in flight).
 DEFAULT_CHUNK_ROWS = 200_000
@@ -218,14 +218,6 @@ def track_file(input, out, *, cells=None, options: TrackOptions = TrackOptions()
     if cell_table is not None:
         summary["cells"] = {"file": str(cells), "cells_used": int(len(cell_table)), "read": cell_report.to_dict()}
     return summary
-
-
-def check_outputs(*inputs, **outputs) -> None:
-    """Refuse an output (name=path) that is one of the inputs: it would overwrite the user's data."""
-    sources = {Path(p).resolve() for p in inputs if p is not None and not isinstance(p, pd.DataFrame)}
-    for name, path in outputs.items():
-        if path is not None and Path(path).resolve() in sources:
-            raise ParameterError(f"{name}: {path} is an input of this run; writing it would overwrite the input")
 
 
 def _rows(path) -> int:
