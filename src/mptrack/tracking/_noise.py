@@ -402,7 +402,6 @@ def estimate_noise(table: FixTable, w: np.ndarray, has_acc: np.ndarray, spec: No
     if rounds > 1:  # the standard errors at the final estimates
         _estimate_se(mine, np.unique(own_group[alone]), e_own)
     _estimate_se(pool, np.unique(pool_group[needs_pool]), e_pool)
-    c, q, how = _assign(spec, c, q, alone, own_group, e_own, needs_pool, pool_group, e_pool)
     for src, e, g in ((ESTIMATED, e_own, own_group), (POOLED, e_pool, pool_group)):
         sel = how == src
         if spec.sigma_m is None:
@@ -411,7 +410,7 @@ def estimate_noise(table: FixTable, w: np.ndarray, has_acc: np.ndarray, spec: No
             se_q[sel], src_q[sel] = e["se_q"][g[sel]], src
     found = {kind: (float(e_pool["c"][i]), float(e_pool["q"][i]), float(e_pool["se_c"][i]), float(e_pool["se_q"][i]))
              for i, kind in enumerate(kinds) if _pool_usable(e_pool, i)}
-    return NoiseEstimate(c, q, se_c, se_q, src_c, src_q, found)
+    return NoiseEstimate(c_b, q_b, se_c, se_q, src_c, src_q, found)
 
 
 def _pool_usable(e_pool: dict, i: int) -> bool:
