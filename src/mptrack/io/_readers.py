@@ -36,6 +36,11 @@ def input_format(path) -> str:
 FRAME_LABEL = "<DataFrame>"
 
 
+def source_label(source):
+    """What errors name as the file of ``source``: its path, or FRAME_LABEL for a DataFrame."""
+    return FRAME_LABEL if isinstance(source, pd.DataFrame) else Path(source)
+
+
 def track_offsets(ids) -> np.ndarray:
     """(B+1,) int64 offsets of the runs of equal track ids (track b is rows offsets[b]:offsets[b+1]);
     [0] for no rows."""
@@ -137,7 +142,7 @@ def read_chunks(path, schema: Schema = FIXES, *, on_error: str = "raise", chunk_
     row and column, or with ``on_error="skip"`` are dropped and counted in ``report``.
     """
     check_on_error(on_error)
-    label = FRAME_LABEL if isinstance(path, pd.DataFrame) else Path(path)
+    label = source_label(path)
     report = report if report is not None else ReadReport()
     report.file = str(label)
     first = 1
@@ -168,7 +173,7 @@ def iter_track_chunks(path, schema: Schema = FIXES, *, on_error: str = "raise",
     """
     strict = (schema is FIXES) if strict is None else strict
     report = report if report is not None else ReadReport()
-    label = FRAME_LABEL if isinstance(path, pd.DataFrame) else Path(path)
+    label = source_label(path)
     finished: set[str] = set()
     ready: list[pd.DataFrame] = []          # complete tracks not yet yielded
     ready_rows = 0
@@ -309,7 +314,7 @@ def read_cells(path, *, wanted=None, on_error: str = "raise", report: ReadReport
     if dup.any():
         i = int(np.flatnonzero(dup.to_numpy())[0])
         raise DataError(f"cell {cells['cell_id'].iloc[i]!r} is listed twice",
-                        file=FRAME_LABEL if isinstance(path, pd.DataFrame) else Path(path),
+                        file=source_label(path),
                         row=int(cells["row"].iloc[i]), column="cell")
     for name, default in (("height_m", 30.0), ("power_dbm", 43.0), ("arfcn", np.nan)):
         if name not in cells.columns:

@@ -28,7 +28,7 @@ from .._validation import check_int, check_outputs
 from ..batch import Chunk, read_part, run_stream
 from ..errors import MptrackError, ParameterError
 from ..io import FIXES, MEASUREMENTS, PartStore, ReadReport, iter_track_chunks, read_cells, read_chunks
-from ..io._readers import FRAME_LABEL, track_offsets
+from ..io._readers import source_label, track_offsets
 from ..io._writers import output_format
 from ._cellular import check_cell_ids, track_cells
 from ._columns import FixTable
@@ -59,7 +59,6 @@ class TrackTask:
     options: TrackOptions
     cells: pd.DataFrame | None = None
     fixed: dict | None = None
-    source: str = "input"
 
     def __call__(self, chunk: Chunk) -> dict:
         rows = chunk.data
@@ -104,7 +103,7 @@ def _cell_tracks(points: pa.Table | None) -> pa.Table:
 def _source_chunks(source, schema, on_error: str, chunk_rows: int, report: ReadReport, cells=None):
     """Chunks of whole tracks of a path or a DataFrame, numbered; with a cell table, rows of unknown
     cells raise or are dropped and counted (a track left without rows is dropped)."""
-    label = source if not isinstance(source, pd.DataFrame) else FRAME_LABEL
+    label = source_label(source)
     for i, rows in enumerate(iter_track_chunks(source, schema, on_error=on_error, chunk_rows=chunk_rows,
                                                report=report)):
         if cells is not None:
@@ -157,10 +156,9 @@ def _run(source, options: TrackOptions, *, cells_table, on_error, chunk_rows, ex
     fixed = None
     if cells_table is None and options.noise == "file" and (options.sigma_m is None or options.q is None):
         fixed, chunks = _file_noise(chunks, options)
-    task = TrackTask(options, cells_table, fixed, str(source) if not isinstance(source, pd.DataFrame) else "data")
-    return run_stream(task, chunks, parts=_PARTS, out_dir=None if store is None else store.dir, part_format="arrow",
-                      executor=executor, max_workers=max_workers, client=client, manifest=manifest,
-                      progress=progress)
+    return run_stream(TrackTask(options, cells_table, fixed), chunks, parts=_PARTS,
+                      out_dir=None if store is None else store.dir, part_format="arrow", executor=executor,
+                      max_workers=max_workers, client=client, manifest=manifest, progress=progress)
 
 
 def track_file(input, out, *, cells=None, options: TrackOptions = TrackOptions(), on_error: str = "raise",
