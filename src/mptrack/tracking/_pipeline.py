@@ -201,7 +201,7 @@ def track_file(input, out, *, cells=None, options: TrackOptions = TrackOptions()
         points = sum(_rows(p) for p in store.parts("points"))
         tracks_resumed = sum(_rows(p) for p in resumed)
         store.finish("points", empty=_empty_points())
-        tracks = _read_tracks(store)
+        tracks = _tracks_frame([read_part(p) for p in store.parts("tracks")])
         if track_summary is not None:
             store.finish("tracks", to=track_summary, empty=pa.Table.from_pandas(tracks, preserve_index=False))
         store.discard()
@@ -222,10 +222,9 @@ def _rows(path) -> int:
     return read_part(path).num_rows
 
 
-def _read_tracks(store: PartStore) -> pd.DataFrame:
-    files = store.parts("tracks")
-    return pa.concat_tables([read_part(p) for p in files]).to_pandas() if files else \
-        pd.DataFrame(columns=list(TRACK_COLUMNS))
+def _tracks_frame(tables: list) -> pd.DataFrame:
+    """The track table of all chunks (their track tables in order)."""
+    return pa.concat_tables(tables).to_pandas() if tables else pd.DataFrame(columns=list(TRACK_COLUMNS))
 
 
 class _NullProgress:
@@ -319,8 +318,7 @@ def track(data, *, cells=None, on_error: str = "raise", chunk_rows: int = DEFAUL
                    executor=executor, max_workers=max_workers, client=client, store=None, manifest=None,
                    progress=None, report=report)
     points = pa.concat_tables([r["points"] for r in results]) if results else _empty_points()
-    tracks = pa.concat_tables([r["tracks"] for r in results]).to_pandas() if results else \
-        pd.DataFrame(columns=list(TRACK_COLUMNS))
+    tracks = _tracks_frame([r["tracks"] for r in results])
     df = points.to_pandas()
     df.attrs["tracks"] = tracks
     df.attrs["summary"] = _summary(tracks, report, opts, len(results))
