@@ -20,7 +20,7 @@ from ._engine import filter_tracks
 from ._fixes import TrackOptions, track_fixes
 from ._noise import SOURCES, NoiseEstimate, NoiseSpec, estimate_noise, fix_weights
 from ._output import nis_band, point_table
-from ._registry import DEFAULT_SIGMA_M, get_model
+from ._registry import get_model
 
 __all__ = ["noise_spec", "track_table", "TRACK_COLUMNS"]
 
@@ -35,8 +35,7 @@ def noise_spec(options: TrackOptions) -> NoiseSpec:
     """What :func:`estimate_noise` does for ``options``."""
     spec = get_model(options.model)
     return NoiseSpec(order=spec.order, prior=spec.prior_variances, sigma_m=options.sigma_m, q=options.q,
-                     scope=options.noise, gate=options.gate, max_rej=spec.order + 1,
-                     default_sigma_m=DEFAULT_SIGMA_M, default_q=spec.default_q)
+                     scope=options.noise, gate=options.gate, max_rej=spec.order + 1, default_q=spec.default_q)
 
 
 def track_table(table: FixTable, options: TrackOptions, fixed: dict | None = None) -> tuple[pa.Table, pa.Table]:
@@ -45,9 +44,9 @@ def track_table(table: FixTable, options: TrackOptions, fixed: dict | None = Non
     ``fixed`` (from an earlier chunk, for ``noise="file"``): noise parameters to use instead of
     estimating them, see :func:`mptrack.tracking._noise.estimate_noise`.
     """
-    spec = get_model(options.model)
+    spec = noise_spec(options)
     w, has_acc = fix_weights(table, options.sigma_m)
-    noise = estimate_noise(table, w, has_acc, noise_spec(options), fixed=fixed)
+    noise = estimate_noise(table, w, has_acc, spec, fixed=fixed)
     r = table.per_row(noise.c) * w
     extra = {"meas_east_m": table.east, "meas_north_m": table.north, "fix_sigma_m": np.sqrt(r)}
     if table.geographic:
@@ -60,9 +59,8 @@ def track_table(table: FixTable, options: TrackOptions, fixed: dict | None = Non
         P = np.empty((N, order, order))
         nis = np.empty(N)
         flag = np.empty(N, dtype=np.int8)
-        filter_tracks(table.offsets, table.t, table.east, table.north, w, noise.c, noise.q, order,
-                      spec.prior_variances, options.gate, spec.order + 1, True, options.smooth, X, P, nis, flag,
-                      stats)
+        filter_tracks(table.offsets, table.t, table.east, table.north, w, noise.c, noise.q, order, spec.prior,
+                      spec.gate, spec.max_rej, True, options.smooth, X, P, nis, flag, stats)
         method = "KF-gated" + ("+RTS" if options.smooth else "")
         var = P[:, 0, 0]
         points = point_table(table.ids, table.offsets, table.time, table.t, X[:, 0, 0], X[:, 1, 0], X[:, :, 1],
