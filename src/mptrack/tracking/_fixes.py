@@ -18,7 +18,7 @@ from .._validation import check_positive
 from ..errors import ParameterError
 from ..linear import FilterResult, get_filter
 from ._columns import FixTable
-from ._gated import nis_threshold, smooth_gated, track_gated
+from ._gated import first_fix_prior, measured_states, nis_threshold, smooth_gated, track_gated
 from ._noise import SCOPES
 from ._output import point_table
 from ._registry import DEFAULT_SIGMA_M, get_fix_filter, get_model
@@ -113,7 +113,7 @@ def track_fixes(track_id: str, rows: pd.DataFrame, options: TrackOptions = Track
     r = fix_variances(rows, options) if fix_var is None else np.asarray(fix_var, dtype=float)
     q = (spec.default_q if options.q is None else options.q) if q is None else float(q)
     model = spec.build(q, 1.0)
-    pos = [int(np.flatnonzero(model.H[i])[0]) for i in range(2)]
+    pos = measured_states(model.H)
     extra = {"meas_east_m": z[:, 0], "meas_north_m": z[:, 1], "fix_sigma_m": np.sqrt(r)}
     if table.geographic:
         extra["meas_lat"], extra["meas_lon"] = table.lat, table.lon
@@ -155,11 +155,7 @@ def grid_filter_track(spec, q: float, options: TrackOptions, t, z, r):
     first = np.r_[True, bins[1:] != bins[:-1]]
     zg[bins[first]] = z[first]
     disc = spec.build(q, float(np.median(r))).discretize(dt)
-    pos = [int(np.flatnonzero(disc.H[i])[0]) for i in range(2)]
-    x0 = np.zeros(disc.n)
-    x0[pos] = z[0]
-    P0 = np.diag(np.tile(spec.prior_variances, 2))
-    P0[pos, pos] = r[0]
+    x0, P0 = first_fix_prior(disc.H, z[0], r[0] * np.eye(2), np.tile(spec.prior_variances, 2))
     # the prior is at the first fix: start one step before it
     x_start = np.linalg.solve(disc.F, x0)
     res: FilterResult = get_filter(options.filter).run(disc, zg, x_start, P0)

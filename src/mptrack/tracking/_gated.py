@@ -47,7 +47,8 @@ from ..linear._smoother import _rts_backward
 from ._engine import FLAGS, INIT, MANOEUVRE_FACTOR
 from ._kernels import gated_loop
 
-__all__ = ["GatedResult", "kalman_filter_gated", "smooth_gated", "track_gated", "nis_threshold", "FLAGS"]
+__all__ = ["GatedResult", "kalman_filter_gated", "smooth_gated", "track_gated", "first_fix_prior", "measured_states",
+           "nis_threshold", "FLAGS"]
 
 
 def nis_threshold(probability: float, dof: int) -> float:
@@ -142,6 +143,22 @@ def smooth_gated(gated: GatedResult) -> FilterResult:
     return FilterResult(x=xs, P=Ps, method="RTS-gated")
 
 
+def measured_states(H) -> list[int]:
+    """The state entry that each row of the measurement matrix H measures (its first non-zero)."""
+    return [int(np.flatnonzero(row)[0]) for row in np.asarray(H)]
+
+
+def first_fix_prior(H, z0, R0, prior_variances) -> tuple[np.ndarray, np.ndarray]:
+    """(x0, P0) at a track's first fix: the measured states (:func:`measured_states`) are the fix z0
+    with covariance R0, every other state i is 0 with variance ``prior_variances[i]``."""
+    picks = measured_states(H)
+    x0 = np.zeros(len(prior_variances))
+    x0[picks] = z0
+    P0 = np.diag(np.asarray(prior_variances, dtype=float))
+    P0[np.ix_(picks, picks)] = R0
+    return x0, P0
+
+
 def track_gated(model: ContinuousLinearModel, times, z, R, prior_variances, *,
                 gate_probability: float | None = 0.999, max_rejections: int | None = None,
                 manoeuvre_factor: float = MANOEUVRE_FACTOR) -> GatedResult:
@@ -161,11 +178,7 @@ def track_gated(model: ContinuousLinearModel, times, z, R, prior_variances, *,
         raise ShapeError(f"z: expected {t.shape[0]} rows (one per time stamp, at least one), got shape {z.shape}")
     n, T = model.n, t.shape[0]
     Rs = as_array("R", R, shape=(T, model.m, model.m))
-    P0 = np.diag(as_vector("prior_variances", prior_variances, n))
-    picks = [int(np.flatnonzero(model.H[i])[0]) for i in range(model.m)]
-    x0 = np.zeros(n)
-    x0[picks] = z[0]
-    P0[np.ix_(picks, picks)] = Rs[0]
+    x0, P0 = first_fix_prior(model.H, z[0], Rs[0], as_vector("prior_variances", prior_variances, n))
     flag0 = np.array([INIT], dtype=np.int8)
     if T == 1:
         return GatedResult(FilterResult(x=x0[None], P=P0[None], loglik=0.0, method="KF-gated"),
