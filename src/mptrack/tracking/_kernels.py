@@ -133,8 +133,8 @@ def gated_loop(t, F, Q, H, R, z, x, P, gates, use_gate, max_rej, factor, start, 
     P_new = np.empty((n, n))
     x_coast = np.empty(n)
     P_coast = np.empty((n, n))
-    pending = False
-    cand_e = cand_em = cand_ll = 0.0
+    pending = False               # measurement k - 1 is a manoeuvre candidate
+    cand_e = cand_ll = 0.0        # its nominal NIS and its log-likelihood as a manoeuvre
     loglik = 0.0
     for k in range(T):
         x_pred = F[k] @ x
@@ -146,8 +146,6 @@ def gated_loop(t, F, Q, H, R, z, x, P, gates, use_gate, max_rej, factor, start, 
         if pending:
             pending = False
             if mk == 0 or e <= gates[mk]:      # confirms the manoeuvre at k - 1
-                flag[k - 1] = 5
-                nis[k - 1] = cand_em
                 loglik += cand_ll
                 count[0] = 0
             else:                              # the candidate at k - 1 was an outlier
@@ -181,18 +179,16 @@ def gated_loop(t, F, Q, H, R, z, x, P, gates, use_gate, max_rej, factor, start, 
             idx, nu, S_m, em = _innovation(x_pred, P_m, H, R[k], z[k])
             if em <= gates[mk]:
                 x, P = _kalman_update(x_pred, P_m, H, idx, nu, S_m)
-                ll = -0.5 * (em + np.log(np.linalg.det(S_m)) + mk * _LOG2PI)
                 flag[k] = 5
-                if k == T - 1:
-                    nis[k] = em
-                    loglik += ll
-                else:
-                    pending = True
-                    cand_e, cand_em, cand_ll = e, em, ll
+                nis[k] = em
+                pending = True
+                cand_e, cand_ll = e, -0.5 * (em + np.log(np.linalg.det(S_m)) + mk * _LOG2PI)
             else:
                 f1, x, P = _reject(k, t, z, R, F, Q, H, rej, count, factor, start, gates[m],
                                    x_coast, P_coast, x_new, P_new)
                 flag[k] = f1
         xs[k] = x
         Ps[k] = P
+    if pending:                                # a candidate at the last step is a manoeuvre
+        loglik += cand_ll
     return loglik
