@@ -123,18 +123,23 @@ def _write_arrow(frames: Iterable, open_writer, prepare=None) -> bool:
     return writer is not None
 
 
+def _text_columns(schema) -> list[str]:
+    """The names of the string columns of an Arrow schema."""
+    import pyarrow as pa
+
+    return [f.name for f in schema if pa.types.is_string(f.type) or pa.types.is_large_string(f.type)]
+
+
 class _CsvWriter:
     """pyarrow's CSV writer with pandas' conventions: a plain header, and text quoted only in the chunks
     where some value holds a delimiter, quote or line break (arrow's "needed" quotes every string)."""
 
     def __init__(self, fh, schema) -> None:
-        import pyarrow as pa
-
         self.fh = fh
         line = io.StringIO()
         csv.writer(line, lineterminator="\n").writerow(schema.names)
         fh.write(line.getvalue().encode())
-        self.text = [f.name for f in schema if pa.types.is_string(f.type) or pa.types.is_large_string(f.type)]
+        self.text = _text_columns(schema)
 
     def write_table(self, table) -> None:
         import pyarrow.compute as pc
@@ -150,17 +155,14 @@ class _CsvWriter:
 
 def _write_parts(frames: Iterable[pd.DataFrame], tmp: Path, fmt: str) -> None:
     if fmt == "parquet":
-        import pyarrow as pa
         import pyarrow.parquet as pq
 
         def parquet_writer(schema):  # dictionary pages for text only: floats do not repeat (2x faster)
-            text = [f.name for f in schema if pa.types.is_string(f.type) or pa.types.is_large_string(f.type)]
-            return pq.ParquetWriter(tmp, schema, use_dictionary=text)
+            return pq.ParquetWriter(tmp, schema, use_dictionary=_text_columns(schema))
 
         if not _write_arrow(frames, parquet_writer):
             pd.DataFrame().to_parquet(tmp, index=False)
     elif fmt == "csv":
-
         with open(tmp, "wb") as fh:
             _write_arrow(frames, lambda schema: _CsvWriter(fh, schema), _csv_ready)
     else:
@@ -189,8 +191,8 @@ def write_table(df, path) -> Path:
 class PartStore:
     """The resumable parts of one run writing ``out``: the directory ``.<out>.parts/`` beside it.
 
-    A run's chunks write their tables there (``<name>-NNNNNN.parquet``, by
-    :func:`mptrack.batch.run_stream`, each atomically) with a ``manifest.json``
+    A run's chunks write their tables there (Arrow IPC files ``<name>-NNNNNN.arrow``,
+    by :func:`mptrack.batch.run_stream`, each atomically) with a ``manifest.json``
     describing the run; a resumed run skips the chunks found there.
     :meth:`finish` streams one kind of part, in chunk order and one part in
     memory at a time, into the output (atomically); :meth:`discard` removes
