@@ -120,6 +120,12 @@ def _write_part(table, path: Path) -> None:
             table.to_parquet(tmp, engine="pyarrow", index=False)
 
 
+def _chunk_result(out_dir, parts: tuple[str, ...], index: int, fmt: str):
+    """What a chunk written to ``out_dir`` gives back: the path of its one part, or its paths by part name."""
+    paths = {name: str(part_path(out_dir, name, index, fmt)) for name in parts}
+    return paths if len(parts) > 1 else paths[parts[0]]
+
+
 def _run_one(task: Callable[[Chunk], Any], chunk: Chunk, out_dir: str | None, parts: tuple[str, ...],
              fmt: str = "parquet"):
     """Worker side: compute one chunk; with ``out_dir`` write its parts atomically (the last one
@@ -132,11 +138,9 @@ def _run_one(task: Callable[[Chunk], Any], chunk: Chunk, out_dir: str | None, pa
                          f" from chunk {chunk.index}, got {type(result).__name__}")
     if out_dir is None:
         return result
-    paths = {}
     for name in parts:
-        paths[name] = str(part_path(Path(out_dir), name, chunk.index, fmt))
-        _write_part(named[name], Path(paths[name]))
-    return paths if len(parts) > 1 else paths[parts[0]]
+        _write_part(named[name], part_path(out_dir, name, chunk.index, fmt))
+    return _chunk_result(out_dir, parts, chunk.index, fmt)
 
 
 def _check_manifest(out_dir: Path, manifest: dict) -> None:
@@ -184,7 +188,7 @@ def run_chunks(task: Callable[[Chunk], pd.DataFrame], n_items: int, *, chunk_siz
                     "task": getattr(task, "__qualname__", type(task).__qualname__), **(manifest or {})}
     parts = run_stream(task, _with_data(chunks, data), out_dir=out_dir, executor=executor,
                        max_workers=max_workers, client=client, manifest=manifest, progress=progress)
-    frames = [pd.read_parquet(p, engine="pyarrow") if isinstance(p, str) else p for p in parts]
+    frames = [read_part(p).to_pandas() if isinstance(p, str) else p for p in parts]
     return pd.concat(frames, ignore_index=True)
 
 
@@ -227,8 +231,7 @@ def run_stream(task: Callable[[Chunk], Any], chunks: Iterable[Chunk], *, parts: 
     def finished(c: Chunk):
         if target is None or not part_path(out_dir, parts[-1], c.index, part_format).exists():
             return None
-        paths = {p: str(part_path(out_dir, p, c.index, part_format)) for p in parts}
-        return paths if len(parts) > 1 else paths[parts[0]]
+        return _chunk_result(out_dir, parts, c.index, part_format)
 
     def pending_chunks():
         for c in chunks:
@@ -300,7 +303,7 @@ def _run_dask(task, todo, where, max_workers, max_pending, client, done, progres
                                dashboard_address=None)
         client = Client(cluster)
     try:
-        limit = max_pending or 2 * max(1, len(client.scheduler_info().get("workers", {})) or 1)
+        limit = max_pending or 2 * max(1, len(client.scheduler_info().get("workers", {})))
         index: dict = {}
         submitted: list = []
         queue = as_completed()
