@@ -68,6 +68,13 @@ def _sincosd(deg):
 
 
 @nb.njit(inline="always")
+def _origin_terms(lat0):
+    """(sin lat0, cos lat0, sqrt(1 - e2 sin^2 lat0)) of an origin latitude (degrees)."""
+    s0, c0 = _sincosd(lat0)
+    return s0, c0, math.sqrt(1.0 - _E2 * s0 * s0)
+
+
+@nb.njit(inline="always")
 def _dlon_rad(lon, lon0):
     """lon - lon0 in radians, wrapped into [-pi, pi]; across the antimeridian the difference is
     formed as (lon -+ 180) - (lon0 +- 180), whose terms are exact, not as (lon - lon0) -+ 360."""
@@ -140,8 +147,7 @@ def _enu_rows(lat, lon, lat0, lon0, h, east, north, start, stop):
     for i in range(start, stop):
         phi0 = lat0[i * k_lat0]
         if phi0 != last:                        # once per run of equal origins (per track)
-            s0, c0 = _sincosd(phi0)
-            w0 = math.sqrt(1.0 - _E2 * s0 * s0)
+            s0, c0, w0 = _origin_terms(phi0)
             last = phi0
         east[i], north[i] = _enu_row(lat[i * k_lat], lon[i * k_lon], phi0, lon0[i * k_lon0],
                                      h[i * k_h], s0, c0, w0)
@@ -160,8 +166,7 @@ def _geodetic_rows(east, north, lat0, lon0, lat, lon, start, stop):
     for i in range(start, stop):
         phi0 = lat0[i * k_lat0]
         if phi0 != last:
-            s0, c0 = _sincosd(phi0)
-            w0 = math.sqrt(1.0 - _E2 * s0 * s0)
+            s0, c0, w0 = _origin_terms(phi0)
             last = phi0
         lat[i], lon[i] = _geodetic_row(east[i * k_e], north[i * k_n], phi0, lon0[i * k_lon0], s0, c0, w0)
         missed += np.isnan(lat[i])
