@@ -39,7 +39,7 @@ import pandas as pd
 
 from .._validation import check_int, check_positive
 from ..errors import DataError, ParameterError, UnknownNameError
-from ..io import FIXES, LocalFrame, cell_key, iter_tracks
+from ..io import FIXES, cell_key, iter_track_chunks
 from ..io._geodesy import enu_to_geodetic
 from ..radio import arfcn_to_frequency, path_loss
 
@@ -242,30 +242,20 @@ def _simulated_chunks(rng, tracks, duration_s, interval, q, speed_mps) -> Iterat
 
 
 def _along_chunks(path) -> Iterator[_Truth]:
-    """The tracks of a real position-fix file (lat/lon), each in the frame at its first fix."""
-    parts: list[tuple] = []
+    """The tracks of a real position-fix file (lat/lon), each in the frame at its first fix, in chunks of
+    whole tracks of at least CHUNK_ROWS rows (:func:`mptrack.io.iter_track_chunks`)."""
+    from ._columns import FixTable
 
-    def chunk(first: int) -> _Truth:
-        ids, t, e, n, lat0, lon0 = zip(*parts)
-        return _Truth(np.arange(first, first + len(ids)), np.array(ids, dtype=object),
-                      np.concatenate([[0], np.cumsum([len(x) for x in t])]), np.concatenate(t),
-                      np.concatenate(e), np.concatenate(n), np.array(lat0), np.array(lon0))
-
-    first = rows_held = 0
-    for tid, rows in iter_tracks(path, FIXES):
-        if "lat" not in rows or "lon" not in rows:
+    first = 0
+    for rows in iter_track_chunks(path, FIXES, chunk_rows=CHUNK_ROWS):
+        table = FixTable.from_frame(rows)
+        if not table.geographic:
             raise DataError("along: the truth needs lat/lon columns", file=path, column="lat")
-        frame = LocalFrame.at(rows["lat"], rows["lon"])
-        e, n = frame.to_enu(rows["lat"].to_numpy(), rows["lon"].to_numpy())
-        parts.append((tid, np.rint(rows["t"].to_numpy(float) * 1e3).astype(np.int64), e, n, frame.lat0,
-                      frame.lon0))
-        rows_held += len(e)
-        if rows_held >= CHUNK_ROWS:
-            yield chunk(first)
-            first, parts, rows_held = first + len(parts), [], 0
-    if parts:
-        yield chunk(first)
-    elif not first:
+        lat0, lon0 = table.origin
+        yield _Truth(np.arange(first, first + table.B), table.ids, table.offsets,
+                     np.rint(table.t * 1e3).astype(np.int64), table.east, table.north, lat0, lon0)
+        first += table.B
+    if not first:
         raise DataError("along: no tracks in the file", file=path)
 
 
