@@ -14,13 +14,13 @@ from __future__ import annotations
 import subprocess
 import sys
 import tempfile
-import time
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
 from . import register_suite
+from ._timing import best_time
 
 __all__ = ["tracking_suite", "tracking_accuracy_suite", "rmse_vs_truth"]
 
@@ -33,15 +33,6 @@ def _log(path: Path, tracks: int, per_track: int, seed: int = 1) -> int:
                       interval=Intervals.uniform(1.0, 3.0), accuracy_column=False)
     log.drop(columns=["true_lat", "true_lon", "is_outlier"]).to_parquet(path, index=False)
     return len(log)
-
-
-def _best(fn, repeats: int) -> float:
-    best = np.inf
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        fn()
-        best = min(best, time.perf_counter() - t0)
-    return best
 
 
 def _peak_mib(path: Path, out: Path) -> float:
@@ -74,12 +65,12 @@ def tracking_suite(quick: bool) -> dict:
                 ("no flags (noise estimated)", "long", TrackOptions()),
                 ("given sigma, q; tracks of 10 fixes", "short", TrackOptions(sigma_m=5.0, q=0.5)),
                 ("no flags; tracks of 10 fixes", "short", TrackOptions())):
-            seconds = _best(lambda: track_file(paths[key], out, options=options), repeats)
+            seconds = best_time(lambda: track_file(paths[key], out, options=options), repeats)
             output = pd.read_parquet(out)
-            floor = _best(lambda: (pd.read_parquet(paths[key]), output.to_parquet(tmp / "floor.parquet")), repeats)
+            floor = best_time(lambda: (pd.read_parquet(paths[key]), output.to_parquet(tmp / "floor.parquet")), repeats)
             n, tracks = counts[key], cases[key][0]
             rows.append([name, n, tracks, seconds, n / seconds, seconds / floor])
-        seconds = _best(lambda: simulate("gps", fixes // 150, np.random.default_rng(0)), repeats)
+        seconds = best_time(lambda: simulate("gps", fixes // 150, np.random.default_rng(0)), repeats)
         rows.append(["simulate (library, gps)", fixes, fixes // 150, seconds, fixes / seconds, None])
         peak = _peak_mib(paths["long"], tmp / "peak.parquet")
     notes.append(f"peak resident memory of a fresh process tracking the {counts['long']:,}-fix log with no flags: "
