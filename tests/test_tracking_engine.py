@@ -60,6 +60,14 @@ def run_engine(order, offsets, t, ze, zn, w, c, q, smooth, gate=GATE):
     return X, P, nis, flag, stats
 
 
+def run_reference(spec, b, offsets, t, ze, zn, w, c, q, smooth):
+    """The per-track reference on track b: (its rows, the gated run, its filtered or smoothed result)."""
+    s = slice(offsets[b], offsets[b + 1])
+    g = track_gated(spec.build(q[b], 1.0), t[s], np.column_stack([ze[s], zn[s]]),
+                    (c[b] * w[s])[:, None, None] * np.eye(2), np.tile(spec.prior_variances, 2), gate_probability=0.999)
+    return s, g, smooth_gated(g) if smooth else g.result
+
+
 @pytest.mark.parametrize("name", ["cv", "ca"])
 @pytest.mark.parametrize("smooth", [False, True])
 def test_engine_equals_the_per_track_reference(name, smooth):
@@ -71,11 +79,8 @@ def test_engine_equals_the_per_track_reference(name, smooth):
     X, P, nis, flag, stats = run_engine(order, offsets, t, ze, zn, w, c, q, smooth)
     seen = set()
     for b in range(len(offsets) - 1):
-        s = slice(offsets[b], offsets[b + 1])
+        s, g, ref = run_reference(spec, b, offsets, t, ze, zn, w, c, q, smooth)
         r = c[b] * w[s]
-        g = track_gated(spec.build(q[b], 1.0), t[s], np.column_stack([ze[s], zn[s]]), r[:, None, None] * np.eye(2),
-                        np.tile(spec.prior_variances, 2), gate_probability=0.999)
-        ref = smooth_gated(g) if smooth else g.result
         np.testing.assert_array_equal(g.flag, flag[s])
         seen.update(FLAGS[f] for f in flag[s])
         # to 1e-10 on the scale of the computation: the largest predicted variance of the track (a
@@ -104,10 +109,7 @@ def test_engine_equals_reference_on_random_tracks(seed, order):
     X, P, nis, flag, _ = run_engine(order, offsets, t, ze, zn, w, c, q, smooth=True)
     spec = get_model({2: "cv", 3: "ca"}[order])
     for b in range(4):
-        s = slice(offsets[b], offsets[b + 1])
-        g = track_gated(spec.build(q[b], 1.0), t[s], np.column_stack([ze[s], zn[s]]),
-                        (c[b] * w[s])[:, None, None] * np.eye(2), np.tile(spec.prior_variances, 2))
-        ref = smooth_gated(g)
+        s, g, ref = run_reference(spec, b, offsets, t, ze, zn, w, c, q, smooth=True)
         np.testing.assert_array_equal(g.flag, flag[s])
         # the scale of the main test: the track's largest predicted variance (seed 154944337: a 254 s gap
         # of a ca track predicts 2.7e10 m^2; engine and reference are then 2.6e-6 and 1.2e-6 m from an
@@ -221,10 +223,7 @@ def test_extreme_gaps_agree_to_their_conditioning():
     spec = get_model("cv")
     assert np.isfinite(X).all() and np.isfinite(P).all()
     for b in range(20):
-        s = slice(offsets[b], offsets[b + 1])
-        g = track_gated(spec.build(q[b], 1.0), t[s], np.column_stack([ze[s], zn[s]]),
-                        (c[b] * w[s])[:, None, None] * np.eye(2), np.tile(spec.prior_variances, 2))
-        ref = smooth_gated(g)
+        s, g, ref = run_reference(spec, b, offsets, t, ze, zn, w, c, q, smooth=True)
         np.testing.assert_array_equal(g.flag, flag[s])
         np.testing.assert_allclose(X[s][:, 0, 0], ref.x[:, 0], rtol=0, atol=1e-6 * (np.abs(ref.x).max() + 1))
 
