@@ -3,9 +3,11 @@
 Layout (shared/DESIGN.md, "Many tracks"): the fixes of B tracks are flat
 columns sorted by (track, time); track b is rows ``offsets[b]:offsets[b+1]``.
 Every kernel here loops over tracks with ``prange`` and over a track's fixes
-in order; the kernels split the tracks into blocks, and each block allocates
-one workspace (:func:`_work`) for all its tracks, so nothing is allocated per
-track or per fix and no Python runs per track.
+in order, and no Python runs per track.  The filter and likelihood kernels
+split the tracks into blocks, and each block allocates one workspace
+(:func:`_work`) for all its tracks, so they allocate nothing per track or per
+fix; the method-of-moments start (:func:`moment_guess`, once per estimation)
+allocates its scratch per track.
 
 The motion models of ``mptrack track`` are integrator chains per axis (cv:
 position, velocity; ca: + acceleration) driven by white noise of density q on
