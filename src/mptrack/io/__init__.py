@@ -7,9 +7,11 @@ with ``on_error="skip"`` bad rows are dropped and counted in a :class:`ReadRepor
 """
 
 from ._geodesy import LocalFrame, enu_to_geodetic, geodetic_to_enu
-from ._readers import FORMATS, input_format, iter_track_chunks, iter_tracks, read_cells, read_chunks, read_table
+from ._formats import FORMATS, input_format
+from ._readers import iter_track_chunks, iter_tracks, read_cells, read_chunks, read_table
 from ._schema import CELLS, FIXES, MEASUREMENTS, ON_ERROR, Column, ReadReport, Schema, cell_key
-from ._writers import OUTPUT_FORMATS, PartStore, geojson_features, output_format, write_table
+from ._parts import PartStore
+from ._writers import OUTPUT_FORMATS, geojson_features, output_format, write_table
 
 __all__ = [
     "Column",

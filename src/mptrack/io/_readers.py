@@ -1,9 +1,8 @@
-"""Chunked readers for CSV, Parquet and GPX inputs, and a track-by-track iterator.
+"""Validated, chunked reading of every input format (:mod:`._formats`), and a track-by-track iterator.
 
-Memory stays bounded: CSV is read ``chunk_rows`` rows at a time, Parquet one
-record batch at a time, and :func:`iter_tracks` holds one track (plus one
-chunk) at once, which is why the rows of a track must be contiguous.  GPX
-files (XML, usually small) are parsed whole with gpxpy.
+Memory stays bounded: the raw readers yield chunks, and :func:`iter_tracks`
+holds one track (plus one chunk) at once, which is why the rows of a track
+must be contiguous.
 """
 
 from __future__ import annotations
@@ -15,22 +14,12 @@ import numpy as np
 import pandas as pd
 
 from ..errors import DataError
+from ._formats import raw_chunks
 from ._schema import CELLS, FIXES, ReadReport, Schema, cell_key, check_on_error, validate_chunk
 
-__all__ = ["read_chunks", "iter_track_chunks", "iter_tracks", "read_table", "read_cells", "input_format", "FORMATS"]
+__all__ = ["read_chunks", "iter_track_chunks", "iter_tracks", "read_table", "read_cells", "source_label", "track_offsets"]
 
-FORMATS = {".csv": "csv", ".txt": "csv", ".gz": "csv", ".parquet": "parquet", ".pq": "parquet", ".gpx": "gpx"}
 DEFAULT_CHUNK_ROWS = 50_000
-
-
-def input_format(path) -> str:
-    """"csv", "parquet" or "gpx" from the file name (".csv.gz" is CSV)."""
-    suffix = Path(path).suffix.lower()
-    if suffix not in FORMATS:
-        raise DataError(f"unknown input format {suffix!r}; expected one of {', '.join(sorted(FORMATS))}",
-                        file=path)
-    return FORMATS[suffix]
-
 
 #: The name errors give a DataFrame passed instead of a file.
 FRAME_LABEL = "<DataFrame>"
@@ -49,89 +38,6 @@ def track_offsets(ids) -> np.ndarray:
         else np.zeros(1, np.int64)
 
 
-def _raw_chunks(source, chunk_rows: int) -> Iterator[pd.DataFrame]:
-    """Raw chunks of ``chunk_rows`` rows of a DataFrame, a file, or a directory of Parquet files."""
-    if isinstance(source, pd.DataFrame):
-        for i in range(0, max(len(source), 1), chunk_rows):
-            yield source.iloc[i:i + chunk_rows]
-        return
-    path = Path(source)
-    if path.is_dir():
-        yield from _dataset_chunks(path, chunk_rows)
-        return
-    fmt = input_format(path)
-    if not path.exists():
-        raise DataError("file not found", file=path)
-    try:
-        if fmt == "csv":
-            reader = pd.read_csv(path, chunksize=chunk_rows, dtype={"track_id": "string", "cell_id": "string",
-                                                                     "radio": "string"},
-                                 skipinitialspace=True)
-            with reader:
-                yield from reader
-        elif fmt == "parquet":
-            import pyarrow.parquet as pq
-
-            with pq.ParquetFile(path) as pf:
-                for batch in pf.iter_batches(batch_size=chunk_rows):
-                    yield batch.to_pandas()
-        else:
-            yield _gpx_frame(path)
-    except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError, OSError) as exc:
-        raise DataError(f"cannot be read as {fmt}: {exc}", file=path) from None
-    except Exception as exc:  # pyarrow / gpxpy raise their own types for corrupt files
-        if type(exc).__module__.split(".")[0] in ("pyarrow", "gpxpy"):
-            raise DataError(f"cannot be read as {fmt}: {exc}", file=path) from None
-        raise
-
-
-def _dataset_chunks(path: Path, chunk_rows: int) -> Iterator[pd.DataFrame]:
-    """A directory of Parquet files (hive-partitioned or not: ``key=value`` directories become
-    columns), in file-path order, ``chunk_rows`` rows at a time."""
-    import pyarrow.dataset as ds
-
-    try:
-        dataset = ds.dataset(path, format="parquet", partitioning="hive", exclude_invalid_files=False)
-        files = sorted(dataset.files)
-        if not files:
-            raise DataError("no Parquet files in the directory", file=path)
-        dataset = ds.dataset(files, format="parquet", partitioning=ds.HivePartitioning.discover(),
-                             partition_base_dir=str(path))
-        for batch in dataset.to_batches(batch_size=chunk_rows, use_threads=False):
-            if batch.num_rows:
-                yield batch.to_pandas()
-    except DataError:
-        raise
-    except Exception as exc:
-        if type(exc).__module__.split(".")[0] == "pyarrow" or isinstance(exc, OSError):
-            raise DataError(f"cannot be read as a Parquet dataset: {exc}", file=path) from None
-        raise
-
-
-def _gpx_frame(path: Path) -> pd.DataFrame:
-    """All track points of a GPX file: one track_id per <trk> (its name, else "trk<i>")."""
-    import gpxpy
-    import gpxpy.gpx
-
-    try:
-        with open(path, encoding="utf-8-sig") as fh:
-            gpx = gpxpy.parse(fh)
-    except gpxpy.gpx.GPXException as exc:
-        raise DataError(f"not a valid GPX file: {exc}", file=path) from None
-    rows = []
-    for i, trk in enumerate(gpx.tracks, start=1):
-        name = trk.name or f"trk{i}"
-        for seg in trk.segments:
-            for p in seg.points:
-                rows.append((name, pd.Timestamp(p.time) if p.time is not None else pd.NaT,
-                             p.latitude, p.longitude, p.elevation))
-    df = pd.DataFrame(rows, columns=["track_id", "time", "lat", "lon", "elevation_m"])
-    if df.empty:
-        raise DataError("no track points (<trkpt>) in the file", file=path)
-    df["time"] = pd.to_datetime(df["time"], utc=True)
-    return df
-
-
 def read_chunks(path, schema: Schema = FIXES, *, on_error: str = "raise", chunk_rows: int = DEFAULT_CHUNK_ROWS,
                 report: ReadReport | None = None) -> Iterator[pd.DataFrame]:
     """Validated chunks of ``path`` (a CSV, Parquet or GPX file, a directory of Parquet files, or a
@@ -146,7 +52,7 @@ def read_chunks(path, schema: Schema = FIXES, *, on_error: str = "raise", chunk_
     report = report if report is not None else ReadReport()
     report.file = str(label)
     first = 1
-    for raw in _raw_chunks(path, chunk_rows):
+    for raw in raw_chunks(path, chunk_rows):
         n = len(raw)
         yield validate_chunk(raw, schema, file=label, first_row=first, on_error=on_error, report=report)
         first += n

@@ -1,11 +1,8 @@
-"""Writers for Parquet, CSV and GeoJSON, atomic (temporary file, then rename), and a
-per-track part store that makes long runs resumable.
+"""Writers for Parquet, CSV and GeoJSON, atomic (temporary file, then rename).
 
 Every output is written beside its destination and renamed over it only when
 complete (:func:`mptrack._io.atomic_path`), so an interrupted or failed run
-never leaves a half-written result.  :class:`PartStore` keeps each finished
-track in ``.<out>.parts/`` until :meth:`PartStore.finish` streams them, one
-track at a time, into the final file.
+never leaves a half-written result.
 
 CSV goes through pyarrow's CSV writer (fields quoted only where needed,
 booleans as true/false, floats in shortest round-trip form), with datetime
@@ -19,7 +16,6 @@ import csv
 import io
 import json
 import math
-import shutil
 from pathlib import Path
 from typing import Iterable, Iterator
 
@@ -29,7 +25,7 @@ import pandas as pd
 from .._io import atomic_path
 from ..errors import ParameterError
 
-__all__ = ["OUTPUT_FORMATS", "output_format", "write_table", "PartStore", "geojson_features", "iso_utc"]
+__all__ = ["OUTPUT_FORMATS", "output_format", "write_table", "geojson_features", "iso_utc"]
 
 OUTPUT_FORMATS = {".parquet": "parquet", ".pq": "parquet", ".csv": "csv", ".geojson": "geojson",
                   ".json": "geojson"}
@@ -186,36 +182,3 @@ def write_table(df, path) -> Path:
     with atomic_path(path) as tmp:
         _write_parts(frames, tmp, fmt)
     return path
-
-
-class PartStore:
-    """The resumable parts of one run writing ``out``: the directory ``.<out>.parts/`` beside it.
-
-    A run's chunks write their tables there (Arrow IPC files ``<name>-NNNNNN.arrow``,
-    by :func:`mptrack.batch.run_stream`, each atomically) with a ``manifest.json``
-    describing the run; a resumed run skips the chunks found there.
-    :meth:`finish` streams one kind of part, in chunk order and one part in
-    memory at a time, into the output (atomically); :meth:`discard` removes
-    the directory.
-    """
-
-    def __init__(self, out) -> None:
-        self.out = Path(out)
-        output_format(self.out)
-        self.dir = self.out.parent / f".{self.out.name}.parts"
-
-    def parts(self, name: str) -> list[Path]:
-        """The part files of kind ``name``, in chunk order."""
-        return sorted(self.dir.glob(f"{name}-*.arrow")) if self.dir.exists() else []
-
-    def finish(self, name: str, to=None, *, empty=None) -> Path:
-        """Write the parts of kind ``name`` into ``to`` (default: the output); ``empty`` is the
-        (schema-only) table to write when there are none."""
-        from ..batch import read_part
-
-        files = self.parts(name)
-        tables = (read_part(p) for p in files) if files else [empty if empty is not None else pd.DataFrame()]
-        return write_table(tables, self.out if to is None else to)
-
-    def discard(self) -> None:
-        shutil.rmtree(self.dir, ignore_errors=True)
