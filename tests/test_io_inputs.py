@@ -10,6 +10,7 @@ import pytest
 
 from mptrack.errors import DataError, ParameterError
 from mptrack.io import (
+    ReadOptions,
     CELLS,
     FIXES,
     MEASUREMENTS,
@@ -86,7 +87,7 @@ ERRORS = [
     ("latitude range", lambda d: d.assign(lat=d["lat"].where(d.index != 2, 91.0)), 3, "lat", "outside"),
     ("not a number", lambda d: d.assign(lon=d["lon"].astype(object).where(d.index != 9, "east")), 10, "lon",
      "not a number"),
-    ("unsorted", lambda d: d.iloc[[0, 1, 3, 2, 4, 5] + list(range(6, 18))], 4, "time", "not after"),
+    ("unsorted", lambda d: d.iloc[[0, 1, 3, 2, 4, 5] + list(range(6, 18))], 4, "time", "is before the track"),
     ("not contiguous", lambda d: d.iloc[list(range(0, 6)) + list(range(12, 18)) + list(range(6, 12))]
      .assign(track_id=lambda x: ["t0"] * 6 + ["t2"] * 6 + ["t0"] * 6), 13, "track_id", "appears again"),
 ]
@@ -116,7 +117,7 @@ def test_skip_counts_every_bad_row_by_reason(tmp_path):
 
     path = _edit(tmp_path, "bad.csv", edit)
     report = ReadReport()
-    tracks = dict(iter_tracks(path, on_error="skip", report=report, chunk_rows=4))
+    tracks = dict(iter_tracks(path, on_error="skip", report=report, chunk_rows=4, read=ReadOptions(max_skip="25%")))
     assert report.rows_read == 18 and report.rows_skipped == 4
     assert sum(len(g) for g in tracks.values()) == 14
     assert report.reasons == {"time: bad time stamp": 1, "lat: empty value (NaN)": 1,
@@ -181,7 +182,7 @@ def test_measurement_rows_need_one_measurement(tmp_path):
         read_table(path, MEASUREMENTS)
     assert info.value.row == 2 and info.value.column == "rss_dbm/ta"
     # equal times within a track are one scan: allowed for measurement logs
-    (tid, g), = iter_tracks(path, MEASUREMENTS, on_error="skip")
+    (tid, g), = iter_tracks(path, MEASUREMENTS, on_error="skip", read=ReadOptions(max_skip="1"))
     assert len(g) == 2
 
 

@@ -63,6 +63,8 @@ def test_a_parquet_dataset_tracks_like_one_file(tmp_path, log):
         summary = track_file(directory, tmp_path / f"{name}.parquet", chunk_rows=500)
         assert summary["tracks"] == one["tracks"] and summary["fixes"] == one["fixes"]
         got, want = pd.read_parquet(tmp_path / f"{name}.parquet"), pd.read_parquet(tmp_path / "one.parquet")
+        if name == "hive":  # the partition key is a column of the dataset, passed through to the output
+            assert set(got.pop("day")) == {"d1", "d2"}
         pd.testing.assert_frame_equal(got.sort_values(["track_id", "t"]).reset_index(drop=True),
                                       want.sort_values(["track_id", "t"]).reset_index(drop=True))
     with pytest.raises(DataError, match="no Parquet files"):
@@ -104,5 +106,8 @@ def test_python_api_errors_name_the_argument_and_row():
         mptrack.track(bad, sigma=5.0)
     with pytest.raises(ValueError, match="chunk_rows"):
         mptrack.track(bad, chunk_rows=0)
-    points = mptrack.track(bad, on_error="skip")
+    with pytest.raises(DataError, match=r"1 of 2 rows would be dropped, more than the 0 allowed by --max-skip 1%; "
+                                        r"1 x lat: outside .*first: row 2"):
+        mptrack.track(bad, on_error="skip")
+    points = mptrack.track(bad, on_error="skip", max_skip="1")
     assert len(points) == 1 and points.attrs["summary"]["read"]["rows_skipped"] == 1

@@ -235,7 +235,7 @@ def test_along_needs_tracks(tmp_path):
     from mptrack.errors import DataError
 
     (tmp_path / "empty.csv").write_text("track_id,time,lat,lon\n")
-    with pytest.raises(DataError, match="no tracks"):
+    with pytest.raises(DataError, match="no rows to track: the input is empty or has a header only"):
         simulate("gps", 1, np.random.default_rng(0), along=tmp_path / "empty.csv")
 
 

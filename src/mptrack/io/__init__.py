@@ -1,5 +1,6 @@
 """Input and output of real data: schemas and validation of position-fix logs
-(CSV/Parquet/GPX), cellular measurement logs and OpenCelliD cell tables;
+(CSV/Parquet/GPX and more), cellular measurement logs and OpenCelliD cell tables, with
+column names and units recognised (:class:`ReadOptions`);
 WGS-84 <-> local ENU (compiled, one origin per row); atomic Parquet/CSV/GeoJSON writers.
 
 Errors name the file, the row and the column (:class:`mptrack.errors.DataError`);
@@ -8,7 +9,8 @@ with ``on_error="skip"`` bad rows are dropped and counted in a :class:`ReadRepor
 
 from ._geodesy import LocalFrame, enu_to_geodetic, geodetic_to_enu
 from ._formats import FORMATS, input_format
-from ._readers import iter_track_chunks, iter_tracks, read_cells, read_chunks, read_table
+from ._interpret import ReadOptions
+from ._readers import InputNotSorted, iter_track_chunks, iter_tracks, read_cells, read_chunks, read_table
 from ._schema import CELLS, FIXES, MEASUREMENTS, ON_ERROR, Column, ReadReport, Schema, cell_key
 from ._parts import PartStore
 from ._writers import OUTPUT_FORMATS, geojson_features, output_format, write_table
@@ -21,6 +23,8 @@ __all__ = [
     "CELLS",
     "ON_ERROR",
     "ReadReport",
+    "ReadOptions",
+    "InputNotSorted",
     "cell_key",
     "FORMATS",
     "input_format",

@@ -15,6 +15,7 @@ import pandas as pd
 
 from ..errors import DataError
 from ._formats import raw_chunks
+from ._interpret import ReadOptions, interpret
 from ._schema import CELLS, FIXES, ReadReport, Schema, cell_key, check_on_error, validate_chunk
 
 __all__ = ["read_chunks", "iter_track_chunks", "iter_tracks", "read_table", "read_cells", "source_label", "track_offsets"]
@@ -39,57 +40,82 @@ def track_offsets(ids) -> np.ndarray:
 
 
 def read_chunks(path, schema: Schema = FIXES, *, on_error: str = "raise", chunk_rows: int = DEFAULT_CHUNK_ROWS,
-                report: ReadReport | None = None) -> Iterator[pd.DataFrame]:
-    """Validated chunks of ``path`` (a CSV, Parquet or GPX file, a directory of Parquet files, or a
-    DataFrame) against ``schema``.
+                report: ReadReport | None = None, read: ReadOptions = ReadOptions()) -> Iterator[pd.DataFrame]:
+    """Validated chunks of ``path`` (a file in any of :data:`FORMATS`, a directory of Parquet files, or
+    a DataFrame) against ``schema``.
 
-    Each chunk has the schema's columns, ``t`` (seconds, float) and ``row`` (the
-    1-based record number in the file).  Bad rows raise DataError naming file,
-    row and column, or with ``on_error="skip"`` are dropped and counted in ``report``.
+    Column names and units are decided from the first chunk (:func:`interpret`, with what ``read``
+    says; each decision is a note in ``report``).  Each chunk has the schema's columns, ``t``
+    (seconds, float), ``row`` (the 1-based record number in the file) and the file's other columns.
+    Bad rows raise DataError naming file, row and column, or with ``on_error="skip"`` are dropped
+    and counted in ``report``.
     """
     check_on_error(on_error)
     label = source_label(path)
     report = report if report is not None else ReadReport()
     report.file = str(label)
     first = 1
+    plan = None
     for raw in raw_chunks(path, chunk_rows):
+        if plan is None:
+            plan = interpret(raw, schema, read, file=label)
+            for note in plan.notes:
+                report.note(note)
         n = len(raw)
-        yield validate_chunk(raw, schema, file=label, first_row=first, on_error=on_error, report=report)
+        yield validate_chunk(plan.apply(raw), schema, file=label, first_row=first, on_error=on_error,
+                             report=report, time_scale=plan.time_scale, time_format=plan.time_format)
         first += n
 
 
 def read_table(path, schema: Schema = FIXES, *, on_error: str = "raise", report: ReadReport | None = None,
-               chunk_rows: int = DEFAULT_CHUNK_ROWS) -> pd.DataFrame:
+               chunk_rows: int = DEFAULT_CHUNK_ROWS, read: ReadOptions = ReadOptions()) -> pd.DataFrame:
     """The whole validated file as one DataFrame (see :func:`read_chunks`); for small inputs."""
-    parts = list(read_chunks(path, schema, on_error=on_error, report=report, chunk_rows=chunk_rows))
+    parts = list(read_chunks(path, schema, on_error=on_error, report=report, chunk_rows=chunk_rows, read=read))
     return pd.concat(parts, ignore_index=True) if parts else pd.DataFrame()
+
+
+class InputNotSorted(Exception):
+    """Raised by :func:`iter_track_chunks` with ``sort=None`` at the first row out of (track, time)
+    order: the caller starts again with ``sort=True`` (chunks already yielded are not in sorted order)."""
 
 
 def iter_track_chunks(path, schema: Schema = FIXES, *, on_error: str = "raise",
                       chunk_rows: int = DEFAULT_CHUNK_ROWS, report: ReadReport | None = None,
-                      strict: bool | None = None) -> Iterator[pd.DataFrame]:
-    """Validated rows of ``path`` in chunks of whole tracks: each chunk holds at least ``chunk_rows``
-    rows (the last one may hold fewer) and never cuts a track, so memory is bounded by
+                      strict: bool | None = None, read: ReadOptions = ReadOptions(),
+                      sort: bool | None = False) -> Iterator[pd.DataFrame]:
+    """Validated rows of ``path`` in chunks of whole tracks in time order: each chunk holds at least
+    ``chunk_rows`` rows (the last one may hold fewer) and never cuts a track, so memory is bounded by
     ``chunk_rows`` plus the largest track.
 
-    The rows of a track must be contiguous and their times increasing (strictly
-    for position fixes; non-decreasing for measurement logs, where a scan has
-    one row per cell).  A violation raises DataError naming the row and column,
-    or is skipped and counted with ``on_error="skip"``.
+    sort   False: the rows of a track must be contiguous and in time order (a violation raises
+           DataError naming the row, or is skipped and counted with ``on_error="skip"``);
+           None: stream while the rows are in order, raise :class:`InputNotSorted` at the first
+           that is not; True: read the whole input and sort it by (track in order of first
+           appearance, time), stable, counting the rows that moved in ``report.rows_reordered``.
+    Times must increase strictly within a track for position fixes (``strict``; measurement logs
+    have one row per cell of a scan and may repeat a time).  A row that repeats the previous row of
+    its track exactly is dropped and counted (``report.duplicates_dropped``); a repeated time with
+    other values is an error (or skipped).  An input without rows is an error, and with
+    ``on_error="skip"`` so is dropping more than ``read.max_skip`` rows.
     """
     strict = (schema is FIXES) if strict is None else strict
     report = report if report is not None else ReadReport()
     label = source_label(path)
+    chunks = read_chunks(path, schema, on_error=on_error, chunk_rows=chunk_rows, report=report, read=read)
+    if sort:
+        chunks = _sorted(chunks, chunk_rows, report)
     finished: set[str] = set()
     ready: list[pd.DataFrame] = []          # complete tracks not yet yielded
     ready_rows = 0
     carry: list[pd.DataFrame] = []          # the rows so far of the track still open
-    carry_id, carry_t = None, -np.inf
-    for chunk in read_chunks(path, schema, on_error=on_error, chunk_rows=chunk_rows, report=report):
+    carry_id, carry_t, carry_last = None, -np.inf, None
+    for chunk in chunks:
         if chunk.empty:
             continue
+        if sort is None:
+            _check_sorted(chunk, carry_id, carry_t, finished)
         chunk = _contiguous(chunk, carry_id, finished, label, on_error, report)
-        chunk = _ordered(chunk, carry_id, carry_t, strict, label, on_error, report)
+        chunk = _ordered(chunk, carry_id, carry_t, carry_last, strict, label, on_error, report)
         if chunk.empty:
             continue
         ids = chunk["track_id"].to_numpy(dtype=object)
@@ -109,16 +135,65 @@ def iter_track_chunks(path, schema: Schema = FIXES, *, on_error: str = "raise",
         carry.append(chunk)
         carry_id = str(ids[-1])
         carry_t = max(carry_t, float(chunk["t"].max()))
+        carry_last = chunk.iloc[[-1]]
         while ready_rows >= chunk_rows:
             head, ready = _cut(pd.concat(ready, ignore_index=True), chunk_rows)
             ready_rows = sum(len(r) for r in ready)
             yield head
+    _check_totals(report, read, on_error, label)
     ready.extend(carry)
     rest = pd.concat(ready, ignore_index=True) if ready else None
     while rest is not None and len(rest):
         head, tail = _cut(rest, chunk_rows)
         yield head
         rest = tail[0] if tail else None
+
+
+def _check_totals(report: ReadReport, read: ReadOptions, on_error: str, label) -> None:
+    """After the last row: an input without rows, or more rows dropped than allowed, is an error."""
+    if report.rows_read == 0:
+        raise DataError("no rows to track: the input is empty or has a header only", file=label)
+    if on_error == "skip":
+        report.check_skips(read.skip_limit(report.rows_read), f"--max-skip {read.max_skip}")
+    if report.rows_skipped == report.rows_read:
+        raise DataError("every row is bad; nothing to track", file=label)
+
+
+def _sorted(chunks, chunk_rows: int, report: ReadReport) -> Iterator[pd.DataFrame]:
+    """All chunks as one table, stably sorted by (track in order of first appearance, time), in
+    chunks of ``chunk_rows`` rows."""
+    parts = [c for c in chunks if len(c)]
+    if not parts:
+        return
+    rows = pd.concat(parts, ignore_index=True)
+    track_no = pd.factorize(rows["track_id"].to_numpy(dtype=object))[0]
+    order = np.lexsort((rows["t"].to_numpy(dtype=float), track_no))
+    moved = int((order != np.arange(len(order))).sum())
+    if moved:
+        report.rows_reordered += moved
+        report.note(f"{moved} rows were not in (track, time) order and were sorted")
+        rows = rows.take(order).reset_index(drop=True)
+    for i in range(0, len(rows), chunk_rows):
+        yield rows.iloc[i:i + chunk_rows]
+
+
+def _check_sorted(chunk: pd.DataFrame, open_id, open_t: float, finished: set) -> None:
+    """Raise InputNotSorted if a track reappears or its time goes back (equal times are judged later)."""
+    ids = chunk["track_id"].to_numpy(dtype=object)
+    t = chunk["t"].to_numpy(dtype=float)
+    starts = track_offsets(ids)[:-1]
+    run_ids = [str(ids[a]) for a in starts]
+    seen = set(finished)
+    if open_id is not None and run_ids[0] != open_id:
+        seen.add(open_id)
+    for j, tid in enumerate(run_ids):
+        if tid in seen or (tid == open_id and j > 0):
+            raise InputNotSorted(tid)
+        seen.add(tid)
+    new_run = np.r_[True, ids[1:] != ids[:-1]]
+    back = np.r_[False, t[1:] < t[:-1]] & ~new_run
+    if back.any() or (ids[0] == open_id and t[0] < open_t):
+        raise InputNotSorted(str(ids[0]))
 
 
 def _cut(rows: pd.DataFrame, chunk_rows: int) -> tuple[pd.DataFrame, list]:
@@ -132,10 +207,11 @@ def _cut(rows: pd.DataFrame, chunk_rows: int) -> tuple[pd.DataFrame, list]:
 
 
 def iter_tracks(path, schema: Schema = FIXES, *, on_error: str = "raise", chunk_rows: int = DEFAULT_CHUNK_ROWS,
-                report: ReadReport | None = None, strict: bool | None = None) -> Iterator[tuple[str, pd.DataFrame]]:
+                report: ReadReport | None = None, strict: bool | None = None, read: ReadOptions = ReadOptions(),
+                sort: bool | None = False) -> Iterator[tuple[str, pd.DataFrame]]:
     """Yield (track_id, rows) one track at a time (see :func:`iter_track_chunks` for the checks)."""
     for chunk in iter_track_chunks(path, schema, on_error=on_error, chunk_rows=chunk_rows, report=report,
-                                   strict=strict):
+                                   strict=strict, read=read, sort=sort):
         ids = chunk["track_id"].to_numpy(dtype=object)
         bounds = track_offsets(ids)
         for a, b in zip(bounds[:-1], bounds[1:]):
@@ -172,9 +248,12 @@ def _contiguous(chunk: pd.DataFrame, open_id, finished: set, path, on_error: str
     return chunk.loc[keep].reset_index(drop=True)
 
 
-def _ordered(chunk: pd.DataFrame, open_id, open_t: float, strict: bool, path, on_error: str,
+def _ordered(chunk: pd.DataFrame, open_id, open_t: float, open_last, strict: bool, path, on_error: str,
              report: ReadReport) -> pd.DataFrame:
-    """Keep rows whose time is after every earlier row's of the same track (>= if not strict)."""
+    """Drop exact repeats of a track's previous row (counted), then keep rows whose time is after
+    every earlier row's of the same track (>= if not strict); ``open_last`` is the last row (a 1-row
+    frame) of the open track ``open_id``."""
+    chunk = _without_repeats(chunk, open_id, open_last, report)
     ids = chunk["track_id"].to_numpy(dtype=object)
     t = chunk["t"].to_numpy(dtype=float)
     new_run = np.r_[True, ids[1:] != ids[:-1]]
@@ -189,14 +268,42 @@ def _ordered(chunk: pd.DataFrame, open_id, open_t: float, strict: bool, path, on
     if ok.all():
         return chunk
     i = int(np.flatnonzero(~ok)[0])
-    err = DataError(f"time {chunk['time'].iloc[i]!s} is not after the track's previous time stamp; rows of a "
-                    f"track must be in {'strictly ' if strict else ''}increasing time",
-                    file=path, row=int(chunk["row"].iloc[i]), column="time")
+    same = t[i] == before[i]
+    what = (f"time {chunk['time'].iloc[i]!s} repeats the track's previous time stamp with other values"
+            if same else f"time {chunk['time'].iloc[i]!s} is before the track's previous time stamp")
+    err = DataError(f"{what}; a track can have one fix per time stamp", file=path,
+                    row=int(chunk["row"].iloc[i]), column="time")
     if on_error == "raise":
         raise err
-    err.kind = "time not increasing"
+    err.kind = "same time, other values" if same else "time not increasing"
     report.skip(err, count=int((~ok).sum()))
     return chunk.loc[ok].reset_index(drop=True)
+
+
+def _without_repeats(chunk: pd.DataFrame, open_id, open_last, report: ReadReport) -> pd.DataFrame:
+    """The chunk without rows equal in every column (but ``row``) to the row before them in the same
+    track (only rows that repeat the time are compared)."""
+    ids = chunk["track_id"].to_numpy(dtype=object)
+    t = chunk["t"].to_numpy(dtype=float)
+    cont = open_last is not None and ids[0] == open_id
+    prev_t = np.r_[open_last["t"].iloc[0] if cont else np.nan, t[:-1]]
+    same = np.r_[cont, ids[1:] == ids[:-1]] & (t == prev_t)
+    if not same.any():
+        return chunk
+    cols = [c for c in chunk.columns if c != "row"]
+    both = pd.concat([open_last[cols], chunk[cols]], ignore_index=True) if cont else \
+        pd.concat([chunk[cols].iloc[:1], chunk[cols]], ignore_index=True)
+    idx = np.flatnonzero(same)
+    cur, prev = both.iloc[idx + 1].reset_index(drop=True), both.iloc[idx].reset_index(drop=True)
+    equal = (cur.eq(prev) | (cur.isna() & prev.isna())).all(axis=1).to_numpy()
+    if not equal.any():
+        return chunk
+    repeat = np.zeros(len(chunk), bool)
+    repeat[idx[equal]] = True
+    report.duplicates_dropped += int(repeat.sum())
+    report.notes[:] = [x for x in report.notes if not x.startswith("duplicate rows:")]
+    report.note(f"duplicate rows: {report.duplicates_dropped} exact repeats of the row before them were dropped")
+    return chunk.loc[~repeat].reset_index(drop=True)
 
 
 def read_cells(path, *, wanted=None, on_error: str = "raise", report: ReadReport | None = None,

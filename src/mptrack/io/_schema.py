@@ -22,11 +22,14 @@ import numpy as np
 import pandas as pd
 
 from ..errors import DataError, ParameterError
+from ._interpret import MAX_SECONDS
 
 __all__ = ["Column", "Schema", "ReadReport", "FIXES", "MEASUREMENTS", "CELLS", "ON_ERROR", "check_on_error",
            "cell_key"]
 
 ON_ERROR = ("raise", "skip")
+#: Columns the readers add to every validated chunk (an input column of that name is not passed through).
+RESERVED = ("t", "row")
 _MAX_EXAMPLES = 20
 
 
@@ -59,6 +62,11 @@ class Schema:
     one_of: tuple[tuple[str, ...], ...] = ()
     row_needs_one_of: tuple[str, ...] = ()  # per row, at least one of these must be non-empty
 
+    def extra_columns(self, columns) -> list[str]:
+        """The columns of ``columns`` that are not the schema's (passed through to the output)."""
+        names = {c.name for c in self.columns} | set(RESERVED)
+        return [str(c) for c in columns if str(c) not in names]
+
     def column(self, name: str) -> Column:
         return next(c for c in self.columns if c.name == name)
 
@@ -81,9 +89,10 @@ def cell_key(mcc, net, area, cell) -> pd.Series:
     return parts[0] + "-" + parts[1] + "-" + parts[2] + "-" + parts[3]
 
 
-_TRACK = Column("track_id", "id", "", "track (terminal) identifier, default \"1\"; rows of a track must be "
-                "contiguous and in increasing time", required=False)
-_TIME = Column("time", "time", "s or ISO 8601", "time stamp: ISO 8601 text (no zone = UTC) or seconds")
+_TRACK = Column("track_id", "id", "", "track (terminal) identifier, default \"1\"; the rows need not be "
+                "sorted (unsorted input is sorted by track and time, and the run says so)", required=False)
+_TIME = Column("time", "time", "ISO 8601 or s/ms/us/ns", "time stamp: ISO 8601 text (no zone = UTC), or "
+               "numbers: seconds from any start, or epoch s/ms/us/ns (unit by magnitude, --time-unit)")
 
 FIXES = Schema("position fixes", (
     _TRACK, _TIME,
@@ -134,43 +143,93 @@ class ReadReport:
     rows_skipped: int = 0
     reasons: Counter = field(default_factory=Counter)
     examples: list[str] = field(default_factory=list)
+    first_example: dict = field(default_factory=dict)  # reason -> the first row dropped for it
+    notes: list[str] = field(default_factory=list)   # how the file was read (units, column names, sorting)
+    duplicates_dropped: int = 0                      # exact repeats of the previous row of a track
+    rows_reordered: int = 0                          # rows not in (track, time) order, sorted
 
     def skip(self, error: DataError, count: int = 1) -> None:
         """Count ``count`` rows dropped for ``error`` (its message kept as an example)."""
         self.rows_skipped += count
         reason = getattr(error, "kind", error.reason).rstrip(":")
-        self.reasons[f"{error.column}: {reason}" if error.column else reason] += count
+        key = f"{error.column}: {reason}" if error.column else reason
+        self.reasons[key] += count
+        self.first_example.setdefault(key, str(error))
         if len(self.examples) < _MAX_EXAMPLES:
             self.examples.append(str(error))
 
     def to_dict(self) -> dict:
         return {"file": self.file, "rows_read": self.rows_read, "rows_skipped": self.rows_skipped,
-                "skipped_by_reason": dict(self.reasons), "examples": list(self.examples)}
+                "skipped_by_reason": dict(self.reasons), "examples": list(self.examples), "notes": list(self.notes),
+                "duplicates_dropped": self.duplicates_dropped, "rows_reordered": self.rows_reordered}
+
+    def reset(self) -> None:
+        """Forget every count (the input is read again from the start)."""
+        fresh = ReadReport(file=self.file)
+        self.__dict__.update(fresh.__dict__)
+
+    def note(self, text: str) -> None:
+        if text not in self.notes:
+            self.notes.append(text)
+
+    def check_skips(self, limit: int, option: str) -> None:
+        """Raise DataError when more than ``limit`` rows were dropped: the top reasons with an
+        example each (``option`` is how the user sets the limit)."""
+        if self.rows_skipped <= limit:
+            return
+        lines = [f"{count} x {reason} (first: {self.first_example[reason].removeprefix(self.file + ', ')})"
+                 for reason, count in self.reasons.most_common(3)]
+        raise DataError(f"{self.rows_skipped} of {self.rows_read} rows would be dropped, more than the {limit} "
+                        f"allowed by {option}; " + "; ".join(lines), file=self.file)
 
 
-def _parse_time(values: pd.Series) -> tuple[pd.Series, np.ndarray]:
-    """(parsed column, seconds as float64 with NaN where unparseable)."""
+def _numeric_time(values: pd.Series) -> pd.Series | None:
+    """The numbers of a numeric time column (mostly numbers: the rest is bad), else None."""
     if pd.api.types.is_numeric_dtype(values):
-        t = pd.to_numeric(values, errors="coerce").astype(float)
-        return t, t.to_numpy()
-    if not pd.api.types.is_datetime64_any_dtype(values):
-        num = pd.to_numeric(values, errors="coerce")
-        if num.notna().sum() * 2 > values.notna().sum():  # mostly numbers: seconds, the rest is bad
-            return num.astype(float), num.to_numpy(dtype=float)
+        return pd.to_numeric(values, errors="coerce").astype(float)
+    if pd.api.types.is_datetime64_any_dtype(values):
+        return None
+    num = pd.to_numeric(values, errors="coerce")
+    return num.astype(float) if num.notna().sum() * 2 > values.notna().sum() else None
+
+
+def _parse_time(values: pd.Series, scale: float = 1.0, fmt: str | None = None) -> tuple[pd.Series, np.ndarray]:
+    """(parsed column, seconds as float64 with NaN where unparseable or beyond +-MAX_SECONDS).
+
+    Numbers are ``scale`` units per second: seconds stay numbers, epoch milli/micro/nanoseconds
+    become UTC datetimes.  Text is ISO 8601 (no zone = UTC) or the strftime layout ``fmt``."""
+    num = _numeric_time(values)
+    if num is not None:
+        secs = num.to_numpy(dtype=float) / scale
+        with np.errstate(invalid="ignore"):
+            secs[~(np.abs(secs) <= MAX_SECONDS)] = np.nan
+        if scale == 1.0:
+            return num, secs
+        ns = np.where(np.isnan(secs), 0, np.round(num.to_numpy(dtype=float) * (1e9 / scale))).astype("int64")
+        ts = pd.Series(pd.to_datetime(ns, utc=True)).where(~np.isnan(secs))
+        return ts, secs
     if pd.api.types.is_datetime64_any_dtype(values):
         ts = values.dt.tz_localize("UTC") if values.dt.tz is None else values.dt.tz_convert("UTC")
     else:
-        ts = pd.to_datetime(values.astype("string"), errors="coerce", utc=True, format="ISO8601")
+        ts = pd.to_datetime(values.astype("string"), errors="coerce", utc=True, format=fmt or "ISO8601")
     ns = ts.to_numpy(dtype="datetime64[ns]").astype("int64").astype(float)
     secs = np.where(ts.isna().to_numpy(), np.nan, ns / 1e9)
     return ts, secs
 
 
-def validate_chunk(df: pd.DataFrame, schema: Schema, *, file, first_row: int, on_error: str,
-                   report: ReadReport) -> pd.DataFrame:
-    """Check one chunk against ``schema``; return the good rows with a float column ``t`` (seconds).
+def _shown(value) -> str:
+    """A cell as the user wrote it (numpy scalars as plain numbers)."""
+    return repr(value.item() if isinstance(value, np.generic) else value)
 
-    ``first_row`` is the 1-based record number of the chunk's first row.  Raises
+
+def validate_chunk(df: pd.DataFrame, schema: Schema, *, file, first_row: int, on_error: str,
+                   report: ReadReport, time_scale: float = 1.0, time_format: str | None = None) -> pd.DataFrame:
+    """Check one chunk (canonical column names, see :mod:`._interpret`) against ``schema``; return
+    the good rows with a float column ``t`` (seconds), ``row``, and the file's other columns
+    unchanged after the schema's (they pass through to the output).
+
+    ``first_row`` is the 1-based record number of the chunk's first row; numeric times are
+    ``time_scale`` units per second and text times ISO 8601 or ``time_format``.  Raises
     DataError for the first bad cell (on_error="raise") or drops and counts bad rows.
     """
     present = set(df.columns)
@@ -188,12 +247,12 @@ def validate_chunk(df: pd.DataFrame, schema: Schema, *, file, first_row: int, on
     bad = np.zeros(len(df), dtype=bool)
     errors: list[DataError] = []
 
-    def flag(mask: np.ndarray, column: str, reason: str, values: pd.Series | None = None) -> None:
+    def flag(mask: np.ndarray, column: str, reason: str, values: pd.Series | None = None, kind=None) -> None:
         new = mask & ~bad
         for i in np.flatnonzero(new):
-            text = reason if values is None else f"{reason} {values.iloc[i]!r}"
+            text = reason if values is None else f"{reason} {_shown(values.iloc[i])}"
             err = DataError(text, file=file, row=int(rows[i]), column=column)
-            err.kind = reason
+            err.kind = kind or reason
             errors.append(err)
         bad[new] = True
 
@@ -207,8 +266,14 @@ def validate_chunk(df: pd.DataFrame, schema: Schema, *, file, first_row: int, on
             flag(missing, col.name, "empty identifier")
             out[col.name] = values.astype("string").str.strip()
         elif col.kind == "time":
-            parsed, secs = _parse_time(values)
-            flag(~np.isfinite(secs), col.name, "bad time stamp", values)
+            parsed, secs = _parse_time(values, time_scale, time_format)
+            text = _numeric_time(values) is None and not pd.api.types.is_datetime64_any_dtype(values)
+            how = (f"not in the layout {time_format!r}" if time_format else
+                   "not ISO 8601 (set --time-format for other layouts, e.g. '%d/%m/%Y %H:%M:%S')") if text \
+                else "missing" if pd.api.types.is_datetime64_any_dtype(values) \
+                else f"not a time within +-{MAX_SECONDS:.0e} s"
+            flag(~np.isfinite(secs), col.name, f"bad time stamp ({how}):", values,
+                 kind="bad time stamp")
             out[col.name] = parsed
             out["t"] = secs
         else:
@@ -236,6 +301,8 @@ def validate_chunk(df: pd.DataFrame, schema: Schema, *, file, first_row: int, on
     if "track_id" not in clean.columns and any(c.name == "track_id" for c in schema.columns):
         clean.insert(0, "track_id", pd.array(["1"] * len(clean), dtype="string"))
     clean["row"] = rows
+    for name in schema.extra_columns(df.columns):
+        clean[name] = df[name].to_numpy()
     return _apply(clean, bad, errors, on_error, report)
 
 

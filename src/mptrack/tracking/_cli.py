@@ -34,7 +34,20 @@ def _json(data) -> None:
     sys.stdout.write(json.dumps(data, indent=2, default=str, allow_nan=True) + "\n")
 
 
+def _options(cls, **values):
+    """``cls(**values)``, its errors naming the command-line option (--time-unit) instead of the argument."""
+    from ..errors import ParameterError
+
+    try:
+        return cls(**values)
+    except ParameterError as exc:
+        name, _, rest = str(exc).partition(":")
+        raise ParameterError(f"--{name.replace('_', '-')}:{rest}") from None
+
+
 def _skipped(read: dict) -> None:
+    for note in read.get("notes", ()):
+        _err.print(f"[yellow]note:[/yellow] {note}", highlight=False, soft_wrap=True)
     if read.get("rows_skipped"):
         _err.print(f"[yellow]skipped {read['rows_skipped']} of {read['rows_read']} rows of {read['file']}:[/yellow]",
                    highlight=False)
@@ -83,6 +96,18 @@ def track(
                                                  ".parquet or .csv."),
     on_error: str = typer.Option("raise", "--on-error", help="raise: stop at the first bad row; skip: drop bad "
                                                              "rows, count and report them."),
+    max_skip: str = typer.Option("1%", "--max-skip", help="With --on-error skip: fail (nothing written) when more "
+                                                          "rows than this are dropped: a percentage of the rows "
+                                                          "read or a count."),
+    columns: Optional[str] = typer.Option(None, "--columns", help="Which column is which where the names are not "
+                                                                  "recognised: time=ts,lat=Latitude,lon=Lng,"
+                                                                  "track_id=device,accuracy_m=acc."),
+    time_unit: str = typer.Option("auto", "--time-unit", help="Unit of numeric time stamps: auto (by magnitude), "
+                                                              "s, ms, us or ns."),
+    time_format: Optional[str] = typer.Option(None, "--time-format", help="Layout of text time stamps that are "
+                                                                          "not ISO 8601, e.g. '%d/%m/%Y %H:%M:%S'."),
+    coord_unit: str = typer.Option("auto", "--coord-unit", help="Unit of lat/lon: auto, deg, deg-e7 or deg-e6 "
+                                                                "(integer degrees x 10^7 / 10^6) or rad."),
     resume: bool = typer.Option(False, "--resume", help="Keep the work of an interrupted run of the same input "
                                                         "and options."),
     executor: str = typer.Option("serial", help="serial, processes or dask: who runs the chunks (the output "
@@ -96,6 +121,7 @@ def track(
 
     With no --sigma/--q the fix noise and the process noise are estimated from each track."""
     from .._progress import RichProgress
+    from ..io import ReadOptions
     from ._fixes import TrackOptions
     from .._validation import check_outputs
     from ._pipeline import read_output, track_file
@@ -104,8 +130,11 @@ def track(
         check_outputs(input, cells, report=report)
         options = TrackOptions(model=model, filter=filter, q=q, sigma_m=sigma, noise=noise, smooth=smooth,
                                gate_probability=None if gate >= 1 else gate, method=method, motion=motion)
+        read = _options(ReadOptions, columns=columns or (), time_unit=time_unit, time_format=time_format,
+                        coord_unit=coord_unit, max_skip=max_skip)
         with RichProgress(console=_err, disable=quiet or json_out) as progress:
-            summary = track_file(input, out, cells=cells, options=options, on_error=on_error, resume=resume,
+            summary = track_file(input, out, cells=cells, options=options, on_error=on_error, read=read,
+                                 resume=resume,
                                  executor=executor, max_workers=workers, chunk_rows=chunk_rows,
                                  track_summary=track_summary, progress=progress)
         if report is not None:

@@ -15,6 +15,7 @@ not depend on the executor.
 
 from __future__ import annotations
 
+import json
 import time
 from contextlib import nullcontext
 from dataclasses import asdict, dataclass, fields
@@ -27,7 +28,8 @@ import pyarrow as pa
 from .._validation import check_int, check_outputs
 from ..batch import Chunk, read_part, run_stream
 from ..errors import MptrackError, ParameterError
-from ..io import FIXES, MEASUREMENTS, PartStore, ReadReport, iter_track_chunks, read_cells, read_chunks
+from ..io import (FIXES, MEASUREMENTS, InputNotSorted, PartStore, ReadOptions, ReadReport, iter_track_chunks,
+                  read_cells, read_chunks)
 from ..io._readers import source_label, track_offsets
 from ..io._writers import output_format
 from ._cellular import check_cell_ids, track_cells
@@ -64,7 +66,7 @@ class TrackTask:
         rows = chunk.data
         if self.cells is None:
             points, tracks = track_table(FixTable.from_frame(rows), self.options, self.fixed)
-            return {"points": points, "tracks": tracks}
+            return {"points": _with_input_columns(points, rows), "tracks": tracks}
         return self._cellular(rows)
 
     def _cellular(self, rows: pd.DataFrame) -> dict:
@@ -75,6 +77,23 @@ class TrackTask:
                                        preserve_index=False) for a, b in zip(bounds[:-1], bounds[1:])]
         points = pa.concat_tables(tables) if tables else None
         return {"points": points if points is not None else _empty_points(), "tracks": _cell_tracks(points)}
+
+
+def _with_input_columns(points: pa.Table, rows: pd.DataFrame) -> pa.Table:
+    """The point table with the input's own further columns (elevation, speed, any user column)
+    appended, where it has one row per input row (the gated filter; the grid filters resample).
+    A name the point table already uses gets the prefix ``input_``."""
+    extra = FIXES.extra_columns(rows.columns)
+    if not extra or points.num_rows != len(rows):
+        return points
+    for name in extra:
+        values = rows[name]
+        try:
+            arr = pa.array(values, from_pandas=True)
+        except (pa.ArrowInvalid, pa.ArrowTypeError):  # mixed types in one column: keep the text
+            arr = pa.array(values.astype("string"), from_pandas=True)
+        points = points.append_column(f"input_{name}" if name in points.column_names else name, arr)
+    return points
 
 
 def _empty_points() -> pa.Table:
@@ -100,31 +119,33 @@ def _cell_tracks(points: pa.Table | None) -> pa.Table:
     return pa.Table.from_pandas(out, preserve_index=False)
 
 
-def _source_chunks(source, schema, on_error: str, chunk_rows: int, report: ReadReport, cells=None):
+def _source_chunks(source, schema, on_error: str, chunk_rows: int, report: ReadReport, read: ReadOptions,
+                   sort: bool | None, cells=None):
     """Chunks of whole tracks of a path or a DataFrame, numbered; with a cell table, rows of unknown
     cells raise or are dropped and counted (a track left without rows is dropped)."""
     label = source_label(source)
     for i, rows in enumerate(iter_track_chunks(source, schema, on_error=on_error, chunk_rows=chunk_rows,
-                                               report=report)):
+                                               report=report, read=read, sort=sort)):
         if cells is not None:
             rows = check_cell_ids(rows, cells, file=label, on_error=on_error, report=report)
         yield Chunk(i, 0, len(rows), data=rows)
 
 
-def _manifest(input, options: TrackOptions, cells, chunk_rows: int) -> dict:
+def _manifest(input, options: TrackOptions, cells, chunk_rows: int, read: ReadOptions) -> dict:
     """What a resumed run must share with the interrupted one: the input file(s) as they were, the
     options and the chunking."""
     path = Path(input)
     files = sorted(p for p in path.rglob("*") if p.is_file()) if path.is_dir() else [path]
     stamp = [[str(p), p.stat().st_size, p.stat().st_mtime_ns] for p in files]
     return {"input": stamp, "cells": None if cells is None else str(cells), "chunk_rows": chunk_rows,
-            "options": {k: v for k, v in asdict(options).items()}}
+            "options": {k: v for k, v in asdict(options).items()}, "read": json.loads(json.dumps(asdict(read)))}
 
 
-def _cell_table(input, cells, on_error: str, chunk_rows: int) -> tuple[pd.DataFrame, ReadReport]:
+def _cell_table(input, cells, on_error: str, chunk_rows: int, read: ReadOptions) -> tuple[pd.DataFrame, ReadReport]:
     cell_report = ReadReport()
     wanted = set()
-    for chunk in read_chunks(input, MEASUREMENTS, on_error="skip", chunk_rows=chunk_rows, report=ReadReport()):
+    for chunk in read_chunks(input, MEASUREMENTS, on_error="skip", chunk_rows=chunk_rows, report=ReadReport(),
+                             read=read):
         wanted.update(chunk["cell_id"].dropna().unique())
     return read_cells(cells, wanted=wanted, on_error=on_error, report=cell_report), cell_report
 
@@ -149,20 +170,30 @@ def _file_noise(chunks, options: TrackOptions):
 
 
 def _run(source, options: TrackOptions, *, cells_table, on_error, chunk_rows, executor, max_workers, client,
-         store: PartStore | None, manifest: dict | None, progress, report: ReadReport):
-    """Run every chunk; returns the per-chunk results (paths with a store, else tables)."""
+         store: PartStore | None, manifest: dict | None, progress, report: ReadReport, read: ReadOptions):
+    """Run every chunk; returns the per-chunk results (paths with a store, else tables).
+
+    The input is streamed while its rows are in (track, time) order; at the first row that is
+    not, the work so far is dropped and the input is read whole and sorted (a note says how many
+    rows moved)."""
     schema = MEASUREMENTS if cells_table is not None else FIXES
-    chunks = _source_chunks(source, schema, on_error, chunk_rows, report, cells_table)
-    fixed = None
-    if cells_table is None and options.noise == "file" and (options.sigma_m is None or options.q is None):
-        fixed, chunks = _file_noise(chunks, options)
-    return run_stream(TrackTask(options, cells_table, fixed), chunks, parts=_PARTS,
-                      out_dir=None if store is None else store.dir, part_format="arrow", executor=executor,
-                      max_workers=max_workers, client=client, manifest=manifest, progress=progress)
+    for sort in (None, True):
+        chunks = _source_chunks(source, schema, on_error, chunk_rows, report, read, sort, cells_table)
+        fixed = None
+        try:
+            if cells_table is None and options.noise == "file" and (options.sigma_m is None or options.q is None):
+                fixed, chunks = _file_noise(chunks, options)
+            return run_stream(TrackTask(options, cells_table, fixed), chunks, parts=_PARTS,
+                              out_dir=None if store is None else store.dir, part_format="arrow", executor=executor,
+                              max_workers=max_workers, client=client, manifest=manifest, progress=progress)
+        except InputNotSorted:
+            if store is not None:
+                store.discard()
+            report.reset()
 
 
 def track_file(input, out, *, cells=None, options: TrackOptions = TrackOptions(), on_error: str = "raise",
-               resume: bool = False, chunk_rows: int = DEFAULT_CHUNK_ROWS, executor: str = "serial",
+               read: ReadOptions = ReadOptions(), resume: bool = False, chunk_rows: int = DEFAULT_CHUNK_ROWS, executor: str = "serial",
                max_workers: int | None = None, client=None, track_summary=None, progress=None) -> dict:
     """Track every track of ``input`` and write the point table to ``out`` (.parquet, .csv or .geojson).
 
@@ -172,7 +203,9 @@ def track_file(input, out, *, cells=None, options: TrackOptions = TrackOptions()
     resume         keep the chunks finished by an interrupted run of the same input and options (parts
                    in ``.<out>.parts/``) and compute only the rest
     on_error       "raise": the first bad row stops the run (DataError naming file/row/column, nothing
-                   written); "skip": bad rows are dropped, counted and reported in the returned summary
+                   written); "skip": bad rows are dropped, counted and reported in the returned summary,
+                   and more than ``read.max_skip`` dropped rows stop the run (nothing written)
+    read           the input's column names and units where they are not recognised (:class:`ReadOptions`)
     executor       "serial", "processes" or "dask" (see :func:`mptrack.batch.run_stream`); the output
                    is the same whichever runs it
     track_summary  optional path: the track table (one row per track: noise estimates, counts, NIS)
@@ -190,14 +223,16 @@ def track_file(input, out, *, cells=None, options: TrackOptions = TrackOptions()
     if not resume:
         store.discard()
     report = ReadReport()
-    cell_table, cell_report = (None, None) if cells is None else _cell_table(input, cells, on_error, chunk_rows)
+    cell_table, cell_report = (None, None) if cells is None else _cell_table(input, cells, on_error, chunk_rows,
+                                                                             read)
     progress = progress or _NullProgress()
     resumed = store.parts("tracks")
     try:
         with progress.task(f"tracking {input.name}", total=None) as advance:
             results = _run(input, options, cells_table=cell_table, on_error=on_error, chunk_rows=chunk_rows,
                            executor=executor, max_workers=max_workers, client=client, store=store,
-                           manifest=_manifest(input, options, cells, chunk_rows), progress=advance, report=report)
+                           manifest=_manifest(input, options, cells, chunk_rows, read), progress=advance,
+                           report=report, read=read)
         points = sum(_rows(p) for p in store.parts("points"))
         tracks_resumed = sum(_rows(p) for p in resumed)
         store.finish("points", empty=_empty_points())
@@ -299,24 +334,28 @@ def track(data, *, cells=None, on_error: str = "raise", chunk_rows: int = DEFAUL
     data     a DataFrame of position fixes (columns as in a file: track_id, time, lat/lon or x/y,
              accuracy_m) or cellular measurements, or the path of a file / Parquet dataset
     cells    with cellular measurements: the cell table (a DataFrame in the OpenCelliD layout, or a path)
-    options  the fields of :class:`TrackOptions` (model, filter, q, sigma_m, noise, smooth, ...)
+    options  the fields of :class:`TrackOptions` (model, filter, q, sigma_m, noise, smooth, ...) and of
+             :class:`mptrack.io.ReadOptions` (columns, time_unit, time_format, coord_unit, max_skip)
 
     The DataFrame's ``attrs["tracks"]`` holds the track table (one row per track: the noise
     estimates with their standard errors, counts, NIS consistency) and ``attrs["summary"]`` the
     run summary (as :func:`track_file` returns).
     """
     known = {f.name for f in fields(TrackOptions)}
-    unknown = sorted(set(options) - known)
+    reading = {f.name for f in fields(ReadOptions)}
+    unknown = sorted(set(options) - known - reading)
     if unknown:
         raise ParameterError(f"{unknown[0]}: not an option of track; the options are data, cells, on_error, "
-                             f"chunk_rows, executor, max_workers, client and {', '.join(sorted(known))}")
-    opts = TrackOptions(**options)
+                             f"chunk_rows, executor, max_workers, client, {', '.join(sorted(reading))} and "
+                             f"{', '.join(sorted(known))}")
+    opts = TrackOptions(**{k: v for k, v in options.items() if k in known})
+    read = ReadOptions(**{k: v for k, v in options.items() if k in reading})
     chunk_rows = check_int("chunk_rows", chunk_rows, minimum=1)
     report = ReadReport()
-    cell_table = None if cells is None else _cell_table(data, cells, on_error, chunk_rows)[0]
+    cell_table = None if cells is None else _cell_table(data, cells, on_error, chunk_rows, read)[0]
     results = _run(data, opts, cells_table=cell_table, on_error=on_error, chunk_rows=chunk_rows,
                    executor=executor, max_workers=max_workers, client=client, store=None, manifest=None,
-                   progress=None, report=report)
+                   progress=None, report=report, read=read)
     points = pa.concat_tables([r["points"] for r in results]) if results else _empty_points()
     tracks = _tracks_frame([r["tracks"] for r in results])
     df = points.to_pandas()

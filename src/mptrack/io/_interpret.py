@@ -1,0 +1,347 @@
+"""How a file's columns are read: which column is which, and in which unit.
+
+Real exports name their columns in many ways (``Latitude``, ``lng``,
+``timestamp``, ``device``) and store values in several units (epoch
+milliseconds, degrees x 10^7, radians).  :class:`ReadOptions` holds what the
+user said (``--columns``, ``--time-unit``, ``--coord-unit``, ``--time-format``,
+``--max-skip``); :func:`interpret` decides the rest from the first chunk of
+the file, once, so every chunk of the file is read the same way, and records
+each decision as a one-line note (shown to the user, kept in the run summary).
+
+Rules (docs/tracking.md, "Column names and units"):
+
+* column names: an explicit ``--columns canonical=name`` first, then the exact
+  canonical name, then case-insensitive synonyms (punctuation ignored); two
+  columns that both fit one name is an error naming both.
+* ``hdop`` without an accuracy column: ``accuracy_m = HDOP_UERE_M x hdop``.
+* numeric times, by the median magnitude: below 1e10 seconds (from any origin,
+  epoch or not), 1e11..1e13 milliseconds, 1e14..1e16 microseconds,
+  1e17..1e19 nanoseconds since 1970; the decades between are ambiguous and
+  an error that names ``--time-unit``.
+* coordinates, by the median magnitude: degrees when they fit; integers that
+  fit as degrees x 10^7 or x 10^6 (exactly one of the two) are converted;
+  latitude beyond 90 with longitude within 90 is a swap and is swapped back;
+  all positions within +-pi/2, +-pi (radians, or degrees in the Gulf of Guinea)
+  are an error naming ``--coord-unit``.  Each conversion is a note.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import dataclass, field
+from typing import Mapping
+
+import numpy as np
+import pandas as pd
+
+from ..errors import DataError, ParameterError
+
+__all__ = ["ReadOptions", "Interpretation", "interpret", "TIME_UNITS", "COORD_UNITS", "HDOP_UERE_M"]
+
+TIME_UNITS = {"auto": None, "s": 1.0, "ms": 1e3, "us": 1e6, "ns": 1e9}
+COORD_UNITS = {"auto": None, "deg": 1.0, "deg-e6": 1e-6, "deg-e7": 1e-7, "rad": 180.0 / math.pi}
+#: accuracy_m = HDOP_UERE_M x HDOP where a file gives HDOP only (a typical user-equivalent range error
+#: of standalone GPS; the filter estimates a scale on it from the data unless --sigma is given).
+HDOP_UERE_M = 5.0
+#: Seconds of a valid time stamp lie within +-MAX_SECONDS (1e10 s: the year 2286).
+MAX_SECONDS = 1e10
+#: Median speeds above this (m/s, faster than sound) are reported as implausible.
+MAX_PLAUSIBLE_SPEED = 340.0
+
+#: Synonyms of each canonical column (compared lower-case with punctuation removed).
+SYNONYMS = {
+    "track_id": ("track", "trackid", "id", "device", "deviceid", "vehicle", "vehicleid", "trip", "tripid",
+                 "user", "userid", "terminal", "terminalid", "imei"),
+    "time": ("time", "timestamp", "datetime", "datetimeutc", "timeutc", "utc", "ts", "gpstime", "timestamputc"),
+    "lat": ("lat", "latitude", "latdeg", "latitudedeg", "latitudedegrees"),
+    "lon": ("lon", "lng", "long", "longitude", "londeg", "longitudedeg", "longitudedegrees"),
+    "x": ("x", "xm", "east", "eastm", "easting"),
+    "y": ("y", "ym", "north", "northm", "northing"),
+    "accuracy_m": ("accuracy", "accuracym", "horizontalaccuracy", "horizontalaccuracym", "hacc", "haccuracy",
+                   "hacc_m", "acc", "accm"),
+    "cell_id": ("cellid", "cell", "cellidentity"),
+    "rss_dbm": ("rssdbm", "rss", "rssi", "rsrp", "signaldbm", "dbm"),
+    "range_m": ("rangem", "range", "distance", "distancem"),
+    "ta": ("ta", "timingadvance"),
+}
+_HDOP = "hdop"
+
+
+def _norm(name) -> str:
+    return re.sub(r"[^0-9a-z]", "", str(name).lower())
+
+
+@dataclass(frozen=True)
+class ReadOptions:
+    """What the user said about the input's columns and units ("auto": decide from the data).
+
+    columns      {canonical name: the file's column}, or "time=ts,lat=Latitude" text
+    time_unit    unit of numeric time stamps: auto, s, ms, us, ns (since 1970, or any origin for s)
+    time_format  strftime layout of text time stamps (default: ISO 8601), e.g. "%d/%m/%Y %H:%M:%S"
+    coord_unit   unit of lat/lon: auto, deg, deg-e6, deg-e7 (integer degrees x 10^6 / 10^7), rad
+    max_skip     with on_error="skip": the most rows that may be dropped, "1%" of the rows read or a
+                 count ("50"); beyond it the run fails with the reasons
+    """
+
+    columns: tuple = ()
+    time_unit: str = "auto"
+    time_format: str | None = None
+    coord_unit: str = "auto"
+    max_skip: str = "1%"
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "columns", parse_columns(self.columns))
+        for name, allowed in (("time_unit", TIME_UNITS), ("coord_unit", COORD_UNITS)):
+            if getattr(self, name) not in allowed:
+                raise ParameterError(f"{name}: expected one of {', '.join(allowed)}, got {getattr(self, name)!r}")
+        object.__setattr__(self, "max_skip", str(self.max_skip).strip())
+        self.skip_limit(0)  # validates
+
+    @property
+    def column_map(self) -> dict:
+        return dict(self.columns)
+
+    def skip_limit(self, rows_read: int) -> int:
+        """The most rows that may be dropped out of ``rows_read``."""
+        text = self.max_skip
+        try:
+            if text.endswith("%"):
+                pct = float(text[:-1])
+                if not 0 <= pct <= 100:
+                    raise ValueError
+                return int(math.floor(rows_read * pct / 100 + 1e-9))
+            count = int(text)
+            if count < 0:
+                raise ValueError
+            return count
+        except ValueError:
+            raise ParameterError(f"max_skip: expected a percentage of the rows read (\"1%\") or a row count "
+                                 f"(\"50\"), got {text!r}") from None
+
+
+def parse_columns(spec) -> tuple:
+    """{canonical: file column} or "a=b,c=d" text -> sorted ((canonical, file column), ...)."""
+    if not spec:
+        return ()
+    if isinstance(spec, str):
+        pairs = []
+        for item in spec.split(","):
+            key, eq, value = item.partition("=")
+            if not eq or not key.strip() or not value.strip():
+                raise ParameterError(f"columns: expected NAME=COLUMN pairs separated by commas "
+                                     f"(time=ts,lat=Latitude), got {spec!r}")
+            pairs.append((key.strip(), value.strip()))
+    elif isinstance(spec, Mapping):
+        pairs = [(str(k), str(v)) for k, v in spec.items()]
+    else:
+        pairs = [(str(k), str(v)) for k, v in spec]
+    keys = [k for k, _ in pairs]
+    if len(set(keys)) != len(keys):
+        raise ParameterError(f"columns: {next(k for k in keys if keys.count(k) > 1)!r} is given twice")
+    return tuple(sorted(pairs))
+
+
+@dataclass
+class Interpretation:
+    """How every chunk of one file is read (decided from its first chunk)."""
+
+    rename: dict = field(default_factory=dict)     # file column -> canonical
+    hdop: str | None = None                        # the HDOP column turned into accuracy_m
+    time_scale: float = 1.0                        # numeric time / time_scale = seconds
+    time_format: str | None = None
+    coord_scale: float = 1.0                       # degrees = value x coord_scale
+    swap: bool = False                             # the file's lat column holds longitudes
+    notes: list = field(default_factory=list)
+
+    def apply(self, raw: pd.DataFrame) -> pd.DataFrame:
+        """The chunk with canonical column names and lat/lon in degrees (times are converted in
+        validation, which needs the raw text for its messages)."""
+        df = raw.rename(columns=self.rename)
+        if self.swap:
+            df = df.rename(columns={"lat": "lon", "lon": "lat"})
+        if self.coord_scale != 1.0:
+            for c in ("lat", "lon"):
+                if c in df.columns:
+                    df[c] = pd.to_numeric(df[c], errors="coerce") * self.coord_scale
+        if self.hdop is not None:
+            df["accuracy_m"] = pd.to_numeric(df.pop(self.hdop), errors="coerce") * HDOP_UERE_M
+        return df
+
+
+def interpret(raw: pd.DataFrame, schema, options: ReadOptions, *, file) -> Interpretation:
+    """Decide the column mapping and units of a file from its first raw chunk."""
+    plan = Interpretation(time_format=options.time_format)
+    plan.rename = _mapping(list(raw.columns), schema, options.column_map, file)
+    _row_ids(raw, plan, options)
+    names = {c.name for c in schema.columns}
+    if "accuracy_m" in names and "accuracy_m" not in plan.rename.values():
+        hdop = [c for c in raw.columns if _norm(c) == _HDOP and c not in plan.rename]
+        if hdop:
+            plan.hdop = hdop[0]
+            plan.notes.append(f"accuracy: {HDOP_UERE_M:g} m x {hdop[0]} (no accuracy column; the filter "
+                              "estimates a scale on it)")
+    df = raw.rename(columns=plan.rename)
+    if "time" in df.columns and "time" in names:
+        plan.time_scale = _time_scale(df["time"], options.time_unit, plan, file)
+    if "lat" in df.columns and "lon" in df.columns and schema.name == "position fixes":
+        _coordinates(df, options.coord_unit, plan, file)
+        _speed_check(plan.apply(raw), plan)
+    return plan
+
+
+def _mapping(columns: list, schema, explicit: dict, file) -> dict:
+    """{file column: canonical name} for the schema's columns found in ``columns``."""
+    names = [c.name for c in schema.columns]
+    present = {str(c): c for c in columns}
+    rename = {}
+    for canonical, source in explicit.items():
+        if canonical not in names:
+            raise ParameterError(f"--columns: {canonical!r} is not a column mptrack reads here; the names are "
+                                 f"{', '.join(names)}")
+        if source not in present:
+            raise ParameterError(f"--columns: {canonical}={source}: {file} has no column {source!r} (it has: "
+                                 f"{', '.join(map(str, columns))})")
+        rename[present[source]] = canonical
+    taken = set(rename.values())
+    for canonical in names:
+        if canonical in taken:
+            continue
+        if canonical in present and present[canonical] not in rename:
+            continue  # already its own name
+        wanted = {_norm(canonical), *SYNONYMS.get(canonical, ())}
+        hits = [c for c in columns if c not in rename and _norm(c) in wanted and str(c) not in names]
+        if len(hits) > 1:
+            raise DataError(f"columns {', '.join(repr(str(h)) for h in hits)} all look like {canonical}; say "
+                            f"which with --columns {canonical}=NAME", file=file, column=canonical)
+        if hits:
+            rename[hits[0]] = canonical
+    return {k: v for k, v in rename.items() if str(k) != v}
+
+
+def _row_ids(raw: pd.DataFrame, plan: Interpretation, options: ReadOptions) -> None:
+    """Undo a track-id guess that is a row number (a different value in every row)."""
+    source = next((k for k, v in plan.rename.items() if v == "track_id"), None)
+    if source is None or "track_id" in options.column_map or len(raw) < 10:
+        return
+    if raw[source].nunique() == len(raw):
+        del plan.rename[source]
+        plan.notes.append(f"column {source!r} has a different value in every row, so it is not read as the "
+                          f"track id (one track; --columns track_id={source} to override)")
+
+
+def _time_scale(values: pd.Series, unit: str, plan: Interpretation, file) -> float:
+    """Seconds per unit of a numeric time column (1 for text and datetimes)."""
+    if pd.api.types.is_datetime64_any_dtype(values):
+        return 1.0
+    num = pd.to_numeric(values, errors="coerce")
+    if num.notna().sum() * 2 <= values.notna().sum():
+        return 1.0  # text time stamps
+    if unit != "auto":
+        return TIME_UNITS[unit]
+    finite = np.abs(num.to_numpy(dtype=float))
+    finite = finite[np.isfinite(finite)]
+    if not len(finite):
+        return 1.0
+    m = float(np.median(finite))
+    for name, scale, lo, hi in (("s", 1.0, 0.0, 1e10), ("ms", 1e3, 1e11, 1e13), ("us", 1e6, 1e14, 1e16),
+                                ("ns", 1e9, 1e17, 1e19)):
+        if lo <= m < hi:
+            if name != "s":
+                plan.notes.append(f"time: epoch {_UNIT_WORDS[name]} (numbers around {m:.3g}); set "
+                                  "--time-unit if that is wrong")
+            elif m < 1e8 and _integral(finite) and np.median(np.diff(np.sort(finite))) >= 500:
+                plan.notes.append("time: numbers read as seconds from an arbitrary start, fixes about "
+                                  f"{float(np.median(np.diff(np.sort(finite)))):g} s apart; if they are "
+                                  "milliseconds set --time-unit ms")
+            return scale
+    raise DataError(f"numeric time stamps around {m:.3g} fit no unit unambiguously (seconds, milliseconds, "
+                    "microseconds or nanoseconds since 1970); set --time-unit s, ms, us or ns",
+                    file=file, column="time")
+
+
+_UNIT_WORDS = {"s": "seconds", "ms": "milliseconds", "us": "microseconds", "ns": "nanoseconds"}
+
+
+def _integral(x: np.ndarray) -> bool:
+    return bool(np.all(x == np.round(x)))
+
+
+def _coordinates(df: pd.DataFrame, unit: str, plan: Interpretation, file) -> None:
+    """Decide the unit of lat/lon (and a swap) from the bulk of the first chunk; single bad rows
+    are left to the row checks."""
+    lat = pd.to_numeric(df["lat"], errors="coerce").to_numpy(dtype=float)
+    lon = pd.to_numeric(df["lon"], errors="coerce").to_numpy(dtype=float)
+    ok = np.isfinite(lat) & np.isfinite(lon)
+    lat, lon = lat[ok], lon[ok]
+    if unit != "auto":
+        plan.coord_scale = COORD_UNITS[unit]
+        return
+    if not len(lat):
+        return
+    mlat, mlon = float(np.median(np.abs(lat))), float(np.median(np.abs(lon)))
+    if mlat <= 90 and mlon <= 180:
+        if np.all(np.abs(lat) <= math.pi / 2) and np.all(np.abs(lon) <= math.pi):
+            raise DataError("every position lies within +-1.571 deg latitude and +-3.142 deg longitude, as "
+                            "radians would; set --coord-unit rad (radians) or deg (degrees, near 0 N 0 E)",
+                            file=file, column="lat")
+        return
+    readings = []
+    if mlat <= 180 and mlon <= 90 and np.all(np.abs(lat) <= 180) and np.all(np.abs(lon) <= 90):
+        readings.append("swap")
+    if _integral(lat) and _integral(lon):
+        for name, scale in (("deg-e7", 1e-7), ("deg-e6", 1e-6)):
+            if np.all(np.abs(lat) * scale <= 90) and np.all(np.abs(lon) * scale <= 180):
+                readings.append(name)
+    if len(readings) != 1:
+        maybe = " or ".join(readings) if readings else "none of deg-e7, deg-e6 or a lat/lon swap"
+        raise DataError(f"lat/lon around {mlat:.4g}/{mlon:.4g} are not degrees; they fit {maybe}: set "
+                        "--coord-unit (deg-e7, deg-e6, rad) or name the columns with --columns lat=...,lon=...",
+                        file=file, column="lat")
+    if readings[0] == "swap":
+        plan.swap = True
+        plan.notes.append(f"lat/lon: the column read as latitude holds values up to {np.abs(lat).max():.4g} deg, "
+                          "beyond 90: the two columns are swapped back (--columns lat=...,lon=... to override)")
+    else:
+        plan.coord_scale = COORD_UNITS[readings[0]]
+        plan.notes.append(f"lat/lon: integers around {mlat:.4g}/{mlon:.4g} read as degrees x "
+                          f"{'10^7' if readings[0] == 'deg-e7' else '10^6'} (--coord-unit to override)")
+
+
+def _speed_check(df: pd.DataFrame, plan: Interpretation) -> None:
+    """A note when the median speed between fixes is beyond any vehicle (wrong time or coordinate
+    unit, or swapped columns)."""
+    if "time" not in df.columns:
+        return
+    t = pd.to_numeric(df["time"], errors="coerce") if plan.time_scale != 1.0 or \
+        pd.api.types.is_numeric_dtype(df["time"]) else None
+    if t is not None:
+        secs = t.to_numpy(dtype=float) / plan.time_scale
+    else:
+        ts = pd.to_datetime(df["time"], errors="coerce", utc=True, format=plan.time_format or "ISO8601")
+        secs = ts.to_numpy(dtype="datetime64[ns]").astype("int64") / 1e9
+        secs[ts.isna().to_numpy()] = np.nan
+    lat = pd.to_numeric(df["lat"], errors="coerce").to_numpy(dtype=float)
+    lon = pd.to_numeric(df["lon"], errors="coerce").to_numpy(dtype=float)
+    ids = df["track_id"].astype(str).to_numpy() if "track_id" in df.columns else np.zeros(len(df))
+    same = ids[1:] == ids[:-1]
+    speed = _speeds(lat, lon, secs, same)
+    if speed is None or speed <= MAX_PLAUSIBLE_SPEED:
+        return
+    swapped = _speeds(lon, lat, secs, same) if np.all(np.abs(lon) <= 90) else None
+    hint = (f"; read with lat and lon swapped it would be {swapped:.3g} m/s (--columns lat=...,lon=...)"
+            if swapped is not None and swapped <= MAX_PLAUSIBLE_SPEED else "")
+    plan.notes.append(f"warning: the median speed between fixes is {speed:.3g} m/s, faster than any vehicle: "
+                      f"check the time unit (--time-unit) and the coordinate unit (--coord-unit){hint}")
+
+
+def _speeds(lat, lon, secs, same) -> float | None:
+    """The median speed (m/s) between consecutive fixes of a track (equirectangular distances)."""
+    dt = np.diff(secs)
+    with np.errstate(invalid="ignore"):
+        dy = np.radians(np.diff(lat)) * 6371e3
+        dx = np.radians(np.diff(lon)) * 6371e3 * np.cos(np.radians(lat[1:]))
+        ok = same & (dt > 0) & np.isfinite(dx) & np.isfinite(dy)
+    if ok.sum() < 3:
+        return None
+    return float(np.median(np.hypot(dx[ok], dy[ok]) / dt[ok]))
