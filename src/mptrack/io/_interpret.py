@@ -203,6 +203,8 @@ def _mapping(columns: list, schema, explicit: dict, file) -> dict:
             raise ParameterError(f"--columns: {canonical}={source}: {file} has no column {source!r} (it has: "
                                  f"{', '.join(map(str, columns))})")
         rename[present[source]] = canonical
+        if canonical in present and canonical != source:  # the file's own column of that name steps aside
+            rename[present[canonical]] = f"input_{canonical}"
     taken = set(rename.values())
     for canonical in names:
         if canonical in taken:

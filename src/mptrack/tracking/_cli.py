@@ -277,15 +277,16 @@ def _nullctx():
 
 def evaluate(
     tracks: Path = typer.Argument(..., help="Output of mptrack track (.parquet/.csv/.geojson)."),
-    truth: Optional[Path] = typer.Option(None, "--truth", help="Log with truth (true_lat/true_lon or lat/lon; true_x/true_y or x/y in metres)."),
+    truth: Optional[Path] = typer.Option(None, "--truth", help="Truth in any input format (a GPX trace, a simulated "
+                                                                "log: true_lat/true_lon or lat/lon; true_x/true_y or "
+                                                                "x/y in metres); track_id may be left out for one "
+                                                                "track."),
     report: Optional[Path] = typer.Option(None, "--report", help="Write a self-contained HTML report."),
     tolerance: float = typer.Option(0.5, help="Max time difference (s) to match an estimate with truth."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="Only the overall line."),
     json_out: bool = typer.Option(False, "--json", help="Print the metrics as JSON on stdout."),
 ) -> None:
     """RMSE, NEES/NIS consistency and the error CDF of a track table against truth."""
-    import pandas as pd
-
     from .._validation import check_outputs
     from ..errors import DataError
     from ._evaluate import evaluate_tracks
@@ -296,13 +297,7 @@ def evaluate(
         if not tracks.exists():
             raise DataError("file not found", file=tracks)
         est = read_output(tracks)
-        ref = None
-        if truth is not None:
-            if not truth.exists():
-                raise DataError("file not found", file=truth)
-            ref = pd.read_parquet(truth) if truth.suffix in (".parquet", ".pq") else \
-                pd.read_csv(truth, dtype={"track_id": "string"})
-        summary, table = evaluate_tracks(est, ref, tolerance_s=tolerance, truth_file=truth)
+        summary, table = evaluate_tracks(est, truth, tolerance_s=tolerance, truth_file=truth)
         if report is not None:
             from ..report import write_report
 

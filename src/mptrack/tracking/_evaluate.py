@@ -19,32 +19,43 @@ import pandas as pd
 import scipy.stats
 
 from ..errors import DataError
-from ..io import LocalFrame
-from ..io._schema import _parse_time
+from ..io import FIXES, LocalFrame, ReadOptions, read_table
+from ..io._formats import raw_chunks
 
 __all__ = ["attach_truth", "evaluate_tracks"]
 
 
-def _truth_table(truth: pd.DataFrame, file) -> tuple[pd.DataFrame, bool]:
-    """(truth as track_id, t, true_a, true_b sorted by t; True if a, b are lat/lon, False if x/y in m)."""
-    cols = set(truth.columns)
-    for a, b, geographic in (("true_lat", "true_lon", True), ("lat", "lon", True),
-                             ("true_x", "true_y", False), ("x", "y", False)):
-        if {a, b} <= cols:
-            break
-    else:
-        raise DataError("missing columns in the truth file: expected lat/lon (or true_lat/true_lon) "
-                        "or x/y in metres (or true_x/true_y)", file=file, column="lat")
-    for col in ("track_id", "time"):
-        if col not in cols:
-            raise DataError("missing column in the truth file", file=file, column=col)
-    _, secs = _parse_time(truth["time"])
-    out = pd.DataFrame({"track_id": truth["track_id"].astype("string"), "t": secs,
-                        "true_a": truth[a].to_numpy(float), "true_b": truth[b].to_numpy(float)})
+def _truth_table(truth, file) -> tuple[pd.DataFrame, bool]:
+    """(truth as track_id, t, true_a, true_b sorted by t; True if a, b are lat/lon, False if x/y in m).
+
+    ``truth`` is a file in any input format or a DataFrame, read like a track's input (column names
+    and units recognised, :func:`mptrack.io.read_table`); ``true_lat``/``true_lon`` (or
+    ``true_x``/``true_y``), as in simulated logs, are preferred over ``lat``/``lon``."""
+    columns = [str(c) for c in next(raw_chunks(truth, 1)).columns]
+    prefer = next(({"lat": a, "lon": b} if geo else {"x": a, "y": b}
+                   for a, b, geo in (("true_lat", "true_lon", True), ("true_x", "true_y", False))
+                   if a in columns and b in columns), {})
+    rows = read_table(truth, FIXES, read=ReadOptions(columns=prefer))
+    geographic = "lat" in rows.columns and "lon" in rows.columns
+    a, b = ("lat", "lon") if geographic else ("x", "y")
+    out = pd.DataFrame({"track_id": rows["track_id"].astype("string"), "t": rows["t"].to_numpy(float),
+                        "true_a": rows[a].to_numpy(float), "true_b": rows[b].to_numpy(float)})
     return out.dropna().drop_duplicates(["track_id", "t"]).sort_values("t", kind="stable"), geographic
 
 
-def attach_truth(tracks: pd.DataFrame, truth: pd.DataFrame, *, tolerance_s: float = 0.5,
+def _one_track_ids(truth: pd.DataFrame, tracks: pd.DataFrame, file) -> pd.DataFrame:
+    """Truth of one track (a GPX trace, a log without track_id) matches an output of one track
+    whatever the two are called; otherwise the track ids must match."""
+    truth_ids, ids = truth["track_id"].unique(), tracks["track_id"].unique()
+    if len(truth_ids) == 1 and len(ids) == 1:
+        return truth.assign(track_id=pd.array([ids[0]] * len(truth), dtype="string"))
+    if not set(ids) & set(truth_ids):
+        raise DataError(f"no track id of the truth ({', '.join(map(str, truth_ids[:5]))}) is one of the "
+                        f"tracks ({', '.join(map(str, ids[:5]))})", file=file, column="track_id")
+    return truth
+
+
+def attach_truth(tracks: pd.DataFrame, truth, *, tolerance_s: float = 0.5,
                  file="truth") -> pd.DataFrame:
     """``tracks`` with error_m, nees and true east/north columns from the nearest truth sample.
 
@@ -53,6 +64,7 @@ def attach_truth(tracks: pd.DataFrame, truth: pd.DataFrame, *, tolerance_s: floa
     """
     tt, geographic = _truth_table(truth, file)
     est = tracks.assign(track_id=tracks["track_id"].astype("string"), _order=np.arange(len(tracks)))
+    tt = _one_track_ids(tt, est, file)
     merged = pd.merge_asof(est.sort_values("t", kind="stable"), tt, on="t", by="track_id",
                            direction="nearest", tolerance=tolerance_s).sort_values("_order")
     has_origin = np.isfinite(merged["origin_lat"].to_numpy(float))
@@ -63,6 +75,9 @@ def attach_truth(tracks: pd.DataFrame, truth: pd.DataFrame, *, tolerance_s: floa
         raise DataError("the truth is in x/y but the tracks are in lat/lon; give the truth as lat/lon",
                         file=file, column="x")
     a, b = merged["true_a"].to_numpy(), merged["true_b"].to_numpy()
+    if len(merged) and not np.isfinite(a).any():
+        raise DataError(f"no estimate has a truth sample within {tolerance_s:g} s of its time (of the same "
+                        "track); is it the truth of this run? (--tolerance widens the match)", file=file)
     e = np.full(len(merged), np.nan)
     n = np.full(len(merged), np.nan)
     if geographic:
@@ -114,7 +129,7 @@ def _stats(g: pd.DataFrame) -> dict:
     return row
 
 
-def evaluate_tracks(tracks: pd.DataFrame, truth: pd.DataFrame | None = None, *, tolerance_s: float = 0.5,
+def evaluate_tracks(tracks: pd.DataFrame, truth=None, *, tolerance_s: float = 0.5,
                     truth_file="truth") -> tuple[dict, pd.DataFrame]:
     """(summary {"overall": {...}, "tracks": {id: {...}}}, tracks with error columns if truth given)."""
     if truth is not None:

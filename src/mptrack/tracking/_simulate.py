@@ -243,11 +243,12 @@ def _simulated_chunks(rng, tracks, duration_s, interval, q, speed_mps) -> Iterat
 
 def _along_chunks(path) -> Iterator[_Truth]:
     """The tracks of a real position-fix file (lat/lon), each in the frame at its first fix, in chunks of
-    whole tracks of at least CHUNK_ROWS rows (:func:`mptrack.io.iter_track_chunks`)."""
+    whole tracks of at least CHUNK_ROWS rows (:func:`mptrack.io.iter_track_chunks`, read whole and sorted:
+    truth traces are small)."""
     from ._columns import FixTable
 
     first = 0
-    for rows in iter_track_chunks(path, FIXES, chunk_rows=CHUNK_ROWS):
+    for rows in iter_track_chunks(path, FIXES, chunk_rows=CHUNK_ROWS, sort=True):
         table = FixTable.from_frame(rows)
         if not table.geographic:
             raise DataError("along: the truth needs lat/lon columns", file=path, column="lat")
