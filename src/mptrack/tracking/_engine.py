@@ -267,6 +267,51 @@ def _reject(k, t, ze, zn, w, c, qm, order, gate, x, P, x_coast, P_coast, wk):
 
 
 @nb.njit(**_SEQ)
+def _after_reset(store, t, ze, zn, w, c, q, gate, order, x, P, X, Pout, flag, wk):
+    """A restart at the last fix of the rejection run: the run's earlier fixes were not outliers but
+    the start of the new stretch, and so are the rejected fixes just before the run that lie inside
+    the gate of the restart state predicted back to them (walking back, up to the first that does
+    not).  They are flagged RESET and, with ``store``, get that back-predicted state instead of the
+    coasting state of the old stretch; the prediction goes back one row at a time,
+    x_(k-1) = F(-d) x_k, P_(k-1) = F(-d) (P_k + q Qu(d)) F(-d)^T, d = t_k - t_(k-1)."""
+    mats, st, _, _, ints = wk
+    max_rej = ints.shape[0] - order - 1
+    rej = ints[:max_rej]
+    F, Qu, T, Pb, Pp, xb, xp = mats[_RF], mats[_RQU], mats[_RT], mats[_RP], mats[_RPP], st[_RX], st[_RXP]
+    k = rej[max_rej - 1]
+    _copy_state(order, x, P, xb, Pb)
+    m = max_rej - 1
+    while True:
+        if m > 0:                 # the run's own fixes
+            m -= 1
+            j = rej[m]
+            inside_run = True
+        else:                     # the rejected fixes just before it
+            j = k - 1
+            if j < 1 or flag[j] != OUTLIER:
+                break
+            inside_run = False
+        while k > j:
+            d = t[k] - t[k - 1]
+            chain_transition(order, d, F, Qu)
+            for a in range(order):
+                for b in range(order):
+                    Pb[a, b] += q * Qu[a, b]
+            chain_transition(order, -d, F, T)
+            _predict(order, F, Qu, 0.0, xb, Pb, xp, Pp, T)
+            _copy_state(order, xp, Pp, xb, Pb)
+            k -= 1
+        if not inside_run:
+            ne = ze[j] - xb[0, 0]
+            nn = zn[j] - xb[1, 0]
+            if (ne * ne + nn * nn) / (Pb[0, 0] + c * w[j]) > gate:
+                break
+        flag[j] = RESET
+        if store:
+            _copy_state(order, xb, Pb, X[j], Pout[j])
+
+
+@nb.njit(**_SEQ)
 def _filter_track(t, ze, zn, w, c, q, order, prior, gate, store, X, P, nis, flag, stats, wk):
     """The gated filter over one track's rows (see filter_tracks), fix variances c w[k]; stats <-
     (loglik, updates, outliers, resets, NIS sum of the updates and manoeuvres, manoeuvres).
@@ -315,6 +360,8 @@ def _filter_track(t, ze, zn, w, c, q, order, prior, gate, store, X, P, nis, flag
             else:                         # it does not: k - 1 was an outlier
                 nis[k - 1] = cand_e
                 flag[k - 1] = _reject(k - 1, t, ze, zn, w, c, qm, order, gate, x, Pc, x_coast, P_coast, wk)
+                if flag[k - 1] == RESET:
+                    _after_reset(store, t, ze, zn, w, c, q, gate, order, x, Pc, X, P, flag, wk)
                 if store:
                     _copy_state(order, x, Pc, X[k - 1], P[k - 1])
                 _predict(order, F, Qu, q, x, Pc, xp, Pp, T)
@@ -343,6 +390,8 @@ def _filter_track(t, ze, zn, w, c, q, order, prior, gate, store, X, P, nis, flag
                 cand_e, cand_ll = e, -0.5 * (em + 2.0 * math.log(Sm) + 2.0 * _LOG2PI)
             else:
                 flag[k] = _reject(k, t, ze, zn, w, c, qm, order, gate, x, Pc, x_coast, P_coast, wk)
+                if flag[k] == RESET:
+                    _after_reset(store, t, ze, zn, w, c, q, gate, order, x, Pc, X, P, flag, wk)
         if store:
             _copy_state(order, x, Pc, X[k], P[k])
     if pending:                           # a candidate at the last fix is a manoeuvre
@@ -358,7 +407,7 @@ def _filter_track(t, ze, zn, w, c, q, order, prior, gate, store, X, P, nis, flag
             stats[1] += 1.0
         elif f == OUTLIER:
             stats[2] += 1.0
-        elif f == RESET:
+        elif f == RESET and flag[k - 1] != RESET:  # a restart run is one reset
             stats[3] += 1.0
         elif f == MANOEUVRE:
             stats[5] += 1.0

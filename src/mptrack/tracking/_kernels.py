@@ -88,6 +88,39 @@ def _reject(k, t, z, R, F, Q, H, rej, count, factor, start, gate, x_coast, P_coa
 
 
 @njit(cache=True)
+def _after_reset(last, x, P, F, Q, H, R, z, gates, rej, xs, Ps, flag):
+    """A restart at ``last`` (the end of the rejection run ``rej``): the run's earlier fixes, and the
+    rejected ones just before it that lie inside the gate of the restart state predicted back to
+    them (walking back, up to the first that does not), are flagged 3 (reset) and get that state:
+    x_(k-1) = F[k]^-1 x_k, P_(k-1) = F[k]^-1 (P_k + Q[k]) F[k]^-T, step by step back from ``last``."""
+    xb, Pb = x.copy(), P.copy()
+    k = last
+    m = rej.shape[0] - 1
+    while True:
+        if m > 0:
+            m -= 1
+            j = rej[m]
+            inside_run = True
+        else:
+            j = k - 1
+            if j < 1 or flag[j] != 1:
+                break
+            inside_run = False
+        while k > j:              # predict back from k to k - 1
+            Fi = np.linalg.inv(F[k])
+            xb = Fi @ xb
+            Pb = Fi @ (Pb + Q[k]) @ Fi.T
+            k -= 1
+        if not inside_run:
+            idx, nu, S, e = _innovation(xb, Pb, H, R[j], z[j])
+            if e > gates[idx.shape[0]]:
+                break
+        flag[j] = 3
+        xs[j] = xb
+        Ps[j] = 0.5 * (Pb + Pb.T)
+
+
+@njit(cache=True)
 def _innovation(x_pred, P_pred, H, R, zk):
     """(observed component indices, innovation, its covariance S, NIS) of measurement zk."""
     idx = np.flatnonzero(~np.isnan(zk))
@@ -123,7 +156,8 @@ def gated_loop(t, F, Q, H, R, z, x, P, gates, use_gate, max_rej, factor, start, 
     5, manoeuvre; else the candidate was an outlier, flag 1, and the filter coasts through it); a
     candidate at the last step is a manoeuvre.  Other measurements above the gate are rejected
     (flag 1); ``max_rej`` rejections in a row restart the filter from them (flag 3) if they agree
-    (:func:`_restart`, diffuse start on ``start`` of them).
+    (:func:`_restart`, diffuse start on ``start`` of them), and the run's fixes before the last
+    take the restart state (:func:`_after_reset`).
     """
     T, m = z.shape
     n = x.shape[0]
@@ -153,6 +187,8 @@ def gated_loop(t, F, Q, H, R, z, x, P, gates, use_gate, max_rej, factor, start, 
                 f1, x, P = _reject(k - 1, t, z, R, F, Q, H, rej, count, factor, start, gates[m],
                                    x_coast, P_coast, x_new, P_new)
                 flag[k - 1] = f1
+                if f1 == 3:
+                    _after_reset(k - 1, x, P, F, Q, H, R, z, gates, rej, xs, Ps, flag)
                 xs[k - 1] = x
                 Ps[k - 1] = P
                 x_pred = F[k] @ x
@@ -187,6 +223,8 @@ def gated_loop(t, F, Q, H, R, z, x, P, gates, use_gate, max_rej, factor, start, 
                 f1, x, P = _reject(k, t, z, R, F, Q, H, rej, count, factor, start, gates[m],
                                    x_coast, P_coast, x_new, P_new)
                 flag[k] = f1
+                if f1 == 3:
+                    _after_reset(k, x, P, F, Q, H, R, z, gates, rej, xs, Ps, flag)
         xs[k] = x
         Ps[k] = P
     if pending:                                # a candidate at the last step is a manoeuvre

@@ -185,13 +185,14 @@ class _Problem:
 
 def _maximise(problem: _Problem, groups: np.ndarray, theta0: np.ndarray, half: float, step: float) -> np.ndarray:
     """The maximiser of each group's log-likelihood: grid of ``step`` around theta0 (+- half, widened
-    while the best point is at an edge), then golden-section search between the grid neighbours."""
+    while the best point is at an edge, up to the bounds: a poor start must not end the search at
+    the grid's edge), then golden-section search between the grid neighbours."""
     lo, hi = _BOUNDS[problem.mode]
     theta0 = np.clip(theta0, lo, hi)
     offs = np.arange(-half, half + step / 2, step)
     grid = np.clip(theta0[:, None] + offs[None, :], lo, hi)
     vals = np.stack([problem.loglik(groups, grid[:, j]) for j in range(grid.shape[1])], axis=1)
-    for _ in range(int(8 * _DECADE / step)):          # widen at most 8 decades each way
+    for _ in range(int(math.ceil((hi - lo) / step))):  # widen until the best point is inside (or at a bound)
         best = np.argmax(vals, axis=1)
         left = (best == 0) & (grid[:, 0] > lo)
         right = (best == grid.shape[1] - 1) & (grid[:, -1] < hi)
@@ -370,6 +371,7 @@ def estimate_noise(table: FixTable, w: np.ndarray, has_acc: np.ndarray, spec: No
     pool_group = np.where(usable, np.searchsorted(kinds, has_acc), -1) if kinds else np.full(B, -1)
     mine = _Problem(table, w, spec, own_group, int(own.sum()))
     pool = _Problem(table, w, spec, pool_group, len(kinds))
+    mine.mask = pool.mask = _spike_mask(table, w)
     guess = np.zeros((B, 3))
     moment_guess(table.offsets, table.t, table.east, table.north, w, mine.mask, guess)
     th_own, th_pool = _start(mine, np.arange(mine.G), guess), _start(pool, np.arange(pool.G), guess)
@@ -388,7 +390,9 @@ def estimate_noise(table: FixTable, w: np.ndarray, has_acc: np.ndarray, spec: No
         c_b, q_b, how = _assign(spec, c, q, alone, own_group, e_own, needs_pool, pool_group, e_pool)
         if not math.isfinite(spec.gate):
             break
-        mask = _gated_mask(table, w, c_b, q_b, spec)
+        # outliers inflate the Gaussian estimate: the first gating runs at a robust scale
+        c_g, q_g = _robust_scale(table, w, c_b, q_b, how, spec) if rounds == 1 else (c_b, q_b)
+        mask = _gated_mask(table, w, c_g, q_g, spec)
         changed = mask != mine.mask
         mine.mask = pool.mask = mask
         if not changed.any():
@@ -430,6 +434,64 @@ def _assign(spec, c, q, alone, own_group, e_own, needs_pool, pool_group, e_pool)
             q_b[sel] = e["q"][g[sel]]
         how[sel] = src
     return c_b, q_b, how
+
+
+#: The median of chi-square with 2 degrees of freedom (2 ln 2): the median NIS of a consistent filter.
+_MEDIAN_NIS = 2 * math.log(2)
+#: A spike is this many times its track's median squared residual (chi-square 2 dof: 0.9999 over the median).
+SPIKE_FACTOR = -2 * math.log(1e-4) / _MEDIAN_NIS
+
+
+def _spike_mask(table: FixTable, w: np.ndarray) -> np.ndarray:
+    """The first round's likelihood mask: isolated spikes left out.
+
+    A fix's residual from the straight line (in time) between its two neighbours, over its unit
+    variance, is a spike when it is a local maximum and above ``SPIKE_FACTOR`` times its
+    track's median: a model-free screen, so that a few gross outliers cannot pull the Gaussian
+    first estimate up (the later rounds judge every fix again with the gated filter)."""
+    N = table.N
+    mask = np.zeros(N, dtype=np.int8)
+    if N < 3:
+        return mask
+    t, e, n = table.t, table.east, table.north
+    inner = np.ones(N, bool)
+    inner[table.offsets[:-1][table.counts > 0]] = False
+    inner[(table.offsets[1:] - 1)[table.counts > 0]] = False
+    k = np.flatnonzero(inner)
+    span = t[k + 1] - t[k - 1]
+    a = np.divide(t[k] - t[k - 1], span, out=np.full(len(k), 0.5), where=span > 0)
+    re = e[k] - (e[k - 1] + a * (e[k + 1] - e[k - 1]))
+    rn = n[k] - (n[k - 1] + a * (n[k + 1] - n[k - 1]))
+    d2 = np.zeros(N)
+    d2[k] = (re * re + rn * rn) / w[k]
+    row_track = np.repeat(np.arange(table.B), table.counts)
+    med = median_by(row_track, d2, np.arange(table.B), inner)
+    with np.errstate(invalid="ignore"):
+        peak = inner & (d2 > SPIKE_FACTOR * table.per_row(med)) & (d2 > np.r_[0, d2[:-1]]) & (d2 >= np.r_[d2[1:], 0])
+    mask[peak] = SKIP
+    return mask
+
+
+def _robust_scale(table: FixTable, w, c, q, how, spec: NoiseSpec) -> tuple[np.ndarray, np.ndarray]:
+    """(c, q) of the tracks with their own estimate (``how`` ESTIMATED) scaled down by the track's
+    median NIS over 2 ln 2 (never up).
+
+    At a fixed ratio q/c the innovation covariance is proportional to c, so the NIS of every fix
+    scales as 1/c: the median NIS gives the scale that gross outliers cannot inflate, where the
+    mean (the Gaussian estimate) is pulled up by them and the gate opens wide enough to keep
+    them.  Estimates that are given (--sigma, --q) are not scaled."""
+    if spec.sigma_m is not None or spec.q is not None:
+        return c, q
+    nis = np.empty(table.N)
+    flag = np.empty(table.N, dtype=np.int8)
+    X = np.empty((1, 2, spec.order))
+    P = np.empty((1, spec.order, spec.order))
+    filter_tracks(table.offsets, table.t, table.east, table.north, w, c, q, spec.order, spec.prior,
+                  math.inf, spec.max_rej, False, False, X, P, nis, flag, np.zeros((table.B, 6)))
+    ok = np.isfinite(nis)
+    med = median_by(np.repeat(np.arange(table.B), table.counts), nis, np.arange(table.B), ok)
+    factor = np.where(np.isfinite(med) & (med > 0) & (how == ESTIMATED), np.minimum(1.0, med / _MEDIAN_NIS), 1.0)
+    return c * factor, q * factor
 
 
 def _gated_mask(table: FixTable, w, c, q, spec: NoiseSpec) -> np.ndarray:
