@@ -99,12 +99,12 @@ def raw_chunks(source, chunk_rows: int, skipped: list | None = None) -> Iterator
     if path.is_dir():
         yield from _dataset_chunks(path, chunk_rows)
         return
+    fmt = input_format(path)
     if not path.exists():
         raise DataError("file not found", file=path)
-    fmt = input_format(path)
     try:
         if path.stat().st_size == 0:
-            raise DataError(f"the file is empty (0 bytes); expected {FORMAT_NAMES[fmt]}", file=path)
+            raise DataError(f"cannot be read as {FORMAT_NAMES[fmt]}: the file is empty (0 bytes)", file=path)
         if fmt == "csv":
             yield from _csv_chunks(path, chunk_rows)
         elif fmt == "parquet":
@@ -163,7 +163,7 @@ def _csv_chunks(path: Path, chunk_rows: int) -> Iterator[pd.DataFrame]:
     comma are sniffed from the first 64 KB and the C parser does the rest; a UTF-8 BOM is dropped."""
     sep, decimal = sniff_csv(_head_text(path))
     try:
-        reader = pd.read_csv(path, sep=sep, decimal=decimal, encoding="utf-8-sig", chunksize=chunk_rows,
+        reader = pd.read_csv(path, sep=sep, decimal=decimal, chunksize=chunk_rows,  # the C parser drops a BOM
                              dtype={"track_id": "string", "cell_id": "string", "radio": "string"},
                              skipinitialspace=True)
         with reader:

@@ -53,26 +53,32 @@ def read(path: Path, skipped: list) -> pd.DataFrame:
         n = len(gpx.waypoints) - len(timed_wpts)
         skipped.append(Skipped("GPX waypoint without a time", n,
                                f"{path}: {n} <wpt> without <time> (points of interest, not fixes) left out"))
-    frames, names, untimed = [], set(), []
+    frames, names, untimed, row = [], set(), [], 1
     for kind, name, points in parts:
         name = unique_name(name, names)
+        first_row, row = row, row + len(points)
         if not points:
             skipped.append(Skipped(f"empty GPX {kind}", 1, f"{path}: {kind} {name!r} has no points; left out"))
             continue
         missing = [k for k, p in enumerate(points, start=1) if p.time is None]
         if len(missing) == len(points):
-            untimed.append(f"{kind} {name!r} ({len(points)} points)")
+            untimed.append((kind, name, len(points), first_row))
             skipped.append(Skipped(f"GPX {kind} without time stamps", len(points),
                                    f"{path}: {kind} {name!r} has no <time> in any of its {len(points)} points "
                                    "(a planned or saved track, not a recording); left out"))
             continue
         if missing:
             raise DataError(f"{kind} {name!r}, point {missing[0]} has no time stamp "
-                            f"({len(missing)} of its {len(points)} points have none)", file=path, column="time")
+                            f"({len(missing)} of its {len(points)} points have none)", file=path,
+                            row=first_row + missing[0] - 1, column="time")
         frames.append(_frame(name, points))
+    if not frames and untimed:
+        kind, name, n, first_row = untimed[0]
+        raise DataError(f"{kind} {name!r}, point 1 has no time stamp, and no point in the file has one "
+                        f"({'; '.join(f'{k} {m!r}: {c} points' for k, m, c, _ in untimed)}); mptrack needs the "
+                        "time of every fix", file=path, row=first_row, column="time")
     if not frames:
-        what = "; ".join(untimed) if untimed else "no <trkpt>, <rtept> or timed <wpt>"
-        raise DataError(f"no points with a time stamp: {what}", file=path, column="time")
+        raise DataError("no track points: the file has no <trkpt>, <rtept> or <wpt> with a <time>", file=path)
     return pd.concat(frames, ignore_index=True)
 
 
