@@ -127,8 +127,8 @@ def frame_chunks(df: pd.DataFrame, chunk_rows: int) -> Iterator[pd.DataFrame]:
         yield df.iloc[i:i + chunk_rows]
 
 
-def library_error(fmt: str, path, exc: BaseException) -> DataError:
-    """The DataError for a file that a format library could not decode."""
+def library_error(fmt: str, path, exc) -> DataError:
+    """The DataError for a file that a format library could not decode (``exc``: its exception or a text)."""
     text = str(exc).strip() or type(exc).__name__
     return DataError(f"cannot be read as {FORMAT_NAMES[fmt]}: {text}", file=path)
 
@@ -207,7 +207,7 @@ def sniff_csv(text: str) -> tuple[str, str]:
         sep = csv.Sniffer().sniff("\n".join(lines[:50]), delimiters=_DELIMITERS).delimiter
     except csv.Error:
         sep = ""
-    if sep not in header:
+    if not sep or sep not in header:
         counts = {d: header.count(d) for d in _DELIMITERS}
         sep = max(counts, key=counts.get) if max(counts.values()) else ","
     decimal = "."

@@ -42,7 +42,7 @@ def read(path: Path, skipped: list) -> pd.DataFrame:
         with open(path, encoding="utf-8-sig") as fh:
             data = json.load(fh)
     except json.JSONDecodeError as exc:
-        raise library_error("geojson", path, exc) from None
+        raise library_error("geojson", path, f"not valid JSON ({exc})") from None
     kind = data.get("type") if isinstance(data, dict) else type(data).__name__
     if kind == "FeatureCollection" and isinstance(data.get("features"), list):
         features = data["features"]
