@@ -11,8 +11,8 @@ name (``unknown_88``) and text fields are left out.
 
 Records without a position (indoor activities, the seconds before the GPS fix)
 are left out and reported as :class:`Skipped`, and so are the records after the
-point where a truncated file ends (a watch that died mid-activity) and a file
-CRC that does not match.  A file that is not FIT, or has no record with a
+point where a truncated file ends (a watch that died mid-activity), a file CRC
+that does not match and values fitdecode cannot decode.  A file that is not FIT, or has no record with a
 position, is a DataError.
 """
 
@@ -59,6 +59,10 @@ def read(path: Path, skipped: list) -> pd.DataFrame:
     if crc:
         skipped.append(Skipped("FIT file CRC mismatch", 1,
                                f"{path}: the file's CRC does not match ({crc[0].message}); it may be damaged"))
+    other = [w for w in caught if w not in crc]
+    if other:
+        skipped.append(Skipped("FIT value not decoded", len(other),
+                               f"{path}: {len(other)} values could not be decoded (first: {other[0].message})"))
     if not n_records:
         raise DataError("no record messages in the FIT file (is it an activity? settings, workout and "
                         "monitoring files hold no track)", file=path)
@@ -79,7 +83,7 @@ def read(path: Path, skipped: list) -> pd.DataFrame:
     df = pd.DataFrame.from_records([{k: v for k, v in r.items() if k != "time"} for r in timed])
     df = df.reindex(columns=["lat", "lon"] + [c for c in df.columns if c not in ("lat", "lon")])
     df.insert(0, "time", utc_times(r["time"] for r in timed))
-    df.insert(0, "track_id", pd.array([path.name.split(".")[0]] * len(df), dtype="string"))
+    df.insert(0, "track_id", pd.array([path.stem] * len(df), dtype="string"))
     return df
 
 

@@ -51,7 +51,7 @@ def read(path: Path, skipped: list) -> pd.DataFrame:
     else:
         raise DataError(f"cannot be read as GeoJSON: expected a FeatureCollection or a Feature, got {kind!r}",
                         file=path)
-    stem = path.name.split(".")[0]
+    stem = path.stem
     points, lines, names, ignored, untimed = [], [], set(), {}, []
     for k, feature in enumerate(features, start=1):
         geometry = (feature or {}).get("geometry") or {}

@@ -114,7 +114,7 @@ def read(path: Path, skipped: list) -> pd.DataFrame:
     df = pd.DataFrame({"lat": [e.lat for e in fixes], "lon": [e.lon for e in fixes],
                        **{c: [e.values.get(c, float("nan")) for e in fixes] for c in columns}})
     df.insert(0, "time", utc_times(dt.datetime.combine(e.date, e.tod) for e in fixes))
-    df.insert(0, "track_id", pd.array([path.name.split(".")[0]] * len(df), dtype="string"))
+    df.insert(0, "track_id", pd.array([path.stem] * len(df), dtype="string"))
     return df
 
 
