@@ -92,8 +92,7 @@ def raw_chunks(source, chunk_rows: int, skipped: list | None = None) -> Iterator
     """
     skipped = [] if skipped is None else skipped
     if isinstance(source, pd.DataFrame):
-        for i in range(0, max(len(source), 1), chunk_rows):
-            yield source.iloc[i:i + chunk_rows]
+        yield from frame_chunks(source, chunk_rows)
         return
     path = Path(source)
     if path.is_dir():
@@ -113,10 +112,8 @@ def raw_chunks(source, chunk_rows: int, skipped: list | None = None) -> Iterator
             read: Callable = importlib.import_module(_DECODERS[fmt], __package__).read
             yield from frame_chunks(read(path, skipped), chunk_rows)
     except UnicodeDecodeError as exc:
-        raise DataError(f"cannot be read as {FORMAT_NAMES[fmt]}: not UTF-8 text ({exc.reason} at byte "
-                        f"{exc.start}); save the file as UTF-8", file=path) from None
-    except IsADirectoryError:
-        raise
+        raise DataError(f"cannot be read as {FORMAT_NAMES[fmt]}: not UTF-8 text ({exc.reason}); save the file "
+                        "as UTF-8", file=path) from None
     except OSError as exc:
         raise DataError(f"cannot be read: {exc.strerror or exc}", file=path) from None
 
