@@ -136,7 +136,7 @@ def test_missing_and_unreadable_files(tmp_path):
         read_table(tmp_path / "nope.csv")
     bad = tmp_path / "x.parquet"
     bad.write_text("not parquet")
-    with pytest.raises(DataError, match="cannot be read as parquet"):
+    with pytest.raises(DataError, match="(?i)cannot be read as parquet"):
         read_table(bad)
     with pytest.raises(DataError, match="unknown input format"):
         read_table(tmp_path / "x.xlsx")

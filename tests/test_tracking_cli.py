@@ -326,4 +326,4 @@ def test_an_output_that_is_the_input_is_refused(tmp_path):
 def test_an_empty_file_is_a_clear_error(tmp_path):
     (tmp_path / "empty.csv").write_text("")
     res = run("track", tmp_path / "empty.csv", "--out", tmp_path / "o.parquet")
-    assert res.exit_code == 2 and "empty.csv" in res.stderr and "cannot be read as csv" in res.stderr
+    assert res.exit_code == 2 and "empty.csv" in res.stderr and "cannot be read as csv" in res.stderr.lower()
