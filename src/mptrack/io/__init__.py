@@ -1,6 +1,6 @@
 """Input and output of real data: schemas and validation of position-fix logs
 (CSV/Parquet/GPX), cellular measurement logs and OpenCelliD cell tables;
-WGS-84 <-> local ENU (compiled, one origin per row); atomic Parquet/CSV/GeoJSON writers.
+WGS-84 <-> local ENU (compiled, one origin per row); atomic Parquet/CSV/GeoJSON/GPX/GeoParquet writers and their readers.
 
 Errors name the file, the row and the column (:class:`mptrack.errors.DataError`);
 with ``on_error="skip"`` bad rows are dropped and counted in a :class:`ReadReport`.
@@ -11,7 +11,8 @@ from ._formats import FORMATS, input_format
 from ._readers import iter_track_chunks, iter_tracks, read_cells, read_chunks, read_table
 from ._schema import CELLS, FIXES, MEASUREMENTS, ON_ERROR, Column, ReadReport, Schema, cell_key
 from ._parts import PartStore
-from ._writers import OUTPUT_FORMATS, geojson_features, output_format, write_table
+from ._outputs import read_output
+from ._writers import OUTPUT_FORMATS, output_format, write_table
 
 __all__ = [
     "Column",
@@ -35,6 +36,6 @@ __all__ = [
     "OUTPUT_FORMATS",
     "output_format",
     "write_table",
-    "geojson_features",
+    "read_output",
     "PartStore",
 ]
