@@ -98,7 +98,8 @@ def test_geojson_is_valid_compact_and_one_feature_per_track(points, written):
     assert "lat" not in props and "lon" not in props  # in the geometry
     single = features[-1]
     lon, lat = points[["lon", "lat"]].iloc[-1]
-    assert single["geometry"]["coordinates"] == [round(lon, 7), round(lat, 7)] and single["properties"]["flag"] == "init"
+    assert single["geometry"]["coordinates"] == [round(lon, 7), round(lat, 7)]
+    assert single["properties"]["flag"] == "init"
     assert features[1]["properties"]["track_id"] == ODD_ID
     per_point = written["geojson"].stat().st_size / len(points)
     assert per_point <= 300, per_point  # was ~876 with a Feature per point

@@ -112,8 +112,9 @@ def io_suite(quick: bool, rows: int | None = None) -> dict:
     notes = [f"{rows:,} fixes of {max(1, rows // 200 + 1):,} simulated tracks; the point table has "
              f"{points.shape[1]} columns; best of {repeats} runs, anchors timed in the same run",
              "x pandas = the time over the pandas anchor's time for the same rows (reading: pandas.read_csv / "
-             "read_parquet of the same file; writing: DataFrame.to_parquet of the same table); the gpxpy row is "
-             "scaled to the table's rows",
+             "read_parquet of the same file with their defaults, which neither parse nor check the times; "
+             "mptrack's reader also validates every column and converts the times; writing: "
+             "DataFrame.to_parquet of the same table); the gpxpy row is scaled to the table's rows",
              f"GeoJSON: {geojson[5]:.0f} bytes and {geojson[3]:,.0f} points per second (goals <= 300 and "
              ">= 100 k)"]
     return {"suite": "io", "title": "Reading fixes and writing point tables, next to pandas (fixes/s)",

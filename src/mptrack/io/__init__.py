@@ -1,6 +1,7 @@
 """Input and output of real data: schemas and validation of position-fix logs
 (CSV/Parquet/GPX), cellular measurement logs and OpenCelliD cell tables;
-WGS-84 <-> local ENU (compiled, one origin per row); atomic Parquet/CSV/GeoJSON/GPX/GeoParquet writers and their readers.
+WGS-84 <-> local ENU (compiled, one origin per row); atomic Parquet/CSV/GeoJSON/GPX/GeoParquet
+writers and their readers.
 
 Errors name the file, the row and the column (:class:`mptrack.errors.DataError`);
 with ``on_error="skip"`` bad rows are dropped and counted in a :class:`ReadReport`.

@@ -41,8 +41,8 @@ def wkb_points(lon, lat) -> pa.Array:
     offsets = np.zeros(len(lon) + 1, np.int32)
     offsets[1:] = np.cumsum(np.where(ok, _WKB_POINT.itemsize, 0))
     validity = pa.array(ok).buffers()[1] if not ok.all() else None
-    return pa.Array.from_buffers(pa.binary(), len(lon), [validity, pa.py_buffer(offsets), pa.py_buffer(points.tobytes())],
-                                 null_count=int((~ok).sum()))
+    buffers = [validity, pa.py_buffer(offsets), pa.py_buffer(points.tobytes())]
+    return pa.Array.from_buffers(pa.binary(), len(lon), buffers, null_count=int((~ok).sum()))
 
 
 def geo_metadata(bbox: list[float] | None) -> bytes:

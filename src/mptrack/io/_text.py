@@ -19,7 +19,8 @@ import pandas as pd
 import pyarrow as pa
 import pyarrow.compute as pc
 
-__all__ = ["KINDS", "column_kind", "column_text", "per_run", "is_degrees", "text", "join", "wrap", "iso_utc", "write_texts"]
+__all__ = ["KINDS", "column_kind", "column_text", "per_run", "is_degrees", "text", "join", "wrap", "iso_utc",
+           "write_texts"]
 
 KINDS = ("float", "int", "bool", "string", "time")
 
