@@ -213,12 +213,11 @@ def test_writers_roundtrip(tmp_path, suffix):
         geojson = pytest.importorskip("geojson")
         fc = geojson.loads(path.read_text())
         assert fc.is_valid and fc["type"] == "FeatureCollection"
-        lines = [f for f in fc["features"] if f["properties"]["kind"] == "track"]
-        points = [f for f in fc["features"] if f["properties"]["kind"] == "point"]
-        assert len(lines) == 1 and len(points) == 3
-        assert points[1]["geometry"]["coordinates"] == [13.001, 45.001]
-        assert points[0]["properties"]["nis"] is None
-        assert points[1]["properties"]["time"] == "1970-01-01T00:00:01Z"
+        line, point = fc["features"]  # one feature per track: a LineString, a Point for one fix
+        assert line["geometry"]["type"] == "LineString" and point["geometry"]["type"] == "Point"
+        assert line["geometry"]["coordinates"][1] == [13.001, 45.001]
+        assert line["properties"]["nis"] == [None, 1.5] and point["properties"]["nis"] == 0.3
+        assert line["properties"]["time"] == ["1970-01-01T00:00:00Z", "1970-01-01T00:00:01Z"]
 
 
 def test_csv_writer_round_trips_times_floats_and_text(tmp_path):

@@ -1,7 +1,7 @@
 """Input and output of real data: schemas and validation of position-fix logs
-(CSV/Parquet/GPX and more), cellular measurement logs and OpenCelliD cell tables, with
-column names and units recognised (:class:`ReadOptions`);
-WGS-84 <-> local ENU (compiled, one origin per row); atomic Parquet/CSV/GeoJSON writers.
+(CSV, Parquet, GPX, TCX, FIT, NMEA 0183, GeoJSON), cellular measurement logs and OpenCelliD cell
+tables, with column names and units recognised (:class:`ReadOptions`); WGS-84 <-> local ENU
+(compiled, one origin per row); atomic Parquet/CSV/GeoJSON/GPX/GeoParquet writers and their readers.
 
 Errors name the file, the row and the column (:class:`mptrack.errors.DataError`);
 with ``on_error="skip"`` bad rows are dropped and counted in a :class:`ReadReport`.
@@ -13,7 +13,8 @@ from ._interpret import ReadOptions
 from ._readers import InputNotSorted, iter_track_chunks, iter_tracks, read_cells, read_chunks, read_table
 from ._schema import CELLS, FIXES, MEASUREMENTS, ON_ERROR, Column, ReadReport, Schema, cell_key
 from ._parts import PartStore
-from ._writers import OUTPUT_FORMATS, geojson_features, output_format, write_table
+from ._outputs import read_output
+from ._writers import OUTPUT_FORMATS, output_format, write_table
 
 __all__ = [
     "Column",
@@ -39,6 +40,6 @@ __all__ = [
     "OUTPUT_FORMATS",
     "output_format",
     "write_table",
-    "geojson_features",
+    "read_output",
     "PartStore",
 ]

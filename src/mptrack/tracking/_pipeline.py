@@ -365,16 +365,7 @@ def track(data, *, cells=None, on_error: str = "raise", chunk_rows: int = DEFAUL
 
 
 def read_output(path) -> pd.DataFrame:
-    """A track table written by :func:`track_file` (Parquet or CSV; GeoJSON points)."""
-    fmt = output_format(path)
-    if fmt == "parquet":
-        return pd.read_parquet(path)
-    if fmt == "csv":
-        return pd.read_csv(path, dtype={"track_id": "string"})
-    import json
+    """A point table written by :func:`track_file`, in any output format (see :func:`mptrack.io.read_output`)."""
+    from ..io import read_output as read
 
-    feats = json.loads(Path(path).read_text())["features"]
-    recs = [dict(f["properties"], lon=f["geometry"]["coordinates"][0], lat=f["geometry"]["coordinates"][1])
-            for f in feats if f["properties"].get("kind") == "point" and f["geometry"]]
-    return pd.DataFrame(recs)
-
+    return read(path)
