@@ -160,12 +160,12 @@ def output_lock(*paths, note: str = "") -> Iterator[None]:
 
     ``note`` (e.g. the command line) is stored with the holder's pid and shown to a process that is
     refused.  Raises OutputError when another process holds a lock, when an output is a directory,
-    or when a lock file cannot be created (read-only directory, ...).  Locks are taken in a fixed
-    order and never waited for, so two runs cannot deadlock."""
+    or when a lock file cannot be created (read-only directory, ...).  Locks are taken in the order
+    given and never waited for, so two runs cannot deadlock."""
     wanted = {lock_path(p): Path(p) for p in paths if p is not None}
     with contextlib.ExitStack() as stack:
-        for lock in sorted(wanted):
-            stack.enter_context(_held(lock, wanted[lock], note))
+        for lock, out in wanted.items():
+            stack.enter_context(_held(lock, out, note))
         yield
 
 

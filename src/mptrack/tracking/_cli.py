@@ -296,7 +296,7 @@ def simulate(
             name, _, rest = str(exc).partition(":")
             raise ParameterError(f"{_SIMULATE_OPTIONS.get(name, name)}:{rest}") from None
         cpath = cells_out or out.with_suffix(".cells.csv")
-        with output_lock(out, cpath, note=_command()), \
+        with output_lock(out, cpath if cells_out or scenario != "gps" else None, note=_command()), \
                 _err.status("simulating…", spinner="dots") if not (quiet or json_out) else _nullctx():
             write_table(logs(chunks), out)
             done.append(out)

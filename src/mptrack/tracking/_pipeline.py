@@ -184,9 +184,10 @@ def track_file(input, out, *, cells=None, options: TrackOptions = TrackOptions()
     Data safety: an output that is an input (or inside an input directory) is refused; ``out`` and
     ``track_summary`` are locked for the whole run (:func:`mptrack._io.output_lock`; another run
     writing them -> OutputError at once) and their stale temporary files removed.  A run stopped
-    by bad input or options leaves nothing; one stopped by Ctrl-C (KeyboardInterrupt), an OS
-    failure (OutputError/OSError: disk full, ...) or a crash keeps its finished chunks in
-    ``.<out>.parts/`` for ``resume=True`` (none finished: nothing is left).
+    by bad input or options leaves nothing (a resumed run keeps the parts it came to resume); one
+    stopped by Ctrl-C (KeyboardInterrupt), an OS failure (OutputError/OSError: disk full, ...) or
+    a crash keeps its finished chunks in ``.<out>.parts/`` for ``resume=True`` (none finished:
+    nothing is left).
     """
     start = time.perf_counter()
     input, out = Path(input), Path(out)
@@ -218,7 +219,9 @@ def track_file(input, out, *, cells=None, options: TrackOptions = TrackOptions()
                 store.finish("tracks", to=track_summary, empty=pa.Table.from_pandas(tracks, preserve_index=False))
             store.discard()
         except BaseException as exc:
-            if not (_resumable(exc) and store.parts(_PARTS[-1])):
+            if (_resumable(exc) or resumed) and store.parts(_PARTS[-1]):
+                store.clean()  # a part a worker was writing when Ctrl-C reached it too
+            else:
                 store.discard()  # bad input, or no chunk finished: nothing to resume, nothing left behind
             raise
     summary = _summary(tracks, report, options, len(results))
