@@ -3,7 +3,6 @@ run), no output over an input, OS failures and Ctrl-C as one line with nothing h
 the temporary files of killed runs removed (issue 13, item 1)."""
 
 import contextlib
-import fcntl
 import json
 import os
 import shlex
@@ -22,6 +21,8 @@ from mptrack._io import atomic_path, output_lock, stale_temp_files
 from mptrack.errors import OutputError
 from mptrack.tracking import TrackOptions, track_file
 from mptrack.tracking._cli import app
+
+fcntl = pytest.importorskip("fcntl", reason="POSIX locks, signals and mounts")
 
 SRC = str(Path(__file__).resolve().parents[1] / "src")
 ENV = dict(os.environ, PYTHONPATH=os.pathsep.join([SRC] + [p for p in [os.environ.get("PYTHONPATH")] if p]),
