@@ -212,10 +212,26 @@ def check_int(name: str, value, *, minimum: int | None = None) -> int:
 
 
 def check_outputs(*inputs, **outputs) -> None:
-    """Refuse an output (name=path) that is one of the input files: writing it would overwrite the user's data.
+    """Refuse an output (name=path) that is one of the input files, or lies inside an input
+    directory: writing it would overwrite the user's data (or add to the dataset).
 
-    Inputs that are not paths (None, a table in memory) are ignored."""
-    sources = {Path(p).resolve() for p in inputs if isinstance(p, (str, os.PathLike))}
+    The same file is found through symbolic links (paths resolved) and, for an output that exists,
+    hard links too (:func:`os.path.samefile`).  Inputs that are not paths (None, a table in memory)
+    are ignored."""
+    sources = [Path(p) for p in inputs if isinstance(p, (str, os.PathLike))]
     for name, path in outputs.items():
-        if path is not None and Path(path).resolve() in sources:
-            raise ParameterError(f"{name}: {path} is an input of this run; writing it would overwrite the input")
+        if path is None:
+            continue
+        for source in sources:
+            if _same_file(Path(path), source):
+                raise ParameterError(f"{name}: {path} is an input of this run; writing it would overwrite the input")
+            if source.is_dir() and source.resolve() in Path(path).resolve().parents:
+                raise ParameterError(f"{name}: {path} is inside the input directory {source}; write it elsewhere "
+                                     "(a later read of the directory would take it as input)")
+
+
+def _same_file(a: Path, b: Path) -> bool:
+    try:
+        return os.path.samefile(a, b)
+    except OSError:  # one of them does not exist (yet): compare the paths with links resolved
+        return a.resolve() == b.resolve()

@@ -1,8 +1,8 @@
 """Every error mptrack raises on bad input, in one place.
 
 All of them derive from :class:`MptrackError` and from the built-in exception a
-caller would expect (``ValueError`` or ``TypeError``), so ``except ValueError``
-keeps working.  Messages name the argument, what was expected and what was
+caller would expect (``ValueError`` or ``TypeError``; ``OSError`` for an output
+that cannot be written), so ``except ValueError`` keeps working.  Messages name the argument, what was expected and what was
 received.
 """
 
@@ -22,6 +22,7 @@ __all__ = [
     "UnknownNameError",
     "ParameterError",
     "DataError",
+    "OutputError",
 ]
 
 
@@ -96,3 +97,17 @@ class DataError(MptrackError, ValueError):
         if column is not None:
             where.append(f"column {column!r}")
         super().__init__(f"{', '.join(where)}: {message}" if where else message)
+
+
+class OutputError(MptrackError, OSError):
+    """An output cannot be written: its directory is read-only, the disk is full, the path is a
+    directory, or another run is writing it (its lock is held).
+
+    ``path`` is the output concerned; the message names it and the cause ("No space left on
+    device", "Permission denied", the other run's process id).  An OSError, so ``except OSError``
+    catches it; ``errno`` is the operating system's error number when there is one."""
+
+    def __init__(self, message: str, *, path=None, errno: int | None = None):
+        super().__init__(message)
+        self.path = path
+        self.errno = errno

@@ -284,9 +284,14 @@ def _collect(futures: dict, done: dict, progress, when) -> None:
 
 
 def _single_threaded() -> None:
-    """Worker processes share the machine: one numba thread each."""
+    """Worker processes share the machine: one numba thread each. Ctrl-C (SIGINT, sent by a terminal
+    to every process of the group) is the parent's to handle: it cancels the chunks not started and
+    waits for the running ones, whose parts stay for a resumed run."""
+    import signal
+
     import numba
 
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     numba.set_num_threads(1)
 
 

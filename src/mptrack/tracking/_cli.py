@@ -3,18 +3,27 @@
 The three commands are plain functions, mounted on the main app with
 ``app.command()(track)`` etc.; :data:`app` here mounts them alone (tests, and
 ``python -m mptrack.tracking._cli``).  Errors in the input exit with status 2
-and a message naming file, row and column; nothing is written then.
+and a message naming file, row and column; nothing is written then.  An output
+that cannot be written (another run holds its lock, a directory, a read-only
+directory, a full disk, a file that vanished) exits with status 2 and one line
+naming the path and the cause; Ctrl-C exits with status 130 and one line.  When
+``track`` stops that way after finishing some chunks, the line says where they
+were kept and gives the command that resumes the run.
 """
 
 from __future__ import annotations
 
+import contextlib
 import json
+import shlex
+import shutil
 import sys
 from pathlib import Path
 from typing import Optional
 
 import typer
 from rich.console import Console
+from rich.markup import escape
 from rich.table import Table as RichTable
 
 from ..errors import MptrackError
@@ -25,9 +34,58 @@ _out = Console()
 _err = Console(stderr=True)
 
 
-def _fail(exc: Exception) -> None:
-    _err.print(f"[red]error:[/red] {exc}", highlight=False, soft_wrap=True)
+def _fail(exc: BaseException, kept: str = "") -> None:
+    """One line on stderr and exit status 2: an MptrackError's message, or an OSError's path and cause."""
+    _err.print(f"[red]error:[/red] {escape(_reason(exc) + kept)}", highlight=False, soft_wrap=True)
     raise typer.Exit(2)
+
+
+def _reason(exc: BaseException) -> str:
+    if isinstance(exc, MptrackError) or not isinstance(exc, OSError):
+        return str(exc)
+    if exc.filename is not None and exc.strerror:
+        return f"{exc.filename}: {exc.strerror}"
+    return (str(exc).splitlines() or [type(exc).__name__])[0]
+
+
+def _interrupted(what: str) -> None:
+    """Ctrl-C: one line saying what was kept, exit status 130."""
+    _err.print(escape(f"interrupted; {what}"), highlight=False, soft_wrap=True)
+    raise typer.Exit(130)
+
+
+def _shortest(path: str) -> str:
+    """A program's path as typed: its bare name when the shell finds this very file by that name."""
+    name = Path(path).name
+    found = shutil.which(name)
+    return name if found and Path(found).absolute() == Path(path).absolute() else path
+
+
+def _command(resume: bool = False) -> str:
+    """This run's command line as the user can type it again (in the same directory), with ``--resume``
+    added when asked."""
+    spec = getattr(sys.modules.get("__main__"), "__spec__", None)
+    if spec is not None and spec.name.startswith("mptrack"):  # python -m mptrack.cli ...
+        head = [_shortest(sys.executable), "-m", spec.name.removesuffix(".__main__")]
+    else:
+        head = [_shortest(sys.argv[0])]
+    args = sys.argv[1:]
+    return shlex.join(head + args + (["--resume"] if resume and "--resume" not in args else []))
+
+
+def _kept(out: Path) -> str:
+    """What a stopped ``track`` run kept for ``--resume`` ("" when nothing)."""
+    from ..io import PartStore
+
+    try:
+        store = PartStore(out)
+    except MptrackError:
+        return ""
+    n = len(store.parts("tracks"))
+    if not n:
+        return ""
+    return (f"; {n} finished chunk{'s' if n != 1 else ''} kept in {store.dir}; "
+            f"resume with: {_command(resume=True)}")
 
 
 def _json(data) -> None:
@@ -126,24 +184,34 @@ def track(
     from .._validation import check_outputs
     from ._pipeline import read_output, track_file
 
+    from .._io import output_lock
+
+    kept, summary = "", None
     try:
         check_outputs(input, cells, report=report)
         options = TrackOptions(model=model, filter=filter, q=q, sigma_m=sigma, noise=noise, smooth=smooth,
                                gate_probability=None if gate >= 1 else gate, method=method, motion=motion)
         read = _options(ReadOptions, columns=columns or (), time_unit=time_unit, time_format=time_format,
                         coord_unit=coord_unit, max_skip=max_skip)
-        with RichProgress(console=_err, disable=quiet or json_out) as progress:
-            summary = track_file(input, out, cells=cells, options=options, on_error=on_error, read=read,
-                                 resume=resume,
-                                 executor=executor, max_workers=workers, chunk_rows=chunk_rows,
-                                 track_summary=track_summary, progress=progress)
-        if report is not None:
-            from ..report import write_report
+        with output_lock(out, track_summary, report, note=_command()):
+            try:
+                with RichProgress(console=_err, disable=quiet or json_out) as progress:
+                    summary = track_file(input, out, cells=cells, options=options, on_error=on_error,
+                                         read=read, resume=resume, executor=executor, max_workers=workers,
+                                         chunk_rows=chunk_rows, track_summary=track_summary, progress=progress)
+                if report is not None:
+                    from ..report import write_report
 
-            write_report(read_output(out), report, title=f"mptrack track {input.name}")
-            summary["report"] = str(report)
-    except MptrackError as exc:
-        _fail(exc)
+                    write_report(read_output(out), report, title=f"mptrack track {input.name}")
+                    summary["report"] = str(report)
+            except (OSError, KeyboardInterrupt):
+                kept = _kept(out)  # under the lock: the parts are this run's
+                raise
+    except KeyboardInterrupt:
+        _interrupted(f"{out} is complete, the report was not written" if summary is not None
+                     else kept.removeprefix("; ") or "nothing was kept")
+    except (MptrackError, OSError) as exc:
+        _fail(exc, kept)
     if json_out:
         _json(summary)
         return
@@ -229,13 +297,14 @@ def simulate(
     import numpy as np
     import pandas as pd
 
+    from .._io import output_lock
     from .._validation import check_outputs
     from ..errors import ParameterError
     from ..io import write_table
     from ._simulate import simulate_chunks
 
     written = {"scenario": scenario, "log": str(out), "rows": 0, "tracks": 0, "seed": seed}
-    cell_tables = []
+    cell_tables, done = [], []
 
     def logs(chunks):
         for log, cells in chunks:
@@ -254,13 +323,17 @@ def simulate(
         except ParameterError as exc:  # name the option, not the library's argument
             name, _, rest = str(exc).partition(":")
             raise ParameterError(f"{_SIMULATE_OPTIONS.get(name, name)}:{rest}") from None
-        with _err.status("simulating…", spinner="dots") if not (quiet or json_out) else _nullctx():
+        cpath = cells_out or out.with_suffix(".cells.csv")
+        with output_lock(out, cpath if cells_out or scenario != "gps" else None, note=_command()), \
+                _err.status("simulating…", spinner="dots") if not (quiet or json_out) else _nullctx():
             write_table(logs(chunks), out)
+            done.append(out)
             if cell_tables:
-                cpath = cells_out or out.with_suffix(".cells.csv")
                 write_table(pd.concat(cell_tables, ignore_index=True), cpath)
                 written["cells"] = str(cpath)
-    except MptrackError as exc:
+    except KeyboardInterrupt:
+        _interrupted(f"only {done[0]} was written" if done else "nothing was written")
+    except (MptrackError, OSError) as exc:
         _fail(exc)
     if json_out:
         _json(written)
@@ -270,8 +343,6 @@ def simulate(
 
 
 def _nullctx():
-    import contextlib
-
     return contextlib.nullcontext()
 
 
@@ -287,13 +358,16 @@ def evaluate(
     json_out: bool = typer.Option(False, "--json", help="Print the metrics as JSON on stdout."),
 ) -> None:
     """RMSE, NEES/NIS consistency and the error CDF of a track table against truth."""
+    from .._io import output_lock
     from .._validation import check_outputs
     from ..errors import DataError
     from ._evaluate import evaluate_tracks
     from ._pipeline import read_output
 
+    held = contextlib.ExitStack()  # the report's lock, from the start to the end of the command
     try:
         check_outputs(tracks, truth, report=report)
+        held.enter_context(output_lock(report, note=_command()))
         if not tracks.exists():
             raise DataError("file not found", file=tracks)
         est = read_output(tracks)
@@ -302,8 +376,12 @@ def evaluate(
             from ..report import write_report
 
             write_report(table, report, summary=summary, title=f"mptrack evaluate {tracks.name}")
-    except MptrackError as exc:
+    except KeyboardInterrupt:
+        _interrupted("nothing was written")
+    except (MptrackError, OSError) as exc:
         _fail(exc)
+    finally:
+        held.close()
     if json_out:
         _json(summary)
         return

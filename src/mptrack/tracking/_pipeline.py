@@ -25,6 +25,7 @@ import numpy as np
 import pandas as pd
 import pyarrow as pa
 
+from .._io import output_lock
 from .._validation import check_int, check_outputs
 from ..batch import Chunk, read_part, run_stream
 from ..errors import MptrackError, ParameterError
@@ -212,6 +213,14 @@ def track_file(input, out, *, cells=None, options: TrackOptions = TrackOptions()
 
     Memory is bounded by ``chunk_rows`` (rows of whole tracks per chunk) and the largest track, not
     by the input.  Returns a summary dict (JSON-safe).
+
+    Data safety: an output that is an input (or inside an input directory) is refused; ``out`` and
+    ``track_summary`` are locked for the whole run (:func:`mptrack._io.output_lock`; another run
+    writing them -> OutputError at once) and their stale temporary files removed.  A run stopped
+    by bad input or options leaves nothing (a resumed run keeps the parts it came to resume); one
+    stopped by Ctrl-C (KeyboardInterrupt), an OS failure (OutputError/OSError: disk full, ...) or
+    a crash keeps its finished chunks in ``.<out>.parts/`` for ``resume=True`` (none finished:
+    nothing is left).
     """
     start = time.perf_counter()
     input, out = Path(input), Path(out)
@@ -220,29 +229,36 @@ def track_file(input, out, *, cells=None, options: TrackOptions = TrackOptions()
     store = PartStore(out)
     if track_summary is not None:
         output_format(track_summary)
-    if not resume:
-        store.discard()
-    report = ReadReport()
-    cell_table, cell_report = (None, None) if cells is None else _cell_table(input, cells, on_error, chunk_rows,
-                                                                             read)
-    progress = progress or _NullProgress()
-    resumed = store.parts("tracks")
-    try:
-        with progress.task(f"tracking {input.name}", total=None) as advance:
-            results = _run(input, options, cells_table=cell_table, on_error=on_error, chunk_rows=chunk_rows,
-                           executor=executor, max_workers=max_workers, client=client, store=store,
-                           manifest=_manifest(input, options, cells, chunk_rows, read), progress=advance,
-                           report=report, read=read)
-        points = sum(_rows(p) for p in store.parts("points"))
-        tracks_resumed = sum(_rows(p) for p in resumed)
-        store.finish("points", empty=_empty_points())
-        tracks = _tracks_frame([read_part(p) for p in store.parts("tracks")])
-        if track_summary is not None:
-            store.finish("tracks", to=track_summary, empty=pa.Table.from_pandas(tracks, preserve_index=False))
-        store.discard()
-    except MptrackError:
-        store.discard()  # bad input: nothing to resume from, nothing left behind
-        raise
+    with output_lock(out, track_summary):
+        if resume:
+            store.clean()
+        else:
+            store.discard()
+        report = ReadReport()
+        cell_table, cell_report = (None, None) if cells is None else _cell_table(input, cells, on_error,
+                                                                                 chunk_rows, read)
+        progress = progress or _NullProgress()
+        resumed = store.parts("tracks")
+        try:
+            with progress.task(f"tracking {input.name}", total=None) as advance:
+                results = _run(input, options, cells_table=cell_table, on_error=on_error, chunk_rows=chunk_rows,
+                               executor=executor, max_workers=max_workers, client=client, store=store,
+                               manifest=_manifest(input, options, cells, chunk_rows, read), progress=advance,
+                               report=report, read=read)
+            resumed = [p for p in resumed if p.exists()]  # an unsorted input starts again from scratch
+            points = sum(_rows(p) for p in store.parts("points"))
+            tracks_resumed = sum(_rows(p) for p in resumed)
+            store.finish("points", empty=_empty_points())
+            tracks = _tracks_frame([read_part(p) for p in store.parts("tracks")])
+            if track_summary is not None:
+                store.finish("tracks", to=track_summary, empty=pa.Table.from_pandas(tracks, preserve_index=False))
+            store.discard()
+        except BaseException as exc:
+            if (_resumable(exc) or resumed) and store.parts(_PARTS[-1]):
+                store.clean()  # a part a worker was writing when Ctrl-C reached it too
+            else:
+                store.discard()  # bad input, or no chunk finished: nothing to resume, nothing left behind
+            raise
     summary = _summary(tracks, report, options, len(results))
     summary.update(input=str(input), output=str(out), points_written=points, chunks_resumed=len(resumed),
                    tracks_resumed=tracks_resumed, elapsed_s=time.perf_counter() - start)
@@ -251,6 +267,12 @@ def track_file(input, out, *, cells=None, options: TrackOptions = TrackOptions()
     if cell_table is not None:
         summary["cells"] = {"file": str(cells), "cells_used": int(len(cell_table)), "read": cell_report.to_dict()}
     return summary
+
+
+def _resumable(exc: BaseException) -> bool:
+    """Whether the finished chunks of a run stopped by ``exc`` are worth keeping: yes after Ctrl-C, an
+    OS failure (disk full, ...) or a crash; no after bad input or options (a rerun must change them)."""
+    return not isinstance(exc, MptrackError) or isinstance(exc, OSError)
 
 
 def _rows(path) -> int:
