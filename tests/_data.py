@@ -14,8 +14,8 @@ REAL_TRACES = {
     "car": DATA / "around-visnjan-with-car.gpx",
     # The recording is the two <trk> "ACTIVE LOG" (176 points) and "ACTIVE LOG #2"
     # (337 points), 4 min 48 s apart. The file also holds "03-OCT-10" (empty) and
-    # "03-OCT-10 #2" (358 points, no <time>, another walk 13 km away), so read it
-    # with on_error="skip" and max_skip="50%" or keep only REAL_TRACK_IDS["hike"].
+    # "03-OCT-10 #2" (358 points, no <time>, another walk 13 km away), which the
+    # reader leaves out with a note (a track without any time is not a recording).
     "hike": DATA / "korita-zbevnica-hike.gpx",
     # One <trk> "Berkelland Fietsen", 5159 points at 1 s (Garmin Forerunner 935).
     "bike": DATA / "berkelland-bike-ride.gpx",

@@ -63,7 +63,7 @@ def test_accuracy_column_gets_a_scale_factor():
 
 @pytest.mark.parametrize("kind", ["car", "hike", "bike"])
 def test_real_traces_calibrate_to_a_consistent_filter(kind):
-    points = track(REAL_TRACES[kind], on_error="skip", max_skip="50%")  # the hike holds an untimed track
+    points = track(REAL_TRACES[kind])
     tr = points.attrs["tracks"]
     assert set(tr["track_id"]) == set(REAL_TRACK_IDS[kind])
     assert np.isfinite(points[["lat", "lon", "east_m", "var_east_m2"]].to_numpy()).all()

@@ -56,7 +56,9 @@ def read_chunks(path, schema: Schema = FIXES, *, on_error: str = "raise", chunk_
     report.file = str(label)
     first = 1
     plan = None
-    for raw in raw_chunks(path, chunk_rows):
+    skipped: list = []
+    for raw in raw_chunks(path, chunk_rows, skipped):
+        report.leave_out(skipped)
         if plan is None:
             plan = interpret(raw, schema, read, file=label)
             for note in plan.notes:
@@ -65,6 +67,7 @@ def read_chunks(path, schema: Schema = FIXES, *, on_error: str = "raise", chunk_
         yield validate_chunk(plan.apply(raw), schema, file=label, first_row=first, on_error=on_error,
                              report=report, time_scale=plan.time_scale, time_format=plan.time_format)
         first += n
+    report.leave_out(skipped)
 
 
 def read_table(path, schema: Schema = FIXES, *, on_error: str = "raise", report: ReadReport | None = None,

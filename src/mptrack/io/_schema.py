@@ -146,6 +146,8 @@ class ReadReport:
     first_example: dict = field(default_factory=dict)  # reason -> the first row dropped for it
     notes: list[str] = field(default_factory=list)   # how the file was read (units, column names, sorting)
     duplicates_dropped: int = 0                      # exact repeats of the previous row of a track
+    left_out: Counter = field(default_factory=Counter)  # records that are not fixes (GPX routes without
+                                                        # times, NMEA epochs without a fix), by reason
     rows_reordered: int = 0                          # rows not in (track, time) order, sorted
 
     def skip(self, error: DataError, count: int = 1) -> None:
@@ -161,7 +163,16 @@ class ReadReport:
     def to_dict(self) -> dict:
         return {"file": self.file, "rows_read": self.rows_read, "rows_skipped": self.rows_skipped,
                 "skipped_by_reason": dict(self.reasons), "examples": list(self.examples), "notes": list(self.notes),
-                "duplicates_dropped": self.duplicates_dropped, "rows_reordered": self.rows_reordered}
+                "duplicates_dropped": self.duplicates_dropped, "rows_reordered": self.rows_reordered,
+                "left_out": dict(self.left_out)}
+
+    def leave_out(self, skipped: list) -> None:
+        """Take the records a reader left out (:class:`mptrack.io._formats.Skipped`, consumed from the
+        list): counted by reason, one note each.  They are not bad rows (no --max-skip)."""
+        while skipped:
+            s = skipped.pop(0)
+            self.left_out[s.reason] += s.count
+            self.note(s.detail)
 
     def reset(self) -> None:
         """Forget every count (the input is read again from the start)."""
