@@ -129,9 +129,12 @@ def _summary_table(summary: dict, title: str) -> RichTable:
 
 
 def track(
-    input: Path = typer.Argument(..., help="Position fixes (.csv/.parquet/.gpx, or a directory of Parquet files) "
-                                           "or, with --cells, a cellular measurement log (.csv/.parquet)."),
-    out: Path = typer.Option(..., "--out", "-o", help="Result: .parquet, .csv or .geojson (written atomically)."),
+    input: Path = typer.Argument(..., help="Position fixes: CSV (any delimiter), Parquet (a file or a directory), "
+                                           "GPX, TCX, FIT, NMEA 0183 or GeoJSON; or, with --cells, a cellular "
+                                           "measurement log (CSV/Parquet)."),
+    out: Path = typer.Option(..., "--out", "-o", help="Result: .parquet, .csv, .geojson, .gpx or .geoparquet "
+                                                      "(written atomically; the input's other columns pass "
+                                                      "through)."),
     cells: Optional[Path] = typer.Option(None, "--cells", help="Cell table (OpenCelliD layout): track cellular "
                                                                "measurements with --method."),
     method: str = typer.Option("ekf", help="Cellular filter: ekf, fekf or fcs."),

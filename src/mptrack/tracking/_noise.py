@@ -20,10 +20,11 @@ then golden-section search to 0.01 in ln lambda; all groups in lockstep, each
 step one compiled pass over the tracks.  Later rounds start from the last
 estimate (+-half a decade).
 
-Outliers.  Round 1 uses every fix.  Each later round runs the gated filter with
-the current estimates, leaves out the fixes it rejects and its manoeuvre
-candidates, restarts the likelihood at its restarts, and estimates again,
-until the accepted fixes stop changing (at most ``MAX_ROUNDS`` rounds).
+Outliers.  Round 1 leaves out isolated spikes (:func:`_spike_mask`).  Each
+round then runs the gated filter with the current estimates (round 1's at a
+robust scale, :func:`_robust_scale`), leaves out the fixes it rejects and its
+manoeuvre candidates, restarts the likelihood at its restarts, and estimates
+again, until the accepted fixes stop changing (at most ``MAX_ROUNDS`` rounds).
 
 Standard errors.  The observed information of (ln c, ln q): central second
 differences of the log-likelihood, step 0.1 (for a sigma held at its floor,
