@@ -117,3 +117,32 @@ def test_extra_columns_pass_through_to_the_output(good):
 def test_the_corpus_is_complete():
     files = {p.name for p in BAD.iterdir() if p.name != "make_corpus.py"}
     assert files == {name.split(" ")[0] for name in CASES}
+
+
+@pytest.mark.parametrize("name, words", [
+    ("empty.csv", ["empty.csv: cannot be read as csv: the file is empty (0 bytes)"]),
+    ("garbage.csv", ["garbage.csv: cannot be read as csv"]),
+    ("good.csv", ["not a table written by mptrack track", "mptrack track LOG --out TRACKS"]),
+])
+def test_evaluate_names_a_file_it_cannot_use(name, words):
+    res = runner.invoke(app, ["evaluate", str(BAD / name), "-q"])
+    text = " ".join(res.stderr.split())
+    assert res.exit_code == 2 and len(res.stderr.strip().splitlines()) <= 3, res.output
+    for word in words:
+        assert word in text
+
+
+def test_evaluate_takes_a_gpx_trace_as_truth(tmp_path):
+    """One reading layer: the truth may be any input format; one track matches one track whatever
+    their names."""
+    out = tmp_path / "t.parquet"
+    assert track("good.csv", (), out).exit_code == 0
+    gpx = BAD.parent / "around-visnjan-with-car.gpx"
+    res = runner.invoke(app, ["evaluate", str(out), "--truth", str(gpx), "--json"])
+    assert res.exit_code == 0, res.output
+    import json
+
+    overall = json.loads(res.stdout)["overall"]
+    assert overall["matched_points"] == 40 and overall["rmse_m"] < 1.0
+    res = runner.invoke(app, ["evaluate", str(out), "--truth", str(BAD / "three-day-gap.csv"), "--json"])
+    assert json.loads(res.stdout)["overall"]["matched_points"] == 20

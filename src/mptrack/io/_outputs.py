@@ -12,7 +12,7 @@ from pathlib import Path
 import pandas as pd
 import pyarrow as pa
 
-from ..errors import DataError
+from ..errors import DataError, MptrackError
 
 __all__ = ["read_output", "restore"]
 
@@ -71,4 +71,12 @@ def read_output(path) -> pd.DataFrame:
         raise DataError("file not found", file=path)
     readers = {"parquet": pd.read_parquet, "csv": _read_csv, "geojson": read_geojson, "gpx": read_gpx,
                "geoparquet": _read_geoparquet}
-    return readers[fmt](path)
+    if Path(path).stat().st_size == 0:
+        raise DataError(f"cannot be read as {fmt}: the file is empty (0 bytes)", file=path)
+    try:
+        return readers[fmt](path)
+    except MptrackError:
+        raise
+    except Exception as exc:  # pandas, pyarrow, json and XML parsers each raise their own types
+        text = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        raise DataError(f"cannot be read as {fmt}: {text}", file=path) from None

@@ -374,6 +374,7 @@ def evaluate(
         if not tracks.exists():
             raise DataError("file not found", file=tracks)
         est = read_output(tracks)
+        est.attrs["file"] = tracks
         summary, table = evaluate_tracks(est, truth, tolerance_s=tolerance, truth_file=truth)
         if report is not None:
             from ..report import write_report

@@ -132,6 +132,13 @@ def _stats(g: pd.DataFrame) -> dict:
 def evaluate_tracks(tracks: pd.DataFrame, truth=None, *, tolerance_s: float = 0.5,
                     truth_file="truth") -> tuple[dict, pd.DataFrame]:
     """(summary {"overall": {...}, "tracks": {id: {...}}}, tracks with error columns if truth given)."""
+    needed = ["track_id", "t", "flag", "nis", "nis_dof"] + (
+        ["east_m", "north_m", "var_east_m2", "cov_en_m2", "var_north_m2", "origin_lat", "origin_lon"]
+        if truth is not None else [])
+    missing = [c for c in needed if c not in tracks.columns]
+    if missing:
+        raise DataError(f"not a table written by mptrack track (no column {', '.join(missing)}); track the log "
+                        "first: mptrack track LOG --out TRACKS", file=tracks.attrs.get("file", "tracks"))
     if truth is not None:
         tracks = attach_truth(tracks, truth, tolerance_s=tolerance_s, file=truth_file)
     per = {str(tid): _stats(g) for tid, g in tracks.groupby("track_id", sort=False)}
