@@ -194,22 +194,31 @@ class ReadReport:
                         f"allowed by {option}; " + "; ".join(lines), file=self.file)
 
 
+#: Values of a text column tried as numbers before the whole column is (see :func:`_numeric_time`).
+_TIME_SAMPLE = 64
+
+
 def _numeric_time(values: pd.Series) -> pd.Series | None:
     """The numbers of a numeric time column (mostly numbers: the rest is bad), else None."""
     if pd.api.types.is_numeric_dtype(values):
         return pd.to_numeric(values, errors="coerce").astype(float)
     if pd.api.types.is_datetime64_any_dtype(values):
         return None
+    sample = values.dropna().iloc[:_TIME_SAMPLE]  # text times fail fast: converting all is slow
+    if pd.to_numeric(sample, errors="coerce").notna().sum() * 2 <= len(sample):
+        return None
     num = pd.to_numeric(values, errors="coerce")
     return num.astype(float) if num.notna().sum() * 2 > values.notna().sum() else None
 
 
-def _parse_time(values: pd.Series, scale: float = 1.0, fmt: str | None = None) -> tuple[pd.Series, np.ndarray]:
+def _parse_time(values: pd.Series, scale: float = 1.0, fmt: str | None = None,
+                num: pd.Series | None = None) -> tuple[pd.Series, np.ndarray]:
     """(parsed column, seconds as float64 with NaN where unparseable or beyond +-MAX_SECONDS).
 
     Numbers are ``scale`` units per second: seconds stay numbers, epoch milli/micro/nanoseconds
-    become UTC datetimes.  Text is ISO 8601 (no zone = UTC) or the strftime layout ``fmt``."""
-    num = _numeric_time(values)
+    become UTC datetimes.  Text is ISO 8601 (no zone = UTC) or the strftime layout ``fmt``.
+    ``num``: the column's :func:`_numeric_time`, if already known."""
+    num = _numeric_time(values) if num is None else num
     if num is not None:
         secs = num.to_numpy(dtype=float) / scale
         with np.errstate(invalid="ignore"):
@@ -277,8 +286,9 @@ def validate_chunk(df: pd.DataFrame, schema: Schema, *, file, first_row: int, on
             flag(missing, col.name, "empty identifier")
             out[col.name] = values.astype("string").str.strip()
         elif col.kind == "time":
-            parsed, secs = _parse_time(values, time_scale, time_format)
-            text = _numeric_time(values) is None and not pd.api.types.is_datetime64_any_dtype(values)
+            num = _numeric_time(values)
+            parsed, secs = _parse_time(values, time_scale, time_format, num)
+            text = num is None and not pd.api.types.is_datetime64_any_dtype(values)
             how = (f"not in the layout {time_format!r}" if time_format else
                    "not ISO 8601 (set --time-format for other layouts, e.g. '%d/%m/%Y %H:%M:%S')") if text \
                 else "missing" if pd.api.types.is_datetime64_any_dtype(values) \

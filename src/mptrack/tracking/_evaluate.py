@@ -55,6 +55,10 @@ def _one_track_ids(truth: pd.DataFrame, tracks: pd.DataFrame, file) -> pd.DataFr
     return truth
 
 
+#: The columns :func:`attach_truth` adds.
+_ADDED = ("true_lat", "true_lon", "true_x", "true_y", "true_east_m", "true_north_m", "error_m", "nees")
+
+
 def attach_truth(tracks: pd.DataFrame, truth, *, tolerance_s: float = 0.5,
                  file="truth") -> pd.DataFrame:
     """``tracks`` with error_m, nees and true east/north columns from the nearest truth sample.
@@ -63,7 +67,9 @@ def attach_truth(tracks: pd.DataFrame, truth, *, tolerance_s: float = 0.5,
     compared directly with tracks that were computed in x/y (no geographic origin).
     """
     tt, geographic = _truth_table(truth, file)
-    est = tracks.assign(track_id=tracks["track_id"].astype("string"), _order=np.arange(len(tracks)))
+    # columns this adds replace any of the same name (a simulated log's truth passed through the track)
+    est = tracks.drop(columns=[c for c in _ADDED if c in tracks.columns])
+    est = est.assign(track_id=est["track_id"].astype("string"), _order=np.arange(len(est)))
     tt = _one_track_ids(tt, est, file)
     merged = pd.merge_asof(est.sort_values("t", kind="stable"), tt, on="t", by="track_id",
                            direction="nearest", tolerance=tolerance_s).sort_values("_order")
