@@ -284,7 +284,7 @@ def validate_chunk(df: pd.DataFrame, schema: Schema, *, file, first_row: int, on
         if col.kind == "id":
             missing = values.isna().to_numpy()
             flag(missing, col.name, "empty identifier")
-            out[col.name] = values.astype("string").str.strip()
+            out[col.name] = values.astype("string").str.strip().astype(object)  # object: cheap to compare
         elif col.kind == "time":
             num = _numeric_time(values)
             parsed, secs = _parse_time(values, time_scale, time_format, num)
@@ -320,7 +320,7 @@ def validate_chunk(df: pd.DataFrame, schema: Schema, *, file, first_row: int, on
         flag(none, "/".join(have), "no measurement: all of these are empty")
     clean = pd.DataFrame(out)
     if "track_id" not in clean.columns and any(c.name == "track_id" for c in schema.columns):
-        clean.insert(0, "track_id", pd.array(["1"] * len(clean), dtype="string"))
+        clean.insert(0, "track_id", np.full(len(clean), "1", dtype=object))
     clean["row"] = rows
     for name in schema.extra_columns(df.columns):
         clean[name] = df[name].to_numpy()
