@@ -274,8 +274,8 @@ def _ordered(chunk: pd.DataFrame, open_id, open_t: float, open_last, strict: boo
     same = t[i] == before[i]
     what = (f"time {chunk['time'].iloc[i]!s} repeats the track's previous time stamp with other values"
             if same else f"time {chunk['time'].iloc[i]!s} is before the track's previous time stamp")
-    err = DataError(f"{what}; a track can have one fix per time stamp", file=path,
-                    row=int(chunk["row"].iloc[i]), column="time")
+    err = DataError(f"{what}; a track can have one fix per time stamp (--on-error skip drops such rows)",
+                    file=path, row=int(chunk["row"].iloc[i]), column="time")
     if on_error == "raise":
         raise err
     err.kind = "same time, other values" if same else "time not increasing"
