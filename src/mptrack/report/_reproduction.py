@@ -1,0 +1,1 @@
+def write_reproduction_report(*a, **k): raise NotImplementedError
