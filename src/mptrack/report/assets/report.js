@@ -223,7 +223,7 @@
         });
       }
       var decades = out.filter(function (v) { return Math.abs(Math.log10(v) - Math.round(Math.log10(v))) < 1e-9; });
-      return decades.length >= 2 ? decades : out;
+      return decades.length >= 2 ? decades : out.length >= 2 ? out : ticks(lo, hi, false);
     }
     var span = hi - lo || 1, step = Math.pow(10, Math.floor(Math.log10(span / 4)));
     if (span / step > 10) step *= 2;
