@@ -21,7 +21,7 @@ from rich.markup import escape
 from ..errors import MptrackError
 
 __all__ = ["out", "err", "QUIET", "VERBOSE", "JSON", "fail", "interrupted", "command_line", "print_json",
-           "progress", "reject", "EXIT_CODES", "echo", "note", "PAPERS", "paper_names", "fmt"]
+           "progress", "reject", "EXIT_CODES", "echo", "note", "PAPERS", "paper_names", "fmt", "short_paper"]
 
 EXIT_CODES = "Exit status: 0 success, 1 internal error, 2 usage or data error, 130 interrupted."
 
@@ -143,3 +143,16 @@ def fmt(v) -> str:
     if isinstance(v, float):
         return f"{v:.6g}" if out.console.is_terminal else repr(v)
     return "—" if v is None else str(v)
+
+
+def short_paper(paper: str) -> str:
+    """"Assimakis & Adam (2014), Global Systems ..." -> "Assimakis & Adam 2014"; three or more authors
+    -> "First et al. YEAR"."""
+    import re
+
+    m = re.match(r"\s*(.*?)\s*\((\d{4})\)", paper)
+    if not m:
+        return paper.split(",")[0]
+    authors = re.split(r",\s*|\s+&\s+|\s+and\s+", m.group(1))
+    names = authors[0] if len(authors) == 1 else " & ".join(authors) if len(authors) == 2 else f"{authors[0]} et al."
+    return f"{names} {m.group(2)}"

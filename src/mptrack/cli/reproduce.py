@@ -13,7 +13,7 @@ from rich.table import Table as RichTable
 
 from ..errors import MptrackError
 from ._common import JSON, QUIET, VERBOSE, echo, err, fail, fmt, interrupted, out, paper_names, print_json, \
-    progress
+    progress, short_paper
 
 __all__ = ["reproduce", "cell_counts", "summary_line"]
 
@@ -62,7 +62,7 @@ def cell_counts(results: dict) -> dict:
 def summary_line(key: str, results: dict, path: Path) -> str:
     """The last line of a paper's reproduction."""
     c = cell_counts(results)
-    line = (f"{key} ({paper_names(results.get('paper', key)).split(',')[0]}): {c['matched']}/{c['published']} "
+    line = (f"{key} ({short_paper(results.get('paper', key))}): {c['matched']}/{c['published']} "
             f"published numbers matched")
     if c["explained"] or c["unexplained"]:
         line += (f", {c['explained']} differ for a documented reason, {c['unexplained']} differ unexplained "
@@ -151,7 +151,8 @@ def reproduce(
                 results["report"] = str(write_reproduction_report(results, out_root / k / "report.html",
                                                                   figures_dir=out_root / k,
                                                                   errata=_errata_file(),
-                                                                  counts=cell_counts(results)))
+                                                                  counts=cell_counts(results),
+                                                                  title=f"{k}: {short_paper(results['paper'])}"))
             done[k] = results
             if json_out:
                 continue

@@ -109,12 +109,13 @@ def _table_html(label: str, table: dict, errata: Path | None) -> str:
 
 
 def write_reproduction_report(results: dict, path, *, figures_dir=None, errata=None,
-                              counts: dict | None = None) -> Path:
+                              counts: dict | None = None, title: str | None = None) -> Path:
     """Write the HTML page of a reproduction from its results.json content (docs: RESULTS.md).
 
     figures_dir  where the figures named in ``results["figures"]`` are (embedded as PNG when found)
     errata       the path of docs/errata.md, the target of the links of explained differences
     counts       {"published", "matched", "explained", "unexplained"} for the heading line
+    title        the page's title (default: the reproduction's key)
     """
     errata = Path(errata) if errata else None
     body = [f"<p class='note'>{esc(results.get('paper', ''))}; seed {esc(results.get('seed'))}; "
@@ -138,5 +139,4 @@ def write_reproduction_report(results: dict, path, *, figures_dir=None, errata=N
             body.append(f"<p class='note'>{esc(name)}: {esc(file)} (not found beside the results)</p>")
     for note in results.get("notes", []):
         body.append(f"<p class='note'>note: {esc(note)}</p>")
-    title = f"{results.get('key', 'reproduction')}: {results.get('paper', '').split(',')[0]}"
-    return write_page(path, page(title, "".join(body)))
+    return write_page(path, page(title or str(results.get("key", "reproduction")), "".join(body)))
