@@ -54,7 +54,8 @@ def _kinds(payload: dict) -> dict:
 
 def _map_caption(payload: dict, kinds: dict, budget: int) -> str:
     n = len(payload["tracks"])
-    text = (f"The estimate of each of the {n} track{'s' if n != 1 else ''} as a line in its own colour"
+    text = (("The estimate of the track as a line" if n == 1 else f"The estimate of each of the {n} tracks as a "
+                                                                  "line in its own colour")
             + (f" (the {len(PALETTE)} colours repeat)" if n > len(PALETTE) else "")
             + ("; a line breaks at a reset or a gap" if {"resets", "gaps"} & set(kinds) else "") + ".")
     on = [_KIND_TEXT[k] + (f" ({kinds[k]['count']})" if k not in ("truth", "ellipses") else "")
