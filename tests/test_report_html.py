@@ -12,6 +12,7 @@ import os
 import re
 import shutil
 import subprocess
+import sys
 from html.parser import HTMLParser
 from pathlib import Path
 
@@ -298,3 +299,25 @@ def test_the_colour_check_can_fail(tmp_path):
     proc = _chromium(blank, tmp_path / "ud", f"--screenshot={tmp_path / 'blank.png'}")
     assert proc.returncode == 0
     assert _colour_fraction(tmp_path / "blank.png", PALETTE[0]) == 0.0
+
+
+@pytest.mark.slow
+def test_a_million_point_report_is_small_and_stays_under_1_gb(tmp_path):
+    """10^6 points in 3000 tracks: the page is under 20 MB and writing it (evaluation included) peaks
+    under 1 GB (measured in a fresh process: ru_maxrss)."""
+    code = ("import resource, sys; sys.path.insert(0, %r)\n"
+            "from test_report_html import synthetic_table\n"
+            "from mptrack.tracking import evaluate_tracks\n"
+            "from mptrack.report import write_report\n"
+            "t = synthetic_table(3000, 334)\n"
+            "write_report(t, %r, summary=evaluate_tracks(t)[0])\n"
+            "print(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss)\n") % (str(Path(__file__).parent),
+                                                                              str(tmp_path / "big.html"))
+    env = dict(os.environ, PYTHONPATH=str(Path(__file__).resolve().parents[1] / "src"))
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=600)
+    assert res.returncode == 0, res.stderr
+    assert int(res.stdout.split()[-1]) < 1_000_000  # KB
+    size = (tmp_path / "big.html").stat().st_size
+    assert 2_000_000 < size < 20_000_000
+    data = _data(tmp_path / "big.html")
+    assert data["payload"]["decimated"] and len(data["summary"]["rows"]) == 3000
