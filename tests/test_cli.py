@@ -206,23 +206,22 @@ RESULTS = {"key": "x", "paper": "Zhao, Chen & Ma (2013), An FEM", "figures": {},
 
 
 def test_reproduce_counts_fall_back_to_matched_over_published():
+    """A results.json without "comparison" (written before it existed): counted from the tables."""
     assert cell_counts(RESULTS) == {"published": 3, "matched": 1, "explained": 0, "unexplained": 2}
     line = summary_line("x", RESULTS, Path("out/x/results.json"))
     assert line.startswith("x (Zhao et al. 2013): 1/3 published numbers matched, 0 differ for a documented "
                            "reason, 2 differ unexplained (see docs/errata.md)")
-
-
-@pytest.mark.parametrize("explained_by", [
-    {"0,2": "the paper's Table 1 typo"},
-    [{"cell": [0, 2], "erratum": "zhao2013-table-1"}],
-    [{"row": 0, "col": 2, "erratum": "zhao2013-table-1"}],
-])
-def test_reproduce_counts_read_explained_by(explained_by):
     results = json.loads(json.dumps(RESULTS))
-    results["tables"]["Table 1"]["explained_by"] = explained_by
+    results["tables"]["Table 1"]["explained_by"] = [[0, 2, "typo"]]
     assert cell_counts(results) == {"published": 3, "matched": 1, "explained": 1, "unexplained": 1}
-    results["counts"] = {"matched": 5, "explained": 4, "unexplained": 0}
+
+
+def test_reproduce_counts_come_from_the_comparison():
+    results = dict(RESULTS, comparison={"compared": 9, "matched": 5, "differing_explained": 4,
+                                        "differing_unexplained": 0})
     assert cell_counts(results) == {"published": 9, "matched": 5, "explained": 4, "unexplained": 0}
+    assert "5/9 published numbers matched, 4 differ for a documented reason, 0 differ unexplained" in \
+        summary_line("x", results, Path("r.json"))
 
 
 def test_reproduce_writes_results_and_its_report(tmp_path):
@@ -243,12 +242,13 @@ def test_reproduction_report_links_explained_cells(tmp_path):
     from mptrack.report import write_reproduction_report
 
     results = json.loads(json.dumps(RESULTS))
-    results["tables"]["Table 1"]["explained_by"] = {"0,2": {"erratum": "Zhao 2013 Table 1", "reason": "a typo"}}
+    results["tables"]["Table 1"]["explained_by"] = [[0, 2, "zhao2013-typo"]]
+    results["errata"] = {"zhao2013-typo": "docs/errata.md, 'Table 1: a typo in row 0': the paper prints 2.5"}
     errata = tmp_path / "errata.md"
-    errata.write_text("# Errata\n## Zhao 2013 Table 1\n")
+    errata.write_text("# Errata\n## Table 1: a typo in row 0\n")
     text = write_reproduction_report(results, tmp_path / "r.html", errata=errata).read_text()
     assert text.count("class='explained'") == 1 and text.count("class='differs'") == 1
-    assert f"href='{errata.as_uri()}#zhao-2013-table-1'" in text and "a typo" in text
+    assert f"href='{errata.as_uri()}#table-1-a-typo-in-row-0'" in text and "the paper prints 2.5" in text
 
 
 def test_unknown_reproduction_is_a_clear_error(tmp_path):

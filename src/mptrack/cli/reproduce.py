@@ -38,21 +38,19 @@ def _named(value):
 
 
 def cell_counts(results: dict) -> dict:
-    """{"published", "matched", "explained", "unexplained"} over the numeric published cells of a
-    results.json; the file's own "counts" when it has them."""
-    if isinstance(results.get("counts"), dict) and {"matched", "explained", "unexplained"} <= set(results["counts"]):
-        c = results["counts"]
-        return {"published": c.get("published", c["matched"] + c["explained"] + c["unexplained"]),
-                "matched": c["matched"], "explained": c["explained"], "unexplained": c["unexplained"]}
+    """{"published", "matched", "explained", "unexplained"} over the published cells of a results.json:
+    its "comparison" when it has one, else counted from each table's paper, mismatches and explained_by."""
+    c = results.get("comparison")
+    if c:
+        return {"published": c["compared"], "matched": c["matched"], "explained": c["differing_explained"],
+                "unexplained": c["differing_unexplained"]}
     published = differing = explained = 0
     for table in results.get("tables", {}).values():
         paper = table.get("paper")
         if paper is None:
             continue
-        numeric = {(i, j) for i, row in enumerate(paper) for j, v in enumerate(row)
-                   if j > 0 and isinstance(v, (int, float)) and not isinstance(v, bool)}
-        bad = {tuple(c) for c in table.get("mismatches", ())} & numeric
-        published += len(numeric)
+        bad = {tuple(c) for c in table.get("mismatches", ())}
+        published += sum(1 for row in paper for v in row[1:] if v is not None)
         differing += len(bad)
         explained += len(bad & set(_explained(table)))
     return {"published": published, "matched": published - differing, "explained": explained,
@@ -101,7 +99,7 @@ def _print_tables(results: dict, verbose: bool) -> None:
             for i, j in sorted(bad):
                 entry = why.get((i, j))
                 echo(f"  {label} {table['rows'][i][0]} / {table['columns'][j]}: "
-                     + (f"explained: {entry if isinstance(entry, str) else json.dumps(entry)}" if entry is not None
+                     + (f"explained: {(results.get('errata') or {}).get(entry, entry)}" if entry is not None
                         else "unexplained"))
     for name, path in results.get("figures", {}).items():
         echo(f"{name}: {path}")

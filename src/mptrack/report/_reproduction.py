@@ -19,33 +19,9 @@ def _num(v) -> str:
     return "—" if v is None else str(v)
 
 
-def _cell_key(entry) -> tuple[int, int] | None:
-    if isinstance(entry, dict):
-        c = entry.get("cell") or (entry.get("row"), entry.get("col", entry.get("column")))
-        return (int(c[0]), int(c[1])) if c and None not in c else None
-    if isinstance(entry, (list, tuple)) and len(entry) == 2:
-        return int(entry[0]), int(entry[1])
-    return None
-
-
-def explained_cells(table: dict) -> dict[tuple[int, int], object]:
-    """{(row, column): entry} of a results.json table's ``explained_by`` (a dict keyed "i,j" or a list
-    of records naming their cell)."""
-    value = table.get("explained_by") or {}
-    found = {}
-    if isinstance(value, dict):
-        for key, entry in value.items():
-            parts = str(key).strip("[]() ").split(",")
-            if len(parts) == 2 and all(p.strip().lstrip("-").isdigit() for p in parts):
-                found[(int(parts[0]), int(parts[1]))] = entry
-            elif _cell_key(entry) is not None:
-                found[_cell_key(entry)] = entry
-    else:
-        for entry in value:
-            cell = _cell_key(entry)
-            if cell is not None:
-                found[cell] = entry
-    return found
+def explained_cells(table: dict) -> dict[tuple[int, int], str]:
+    """{(row, column): erratum key} of a results.json table (its ``explained_by``: [[row, col, key], ...])."""
+    return {(int(e[0]), int(e[1])): str(e[2]) for e in table.get("explained_by") or ()}
 
 
 def _slug(text: str) -> str:
@@ -53,21 +29,18 @@ def _slug(text: str) -> str:
     return re.sub(r"[^\w\- ]", "", text.strip().lower()).replace(" ", "-")
 
 
-def _link(entry, errata: Path | None) -> str:
-    """The erratum of a differing cell, as a link when the errata file is known."""
-    if isinstance(entry, dict):
-        label = entry.get("erratum") or entry.get("anchor") or entry.get("section") or entry.get("reason") or ""
-        detail = entry.get("reason") or entry.get("note") or ""
-    else:
-        label, detail = str(entry), ""
-    anchor = str(label).lstrip("#")
-    text = esc(f"docs/errata.md § {anchor}") + (f" — {esc(detail)}" if detail and detail != label else "")
-    if errata is None:
-        return text
-    return f"<a href='{esc(errata.resolve().as_uri())}#{esc(_slug(anchor))}'>{text}</a>"
+def _link(key: str, described: dict, errata: Path | None) -> str:
+    """The erratum ``key`` of a differing cell: its description (results.json "errata": "docs/errata.md,
+    'Heading': why"), linked to the heading in ``errata`` when that file is known."""
+    text = described.get(key, key)
+    heading = re.search(r"'([^']+)'", text)
+    body = esc(text)
+    if errata is None or heading is None:
+        return body
+    return f"<a href='{esc(errata.resolve().as_uri())}#{esc(_slug(heading.group(1)))}'>{body}</a>"
 
 
-def _table_html(label: str, table: dict, errata: Path | None) -> str:
+def _table_html(label: str, table: dict, described: dict, errata: Path | None) -> str:
     paper = table.get("paper")
     bad = {tuple(c) for c in table.get("mismatches", ())}
     why = explained_cells(table)
@@ -89,7 +62,7 @@ def _table_html(label: str, table: dict, errata: Path | None) -> str:
                              + ("" if ours == theirs else f" | {theirs}") + "</td>")
             elif (i, j) in why:
                 footnotes.append(f"<li id='{esc(_slug(label))}-{i}-{j}'>{esc(row[0])} / "
-                                 f"{esc(table['columns'][j])}: {_link(why[(i, j)], errata)}</li>")
+                                 f"{esc(table['columns'][j])}: {_link(why[(i, j)], described, errata)}</li>")
                 cells.append(f"<td class='explained' title='differs; explained in docs/errata.md'>{ours} | "
                              f"{theirs} <a href='#{esc(_slug(label))}-{i}-{j}'>[{len(footnotes)}]</a></td>")
             else:
@@ -128,7 +101,7 @@ def write_reproduction_report(results: dict, path, *, figures_dir=None, errata=N
                 "docs/errata.md explains why; red = differs without an explanation; plain = the paper gives "
                 "no number.</p>")
     for label, table in results.get("tables", {}).items():
-        body.append(_table_html(label, table, errata))
+        body.append(_table_html(label, table, results.get("errata") or {}, errata))
     for name, file in results.get("figures", {}).items():
         png = Path(figures_dir or ".") / file
         if png.is_file() and png.suffix.lower() == ".png":
