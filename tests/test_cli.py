@@ -266,3 +266,10 @@ def test_bench_quick_linear_saves_json(tmp_path):
     assert any(str(r[0]).startswith("implementation 12") for r in report["rows"])
     res = runner.invoke(app, ["bench", "--quick", "--suite", "linear", "--json"])
     assert json.loads(res.stdout)["reports"][0]["suite"] == "linear"
+
+
+def test_the_library_imports_neither_typer_nor_rich():
+    code = ("import sys, mptrack, mptrack.tracking, mptrack.report, mptrack.experiments, mptrack.bench, mptrack.io\n"
+            "print(sorted({m.split('.')[0] for m in sys.modules} & {'typer', 'rich', 'click'}))")
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=ENV, timeout=120)
+    assert res.returncode == 0 and res.stdout.strip() == "[]", res.stdout + res.stderr

@@ -121,7 +121,7 @@ def print_json(data) -> None:
 
 def progress(quiet: bool):
     """Progress on stderr: a live bar on a terminal, one line per finished task otherwise."""
-    from .._progress import progress_for
+    from ._progress import progress_for
 
     return progress_for(err.console, disable=quiet)
 
