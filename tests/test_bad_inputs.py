@@ -13,7 +13,7 @@ import pandas as pd
 import pytest
 from typer.testing import CliRunner
 
-from mptrack.tracking._cli import app
+from mptrack.cli import app
 
 BAD = Path(__file__).parent / "data" / "bad"
 runner = CliRunner()

@@ -1,36 +1,275 @@
-import json
+"""The command line's conventions: --version/-V, -h everywhere, -q/-v/--json on every command, exit
+codes 0/1/2/130, options that do not apply rejected, progress on stderr, whole lines in a pipe, a
+fast `mptrack --help` that loads no numerical library, and the reproduction summary counts."""
 
+from __future__ import annotations
+
+import json
+import os
+import re
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
 from typer.testing import CliRunner
 
+from mptrack import __version__
 from mptrack.cli import app
+from mptrack.cli._common import paper_names, short_paper
+from mptrack.cli.reproduce import cell_counts, summary_line
+
+from _data import REAL_TRACES
 
 runner = CliRunner()
+COMMANDS = ("track", "simulate", "evaluate", "reproduce", "bench", "filters")
+SRC = str(Path(__file__).resolve().parents[1] / "src")
+ENV = dict(os.environ, PYTHONPATH=SRC, MPLBACKEND="Agg", COLUMNS="80")
 
 
-def test_reproduce_list_shows_registered_keys():
-    result = runner.invoke(app, ["reproduce", "--list"])
-    assert result.exit_code == 0, result.output
-    assert "assimakis2014" in result.output and "assimakis2015" in result.output
+def cli(*args, **kw) -> subprocess.CompletedProcess:
+    """``mptrack ARGS`` in a subprocess, its stdout and stderr pipes (not a terminal)."""
+    return subprocess.run([sys.executable, "-m", "mptrack.cli", *map(str, args)], capture_output=True, text=True,
+                          env=ENV, timeout=600, **kw)
 
 
-def test_reproduce_writes_results(tmp_path):
-    result = runner.invoke(app, ["reproduce", "assimakis2015", "--out", str(tmp_path), "--quick", "--quiet"])
+@pytest.fixture(scope="module")
+def tracks(tmp_path_factory):
+    d = tmp_path_factory.mktemp("cli")
+    gpx = d / "car.gpx"
+    shutil.copy(REAL_TRACES["car"], gpx)
+    res = runner.invoke(app, ["track", str(gpx), "--out", str(d / "t.parquet"), "-q"])
+    assert res.exit_code == 0, res.output
+    return d / "t.parquet"
+
+
+# ---------------------------------------------------------------- version, help, options
+
+@pytest.mark.parametrize("flag", ["--version", "-V"])
+def test_version(flag):
+    res = runner.invoke(app, [flag])
+    assert res.exit_code == 0 and res.stdout == f"mptrack {__version__}\n"
+
+
+@pytest.mark.parametrize("command", [None, *COMMANDS])
+def test_dash_h_everywhere_lists_quiet_verbose_and_json(command):
+    res = runner.invoke(app, ([command] if command else []) + ["-h"])
+    assert res.exit_code == 0 and "Usage:" in res.stdout
+    assert "Exit status: 0 success, 1 internal error, 2 usage or data error, 130" in " ".join(res.stdout.split())
+    if command:
+        for flag in ("--quiet", "-q", "--verbose", "-v", "--json"):
+            assert re.search(rf"(?<![\w-]){re.escape(flag)}(?![\w-])", res.stdout), (command, flag)
+
+
+def test_quiet_and_verbose_run_on_every_command(tmp_path, tracks):
+    runs = {"track": ["track", REAL_TRACES["car"], "--out", tmp_path / "a.parquet"],
+            "simulate": ["simulate", "--tracks", "2", "--duration", "30", "--out", tmp_path / "s.csv"],
+            "evaluate": ["evaluate", tracks],
+            "reproduce": ["reproduce", "--list"],
+            "bench": ["bench", "--list"],
+            "filters": ["filters"]}
+    assert set(runs) == set(COMMANDS)
+    for name, args in runs.items():
+        for flag in ("-q", "-v"):
+            for p in tmp_path.iterdir():
+                p.unlink()
+            res = runner.invoke(app, [str(a) for a in args] + [flag])
+            assert res.exit_code == 0, (name, flag, res.output)
+    quiet = runner.invoke(app, ["filters", "-q"]).stdout
+    assert quiet.strip().splitlines() == [quiet.strip()] and "KF" in quiet  # one line
+
+
+def test_json_is_the_only_stdout(tmp_path, tracks):
+    for args in (["evaluate", tracks], ["filters"], ["reproduce", "--list"],
+                 ["track", REAL_TRACES["car"], "--out", tmp_path / "j.parquet"]):
+        res = runner.invoke(app, [str(a) for a in args] + ["--json"])
+        assert res.exit_code == 0, res.output
+        json.loads(res.stdout)
+
+
+# ---------------------------------------------------------------- exit codes
+
+def test_exit_codes(tmp_path, monkeypatch):
+    assert runner.invoke(app, ["track", str(REAL_TRACES["car"]), "--no-such-option"]).exit_code == 2
+    res = runner.invoke(app, ["track", str(tmp_path / "missing.csv"), "--out", str(tmp_path / "o.parquet"), "-q"])
+    assert res.exit_code == 2 and res.stderr.startswith("error:") and len(res.stderr.splitlines()) == 1
+    import mptrack.tracking as tracking
+
+    def boom(*a, **k):
+        raise RuntimeError("a bug")
+
+    monkeypatch.setattr(tracking, "track_file", boom)
+    res = runner.invoke(app, ["track", str(REAL_TRACES["car"]), "--out", str(tmp_path / "o.parquet")])
+    assert res.exit_code == 1 and isinstance(res.exception, RuntimeError)  # a bug: exit 1, with its traceback
+
+    def interrupt(*a, **k):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(tracking, "track_file", interrupt)
+    res = runner.invoke(app, ["track", str(REAL_TRACES["car"]), "--out", str(tmp_path / "o.parquet")])
+    assert res.exit_code == 130 and res.stderr.startswith("interrupted; ")
+    assert not (tmp_path / "o.parquet").exists()
+
+
+# ---------------------------------------------------------------- options that do not apply
+
+@pytest.mark.parametrize("args, message", [
+    (["track", "IN", "--method", "fekf"], "--method applies to cellular measurements only"),
+    (["track", "IN", "--motion", "cv"], "--motion applies to cellular measurements only"),
+    (["track", "IN", "--cells", "CELLS", "--sigma", "5"], "--sigma applies to position fixes"),
+    (["track", "IN", "--cells", "CELLS", "--smooth"], "--smooth applies to position fixes"),
+    (["track", "IN", "--workers", "2"], "--workers applies to --executor processes or dask"),
+    (["track", "IN", "--max-skip", "5"], "--max-skip applies to --on-error skip"),
+    (["simulate", "--along", "IN", "--tracks", "3", "--out", "OUT"], "--tracks does not apply with --along"),
+    (["simulate", "--scenario", "urban-3bts", "--sigma", "3", "--out", "OUT"], "--sigma applies to --scenario gps"),
+    (["simulate", "--cells-out", "C.csv", "--out", "OUT"], "--cells-out applies to cellular scenarios"),
+    (["evaluate", "IN", "--tolerance", "1"], "--tolerance applies with --truth"),
+])
+def test_options_that_do_not_apply_are_rejected(tmp_path, args, message):
+    subst = {"IN": str(REAL_TRACES["car"]), "CELLS": str(tmp_path / "cells.csv"), "OUT": str(tmp_path / "o.csv")}
+    res = runner.invoke(app, [subst.get(a, a) for a in args])
+    assert res.exit_code == 2 and message in res.stderr, res.output
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_json_of_a_gps_run_lists_only_its_options(tmp_path):
+    res = runner.invoke(app, ["track", str(REAL_TRACES["car"]), "--out", str(tmp_path / "t.parquet"), "--json"])
+    options = json.loads(res.stdout)["options"]
+    assert "model" in options and not {"method", "motion", "q_km2", "r_km2"} & set(options)
+
+
+def test_out_defaults_to_a_file_beside_the_input(tmp_path):
+    gpx = tmp_path / "drive.gpx"
+    shutil.copy(REAL_TRACES["car"], gpx)
+    res = runner.invoke(app, ["track", str(gpx), "-q"])
+    assert res.exit_code == 0 and (tmp_path / "drive.tracks.parquet").exists()
+    assert f"→ {tmp_path / 'drive.tracks.parquet'}" in res.stdout
+
+
+# ---------------------------------------------------------------- pipes, progress
+
+def test_piped_output_is_whole_lines_and_progress_goes_to_stderr(tmp_path):
+    deep = tmp_path / ("a-long-directory-name-" * 4) / "still-going"
+    deep.mkdir(parents=True)
+    res = cli("simulate", "--tracks", "3", "--duration", "60", "--out", deep / "sim.parquet", cwd=tmp_path)
+    assert res.returncode == 0, res.stderr
+    assert res.stdout == f"3 tracks, {res.stdout.split()[2]} rows → {deep / 'sim.parquet'}\n"  # one line, > 80 cols
+    assert len(res.stdout) > 120
+    assert res.stderr.splitlines()[0] == "simulating tracks ... (3)"  # progress: lines on stderr in a pipe
+    assert re.fullmatch(r"simulating tracks: 3 done in \d+\.\d s", res.stderr.splitlines()[-1])
+    quiet = cli("simulate", "--tracks", "3", "--duration", "60", "--out", tmp_path / "q.parquet", "-q")
+    assert quiet.returncode == 0 and quiet.stderr == ""
+    res = cli("track", deep / "sim.parquet", "--out", deep / "t.parquet", "--report", deep / "r.html")
+    assert res.returncode == 0 and "report ..." in res.stderr
+    assert res.stdout.splitlines()[0].endswith(f"; report {deep / 'r.html'}")
+
+
+def test_bench_numbers_are_full_precision_in_a_pipe():
+    res = cli("bench", "--quick", "--suite", "linear")
+    assert res.returncode == 0, res.stderr
+    assert "…" not in res.stdout
+    assert re.search(r"\d\.\d{7,}", res.stdout)  # every digit, not 6 significant ones or an ellipsis
+
+
+# ---------------------------------------------------------------- mptrack --help is fast
+
+def test_help_imports_no_numerical_library():
+    code = ("import sys; sys.argv = ['mptrack', '--help']\n"
+            "from mptrack.cli import app\n"
+            "try:\n    app()\nexcept SystemExit:\n    pass\n"
+            "print(sorted(m for m in ('numba', 'scipy', 'pandas', 'matplotlib', 'numpy', 'pyarrow') "
+            "if m in sys.modules))")
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=ENV, timeout=60)
+    assert res.returncode == 0 and res.stdout.strip().splitlines()[-1] == "[]", res.stdout + res.stderr
+
+
+# ---------------------------------------------------------------- papers and reproductions
+
+def test_papers_are_named_by_author_and_year():
+    assert paper_names("KF (seed 000 eq. 4); seed 004 section 3") == "KF (Assimakis & Adam 2014 eq. 4); " \
+                                                                    "Zhao, Chen & Ma 2013 section 3"
+    assert short_paper("Assimakis, Tziallas, Adam, Polyzos & Papanastasiou (2016), Mobile") == "Assimakis et al. 2016"
+    assert short_paper("Assimakis & Adam (2014), Global") == "Assimakis & Adam 2014"
+    res = runner.invoke(app, ["filters"])
+    assert "seed" not in res.stdout and "Assimakis & Adam 2014" in res.stdout
+    res = runner.invoke(app, ["reproduce", "--list"])
+    assert "seed 0" not in res.stdout
+
+
+RESULTS = {"key": "x", "paper": "Zhao, Chen & Ma (2013), An FEM", "figures": {}, "elapsed_s": 1.0,
+           "tables": {"Table 1": {"title": "t", "columns": ["a", "b", "c"],
+                                  "rows": [["r0", 1.0, 2.0], ["r1", 3.0, "x"]],
+                                  "paper": [["r0", 1.0, 2.5], ["r1", 3.5, None]],
+                                  "mismatches": [[0, 2], [1, 1]]},
+                      "ours": {"title": "o", "columns": ["a", "b"], "rows": [["r", 1.0]]}}}
+
+
+def test_reproduce_counts_fall_back_to_matched_over_published():
+    """A results.json without "comparison" (written before it existed): counted from the tables."""
+    assert cell_counts(RESULTS) == {"published": 3, "matched": 1, "explained": 0, "unexplained": 2}
+    line = summary_line("x", RESULTS, Path("out/x/results.json"))
+    assert line.startswith("x (Zhao et al. 2013): 1/3 published numbers matched, 0 differ for a documented "
+                           "reason, 2 differ unexplained (see docs/errata.md)")
+    results = json.loads(json.dumps(RESULTS))
+    results["tables"]["Table 1"]["explained_by"] = [[0, 2, "typo"]]
+    assert cell_counts(results) == {"published": 3, "matched": 1, "explained": 1, "unexplained": 1}
+
+
+def test_reproduce_counts_come_from_the_comparison():
+    results = dict(RESULTS, comparison={"compared": 9, "matched": 5, "differing_explained": 4,
+                                        "differing_unexplained": 0})
+    assert cell_counts(results) == {"published": 9, "matched": 5, "explained": 4, "unexplained": 0}
+    assert "5/9 published numbers matched, 4 differ for a documented reason, 0 differ unexplained" in \
+        summary_line("x", results, Path("r.json"))
+
+
+def test_reproduce_writes_results_and_its_report(tmp_path):
+    result = runner.invoke(app, ["reproduce", "assimakis2015", "--out", str(tmp_path), "--quick", "--quiet",
+                                 "--report"])
     assert result.exit_code == 0, result.output
     data = json.loads((tmp_path / "assimakis2015" / "results.json").read_text())
     assert data["tables"]["Table 3"]["mismatches"] == []
-    assert "published numbers reproduced" in result.output
+    lines = result.stdout.strip().splitlines()
+    assert len(lines) == 1 and re.match(r"assimakis2015 \(Assimakis & Adam 2015\): (\d+)/\1 published numbers "
+                                        r"matched; 3 figures", lines[0]), lines
+    page = (tmp_path / "assimakis2015" / "report.html").read_text()
+    assert "class='differs'" not in page and page.count("class='same'") >= 15 and "data:image/png;base64" in page
+    assert "<title>assimakis2015: Assimakis &amp; Adam 2015</title>" in page
+
+
+def test_reproduction_report_links_explained_cells(tmp_path):
+    from mptrack.report import write_reproduction_report
+
+    results = json.loads(json.dumps(RESULTS))
+    results["tables"]["Table 1"]["explained_by"] = [[0, 2, "zhao2013-typo"]]
+    results["errata"] = {"zhao2013-typo": "docs/errata.md, 'Table 1: a typo in row 0': the paper prints 2.5"}
+    errata = tmp_path / "errata.md"
+    errata.write_text("# Errata\n## Table 1: a typo in row 0\n")
+    text = write_reproduction_report(results, tmp_path / "r.html", errata=errata).read_text()
+    assert text.count("class='explained'") == 1 and text.count("class='differs'") == 1
+    assert f"href='{errata.as_uri()}#table-1-a-typo-in-row-0'" in text and "the paper prints 2.5" in text
 
 
 def test_unknown_reproduction_is_a_clear_error(tmp_path):
     result = runner.invoke(app, ["reproduce", "nosuchpaper", "--out", str(tmp_path)])
     assert result.exit_code == 2
-    assert "unknown key 'nosuchpaper'" in result.output
+    assert "unknown key 'nosuchpaper'" in result.stderr
 
 
-def test_bench_quick_linear_writes_json(tmp_path):
+def test_bench_quick_linear_saves_json(tmp_path):
     out = tmp_path / "bench.json"
-    result = runner.invoke(app, ["bench", "--quick", "--suite", "linear", "--json", str(out)])
+    result = runner.invoke(app, ["bench", "--quick", "--suite", "linear", "--save", str(out)])
     assert result.exit_code == 0, result.output
     report = json.loads(out.read_text())["reports"][0]
     assert report["suite"] == "linear"
     assert any(str(r[0]).startswith("implementation 12") for r in report["rows"])
+    res = runner.invoke(app, ["bench", "--quick", "--suite", "linear", "--json"])
+    assert json.loads(res.stdout)["reports"][0]["suite"] == "linear"
+
+
+def test_the_library_imports_neither_typer_nor_rich():
+    code = ("import sys, mptrack, mptrack.tracking, mptrack.report, mptrack.experiments, mptrack.bench, mptrack.io\n"
+            "print(sorted({m.split('.')[0] for m in sys.modules} & {'typer', 'rich', 'click'}))")
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=ENV, timeout=120)
+    assert res.returncode == 0 and res.stdout.strip() == "[]", res.stdout + res.stderr

@@ -21,7 +21,7 @@ import mptrack._io as mio
 from mptrack._io import atomic_path, output_lock, stale_temp_files
 from mptrack.errors import OutputError
 from mptrack.tracking import TrackOptions, track_file
-from mptrack.tracking._cli import app
+from mptrack.cli import app
 
 fcntl = pytest.importorskip("fcntl", reason="POSIX locks, signals and mounts")
 

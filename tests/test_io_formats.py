@@ -17,7 +17,7 @@ from mptrack.errors import DataError
 from mptrack.io import input_format, read_table
 from mptrack.io._formats import FORMATS, Skipped, raw_chunks, sniff_csv
 from mptrack.tracking import track
-from mptrack.tracking._cli import app
+from mptrack.cli import app
 
 DATA = Path(__file__).parent / "data"
 FMT = DATA / "formats"

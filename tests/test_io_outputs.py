@@ -14,7 +14,7 @@ from _data import REAL_TRACES
 from mptrack.errors import DataError, ParameterError
 from mptrack.io import OUTPUT_FORMATS, read_output, write_table
 from mptrack.tracking import track
-from mptrack.tracking._cli import app
+from mptrack.cli import app
 
 FORMATS = ["parquet", "csv", "geojson", "gpx", "geoparquet"]
 ODD_ID = 'car "2" <&> ü'  # a track id that needs escaping in JSON and XML

@@ -1,50 +1,266 @@
-"""The HTML report: self-contained (offline), figures embedded, and rendered by headless Chromium."""
+"""The HTML report: one self-contained file (Leaflet inlined, nothing fetched), every track listed and
+drawn as its own layer, time plots of one track at a time, captions that name only what is drawn, the
+data-quality section, decimation of large tables; rendered by headless Chromium (offline) for 1 track,
+3 tracks with truth and rejections, and 3000 tracks.
 
-import base64
+Screenshots are kept in $MPTRACK_TEST_ARTEFACTS (default: pytest's temporary directory, printed)."""
+
+from __future__ import annotations
+
+import json
+import os
 import re
 import shutil
 import subprocess
+import sys
+from html.parser import HTMLParser
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 import pytest
 
-from mptrack.report import TRACK_COLOR, write_report
-from mptrack.tracking import evaluate_tracks, simulate, track_file
-from mptrack.tracking._pipeline import read_output
+from mptrack.report import PALETTE, write_report
+from mptrack.report._page import asset
+from mptrack.report._decimate import MIN_PER_TRACK, keep_mask, point_budget
+from mptrack.report._payload import track_payload
+from mptrack.tracking import evaluate_tracks, read_output, simulate, track_file
+
+from _data import REAL_TRACES
 
 CHROMIUM = Path("/usr/bin/chromium")
-GPX = Path(__file__).parent / "data" / "around-visnjan-with-car.gpx"
+needs_chromium = pytest.mark.skipif(not CHROMIUM.exists(), reason="headless render tests need Debian's chromium "
+                                                                   "(apt-get install -y chromium)")
+
+
+# ---------------------------------------------------------------- data
+
+def synthetic_table(n_tracks: int, per: int, seed: int = 0) -> pd.DataFrame:
+    """A point table shaped like mptrack track's output (no tracking run: fast for many tracks)."""
+    rng = np.random.default_rng(seed)
+    n = n_tracks * per
+    tid = np.repeat([f"dev{i:05d}" for i in range(n_tracks)], per)
+    t = np.tile(np.arange(per, dtype=float) * 2.0, n_tracks)
+    lat0 = np.repeat(45.0 + rng.uniform(-0.2, 0.2, n_tracks), per)
+    lon0 = np.repeat(13.7 + rng.uniform(-0.3, 0.3, n_tracks), per)
+    east = np.tile(np.arange(per) * 20.0, n_tracks) + rng.normal(0, 1, n)
+    north = np.cumsum(rng.normal(0, 3, n))
+    lat = lat0 + north / 111_320.0
+    lon = lon0 + east / (111_320.0 * np.cos(np.radians(45.0)))
+    flag = np.where(rng.random(n) < 0.01, "outlier", "update").astype(object)
+    flag[np.arange(n_tracks) * per] = "init"
+    var = rng.uniform(4, 9, n)
+    return pd.DataFrame({
+        "track_id": tid, "t": t, "lat": lat, "lon": lon, "east_m": east, "north_m": north,
+        "vel_east_mps": np.full(n, 10.0), "vel_north_mps": rng.normal(0, 1, n), "var_east_m2": var,
+        "cov_en_m2": np.zeros(n), "var_north_m2": var, "ell_major_m": np.sqrt(var), "ell_minor_m": np.sqrt(var),
+        "ell_azimuth_deg": np.zeros(n), "nis": rng.chisquare(2, n), "nis_dof": np.full(n, 2),
+        "flag": flag, "gap": np.zeros(n, bool), "origin_lat": lat0, "origin_lon": lon0,
+        "method": "KF-gated", "meas_lat": lat + rng.normal(0, 3e-5, n), "meas_lon": lon + rng.normal(0, 3e-5, n)})
 
 
 @pytest.fixture(scope="module")
-def report(tmp_path_factory):
-    d = tmp_path_factory.mktemp("report")
-    log, _ = simulate("gps", 1, np.random.default_rng(3), along=GPX)
-    log.to_parquet(d / "sim.parquet")
-    track_file(d / "sim.parquet", d / "t.parquet")
-    summary, table = evaluate_tracks(read_output(d / "t.parquet"), log)
-    return write_report(table, d / "report.html", summary=summary, title="Visnjan drive")
+def reports(tmp_path_factory):
+    """{"one": (path, ids), "three": ..., "many": ...}"""
+    d = tmp_path_factory.mktemp("reports")
+    out = {}
+    # one real track, no truth
+    run = track_file(REAL_TRACES["car"], d / "car.parquet")
+    table = read_output(d / "car.parquet")
+    summary, _ = evaluate_tracks(table)
+    out["one"] = (write_report(table, d / "one.html", summary=summary, run=run, title="one track"),
+                  sorted(summary["tracks"]))
+    # three simulated tracks with truth, outliers and rows skipped
+    log, _ = simulate("gps", 3, np.random.default_rng(5), duration_s=300, outlier_rate=0.05)
+    log.to_csv(d / "sim.csv", index=False)
+    with open(d / "sim.csv", "a") as fh:
+        fh.write("sim0001,not a time,45.0,13.7,5.0,45.0,13.7,False\n")
+    run = track_file(d / "sim.csv", d / "sim.parquet", on_error="skip")
+    summary, table = evaluate_tracks(read_output(d / "sim.parquet"), log)
+    out["three"] = (write_report(table, d / "three.html", summary=summary, run=run, title="three tracks"),
+                    sorted(summary["tracks"]))
+    # 3000 tracks
+    table = synthetic_table(3000, 30)
+    summary, _ = evaluate_tracks(table)
+    out["many"] = (write_report(table, d / "many.html", summary=summary, title="3000 tracks"),
+                   sorted(summary["tracks"]))
+    return out
 
 
-def test_report_is_self_contained(report):
-    text = report.read_text()
-    assert "<script" not in text.lower()
-    assert not re.search(r"(src|href)=['\"](https?:)?//", text)  # nothing fetched from the network
-    images = re.findall(r"id='(\w+)' alt='\w+' src='data:image/png;base64,([^']+)'", text)
-    assert [k for k, _ in images] == ["tracks", "uncertainty", "nis"]
-    for _, data in images:
-        assert base64.b64decode(data)[:8] == b"\x89PNG\r\n\x1a\n"
-    assert "<h2>Summary</h2>" in text and "rmse_m" in text and "Visnjan drive" in text
-    assert "inside the 95 % band" in text
+# ---------------------------------------------------------------- the file
+
+class _Text(HTMLParser):
+    def __init__(self):
+        super().__init__()
+        self.urls, self.scripts = [], 0
+
+    def handle_starttag(self, tag, attrs):
+        self.scripts += tag == "script"
+        self.urls += [v for k, v in attrs if k in ("src", "href") and v]
 
 
-def test_report_without_truth(tmp_path):
-    track_file(GPX, tmp_path / "t.csv")
-    path = write_report(read_output(tmp_path / "t.csv"), tmp_path / "r.html")
+def _data(path: Path) -> dict:
     text = path.read_text()
-    assert "error against truth" not in text and "mean_nis" in text
-    assert [p.name for p in tmp_path.iterdir() if p.name.startswith(".")] == []
+    m = re.search(r"<script type='application/json' id='mptrack-data'>(.*?)</script>", text, re.S)
+    return json.loads(m.group(1))
+
+
+def test_the_report_is_one_file_that_fetches_nothing(reports):
+    path, _ = reports["one"]
+    text = path.read_text()
+    p = _Text()
+    p.feed(text)
+    assert not [u for u in p.urls if re.match(r"(https?:)?//", u)]  # no external script, style or image
+    assert "Leaflet 1.9.4" in text or 'version="1.9.4"' in text  # the vendored library is inlined
+    assert "L.map(" in text and p.scripts == 4  # error catcher, data, leaflet, report
+    # the only network address in the page is the optional tile layer's (used when online)
+    # (Leaflet's own text names bug trackers in comments), and the SVG namespace
+    ours = text.replace(asset("leaflet.js"), "").replace(asset("leaflet.css"), "")
+    assert len(ours) < len(text) - 100_000
+    assert set(re.findall(r"https?://([a-z0-9.{}-]+)/", ours)) == {"tile.openstreetmap.org", "www.w3.org"}
+    assert [p.name for p in path.parent.iterdir() if p.name.startswith(".")] == []
+
+
+def test_every_track_is_in_the_data_and_the_table(reports):
+    for key in ("one", "three", "many"):
+        path, ids = reports[key]
+        data = _data(path)
+        assert sorted(t["id"] for t in data["payload"]["tracks"]) == ids
+        assert sorted(r[0] for r in data["summary"]["rows"]) == ids  # all tracks, none cut off at 200
+        assert data["summary"]["overall"][0] == "all"
+
+
+def test_captions_name_only_what_is_drawn(reports):
+    one = reports["one"][0].read_text()
+    cap = re.search(r"id='map-caption'>(.*?)</p>", one).group(1)
+    assert "truth" not in cap and "raw fixes (grey dots)" in cap
+    assert ("rejected" in cap) == ("'rejected'" in json.dumps(_data(reports["one"][0])["kinds"]).replace('"', "'"))
+    three = reports["three"][0].read_text()
+    cap = re.search(r"id='map-caption'>(.*?)</p>", three).group(1)
+    assert "truth (dashed black line)" in cap and "fixes rejected by the NIS gate (orange rings)" in cap
+    assert "decimated" not in three.split("<section")[0]
+    many = reports["many"][0].read_text()
+    cap = re.search(r"id='map-caption'>(.*?)</p>", many).group(1)
+    assert "truth" not in cap and "the 16 colours repeat" in cap
+
+
+def test_data_quality_lists_skipped_rows_by_reason_and_left_out_records(reports, tmp_path):
+    three = reports["three"][0].read_text()
+    quality = three.split("id='quality-section'")[1].split("</section>")[0]
+    assert "rows skipped by reason" in quality and "1 skipped" in quality
+    assert re.search(r"fixes rejected by the NIS gate", quality) and "mean NIS" in quality
+    # a GPX file with a track that has no time: the 358 points left out are reported
+    run = track_file(REAL_TRACES["hike"], tmp_path / "h.parquet")
+    table = read_output(tmp_path / "h.parquet")
+    text = write_report(table, tmp_path / "h.html", summary=evaluate_tracks(table)[0], run=run).read_text()
+    quality = text.split("id='quality-section'")[1].split("</section>")[0]
+    assert "358" in quality and "records left out" in quality
+
+
+def test_far_nis_gets_a_verdict_and_the_run_advice(tmp_path):
+    table = synthetic_table(2, 50)
+    table["nis"] = table["nis"] * 0.02  # far below its band
+    summary, _ = evaluate_tracks(table)
+    run = {"nis": {"advice": ["2 track(s) have a mean NIS far below its band: leave --sigma out"]}}
+    text = write_report(table, tmp_path / "r.html", summary=summary, run=run).read_text()
+    assert "far below its expected value" in text and "advice:</strong> 2 track(s)" in text
+    table["nis"] = table["nis"] / 0.02
+    text = write_report(table, tmp_path / "r.html", summary=evaluate_tracks(table)[0]).read_text()
+    assert "inside the expected range" in text and "advice:" not in text
+
+
+# ---------------------------------------------------------------- decimation
+
+def test_point_budget_and_keep_mask():
+    counts = np.array([10, 1000, 5000])
+    assert point_budget(counts, 10_000).tolist() == [10, 1000, 5000]  # fits: everything
+    b = point_budget(counts, 600)
+    assert b.tolist() == [10, 99, 499] and (b >= np.minimum(counts, MIN_PER_TRACK)).all()
+    offsets = np.concatenate([[0], np.cumsum(counts)])
+    events = np.zeros(offsets[-1], bool)
+    events[[500, 4000]] = True
+    keep = keep_mask(offsets, b, events)
+    per = np.add.reduceat(keep, offsets[:-1])
+    # every 11th row (k = ceil(1000 / 99) = ceil(5000 / 499) = 11), the last row, and the event
+    assert per.tolist() == [10, 91 + 1 + 1, 455 + 1 + 1]
+    assert keep[500] and keep[4000] and keep[offsets[1:] - 1].all() and keep[offsets[:-1]].all()
+
+
+def test_payload_decodes_to_the_table_and_keeps_every_rejected_fix():
+    table = synthetic_table(4, 3000, seed=2)
+    p = track_payload(table, budget=2000)
+    assert p["decimated"] and p["drawn"] < 2000 + int((table["flag"] == "outlier").sum()) + 8
+    outliers = table.groupby("track_id")["flag"].apply(lambda f: int((f == "outlier").sum()))
+    for tr in p["tracks"]:
+        assert tr["f"].count("o") == outliers[tr["id"]]  # every rejected fix is drawn
+        lat = np.cumsum(tr["y"]) / p["scale"]
+        lon = np.cumsum(tr["x"]) / p["scale"]
+        g = table[table["track_id"] == tr["id"]]
+        assert lat[0] == pytest.approx(g["lat"].iloc[0], abs=1e-6) and lat[-1] == pytest.approx(g["lat"].iloc[-1],
+                                                                                                  abs=1e-6)
+        assert lon[-1] == pytest.approx(g["lon"].iloc[-1], abs=1e-6)
+        assert np.cumsum(tr["t"])[-1] / 10 == pytest.approx(g["t"].iloc[-1] - g["t"].iloc[0], abs=0.05)
+
+
+def test_payload_of_tracks_in_local_metres():
+    table = synthetic_table(2, 10).assign(lat=np.nan, lon=np.nan, meas_lat=np.nan, meas_lon=np.nan,
+                                          origin_lat=np.nan, origin_lon=np.nan)
+    p = track_payload(table)
+    assert not p["geo"] and p["scale"] == 100.0
+    assert np.cumsum(p["tracks"][0]["x"])[-1] / 100 == pytest.approx(table["east_m"].iloc[9], abs=0.01)
+
+
+# ---------------------------------------------------------------- Chromium
+
+def _artefacts(tmp_path_factory) -> Path:
+    d = Path(os.environ.get("MPTRACK_TEST_ARTEFACTS") or tmp_path_factory.getbasetemp() / "artefacts")
+    d.mkdir(parents=True, exist_ok=True)
+    return d
+
+
+def _chromium(page: Path, user_dir: Path, *extra: str, timeout: int = 180) -> subprocess.CompletedProcess:
+    cmd = [str(CHROMIUM), "--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
+           "--no-first-run", "--disable-component-update", "--disable-sync", f"--user-data-dir={user_dir}",
+           # offline: every network request goes to a closed port
+           "--proxy-server=127.0.0.1:9", "--proxy-bypass-list=<-loopback>",
+           "--enable-logging=stderr", "--v=0", "--hide-scrollbars", "--window-size=1300,1700",
+           "--virtual-time-budget=15000", *extra, page.as_uri()]
+    return subprocess.run(cmd, capture_output=True, text=True, timeout=timeout)
+
+
+class _Dom(HTMLParser):
+    def __init__(self):
+        super().__init__()
+        self.listed, self.attrs, self.paths = [], {}, []
+        self._in_plots = False
+
+    def handle_starttag(self, tag, attrs):
+        a = dict(attrs)
+        if tag in ("html", "body"):
+            self.attrs.update({f"{tag}:{k}": v for k, v in a.items()})
+        if tag == "li" and "data-track" in a:
+            self.listed.append(a["data-track"])
+        if tag == "path" and a.get("stroke") and a.get("d", "").startswith("M"):
+            self.paths.append(a["d"])
+        if a.get("id") == "page-info":
+            self.attrs["page-info"] = True
+
+    def handle_data(self, data):
+        if self.attrs.get("page-info") is True:
+            self.attrs["page-info"] = data
+
+
+def _render(path: Path, tmp_path, artefacts: Path) -> _Dom:
+    proc = _chromium(path, tmp_path / "ud", "--dump-dom")
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    dom = _Dom()
+    dom.feed(proc.stdout)
+    assert "Uncaught" not in proc.stderr, [line for line in proc.stderr.splitlines() if "Uncaught" in line]
+    shot = artefacts / f"{path.stem}.png"
+    proc = _chromium(path, tmp_path / "ud", f"--screenshot={shot}")
+    assert proc.returncode == 0 and shot.exists(), proc.stderr[-3000:]
+    shutil.rmtree(tmp_path / "ud", ignore_errors=True)
+    return dom
 
 
 def _colour_fraction(png: Path, hex_colour: str) -> float:
@@ -55,35 +271,53 @@ def _colour_fraction(png: Path, hex_colour: str) -> float:
     return float(np.mean(np.all(np.abs(img - want) < 0.06, axis=-1)))
 
 
-@pytest.mark.skipif(not CHROMIUM.exists(), reason="headless render test needs Debian's chromium "
-                                                   "(apt-get install -y chromium); /usr/bin/chromium is absent")
-def test_report_renders_the_tracks_in_headless_chromium(report, tmp_path):
-    shot = tmp_path / "shot.png"
-    cmd = [str(CHROMIUM), "--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
-           "--disable-component-update", "--disable-sync", "--no-first-run", f"--user-data-dir={tmp_path / 'ud'}",
-           "--hide-scrollbars", "--window-size=1000,900", f"--screenshot={shot}", report.as_uri()]
-    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
-    assert proc.returncode == 0 and shot.exists(), proc.stderr[-2000:]
-    import matplotlib.image as mpimg
+@needs_chromium
+@pytest.mark.parametrize("key", ["one", "three", "many"])
+def test_chromium_renders_every_track_offline_without_errors(reports, key, tmp_path, tmp_path_factory):
+    path, ids = reports[key]
+    artefacts = _artefacts(tmp_path_factory)
+    dom = _render(path, tmp_path, artefacts)
+    assert dom.attrs.get("body:data-ready") == "1", "the page's script did not finish"
+    assert "html:data-js-errors" not in dom.attrs, dom.attrs.get("html:data-js-errors")
+    assert sorted(dom.listed) == ids  # every track id is in the track list
+    assert dom.attrs["body:data-track-layers"] == str(len(ids))  # one map layer per track
+    pages = -(-len(ids) // 50)
+    assert dom.attrs["page-info"] == f"page 1 of {pages} ({len(ids)} of {len(ids)} tracks)"
+    # the time plots show the selected (first) track alone: each line has that track's drawn points
+    first = next(t for t in _data(path)["payload"]["tracks"] if t["id"] == ids[0]) if key != "many" else \
+        _data(path)["payload"]["tracks"][0]
+    assert dom.paths and all(d.count("M") == 1 and d.count("L") == first["drawn"] - 1 for d in dom.paths[:2])
+    shot = artefacts / f"{path.stem}.png"
+    assert _colour_fraction(shot, PALETTE[0]) > 0.0005  # the first track's colour is on screen
+    print(f"screenshot: {shot}")
 
-    img = mpimg.imread(shot)[..., :3]
-    assert img.std() > 0.05  # not a blank page
-    assert _colour_fraction(shot, TRACK_COLOR) > 0.002  # the red estimated track is on screen
-    # and the colour test can fail: an empty page has none of it
+
+@needs_chromium
+def test_the_colour_check_can_fail(tmp_path):
     blank = tmp_path / "blank.html"
     blank.write_text("<html><body><h1>nothing</h1></body></html>")
-    cmd[-2], cmd[-1] = f"--screenshot={tmp_path / 'blank.png'}", blank.as_uri()
-    subprocess.run(cmd, capture_output=True, timeout=120)
-    assert _colour_fraction(tmp_path / "blank.png", TRACK_COLOR) == 0.0
-    shutil.rmtree(tmp_path / "ud", ignore_errors=True)
+    proc = _chromium(blank, tmp_path / "ud", f"--screenshot={tmp_path / 'blank.png'}")
+    assert proc.returncode == 0
+    assert _colour_fraction(tmp_path / "blank.png", PALETTE[0]) == 0.0
 
 
-def test_report_of_local_xy_tracks(tmp_path):
-    import pandas as pd
-
-    pd.DataFrame({"time": [0.0, 1.0, 2.5, 4.0], "x": [0.0, 10.0, 25.0, 41.0], "y": [0.0, 1.0, 0.0, 2.0]}).to_csv(
-        tmp_path / "xy.csv", index=False)
-    track_file(tmp_path / "xy.csv", tmp_path / "t.parquet")
-    table = read_output(tmp_path / "t.parquet")
-    assert table["lat"].isna().all() and np.isfinite(table["east_m"]).all()
-    assert "<img id='tracks'" in write_report(table, tmp_path / "r.html").read_text()
+@pytest.mark.slow
+def test_a_million_point_report_is_small_and_stays_under_1_gb(tmp_path):
+    """10^6 points in 3000 tracks: the page is under 20 MB and writing it (evaluation included) peaks
+    under 1 GB (measured in a fresh process: ru_maxrss)."""
+    code = ("import resource, sys; sys.path.insert(0, %r)\n"
+            "from test_report_html import synthetic_table\n"
+            "from mptrack.tracking import evaluate_tracks\n"
+            "from mptrack.report import write_report\n"
+            "t = synthetic_table(3000, 334)\n"
+            "write_report(t, %r, summary=evaluate_tracks(t)[0])\n"
+            "print(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss)\n") % (str(Path(__file__).parent),
+                                                                              str(tmp_path / "big.html"))
+    env = dict(os.environ, PYTHONPATH=str(Path(__file__).resolve().parents[1] / "src"))
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=600)
+    assert res.returncode == 0, res.stderr
+    assert int(res.stdout.split()[-1]) < 1_000_000  # KB
+    size = (tmp_path / "big.html").stat().st_size
+    assert 2_000_000 < size < 20_000_000
+    data = _data(tmp_path / "big.html")
+    assert data["payload"]["decimated"] and len(data["summary"]["rows"]) == 3000

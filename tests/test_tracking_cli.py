@@ -15,7 +15,7 @@ import mptrack.tracking._pipeline as pipeline
 from mptrack.errors import ParameterError
 from mptrack.io import PartStore, iter_tracks
 from mptrack.tracking import TrackOptions, track, track_file, track_fixes
-from mptrack.tracking._cli import app
+from mptrack.cli import app
 
 GPX = Path(__file__).parent / "data" / "around-visnjan-with-car.gpx"
 runner = CliRunner()
@@ -248,7 +248,7 @@ def test_unknown_names_exit_2(tmp_path):
 
 def test_real_subprocess(tmp_path):
     env = dict(os.environ, MPLBACKEND="Agg", OPENBLAS_NUM_THREADS="1")
-    cmd = [sys.executable, "-m", "mptrack.tracking._cli"]
+    cmd = [sys.executable, "-m", "mptrack.cli"]
     out = tmp_path / "t.parquet"
     ok = subprocess.run(cmd + ["track", str(GPX), "--out", str(out), "--report", str(tmp_path / "r.html")],
                         capture_output=True, text=True, env=env, timeout=120)

@@ -14,7 +14,7 @@ from mptrack.errors import ParameterError, UnknownNameError
 from mptrack.io import MEASUREMENTS, LocalFrame, read_table, write_table
 from mptrack.radio import arfcn_to_frequency, path_loss
 from mptrack.tracking import simulate
-from mptrack.tracking._cli import app
+from mptrack.cli import app
 from mptrack.tracking._simulate import ORIGIN, Intervals, cv_noise_factor, cv_states, simulate_chunks
 
 GPX = Path(__file__).parent / "data" / "around-visnjan-with-car.gpx"

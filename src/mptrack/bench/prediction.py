@@ -74,7 +74,7 @@ def prediction_suite(quick: bool) -> dict:
         t = best_time(fn, max(1, repeats // 2))
         rows.append([name, t / steps * 1e6, steps / t, t / t_ss, t / t_rts])
     notes.append(f"{steps} steps of the 2-D CV model (n=4, m=2), best of {repeats}; peers checked to agree "
-                 "with mptrack's RTS smoother before timing. 'time ratio' = time(row) / time(SSKF); "
+                 "with mptrack's RTS smoother before timing. 'time ratio' = time(row) / time(SSKF) (below 1: faster than the SSKF); "
                  "'mptrack speedup' = time(peer) / time(mptrack rts_smoother).")
     return {"suite": "prediction", "title": "N-step prediction, smoothing, irregular sampling (one track)",
             "columns": ["operation", "us/step", "steps/s", "time ratio to SSKF", "mptrack speedup"],

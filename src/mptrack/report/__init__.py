@@ -1,5 +1,8 @@
-"""Self-contained offline HTML reports of tracking runs (embedded PNG figures)."""
+"""Self-contained HTML reports (one file, works offline): tracking runs on an interactive map with
+time plots, data quality and a table of every track; paper reproductions beside the published
+numbers."""
 
-from ._html import TRACK_COLOR, write_report
+from ._reproduction import explained_cells, write_reproduction_report
+from ._tracks import PALETTE, write_report
 
-__all__ = ["write_report", "TRACK_COLOR"]
+__all__ = ["write_report", "write_reproduction_report", "explained_cells", "PALETTE"]

@@ -1,6 +1,6 @@
 """Tracking real logs: position fixes at irregular times (gated KF, optional RTS smoothing),
 cellular measurements through the EKF/FEKF/FCS range filters, simulation of synthetic logs
-with truth, and evaluation against truth.  ``mptrack track/simulate/evaluate`` are in ``_cli``."""
+with truth, and evaluation against truth.  ``mptrack track/simulate/evaluate`` are in :mod:`mptrack.cli.tracking`."""
 
 from ._cellular import TA_STEP_M, band_of_arfcn, check_cell_ids, ranges_km, track_cells
 from ._evaluate import attach_truth, evaluate_tracks

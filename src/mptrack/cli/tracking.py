@@ -1,76 +1,28 @@
-"""``mptrack track``, ``mptrack simulate`` and ``mptrack evaluate``.
+"""``mptrack track``, ``mptrack simulate`` and ``mptrack evaluate``: real data in, tracks out
+(docs/tracking.md).
 
-The three commands are plain functions, mounted on the main app with
-``app.command()(track)`` etc.; :data:`app` here mounts them alone (tests, and
-``python -m mptrack.tracking._cli``).  Errors in the input exit with status 2
-and a message naming file, row and column; nothing is written then.  An output
-that cannot be written (another run holds its lock, a directory, a read-only
-directory, a full disk, a file that vanished) exits with status 2 and one line
-naming the path and the cause; Ctrl-C exits with status 130 and one line.  When
-``track`` stops that way after finishing some chunks, the line says where they
-were kept and gives the command that resumes the run.
+Errors in the input exit with status 2 and a message naming file, row and column; nothing is
+written then.  An output that cannot be written (another run holds its lock, a directory, a
+read-only directory, a full disk, a file that vanished) exits with status 2 and one line naming the
+path and the cause; Ctrl-C exits with status 130 and one line.  When ``track`` stops that way after
+finishing some chunks, the line says where they were kept and gives the command that resumes the run.
 """
 
 from __future__ import annotations
 
 import contextlib
-import json
-import shlex
-import shutil
-import sys
 from pathlib import Path
 from typing import Optional
 
 import typer
-from rich.console import Console
 from rich.markup import escape
 from rich.table import Table as RichTable
 
 from ..errors import MptrackError
+from ._common import JSON, QUIET, VERBOSE, command_line, echo, err, fail, interrupted, note, out, print_json, \
+    progress, reject
 
-__all__ = ["track", "simulate", "evaluate", "app"]
-
-_out = Console()
-_err = Console(stderr=True)
-
-
-def _fail(exc: BaseException, kept: str = "") -> None:
-    """One line on stderr and exit status 2: an MptrackError's message, or an OSError's path and cause."""
-    _err.print(f"[red]error:[/red] {escape(_reason(exc) + kept)}", highlight=False, soft_wrap=True)
-    raise typer.Exit(2)
-
-
-def _reason(exc: BaseException) -> str:
-    if isinstance(exc, MptrackError) or not isinstance(exc, OSError):
-        return str(exc)
-    if exc.filename is not None and exc.strerror:
-        return f"{exc.filename}: {exc.strerror}"
-    return (str(exc).splitlines() or [type(exc).__name__])[0]
-
-
-def _interrupted(what: str) -> None:
-    """Ctrl-C: one line saying what was kept, exit status 130."""
-    _err.print(escape(f"interrupted; {what}"), highlight=False, soft_wrap=True)
-    raise typer.Exit(130)
-
-
-def _shortest(path: str) -> str:
-    """A program's path as typed: its bare name when the shell finds this very file by that name."""
-    name = Path(path).name
-    found = shutil.which(name)
-    return name if found and Path(found).absolute() == Path(path).absolute() else path
-
-
-def _command(resume: bool = False) -> str:
-    """This run's command line as the user can type it again (in the same directory), with ``--resume``
-    added when asked."""
-    spec = getattr(sys.modules.get("__main__"), "__spec__", None)
-    if spec is not None and spec.name.startswith("mptrack"):  # python -m mptrack.cli ...
-        head = [_shortest(sys.executable), "-m", spec.name.removesuffix(".__main__")]
-    else:
-        head = [_shortest(sys.argv[0])]
-    args = sys.argv[1:]
-    return shlex.join(head + args + (["--resume"] if resume and "--resume" not in args else []))
+__all__ = ["track", "simulate", "evaluate"]
 
 
 def _kept(out: Path) -> str:
@@ -85,11 +37,7 @@ def _kept(out: Path) -> str:
     if not n:
         return ""
     return (f"; {n} finished chunk{'s' if n != 1 else ''} kept in {store.dir}; "
-            f"resume with: {_command(resume=True)}")
-
-
-def _json(data) -> None:
-    sys.stdout.write(json.dumps(data, indent=2, default=str, allow_nan=True) + "\n")
+            f"resume with: {command_line(resume=True)}")
 
 
 def _options(cls, **values):
@@ -103,23 +51,27 @@ def _options(cls, **values):
         raise ParameterError(f"--{name.replace('_', '-')}:{rest}") from None
 
 
-def _skipped(read: dict) -> None:
-    for note in read.get("notes", ()):
-        _err.print(f"[yellow]note:[/yellow] {note}", highlight=False, soft_wrap=True)
+def _skipped(read: dict, verbose: bool) -> None:
+    for text in read.get("notes", ()):
+        note(text)
     if read.get("rows_skipped"):
-        _err.print(f"[yellow]skipped {read['rows_skipped']} of {read['rows_read']} rows of {read['file']}:[/yellow]",
-                   highlight=False)
+        note(f"skipped {read['rows_skipped']} of {read['rows_read']} rows of {read['file']}:", "skipped")
         for reason, count in read["skipped_by_reason"].items():
-            _err.print(f"  {count} × {reason}", highlight=False)
+            err.print(escape(f"  {count} × {reason}"), highlight=False, soft_wrap=True)
+        for example in read.get("examples", ()) if verbose else ():
+            err.print(escape(f"  e.g. {example}"), highlight=False, soft_wrap=True)
 
 
 _TERMINAL_COLUMNS = ("points", "outliers", "rmse_m", "cdf95_m", "mean_nees", "nees_in_95", "mean_nis", "nis_in_95")
 
 
-def _summary_table(summary: dict, title: str) -> RichTable:
-    rows = {"all": summary["overall"], **dict(list(summary["tracks"].items())[:30])}
+def _summary_table(summary: dict, title: str, rows_max: int | None) -> RichTable:
+    tracks = list(summary["tracks"].items())
+    rows = {"all": summary["overall"], **dict(tracks[:rows_max] if rows_max else tracks)}
     cols = [c for c in _TERMINAL_COLUMNS if any(c in r for r in rows.values())]
-    rt = RichTable(title=title, title_justify="left")
+    rt = RichTable(title=title + (f" (first {rows_max} of {len(tracks)} tracks; -v for all, --json for "
+                                  "every number)" if rows_max and len(tracks) > rows_max else ""),
+                   title_justify="left")
     rt.add_column("track")
     for c in cols:
         rt.add_column(c, justify="right")
@@ -128,30 +80,51 @@ def _summary_table(summary: dict, title: str) -> RichTable:
     return rt
 
 
+#: Options of ``track`` that apply to position fixes only / to cellular measurements (--cells) only.
+_FIX_ONLY = {"model": "--model", "filter": "--filter", "smooth": "--smooth", "q": "--q", "sigma_m": "--sigma",
+             "noise": "--noise", "gate_probability": "--gate"}
+_CELL_ONLY = {"method": "--method", "motion": "--motion", "path_loss": None, "q_km2": None, "r_km2": None,
+              "scan_interval_s": None}
+
+
+def _default_out(input: Path) -> Path:
+    """``--out`` when not given: INPUT's name with ``.tracks.parquet`` beside it."""
+    name = input.name.split(".")[0] if not input.is_dir() else input.name
+    return input.parent / f"{name}.tracks.parquet"
+
+
 def track(
     input: Path = typer.Argument(..., help="Position fixes: CSV (any delimiter), Parquet (a file or a directory), "
                                            "GPX, TCX, FIT, NMEA 0183 or GeoJSON; or, with --cells, a cellular "
                                            "measurement log (CSV/Parquet)."),
-    out: Path = typer.Option(..., "--out", "-o", help="Result: .parquet, .csv, .geojson, .gpx or .geoparquet "
-                                                      "(written atomically; the input's other columns pass "
-                                                      "through)."),
+    out: Optional[Path] = typer.Option(None, "--out", "-o", help="Result: .parquet, .csv, .geojson, .gpx or "
+                                                                 ".geoparquet (written atomically; the input's "
+                                                                 "other columns pass through). Default: "
+                                                                 "INPUT.tracks.parquet beside the input."),
     cells: Optional[Path] = typer.Option(None, "--cells", help="Cell table (OpenCelliD layout): track cellular "
                                                                "measurements with --method."),
-    method: str = typer.Option("ekf", help="Cellular filter: ekf, fekf or fcs."),
-    motion: str = typer.Option("random-walk", help="Cellular motion model: random-walk or cv."),
-    model: str = typer.Option("cv", help="Motion model for position fixes: cv or ca."),
-    filter: str = typer.Option("kf", "--filter", help="Position-fix filter: kf (gated, irregular times) or a "
-                                                      "linear filter name (lf, sskf, ...) on a regular grid."),
-    smooth: bool = typer.Option(False, "--smooth", help="Add an RTS smoothing pass."),
-    q: Optional[float] = typer.Option(None, help="Process-noise density (m^2/s^3 for cv). Default: estimated "
-                                                 "from each track."),
-    sigma: Optional[float] = typer.Option(None, help="Fix noise (1-sigma per axis, m) where the input has no "
-                                                     "accuracy_m. Default: estimated from each track (with "
-                                                     "accuracy_m: a scale factor on it)."),
-    noise: str = typer.Option("track", help="track: estimate the noise per track (short tracks share one "
-                                            "estimate); file: one estimate for the whole input."),
-    gate: float = typer.Option(0.999, help="NIS gate probability (chi-square); 1 disables gating."),
-    report: Optional[Path] = typer.Option(None, "--report", help="Also write a self-contained HTML report."),
+    method: Optional[str] = typer.Option(None, help="With --cells: the cellular filter, ekf (default), fekf or "
+                                                    "fcs."),
+    motion: Optional[str] = typer.Option(None, help="With --cells: the motion model, random-walk (default) or "
+                                                    "cv."),
+    model: Optional[str] = typer.Option(None, help="Position fixes: the motion model, cv (default) or ca."),
+    filter: Optional[str] = typer.Option(None, "--filter", help="Position fixes: kf (default; gated, irregular "
+                                                                "times) or a linear filter name (lf, sskf, ...) "
+                                                                "on a regular grid."),
+    smooth: bool = typer.Option(False, "--smooth", help="Position fixes: add an RTS smoothing pass."),
+    q: Optional[float] = typer.Option(None, help="Position fixes: process-noise density (m^2/s^3 for cv). "
+                                                 "Default: estimated from each track."),
+    sigma: Optional[float] = typer.Option(None, help="Position fixes: fix noise (1-sigma per axis, m) where the "
+                                                     "input has no accuracy_m. Default: estimated from each track "
+                                                     "(with accuracy_m: a scale factor on it)."),
+    noise: Optional[str] = typer.Option(None, help="Position fixes: track (default) estimates the noise per track "
+                                                   "(short tracks share one estimate); file: one estimate for the "
+                                                   "whole input."),
+    gate: Optional[float] = typer.Option(None, help="Position fixes: NIS gate probability (chi-square; default "
+                                                    "0.999); 1 disables gating."),
+    report: Optional[Path] = typer.Option(None, "--report", help="Also write a self-contained HTML report (an "
+                                                                 "interactive map, time plots, data quality and "
+                                                                 "a table of every track)."),
     track_summary: Optional[Path] = typer.Option(None, "--track-summary", help="Also write the per-track table "
                                                  "(noise estimates with standard errors, counts, NIS): "
                                                  ".parquet or .csv."),
@@ -175,58 +148,84 @@ def track(
                                                 "is the same)."),
     workers: Optional[int] = typer.Option(None, "--workers", help="Processes / Dask workers (default: cores)."),
     chunk_rows: int = typer.Option(200_000, "--chunk-rows", help="Rows of whole tracks per chunk (memory)."),
-    quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar; only the summary lines."),
-    json_out: bool = typer.Option(False, "--json", help="Print the run summary as JSON on stdout."),
+    quiet: bool = QUIET,
+    verbose: bool = VERBOSE,
+    json_out: bool = JSON,
 ) -> None:
     """Track position fixes or cellular measurements; write estimates, covariances, NIS and flags.
 
     With no --sigma/--q the fix noise and the process noise are estimated from each track."""
-    from .._progress import RichProgress
-    from ..io import ReadOptions
-    from ._fixes import TrackOptions
-    from .._validation import check_outputs
-    from ._pipeline import read_output, track_file
-
+    given = {"model": model, "filter": filter, "smooth": smooth or None, "q": q, "sigma_m": sigma, "noise": noise,
+             "gate_probability": gate, "method": method, "motion": motion}
+    for name, flag in (_FIX_ONLY if cells is not None else _CELL_ONLY).items():
+        if flag and given.get(name) is not None:
+            reject(flag, "applies to position fixes, not to cellular measurements (--cells)" if cells is not None
+                   else "applies to cellular measurements only: give the cell table with --cells")
+    if workers is not None and executor == "serial":
+        reject("--workers", "applies to --executor processes or dask")
+    if max_skip != "1%" and on_error != "skip":
+        reject("--max-skip", "applies to --on-error skip")
+    out = out or _default_out(input)
     from .._io import output_lock
+    from .._validation import check_outputs
+    from ..io import ReadOptions
+    from ..tracking import TrackOptions, track_file
 
     kept, summary = "", None
     try:
         check_outputs(input, cells, report=report)
-        options = TrackOptions(model=model, filter=filter, q=q, sigma_m=sigma, noise=noise, smooth=smooth,
-                               gate_probability=None if gate >= 1 else gate, method=method, motion=motion)
+        values = {k: v for k, v in given.items() if v is not None}
+        if "gate_probability" in values and values["gate_probability"] >= 1:
+            values["gate_probability"] = None
+        options = TrackOptions(**values)
         read = _options(ReadOptions, columns=columns or (), time_unit=time_unit, time_format=time_format,
                         coord_unit=coord_unit, max_skip=max_skip)
-        with output_lock(out, track_summary, report, note=_command()):
+        with output_lock(out, track_summary, report, note=command_line()):
             try:
-                with RichProgress(console=_err, disable=quiet or json_out) as progress:
+                with progress(quiet or json_out) as bar:
                     summary = track_file(input, out, cells=cells, options=options, on_error=on_error,
                                          read=read, resume=resume, executor=executor, max_workers=workers,
-                                         chunk_rows=chunk_rows, track_summary=track_summary, progress=progress)
-                if report is not None:
-                    from ..report import write_report
-
-                    write_report(read_output(out), report, title=f"mptrack track {input.name}")
-                    summary["report"] = str(report)
+                                         chunk_rows=chunk_rows, track_summary=track_summary, progress=bar)
+                    if report is not None:
+                        with bar.task("report"):
+                            _write_report(out, report, summary, f"mptrack track {input.name}")
+                        summary["report"] = str(report)
             except (OSError, KeyboardInterrupt):
                 kept = _kept(out)  # under the lock: the parts are this run's
                 raise
     except KeyboardInterrupt:
-        _interrupted(f"{out} is complete, the report was not written" if summary is not None
-                     else kept.removeprefix("; ") or "nothing was kept")
+        interrupted(f"{out} is complete, the report was not written" if summary is not None
+                    else kept.removeprefix("; ") or "nothing was kept")
     except (MptrackError, OSError) as exc:
-        _fail(exc, kept)
+        fail(exc, kept)
+    drop = _CELL_ONLY if cells is None else _FIX_ONLY
+    summary["options"] = {k: v for k, v in summary.get("options", {}).items() if k not in drop}
     if json_out:
-        _json(summary)
+        print_json(summary)
         return
-    _skipped(summary["read"])
-    _out.print(f"{summary['tracks']} tracks ({summary['tracks_resumed']} resumed), {summary['points_written']} "
-               f"points, {summary['outliers_rejected']} outliers rejected → {out}"
-               + (f"; report {report}" if report else "") + (f"; tracks {track_summary}" if track_summary else ""),
-               highlight=False, soft_wrap=True)
-    if 1 < len(summary.get("track_noise", ())) <= 10:
-        _out.print(_noise_table(summary["track_noise"]))
+    _skipped(summary["read"], verbose)
+    echo(f"{summary['tracks']} tracks ({summary['tracks_resumed']} resumed), {summary['points_written']} "
+         f"points, {summary['outliers_rejected']} outliers rejected → {out}"
+         + (f"; report {report}" if report else "") + (f"; tracks {track_summary}" if track_summary else ""))
+    if not quiet and 1 < len(summary.get("track_noise", ())) <= (30 if verbose else 10):
+        out_print(_noise_table(summary["track_noise"]))
     for line in _noise_lines(summary, track_summary):
-        _out.print(line, highlight=False, soft_wrap=True)
+        echo(line)
+
+
+def out_print(renderable) -> None:
+    out.print(renderable)
+
+
+def _write_report(tracks_file: Path, report: Path, run: dict, title: str) -> None:
+    """The report of a run: its output read back, evaluated (with truth columns when the log had
+    them) and drawn with the run's summary (rows skipped, NIS advice)."""
+    from ..report import write_report
+    from ..tracking import evaluate_tracks, read_output
+
+    table = read_output(tracks_file)
+    summary, _ = evaluate_tracks(table)
+    write_report(table, report, summary=summary, run=run, title=title)
 
 
 def _noise_table(rows: list[dict]) -> RichTable:
@@ -276,7 +275,8 @@ _SIMULATE_OPTIONS = {"tracks": "--tracks", "duration_s": "--duration", "interval
 
 def simulate(
     scenario: str = typer.Option("gps", "--scenario", help="gps or urban-3bts."),
-    tracks: int = typer.Option(10, "--tracks", help="Number of simulated tracks (ignored with --along)."),
+    tracks: Optional[int] = typer.Option(None, "--tracks", help="Number of simulated tracks (default 10; not with "
+                                                                "--along)."),
     out: Path = typer.Option(..., "--out", "-o", help="Log with truth columns: .parquet or .csv."),
     cells_out: Optional[Path] = typer.Option(None, "--cells-out", help="Cell table (cellular scenarios); "
                                                                        "default OUT with suffix .cells.csv."),
@@ -293,10 +293,19 @@ def simulate(
     accuracy: Optional[bool] = typer.Option(None, "--accuracy/--no-accuracy",
                                             help="gps: write the accuracy_m column (default: yes)."),
     seed: int = typer.Option(0, help="Seed of the random generator."),
-    quiet: bool = typer.Option(False, "--quiet", "-q"),
-    json_out: bool = typer.Option(False, "--json", help="Print what was written as JSON."),
+    quiet: bool = QUIET,
+    verbose: bool = VERBOSE,
+    json_out: bool = JSON,
 ) -> None:
     """Simulate measurement logs with truth (GPS fixes or cellular RSS scans)."""
+    if along is not None and tracks is not None:
+        reject("--tracks", "does not apply with --along (one simulated track per track of the file)")
+    if scenario != "gps":
+        for flag, value in (("--sigma", sigma), ("--outliers", outliers), ("--accuracy/--no-accuracy", accuracy)):
+            if value is not None:
+                reject(flag, f"applies to --scenario gps, not {scenario}")
+    elif cells_out is not None:
+        reject("--cells-out", "applies to cellular scenarios (--scenario urban-3bts)")
     import numpy as np
     import pandas as pd
 
@@ -304,15 +313,18 @@ def simulate(
     from .._validation import check_outputs
     from ..errors import ParameterError
     from ..io import write_table
-    from ._simulate import simulate_chunks
+    from ..tracking import simulate_chunks
 
+    n_tracks = 10 if tracks is None else tracks
     written = {"scenario": scenario, "log": str(out), "rows": 0, "tracks": 0, "seed": seed}
     cell_tables, done = [], []
 
-    def logs(chunks):
+    def logs(chunks, advance):
         for log, cells in chunks:
             written["rows"] += len(log)
-            written["tracks"] += log["track_id"].nunique()  # a chunk holds whole tracks
+            n = log["track_id"].nunique()  # a chunk holds whole tracks
+            written["tracks"] += n
+            advance(n)
             if cells is not None:
                 cell_tables.append(cells)
             yield log
@@ -320,33 +332,30 @@ def simulate(
     try:
         check_outputs(along, out=out, cells_out=cells_out)
         try:
-            chunks = simulate_chunks(scenario, tracks, np.random.default_rng(seed), duration_s=duration,
+            chunks = simulate_chunks(scenario, n_tracks, np.random.default_rng(seed), duration_s=duration,
                                      along=along, interval=interval, q=q, speed_mps=speed, sigma_m=sigma,
                                      outlier_rate=outliers, accuracy_column=accuracy)
         except ParameterError as exc:  # name the option, not the library's argument
             name, _, rest = str(exc).partition(":")
             raise ParameterError(f"{_SIMULATE_OPTIONS.get(name, name)}:{rest}") from None
         cpath = cells_out or out.with_suffix(".cells.csv")
-        with output_lock(out, cpath if cells_out or scenario != "gps" else None, note=_command()), \
-                _err.status("simulating…", spinner="dots") if not (quiet or json_out) else _nullctx():
-            write_table(logs(chunks), out)
+        with output_lock(out, cpath if cells_out or scenario != "gps" else None, note=command_line()), \
+                progress(quiet or json_out) as bar, \
+                bar.task("simulating tracks", total=None if along is not None else n_tracks) as advance:
+            write_table(logs(chunks, advance), out)
             done.append(out)
             if cell_tables:
                 write_table(pd.concat(cell_tables, ignore_index=True), cpath)
                 written["cells"] = str(cpath)
     except KeyboardInterrupt:
-        _interrupted(f"only {done[0]} was written" if done else "nothing was written")
+        interrupted(f"only {done[0]} was written" if done else "nothing was written")
     except (MptrackError, OSError) as exc:
-        _fail(exc)
+        fail(exc)
     if json_out:
-        _json(written)
+        print_json(written)
     else:
-        _out.print(f"{written['tracks']} tracks, {written['rows']} rows → {out}"
-                   + (f"; cells → {written['cells']}" if "cells" in written else ""), highlight=False)
-
-
-def _nullctx():
-    return contextlib.nullcontext()
+        echo(f"{written['tracks']} tracks, {written['rows']} rows → {out}"
+             + (f"; cells → {written['cells']}" if "cells" in written else ""))
 
 
 def evaluate(
@@ -356,53 +365,70 @@ def evaluate(
                                                                 "x/y in metres); track_id may be left out for one "
                                                                 "track."),
     report: Optional[Path] = typer.Option(None, "--report", help="Write a self-contained HTML report."),
-    tolerance: float = typer.Option(0.5, help="Max time difference (s) to match an estimate with truth."),
-    quiet: bool = typer.Option(False, "--quiet", "-q", help="Only the overall line."),
-    json_out: bool = typer.Option(False, "--json", help="Print the metrics as JSON on stdout."),
+    tolerance: Optional[float] = typer.Option(None, help="With --truth: max time difference (s) to match an "
+                                                         "estimate with truth (default 0.5)."),
+    quiet: bool = QUIET,
+    verbose: bool = VERBOSE,
+    json_out: bool = JSON,
 ) -> None:
     """RMSE, NEES/NIS consistency and the error CDF of a track table against truth."""
+    if tolerance is not None and truth is None:
+        reject("--tolerance", "applies with --truth")
     from .._io import output_lock
     from .._validation import check_outputs
     from ..errors import DataError
-    from ._evaluate import evaluate_tracks
-    from ._pipeline import read_output
+    from ..tracking import evaluate_tracks, read_output
 
     held = contextlib.ExitStack()  # the report's lock, from the start to the end of the command
     try:
         check_outputs(tracks, truth, report=report)
-        held.enter_context(output_lock(report, note=_command()))
+        held.enter_context(output_lock(report, note=command_line()))
         if not tracks.exists():
             raise DataError("file not found", file=tracks)
-        est = read_output(tracks)
-        est.attrs["file"] = tracks
-        summary, table = evaluate_tracks(est, truth, tolerance_s=tolerance, truth_file=truth)
-        if report is not None:
-            from ..report import write_report
+        with progress(quiet or json_out) as bar:
+            with bar.task("evaluating"):
+                est = read_output(tracks)
+                est.attrs["file"] = tracks
+                summary, table = evaluate_tracks(est, truth, tolerance_s=0.5 if tolerance is None else tolerance,
+                                                 truth_file=truth)
+            if report is not None:
+                with bar.task("report"):
+                    from ..report import write_report
 
-            write_report(table, report, summary=summary, title=f"mptrack evaluate {tracks.name}")
+                    write_report(table, report, summary=summary, run={"nis": {"advice": _nis_advice(summary)}},
+                                 title=f"mptrack evaluate {tracks.name}")
     except KeyboardInterrupt:
-        _interrupted("nothing was written")
+        interrupted("nothing was written")
     except (MptrackError, OSError) as exc:
-        _fail(exc)
+        fail(exc)
     finally:
         held.close()
     if json_out:
-        _json(summary)
+        print_json(summary)
         return
     o = summary["overall"]
     if not quiet:
-        _out.print(_summary_table(summary, f"Evaluation of {tracks.name}"))
+        out_print(_summary_table(summary, f"Evaluation of {tracks.name}", None if verbose else 30))
     line = f"{len(summary['tracks'])} tracks, {o['points']} points"
     if "rmse_m" in o:
         line += f", RMSE {o['rmse_m']:.2f} m, 95 % error {o['cdf95_m']:.2f} m, mean NEES {o['mean_nees']:.2f}"
     line += f", mean NIS {o['mean_nis']:.2f} (dof {o['mean_nis_dof']:.2f})"
-    _out.print(line, highlight=False)
+    echo(line)
+    for advice in _nis_advice(summary):
+        echo(advice)
 
 
-app = typer.Typer(add_completion=False, no_args_is_help=True, help="mptrack tracking commands.")
-app.command()(track)
-app.command()(simulate)
-app.command()(evaluate)
+def _nis_advice(summary: dict) -> list[str]:
+    """What tracks whose mean NIS is far outside its band (below half or above twice its degrees of
+    freedom, from enough fixes) usually mean, in the words ``mptrack track`` uses."""
+    from ..tracking import TrackOptions
+    from ..tracking._pipeline import MIN_ADVISED_FIXES, nis_advice
 
-if __name__ == "__main__":  # pragma: no cover
-    app()
+    low = high = 0
+    for row in summary["tracks"].values():
+        mean, dof = row.get("mean_nis"), row.get("mean_nis_dof")
+        if row.get("points", 0) - row.get("outliers", 0) < MIN_ADVISED_FIXES or not dof or mean != mean:
+            continue
+        low += mean / dof < 0.5
+        high += mean / dof > 2.0
+    return nis_advice(low, high, TrackOptions())

@@ -1,0 +1,63 @@
+"""``mptrack bench``: the speed suites, each measured against an anchor in the same run."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Optional
+
+import typer
+from rich.table import Table as RichTable
+
+from ..errors import MptrackError
+from ._common import JSON, QUIET, VERBOSE, echo, fail, fmt, interrupted, out, paper_names, print_json, progress
+
+__all__ = ["bench"]
+
+
+def bench(
+    quick: bool = typer.Option(False, help="Small sizes, a few seconds."),
+    suite: Optional[list[str]] = typer.Option(None, help="Run only these suites (repeatable)."),
+    save: Optional[Path] = typer.Option(None, "--save", help="Also write the results as JSON to this file."),
+    list_: bool = typer.Option(False, "--list", help="List the suites and exit."),
+    quiet: bool = QUIET,
+    verbose: bool = VERBOSE,
+    json_out: bool = JSON,
+) -> None:
+    """Benchmark mptrack against a memory-copy baseline and the Python peers, in one run."""
+    from .._io import write_json
+    from ..bench import run_suites, suites
+
+    if list_:
+        for name in suites():
+            echo(name)
+        return
+    names = suite or list(suites())
+    reports = []
+    try:
+        with progress(quiet or json_out) as bar:
+            for name in names:
+                with bar.task(f"bench {name}"):
+                    reports += run_suites([name], quick=quick)
+        if save is not None:
+            write_json(save, {"reports": reports})
+    except KeyboardInterrupt:
+        interrupted("nothing was written")
+    except (MptrackError, OSError) as exc:
+        fail(exc)
+    if json_out:
+        print_json({"reports": reports})
+        return
+    for rep in reports:
+        if quiet:
+            echo(f"{rep['suite']}: {len(rep['rows'])} rows")
+            continue
+        rt = RichTable(title=paper_names(f"{rep['suite']}: {rep['title']}"), title_justify="left")
+        for i, col in enumerate(rep["columns"]):
+            rt.add_column(col, justify="left" if i == 0 else "right")
+        for row in rep["rows"]:
+            rt.add_row(*[paper_names(fmt(v)) for v in row])
+        out.print(rt)
+        for text in rep.get("notes", []):
+            out.print(paper_names(text), style="dim", highlight=False, markup=False)
+    if save is not None:
+        echo(f"wrote {save}")

@@ -1,0 +1,115 @@
+"""The report of a paper reproduction: each table with our numbers beside the paper's, matching cells
+green, differing cells red, differences explained by an erratum yellow with a link to it, and the
+figures embedded."""
+
+from __future__ import annotations
+
+import base64
+import re
+from pathlib import Path
+
+from ._page import esc, page, write_page
+
+__all__ = ["write_reproduction_report", "explained_cells"]
+
+
+def _num(v) -> str:
+    if isinstance(v, float):
+        return f"{v:.6g}"
+    return "—" if v is None else str(v)
+
+
+def explained_cells(table: dict) -> dict[tuple[int, int], str]:
+    """{(row, column): erratum key} of a results.json table (its ``explained_by``: [[row, col, key], ...])."""
+    return {(int(e[0]), int(e[1])): str(e[2]) for e in table.get("explained_by") or ()}
+
+
+def _slug(text: str) -> str:
+    """The anchor GitHub and most Markdown renderers give a heading."""
+    return re.sub(r"[^\w\- ]", "", text.strip().lower()).replace(" ", "-")
+
+
+def _link(key: str, described: dict, errata: Path | None) -> str:
+    """The erratum ``key`` of a differing cell: its description (results.json "errata": "docs/errata.md,
+    'Heading': why"), linked to the heading in ``errata`` when that file is known."""
+    text = described.get(key, key)
+    heading = re.search(r"'([^']+)'", text)
+    body = esc(text)
+    if errata is None or heading is None:
+        return body
+    return f"<a href='{esc(errata.resolve().as_uri())}#{esc(_slug(heading.group(1)))}'>{body}</a>"
+
+
+def _table_html(label: str, table: dict, described: dict, errata: Path | None) -> str:
+    paper = table.get("paper")
+    bad = {tuple(c) for c in table.get("mismatches", ())}
+    why = explained_cells(table)
+    head = "".join(f"<th>{esc(c)}</th>" for c in table["columns"])
+    if paper is not None:
+        head = f"<th>{esc(table['columns'][0])}</th>" + "".join(
+            f"<th>{esc(c)}<br><small>ours | paper</small></th>" for c in table["columns"][1:])
+    rows, footnotes = [], []
+    for i, row in enumerate(table["rows"]):
+        cells = [f"<td>{esc(row[0])}</td>"]
+        for j in range(1, len(row)):
+            ours = esc(_num(row[j]))
+            if paper is None or paper[i][j] is None:
+                cells.append(f"<td>{ours}</td>")
+                continue
+            theirs = esc(_num(paper[i][j]))
+            if (i, j) not in bad:
+                cells.append(f"<td class='same' title='matches the paper'>{ours}"
+                             + ("" if ours == theirs else f" | {theirs}") + "</td>")
+            elif (i, j) in why:
+                footnotes.append(f"<li id='{esc(_slug(label))}-{i}-{j}'>{esc(row[0])} / "
+                                 f"{esc(table['columns'][j])}: {_link(why[(i, j)], described, errata)}</li>")
+                cells.append(f"<td class='explained' title='differs; explained in docs/errata.md'>{ours} | "
+                             f"{theirs} <a href='#{esc(_slug(label))}-{i}-{j}'>[{len(footnotes)}]</a></td>")
+            else:
+                cells.append(f"<td class='differs' title='differs from the paper; no erratum explains it'>"
+                             f"{ours} | {theirs}</td>")
+        rows.append("<tr>" + "".join(cells) + "</tr>")
+    html = (f"<h2 id='{esc(_slug(label))}'>{esc(label)}: {esc(table['title'])}</h2>"
+            f"<table><thead><tr>{head}</tr></thead><tbody>{''.join(rows)}</tbody></table>")
+    if table.get("tolerance"):
+        tol = table["tolerance"]
+        html += f"<p class='caption'>A number matches when |ours − paper| ≤ {tol['atol']:g} + {tol['rtol']:g}·|paper|.</p>"
+    if table.get("notes"):
+        html += f"<p class='note'>{esc(table['notes'])}</p>"
+    if footnotes:
+        html += "<ol class='errata'>" + "".join(footnotes) + "</ol>"
+    return html
+
+
+def write_reproduction_report(results: dict, path, *, figures_dir=None, errata=None,
+                              counts: dict | None = None, title: str | None = None) -> Path:
+    """Write the HTML page of a reproduction from its results.json content (docs: RESULTS.md).
+
+    figures_dir  where the figures named in ``results["figures"]`` are (embedded as PNG when found)
+    errata       the path of docs/errata.md, the target of the links of explained differences
+    counts       {"published", "matched", "explained", "unexplained"} for the heading line
+    title        the page's title (default: the reproduction's key)
+    """
+    errata = Path(errata) if errata else None
+    body = [f"<p class='note'>{esc(results.get('paper', ''))}; seed {esc(results.get('seed'))}; "
+            f"mptrack {esc(results.get('mptrack_version', ''))}; {results.get('elapsed_s', 0):.1f} s</p>"]
+    if counts:
+        body.append(f"<p><strong>{counts['matched']} of {counts['published']} published numbers matched, "
+                    f"{counts['explained']} differ for a documented reason (yellow, linked to the erratum), "
+                    f"{counts['unexplained']} differ unexplained (red).</strong></p>")
+    body.append("<p class='caption'>Cells: green = our number matches the paper's; yellow = differs, and "
+                "docs/errata.md explains why; red = differs without an explanation; plain = the paper gives "
+                "no number.</p>")
+    for label, table in results.get("tables", {}).items():
+        body.append(_table_html(label, table, results.get("errata") or {}, errata))
+    for name, file in results.get("figures", {}).items():
+        png = Path(figures_dir or ".") / file
+        if png.is_file() and png.suffix.lower() == ".png":
+            data = base64.b64encode(png.read_bytes()).decode("ascii")
+            body.append(f"<figure><img alt='{esc(name)}' src='data:image/png;base64,{data}'>"
+                        f"<figcaption>{esc(name)}</figcaption></figure>")
+        else:
+            body.append(f"<p class='note'>{esc(name)}: {esc(file)} (not found beside the results)</p>")
+    for note in results.get("notes", []):
+        body.append(f"<p class='note'>note: {esc(note)}</p>")
+    return write_page(path, page(title or str(results.get("key", "reproduction")), "".join(body)))

@@ -1,0 +1,173 @@
+"""The report of a tracking run: an interactive map (Leaflet, inlined) with every track in its own
+colour and the raw fixes, rejected fixes, resets, gaps, truth and uncertainty ellipses as layers; a
+list to show, hide and zoom to tracks; time plots of the selected track (speed, 1-sigma, NIS with its
+chi-square band, error against truth); a data-quality section; and a sortable, paginated table of
+every track.  Large tables are decimated (:mod:`._decimate`) so the page stays small and fast.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from ._decimate import DEFAULT_BUDGET
+from ._page import esc, json_script, page, write_page
+from ._payload import track_payload
+
+__all__ = ["write_report", "PALETTE", "RAW_ON_BELOW"]
+
+#: The tracks' colours, in order (repeated beyond 16 tracks); the same list as in report.js.
+PALETTE = ("#1f77b4", "#d62728", "#2ca02c", "#9467bd", "#8c564b", "#e377c2", "#17becf", "#bcbd22",
+           "#ff7f0e", "#393b79", "#637939", "#8c6d31", "#843c39", "#7b4173", "#3182bd", "#31a354")
+#: A point layer with more markers than this starts switched off (the page stays responsive).
+RAW_ON_BELOW = 30_000
+
+_KIND_TEXT = {"raw": "raw fixes (grey dots)", "rejected": "fixes rejected by the NIS gate (orange rings)",
+              "resets": "filter resets (purple rings)", "gaps": "the first estimate after a gap (white dots)",
+              "truth": "truth (dashed black line)",
+              "ellipses": "the 1-σ uncertainty ellipses of the selected track (blue)"}
+
+
+def _kinds(payload: dict) -> dict:
+    """The point/line layers present in the data: {kind: {"count": n, "on": shown at load}}."""
+    trs = payload["tracks"]
+    flags = "".join(t.get("f", "") for t in trs)
+    kinds = {}
+    if payload["has_meas"]:
+        raw = sum(sum(1 for v, f in zip(t["my"], t["f"]) if v is not None and f != "o") for t in trs if "my" in t)
+        kinds["raw"] = {"count": raw, "on": raw <= RAW_ON_BELOW}
+        if flags.count("o"):
+            kinds["rejected"] = {"count": flags.count("o"), "on": flags.count("o") <= RAW_ON_BELOW}
+    if flags.count("r"):
+        kinds["resets"] = {"count": flags.count("r"), "on": flags.count("r") <= RAW_ON_BELOW}
+    gaps = sum(len(t.get("gap", ())) for t in trs)
+    if gaps:
+        kinds["gaps"] = {"count": gaps, "on": gaps <= RAW_ON_BELOW}
+    if payload["has_truth"]:
+        kinds["truth"] = {"count": sum(1 for t in trs if any(v is not None for v in t.get("ty", ()))), "on": True}
+    if any("ell" in t for t in trs):
+        kinds["ellipses"] = {"count": 1, "on": True}
+    return kinds
+
+
+def _map_caption(payload: dict, kinds: dict, budget: int) -> str:
+    n = len(payload["tracks"])
+    text = (("The estimate of the track as a line" if n == 1 else f"The estimate of each of the {n} tracks as a "
+                                                                  "line in its own colour")
+            + (f" (the {len(PALETTE)} colours repeat)" if n > len(PALETTE) else "")
+            + ("; a line breaks at a reset or a gap" if {"resets", "gaps"} & set(kinds) else "") + ".")
+    on = [_KIND_TEXT[k] + (f" ({kinds[k]['count']})" if k not in ("truth", "ellipses") else "")
+          for k in kinds if kinds[k]["on"]]
+    off = [_KIND_TEXT[k] + f" ({kinds[k]['count']})" for k in kinds if not kinds[k]["on"]]
+    if on:
+        text += " Also drawn: " + ", ".join(on) + "."
+    if off:
+        text += " Switched off at load (too many markers; tick them above the map): " + ", ".join(off) + "."
+    if payload["decimated"]:
+        text += (f" {payload['drawn']:,} of {payload['points']:,} points are drawn: every k-th point of each "
+                 f"track (about {budget:,} in all), and every rejected fix, reset and gap.")
+    text += (" Background: OpenStreetMap tiles when the browser is online, otherwise a plain background."
+             if payload["geo"] else " Axes: local east/north metres (the input had no latitude/longitude).")
+    return text + " Click a track (on the map, in the list or in the table) to plot it over time."
+
+
+def _quality(tracks: pd.DataFrame, summary: dict, run: dict | None) -> str:
+    """The data-quality section: rows skipped by reason, records left out, the reader's notes,
+    outliers/resets/gaps, and what a NIS far from its band means."""
+    items = []
+    read = (run or {}).get("read") or {}
+    if read:
+        skipped = read.get("rows_skipped", 0)
+        items.append(f"{read.get('rows_read', 0):,} rows read from {esc(read.get('file', 'the input'))}; "
+                     f"{skipped:,} skipped" + (" (the reasons below)" if skipped else ""))
+        reasons = read.get("skipped_by_reason") or {}
+        if reasons:
+            rows = "".join(f"<tr><td>{esc(r)}</td><td>{c:,}</td></tr>"
+                           for r, c in sorted(reasons.items(), key=lambda kv: -kv[1]))
+            items.append("rows skipped by reason:<table class='reasons'><thead><tr><th>reason</th><th>rows</th>"
+                         f"</tr></thead><tbody>{rows}</tbody></table>")
+        for ex in (read.get("examples") or [])[:5]:
+            items.append(f"example: {esc(ex)}")
+        for reason, count in (read.get("left_out") or {}).items():
+            items.append(f"{count:,} records left out: {esc(reason)}")
+        if read.get("duplicates_dropped"):
+            items.append(f"{read['duplicates_dropped']:,} duplicate fixes dropped")
+        if read.get("rows_reordered"):
+            items.append(f"{read['rows_reordered']:,} rows out of time order were sorted")
+        for note in read.get("notes") or []:
+            items.append(f"note: {esc(note)}")
+    elif run is None:
+        items.append("rows skipped while reading are not known to this report (it was written from a track "
+                     "table; mptrack track --report lists them)")
+    flags = tracks["flag"].astype(str)
+    counts = {f: int((flags == f).sum()) for f in ("outlier", "reset", "predicted")}
+    gaps = int(tracks["gap"].sum()) if "gap" in tracks.columns else 0
+    items.append(f"{counts['outlier']:,} fixes rejected by the NIS gate, {counts['reset']:,} filter resets, "
+                 f"{gaps:,} gaps, {counts['predicted']:,} points predicted without a fix")
+    o = summary["overall"]
+    mean, dof = o.get("mean_nis"), o.get("mean_nis_dof")
+    if mean is not None and dof and np.isfinite(mean) and np.isfinite(dof):
+        ratio = mean / dof
+        verdict = ("inside the expected range" if 0.5 <= ratio <= 2 else
+                   "far below its expected value: the filter assumes more noise than the data show"
+                   if ratio < 0.5 else "far above its expected value: the data are noisier or the motion "
+                   "more agile than the filter assumes")
+        inside = o.get("nis_in_95")
+        items.append(f"mean NIS {mean:.3g} against an expected {dof:.3g} ({verdict})"
+                     + (f"; {100 * inside:.1f} % of the fixes inside the 95 % χ² band" if inside is not None
+                        and np.isfinite(inside) else ""))
+    for advice in ((run or {}).get("nis") or {}).get("advice") or []:
+        items.append(f"<strong>advice:</strong> {esc(advice)}")
+    return "<ul class='quality'>" + "".join(f"<li>{i}</li>" for i in items) + "</ul>"
+
+
+def _summary_rows(summary: dict) -> dict:
+    per = summary["tracks"]
+    cols: list[str] = []
+    for r in [summary["overall"], *per.values()]:
+        cols += [c for c in r if c not in cols]
+    return {"columns": ["track", *cols],
+            "overall": ["all", *[summary["overall"].get(c) for c in cols]],
+            "rows": [[str(k), *[r.get(c) for c in cols]] for k, r in per.items()]}
+
+
+def write_report(tracks: pd.DataFrame, path, *, summary: dict, run: dict | None = None,
+                 title: str = "mptrack report", notes: list[str] | tuple[str, ...] = (),
+                 budget: int = DEFAULT_BUDGET) -> Path:
+    """Write the HTML report of ``tracks`` to ``path`` atomically (one file, works offline).
+
+    tracks   the point table of ``mptrack track`` (:func:`mptrack.tracking.read_output`), with the
+             error and truth columns of :func:`mptrack.tracking.evaluate_tracks` when evaluated
+    summary  the evaluation of ``tracks`` (the first value :func:`mptrack.tracking.evaluate_tracks`
+             returns): one row per track and an overall row; every track is in the page's table
+    run      the summary :func:`mptrack.tracking.track_file` returns, for the data-quality section
+             (rows skipped by reason, records left out, the reader's notes, NIS advice)
+    budget   about how many points the map and plots draw in all (larger tables are decimated)
+    """
+    payload = track_payload(tracks, budget=budget)
+    kinds = _kinds(payload)
+    methods = ", ".join(map(str, pd.unique(tracks["method"]))) if "method" in tracks.columns else "?"
+    n = len(payload["tracks"])
+    body = [f"<p class='note'>{n:,} track{'s' if n != 1 else ''}, {len(tracks):,} points; method: {esc(methods)}"
+            + (f"; drawn: {payload['drawn']:,} points (decimated)" if payload["decimated"] else "") + "</p>"]
+    body += [f"<p class='note'>{esc(note)}</p>" for note in notes]
+    body.append("<noscript><p><strong>This report needs JavaScript for its map, plots and table.</strong></p>"
+                "</noscript>")
+    body.append("<section id='map-section'><h2>Map</h2><div id='layers'></div><div class='layout'><aside>"
+                "<input id='track-filter' type='search' placeholder='filter tracks'><div>"
+                "<button id='show-all' type='button'>show all</button> <button id='hide-all' type='button'>"
+                "hide all</button></div><ul id='track-list'></ul></aside><div id='map'></div></div>"
+                f"<p class='caption' id='map-caption'>{esc(_map_caption(payload, kinds, budget))}</p></section>")
+    body.append("<section id='plots-section'><h2>Over time: track <span id='plots-track'></span></h2>"
+                "<div id='plots'></div><p class='caption' id='plots-caption'></p></section>")
+    body.append(f"<section id='quality-section'><h2>Data quality</h2>{_quality(tracks, summary, run)}</section>")
+    body.append("<section id='table-section'><h2>All tracks</h2><p class='caption'>One row per track (the first "
+                "row: all tracks together). Click a heading to sort, a track to show it on the map.</p>"
+                "<input id='table-filter' type='search' placeholder='filter tracks'><div class='pager'>"
+                "<button id='prev-page' type='button'>◀</button> <span id='page-info'></span> "
+                "<button id='next-page' type='button'>▶</button></div><table id='summary'></table></section>")
+    body.append(json_script("mptrack-data", {"payload": payload, "kinds": kinds, "summary": _summary_rows(summary)}))
+    return write_page(path, page(title, "".join(body), scripts=("leaflet.js", "report.js"),
+                                 styles=("leaflet.css",)))

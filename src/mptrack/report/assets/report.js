@@ -1,0 +1,381 @@
+/* mptrack tracking report: the map (Leaflet), the track list, the time plots of the selected track
+   and the summary table of every track, from the JSON in #mptrack-data.  No network needed: the map's
+   background tiles load only when the browser is online; the tracks are drawn without them. */
+(function () {
+  "use strict";
+  var D = JSON.parse(document.getElementById("mptrack-data").textContent);
+  var P = D.payload;
+  var PALETTE = ["#1f77b4", "#d62728", "#2ca02c", "#9467bd", "#8c564b", "#e377c2", "#17becf", "#bcbd22",
+                 "#ff7f0e", "#393b79", "#637939", "#8c6d31", "#843c39", "#7b4173", "#3182bd", "#31a354"];
+  var KIND_STYLE = {
+    raw: {color: "#777", label: "raw fixes"},
+    rejected: {color: "#ff7f0e", label: "rejected fixes (NIS gate)"},
+    resets: {color: "#6a3d9a", label: "filter resets"},
+    gaps: {color: "#000", label: "gaps (no fixes for a while)"},
+    truth: {color: "#000", label: "truth"},
+    ellipses: {color: "#1f77b4", label: "1-σ uncertainty ellipses (selected track)"}
+  };
+  function colour(i) { return PALETTE[i % PALETTE.length]; }
+  function el(tag, attrs, text) {
+    var e = document.createElement(tag);
+    for (var k in (attrs || {})) e.setAttribute(k, attrs[k]);
+    if (text !== undefined) e.textContent = text;
+    return e;
+  }
+  function fmt(v) {
+    if (v === null || v === undefined) return "—";
+    if (typeof v !== "number") return String(v);
+    if (!isFinite(v)) return "—";
+    if (Number.isInteger(v)) return String(v);
+    return Number(v.toPrecision(4)).toString();
+  }
+
+  /* ---- decoding ---- */
+  function cumsum(a) { var out = new Array(a.length), s = 0; for (var i = 0; i < a.length; i++) { s += a[i]; out[i] = s; } return out; }
+  function decode(tr) {
+    if (tr.pts) return tr;
+    var y = cumsum(tr.y || []), x = cumsum(tr.x || []), sc = P.scale;
+    tr.pts = y.map(function (v, i) { return [v / sc, x[i] / sc]; });
+    tr.time = cumsum(tr.t || []).map(function (v) { return v / 10; });
+    function rel(dy, dx) {
+      if (!dy) return null;
+      return dy.map(function (v, i) { return v === null || dx[i] === null ? null : [(y[i] + v) / sc, (x[i] + dx[i]) / sc]; });
+    }
+    tr.meas = rel(tr.my, tr.mx);
+    tr.truth = rel(tr.ty, tr.tx);
+    return tr;
+  }
+
+  /* ---- the map ---- */
+  var mapOpts = {preferCanvas: true, worldCopyJump: false, zoomSnap: 0.25};
+  if (!P.geo) { mapOpts.crs = L.CRS.Simple; mapOpts.minZoom = -12; }
+  var map = L.map("map", mapOpts);
+  var renderer = L.canvas({padding: 0.3, tolerance: 4});
+  if (P.geo && navigator.onLine !== false) {
+    L.tileLayer("https://tile.openstreetmap.org/{z}/{x}/{y}.png", {
+      maxZoom: 19, attribution: "&copy; OpenStreetMap contributors"}).addTo(map);
+  }
+  var kinds = {};  // kind -> shown?
+  Object.keys(KIND_STYLE).forEach(function (k) { kinds[k] = (D.kinds[k] || {}).on === true; });
+  var tracks = P.tracks;
+  var byId = {};
+  var trackLayers = {};  // id -> L.featureGroup (estimate + enabled sublayers)
+  var sub = {};          // id -> {kind: layer}
+  var selected = null;
+
+  function segments(tr) {
+    var segs = [], cur = [], gaps = {};
+    (tr.gap || []).forEach(function (i) { gaps[i] = true; });
+    for (var i = 0; i < tr.pts.length; i++) {
+      if ((gaps[i] || tr.f[i] === "r") && cur.length) { segs.push(cur); cur = []; }
+      cur.push(tr.pts[i]);
+    }
+    if (cur.length) segs.push(cur);
+    return segs;
+  }
+  function dots(points, style) {
+    var g = L.layerGroup();
+    points.forEach(function (p) { g.addLayer(L.circleMarker(p, L.extend({renderer: renderer, interactive: false}, style))); });
+    return g;
+  }
+  function buildKind(tr, kind) {
+    decode(tr);
+    var i, pts = [];
+    if (kind === "raw" && tr.meas) {
+      for (i = 0; i < tr.meas.length; i++) if (tr.meas[i] && tr.f[i] !== "o") pts.push(tr.meas[i]);
+      return dots(pts, {radius: 1.5, color: "#888", weight: 0, fillOpacity: 0.7});
+    }
+    if (kind === "rejected" && tr.meas) {
+      for (i = 0; i < tr.meas.length; i++) if (tr.meas[i] && tr.f[i] === "o") pts.push(tr.meas[i]);
+      return dots(pts, {radius: 4, color: "#ff7f0e", weight: 2, fill: false});
+    }
+    if (kind === "resets") {
+      for (i = 0; i < tr.pts.length; i++) if (tr.f[i] === "r") pts.push(tr.pts[i]);
+      return dots(pts, {radius: 6, color: "#6a3d9a", weight: 2, fill: false});
+    }
+    if (kind === "gaps") {
+      (tr.gap || []).forEach(function (j) { pts.push(tr.pts[j]); });
+      return dots(pts, {radius: 5, color: "#000", weight: 2, fillColor: "#fff", fillOpacity: 1});
+    }
+    if (kind === "truth" && tr.truth) {
+      var segs = [], cur = [];
+      tr.truth.forEach(function (p) { if (p) cur.push(p); else if (cur.length) { segs.push(cur); cur = []; } });
+      if (cur.length) segs.push(cur);
+      return L.polyline(segs, {renderer: renderer, color: "#000", weight: 1.5, dashArray: "5 5", interactive: false});
+    }
+    if (kind === "ellipses" && tr.ell) return ellipses(tr);
+    return null;
+  }
+  function ellipses(tr) {
+    var g = L.layerGroup(), n = tr.pts.length, step = Math.max(1, Math.ceil(n / 400));
+    for (var i = 0; i < n; i += step) {
+      var a = tr.ell[0][i], b = tr.ell[1][i], az = tr.ell[2][i];
+      if (a === null || b === null || az === null) continue;
+      var ring = [], th = az * Math.PI / 180, c = tr.pts[i];
+      for (var k = 0; k <= 24; k++) {
+        var u = 2 * Math.PI * k / 24, p = a * Math.cos(u), q = b * Math.sin(u);
+        var e = p * Math.sin(th) + q * Math.cos(th), nn = p * Math.cos(th) - q * Math.sin(th);
+        ring.push(P.geo ? [c[0] + nn / 111320, c[1] + e / (111320 * Math.cos(c[0] * Math.PI / 180))]
+                        : [c[0] + nn, c[1] + e]);
+      }
+      g.addLayer(L.polygon(ring, {renderer: renderer, color: "#1f77b4", weight: 1, fillOpacity: 0.08, interactive: false}));
+    }
+    return g;
+  }
+  function syncKind(tr, kind) {
+    var s = sub[tr.id], group = trackLayers[tr.id];
+    var want = kinds[kind] && (kind !== "ellipses" || selected === tr.id);
+    if (want && !s[kind]) { s[kind] = buildKind(tr, kind); }
+    if (!s[kind]) return;
+    if (want && !group.hasLayer(s[kind])) group.addLayer(s[kind]);
+    if (!want && group.hasLayer(s[kind])) group.removeLayer(s[kind]);
+  }
+  var bounds = L.latLngBounds([]);
+  tracks.forEach(function (tr, i) {
+    byId[tr.id] = tr;
+    tr.colour = colour(i);
+    sub[tr.id] = {};
+    var group = L.featureGroup();
+    trackLayers[tr.id] = group;
+    if (!tr.drawn) return;
+    decode(tr);
+    var line = L.polyline(segments(tr), {renderer: renderer, color: tr.colour, weight: 3, opacity: 0.9});
+    line.bindTooltip(tr.id, {sticky: true});
+    line.on("click", function () { select(tr.id, false); });
+    group.addLayer(line);
+    sub[tr.id].estimate = line;
+    bounds.extend(line.getBounds());
+  });
+  function showTrack(id, on) {
+    var g = trackLayers[id];
+    if (on && !map.hasLayer(g)) {
+      g.addTo(map);
+      Object.keys(KIND_STYLE).forEach(function (k) { syncKind(byId[id], k); });
+      if (sub[id].estimate) sub[id].estimate.bringToFront();
+    }
+    if (!on && map.hasLayer(g)) map.removeLayer(g);
+  }
+  tracks.forEach(function (tr) { showTrack(tr.id, true); });
+  if (bounds.isValid()) map.fitBounds(bounds, {padding: [20, 20]}); else map.setView([0, 0], 2);
+
+  /* ---- layer switches ---- */
+  var panel = document.getElementById("layers");
+  Object.keys(KIND_STYLE).forEach(function (kind) {
+    var info = D.kinds[kind];
+    if (!info) return;
+    var lab = el("label", {"class": "kind"});
+    var box = el("input", {type: "checkbox", "data-kind": kind});
+    box.checked = kinds[kind];
+    box.addEventListener("change", function () {
+      kinds[kind] = box.checked;
+      tracks.forEach(function (tr) {
+        if (!map.hasLayer(trackLayers[tr.id])) return;
+        syncKind(tr, kind);
+        if (sub[tr.id].estimate) sub[tr.id].estimate.bringToFront();
+      });
+    });
+    lab.appendChild(box);
+    lab.appendChild(el("span", {"class": "swatch " + kind}));
+    lab.appendChild(document.createTextNode(" " + KIND_STYLE[kind].label + " (" + info.count + ")"));
+    panel.appendChild(lab);
+  });
+
+  /* ---- the track list ---- */
+  var list = document.getElementById("track-list");
+  var items = {};
+  tracks.forEach(function (tr) {
+    var li = el("li", {"data-track": tr.id});
+    var box = el("input", {type: "checkbox", title: "show / hide"});
+    box.checked = true;
+    box.addEventListener("change", function () { showTrack(tr.id, box.checked); });
+    var sw = el("span", {"class": "swatch"});
+    sw.style.background = tr.colour;
+    var name = el("a", {href: "#", "class": "track-name"}, tr.id);
+    name.addEventListener("click", function (ev) { ev.preventDefault(); select(tr.id, true); });
+    li.appendChild(box); li.appendChild(sw); li.appendChild(name);
+    li.appendChild(el("span", {"class": "count"}, " " + tr.n + " pts"));
+    list.appendChild(li);
+    items[tr.id] = {li: li, box: box};
+  });
+  document.getElementById("track-filter").addEventListener("input", function (ev) {
+    var q = ev.target.value.toLowerCase();
+    tracks.forEach(function (tr) { items[tr.id].li.style.display = tr.id.toLowerCase().indexOf(q) >= 0 ? "" : "none"; });
+  });
+  function setAll(on) {
+    tracks.forEach(function (tr) {
+      if (items[tr.id].li.style.display === "none") return;
+      items[tr.id].box.checked = on; showTrack(tr.id, on);
+    });
+  }
+  document.getElementById("show-all").addEventListener("click", function () { setAll(true); });
+  document.getElementById("hide-all").addEventListener("click", function () { setAll(false); });
+
+  /* ---- time plots of the selected track ---- */
+  var SVGNS = "http://www.w3.org/2000/svg";
+  function svg(tag, attrs) { var e = document.createElementNS(SVGNS, tag); for (var k in attrs) e.setAttribute(k, attrs[k]); return e; }
+  function ticks(lo, hi, log) {
+    var out = [];
+    if (log) {
+      for (var p = Math.floor(Math.log10(lo)); p <= Math.ceil(Math.log10(hi)); p++) {
+        var v = Math.pow(10, p);
+        [1, 2, 5].forEach(function (m) {
+          if (m * v >= lo * 0.999 && m * v <= hi * 1.001) out.push(m * v);
+        });
+      }
+      var decades = out.filter(function (v) { return Math.abs(Math.log10(v) - Math.round(Math.log10(v))) < 1e-9; });
+      return decades.length >= 2 ? decades : out.length >= 2 ? out : ticks(lo, hi, false);
+    }
+    var span = hi - lo || 1, step = Math.pow(10, Math.floor(Math.log10(span / 4)));
+    if (span / step > 10) step *= 2;
+    if (span / step > 10) step *= 2.5;
+    for (var t = Math.ceil(lo / step) * step; t <= hi + 1e-9 * span; t += step) out.push(t);
+    return out;
+  }
+  function plot(spec) {
+    var W = 560, H = 190, L0 = 58, R0 = 10, T0 = 22, B0 = 34;
+    var s = svg("svg", {viewBox: "0 0 " + W + " " + H, "class": "plot", role: "img", "aria-label": spec.title});
+    var xs = spec.x, ys = spec.y, xmin = Infinity, xmax = -Infinity, ymin = Infinity, ymax = -Infinity, i;
+    for (i = 0; i < xs.length; i++) {
+      var v = ys[i];
+      if (v === null || !isFinite(v) || (spec.log && v <= 0)) continue;
+      xmin = Math.min(xmin, xs[i]); xmax = Math.max(xmax, xs[i]); ymin = Math.min(ymin, v); ymax = Math.max(ymax, v);
+    }
+    if (spec.band) { ymin = Math.min(ymin, spec.band[0]); ymax = Math.max(ymax, spec.band[1]); }
+    if (spec.floor !== undefined) ymin = Math.max(ymin, spec.floor);
+    if (!isFinite(xmin)) { s.appendChild(svg("text", {x: W / 2, y: H / 2, "text-anchor": "middle"})).textContent = "no values"; return s; }
+    if (!spec.log) { ymin = Math.min(0, ymin); }
+    if (ymax <= ymin) ymax = ymin + (spec.log ? ymin : 1);
+    if (xmax <= xmin) xmax = xmin + 1;
+    var ly = spec.log ? Math.log10 : function (v) { return v; };
+    var a = ly(ymin), b = ly(ymax);
+    function X(v) { return L0 + (v - xmin) / (xmax - xmin) * (W - L0 - R0); }
+    function Y(v) { return H - B0 - (ly(Math.min(Math.max(v, ymin), ymax)) - a) / (b - a) * (H - T0 - B0); }
+    s.appendChild(svg("rect", {x: L0, y: T0, width: W - L0 - R0, height: H - T0 - B0, fill: "#fff", stroke: "#bbb"}));
+    if (spec.band) {
+      s.appendChild(svg("rect", {x: L0, y: Y(spec.band[1]), width: W - L0 - R0, height: Y(spec.band[0]) - Y(spec.band[1]),
+                                 fill: "#2ca02c", "fill-opacity": 0.12, "class": "band"}));
+    }
+    ticks(ymin, ymax, spec.log).forEach(function (t) {
+      s.appendChild(svg("line", {x1: L0 - 3, x2: L0, y1: Y(t), y2: Y(t), stroke: "#444"}));
+      s.appendChild(svg("text", {x: L0 - 5, y: Y(t) + 4, "text-anchor": "end", "class": "tick"})).textContent = fmt(t);
+    });
+    ticks(xmin, xmax, false).forEach(function (t) {
+      s.appendChild(svg("line", {x1: X(t), x2: X(t), y1: H - B0, y2: H - B0 + 3, stroke: "#444"}));
+      s.appendChild(svg("text", {x: X(t), y: H - B0 + 15, "text-anchor": "middle", "class": "tick"})).textContent = fmt(t);
+    });
+    s.appendChild(svg("text", {x: (L0 + W - R0) / 2, y: H - 4, "text-anchor": "middle", "class": "axis"})).textContent = "time since the track's first point (s)";
+    s.appendChild(svg("text", {x: L0, y: 14, "class": "title"})).textContent = spec.title;
+    if (spec.dots) {
+      for (i = 0; i < xs.length; i++) {
+        if (ys[i] === null || (spec.log && ys[i] <= 0)) continue;
+        var bad = spec.mark && spec.mark[i];
+        s.appendChild(svg("circle", {cx: X(xs[i]), cy: Y(ys[i]), r: bad ? 3 : 1.8, fill: bad ? "none" : spec.colour,
+                                     stroke: bad ? "#ff7f0e" : "none", "stroke-width": 1.5}));
+      }
+    } else {
+      var d = "", pen = false;
+      for (i = 0; i < xs.length; i++) {
+        if (ys[i] === null || !isFinite(ys[i]) || (spec.log && ys[i] <= 0)) { pen = false; continue; }
+        d += (pen ? "L" : "M") + X(xs[i]).toFixed(1) + " " + Y(ys[i]).toFixed(1);
+        pen = true;
+      }
+      s.appendChild(svg("path", {d: d, fill: "none", stroke: spec.colour, "stroke-width": 1.4}));
+    }
+    return s;
+  }
+  function select(id, zoom) {
+    var tr = byId[id];
+    if (!tr) return;
+    var prev = selected;
+    selected = id;
+    if (prev && byId[prev]) syncKind(byId[prev], "ellipses");
+    if (!map.hasLayer(trackLayers[id])) { items[id].box.checked = true; showTrack(id, true); }
+    syncKind(tr, "ellipses");
+    if (sub[id].estimate) sub[id].estimate.bringToFront();
+    Object.keys(items).forEach(function (k) { items[k].li.classList.toggle("selected", k === id); });
+    if (zoom && sub[id].estimate) map.fitBounds(sub[id].estimate.getBounds(), {padding: [30, 30], maxZoom: 17});
+    var box = document.getElementById("plots");
+    box.textContent = "";
+    if (!tr.drawn) { box.appendChild(el("p", {}, "Track " + id + " has no position to draw.")); return; }
+    decode(tr);
+    var shown = [];
+    if (tr.sp) { box.appendChild(plot({title: "speed (m/s)", x: tr.time, y: tr.sp, colour: tr.colour})); shown.push("speed"); }
+    box.appendChild(plot({title: "1-σ position uncertainty (m)", x: tr.time, y: tr.sd, colour: tr.colour, log: true}));
+    shown.push("1-σ position uncertainty sqrt(var_east + var_north)");
+    if (tr.nis) {
+      var band = tr.dof ? P.bands[String(tr.dof)] : null;
+      var rejected = tr.nis.map(function (v, i) { return tr.f[i] === "o"; });
+      box.appendChild(plot({title: "NIS" + (band ? " with its 95 % χ² band (" + tr.dof + " dof)" : ""), x: tr.time, y: tr.nis,
+                            colour: tr.colour, log: true, dots: true, band: band, mark: rejected,
+                            floor: band ? band[0] / 100 : undefined}));
+      shown.push("NIS of every fix" + (band ? " against the 95 % χ² band of " + tr.dof + " degrees of freedom (green)" : "")
+                 + (rejected.some(Boolean) ? ", fixes rejected by the gate as orange rings" : "")
+                 + (band ? "; values below " + fmt(band[0] / 100) + " are drawn on the axis" : ""));
+    }
+    if (tr.err) { box.appendChild(plot({title: "error against truth (m)", x: tr.time, y: tr.err, colour: "#d62728", log: true})); shown.push("error against truth"); }
+    var cap = "Track " + id + ": " + shown.join("; ") + ". " + tr.drawn + " of " + tr.n + " points drawn"
+              + (tr.drawn < tr.n ? " (every k-th point, all rejected fixes, resets and gaps)" : "") + ".";
+    document.getElementById("plots-caption").textContent = cap;
+    document.getElementById("plots-track").textContent = id;
+  }
+
+  /* ---- the summary table (every track; sortable, paginated) ---- */
+  var S = D.summary, PAGE = 50, page = 0, sortCol = -1, sortDir = 1, filter = "";
+  var rows = S.rows.slice();
+  var tbl = document.getElementById("summary");
+  function renderTable() {
+    var shown = rows.filter(function (r) { return !filter || String(r[0]).toLowerCase().indexOf(filter) >= 0; });
+    var pages = Math.max(1, Math.ceil(shown.length / PAGE));
+    page = Math.min(page, pages - 1);
+    tbl.textContent = "";
+    var thead = el("thead"), tr = el("tr");
+    S.columns.forEach(function (c, j) {
+      var th = el("th", {"data-col": j, title: "sort by " + c}, c + (j === sortCol ? (sortDir > 0 ? " ▲" : " ▼") : ""));
+      th.addEventListener("click", function () {
+        if (sortCol === j) sortDir = -sortDir; else { sortCol = j; sortDir = 1; }
+        rows.sort(function (a, b) {
+          var x = a[j], y = b[j];
+          if (x === y) return 0;
+          if (x === null || x === undefined) return 1;
+          if (y === null || y === undefined) return -1;
+          return (x < y ? -1 : 1) * sortDir;
+        });
+        page = 0; renderTable();
+      });
+      tr.appendChild(th);
+    });
+    thead.appendChild(tr); tbl.appendChild(thead);
+    var tbody = el("tbody");
+    function addRow(r, cls) {
+      var row = el("tr", cls ? {"class": cls} : {});
+      r.forEach(function (v, j) {
+        var td = el("td", {}, j === 0 ? "" : fmt(v));
+        if (j === 0) {
+          if (cls) td.textContent = v;
+          else { var a = el("a", {href: "#map-section"}, v); a.addEventListener("click", function () { select(v, true); }); td.appendChild(a); }
+        }
+        row.appendChild(td);
+      });
+      tbody.appendChild(row);
+    }
+    if (S.overall) addRow(S.overall, "overall");
+    shown.slice(page * PAGE, (page + 1) * PAGE).forEach(function (r) { addRow(r); });
+    tbl.appendChild(tbody);
+    document.getElementById("page-info").textContent = "page " + (page + 1) + " of " + pages + " (" + shown.length
+      + " of " + rows.length + " tracks)";
+    document.getElementById("prev-page").disabled = page === 0;
+    document.getElementById("next-page").disabled = page >= pages - 1;
+  }
+  document.getElementById("prev-page").addEventListener("click", function () { page--; renderTable(); });
+  document.getElementById("next-page").addEventListener("click", function () { page++; renderTable(); });
+  document.getElementById("table-filter").addEventListener("input", function (ev) { filter = ev.target.value.toLowerCase(); page = 0; renderTable(); });
+  renderTable();
+
+  if (tracks.length) select(tracks[0].id, false);
+  /* what a test (or a curious reader) can check after loading: tracks listed and layers on the map */
+  window.mptrackReport = {map: map, trackLayers: trackLayers, select: select};
+  var onMap = 0;
+  Object.keys(trackLayers).forEach(function (k) { if (map.hasLayer(trackLayers[k])) onMap++; });
+  document.body.setAttribute("data-track-layers", String(onMap));
+  document.body.setAttribute("data-ready", "1");
+})();
