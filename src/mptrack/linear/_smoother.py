@@ -23,7 +23,7 @@ from ._kernels import ss_loop
 from ._result import FilterResult
 from ._steady import _steady
 
-__all__ = ["rts_smoother", "steady_state_smoother"]
+__all__ = ["rts_smoother", "steady_state_smoother", "rts_backward"]
 
 
 def _check(model, result) -> None:
@@ -67,6 +67,19 @@ def _rts_backward(result: FilterResult, F: np.ndarray, Q: np.ndarray) -> FilterR
     c = np.ascontiguousarray
     _rts_loop(c(x_filt), c(P_filt), c(x_pred), c(P_pred), c(C), xs, Ps)
     return FilterResult(x=xs, P=Ps, method="RTS")
+
+
+def rts_backward(x_filt, P_filt, x_pred, P_pred, cross):
+    """The RTS backward pass from filtered x(k/k), P(k/k) (K, n), (K, n, n), the predictions
+    x(k+1/k), P(k+1/k) and the cross-covariances cross[k] = Cov(x(k), x(k+1) | k) (K-1 each):
+    C(k) = cross[k] P(k+1/k)^-1 (P(k/k) F^T for a linear model).  Returns (x(k/K), P(k/K))."""
+    c = np.ascontiguousarray
+    P_pred = np.asarray(P_pred, dtype=float)
+    P_pred = 0.5 * (P_pred + np.swapaxes(P_pred, -1, -2))
+    C = _smoother_gains(np.asarray(cross, dtype=float), P_pred)
+    xs, Ps = np.empty_like(x_filt, dtype=float), np.empty_like(P_filt, dtype=float)
+    _rts_loop(c(x_filt, dtype=float), c(P_filt, dtype=float), c(x_pred, dtype=float), c(P_pred), c(C), xs, Ps)
+    return xs, Ps
 
 
 @njit(cache=True)

@@ -25,6 +25,7 @@ from ._fekf import (
     fuse_local_solutions,
     local_solutions,
 )
+from ._extended import ekf_filter, ekf_smoother, ekf_step
 from ._fem import FEMGrid, FEMStep, GridDensity, fem_filter, fem_steps, shape_functions
 from ._model import (
     ZHAO2013_X0,
@@ -36,7 +37,7 @@ from ._model import (
 )
 from ._pf import particle_filter, pf_substeps, systematic_resample
 from ._reference import pf_substep_study, reference_filter
-from ._ukf import sigma_points, ukf_filter
+from ._ukf import sigma_points, ukf_filter, ukf_smoother
 
 __all__ = [
     # cellular (seed 003)
@@ -69,6 +70,10 @@ __all__ = [
     "fem_steps",
     "shape_functions",
     "ukf_filter",
+    "ukf_smoother",
+    "ekf_filter",
+    "ekf_smoother",
+    "ekf_step",
     "sigma_points",
     "particle_filter",
     "pf_substeps",
