@@ -97,20 +97,43 @@ def _rts_loop(x_filt, P_filt, x_pred, P_pred, C, xs, Ps):  # pragma: no cover - 
         Ps[k] = 0.5 * (P + P.T)
 
 
-def rts_smoother(model: LinearGaussianModel, result: FilterResult) -> FilterResult:
+def rts_smoother(model: LinearGaussianModel, result: FilterResult, *, F=None, Q=None, B=None,
+                 u=None) -> FilterResult:
     """Fixed-interval RTS smoother on a filter result (x(k/k), P(k/k), k = 1..T).
 
     model   the LinearGaussianModel the filter ran with (F, Q)
     result  a FilterResult with filtered means and covariances, e.g. from
             :func:`kalman_filter` (any filter returning the exact P(k/k) works;
             the steady-state filters' constant Pe gives the steady-state smoother)
+    F, Q, B, u  the time-varying matrices / control input the filter ran with
+            (:func:`kalman_filter`'s convention: row k predicts into measurement k)
 
-    Returns a FilterResult with the smoothed x(k/T), P(k/T) (method "RTS").
+    Returns a FilterResult with the smoothed x(k/T), P(k/T) (method "RTS") and, when
+    the result carries its prior at time 0 (``result.x0``, as :func:`kalman_filter`
+    with prior="initial" records it), the smoothed x(0/T), P(0/T) as x0, P0.
     P(k/T) <= P(k/k) in the positive semi-definite order.  For irregular time
     stamps use :func:`rts_smoother_irregular`.
     """
     _check(model, result)
-    return _rts_backward(result, model.F, model.Q)
+    has0 = result.x0 is not None and result.P0 is not None
+    if all(v is None for v in (F, Q, B, u)) and not has0:
+        return _rts_backward(result, model.F, model.Q)
+    from ._kalman import step_matrices
+    mats = step_matrices(model, result.T, F=F, Q=Q, B=B, u=u)
+    xf = np.asarray(result.x, dtype=float)
+    Pf = np.asarray(result.P, dtype=float)
+    Fs, Qs = mats["F"], mats["Q"]
+    if has0:
+        xf, Pf = np.concatenate([np.asarray(result.x0)[None], xf]), np.concatenate([np.asarray(result.P0)[None], Pf])
+    else:
+        Fs, Qs = Fs[1:], Qs[1:]
+    Bu = 0.0 if mats["Bu"] is None else (mats["Bu"] if has0 else mats["Bu"][1:])
+    cross = Pf[:-1] @ np.swapaxes(Fs, 1, 2)
+    x_pred = np.einsum("tij,tj->ti", Fs, xf[:-1]) + Bu
+    xs, Ps = rts_backward(xf, Pf, x_pred, Fs @ cross + Qs, cross)
+    if has0:
+        return FilterResult(x=xs[1:], P=Ps[1:], method="RTS", x0=xs[0], P0=Ps[0])
+    return FilterResult(x=xs, P=Ps, method="RTS")
 
 
 def steady_state_smoother(model: LinearGaussianModel, result: FilterResult, *,
