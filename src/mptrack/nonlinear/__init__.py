@@ -12,6 +12,7 @@ from ._ekf import (
     ekf_ranges,
     ekf_ranges_batch,
     motion_matrix,
+    motion_position,
     range_fix,
     range_measurement,
 )
@@ -46,6 +47,7 @@ __all__ = [
     "ekf_ranges",
     "ekf_ranges_batch",
     "motion_matrix",
+    "motion_position",
     "range_measurement",
     "range_fix",
     "bouzera_fekf_fis",

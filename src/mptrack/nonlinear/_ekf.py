@@ -1,13 +1,15 @@
 """Extended Kalman filter on ranges to base stations (Bouzera et al. 2017, eqs. 1–10).
 
-    X(k+1) = F X(k) + w(k),   w ~ N(0, Q)         motion: "random-walk" (F = I, the paper's eq. 1)
-                                                  or "cv" (constant velocity, X = [position, velocity])
+    X(k+1) = F X(k) + w(k),   w ~ N(0, Q)         motion: "random-walk" (F = I, the paper's eq. 1, X = p)
+                                                  or "cv" (constant velocity, X = [x, vx, y, vy(, z, vz)],
+                                                  the state order of every model in mptrack)
     d_i(k) = ||p(k) - B_i|| + v_i(k),  v ~ N(0, R)  p = position part of X, B_i = station i
 
-Units are the caller's (the paper works in km).  Every filter here runs a
-batch of B independent tracks at once (leading axis), which is how the
-Monte-Carlo reproduction stays fast; the single-track functions call the
-batch core with B = 1 and return the shared :class:`mptrack.linear.FilterResult`.
+Units are the caller's (the paper works in km).  :func:`ekf_ranges` is
+:func:`mptrack.nonlinear.ekf_filter` on the model built from the motion and
+:func:`mptrack.models.ranges`; the batch functions run B independent tracks at
+once (leading axis) in one vectorised core, which is how the Monte-Carlo
+reproduction stays fast (the tests check both agree to 1e-12).
 """
 
 from __future__ import annotations
@@ -20,6 +22,8 @@ from scipy.optimize import least_squares
 from .._validation import as_array, check_covariance, check_positive
 from ..errors import ParameterError, ShapeError, SingularMatrixError
 from ..linear import FilterResult
+from ..models import NonlinearModel, ranges
+from ._extended import ekf_filter
 
 __all__ = [
     "BatchFilterResult",
@@ -29,6 +33,7 @@ __all__ = [
     "motion_matrix",
     "check_stations",
     "range_fix",
+    "motion_position",
 ]
 
 _LOG2PI = np.log(2.0 * np.pi)
@@ -54,34 +59,42 @@ class BatchFilterResult:
                             method=self.method)
 
 
-def range_measurement(x, stations):
+def range_measurement(x, stations, position=None):
     """Ranges from the position part of states ``x`` to ``stations`` and their Jacobian (eqs. 7–10).
 
-    x         (..., n) states whose first d entries are the position
+    x         (..., n) states; the position is x[..., position] (default: the first d entries)
     stations  (m, d) station positions, d = 2 or 3
-    Returns (ranges (..., m), H (..., m, n)) with H[..., i, :d] = (p - B_i)/||p - B_i||
+    Returns (ranges (..., m), H (..., m, n)) with H[..., i, position] = (p - B_i)/||p - B_i||
     and zeros for non-position states.  At a station (range 0) the gradient is
     undefined; the range is floored at 1e-12 there so H stays finite.
     """
     x = np.asarray(x, dtype=float)
     d = stations.shape[1]
-    diff = x[..., None, :d] - stations  # (..., m, d)
+    pos = list(range(d)) if position is None else list(position)
+    diff = x[..., None, pos] - stations  # (..., m, d)
     rng = np.sqrt(np.einsum("...md,...md->...m", diff, diff))
     H = np.zeros(x.shape[:-1] + (stations.shape[0], x.shape[-1]))
-    H[..., :d] = diff / np.maximum(rng, _TINY_RANGE)[..., None]
+    H[..., pos] = diff / np.maximum(rng, _TINY_RANGE)[..., None]
     return rng, H
 
 
+def motion_position(motion: str, dim: int) -> tuple:
+    """Indices of the position in the state of ``motion``: (0, .., d-1) for the random walk,
+    (0, 2, 4)[:d] for constant velocity ([x, vx, y, vy, z, vz])."""
+    if motion not in MOTIONS:
+        raise ParameterError(f"motion: expected one of {MOTIONS}, got {motion!r}")
+    return tuple(range(dim)) if motion == "random-walk" else tuple(range(0, 2 * dim, 2))
+
+
 def motion_matrix(motion: str, dim: int, dt: float = 1.0) -> np.ndarray:
-    """Transition matrix F: identity (random walk, eq. 2) or constant velocity [[I, dt I], [0, I]]."""
+    """Transition matrix F: identity (random walk, eq. 2) or constant velocity, axis by axis
+    (state [x, vx, y, vy(, z, vz)]: F = block-diag([[1, dt], [0, 1]]) per axis)."""
     if motion not in MOTIONS:
         raise ParameterError(f"motion: expected one of {MOTIONS}, got {motion!r}")
     if motion == "random-walk":
         return np.eye(dim)
     dt = check_positive("dt", dt)
-    F = np.eye(2 * dim)
-    F[:dim, dim:] = dt * np.eye(dim)
-    return F
+    return np.kron(np.eye(dim), np.array([[1.0, dt], [0.0, 1.0]]))
 
 
 def check_stations(stations, *, min_count: int = 1) -> np.ndarray:
@@ -119,10 +132,10 @@ def _prepare(z, stations, x0, P0, Q, R, motion, dt, *, batch: bool):
     Q = check_covariance("Q", Q, n)
     R = np.asarray(R, dtype=float)
     R = check_covariance("R", R * np.eye(m) if R.ndim == 0 else R, m, definite=True)
-    return z, stations, x0, P0, F, Q, R
+    return z, stations, x0, P0, F, Q, R, motion_position(motion, d)
 
 
-def _ekf_core(z, stations, x0, P0, F, Q, R):
+def _ekf_core(z, stations, x0, P0, F, Q, R, pos):
     """Batched EKF: z (B, T, m) with NaN = missing range; returns (x, P, x_pred, P_pred, loglik)."""
     B, T, m = z.shape
     n = F.shape[0]
@@ -138,7 +151,7 @@ def _ekf_core(z, stations, x0, P0, F, Q, R):
         xp[:, k], Pp[:, k] = x, P
         dk = z[:, k]
         ok = ~np.isnan(dk)                            # (B, m)
-        h, H = range_measurement(x, stations)         # eqs. 7-10
+        h, H = range_measurement(x, stations, pos)    # eqs. 7-10
         H = H * ok[..., None]                         # missing ranges: zero rows ...
         Rk = np.where(ok[:, :, None] & ok[:, None, :], R, 0.0) + np.eye(m) * (~ok)[:, None, :]  # ... unit noise
         innov = np.where(ok, dk - h, 0.0)             # eq. 11
@@ -162,7 +175,8 @@ def ekf_ranges(z, stations, x0, P0, Q, R, *, motion: str = "random-walk", dt: fl
 
     z         (T, m) measured ranges d_i(k), k = 1..T; NaN = range missing (skipped; an all-NaN row predicts)
     stations  (m, d) base-station positions (d = 2 or 3), distinct
-    x0, P0    prior X(0/0) (n,) and P(0/0) (n, n); n = d (random walk) or 2d (cv)
+    x0, P0    prior X(0/0) (n,) and P(0/0) (n, n); n = d (random walk, X = p) or 2d
+              (cv, X = [x, vx, y, vy(, z, vz)])
     Q         (n, n) process-noise covariance (paper: Q0 = diag(0.02, 0.02, 0.002) km^2)
     R         range-noise variance (scalar, paper R0 = 0.222 km^2) or (m, m) covariance
     motion    "random-walk" (the paper's X(k+1) = X(k) + w) or "cv" (constant velocity, step dt)
@@ -171,7 +185,12 @@ def ekf_ranges(z, stations, x0, P0, Q, R, *, motion: str = "random-walk", dt: fl
     not observable from one scan and the prior and motion model carry the
     unobserved directions (the covariance shows it).
     """
-    return _ekf(z, stations, x0, P0, Q, R, motion, dt, batch=False).run(0)
+    z, stations, x0, P0, F, Q, R, pos = _prepare(z, stations, x0, P0, Q, R, motion, dt, batch=False)
+    meas = ranges(stations, R, position=pos)
+    Ft = F.T.copy()
+    model = NonlinearModel(lambda X: X @ Ft, meas.h, Q, meas.R, jac_f=lambda x: F, jac_h=meas.jac_h,
+                           name=f"ranges EKF ({motion})")
+    return ekf_filter(model, z[0], x0[0], P0)
 
 
 def ekf_ranges_batch(z, stations, x0, P0, Q, R, *, motion: str = "random-walk",
