@@ -27,6 +27,7 @@ from ._fekf import (
     local_solutions,
 )
 from ._extended import ekf_filter, ekf_smoother, ekf_step
+from ._imm import IMMResult, cv_ca_models, imm_filter
 from ._fem import FEMGrid, FEMStep, GridDensity, fem_filter, fem_steps, shape_functions
 from ._model import (
     ZHAO2013_X0,
@@ -76,6 +77,9 @@ __all__ = [
     "ekf_filter",
     "ekf_smoother",
     "ekf_step",
+    "imm_filter",
+    "IMMResult",
+    "cv_ca_models",
     "sigma_points",
     "particle_filter",
     "pf_substeps",
