@@ -69,16 +69,28 @@ def test_mode_probabilities_follow_the_manoeuvre():
     np.testing.assert_allclose(imm.mu.sum(axis=1), 1.0, rtol=0, atol=1e-12)
 
 
-def test_imm_beats_the_single_model_ekf_over_the_manoeuvre():
-    """Monte Carlo (20 runs): position RMSE over the manoeuvre and 10 s after it."""
+def test_imm_beats_the_single_model_ekfs_over_the_manoeuvre():
+    """Monte Carlo (20 runs), position RMSE.  Against the IMM's own CV mode as a single EKF (q = 0.01:
+    89 m over the manoeuvre), a CV EKF tuned for it (q = 1: 11.1 m) and the CA EKF (q = 1: 6.6 m; 7.1 m
+    over the whole track): the IMM gives 6.1 m over the manoeuvre and 5.6 m over the whole track."""
     win = slice(MAN[0], MAN[1] + 10)
-    e_imm, e_ekf = [], []
+    err = {name: [] for name in ("imm", "cv", "cv-tuned", "ca")}
+    whole = {name: [] for name in err}
     for seed in range(20):
-        truth, imm, ekf = _run(100 + seed)
-        for est, acc in ((imm, e_imm), (ekf, e_ekf)):
-            acc.append(np.mean(np.sum((est.x[win][:, [0, 3]] - truth[win][:, [0, 3]]) ** 2, axis=1)))
-    rmse_imm, rmse_ekf = np.sqrt(np.mean(e_imm)), np.sqrt(np.mean(e_ekf))
-    assert rmse_imm < 0.5 * rmse_ekf, (rmse_imm, rmse_ekf)
+        truth, imm, cv = _run(100 + seed)
+        _, z, meas = _trajectory(np.random.default_rng(100 + seed))
+        tuned, _ = cv_ca_models(DT, 1.0, 1.0, meas)
+        x0, P0 = imm.x0, imm.P0
+        runs = {"imm": imm, "cv": cv, "cv-tuned": ekf_filter(tuned[0], z, x0, P0), "ca": ekf_filter(tuned[1], z, x0, P0)}
+        for name, est in runs.items():
+            d2 = np.sum((est.x[:, [0, 3]] - truth[:, [0, 3]]) ** 2, axis=1)
+            err[name].append(d2[win].mean())
+            whole[name].append(d2.mean())
+    rmse = {name: float(np.sqrt(np.mean(v))) for name, v in err.items()}
+    rmse_whole = {name: float(np.sqrt(np.mean(v))) for name, v in whole.items()}
+    assert rmse["imm"] < 0.1 * rmse["cv"] and rmse["imm"] < 0.7 * rmse["cv-tuned"], rmse
+    assert rmse["imm"] < rmse["ca"], rmse
+    assert rmse_whole["imm"] < 0.9 * min(rmse_whole["ca"], rmse_whole["cv-tuned"]), rmse_whole
 
 
 def test_bad_inputs():
