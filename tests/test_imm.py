@@ -81,7 +81,8 @@ def test_imm_beats_the_single_model_ekfs_over_the_manoeuvre():
         _, z, meas = _trajectory(np.random.default_rng(100 + seed))
         tuned, _ = cv_ca_models(DT, 1.0, 1.0, meas)
         x0, P0 = imm.x0, imm.P0
-        runs = {"imm": imm, "cv": cv, "cv-tuned": ekf_filter(tuned[0], z, x0, P0), "ca": ekf_filter(tuned[1], z, x0, P0)}
+        runs = {"imm": imm, "cv": cv, "cv-tuned": ekf_filter(tuned[0], z, x0, P0),
+                "ca": ekf_filter(tuned[1], z, x0, P0)}
         for name, est in runs.items():
             d2 = np.sum((est.x[:, [0, 3]] - truth[:, [0, 3]]) ** 2, axis=1)
             err[name].append(d2[win].mean())

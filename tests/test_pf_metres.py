@@ -18,9 +18,9 @@ from stonesoup.models.transition.linear import (  # noqa: E402
 from stonesoup.predictor.particle import ParticlePredictor  # noqa: E402
 from stonesoup.resampler.particle import SystematicResampler  # noqa: E402
 from stonesoup.types.detection import Detection  # noqa: E402
-from stonesoup.updater.particle import ParticleUpdater  # noqa: E402
 from stonesoup.types.hypothesis import SingleHypothesis  # noqa: E402
 from stonesoup.types.state import ParticleState, StateVectors  # noqa: E402
+from stonesoup.updater.particle import ParticleUpdater  # noqa: E402
 
 Q_CV, STEPS, PARTICLES = 0.05, 40, 1000           # m^2/s^3, 1 s steps
 R = np.diag([np.radians(0.5) ** 2, 1.0])          # bearing (rad^2), range (m^2)

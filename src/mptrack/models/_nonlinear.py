@@ -182,8 +182,8 @@ class NonlinearModel:
         ok = ~np.isnan(z)
         nu = self.innovation(z, self.h(X))[..., ok]
         if callable(self.R):
-            return np.array([_gauss_logpdf(v, self.R_at(x, k)[np.ix_(ok, ok)]) for v, x in zip(nu, X)])
-        return _gauss_logpdf(nu, self.R[np.ix_(ok, ok)])
+            return np.array([gauss_logpdf(v, self.R_at(x, k)[np.ix_(ok, ok)]) for v, x in zip(nu, X)])
+        return gauss_logpdf(nu, self.R[np.ix_(ok, ok)])
 
     def sample_transition(self, X: np.ndarray, rng: np.random.Generator, k: int = 0) -> np.ndarray:
         """Draw x(k) given x(k-1) = X (N, n)."""
@@ -202,7 +202,8 @@ def _factor(Q: np.ndarray) -> np.ndarray:
     return V * np.sqrt(np.clip(w, 0.0, None))
 
 
-def _gauss_logpdf(nu: np.ndarray, R: np.ndarray):
+def gauss_logpdf(nu: np.ndarray, R: np.ndarray):
+    """log N(nu; 0, R) for innovations nu (..., m)."""
     L = np.linalg.cholesky(R)
     w = nu @ np.linalg.inv(L).T
     return -0.5 * (np.sum(w * w, axis=-1) + 2.0 * np.log(np.diag(L)).sum() + R.shape[0] * _LOG2PI)

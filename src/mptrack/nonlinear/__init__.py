@@ -16,6 +16,7 @@ from ._ekf import (
     range_fix,
     range_measurement,
 )
+from ._extended import ekf_filter, ekf_smoother, ekf_step
 from ._fekf import (
     bouzera_fcs_fis,
     bouzera_fekf_fis,
@@ -26,13 +27,12 @@ from ._fekf import (
     fuse_local_solutions,
     local_solutions,
 )
-from ._extended import ekf_filter, ekf_smoother, ekf_step
-from ._imm import IMMResult, cv_ca_models, imm_filter
 from ._fem import FEMGrid, FEMStep, GridDensity, fem_filter, fem_steps, shape_functions
+from ._imm import IMMResult, cv_ca_models, imm_filter
 from ._model import (
     ZHAO2013_X0,
-    ContinuousDiscreteModel,
     BlockKernels,
+    ContinuousDiscreteModel,
     linear_sde_model,
     simulate_sde,
     zhao2013_model,

@@ -22,8 +22,9 @@ import numpy as np
 
 from .._validation import as_matrix, as_vector, check_covariance, check_int, check_positive
 from ..errors import ParameterError, ShapeError
-from ..models import LinearGaussianModel, van_loan
+from ..models import LinearGaussianModel, van_loan, wrap_angles
 from ..models._linear import _frozen
+from ..models._nonlinear import gauss_logpdf
 from . import _kernels as kern
 from ._kernels import SCHEMES, BlockKernels
 
@@ -36,7 +37,6 @@ __all__ = [
     "BlockKernels",
 ]
 
-_LOG2PI = np.log(2.0 * np.pi)
 
 #: Seed 004 section 6: initial state [-0.6, -1].
 ZHAO2013_X0 = (-0.6, -1.0)
@@ -138,21 +138,12 @@ class ContinuousDiscreteModel:
 
     def innovation(self, z, zhat) -> np.ndarray:
         """z - h, with angle components wrapped into [-period/2, period/2)."""
-        nu = np.asarray(z, dtype=float) - np.asarray(zhat, dtype=float)
-        for i, period in enumerate(self.periods):
-            if period is not None:
-                nu[..., i] = (nu[..., i] + 0.5 * period) % period - 0.5 * period
-        return nu
+        return wrap_angles(np.asarray(z, dtype=float) - np.asarray(zhat, dtype=float), self.periods)
 
     def log_likelihood(self, z: np.ndarray, X: np.ndarray) -> np.ndarray:
         """log p(z | x) at points X (..., n) (seed 004 eq. 25); NaN components of z are skipped."""
         ok = ~np.isnan(z)
-        nu = self.innovation(z, self.measurement(X))[..., ok]
-        R = self.R[np.ix_(ok, ok)]
-        L = np.linalg.cholesky(R)
-        w = nu @ np.linalg.inv(L).T
-        logdet = 2.0 * np.log(np.diag(L)).sum()
-        return -0.5 * (np.sum(w * w, axis=-1) + logdet + ok.sum() * _LOG2PI)
+        return gauss_logpdf(self.innovation(z, self.measurement(X))[..., ok], self.R[np.ix_(ok, ok)])
 
     def flow(self, X: np.ndarray, duration: float | None = None, steps: int | None = None) -> np.ndarray:
         """The noise-free flow of dx = f(x) dt over ``duration`` (default dt), Heun sub-steps.
@@ -310,7 +301,4 @@ def simulate_sde(model: ContinuousDiscreteModel, steps: int, rng: np.random.Gene
         truth[k] = x
     Lr = np.linalg.cholesky(model.R)
     z = model.measurement(truth) + rng.standard_normal((steps, model.m)) @ Lr.T
-    for i, period in enumerate(model.periods):
-        if period is not None:
-            z[:, i] = (z[:, i] + 0.5 * period) % period - 0.5 * period
-    return truth, z
+    return truth, wrap_angles(z, model.periods)

@@ -7,8 +7,8 @@ import numpy as np
 from .._validation import check_int, check_positive
 from ..errors import ParameterError, ShapeError
 from ..linear import FilterResult
-from . import _kernels as kern
 from ..models import NonlinearModel
+from . import _kernels as kern
 from ._common import check_prior, check_rng, prepare_nonlinear
 from ._kernels import SCHEMES
 from ._model import ContinuousDiscreteModel
