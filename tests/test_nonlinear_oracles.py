@@ -233,3 +233,21 @@ def test_bad_inputs_name_the_argument():
         ukf_filter(model, z, X0, P0, substeps=3)
     with pytest.raises(ParameterError, match="n:"):
         NonlinearModel(model.f, model.h, lambda x, k: np.eye(4), R_BR)
+
+
+def test_batch_ekf_equals_ekf_filter_per_track():
+    from mptrack.nonlinear import ekf_filter_batch
+    model, _, z = _data(8)
+    rng = np.random.default_rng(9)
+    zb = np.stack([z + rng.normal(0, [0.01, 1.0], z.shape) for _ in range(5)])
+    zb[1, 4] = np.nan
+    zb[2, 7, 0] = np.nan                                   # a missing bearing: update with the range only
+    x0 = X0 + rng.normal(0, 3.0, (5, 4))
+    batch = ekf_filter_batch(model, zb, x0, P0)
+    for b in range(5):
+        one = ekf_filter(model, zb[b], x0[b], P0)
+        np.testing.assert_allclose(batch.x[b], one.x, rtol=1e-12, atol=1e-12 * np.abs(one.x).max())
+        np.testing.assert_allclose(batch.P[b], one.P, rtol=1e-10, atol=1e-12 * np.abs(one.P).max())
+        assert abs(batch.loglik[b] - one.loglik) <= 1e-12 * abs(one.loglik)
+    with pytest.raises(ParameterError, match="constant Q and R"):
+        ekf_filter_batch(NonlinearModel(model.f, model.h, model.Q, lambda x, k: R_BR), zb, x0, P0)

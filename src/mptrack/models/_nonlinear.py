@@ -232,7 +232,8 @@ def nonlinear_model(motion: LinearGaussianModel, measurement: MeasurementModel, 
         raise ParameterError(f"measurement: expected a MeasurementModel, got {type(measurement).__name__}")
     F = motion.F
     Ft = np.ascontiguousarray(F.T)
-    return NonlinearModel(lambda X: X @ Ft, measurement.h, motion.Q, measurement.R, jac_f=lambda x: F,
+    return NonlinearModel(lambda X: X @ Ft, measurement.h, motion.Q, measurement.R,
+                          jac_f=lambda x: np.broadcast_to(F, np.shape(x)[:-1] + F.shape),
                           jac_h=measurement.jac_h, angle_components=measurement.angle_components, dt=motion.dt,
                           name=name or f"{motion.name or 'linear motion'} + {measurement.name}")
 
@@ -268,12 +269,13 @@ def _covariance(R, m: int):
 
 
 def _jac_from(pos: tuple, rows_fn):
-    """A Jacobian function placing rows_fn(x) (m, len(pos)) into the position columns of an (m, n) matrix."""
+    """A Jacobian function placing rows_fn(x) (..., m, len(pos)) into the position columns of an (..., m, n)
+    array (states x (..., n): the named models' Jacobians are vectorised like h)."""
     def jac(x):
         x = np.asarray(x, dtype=float)
         G = rows_fn(x)
-        J = np.zeros((G.shape[0], x.shape[-1]))
-        J[:, list(pos)] = G
+        J = np.zeros(G.shape[:-1] + (x.shape[-1],))
+        J[..., list(pos)] = G
         return J
     return jac
 
@@ -293,8 +295,8 @@ def ranges(stations, R, *, position=(0, 2)) -> MeasurementModel:
         return np.sqrt(np.sum(diff * diff, axis=-1))
 
     def rows(x):
-        diff = x[list(pos)] - s
-        return diff / np.maximum(np.sqrt(np.sum(diff * diff, axis=-1)), _TINY)[:, None]
+        diff = x[..., None, list(pos)] - s
+        return diff / np.maximum(np.sqrt(np.sum(diff * diff, axis=-1)), _TINY)[..., None]
     return MeasurementModel(h, _jac_from(pos, rows), _covariance(R, s.shape[0]), (), f"ranges to {len(s)}")
 
 
@@ -311,7 +313,8 @@ def bearings(stations, R, *, position=(0, 2)) -> MeasurementModel:
         return np.arctan2(diff[..., 1], diff[..., 0])
 
     def rows(x):
-        dx, dy = (x[list(pos)] - s).T
+        diff = x[..., None, list(pos)] - s
+        dx, dy = diff[..., 0], diff[..., 1]
         r2 = np.maximum(dx * dx + dy * dy, _TINY)
         return np.stack([-dy / r2, dx / r2], axis=-1)
     k = s.shape[0]
@@ -323,7 +326,8 @@ def range_bearing(sensor, R, *, position=(0, 2)) -> MeasurementModel:
     Stone Soup's CartesianToBearingRange.  R: (2, 2), a vector of 2 variances, or R(x, k)."""
     b, r = bearings(sensor, 1.0, position=position), ranges(sensor, 1.0, position=position)
     return MeasurementModel(lambda X: np.concatenate([b.h(X), r.h(X)], axis=-1),
-                            lambda x: np.vstack([b.jac_h(x), r.jac_h(x)]), _covariance(R, 2), (0,), "range-bearing")
+                            lambda x: np.concatenate([b.jac_h(x), r.jac_h(x)], axis=-2), _covariance(R, 2), (0,),
+                            "range-bearing")
 
 
 def range_rate(sensor, R, *, position=(0, 2), velocity=(1, 3)) -> MeasurementModel:
@@ -344,12 +348,12 @@ def range_rate(sensor, R, *, position=(0, 2), velocity=(1, 3)) -> MeasurementMod
 
     def jac(x):
         x = np.asarray(x, dtype=float)
-        p, v = x[list(pos)] - s, x[list(vel)]
-        r = max(float(np.sqrt(p @ p)), _TINY)
-        rr = (p @ v) / r
-        J = np.zeros((1, x.shape[0]))
-        J[0, list(pos)] = (v - rr * p / r) / r
-        J[0, list(vel)] = p / r
+        p, v = x[..., list(pos)] - s, x[..., list(vel)]
+        r = np.maximum(np.sqrt(np.sum(p * p, axis=-1)), _TINY)[..., None]
+        rr = np.sum(p * v, axis=-1)[..., None] / r
+        J = np.zeros(x.shape[:-1] + (1, x.shape[-1]))
+        J[..., 0, list(pos)] = (v - rr * p / r) / r
+        J[..., 0, list(vel)] = p / r
         return J
     return MeasurementModel(h, jac, _covariance(R, 1), (), "range rate")
 
@@ -378,7 +382,7 @@ def tdoa(stations, R, *, position=(0, 2), reference: int = 0) -> MeasurementMode
 
     def jac(x):
         J = toa.jac_h(x)
-        return J[others] - J[ref]
+        return J[..., others, :] - J[..., ref:ref + 1, :]
     return MeasurementModel(h, jac, _covariance(R, k - 1), (), f"TDOA to {k} stations")
 
 
@@ -388,7 +392,9 @@ def position(R, *, position=(0, 2)) -> MeasurementModel:
 
     def h(X):
         return np.asarray(X)[..., list(pos)]
-    return MeasurementModel(h, _jac_from(pos, lambda x: np.eye(len(pos))), _covariance(R, len(pos)), (),
+    eye = np.eye(len(pos))
+    return MeasurementModel(h, _jac_from(pos, lambda x: np.broadcast_to(eye, x.shape[:-1] + eye.shape)),
+                            _covariance(R, len(pos)), (),
                             "position")
 
 
@@ -405,6 +411,6 @@ def stack_measurements(*measurements: MeasurementModel) -> MeasurementModel:
     offsets = np.cumsum([0] + sizes)
     angles = tuple(int(o + i) for mm, o in zip(measurements, offsets) for i in mm.angle_components)
     return MeasurementModel(lambda X: np.concatenate([mm.h(X) for mm in measurements], axis=-1),
-                            lambda x: np.vstack([mm.jac_h(x) for mm in measurements]),
+                            lambda x: np.concatenate([mm.jac_h(x) for mm in measurements], axis=-2),
                             _frozen(scipy.linalg.block_diag(*[mm.R for mm in measurements])), angles,
                             " + ".join(mm.name for mm in measurements))

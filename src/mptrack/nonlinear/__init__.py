@@ -16,7 +16,7 @@ from ._ekf import (
     range_fix,
     range_measurement,
 )
-from ._extended import ekf_filter, ekf_smoother, ekf_step
+from ._extended import ekf_filter, ekf_filter_batch, ekf_smoother, ekf_step
 from ._fekf import (
     bouzera_fcs_fis,
     bouzera_fekf_fis,
@@ -77,6 +77,7 @@ __all__ = [
     "ekf_filter",
     "ekf_smoother",
     "ekf_step",
+    "ekf_filter_batch",
     "imm_filter",
     "IMMResult",
     "cv_ca_models",

@@ -14,8 +14,6 @@ reproduction stays fast (the tests check both agree to 1e-12).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 from scipy.optimize import least_squares
 
@@ -23,7 +21,8 @@ from .._validation import as_array, check_covariance, check_positive
 from ..errors import ParameterError, ShapeError, SingularMatrixError
 from ..linear import FilterResult
 from ..models import NonlinearModel, ranges
-from ._extended import ekf_filter
+from ._common import BatchFilterResult
+from ._extended import ekf_filter, ekf_filter_batch
 
 __all__ = [
     "BatchFilterResult",
@@ -36,27 +35,8 @@ __all__ = [
     "motion_position",
 ]
 
-_LOG2PI = np.log(2.0 * np.pi)
 MOTIONS = ("random-walk", "cv")
 _TINY_RANGE = 1e-12
-
-
-@dataclass(frozen=True, eq=False)
-class BatchFilterResult:
-    """A batch of B filter runs: x, x_pred (B, T, n), P, P_pred (B, T, n, n), loglik (B,) or None."""
-
-    x: np.ndarray
-    P: np.ndarray
-    x_pred: np.ndarray
-    P_pred: np.ndarray
-    loglik: np.ndarray | None = None
-    method: str = ""
-
-    def run(self, b: int) -> FilterResult:
-        """Run ``b`` as a FilterResult."""
-        ll = None if self.loglik is None else float(self.loglik[b])
-        return FilterResult(x=self.x[b], P=self.P[b], x_pred=self.x_pred[b], P_pred=self.P_pred[b], loglik=ll,
-                            method=self.method)
 
 
 def range_measurement(x, stations, position=None):
@@ -135,41 +115,6 @@ def _prepare(z, stations, x0, P0, Q, R, motion, dt, *, batch: bool):
     return z, stations, x0, P0, F, Q, R, motion_position(motion, d)
 
 
-def _ekf_core(z, stations, x0, P0, F, Q, R, pos):
-    """Batched EKF: z (B, T, m) with NaN = missing range; returns (x, P, x_pred, P_pred, loglik)."""
-    B, T, m = z.shape
-    n = F.shape[0]
-    xs, xp = np.empty((B, T, n)), np.empty((B, T, n))
-    Ps, Pp = np.empty((B, T, n, n)), np.empty((B, T, n, n))
-    loglik = np.zeros(B)
-    x = x0.copy()
-    P = np.broadcast_to(P0, (B, n, n)).copy()
-    eye = np.eye(n)
-    for k in range(T):
-        x = x @ F.T                                   # eq. 2 (F = I for the paper's model)
-        P = F @ P @ F.T + Q                           # eq. 3
-        xp[:, k], Pp[:, k] = x, P
-        dk = z[:, k]
-        ok = ~np.isnan(dk)                            # (B, m)
-        h, H = range_measurement(x, stations, pos)    # eqs. 7-10
-        H = H * ok[..., None]                         # missing ranges: zero rows ...
-        Rk = np.where(ok[:, :, None] & ok[:, None, :], R, 0.0) + np.eye(m) * (~ok)[:, None, :]  # ... unit noise
-        innov = np.where(ok, dk - h, 0.0)             # eq. 11
-        PHt = P @ H.transpose(0, 2, 1)
-        S = H @ PHt + Rk                              # eq. 12
-        K = np.linalg.solve(S, PHt.transpose(0, 2, 1)).transpose(0, 2, 1)  # eq. 4 (S symmetric)
-        x = x + np.einsum("bnm,bm->bn", K, innov)     # eq. 5
-        IKH = eye - K @ H
-        P = IKH @ P @ IKH.transpose(0, 2, 1) + K @ Rk @ K.transpose(0, 2, 1)  # eq. 6, Joseph form
-        P = 0.5 * (P + P.transpose(0, 2, 1))
-        xs[:, k] = x
-        Ps[:, k] = P
-        _, logdet = np.linalg.slogdet(S)
-        quad = np.einsum("bm,bm->b", innov, np.linalg.solve(S, innov[..., None])[..., 0])
-        loglik -= 0.5 * (quad + logdet + ok.sum(axis=1) * _LOG2PI)
-    return xs, Ps, xp, Pp, loglik
-
-
 def ekf_ranges(z, stations, x0, P0, Q, R, *, motion: str = "random-walk", dt: float = 1.0) -> FilterResult:
     """EKF from ranges to base stations (paper eqs. 2–10), joint update of all ranges.
 
@@ -186,11 +131,15 @@ def ekf_ranges(z, stations, x0, P0, Q, R, *, motion: str = "random-walk", dt: fl
     unobserved directions (the covariance shows it).
     """
     z, stations, x0, P0, F, Q, R, pos = _prepare(z, stations, x0, P0, Q, R, motion, dt, batch=False)
+    return ekf_filter(_ranges_model(stations, F, Q, R, pos, motion), z[0], x0[0], P0)
+
+
+def _ranges_model(stations, F, Q, R, pos, motion) -> NonlinearModel:
     meas = ranges(stations, R, position=pos)
     Ft = F.T.copy()
-    model = NonlinearModel(lambda X: X @ Ft, meas.h, Q, meas.R, jac_f=lambda x: F, jac_h=meas.jac_h,
-                           name=f"ranges EKF ({motion})")
-    return ekf_filter(model, z[0], x0[0], P0)
+    return NonlinearModel(lambda X: X @ Ft, meas.h, Q, meas.R,
+                          jac_f=lambda x: np.broadcast_to(F, np.shape(x)[:-1] + F.shape), jac_h=meas.jac_h,
+                          name=f"ranges EKF ({motion})")
 
 
 def ekf_ranges_batch(z, stations, x0, P0, Q, R, *, motion: str = "random-walk",
@@ -200,8 +149,8 @@ def ekf_ranges_batch(z, stations, x0, P0, Q, R, *, motion: str = "random-walk",
 
 
 def _ekf(z, stations, x0, P0, Q, R, motion, dt, *, batch: bool) -> BatchFilterResult:
-    xs, Ps, xp, Pp, ll = _ekf_core(*_prepare(z, stations, x0, P0, Q, R, motion, dt, batch=batch))
-    return BatchFilterResult(x=xs, P=Ps, x_pred=xp, P_pred=Pp, loglik=ll, method="EKF")
+    z, stations, x0, P0, F, Q, R, pos = _prepare(z, stations, x0, P0, Q, R, motion, dt, batch=batch)
+    return ekf_filter_batch(_ranges_model(stations, F, Q, R, pos, motion), z, x0, P0)
 
 
 def range_fix(ranges, stations, *, height=None) -> np.ndarray:

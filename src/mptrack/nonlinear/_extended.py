@@ -13,13 +13,14 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..errors import ConvergenceError, NotPositiveDefiniteError, ParameterError
+from .._validation import as_array, check_covariance
+from ..errors import ConvergenceError, NotPositiveDefiniteError, ParameterError, ShapeError
 from ..linear import FilterResult
 from ..linear._smoother import rts_backward
 from ..models import NonlinearModel
-from ._common import check_prior, prepare_nonlinear
+from ._common import BatchFilterResult, check_prior, prepare_nonlinear
 
-__all__ = ["ekf_filter", "ekf_smoother", "ekf_step"]
+__all__ = ["ekf_filter", "ekf_filter_batch", "ekf_smoother", "ekf_step"]
 
 _LOG2PI = np.log(2.0 * np.pi)
 
@@ -121,3 +122,74 @@ def ekf_smoother(model: NonlinearModel, result: FilterResult) -> FilterResult:
     """Extended RTS smoother on :func:`ekf_filter`'s result: x(k/T), P(k/T), and x(0/T), P(0/T) as
     x0, P0 when the filter's prior was at time 0 (method "ERTS")."""
     return smooth_with(model, result, lambda mdl, x, P, k: P @ mdl.F_at(x).T, "ERTS")
+
+
+def ekf_filter_batch(model: NonlinearModel, z, x0, P0) -> BatchFilterResult:
+    """:func:`ekf_filter` on B independent tracks at once (prior at time 0): z (B, T, m) with NaN = missing,
+    x0 (n,) or (B, n), P0 (n, n) or (B, n, n).  Vectorised over tracks (NumPy batched linear algebra), for
+    constant Q and R; Jacobians from jac_f / jac_h called on all B states at once (the named measurement
+    models and :func:`mptrack.models.nonlinear_model` broadcast) or by finite differences.
+    Returns a BatchFilterResult (x, P, x_pred, P_pred, loglik (B,))."""
+    if not isinstance(model, NonlinearModel):
+        raise ParameterError(f"model: expected a NonlinearModel, got {type(model).__name__}")
+    if callable(model.Q) or callable(model.R):
+        raise ParameterError("model: the batch EKF needs constant Q and R (use ekf_filter per track for Q(x, k), "
+                             "R(x, k))")
+    z = as_array("z", z, ndim=3, allow_nan=True)
+    B, T, m = z.shape
+    n = model.n
+    if m != model.m or T == 0:
+        raise ShapeError(f"z: expected shape (B, T >= 1, {model.m}), got {z.shape}")
+    x0 = as_array("x0", x0)
+    if x0.shape not in ((n,), (B, n)):
+        raise ShapeError(f"x0: expected shape ({n},) or ({B}, {n}), got {x0.shape}")
+    P0 = np.asarray(P0, dtype=float)
+    P0 = check_covariance("P0", P0, n) if P0.ndim != 3 else np.stack(
+        [check_covariance(f"P0[{b}]", p, n) for b, p in enumerate(P0)])
+    xs, Ps, xp, Pp, ll = _ekf_batch_core(model, z, np.broadcast_to(x0, (B, n)).copy(),
+                                         np.broadcast_to(P0, (B, n, n)).copy())
+    return BatchFilterResult(x=xs, P=Ps, x_pred=xp, P_pred=Pp, loglik=ll, method="EKF")
+
+
+def _jacobians(model, X, which):
+    fn, rows = (model.jac_f, model.n) if which == "f" else (model.jac_h, model.m)
+    if fn is not None:
+        J = np.asarray(fn(X), dtype=float)
+        if J.shape == (X.shape[0], rows, model.n):
+            return J
+        return np.stack([np.asarray(fn(x), dtype=float) for x in X])
+    return np.stack([model.F_at(x) if which == "f" else model.H_at(x) for x in X])
+
+
+def _ekf_batch_core(model, z, x, P):
+    """The batched EKF recursion (Joseph form); missing components get zero H rows and unit noise, which
+    is the same update as skipping them."""
+    B, T, m = z.shape
+    n = model.n
+    Q, R = model.Q, model.R
+    xs, xp = np.empty((B, T, n)), np.empty((B, T, n))
+    Ps, Pp = np.empty((B, T, n, n)), np.empty((B, T, n, n))
+    loglik = np.zeros(B)
+    eye = np.eye(n)
+    for k in range(T):
+        F = _jacobians(model, x, "f")
+        x = np.asarray(model.f(x), dtype=float)
+        P = F @ P @ F.transpose(0, 2, 1) + Q
+        xp[:, k], Pp[:, k] = x, P
+        dk = z[:, k]
+        ok = ~np.isnan(dk)                                                          # (B, m)
+        H = _jacobians(model, x, "h") * ok[..., None]
+        Rk = np.where(ok[:, :, None] & ok[:, None, :], R, 0.0) + np.eye(m) * (~ok)[:, None, :]
+        innov = np.where(ok, model.innovation(np.where(ok, dk, 0.0), model.h(x)), 0.0)
+        PHt = P @ H.transpose(0, 2, 1)
+        S = H @ PHt + Rk
+        K = np.linalg.solve(S, PHt.transpose(0, 2, 1)).transpose(0, 2, 1)
+        x = x + np.einsum("bnm,bm->bn", K, innov)
+        IKH = eye - K @ H
+        P = IKH @ P @ IKH.transpose(0, 2, 1) + K @ Rk @ K.transpose(0, 2, 1)
+        P = 0.5 * (P + P.transpose(0, 2, 1))
+        xs[:, k], Ps[:, k] = x, P
+        _, logdet = np.linalg.slogdet(S)
+        quad = np.einsum("bm,bm->b", innov, np.linalg.solve(S, innov[..., None])[..., 0])
+        loglik -= 0.5 * (quad + logdet + ok.sum(axis=1) * _LOG2PI)
+    return xs, Ps, xp, Pp, loglik
