@@ -116,24 +116,33 @@ def rts_smoother(model: LinearGaussianModel, result: FilterResult, *, F=None, Q=
     """
     _check(model, result)
     has0 = result.x0 is not None and result.P0 is not None
-    if all(v is None for v in (F, Q, B, u)) and not has0:
-        return _rts_backward(result, model.F, model.Q)
+    if all(v is None for v in (F, Q, B, u)):
+        smoothed = _rts_backward(result, model.F, model.Q)
+        if not has0:
+            return smoothed
+        return _with_time_zero(result, smoothed, model.F, model.Q, 0.0)
     from ._kalman import step_matrices
     mats = step_matrices(model, result.T, F=F, Q=Q, B=B, u=u)
+    Fs, Qs = mats["F"], mats["Q"]
+    Bu = np.zeros((result.T, model.n)) if mats["Bu"] is None else mats["Bu"]
     xf = np.asarray(result.x, dtype=float)
     Pf = np.asarray(result.P, dtype=float)
-    Fs, Qs = mats["F"], mats["Q"]
-    if has0:
-        xf, Pf = np.concatenate([np.asarray(result.x0)[None], xf]), np.concatenate([np.asarray(result.P0)[None], Pf])
-    else:
-        Fs, Qs = Fs[1:], Qs[1:]
-    Bu = 0.0 if mats["Bu"] is None else (mats["Bu"] if has0 else mats["Bu"][1:])
-    cross = Pf[:-1] @ np.swapaxes(Fs, 1, 2)
-    x_pred = np.einsum("tij,tj->ti", Fs, xf[:-1]) + Bu
-    xs, Ps = rts_backward(xf, Pf, x_pred, Fs @ cross + Qs, cross)
-    if has0:
-        return FilterResult(x=xs[1:], P=Ps[1:], method="RTS", x0=xs[0], P0=Ps[0])
-    return FilterResult(x=xs, P=Ps, method="RTS")
+    cross = Pf[:-1] @ np.swapaxes(Fs[1:], 1, 2)
+    x_pred = np.einsum("tij,tj->ti", Fs[1:], xf[:-1]) + Bu[1:]
+    xs, Ps = rts_backward(xf, Pf, x_pred, Fs[1:] @ cross + Qs[1:], cross)
+    smoothed = FilterResult(x=xs, P=Ps, method="RTS")
+    return _with_time_zero(result, smoothed, Fs[0], Qs[0], Bu[0]) if has0 else smoothed
+
+
+def _with_time_zero(result: FilterResult, smoothed: FilterResult, F0, Q0, Bu0) -> FilterResult:
+    """``smoothed`` with x(0/T), P(0/T) from one more RTS step back to the filter's prior x0, P0."""
+    x0, P0 = np.asarray(result.x0, dtype=float), np.asarray(result.P0, dtype=float)
+    PFt = P0 @ F0.T
+    P_pred = F0 @ PFt + Q0
+    C = _smoother_gains(PFt, 0.5 * (P_pred + P_pred.T))
+    x = x0 + C @ (smoothed.x[0] - (F0 @ x0 + Bu0))
+    P = P0 + C @ (smoothed.P[0] - P_pred) @ C.T
+    return FilterResult(x=smoothed.x, P=smoothed.P, method="RTS", x0=x, P0=0.5 * (P + P.T))
 
 
 def steady_state_smoother(model: LinearGaussianModel, result: FilterResult, *,
