@@ -79,14 +79,14 @@ def test_range_ekf_agrees_with_the_numpy_batch_ekf_of_mptrack_nonlinear():
     """Independent implementation: mptrack.nonlinear.ekf_ranges_batch (state [p, v], cv motion)."""
     from mptrack.nonlinear import ekf_ranges_batch, motion_matrix
 
-    F = motion_matrix("cv", 2, 1.0)
-    Q = np.diag([1.0, 1.0, 0.25, 0.25])
+    F = motion_matrix("cv", 2, 1.0)                     # state [x, vx, y, vy]
+    Q = np.diag([1.0, 0.25, 1.0, 0.25])
     R = 16.0 * np.eye(3)
-    model = batch.RangeModel(F, Q, STATIONS, R, position=(0, 1))
+    model = batch.RangeModel(F, Q, STATIONS, R, position=(0, 2))
     rng = np.random.default_rng(1)
-    x0 = np.array([300.0, 450.0, 4.0, -2.0]) + rng.normal(0, 10, (6, 4))
+    x0 = np.array([300.0, 4.0, 450.0, -2.0]) + rng.normal(0, 10, (6, 4))
     _, z = simulate(model, 6, 40, rng, x0[0])
-    P0 = np.diag([100.0, 100.0, 4.0, 4.0])
+    P0 = np.diag([100.0, 4.0, 100.0, 4.0])
     ours = batch.range_ekf(model, z, x0, P0)
     theirs = ekf_ranges_batch(z, STATIONS, x0, P0, Q, R, motion="cv", dt=1.0).x
     np.testing.assert_allclose(ours, theirs, rtol=1e-10, atol=1e-8)

@@ -59,7 +59,7 @@ def _prior(model, seed=3):
 def test_kf_and_lf_agree_on_the_papers_models(simulated, prior, assert_rel):
     """Seed 000 Section 6 (i): KF and LF compute the same estimates and covariances."""
     model, _, z = simulated
-    x0, P0 = (None, None) if prior == "papers" else _prior(model)
+    x0, P0 = (None, np.zeros((model.n, model.n))) if prior == "papers" else _prior(model)
     kf = kalman_filter(model, z, x0, P0)
     lf = lainiotis_filter(model, z, x0, P0)
     assert_rel(lf.x, kf.x, RTOL, "x")
@@ -151,7 +151,7 @@ def test_kf_restarts_cleanly_after_a_gap(simulated, assert_rel):
 def test_lf_with_gaps_equals_kf_with_gaps(simulated, assert_rel):
     model, _, z = simulated
     zg = _with_gap(z, [0, 10, 11, 12, 90])
-    kf = kalman_filter(model, zg)
+    kf = kalman_filter(model, zg, P0=np.zeros((model.n, model.n)))
     lf = lainiotis_filter(model, zg)
     assert_rel(lf.x, kf.x, RTOL, "x")
     assert_rel(lf.P, kf.P, RTOL, "P")
@@ -183,7 +183,7 @@ def test_kf_partial_nan_updates_with_the_observed_components(assert_rel):
     z[[5, 20, 21, 60], 0] = np.nan
     z[[33], 1] = np.nan
     x0 = np.array([0.5, 0.1, -0.3, 0.2])
-    joint = kalman_filter(model, z, x0)
+    joint = kalman_filter(model, z, x0, np.zeros((model.n, model.n)))
     axes = per_axis(kalman_filter, assimakis_model_b(), z, x0)
     assert_rel(joint.x, axes.x, RTOL, "x")
     assert_rel(joint.P, axes.P, RTOL, "P")
@@ -212,7 +212,7 @@ def test_lf_partial_nan_row_only_predicts():
 def test_ss_filter_matches_kf_after_convergence(simulated, assert_rel):
     """Seed 000 Section 6 (iii): SSKF and KF outputs coincide once the gain has converged."""
     model, _, z = simulated
-    kf = kalman_filter(model, z)
+    kf = kalman_filter(model, z, P0=np.zeros((model.n, model.n)))
     ss = steady_state(model, "dare")
     for form in ("kalman", "lainiotis"):
         res = steady_state_filter(model, z, form=form)
@@ -533,7 +533,7 @@ def test_wrong_noise_level_fails_the_consistency_check():
     nees = []
     for _ in range(50):
         truth, z = simulate_linear(model, 40, rng)
-        kf = kalman_filter(wrong, z)
+        kf = kalman_filter(wrong, z, P0=np.zeros((4, 4)))
         e = truth[-1] - kf.x[-1]
         nees.append(e @ np.linalg.solve(kf.P[-1], e))
     assert np.mean(nees) > scipy.stats.chi2.ppf(0.9995, 4 * 50) / 50

@@ -231,7 +231,7 @@ def test_per_step_steady_state_is_the_kalman_filter_covariance_limit():
     ss = steady_state(model, "per-step")
     k = ss.steady_state_time
     assert k == ss.iterations and 10 < k < 200
-    kf = kalman_filter(model, np.zeros((k + 5, 1)))
+    kf = kalman_filter(model, np.zeros((k + 5, 1)), P0=np.zeros((2, 2)))
     # row k of P_pred is P(k+1/k), the k-th per-step iterate
     assert _rel(kf.P_pred[k], ss.P_pred) <= 1e-12
     assert _rel(kf.P[k], ss.P_filt) <= 1e-12

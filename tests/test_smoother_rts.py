@@ -65,7 +65,7 @@ def test_smoothed_covariance_is_psd_and_below_filtered(dt, q, r, seed):
 def test_rank_deficient_noise_and_zero_prior_use_the_pseudo_inverse():
     model = cv_discrete_white_noise(1.0, 0.01, 1, sigma_r2=0.1)   # Q has rank 1; P(1/0) = Q singular
     _, z = simulate_linear(model, 30, np.random.default_rng(3))
-    kf = kalman_filter(model, z)                                 # P0 = 0
+    kf = kalman_filter(model, z, P0=np.zeros((2, 2)))            # P0 = 0
     sm = rts_smoother(model, kf)
     assert np.all(np.isfinite(sm.x)) and np.all(np.isfinite(sm.P))
     for Pf, Ps in zip(kf.P, sm.P):
@@ -104,7 +104,7 @@ def test_smoother_beats_filter_in_monte_carlo():
 
 def test_bad_input():
     model = constant_velocity(1.0, 0.01, 1)
-    res = kalman_filter(model, np.zeros((5, 1)))
+    res = kalman_filter(model, np.zeros((5, 1)), P0=np.eye(2))
     with pytest.raises(ShapeError, match="result"):
         rts_smoother(constant_velocity(1.0, 0.01, 2), res)
     with pytest.raises(ParameterError, match="result"):

@@ -188,7 +188,7 @@ def test_bad_filter_inputs(runner, case, bad, cls, name):
 @pytest.mark.parametrize("runner", [r for r in RUNNERS if "FIR" not in r])
 def test_nan_is_allowed_in_z_only(runner):
     z = np.array([[0.1, np.nan], [np.nan, np.nan], [0.3, 0.2]])
-    res = RUNNERS[runner](MODEL, z, None, None)
+    res = RUNNERS[runner](MODEL, z, None, np.zeros((MODEL.n, MODEL.n)))
     assert isinstance(res, FilterResult)
     assert np.all(np.isfinite(res.x)) and np.all(np.isfinite(res.P))
 
@@ -199,7 +199,7 @@ def test_fir_needs_complete_measurements(runner):
 
 
 def test_one_dimensional_z_is_accepted_for_scalar_measurements():
-    res = kalman_filter(assimakis_model_b(), [0.1, 0.2, 0.3])
+    res = kalman_filter(assimakis_model_b(), [0.1, 0.2, 0.3], P0=np.eye(2))
     assert res.x.shape == (3, 2)
 
 
@@ -303,7 +303,7 @@ def test_non_stabilisable_model_has_no_stabilising_steady_state(key, solve):
 def test_time_invariant_filters_still_run_without_a_steady_state(model):
     """KF and LF need no steady state: they must not raise on these models."""
     z = np.ones((4, model.m))
-    kf = kalman_filter(model, z)
+    kf = kalman_filter(model, z, P0=np.zeros((model.n, model.n)))
     lf = lainiotis_filter(model, z)
     np.testing.assert_allclose(lf.x, kf.x, rtol=1e-10, atol=1e-14)
 

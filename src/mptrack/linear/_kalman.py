@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from .._validation import as_array
+from ..errors import ParameterError, ShapeError
 from ..models import LinearGaussianModel
 from ._common import prepare_inputs
 from ._kernels import kf_loop
@@ -14,8 +16,11 @@ __all__ = ["kalman_filter", "kalman_step"]
 _LOG2PI = np.log(2.0 * np.pi)
 
 
-def kalman_step(F, H, Q, R, x, P, z, joseph: bool = False):
+def kalman_step(F, H, Q, R, x, P, z, joseph: bool = False, Bu=None, predict: bool = True):
     """One KF iteration: from x(k/k), P(k/k) and z(k+1) to the next filtered pair.
+
+    Bu is the control term added to the prediction (x(k+1/k) = F x + B u); predict=False
+    updates x, P with z directly (the prior is at this measurement).
 
     The readable NumPy form of the equations; :func:`kalman_filter` runs the
     same equations in a compiled loop (tests check that the two agree).
@@ -23,8 +28,11 @@ def kalman_step(F, H, Q, R, x, P, z, joseph: bool = False):
     Returns (x_filt, P_filt, x_pred, P_pred, loglik_increment).  Components of
     z that are NaN are not used; a fully missing z only predicts.
     """
-    x_pred = F @ x
-    P_pred = F @ P @ F.T + Q
+    if predict:
+        x_pred = F @ x if Bu is None else F @ x + Bu
+        P_pred = F @ P @ F.T + Q
+    else:
+        x_pred, P_pred = x, P
     ok = ~np.isnan(z)
     if not ok.any():
         return x_pred, P_pred, x_pred, P_pred, 0.0
@@ -47,24 +55,85 @@ def kalman_step(F, H, Q, R, x, P, z, joseph: bool = False):
     return x_filt, P_filt, x_pred, P_pred, ll
 
 
-def kalman_filter(model: LinearGaussianModel, z, x0=None, P0=None, *, joseph: bool = False) -> FilterResult:
+#: where the prior (x0, P0) sits (as in mptrack.nonlinear): at time 0, or at the first measurement
+PRIORS = ("initial", "first-measurement")
+
+
+def step_matrices(model: LinearGaussianModel, T: int, F=None, H=None, Q=None, R=None, B=None, u=None) -> dict:
+    """Per-step matrices of a time-varying and/or controlled model: each of F, H, Q, R is None (the
+    model's), one matrix, or a stack with a leading axis of length T (row k is used for measurement row
+    k: F[k], Q[k] predict into it, H[k], R[k] update with it); B (n, p) or (T, n, p) with u (T, p) adds
+    B u to the prediction.  Returns {"F", "H", "Q", "R": (T, ., .), "Bu": (T, n) or None}."""
+    n, m = model.n, model.m
+    out = {}
+    for name, value, shape in (("F", F, (n, n)), ("H", H, (m, n)), ("Q", Q, (n, n)), ("R", R, (m, m))):
+        arr = getattr(model, name) if value is None else as_array(name, value)
+        if arr.ndim == 2:
+            arr = np.broadcast_to(arr, (T, *arr.shape))
+        if arr.shape != (T, *shape):
+            raise ShapeError(f"{name}: expected a {shape} matrix or a stack of shape {(T, *shape)}, got {arr.shape}")
+        out[name] = arr
+    for name in ("Q", "R"):
+        sym = np.abs(out[name] - np.swapaxes(out[name], 1, 2)).max()
+        if sym > 1e-9 * max(np.abs(out[name]).max(), 1e-300):
+            raise ParameterError(f"{name}: every matrix of the stack must be symmetric (max asymmetry {sym:.3g})")
+    if (B is None) != (u is None):
+        raise ParameterError("B and u: give both (the control term B u) or neither")
+    out["Bu"] = None
+    if B is not None:
+        u = as_array("u", u, ndim=2)
+        if u.shape[0] != T:
+            raise ShapeError(f"u: expected one control vector per measurement, shape ({T}, p), got {u.shape}")
+        B = as_array("B", B)
+        if B.ndim == 2:
+            B = np.broadcast_to(B, (T, *B.shape))
+        if B.shape != (T, n, u.shape[1]):
+            raise ShapeError(f"B: expected shape ({n}, {u.shape[1]}) or ({T}, {n}, {u.shape[1]}), got {B.shape}")
+        out["Bu"] = np.einsum("tnp,tp->tn", B, u)
+    return out
+
+
+def kalman_filter(model: LinearGaussianModel, z, x0=None, P0=None, *, joseph: bool = False, F=None, H=None,
+                  Q=None, R=None, B=None, u=None, prior: str = "initial") -> FilterResult:
     """Kalman filter with the per-step Riccati recursion (seed 000 eq. 4).
 
-    model   a LinearGaussianModel
-    z       (T, m) measurements z(1..T); rows with NaN are treated as missing
-            (NaN components are skipped, a full NaN row only predicts)
-    x0, P0  the prior x(0/0), P(0/0) (default zeros, as in the papers' example)
-    joseph  use the Joseph form (I-KH) P (I-KH)^T + K R K^T for P(k/k)
+    model       a LinearGaussianModel
+    z           (T, m) measurements z(1..T); rows with NaN are treated as missing
+                (NaN components are skipped, a full NaN row only predicts)
+    x0, P0      the prior x(0/0) (default zeros) and P(0/0) (required: there is no safe default;
+                pass ``np.zeros((n, n))`` for a known initial state, as in the papers' example)
+    joseph      use the Joseph form (I-KH) P (I-KH)^T + K R K^T for P(k/k)
+    F, H, Q, R  time-varying model: stacks (T, ., .) replacing the model's matrices, row k used
+                for measurement k (:func:`step_matrices`); FilterPy's ``batch_filter`` convention
+    B, u        control input: x(k/k-1) = F x(k-1/k-1) + B u(k), u (T, p), B (n, p) or (T, n, p)
+    prior       "initial" (x0, P0 at time 0) or "first-measurement" (x0, P0 are the prior at the
+                first measurement: no prediction before it, as pykalman and simdkalman)
 
-    Returns a FilterResult with filtered and predicted means/covariances and
-    the measurement log-likelihood.  The time loop is compiled (numba); see
-    :func:`kalman_step` for the same equations step by step in NumPy.
+    Returns a FilterResult with filtered and predicted means/covariances, the
+    measurement log-likelihood, and the prior as x0, P0 (for the smoother).  The
+    time-invariant loop is compiled (numba); the time-varying, controlled and
+    first-measurement forms run :func:`kalman_step` per step.
     """
     z, x, P, _ = prepare_inputs(model, z, x0, P0)
+    if P0 is None:
+        raise ParameterError("P0: the prior covariance is required (np.zeros((n, n)) for a known x0)")
+    if prior not in PRIORS:
+        raise ParameterError(f"prior: expected one of {PRIORS}, got {prior!r}")
     T, n = z.shape[0], model.n
     xs = np.empty((T, n))
     Ps = np.empty((T, n, n))
     xp = np.empty((T, n))
     Pp = np.empty((T, n, n))
-    loglik = kf_loop(model.F, model.H, model.Q, model.R, z, x, P, bool(joseph), xs, Ps, xp, Pp)
-    return FilterResult(x=xs, P=Ps, x_pred=xp, P_pred=Pp, loglik=float(loglik), method="KF")
+    prior0 = {"x0": x.copy(), "P0": P.copy()} if prior == "initial" else {}
+    if all(v is None for v in (F, H, Q, R, B, u)) and prior == "initial":
+        loglik = kf_loop(model.F, model.H, model.Q, model.R, z, x, P, bool(joseph), xs, Ps, xp, Pp)
+        return FilterResult(x=xs, P=Ps, x_pred=xp, P_pred=Pp, loglik=float(loglik), method="KF", **prior0)
+    mats = step_matrices(model, T, F, H, Q, R, B, u)
+    loglik = 0.0
+    for k in range(T):
+        Bu = None if mats["Bu"] is None else mats["Bu"][k]
+        x, P, xp[k], Pp[k], ll = kalman_step(mats["F"][k], mats["H"][k], mats["Q"][k], mats["R"][k], x, P, z[k],
+                                             joseph, Bu=Bu, predict=not (k == 0 and prior != "initial"))
+        xs[k], Ps[k] = x, P
+        loglik += ll
+    return FilterResult(x=xs, P=Ps, x_pred=xp, P_pred=Pp, loglik=float(loglik), method="KF", **prior0)

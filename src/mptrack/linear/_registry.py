@@ -5,6 +5,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Callable
 
+import numpy as np
+
 from ..errors import UnknownNameError
 from ..models import LinearGaussianModel, assimakis_model_a, assimakis_model_b
 from ..riccati import lainiotis_parameters, steady_state
@@ -35,7 +37,12 @@ class FilterSpec:
 
 
 def _prep_kf(model):
-    return lambda z, x0=None, P0=None: kalman_filter(model, z, x0, P0)
+    # the registry keeps the papers' example default P(0/0) = 0 (kalman_filter itself requires P0)
+    def run(z, x0=None, P0=None):
+        if P0 is None and isinstance(model, LinearGaussianModel):
+            P0 = np.zeros((model.n, model.n))
+        return kalman_filter(model, z, x0, P0)
+    return run
 
 
 def _prep_lf(model):

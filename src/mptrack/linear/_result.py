@@ -19,6 +19,8 @@ class FilterResult:
     P_pred  (T, n, n)  predicted covariances P(k/k-1) (else None)
     loglik  log-likelihood of the measurements (Kalman-type filters; else None)
     method  the filter's registry name ("KF", "LF", "SSKF", ...)
+    x0, P0  a filter's prior x(0/0), P(0/0) at time 0, or a smoother's x(0/T), P(0/T);
+            None when the prior was given at the first measurement (or not recorded)
     """
 
     x: np.ndarray
@@ -27,6 +29,8 @@ class FilterResult:
     P_pred: np.ndarray | None = None
     loglik: float | None = None
     method: str = ""
+    x0: np.ndarray | None = None
+    P0: np.ndarray | None = None
 
     @property
     def T(self) -> int:

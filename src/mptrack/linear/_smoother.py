@@ -23,7 +23,7 @@ from ._kernels import ss_loop
 from ._result import FilterResult
 from ._steady import _steady
 
-__all__ = ["rts_smoother", "steady_state_smoother"]
+__all__ = ["rts_smoother", "steady_state_smoother", "rts_backward"]
 
 
 def _check(model, result) -> None:
@@ -69,6 +69,19 @@ def _rts_backward(result: FilterResult, F: np.ndarray, Q: np.ndarray) -> FilterR
     return FilterResult(x=xs, P=Ps, method="RTS")
 
 
+def rts_backward(x_filt, P_filt, x_pred, P_pred, cross):
+    """The RTS backward pass from filtered x(k/k), P(k/k) (K, n), (K, n, n), the predictions
+    x(k+1/k), P(k+1/k) and the cross-covariances cross[k] = Cov(x(k), x(k+1) | k) (K-1 each):
+    C(k) = cross[k] P(k+1/k)^-1 (P(k/k) F^T for a linear model).  Returns (x(k/K), P(k/K))."""
+    c = np.ascontiguousarray
+    P_pred = np.asarray(P_pred, dtype=float)
+    P_pred = 0.5 * (P_pred + np.swapaxes(P_pred, -1, -2))
+    C = _smoother_gains(np.asarray(cross, dtype=float), P_pred)
+    xs, Ps = np.empty_like(x_filt, dtype=float), np.empty_like(P_filt, dtype=float)
+    _rts_loop(c(x_filt, dtype=float), c(P_filt, dtype=float), c(x_pred, dtype=float), c(P_pred), c(C), xs, Ps)
+    return xs, Ps
+
+
 @njit(cache=True)
 def _rts_loop(x_filt, P_filt, x_pred, P_pred, C, xs, Ps):  # pragma: no cover - compiled
     """The backward recursion of the module docstring, compiled; row k of x_pred, P_pred, C
@@ -84,20 +97,52 @@ def _rts_loop(x_filt, P_filt, x_pred, P_pred, C, xs, Ps):  # pragma: no cover - 
         Ps[k] = 0.5 * (P + P.T)
 
 
-def rts_smoother(model: LinearGaussianModel, result: FilterResult) -> FilterResult:
+def rts_smoother(model: LinearGaussianModel, result: FilterResult, *, F=None, Q=None, B=None,
+                 u=None) -> FilterResult:
     """Fixed-interval RTS smoother on a filter result (x(k/k), P(k/k), k = 1..T).
 
     model   the LinearGaussianModel the filter ran with (F, Q)
     result  a FilterResult with filtered means and covariances, e.g. from
             :func:`kalman_filter` (any filter returning the exact P(k/k) works;
             the steady-state filters' constant Pe gives the steady-state smoother)
+    F, Q, B, u  the time-varying matrices / control input the filter ran with
+            (:func:`kalman_filter`'s convention: row k predicts into measurement k)
 
-    Returns a FilterResult with the smoothed x(k/T), P(k/T) (method "RTS").
+    Returns a FilterResult with the smoothed x(k/T), P(k/T) (method "RTS") and, when
+    the result carries its prior at time 0 (``result.x0``, as :func:`kalman_filter`
+    with prior="initial" records it), the smoothed x(0/T), P(0/T) as x0, P0.
     P(k/T) <= P(k/k) in the positive semi-definite order.  For irregular time
     stamps use :func:`rts_smoother_irregular`.
     """
     _check(model, result)
-    return _rts_backward(result, model.F, model.Q)
+    has0 = result.x0 is not None and result.P0 is not None
+    if all(v is None for v in (F, Q, B, u)):
+        smoothed = _rts_backward(result, model.F, model.Q)
+        if not has0:
+            return smoothed
+        return _with_time_zero(result, smoothed, model.F, model.Q, 0.0)
+    from ._kalman import step_matrices
+    mats = step_matrices(model, result.T, F=F, Q=Q, B=B, u=u)
+    Fs, Qs = mats["F"], mats["Q"]
+    Bu = np.zeros((result.T, model.n)) if mats["Bu"] is None else mats["Bu"]
+    xf = np.asarray(result.x, dtype=float)
+    Pf = np.asarray(result.P, dtype=float)
+    cross = Pf[:-1] @ np.swapaxes(Fs[1:], 1, 2)
+    x_pred = np.einsum("tij,tj->ti", Fs[1:], xf[:-1]) + Bu[1:]
+    xs, Ps = rts_backward(xf, Pf, x_pred, Fs[1:] @ cross + Qs[1:], cross)
+    smoothed = FilterResult(x=xs, P=Ps, method="RTS")
+    return _with_time_zero(result, smoothed, Fs[0], Qs[0], Bu[0]) if has0 else smoothed
+
+
+def _with_time_zero(result: FilterResult, smoothed: FilterResult, F0, Q0, Bu0) -> FilterResult:
+    """``smoothed`` with x(0/T), P(0/T) from one more RTS step back to the filter's prior x0, P0."""
+    x0, P0 = np.asarray(result.x0, dtype=float), np.asarray(result.P0, dtype=float)
+    PFt = P0 @ F0.T
+    P_pred = F0 @ PFt + Q0
+    C = _smoother_gains(PFt, 0.5 * (P_pred + P_pred.T))
+    x = x0 + C @ (smoothed.x[0] - (F0 @ x0 + Bu0))
+    P = P0 + C @ (smoothed.P[0] - P_pred) @ C.T
+    return FilterResult(x=smoothed.x, P=smoothed.P, method="RTS", x0=x, P0=0.5 * (P + P.T))
 
 
 def steady_state_smoother(model: LinearGaussianModel, result: FilterResult, *,

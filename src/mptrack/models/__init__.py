@@ -14,6 +14,19 @@ from ._continuous import (
     van_loan,
 )
 from ._linear import LinearGaussianModel, require_model, stack_axes
+from ._nonlinear import (
+    MeasurementModel,
+    NonlinearModel,
+    bearings,
+    nonlinear_model,
+    position,
+    range_bearing,
+    range_rate,
+    ranges,
+    stack_measurements,
+    tdoa,
+    wrap_angles,
+)
 from ._paper import assimakis_model_a, assimakis_model_b
 
 __all__ = [
@@ -32,4 +45,15 @@ __all__ = [
     "constant_acceleration",
     "cv_discrete_white_noise",
     "ca_discrete_white_noise",
+    "NonlinearModel",
+    "MeasurementModel",
+    "nonlinear_model",
+    "wrap_angles",
+    "ranges",
+    "bearings",
+    "range_bearing",
+    "range_rate",
+    "tdoa",
+    "position",
+    "stack_measurements",
 ]

@@ -12,9 +12,11 @@ from ._ekf import (
     ekf_ranges,
     ekf_ranges_batch,
     motion_matrix,
+    motion_position,
     range_fix,
     range_measurement,
 )
+from ._extended import ekf_filter, ekf_filter_batch, ekf_smoother, ekf_step
 from ._fekf import (
     bouzera_fcs_fis,
     bouzera_fekf_fis,
@@ -26,17 +28,18 @@ from ._fekf import (
     local_solutions,
 )
 from ._fem import FEMGrid, FEMStep, GridDensity, fem_filter, fem_steps, shape_functions
+from ._imm import IMMResult, cv_ca_models, imm_filter
 from ._model import (
     ZHAO2013_X0,
-    ContinuousDiscreteModel,
     BlockKernels,
+    ContinuousDiscreteModel,
     linear_sde_model,
     simulate_sde,
     zhao2013_model,
 )
 from ._pf import particle_filter, pf_substeps, systematic_resample
 from ._reference import pf_substep_study, reference_filter
-from ._ukf import sigma_points, ukf_filter
+from ._ukf import sigma_points, ukf_filter, ukf_smoother
 
 __all__ = [
     # cellular (seed 003)
@@ -45,6 +48,7 @@ __all__ = [
     "ekf_ranges",
     "ekf_ranges_batch",
     "motion_matrix",
+    "motion_position",
     "range_measurement",
     "range_fix",
     "bouzera_fekf_fis",
@@ -69,6 +73,14 @@ __all__ = [
     "fem_steps",
     "shape_functions",
     "ukf_filter",
+    "ukf_smoother",
+    "ekf_filter",
+    "ekf_smoother",
+    "ekf_step",
+    "ekf_filter_batch",
+    "imm_filter",
+    "IMMResult",
+    "cv_ca_models",
     "sigma_points",
     "particle_filter",
     "pf_substeps",

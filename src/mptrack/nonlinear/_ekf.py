@@ -1,18 +1,18 @@
 """Extended Kalman filter on ranges to base stations (Bouzera et al. 2017, eqs. 1–10).
 
-    X(k+1) = F X(k) + w(k),   w ~ N(0, Q)         motion: "random-walk" (F = I, the paper's eq. 1)
-                                                  or "cv" (constant velocity, X = [position, velocity])
+    X(k+1) = F X(k) + w(k),   w ~ N(0, Q)         motion: "random-walk" (F = I, the paper's eq. 1, X = p)
+                                                  or "cv" (constant velocity, X = [x, vx, y, vy(, z, vz)],
+                                                  the state order of every model in mptrack)
     d_i(k) = ||p(k) - B_i|| + v_i(k),  v ~ N(0, R)  p = position part of X, B_i = station i
 
-Units are the caller's (the paper works in km).  Every filter here runs a
-batch of B independent tracks at once (leading axis), which is how the
-Monte-Carlo reproduction stays fast; the single-track functions call the
-batch core with B = 1 and return the shared :class:`mptrack.linear.FilterResult`.
+Units are the caller's (the paper works in km).  :func:`ekf_ranges` is
+:func:`mptrack.nonlinear.ekf_filter` on the model built from the motion and
+:func:`mptrack.models.ranges`; the batch functions run B independent tracks at
+once (leading axis) in one vectorised core, which is how the Monte-Carlo
+reproduction stays fast (the tests check both agree to 1e-12).
 """
 
 from __future__ import annotations
-
-from dataclasses import dataclass
 
 import numpy as np
 from scipy.optimize import least_squares
@@ -20,6 +20,9 @@ from scipy.optimize import least_squares
 from .._validation import as_array, check_covariance, check_positive
 from ..errors import ParameterError, ShapeError, SingularMatrixError
 from ..linear import FilterResult
+from ..models import NonlinearModel, ranges
+from ._common import BatchFilterResult
+from ._extended import ekf_filter, ekf_filter_batch
 
 __all__ = [
     "BatchFilterResult",
@@ -29,59 +32,49 @@ __all__ = [
     "motion_matrix",
     "check_stations",
     "range_fix",
+    "motion_position",
 ]
 
-_LOG2PI = np.log(2.0 * np.pi)
 MOTIONS = ("random-walk", "cv")
 _TINY_RANGE = 1e-12
 
 
-@dataclass(frozen=True, eq=False)
-class BatchFilterResult:
-    """A batch of B filter runs: x, x_pred (B, T, n), P, P_pred (B, T, n, n), loglik (B,) or None."""
-
-    x: np.ndarray
-    P: np.ndarray
-    x_pred: np.ndarray
-    P_pred: np.ndarray
-    loglik: np.ndarray | None = None
-    method: str = ""
-
-    def run(self, b: int) -> FilterResult:
-        """Run ``b`` as a FilterResult."""
-        ll = None if self.loglik is None else float(self.loglik[b])
-        return FilterResult(x=self.x[b], P=self.P[b], x_pred=self.x_pred[b], P_pred=self.P_pred[b], loglik=ll,
-                            method=self.method)
-
-
-def range_measurement(x, stations):
+def range_measurement(x, stations, position=None):
     """Ranges from the position part of states ``x`` to ``stations`` and their Jacobian (eqs. 7–10).
 
-    x         (..., n) states whose first d entries are the position
+    x         (..., n) states; the position is x[..., position] (default: the first d entries)
     stations  (m, d) station positions, d = 2 or 3
-    Returns (ranges (..., m), H (..., m, n)) with H[..., i, :d] = (p - B_i)/||p - B_i||
+    Returns (ranges (..., m), H (..., m, n)) with H[..., i, position] = (p - B_i)/||p - B_i||
     and zeros for non-position states.  At a station (range 0) the gradient is
     undefined; the range is floored at 1e-12 there so H stays finite.
     """
     x = np.asarray(x, dtype=float)
     d = stations.shape[1]
-    diff = x[..., None, :d] - stations  # (..., m, d)
+    pos = list(range(d)) if position is None else list(position)
+    diff = x[..., None, pos] - stations  # (..., m, d)
     rng = np.sqrt(np.einsum("...md,...md->...m", diff, diff))
     H = np.zeros(x.shape[:-1] + (stations.shape[0], x.shape[-1]))
-    H[..., :d] = diff / np.maximum(rng, _TINY_RANGE)[..., None]
+    H[..., pos] = diff / np.maximum(rng, _TINY_RANGE)[..., None]
     return rng, H
 
 
+def motion_position(motion: str, dim: int) -> tuple:
+    """Indices of the position in the state of ``motion``: (0, .., d-1) for the random walk,
+    (0, 2, 4)[:d] for constant velocity ([x, vx, y, vy, z, vz])."""
+    if motion not in MOTIONS:
+        raise ParameterError(f"motion: expected one of {MOTIONS}, got {motion!r}")
+    return tuple(range(dim)) if motion == "random-walk" else tuple(range(0, 2 * dim, 2))
+
+
 def motion_matrix(motion: str, dim: int, dt: float = 1.0) -> np.ndarray:
-    """Transition matrix F: identity (random walk, eq. 2) or constant velocity [[I, dt I], [0, I]]."""
+    """Transition matrix F: identity (random walk, eq. 2) or constant velocity, axis by axis
+    (state [x, vx, y, vy(, z, vz)]: F = block-diag([[1, dt], [0, 1]]) per axis)."""
     if motion not in MOTIONS:
         raise ParameterError(f"motion: expected one of {MOTIONS}, got {motion!r}")
     if motion == "random-walk":
         return np.eye(dim)
     dt = check_positive("dt", dt)
-    F = np.eye(2 * dim)
-    F[:dim, dim:] = dt * np.eye(dim)
-    return F
+    return np.kron(np.eye(dim), np.array([[1.0, dt], [0.0, 1.0]]))
 
 
 def check_stations(stations, *, min_count: int = 1) -> np.ndarray:
@@ -119,42 +112,7 @@ def _prepare(z, stations, x0, P0, Q, R, motion, dt, *, batch: bool):
     Q = check_covariance("Q", Q, n)
     R = np.asarray(R, dtype=float)
     R = check_covariance("R", R * np.eye(m) if R.ndim == 0 else R, m, definite=True)
-    return z, stations, x0, P0, F, Q, R
-
-
-def _ekf_core(z, stations, x0, P0, F, Q, R):
-    """Batched EKF: z (B, T, m) with NaN = missing range; returns (x, P, x_pred, P_pred, loglik)."""
-    B, T, m = z.shape
-    n = F.shape[0]
-    xs, xp = np.empty((B, T, n)), np.empty((B, T, n))
-    Ps, Pp = np.empty((B, T, n, n)), np.empty((B, T, n, n))
-    loglik = np.zeros(B)
-    x = x0.copy()
-    P = np.broadcast_to(P0, (B, n, n)).copy()
-    eye = np.eye(n)
-    for k in range(T):
-        x = x @ F.T                                   # eq. 2 (F = I for the paper's model)
-        P = F @ P @ F.T + Q                           # eq. 3
-        xp[:, k], Pp[:, k] = x, P
-        dk = z[:, k]
-        ok = ~np.isnan(dk)                            # (B, m)
-        h, H = range_measurement(x, stations)         # eqs. 7-10
-        H = H * ok[..., None]                         # missing ranges: zero rows ...
-        Rk = np.where(ok[:, :, None] & ok[:, None, :], R, 0.0) + np.eye(m) * (~ok)[:, None, :]  # ... unit noise
-        innov = np.where(ok, dk - h, 0.0)             # eq. 11
-        PHt = P @ H.transpose(0, 2, 1)
-        S = H @ PHt + Rk                              # eq. 12
-        K = np.linalg.solve(S, PHt.transpose(0, 2, 1)).transpose(0, 2, 1)  # eq. 4 (S symmetric)
-        x = x + np.einsum("bnm,bm->bn", K, innov)     # eq. 5
-        IKH = eye - K @ H
-        P = IKH @ P @ IKH.transpose(0, 2, 1) + K @ Rk @ K.transpose(0, 2, 1)  # eq. 6, Joseph form
-        P = 0.5 * (P + P.transpose(0, 2, 1))
-        xs[:, k] = x
-        Ps[:, k] = P
-        _, logdet = np.linalg.slogdet(S)
-        quad = np.einsum("bm,bm->b", innov, np.linalg.solve(S, innov[..., None])[..., 0])
-        loglik -= 0.5 * (quad + logdet + ok.sum(axis=1) * _LOG2PI)
-    return xs, Ps, xp, Pp, loglik
+    return z, stations, x0, P0, F, Q, R, motion_position(motion, d)
 
 
 def ekf_ranges(z, stations, x0, P0, Q, R, *, motion: str = "random-walk", dt: float = 1.0) -> FilterResult:
@@ -162,7 +120,8 @@ def ekf_ranges(z, stations, x0, P0, Q, R, *, motion: str = "random-walk", dt: fl
 
     z         (T, m) measured ranges d_i(k), k = 1..T; NaN = range missing (skipped; an all-NaN row predicts)
     stations  (m, d) base-station positions (d = 2 or 3), distinct
-    x0, P0    prior X(0/0) (n,) and P(0/0) (n, n); n = d (random walk) or 2d (cv)
+    x0, P0    prior X(0/0) (n,) and P(0/0) (n, n); n = d (random walk, X = p) or 2d
+              (cv, X = [x, vx, y, vy(, z, vz)])
     Q         (n, n) process-noise covariance (paper: Q0 = diag(0.02, 0.02, 0.002) km^2)
     R         range-noise variance (scalar, paper R0 = 0.222 km^2) or (m, m) covariance
     motion    "random-walk" (the paper's X(k+1) = X(k) + w) or "cv" (constant velocity, step dt)
@@ -171,7 +130,16 @@ def ekf_ranges(z, stations, x0, P0, Q, R, *, motion: str = "random-walk", dt: fl
     not observable from one scan and the prior and motion model carry the
     unobserved directions (the covariance shows it).
     """
-    return _ekf(z, stations, x0, P0, Q, R, motion, dt, batch=False).run(0)
+    z, stations, x0, P0, F, Q, R, pos = _prepare(z, stations, x0, P0, Q, R, motion, dt, batch=False)
+    return ekf_filter(_ranges_model(stations, F, Q, R, pos, motion), z[0], x0[0], P0)
+
+
+def _ranges_model(stations, F, Q, R, pos, motion) -> NonlinearModel:
+    meas = ranges(stations, R, position=pos)
+    Ft = F.T.copy()
+    return NonlinearModel(lambda X: X @ Ft, meas.h, Q, meas.R,
+                          jac_f=lambda x: np.broadcast_to(F, np.shape(x)[:-1] + F.shape), jac_h=meas.jac_h,
+                          name=f"ranges EKF ({motion})")
 
 
 def ekf_ranges_batch(z, stations, x0, P0, Q, R, *, motion: str = "random-walk",
@@ -181,8 +149,8 @@ def ekf_ranges_batch(z, stations, x0, P0, Q, R, *, motion: str = "random-walk",
 
 
 def _ekf(z, stations, x0, P0, Q, R, motion, dt, *, batch: bool) -> BatchFilterResult:
-    xs, Ps, xp, Pp, ll = _ekf_core(*_prepare(z, stations, x0, P0, Q, R, motion, dt, batch=batch))
-    return BatchFilterResult(x=xs, P=Ps, x_pred=xp, P_pred=Pp, loglik=ll, method="EKF")
+    z, stations, x0, P0, F, Q, R, pos = _prepare(z, stations, x0, P0, Q, R, motion, dt, batch=batch)
+    return ekf_filter_batch(_ranges_model(stations, F, Q, R, pos, motion), z, x0, P0)
 
 
 def range_fix(ranges, stations, *, height=None) -> np.ndarray:

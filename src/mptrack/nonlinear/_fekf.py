@@ -69,13 +69,14 @@ def bouzera_fcs_fis(distance_universe_km=(0.0, 1.5), consequents=TABLE_III) -> T
     return TakagiSugeno((d,), np.asarray(consequents), universes=(tuple(distance_universe_km),), names=("distance",))
 
 
-def local_solutions(x_pred, P_pred, z, stations, R_diag):
+def local_solutions(x_pred, P_pred, z, stations, R_diag, position=None):
     """One-station EKF updates from a common prediction (eqs. 4, 11, 12, 14), batched over a leading axis.
 
-    x_pred (B, n), P_pred (B, n, n), z (B, m) ranges (NaN = missing), stations (m, d), R_diag (m,).
+    x_pred (B, n), P_pred (B, n, n), z (B, m) ranges (NaN = missing), stations (m, d), R_diag (m,),
+    position: indices of the position in the state (default the first d entries).
     Returns (x_local (B, m, n), K (B, m, n), H (B, m, n), innov (B, m) (0 where missing), S (B, m)).
     """
-    h, H = range_measurement(x_pred, stations)                       # eqs. 7-10
+    h, H = range_measurement(x_pred, stations, position)             # eqs. 7-10
     PHt = np.einsum("bnk,bmk->bmn", P_pred, H)                       # rows P^- H_i^T
     S = np.einsum("bmn,bmn->bm", H, PHt) + R_diag                    # eq. 12, per station
     if np.any(S <= 0):
@@ -111,7 +112,7 @@ def fuse_local_solutions(x_pred, P_pred, K, H, innov, S, R_diag, y, *, covarianc
     return np.where(live[:, None], x, x_pred), np.where(live[:, None, None], P, P_pred)
 
 
-def _fused_core(z, stations, x0, P0, F, Q, R, weights: Callable, covariance: str):
+def _fused_core(z, stations, x0, P0, F, Q, R, pos, weights: Callable, covariance: str):
     if np.any(R - np.diag(np.diag(R))):
         raise ParameterError("R: the FEKF/FCS local filters use one range each, so R must be diagonal")
     R_diag = np.diag(R)
@@ -127,7 +128,7 @@ def _fused_core(z, stations, x0, P0, F, Q, R, weights: Callable, covariance: str
         xp[:, k], Pp[:, k] = x, P
         dk = z[:, k]
         ok = ~np.isnan(dk)
-        _, K, H, innov, S = local_solutions(x, P, dk, stations, R_diag)
+        _, K, H, innov, S = local_solutions(x, P, dk, stations, R_diag, pos)
         y = np.where(ok, weights(np.abs(innov), S, np.where(ok, dk, 0.0)), 0.0)
         x, P = fuse_local_solutions(x, P, K, H, innov, S, R_diag, y, covariance=covariance)
         xs[:, k] = x

@@ -119,51 +119,54 @@ def linear_map(X, p, out):  # pragma: no cover - compiled
 
 # ---------------------------------------------------------------- schemes on a block (n, B)
 @njit(nogil=True)
-def _add_capped(x, a, k, out, d):  # pragma: no cover - compiled
-    """out = x + inc / max(|inc|, 1) per column with inc = a·k (``_model._cap``); d is scratch (B,)."""
+def _add_capped(x, a, k, out, d, cap):  # pragma: no cover - compiled
+    """out = x + inc / (max(|inc|, cap) / cap) per column with inc = a·k (``_model._cap``; cap = inf:
+    no cap); d is scratch (B,)."""
     n, B = x.shape
     capped = 0
-    if n == 2:  # the usual case in one pass (the same sum in the same order)
-        for j in range(B):
-            d[j] = 0.0 + (a * k[0, j]) * (a * k[0, j]) + (a * k[1, j]) * (a * k[1, j])
-            capped += d[j] > 1.0
-    else:
-        for j in range(B):
-            d[j] = 0.0
-        for r in range(n):
+    if cap < np.inf:
+        cap2 = cap * cap
+        if n == 2:  # the usual case in one pass (the same sum in the same order)
             for j in range(B):
-                d[j] += (a * k[r, j]) * (a * k[r, j])
-        for j in range(B):
-            capped += d[j] > 1.0
-    if capped == 0:  # the usual case: dividing by max(|inc|, 1) = 1 would change nothing
+                d[j] = 0.0 + (a * k[0, j]) * (a * k[0, j]) + (a * k[1, j]) * (a * k[1, j])
+                capped += d[j] > cap2
+        else:
+            for j in range(B):
+                d[j] = 0.0
+            for r in range(n):
+                for j in range(B):
+                    d[j] += (a * k[r, j]) * (a * k[r, j])
+            for j in range(B):
+                capped += d[j] > cap2
+    if capped == 0:  # the usual case: dividing by max(|inc|, cap) / cap = 1 would change nothing
         for r in range(n):
             for j in range(B):
                 out[r, j] = x[r, j] + a * k[r, j]
         return
     for j in range(B):
-        d[j] = max(np.sqrt(d[j]), 1.0)
+        d[j] = max(np.sqrt(d[j]), cap) / cap
     for r in range(n):
         for j in range(B):
             out[r, j] = x[r, j] + a * k[r, j] / d[j]
 
 
 @njit(nogil=True)
-def _rk4(x, h, drift, p, k1, k2, k3, k4, y, inc, d):  # pragma: no cover - compiled
+def _rk4(x, h, drift, p, k1, k2, k3, k4, y, inc, d, cap):  # pragma: no cover - compiled
     """x <- one capped RK4 step of the drift flow of length h (``_model._rk4_step``)."""
     n, B = x.shape
     hh = 0.5 * h
     drift(x, p, k1)
-    _add_capped(x, hh, k1, y, d)
+    _add_capped(x, hh, k1, y, d, cap)
     drift(y, p, k2)
-    _add_capped(x, hh, k2, y, d)
+    _add_capped(x, hh, k2, y, d, cap)
     drift(y, p, k3)
-    _add_capped(x, h, k3, y, d)
+    _add_capped(x, h, k3, y, d, cap)
     drift(y, p, k4)
     h6 = h / 6.0
     for r in range(n):
         for j in range(B):
             inc[r, j] = h6 * (k1[r, j] + 2.0 * k2[r, j] + 2.0 * k3[r, j] + k4[r, j])
-    _add_capped(x, 1.0, inc, x, d)
+    _add_capped(x, 1.0, inc, x, d, cap)
 
 
 @njit(nogil=True)
@@ -178,7 +181,7 @@ def _load(X, start, x):  # pragma: no cover - compiled
 
 
 @njit(nogil=True)
-def _advance(X, Z, scheme, drift, p, L, h):  # pragma: no cover - compiled
+def _advance(X, Z, scheme, drift, p, L, h, cap):  # pragma: no cover - compiled
     """Advance every particle (rows of X) by len(Z) sub-steps of length h with the normals Z (S, N, n)."""
     N, n = X.shape
     S = Z.shape[0]
@@ -203,7 +206,7 @@ def _advance(X, Z, scheme, drift, p, L, h):  # pragma: no cover - compiled
                     dW[r, j] = sqh * dW[r, j]
             if scheme == _HEUN:
                 drift(x, p, k1)
-                _add_capped(x, h, k1, y, d)
+                _add_capped(x, h, k1, y, d, cap)
                 for r in range(n):
                     for j in range(B):
                         y[r, j] += dW[r, j]
@@ -211,16 +214,16 @@ def _advance(X, Z, scheme, drift, p, L, h):  # pragma: no cover - compiled
                 for r in range(n):
                     for j in range(B):
                         inc[r, j] = hh * (k1[r, j] + k2[r, j])
-                _add_capped(x, 1.0, inc, x, d)
+                _add_capped(x, 1.0, inc, x, d, cap)
                 for r in range(n):
                     for j in range(B):
                         x[r, j] += dW[r, j]
             else:
-                _rk4(x, hh, drift, p, k1, k2, k3, k4, y, inc, d)
+                _rk4(x, hh, drift, p, k1, k2, k3, k4, y, inc, d, cap)
                 for r in range(n):
                     for j in range(B):
                         x[r, j] += dW[r, j]
-                _rk4(x, hh, drift, p, k1, k2, k3, k4, y, inc, d)
+                _rk4(x, hh, drift, p, k1, k2, k3, k4, y, inc, d, cap)
         for j in range(min(B, N - start)):
             for r in range(n):
                 X[start + j, r] = x[r, j]
@@ -267,8 +270,8 @@ def _bound(drift, measurement):
     call then passes no function argument, whose typing costs ~15 µs per call in numba's dispatcher."""
 
     @njit(nogil=True)
-    def advance(X, rng, steps, scheme, p, L, h):  # pragma: no cover - compiled
-        _advance(X, rng.standard_normal((steps, X.shape[0], X.shape[1])), scheme, drift, p, L, h)
+    def advance(X, rng, steps, scheme, p, L, h, cap):  # pragma: no cover - compiled
+        _advance(X, rng.standard_normal((steps, X.shape[0], X.shape[1])), scheme, drift, p, L, h, cap)
 
     @njit(nogil=True)
     def loglik(X, z, ok, periods, Linv, logdet, klog2pi, p, m):  # pragma: no cover - compiled
@@ -310,7 +313,9 @@ class CompiledModel:
         """Advance the particles X (N, n) (C-contiguous float64) in place by ``steps`` sub-steps."""
         if scheme not in SCHEMES:
             raise ParameterError(f"scheme: expected one of {SCHEMES}, got {scheme!r}")
-        self._advance(X, rng, steps, SCHEMES.index(scheme), self.kernels.drift_params, self.L, self.model.dt / steps)
+        cap = np.inf if self.model.max_increment is None else self.model.max_increment
+        self._advance(X, rng, steps, SCHEMES.index(scheme), self.kernels.drift_params, self.L, self.model.dt / steps,
+                      cap)
         return X
 
     def log_likelihood(self, z: np.ndarray, X: np.ndarray) -> np.ndarray:

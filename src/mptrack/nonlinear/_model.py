@@ -22,8 +22,9 @@ import numpy as np
 
 from .._validation import as_matrix, as_vector, check_covariance, check_int, check_positive
 from ..errors import ParameterError, ShapeError
-from ..models import LinearGaussianModel, van_loan
+from ..models import LinearGaussianModel, van_loan, wrap_angles
 from ..models._linear import _frozen
+from ..models._nonlinear import gauss_logpdf
 from . import _kernels as kern
 from ._kernels import SCHEMES, BlockKernels
 
@@ -36,26 +37,27 @@ __all__ = [
     "BlockKernels",
 ]
 
-_LOG2PI = np.log(2.0 * np.pi)
 
 #: Seed 004 section 6: initial state [-0.6, -1].
 ZHAO2013_X0 = (-0.6, -1.0)
 
 
-def _cap(inc: np.ndarray) -> np.ndarray:
-    """Scale increments longer than 1 back to length 1 (rows of (..., n))."""
+def _cap(inc: np.ndarray, cap: float | None) -> np.ndarray:
+    """Scale increments (rows of (..., n)) longer than ``cap`` back to length ``cap``; no-op for None."""
+    if cap is None:
+        return inc
     norm = np.sqrt(np.sum(inc * inc, axis=-1, keepdims=True))
-    return inc / np.maximum(norm, 1.0)
+    return inc / (np.maximum(norm, cap) / cap)
 
 
-def _rk4_step(f, X: np.ndarray, h: float) -> np.ndarray:
+def _rk4_step(f, X: np.ndarray, h: float, cap: float | None) -> np.ndarray:
     """One RK4 step of length h of the drift flow dx = f(x) dt, every stage increment and the
-    step capped at length 1 (:func:`_cap`)."""
+    step capped at length ``cap`` (:func:`_cap`)."""
     k1 = f(X)
-    k2 = f(X + _cap(0.5 * h * k1))
-    k3 = f(X + _cap(0.5 * h * k2))
-    k4 = f(X + _cap(h * k3))
-    return X + _cap(h / 6 * (k1 + 2.0 * k2 + 2.0 * k3 + k4))
+    k2 = f(X + _cap(0.5 * h * k1, cap))
+    k3 = f(X + _cap(0.5 * h * k2, cap))
+    k4 = f(X + _cap(h * k3, cap))
+    return X + _cap(h / 6 * (k1 + 2.0 * k2 + 2.0 * k3 + k4), cap)
 
 
 @dataclass(frozen=True, eq=False)
@@ -74,6 +76,11 @@ class ContinuousDiscreteModel:
     kernels      optional :class:`BlockKernels`: numba-compiled drift and measurement on
                  blocks of points (X (n, B) column-wise); the particle filter then runs
                  compiled (same numbers as the NumPy path, which models without kernels use)
+    max_increment  opt-in taming of stiff or superlinear drifts: the largest drift increment
+                 per sub-step, in state units (Euclidean length); None (default) = no cap.
+                 Only for models whose state has a known scale: a cap of 1 on a model in
+                 metres would limit the speed to 1 m per sub-step (the bug of issue 15).
+                 :func:`zhao2013_model` sets 1 (its state is of order 1, see docs/nonlinear.md).
     """
 
     drift: Callable[[np.ndarray], np.ndarray]
@@ -86,6 +93,7 @@ class ContinuousDiscreteModel:
     linear: tuple | None = field(default=None, kw_only=True)
     name: str = field(default="", kw_only=True)
     kernels: BlockKernels | None = field(default=None, kw_only=True)
+    max_increment: float | None = field(default=None, kw_only=True)
 
     def __post_init__(self) -> None:
         if not callable(self.drift):
@@ -101,6 +109,8 @@ class ContinuousDiscreteModel:
         set_(self, "R", _frozen(R))
         set_(self, "dt", check_positive("dt", self.dt))
         set_(self, "substeps", check_int("substeps", self.substeps, minimum=1))
+        if self.max_increment is not None:
+            set_(self, "max_increment", check_positive("max_increment", self.max_increment))
         probe = np.zeros((3, n)) + np.linspace(-0.5, 0.5, 3)[:, None]
         for name, fn, width in (("drift", self.drift, n), ("measurement", self.measurement, m)):
             out = np.asarray(fn(probe))
@@ -128,36 +138,28 @@ class ContinuousDiscreteModel:
 
     def innovation(self, z, zhat) -> np.ndarray:
         """z - h, with angle components wrapped into [-period/2, period/2)."""
-        nu = np.asarray(z, dtype=float) - np.asarray(zhat, dtype=float)
-        for i, period in enumerate(self.periods):
-            if period is not None:
-                nu[..., i] = (nu[..., i] + 0.5 * period) % period - 0.5 * period
-        return nu
+        return wrap_angles(np.asarray(z, dtype=float) - np.asarray(zhat, dtype=float), self.periods)
 
     def log_likelihood(self, z: np.ndarray, X: np.ndarray) -> np.ndarray:
         """log p(z | x) at points X (..., n) (seed 004 eq. 25); NaN components of z are skipped."""
         ok = ~np.isnan(z)
-        nu = self.innovation(z, self.measurement(X))[..., ok]
-        R = self.R[np.ix_(ok, ok)]
-        L = np.linalg.cholesky(R)
-        w = nu @ np.linalg.inv(L).T
-        logdet = 2.0 * np.log(np.diag(L)).sum()
-        return -0.5 * (np.sum(w * w, axis=-1) + logdet + ok.sum() * _LOG2PI)
+        return gauss_logpdf(self.innovation(z, self.measurement(X))[..., ok], self.R[np.ix_(ok, ok)])
 
     def flow(self, X: np.ndarray, duration: float | None = None, steps: int | None = None) -> np.ndarray:
         """The noise-free flow of dx = f(x) dt over ``duration`` (default dt), Heun sub-steps.
 
-        Drift increments are capped at length 1 per sub-step as in
-        :meth:`sample_transition`, so stiff or superlinear drifts cannot overflow.
+        Drift increments are capped at ``max_increment`` per sub-step as in
+        :meth:`sample_transition` (when the model sets it).
         """
         duration = self.dt if duration is None else duration
         steps = self.substeps if steps is None else steps
         h = duration / steps
         X = np.array(X, dtype=float)
         f = self.drift
+        cap = self.max_increment
         for _ in range(steps):
             fx = f(X)
-            X = X + _cap(0.5 * h * (fx + f(X + _cap(h * fx))))
+            X = X + _cap(0.5 * h * (fx + f(X + _cap(h * fx, cap))), cap)
         return X
 
     def sample_transition(self, X: np.ndarray, rng: np.random.Generator, steps: int | None = None,
@@ -172,10 +174,12 @@ class ContinuousDiscreteModel:
                      (one RK4 step), the noise ΔW, the other half (one RK4 step). Deterministic
                      part of order 4, so far fewer sub-steps (the particle filter's default).
 
-        As a guard against the superlinear printed eq. 42 drift, each drift
-        increment (and each RK4 stage increment) is capped at length 1 (state
-        units) ("taming", Hutzenthaler, Jentzen & Kloeden 2012), which is
-        inactive on ordinary paths and lets diverging ones grow without overflowing.
+        When the model sets ``max_increment`` (opt-in; :func:`zhao2013_model` sets 1 as a
+        guard against the superlinear printed eq. 42 drift), each drift increment (and
+        each RK4 stage increment) is capped at that length in state units ("taming",
+        Hutzenthaler, Jentzen & Kloeden 2012): diverging paths then grow without
+        overflowing.  The cap is not scale-free, so models without a known state scale
+        (every other constructor) leave it off.
         """
         if scheme not in SCHEMES:
             raise ParameterError(f"scheme: expected one of {SCHEMES}, got {scheme!r}")
@@ -184,15 +188,15 @@ class ContinuousDiscreteModel:
         L = self.noise_factor()
         X = np.array(X, dtype=float)
         sqh = np.sqrt(h)
-        f = self.drift
+        f, cap = self.drift, self.max_increment
         for _ in range(steps):
             dW = sqh * (rng.standard_normal(X.shape) @ L.T)
             if scheme == "heun":
                 fx = f(X)
-                Xp = X + _cap(h * fx) + dW
-                X = X + _cap(0.5 * h * (fx + f(Xp))) + dW
+                Xp = X + _cap(h * fx, cap) + dW
+                X = X + _cap(0.5 * h * (fx + f(Xp)), cap) + dW
             else:
-                X = _rk4_step(f, _rk4_step(f, X, 0.5 * h) + dW, 0.5 * h)
+                X = _rk4_step(f, _rk4_step(f, X, 0.5 * h, cap) + dW, 0.5 * h, cap)
         return X
 
     def noise_factor(self) -> np.ndarray:
@@ -262,7 +266,8 @@ def zhao2013_model(*, variant: str = "printed", diffusion_scale: float = 1.0, be
     return ContinuousDiscreteModel(drift, scale * np.diag([10.0, 0.1]), measurement, np.diag([0.1, 1.0]), dt,
                                    periods=(None, period), substeps=substeps,
                                    name=f"zhao2013 eq. 42 ({variant}, Q x {scale:g}, {bearing})",
-                                   kernels=BlockKernels(drift_kernel, measurement_kernel, np.zeros(0), np.zeros(0)))
+                                   kernels=BlockKernels(drift_kernel, measurement_kernel, np.zeros(0), np.zeros(0)),
+                                   max_increment=1.0)
 
 
 def linear_sde_model(A, Q, H, R, dt: float, *, substeps: int = 20, name: str = "") -> ContinuousDiscreteModel:
@@ -296,7 +301,4 @@ def simulate_sde(model: ContinuousDiscreteModel, steps: int, rng: np.random.Gene
         truth[k] = x
     Lr = np.linalg.cholesky(model.R)
     z = model.measurement(truth) + rng.standard_normal((steps, model.m)) @ Lr.T
-    for i, period in enumerate(model.periods):
-        if period is not None:
-            z[:, i] = (z[:, i] + 0.5 * period) % period - 0.5 * period
-    return truth, z
+    return truth, wrap_angles(z, model.periods)

@@ -7,8 +7,9 @@ import numpy as np
 from .._validation import check_int, check_positive
 from ..errors import ParameterError, ShapeError
 from ..linear import FilterResult
+from ..models import NonlinearModel
 from . import _kernels as kern
-from ._common import check_rng, prepare_nonlinear
+from ._common import check_prior, check_rng, prepare_nonlinear
 from ._kernels import SCHEMES
 from ._model import ContinuousDiscreteModel
 
@@ -43,11 +44,16 @@ def pf_substeps(model: ContinuousDiscreteModel, scheme: str = "rk4-split") -> in
     return max(-(-model.substeps // SPLIT_RATIO), noise)
 
 
-def particle_filter(model: ContinuousDiscreteModel, z, x0, P0, rng: np.random.Generator, *,
+def particle_filter(model, z, x0, P0, rng: np.random.Generator, *,
                     particles: int = 200, ess_threshold: float = 0.5, regularise: bool = False,
                     substeps: int | None = None, scheme: str = "rk4-split", compiled: bool | None = None,
-                    method: str = "PF") -> FilterResult:
-    """Bootstrap particle filter: propagate by the SDE, weight by p(z|x), resample when ESS is low.
+                    prior: str = "initial", method: str = "PF") -> FilterResult:
+    """Bootstrap particle filter: propagate by the model, weight by p(z|x), resample when ESS is low.
+
+    model          a :class:`ContinuousDiscreteModel` (particles follow the SDE in sub-steps) or a
+                   discrete-time :class:`mptrack.models.NonlinearModel` (x = f(x) + w, w ~ N(0, Q);
+                   a callable Q(x, k) or R(x, k) is evaluated per particle, which is slow)
+    prior          "initial" (x0, P0 at time 0) or "first-measurement" (no propagation before it)
 
     particles      number of particles N
     ess_threshold  resample (systematically) when the effective sample size
@@ -58,7 +64,7 @@ def particle_filter(model: ContinuousDiscreteModel, z, x0, P0, rng: np.random.Ge
     scheme         SDE sub-step scheme of :meth:`ContinuousDiscreteModel.sample_transition`:
                    "rk4-split" (default; RK4 drift flows around the noise) or "heun"
     substeps       sub-steps per dt (default :func:`pf_substeps`: 2 for eq. 42 with Q x 0.01,
-                   more when the diffusion is large)
+                   more when the diffusion is large); continuous-discrete models only
     compiled       None: use the model's compiled kernels when it has them (zhao2013_model,
                    linear_sde_model), else NumPy; False: NumPy; True: require the kernels.
                    Both paths draw the same numbers and give the same result up to rounding.
@@ -66,23 +72,39 @@ def particle_filter(model: ContinuousDiscreteModel, z, x0, P0, rng: np.random.Ge
     """
     if scheme not in SCHEMES:
         raise ParameterError(f"scheme: expected one of {SCHEMES}, got {scheme!r}")
+    first = check_prior(prior)
     default_substeps = substeps is None
     z, m0, P0, substeps = prepare_nonlinear(model, z, x0, P0, substeps)
-    if default_substeps:
+    discrete = isinstance(model, NonlinearModel)
+    if default_substeps and not discrete:
         substeps = pf_substeps(model, scheme)
     rng = check_rng(rng)
     N = check_int("particles", particles, minimum=2)
     thr = check_positive("ess_threshold", ess_threshold, allow_zero=True)
     if thr > 1:
         raise ParameterError(f"ess_threshold: expected a number in [0, 1], got {ess_threshold!r}")
-    if compiled and model.kernels is None:
+    kernels = None if discrete else model.kernels
+    if compiled and kernels is None:
         raise ParameterError("compiled: the model has no compiled kernels (BlockKernels)")
-    use_kernels = model.kernels is not None if compiled is None else bool(compiled)
-    if use_kernels:
-        compiled_model = kern.CompiledModel(model)
-        propagate, log_likelihood = compiled_model.propagate, compiled_model.log_likelihood
+    use_kernels = kernels is not None if compiled is None else bool(compiled)
+    if discrete:
+        def propagate(X, k):
+            return model.sample_transition(X, rng, k)
+
+        def log_likelihood(zk, X, k):
+            return model.log_likelihood(zk, X, k)
     else:
-        propagate, log_likelihood = model.sample_transition, model.log_likelihood
+        if use_kernels:
+            compiled_model = kern.CompiledModel(model)
+            advance, weigh = compiled_model.propagate, compiled_model.log_likelihood
+        else:
+            advance, weigh = model.sample_transition, model.log_likelihood
+
+        def propagate(X, k):
+            return advance(X, rng, substeps, scheme)
+
+        def log_likelihood(zk, X, k):
+            return weigh(zk, X)
     n, T = model.n, z.shape[0]
     w0, V = np.linalg.eigh(P0)
     L0 = V * np.sqrt(np.clip(w0, 0.0, None))
@@ -93,10 +115,11 @@ def particle_filter(model: ContinuousDiscreteModel, z, x0, P0, rng: np.random.Ge
     xp, Pp = np.empty((T, n)), np.empty((T, n, n))
     loglik = 0.0
     for k in range(T):
-        X = propagate(X, rng, substeps, scheme)
+        if not (first and k == 0):
+            X = np.ascontiguousarray(propagate(X, k))
         xp[k], Pp[k], ess = kern.weighted_moments(X, w)
         if not np.isnan(z[k]).all():
-            increment = kern.reweight(logw, w, log_likelihood(z[k], X))
+            increment = kern.reweight(logw, w, log_likelihood(z[k], X, k))
             if not np.isfinite(increment):
                 raise ParameterError(f"z: measurement {k} has zero likelihood under every particle")
             loglik += increment
@@ -110,4 +133,5 @@ def particle_filter(model: ContinuousDiscreteModel, z, x0, P0, rng: np.random.Ge
             if regularise:
                 L = np.linalg.cholesky(Ps[k] + 1e-12 * np.trace(Ps[k]) * np.eye(n))
                 X = X + bandwidth * (rng.standard_normal((N, n)) @ L.T)
-    return FilterResult(x=xs, P=Ps, x_pred=xp, P_pred=Pp, loglik=float(loglik), method=method)
+    return FilterResult(x=xs, P=Ps, x_pred=xp, P_pred=Pp, loglik=float(loglik), method=method,
+                        x0=None if first else m0, P0=None if first else P0)

@@ -1,4 +1,11 @@
-"""The continuous-discrete unscented Kalman filter (scaled unscented transform, angle-aware).
+"""The unscented Kalman filter (scaled unscented transform, angle-aware) and the unscented RTS smoother.
+
+Discrete-time models (:class:`mptrack.models.NonlinearModel`): the sigma points of
+N(x(k-1/k-1), P(k-1/k-1)) go through f, x(k/k-1) is their weighted mean and P(k/k-1)
+their weighted covariance plus Q; the update draws new sigma points of the
+prediction (as Stone Soup and Särkkä 2013 alg. 5.14 do).
+
+Continuous-discrete models (:class:`ContinuousDiscreteModel`):
 
 Prediction integrates the moment equations of the SDE with unscented
 expectations (Särkkä 2007, IEEE TAC 52(10)):
@@ -15,12 +22,15 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..errors import ConvergenceError, NotPositiveDefiniteError
+from .._validation import check_positive
+from ..errors import ConvergenceError, NotPositiveDefiniteError, ParameterError
 from ..linear import FilterResult
+from ..models import NonlinearModel
 from ._common import prepare_nonlinear
+from ._extended import _run, smooth_with
 from ._model import ContinuousDiscreteModel
 
-__all__ = ["ukf_filter", "sigma_points"]
+__all__ = ["ukf_filter", "ukf_smoother", "sigma_points"]
 
 _LOG2PI = np.log(2.0 * np.pi)
 
@@ -45,6 +55,15 @@ def _sqrt(P: np.ndarray, what: str) -> np.ndarray:
         return V * np.sqrt(np.clip(w, 0.0, None))
 
 
+def check_unscented(n: int, alpha, beta, kappa) -> dict:
+    """Validated scaled-unscented-transform parameters: α > 0, β >= 0, n + κ > 0 (so (n + λ) > 0)."""
+    alpha = check_positive("alpha", alpha)
+    beta = check_positive("beta", beta, allow_zero=True)
+    if isinstance(kappa, bool) or not np.isfinite(np.asarray(kappa, dtype=float)) or n + float(kappa) <= 0:
+        raise ParameterError(f"kappa: expected a finite number with n + kappa > 0 (n = {n}), got {kappa!r}")
+    return {"alpha": alpha, "beta": beta, "kappa": float(kappa)}
+
+
 def sigma_points(m: np.ndarray, P: np.ndarray, *, alpha: float = 1.0, beta: float = 2.0, kappa: float = 0.0):
     """The 2n+1 scaled sigma points of N(m, P) and their mean/covariance weights.
 
@@ -62,7 +81,7 @@ def sigma_points(m: np.ndarray, P: np.ndarray, *, alpha: float = 1.0, beta: floa
     return X, Wm, Wc
 
 
-def _circular_mean(model: ContinuousDiscreteModel, Z: np.ndarray, Wm: np.ndarray) -> np.ndarray:
+def _circular_mean(model, Z: np.ndarray, Wm: np.ndarray) -> np.ndarray:
     zbar = Wm @ Z
     for i, period in enumerate(model.periods):
         if period is not None:
@@ -94,17 +113,20 @@ def ukf_predict(model: ContinuousDiscreteModel, m, P, *, substeps: int, ut: dict
     return m, P
 
 
-def ukf_update(model: ContinuousDiscreteModel, m, P, z, *, ut: dict):
+def ukf_update(model, m, P, z, *, ut: dict, k: int = 0):
     """Unscented measurement update; NaN components of z are skipped.  Returns (m, P, loglik)."""
     ok = ~np.isnan(z)
     if not ok.any():
         return m, P, 0.0
     X, Wm, Wc = sigma_points(m, P, **ut)
-    Z = model.measurement(X)
+    if isinstance(model, NonlinearModel):
+        Z, R = model.h(X), model.R_at(m, k)
+    else:
+        Z, R = model.measurement(X), model.R
     zbar = _circular_mean(model, Z, Wm)
     dZ = model.innovation(Z, zbar)[:, ok]
     D = X - m
-    R = model.R[np.ix_(ok, ok)]
+    R = R[np.ix_(ok, ok)]
     S = (Wc[:, None] * dZ).T @ dZ + R
     C = (Wc[:, None] * D).T @ dZ
     nu = model.innovation(z, zbar)[ok]
@@ -118,18 +140,41 @@ def ukf_update(model: ContinuousDiscreteModel, m, P, z, *, ut: dict):
     return m, P, float(ll)
 
 
-def ukf_filter(model: ContinuousDiscreteModel, z, x0, P0, *, alpha: float = 1.0, beta: float = 2.0,
-               kappa: float = 0.0, substeps: int | None = None) -> FilterResult:
-    """Continuous-discrete UKF over measurements z (T, m) from the prior N(x0, P0) at t = 0.
+def _unscented_prediction(model: NonlinearModel, x, P, k: int, ut: dict):
+    """(x(k/k-1), P(k/k-1), cross-covariance of x(k-1) and x(k)) by the unscented transform through f."""
+    X, Wm, Wc = sigma_points(x, P, **ut)
+    Y = model.f(X)
+    m = Wm @ Y
+    dY = Y - m
+    Pp = (Wc[:, None] * dY).T @ dY + model.Q_at(x, k)
+    return m, 0.5 * (Pp + Pp.T), (Wc[:, None] * (X - x)).T @ dY
 
-    alpha, beta, kappa   scaled unscented transform parameters
-    substeps             RK4 sub-steps of the moment equations per dt (default model.substeps)
+
+def ukf_filter(model, z, x0, P0, *, alpha: float = 1.0, beta: float = 2.0, kappa: float = 0.0,
+               substeps: int | None = None, prior: str = "initial") -> FilterResult:
+    """UKF over measurements z (T, m) from the prior N(x0, P0), for a discrete-time
+    :class:`~mptrack.models.NonlinearModel` or a :class:`ContinuousDiscreteModel` (module docstring).
+
+    alpha, beta, kappa   scaled unscented transform parameters (α > 0, β >= 0, n + κ > 0); the
+                         defaults α = 1, β = 2, κ = 0 keep every weight non-negative.  FilterPy's
+                         MerweScaledSigmaPoints(n, alpha, beta, kappa) and Stone Soup's
+                         UnscentedKalmanPredictor(alpha=.., beta=.., kappa=..) use the same points.
+    substeps             continuous-discrete models: RK4 sub-steps of the moment equations per dt
+                         (default model.substeps)
+    prior                "initial" (x0, P0 at time 0) or "first-measurement" (NonlinearModel only)
     NaN measurement components are skipped; a NaN row only predicts.
     Raises ConvergenceError when the moment equations blow up (stiff drift,
     far from the sigma points) and NotPositiveDefiniteError when P loses PSD.
     """
     z, x, P, substeps = prepare_nonlinear(model, z, x0, P0, substeps)
-    ut = {"alpha": alpha, "beta": beta, "kappa": kappa}
+    ut = check_unscented(model.n, alpha, beta, kappa)
+    if isinstance(model, NonlinearModel):
+        predict = lambda mdl, x, P, k: _unscented_prediction(mdl, x, P, k, ut)[:2]  # noqa: E731
+        update = lambda mdl, x, P, z, k: ukf_update(mdl, x, P, z, ut=ut, k=k)  # noqa: E731
+        return _run(model, z, x, P, prior, predict, update, "UKF")
+    if prior != "initial":
+        raise ParameterError("prior: a ContinuousDiscreteModel's prior is at t = 0 (prior='initial')")
+    x0, P0 = x, P
     T, n = z.shape[0], model.n
     xs, Ps = np.empty((T, n)), np.empty((T, n, n))
     xp, Pp = np.empty((T, n)), np.empty((T, n, n))
@@ -144,4 +189,15 @@ def ukf_filter(model: ContinuousDiscreteModel, z, x0, P0, *, alpha: float = 1.0,
             raise ConvergenceError(f"UKF diverged at measurement {k} ({exc})") from None
         xs[k], Ps[k] = x, P
         loglik += ll
-    return FilterResult(x=xs, P=Ps, x_pred=xp, P_pred=Pp, loglik=loglik, method="UKF")
+    return FilterResult(x=xs, P=Ps, x_pred=xp, P_pred=Pp, loglik=loglik, method="UKF", x0=x0, P0=P0)
+
+
+def ukf_smoother(model: NonlinearModel, result: FilterResult, *, alpha: float = 1.0, beta: float = 2.0,
+                 kappa: float = 0.0) -> FilterResult:
+    """Unscented RTS smoother (Särkkä 2008, IEEE TAC 53(3)) on :func:`ukf_filter`'s result for a
+    NonlinearModel, with the filter's sigma-point parameters: C(k) = D(k) P(k+1/k)^-1 with D the
+    unscented cross-covariance of x(k) and x(k+1).  x(0/T), P(0/T) are x0, P0 (method "URTS")."""
+    if not isinstance(model, NonlinearModel):
+        raise ParameterError(f"model: expected a NonlinearModel, got {type(model).__name__}")
+    ut = check_unscented(model.n, alpha, beta, kappa)
+    return smooth_with(model, result, lambda mdl, x, P, k: _unscented_prediction(mdl, x, P, k, ut)[2], "URTS")

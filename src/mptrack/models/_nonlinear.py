@@ -1,0 +1,416 @@
+"""The discrete-time nonlinear model and the standard measurement models.
+
+    x(k) = f(x(k-1)) + w(k),   w(k) ~ N(0, Q(x(k-1), k))
+    z(k) = h(x(k)) + v(k),     v(k) ~ N(0, R(x(k), k))
+
+``f`` and ``h`` are vectorised over leading axes: (..., n) -> (..., n) and (..., m),
+as for :class:`mptrack.nonlinear.ContinuousDiscreteModel` (the SDE model, which
+stays the model for continuous-time dynamics).  Q and R are constant matrices or
+callables ``Q(x, k)`` / ``R(x, k)`` of one state x (n,) and the row k = 0..T-1 of
+the measurement sequence, returning (n, n) / (m, m).
+
+Jacobians: give ``jac_f(x)`` / ``jac_h(x)`` (one state (n,) -> (n, n) / (m, n)), or
+leave them None for central finite differences, step 6e-6·max(|x_i|, 1) (relative
+error ~1e-10 for smooth f, h).  Complex-step differentiation would be exact but
+fails on ``np.hypot``/``np.arctan2``/``np.abs``, which nearly every measurement
+model uses, so it is not the default.  The named measurement models below carry
+their analytic Jacobians.
+
+State order: every model in mptrack orders a 2-D kinematic state axis by axis,
+``[x, vx, y, vy]`` (as :func:`constant_velocity` with ``axes=2``, FilterPy and
+Stone Soup); the measurement constructors take the indices of the position
+(default (0, 2)) and velocity (default (1, 3)) components.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+
+from .._validation import as_matrix, as_vector, check_covariance, check_int, check_positive
+from ..errors import ParameterError, ShapeError
+from ._linear import LinearGaussianModel, _frozen
+
+__all__ = [
+    "NonlinearModel",
+    "MeasurementModel",
+    "nonlinear_model",
+    "wrap_angles",
+    "ranges",
+    "bearings",
+    "range_bearing",
+    "range_rate",
+    "tdoa",
+    "position",
+    "stack_measurements",
+]
+
+_LOG2PI = np.log(2.0 * np.pi)
+_TINY = 1e-12
+
+
+def wrap_angles(nu: np.ndarray, periods: tuple) -> np.ndarray:
+    """nu (..., m) with components of non-None period wrapped into [-period/2, period/2) (a copy)."""
+    nu = np.array(nu, dtype=float)
+    for i, period in enumerate(periods):
+        if period is not None:
+            nu[..., i] = (nu[..., i] + 0.5 * period) % period - 0.5 * period
+    return nu
+
+
+def _numeric_jacobian(fn, x: np.ndarray, periods: tuple | None = None) -> np.ndarray:
+    """Central differences of fn (vectorised) at x (n,): (out, n)."""
+    n = x.shape[0]
+    step = 6e-6 * np.maximum(np.abs(x), 1.0)
+    X = np.concatenate([x + np.diag(step), x - np.diag(step)])
+    Y = np.asarray(fn(X), dtype=float)
+    diff = Y[:n] - Y[n:]
+    if periods is not None:
+        diff = wrap_angles(diff, periods)
+    return (diff / (2.0 * step)[:, None]).T
+
+
+def _noise(name: str, value, size: int | None):
+    """A constant covariance (validated, frozen) or a callable (x, k) -> covariance."""
+    if callable(value):
+        return value
+    return _frozen(check_covariance(name, value, size, definite=name == "R"))
+
+
+@dataclass(frozen=True, eq=False)
+class NonlinearModel:
+    """A validated discrete-time nonlinear model (module docstring).
+
+    f, h              vectorised transition and measurement functions
+    Q, R              (n, n), (m, m) covariances, or callables Q(x, k), R(x, k)
+    jac_f, jac_h      Jacobians of one state (x (n,) -> (n, n), (m, n)); None: finite differences
+    angle_components  indices of the measurement components that are angles in radians
+                      (innovations wrapped into [-π, π), unscented means taken on the circle)
+    n                 state dimension; needed only when Q is a callable
+    dt, name          descriptive metadata (seconds between measurements)
+    """
+
+    f: Callable[[np.ndarray], np.ndarray]
+    h: Callable[[np.ndarray], np.ndarray]
+    Q: np.ndarray | Callable
+    R: np.ndarray | Callable
+    jac_f: Callable | None = field(default=None, kw_only=True)
+    jac_h: Callable | None = field(default=None, kw_only=True)
+    angle_components: tuple = field(default=(), kw_only=True)
+    n: int | None = field(default=None, kw_only=True)
+    dt: float | None = field(default=None, kw_only=True)
+    name: str = field(default="", kw_only=True)
+    periods: tuple = field(init=False, repr=False)
+    m: int = field(init=False)
+
+    def __post_init__(self) -> None:
+        set_ = object.__setattr__
+        for attr in ("f", "h"):
+            if not callable(getattr(self, attr)):
+                raise ParameterError(f"{attr}: expected a callable {attr}(x), got {type(getattr(self, attr)).__name__}")
+        for attr in ("jac_f", "jac_h"):
+            if getattr(self, attr) is not None and not callable(getattr(self, attr)):
+                raise ParameterError(f"{attr}: expected a callable of one state x (n,) or None, "
+                                     f"got {type(getattr(self, attr)).__name__}")
+        if callable(self.Q):
+            if self.n is None:
+                raise ParameterError("n: give the state dimension when Q is a callable Q(x, k)")
+            n = check_int("n", self.n, minimum=1)
+        else:
+            Q = _noise("Q", self.Q, self.n)
+            n = Q.shape[0]
+            set_(self, "Q", Q)
+        set_(self, "n", n)
+        probe = np.zeros((3, n)) + np.linspace(-0.5, 0.5, 3)[:, None] + 1.0
+        fx = np.asarray(self.f(probe))
+        if fx.shape != (3, n):
+            raise ShapeError(f"f: must map states (k, {n}) to (k, {n}), got shape {fx.shape} for k = 3")
+        hx = np.asarray(self.h(probe))
+        if hx.ndim != 2 or hx.shape[0] != 3:
+            raise ShapeError(f"h: must map states (k, {n}) to (k, m), got shape {hx.shape} for k = 3")
+        m = hx.shape[1]
+        set_(self, "m", m)
+        set_(self, "R", _noise("R", self.R, m))
+        angles = tuple(check_int("angle_components", i, minimum=0) for i in self.angle_components)
+        if any(i >= m for i in angles):
+            raise ShapeError(f"angle_components: indices must be < m = {m}, got {angles}")
+        set_(self, "angle_components", angles)
+        set_(self, "periods", tuple(2.0 * np.pi if i in angles else None for i in range(m)))
+        if self.dt is not None:
+            set_(self, "dt", check_positive("dt", self.dt))
+        for attr, rows in (("jac_f", n), ("jac_h", m)):
+            if getattr(self, attr) is not None:
+                J = np.asarray(getattr(self, attr)(probe[0]))
+                if J.shape != (rows, n):
+                    raise ShapeError(f"{attr}: must return a ({rows}, {n}) matrix for a state (n,), got {J.shape}")
+
+    # ------------------------------------------------------------ evaluations used by the filters
+    def Q_at(self, x: np.ndarray, k: int) -> np.ndarray:
+        """The process-noise covariance of the step into row k from state x."""
+        return self.Q if not callable(self.Q) else self._checked("Q", self.Q(x, k), self.n)
+
+    def R_at(self, x: np.ndarray, k: int) -> np.ndarray:
+        """The measurement-noise covariance of row k at state x."""
+        return self.R if not callable(self.R) else self._checked("R", self.R(x, k), self.m)
+
+    @staticmethod
+    def _checked(name, value, size):
+        arr = np.asarray(value, dtype=float)
+        if arr.shape != (size, size) or not np.all(np.isfinite(arr)):
+            raise ShapeError(f"{name}: the callable {name}(x, k) must return a finite ({size}, {size}) matrix, "
+                             f"got shape {arr.shape}")
+        return 0.5 * (arr + arr.T)
+
+    def F_at(self, x: np.ndarray) -> np.ndarray:
+        """Jacobian of f at x (n,)."""
+        return np.asarray(self.jac_f(x), dtype=float) if self.jac_f is not None else _numeric_jacobian(self.f, x)
+
+    def H_at(self, x: np.ndarray) -> np.ndarray:
+        """Jacobian of h at x (n,)."""
+        if self.jac_h is not None:
+            return np.asarray(self.jac_h(x), dtype=float)
+        return _numeric_jacobian(self.h, x, self.periods)
+
+    def innovation(self, z, zhat) -> np.ndarray:
+        """z - h, angle components wrapped into [-π, π)."""
+        return wrap_angles(np.asarray(z, dtype=float) - np.asarray(zhat, dtype=float), self.periods)
+
+    def log_likelihood(self, z: np.ndarray, X: np.ndarray, k: int = 0) -> np.ndarray:
+        """log p(z | x) at states X (N, n); NaN components of z are skipped."""
+        ok = ~np.isnan(z)
+        nu = self.innovation(z, self.h(X))[..., ok]
+        if callable(self.R):
+            return np.array([gauss_logpdf(v, self.R_at(x, k)[np.ix_(ok, ok)]) for v, x in zip(nu, X)])
+        return gauss_logpdf(nu, self.R[np.ix_(ok, ok)])
+
+    def sample_transition(self, X: np.ndarray, rng: np.random.Generator, k: int = 0) -> np.ndarray:
+        """Draw x(k) given x(k-1) = X (N, n)."""
+        FX = np.asarray(self.f(X), dtype=float)
+        if callable(self.Q):
+            return FX + np.stack([_factor(self.Q_at(x, k)) @ rng.standard_normal(self.n) for x in X])
+        return FX + rng.standard_normal(X.shape) @ _factor(self.Q).T
+
+    def __repr__(self) -> str:
+        label = f" {self.name!r}" if self.name else ""
+        return f"<NonlinearModel{label} n={self.n} m={self.m}>"
+
+
+def _factor(Q: np.ndarray) -> np.ndarray:
+    w, V = np.linalg.eigh(Q)
+    return V * np.sqrt(np.clip(w, 0.0, None))
+
+
+def gauss_logpdf(nu: np.ndarray, R: np.ndarray):
+    """log N(nu; 0, R) for innovations nu (..., m)."""
+    L = np.linalg.cholesky(R)
+    w = nu @ np.linalg.inv(L).T
+    return -0.5 * (np.sum(w * w, axis=-1) + 2.0 * np.log(np.diag(L)).sum() + R.shape[0] * _LOG2PI)
+
+
+# ---------------------------------------------------------------- measurement models
+@dataclass(frozen=True, eq=False)
+class MeasurementModel:
+    """A measurement function with its Jacobian, noise and angle components (built by the constructors
+    below; combine with a motion model by :func:`nonlinear_model`)."""
+
+    h: Callable
+    jac_h: Callable
+    R: np.ndarray | Callable
+    angle_components: tuple = ()
+    name: str = ""
+
+
+def nonlinear_model(motion: LinearGaussianModel, measurement: MeasurementModel, *, name: str = "") -> NonlinearModel:
+    """A linear-Gaussian motion model (F, Q; e.g. :func:`constant_velocity`) observed by a nonlinear
+    ``measurement`` (one of :func:`ranges`, :func:`bearings`, ...): the NonlinearModel with the exact
+    Jacobians F and measurement.jac_h."""
+    if not isinstance(motion, LinearGaussianModel):
+        raise ParameterError(f"motion: expected a LinearGaussianModel, got {type(motion).__name__}")
+    if not isinstance(measurement, MeasurementModel):
+        raise ParameterError(f"measurement: expected a MeasurementModel, got {type(measurement).__name__}")
+    F = motion.F
+    Ft = np.ascontiguousarray(F.T)
+    return NonlinearModel(lambda X: X @ Ft, measurement.h, motion.Q, measurement.R,
+                          jac_f=lambda x: np.broadcast_to(F, np.shape(x)[:-1] + F.shape),
+                          jac_h=measurement.jac_h, angle_components=measurement.angle_components, dt=motion.dt,
+                          name=name or f"{motion.name or 'linear motion'} + {measurement.name}")
+
+
+def _indices(name: str, idx, count: int | None = None) -> tuple:
+    idx = tuple(check_int(name, i, minimum=0) for i in np.atleast_1d(idx).tolist())
+    if count is not None and len(idx) != count:
+        raise ShapeError(f"{name}: expected {count} state indices, got {len(idx)}")
+    if len(set(idx)) != len(idx):
+        raise ParameterError(f"{name}: indices must be distinct, got {idx}")
+    return idx
+
+
+def _points(name: str, value) -> np.ndarray:
+    pts = np.asarray(value, dtype=float)
+    pts = pts[None] if pts.ndim == 1 else pts
+    pts = as_matrix(name, pts)
+    if pts.shape[1] not in (2, 3):
+        raise ShapeError(f"{name}: expected positions of shape (d,) or (k, d) with d = 2 or 3, got {pts.shape}")
+    return _frozen(pts)
+
+
+def _covariance(R, m: int):
+    """R as a scalar variance (same for every component), a vector of variances, a matrix, or a callable."""
+    if callable(R):
+        return R
+    arr = np.asarray(R, dtype=float)
+    if arr.ndim == 0:
+        arr = float(check_positive("R", float(arr))) * np.eye(m)
+    elif arr.ndim == 1:
+        arr = np.diag(as_vector("R", arr, m))
+    return _frozen(check_covariance("R", arr, m, definite=True))
+
+
+def _jac_from(pos: tuple, rows_fn):
+    """A Jacobian function placing rows_fn(x) (..., m, len(pos)) into the position columns of an (..., m, n)
+    array (states x (..., n): the named models' Jacobians are vectorised like h)."""
+    def jac(x):
+        x = np.asarray(x, dtype=float)
+        G = rows_fn(x)
+        J = np.zeros(G.shape[:-1] + (x.shape[-1],))
+        J[..., list(pos)] = G
+        return J
+    return jac
+
+
+def ranges(stations, R, *, position=(0, 2)) -> MeasurementModel:
+    """Ranges ||p - s_i|| (metres) from the position p = x[position] to each station s_i (TOA × c).
+
+    stations  (d,) one sensor or (k, d) stations, d = len(position) = 2 or 3
+    R         variance (m²) common to all ranges, a vector of variances, a (k, k) matrix or R(x, k)
+    Jacobian rows (p - s_i)/||p - s_i|| (range floored at 1e-12 at a station).
+    """
+    s = _points("stations", stations)
+    pos = _indices("position", position, s.shape[1])
+
+    def h(X):
+        diff = np.asarray(X)[..., None, list(pos)] - s
+        return np.sqrt(np.sum(diff * diff, axis=-1))
+
+    def rows(x):
+        diff = x[..., None, list(pos)] - s
+        return diff / np.maximum(np.sqrt(np.sum(diff * diff, axis=-1)), _TINY)[..., None]
+    return MeasurementModel(h, _jac_from(pos, rows), _covariance(R, s.shape[0]), (), f"ranges to {len(s)}")
+
+
+def bearings(stations, R, *, position=(0, 2)) -> MeasurementModel:
+    """Bearings (AOA, radians) atan2(y - s_y, x - s_x) from each station to the 2-D position x[position]
+    (counter-clockwise from the x axis, as Stone Soup's CartesianToBearingRange); angle components."""
+    s = _points("stations", stations)
+    if s.shape[1] != 2:
+        raise ShapeError(f"stations: bearings need 2-D stations (k, 2), got {s.shape}")
+    pos = _indices("position", position, 2)
+
+    def h(X):
+        diff = np.asarray(X)[..., None, list(pos)] - s
+        return np.arctan2(diff[..., 1], diff[..., 0])
+
+    def rows(x):
+        diff = x[..., None, list(pos)] - s
+        dx, dy = diff[..., 0], diff[..., 1]
+        r2 = np.maximum(dx * dx + dy * dy, _TINY)
+        return np.stack([-dy / r2, dx / r2], axis=-1)
+    k = s.shape[0]
+    return MeasurementModel(h, _jac_from(pos, rows), _covariance(R, k), tuple(range(k)), f"bearings from {k}")
+
+
+def range_bearing(sensor, R, *, position=(0, 2)) -> MeasurementModel:
+    """[bearing (rad), range (m)] of the 2-D position x[position] from ``sensor`` (2,): the order of
+    Stone Soup's CartesianToBearingRange.  R: (2, 2), a vector of 2 variances, or R(x, k)."""
+    b, r = bearings(sensor, 1.0, position=position), ranges(sensor, 1.0, position=position)
+    return MeasurementModel(lambda X: np.concatenate([b.h(X), r.h(X)], axis=-1),
+                            lambda x: np.concatenate([b.jac_h(x), r.jac_h(x)], axis=-2), _covariance(R, 2), (0,),
+                            "range-bearing")
+
+
+def range_rate(sensor, R, *, position=(0, 2), velocity=(1, 3)) -> MeasurementModel:
+    """Range rate (m/s) d||p - s||/dt = (p - s)·v / ||p - s|| of a target (position x[position], velocity
+    x[velocity]) seen from a static ``sensor`` (d,) (Doppler).  R: the variance ((m/s)²) or R(x, k)."""
+    s = _points("sensor", sensor)
+    if s.shape[0] != 1:
+        raise ShapeError(f"sensor: expected one position (d,), got {s.shape}")
+    s = s[0]
+    d = s.shape[0]
+    pos, vel = _indices("position", position, d), _indices("velocity", velocity, d)
+
+    def h(X):
+        X = np.asarray(X)
+        p, v = X[..., list(pos)] - s, X[..., list(vel)]
+        r = np.maximum(np.sqrt(np.sum(p * p, axis=-1)), _TINY)
+        return (np.sum(p * v, axis=-1) / r)[..., None]
+
+    def jac(x):
+        x = np.asarray(x, dtype=float)
+        p, v = x[..., list(pos)] - s, x[..., list(vel)]
+        r = np.maximum(np.sqrt(np.sum(p * p, axis=-1)), _TINY)[..., None]
+        rr = np.sum(p * v, axis=-1)[..., None] / r
+        J = np.zeros(x.shape[:-1] + (1, x.shape[-1]))
+        J[..., 0, list(pos)] = (v - rr * p / r) / r
+        J[..., 0, list(vel)] = p / r
+        return J
+    return MeasurementModel(h, jac, _covariance(R, 1), (), "range rate")
+
+
+def tdoa(stations, R, *, position=(0, 2), reference: int = 0) -> MeasurementModel:
+    """Range differences (TDOA × c, metres) ||p - s_i|| - ||p - s_ref|| for every station i ≠ reference.
+
+    R  the variance σ² of one station's range (TOA) error: the differences then have the
+       correlated covariance σ²(I + 1 1ᵀ); or a full (k-1, k-1) matrix, or R(x, k).
+    """
+    toa = ranges(stations, 1.0, position=position)
+    k = toa.R.shape[0]
+    if k < 2:
+        raise ParameterError(f"stations: TDOA needs at least 2 stations, got {k}")
+    ref = check_int("reference", reference, minimum=0)
+    if ref >= k:
+        raise ParameterError(f"reference: expected a station index < {k}, got {ref}")
+    others = [i for i in range(k) if i != ref]
+    if not callable(R) and np.ndim(R) == 0:
+        var = check_positive("R", float(R))
+        R = var * (np.eye(k - 1) + np.ones((k - 1, k - 1)))
+
+    def h(X):
+        r = toa.h(X)
+        return r[..., others] - r[..., ref:ref + 1]
+
+    def jac(x):
+        J = toa.jac_h(x)
+        return J[..., others, :] - J[..., ref:ref + 1, :]
+    return MeasurementModel(h, jac, _covariance(R, k - 1), (), f"TDOA to {k} stations")
+
+
+def position(R, *, position=(0, 2)) -> MeasurementModel:
+    """The position x[position] itself (GPS fix; linear, included so a hybrid model can stack it)."""
+    pos = _indices("position", position)
+
+    def h(X):
+        return np.asarray(X)[..., list(pos)]
+    eye = np.eye(len(pos))
+    return MeasurementModel(h, _jac_from(pos, lambda x: np.broadcast_to(eye, x.shape[:-1] + eye.shape)),
+                            _covariance(R, len(pos)), (),
+                            "position")
+
+
+def stack_measurements(*measurements: MeasurementModel) -> MeasurementModel:
+    """Several measurement models of one state observed together (hybrid positioning, e.g. TOA + AOA):
+    components concatenated in the given order, R block-diagonal (independent errors; constant R only)."""
+    if not measurements or not all(isinstance(mm, MeasurementModel) for mm in measurements):
+        raise ParameterError("measurements: expected one or more MeasurementModel")
+    if any(callable(mm.R) for mm in measurements):
+        raise ParameterError("measurements: stacking needs constant R matrices (build a NonlinearModel with "
+                             "R(x, k) yourself for state-dependent noise)")
+    import scipy.linalg
+    sizes = [mm.R.shape[0] for mm in measurements]
+    offsets = np.cumsum([0] + sizes)
+    angles = tuple(int(o + i) for mm, o in zip(measurements, offsets) for i in mm.angle_components)
+    return MeasurementModel(lambda X: np.concatenate([mm.h(X) for mm in measurements], axis=-1),
+                            lambda x: np.concatenate([mm.jac_h(x) for mm in measurements], axis=-2),
+                            _frozen(scipy.linalg.block_diag(*[mm.R for mm in measurements])), angles,
+                            " + ".join(mm.name for mm in measurements))

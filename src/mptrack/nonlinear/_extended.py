@@ -1,0 +1,195 @@
+"""The extended Kalman filter and the extended RTS smoother on any :class:`mptrack.models.NonlinearModel`.
+
+    x(k/k-1) = f(x(k-1/k-1)),        P(k/k-1) = F P(k-1/k-1) F^T + Q,    F = ∂f/∂x at x(k-1/k-1)
+    S = H P(k/k-1) H^T + R,  K = P(k/k-1) H^T S^-1,                     H = ∂h/∂x at x(k/k-1)
+    x(k/k) = x(k/k-1) + K ν,  ν = z(k) - h(x(k/k-1)) (angles wrapped)
+    P(k/k) = (I - K H) P(k/k-1) (I - K H)^T + K R K^T                  (Joseph form)
+
+The smoother is the RTS backward pass with the linearisation of the forward pass,
+C(k) = P(k/k) F(k)^T P(k+1/k)^-1 (Särkkä 2013, sec. 9.1).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .._validation import as_array, check_covariance
+from ..errors import ConvergenceError, NotPositiveDefiniteError, ParameterError, ShapeError
+from ..linear import FilterResult
+from ..linear._smoother import rts_backward
+from ..models import NonlinearModel
+from ._common import BatchFilterResult, check_prior, prepare_nonlinear
+
+__all__ = ["ekf_filter", "ekf_filter_batch", "ekf_smoother", "ekf_step"]
+
+_LOG2PI = np.log(2.0 * np.pi)
+
+
+def ekf_update(model: NonlinearModel, x, P, z, k: int):
+    """EKF measurement update at row k; NaN components of z are skipped.  Returns (x, P, loglik)."""
+    ok = ~np.isnan(z)
+    if not ok.any():
+        return x, P, 0.0
+    H = model.H_at(x)[ok]
+    R = model.R_at(x, k)[np.ix_(ok, ok)]
+    nu = model.innovation(z, model.h(x[None])[0])[ok]
+    PHt = P @ H.T
+    S = H @ PHt + R
+    L = np.linalg.cholesky(S)
+    K = np.linalg.solve(S, PHt.T).T
+    x = x + K @ nu
+    IKH = np.eye(x.shape[0]) - K @ H
+    P = IKH @ P @ IKH.T + K @ R @ K.T
+    P = 0.5 * (P + P.T)
+    w = np.linalg.solve(L, nu)
+    return x, P, float(-0.5 * (w @ w + 2.0 * np.log(np.diag(L)).sum() + ok.sum() * _LOG2PI))
+
+
+def ekf_predict(model: NonlinearModel, x, P, k: int):
+    F = model.F_at(x)
+    P = F @ P @ F.T + model.Q_at(x, k)
+    return model.f(x[None])[0], 0.5 * (P + P.T)
+
+
+def ekf_step(model: NonlinearModel, x, P, z, k: int = 0):
+    """One EKF iteration from x(k-1/k-1), P(k-1/k-1) with the measurement z (row k):
+    (x_filt, P_filt, x_pred, P_pred, loglik increment)."""
+    xp, Pp = ekf_predict(model, x, P, k)
+    x, P, ll = ekf_update(model, xp, Pp, z, k)
+    return x, P, xp, Pp, ll
+
+
+def _run(model, z, x0, P0, prior, predict, update, method):
+    """The driver loop shared by the EKF and the discrete UKF."""
+    first = check_prior(prior)
+    T, n = z.shape[0], model.n
+    xs, Ps = np.empty((T, n)), np.empty((T, n, n))
+    xp, Pp = np.empty((T, n)), np.empty((T, n, n))
+    x, P, loglik = x0, P0, 0.0
+    for k in range(T):
+        try:
+            if not (first and k == 0):
+                x, P = predict(model, x, P, k)
+            xp[k], Pp[k] = x, P
+            x, P, ll = update(model, x, P, z[k], k)
+        except np.linalg.LinAlgError as exc:
+            raise NotPositiveDefiniteError(f"{method}: the innovation covariance at measurement {k} is not "
+                                           f"positive definite ({exc}); check R and P0") from None
+        if not (np.all(np.isfinite(x)) and np.all(np.isfinite(P))):
+            raise ConvergenceError(f"{method} diverged at measurement {k} (non-finite estimate)")
+        xs[k], Ps[k] = x, P
+        loglik += ll
+    return FilterResult(x=xs, P=Ps, x_pred=xp, P_pred=Pp, loglik=float(loglik), method=method,
+                        x0=None if first else x0, P0=None if first else P0)
+
+
+def ekf_filter(model: NonlinearModel, z, x0, P0, *, prior: str = "initial") -> FilterResult:
+    """Extended Kalman filter over measurements z (T, m) (module docstring).
+
+    x0, P0  the prior (required); at time 0 (prior="initial": predicted to the first measurement)
+            or at the first measurement (prior="first-measurement": updated with it directly)
+    NaN components of z are skipped; a NaN row only predicts.  Q(x, k) is evaluated at x(k-1/k-1),
+    R(x, k) at x(k/k-1).  Returns a FilterResult with x0, P0 = the prior at time 0 (for the smoother).
+    """
+    z, x0, P0, _ = prepare_nonlinear(model, z, x0, P0, kinds=(NonlinearModel,))
+    return _run(model, z, x0, P0, prior, ekf_predict, ekf_update, "EKF")
+
+
+def _check_result(model, result) -> None:
+    if not isinstance(result, FilterResult) or result.x_pred is None:
+        raise ParameterError(f"result: expected the FilterResult of a filter run, got {type(result).__name__}")
+    if result.n != model.n:
+        raise ParameterError(f"result: state dimension {result.n} does not match the model's n = {model.n}")
+
+
+def smooth_with(model, result, cross, method):
+    """Backward pass given cross(x, P, k) = the cross-covariance of x(k-1) and x(k) (n, n) of the forward
+    linearisation at the filtered x(k-1/k-1), P(k-1/k-1)."""
+    _check_result(model, result)
+    has0 = result.x0 is not None
+    xf = np.concatenate([result.x0[None], result.x]) if has0 else np.asarray(result.x)
+    Pf = np.concatenate([result.P0[None], result.P]) if has0 else np.asarray(result.P)
+    start = 0 if has0 else 1
+    xp, Pp = result.x_pred[start:], result.P_pred[start:]
+    D = np.stack([cross(model, xf[i], Pf[i], i + (1 - start)) for i in range(len(xf) - 1)])
+    xs, Ps = rts_backward(xf, Pf, xp, Pp, D)
+    if has0:
+        return FilterResult(x=xs[1:], P=Ps[1:], method=method, x0=xs[0], P0=Ps[0])
+    return FilterResult(x=xs, P=Ps, method=method)
+
+
+def ekf_smoother(model: NonlinearModel, result: FilterResult) -> FilterResult:
+    """Extended RTS smoother on :func:`ekf_filter`'s result: x(k/T), P(k/T), and x(0/T), P(0/T) as
+    x0, P0 when the filter's prior was at time 0 (method "ERTS")."""
+    return smooth_with(model, result, lambda mdl, x, P, k: P @ mdl.F_at(x).T, "ERTS")
+
+
+def ekf_filter_batch(model: NonlinearModel, z, x0, P0) -> BatchFilterResult:
+    """:func:`ekf_filter` on B independent tracks at once (prior at time 0): z (B, T, m) with NaN = missing,
+    x0 (n,) or (B, n), P0 (n, n) or (B, n, n).  Vectorised over tracks (NumPy batched linear algebra), for
+    constant Q and R; Jacobians from jac_f / jac_h called on all B states at once (the named measurement
+    models and :func:`mptrack.models.nonlinear_model` broadcast) or by finite differences.
+    Returns a BatchFilterResult (x, P, x_pred, P_pred, loglik (B,))."""
+    if not isinstance(model, NonlinearModel):
+        raise ParameterError(f"model: expected a NonlinearModel, got {type(model).__name__}")
+    if callable(model.Q) or callable(model.R):
+        raise ParameterError("model: the batch EKF needs constant Q and R (use ekf_filter per track for Q(x, k), "
+                             "R(x, k))")
+    z = as_array("z", z, ndim=3, allow_nan=True)
+    B, T, m = z.shape
+    n = model.n
+    if m != model.m or T == 0:
+        raise ShapeError(f"z: expected shape (B, T >= 1, {model.m}), got {z.shape}")
+    x0 = as_array("x0", x0)
+    if x0.shape not in ((n,), (B, n)):
+        raise ShapeError(f"x0: expected shape ({n},) or ({B}, {n}), got {x0.shape}")
+    P0 = np.asarray(P0, dtype=float)
+    P0 = check_covariance("P0", P0, n) if P0.ndim != 3 else np.stack(
+        [check_covariance(f"P0[{b}]", p, n) for b, p in enumerate(P0)])
+    xs, Ps, xp, Pp, ll = _ekf_batch_core(model, z, np.broadcast_to(x0, (B, n)).copy(),
+                                         np.broadcast_to(P0, (B, n, n)).copy())
+    return BatchFilterResult(x=xs, P=Ps, x_pred=xp, P_pred=Pp, loglik=ll, method="EKF")
+
+
+def _jacobians(model, X, which):
+    fn, rows = (model.jac_f, model.n) if which == "f" else (model.jac_h, model.m)
+    if fn is not None:
+        J = np.asarray(fn(X), dtype=float)
+        if J.shape == (X.shape[0], rows, model.n):
+            return J
+        return np.stack([np.asarray(fn(x), dtype=float) for x in X])
+    return np.stack([model.F_at(x) if which == "f" else model.H_at(x) for x in X])
+
+
+def _ekf_batch_core(model, z, x, P):
+    """The batched EKF recursion (Joseph form); missing components get zero H rows and unit noise, which
+    is the same update as skipping them."""
+    B, T, m = z.shape
+    n = model.n
+    Q, R = model.Q, model.R
+    xs, xp = np.empty((B, T, n)), np.empty((B, T, n))
+    Ps, Pp = np.empty((B, T, n, n)), np.empty((B, T, n, n))
+    loglik = np.zeros(B)
+    eye = np.eye(n)
+    for k in range(T):
+        F = _jacobians(model, x, "f")
+        x = np.asarray(model.f(x), dtype=float)
+        P = F @ P @ F.transpose(0, 2, 1) + Q
+        xp[:, k], Pp[:, k] = x, P
+        dk = z[:, k]
+        ok = ~np.isnan(dk)                                                          # (B, m)
+        H = _jacobians(model, x, "h") * ok[..., None]
+        Rk = np.where(ok[:, :, None] & ok[:, None, :], R, 0.0) + np.eye(m) * (~ok)[:, None, :]
+        innov = np.where(ok, model.innovation(np.where(ok, dk, 0.0), model.h(x)), 0.0)
+        PHt = P @ H.transpose(0, 2, 1)
+        S = H @ PHt + Rk
+        K = np.linalg.solve(S, PHt.transpose(0, 2, 1)).transpose(0, 2, 1)
+        x = x + np.einsum("bnm,bm->bn", K, innov)
+        IKH = eye - K @ H
+        P = IKH @ P @ IKH.transpose(0, 2, 1) + K @ Rk @ K.transpose(0, 2, 1)
+        P = 0.5 * (P + P.transpose(0, 2, 1))
+        xs[:, k], Ps[:, k] = x, P
+        _, logdet = np.linalg.slogdet(S)
+        quad = np.einsum("bm,bm->b", innov, np.linalg.solve(S, innov[..., None])[..., 0])
+        loglik -= 0.5 * (quad + logdet + ok.sum(axis=1) * _LOG2PI)
+    return xs, Ps, xp, Pp, loglik
