@@ -46,5 +46,8 @@ def test_quick_reproduction(tmp_path):
     assert all(v is None or v > 0 for r in table["rows"] for v in r[1:])
     div = data["tables"]["Divergence of eq. 42"]["rows"]
     assert div[0][1] > 0.9 and div[-1][1] == 0.0
+    assert table["comparison"] == {"compared": 12, "matched": 0, "differing_explained": 12,
+                                   "differing_unexplained": 0}
+    assert {k for _, _, k in table["explained_by"]} == {"zhao2013-eq42-ill-posed"}
     for name in rep.figures.values():
         assert (tmp_path / "zhao2013" / name).stat().st_size > 1000
