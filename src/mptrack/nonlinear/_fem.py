@@ -456,7 +456,8 @@ def _transport(old: FEMGrid, p: np.ndarray, new: FEMGrid, model, duration: float
     X = new.nodes
     d = 1e-5 * max(1.0, float(np.max(np.abs(X))))
     e = d * np.array([[1.0, 0.0], [-1.0, 0.0], [0.0, 1.0], [0.0, -1.0]])
-    Y = model.flow(np.concatenate([X[None], X[None] + e[:, None]]), -duration)  # (5, N, 2), one call
+    steps = max(_PLACEMENT_STEPS, int(np.ceil(model.substeps * duration / model.dt)))  # the model's Heun step
+    Y = model.flow(np.concatenate([X[None], X[None] + e[:, None]]), -duration, steps)  # (5, N, 2), one call
     back = Y[0]
     J = np.stack([Y[1] - Y[2], Y[3] - Y[4]], axis=-1) / (2.0 * d)               # (N, 2, 2): ∂Φ/∂x_i columns
     return old.evaluate(p, back) * np.abs(np.linalg.det(J))
