@@ -26,6 +26,12 @@ def test_quick_reproduction_writes_all_tables_and_figures(tmp_path):
     assert 0 <= rep.tables["Table VI"].rows[0][1] <= 1
     for row in rep.tables["Table VII"].rows:  # the scenario PCRB bounds every filter
         assert row[4] < min(row[1:4])
+    # counts: the FEKF cells lost to the EKF are explained by the averaged-gain erratum, the rest is not
+    assert data["comparison"] == {"compared": 49, "matched": 24, "differing_explained": 6,
+                                  "differing_unexplained": 19}
+    assert data["tables"]["Table VI"]["explained_by"] == [[0, 1, "bouzera2017-fekf-averaged-gain"],
+                                                          [1, 1, "bouzera2017-fekf-averaged-gain"]]
+    assert set(data["errata"]) == {"bouzera2017-fekf-averaged-gain"}
 
 
 def test_trajectories_and_common_random_numbers():

@@ -70,10 +70,10 @@ def test_mass_and_nonnegativity_after_prediction_and_update(linear_case):
         assert 0 <= step.clipped < 0.05
 
 
-@pytest.mark.parametrize("scheme", ["sdirk2", "cn"])
+@pytest.mark.parametrize("scheme", ["sdirk2", "cn", "characteristics"])
 def test_fem_matches_kalman_on_linear_model(linear_case, scheme):
     model, z, kf = linear_case
-    fe = fem_filter(model, z, X0, P0, grid=(24, 24), substeps=16, scheme=scheme)
+    fe = fem_filter(model, z, X0, P0, grid=(24, 24), substeps=16, scheme=scheme, splits=8)
     assert fe.method == "FEM"
     np.testing.assert_allclose(fe.x, kf.x, atol=2e-3)
     np.testing.assert_allclose(fe.P, kf.P, atol=2e-3)
@@ -81,15 +81,28 @@ def test_fem_matches_kalman_on_linear_model(linear_case, scheme):
     assert fe.loglik == pytest.approx(kf.loglik, abs=0.05)
 
 
-def test_fem_error_falls_with_grid_refinement(linear_case):
-    """Observed spatial order (fine time steps) is reported and is at least 2."""
+@pytest.mark.parametrize("scheme", ["sdirk2", "characteristics"])
+def test_fem_error_falls_with_grid_refinement(linear_case, scheme):
+    """Observed spatial order (fine time steps, 8 Strang splits per dt) is reported and is at least 2."""
     model, z, kf = linear_case
     sizes = (8, 16, 32)
-    err = [np.abs(fem_filter(model, z, X0, P0, grid=(n, n), substeps=32).x - kf.x).max() for n in sizes]
+    err = [np.abs(fem_filter(model, z, X0, P0, grid=(n, n), substeps=32, scheme=scheme, splits=8).x - kf.x).max()
+           for n in sizes]
     order = -np.polyfit(np.log(sizes), np.log(err), 1)[0]
-    print(f"FEM vs KF max mean error {err}, observed order {order:.2f}")
+    print(f"FEM ({scheme}) vs KF max mean error {err}, observed order {order:.2f}")
     assert err[0] > err[1] > err[2]
     assert order > 2.0
+
+
+def test_characteristics_splitting_error_is_second_order(linear_case):
+    """Strang splitting: the error against the KF falls like tau^2 with the splits per dt (32 x 32 grid)."""
+    model, z, kf = linear_case
+    splits = (1, 2, 4, 8)
+    err = [np.abs(fem_filter(model, z, X0, P0, grid=(32, 32), substeps=32, splits=n).x - kf.x).max()
+           for n in splits]
+    order = -np.polyfit(np.log(splits), np.log(err), 1)[0]
+    print(f"characteristics vs KF max mean error {err}, observed order in splits {order:.2f}")
+    assert np.all(np.diff(err) < 0) and 1.7 < order < 2.6
 
 
 def test_fixed_box_must_cover_the_prior(linear_case):
@@ -211,12 +224,16 @@ def test_moment_weights_are_exact_integrals():
                                      [s[1] - mean[0] * mean[1], s[2] - mean[1] ** 2]], atol=1e-12)
 
 
-def test_a_moving_grid_refactorises_only_when_it_moves(linear_case):
+@pytest.mark.parametrize("scheme", ["sdirk2", "characteristics"])
+def test_a_moving_grid_refactorises_only_when_it_moves(linear_case, scheme):
     model, z, _ = linear_case
-    steps = list(fem_steps(model, z, X0, P0, grid=(12, 12)))
+    steps = list(fem_steps(model, z, X0, P0, grid=(12, 12), scheme=scheme))
     assert steps[0].factorised
-    assert [s.factorised for s in steps[1:]] == [s.regridded for s in steps[1:]]
-    fixed = list(fem_steps(model, z, X0, P0, grid=(12, 12), box=((-5.0, -5.0), (5.0, 5.0))))
+    if scheme == "sdirk2":
+        assert [s.factorised for s in steps[1:]] == [s.regridded for s in steps[1:]]
+    else:  # the grid follows the density every split; the diffusion LU is kept while the elements keep their size
+        assert all(s.regridded for s in steps) and not all(s.factorised for s in steps[1:])
+    fixed = list(fem_steps(model, z, X0, P0, grid=(12, 12), scheme=scheme, box=((-5.0, -5.0), (5.0, 5.0))))
     assert [s.factorised for s in fixed] == [True] + [False] * (len(z) - 1)
 
 

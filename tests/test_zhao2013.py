@@ -46,5 +46,51 @@ def test_quick_reproduction(tmp_path):
     assert all(v is None or v > 0 for r in table["rows"] for v in r[1:])
     div = data["tables"]["Divergence of eq. 42"]["rows"]
     assert div[0][1] > 0.9 and div[-1][1] == 0.0
+    assert table["comparison"] == {"compared": 12, "matched": 0, "differing_explained": 12,
+                                   "differing_unexplained": 0}
+    assert {k for _, _, k in table["explained_by"]} == {"zhao2013-eq42-ill-posed"}
     for name in rep.figures.values():
         assert (tmp_path / "zhao2013" / name).stat().st_size > 1000
+
+
+def _sweep_rmse(variant: str, scale: float, runs: int = 20):
+    """Mean per-run RMSE (x1, x2) of FE (default scheme), PF-200 and UKF; failed runs left out and counted."""
+    from mptrack.errors import MptrackError
+    from mptrack.nonlinear import fem_filter, particle_filter, simulate_sde, ukf_filter
+
+    model = zhao2013_model(variant=variant, diffusion_scale=scale)
+    x0, P0 = np.array(ZHAO2013_X0), 0.1 * np.eye(2)
+    out = {"FE": [], "PF": [], "UKF": []}
+    for seq in np.random.SeedSequence([2013, 0]).spawn(runs):
+        sim, filt = (np.random.default_rng(s) for s in seq.spawn(2))
+        truth, z = simulate_sde(model, 30, sim, ZHAO2013_X0)
+        calls = {"FE": lambda: fem_filter(model, z, x0, P0),
+                 "PF": lambda: particle_filter(model, z, x0, P0, filt, particles=200),
+                 "UKF": lambda: ukf_filter(model, z, x0, P0)}
+        for name, call in calls.items():
+            try:
+                out[name].append(np.sqrt(np.mean((call().x - truth) ** 2, axis=0)))
+            except MptrackError:
+                out[name].append([np.nan, np.nan])
+    return {k: (np.nanmean(v, axis=0), int(np.isnan(np.array(v)[:, 0]).sum())) for k, v in out.items()}
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("variant, scale", [("vdp", 0.001), ("vdp", 0.01), ("vdp", 0.1), ("vdp", 0.3),
+                                            ("printed", 0.001), ("printed", 0.003)])
+def test_fe_never_loses_to_pf_and_ukf_across_diffusion_scales(variant, scale):
+    """20 runs x 30 s: FE <= 1.05 x the better of PF (200 particles) and UKF, per coordinate, and no FE run fails."""
+    res = _sweep_rmse(variant, scale)
+    fe, fe_failed = res["FE"]
+    best = np.minimum(res["PF"][0], res["UKF"][0])
+    print(variant, scale, {k: (np.round(v[0], 4).tolist(), v[1]) for k, v in res.items()})
+    assert fe_failed == 0
+    assert np.all(fe <= 1.05 * best)
+
+
+@pytest.mark.slow
+@pytest.mark.xfail(strict=True, reason="Q x 1: a 20 x 20 grid cannot resolve the 0.32-wide range ring across a "
+                                       "prior ~25 wide; FE fails in about half of the runs (docs/nonlinear.md)")
+def test_fe_at_the_printed_diffusion_scale():
+    res = _sweep_rmse("vdp", 1.0)
+    assert res["FE"][1] == 0 and np.all(res["FE"][0] <= 1.05 * np.minimum(res["PF"][0], res["UKF"][0]))

@@ -10,7 +10,12 @@ from typing import Any
 from .. import __version__
 from .._io import write_json
 
-__all__ = ["Table", "Reproduction", "differences"]
+__all__ = ["Table", "Reproduction", "differences", "COUNT_KEYS"]
+
+# The comparison counts of a table and of a whole reproduction (results.json "comparison"):
+# published cells compared, and how many of them we reproduce, differ for a documented reason
+# (an erratum key in "explained_by"), or differ unexplained.
+COUNT_KEYS = ("compared", "matched", "differing_explained", "differing_unexplained")
 
 
 def _same(ours: Any, paper: Any, rtol: float, atol: float) -> bool:
@@ -29,7 +34,10 @@ class Table:
 
     ``rtol``/``atol`` say how close a number must be to count as reproduced
     (exact by default, for counts such as flops); they are written to JSON so a
-    reader knows what "matches" meant.
+    reader knows what "matches" meant.  ``explained`` maps a (row, column) cell
+    to the key of the erratum (``Reproduction.errata``, docs/errata.md) that
+    explains why it differs from the paper; a differing cell without a key is
+    unexplained.
     """
 
     title: str
@@ -39,6 +47,7 @@ class Table:
     notes: str = ""
     rtol: float = 0.0
     atol: float = 0.0
+    explained: dict[tuple[int, int], str] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         for row in self.rows:
@@ -55,12 +64,33 @@ class Table:
         return [(i, j) for i, (r, p) in enumerate(zip(self.rows, self.paper))
                 for j, (a, b) in enumerate(zip(r, p)) if j > 0 and not _same(a, b, self.rtol, self.atol)]
 
+    def explain(self, cells, key: str) -> None:
+        """Mark ``cells`` ((row, column) pairs) as differing because of erratum ``key``."""
+        for i, j in cells:
+            self.explained[(i, j)] = key
+
+    def explained_by(self) -> list[tuple[int, int, str]]:
+        """(row, column, erratum key) for every differing cell with a documented reason."""
+        return [(i, j, self.explained[i, j]) for i, j in self.mismatches() if (i, j) in self.explained]
+
+    def comparison(self) -> dict[str, int]:
+        """Counts over the published (non-null) cells: see COUNT_KEYS."""
+        if self.paper is None:
+            return dict.fromkeys(COUNT_KEYS, 0)
+        compared = sum(1 for r in self.paper for v in r[1:] if v is not None)
+        bad = self.mismatches()
+        explained = sum(1 for c in bad if c in self.explained)
+        return {"compared": compared, "matched": compared - len(bad), "differing_explained": explained,
+                "differing_unexplained": len(bad) - explained}
+
     def to_json(self) -> dict:
         out: dict[str, Any] = {"title": self.title, "columns": self.columns, "rows": _clean(self.rows)}
         if self.paper is not None:
             out["paper"] = _clean(self.paper)
             out["tolerance"] = {"rtol": self.rtol, "atol": self.atol}
             out["mismatches"] = [list(c) for c in self.mismatches()]
+            out["explained_by"] = [list(c) for c in self.explained_by()]
+            out["comparison"] = self.comparison()
         if self.notes:
             out["notes"] = self.notes
         return out
@@ -90,9 +120,22 @@ class Reproduction:
     tables: dict[str, Table] = field(default_factory=dict)
     figures: dict[str, str] = field(default_factory=dict)
     notes: list[str] = field(default_factory=list)
+    errata: dict[str, str] = field(default_factory=dict)
     elapsed_s: float = 0.0
 
+    def comparison(self) -> dict[str, int]:
+        """COUNT_KEYS summed over the tables."""
+        counts = [t.comparison() for t in self.tables.values()]
+        return {k: sum(c[k] for c in counts) for k in COUNT_KEYS}
+
+    def _check_errata(self) -> None:
+        for label, table in self.tables.items():
+            for _, _, key in table.explained_by():
+                if key not in self.errata:
+                    raise ValueError(f"table {label!r} cites erratum {key!r}, which the reproduction does not list")
+
     def to_json(self) -> dict:
+        self._check_errata()
         out = {
             "key": self.key,
             "paper": self.paper,
@@ -101,6 +144,8 @@ class Reproduction:
             "parameters": _clean_dict(self.parameters),
             "tables": {k: t.to_json() for k, t in self.tables.items()},
             "figures": dict(self.figures),
+            "comparison": self.comparison(),
+            "errata": dict(self.errata),
             "elapsed_s": round(self.elapsed_s, 3),
         }
         if self.notes:
@@ -115,6 +160,11 @@ def _clean_dict(d: dict) -> dict:
     return {k: (_clean_dict(v) if isinstance(v, dict) else _clean(v)) for k, v in d.items()}
 
 
-def differences(rep: Reproduction) -> dict[str, list[tuple[int, int]]]:
-    """Tables with cells that differ from the paper."""
-    return {k: t.mismatches() for k, t in rep.tables.items() if t.mismatches()}
+def differences(rep: Reproduction, *, unexplained: bool = False) -> dict[str, list[tuple[int, int]]]:
+    """Tables with cells that differ from the paper (only those without an erratum if ``unexplained``)."""
+    out = {}
+    for k, t in rep.tables.items():
+        cells = [c for c in t.mismatches() if not (unexplained and c in t.explained)]
+        if cells:
+            out[k] = cells
+    return out

@@ -14,7 +14,17 @@ boundary, so the semi-discrete system M dp/dt = A p,
 conserves ∫p exactly (Σ_i φ_i = 1).  Element matrices come from 3 × 3 Gauss
 quadrature; the geometry-free data of an n1 × n2 grid is computed once.
 
-Time: the paper's RK4 stages (eq. 21) are wrong (K2 = F(p) + Δt/2·K1), and
+Default time scheme ("characteristics"): each dt is cut into ``splits``
+Strang steps — diffusion over τ/2 by SDIRK2 (the diffusion-only Galerkin
+operator), the density carried along the back-traced characteristics of the
+drift (Liouville: p(t+τ, x) = p(t, Φ₋τ(x))·|det DΦ₋τ(x)|) onto a grid placed
+around the density predicted for t + τ, diffusion over τ/2 there.  The grid
+only has to cover the density, not the path it travels, and nothing
+oscillates when the drift dominates: with little diffusion the Galerkin
+schemes below need a box spanning the whole move, elements wider than the
+density, and lose the state (docs/nonlinear.md).
+
+Galerkin time schemes ("sdirk2", "cn"): the paper's RK4 stages (eq. 21) are wrong (K2 = F(p) + Δt/2·K1), and
 explicit RK4 would need τ ≲ h²/‖Q‖ anyway.  We use ``substeps`` steps per dt
 of the L-stable, second-order SDIRK2 (Alexander; γ = 1 − 1/√2), whose two
 stages both solve with M − γτA: one LU (a single-precision LAPACK band LU
@@ -234,7 +244,7 @@ class FEMGrid:
         vals = np.einsum("...a,...a->...", N, p[self.conn[e[..., 0] * self.n2 + e[..., 1]]])
         return np.where(inside, vals, 0.0)
 
-    def element_matrices(self, model: ContinuousDiscreteModel, stabilise: bool = False):
+    def element_matrices(self, model: ContinuousDiscreteModel, stabilise: bool = False, advection: bool = True):
         """Element mass matrix Me (8, 8) (the same for every element) and Fokker–Planck
         element matrices Ae (E, 8, 8), with M dp/dt = A p after assembly.
 
@@ -248,6 +258,8 @@ class FEMGrid:
         phi, wq = top["phi"], top["wq"] * area
         grad = np.stack([top["dxi"] * (2.0 / h[0]), top["deta"] * (2.0 / h[1])], axis=-1)  # (9, 8, 2)
         Ke = 0.5 * np.einsum("q,qad,de,qbe->ab", wq, grad, model.Q, grad)
+        if not advection:  # the diffusion part only (the characteristics scheme moves the density itself)
+            return area * top["Me"], np.broadcast_to(-Ke, (self.conn.shape[0], 8, 8))
         f = model.drift(self.lo + h * top["uq"])  # (E, 9, 2) at the quadrature points
         fgrad = f[..., 0, None] * grad[:, :, 0] + f[..., 1, None] * grad[:, :, 1]  # (E, 9, 8): f·∇φ_a
         Ce = np.swapaxes(fgrad * wq[:, None], 1, 2) @ phi  # (E, 8, 8)
@@ -318,12 +330,14 @@ def _clip_normalise(grid: FEMGrid, p: np.ndarray, what: str):
     return p / mass, clipped
 
 
+SCHEMES = ("characteristics", "sdirk2", "cn")
 _GAMMA = 1.0 - np.sqrt(0.5)
 _MARGIN = 0.15   # a new box is the required one widened by this fraction on each side ...
 _SHRINK = 0.4    # ... and it is redrawn when the required box falls below this fraction of it
 _BAND_BYTES = 4 * 2**20   # largest band-LU factors; SuperLU beyond (see _factorise)
 _SOLVE_DTYPE = np.float32  # precision of the factorisation and solves (see _factorise)
 _PLACEMENT_STEPS = 4        # Heun steps of the noise-free flow used to place the grid
+_FOCUS = 4                  # refinement of the lattice that locates a narrow posterior (_focus)
 
 
 def _factorise(grid: FEMGrid, Be: np.ndarray):
@@ -368,10 +382,12 @@ class _Propagator:
     """
 
     def __init__(self, grid: FEMGrid, model: ContinuousDiscreteModel, substeps: int, scheme: str,
-                 stabilise: bool):
-        Me, Ae = grid.element_matrices(model, stabilise)
-        tau = model.dt / substeps
-        gamma = _GAMMA if scheme == "sdirk2" else 0.5
+                 stabilise: bool, duration: float | None = None):
+        advection = scheme != "characteristics"   # there: the diffusion half-steps only, by SDIRK2
+        Me, Ae = grid.element_matrices(model, stabilise and advection, advection)
+        Ae = np.ascontiguousarray(Ae)
+        tau = (model.dt if duration is None else duration) / substeps
+        gamma = 0.5 if scheme == "cn" else _GAMMA
         self.solve, self.band = _factorise(grid, Me - gamma * tau * Ae)
         self.conn, self.Ae = grid.conn, Ae
         self.Re = Me + 0.5 * tau * Ae if scheme == "cn" else None
@@ -423,6 +439,59 @@ def _box(model, m, P, width, floor):
     return lo, hi
 
 
+def _predicted_box(model, m, P, width, floor, duration):
+    """Rectangle covering the predicted mean ± width·σ after ``duration`` (sigma points through
+    the noise-free flow, plus Q·duration), σ floored at ``floor``."""
+    X, Wm, Wc = sigma_points(m, P)
+    Y = model.flow(X, duration, steps=_PLACEMENT_STEPS)
+    mp = Wm @ Y
+    sp = np.maximum(np.sqrt(np.clip(Wc @ (Y - mp) ** 2 + np.diag(model.Q) * duration, 0.0, None)), floor)
+    return mp - width * sp, mp + width * sp
+
+
+def _transport(old: FEMGrid, p: np.ndarray, new: FEMGrid, model, duration: float) -> np.ndarray:
+    """Nodal values on ``new`` of the density p on ``old`` carried by the noise-free flow over τ =
+    ``duration``: p(t + τ, x) = p(t, Φ₋τ(x))·|det DΦ₋τ(x)| (Liouville), the back-traced foot Φ₋τ(x)
+    by Heun steps and its Jacobian by central differences."""
+    X = new.nodes
+    d = 1e-5 * max(1.0, float(np.max(np.abs(X))))
+    e = d * np.array([[1.0, 0.0], [-1.0, 0.0], [0.0, 1.0], [0.0, -1.0]])
+    steps = max(_PLACEMENT_STEPS, int(np.ceil(model.substeps * duration / model.dt)))  # the model's Heun step
+    Y = model.flow(np.concatenate([X[None], X[None] + e[:, None]]), -duration, steps)  # (5, N, 2), one call
+    back = Y[0]
+    J = np.stack([Y[1] - Y[2], Y[3] - Y[4]], axis=-1) / (2.0 * d)               # (N, 2, 2): ∂Φ/∂x_i columns
+    return old.evaluate(p, back) * np.abs(np.linalg.det(J))
+
+
+def _focus(g: FEMGrid, p: np.ndarray, model, zk, width: float):
+    """The prior moved onto a grid around the posterior when the likelihood is much narrower
+    than the prior (a range ring across a wide prior): the posterior's moments come from
+    prior × likelihood on a lattice _FOCUS times finer than g; if mean ± width·σ of it is
+    less than _SHRINK of g (per axis), the prior is re-interpolated onto a grid over that box
+    (intersected with g), so that the update resolves the likelihood.  Returns (grid, p, log of
+    the prior mass kept on it) — the last term belongs to the log evidence."""
+    fine = FEMGrid(g.lo, g.hi, _FOCUS * g.n1, _FOCUS * g.n2)
+    logl = model.log_likelihood(zk, fine.nodes)
+    w = fine.W0 * np.clip(g.evaluate(p, fine.nodes), 0.0, None) * np.exp(logl - logl.max())
+    total = w.sum()
+    if not np.isfinite(total) or total <= 0.0:
+        return g, p, 0.0
+    mean = w @ fine.nodes / total
+    sd = np.sqrt(np.clip(w @ (fine.nodes - mean) ** 2 / total, 0.0, None))
+    sd = np.maximum(sd, 0.5 * fine._h)
+    lo = np.maximum(mean - width * sd, g.lo)
+    hi = np.minimum(mean + width * sd, g.hi)
+    if np.any(hi - lo >= _SHRINK * (g.hi - g.lo)):
+        return g, p, 0.0
+    margin = _MARGIN * (hi - lo)
+    new = FEMGrid(np.maximum(lo - margin, g.lo), np.minimum(hi + margin, g.hi), g.n1, g.n2)
+    q = np.clip(g.evaluate(p, new.nodes), 0.0, None)
+    kept = float(new.W0 @ q)
+    if not np.isfinite(kept) or kept <= 0.0:
+        return g, p, 0.0
+    return new, q / kept, float(np.log(kept))
+
+
 def _bayes_update(grid: FEMGrid, p: np.ndarray, logl: np.ndarray, k: int):
     """Posterior nodal values (prior p × likelihood exp(logl), normalised) and the log evidence."""
     top = logl.max()
@@ -441,8 +510,8 @@ def _gaussian_on(grid: FEMGrid, m, P):
 
 
 def fem_steps(model: ContinuousDiscreteModel, z, x0, P0, *, grid: tuple[int, int] = (20, 20),
-              width: float = 4.0, substeps: int | None = None, scheme: str = "sdirk2",
-              stabilise: bool = False, box: tuple | None = None) -> Iterator[FEMStep]:
+              width: float = 4.0, substeps: int | None = None, scheme: str = "characteristics",
+              stabilise: bool = False, box: tuple | None = None, splits: int = 4) -> Iterator[FEMStep]:
     """Run the grid filter step by step, yielding a FEMStep (densities included) per measurement.
 
     grid      (n1, n2) elements per axis (seed 004: 20 × 20)
@@ -450,7 +519,14 @@ def fem_steps(model: ContinuousDiscreteModel, z, x0, P0, *, grid: tuple[int, int
     substeps  time steps per dt; default 0.8·max(n1, n2), at least 8: a fixed Courant
               number, 16 on the paper's 20 × 20 grid, where 32 are no more accurate on
               eq. 42 and 8 are measurably less (docs/design.md)
-    scheme    "sdirk2" (L-stable, default) or "cn" (Crank–Nicolson)
+    scheme    "characteristics" (default): Strang splitting — half a dt of diffusion by SDIRK2,
+              the density carried along the back-traced characteristics of the drift onto a
+              grid placed around the predicted density, half a dt of diffusion there;
+              "sdirk2" (L-stable) or "cn" (Crank–Nicolson): the Galerkin drift–diffusion
+              operator, accurate while the density moves less than its own width per element
+              (docs/nonlinear.md: at low diffusion it loses the state)
+    splits    Strang steps per dt of the "characteristics" scheme (its splitting error falls
+              like (dt/splits)²); each places its own grid around the density it predicts
     stabilise add streamline diffusion (see FEMGrid.element_matrices); off by default: on the
               eq. 42 example its O(h) smearing costs more accuracy than the clipped
               Galerkin wiggles do (docs/nonlinear.md)
@@ -467,8 +543,8 @@ def fem_steps(model: ContinuousDiscreteModel, z, x0, P0, *, grid: tuple[int, int
     if model.n != 2:
         raise ShapeError(f"model: the FEM grid filter is for a 2-D state, got n = {model.n}")
     width = check_positive("width", width)
-    if scheme not in ("sdirk2", "cn"):
-        raise ParameterError(f"scheme: expected 'sdirk2' or 'cn', got {scheme!r}")
+    if scheme not in SCHEMES:
+        raise ParameterError(f"scheme: expected one of {', '.join(map(repr, SCHEMES))}, got {scheme!r}")
     s0 = np.sqrt(np.diag(P))
     if box is not None:
         lo = as_array("box[0]", box[0], shape=(2,))
@@ -479,6 +555,10 @@ def fem_steps(model: ContinuousDiscreteModel, z, x0, P0, *, grid: tuple[int, int
         g = FEMGrid(lo, hi, *shape)
     else:
         g = FEMGrid(*_box(model, m, P, width, 0.0), *shape)
+    if scheme == "characteristics":
+        yield from _characteristic_steps(model, z, m, P, g, width, substeps, box is not None,
+                                         check_int("splits", splits, minimum=1))
+        return
     p, _ = _clip_normalise(g, _gaussian_on(g, m, P), "P0")
     prop = None
     for k in range(z.shape[0]):
@@ -501,6 +581,87 @@ def fem_steps(model: ContinuousDiscreteModel, z, x0, P0, *, grid: tuple[int, int
         ll = 0.0
         if not np.isnan(z[k]).all():
             p, ll = _bayes_update(g, p, model.log_likelihood(z[k], g.nodes), k)
+        _, m, P = g.moments(p)
+        yield FEMStep(k=k, prior=prior, posterior=GridDensity(g, p), x_pred=x_pred, P_pred=P_pred, x=m, P=P,
+                      loglik=ll, clipped=clipped, lost=lost, regridded=regridded, factorised=factorised)
+
+
+def _transport_steps(model, g, p, prop, width, splits, half, tau, fixed):
+    """One dt of the characteristics scheme: ``splits`` Strang steps (see _characteristic_steps)."""
+    shape = (g.n1, g.n2)
+    factorised, regridded, lost, clipped = prop is None, False, 0.0, 0.0
+    for _ in range(splits):
+        if prop is None:
+            prop = _Propagator(g, model, half, "characteristics", False, 0.5 * tau)
+        p, c = _clip_normalise(g, prop(p), "prediction")
+        new = g
+        if not fixed:
+            _, m, P = g.moments(p)
+            lo, hi = _predicted_box(model, m, P, width, 0.5 * float(np.min(g._h)), tau)
+            size, old = (1.0 + 2.0 * _MARGIN) * (hi - lo), g.hi - g.lo
+            if np.all(size <= old) and np.all(size >= _SHRINK * old):
+                size = old  # a translated grid: same elements, the diffusion LU is re-used
+            centre = 0.5 * (lo + hi)
+            new = FEMGrid(centre - 0.5 * size, centre + 0.5 * size, *shape)
+        q = _transport(g, p, new, model, tau)
+        if new is not g:
+            lost += max(0.0, 1.0 - float(new.W0 @ np.clip(q, 0.0, None)))
+            regridded = True
+            if not np.array_equal(new.hi - new.lo, g.hi - g.lo):
+                prop, factorised = _Propagator(new, model, half, "characteristics", False, 0.5 * tau), True
+            g = new
+        p, c1 = _clip_normalise(g, q, "prediction")
+        p, c2 = _clip_normalise(g, prop(p), "prediction")
+        clipped += c + c1 + c2
+    return g, p, prop, factorised, regridded, lost, clipped
+
+
+def _galerkin_step(model, g, p, m, P, width, substeps, fixed):
+    """One dt of the Galerkin SDIRK2 scheme on a box spanning the move (the fallback of the
+    characteristics scheme)."""
+    lost, regridded = 0.0, False
+    if not fixed:
+        lo, hi = _box(model, m, P, width, 0.5 * float(np.min(g._h)))
+        margin = _MARGIN * (hi - lo)
+        new = FEMGrid(lo - margin, hi + margin, g.n1, g.n2)
+        q = g.evaluate(p, new.nodes)
+        lost = max(0.0, 1.0 - float(new.W0 @ np.clip(q, 0.0, None)))
+        g, regridded = new, True
+        p, _ = _clip_normalise(g, q, "re-interpolation")
+    p, clipped = _clip_normalise(g, _Propagator(g, model, substeps, "sdirk2", False)(p), "prediction")
+    return g, p, True, regridded, lost, clipped
+
+
+def _characteristic_steps(model, z, m, P, g: FEMGrid, width, substeps, fixed: bool, splits: int
+                          ) -> Iterator[FEMStep]:
+    """fem_steps with scheme="characteristics" from the initial grid g (arguments validated).
+
+    Each dt is cut into ``splits`` intervals τ, each a Strang step: diffusion over τ/2 (SDIRK2 on
+    the current grid), transport along the characteristics onto a grid placed around the density
+    predicted for t + τ, diffusion over τ/2 there.
+    """
+    tau = model.dt / splits
+    half = max(1, -(-substeps // (2 * splits)))
+    p, _ = _clip_normalise(g, _gaussian_on(g, m, P), "P0")
+    prop = None
+    for k in range(z.shape[0]):
+        g0, p0, m0, P0 = g, p, m, P
+        try:
+            g, p, prop, factorised, regridded, lost, clipped = _transport_steps(
+                model, g, p, prop, width, splits, half, tau, fixed)
+        except ConvergenceError:  # the characteristics left the grid (a stiff drift far out): Galerkin step
+            g, p, factorised, regridded, lost, clipped = _galerkin_step(model, g0, p0, m0, P0, width, substeps,
+                                                                        fixed)
+            prop = None
+        prior = GridDensity(g, p)
+        _, x_pred, P_pred = g.moments(p)
+        ll = 0.0
+        if not np.isnan(z[k]).all():
+            focused, p, log_kept = (g, p, 0.0) if fixed else _focus(g, p, model, z[k], width)
+            if focused is not g:
+                g, prop, regridded = focused, None, True
+            p, ll = _bayes_update(g, p, model.log_likelihood(z[k], g.nodes), k)
+            ll += log_kept
         _, m, P = g.moments(p)
         yield FEMStep(k=k, prior=prior, posterior=GridDensity(g, p), x_pred=x_pred, P_pred=P_pred, x=m, P=P,
                       loglik=ll, clipped=clipped, lost=lost, regridded=regridded, factorised=factorised)

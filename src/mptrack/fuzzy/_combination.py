@@ -1,0 +1,66 @@
+"""Combination rules of Bouzera et al. (2017) section 3.3 beside the fuzzy one (eqs. 15-16).
+
+For N local single-station solutions X_i, P_i = (I - K_i H_i) P^- with weights y_i >= 0:
+
+- Proposition 3 (eq. 29, symmetric P^-): the fused covariance of eq. 16 written with the local
+  covariances, P_est = sum_i w_i (P_i + P_i^T) + P^- (sum_i w_i^2 H_i^T S_i^-1 H_i) P^- - P^-,
+  w_i = y_i / sum_j y_j;
+- Proposition 4 (eq. 30, the first one): trace(P_est) = 2 sum_i w_i trace(P_i) + const, so the
+  trace grows with every trace(P_i) (slope 2 w_i >= 0);
+- the probabilistic rule (the second eq. 30, the paper's reference [39]): information-weighted
+  fusion X = P sum_i P_i^-1 X_i, P = (sum_i P_i^-1)^-1, which ignores the weights y.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..errors import ParameterError
+
+__all__ = ["fused_covariance_prop3", "fused_covariance_trace", "probabilistic_fusion"]
+
+
+def _weights(y) -> np.ndarray:
+    y = np.asarray(y, dtype=float)
+    if np.any(y < 0) or not np.isfinite(y).all() or y.sum() <= 0:
+        raise ParameterError(f"y: weights must be finite, >= 0 and not all zero, got {y.tolist()}")
+    return y / y.sum()
+
+
+def fused_covariance_prop3(P_pred, P_local, H, S, y) -> np.ndarray:
+    """Eq. 29 (Proposition 3 with a symmetric P^-): P_est from the local covariances.
+
+    P_pred (n, n), P_local (N, n, n), H (N, m, n) local measurement Jacobians, S (N, m, m) local
+    innovation covariances, y (N,) weights.  Equals eq. 16 (tested).
+    """
+    w = _weights(y)
+    P_pred, P_local = np.asarray(P_pred, float), np.asarray(P_local, float)
+    H, S = np.asarray(H, float), np.asarray(S, float)
+    info = np.einsum("i,imn,imk,ikl->nl", w ** 2, H, np.linalg.inv(S), H)       # sum_i w_i^2 H^T S^-1 H
+    sym = np.einsum("i,inm->nm", w, P_local + np.swapaxes(P_local, 1, 2))
+    return sym + P_pred @ info @ P_pred - P_pred
+
+
+def fused_covariance_trace(P_pred, P_local, H, S, y) -> float:
+    """The first eq. 30 (Proposition 4): trace(P_est) = 2 sum_i w_i trace(P_i)
+    + trace(P^- (sum_i w_i^2 H_i^T S_i^-1 H_i) P^-) - trace(P^-)."""
+    w = _weights(y)
+    P_pred = np.asarray(P_pred, float)
+    H, S = np.asarray(H, float), np.asarray(S, float)
+    info = np.einsum("i,imn,imk,ikl->nl", w ** 2, H, np.linalg.inv(S), H)
+    return float(2.0 * w @ np.trace(np.asarray(P_local, float), axis1=1, axis2=2)
+                 + np.trace(P_pred @ info @ P_pred) - np.trace(P_pred))
+
+
+def probabilistic_fusion(X, P):
+    """The second eq. 30: X = P sum_i P_i^-1 X_i, P = (sum_i P_i^-1)^-1, for X (N, n), P (N, n, n)
+    positive definite.  Returns (x (n,), P (n, n))."""
+    X, P = np.asarray(X, float), np.asarray(P, float)
+    if X.ndim != 2 or P.shape != X.shape + X.shape[-1:]:
+        raise ParameterError(f"P: expected shape {X.shape + X.shape[-1:]} for X of shape {X.shape}, got {P.shape}")
+    try:
+        info = np.linalg.inv(P)
+        Pf = np.linalg.inv(info.sum(axis=0))
+    except np.linalg.LinAlgError:
+        raise ParameterError("P: the local covariances must be positive definite") from None
+    return Pf @ np.einsum("imn,in->m", info, X), 0.5 * (Pf + Pf.T)
