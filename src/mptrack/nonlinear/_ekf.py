@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import least_squares
 
-from .._validation import as_array, check_covariance, check_positive
+from .._validation import as_array, as_real, check_covariance, check_int, check_positive, finite_result
 from ..errors import ParameterError, ShapeError, SingularMatrixError
 from ..linear import FilterResult
 
@@ -76,6 +76,7 @@ def motion_matrix(motion: str, dim: int, dt: float = 1.0) -> np.ndarray:
     """Transition matrix F: identity (random walk, eq. 2) or constant velocity [[I, dt I], [0, I]]."""
     if motion not in MOTIONS:
         raise ParameterError(f"motion: expected one of {MOTIONS}, got {motion!r}")
+    dim = check_int("dim", dim, minimum=1, maximum=3)
     if motion == "random-walk":
         return np.eye(dim)
     dt = check_positive("dt", dt)
@@ -117,7 +118,7 @@ def _prepare(z, stations, x0, P0, Q, R, motion, dt, *, batch: bool):
     x0 = np.broadcast_to(x0, (B, n)).copy()
     P0 = check_covariance("P0", P0, n)
     Q = check_covariance("Q", Q, n)
-    R = np.asarray(R, dtype=float)
+    R = as_array("R", R)
     R = check_covariance("R", R * np.eye(m) if R.ndim == 0 else R, m, definite=True)
     return z, stations, x0, P0, F, Q, R
 
@@ -157,6 +158,7 @@ def _ekf_core(z, stations, x0, P0, F, Q, R):
     return xs, Ps, xp, Pp, loglik
 
 
+@finite_result("the range EKF")
 def ekf_ranges(z, stations, x0, P0, Q, R, *, motion: str = "random-walk", dt: float = 1.0) -> FilterResult:
     """EKF from ranges to base stations (paper eqs. 2–10), joint update of all ranges.
 
@@ -174,6 +176,7 @@ def ekf_ranges(z, stations, x0, P0, Q, R, *, motion: str = "random-walk", dt: fl
     return _ekf(z, stations, x0, P0, Q, R, motion, dt, batch=False).run(0)
 
 
+@finite_result("the range EKF")
 def ekf_ranges_batch(z, stations, x0, P0, Q, R, *, motion: str = "random-walk",
                      dt: float = 1.0) -> BatchFilterResult:
     """:func:`ekf_ranges` on B independent tracks at once: z (B, T, m), x0 (B, n)."""
@@ -185,6 +188,7 @@ def _ekf(z, stations, x0, P0, Q, R, motion, dt, *, batch: bool) -> BatchFilterRe
     return BatchFilterResult(x=xs, P=Ps, x_pred=xp, P_pred=Pp, loglik=ll, method="EKF")
 
 
+@finite_result("the range fix")
 def range_fix(ranges, stations, *, height=None) -> np.ndarray:
     """Snapshot position from one scan of ranges (nonlinear least squares, scipy.optimize.least_squares).
 
@@ -197,15 +201,14 @@ def range_fix(ranges, stations, *, height=None) -> np.ndarray:
     Useful to initialise :func:`ekf_ranges`.
     """
     st = check_stations(stations)
-    r = as_array("ranges", ranges, shape=(st.shape[0],))
-    if np.any(r < 0):
-        raise ParameterError("ranges: must be >= 0")
+    # the linearised start squares the ranges: bound them well inside the float64 range
+    r = as_array("ranges", ranges, shape=(st.shape[0],), low=0.0, high=1e150)
     d = st.shape[1]
     fixed = None
     if height is not None:
         if d != 3:
             raise ParameterError("height: only meaningful with 3-D stations")
-        fixed = float(height)
+        fixed = as_real("height", height)
         dz2 = (fixed - st[:, 2]) ** 2
         r = np.sqrt(np.maximum(r ** 2 - dz2, 0.0))
         st = st[:, :2]

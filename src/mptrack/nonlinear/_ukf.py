@@ -15,7 +15,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..errors import ConvergenceError, NotPositiveDefiniteError
+from .._validation import as_real, as_vector, check_covariance, check_positive, finite_result
+from ..errors import ConvergenceError, NotPositiveDefiniteError, ParameterError
 from ..linear import FilterResult
 from ._common import prepare_nonlinear
 from ._model import ContinuousDiscreteModel
@@ -45,6 +46,15 @@ def _sqrt(P: np.ndarray, what: str) -> np.ndarray:
         return V * np.sqrt(np.clip(w, 0.0, None))
 
 
+def _check_unscented(n: int, alpha, beta, kappa) -> dict:
+    """Entry check of the scaled unscented transform's parameters (alpha > 0, n + kappa > 0)."""
+    ut = {"alpha": check_positive("alpha", alpha), "beta": as_real("beta", beta), "kappa": as_real("kappa", kappa)}
+    if n + ut["kappa"] <= 0:
+        raise ParameterError(f"kappa: expected n + kappa > 0 (n = {n}), got {kappa!r}")
+    return ut
+
+
+@finite_result("the sigma points")
 def sigma_points(m: np.ndarray, P: np.ndarray, *, alpha: float = 1.0, beta: float = 2.0, kappa: float = 0.0):
     """The 2n+1 scaled sigma points of N(m, P) and their mean/covariance weights.
 
@@ -52,7 +62,10 @@ def sigma_points(m: np.ndarray, P: np.ndarray, *, alpha: float = 1.0, beta: floa
     κ = 0) keep every weight non-negative for n = 2, which keeps the
     propagated covariance PSD.
     """
+    m = as_vector("m", m)
     n = m.shape[0]
+    P = check_covariance("P", P, n)
+    alpha, beta, kappa = _check_unscented(n, alpha, beta, kappa).values()
     c, Wm, Wc = _weights(n, alpha, beta, kappa)
     S = _sqrt(c * P, "P")
     X = np.empty((2 * n + 1, n))
@@ -118,6 +131,7 @@ def ukf_update(model: ContinuousDiscreteModel, m, P, z, *, ut: dict):
     return m, P, float(ll)
 
 
+@finite_result("the UKF")
 def ukf_filter(model: ContinuousDiscreteModel, z, x0, P0, *, alpha: float = 1.0, beta: float = 2.0,
                kappa: float = 0.0, substeps: int | None = None) -> FilterResult:
     """Continuous-discrete UKF over measurements z (T, m) from the prior N(x0, P0) at t = 0.
@@ -129,7 +143,7 @@ def ukf_filter(model: ContinuousDiscreteModel, z, x0, P0, *, alpha: float = 1.0,
     far from the sigma points) and NotPositiveDefiniteError when P loses PSD.
     """
     z, x, P, substeps = prepare_nonlinear(model, z, x0, P0, substeps)
-    ut = {"alpha": alpha, "beta": beta, "kappa": kappa}
+    ut = _check_unscented(model.n, alpha, beta, kappa)
     T, n = z.shape[0], model.n
     xs, Ps = np.empty((T, n)), np.empty((T, n, n))
     xp, Pp = np.empty((T, n)), np.empty((T, n, n))

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .._validation import as_array
 from ..errors import ParameterError
 from ._validity import check_policy, check_range
 
@@ -49,9 +50,9 @@ def _out(value):
 
 
 def _positive(name: str, value) -> np.ndarray:
-    arr = np.asarray(value, dtype=float)
-    if not np.all(np.isfinite(arr)) or np.any(arr <= 0):
-        raise ParameterError(f"{name}: expected finite values > 0, got {arr.ravel()[~(arr.ravel() > 0)][:1]}")
+    arr = as_array(name, value)
+    if np.any(arr <= 0):
+        raise ParameterError(f"{name}: expected finite values > 0, got {arr.ravel()[~(arr.ravel() > 0)][0]!r}")
     return arr
 
 
@@ -92,7 +93,7 @@ def wi_orientation_loss(street_angle_deg):
     prints 0.3574 (which would close that step) and 0.1004; its own Table VIII
     is reproduced with 0.354 (docs/errata.md).
     """
-    phi = np.asarray(street_angle_deg, dtype=float)
+    phi = as_array("street_angle_deg", street_angle_deg)
     if not np.all(np.isfinite(phi)) or np.any((phi < 0) | (phi > 90)):
         raise ParameterError(f"street_angle_deg: expected angles in [0, 90] degrees, got {phi}")
     return _out(np.where(phi < 35, -10.0 + 0.354 * phi,
@@ -106,7 +107,7 @@ def wi_rooftop_to_street_loss(frequency_mhz, *, street_width_m, h_roof_m, h_mobi
     """
     f = _positive("frequency_mhz", frequency_mhz)
     w = _positive("street_width_m", street_width_m)
-    dhm = np.asarray(h_roof_m, dtype=float) - np.asarray(h_mobile_m, dtype=float)
+    dhm = as_array("h_roof_m", h_roof_m) - as_array("h_mobile_m", h_mobile_m)
     if np.any(dhm <= 0):
         raise ParameterError(f"h_roof_m: must exceed h_mobile_m (mobile below roof level), got "
                              f"h_roof_m - h_mobile_m = {dhm}")
@@ -129,7 +130,7 @@ def wi_multiscreen_loss(distance_km, frequency_mhz, *, h_base_m, h_roof_m, build
     f = _positive("frequency_mhz", frequency_mhz)
     b = _positive("building_sep_m", building_sep_m)
     h_roof = _positive("h_roof_m", h_roof_m)
-    dhb = np.asarray(h_base_m, dtype=float) - h_roof
+    dhb = as_array("h_base_m", h_base_m) - h_roof
     if city not in ("medium", "metropolitan"):
         raise ParameterError(f"city: expected 'medium' or 'metropolitan', got {city!r}")
     above = dhb > 0
