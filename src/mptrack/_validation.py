@@ -276,50 +276,38 @@ def _finite_data(arr: np.ndarray) -> np.ndarray:
     return arr
 
 
-def _all_finite(value, depth: int = 0) -> bool:
-    if isinstance(value, np.ndarray):
-        if value.dtype.kind not in "fc" or not value.size:
-            return True
-        arr = _finite_data(value)
-        return bool(np.isfinite(arr.min()) and np.isfinite(arr.max())) if arr.dtype.kind == "f" \
-            else bool(np.isfinite(arr).all())
-    if isinstance(value, float):
-        return math.isfinite(value)
-    if depth < 2 and isinstance(value, (tuple, list)):
-        return all(_all_finite(v, depth + 1) for v in value)
-    if depth < 2 and hasattr(value, "__dataclass_fields__"):
-        return all(_all_finite(getattr(value, f), depth + 1) for f in value.__dataclass_fields__)
-    return True
-
-
-def _has_nan(value, depth: int = 0) -> bool:
-    if isinstance(value, (float, np.floating)):
-        return math.isnan(value)
-    if isinstance(value, np.ndarray):
-        return value.dtype.kind in "fc" and bool(np.isnan(_finite_data(value)).any())
-    if depth < 2 and isinstance(value, (tuple, list)):
-        return any(_has_nan(v, depth + 1) for v in value)
-    if depth < 2 and hasattr(value, "__dataclass_fields__"):
-        return any(_has_nan(getattr(value, f), depth + 1) for f in value.__dataclass_fields__)
-    return False
-
-
-def _magnitude(value, depth: int = 0) -> float:
-    """The largest finite |number| inside an argument (arrays, models, results, scalars)."""
-    if isinstance(value, (bool, str)) or value is None:
-        return 0.0
+def _leaves(value, depth: int = 0):
+    """The numbers inside an argument or result: arrays and scalars, looked for in tuples, lists
+    and dataclass records (models, results) two levels deep."""
+    if isinstance(value, (bool, np.bool_, str)) or value is None:
+        return
     if isinstance(value, (numbers.Real, np.ndarray)):
         arr = np.asarray(value)
-        if arr.dtype.kind not in "biuf" or not arr.size:
-            return 0.0
-        arr = np.abs(_finite_data(arr).astype(float))
-        arr = arr[np.isfinite(arr)]
-        return float(arr.max()) if arr.size else 0.0
-    if depth < 2 and isinstance(value, (tuple, list)):
-        return max((_magnitude(v, depth + 1) for v in value), default=0.0)
-    if depth < 2 and hasattr(value, "__dataclass_fields__"):
-        return max((_magnitude(getattr(value, f), depth + 1) for f in value.__dataclass_fields__), default=0.0)
-    return 0.0
+        if arr.dtype.kind in "iufc" and arr.size:
+            yield _finite_data(arr)
+    elif depth < 2 and isinstance(value, (tuple, list)):
+        for v in value:
+            yield from _leaves(v, depth + 1)
+    elif depth < 2 and hasattr(value, "__dataclass_fields__"):
+        for f in value.__dataclass_fields__:
+            yield from _leaves(getattr(value, f), depth + 1)
+
+
+def _all_finite(value) -> bool:
+    # min and max propagate NaN and show infinities: two reductions, no boolean temporary
+    return all(bool(np.isfinite(a.min()) and np.isfinite(a.max())) if a.dtype.kind == "f"
+               else bool(np.isfinite(a).all()) for a in _leaves(value))
+
+
+def _has_nan(value) -> bool:
+    return any(bool(np.isnan(a).any()) for a in _leaves(value))
+
+
+def _magnitude(value) -> float:
+    """The largest finite |number| inside an argument (arrays, models, results, scalars)."""
+    sizes = [np.abs(a.real if a.dtype.kind == "c" else a) for a in _leaves(value)]
+    sizes = [float(a[np.isfinite(a)].max()) for a in sizes if np.isfinite(a).any()]
+    return max(sizes, default=0.0)
 
 
 def require_finite(what: str, value, **inputs) -> None:
