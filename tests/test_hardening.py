@@ -213,3 +213,12 @@ def test_memory_limit_can_be_set(monkeypatch):
 def test_messages_name_the_argument(call, name):
     with pytest.raises((ShapeError, ParameterError, NonFiniteError, TypeError), match=rf"^{name}\b"):
         call()
+
+
+@pytest.mark.parametrize("kwargs, name", [(dict(sigma_m=1e-300), "sigma_m"), (dict(q=1e308), "q")])
+def test_tracking_options_name_the_given_noise_not_a_derived_one(kwargs, name):
+    """--sigma 1e-300 used to fail later as "sigma_r2 ... got 0.0" (its square), --q 1e308 as
+    "dt: 0.0 s is too long"; the options now refuse them under the names given."""
+    from mptrack.tracking import TrackOptions
+    with pytest.raises(ParameterError, match=rf"^{name}: expected values in"):
+        TrackOptions(**kwargs)
