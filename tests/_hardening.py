@@ -19,7 +19,6 @@ magnitude with NaN/Inf sprinkled, ragged lists, wrong types and huge sizes.
 from __future__ import annotations
 
 import dataclasses
-import math
 import re
 import signal
 import tracemalloc

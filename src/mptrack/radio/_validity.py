@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import warnings
 
-import numpy as np
 
 from .._validation import as_array
 from ..errors import ParameterError
