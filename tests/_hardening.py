@@ -468,13 +468,14 @@ def _empty_csv():
 
 def warm_up() -> None:
     """Compile the numba kernels first, so that compilation does not count against the time bound."""
-    z = np.ones((2, 3, 1))
-    for fn in (batch.steady_state_filter, batch.kalman_filter, batch.fir_filter):
-        fn(B, z)
-        batch.per_axis(fn, B, np.ones((2, 3, 2)))
-    batch.predict(B, np.ones((2, 3, 2)))
-    for tracks in (1, 2):
-        _range_ekf(np.full((tracks, 3, 3), 500.0), [1.0, 0.0, 1.0, 0.0])
+    for dtype in (np.float64, np.float32):   # the batch engine keeps float32: one kernel per dtype
+        z = np.ones((2, 3, 1), dtype=dtype)
+        for fn in (batch.steady_state_filter, batch.kalman_filter, batch.fir_filter):
+            fn(B, z)
+            batch.per_axis(fn, B, np.ones((2, 3, 2), dtype=dtype))
+        batch.predict(B, np.ones((2, 3, 2), dtype=dtype))
+        for tracks in (1, 2):
+            _range_ekf(np.full((tracks, 3, 3), 500.0, dtype=dtype), [1.0, 0.0, 1.0, 0.0])
     for fn in (linear.kalman_filter, linear.lainiotis_filter, linear.steady_state_filter, linear.fir_filter):
         fn(B, np.ones((3, 1)))
     linear.rts_smoother(B, linear.kalman_filter(B, np.ones((3, 1))))
