@@ -265,13 +265,16 @@ UNDETECTABLE = {
     "velocity-only": LinearGaussianModel([[1.0, 1.0], [0.0, 1.0]], [[0.0, 1.0]], np.eye(2), [[0.1]]),
 }
 NOT_STABILISABLE = {
-    # unstable mode without process noise
-    "noise-free-unstable": LinearGaussianModel(np.diag([1.2, 0.5]), np.eye(2), np.diag([0.0, 1.0]), np.eye(2)),
     # constant velocity with Q = 0: unit-circle modes not driven by noise
     "cv-Q0": LinearGaussianModel([[1.0, 1.0], [0.0, 1.0]], [[1.0, 0.0]], np.zeros((2, 2)), [[0.1]]),
-    # noise gain enters the stable mode only
+}
+# Undriven modes *outside* the unit circle do not prevent a stabilising solution (issue 16):
+# the measurements estimate them; every solver must find scipy's solution.
+UNDRIVEN_UNSTABLE = {
+    "noise-free-unstable": LinearGaussianModel(np.diag([1.2, 0.5]), np.eye(2), np.diag([0.0, 1.0]), np.eye(2)),
     "gain-on-stable-mode": LinearGaussianModel.from_noise_gain(np.diag([1.1, 0.3]), np.eye(2),
                                                                [[0.0], [1.0]], [[1.0]], np.eye(2)),
+    "F2-Q0": LinearGaussianModel([[2.0]], [[1.0]], [[0.0]], [[1.0]]),
 }
 SOLVES = {
     "dare": lambda m: steady_state(m, "dare"),
@@ -297,6 +300,19 @@ def test_undetectable_model_has_no_steady_state(key, solve):
 def test_non_stabilisable_model_has_no_stabilising_steady_state(key, solve):
     err = check_raises(NotStabilisableError, "model", SOLVES[solve], NOT_STABILISABLE[key])
     assert "stabilisable" in str(err)
+
+
+@pytest.mark.parametrize("method", ["dare", "doubling", "per-step"])
+@pytest.mark.parametrize("key", list(UNDRIVEN_UNSTABLE))
+def test_undriven_unstable_modes_are_solved_like_scipy(key, method):
+    import scipy.linalg
+    model = UNDRIVEN_UNSTABLE[key]
+    want = scipy.linalg.solve_discrete_are(model.F.T, model.H.T, model.Q, model.R)
+    ss = steady_state(model, method)
+    np.testing.assert_allclose(ss.P_pred, want, rtol=1e-10, atol=1e-12)
+    assert max(abs(np.linalg.eigvals(ss.A))) < 1.0     # the stabilising solution
+    if key == "F2-Q0":
+        assert ss.P_pred[0, 0] == pytest.approx(3.0, rel=1e-12)   # P = 3, as the KF converges to
 
 
 @pytest.mark.parametrize("model", list(UNDETECTABLE.values()) + list(NOT_STABILISABLE.values()))

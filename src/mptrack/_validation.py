@@ -6,6 +6,8 @@ argument was wrong, what was expected and what was received.
 
 from __future__ import annotations
 
+import functools
+import inspect
 import math
 import numbers
 import os
@@ -15,10 +17,12 @@ import numpy as np
 
 from .errors import (
     DTypeError,
+    MptrackError,
     NonFiniteError,
     NotPositiveDefiniteError,
     NotSymmetricError,
     ParameterError,
+    ResourceError,
     ShapeError,
 )
 
@@ -32,6 +36,12 @@ __all__ = [
     "check_positive",
     "check_int",
     "check_outputs",
+    "as_real",
+    "check_allocation",
+    "memory_limit",
+    "finite_result",
+    "require_finite",
+    "check_record",
 ]
 
 
@@ -155,7 +165,7 @@ def as_vector(name: str, value, size: int | None = None) -> np.ndarray:
 
 def as_sequence(name: str, value, width: int, *, allow_nan: bool = False) -> np.ndarray:
     """A measurement sequence of shape (T, width); a 1-D input is accepted when width == 1."""
-    arr = np.asarray(value)
+    arr = _to_array(name, value)
     if arr.ndim == 1 and width == 1:
         arr = arr[:, None]
     arr = as_array(name, arr, shape=(None, width), allow_nan=allow_nan)
@@ -191,6 +201,21 @@ def check_covariance(name: str, value, size: int | None = None, *, definite: boo
     return mat
 
 
+def as_real(name: str, value, *, low: float = -math.inf, high: float = math.inf, unit: str = "",
+            infinite: bool = False) -> float:
+    """A finite real scalar (a Python or NumPy number, or a 0-d array) in [low, high].
+
+    Strings, complex numbers, None and arrays of other sizes are refused with the argument's name;
+    this is the one check of scalar parameters (heights, frequencies, membership breakpoints).
+    ``infinite`` lets +-inf through (a fuzzy set's open shoulder), never NaN.
+    """
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (numbers.Real, np.ndarray)):
+        raise ParameterError(f"{name}: expected a real number, got {value!r}")
+    if infinite and isinstance(value, numbers.Real) and math.isinf(value):
+        return float(value)
+    return float(as_array(name, value, ndim=0, low=low, high=high, unit=unit))
+
+
 def check_positive(name: str, value, *, allow_zero: bool = False) -> float:
     if isinstance(value, bool) or not isinstance(value, numbers.Real):
         raise ParameterError(f"{name}: expected a real number, got {value!r}")
@@ -202,13 +227,156 @@ def check_positive(name: str, value, *, allow_zero: bool = False) -> float:
     return value
 
 
-def check_int(name: str, value, *, minimum: int | None = None) -> int:
+def check_int(name: str, value, *, minimum: int | None = None, maximum: int | None = None) -> int:
     if isinstance(value, bool) or not isinstance(value, numbers.Integral):
         raise ParameterError(f"{name}: expected an integer, got {value!r}")
     value = int(value)
     if minimum is not None and value < minimum:
         raise ParameterError(f"{name}: expected an integer >= {minimum}, got {value}")
+    if maximum is not None and value > maximum:
+        raise ParameterError(f"{name}: expected an integer <= {maximum}, got {value}")
     return value
+
+
+def memory_limit() -> int:
+    """Bytes one call may allocate: ``MPTRACK_MAX_BYTES`` or half the physical memory."""
+    env = os.environ.get("MPTRACK_MAX_BYTES")
+    if env:
+        return int(float(env))
+    try:
+        return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES") // 2
+    except (ValueError, OSError, AttributeError):  # pragma: no cover - not POSIX
+        return 8 * 2**30
+
+
+def _bytes_text(n: float) -> str:
+    for unit in ("B", "KiB", "MiB", "GiB", "TiB", "PiB"):
+        if n < 1024 or unit == "PiB":
+            return f"{n:.3g} {unit}"
+        n /= 1024
+    return f"{n:.3g} EiB"  # pragma: no cover
+
+
+def check_allocation(name: str, value, nbytes: float) -> None:
+    """Refuse, before allocating, a result of ``nbytes`` bytes that argument ``name`` (= value)
+    asks for when it exceeds :func:`memory_limit` (estimate first, instead of a MemoryError or
+    a machine that swaps)."""
+    limit = memory_limit()
+    if nbytes > limit:
+        raise ResourceError(f"{name}: {value!r} needs {_bytes_text(nbytes)} of memory, more than the limit of "
+                            f"{_bytes_text(limit)} (set MPTRACK_MAX_BYTES to change it, or work in chunks)")
+
+
+# --- output finiteness -------------------------------------------------------------------------
+
+def _finite_data(arr: np.ndarray) -> np.ndarray:
+    """The distinct data of a broadcast view (a stride of 0 repeats values: look at one copy)."""
+    if arr.ndim and 0 in arr.strides:
+        arr = arr[tuple(0 if s == 0 else slice(None) for s in arr.strides)]
+    return arr
+
+
+def _leaves(value, depth: int = 0):
+    """The numbers inside an argument or result: arrays and scalars, looked for in tuples, lists
+    and dataclass records (models, results) two levels deep."""
+    if isinstance(value, (bool, np.bool_, str)) or value is None:
+        return
+    if isinstance(value, (numbers.Real, np.ndarray)):
+        arr = np.asarray(value)
+        if arr.dtype.kind in "iufc" and arr.size:
+            yield _finite_data(arr)
+    elif depth < 2 and isinstance(value, (tuple, list)):
+        for v in value:
+            yield from _leaves(v, depth + 1)
+    elif depth < 2 and hasattr(value, "__dataclass_fields__"):
+        for f in value.__dataclass_fields__:
+            yield from _leaves(getattr(value, f), depth + 1)
+
+
+def _all_finite(value) -> bool:
+    # min and max propagate NaN and show infinities: two reductions, no boolean temporary
+    return all(bool(np.isfinite(a.min()) and np.isfinite(a.max())) if a.dtype.kind == "f"
+               else bool(np.isfinite(a).all()) for a in _leaves(value))
+
+
+def _has_nan(value) -> bool:
+    return any(bool(np.isnan(a).any()) for a in _leaves(value))
+
+
+def _magnitude(value) -> float:
+    """The largest finite |number| inside an argument (arrays, models, results, scalars)."""
+    sizes = [np.abs(a.real if a.dtype.kind == "c" else a) for a in _leaves(value)]
+    sizes = [float(a[np.isfinite(a)].max()) for a in sizes if np.isfinite(a).any()]
+    return max(sizes, default=0.0)
+
+
+def require_finite(what: str, value, **inputs) -> None:
+    """Raise :class:`NonFiniteError` when ``value`` (an array, a result record) holds NaN or
+    infinity although ``inputs`` (name=argument) were finite: an overflow in the computation.
+    The message names the input of largest magnitude, the likely cause."""
+    if not _all_finite(value):
+        raise _overflow(what, inputs, None)
+
+
+def _overflow(what: str, inputs: dict, cause) -> NonFiniteError:
+    sizes = sorted(((_magnitude(v), k) for k, v in inputs.items()), reverse=True)
+    named = ", ".join(f"|{k}| up to {m:.3g}" for m, k in sizes if m > 0) or "no large values"
+    first = sizes[0][1] if sizes else "inputs"
+    why = f" ({type(cause).__name__}: {cause})" if cause is not None else ""
+    return NonFiniteError(
+        f"{first}: {what} overflowed the float64 range (a NaN or infinity appeared from finite input"
+        f"{why}); the inputs hold {named}; rescale them (e.g. metres -> km) or check the model")
+
+
+_BREAKDOWNS = (np.linalg.LinAlgError, ZeroDivisionError, FloatingPointError, OverflowError)
+
+
+def finite_result(what: str):
+    """Decorator of the output-finiteness policy (docs/design.md, "Finite answers"):
+    the wrapped public function's result (arrays, result records) must be finite; when it is not,
+    or when the computation breaks down inside a compiled kernel (a LinAlgError on infinities,
+    a division by zero), a :class:`NonFiniteError` names the argument of largest magnitude.
+    Arguments are validated by the function itself first (their errors pass through).  A NaN
+    result is let through when an argument holds NaN (missing data, where the function allows it)."""
+    def wrap(fn):
+        signature = inspect.signature(fn)
+
+        @functools.wraps(fn)
+        def checked(*args, **kwargs):
+            try:
+                with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+                    result = fn(*args, **kwargs)
+            except MptrackError:
+                raise
+            except (*_BREAKDOWNS, SystemError) as exc:
+                if isinstance(exc, SystemError) and not isinstance(exc.__cause__, _BREAKDOWNS):
+                    raise
+                raise _overflow(what, _bound(signature, args, kwargs), exc) from exc
+            if not _all_finite(result):
+                inputs = _bound(signature, args, kwargs)
+                if not any(_has_nan(v) for v in inputs.values()):   # NaN in = missing data, documented
+                    raise _overflow(what, inputs, None)
+            return result
+        return checked
+    return wrap
+
+
+def check_record(name: str, record, fields=("x", "P", "x_pred", "P_pred")) -> None:
+    """The array fields of a result record passed in as an argument must be finite arrays with a
+    leading time axis (x (T, n), P (T, n, n))."""
+    for field in fields:
+        value = getattr(record, field, None)
+        if value is not None:
+            arr = as_array(f"{name}.{field}", _finite_data(_to_array(f"{name}.{field}", value)))
+            want = 2 if field.startswith("x") else 3
+            if np.ndim(value) != want or not isinstance(value, np.ndarray):
+                raise ShapeError(f"{name}.{field}: expected a {want}-D array, got "
+                                 f"{type(value).__name__} of shape {arr.shape}")
+
+
+def _bound(signature, args, kwargs) -> dict:
+    bound = signature.bind(*args, **kwargs)
+    return {k: v for k, v in bound.arguments.items() if k not in ("args", "kwargs")}
 
 
 def check_outputs(*inputs, **outputs) -> None:

@@ -23,6 +23,7 @@ __all__ = [
     "ParameterError",
     "DataError",
     "OutputError",
+    "ResourceError",
 ]
 
 
@@ -111,3 +112,9 @@ class OutputError(MptrackError, OSError):
         super().__init__(message)
         self.path = path
         self.errno = errno
+
+
+class ResourceError(MptrackError, ValueError):
+    """An argument asks for more memory (or time) than the run may use: the message names the
+    argument, the bytes needed and the limit (``MPTRACK_MAX_BYTES``, default half the machine's
+    physical memory)."""

@@ -17,37 +17,70 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._validation import as_array, check_covariance
-from .errors import ShapeError, SingularMatrixError
+from ._validation import as_array, broadcast_shape, check_covariance, check_int, finite_result
+from .errors import ParameterError, ShapeError, SingularMatrixError
 
 __all__ = ["position_error", "rmse", "nees", "pcrb", "pcrb_tichavsky", "range_fisher_information", "pcrb_ranges"]
 
 
+@finite_result("the position error")
 def position_error(x_est, truth, dims: int | None = None) -> np.ndarray:
     """Euclidean position error ||x̂ - x|| per time step (seed 003 eq. 25): (..., T).
 
     ``dims`` = number of leading state components that are the position (default: all of truth's).
     """
-    x_est = np.asarray(x_est, dtype=float)
-    truth = np.asarray(truth, dtype=float)
-    d = truth.shape[-1] if dims is None else dims
-    return np.linalg.norm(x_est[..., :d] - truth[..., :d], axis=-1)
+    x_est, truth = _pair(x_est, truth)
+    d = truth.shape[-1] if dims is None else check_int("dims", dims, minimum=1, maximum=truth.shape[-1])
+    with np.errstate(over="ignore"):   # an overflow is reported by finite_result
+        return np.linalg.norm(x_est[..., :d] - truth[..., :d], axis=-1)
 
 
+def _pair(x_est, truth) -> tuple[np.ndarray, np.ndarray]:
+    """Estimates and truth: finite (NaN allowed in the estimate, a missing value) with states on the
+    last axis, broadcasting together."""
+    x_est = as_array("x_est", x_est, allow_nan=True)
+    truth = as_array("truth", truth)
+    for name, arr in (("x_est", x_est), ("truth", truth)):
+        if arr.ndim == 0 or 0 in arr.shape:
+            raise ShapeError(f"{name}: expected states on the last axis (..., n), got shape {arr.shape}")
+    if x_est.shape[-1] < truth.shape[-1]:
+        raise ShapeError(f"x_est: expected at least {truth.shape[-1]} state components (as truth), "
+                         f"got shape {x_est.shape}")
+    broadcast_shape(x_est=x_est[..., 0], truth=truth[..., 0])
+    return x_est, truth
+
+
+@finite_result("the RMSE")
 def rmse(x_est, truth, dims: int | None = None, axis: int = 0) -> np.ndarray:
     """Root-mean-square position error over Monte-Carlo runs (``axis``) of a batch (B, T, n): (T,)."""
     e = position_error(x_est, truth, dims)
-    return np.sqrt(np.mean(e ** 2, axis=axis))
+    if not isinstance(axis, (int, np.integer)) or not -e.ndim <= axis < e.ndim:
+        raise ParameterError(f"axis: expected an integer in [-{e.ndim}, {e.ndim}) (the error has shape "
+                             f"{e.shape}), got {axis!r}")
+    with np.errstate(over="ignore"):   # an overflow is reported by finite_result
+        return np.sqrt(np.mean(e ** 2, axis=axis))
 
 
+@finite_result("the NEES")
 def nees(x_est, P, truth) -> np.ndarray:
     """Normalised estimation error squared (x̂ - x)^T P^{-1} (x̂ - x) per step: (..., T).
 
     For a consistent filter its mean over runs is the state dimension n
     (chi-square with n degrees of freedom per run; Bar-Shalom et al. 2001, §5.4).
     """
-    e = np.asarray(x_est, dtype=float) - np.asarray(truth, dtype=float)
-    return np.einsum("...i,...i->...", e, np.linalg.solve(np.asarray(P, dtype=float), e[..., None])[..., 0])
+    x_est, truth = _pair(x_est, truth)
+    if x_est.shape[-1] != truth.shape[-1]:
+        raise ShapeError(f"x_est: expected {truth.shape[-1]} state components (as truth), got shape {x_est.shape}")
+    n = truth.shape[-1]
+    P = as_array("P", P)
+    if P.ndim < 2 or P.shape[-2:] != (n, n):
+        raise ShapeError(f"P: expected shape (..., {n}, {n}), got shape {P.shape}")
+    broadcast_shape(x_est=x_est[..., 0], P=P[..., 0, 0])
+    e = x_est - truth
+    try:
+        return np.einsum("...i,...i->...", e, np.linalg.solve(P, e[..., None])[..., 0])
+    except np.linalg.LinAlgError:
+        raise SingularMatrixError("P: a covariance is singular; the NEES needs P^-1") from None
 
 
 def pcrb(F, Q, P0, info) -> np.ndarray:

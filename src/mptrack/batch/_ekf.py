@@ -19,9 +19,9 @@ from dataclasses import dataclass, field
 import numba as nb
 import numpy as np
 
-from .._validation import as_matrix, check_covariance, check_positive
+from .._validation import _overflow, as_matrix, require_finite, check_covariance, check_positive
 from ..errors import ParameterError, ShapeError
-from ._inputs import launch, prepare_batch
+from ._inputs import check_finite_out, launch, prepare_batch
 from ._kernels import _OPTS, kf_predict, kf_update, observed
 
 __all__ = ["RangeModel", "range_ekf"]
@@ -81,12 +81,17 @@ class RangeModel:
         sigma_r2 = check_positive("sigma_r2", sigma_r2)
         Fa = np.array([[1.0, dt], [0.0, 1.0]])
         g = np.array([0.5 * dt * dt, dt])
-        Qa = sigma_a2 * np.outer(g, g)
+        with np.errstate(over="ignore", invalid="ignore"):  # an overflow is reported below
+            Qa = sigma_a2 * np.outer(g, g)
         z2 = np.zeros((2, 2))
         F = np.block([[Fa, z2], [z2, Fa]])
         Q = np.block([[Qa, z2], [z2, Qa]])
         st = as_matrix("stations", stations)
+        require_finite("Q = sigma_a2 G G^T", Q, dt=dt, sigma_a2=sigma_a2)
         return cls(F, Q, st, sigma_r2 * np.eye(st.shape[0]), (0, 2))
+
+
+_TINY_RANGE = 1e-12   # metres; the floor of the single-track ekf_ranges
 
 
 @nb.njit(**_OPTS)
@@ -113,8 +118,9 @@ def ekf_kernel(z, out, F, Q, R, stations, pos, x0, P0, lengths):
                         diff = xp[pos[j]] - stations[ok[i], j]
                         r2 += diff * diff
                     r = np.sqrt(r2)
+                    r_floor = max(r, _TINY_RANGE)  # on a station: H stays finite (as ekf_ranges)
                     for j in range(d):
-                        Hs[i, pos[j]] = (xp[pos[j]] - stations[ok[i], j]) / r
+                        Hs[i, pos[j]] = (xp[pos[j]] - stations[ok[i], j]) / r_floor
                     innov[i] = z[b, t, ok[i]] - r
                     for j in range(k):
                         Rs[i, j] = R[ok[i], ok[j]]
@@ -139,7 +145,10 @@ def range_ekf(model: RangeModel, z, x0, P0, out=None, *, lengths=None) -> np.nda
         raise ParameterError("x0: the EKF needs a prior state (the Jacobian at 0 may be undefined)")
     bi = prepare_batch(model, z, x0, out, lengths, model_type=RangeModel)
     P0 = check_covariance("P0", P0, model.n)
-    launch(ekf_kernel, bi.out.size * model.m * model.n, bi.z, bi.out, model.F, model.Q, model.R,
-           model.stations, np.asarray(model.position, dtype=np.int64), bi.x0, P0, bi.lengths)
-    return bi.out
+    try:
+        launch(ekf_kernel, bi.out.size * model.m * model.n, bi.z, bi.out, model.F, model.Q, model.R,
+               model.stations, np.asarray(model.position, dtype=np.int64), bi.x0, P0, bi.lengths)
+    except (np.linalg.LinAlgError, ZeroDivisionError, SystemError) as exc:  # a breakdown inside numba
+        raise _overflow("the range EKF", dict(model=model, z=bi.z, x0=bi.x0, P0=P0), exc) from exc
+    return check_finite_out(bi, "the range EKF", model=model, z=bi.z, x0=bi.x0, P0=P0)
 

@@ -11,13 +11,13 @@ from typing import Callable
 
 import numpy as np
 
-from .._validation import check_covariance, check_int, check_positive
+from .._validation import _to_array, check_allocation, check_covariance, check_int, check_positive, require_finite
 from ..errors import NonFiniteError, ParameterError, ShapeError
 from ..linear import fir_coefficients, fir_order
 from ..models import LinearGaussianModel, require_model
 from ..riccati import SteadyState, steady_state
 from . import _kernels as K
-from ._inputs import as_batch, check_out, launch, prepare_batch
+from ._inputs import as_batch, check_finite_out, check_out, launch, prepare_batch
 
 __all__ = [
     "GainSequence",
@@ -50,7 +50,7 @@ def _steady_state_filter(model, z, x0=None, out=None, *, lengths=None, steady=No
     kernel = K.ss_kernel_21 if _is_21(model) else K.ss_kernel
     launch(kernel, bi.out.size, bi.z, bi.out, np.ascontiguousarray(ss.A), np.ascontiguousarray(ss.B),
            np.ascontiguousarray(model.F), bi.x0, bi.lengths, bi.axes)
-    return bi.out
+    return check_finite_out(bi, "the steady-state filter", model=model, z=bi.z, x0=bi.x0)
 
 
 def steady_state_filter(model: LinearGaussianModel, z, x0=None, out=None, *, lengths=None,
@@ -103,21 +103,31 @@ def gain_sequence(model: LinearGaussianModel, steps: int, P0=None) -> GainSequen
     require_model(model)
     steps = check_int("steps", steps, minimum=1)
     n, m = model.n, model.m
+    check_allocation("steps", steps, 8.0 * steps * (n * m + 2 * n * n))
     P = np.zeros((n, n)) if P0 is None else check_covariance("P0", P0, n)
     P0 = P.copy()
     F, H, Q, R = model.F, model.H, model.Q, model.R
-    Ks = np.empty((steps, n, m))
-    Pp = np.empty((steps, n, n))
-    Pf = np.empty((steps, n, n))
-    for k in range(steps):
+    Ks, Pp, Pf = np.empty((steps, n, m)), np.empty((steps, n, n)), np.empty((steps, n, n))
+    with np.errstate(all="ignore"):  # an overflow is reported by require_finite below
+        _gains(F, H, Q, R, P, Ks, Pp, Pf)
+    result = GainSequence(K=Ks, P_pred=Pp, P_filt=Pf, P0=P0)
+    require_finite("the Kalman gain sequence", result, model=model, P0=P0)
+    return result
+
+
+def _gains(F, H, Q, R, P, Ks, Pp, Pf) -> None:
+    for k in range(Ks.shape[0]):
         P_pred = F @ P @ F.T + Q
         PHt = P_pred @ H.T
         S = H @ PHt + R
-        gain = PHt @ np.linalg.inv(S)
+        try:
+            gain = PHt @ np.linalg.inv(S)
+        except np.linalg.LinAlgError:  # S overflowed to inf/NaN: leave NaN, reported as an overflow
+            Ks[k:] = Pp[k:] = Pf[k:] = np.nan
+            return
         P = P_pred - gain @ PHt.T
         P = 0.5 * (P + P.T)
         Ks[k], Pp[k], Pf[k] = gain, P_pred, P
-    return GainSequence(K=Ks, P_pred=Pp, P_filt=Pf, P0=P0)
 
 
 def _kalman_filter(model, z, x0=None, P0=None, out=None, *, lengths=None, gains=None, axes=1):
@@ -136,7 +146,7 @@ def _kalman_filter(model, z, x0=None, P0=None, out=None, *, lengths=None, gains=
     c = np.ascontiguousarray
     launch(kernel, bi.out.size, bi.z, bi.out, c(model.F), c(model.H), c(model.Q), c(model.R), c(gains.K),
            c(gains.P_filt), c(gains.P0), bi.x0, bi.lengths, bi.axes)
-    return bi.out
+    return check_finite_out(bi, "the Kalman filter", model=model, z=bi.z, x0=bi.x0, P0=gains.P0)
 
 
 def kalman_filter(model: LinearGaussianModel, z, x0=None, P0=None, out=None, *, lengths=None,
@@ -168,7 +178,7 @@ def _fir_filter(model, z, out=None, *, lengths=None, eps=1e-3, norm=2, M=None, s
         b = int(np.flatnonzero(bad)[0])
         raise NonFiniteError(f"z: the FIR filter needs every measurement; track {b} has NaN at time "
                              f"index {bad[b] - 1} (use steady_state_filter, which predicts through gaps)")
-    return bi.out
+    return check_finite_out(bi, "the FIR filter", model=model, z=bi.z)
 
 
 def fir_filter(model: LinearGaussianModel, z, out=None, *, lengths=None, eps: float = 1e-3, norm=2,
@@ -193,14 +203,18 @@ def predict(model: LinearGaussianModel, x, steps: int = 1, out=None) -> np.ndarr
     """
     require_model(model)
     steps = check_int("steps", steps, minimum=1)
-    x = np.asarray(x)
+    x = _to_array("x", x)
     if x.ndim != 3 or x.shape[2] == 0 or x.shape[2] % model.n:
         raise ShapeError(f"x: expected shape (B, T, axes * {model.n}), got shape {x.shape}")
     axes = x.shape[2] // model.n
     xs = as_batch("x", x, x.shape[2])
     out = np.empty_like(xs) if out is None else check_out(out, xs.shape, xs.dtype, None if out is x else xs)
-    FN = np.linalg.matrix_power(model.F, steps)
+    with np.errstate(all="ignore"):
+        FN = np.linalg.matrix_power(model.F, steps)
+    require_finite("F^steps", FN, model=model, steps=steps)
     launch(K.matvec_kernel, out.size, xs, out, np.ascontiguousarray(FN), axes)
+    if not np.isnan(xs).any():
+        require_finite("the prediction", out, model=model, x=xs, steps=steps)
     return out
 
 
@@ -223,11 +237,11 @@ def per_axis(run: Callable[..., np.ndarray], axis_model: LinearGaussianModel, z,
     ``mptrack.linear.per_axis(reference, axis_model, z[b], ...)`` track by track.
     Other arguments are those of ``run`` (x0 of width axes * n_a).
     """
-    impl = _PER_AXIS.get(run)
+    impl = _PER_AXIS.get(run) if callable(run) else None
     if impl is None:
         raise ParameterError("run: expected mptrack.batch.steady_state_filter, kalman_filter or fir_filter")
     require_model(axis_model, "axis_model")
-    shape = np.shape(z)
+    shape = _to_array("z", z).shape
     if len(shape) != 3 or shape[2] == 0 or shape[2] % axis_model.m:
         raise ShapeError(f"z: expected shape (B, T, axes * {axis_model.m}), got shape {shape}")
     return impl(axis_model, z, *args, axes=shape[2] // axis_model.m, **kwargs)

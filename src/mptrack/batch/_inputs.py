@@ -7,11 +7,11 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
-from .._validation import as_array, as_vector
+from .._validation import _to_array, as_array, as_vector, check_allocation, require_finite
 from ..errors import DTypeError, ParameterError, ShapeError
 from ..models import LinearGaussianModel
 
-__all__ = ["BatchInputs", "prepare_batch", "as_batch", "check_out", "launch"]
+__all__ = ["BatchInputs", "prepare_batch", "as_batch", "check_out", "launch", "check_finite_out"]
 
 _FLOATS = (np.dtype(np.float64), np.dtype(np.float32))
 
@@ -46,8 +46,9 @@ class BatchInputs:
 
 
 def as_batch(name: str, value, width: int) -> np.ndarray:
-    """A (B, T, width) float32/float64 C-contiguous array; other real dtypes become float64."""
-    arr = np.asarray(value)
+    """A (B, T, width) float32/float64 C-contiguous array; other real dtypes become float64.
+    NaN (missing) is allowed, infinity is not."""
+    arr = _to_array(name, value)
     if arr.dtype == object or arr.dtype.kind not in "biuf":
         raise DTypeError(f"{name}: expected real numbers (float64 or float32), got dtype {arr.dtype}")
     if arr.ndim != 3 or arr.shape[2] != width:
@@ -56,7 +57,20 @@ def as_batch(name: str, value, width: int) -> np.ndarray:
         raise ShapeError(f"{name}: expected at least one track and one time step, got shape {arr.shape}")
     if arr.dtype not in _FLOATS:
         arr = arr.astype(np.float64)
+    as_array(name, arr, allow_nan=True)  # refuses +-Inf (the check is two reductions, no copy)
     return np.ascontiguousarray(arr)
+
+
+def check_finite_out(bi: "BatchInputs", what: str, **inputs) -> np.ndarray:
+    """The output-finiteness policy for a batch: rows inside each track's length must be finite
+    (after it they are NaN by contract)."""
+    out = bi.out
+    if bool((bi.lengths == out.shape[1]).all()):
+        require_finite(what, out, **inputs)
+    else:
+        inside = np.arange(out.shape[1]) < bi.lengths[:, None]
+        require_finite(what, out[inside], **inputs)
+    return out
 
 
 def check_out(out, shape: tuple, dtype, source: np.ndarray | None) -> np.ndarray:
@@ -89,10 +103,14 @@ def prepare_batch(model, z, x0, out, lengths, *, axes: int = 1,
     n, m = axes * model.n, axes * model.m
     z = as_batch("z", z, m)
     B, T = z.shape[:2]
+    if x0 is not None:
+        x0 = _to_array("x0", x0)
     if x0 is None:
         x0 = np.zeros((B, n))
-    elif np.ndim(x0) == 1:
-        x0 = np.ascontiguousarray(np.broadcast_to(as_vector("x0", x0, n), (B, n)))
+    elif x0.ndim == 1:
+        # a writeable copy: with B = 1 ascontiguousarray would keep the read-only broadcast view,
+        # which numba types differently (a second compilation of every kernel)
+        x0 = np.array(np.broadcast_to(as_vector("x0", x0, n), (B, n)))
     else:
         x0 = np.ascontiguousarray(as_array("x0", x0, shape=(B, n)))
     if lengths is None:
@@ -108,6 +126,7 @@ def prepare_batch(model, z, x0, out, lengths, *, axes: int = 1,
                                  f"got min {raw.min()}, max {raw.max()}")
         lengths = np.ascontiguousarray(raw, dtype=np.int64)
     if out is None:
+        check_allocation("z", f"shape {z.shape}", float(B) * T * n * z.dtype.itemsize)
         out = np.empty((B, T, n), dtype=z.dtype)
     else:
         out = check_out(out, (B, T, n), z.dtype, z)

@@ -23,18 +23,19 @@ import multiprocessing
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
+from collections.abc import Sequence
 from typing import Any, Callable, Iterable, Literal
 
 import numpy as np
 import pandas as pd
 
 from .._io import atomic_path, write_json
-from .._validation import check_int
+from .._validation import check_allocation, check_int
 from ..errors import DTypeError, ParameterError, ShapeError
 from ..models import LinearGaussianModel, require_model
 from ._filters import gain_sequence, kalman_filter, steady_state_filter
 
-__all__ = ["Chunk", "make_chunks", "run_chunks", "run_stream", "part_path", "read_part", "MonteCarloTask",
+__all__ = ["Chunk", "Chunks", "make_chunks", "run_chunks", "run_stream", "part_path", "read_part", "MonteCarloTask",
            "monte_carlo", "filter_chunked", "EXECUTORS"]
 
 Executor = Literal["serial", "processes", "dask"]
@@ -69,14 +70,42 @@ class Chunk:
         return [np.random.default_rng(s) for s in self.seed_sequences()]
 
 
-def make_chunks(n_items: int, chunk_size: int, seed: int | None = None) -> list[Chunk]:
-    """Split ``range(n_items)`` into consecutive chunks of ``chunk_size`` (the last may be shorter)."""
+class Chunks(Sequence):
+    """The chunks of ``range(n_items)``, made on access (a study of 10^12 items costs no memory).
+
+    A read-only sequence: ``len``, indexing (negative too), slicing and iteration, like ``range``."""
+
+    def __init__(self, n_items: int, chunk_size: int, seed: int | None):
+        self.n_items, self.chunk_size, self.seed = n_items, chunk_size, seed
+        self._range = range(0, n_items, chunk_size)
+
+    def __len__(self) -> int:
+        return len(self._range)
+
+    def __getitem__(self, index):
+        if isinstance(index, slice):
+            return [self[i] for i in range(*index.indices(len(self)))]
+        lo = self._range[index]   # IndexError / TypeError as for range
+        return Chunk(lo // self.chunk_size, lo, min(lo + self.chunk_size, self.n_items), self.seed)
+
+    def __eq__(self, other) -> bool:
+        if isinstance(other, Chunks):
+            return (self.n_items, self.chunk_size, self.seed) == (other.n_items, other.chunk_size, other.seed)
+        return isinstance(other, (list, tuple)) and len(other) == len(self) and list(self) == list(other)
+
+    def __repr__(self) -> str:
+        return f"Chunks(n_items={self.n_items}, chunk_size={self.chunk_size}, seed={self.seed})"
+
+
+def make_chunks(n_items: int, chunk_size: int, seed: int | None = None) -> Chunks:
+    """Split ``range(n_items)`` into consecutive chunks of ``chunk_size`` (the last may be shorter).
+
+    The chunks are made lazily (:class:`Chunks`), so a huge ``n_items`` costs no memory."""
     n_items = check_int("n_items", n_items, minimum=1)
     chunk_size = check_int("chunk_size", chunk_size, minimum=1)
     if seed is not None:
         seed = check_int("seed", seed, minimum=0)
-    return [Chunk(i, lo, min(lo + chunk_size, n_items), seed)
-            for i, lo in enumerate(range(0, n_items, chunk_size))]
+    return Chunks(n_items, chunk_size, seed)
 
 
 def _digest(*arrays) -> str:
@@ -391,6 +420,11 @@ def monte_carlo(model: LinearGaussianModel, steps: int, runs: int, *, seed: int,
         raise ParameterError(f"method: expected 'steady-state' or 'kalman', got {method!r}")
     require_model(model)
     steps = check_int("steps", steps, minimum=1)
+    runs = check_int("runs", runs, minimum=1)
+    # the result holds one row per run (run + one RMSE per state); a chunk of runs holds z and x
+    check_allocation("runs", runs, 8.0 * runs * (model.n + 2))
+    chunk_size = check_int("chunk_size", chunk_size, minimum=1)
+    check_allocation("steps", steps, 8.0 * min(chunk_size, runs) * steps * (3 * model.n + 2 * model.m))
     task = MonteCarloTask(model, steps, method, None if P0 is None else np.asarray(P0, dtype=float))
     desc = {"steps": steps, "method": method, "model": _digest(model.F, model.H, model.Q, model.R),
             "P0": None if P0 is None else _digest(task.P0)}

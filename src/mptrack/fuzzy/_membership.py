@@ -6,6 +6,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .._validation import as_array, as_real, check_positive
 from ..errors import ParameterError
 
 __all__ = ["MembershipFunction", "triangular", "trapezoidal", "gaussian", "uniform_partition"]
@@ -25,7 +26,15 @@ def trapezoidal(x, a: float, b: float, c: float, d: float):
 
     a = b (or c = d) gives a vertical edge; a = b = -inf (c = d = +inf) a left (right) shoulder.
     """
-    x = np.asarray(x, dtype=float)
+    x = as_array("x", x, allow_nan=True)
+    a, b, c, d = (as_real(k, v, infinite=True) for k, v in (("a", a), ("b", b), ("c", c), ("d", d)))
+    if not a <= b <= c <= d:
+        raise ParameterError(f"a, b, c, d: expected a <= b <= c <= d, got {a!r}, {b!r}, {c!r}, {d!r}")
+    for name, value in (("a", a), ("b", b), ("c", c), ("d", d)):
+        shoulder = (a == b == -np.inf) if name in "ab" else (c == d == np.inf)
+        if np.isinf(value) and not shoulder:
+            raise ParameterError(f"{name}: infinite only for a shoulder (a = b = -inf or c = d = +inf), "
+                                 f"got a, b, c, d = {a!r}, {b!r}, {c!r}, {d!r}")
     up = np.ones_like(x) if np.isneginf(b) else _ramp(x, a, b, True)
     down = np.ones_like(x) if np.isposinf(c) else np.where(x <= c, 1.0, _ramp(x, c, d, False))
     return np.minimum(up, down)
@@ -33,13 +42,18 @@ def trapezoidal(x, a: float, b: float, c: float, d: float):
 
 def triangular(x, a: float, b: float, c: float):
     """Triangle with feet a, c and peak b (a <= b <= c); a = b or b = c gives a right-angled shoulder."""
+    b = as_real("b", b, infinite=True)
+    if not as_real("a", a, infinite=True) <= b <= as_real("c", c, infinite=True):
+        raise ParameterError(f"a, b, c: expected a <= b <= c, got {a!r}, {b!r}, {c!r}")
     return trapezoidal(x, a, b, b, c)
 
 
 def gaussian(x, mean: float, sigma: float):
     """exp(-(x - mean)^2 / (2 sigma^2))."""
-    x = np.asarray(x, dtype=float)
-    return np.exp(-0.5 * ((x - mean) / sigma) ** 2)
+    x = as_array("x", x, allow_nan=True)
+    mean, sigma = as_real("mean", mean), check_positive("sigma", sigma)
+    with np.errstate(over="ignore", under="ignore"):  # (x - mean) / sigma = inf gives exp(-inf) = 0
+        return np.exp(-0.5 * ((x - mean) / sigma) ** 2)
 
 
 _KINDS = {"triangular": (triangular, 3), "trapezoidal": (trapezoidal, 4), "gaussian": (gaussian, 2)}

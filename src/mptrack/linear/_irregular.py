@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .._validation import finite_result
 from .._validation import as_array, as_sequence, as_vector, check_covariance
 from ..errors import ParameterError, ShapeError
 from ..models import ContinuousLinearModel, discretize_intervals, require_model
@@ -40,6 +41,7 @@ def sampling_intervals(times, t0: float = 0.0) -> np.ndarray:
     return dts
 
 
+@finite_result("the irregular-time Kalman filter")
 def kalman_filter_irregular(model: ContinuousLinearModel, times, z, x0=None, P0=None, *,
                             t0: float = 0.0, joseph: bool = False) -> FilterResult:
     """Kalman filter for measurements at arbitrary increasing time stamps.

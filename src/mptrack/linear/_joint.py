@@ -6,9 +6,9 @@ from typing import Callable
 
 import numpy as np
 
-from .._validation import as_sequence, as_vector, check_covariance, check_int
+from .._validation import _to_array, as_sequence, as_vector, check_covariance, check_int
 from ..errors import ParameterError, ShapeError
-from ..models import LinearGaussianModel
+from ..models import LinearGaussianModel, require_model
 from ._result import FilterResult
 
 __all__ = ["join_results", "per_axis"]
@@ -29,8 +29,11 @@ def per_axis(run: Callable[..., FilterResult], axis_model: LinearGaussianModel, 
     The joint state is [x_axis0, x_axis1, ...] with a block-diagonal covariance
     (seed 000 eqs. 17-18).
     """
+    require_model(axis_model, "axis_model")
+    if not callable(run):
+        raise ParameterError(f"run: expected a filter function, got {run!r}")
     na, ma = axis_model.n, axis_model.m
-    z = np.asarray(z)
+    z = _to_array("z", z)
     if z.ndim != 2 or z.shape[1] % ma:
         raise ShapeError(f"z: expected shape (T, axes * {ma}), got shape {z.shape}")
     axes = check_int("axes", z.shape[1] // ma, minimum=1)

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._validation import as_array
+from .._validation import as_array, as_matrix, as_vector, finite_result
 from ..errors import ParameterError, ShapeError
 from ..models import LinearGaussianModel
 from ._common import prepare_inputs
@@ -16,6 +16,7 @@ __all__ = ["kalman_filter", "kalman_step"]
 _LOG2PI = np.log(2.0 * np.pi)
 
 
+@finite_result("the Kalman step")
 def kalman_step(F, H, Q, R, x, P, z, joseph: bool = False, Bu=None, predict: bool = True):
     """One KF iteration: from x(k/k), P(k/k) and z(k+1) to the next filtered pair.
 
@@ -28,6 +29,13 @@ def kalman_step(F, H, Q, R, x, P, z, joseph: bool = False, Bu=None, predict: boo
     Returns (x_filt, P_filt, x_pred, P_pred, loglik_increment).  Components of
     z that are NaN are not used; a fully missing z only predicts.
     """
+    F = as_matrix("F", F)
+    n = F.shape[1]
+    x, P, Q = as_vector("x", x, n), as_matrix("P", P, n, n), as_matrix("Q", Q, n, n)
+    if F.shape != (n, n):
+        raise ShapeError(f"F: expected a square matrix, got shape {F.shape}")
+    H = as_matrix("H", H, None, n)
+    R, z = as_matrix("R", R, H.shape[0], H.shape[0]), as_array("z", z, shape=(H.shape[0],), allow_nan=True)
     if predict:
         x_pred = F @ x if Bu is None else F @ x + Bu
         P_pred = F @ P @ F.T + Q
@@ -93,6 +101,7 @@ def step_matrices(model: LinearGaussianModel, T: int, F=None, H=None, Q=None, R=
     return out
 
 
+@finite_result("the Kalman filter")
 def kalman_filter(model: LinearGaussianModel, z, x0=None, P0=None, *, joseph: bool = False, F=None, H=None,
                   Q=None, R=None, B=None, u=None, prior: str = "initial") -> FilterResult:
     """Kalman filter with the per-step Riccati recursion (seed 000 eq. 4).

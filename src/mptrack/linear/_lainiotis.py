@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .._validation import finite_result
 from ..models import LinearGaussianModel
 from ..riccati import LainiotisParameters, lainiotis_parameters
 from ._common import prepare_inputs
@@ -31,6 +32,7 @@ def lainiotis_step(lp: LainiotisParameters, F, Q, x, P, z, eye):
     return x_new, 0.5 * (P_new + P_new.T)
 
 
+@finite_result("the Lainiotis filter")
 def lainiotis_filter(model: LinearGaussianModel, z, x0=None, P0=None, *,
                      params: LainiotisParameters | None = None) -> FilterResult:
     """Lainiotis filter (seed 000 eqs. 5-7): same estimates as the KF, other algebra.

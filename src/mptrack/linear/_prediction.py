@@ -19,10 +19,11 @@ from typing import Literal
 
 import numpy as np
 
-from .._validation import check_int
+
+from .._validation import as_array, check_int, check_record, finite_result
 from ..errors import ParameterError, ShapeError, SingularMatrixError
 from ..models import LinearGaussianModel, require_model
-from ..riccati import SteadyState
+from ..riccati import SteadyState, power_sum
 from ._common import prepare_inputs
 from ._kernels import ss_loop
 from ._result import FilterResult
@@ -69,16 +70,25 @@ def prediction_matrices(model: LinearGaussianModel, N: int, *,
     return A, FN @ K
 
 
+@finite_result("the N-step prediction covariance")
 def prediction_covariance(model: LinearGaussianModel, P_filt, N: int) -> np.ndarray:
     """P(k+N/k) = F^N P(k/k) F^{N T} + sum_{j<N} F^j Q F^{j T} for a single (n, n) P_filt
-    or a sequence (T, n, n)."""
-    F, Q = model.F, model.Q
-    P = np.asarray(P_filt, dtype=float)
-    for _ in range(N):
-        P = F @ P @ F.T + Q
+    or a sequence (T, n, n).
+
+    F^N and the sum come from repeated squaring, (F^{2j}, S_{2j}) = (F^j F^j, S_j + F^j S_j F^{j T}),
+    so the cost grows with log N (N = 10^12 takes 40 squarings, not 10^12 steps)."""
+    require_model(model)
+    N = check_int("N", N, minimum=1)
+    P = as_array("P_filt", P_filt)
+    if P.ndim not in (2, 3) or P.shape[-2:] != (model.n, model.n):
+        raise ShapeError(f"P_filt: expected shape ({model.n}, {model.n}) or (T, {model.n}, {model.n}), "
+                         f"got shape {P.shape}")
+    FN, S = power_sum(model.F, model.Q, N)
+    P = FN @ P @ FN.T + S
     return 0.5 * (P + np.swapaxes(P, -1, -2))
 
 
+@finite_result("the steady-state predictor")
 def steady_state_predictor(model: LinearGaussianModel, z, N: int = 1, x0=None, *,
                            steady: SteadyState | None = None,
                            method: Literal["recursive", "inverse-free"] = "recursive") -> FilterResult:
@@ -116,6 +126,7 @@ def steady_state_predictor(model: LinearGaussianModel, z, N: int = 1, x0=None, *
     return FilterResult(x=xs, P=P, method=f"SS-predictor(N={N})")
 
 
+@finite_result("the N-step prediction")
 def predict_ahead(model: LinearGaussianModel, result: FilterResult, N: int) -> FilterResult:
     """N-step predictions from any filter's estimates: x(k+N/k) = F^N x(k/k) (seed 001 eq. 14),
     P(k+N/k) = F^N P(k/k) F^{N T} + sum_{j<N} F^j Q F^{j T}.
@@ -128,6 +139,7 @@ def predict_ahead(model: LinearGaussianModel, result: FilterResult, N: int) -> F
     N = check_int("N", N, minimum=1)
     if not isinstance(result, FilterResult):
         raise ParameterError(f"result: expected a FilterResult, got {type(result).__name__}")
+    check_record("result", result)
     if result.n != model.n:
         raise ShapeError(f"result: state dimension {result.n} does not match the model's n = {model.n}")
     FN = np.linalg.matrix_power(model.F, N)

@@ -16,6 +16,7 @@ import numpy as np
 import scipy.linalg
 from numba import njit
 
+from .._validation import check_record, finite_result
 from ..errors import ParameterError, ShapeError
 from ..models import LinearGaussianModel, require_model
 from ..riccati import SteadyState
@@ -30,6 +31,7 @@ def _check(model, result) -> None:
     require_model(model)
     if not isinstance(result, FilterResult):
         raise ParameterError(f"result: expected a FilterResult, got {type(result).__name__}")
+    check_record("result", result)
     if result.n != model.n:
         raise ShapeError(f"result: state dimension {result.n} does not match the model's n = {model.n}")
 
@@ -97,6 +99,7 @@ def _rts_loop(x_filt, P_filt, x_pred, P_pred, C, xs, Ps):  # pragma: no cover - 
         Ps[k] = 0.5 * (P + P.T)
 
 
+@finite_result("the RTS smoother")
 def rts_smoother(model: LinearGaussianModel, result: FilterResult, *, F=None, Q=None, B=None,
                  u=None) -> FilterResult:
     """Fixed-interval RTS smoother on a filter result (x(k/k), P(k/k), k = 1..T).
@@ -145,6 +148,7 @@ def _with_time_zero(result: FilterResult, smoothed: FilterResult, F0, Q0, Bu0) -
     return FilterResult(x=smoothed.x, P=smoothed.P, method="RTS", x0=x, P0=0.5 * (P + P.T))
 
 
+@finite_result("the steady-state smoother")
 def steady_state_smoother(model: LinearGaussianModel, result: FilterResult, *,
                           steady: SteadyState | None = None) -> FilterResult:
     """Steady-state RTS smoother: constant gain C = Pe F^T Pp^{-1} on the

@@ -6,6 +6,7 @@ from typing import Literal
 
 import numpy as np
 
+from .._validation import finite_result
 from .._validation import as_matrix, check_int, check_positive
 from ..errors import ConvergenceError, NonFiniteError, ParameterError, ShapeError
 from ..models import LinearGaussianModel
@@ -31,6 +32,7 @@ def _steady(model, steady, form):
     return steady_state(model, "per-step", form="lainiotis")
 
 
+@finite_result("the steady-state filter")
 def steady_state_filter(model: LinearGaussianModel, z, x0=None, P0=None, *,
                         form: Literal["kalman", "lainiotis"] = "kalman",
                         steady: SteadyState | None = None,
@@ -109,6 +111,7 @@ def fir_coefficients(A, B, M: int) -> np.ndarray:
     return C
 
 
+@finite_result("the FIR filter")
 def fir_filter(model: LinearGaussianModel, z, x0=None, P0=None, *, eps: float = 1e-3, norm=2,
                M: int | None = None, steady: SteadyState | None = None,
                warmup: Literal["truncate", "steady-state"] = "truncate") -> FilterResult:

@@ -11,7 +11,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.linalg
 
-from .._validation import as_matrix, check_covariance, check_int, check_positive
+from .._validation import as_matrix, check_covariance, check_int, check_positive, require_finite
 from ..errors import ParameterError, ShapeError
 
 __all__ = ["LinearGaussianModel", "stack_axes", "require_model"]
@@ -59,8 +59,10 @@ class LinearGaussianModel:
         if self.G is not None:
             G = as_matrix("G", self.G, n, None)
             Qw = check_covariance("Qw", self.Qw, G.shape[1])
-            Q_from_g = G @ Qw @ G.T
-            Q_from_g = 0.5 * (Q_from_g + Q_from_g.T)
+            with np.errstate(all="ignore"):
+                Q_from_g = G @ Qw @ G.T
+                Q_from_g = 0.5 * (Q_from_g + Q_from_g.T)
+            require_finite("Q = G Qw G^T", Q_from_g, G=G, Qw=Qw)
             if self.Q is not None:
                 Q = check_covariance("Q", self.Q, n)
                 if not np.allclose(Q, Q_from_g, rtol=1e-10, atol=1e-14):

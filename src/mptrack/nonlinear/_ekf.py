@@ -17,7 +17,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.optimize import least_squares
 
-from .._validation import as_array, check_covariance, check_positive
+from .._validation import as_array, as_real, check_covariance, check_int, check_positive, finite_result
 from ..errors import ParameterError, ShapeError, SingularMatrixError
 from ..linear import FilterResult
 from ..models import NonlinearModel, ranges
@@ -71,6 +71,7 @@ def motion_matrix(motion: str, dim: int, dt: float = 1.0) -> np.ndarray:
     (state [x, vx, y, vy(, z, vz)]: F = block-diag([[1, dt], [0, 1]]) per axis)."""
     if motion not in MOTIONS:
         raise ParameterError(f"motion: expected one of {MOTIONS}, got {motion!r}")
+    dim = check_int("dim", dim, minimum=1, maximum=3)
     if motion == "random-walk":
         return np.eye(dim)
     dt = check_positive("dt", dt)
@@ -110,11 +111,12 @@ def _prepare(z, stations, x0, P0, Q, R, motion, dt, *, batch: bool):
     x0 = np.broadcast_to(x0, (B, n)).copy()
     P0 = check_covariance("P0", P0, n)
     Q = check_covariance("Q", Q, n)
-    R = np.asarray(R, dtype=float)
+    R = as_array("R", R)
     R = check_covariance("R", R * np.eye(m) if R.ndim == 0 else R, m, definite=True)
     return z, stations, x0, P0, F, Q, R, motion_position(motion, d)
 
 
+@finite_result("the range EKF")
 def ekf_ranges(z, stations, x0, P0, Q, R, *, motion: str = "random-walk", dt: float = 1.0) -> FilterResult:
     """EKF from ranges to base stations (paper eqs. 2–10), joint update of all ranges.
 
@@ -142,6 +144,7 @@ def _ranges_model(stations, F, Q, R, pos, motion) -> NonlinearModel:
                           name=f"ranges EKF ({motion})")
 
 
+@finite_result("the range EKF")
 def ekf_ranges_batch(z, stations, x0, P0, Q, R, *, motion: str = "random-walk",
                      dt: float = 1.0) -> BatchFilterResult:
     """:func:`ekf_ranges` on B independent tracks at once: z (B, T, m), x0 (B, n)."""
@@ -153,6 +156,7 @@ def _ekf(z, stations, x0, P0, Q, R, motion, dt, *, batch: bool) -> BatchFilterRe
     return ekf_filter_batch(_ranges_model(stations, F, Q, R, pos, motion), z, x0, P0)
 
 
+@finite_result("the range fix")
 def range_fix(ranges, stations, *, height=None) -> np.ndarray:
     """Snapshot position from one scan of ranges (nonlinear least squares, scipy.optimize.least_squares).
 
@@ -165,15 +169,14 @@ def range_fix(ranges, stations, *, height=None) -> np.ndarray:
     Useful to initialise :func:`ekf_ranges`.
     """
     st = check_stations(stations)
-    r = as_array("ranges", ranges, shape=(st.shape[0],))
-    if np.any(r < 0):
-        raise ParameterError("ranges: must be >= 0")
+    # the linearised start squares the ranges: bound them well inside the float64 range
+    r = as_array("ranges", ranges, shape=(st.shape[0],), low=0.0, high=1e150)
     d = st.shape[1]
     fixed = None
     if height is not None:
         if d != 3:
             raise ParameterError("height: only meaningful with 3-D stations")
-        fixed = float(height)
+        fixed = as_real("height", height)
         dz2 = (fixed - st[:, 2]) ** 2
         r = np.sqrt(np.maximum(r ** 2 - dz2, 0.0))
         st = st[:, :2]

@@ -26,6 +26,7 @@ from typing import Callable
 
 import numpy as np
 
+from .._validation import finite_result
 from ..errors import NotPositiveDefiniteError, ParameterError
 from ..fuzzy import TakagiSugeno, uniform_partition
 from ..linear import FilterResult
@@ -153,6 +154,7 @@ def _run(kind, z, stations, x0, P0, Q, R, fis, motion, dt, covariance, batch):
     return out if batch else out.run(0)
 
 
+@finite_result("the FEKF")
 def fekf_ranges(z, stations, x0, P0, Q, R, *, fis: TakagiSugeno | None = None, motion: str = "random-walk",
                 dt: float = 1.0, covariance: str = "exact") -> FilterResult:
     """Fuzzy EKF (paper Table II): local per-station EKF updates fused with weights FIS1(|Inn_i|, S_i).
@@ -170,6 +172,7 @@ def fekf_ranges_batch(z, stations, x0, P0, Q, R, *, fis=None, motion="random-wal
     return _run("FEKF", z, stations, x0, P0, Q, R, fis, motion, dt, covariance, True)
 
 
+@finite_result("the FCS filter")
 def fcs_ranges(z, stations, x0, P0, Q, R, *, fis: TakagiSugeno | None = None, motion: str = "random-walk",
                dt: float = 1.0, covariance: str = "exact") -> FilterResult:
     """Fuzzy controller system (paper Table IV): as the FEKF but with weights FIS2(d_i) of the measured range."""

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._validation import check_int, check_positive
+from .._validation import check_int, check_positive, check_allocation, finite_result
 from ..errors import ParameterError, ShapeError
 from ..linear import FilterResult
 from ..models import NonlinearModel
@@ -44,6 +44,7 @@ def pf_substeps(model: ContinuousDiscreteModel, scheme: str = "rk4-split") -> in
     return max(-(-model.substeps // SPLIT_RATIO), noise)
 
 
+@finite_result("the particle filter")
 def particle_filter(model, z, x0, P0, rng: np.random.Generator, *,
                     particles: int = 200, ess_threshold: float = 0.5, regularise: bool = False,
                     substeps: int | None = None, scheme: str = "rk4-split", compiled: bool | None = None,
@@ -80,6 +81,7 @@ def particle_filter(model, z, x0, P0, rng: np.random.Generator, *,
         substeps = pf_substeps(model, scheme)
     rng = check_rng(rng)
     N = check_int("particles", particles, minimum=2)
+    check_allocation("particles", N, 8.0 * N * (4 * model.n + 4))
     thr = check_positive("ess_threshold", ess_threshold, allow_zero=True)
     if thr > 1:
         raise ParameterError(f"ess_threshold: expected a number in [0, 1], got {ess_threshold!r}")

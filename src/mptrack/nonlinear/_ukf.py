@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._validation import check_positive
+from .._validation import as_vector, check_covariance, check_positive, finite_result
 from ..errors import ConvergenceError, NotPositiveDefiniteError, ParameterError
 from ..linear import FilterResult
 from ..models import NonlinearModel
@@ -64,6 +64,7 @@ def check_unscented(n: int, alpha, beta, kappa) -> dict:
     return {"alpha": alpha, "beta": beta, "kappa": float(kappa)}
 
 
+@finite_result("the sigma points")
 def sigma_points(m: np.ndarray, P: np.ndarray, *, alpha: float = 1.0, beta: float = 2.0, kappa: float = 0.0):
     """The 2n+1 scaled sigma points of N(m, P) and their mean/covariance weights.
 
@@ -71,7 +72,10 @@ def sigma_points(m: np.ndarray, P: np.ndarray, *, alpha: float = 1.0, beta: floa
     κ = 0) keep every weight non-negative for n = 2, which keeps the
     propagated covariance PSD.
     """
+    m = as_vector("m", m)
     n = m.shape[0]
+    P = check_covariance("P", P, n)
+    alpha, beta, kappa = check_unscented(n, alpha, beta, kappa).values()
     c, Wm, Wc = _weights(n, alpha, beta, kappa)
     S = _sqrt(c * P, "P")
     X = np.empty((2 * n + 1, n))
@@ -150,6 +154,7 @@ def _unscented_prediction(model: NonlinearModel, x, P, k: int, ut: dict):
     return m, 0.5 * (Pp + Pp.T), (Wc[:, None] * (X - x)).T @ dY
 
 
+@finite_result("the UKF")
 def ukf_filter(model, z, x0, P0, *, alpha: float = 1.0, beta: float = 2.0, kappa: float = 0.0,
                substeps: int | None = None, prior: str = "initial") -> FilterResult:
     """UKF over measurements z (T, m) from the prior N(x0, P0), for a discrete-time

@@ -14,7 +14,7 @@ from typing import Callable
 import numpy as np
 from scipy.optimize import brentq
 
-from .._validation import as_array
+from .._validation import as_array, broadcast_shape, require_finite
 from ..errors import ParameterError, UnknownNameError
 from . import _pathloss as pl
 from ._validity import check_policy, check_range
@@ -54,7 +54,12 @@ def path_loss(distance_km, model: str = "cost231-wi-nlos", **params):
 def path_loss_from_rss(rss_dbm, tx_power_dbm, *, tx_gain_dbi=0.0, rx_gain_dbi=0.0, losses_db=0.0):
     """Link budget: L = P_tx + G_tx + G_rx - losses - RSS, in dB (paper Appendix: Loss = Tx - Rx)."""
     rss = as_array("rss_dbm", rss_dbm)
-    out = np.asarray(tx_power_dbm, dtype=float) + tx_gain_dbi + rx_gain_dbi - losses_db - rss
+    terms = [as_array(name, value) for name, value in (("tx_power_dbm", tx_power_dbm), ("tx_gain_dbi", tx_gain_dbi),
+                                                        ("rx_gain_dbi", rx_gain_dbi), ("losses_db", losses_db))]
+    broadcast_shape(rss_dbm=rss, tx_power_dbm=terms[0], tx_gain_dbi=terms[1], rx_gain_dbi=terms[2],
+                    losses_db=terms[3])
+    out = np.asarray(terms[0] + terms[1] + terms[2] - terms[3] - rss)
+    require_finite("the path loss", out, rss_dbm=rss, tx_power_dbm=terms[0])
     return out[()] if out.ndim == 0 else out
 
 
@@ -68,9 +73,13 @@ def distance_from_path_loss(loss_db, model: str = "cost231-wi-nlos", *, on_inval
     (log-linear models exactly; WI NLOS within 1 m .. 100 km).  Model parameters
     other than the loss must be scalars for WI NLOS (root finding per value).
     """
+    return _invert(as_array("loss_db", loss_db), model, on_invalid, "loss_db", params)
+
+
+def _invert(loss: np.ndarray, model: str, on_invalid: str, label: str, params: dict):
+    """distance_from_path_loss; ``label`` names the user's argument the loss came from."""
     spec = _model(model)
     check_policy(on_invalid)
-    loss = as_array("loss_db", loss_db)
     lo, hi = spec.distance_km
     kwargs = dict(params)
     if spec.has_policy:
@@ -91,7 +100,7 @@ def distance_from_path_loss(loss_db, model: str = "cost231-wi-nlos", *, on_inval
         outside = (flat < llo) | (flat > lhi)
         if outside.any():
             raise ParameterError(
-                f"loss_db: {flat[outside][0]:.2f} dB is not explained by {model} for {blo:g}..{bhi:g} km "
+                f"{label}: the loss {flat[outside][0]:.2f} dB is not explained by {model} for {blo:g}..{bhi:g} km "
                 f"(it covers {llo:.2f}..{lhi:.2f} dB)")
         d = np.array([brentq(lambda x, L=L: float(fn(x)) - L, blo, bhi, xtol=1e-12, rtol=1e-13)
                       for L in flat]).reshape(loss.shape)
@@ -100,7 +109,7 @@ def distance_from_path_loss(loss_db, model: str = "cost231-wi-nlos", *, on_inval
         bad = np.asarray(d)[(d < lo_tol) | (d > hi_tol)].flat[0]
         llo, lhi = float(fn(lo)), float(fn(hi))
         raise ParameterError(
-            f"loss_db: no distance in {lo:g}..{hi:g} km explains it under {model} (needs {bad:.4g} km; "
+            f"{label}: no distance in {lo:g}..{hi:g} km explains it under {model} (needs {bad:.4g} km; "
             f"the model covers {llo:.2f}..{lhi:.2f} dB)")
     check_range(model, "distance_km", d, lo_tol, hi_tol, "km", on_invalid)
     d = np.asarray(d, dtype=float)
@@ -117,4 +126,5 @@ def distance_from_rss(rss_dbm, tx_power_dbm, model: str = "cost231-wi-nlos", *, 
     """
     loss = path_loss_from_rss(rss_dbm, tx_power_dbm, tx_gain_dbi=tx_gain_dbi, rx_gain_dbi=rx_gain_dbi,
                               losses_db=losses_db)
-    return distance_from_path_loss(loss, model, on_invalid=on_invalid, **params)
+    return _invert(np.asarray(loss, dtype=float), model, on_invalid,
+                   "rss_dbm (with tx_power_dbm, the gains and losses_db)", params)

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .._validation import as_array, finite_result
 from ..errors import ParameterError
 from ._validity import check_policy, check_range
 
@@ -49,9 +50,9 @@ def _out(value):
 
 
 def _positive(name: str, value) -> np.ndarray:
-    arr = np.asarray(value, dtype=float)
-    if not np.all(np.isfinite(arr)) or np.any(arr <= 0):
-        raise ParameterError(f"{name}: expected finite values > 0, got {arr.ravel()[~(arr.ravel() > 0)][:1]}")
+    arr = as_array(name, value)
+    if np.any(arr <= 0):
+        raise ParameterError(f"{name}: expected finite values > 0, got {arr.ravel()[~(arr.ravel() > 0)][0]!r}")
     return arr
 
 
@@ -62,6 +63,7 @@ def _check(model: str, limits: dict, on_invalid: str, **values) -> None:
         check_range(model, name, value, lo, hi, _UNITS[name], on_invalid)
 
 
+@finite_result("the path loss")
 def free_space_loss(distance_km, frequency_mhz):
     """Free-space basic transmission loss 20 log10(4 pi d f / c) in dB (Friis).
 
@@ -72,6 +74,7 @@ def free_space_loss(distance_km, frequency_mhz):
     return _out(20.0 * np.log10(4.0 * np.pi * d * f * 1e6 / _C_KM_PER_S))
 
 
+@finite_result("the path loss")
 def wi_free_space_loss(distance_km, frequency_mhz, *, constant_db: float = 32.4):
     """COST-231 WI free-space term L0 = 32.4 + 20 log d + 20 log f (COST 231 eq. 4.4.2).
 
@@ -92,13 +95,14 @@ def wi_orientation_loss(street_angle_deg):
     prints 0.3574 (which would close that step) and 0.1004; its own Table VIII
     is reproduced with 0.354 (docs/errata.md).
     """
-    phi = np.asarray(street_angle_deg, dtype=float)
+    phi = as_array("street_angle_deg", street_angle_deg)
     if not np.all(np.isfinite(phi)) or np.any((phi < 0) | (phi > 90)):
         raise ParameterError(f"street_angle_deg: expected angles in [0, 90] degrees, got {phi}")
     return _out(np.where(phi < 35, -10.0 + 0.354 * phi,
                          np.where(phi < 55, 2.5 + 0.075 * (phi - 35), 4.0 - 0.114 * (phi - 55))))
 
 
+@finite_result("the path loss")
 def wi_rooftop_to_street_loss(frequency_mhz, *, street_width_m, h_roof_m, h_mobile_m, street_angle_deg):
     """Roof-top-to-street diffraction and scatter loss L_rts in dB (COST 231 eq. 4.4.4).
 
@@ -106,7 +110,7 @@ def wi_rooftop_to_street_loss(frequency_mhz, *, street_width_m, h_roof_m, h_mobi
     """
     f = _positive("frequency_mhz", frequency_mhz)
     w = _positive("street_width_m", street_width_m)
-    dhm = np.asarray(h_roof_m, dtype=float) - np.asarray(h_mobile_m, dtype=float)
+    dhm = as_array("h_roof_m", h_roof_m) - as_array("h_mobile_m", h_mobile_m)
     if np.any(dhm <= 0):
         raise ParameterError(f"h_roof_m: must exceed h_mobile_m (mobile below roof level), got "
                              f"h_roof_m - h_mobile_m = {dhm}")
@@ -114,6 +118,7 @@ def wi_rooftop_to_street_loss(frequency_mhz, *, street_width_m, h_roof_m, h_mobi
                 + wi_orientation_loss(street_angle_deg))
 
 
+@finite_result("the path loss")
 def wi_multiscreen_loss(distance_km, frequency_mhz, *, h_base_m, h_roof_m, building_sep_m,
                         city: str = "medium"):
     """Multi-screen diffraction loss L_msd in dB (COST 231 eqs. 4.4.6–4.4.10).
@@ -129,7 +134,7 @@ def wi_multiscreen_loss(distance_km, frequency_mhz, *, h_base_m, h_roof_m, build
     f = _positive("frequency_mhz", frequency_mhz)
     b = _positive("building_sep_m", building_sep_m)
     h_roof = _positive("h_roof_m", h_roof_m)
-    dhb = np.asarray(h_base_m, dtype=float) - h_roof
+    dhb = as_array("h_base_m", h_base_m) - h_roof
     if city not in ("medium", "metropolitan"):
         raise ParameterError(f"city: expected 'medium' or 'metropolitan', got {city!r}")
     above = dhb > 0
@@ -140,6 +145,7 @@ def wi_multiscreen_loss(distance_km, frequency_mhz, *, h_base_m, h_roof_m, build
     return _out(l_bsh + k_a + k_d * np.log10(d) + k_f * np.log10(f) - 9.0 * np.log10(b))
 
 
+@finite_result("the path loss")
 def cost231_wi_nlos(distance_km, frequency_mhz, *, h_base_m, h_mobile_m=1.5, h_roof_m=15.0,
                     street_width_m=25.0, building_sep_m=50.0, street_angle_deg=30.0,
                     city: str = "medium", free_space_constant_db: float = 32.4, on_invalid: str = "warn"):
@@ -163,6 +169,7 @@ def cost231_wi_nlos(distance_km, frequency_mhz, *, h_base_m, h_mobile_m=1.5, h_r
     return _out(np.where(extra > 0, l0 + extra, l0))
 
 
+@finite_result("the path loss")
 def cost231_wi_los(distance_km, frequency_mhz, *, on_invalid: str = "warn"):
     """COST-231 Walfisch–Ikegami line-of-sight (street canyon) loss 42.6 + 26 log d + 20 log f in dB.
 
@@ -176,6 +183,7 @@ def cost231_wi_los(distance_km, frequency_mhz, *, on_invalid: str = "warn"):
     return _out(42.6 + 26.0 * np.log10(d) + 20.0 * np.log10(f))
 
 
+@finite_result("the path loss")
 def hata_mobile_correction(frequency_mhz, h_mobile_m, *, large_city: bool = False):
     """Hata's mobile-antenna correction a(h_m) in dB (Hata 1980, eqs. 4a–4b).
 
@@ -203,6 +211,7 @@ def _hata_loss(model, freq_limits, on_invalid, distance_km, frequency_mhz, h_bas
     return a + b * np.log10(f) - 13.82 * np.log10(hb) - a_hm + (44.9 - 6.55 * np.log10(hb)) * np.log10(d), f
 
 
+@finite_result("the path loss")
 def okumura_hata(distance_km, frequency_mhz, *, h_base_m, h_mobile_m=1.5, environment: str = "urban",
                  on_invalid: str = "warn"):
     """Okumura–Hata loss in dB (Hata 1980, eqs. 3–6).
@@ -226,6 +235,7 @@ def okumura_hata(distance_km, frequency_mhz, *, h_base_m, h_mobile_m=1.5, enviro
     return _out(loss)
 
 
+@finite_result("the path loss")
 def cost231_hata(distance_km, frequency_mhz, *, h_base_m, h_mobile_m=1.5, city: str = "medium",
                  on_invalid: str = "warn"):
     """COST-231 Hata loss in dB (COST 231 final report eq. 4.4.1 of §4.4.1).

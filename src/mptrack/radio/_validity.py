@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import warnings
 
-import numpy as np
 
+from .._validation import as_array
 from ..errors import ParameterError
 
 __all__ = ["ValidityWarning", "check_range", "check_policy", "POLICIES"]
@@ -27,7 +27,7 @@ def check_range(model: str, name: str, value, lo: float, hi: float, unit: str, o
     """Raise ParameterError, warn with ValidityWarning or do nothing when ``value`` leaves [lo, hi]."""
     if on_invalid == "ignore":
         return
-    arr = np.asarray(value, dtype=float)
+    arr = as_array(name, value)
     bad = (arr < lo) | (arr > hi)
     if not bad.any():
         return

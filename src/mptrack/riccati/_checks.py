@@ -4,9 +4,20 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..errors import NotDetectableError, NotStabilisableError
+from .._validation import as_matrix
+from ..errors import NotDetectableError, NotStabilisableError, ShapeError
 
-__all__ = ["unstable_modes_unobservable", "check_detectable", "check_stabilisable"]
+__all__ = ["unstable_modes_unobservable", "undriven_modes", "check_detectable", "check_stabilisable"]
+
+
+def _pair(first: str, F, second: str, M, rows: bool) -> tuple[np.ndarray, np.ndarray]:
+    """Validate a pair (F square, M with n columns (rows=True) or n rows)."""
+    F = as_matrix(first, F)
+    if F.shape[0] != F.shape[1]:
+        raise ShapeError(f"{first}: expected a square matrix, got shape {F.shape}")
+    n = F.shape[0]
+    M = as_matrix(second, M, None, n) if rows else as_matrix(second, M, n, None)
+    return F, M
 
 
 def _rank(mat: np.ndarray) -> int:
@@ -27,8 +38,17 @@ def unstable_modes_unobservable(F: np.ndarray, H: np.ndarray) -> list[complex]:
             if _rank(np.vstack([lam * np.eye(n) - F, H.astype(complex)])) < n]
 
 
+def undriven_modes(F: np.ndarray, Q_factor: np.ndarray) -> tuple[list[complex], list[complex]]:
+    """(on the unit circle, outside it): the modes |lambda| >= 1 of F that the process noise
+    (Q = L L^T, ``Q_factor`` = L) does not drive."""
+    bad = unstable_modes_unobservable(F.T, Q_factor.T)
+    on = [v for v in bad if abs(abs(v) - 1.0) <= 1e-10]
+    return on, [v for v in bad if abs(abs(v) - 1.0) > 1e-10]
+
+
 def check_detectable(F: np.ndarray, H: np.ndarray) -> None:
     """Raise NotDetectableError when an unstable mode of F is invisible in H."""
+    F, H = _pair("F", F, "H", H, rows=True)
     bad = unstable_modes_unobservable(F, H)
     if bad:
         raise NotDetectableError(
@@ -38,10 +58,15 @@ def check_detectable(F: np.ndarray, H: np.ndarray) -> None:
 
 
 def check_stabilisable(F: np.ndarray, Q_factor: np.ndarray) -> None:
-    """Raise NotStabilisableError when an unstable mode of F receives no process noise."""
-    bad = unstable_modes_unobservable(F.T, Q_factor.T)
+    """Raise NotStabilisableError when a mode of F *on the unit circle* receives no process noise.
+
+    Only those modes prevent a stabilising solution of the filter DARE (with (F, H) detectable):
+    an undriven mode outside the unit circle (F = 2, Q = 0) is estimated from the measurements,
+    and the stabilising solution exists (P = 3 for F = 2, H = 1, Q = 0, R = 1, as scipy finds)."""
+    F, Q_factor = _pair("F", F, "Q_factor", Q_factor, rows=False)
+    bad, _ = undriven_modes(F, Q_factor)
     if bad:
         raise NotStabilisableError(
-            "model: the pair (F, Q^{1/2}) is not stabilisable; the unit-circle or unstable "
-            f"mode(s) {', '.join(f'{complex(v):.4g}' for v in bad)} of F are not driven by the "
-            "process noise, so the steady-state Riccati solution is not stabilising")
+            "model: the pair (F, Q^{1/2}) is not stabilisable: mode(s) on the unit circle "
+            f"{', '.join(f'{complex(v):.4g}' for v in bad)} of F that the process noise does not drive, "
+            "so no stabilising steady-state Riccati solution exists")

@@ -19,10 +19,10 @@ from typing import Literal
 import numpy as np
 import scipy.linalg
 
-from .._validation import check_covariance, check_int, check_positive
-from ..errors import ConvergenceError, NotDetectableError, ParameterError
+from .._validation import _overflow, check_covariance, check_int, check_positive, require_finite
+from ..errors import ConvergenceError, MptrackError, ParameterError
 from ..models import LinearGaussianModel, require_model
-from ._checks import check_detectable, check_stabilisable
+from ._checks import check_detectable, check_stabilisable, undriven_modes
 from ._lainiotis import lainiotis_parameters
 
 __all__ = [
@@ -80,7 +80,19 @@ def _gain(model: LinearGaussianModel, P_pred: np.ndarray) -> tuple[np.ndarray, n
 
 
 def riccati_step(model: LinearGaussianModel, P_pred: np.ndarray) -> np.ndarray:
-    """One step of the REKF recursion: P(k+1/k) from P(k/k-1)."""
+    """One step of the REKF recursion: P(k+1/k) from P(k/k-1) (a symmetric PSD (n, n) matrix)."""
+    require_model(model)
+    P_pred = check_covariance("P_pred", P_pred, model.n)
+    with np.errstate(all="ignore"):
+        try:
+            P_next = _riccati_step(model, P_pred)
+        except (np.linalg.LinAlgError, ValueError) as exc:
+            raise _overflow("the Riccati step", dict(model=model, P_pred=P_pred), exc) from None
+    require_finite("the Riccati step", P_next, model=model, P_pred=P_pred)
+    return P_next
+
+
+def _riccati_step(model: LinearGaussianModel, P_pred: np.ndarray) -> np.ndarray:
     K, S = _gain(model, P_pred)
     P_filt = _sym(P_pred - K @ S @ K.T)
     return _sym(model.Q + model.F @ P_filt @ model.F.T)
@@ -88,8 +100,17 @@ def riccati_step(model: LinearGaussianModel, P_pred: np.ndarray) -> np.ndarray:
 
 def riccati_residual(model: LinearGaussianModel, P_pred: np.ndarray) -> float:
     """||REKF(Pp) - Pp||_F / max(1, ||Pp||_F)."""
-    diff = riccati_step(model, P_pred) - P_pred
-    return float(np.linalg.norm(diff) / max(1.0, np.linalg.norm(P_pred)))
+    P_next = riccati_step(model, P_pred)
+    return _residual(model, P_pred, P_next)
+
+
+def _residual(model, P_pred, P_next=None) -> float:
+    if P_next is None:
+        P_next = _riccati_step(model, P_pred)
+    with np.errstate(all="ignore"):
+        diff = P_next - P_pred
+        value = float(np.linalg.norm(diff) / max(1.0, np.linalg.norm(P_pred)))
+    return value if np.isfinite(value) else float(np.linalg.norm(diff / max(1.0, np.abs(P_pred).max())))
 
 
 def _check_exists(model: LinearGaussianModel) -> None:
@@ -97,21 +118,52 @@ def _check_exists(model: LinearGaussianModel) -> None:
     check_stabilisable(model.F, model.noise_factor())
 
 
-def _per_step(model, P0, tol, max_iter):
-    F = model.F
-    P_filt = P0
-    P_pred = _sym(model.Q + F @ P_filt @ F.T)
+#: The relative step at which the per-step recursion is "in steady state" (the steady-state time
+#: k of the papers' experiments); the iteration itself goes on to the rounding level.
+STEADY_TOL = 1e-13
+_EPS = np.finfo(float).eps
+
+
+def _iterate(step, P, tol, max_iter, what):
+    """Iterate P <- step(P) from P.
+
+    Stopping rule: with ``tol`` given, the first relative step ||dP|| <= tol ||P||.  By default
+    (tol None) the iteration goes on until the step is at the rounding level (<= 4 eps ||P||) or
+    stops shrinking for 3 iterations in a row (rounding noise), which meets scipy's residual bar
+    on its DARE test cases; the first k with a relative step <= STEADY_TOL is reported as the
+    steady-state time.  Returns (P, iterations, steady-state time)."""
+    ss_time = None
+    last, stalled = np.inf, 0
     for k in range(1, max_iter + 1):
-        P_next = riccati_step(model, P_pred)
-        if np.linalg.norm(P_next - P_pred) <= tol * max(np.linalg.norm(P_next), np.finfo(float).tiny):
-            return P_next, k
-        P_pred = P_next
+        P_next = step(P)
+        size = np.linalg.norm(P_next - P)
+        scale = max(np.linalg.norm(P_next), np.finfo(float).tiny)
+        if not np.isfinite(size):
+            return P_next, k, ss_time   # reported as an overflow by the caller
+        if ss_time is None and size <= STEADY_TOL * scale:
+            ss_time = k
+        if tol is not None:
+            if size <= tol * scale:
+                return P_next, k, k
+        else:
+            stalled = stalled + 1 if size >= last else 0
+            if size <= 4 * _EPS * scale or (stalled >= 3 and ss_time is not None):
+                return P_next, k, ss_time
+        last = size
+        P = P_next
     raise ConvergenceError(
-        f"max_iter: the per-step Riccati recursion did not converge to tol={tol:g} "
+        f"max_iter: {what} did not converge to tol={tol if tol is not None else 'rounding level'} "
         f"in {max_iter} iterations")
 
 
-def _doubling(model, tol, max_iter):
+def _per_step(model, P0, tol, max_iter):
+    F = model.F
+    P_pred = _sym(model.Q + F @ P0 @ F.T)
+    return _iterate(lambda P: _riccati_step(model, P), P_pred, tol, max_iter,
+                    "the per-step Riccati recursion")
+
+
+def _doubling(model, tol, max_iter, X0=None):
     """Structure-preserving doubling (Chu, Fan & Lin 2005) for the filter DARE.
 
     With A0 = F^T, G0 = H^T R^{-1} H, H0 = Q:
@@ -119,33 +171,47 @@ def _doubling(model, tol, max_iter):
         A_{k+1} = A_k W^{-1} A_k
         G_{k+1} = G_k + A_k W^{-1} G_k A_k^T
         H_{k+1} = H_k + A_k^T H_k W^{-1} A_k
-    H_k is the prediction covariance after 2^k per-step iterations from P = 0.
+    H_k is the prediction covariance after 2^k per-step iterations from P = 0; from a start
+    X0 instead, that covariance is H_k + A_k^T X0 (I + G_k X0)^{-1} A_k (used when F has undriven
+    modes outside the unit circle, which the iteration from 0 never excites).
+    Stopping rule as :func:`_iterate`.
     """
     n = model.n
     Ak = model.F.T.copy()
     Gk = _sym(model.H.T @ np.linalg.solve(model.R, model.H))
     Hk = model.Q.copy()
     eye = np.eye(n)
+    Yk = Hk if X0 is None else _sym(Hk + Ak.T @ X0 @ np.linalg.solve(eye + Gk @ X0, Ak))
+    last, stalled = np.inf, 0
     for k in range(1, max_iter + 1):
         W = eye + Gk @ Hk
         WA = np.linalg.solve(W, Ak)
         WG = np.linalg.solve(W, Gk)
-        H_next = _sym(Hk + Ak.T @ Hk @ WA)
+        Hk = _sym(Hk + Ak.T @ Hk @ WA)
         Gk = _sym(Gk + Ak @ WG @ Ak.T)
         Ak = Ak @ WA
-        done = np.linalg.norm(H_next - Hk) <= tol * max(np.linalg.norm(H_next), np.finfo(float).tiny)
-        Hk = H_next
-        if done:
-            return Hk, k
+        Y_next = Hk if X0 is None else _sym(Hk + Ak.T @ X0 @ np.linalg.solve(eye + Gk @ X0, Ak))
+        size = np.linalg.norm(Y_next - Yk)
+        scale = max(np.linalg.norm(Y_next), np.finfo(float).tiny)
+        Yk = Y_next
+        if not np.isfinite(size):
+            return Yk, k
+        if tol is not None:
+            if size <= tol * scale:
+                return Yk, k
+        else:
+            stalled = stalled + 1 if size >= last and size <= 1e3 * STEADY_TOL * scale else 0
+            if size <= 4 * _EPS * scale or stalled >= 2:
+                return Yk, k
+        last = size
     raise ConvergenceError(
-        f"max_iter: the doubling algorithm did not converge to tol={tol:g} in {max_iter} doublings")
+        f"max_iter: the doubling algorithm did not converge to tol={tol if tol is not None else 'rounding level'} "
+        f"in {max_iter} doublings")
 
 
 def _dare(model):
-    try:
-        P = scipy.linalg.solve_discrete_are(model.F.T, model.H.T, model.Q, model.R)
-    except (np.linalg.LinAlgError, ValueError) as exc:
-        raise NotDetectableError(f"model: scipy's DARE found no stabilising solution ({exc})") from None
+    # existence was checked before (PBH tests), so a failure here is numerical, not a missing solution
+    P = scipy.linalg.solve_discrete_are(model.F.T, model.H.T, model.Q, model.R)
     return _sym(P), 0
 
 
@@ -153,20 +219,13 @@ def _relf(model, P0, tol, max_iter):
     """Per-step RELF recursion Pe <- Pn + Fn [I + Pe On]^{-1} Pe Fn^T (seed 000 eq. 14)."""
     lp = lainiotis_parameters(model)
     eye = np.eye(model.n)
-    Pe = P0
-    for k in range(1, max_iter + 1):
-        P_next = _sym(lp.Pn + lp.Fn @ np.linalg.solve(eye + Pe @ lp.On, Pe) @ lp.Fn.T)
-        if np.linalg.norm(P_next - Pe) <= tol * max(np.linalg.norm(P_next), np.finfo(float).tiny):
-            return P_next, k
-        Pe = P_next
-    raise ConvergenceError(
-        f"max_iter: the per-step Lainiotis Riccati recursion did not converge to tol={tol:g} "
-        f"in {max_iter} iterations")
+    return _iterate(lambda Pe: _sym(lp.Pn + lp.Fn @ np.linalg.solve(eye + Pe @ lp.On, Pe) @ lp.Fn.T),
+                    P0, tol, max_iter, "the per-step Lainiotis Riccati recursion")
 
 
 def steady_state(model: LinearGaussianModel, method: Method = "dare", *,
                  form: Literal["kalman", "lainiotis"] = "kalman", P0=None,
-                 tol: float = 1e-13, max_iter: int = 100_000) -> SteadyState:
+                 tol: float | None = None, max_iter: int = 100_000) -> SteadyState:
     """Steady-state gain, covariances and filter matrices of ``model``.
 
     method  "dare" (scipy's algebraic solver), "doubling" (SDA) or "per-step"
@@ -174,26 +233,51 @@ def steady_state(model: LinearGaussianModel, method: Method = "dare", *,
     form    "kalman": A = (I - KH) F, B = K from the REKF solution (eq. 10-11);
             "lainiotis": Pe from the RELF recursion (eq. 14) and
             A, B from eq. 13 (only with method "per-step", the paper's choice).
+    tol     stopping rule of the iterative methods: None (default) iterates to the rounding
+            level, which meets scipy's DARE residual bar; a number stops at the first relative
+            step ||dP|| <= tol ||P||.  ``steady_state_time`` is the first k with a relative
+            step <= 1e-13 (STEADY_TOL) either way.
+
+    When F has modes outside the unit circle that Q does not drive (F = 2, Q = 0), the
+    stabilising solution still exists; the iterations then start from P0 = I (default P0 only),
+    since from P0 = 0 they stay on the non-stabilising solution 0 of those modes.
 
     Raises NotDetectableError / NotStabilisableError when no stabilising
-    steady state exists, ConvergenceError when an iteration does not converge.
+    steady state exists, ConvergenceError when an iteration does not converge,
+    NonFiniteError when the model's magnitudes overflow the solver.
     """
     require_model(model)
     if method not in METHODS:
         raise ParameterError(f"method: expected one of {METHODS}, got {method!r}")
     if form not in ("kalman", "lainiotis"):
         raise ParameterError(f"form: expected 'kalman' or 'lainiotis', got {form!r}")
-    tol = check_positive("tol", tol)
+    tol = None if tol is None else check_positive("tol", tol)
     max_iter = check_int("max_iter", max_iter, minimum=1)
-    P0 = np.zeros((model.n, model.n)) if P0 is None else check_covariance("P0", P0, model.n)
+    P0 = None if P0 is None else check_covariance("P0", P0, model.n)
     _check_exists(model)
+    try:
+        with np.errstate(all="ignore"):
+            ss = _solve(model, method, form, P0, tol, max_iter)
+    except MptrackError:
+        raise
+    except (np.linalg.LinAlgError, ValueError, ZeroDivisionError) as exc:
+        raise _overflow(f"the Riccati solution ({method})", dict(model=model, P0=P0), exc) from None
+    require_finite(f"the Riccati solution ({method})", ss, model=model, P0=P0)
+    return ss
+
+
+def _solve(model, method, form, P0, tol, max_iter) -> SteadyState:
     n = model.n
+    _, outside = undriven_modes(model.F, model.noise_factor())
+    X0 = np.eye(n) * max(1.0, float(np.abs(model.R).max())) if outside else None
+    if P0 is None:
+        P0 = np.zeros((n, n)) if X0 is None else X0
     eye = np.eye(n)
 
     if form == "lainiotis":
         if method != "per-step":
             raise ParameterError("method: the Lainiotis form is solved with method='per-step' (RELF)")
-        Pe, iters = _relf(model, P0, tol, max_iter)
+        Pe, iters, ss_time = _relf(model, P0, tol, max_iter)
         lp = lainiotis_parameters(model)
         inv_term = np.linalg.solve((eye + Pe @ lp.On).T, lp.Fn.T).T  # Fn [I + Pe On]^{-1}
         A = inv_term
@@ -201,21 +285,20 @@ def steady_state(model: LinearGaussianModel, method: Method = "dare", *,
         P_pred = _sym(model.Q + model.F @ Pe @ model.F.T)
         K, _ = _gain(model, P_pred)
         return SteadyState(K=K, P_pred=P_pred, P_filt=Pe, A=A, B=B, form=form, method=method,
-                           iterations=iters, steady_state_time=iters,
-                           residual=riccati_residual(model, P_pred))
+                           iterations=iters, steady_state_time=ss_time,
+                           residual=_residual(model, P_pred))
 
     if method == "dare":
         P_pred, iters = _dare(model)
         ss_time = None
     elif method == "doubling":
-        P_pred, iters = _doubling(model, tol, max_iter)
+        P_pred, iters = _doubling(model, tol, max_iter, X0)
         ss_time = None
     else:
-        P_pred, iters = _per_step(model, P0, tol, max_iter)
-        ss_time = iters
+        P_pred, iters, ss_time = _per_step(model, P0, tol, max_iter)
     K, S = _gain(model, P_pred)
     P_filt = _sym(P_pred - K @ S @ K.T)
     A = (eye - K @ model.H) @ model.F
     return SteadyState(K=K, P_pred=P_pred, P_filt=P_filt, A=A, B=K.copy(), form=form,
                        method=method, iterations=iters, steady_state_time=ss_time,
-                       residual=riccati_residual(model, P_pred))
+                       residual=_residual(model, P_pred))

@@ -4,13 +4,14 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._validation import as_vector, check_int
+from .._validation import as_vector, check_allocation, check_int, finite_result
 from ..errors import ParameterError
 from ..models import LinearGaussianModel, require_model
 
 __all__ = ["simulate_linear"]
 
 
+@finite_result("the simulation")
 def simulate_linear(model: LinearGaussianModel, steps: int, rng: np.random.Generator,
                     x0=None) -> tuple[np.ndarray, np.ndarray]:
     """Sample x(k+1) = F x(k) + w(k), z(k) = H x(k) + v(k) for k = 1..steps.
@@ -23,6 +24,7 @@ def simulate_linear(model: LinearGaussianModel, steps: int, rng: np.random.Gener
     if not isinstance(rng, np.random.Generator):
         raise ParameterError(f"rng: expected a numpy.random.Generator, got {type(rng).__name__}")
     steps = check_int("steps", steps, minimum=1)
+    check_allocation("steps", steps, 8.0 * steps * (2 * model.n + 2 * model.m))
     x = np.zeros(model.n) if x0 is None else as_vector("x0", x0, model.n)
     Lq = model.noise_factor()
     Lr = np.linalg.cholesky(model.R)

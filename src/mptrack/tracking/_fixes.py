@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
-from .._validation import check_positive
+from .._validation import as_real, check_positive
 from ..errors import ParameterError
 from ..linear import FilterResult, get_filter
 from ._columns import FixTable
@@ -72,6 +72,11 @@ class TrackOptions:
                                  ("r_km2", False)):
             if getattr(self, name) is not None:
                 check_positive(name, getattr(self, name), allow_zero=allow_zero)
+        # the filters square sigma_m and integrate q over dt^3: keep both where that stays a normal float
+        if self.sigma_m is not None:
+            as_real("sigma_m", self.sigma_m, low=1e-150, high=1e150, unit="m")
+        if self.q is not None:
+            as_real("q", self.q, low=0.0, high=1e150)
         if self.scan_interval_s is not None:
             check_positive("scan_interval_s", self.scan_interval_s)
         if self.gate_probability is not None:

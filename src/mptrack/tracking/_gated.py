@@ -39,7 +39,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.stats
 
-from .._validation import as_array, as_sequence, as_vector, check_covariance, check_int, check_positive
+from .._validation import as_array, as_real, as_sequence, as_vector, check_covariance, check_int, check_positive
 from ..errors import ParameterError, ShapeError
 from ..linear import FilterResult
 from ..models import ContinuousLinearModel, discretize_intervals, require_model
@@ -53,9 +53,10 @@ __all__ = ["GatedResult", "kalman_filter_gated", "smooth_gated", "track_gated", 
 
 def nis_threshold(probability: float, dof: int) -> float:
     """Chi-square quantile: the NIS gate that a consistent filter passes with ``probability``."""
-    if not 0.0 < probability < 1.0:
+    p = as_real("gate_probability", probability)
+    if not 0.0 < p < 1.0:
         raise ParameterError(f"gate_probability: expected a probability in (0, 1), got {probability!r}")
-    return float(scipy.stats.chi2.ppf(probability, dof))
+    return float(scipy.stats.chi2.ppf(p, check_int("dof", dof, minimum=1)))
 
 
 @dataclass(frozen=True, eq=False)
