@@ -148,8 +148,15 @@ def _result(x, P):
     return linear.FilterResult(x=x, P=P, method="test")
 
 
+def _kf(model, z, **kw):
+    """linear.kalman_filter with the papers' known prior P(0/0) = 0 unless P0 is given (it is required)."""
+    n = np.asarray(model.F).shape[0]
+    kw.setdefault("P0", np.zeros((n, n)))
+    return linear.kalman_filter(model, z, **kw)
+
+
 def _predict_ahead(x, N):
-    return linear.predict_ahead(B, linear.kalman_filter(B, np.asarray(x, float).reshape(-1, 1)[:, :1]
+    return linear.predict_ahead(B, _kf(B, np.asarray(x, float).reshape(-1, 1)[:, :1]
                                                         if np.ndim(x) == 2 else [[0.0]]), N)
 
 
@@ -350,7 +357,7 @@ CORPUS = [
                                                         np.array([[[np.inf, 1.0]]])), ("z",)),
     (1, "batch.predict inf x", lambda: batch.predict(B, np.array([[[np.inf, 1.0]]])), ("x",)),
     (1, "batch.range_ekf inf z", lambda: _range_ekf(np.array([[[np.inf, 1.0, 1.0]]]), [1.0, 0, 1.0, 0]), ("z",)),
-    (2, "kf x0 1e308", lambda: linear.kalman_filter(B, np.zeros((3, 1)), x0=[1e308, 1e308]), ("x0",)),
+    (2, "kf x0 1e308", lambda: _kf(B, np.zeros((3, 1)), x0=[1e308, 1e308]), ("x0",)),
     (2, "gain_sequence 1e200", lambda: batch.gain_sequence(_lgm([[1e200]], [[1.]], [[1.]], [[1.]]), 3, [[1.]]),
      ("model", "F")),
     (2, "LGM G 1e200", lambda: _lgm(np.eye(2), np.eye(2), None, np.eye(2), G=[[1e200, 0], [0, 1]], Qw=np.eye(2)),
@@ -359,7 +366,7 @@ CORPUS = [
     (3, "RangeModel sigma_r2 1e-30", lambda: batch.range_ekf(
         batch.RangeModel.constant_velocity(1.0, 1.0, STATIONS, 1e-30), np.full((1, 3, 3), 500.0),
         [1.0, 0, 1.0, 0], np.eye(4)), ("sigma_r2", "model", "z", "x0", "P0")),
-    (3, "kf F 1e200", lambda: linear.kalman_filter(_lgm([[1e200]], [[1.]], [[1.]], [[1.]]), np.ones((3, 1))),
+    (3, "kf F 1e200", lambda: _kf(_lgm([[1e200]], [[1.]], [[1.]], [[1.]]), np.ones((3, 1))),
      ("model", "F", "z")),
     (3, "lf z 1e308", lambda: linear.lainiotis_filter(B, np.full((5, 1), 1e308)), ("z",)),
     (3, "kf irregular 1e300", lambda: linear.kalman_filter_irregular(constant_velocity_continuous(0.1), [1e300],
@@ -377,8 +384,8 @@ CORPUS = [
                                                                    "per-step", P0=[[1.0]])), ("model",)),
     (4, "F=2 Q=0 doubling", lambda: _expect_p(riccati.steady_state(_lgm([[2.]], [[1.]], [[0.]], [[1.]]),
                                                                    "doubling")), ("model",)),
-    (5, "kf ragged z", lambda: linear.kalman_filter(B, [[1.0], [2.0, 3.0]]), ("z",)),
-    (5, "kf ragged x0", lambda: linear.kalman_filter(B, [[1.0]], x0=[[1.0], [2.0, 3.0]]), ("x0",)),
+    (5, "kf ragged z", lambda: _kf(B, [[1.0], [2.0, 3.0]]), ("z",)),
+    (5, "kf ragged x0", lambda: _kf(B, [[1.0]], x0=[[1.0], [2.0, 3.0]]), ("x0",)),
     (5, "batch ragged z", lambda: batch.kalman_filter(B, [[[1.0]], [[2.0], [3.0]]]), ("z",)),
     (5, "ekf R abc", lambda: _ekf_ranges(np.ones((2, 3)), [1.0, 1.0], "abc"), ("R",)),
     (5, "range_fix height abc", lambda: nonlinear.range_fix([1.0, 1.0, 1.0], STATIONS, height="abc"),
@@ -408,7 +415,7 @@ CORPUS = [
     (7, "ukf alpha 0", lambda: nonlinear.sigma_points(np.zeros(2), np.eye(2), alpha=0.0), ("alpha",)),
     (7, "sigma beta None", lambda: nonlinear.sigma_points(np.zeros(2), np.eye(2), beta=None), ("beta",)),
     (7, "pf P0 2**62", lambda: _pf(np.eye(ZHAO.n) + 2**62), ("P0",)),
-    (8, "predict_ahead N 1e12", lambda: linear.predict_ahead(B, linear.kalman_filter(B, np.ones((3, 1))),
+    (8, "predict_ahead N 1e12", lambda: linear.predict_ahead(B, _kf(B, np.ones((3, 1))),
                                                              10**12), ("N",)),
     (8, "prediction_covariance N 1e12", lambda: linear.prediction_covariance(B, np.eye(2), 10**12), ("N",)),
     (8, "steady_state_predictor N 1e12", lambda: linear.steady_state_predictor(B, np.ones((3, 1)), 10**12),
@@ -476,9 +483,9 @@ def warm_up() -> None:
         batch.predict(B, np.ones((2, 3, 2), dtype=dtype))
         for tracks in (1, 2):
             _range_ekf(np.full((tracks, 3, 3), 500.0, dtype=dtype), [1.0, 0.0, 1.0, 0.0])
-    for fn in (linear.kalman_filter, linear.lainiotis_filter, linear.steady_state_filter, linear.fir_filter):
+    for fn in (_kf, linear.lainiotis_filter, linear.steady_state_filter, linear.fir_filter):
         fn(B, np.ones((3, 1)))
-    linear.rts_smoother(B, linear.kalman_filter(B, np.ones((3, 1))))
+    linear.rts_smoother(B, _kf(B, np.ones((3, 1))))
     _irregular([1.0, 2.0], np.ones((2, 1)))
     _ekf_ranges(np.full((2, 3), 500.0), [1.0, 1.0], np.eye(3))
     _pf(np.eye(ZHAO.n))

@@ -76,7 +76,7 @@ def test_issue_examples(case):
 
 def test_overflow_in_a_filter_names_the_large_input():
     with pytest.raises(NonFiniteError, match=r"^x0: the Kalman filter overflowed"):
-        linear.kalman_filter(B, np.zeros((3, 1)), x0=[1e308, 1e308])
+        linear.kalman_filter(B, np.zeros((3, 1)), x0=[1e308, 1e308], P0=np.zeros((2, 2)))
 
 
 def test_overflow_of_a_derived_quantity_names_its_inputs():
@@ -170,9 +170,9 @@ def test_prediction_covariance_of_a_huge_horizon_is_a_closed_form():
 def test_prediction_of_an_unstable_model_far_ahead_overflows_cleanly():
     model = LinearGaussianModel([[2.0]], [[1.0]], [[1.0]], [[1.0]])
     with pytest.raises(NonFiniteError, match=r"^N: the N-step prediction (covariance )?overflowed"):
-        linear.predict_ahead(model, linear.kalman_filter(model, np.ones((3, 1))), 10**12)
+        linear.predict_ahead(model, linear.kalman_filter(model, np.ones((3, 1)), P0=[[0.0]]), 10**12)
     # a marginally stable model is fine that far ahead (F^N = [[1, N], [0, 1]])
-    assert np.isfinite(linear.predict_ahead(B, linear.kalman_filter(B, np.ones((3, 1))), 10**12).P).all()
+    assert np.isfinite(linear.predict_ahead(B, linear.kalman_filter(B, np.ones((3, 1)), P0=np.zeros((2, 2))), 10**12).P).all()
 
 
 def test_make_chunks_is_lazy():
