@@ -54,6 +54,9 @@ def _pair(x_est, truth) -> tuple[np.ndarray, np.ndarray]:
 def rmse(x_est, truth, dims: int | None = None, axis: int = 0) -> np.ndarray:
     """Root-mean-square position error over Monte-Carlo runs (``axis``) of a batch (B, T, n): (T,)."""
     e = position_error(x_est, truth, dims)
+    if e.ndim == 0:
+        raise ShapeError(f"x_est: expected positions of shape (..., n), one row per step, got shape "
+                         f"{np.shape(x_est)}")
     if not isinstance(axis, (int, np.integer)) or not -e.ndim <= axis < e.ndim:
         raise ParameterError(f"axis: expected an integer in [-{e.ndim}, {e.ndim}) (the error has shape "
                              f"{e.shape}), got {axis!r}")

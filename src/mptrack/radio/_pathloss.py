@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._validation import as_array, finite_result
+from .._validation import as_array, broadcast_shape, finite_result
 from ..errors import ParameterError
 from ._validity import check_policy, check_range
 
@@ -56,7 +56,13 @@ def _positive(name: str, value) -> np.ndarray:
     return arr
 
 
+def _same_shape(**values) -> None:
+    """The arguments broadcast together (ShapeError naming the first that does not)."""
+    broadcast_shape(**{name: as_array(name, value) for name, value in values.items()})
+
+
 def _check(model: str, limits: dict, on_invalid: str, **values) -> None:
+    _same_shape(**values)
     check_policy(on_invalid)
     for name, value in values.items():
         lo, hi = limits[name]
@@ -71,6 +77,7 @@ def free_space_loss(distance_km, frequency_mhz):
     """
     d = _positive("distance_km", distance_km)
     f = _positive("frequency_mhz", frequency_mhz)
+    broadcast_shape(distance_km=d, frequency_mhz=f)
     return _out(20.0 * np.log10(4.0 * np.pi * d * f * 1e6 / _C_KM_PER_S))
 
 
@@ -83,6 +90,7 @@ def wi_free_space_loss(distance_km, frequency_mhz, *, constant_db: float = 32.4)
     """
     d = _positive("distance_km", distance_km)
     f = _positive("frequency_mhz", frequency_mhz)
+    broadcast_shape(distance_km=d, frequency_mhz=f)
     return _out(constant_db + 20.0 * np.log10(d) + 20.0 * np.log10(f))
 
 
@@ -159,6 +167,9 @@ def cost231_wi_nlos(distance_km, frequency_mhz, *, h_base_m, h_mobile_m=1.5, h_r
     """
     _check("COST-231 Walfisch-Ikegami", WI_LIMITS, on_invalid, distance_km=distance_km,
            frequency_mhz=frequency_mhz, h_base_m=h_base_m, h_mobile_m=h_mobile_m)
+    _same_shape(h_roof_m=h_roof_m, street_width_m=street_width_m, building_sep_m=building_sep_m,
+                street_angle_deg=street_angle_deg, distance_km=distance_km, frequency_mhz=frequency_mhz,
+                h_base_m=h_base_m, h_mobile_m=h_mobile_m)
     _positive("h_base_m", h_base_m)
     _positive("h_mobile_m", h_mobile_m)
     l0 = wi_free_space_loss(distance_km, frequency_mhz, constant_db=free_space_constant_db)
