@@ -79,6 +79,9 @@ class RangeModel:
         dt = check_positive("dt", dt)
         sigma_a2 = check_positive("sigma_a2", sigma_a2, allow_zero=True)
         sigma_r2 = check_positive("sigma_r2", sigma_r2)
+        if sigma_r2 < np.finfo(float).tiny:  # below it R = sigma_r2 I is not numerically definite
+            raise ParameterError(f"sigma_r2: expected a variance of at least {np.finfo(float).tiny:.3g} m^2, "
+                                 f"got {sigma_r2!r}")
         Fa = np.array([[1.0, dt], [0.0, 1.0]])
         g = np.array([0.5 * dt * dt, dt])
         with np.errstate(over="ignore", invalid="ignore"):  # an overflow is reported below

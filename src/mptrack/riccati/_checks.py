@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from .._validation import as_matrix
-from ..errors import NotDetectableError, NotStabilisableError, ShapeError
+from ..errors import ConvergenceError, NotDetectableError, NotStabilisableError, ShapeError
 
 __all__ = ["unstable_modes_unobservable", "undriven_modes", "check_detectable", "check_stabilisable"]
 
@@ -18,6 +18,18 @@ def _pair(first: str, F, second: str, M, rows: bool) -> tuple[np.ndarray, np.nda
     n = F.shape[0]
     M = as_matrix(second, M, None, n) if rows else as_matrix(second, M, n, None)
     return F, M
+
+
+def _analysed(analysis, F, M, names):
+    """``analysis(F, M)``; LAPACK failing to converge (entries near the float range) is a
+    ConvergenceError naming the larger of the two matrices."""
+    try:
+        return analysis(F, M)
+    except np.linalg.LinAlgError as exc:
+        name = names[0] if np.abs(F).max(initial=0.0) >= np.abs(M).max(initial=0.0) else names[1]
+        raise ConvergenceError(f"{name}: the eigen/singular-value analysis of the model did not converge "
+                               f"({exc}); entries up to {max(np.abs(F).max(initial=0), np.abs(M).max(initial=0)):.3g} "
+                               "are too large, rescale the units") from None
 
 
 def _rank(mat: np.ndarray) -> int:
@@ -49,7 +61,7 @@ def undriven_modes(F: np.ndarray, Q_factor: np.ndarray) -> tuple[list[complex], 
 def check_detectable(F: np.ndarray, H: np.ndarray) -> None:
     """Raise NotDetectableError when an unstable mode of F is invisible in H."""
     F, H = _pair("F", F, "H", H, rows=True)
-    bad = unstable_modes_unobservable(F, H)
+    bad = _analysed(unstable_modes_unobservable, F, H, names=("F", "H"))
     if bad:
         raise NotDetectableError(
             "model: the pair (F, H) is not detectable; the unstable mode(s) "
@@ -64,7 +76,7 @@ def check_stabilisable(F: np.ndarray, Q_factor: np.ndarray) -> None:
     an undriven mode outside the unit circle (F = 2, Q = 0) is estimated from the measurements,
     and the stabilising solution exists (P = 3 for F = 2, H = 1, Q = 0, R = 1, as scipy finds)."""
     F, Q_factor = _pair("F", F, "Q_factor", Q_factor, rows=False)
-    bad, _ = undriven_modes(F, Q_factor)
+    bad, _ = _analysed(undriven_modes, F, Q_factor, names=("F", "Q_factor"))
     if bad:
         raise NotStabilisableError(
             "model: the pair (F, Q^{1/2}) is not stabilisable: mode(s) on the unit circle "
