@@ -79,10 +79,11 @@ def _jac_h(x, codes, pos, st, H):
 
 
 @njit(cache=True, nogil=True)
-def _cholesky(S, L):
-    """Lower Cholesky factor of S (q, q) into L; False when S is not positive definite."""
-    q = S.shape[0]
-    L[:, :] = 0.0
+def _cholesky(S, L, q):
+    """Lower Cholesky factor of S[:q, :q] into L[:q, :q]; False when S is not positive definite."""
+    for i in range(q):
+        for j in range(q):
+            L[i, j] = 0.0
     for j in range(q):
         s = S[j, j]
         for k in range(j):
@@ -99,9 +100,8 @@ def _cholesky(S, L):
 
 
 @njit(cache=True, nogil=True)
-def _chol_solve(L, b, out):
-    """out = S^-1 b with S = L L^T (b, out (q,))."""
-    q = L.shape[0]
+def _chol_solve(L, b, out, q):
+    """out[:q] = S^-1 b[:q] with S = L L^T (L[:q, :q])."""
     for i in range(q):
         s = b[i]
         for k in range(i):
@@ -115,11 +115,10 @@ def _chol_solve(L, b, out):
 
 
 @njit(cache=True, nogil=True)
-def _gain_loglik(L, nu, PHt, K, w):
-    """K = PHt S^-1 (rows solved with the Cholesky factor L of S) and log N(nu; 0, S)."""
-    n, q = PHt.shape
+def _gain_loglik(L, nu, PHt, K, w, n, q):
+    """K[:n, :q] = PHt S^-1 (rows solved with the Cholesky factor L of S, all [:q]) and log N(nu; 0, S)."""
     for a in range(n):
-        _chol_solve(L, PHt[a], K[a])
+        _chol_solve(L, PHt[a], K[a], q)
     quad = 0.0
     logdet = 0.0
     for i in range(q):
@@ -134,7 +133,12 @@ def _gain_loglik(L, nu, PHt, K, w):
 
 @njit(cache=True, nogil=True)
 def _finite(x, P):
-    return np.all(np.isfinite(x)) and np.all(np.isfinite(P))
+    acc = 0.0
+    for a in range(x.shape[0]):
+        acc += x[a]
+        for b in range(x.shape[0]):
+            acc += P[a, b]
+    return np.isfinite(acc)
 
 
 @njit(cache=True, nogil=True)
@@ -148,20 +152,65 @@ def _symmetrise(P):
 
 
 @njit(cache=True, nogil=True)
+def _mul(A, B, out, ni, nk, nj):
+    """out[:ni, :nj] = A[:ni, :nk] B[:nk, :nj] (explicit loops: no temporaries, views or BLAS calls for
+    these small matrices)."""
+    for i in range(ni):
+        for j in range(nj):
+            acc = 0.0
+            for k in range(nk):
+                acc += A[i, k] * B[k, j]
+            out[i, j] = acc
+
+
+@njit(cache=True, nogil=True)
+def _mul_bt(A, B, out, ni, nk, nj):
+    """out[:ni, :nj] = A[:ni, :nk] B[:nj, :nk]^T."""
+    for i in range(ni):
+        for j in range(nj):
+            acc = 0.0
+            for k in range(nk):
+                acc += A[i, k] * B[j, k]
+            out[i, j] = acc
+
+
+@njit(cache=True, nogil=True)
 def _ekf_track(F, Q, R, codes, pos, st, angles, z, x0, P0, first, xs, Ps, xp, Pp):
-    """One EKF run writing into xs, Ps, xp, Pp (T, ...); returns (status, step, loglik)."""
+    """One EKF run writing into xs, Ps, xp, Pp (T, ...); returns (status, step, loglik).  All work arrays
+    are allocated once per run; the step is loops over them."""
     T, m = z.shape
     n = x0.shape[0]
     x = x0.copy()
     P = P0.copy()
+    xn = np.empty(n)
+    A = np.empty((n, n))
+    IKH = np.empty((n, n))
     hx = np.empty(m)
     Hf = np.empty((m, n))
     idx = np.empty(m, np.int64)
+    H = np.empty((m, n))
+    Rq = np.empty((m, m))
+    nu = np.empty(m)
+    PHt = np.empty((n, m))
+    S = np.empty((m, m))
+    L = np.empty((m, m))
+    K = np.empty((n, m))
+    KR = np.empty((n, m))
+    w = np.empty(m)
     loglik = 0.0
     for k in range(T):
         if not (first and k == 0):
-            x = F @ x
-            P = F @ P @ F.T + Q
+            for a in range(n):
+                acc = 0.0
+                for b in range(n):
+                    acc += F[a, b] * x[b]
+                xn[a] = acc
+            x[:] = xn
+            _mul(F, P, A, n, n, n)
+            _mul_bt(A, F, P, n, n, n)
+            for a in range(n):
+                for b in range(n):
+                    P[a, b] += Q[a, b]
             _symmetrise(P)
         xp[k] = x
         Pp[k] = P
@@ -173,27 +222,40 @@ def _ekf_track(F, Q, R, codes, pos, st, angles, z, x0, P0, first, xs, Ps, xp, Pp
         if q > 0:
             _h(x, codes, pos, st, hx)
             _jac_h(x, codes, pos, st, Hf)
-            H = np.empty((q, n))
-            Rq = np.empty((q, q))
-            nu = np.empty(q)
             for a in range(q):
                 i = idx[a]
-                H[a] = Hf[i]
+                for b in range(n):
+                    H[a, b] = Hf[i, b]
                 v = z[k, i] - hx[i]
                 nu[a] = _wrap(v) if angles[i] else v
                 for b in range(q):
                     Rq[a, b] = R[i, idx[b]]
-            PHt = P @ H.T
-            S = H @ PHt + Rq
-            L = np.empty((q, q))
-            if not _cholesky(S, L):
+            _mul_bt(P, H, PHt, n, n, q)
+            _mul(H, PHt, S, q, n, q)
+            for a in range(q):
+                for b in range(q):
+                    S[a, b] += Rq[a, b]
+            if not _cholesky(S, L, q):
                 return NOT_PD, k, loglik
-            K = np.empty((n, q))
-            w = np.empty(q)
-            ll = _gain_loglik(L, nu, PHt, K, w)
-            x = x + K @ nu
-            IKH = np.eye(n) - K @ H
-            P = IKH @ P @ IKH.T + K @ Rq @ K.T
+            ll = _gain_loglik(L, nu, PHt, K, w, n, q)
+            for a in range(n):
+                acc = 0.0
+                for b in range(q):
+                    acc += K[a, b] * nu[b]
+                x[a] += acc
+            _mul(K, H, IKH, n, q, n)
+            for a in range(n):
+                for b in range(n):
+                    IKH[a, b] = (1.0 if a == b else 0.0) - IKH[a, b]
+            _mul(IKH, P, A, n, n, n)
+            _mul_bt(A, IKH, P, n, n, n)
+            _mul(K, Rq, KR, n, q, q)
+            for a in range(n):
+                for b in range(n):
+                    acc = 0.0
+                    for c in range(q):
+                        acc += KR[a, c] * K[b, c]
+                    P[a, b] += acc
             _symmetrise(P)
             loglik += ll
         if not _finite(x, P):
@@ -232,7 +294,7 @@ def _sigma(x, P, c, X):
     """The 2n+1 sigma points of N(x, P) into X; False when c P has no Cholesky factor."""
     n = x.shape[0]
     L = np.empty((n, n))
-    if not _cholesky(c * P, L):
+    if not _cholesky(c * P, L, n):
         return False
     for a in range(n):
         X[0, a] = x[a]
@@ -309,11 +371,11 @@ def ukf_named(F, Q, R, codes, pos, st, angles, z, x0, P0, first, c, Wm, Wc):
             S = WdZ.T @ dZ + Rq
             C = (Wc.reshape(N, 1) * (X - x)).T @ dZ
             L = np.empty((q, q))
-            if not _cholesky(S, L):
+            if not _cholesky(S, L, q):
                 return NOT_PD, k, xs, Ps, xp, Pp, loglik
             K = np.empty((n, q))
             w = np.empty(q)
-            ll = _gain_loglik(L, nu, C, K, w)
+            ll = _gain_loglik(L, nu, C, K, w, n, q)
             x = x + K @ nu
             P = P - K @ S @ K.T
             _symmetrise(P)
