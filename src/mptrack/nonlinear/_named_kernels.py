@@ -175,6 +175,19 @@ def _mul_bt(A, B, out, ni, nk, nj):
 
 
 @njit(cache=True, nogil=True)
+def _sym_bt(A, B, out, n):
+    """out = A B^T for a product known to be symmetric: the upper triangle, mirrored (the NumPy path's
+    0.5 (P + P^T) up to rounding)."""
+    for i in range(n):
+        for j in range(i, n):
+            acc = 0.0
+            for k in range(n):
+                acc += A[i, k] * B[j, k]
+            out[i, j] = acc
+            out[j, i] = acc
+
+
+@njit(cache=True, nogil=True)
 def _ekf_track(F, Q, R, codes, pos, st, angles, z, x0, P0, first, xs, Ps, xp, Pp):
     """One EKF run writing into xs, Ps, xp, Pp (T, ...); returns (status, step, loglik).  All work arrays
     are allocated once per run; the step is loops over them."""
@@ -205,15 +218,16 @@ def _ekf_track(F, Q, R, codes, pos, st, angles, z, x0, P0, first, xs, Ps, xp, Pp
                 for b in range(n):
                     acc += F[a, b] * x[b]
                 xn[a] = acc
-            x[:] = xn
             _mul(F, P, A, n, n, n)
-            _mul_bt(A, F, P, n, n, n)
+            _sym_bt(A, F, P, n)
             for a in range(n):
+                x[a] = xn[a]
                 for b in range(n):
                     P[a, b] += Q[a, b]
-            _symmetrise(P)
-        xp[k] = x
-        Pp[k] = P
+        for a in range(n):
+            xp[k, a] = x[a]
+            for b in range(n):
+                Pp[k, a, b] = P[a, b]
         q = 0
         for i in range(m):
             if not np.isnan(z[k, i]):
@@ -248,20 +262,23 @@ def _ekf_track(F, Q, R, codes, pos, st, angles, z, x0, P0, first, xs, Ps, xp, Pp
                 for b in range(n):
                     IKH[a, b] = (1.0 if a == b else 0.0) - IKH[a, b]
             _mul(IKH, P, A, n, n, n)
-            _mul_bt(A, IKH, P, n, n, n)
+            _sym_bt(A, IKH, P, n)
             _mul(K, Rq, KR, n, q, q)
             for a in range(n):
-                for b in range(n):
+                for b in range(a, n):
                     acc = 0.0
                     for c in range(q):
                         acc += KR[a, c] * K[b, c]
                     P[a, b] += acc
-            _symmetrise(P)
+                    if b != a:
+                        P[b, a] = P[a, b]
             loglik += ll
         if not _finite(x, P):
             return DIVERGED, k, loglik
-        xs[k] = x
-        Ps[k] = P
+        for a in range(n):
+            xs[k, a] = x[a]
+            for b in range(n):
+                Ps[k, a, b] = P[a, b]
     return OK, T, loglik
 
 
