@@ -35,6 +35,17 @@ def _wrap(v):
 
 
 @njit(cache=True, nogil=True)
+def _range(x, pos, st, i):
+    """||x[pos[i]] - st[i]|| over the valid (>= 0) position indices of component i."""
+    acc = 0.0
+    for j in range(3):
+        if pos[i, j] >= 0:
+            d = x[pos[i, j]] - st[i, j]
+            acc += d * d
+    return np.sqrt(acc)
+
+
+@njit(cache=True, nogil=True)
 def _h(x, codes, pos, st, out):
     """Measurement of one state x (n,) into out (m,)."""
     for i in range(codes.shape[0]):
@@ -44,12 +55,7 @@ def _h(x, codes, pos, st, out):
         elif c == 1:
             out[i] = np.arctan2(x[pos[i, 1]] - st[i, 1], x[pos[i, 0]] - st[i, 0])
         else:
-            acc = 0.0
-            for j in range(3):
-                if pos[i, j] >= 0:
-                    d = x[pos[i, j]] - st[i, j]
-                    acc += d * d
-            out[i] = np.sqrt(acc)
+            out[i] = _range(x, pos, st, i)
 
 
 @njit(cache=True, nogil=True)
@@ -67,12 +73,7 @@ def _jac_h(x, codes, pos, st, H):
             H[i, pos[i, 0]] = -dy / r2
             H[i, pos[i, 1]] = dx / r2
         else:
-            acc = 0.0
-            for j in range(3):
-                if pos[i, j] >= 0:
-                    d = x[pos[i, j]] - st[i, j]
-                    acc += d * d
-            r = max(np.sqrt(acc), _TINY)
+            r = max(_range(x, pos, st, i), _TINY)
             for j in range(3):
                 if pos[i, j] >= 0:
                     H[i, pos[i, j]] = (x[pos[i, j]] - st[i, j]) / r
@@ -164,27 +165,37 @@ def _mul(A, B, out, ni, nk, nj):
 
 
 @njit(cache=True, nogil=True)
-def _mul_bt(A, B, out, ni, nk, nj):
-    """out[:ni, :nj] = A[:ni, :nk] B[:nj, :nk]^T."""
-    for i in range(ni):
-        for j in range(nj):
+def _sym_bt(A, B, out, n, nk):
+    """out[:n, :n] = A[:n, :nk] B[:n, :nk]^T for a product known to be symmetric: the upper triangle,
+    mirrored (the NumPy path's 0.5 (P + P^T) up to rounding)."""
+    for i in range(n):
+        for j in range(i, n):
             acc = 0.0
             for k in range(nk):
                 acc += A[i, k] * B[j, k]
             out[i, j] = acc
+            out[j, i] = acc
 
 
 @njit(cache=True, nogil=True)
-def _sym_bt(A, B, out, n):
-    """out = A B^T for a product known to be symmetric: the upper triangle, mirrored (the NumPy path's
-    0.5 (P + P^T) up to rounding)."""
-    for i in range(n):
-        for j in range(i, n):
-            acc = 0.0
-            for k in range(n):
-                acc += A[i, k] * B[j, k]
-            out[i, j] = acc
-            out[j, i] = acc
+def _observed(z, k, idx):
+    """The indices of the non-NaN components of z[k] into idx; returns their count."""
+    q = 0
+    for i in range(z.shape[1]):
+        if not np.isnan(z[k, i]):
+            idx[q] = i
+            q += 1
+    return q
+
+
+@njit(cache=True, nogil=True)
+def _store(x, P, xs, Ps, k):
+    """xs[k], Ps[k] = x, P."""
+    n = x.shape[0]
+    for a in range(n):
+        xs[k, a] = x[a]
+        for b in range(n):
+            Ps[k, a, b] = P[a, b]
 
 
 @njit(cache=True, nogil=True)
@@ -204,6 +215,7 @@ def _ekf_track(F, Q, R, codes, pos, st, angles, z, x0, P0, first, xs, Ps, xp, Pp
     H = np.empty((m, n))
     Rq = np.empty((m, m))
     nu = np.empty(m)
+    HP = np.empty((m, n))
     PHt = np.empty((n, m))
     S = np.empty((m, m))
     L = np.empty((m, m))
@@ -219,20 +231,13 @@ def _ekf_track(F, Q, R, codes, pos, st, angles, z, x0, P0, first, xs, Ps, xp, Pp
                     acc += F[a, b] * x[b]
                 xn[a] = acc
             _mul(F, P, A, n, n, n)
-            _sym_bt(A, F, P, n)
+            _sym_bt(A, F, P, n, n)
             for a in range(n):
                 x[a] = xn[a]
                 for b in range(n):
                     P[a, b] += Q[a, b]
-        for a in range(n):
-            xp[k, a] = x[a]
-            for b in range(n):
-                Pp[k, a, b] = P[a, b]
-        q = 0
-        for i in range(m):
-            if not np.isnan(z[k, i]):
-                idx[q] = i
-                q += 1
+        _store(x, P, xp, Pp, k)
+        q = _observed(z, k, idx)
         if q > 0:
             _h(x, codes, pos, st, hx)
             _jac_h(x, codes, pos, st, Hf)
@@ -244,11 +249,14 @@ def _ekf_track(F, Q, R, codes, pos, st, angles, z, x0, P0, first, xs, Ps, xp, Pp
                 nu[a] = _wrap(v) if angles[i] else v
                 for b in range(q):
                     Rq[a, b] = R[i, idx[b]]
-            _mul_bt(P, H, PHt, n, n, q)
-            _mul(H, PHt, S, q, n, q)
+            _mul(H, P, HP, q, n, n)
+            _sym_bt(HP, H, S, q, n)
             for a in range(q):
                 for b in range(q):
                     S[a, b] += Rq[a, b]
+            for a in range(n):
+                for b in range(q):
+                    PHt[a, b] = HP[b, a]
             if not _cholesky(S, L, q):
                 return NOT_PD, k, loglik
             ll = _gain_loglik(L, nu, PHt, K, w, n, q)
@@ -262,7 +270,7 @@ def _ekf_track(F, Q, R, codes, pos, st, angles, z, x0, P0, first, xs, Ps, xp, Pp
                 for b in range(n):
                     IKH[a, b] = (1.0 if a == b else 0.0) - IKH[a, b]
             _mul(IKH, P, A, n, n, n)
-            _sym_bt(A, IKH, P, n)
+            _sym_bt(A, IKH, P, n, n)
             _mul(K, Rq, KR, n, q, q)
             for a in range(n):
                 for b in range(a, n):
@@ -275,10 +283,7 @@ def _ekf_track(F, Q, R, codes, pos, st, angles, z, x0, P0, first, xs, Ps, xp, Pp
             loglik += ll
         if not _finite(x, P):
             return DIVERGED, k, loglik
-        for a in range(n):
-            xs[k, a] = x[a]
-            for b in range(n):
-                Ps[k, a, b] = P[a, b]
+        _store(x, P, xs, Ps, k)
     return OK, T, loglik
 
 
@@ -347,13 +352,8 @@ def ukf_named(F, Q, R, codes, pos, st, angles, z, x0, P0, first, c, Wm, Wc):
             dY = Y - x
             P = (Wc.reshape(N, 1) * dY).T @ dY + Q
             _symmetrise(P)
-        xp[k] = x
-        Pp[k] = P
-        q = 0
-        for i in range(m):
-            if not np.isnan(z[k, i]):
-                idx[q] = i
-                q += 1
+        _store(x, P, xp, Pp, k)
+        q = _observed(z, k, idx)
         if q > 0:
             if not _sigma(x, P, c, X):
                 return NOT_PD, k, xs, Ps, xp, Pp, loglik
@@ -399,6 +399,5 @@ def ukf_named(F, Q, R, codes, pos, st, angles, z, x0, P0, first, c, Wm, Wc):
             loglik += ll
         if not _finite(x, P):
             return DIVERGED, k, xs, Ps, xp, Pp, loglik
-        xs[k] = x
-        Ps[k] = P
+        _store(x, P, xs, Ps, k)
     return OK, T, xs, Ps, xp, Pp, loglik
