@@ -223,7 +223,8 @@ class MeasurementModel:
     R: np.ndarray | Callable
     angle_components: tuple = ()
     name: str = ""
-    #: the components as the compiled filters read them, or None (e.g. TDOA, range rate): codes (m,)
+    #: set by the constructors (leave None for your own h): the components as the compiled filters read
+    #: them, or None (e.g. TDOA, range rate): codes (m,)
     #: (0 range, 1 bearing, 2 state component), pos (m, 3) state indices of the position (-1 padded;
     #: code 2: the observed component) and stations (m, 3)
     kernel: tuple | None = field(default=None, repr=False)
