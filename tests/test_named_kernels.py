@@ -137,7 +137,7 @@ def test_only_named_linear_models_are_tagged():
                                                   range_rate([0.0, 0.0], 1.0))).named is None
     user = NonlinearModel(lambda X: X, lambda X: X[..., :1], np.eye(2), np.eye(1))
     assert user.named is None
-    F, codes, pos, stations = models()["range_bearing"].named
+    _, codes, pos, _ = models()["range_bearing"].named
     assert codes.tolist() == [1, 0] and pos.tolist() == [[0, 2, -1], [0, 2, -1]]
     with pytest.raises(ValueError):
         codes[0] = 5                                                    # read-only

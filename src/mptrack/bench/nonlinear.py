@@ -178,7 +178,7 @@ def ekf_ukf_suite(quick: bool) -> dict:
     model, zz = _range_bearing_data(steps, 1)
     z = zz[0]
     numpy_path = dataclasses.replace(model)                     # the same model untagged: the NumPy path
-    ut = dict(alpha=0.5, beta=2.0, kappa=-1.0)
+    ut = {"alpha": 0.5, "beta": 2.0, "kappa": -1.0}
     rows = []
 
     def per_step(fn):

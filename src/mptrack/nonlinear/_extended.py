@@ -14,7 +14,12 @@ from __future__ import annotations
 import numpy as np
 
 from .._validation import as_array, check_covariance
-from ..errors import ConvergenceError, NotPositiveDefiniteError, ParameterError, ShapeError
+from ..errors import (
+    ConvergenceError,
+    NotPositiveDefiniteError,
+    ParameterError,
+    ShapeError,
+)
 from ..linear import FilterResult
 from ..linear._smoother import rts_backward
 from ..models import NonlinearModel
