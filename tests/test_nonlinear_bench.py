@@ -14,3 +14,18 @@ def test_nonlinear_suite_quick():
     for row in report["rows"]:
         assert len(row) == len(report["columns"]) and row[1] > 0
         assert row[3] is None or 0 < row[3] <= 100
+
+
+def test_ekf_ukf_suite_quick():
+    """The EKF/UKF suite times every filter and its compiled rows agree with FilterPy and the NumPy path."""
+    (report,) = run_suites(["ekf-ukf"], quick=True)
+    assert report["suite"] == "ekf-ukf"
+    rows = {row[0]: row for row in report["rows"]}
+    assert len(rows) == 6
+    for row in report["rows"]:
+        assert len(row) == len(report["columns"]) and row[1] > 0 and row[4] > 0
+        assert row[5] is None or row[5] < 1e-10
+    for name in ("EKF, compiled (named model)", "UKF, compiled (named model)"):
+        assert rows[name][2] > 0 and rows[name][3] == rows[name][2] / rows[name][1]
+        assert rows[name][5] is not None
+    assert rows["batch EKF, compiled, 200 tracks x 100 steps"][5] < 1e-12

@@ -104,6 +104,9 @@ class NonlinearModel:
     name: str = field(default="", kw_only=True)
     periods: tuple = field(init=False, repr=False)
     m: int = field(init=False)
+    #: set by :func:`nonlinear_model` for a linear motion observed by named measurement models:
+    #: (F, codes, pos, stations) read by the compiled filters (mptrack.nonlinear._named_kernels)
+    named: tuple | None = field(default=None, init=False, repr=False)
 
     def __post_init__(self) -> None:
         set_ = object.__setattr__
@@ -220,6 +223,34 @@ class MeasurementModel:
     R: np.ndarray | Callable
     angle_components: tuple = ()
     name: str = ""
+    #: set by the constructors (leave None for your own h): the components as the compiled filters read
+    #: them, or None (e.g. TDOA, range rate): codes (m,)
+    #: (0 range, 1 bearing, 2 state component), pos (m, 3) state indices of the position (-1 padded;
+    #: code 2: the observed component) and stations (m, 3)
+    kernel: tuple | None = field(default=None, repr=False)
+
+
+_RANGE, _BEARING, _COMPONENT = 0, 1, 2
+
+
+def _kernel_spec(code: int, pos: tuple, stations: np.ndarray) -> tuple:
+    """The kernel description of len(stations) components of one kind seen from the position x[pos]."""
+    k = len(stations)
+    codes = np.full(k, code, dtype=np.int64)
+    idx = np.full((k, 3), -1, dtype=np.int64)
+    idx[:, :len(pos)] = pos
+    st = np.zeros((k, 3))
+    st[:, :stations.shape[1]] = stations
+    return codes, idx, st
+
+
+def _join_specs(specs) -> tuple | None:
+    if any(spec is None for spec in specs):
+        return None
+    joined = tuple(np.ascontiguousarray(np.concatenate(parts)) for parts in zip(*specs))
+    for arr in joined:
+        arr.setflags(write=False)
+    return joined
 
 
 def nonlinear_model(motion: LinearGaussianModel, measurement: MeasurementModel, *, name: str = "") -> NonlinearModel:
@@ -232,10 +263,14 @@ def nonlinear_model(motion: LinearGaussianModel, measurement: MeasurementModel, 
         raise ParameterError(f"measurement: expected a MeasurementModel, got {type(measurement).__name__}")
     F = motion.F
     Ft = np.ascontiguousarray(F.T)
-    return NonlinearModel(lambda X: X @ Ft, measurement.h, motion.Q, measurement.R,
-                          jac_f=lambda x: np.broadcast_to(F, np.shape(x)[:-1] + F.shape),
-                          jac_h=measurement.jac_h, angle_components=measurement.angle_components, dt=motion.dt,
-                          name=name or f"{motion.name or 'linear motion'} + {measurement.name}")
+    model = NonlinearModel(lambda X: X @ Ft, measurement.h, motion.Q, measurement.R,
+                           jac_f=lambda x: np.broadcast_to(F, np.shape(x)[:-1] + F.shape),
+                           jac_h=measurement.jac_h, angle_components=measurement.angle_components, dt=motion.dt,
+                           name=name or f"{motion.name or 'linear motion'} + {measurement.name}")
+    spec = measurement.kernel
+    if spec is not None and not callable(model.R) and int(spec[1].max()) < model.n:
+        object.__setattr__(model, "named", (_frozen(np.ascontiguousarray(F, dtype=float)),) + tuple(spec))
+    return model
 
 
 def _indices(name: str, idx, count: int | None = None) -> tuple:
@@ -297,7 +332,8 @@ def ranges(stations, R, *, position=(0, 2)) -> MeasurementModel:
     def rows(x):
         diff = x[..., None, list(pos)] - s
         return diff / np.maximum(np.sqrt(np.sum(diff * diff, axis=-1)), _TINY)[..., None]
-    return MeasurementModel(h, _jac_from(pos, rows), _covariance(R, s.shape[0]), (), f"ranges to {len(s)}")
+    return MeasurementModel(h, _jac_from(pos, rows), _covariance(R, s.shape[0]), (), f"ranges to {len(s)}",
+                            _join_specs([_kernel_spec(_RANGE, pos, s)]))
 
 
 def bearings(stations, R, *, position=(0, 2)) -> MeasurementModel:
@@ -318,7 +354,8 @@ def bearings(stations, R, *, position=(0, 2)) -> MeasurementModel:
         r2 = np.maximum(dx * dx + dy * dy, _TINY)
         return np.stack([-dy / r2, dx / r2], axis=-1)
     k = s.shape[0]
-    return MeasurementModel(h, _jac_from(pos, rows), _covariance(R, k), tuple(range(k)), f"bearings from {k}")
+    return MeasurementModel(h, _jac_from(pos, rows), _covariance(R, k), tuple(range(k)), f"bearings from {k}",
+                            _join_specs([_kernel_spec(_BEARING, pos, s)]))
 
 
 def range_bearing(sensor, R, *, position=(0, 2)) -> MeasurementModel:
@@ -327,7 +364,7 @@ def range_bearing(sensor, R, *, position=(0, 2)) -> MeasurementModel:
     b, r = bearings(sensor, 1.0, position=position), ranges(sensor, 1.0, position=position)
     return MeasurementModel(lambda X: np.concatenate([b.h(X), r.h(X)], axis=-1),
                             lambda x: np.concatenate([b.jac_h(x), r.jac_h(x)], axis=-2), _covariance(R, 2), (0,),
-                            "range-bearing")
+                            "range-bearing", _join_specs([b.kernel, r.kernel]))
 
 
 def range_rate(sensor, R, *, position=(0, 2), velocity=(1, 3)) -> MeasurementModel:
@@ -394,8 +431,8 @@ def position(R, *, position=(0, 2)) -> MeasurementModel:
         return np.asarray(X)[..., list(pos)]
     eye = np.eye(len(pos))
     return MeasurementModel(h, _jac_from(pos, lambda x: np.broadcast_to(eye, x.shape[:-1] + eye.shape)),
-                            _covariance(R, len(pos)), (),
-                            "position")
+                            _covariance(R, len(pos)), (), "position",
+                            _join_specs([_kernel_spec(_COMPONENT, (i,), np.zeros((1, 1))) for i in pos]))
 
 
 def stack_measurements(*measurements: MeasurementModel) -> MeasurementModel:
@@ -413,4 +450,5 @@ def stack_measurements(*measurements: MeasurementModel) -> MeasurementModel:
     return MeasurementModel(lambda X: np.concatenate([mm.h(X) for mm in measurements], axis=-1),
                             lambda x: np.concatenate([mm.jac_h(x) for mm in measurements], axis=-2),
                             _frozen(scipy.linalg.block_diag(*[mm.R for mm in measurements])), angles,
-                            " + ".join(mm.name for mm in measurements))
+                            " + ".join(mm.name for mm in measurements),
+                            _join_specs([mm.kernel for mm in measurements]))

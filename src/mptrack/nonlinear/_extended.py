@@ -14,10 +14,16 @@ from __future__ import annotations
 import numpy as np
 
 from .._validation import as_array, check_covariance
-from ..errors import ConvergenceError, NotPositiveDefiniteError, ParameterError, ShapeError
+from ..errors import (
+    ConvergenceError,
+    NotPositiveDefiniteError,
+    ParameterError,
+    ShapeError,
+)
 from ..linear import FilterResult
 from ..linear._smoother import rts_backward
 from ..models import NonlinearModel
+from . import _named_kernels
 from ._common import BatchFilterResult, check_prior, prepare_nonlinear
 
 __all__ = ["ekf_filter", "ekf_filter_batch", "ekf_smoother", "ekf_step"]
@@ -90,9 +96,30 @@ def ekf_filter(model: NonlinearModel, z, x0, P0, *, prior: str = "initial") -> F
             or at the first measurement (prior="first-measurement": updated with it directly)
     NaN components of z are skipped; a NaN row only predicts.  Q(x, k) is evaluated at x(k-1/k-1),
     R(x, k) at x(k/k-1).  Returns a FilterResult with x0, P0 = the prior at time 0 (for the smoother).
+    A :func:`~mptrack.models.nonlinear_model` of a linear motion and named measurement models (ranges,
+    bearings, range_bearing, position, stacks of them; constant R) runs compiled with the same numbers.
     """
     z, x0, P0, _ = prepare_nonlinear(model, z, x0, P0, kinds=(NonlinearModel,))
+    if model.named is not None:
+        first = check_prior(prior)
+        out = _named_kernels.ekf_named(*named_arguments(model), z, x0, P0, first)
+        if out[0] == _named_kernels.OK:
+            return named_result(out, x0, P0, first, "EKF")
     return _run(model, z, x0, P0, prior, ekf_predict, ekf_update, "EKF")
+
+
+def named_arguments(model: NonlinearModel) -> tuple:
+    """(F, Q, R, codes, pos, stations, angles) of a model tagged by nonlinear_model for the compiled kernels."""
+    F, codes, pos, stations = model.named
+    angles = np.array([period is not None for period in model.periods])
+    return F, model.Q, model.R, codes, pos, stations, angles
+
+
+def named_result(out, x0, P0, first: bool, method: str) -> FilterResult:
+    """The FilterResult of a compiled run (status, step, xs, Ps, xp, Pp, loglik) that succeeded."""
+    _, _, xs, Ps, xp, Pp, loglik = out
+    return FilterResult(x=xs, P=Ps, x_pred=xp, P_pred=Pp, loglik=float(loglik), method=method,
+                        x0=None if first else x0, P0=None if first else P0)
 
 
 def _check_result(model, result) -> None:
@@ -128,7 +155,9 @@ def ekf_filter_batch(model: NonlinearModel, z, x0, P0) -> BatchFilterResult:
     """:func:`ekf_filter` on B independent tracks at once (prior at time 0): z (B, T, m) with NaN = missing,
     x0 (n,) or (B, n), P0 (n, n) or (B, n, n).  Vectorised over tracks (NumPy batched linear algebra), for
     constant Q and R; Jacobians from jac_f / jac_h called on all B states at once (the named measurement
-    models and :func:`mptrack.models.nonlinear_model` broadcast) or by finite differences.
+    models and :func:`mptrack.models.nonlinear_model` broadcast) or by finite differences.  A linear motion
+    with named measurement models (ranges, bearings, range_bearing, position) runs compiled
+    (:mod:`mptrack.nonlinear._named_kernels`, same numbers).
     Returns a BatchFilterResult (x, P, x_pred, P_pred, loglik (B,))."""
     if not isinstance(model, NonlinearModel):
         raise ParameterError(f"model: expected a NonlinearModel, got {type(model).__name__}")
@@ -146,8 +175,15 @@ def ekf_filter_batch(model: NonlinearModel, z, x0, P0) -> BatchFilterResult:
     P0 = np.asarray(P0, dtype=float)
     P0 = check_covariance("P0", P0, n) if P0.ndim != 3 else np.stack(
         [check_covariance(f"P0[{b}]", p, n) for b, p in enumerate(P0)])
-    xs, Ps, xp, Pp, ll = _ekf_batch_core(model, z, np.broadcast_to(x0, (B, n)).copy(),
-                                         np.broadcast_to(P0, (B, n, n)).copy())
+    x0, P0 = np.broadcast_to(x0, (B, n)).copy(), np.broadcast_to(P0, (B, n, n)).copy()
+    if model.named is not None:
+        xs, xp = np.empty((B, T, n)), np.empty((B, T, n))
+        Ps, Pp = np.empty((B, T, n, n)), np.empty((B, T, n, n))
+        ll = np.empty(B)
+        status, _, _ = _named_kernels.ekf_named_batch(*named_arguments(model), z, x0, P0, xs, Ps, xp, Pp, ll)
+        if status == _named_kernels.OK:
+            return BatchFilterResult(x=xs, P=Ps, x_pred=xp, P_pred=Pp, loglik=ll, method="EKF")
+    xs, Ps, xp, Pp, ll = _ekf_batch_core(model, z, x0, P0)
     return BatchFilterResult(x=xs, P=Ps, x_pred=xp, P_pred=Pp, loglik=ll, method="EKF")
 
 

@@ -26,8 +26,9 @@ from .._validation import as_vector, check_covariance, check_positive, finite_re
 from ..errors import ConvergenceError, NotPositiveDefiniteError, ParameterError
 from ..linear import FilterResult
 from ..models import NonlinearModel
-from ._common import prepare_nonlinear
-from ._extended import _run, smooth_with
+from . import _named_kernels
+from ._common import check_prior, prepare_nonlinear
+from ._extended import _run, named_arguments, named_result, smooth_with
 from ._model import ContinuousDiscreteModel
 
 __all__ = ["ukf_filter", "ukf_smoother", "sigma_points"]
@@ -167,12 +168,20 @@ def ukf_filter(model, z, x0, P0, *, alpha: float = 1.0, beta: float = 2.0, kappa
     substeps             continuous-discrete models: RK4 sub-steps of the moment equations per dt
                          (default model.substeps)
     prior                "initial" (x0, P0 at time 0) or "first-measurement" (NonlinearModel only)
-    NaN measurement components are skipped; a NaN row only predicts.
+    NaN measurement components are skipped; a NaN row only predicts.  A
+    :func:`~mptrack.models.nonlinear_model` of a linear motion and named measurement models runs
+    compiled with the same numbers.
     Raises ConvergenceError when the moment equations blow up (stiff drift,
     far from the sigma points) and NotPositiveDefiniteError when P loses PSD.
     """
     z, x, P, substeps = prepare_nonlinear(model, z, x0, P0, substeps)
     ut = check_unscented(model.n, alpha, beta, kappa)
+    if isinstance(model, NonlinearModel) and model.named is not None:
+        first = check_prior(prior)
+        c, Wm, Wc = _weights(model.n, **ut)
+        out = _named_kernels.ukf_named(*named_arguments(model), z, x, P, first, c, Wm, Wc)
+        if out[0] == _named_kernels.OK:
+            return named_result(out, x, P, first, "UKF")
     if isinstance(model, NonlinearModel):
         predict = lambda mdl, x, P, k: _unscented_prediction(mdl, x, P, k, ut)[:2]  # noqa: E731
         update = lambda mdl, x, P, z, k: ukf_update(mdl, x, P, z, ut=ut, k=k)  # noqa: E731
