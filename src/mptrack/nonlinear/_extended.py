@@ -13,9 +13,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._validation import as_array, check_covariance
+from .._validation import as_array, check_covariance, require_finite
 from ..errors import (
-    ConvergenceError,
     NotPositiveDefiniteError,
     ParameterError,
     ShapeError,
@@ -81,8 +80,8 @@ def _run(model, z, x0, P0, prior, predict, update, method):
         except np.linalg.LinAlgError as exc:
             raise NotPositiveDefiniteError(f"{method}: the innovation covariance at measurement {k} is not "
                                            f"positive definite ({exc}); check R and P0") from None
-        if not (np.all(np.isfinite(x)) and np.all(np.isfinite(P))):
-            raise ConvergenceError(f"{method} diverged at measurement {k} (non-finite estimate)")
+        # a non-finite estimate from finite input is an overflow: name the largest input
+        require_finite(f"the {method} (at measurement {k})", (x, P), z=z, x0=x0, P0=P0)
         xs[k], Ps[k] = x, P
         loglik += ll
     return FilterResult(x=xs, P=Ps, x_pred=xp, P_pred=Pp, loglik=float(loglik), method=method,
