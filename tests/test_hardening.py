@@ -20,7 +20,7 @@ from hypothesis import strategies as st
 
 import _hardening as H
 from mptrack import batch, linear, riccati
-from mptrack.errors import NonFiniteError, ParameterError, ResourceError, ShapeError
+from mptrack.errors import ConvergenceError, NonFiniteError, ParameterError, ResourceError, ShapeError
 from mptrack.models import LinearGaussianModel, assimakis_model_b
 
 B = assimakis_model_b()
@@ -222,3 +222,16 @@ def test_tracking_options_name_the_given_noise_not_a_derived_one(kwargs, name):
     from mptrack.tracking import TrackOptions
     with pytest.raises(ParameterError, match=rf"^{name}: expected values in"):
         TrackOptions(**kwargs)
+
+
+def test_a_per_step_recursion_lost_in_rounding_stops_early_and_names_the_method():
+    """F with entries ~10^3 observed in one component: float64 rounding makes the per-step
+    recursion wander (relative steps up to 1e9 after 1000 iterations); it stops at the first check
+    instead of running 10^5 iterations, and says which method to use."""
+    F = np.array([[477.12454, -845.3525, -929.82336], [1061.1157, -202.70943, 1307.7375],
+                  [1381.299, 1404.6664, -1727.3438]])
+    model = LinearGaussianModel(F, [[1.0, 0.0, 0.0]], 1e-3 * np.eye(3), [[71797683.04221904]])
+    with pytest.raises(ConvergenceError, match=r"^method: the per-step Riccati recursion is not converging .* "
+                                               r"use method='dare'"):
+        riccati.steady_state(model, "per-step")
+    assert np.isfinite(riccati.steady_state(model, "dare").P_pred).all()

@@ -124,6 +124,12 @@ STEADY_TOL = 1e-13
 _EPS = np.finfo(float).eps
 
 
+#: Every this many iterations, the relative steps of the last 100 must all be below _NO_PROGRESS,
+#: or the recursion is taken to be lost in rounding (a converging one is far below it by then).
+_PROGRESS_EVERY = 1000
+_NO_PROGRESS = 0.1
+
+
 def _iterate(step, P, tol, max_iter, what):
     """Iterate P <- step(P) from P.
 
@@ -133,13 +139,21 @@ def _iterate(step, P, tol, max_iter, what):
     on its DARE test cases; the first k with a relative step <= STEADY_TOL is reported as the
     steady-state time.  Returns (P, iterations, steady-state time)."""
     ss_time = None
-    last, stalled = np.inf, 0
+    last, stalled, worst = np.inf, 0, 0.0
     for k in range(1, max_iter + 1):
         P_next = step(P)
         size = np.linalg.norm(P_next - P)
         scale = max(np.linalg.norm(P_next), np.finfo(float).tiny)
         if not np.isfinite(size):
             return P_next, k, ss_time   # reported as an overflow by the caller
+        if k % _PROGRESS_EVERY > _PROGRESS_EVERY - 100:   # the last 100 steps before each check
+            worst = max(worst, size / scale)
+        if k % _PROGRESS_EVERY == 0:   # a recursion lost in rounding never settles: stop early
+            if worst > _NO_PROGRESS:
+                raise ConvergenceError(
+                    f"method: {what} is not converging (relative steps up to {worst:.3g} after {k} "
+                    "iterations: the model is too ill-conditioned for it in float64); use method='dare'")
+            worst = 0.0
         if ss_time is None and size <= STEADY_TOL * scale:
             ss_time = k
         if tol is not None:
