@@ -190,7 +190,11 @@ def check_covariance(name: str, value, size: int | None = None, *, definite: boo
     if asym > rtol * scale:
         raise NotSymmetricError(f"{name}: must be symmetric, max |{name} - {name}^T| = {asym:.3g}")
     mat = 0.5 * (mat + mat.T)
-    eig = np.linalg.eigvalsh(mat)
+    try:
+        eig = np.linalg.eigvalsh(mat)
+    except np.linalg.LinAlgError:  # entries near the float range: LAPACK's scaling overflows
+        raise NonFiniteError(f"{name}: entries up to {scale:.3g} are too large to check its definiteness; "
+                             "rescale the units") from None
     tol = 1e-12 * scale * mat.shape[0]
     if definite and eig[0] <= tol:
         raise NotPositiveDefiniteError(

@@ -78,9 +78,11 @@ class RangeModel:
         variance sigma_a2 (m^2/s^4) with the noise gain [dt^2/2, dt]; range noise sigma_r2 (m^2)."""
         dt = check_positive("dt", dt)
         sigma_a2 = check_positive("sigma_a2", sigma_a2, allow_zero=True)
+        if sigma_a2 > _MAX_VAR:
+            raise ParameterError(f"sigma_a2: expected a variance of at most {_MAX_VAR:.3g} m^2/s^4, got {sigma_a2!r}")
         sigma_r2 = check_positive("sigma_r2", sigma_r2)
-        if sigma_r2 < np.finfo(float).tiny:  # below it R = sigma_r2 I is not numerically definite
-            raise ParameterError(f"sigma_r2: expected a variance of at least {np.finfo(float).tiny:.3g} m^2, "
+        if not _MIN_VAR <= sigma_r2 <= _MAX_VAR:  # beyond, R = sigma_r2 I defeats the eigen-analysis
+            raise ParameterError(f"sigma_r2: expected a variance within {_MIN_VAR:.3g} .. {_MAX_VAR:.3g} m^2, "
                                  f"got {sigma_r2!r}")
         Fa = np.array([[1.0, dt], [0.0, 1.0]])
         g = np.array([0.5 * dt * dt, dt])
@@ -93,6 +95,9 @@ class RangeModel:
         require_finite("Q = sigma_a2 G G^T", Q, dt=dt, sigma_a2=sigma_a2)
         return cls(F, Q, st, sigma_r2 * np.eye(st.shape[0]), (0, 2))
 
+
+#: The range of a range variance that the covariance checks can analyse (normal floats, with room).
+_MIN_VAR, _MAX_VAR = float(np.finfo(float).tiny), 1e300
 
 _TINY_RANGE = 1e-12   # metres; the floor of the single-track ekf_ranges
 

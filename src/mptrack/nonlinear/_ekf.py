@@ -72,9 +72,9 @@ def motion_matrix(motion: str, dim: int, dt: float = 1.0) -> np.ndarray:
     if motion not in MOTIONS:
         raise ParameterError(f"motion: expected one of {MOTIONS}, got {motion!r}")
     dim = check_int("dim", dim, minimum=1, maximum=3)
+    dt = check_positive("dt", dt)   # checked even where unused (random walk): an Inf is never accepted
     if motion == "random-walk":
         return np.eye(dim)
-    dt = check_positive("dt", dt)
     return np.kron(np.eye(dim), np.array([[1.0, dt], [0.0, 1.0]]))
 
 
