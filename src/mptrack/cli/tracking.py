@@ -83,7 +83,7 @@ def _summary_table(summary: dict, title: str, rows_max: int | None) -> RichTable
 #: Options of ``track`` that apply to position fixes only / to cellular measurements (--cells) only.
 _FIX_ONLY = {"model": "--model", "filter": "--filter", "smooth": "--smooth", "q": "--q", "sigma_m": "--sigma",
              "noise": "--noise", "gate_probability": "--gate"}
-_CELL_ONLY = {"method": "--method", "motion": "--motion", "path_loss": None, "q_km2": None, "r_km2": None,
+_CELL_ONLY = {"method": "--method", "motion": "--motion", "path_loss": None, "q_km2": None, "r_km2": "--range-sigma",
               "scan_interval_s": None}
 
 
@@ -107,6 +107,9 @@ def track(
                                                     "fcs."),
     motion: Optional[str] = typer.Option(None, help="With --cells: the motion model, random-walk (default) or "
                                                     "cv."),
+    range_sigma: Optional[float] = typer.Option(None, "--range-sigma", help="With --cells: the range noise "
+                                                "(1-sigma, m). Default 471 m (Bouzera et al. 2017's "
+                                                "R0 = 0.222 km^2)."),
     model: Optional[str] = typer.Option(None, help="Position fixes: the motion model, cv (default) or ca."),
     filter: Optional[str] = typer.Option(None, "--filter", help="Position fixes: kf (default; gated, irregular "
                                                                 "times) or a linear filter name (lf, sskf, ...) "
@@ -156,7 +159,8 @@ def track(
 
     With no --sigma/--q the fix noise and the process noise are estimated from each track."""
     given = {"model": model, "filter": filter, "smooth": smooth or None, "q": q, "sigma_m": sigma, "noise": noise,
-             "gate_probability": gate, "method": method, "motion": motion}
+             "gate_probability": gate, "method": method, "motion": motion,
+             "r_km2": None if range_sigma is None else (range_sigma / 1e3) ** 2}
     for name, flag in (_FIX_ONLY if cells is not None else _CELL_ONLY).items():
         if flag and given.get(name) is not None:
             reject(flag, "applies to position fixes, not to cellular measurements (--cells)" if cells is not None

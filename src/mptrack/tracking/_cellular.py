@@ -21,7 +21,7 @@ import pandas as pd
 from ..errors import DataError
 from ..io import LocalFrame, ReadReport
 from ..models import constant_velocity_continuous
-from ..nonlinear import range_measurement
+from ..nonlinear import motion_position, range_measurement
 from ..radio import arfcn_to_frequency, distance_from_rss
 from ._columns import time_values
 from ._fixes import TrackOptions, _time_like
@@ -86,13 +86,6 @@ def ranges_km(rows: pd.DataFrame, cells: pd.DataFrame, path_loss: str = "cost231
     return r
 
 
-def _cv_Q(q: float, dt: float) -> np.ndarray:
-    """CV process noise in the range filters' state order [p_e, p_n, v_e, v_n] (km, km/s)."""
-    Q = constant_velocity_continuous(q, axes=2).discretize(dt).Q  # order [p_e, v_e, p_n, v_n]
-    order = [0, 2, 1, 3]
-    return Q[np.ix_(order, order)]
-
-
 def track_cells(track_id: str, rows: pd.DataFrame, cells: pd.DataFrame,
                 options: TrackOptions = TrackOptions()) -> pd.DataFrame:
     """Filter one track of cellular measurements (rows with known cell ids); returns its point table."""
@@ -119,18 +112,21 @@ def track_cells(track_id: str, rows: pd.DataFrame, cells: pd.DataFrame,
     seen = np.isfinite(z[0])
     start = stations[seen].mean(axis=0)
     if options.motion == "cv":
-        x0, P0, Q = np.r_[start, 0.0, 0.0], np.diag([1.0, 1.0, 1e-4, 1e-4]), _cv_Q(options.q_km2, dt)
+        # the project's one constant-velocity state order, [x, vx, y, vy] (km, km/s)
+        x0, P0 = np.array([start[0], 0.0, start[1], 0.0]), np.diag([1.0, 1e-4, 1.0, 1e-4])
+        Q = constant_velocity_continuous(options.cell_q_km2, axes=2).discretize(dt).Q
     else:
-        x0, P0, Q = start, np.eye(2), options.q_km2 * np.eye(2)
+        x0, P0, Q = start, np.eye(2), options.cell_q_km2 * np.eye(2)
     # the filters' prior is one step before z[0]
     res = filt(z, stations, x0, P0, Q, options.r_km2, motion=options.motion, dt=dt)
     nis, dof = _range_nis(res.x, res.P, z, stations, x0, P0, Q, options.r_km2, options.motion, dt)
     flags = np.where(np.isfinite(z).any(axis=1), 0, 2).astype(np.int8)
-    vel = res.x[:, 2:4] * 1e3 if options.motion == "cv" else None
-    P2 = res.P[:, :2, :2] * 1e6
+    pos = list(motion_position(options.motion, 2))
+    vel = res.x[:, [1, 3]] * 1e3 if options.motion == "cv" else None
+    P2 = res.P[:, pos][:, :, pos] * 1e6
     extra = {"n_cells": np.isfinite(z).sum(axis=1)}
-    return point_table([track_id], np.array([0, len(t)]), _time_like(t, time_values(rows["time"])), t, res.x[:, 0] * 1e3,
-                       res.x[:, 1] * 1e3, vel, P2[:, 0, 0], P2[:, 0, 1], P2[:, 1, 1], nis, dof, flags,
+    return point_table([track_id], np.array([0, len(t)]), _time_like(t, time_values(rows["time"])), t, res.x[:, pos[0]] * 1e3,
+                       res.x[:, pos[1]] * 1e3, vel, P2[:, 0, 0], P2[:, 0, 1], P2[:, 1, 1], nis, dof, flags,
                        max(options.gap_s, 1.5 * dt), (np.array([frame.lat0]), np.array([frame.lon0])),
                        f"{options.method.upper()}-{options.motion}", extra).to_pandas()
 
@@ -140,11 +136,12 @@ def _range_nis(x, P, z, stations, x0, P0, Q, r_km2, motion, dt):
     from ..nonlinear import motion_matrix
 
     F = motion_matrix(motion, 2, dt)
+    pos = motion_position(motion, 2)
     x_prev = np.vstack([x0, x[:-1]])
     P_prev = np.concatenate([P0[None], P[:-1]])
     x_pred = x_prev @ F.T
     P_pred = F @ P_prev @ F.T + Q
-    h, H = range_measurement(x_pred, stations)
+    h, H = range_measurement(x_pred, stations, pos)
     nis = np.full(len(z), np.nan)
     dof = np.zeros(len(z), dtype=np.int64)
     for k in range(len(z)):

@@ -26,6 +26,14 @@ from ._registry import DEFAULT_SIGMA_M, get_fix_filter, get_model
 __all__ = ["TrackOptions", "track_fixes", "fix_variances", "grid_filter_track"]
 
 
+# Cellular process noise defaults.  The random walk's is Bouzera et al. (2017)'s Q0 (km^2 per scan).
+# A CV model needs a spectral density of a vehicle's or walker's manoeuvres: on simulated urban
+# drives (4 seeds x 6 tracks x 300 s, 3 cells) 1 m^2/s^3 beat the random walk on 21 of 24 tracks
+# (0.1 and 10 m^2/s^3 did worse); the random walk's number read as km^2/s^3 doubled the error.
+CELL_Q_KM2_RANDOM_WALK = 0.02
+CELL_Q_KM2_CV = 1e-6
+
+
 @dataclass(frozen=True)
 class TrackOptions:
     """Settings of ``mptrack track`` (units in the names).
@@ -43,7 +51,8 @@ class TrackOptions:
     method            cellular filter (CELL_METHODS): "ekf", "fekf" or "fcs"
     motion            cellular motion model: "random-walk" (the paper's) or "cv"
     path_loss         path-loss model for RSS -> range (mptrack.radio.PATH_LOSS_MODELS)
-    q_km2             cellular process noise: random walk, km^2 per scan; cv, km^2/s^3
+    q_km2             cellular process noise: random walk, km^2 per scan; cv, km^2/s^3; None: the
+                      paper's 0.02 km^2 per scan for the random walk, 1e-6 km^2/s^3 (1 m^2/s^3) for cv
     r_km2             cellular range-noise variance (km^2; the paper's R0 = 0.222)
     scan_interval_s   cellular scan grid step (None: median interval between scans)
     """
@@ -59,7 +68,7 @@ class TrackOptions:
     method: str = "ekf"
     motion: str = "random-walk"
     path_loss: str = "cost231-wi-nlos"
-    q_km2: float = 0.02
+    q_km2: float | None = None
     r_km2: float = 0.222
     scan_interval_s: float | None = None
 
@@ -81,6 +90,13 @@ class TrackOptions:
             check_positive("scan_interval_s", self.scan_interval_s)
         if self.gate_probability is not None:
             nis_threshold(self.gate_probability, 2)
+
+    @property
+    def cell_q_km2(self) -> float:
+        """The cellular process noise in use (the default of ``motion`` where ``q_km2`` is None)."""
+        if self.q_km2 is not None:
+            return self.q_km2
+        return CELL_Q_KM2_CV if self.motion == "cv" else CELL_Q_KM2_RANDOM_WALK
 
     @property
     def gate(self) -> float:

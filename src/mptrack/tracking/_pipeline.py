@@ -259,7 +259,7 @@ def track_file(input, out, *, cells=None, options: TrackOptions = TrackOptions()
             else:
                 store.discard()  # bad input, or no chunk finished: nothing to resume, nothing left behind
             raise
-    summary = _summary(tracks, report, options, len(results))
+    summary = _summary(tracks, report, options, len(results), cellular=cells is not None)
     summary.update(input=str(input), output=str(out), points_written=points, chunks_resumed=len(resumed),
                    tracks_resumed=tracks_resumed, elapsed_s=time.perf_counter() - start)
     if track_summary is not None:
@@ -289,7 +289,8 @@ class _NullProgress:
         return nullcontext(lambda n=1: None)
 
 
-def _summary(tracks: pd.DataFrame, report: ReadReport, options: TrackOptions, chunks: int) -> dict:
+def _summary(tracks: pd.DataFrame, report: ReadReport, options: TrackOptions, chunks: int, *,
+             cellular: bool = False) -> dict:
     """The run summary (JSON-safe): counts, the noise estimates' distribution, NIS consistency and
     what to do about tracks far outside their band."""
     n = len(tracks)
@@ -318,13 +319,15 @@ def _summary(tracks: pd.DataFrame, report: ReadReport, options: TrackOptions, ch
         low = far & (tracks["mean_nis"] < tracks["nis_lo"])
         out["nis"] = {"tracks_outside_band": int(outside.sum()), "far_low": int(low.sum()),
                       "far_high": int((far & ~low).sum()),
-                      "advice": nis_advice(int(low.sum()), int((far & ~low).sum()), options)}
+                      "advice": nis_advice(int(low.sum()), int((far & ~low).sum()), options, cellular=cellular)}
     return out
 
 
-def nis_advice(low: int, high: int, options: TrackOptions) -> list[str]:
+def nis_advice(low: int, high: int, options: TrackOptions, *, cellular: bool = False) -> list[str]:
     """What a mean NIS far below (``low`` tracks) or above (``high``) its band usually means, and
-    the option to change."""
+    the option to change (``cellular``: the tracks come from ranges to cells, not from fixes)."""
+    if cellular:
+        return _cellular_nis_advice(low, high, options)
     given = [f for f, v in (("--sigma", options.sigma_m), ("--q", options.q)) if v is not None]
     notes = []
     if low:
@@ -339,6 +342,18 @@ def nis_advice(low: int, high: int, options: TrackOptions) -> list[str]:
                  if given else "the motion has sharper manoeuvres than the model allows (try --model ca) or "
                  "outliers passed the gate")
         notes.append(f"{high} track(s) have a mean NIS far above its band: {cause}")
+    return notes
+
+
+def _cellular_nis_advice(low: int, high: int, options: TrackOptions) -> list[str]:
+    notes = []
+    r = f"the range noise (--range-sigma {1e3 * options.r_km2 ** 0.5:.0f} m)"
+    if low:
+        notes.append(f"{low} track(s) have a mean NIS far below its band: the ranges are more accurate than "
+                     f"{r} says; a smaller --range-sigma follows them more closely")
+    if high:
+        notes.append(f"{high} track(s) have a mean NIS far above its band: the ranges are noisier than {r} "
+                     "says, or the path-loss model (--path-loss) does not fit the area")
     return notes
 
 
@@ -382,7 +397,7 @@ def track(data, *, cells=None, on_error: str = "raise", chunk_rows: int = DEFAUL
     tracks = _tracks_frame([r["tracks"] for r in results])
     df = points.to_pandas()
     df.attrs["tracks"] = tracks
-    df.attrs["summary"] = _summary(tracks, report, opts, len(results))
+    df.attrs["summary"] = _summary(tracks, report, opts, len(results), cellular=cells is not None)
     return df
 
 
