@@ -16,6 +16,7 @@ import numpy as np
 import scipy.linalg
 from numba import njit
 
+from .. import _jit_cache  # noqa: F401 - compiled kernels cache in the user's cache directory
 from .._validation import check_record, finite_result
 from ..errors import ParameterError, ShapeError
 from ..models import LinearGaussianModel, require_model

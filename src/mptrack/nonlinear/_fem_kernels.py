@@ -13,6 +13,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from .. import _jit_cache  # noqa: F401 - compiled kernels cache in the user's cache directory
+
 __all__ = ["band_solve", "band_sdirk2", "band_cn"]
 
 

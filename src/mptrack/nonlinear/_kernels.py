@@ -25,22 +25,28 @@ parallel (``prange``) version was 3–12× *slower* whenever the other core was
 busy (OpenMP threads waiting for a descheduled peer), and serial SIMD code
 already meets the budget.
 
-The kernels that call a model kernel are bound to it once per process
-(:func:`_bound`) and compiled then (~1–2 s per model kernel pair): numba
-cannot cache functions that call a function passed in, and passing it at
-every call costs ~15 µs of dispatcher typing.  The model-independent kernels
-are cached on disk.
+The kernels that call a model kernel receive it as two addresses (its C wrapper and
+its numba entry point, :func:`kernel_addresses`) and rebuild a first-class
+function from them inside (:func:`_as_kernel`).  Their signatures then hold only
+arrays and integers, so they are compiled once and cached on disk like the others:
+a new process calls the particle filter of any model, named or the user's own,
+without compiling (a per-process closure over the kernels used to cost 1-2 s per
+model kernel pair at the first call).  Passing the kernel itself as an argument
+would also cache, but numba types a function object at every call (~50-150 us,
+against 0.5 us for two integers).
 """
 
 from __future__ import annotations
 
-import functools
 from dataclasses import dataclass
 
 import numpy as np
-from numba import njit
-from numba.extending import is_jitted
+from numba import njit, types
+from numba.core import cgutils
+from numba.experimental.function_type import _get_jit_address, _get_wrapper_address
+from numba.extending import intrinsic, is_jitted
 
+from .. import _jit_cache  # noqa: F401 - compiled kernels cache in the user's cache directory
 from ..errors import ParameterError
 
 __all__ = ["BlockKernels", "CompiledModel", "weighted_moments", "reweight", "systematic_indices", "resample",
@@ -51,6 +57,32 @@ _LOG2PI = np.log(2.0 * np.pi)
 SCHEMES = ("heun", "rk4-split")
 _HEUN = SCHEMES.index("heun")  # the other scheme, "rk4-split", is 1
 _BLOCK = 256  # points per block: the (n, B) scratch arrays stay in L1
+#: the signature of a block kernel f(X (n, B), params (k,), out (m, B)): C-contiguous float64, params read-only
+KERNEL_SIGNATURE = types.void(types.float64[:, ::1], types.Array(types.float64, 1, "C", readonly=True),
+                              types.float64[:, ::1])
+_KERNEL_TYPE = types.FunctionType(KERNEL_SIGNATURE)
+
+
+def kernel_addresses(kernel) -> tuple[int, int]:
+    """The C-wrapper and numba entry-point addresses of a block kernel compiled for
+    :data:`KERNEL_SIGNATURE` (compiling it for that signature if needed)."""
+    return _get_wrapper_address(kernel, KERNEL_SIGNATURE), _get_jit_address(kernel, KERNEL_SIGNATURE)
+
+
+@intrinsic
+def _as_kernel(typingctx, c_addr, jit_addr):
+    """The block kernel at the addresses of :func:`kernel_addresses`, as a first-class function."""
+
+    def codegen(context, builder, signature, args):
+        fn = cgutils.create_struct_proxy(_KERNEL_TYPE)(context, builder)
+        voidptr = context.get_value_type(types.voidptr)
+        fn.c_addr = builder.inttoptr(args[0], voidptr)
+        fn.py_addr = voidptr(None)   # no Python object: every call goes through an address
+        if "jit_addr" in context.data_model_manager.lookup(_KERNEL_TYPE)._fields:
+            fn.jit_addr = builder.inttoptr(args[1], voidptr)
+        return fn._getvalue()
+
+    return _KERNEL_TYPE(types.intp, types.intp), codegen
 
 
 @dataclass(frozen=True, eq=False)
@@ -264,20 +296,17 @@ def _loglik(X, z, ok, periods, Linv, logdet, klog2pi, measurement, p, m):  # pra
     return out
 
 
-@functools.lru_cache(maxsize=None)
-def _bound(drift, measurement):
-    """_advance and _loglik with the model kernels bound (compiled once per process and kernel pair): a
-    call then passes no function argument, whose typing costs ~15 µs per call in numba's dispatcher."""
+@njit(cache=True, nogil=True)
+def _advance_at(X, rng, steps, scheme, drift_c, drift_jit, p, L, h, cap):  # pragma: no cover - compiled
+    """:func:`_advance` with the normals drawn here and the drift given by its addresses."""
+    _advance(X, rng.standard_normal((steps, X.shape[0], X.shape[1])), scheme, _as_kernel(drift_c, drift_jit), p,
+             L, h, cap)
 
-    @njit(nogil=True)
-    def advance(X, rng, steps, scheme, p, L, h, cap):  # pragma: no cover - compiled
-        _advance(X, rng.standard_normal((steps, X.shape[0], X.shape[1])), scheme, drift, p, L, h, cap)
 
-    @njit(nogil=True)
-    def loglik(X, z, ok, periods, Linv, logdet, klog2pi, p, m):  # pragma: no cover - compiled
-        return _loglik(X, z, ok, periods, Linv, logdet, klog2pi, measurement, p, m)
-
-    return advance, loglik
+@njit(cache=True, nogil=True)
+def _loglik_at(X, z, ok, periods, Linv, logdet, klog2pi, meas_c, meas_jit, p, m):  # pragma: no cover - compiled
+    """:func:`_loglik` with the measurement given by its addresses."""
+    return _loglik(X, z, ok, periods, Linv, logdet, klog2pi, _as_kernel(meas_c, meas_jit), p, m)
 
 
 class CompiledModel:
@@ -292,8 +321,9 @@ class CompiledModel:
         self.kernels = model.kernels
         self.L = np.ascontiguousarray(model.noise_factor())
         self.periods = np.array([0.0 if p is None else p for p in model.periods])
+        self._drift_at = kernel_addresses(self.kernels.drift)
+        self._measurement_at = kernel_addresses(self.kernels.measurement)
         self._check_against_numpy()
-        self._advance, self._loglik = _bound(self.kernels.drift, self.kernels.measurement)
         self._weighting = {}  # pattern of observed components -> (indices, Linv, log det, k log 2π)
 
     def _check_against_numpy(self) -> None:
@@ -314,8 +344,8 @@ class CompiledModel:
         if scheme not in SCHEMES:
             raise ParameterError(f"scheme: expected one of {SCHEMES}, got {scheme!r}")
         cap = np.inf if self.model.max_increment is None else self.model.max_increment
-        self._advance(X, rng, steps, SCHEMES.index(scheme), self.kernels.drift_params, self.L, self.model.dt / steps,
-                      cap)
+        _advance_at(X, rng, steps, SCHEMES.index(scheme), *self._drift_at, self.kernels.drift_params, self.L,
+                    self.model.dt / steps, cap)
         return X
 
     def log_likelihood(self, z: np.ndarray, X: np.ndarray) -> np.ndarray:
@@ -327,8 +357,8 @@ class CompiledModel:
             self._weighting[key] = (np.flatnonzero(ok), np.linalg.inv(L), 2.0 * np.log(np.diag(L)).sum(),
                                     ok.sum() * _LOG2PI)
         idx, Linv, logdet, klog2pi = self._weighting[key]
-        return self._loglik(X, z, idx, self.periods, Linv, logdet, klog2pi, self.kernels.measurement_params,
-                            self.model.m)
+        return _loglik_at(X, z, idx, self.periods, Linv, logdet, klog2pi, *self._measurement_at,
+                          self.kernels.measurement_params, self.model.m)
 
 
 @njit(cache=True, nogil=True)

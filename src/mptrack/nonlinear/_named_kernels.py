@@ -20,6 +20,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from .. import _jit_cache  # noqa: F401 - compiled kernels cache in the user's cache directory
+
 __all__ = ["ekf_named", "ekf_named_batch", "ukf_named"]
 
 _LOG2PI = float(np.log(2.0 * np.pi))
