@@ -37,7 +37,9 @@ def nonlinear_suite(quick: bool) -> dict:
     rng = np.random.default_rng(1)
     box = ((-4.5, -4.5), (4.5, 4.5))
     cases = [
-        ("UKF (RK4 moment equations, 20 sub-steps)", lambda: ukf_filter(model, z, x0, P0)),
+        ("UKF (compiled; RK4 moment equations, sub-steps by the drift's rate)", lambda: ukf_filter(model, z, x0, P0)),
+        ("UKF, NumPy path, 20 fixed sub-steps (before)",
+         lambda: ukf_filter(model, z, x0, P0, substeps=20, compiled=False)),
         ("PF, 200 particles (compiled, 2 RK4-split sub-steps)",
          lambda: particle_filter(model, z, x0, P0, rng, particles=200)),
         ("PF, 10^4 particles (compiled, 2 RK4-split sub-steps)",

@@ -48,6 +48,7 @@ from numba.extending import intrinsic, is_jitted
 
 from .. import _jit_cache  # noqa: F401 - compiled kernels cache in the user's cache directory
 from ..errors import ParameterError
+from ._named_kernels import DIVERGED, NOT_PD, OK, _cholesky, _finite, _gain_loglik, _observed, _store, _symmetrise
 
 __all__ = ["BlockKernels", "CompiledModel", "weighted_moments", "reweight", "systematic_indices", "resample",
            "SCHEMES"]
@@ -321,8 +322,8 @@ class CompiledModel:
         self.kernels = model.kernels
         self.L = np.ascontiguousarray(model.noise_factor())
         self.periods = np.array([0.0 if p is None else p for p in model.periods])
-        self._drift_at = kernel_addresses(self.kernels.drift)
-        self._measurement_at = kernel_addresses(self.kernels.measurement)
+        self.drift_at = kernel_addresses(self.kernels.drift)
+        self.measurement_at = kernel_addresses(self.kernels.measurement)
         self._check_against_numpy()
         self._weighting = {}  # pattern of observed components -> (indices, Linv, log det, k log 2π)
 
@@ -344,7 +345,7 @@ class CompiledModel:
         if scheme not in SCHEMES:
             raise ParameterError(f"scheme: expected one of {SCHEMES}, got {scheme!r}")
         cap = np.inf if self.model.max_increment is None else self.model.max_increment
-        _advance_at(X, rng, steps, SCHEMES.index(scheme), *self._drift_at, self.kernels.drift_params, self.L,
+        _advance_at(X, rng, steps, SCHEMES.index(scheme), *self.drift_at, self.kernels.drift_params, self.L,
                     self.model.dt / steps, cap)
         return X
 
@@ -357,7 +358,7 @@ class CompiledModel:
             self._weighting[key] = (np.flatnonzero(ok), np.linalg.inv(L), 2.0 * np.log(np.diag(L)).sum(),
                                     ok.sum() * _LOG2PI)
         idx, Linv, logdet, klog2pi = self._weighting[key]
-        return _loglik_at(X, z, idx, self.periods, Linv, logdet, klog2pi, *self._measurement_at,
+        return _loglik_at(X, z, idx, self.periods, Linv, logdet, klog2pi, *self.measurement_at,
                           self.kernels.measurement_params, self.model.m)
 
 
@@ -477,3 +478,202 @@ def resample(X, w, u):  # pragma: no cover - compiled
         for r in range(n):
             out[i, r] = X[idx[i], r]
     return out
+
+
+# ---------------------------------------------------------------- continuous-discrete UKF
+#: the sub-step h of the UKF's moment equations keeps h * rho <= RATE_STEP, rho the drift's rate
+#: (the largest row sum of |df/dx| at the sigma points): see mptrack.nonlinear._ukf
+RATE_STEP = 0.25
+MAX_SUBSTEPS = 10_000
+
+
+@njit(cache=True, nogil=True)
+def _sigma_columns(m, P, c, X, S, L):  # pragma: no cover - compiled
+    """The 2n+1 sigma points of N(m, P) as the columns of X (n, 2n+1); False when c P has no Cholesky
+    factor (S, L: (n, n) scratch)."""
+    n = m.shape[0]
+    for a in range(n):
+        for b in range(n):
+            S[a, b] = c * P[a, b]
+    if not _cholesky(S, L, n):
+        return False
+    for a in range(n):
+        X[a, 0] = m[a]
+        for i in range(n):
+            X[a, 1 + i] = m[a] + L[a, i]
+            X[a, 1 + n + i] = m[a] - L[a, i]
+    return True
+
+
+@njit(cache=True, nogil=True)
+def drift_rate(drift, p, X, Xd, Fd):  # pragma: no cover - compiled
+    """rho = max over the points X (n, N) of the largest row sum of |df/dx| (forward differences with
+    steps 1e-6 (1 + |x|)); Xd, Fd: (n, N (n + 1)) scratch."""
+    n, N = X.shape
+    for j in range(N):
+        for i in range(n + 1):
+            for a in range(n):
+                Xd[a, j * (n + 1) + i] = X[a, j]
+            if i > 0:
+                Xd[i - 1, j * (n + 1) + i] += 1e-6 * (1.0 + abs(X[i - 1, j]))
+    drift(Xd, p, Fd)
+    rho = 0.0
+    for j in range(N):
+        base = j * (n + 1)
+        for a in range(n):
+            row = 0.0
+            for i in range(n):
+                row += abs(Fd[a, base + 1 + i] - Fd[a, base]) / (Xd[i, base + 1 + i] - X[i, j])
+            rho = max(rho, row)
+    return rho
+
+
+@njit(cache=True, nogil=True)
+def substeps_for(rho, dt):  # pragma: no cover - compiled
+    """Sub-steps of length h <= RATE_STEP / rho over dt (at least 1, at most MAX_SUBSTEPS)."""
+    if not rho < np.inf:
+        return MAX_SUBSTEPS
+    return min(max(int(np.ceil(dt * rho / RATE_STEP)), 1), MAX_SUBSTEPS)
+
+
+@njit(cache=True, nogil=True)
+def _moment_rate(m, P, c, Wm, Wc, Q, drift, p, X, F, S, L, dm, dP):  # pragma: no cover - compiled
+    """dm = E f(x), dP = E[f (x - m)^T] + E[(x - m) f^T] + Q by the unscented transform; False when P
+    has no square root."""
+    n, N = X.shape
+    if not _sigma_columns(m, P, c, X, S, L):
+        return False
+    drift(X, p, F)
+    for a in range(n):
+        acc = 0.0
+        for j in range(N):
+            acc += Wm[j] * F[a, j]
+        dm[a] = acc
+    for a in range(n):
+        for b in range(n):
+            acc = 0.0
+            for j in range(N):
+                acc += Wc[j] * F[a, j] * (X[b, j] - m[b])
+            S[a, b] = acc
+    for a in range(n):
+        for b in range(n):
+            dP[a, b] = S[a, b] + S[b, a] + Q[a, b]
+    return True
+
+
+@njit(cache=True, nogil=True)
+def _cd_predict(m, P, h, steps, c, Wm, Wc, Q, drift, p, X, F, S, L, k):  # pragma: no cover - compiled
+    """RK4 over ``steps`` sub-steps of length h of the unscented moment equations, in place; k: (4, 2, n, n)
+    scratch (stage rates: k[s, 0, :, 0] the mean's, k[s, 1] the covariance's)."""
+    n = m.shape[0]
+    mt, Pt = np.empty(n), np.empty((n, n))
+    for _ in range(steps):
+        for s in range(4):
+            if s == 0:
+                mt[:] = m
+                Pt[:, :] = P
+            else:
+                a = h if s == 3 else 0.5 * h
+                for r in range(n):
+                    mt[r] = m[r] + a * k[s - 1, 0, r, 0]
+                    for q in range(n):
+                        Pt[r, q] = P[r, q] + a * k[s - 1, 1, r, q]
+            if not _moment_rate(mt, Pt, c, Wm, Wc, Q, drift, p, X, F, S, L, k[s, 0, :, 0], k[s, 1]):
+                return False
+        h6 = h / 6.0
+        for r in range(n):
+            m[r] += h6 * (k[0, 0, r, 0] + 2.0 * k[1, 0, r, 0] + 2.0 * k[2, 0, r, 0] + k[3, 0, r, 0])
+            for q in range(n):
+                P[r, q] += h6 * (k[0, 1, r, q] + 2.0 * k[1, 1, r, q] + 2.0 * k[2, 1, r, q] + k[3, 1, r, q])
+        _symmetrise(P)
+    return True
+
+
+@njit(cache=True, nogil=True)
+def _wrapped(v, period):  # pragma: no cover - compiled
+    """v wrapped into [-period/2, period/2) (wrap_angles); period 0: v."""
+    return (v + 0.5 * period) % period - 0.5 * period if period > 0.0 else v
+
+
+@njit(cache=True, nogil=True)
+def cd_ukf_run(z, x0, P0, dt, fixed_steps, drift_c, drift_jit, dp, meas_c, meas_jit, mp, periods, Q, R, c, Wm, Wc,
+               xs, Ps, xp, Pp, steps_used):  # pragma: no cover - compiled
+    """The continuous-discrete UKF over z (T, m) (:func:`mptrack.nonlinear.ukf_filter`'s NumPy path,
+    compiled): returns (status, step, loglik) with status OK, NOT_PD or DIVERGED of the named kernels.
+    fixed_steps > 0: that many RK4 sub-steps per dt, else :func:`substeps_for` the drift's rate at the
+    sigma points of each step's prior (recorded in steps_used)."""
+    drift = _as_kernel(drift_c, drift_jit)
+    meas = _as_kernel(meas_c, meas_jit)
+    T, mdim = z.shape
+    n = x0.shape[0]
+    N = 2 * n + 1
+    x, P = x0.copy(), P0.copy()
+    X, F, S, L = np.empty((n, N)), np.empty((n, N)), np.empty((n, n)), np.empty((n, n))
+    Xd, Fd = np.empty((n, N * (n + 1))), np.empty((n, N * (n + 1)))
+    kst = np.empty((4, 2, n, n))
+    Zc = np.empty((mdim, N))
+    zbar = np.empty(mdim)
+    idx = np.empty(mdim, np.int64)
+    loglik = 0.0
+    for k in range(T):
+        steps = fixed_steps
+        if steps <= 0:
+            if not _sigma_columns(x, P, c, X, S, L):
+                return NOT_PD, k, loglik
+            steps = substeps_for(drift_rate(drift, dp, X, Xd, Fd), dt)
+        steps_used[k] = steps
+        if not _cd_predict(x, P, dt / steps, steps, c, Wm, Wc, Q, drift, dp, X, F, S, L, kst):
+            return NOT_PD, k, loglik
+        if not _finite(x, P):
+            return DIVERGED, k, loglik
+        _store(x, P, xp, Pp, k)
+        q = _observed(z, k, idx)
+        if q > 0:
+            if not _sigma_columns(x, P, c, X, S, L):
+                return NOT_PD, k, loglik
+            meas(X, mp, Zc)
+            for i in range(mdim):
+                per = periods[i]
+                if per > 0.0:
+                    sn = 0.0
+                    cs = 0.0
+                    for j in range(N):
+                        sn += Wm[j] * np.sin(Zc[i, j] * (2.0 * np.pi / per))
+                        cs += Wm[j] * np.cos(Zc[i, j] * (2.0 * np.pi / per))
+                    zbar[i] = np.arctan2(sn, cs) * (per / (2.0 * np.pi))
+                else:
+                    acc = 0.0
+                    for j in range(N):
+                        acc += Wm[j] * Zc[i, j]
+                    zbar[i] = acc
+            dZ, nu = np.empty((N, q)), np.empty(q)
+            Sz, C = np.empty((q, q)), np.empty((n, q))
+            for a in range(q):
+                i = idx[a]
+                for j in range(N):
+                    dZ[j, a] = _wrapped(Zc[i, j] - zbar[i], periods[i])
+                nu[a] = _wrapped(z[k, i] - zbar[i], periods[i])
+            for a in range(q):
+                for b in range(q):
+                    acc = 0.0
+                    for j in range(N):
+                        acc += Wc[j] * dZ[j, a] * dZ[j, b]
+                    Sz[a, b] = acc + R[idx[a], idx[b]]
+            for r in range(n):
+                for a in range(q):
+                    acc = 0.0
+                    for j in range(N):
+                        acc += Wc[j] * (X[r, j] - x[r]) * dZ[j, a]
+                    C[r, a] = acc
+            Lz = np.empty((q, q))
+            if not _cholesky(Sz, Lz, q):
+                return NOT_PD, k, loglik
+            K, w = np.empty((n, q)), np.empty(q)
+            loglik += _gain_loglik(Lz, nu, C, K, w, n, q)
+            x = x + K @ nu
+            P = P - K @ Sz @ K.T
+            _symmetrise(P)
+        if not _finite(x, P):
+            return DIVERGED, k, loglik
+        _store(x, P, xs, Ps, k)
+    return OK, T, loglik
