@@ -465,3 +465,46 @@ def test_resume_with_other_options_keeps_the_parts(tmp_path, logs):
         "manifest.json", "points-000000.arrow", "tracks-000000.arrow"]
     assert run("track", logs / "small.parquet", "--out", out, "--chunk-rows", 200, "--resume", "-q").exit_code == 0
     assert sorted(p.name for p in tmp_path.iterdir()) == ["t.parquet"]
+
+
+# --- (g) the part store vanishes during the run ----------------------------------------------------
+
+@pytest.mark.parametrize("case", ["directory", "one-part", "during-final-write"])
+def test_parts_that_vanish_during_the_run_fail_the_run(tmp_path, logs, monkeypatch, case):
+    """The part store removed (``rm -rf .t.parquet.parts``, a clean-up job) or a part deleted while the
+    run goes on: exit 2 and one line naming what vanished, no output (it would miss those chunks:
+    2331 of 3000 tracks, exit 0, before), nothing left behind."""
+    import shutil
+
+    import mptrack.io._parts as parts_module
+    import mptrack.tracking._pipeline as pipeline
+
+    out = tmp_path / "t.parquet"
+    store = tmp_path / ".t.parquet.parts"
+    real_call, real_finish = pipeline.TrackTask.__call__, parts_module.PartStore.finish
+
+    def vanish(self, chunk):
+        if chunk.index == 3:
+            if case == "directory":
+                shutil.rmtree(store)
+            elif case == "one-part":
+                (store / "points-000001.arrow").unlink()
+        return real_call(self, chunk)
+
+    def finish(self, files, *args, **kw):
+        (store / "points-000002.arrow").unlink()
+        return real_finish(self, files, *args, **kw)
+
+    monkeypatch.setattr(pipeline.TrackTask, "__call__", vanish)
+    if case == "during-final-write":
+        monkeypatch.setattr(parts_module.PartStore, "finish", finish)
+    res = run("track", logs / "big.parquet", "--out", out, *FAST, "-q")
+    assert res.exit_code == 2, res.output
+    what = {"directory": "6 of the 200 part files and the manifest", "one-part": "1 of the 200 part files",
+            "during-final-write": "1 of the 100 part files"}[case]
+    first = {"directory": "manifest.json", "one-part": "points-000001.arrow",
+             "during-final-write": "points-000002.arrow"}[case]
+    assert one_line(res.stderr) == (f"error: {out}: {what} of this run vanished from {store} while it ran (first: "
+                                    f"{first}; was the directory deleted?); the output was not written and the "
+                                    "remaining parts were removed: run again")
+    assert res.stdout == "" and list(tmp_path.iterdir()) == []

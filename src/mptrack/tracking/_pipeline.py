@@ -246,12 +246,14 @@ def track_file(input, out, *, cells=None, options: TrackOptions = TrackOptions()
                                manifest=_manifest(input, options, cells, chunk_rows, read), progress=advance,
                                report=report, read=read)
             resumed = [p for p in resumed if p.exists()]  # an unsorted input starts again from scratch
-            points = sum(_rows(p) for p in store.parts("points"))
+            files = store.check(results)  # every chunk's parts, or an OutputError if some vanished
+            points = sum(_rows(p) for p in files.get("points", ()))
             tracks_resumed = sum(_rows(p) for p in resumed)
-            store.finish("points", empty=_empty_points())
-            tracks = _tracks_frame([read_part(p) for p in store.parts("tracks")])
+            store.finish(files.get("points", []), empty=_empty_points())
+            tracks = _tracks_frame([read_part(p) for p in files.get("tracks", ())])
             if track_summary is not None:
-                store.finish("tracks", to=track_summary, empty=pa.Table.from_pandas(tracks, preserve_index=False))
+                store.finish(files.get("tracks", []), to=track_summary,
+                             empty=pa.Table.from_pandas(tracks, preserve_index=False))
             store.discard()
         except BaseException as exc:
             if (_resumable(exc) or resumed) and store.parts(_PARTS[-1]):
