@@ -8,7 +8,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from mptrack.errors import DataError, ParameterError
+from mptrack.errors import DataError, OutputError, ParameterError
 from mptrack.io import (
     ReadOptions,
     CELLS,
@@ -272,12 +272,23 @@ def test_part_store_streams_its_parts_in_order_and_cleans_up(tmp_path):
         feather.write_feather(pa.Table.from_pandas(part, preserve_index=False),
                               part_path(store.dir, "points", i, "arrow"))
     assert [p.name for p in store.parts("points")] == ["points-000000.arrow", "points-000001.arrow"]
-    store.finish("points")
+    (store.dir / "manifest.json").write_text("{}")
+    results = [{"points": part_path(store.dir, "points", i, "arrow")} for i in (0, 1)]
+    files = store.check(results)
+    assert files == {"points": store.parts("points")}
+    store.finish(files["points"])
     assert pd.read_parquet(tmp_path / "o.parquet")["track_id"].tolist() == ["a", "a", "b"]
     store.discard()
     assert not store.dir.exists()
     with pytest.raises(ParameterError, match="unknown output format"):
         PartStore(tmp_path / "o.xlsx")
+    store.dir.mkdir()
+    (store.dir / "manifest.json").write_text("{}")
+    feather.write_feather(pa.Table.from_pandas(_table(), preserve_index=False), results[1]["points"])
+    with pytest.raises(OutputError, match=r"o.parquet: 1 of the 2 part files of this run vanished .*\(first: "
+                                          r"points-000000\.arrow"):
+        store.check(results)
+    assert not store.dir.exists()  # a store that lost parts is not kept for a resume
 
 def test_user_guide_shows_the_current_schemas():
     guide = (Path(__file__).parents[1] / "docs" / "tracking.md").read_text()
