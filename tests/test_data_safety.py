@@ -508,3 +508,43 @@ def test_parts_that_vanish_during_the_run_fail_the_run(tmp_path, logs, monkeypat
                                     f"{first}; was the directory deleted?); the output was not written and the "
                                     "remaining parts were removed: run again")
     assert res.stdout == "" and list(tmp_path.iterdir()) == []
+
+
+# --- (h) two outputs of one run at one path --------------------------------------------------------
+
+@pytest.mark.parametrize("case", ["out-report", "out-track-summary", "report-track-summary", "out-symlink",
+                                  "simulate-cells-out", "simulate-cells-out-other-spelling"])
+def test_two_outputs_at_one_path_are_refused(tmp_path, logs, case):
+    """Two outputs of one run naming one file (the later overwrote the earlier, exit 0): exit 2, one
+    line naming both options, before any input is read and nothing written."""
+    src = logs / "small.csv"
+    first, second = {"out-report": ("out", "report"), "out-track-summary": ("out", "track_summary"),
+                     "report-track-summary": ("track_summary", "report"), "out-symlink": ("out", "report"),
+                     "simulate-cells-out": ("out", "cells_out"),
+                     "simulate-cells-out-other-spelling": ("out", "cells_out")}[case]
+    target = tmp_path / ("r.csv" if case != "out-report" else "r.parquet")
+    given = {first: target, second: target}
+    if case == "out-symlink":
+        (tmp_path / "here.parquet").symlink_to(target)
+        given[second] = tmp_path / "here.parquet"
+    flag = {"out": "--out", "report": "--report", "track_summary": "--track-summary", "cells_out": "--cells-out"}
+    if case.startswith("simulate"):
+        args = ["simulate", "--scenario", "urban-3bts", "--tracks", 1, "--duration", 30, "--out", target]
+        if case == "simulate-cells-out":
+            args += ["--cells-out", target]
+        else:  # the default cell table (OUT with suffix .cells.csv) of --out x.cells.csv is another file
+            assert run(*args[:-1], tmp_path / "x.cells.csv", "-q").exit_code == 0
+            assert sorted(p.name for p in tmp_path.iterdir()) == ["x.cells.cells.csv", "x.cells.csv"]
+            for p in tmp_path.iterdir():
+                p.unlink()
+            given[second] = tmp_path / "." / "r.csv"
+            args += ["--cells-out", given[second]]
+    else:
+        args = ["track", src, *(x for name in (first, second) for x in (flag[name], given[name]))]
+        if "out" not in (first, second):
+            args += ["--out", tmp_path / "t.parquet"]
+    res = run(*args, "-q")
+    assert res.exit_code == 2, res.output
+    assert one_line(res.stderr) == (f"error: {second}: {given[second]} is also given as {first}; each output of a "
+                                    "run needs a file of its own")
+    assert [p.name for p in tmp_path.iterdir()] == (["here.parquet"] if case == "out-symlink" else [])

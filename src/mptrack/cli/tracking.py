@@ -177,7 +177,7 @@ def track(
 
     kept, summary = "", None
     try:
-        check_outputs(input, cells, report=report)
+        check_outputs(input, cells, out=out, track_summary=track_summary, report=report)
         values = {k: v for k, v in given.items() if v is not None}
         if "gate_probability" in values and values["gate_probability"] >= 1:
             values["gate_probability"] = None
@@ -333,8 +333,10 @@ def simulate(
                 cell_tables.append(cells)
             yield log
 
+    cpath = cells_out or out.with_suffix(".cells.csv")
+    cells_to = cpath if cells_out or scenario != "gps" else None
     try:
-        check_outputs(along, out=out, cells_out=cells_out)
+        check_outputs(along, out=out, cells_out=cells_to)
         try:
             chunks = simulate_chunks(scenario, n_tracks, np.random.default_rng(seed), duration_s=duration,
                                      along=along, interval=interval, q=q, speed_mps=speed, sigma_m=sigma,
@@ -342,8 +344,7 @@ def simulate(
         except ParameterError as exc:  # name the option, not the library's argument
             name, _, rest = str(exc).partition(":")
             raise ParameterError(f"{_SIMULATE_OPTIONS.get(name, name)}:{rest}") from None
-        cpath = cells_out or out.with_suffix(".cells.csv")
-        with output_lock(out, cpath if cells_out or scenario != "gps" else None, note=command_line()), \
+        with output_lock(out, cells_to, note=command_line()), \
                 progress(quiet or json_out) as bar, \
                 bar.task("simulating tracks", total=None if along is not None else n_tracks) as advance:
             write_table(logs(chunks, advance), out)
