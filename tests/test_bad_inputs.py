@@ -35,11 +35,16 @@ CASES = {
     "degrees-e7.csv": ((), 0, ["read as degrees x 10^7", "--coord-unit"], 40),
     "lat-lon-swapped.csv": ((), 0, ["holds values up to 113.7 deg, beyond 90", "swapped back"], 40),
     "epoch-milliseconds.csv": ((), 0, ["time: epoch milliseconds", "--time-unit"], 40),
-    "epoch-seconds.csv": ((), 0, [], 40),
+    "epoch-seconds.csv": ((), 0, ["time: epoch seconds", "from 2020-12-18 06:15:50 UTC", "--time-unit"], 40),
+    "epoch-seconds.csv --time-unit": (("--time-unit", "s"), 0, ["time: epoch seconds"], 40),
+    "iso-without-zone.csv": ((), 0, ["time stamps without a zone (e.g. '2020-12-18T06:15:50') were read as UTC"],
+                             40),
     "three-day-gap.csv": ((), 0, [], 40),
     "dd-mm-yyyy.csv": ((), 2, ["row 1, column 'time'", "not ISO 8601", "--time-format", "'18/12/2020 06:15:50'"],
                        None),
-    "dd-mm-yyyy.csv --time-format": (("--time-format", "%d/%m/%Y %H:%M:%S"), 0, [], 40),
+    "dd-mm-yyyy.csv --time-format": (("--time-format", "%d/%m/%Y %H:%M:%S"), 0,
+                                     ["the layout '%d/%m/%Y %H:%M:%S' has no zone; the time stamps were read as "
+                                      "UTC"], 40),
     "degrees-e6.csv": ((), 2, ["column 'lat'", "fit deg-e7 or deg-e6", "--coord-unit"], None),
     "degrees-e6.csv --coord-unit": (("--coord-unit", "deg-e6"), 0, [], 40),
     "radians.csv": ((), 2, ["as radians would", "--coord-unit rad"], None),
@@ -97,6 +102,7 @@ def test_each_mistake_has_its_outcome(tmp_path, good, name):
         np.testing.assert_allclose(got["lat"], good["lat"], rtol=0, atol=atol)
         np.testing.assert_allclose(got["lon"] - east, good["lon"], rtol=0, atol=atol)
         np.testing.assert_allclose(got["t"], good["t"], rtol=0, atol=1e-6)
+        pd.testing.assert_series_equal(got["time"], good["time"])  # UTC times, whatever the input's unit
 
 
 def test_a_three_day_gap_is_flagged_and_the_track_goes_on(tmp_path, good):
@@ -146,3 +152,11 @@ def test_evaluate_takes_a_gpx_trace_as_truth(tmp_path):
     assert overall["matched_points"] == 40 and overall["rmse_m"] < 1.0
     res = runner.invoke(app, ["evaluate", str(out), "--truth", str(BAD / "three-day-gap.csv"), "--json"])
     assert json.loads(res.stdout)["overall"]["matched_points"] == 20
+
+
+def test_epoch_seconds_become_gpx_times(tmp_path):
+    """Epoch seconds are UTC times like epoch ms/us/ns: the GPX output has a <time> per point."""
+    out = tmp_path / "es.gpx"
+    assert track("epoch-seconds.csv", (), out).exit_code == 0
+    text = out.read_text()
+    assert text.count("<time>") == 40 and "<time>2020-12-18T06:15:50" in text

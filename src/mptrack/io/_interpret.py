@@ -14,10 +14,14 @@ Rules (docs/tracking.md, "Column names and units"):
   canonical name, then case-insensitive synonyms (punctuation ignored); two
   columns that both fit one name is an error naming both.
 * ``hdop`` without an accuracy column: ``accuracy_m = HDOP_UERE_M x hdop``.
-* numeric times, by the median magnitude: below 1e10 seconds (from any origin,
-  epoch or not), 1e11..1e13 milliseconds, 1e14..1e16 microseconds,
-  1e17..1e19 nanoseconds since 1970; the decades between are ambiguous and
-  an error that names ``--time-unit``.
+* numeric times, by the median magnitude: below 1e10 seconds, 1e11..1e13
+  milliseconds, 1e14..1e16 microseconds, 1e17..1e19 nanoseconds since 1970;
+  the decades between are ambiguous and an error that names ``--time-unit``.
+  Seconds from 1e8 on (1973-03-03) are epoch seconds; below, seconds from any
+  start (they stay numbers).  Epoch times of every unit become UTC times, with
+  a note naming the unit and the first time.
+* text times (ISO 8601, or ``--time-format``) and datetimes without a zone are
+  read as UTC, with a note saying so.
 * coordinates, by the median magnitude: degrees when they fit; integers that
   fit as degrees x 10^7 or x 10^6 (exactly one of the two) are converted;
   latitude beyond 90 with longitude within 90 is a swap and is swapped back;
@@ -149,6 +153,7 @@ class Interpretation:
     rename: dict = field(default_factory=dict)     # file column -> canonical
     hdop: str | None = None                        # the HDOP column turned into accuracy_m
     time_scale: float = 1.0                        # numeric time / time_scale = seconds
+    time_epoch: bool = False                       # numeric times count from 1970 (-> UTC times)
     time_format: str | None = None
     coord_scale: float = 1.0                       # degrees = value x coord_scale
     swap: bool = False                             # the file's lat column holds longitudes
@@ -183,7 +188,7 @@ def interpret(raw: pd.DataFrame, schema, options: ReadOptions, *, file) -> Inter
                               "estimates a scale on it)")
     df = raw.rename(columns=plan.rename)
     if "time" in df.columns and "time" in names:
-        plan.time_scale = _time_scale(df["time"], options.time_unit, plan, file)
+        _time_unit(df["time"], options.time_unit, plan, file)
     if "lat" in df.columns and "lon" in df.columns and schema.name == "position fixes":
         _coordinates(df, options.coord_unit, plan, file)
         _speed_check(plan.apply(raw), plan)
@@ -232,36 +237,72 @@ def _row_ids(raw: pd.DataFrame, plan: Interpretation, options: ReadOptions) -> N
                           f"track id (one track; --columns track_id={source} to override)")
 
 
-def _time_scale(values: pd.Series, unit: str, plan: Interpretation, file) -> float:
-    """Seconds per unit of a numeric time column (1 for text and datetimes)."""
+def _time_unit(values: pd.Series, unit: str, plan: Interpretation, file) -> None:
+    """Decide how the time column is read: ``plan.time_scale`` (units per second of numeric time
+    stamps) and ``plan.time_epoch`` (numbers counted from 1970-01-01 UTC: they become UTC times),
+    with a note saying which unit was taken; text or datetimes without a zone get a note that they
+    are read as UTC."""
     if pd.api.types.is_datetime64_any_dtype(values):
-        return 1.0
+        if getattr(values.dt, "tz", None) is None:
+            plan.notes.append(f"time: time stamps without a zone (e.g. {_first(values)}) were read as UTC")
+        return
     num = pd.to_numeric(values, errors="coerce")
     if num.notna().sum() * 2 <= values.notna().sum():
-        return 1.0  # text time stamps
+        _zone_note(values, plan)  # text time stamps
+        return
+    numbers = num.to_numpy(dtype=float)
+    numbers = numbers[np.isfinite(numbers)]
+    finite = np.abs(numbers)
+    m = float(np.median(finite)) if len(finite) else 0.0
     if unit != "auto":
-        return TIME_UNITS[unit]
-    finite = np.abs(num.to_numpy(dtype=float))
-    finite = finite[np.isfinite(finite)]
-    if not len(finite):
-        return 1.0
-    m = float(np.median(finite))
-    for name, scale, lo, hi in (("s", 1.0, 0.0, 1e10), ("ms", 1e3, 1e11, 1e13), ("us", 1e6, 1e14, 1e16),
-                                ("ns", 1e9, 1e17, 1e19)):
-        if lo <= m < hi:
-            if name != "s":
-                plan.notes.append(f"time: epoch {_UNIT_WORDS[name]} (numbers around {m:.3g}); set "
-                                  "--time-unit if that is wrong")
-            elif m < 1e8 and _integral(finite) and np.median(np.diff(np.sort(finite))) >= 500:
-                plan.notes.append("time: numbers read as seconds from an arbitrary start, fixes about "
-                                  f"{float(np.median(np.diff(np.sort(finite)))):g} s apart; if they are "
-                                  "milliseconds set --time-unit ms")
-            return scale
-    raise DataError(f"numeric time stamps around {m:.3g} fit no unit unambiguously (seconds, milliseconds, "
-                    "microseconds or nanoseconds since 1970); set --time-unit s, ms, us or ns",
-                    file=file, column="time")
+        name = unit
+    else:
+        name = next((name for name, lo, hi in _UNIT_RANGES if lo <= m < hi), None)
+        if name is None:
+            raise DataError(f"numeric time stamps around {m:.3g} fit no unit unambiguously (seconds, milliseconds, "
+                            "microseconds or nanoseconds since 1970); set --time-unit s, ms, us or ns",
+                            file=file, column="time")
+    plan.time_scale = TIME_UNITS[name]
+    plan.time_epoch = name != "s" or m >= MIN_EPOCH_SECONDS
+    if plan.time_epoch:
+        valid = numbers[np.abs(numbers) / plan.time_scale <= MAX_SECONDS] / plan.time_scale
+        start = f", from {pd.Timestamp(float(valid.min()), unit='s', tz='UTC'):%Y-%m-%d %H:%M:%S} UTC" \
+            if len(valid) else ""
+        plan.notes.append(f"time: epoch {_UNIT_WORDS[name]} (numbers around {m:.3g}{start})"
+                          + ("; set --time-unit if that is wrong" if unit == "auto" else ""))
+    elif unit == "auto" and m < 1e8 and _integral(finite) and len(finite) > 1 \
+            and np.median(np.diff(np.sort(finite))) >= 500:
+        plan.notes.append("time: numbers read as seconds from an arbitrary start, fixes about "
+                          f"{float(np.median(np.diff(np.sort(finite)))):g} s apart; if they are "
+                          "milliseconds set --time-unit ms")
 
 
+#: ISO 8601 text that ends in a zone: Z or an offset (+01, +0100, +01:00).
+_ZONE = re.compile(r".*(Z|[+-]\d\d(:?\d\d)?)\Z", re.IGNORECASE)
+
+
+def _zone_note(values: pd.Series, plan: Interpretation) -> None:
+    """A note when text time stamps carry no zone (they are read as UTC)."""
+    if plan.time_format is not None:
+        if not re.search("%[zZ]", plan.time_format):
+            plan.notes.append(f"time: the layout {plan.time_format!r} has no zone; the time stamps were read as UTC")
+        return
+    text = values.dropna().astype(str).str.strip()
+    naive = text[~text.str.match(_ZONE)]
+    if len(naive):
+        plan.notes.append(f"time: ISO 8601 time stamps without a zone (e.g. {naive.iloc[0]!r}) were read as UTC; "
+                          "if they are local time, add the offset (e.g. +01:00) to them")
+
+
+def _first(values: pd.Series) -> str:
+    first = values.dropna()
+    return repr(str(first.iloc[0])) if len(first) else "none"
+
+
+#: Numeric time stamps by their median magnitude: (unit, lowest, highest); the decades between are ambiguous.
+_UNIT_RANGES = (("s", 0.0, 1e10), ("ms", 1e11, 1e13), ("us", 1e14, 1e16), ("ns", 1e17, 1e19))
+#: Seconds from this on (1973-03-03) are epoch seconds (UTC times); below, seconds from any start.
+MIN_EPOCH_SECONDS = 1e8
 _UNIT_WORDS = {"s": "seconds", "ms": "milliseconds", "us": "microseconds", "ns": "nanoseconds"}
 
 

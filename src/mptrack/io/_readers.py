@@ -65,7 +65,8 @@ def read_chunks(path, schema: Schema = FIXES, *, on_error: str = "raise", chunk_
                 report.note(note)
         n = len(raw)
         yield validate_chunk(plan.apply(raw), schema, file=label, first_row=first, on_error=on_error,
-                             report=report, time_scale=plan.time_scale, time_format=plan.time_format)
+                             report=report, time_scale=plan.time_scale, time_format=plan.time_format,
+                             time_epoch=plan.time_epoch)
         first += n
     report.leave_out(skipped)
 

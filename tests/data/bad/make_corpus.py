@@ -56,6 +56,7 @@ def main() -> None:
     # a trace at 113.7 E written with the columns swapped (the car trace moved 100 degrees east)
     write("lat-lon-swapped.csv", f.assign(lat=f["lon"] + 100.0, lon=f["lat"]))
     write("epoch-seconds.csv", f.assign(time=secs))
+    write("iso-without-zone.csv", f.assign(time=f["time"].str.removesuffix("Z")))
     write("epoch-milliseconds.csv", f.assign(time=secs * 1000))
     write("epoch-ambiguous.csv", f.assign(time=secs * 10))  # ~1.6e10: seconds in 2476 or ms in 1970
     (HERE / "empty.csv").write_bytes(b"")
