@@ -34,6 +34,10 @@ CASES = {
     "duplicate-rows.csv": ((), 0, ["3 exact repeats of the row before them were dropped"], 40),
     "degrees-e7.csv": ((), 0, ["read as degrees x 10^7", "--coord-unit"], 40),
     "lat-lon-swapped.csv": ((), 0, ["holds values up to 113.7 deg, beyond 90", "swapped back"], 40),
+    "lat-lon-swapped-tz.csv": ((), 0, ["warning: the time stamps' UTC offset +01:00 puts the fixes between 30 deg W "
+                                       "and 45 deg E, but the longitude column 'lon' reads 45.27 deg",
+                                       "--columns lat=lon,lon=lat"], 40),
+    "lat-lon-swapped-tz.csv --columns": (("--columns", "lat=lon,lon=lat"), 0, [], 40),
     "epoch-milliseconds.csv": ((), 0, ["time: epoch milliseconds", "--time-unit"], 40),
     "epoch-seconds.csv": ((), 0, ["time: epoch seconds", "from 2020-12-18 06:15:50 UTC", "--time-unit"], 40),
     "epoch-seconds.csv --time-unit": (("--time-unit", "s"), 0, ["time: epoch seconds"], 40),
@@ -94,7 +98,7 @@ def test_each_mistake_has_its_outcome(tmp_path, good, name):
         return
     got = pd.read_parquet(out)
     assert len(got) == rows
-    if rows == 40 and name.split(" ")[0] != "three-day-gap.csv":
+    if rows == 40 and name not in ("three-day-gap.csv", "lat-lon-swapped-tz.csv"):  # (a warning only)
         # undone, not survived: the clean file's estimates, row for row (degrees x 10^6 keep six
         # decimals; the swapped trace lies 100 degrees east, the same in metres)
         atol = 1e-6 if name.startswith("degrees-e6") else 2e-7

@@ -309,3 +309,70 @@ def test_time_zones_and_datetime_columns(tmp_path):
         assert np.diff(g["t"]).tolist() == [1.5, 1.5]
         starts[name] = g["t"].iloc[0]
     assert starts["naive.parquet"] == starts["mixed.csv"] == starts["zoned.parquet"] + 3600.0
+
+
+#: (place, lat, lon, IANA zone): the extremes of legal time against longitude (western China, Spain in
+#: summer, Iceland, Argentina, the Pacific around the date line) and the usual places.
+PLACES = [
+    ("Madrid", 40.42, -3.70, "Europe/Madrid"), ("A Coruna", 43.36, -8.41, "Europe/Madrid"),
+    ("Brest", 48.39, -4.49, "Europe/Paris"), ("Paris", 48.86, 2.35, "Europe/Paris"),
+    ("London", 51.5, -0.12, "Europe/London"), ("Reykjavik", 64.15, -21.94, "Atlantic/Reykjavik"),
+    ("Kashgar", 39.47, 75.99, "Asia/Shanghai"), ("Tashkurgan", 37.77, 75.23, "Asia/Shanghai"),
+    ("Urumqi", 43.83, 87.62, "Asia/Urumqi"), ("Lhasa", 29.65, 91.1, "Asia/Shanghai"),
+    ("Beijing", 39.9, 116.4, "Asia/Shanghai"), ("Harbin", 45.8, 126.5, "Asia/Shanghai"),
+    ("Buenos Aires", -34.6, -58.4, "America/Argentina/Buenos_Aires"),
+    ("Ushuaia", -54.8, -68.3, "America/Argentina/Ushuaia"), ("Anchorage", 61.2, -149.9, "America/Anchorage"),
+    ("Nome", 64.5, -165.4, "America/Nome"), ("Adak", 51.9, -176.6, "America/Adak"),
+    ("Honolulu", 21.3, -157.9, "Pacific/Honolulu"), ("Kiritimati", 1.87, -157.4, "Pacific/Kiritimati"),
+    ("Apia", -13.8, -171.8, "Pacific/Apia"), ("Auckland", -36.85, 174.76, "Pacific/Auckland"),
+    ("Chatham", -43.95, -176.55, "Pacific/Chatham"), ("Perth", -31.95, 115.86, "Australia/Perth"),
+    ("Eucla", -31.7, 128.9, "Australia/Eucla"), ("Darwin", -12.46, 130.84, "Australia/Darwin"),
+    ("Tokyo", 35.68, 139.7, "Asia/Tokyo"), ("Anadyr", 64.7, 177.5, "Asia/Anadyr"),
+    ("Kaliningrad", 54.7, 20.5, "Europe/Kaliningrad"), ("Moscow", 55.75, 37.6, "Europe/Moscow"),
+    ("Cairo", 30.04, 31.24, "Africa/Cairo"), ("Lagos", 6.5, 3.4, "Africa/Lagos"),
+    ("Casablanca", 33.6, -7.6, "Africa/Casablanca"), ("Laayoune", 27.15, -13.2, "Africa/El_Aaiun"),
+    ("Nairobi", -1.29, 36.82, "Africa/Nairobi"), ("Mumbai", 19.08, 72.88, "Asia/Kolkata"),
+    ("Kathmandu", 27.7, 85.3, "Asia/Kathmandu"), ("Singapore", 1.35, 103.8, "Asia/Singapore"),
+    ("New York", 40.7, -74.0, "America/New_York"), ("Los Angeles", 34.05, -118.24, "America/Los_Angeles"),
+    ("Mexico City", 19.4, -99.1, "America/Mexico_City"), ("Lima", -12.05, -77.04, "America/Lima"),
+    ("Easter Island", -27.1, -109.35, "Pacific/Easter"), ("Sao Paulo", -23.55, -46.63, "America/Sao_Paulo"),
+    ("Nuuk", 64.18, -51.7, "America/Nuuk"), ("Azores", 37.74, -25.67, "Atlantic/Azores"),
+    ("St Johns", 47.56, -52.71, "America/St_Johns"), ("Tehran", 35.7, 51.4, "Asia/Tehran"),
+    ("Hovd", 48.0, 91.6, "Asia/Hovd"), ("Magadan", 59.56, 150.8, "Asia/Magadan"),
+    ("Samara", 53.2, 50.1, "Europe/Samara"), ("Visnjan", 45.27, 13.71, "Europe/Zagreb"),
+    ("Lubumbashi", -11.66, 27.48, "Africa/Lubumbashi"), ("Tongatapu", -21.1, -175.2, "Pacific/Tongatapu"),
+    ("Marquesas", -9.0, -139.5, "Pacific/Marquesas"), ("Galapagos", -0.9, -89.6, "Pacific/Galapagos"),
+]
+
+
+def test_the_utc_offset_flags_swapped_columns_and_no_real_place():
+    """The swap check from the time stamps' UTC offset: no warning for any of these places in winter
+    or summer (their real offsets, from the IANA zone database), a warning for most of them with
+    the columns swapped (a swap within the valid ranges; 27 of the 58 cases here: the documented
+    limit), and no opinion without an offset (Z, +00:00)."""
+    from datetime import datetime
+
+    from mptrack.io._interpret import Interpretation, _zone_check
+
+    zoneinfo = pytest.importorskip("zoneinfo")
+
+    def warned(lat, lon, offset):  # offset in seconds
+        sign, secs = "+-"[offset < 0], abs(int(offset))
+        time = f"2023-01-15T12:00:00{sign}{secs // 3600:02d}:{secs % 3600 // 60:02d}"
+        plan = Interpretation()
+        _zone_check(pd.DataFrame({"time": [time] * 3, "lat": [lat] * 3, "lon": [lon] * 3}), plan)
+        return bool(plan.notes)
+
+    caught = cases = 0
+    for name, lat, lon, zone in PLACES:
+        for month in (1, 7):
+            try:
+                offset = datetime(2023, month, 15, 12, tzinfo=zoneinfo.ZoneInfo(zone)).utcoffset().total_seconds()
+            except zoneinfo.ZoneInfoNotFoundError:
+                pytest.skip("no time zone database")
+            assert not warned(lat, lon, offset), (name, month)
+            if abs(lon) <= 90 and offset:
+                cases += 1
+                caught += warned(lon, lat, offset)
+    assert (caught, cases) == (27, 58)
+    assert not warned(13.7, 45.3, 0)

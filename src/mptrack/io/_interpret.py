@@ -191,7 +191,9 @@ def interpret(raw: pd.DataFrame, schema, options: ReadOptions, *, file) -> Inter
         _time_unit(df["time"], options.time_unit, plan, file)
     if "lat" in df.columns and "lon" in df.columns and schema.name == "position fixes":
         _coordinates(df, options.coord_unit, plan, file)
-        _speed_check(plan.apply(raw), plan)
+        read = plan.apply(raw)
+        _speed_check(read, plan)
+        _zone_check(read, plan)
     return plan
 
 
@@ -200,6 +202,7 @@ def _mapping(columns: list, schema, explicit: dict, file) -> dict:
     names = [c.name for c in schema.columns]
     present = {str(c): c for c in columns}
     rename = {}
+    sources = list(explicit.values())
     for canonical, source in explicit.items():
         if canonical not in names:
             raise ParameterError(f"--columns: {canonical!r} is not a column mptrack reads here; the names are "
@@ -207,8 +210,11 @@ def _mapping(columns: list, schema, explicit: dict, file) -> dict:
         if source not in present:
             raise ParameterError(f"--columns: {canonical}={source}: {file} has no column {source!r} (it has: "
                                  f"{', '.join(map(str, columns))})")
+        if sources.count(source) > 1:
+            raise ParameterError(f"--columns: the column {source!r} is given for "
+                                 f"{' and '.join(k for k, v in explicit.items() if v == source)}; one each")
         rename[present[source]] = canonical
-        if canonical in present and canonical != source:  # the file's own column of that name steps aside
+        if canonical in present and canonical not in sources:  # the file's own column of that name steps aside
             rename[present[canonical]] = f"input_{canonical}"
     taken = set(rename.values())
     for canonical in names:
@@ -388,3 +394,57 @@ def _speeds(lat, lon, secs, same) -> float | None:
     if ok.sum() < 3:
         return None
     return float(np.median(np.hypot(dx[ok], dy[ok]) / dt[ok]))
+
+
+#: A time of day followed by a UTC offset (ISO 8601): the offset's sign, hours and minutes.
+_OFFSET = re.compile(r"\d\d:\d\d(?::\d\d(?:[.,]\d+)?)?\s*([+-])(\d\d):?(\d\d)?\s*\Z")
+#: Degrees of longitude that a legal time may lie from 15 deg x its UTC offset, besides an hour of
+#: summer time: legal time runs up to ~3 h ahead of solar time (western China, 44 deg), never 2 h behind.
+ZONE_MARGIN_DEG = 30.0
+#: Time stamps whose offsets are looked at (the first of the file).
+_ZONE_SAMPLE = 1000
+
+
+def _zone_check(df: pd.DataFrame, plan: Interpretation) -> None:
+    """A warning note when the time stamps' UTC offset rules out the longitude column but fits the
+    latitude column: probably swapped columns (both within range, so nothing else shows it).
+
+    An offset of h hours puts the fixes within [15 (h - 1) - 30, 15 h + 30] degrees east (standard
+    or summer time, with :data:`ZONE_MARGIN_DEG`); only offsets other than 0 count (+00:00 and Z are
+    how most programs write UTC, wherever the fixes are)."""
+    if plan.swap or "time" not in df.columns or not (pd.api.types.is_string_dtype(df["time"])
+                                                     or df["time"].dtype == object):
+        return
+    found = df["time"].dropna().iloc[:_ZONE_SAMPLE].astype(str).str.extract(_OFFSET)
+    found = found.dropna(subset=[0])
+    if found.empty:
+        return
+    hours = (found[1].astype(float) + found[2].fillna("0").astype(float) / 60) * found[0].map({"+": 1, "-": -1})
+    hours = hours[hours != 0]
+    if hours.empty:
+        return
+    offset = float(hours.mode().iloc[0])
+    lat = float(np.nanmedian(pd.to_numeric(df["lat"], errors="coerce")))
+    lon = float(np.nanmedian(pd.to_numeric(df["lon"], errors="coerce")))
+    lo, hi = 15 * (offset - 1) - ZONE_MARGIN_DEG, 15 * offset + ZONE_MARGIN_DEG
+    if not (_beyond(lon, lo, hi) > 0 and _beyond(lat, lo, hi) <= 0):
+        return
+    names = {v: str(k) for k, v in plan.rename.items()}
+    lat_col, lon_col = names.get("lat", "lat"), names.get("lon", "lon")
+    sign = "+" if offset >= 0 else "-"
+    shown = f"{sign}{int(abs(offset)):02d}:{round(abs(offset) % 1 * 60):02d}"
+    plan.notes.append(f"warning: the time stamps' UTC offset {shown} puts the fixes between {_east(lo)} and "
+                      f"{_east(hi)}, but the longitude column {lon_col!r} reads {lon:.4g} deg; the latitude column "
+                      f"{lat_col!r} ({lat:.4g} deg) would fit as longitude: if the two columns are swapped, read "
+                      f"them with --columns lat={lon_col},lon={lat_col}")
+
+
+def _beyond(x: float, lo: float, hi: float) -> float:
+    """Degrees by which longitude ``x`` lies outside [lo, hi] (around the globe; <= 0 inside)."""
+    centre, half = (lo + hi) / 2, (hi - lo) / 2
+    return abs((x - centre + 180) % 360 - 180) - half
+
+
+def _east(deg: float) -> str:
+    deg = (deg + 180) % 360 - 180
+    return f"{abs(deg):g} deg {'E' if deg >= 0 else 'W'}"

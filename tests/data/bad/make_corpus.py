@@ -36,7 +36,10 @@ def main() -> None:
     write("crlf.csv", f, lineterminator="\r\n")
     write("semicolon-decimal-comma.csv", f, sep=";", decimal=",")
     write("quoted-numbers.csv", f, quoting=1)  # csv.QUOTE_ALL
-    write("tz-offset.csv", f.assign(time=(t.dt.tz_convert("Europe/Zagreb")).map(lambda x: x.isoformat())))
+    local = f.assign(time=(t.dt.tz_convert("Europe/Zagreb")).map(lambda x: x.isoformat()))
+    write("tz-offset.csv", local)
+    # swapped within the valid ranges (13.7 N 45.3 E); only the UTC offset +01:00 tells
+    write("lat-lon-swapped-tz.csv", local.assign(lat=f["lon"], lon=f["lat"]))
     mixed = t.map(lambda x: x.isoformat()).where(np.arange(N) % 2 == 0,
                                                   t.dt.tz_convert("Europe/Zagreb").map(lambda x: x.isoformat()))
     write("mixed-tz.csv", f.assign(time=mixed))
