@@ -164,3 +164,43 @@ def test_epoch_seconds_become_gpx_times(tmp_path):
     assert track("epoch-seconds.csv", (), out).exit_code == 0
     text = out.read_text()
     assert text.count("<time>") == 40 and "<time>2020-12-18T06:15:50" in text
+
+
+@pytest.mark.parametrize("name, options, without", [
+    ("dd-mm-yyyy.csv", ("--time-format", "%d/%m/%Y %H:%M:%S"), "--time-format"),
+    ("degrees-e6.csv", ("--coord-unit", "deg-e6"), "--coord-unit"),
+    ("epoch-milliseconds.csv", ("--time-unit", "ms"), None),
+    ("lat-lon-swapped-tz.csv", ("--columns", "lat=lon,lon=lat"), "--columns lat=lon,lon=lat"),
+])
+def test_along_and_truth_take_the_reading_options_of_track(tmp_path, good, name, options, without):
+    """One reading layer: `simulate --along` and `evaluate --truth` read a file as `track` does, with
+    the same --columns/--time-unit/--time-format/--coord-unit (an error or a warning naming the
+    option without them)."""
+    import json
+
+    out = tmp_path / "t.parquet"
+    assert track("good.csv", (), out).exit_code == 0
+    res = runner.invoke(app, ["evaluate", str(out), "--truth", str(BAD / name), "--json", *options])
+    assert res.exit_code == 0, res.output
+    overall = json.loads(res.stdout)["overall"]
+    assert overall["matched_points"] == 40 and overall["rmse_m"] < 1.0
+    sim = tmp_path / "sim.parquet"
+    res = runner.invoke(app, ["simulate", "--along", str(BAD / name), "--out", str(sim), "-q", *options])
+    assert res.exit_code == 0, res.output
+    truth = pd.read_parquet(sim)
+    np.testing.assert_allclose(truth["true_lat"], good["meas_lat"], rtol=0, atol=1e-6)
+    np.testing.assert_allclose(truth["true_lon"], good["meas_lon"], rtol=0, atol=1e-6)
+    if without is None:
+        return
+    for args in (["evaluate", str(out), "--truth", str(BAD / name)],
+                 ["simulate", "--along", str(BAD / name), "--out", str(tmp_path / "s2.parquet")]):
+        res = runner.invoke(app, args + ["-q"])
+        assert without in " ".join(res.stderr.split()), res.output
+        assert res.exit_code == (0 if name == "lat-lon-swapped-tz.csv" else 2)  # a swap is a warning only
+
+
+def test_reading_options_without_their_file_are_refused():
+    for args, option in ((["simulate", "--tracks", "1", "--out", "x.parquet"], "--along"),
+                         (["evaluate", "x.parquet"], "--truth")):
+        res = runner.invoke(app, args + ["--coord-unit", "rad"])
+        assert res.exit_code == 2 and res.stderr.strip() == f"error: --coord-unit applies to the file read with {option}"
