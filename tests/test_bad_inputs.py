@@ -59,13 +59,16 @@ CASES = {
     "garbage.csv": ((), 2, ["garbage.csv", "not UTF-8"], None),
     "spreadsheet.xlsx": ((), 2, ["unknown input format '.xlsx'"], None),
     "no-time-column.csv": ((), 2, ["column 'time'", "missing column", "track_id, lat, lon, elevation_m"], None),
+    "unknown-column-names.csv": ((), 2, ["column 'lat+lon'", "the file has: track_id, time, Breite, Laenge, "
+                                         "elevation_m", "name them with --columns lat=COLUMN,lon=COLUMN"], None),
+    "unknown-column-names.csv --columns": (("--columns", "lat=Breite,lon=Laenge"), 0, [], 40),
     "two-latitudes.csv": ((), 2, ["'LAT', 'Latitude' all look like lat", "--columns lat=NAME"], None),
     "two-latitudes.csv --columns": (("--columns", "lat=Latitude"), 0, [], 40),
     "missing-latitude.csv": ((), 2, ["row 13, column 'lat'", "empty value"], None),
     "missing-latitude.csv skip": (("--on-error", "skip"), 2, ["1 of 40 rows would be dropped, more than the 0 "
                                                               "allowed by --max-skip 1%", "row 13"], None),
     "missing-latitude.csv skip 5%": (("--on-error", "skip", "--max-skip", "5%"), 0,
-                                     ["skipped 1 of 40 rows", "lat: empty value"], 39),
+                                     ["skipped: 1 of 40 rows of", "lat: empty value"], 39),
     "same-time-other-position.csv": ((), 2, ["row 11, column 'time'", "repeats the track's previous time stamp "
                                              "with other values"], None),
     "untimed-point.gpx": ((), 2, ["row 6, column 'time'", "point 6 has no time stamp"], None),
@@ -122,6 +125,20 @@ def test_extra_columns_pass_through_to_the_output(good):
     """elevation_m of the input is a column of the output, row for row."""
     src = pd.read_csv(BAD / "good.csv")
     np.testing.assert_array_equal(good["elevation_m"], src["elevation_m"])
+
+
+@pytest.mark.parametrize("name", ["accuracy_m", "HDOP"])
+def test_accuracy_and_hdop_pass_through_to_the_output(tmp_path, name):
+    """The input's accuracy column (or the HDOP it was made from, 5 m x HDOP) is in the output like
+    any other column of the input, row for row."""
+    values = np.round(np.linspace(0.8, 8.0, 40), 3)
+    path = tmp_path / "in.csv"
+    pd.read_csv(BAD / "good.csv").assign(**{name: values}).to_csv(path, index=False)
+    out = tmp_path / "out.parquet"
+    assert runner.invoke(app, ["track", str(path), "--out", str(out), "-q"]).exit_code == 0
+    got = pd.read_parquet(out)
+    np.testing.assert_array_equal(got[name], values)
+    np.testing.assert_allclose(got["accuracy_m"], values * (5.0 if name == "HDOP" else 1.0), rtol=1e-12)
 
 
 def test_the_corpus_is_complete():

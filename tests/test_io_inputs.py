@@ -170,8 +170,33 @@ def test_cell_table_errors(tmp_path):
         read_cells(path)
     assert info.value.row == 3 and info.value.column == "cell" and "listed twice" in str(info.value)
     cell_table().drop(columns="mcc").to_csv(path, index=False)
-    with pytest.raises(DataError, match="'mcc': missing column"):
+    with pytest.raises(DataError, match="'mcc': missing column") as info:
         read_cells(path)
+    assert "--columns" not in str(info.value)  # the cell table's layout is fixed
+    cell_table().iloc[:0].to_csv(path, index=False)
+    with pytest.raises(DataError) as info:
+        read_cells(path)
+    assert str(info.value) == f"{path}: the cell table is empty: it has a header only, no cells"
+
+
+def test_missing_position_columns_list_the_files_columns(tmp_path):
+    """The file's own column names (not the mapped ones) and the option that maps them."""
+    path = tmp_path / "de.csv"
+    fixes_frame().rename(columns={"lat": "Breite", "lon": "Laenge", "time": "Zeit"}).to_csv(path, index=False)
+    with pytest.raises(DataError) as info:
+        read_table(path, read=ReadOptions(columns={"time": "Zeit"}))
+    assert str(info.value) == (f"{path}, column 'lat+lon': missing columns: need lat+lon or x+y (the file has: "
+                               "track_id, Zeit, Breite, Laenge, accuracy_m); name them with --columns "
+                               "lat=COLUMN,lon=COLUMN")
+    got = read_table(path, read=ReadOptions(columns={"time": "Zeit", "lat": "Breite", "lon": "Laenge"}))
+    assert got["lat"].tolist() == fixes_frame()["lat"].tolist()
+
+
+def test_tsv_is_read_as_csv(tmp_path):
+    path = tmp_path / "fixes.tsv"
+    fixes_frame().to_csv(path, sep="\t", index=False)
+    got = read_table(path)
+    assert len(got) == 18 and got["lon"].tolist() == fixes_frame()["lon"].tolist()
 
 
 def test_measurement_rows_need_one_measurement(tmp_path):

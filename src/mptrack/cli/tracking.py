@@ -97,7 +97,7 @@ def _skipped(read: dict, verbose: bool) -> None:
     for text in read.get("notes", ()):
         note(text)
     if read.get("rows_skipped"):
-        note(f"skipped {read['rows_skipped']} of {read['rows_read']} rows of {read['file']}:", "skipped")
+        note(f"{read['rows_skipped']} of {read['rows_read']} rows of {read['file']}:", "skipped")
         for reason, count in read["skipped_by_reason"].items():
             err.print(escape(f"  {count} × {reason}"), highlight=False, soft_wrap=True)
         for example in read.get("examples", ()) if verbose else ():
@@ -410,10 +410,13 @@ def simulate(
 
 
 def evaluate(
-    tracks: Path = typer.Argument(..., help="Output of mptrack track (.parquet/.csv/.geojson)."),
-    truth: Optional[Path] = typer.Option(None, "--truth", help="Truth in any input format (a GPX trace, a simulated "
-                                                                "log: true_lat/true_lon or lat/lon; true_x/true_y or "
-                                                                "x/y in metres); track_id may be left out for one "
+    tracks: Path = typer.Argument(..., help="Output of mptrack track in any of its formats: .parquet (.pq), "
+                                            ".csv, .geojson (.json), .gpx or .geoparquet."),
+    truth: Optional[Path] = typer.Option(None, "--truth", help="Truth in any input format: CSV (any delimiter), "
+                                                                "Parquet (a file or a directory), GPX, TCX, FIT, "
+                                                                "NMEA 0183 or GeoJSON (a GPS trace, a simulated log: "
+                                                                "true_lat/true_lon or lat/lon; true_x/true_y or x/y "
+                                                                "in metres); track_id may be left out for one "
                                                                 "track."),
     report: Optional[Path] = typer.Option(None, "--report", help="Write a self-contained HTML report."),
     tolerance: Optional[float] = typer.Option(None, help="With --truth: max time difference (s) to match an "

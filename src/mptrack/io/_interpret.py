@@ -169,8 +169,8 @@ class Interpretation:
             for c in ("lat", "lon"):
                 if c in df.columns:
                     df[c] = pd.to_numeric(df[c], errors="coerce") * self.coord_scale
-        if self.hdop is not None:
-            df["accuracy_m"] = pd.to_numeric(df.pop(self.hdop), errors="coerce") * HDOP_UERE_M
+        if self.hdop is not None:  # the hdop column stays (it passes through to the output)
+            df["accuracy_m"] = pd.to_numeric(df[self.hdop], errors="coerce") * HDOP_UERE_M
         return df
 
 

@@ -61,6 +61,7 @@ class Schema:
     columns: tuple[Column, ...]
     one_of: tuple[tuple[str, ...], ...] = ()
     row_needs_one_of: tuple[str, ...] = ()  # per row, at least one of these must be non-empty
+    mapped: bool = True  # its columns can be named with --columns (not the cell table's fixed layout)
 
     def extra_columns(self, columns) -> list[str]:
         """The columns of ``columns`` that are not the schema's (passed through to the output)."""
@@ -131,7 +132,7 @@ CELLS = Schema("cell table (OpenCelliD layout)", (
            nullable=True),
     Column("arfcn", "int", "", "GSM channel number; sets the carrier frequency (default 1800 MHz)",
            required=False, lo=0, hi=1023, nullable=True),
-))
+), mapped=False)
 
 
 @dataclass
@@ -244,25 +245,29 @@ def _shown(value) -> str:
 
 def validate_chunk(df: pd.DataFrame, schema: Schema, *, file, first_row: int, on_error: str,
                    report: ReadReport, time_scale: float = 1.0, time_format: str | None = None,
-                   time_epoch: bool = False) -> pd.DataFrame:
+                   time_epoch: bool = False, file_columns=None) -> pd.DataFrame:
     """Check one chunk (canonical column names, see :mod:`._interpret`) against ``schema``; return
     the good rows with a float column ``t`` (seconds), ``row``, and the file's other columns
     unchanged after the schema's (they pass through to the output).
 
     ``first_row`` is the 1-based record number of the chunk's first row; numeric times are
     ``time_scale`` units per second (since 1970 with ``time_epoch``: they become UTC times) and
-    text times ISO 8601 or ``time_format``.  Raises
+    text times ISO 8601 or ``time_format``.  ``file_columns``: the file's own column names (before
+    they were mapped), which the error for a missing column lists.  Raises
     DataError for the first bad cell (on_error="raise") or drops and counts bad rows.
     """
     present = set(df.columns)
+    has = f"the file has: {', '.join(map(str, df.columns if file_columns is None else file_columns))}"
     for col in schema.columns:
         if col.required and col.name not in present:
-            raise DataError(f"missing column (the file has: {', '.join(map(str, df.columns))})",
-                            file=file, column=col.name)
+            hint = f"; name it with --columns {col.name}=COLUMN" if schema.mapped else ""
+            raise DataError(f"missing column ({has}){hint}", file=file, column=col.name)
     if schema.one_of and not any(all(c in present for c in g) for g in schema.one_of):
         want = " or ".join("+".join(g) for g in schema.one_of)
-        raise DataError(f"missing columns: need {want}", file=file,
-                        column="+".join(schema.one_of[0]))
+        first = schema.one_of[0]
+        hint = (f"; name {'them' if len(first) > 1 else 'it'} with --columns "
+                f"{','.join(f'{c}=COLUMN' for c in first)}") if schema.mapped else ""
+        raise DataError(f"missing columns: need {want} ({has}){hint}", file=file, column="+".join(first))
     df = df.reset_index(drop=True)
     rows = np.arange(first_row, first_row + len(df))
     report.rows_read += len(df)

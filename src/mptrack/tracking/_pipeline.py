@@ -81,10 +81,10 @@ class TrackTask:
 
 
 def _with_input_columns(points: pa.Table, rows: pd.DataFrame) -> pa.Table:
-    """The point table with the input's own further columns (elevation, speed, any user column)
-    appended, where it has one row per input row (the gated filter; the grid filters resample).
-    A name the point table already uses gets the prefix ``input_``."""
-    extra = FIXES.extra_columns(rows.columns)
+    """The point table with the input's own further columns (accuracy_m, hdop, elevation, speed, any
+    user column) appended, where it has one row per input row (the gated filter; the grid filters
+    resample).  A name the point table already uses gets the prefix ``input_``."""
+    extra = [c for c in ("accuracy_m",) if c in rows.columns] + FIXES.extra_columns(rows.columns)
     if not extra or points.num_rows != len(rows):
         return points
     for name in extra:

@@ -66,6 +66,7 @@ def main() -> None:
     write("header-only.csv", f.iloc[:0])
     write("odd-column-names.csv", f.rename(columns={"track_id": "Device", "time": "Timestamp", "lat": "Latitude",
                                                      "lon": "Lng"}))
+    write("unknown-column-names.csv", f.rename(columns={"lat": "Breite", "lon": "Laenge"}))
     write("row-id-column.csv", f.rename(columns={"track_id": "id"}).assign(id=np.arange(1, N + 1)))
     write("two-latitudes.csv", f.rename(columns={"lat": "LAT"}).assign(Latitude=f["lat"]))
     dup = pd.concat([f.iloc[:10], f.iloc[5:8], f.iloc[10:]]).sort_values("time", kind="stable")
