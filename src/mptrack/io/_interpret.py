@@ -283,20 +283,23 @@ def _time_unit(values: pd.Series, unit: str, plan: Interpretation, file) -> None
                           "milliseconds set --time-unit ms")
 
 
-#: ISO 8601 text that ends in a zone: Z or an offset (+01, +0100, +01:00).
-_ZONE = re.compile(r".*(Z|[+-]\d\d(:?\d\d)?)\Z", re.IGNORECASE)
+#: A time of day followed by its zone (ISO 8601): Z, or a UTC offset's sign, hours and minutes
+#: (+01, +0100, +01:00).
+_ZONE = re.compile(r"\d\d:\d\d(?::\d\d(?:[.,]\d+)?)?\s*(?:Z|([+-])(\d\d):?(\d\d)?)\s*\Z", re.IGNORECASE)
+#: Text time stamps whose zone is looked at (the first of the file).
+_ZONE_SAMPLE = 1000
 
 
 def _zone_note(values: pd.Series, plan: Interpretation) -> None:
-    """A note when text time stamps carry no zone (they are read as UTC)."""
+    """A note when text time stamps (the first of the file) carry no zone: they are read as UTC."""
     if plan.time_format is not None:
         if not re.search("%[zZ]", plan.time_format):
             plan.notes.append(f"time: the layout {plan.time_format!r} has no zone; the time stamps were read as UTC")
         return
-    text = values.dropna().astype(str).str.strip()
-    naive = text[~text.str.match(_ZONE)]
-    if len(naive):
-        plan.notes.append(f"time: ISO 8601 time stamps without a zone (e.g. {naive.iloc[0]!r}) were read as UTC; "
+    text = values.dropna().iloc[:_ZONE_SAMPLE].astype(str).str.strip()
+    naive = [x for x in text if not _ZONE.search(x)]
+    if naive:
+        plan.notes.append(f"time: ISO 8601 time stamps without a zone (e.g. {naive[0]!r}) were read as UTC; "
                           "if they are local time, add the offset (e.g. +01:00) to them")
 
 
@@ -396,13 +399,9 @@ def _speeds(lat, lon, secs, same) -> float | None:
     return float(np.median(np.hypot(dx[ok], dy[ok]) / dt[ok]))
 
 
-#: A time of day followed by a UTC offset (ISO 8601): the offset's sign, hours and minutes.
-_OFFSET = re.compile(r"\d\d:\d\d(?::\d\d(?:[.,]\d+)?)?\s*([+-])(\d\d):?(\d\d)?\s*\Z")
 #: Degrees of longitude that a legal time may lie from 15 deg x its UTC offset, besides an hour of
 #: summer time: legal time runs up to ~3 h ahead of solar time (western China, 44 deg), never 2 h behind.
 ZONE_MARGIN_DEG = 30.0
-#: Time stamps whose offsets are looked at (the first of the file).
-_ZONE_SAMPLE = 1000
 
 
 def _zone_check(df: pd.DataFrame, plan: Interpretation) -> None:
@@ -415,7 +414,7 @@ def _zone_check(df: pd.DataFrame, plan: Interpretation) -> None:
     if plan.swap or "time" not in df.columns or not (pd.api.types.is_string_dtype(df["time"])
                                                      or df["time"].dtype == object):
         return
-    found = df["time"].dropna().iloc[:_ZONE_SAMPLE].astype(str).str.extract(_OFFSET)
+    found = df["time"].dropna().iloc[:_ZONE_SAMPLE].astype(str).str.extract(_ZONE)
     found = found.dropna(subset=[0])
     if found.empty:
         return
