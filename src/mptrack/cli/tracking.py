@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import contextlib
 from pathlib import Path
-from typing import Optional
+from typing import NamedTuple, Optional
 
 import typer
 from rich.markup import escape
@@ -51,11 +51,53 @@ def _options(cls, **values):
         raise ParameterError(f"--{name.replace('_', '-')}:{rest}") from None
 
 
+class _Reading(NamedTuple):
+    columns: typer.models.OptionInfo
+    time_unit: typer.models.OptionInfo
+    time_format: typer.models.OptionInfo
+    coord_unit: typer.models.OptionInfo
+
+
+def _reading_options(what: str) -> _Reading:
+    """The options that say how a position-fix file is read (its column names and units), defined once
+    for ``track``'s input, ``simulate --along`` and ``evaluate --truth``; ``what`` names the file in
+    the help."""
+    return _Reading(
+        typer.Option(None, "--columns", help=f"Which column of {what} is which where the names are not "
+                                             "recognised: time=ts,lat=Latitude,lon=Lng,track_id=device,"
+                                             "accuracy_m=acc (swapped columns: lat=lon,lon=lat)."),
+        typer.Option("auto", "--time-unit", help=f"Unit of numeric time stamps of {what}: auto (by magnitude), "
+                                                 "s, ms, us or ns."),
+        typer.Option(None, "--time-format", help=f"Layout of text time stamps of {what} that are not ISO 8601, "
+                                                 "e.g. '%d/%m/%Y %H:%M:%S'."),
+        typer.Option("auto", "--coord-unit", help=f"Unit of lat/lon of {what}: auto, deg, deg-e7 or deg-e6 "
+                                                  "(integer degrees x 10^7 / 10^6) or rad."))
+
+
+_TRACK_READING = _reading_options("the input")
+_ALONG_READING = _reading_options("the --along file")
+_TRUTH_READING = _reading_options("the --truth file")
+
+
+def _read_options(columns, time_unit, time_format, coord_unit, *, file="", option: str = "", **more):
+    """The :class:`mptrack.io.ReadOptions` of the reading options; given without the file they apply to
+    (``file`` None, named by ``option``) they are refused."""
+    from ..io import ReadOptions
+
+    if file is None:
+        for flag, value, default in (("--columns", columns, None), ("--time-unit", time_unit, "auto"),
+                                     ("--time-format", time_format, None), ("--coord-unit", coord_unit, "auto")):
+            if value != default:
+                reject(flag, f"applies to the file read with {option}")
+    return _options(ReadOptions, columns=columns or (), time_unit=time_unit, time_format=time_format,
+                    coord_unit=coord_unit, **more)
+
+
 def _skipped(read: dict, verbose: bool) -> None:
     for text in read.get("notes", ()):
         note(text)
     if read.get("rows_skipped"):
-        note(f"skipped {read['rows_skipped']} of {read['rows_read']} rows of {read['file']}:", "skipped")
+        note(f"{read['rows_skipped']} of {read['rows_read']} rows of {read['file']}:", "skipped")
         for reason, count in read["skipped_by_reason"].items():
             err.print(escape(f"  {count} × {reason}"), highlight=False, soft_wrap=True)
         for example in read.get("examples", ()) if verbose else ():
@@ -136,15 +178,10 @@ def track(
     max_skip: str = typer.Option("1%", "--max-skip", help="With --on-error skip: fail (nothing written) when more "
                                                           "rows than this are dropped: a percentage of the rows "
                                                           "read or a count."),
-    columns: Optional[str] = typer.Option(None, "--columns", help="Which column is which where the names are not "
-                                                                  "recognised: time=ts,lat=Latitude,lon=Lng,"
-                                                                  "track_id=device,accuracy_m=acc."),
-    time_unit: str = typer.Option("auto", "--time-unit", help="Unit of numeric time stamps: auto (by magnitude), "
-                                                              "s, ms, us or ns."),
-    time_format: Optional[str] = typer.Option(None, "--time-format", help="Layout of text time stamps that are "
-                                                                          "not ISO 8601, e.g. '%d/%m/%Y %H:%M:%S'."),
-    coord_unit: str = typer.Option("auto", "--coord-unit", help="Unit of lat/lon: auto, deg, deg-e7 or deg-e6 "
-                                                                "(integer degrees x 10^7 / 10^6) or rad."),
+    columns: Optional[str] = _TRACK_READING.columns,
+    time_unit: str = _TRACK_READING.time_unit,
+    time_format: Optional[str] = _TRACK_READING.time_format,
+    coord_unit: str = _TRACK_READING.coord_unit,
     resume: bool = typer.Option(False, "--resume", help="Keep the work of an interrupted run of the same input "
                                                         "and options."),
     executor: str = typer.Option("serial", help="serial, processes or dask: who runs the chunks (the output "
@@ -172,18 +209,16 @@ def track(
     out = out or _default_out(input)
     from .._io import output_lock
     from .._validation import check_outputs
-    from ..io import ReadOptions
     from ..tracking import TrackOptions, track_file
 
     kept, summary = "", None
     try:
-        check_outputs(input, cells, report=report)
+        check_outputs(input, cells, out=out, track_summary=track_summary, report=report)
         values = {k: v for k, v in given.items() if v is not None}
         if "gate_probability" in values and values["gate_probability"] >= 1:
             values["gate_probability"] = None
         options = TrackOptions(**values)
-        read = _options(ReadOptions, columns=columns or (), time_unit=time_unit, time_format=time_format,
-                        coord_unit=coord_unit, max_skip=max_skip)
+        read = _read_options(columns, time_unit, time_format, coord_unit, max_skip=max_skip)
         with output_lock(out, track_summary, report, note=command_line()):
             try:
                 with progress(quiet or json_out) as bar:
@@ -297,6 +332,10 @@ def simulate(
     accuracy: Optional[bool] = typer.Option(None, "--accuracy/--no-accuracy",
                                             help="gps: write the accuracy_m column (default: yes)."),
     seed: int = typer.Option(0, help="Seed of the random generator."),
+    columns: Optional[str] = _ALONG_READING.columns,
+    time_unit: str = _ALONG_READING.time_unit,
+    time_format: Optional[str] = _ALONG_READING.time_format,
+    coord_unit: str = _ALONG_READING.coord_unit,
     quiet: bool = QUIET,
     verbose: bool = VERBOSE,
     json_out: bool = JSON,
@@ -316,7 +355,7 @@ def simulate(
     from .._io import output_lock
     from .._validation import check_outputs
     from ..errors import ParameterError
-    from ..io import write_table
+    from ..io import ReadReport, write_table
     from ..tracking import simulate_chunks
 
     n_tracks = 10 if tracks is None else tracks
@@ -333,17 +372,21 @@ def simulate(
                 cell_tables.append(cells)
             yield log
 
+    cpath = cells_out or out.with_suffix(".cells.csv")
+    cells_to = cpath if cells_out or scenario != "gps" else None
+    read_report = ReadReport()
     try:
-        check_outputs(along, out=out, cells_out=cells_out)
+        check_outputs(along, out=out, cells_out=cells_to)
+        read = _read_options(columns, time_unit, time_format, coord_unit, file=along, option="--along")
         try:
             chunks = simulate_chunks(scenario, n_tracks, np.random.default_rng(seed), duration_s=duration,
                                      along=along, interval=interval, q=q, speed_mps=speed, sigma_m=sigma,
-                                     outlier_rate=outliers, accuracy_column=accuracy)
+                                     outlier_rate=outliers, accuracy_column=accuracy, read=read,
+                                     report=read_report)
         except ParameterError as exc:  # name the option, not the library's argument
             name, _, rest = str(exc).partition(":")
             raise ParameterError(f"{_SIMULATE_OPTIONS.get(name, name)}:{rest}") from None
-        cpath = cells_out or out.with_suffix(".cells.csv")
-        with output_lock(out, cpath if cells_out or scenario != "gps" else None, note=command_line()), \
+        with output_lock(out, cells_to, note=command_line()), \
                 progress(quiet or json_out) as bar, \
                 bar.task("simulating tracks", total=None if along is not None else n_tracks) as advance:
             write_table(logs(chunks, advance), out)
@@ -355,22 +398,33 @@ def simulate(
         interrupted(f"only {done[0]} was written" if done else "nothing was written")
     except (MptrackError, OSError) as exc:
         fail(exc)
+    if along is not None:
+        written["read"] = read_report.to_dict()
     if json_out:
         print_json(written)
     else:
+        if along is not None:
+            _skipped(written["read"], verbose)
         echo(f"{written['tracks']} tracks, {written['rows']} rows → {out}"
              + (f"; cells → {written['cells']}" if "cells" in written else ""))
 
 
 def evaluate(
-    tracks: Path = typer.Argument(..., help="Output of mptrack track (.parquet/.csv/.geojson)."),
-    truth: Optional[Path] = typer.Option(None, "--truth", help="Truth in any input format (a GPX trace, a simulated "
-                                                                "log: true_lat/true_lon or lat/lon; true_x/true_y or "
-                                                                "x/y in metres); track_id may be left out for one "
+    tracks: Path = typer.Argument(..., help="Output of mptrack track in any of its formats: .parquet (.pq), "
+                                            ".csv, .geojson (.json), .gpx or .geoparquet."),
+    truth: Optional[Path] = typer.Option(None, "--truth", help="Truth in any input format: CSV (any delimiter), "
+                                                                "Parquet (a file or a directory), GPX, TCX, FIT, "
+                                                                "NMEA 0183 or GeoJSON (a GPS trace, a simulated log: "
+                                                                "true_lat/true_lon or lat/lon; true_x/true_y or x/y "
+                                                                "in metres); track_id may be left out for one "
                                                                 "track."),
     report: Optional[Path] = typer.Option(None, "--report", help="Write a self-contained HTML report."),
     tolerance: Optional[float] = typer.Option(None, help="With --truth: max time difference (s) to match an "
                                                          "estimate with truth (default 0.5)."),
+    columns: Optional[str] = _TRUTH_READING.columns,
+    time_unit: str = _TRUTH_READING.time_unit,
+    time_format: Optional[str] = _TRUTH_READING.time_format,
+    coord_unit: str = _TRUTH_READING.coord_unit,
     quiet: bool = QUIET,
     verbose: bool = VERBOSE,
     json_out: bool = JSON,
@@ -381,11 +435,14 @@ def evaluate(
     from .._io import output_lock
     from .._validation import check_outputs
     from ..errors import DataError
+    from ..io import ReadReport
     from ..tracking import evaluate_tracks, read_output
 
     held = contextlib.ExitStack()  # the report's lock, from the start to the end of the command
+    truth_report = ReadReport()
     try:
         check_outputs(tracks, truth, report=report)
+        read = _read_options(columns, time_unit, time_format, coord_unit, file=truth, option="--truth")
         held.enter_context(output_lock(report, note=command_line()))
         if not tracks.exists():
             raise DataError("file not found", file=tracks)
@@ -394,7 +451,7 @@ def evaluate(
                 est = read_output(tracks)
                 est.attrs["file"] = tracks
                 summary, table = evaluate_tracks(est, truth, tolerance_s=0.5 if tolerance is None else tolerance,
-                                                 truth_file=truth)
+                                                 truth_file=truth, read=read, report=truth_report)
             if report is not None:
                 with bar.task("report"):
                     from ..report import write_report
@@ -407,9 +464,13 @@ def evaluate(
         fail(exc)
     finally:
         held.close()
+    if truth is not None:
+        summary["truth_read"] = truth_report.to_dict()
     if json_out:
         print_json(summary)
         return
+    if truth is not None:
+        _skipped(summary["truth_read"], verbose)
     o = summary["overall"]
     if not quiet:
         out_print(_summary_table(summary, f"Evaluation of {tracks.name}", None if verbose else 30))

@@ -14,28 +14,35 @@ NIS, the fraction inside their two-sided 95 % chi-square interval, and the
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pandas as pd
 import scipy.stats
 
 from ..errors import DataError
-from ..io import FIXES, LocalFrame, ReadOptions, read_table
+from ..io import FIXES, LocalFrame, ReadOptions, ReadReport, read_table
 from ..io._formats import raw_chunks
 
 __all__ = ["attach_truth", "evaluate_tracks"]
 
 
-def _truth_table(truth, file) -> tuple[pd.DataFrame, bool]:
+def _truth_table(truth, file, read: ReadOptions = ReadOptions(),
+                 report: ReadReport | None = None) -> tuple[pd.DataFrame, bool]:
     """(truth as track_id, t, true_a, true_b sorted by t; True if a, b are lat/lon, False if x/y in m).
 
     ``truth`` is a file in any input format or a DataFrame, read like a track's input (column names
-    and units recognised, :func:`mptrack.io.read_table`); ``true_lat``/``true_lon`` (or
-    ``true_x``/``true_y``), as in simulated logs, are preferred over ``lat``/``lon``."""
+    and units recognised, :func:`mptrack.io.read_table`, with what ``read`` says; its notes go to
+    ``report``); ``true_lat``/``true_lon`` (or ``true_x``/``true_y``), as in simulated logs, are
+    preferred over ``lat``/``lon`` unless ``read`` names the position columns."""
+    given = read.column_map
     columns = [str(c) for c in next(raw_chunks(truth, 1)).columns]
     prefer = next(({"lat": a, "lon": b} if geo else {"x": a, "y": b}
                    for a, b, geo in (("true_lat", "true_lon", True), ("true_x", "true_y", False))
                    if a in columns and b in columns), {})
-    rows = read_table(truth, FIXES, read=ReadOptions(columns=prefer))
+    if {"lat", "lon", "x", "y"} & set(given):
+        prefer = {}
+    rows = read_table(truth, FIXES, read=replace(read, columns={**prefer, **given}), report=report)
     geographic = "lat" in rows.columns and "lon" in rows.columns
     a, b = ("lat", "lon") if geographic else ("x", "y")
     out = pd.DataFrame({"track_id": rows["track_id"].astype("string"), "t": rows["t"].to_numpy(float),
@@ -59,14 +66,16 @@ def _one_track_ids(truth: pd.DataFrame, tracks: pd.DataFrame, file) -> pd.DataFr
 _ADDED = ("true_lat", "true_lon", "true_x", "true_y", "true_east_m", "true_north_m", "error_m", "nees")
 
 
-def attach_truth(tracks: pd.DataFrame, truth, *, tolerance_s: float = 0.5,
-                 file="truth") -> pd.DataFrame:
+def attach_truth(tracks: pd.DataFrame, truth, *, tolerance_s: float = 0.5, file="truth",
+                 read: ReadOptions = ReadOptions(), report: ReadReport | None = None) -> pd.DataFrame:
     """``tracks`` with error_m, nees and true east/north columns from the nearest truth sample.
 
     Truth in lat/lon is projected into each track's local frame; truth in x/y (metres) is
-    compared directly with tracks that were computed in x/y (no geographic origin).
+    compared directly with tracks that were computed in x/y (no geographic origin).  ``read``: the
+    truth file's column names and units where they are not recognised; ``report`` receives how it
+    was read (notes).
     """
-    tt, geographic = _truth_table(truth, file)
+    tt, geographic = _truth_table(truth, file, read, report)
     # columns this adds replace any of the same name (a simulated log's truth passed through the track)
     est = tracks.drop(columns=[c for c in _ADDED if c in tracks.columns])
     est = est.assign(track_id=est["track_id"].astype("string"), _order=np.arange(len(est)))
@@ -135,9 +144,11 @@ def _stats(g: pd.DataFrame) -> dict:
     return row
 
 
-def evaluate_tracks(tracks: pd.DataFrame, truth=None, *, tolerance_s: float = 0.5,
-                    truth_file="truth") -> tuple[dict, pd.DataFrame]:
-    """(summary {"overall": {...}, "tracks": {id: {...}}}, tracks with error columns if truth given)."""
+def evaluate_tracks(tracks: pd.DataFrame, truth=None, *, tolerance_s: float = 0.5, truth_file="truth",
+                    read: ReadOptions = ReadOptions(), report: ReadReport | None = None) -> tuple[dict, pd.DataFrame]:
+    """(summary {"overall": {...}, "tracks": {id: {...}}}, tracks with error columns if truth given).
+
+    ``read`` and ``report``: how the truth is read, and what its reading noted (:func:`attach_truth`)."""
     needed = ["track_id", "t", "flag", "nis", "nis_dof"] + (
         ["east_m", "north_m", "var_east_m2", "cov_en_m2", "var_north_m2", "origin_lat", "origin_lon"]
         if truth is not None else [])
@@ -146,7 +157,7 @@ def evaluate_tracks(tracks: pd.DataFrame, truth=None, *, tolerance_s: float = 0.
         raise DataError(f"not a table written by mptrack track (no column {', '.join(missing)}); track the log "
                         "first: mptrack track LOG --out TRACKS", file=tracks.attrs.get("file", "tracks"))
     if truth is not None:
-        tracks = attach_truth(tracks, truth, tolerance_s=tolerance_s, file=truth_file)
+        tracks = attach_truth(tracks, truth, tolerance_s=tolerance_s, file=truth_file, read=read, report=report)
     per = {str(tid): _stats(g) for tid, g in tracks.groupby("track_id", sort=False)}
     summary = {"overall": _stats(tracks), "tracks": per}
     if truth is not None:

@@ -81,10 +81,10 @@ class TrackTask:
 
 
 def _with_input_columns(points: pa.Table, rows: pd.DataFrame) -> pa.Table:
-    """The point table with the input's own further columns (elevation, speed, any user column)
-    appended, where it has one row per input row (the gated filter; the grid filters resample).
-    A name the point table already uses gets the prefix ``input_``."""
-    extra = FIXES.extra_columns(rows.columns)
+    """The point table with the input's own further columns (accuracy_m, hdop, elevation, speed, any
+    user column) appended, where it has one row per input row (the gated filter; the grid filters
+    resample).  A name the point table already uses gets the prefix ``input_``."""
+    extra = [c for c in ("accuracy_m",) if c in rows.columns] + FIXES.extra_columns(rows.columns)
     if not extra or points.num_rows != len(rows):
         return points
     for name in extra:
@@ -246,12 +246,14 @@ def track_file(input, out, *, cells=None, options: TrackOptions = TrackOptions()
                                manifest=_manifest(input, options, cells, chunk_rows, read), progress=advance,
                                report=report, read=read)
             resumed = [p for p in resumed if p.exists()]  # an unsorted input starts again from scratch
-            points = sum(_rows(p) for p in store.parts("points"))
+            files = store.check(results)  # every chunk's parts, or an OutputError if some vanished
+            points = sum(_rows(p) for p in files.get("points", ()))
             tracks_resumed = sum(_rows(p) for p in resumed)
-            store.finish("points", empty=_empty_points())
-            tracks = _tracks_frame([read_part(p) for p in store.parts("tracks")])
+            store.finish(files.get("points", []), empty=_empty_points())
+            tracks = _tracks_frame([read_part(p) for p in files.get("tracks", ())])
             if track_summary is not None:
-                store.finish("tracks", to=track_summary, empty=pa.Table.from_pandas(tracks, preserve_index=False))
+                store.finish(files.get("tracks", []), to=track_summary,
+                             empty=pa.Table.from_pandas(tracks, preserve_index=False))
             store.discard()
         except BaseException as exc:
             if (_resumable(exc) or resumed) and store.parts(_PARTS[-1]):
