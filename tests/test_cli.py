@@ -237,7 +237,8 @@ def test_reproduce_writes_results_and_its_report(tmp_path):
                                         r"matched, 0 differ for a documented reason, 0 differ unexplained "
                                         r"\(see docs/errata.md\); 3 figures", lines[0]), lines
     page = (tmp_path / "assimakis2015" / "report.html").read_text()
-    assert "class='differs'" not in page and page.count("class='same'") >= 15 and "data:image/png;base64" in page
+    assert "class='differs'" not in page and page.count("class='same'") == 15 and "data:image/png;base64" in page
+    assert page.count("not counted: an input or label") == 42  # Table 2's formulas, Table 3's labels: plain
     assert "<title>assimakis2015: Assimakis &amp; Adam 2015</title>" in page
 
 

@@ -91,7 +91,8 @@ def train_systems(setup: Setup, seed_seq: np.random.SeedSequence) -> dict:
 
     Training data: ``setup.anfis_runs`` runs of their own seed stream at every noise level of Table VII
     (the paper's input ranges, |Inn| up to 1.5 km, need the high levels), the FEKF with the paper's rules
-    supplying the inputs, :func:`anfis_training_data` the targets.  Universes: the paper's.
+    supplying the inputs, :func:`anfis_training_data` the targets.  Universes: ``setup.universes()`` (the
+    paper's for |Inn| and S; the distance's found from the scenario).
     Returns {"FEKF": AnfisResult, "FCS": AnfisResult, "samples": N, "inn_max": km, "s_range": (lo, hi),
     "d_max": km}.
     """
