@@ -214,6 +214,8 @@ def test_reproduce_counts_fall_back_to_matched_over_published():
     results = json.loads(json.dumps(RESULTS))
     results["tables"]["Table 1"]["explained_by"] = [[0, 2, "typo"]]
     assert cell_counts(results) == {"published": 3, "matched": 1, "explained": 1, "unexplained": 1}
+    results["tables"]["Table 1"].update(uncounted=["b"], mismatches=[[0, 2]])  # column b repeats inputs
+    assert cell_counts(results) == {"published": 1, "matched": 0, "explained": 1, "unexplained": 0}
 
 
 def test_reproduce_counts_come_from_the_comparison():
@@ -231,10 +233,12 @@ def test_reproduce_writes_results_and_its_report(tmp_path):
     data = json.loads((tmp_path / "assimakis2015" / "results.json").read_text())
     assert data["tables"]["Table 3"]["mismatches"] == []
     lines = result.stdout.strip().splitlines()
-    assert len(lines) == 1 and re.match(r"assimakis2015 \(Assimakis & Adam 2015\): (\d+)/\1 published numbers "
-                                        r"matched; 3 figures", lines[0]), lines
+    assert len(lines) == 1 and re.match(r"assimakis2015 \(Assimakis & Adam 2015\): 15/15 published numbers "
+                                        r"matched, 0 differ for a documented reason, 0 differ unexplained "
+                                        r"\(see docs/errata.md\); 3 figures", lines[0]), lines
     page = (tmp_path / "assimakis2015" / "report.html").read_text()
-    assert "class='differs'" not in page and page.count("class='same'") >= 15 and "data:image/png;base64" in page
+    assert "class='differs'" not in page and page.count("class='same'") == 15 and "data:image/png;base64" in page
+    assert page.count("not counted: an input or label") == 42  # Table 2's formulas, Table 3's labels: plain
     assert "<title>assimakis2015: Assimakis &amp; Adam 2015</title>" in page
 
 

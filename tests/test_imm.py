@@ -113,15 +113,16 @@ def test_imm_on_bouzera_two_linear_trajectory():
     63 km/h; km units), 30 Monte-Carlo runs: the CV/CA IMM against the single-model EKFs.  Position RMSE
     (m) over the turn (16 s) / whole track: IMM 1.16 / 0.86, CV EKF 14.4 / 5.8, CA EKF 1.19 / 1.22, and
     the paper's random-walk EKF with its own Q0, R0 34.4 / 37.4."""
-    from mptrack.experiments.bouzera2017 import Setup, simulate
+    from mptrack.experiments.bouzera2017 import PREVIOUS, Setup, scenario, simulate
     from mptrack.experiments.bouzera2017 import ranges as simulated_ranges
     from mptrack.models import ranges
 
-    s = Setup()
+    s = scenario(Setup(noise_reading="standard deviation"), **PREVIOUS)  # the 2 km triangle, sigma = 1 m
     runs = 30
     truth, x0s, eps = simulate(s, "two-linear", np.random.SeedSequence(2017), runs)
-    z = simulated_ranges(s, truth, eps, s.sigma_km)
-    models, Pi = cv_ca_models(s.dt_s, 1e-8, 1e-5, ranges(s.stations, s.sigma_km ** 2, position=(0, 3, 6)), axes=3)
+    z = simulated_ranges(s, truth, eps, s.sigma)
+    models, Pi = cv_ca_models(s.dt_s, 1e-8, 1e-5, ranges(s.stations, s.noise_variance(s.sigma), position=(0, 3, 6)),
+                              axes=3)
     v = s.speed_km_s * np.array([np.cos(np.radians(s.heading_deg)), np.sin(np.radians(s.heading_deg)), 0.0])
     P0 = np.diag([1e-3, 1e-5, 1e-6] * 3)
     turn = slice(s.steps // 2 - 1, s.steps // 2 + 15)

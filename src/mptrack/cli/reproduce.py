@@ -37,9 +37,16 @@ def _named(value):
     return value
 
 
+def _uncounted(table: dict) -> set[int]:
+    from ..report import uncounted_columns
+
+    return uncounted_columns(table)
+
+
 def cell_counts(results: dict) -> dict:
-    """{"published", "matched", "explained", "unexplained"} over the published cells of a results.json:
-    its "comparison" when it has one, else counted from each table's paper, mismatches and explained_by."""
+    """{"published", "matched", "explained", "unexplained"} over the published cells of a results.json
+    that we compute (not its "uncounted" inputs and labels): its "comparison" when it has one, else counted
+    from each table's paper, mismatches and explained_by."""
     c = results.get("comparison")
     if c:
         return {"published": c["compared"], "matched": c["matched"], "explained": c["differing_explained"],
@@ -50,7 +57,8 @@ def cell_counts(results: dict) -> dict:
         if paper is None:
             continue
         bad = {tuple(c) for c in table.get("mismatches", ())}
-        published += sum(1 for row in paper for v in row[1:] if v is not None)
+        skip = _uncounted(table) | {0}
+        published += sum(1 for row in paper for j, v in enumerate(row) if v is not None and j not in skip)
         differing += len(bad)
         explained += len(bad & set(_explained(table)))
     return {"published": published, "matched": published - differing, "explained": explained,
@@ -61,10 +69,8 @@ def summary_line(key: str, results: dict, path: Path) -> str:
     """The last line of a paper's reproduction."""
     c = cell_counts(results)
     line = (f"{key} ({short_paper(results.get('paper', key))}): {c['matched']}/{c['published']} "
-            f"published numbers matched")
-    if c["explained"] or c["unexplained"]:
-        line += (f", {c['explained']} differ for a documented reason, {c['unexplained']} differ unexplained "
-                 f"(see {ERRATA})")
+            f"published numbers matched, {c['explained']} differ for a documented reason, {c['unexplained']} "
+            f"differ unexplained (see {ERRATA})")
     return line + f"; {len(results.get('figures', {}))} figures, {results.get('elapsed_s', 0):.1f} s → {path}"
 
 
@@ -75,6 +81,7 @@ def _print_tables(results: dict, verbose: bool) -> None:
         bad = {tuple(c) for c in table.get("mismatches", ())}
         why = _explained(table)
         paper = table.get("paper")
+        shown_only = _uncounted(table)
         rt = RichTable(title=f"{label}: {paper_names(table['title'])}", title_justify="left")
         rt.add_column(table["columns"][0])
         for col in table["columns"][1:]:
@@ -83,10 +90,12 @@ def _print_tables(results: dict, verbose: bool) -> None:
             cells = [str(row[0])]
             for j in range(1, len(row)):
                 ours = fmt(row[j])
-                if paper is None or paper[i][j] is None:
-                    cells.append(ours)
+                if paper is None or paper[i][j] is None or (j in shown_only and row[j] == paper[i][j]):
+                    cells.append(ours)  # the paper's input or label repeated: show it once, not counted
+                elif j in shown_only:
+                    cells.append(f"{ours} | {fmt(paper[i][j])}")  # shown beside the paper's, not counted
                 elif not isinstance(row[j], (int, float)) and (i, j) not in bad:
-                    cells.append(ours)  # identical text (a formula, a label): show it once
+                    cells.append(ours)  # identical computed text (a formula): show it once
                 else:
                     mark = ("[yellow]≠*[/yellow]" if (i, j) in why else "[red]≠[/red]") \
                         if (i, j) in bad else "[green]=[/green]"

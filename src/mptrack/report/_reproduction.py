@@ -1,6 +1,6 @@
 """The report of a paper reproduction: each table with our numbers beside the paper's, matching cells
-green, differing cells red, differences explained by an erratum yellow with a link to it, and the
-figures embedded."""
+green, differing cells red, differences explained by an erratum yellow with a link to it, uncounted
+columns (the paper's inputs and labels repeated) plain, and the figures embedded."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ from pathlib import Path
 
 from ._page import esc, page, write_page
 
-__all__ = ["write_reproduction_report", "explained_cells"]
+__all__ = ["write_reproduction_report", "explained_cells", "uncounted_columns"]
 
 
 def _num(v) -> str:
@@ -22,6 +22,15 @@ def _num(v) -> str:
 def explained_cells(table: dict) -> dict[tuple[int, int], str]:
     """{(row, column): erratum key} of a results.json table (its ``explained_by``: [[row, col, key], ...])."""
     return {(int(e[0]), int(e[1])): str(e[2]) for e in table.get("explained_by") or ()}
+
+
+_UNCOUNTED = "shown beside the paper, not counted: an input or label it printed, or a second version of counted cells"
+
+
+def uncounted_columns(table: dict) -> set[int]:
+    """Column indices a results.json table shows but does not count (its "uncounted" column names)."""
+    names = set(table.get("uncounted") or ())
+    return {j for j, c in enumerate(table["columns"]) if c in names}
 
 
 def _slug(text: str) -> str:
@@ -44,6 +53,7 @@ def _table_html(label: str, table: dict, described: dict, errata: Path | None) -
     paper = table.get("paper")
     bad = {tuple(c) for c in table.get("mismatches", ())}
     why = explained_cells(table)
+    shown_only = uncounted_columns(table)
     head = "".join(f"<th>{esc(c)}</th>" for c in table["columns"])
     if paper is not None:
         head = f"<th>{esc(table['columns'][0])}</th>" + "".join(
@@ -57,7 +67,10 @@ def _table_html(label: str, table: dict, described: dict, errata: Path | None) -
                 cells.append(f"<td>{ours}</td>")
                 continue
             theirs = esc(_num(paper[i][j]))
-            if (i, j) not in bad:
+            if j in shown_only:
+                cells.append(f"<td title='{_UNCOUNTED}'>{ours}"
+                             + ("" if ours == theirs else f" | {theirs}") + "</td>")
+            elif (i, j) not in bad:
                 cells.append(f"<td class='same' title='matches the paper'>{ours}"
                              + ("" if ours == theirs else f" | {theirs}") + "</td>")
             elif (i, j) in why:
@@ -99,7 +112,8 @@ def write_reproduction_report(results: dict, path, *, figures_dir=None, errata=N
                     f"{counts['unexplained']} differ unexplained (red).</strong></p>")
     body.append("<p class='caption'>Cells: green = our number matches the paper's; yellow = differs, and "
                 "docs/errata.md explains why; red = differs without an explanation; plain = the paper gives "
-                "no number.</p>")
+                "no number, or the column is not counted (the paper's inputs or labels repeated, or a second "
+                "version of cells counted elsewhere).</p>")
     for label, table in results.get("tables", {}).items():
         body.append(_table_html(label, table, results.get("errata") or {}, errata))
     for name, file in results.get("figures", {}).items():
