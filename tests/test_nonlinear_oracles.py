@@ -340,3 +340,30 @@ def test_range_rate_and_tdoa_jacobians_match_the_complex_step(kind):
             np.testing.assert_allclose(numeric.H_at(x), J, rtol=1e-6, atol=1e-9)
     batch = meas.jac_h(states)
     np.testing.assert_allclose(batch, np.stack([meas.jac_h(x) for x in states]), rtol=0, atol=0)
+
+
+@pytest.mark.parametrize("filt", [ekf_filter, ukf_filter])
+def test_generic_path_errors_name_the_cause(filt):
+    """The compiled step kernels report problems by status; the errors still name the cause: an
+    indefinite innovation covariance, a model function returning NaN or a wrong shape, an overflow."""
+    from mptrack.errors import NonFiniteError, NotPositiveDefiniteError, ShapeError
+    base, _, z = _data(0)
+
+    def model(**kw):
+        args = dict(f=base.f, h=base.h, Q=base.Q, R=R_BR, jac_f=base.jac_f, jac_h=base.jac_h, angle_components=(0,))
+        args.update(kw)
+        return NonlinearModel(args.pop("f"), args.pop("h"), args.pop("Q"), args.pop("R"), **args)
+    with pytest.raises(NotPositiveDefiniteError, match=f"{filt.__name__[:3].upper()}.*measurement 5"):
+        filt(model(R=lambda x, k: -np.eye(2) * 1e6 if k == 5 else R_BR), z, X0, P0)
+
+    def h_nan(X):
+        out = base.h(X)
+        return np.where(X[..., :1] > 140.0, np.nan, out)
+    with pytest.raises(NonFiniteError, match="^h: "):
+        filt(model(h=h_nan), z, X0, P0)
+    with pytest.raises(ShapeError, match="jac_h" if filt is ekf_filter else "^h: "):
+        wrong = (dict(jac_h=lambda x: np.zeros((3, 4)) if x[0] > 140.0 else base.jac_h(x)) if filt is ekf_filter
+                 else dict(h=lambda X: base.h(X) if X.shape[0] < 9 else base.h(X)[:, :1]))
+        filt(model(**wrong), z, X0, P0)
+    with pytest.raises(NonFiniteError, match="x0"):
+        filt(model(), z, np.array([1e308, 1e308, 1.0, 1.0]), P0)

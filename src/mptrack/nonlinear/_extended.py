@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._validation import as_array, as_vector, check_covariance, check_int, require_finite
+from .._validation import as_array, as_vector, check_covariance, check_int, finite_result, require_finite
 from ..errors import (
     NonFiniteError,
     NotPositiveDefiniteError,
@@ -61,15 +61,16 @@ def check_step(status: int, method: str, k: int, x, P, outputs: dict, inputs: di
         require_finite(f"the {method} (at measurement {k})", np.nan, **inputs)
 
 
-def ekf_update(model: NonlinearModel, x, P, z, k: int, method: str, inputs: dict, x_out, P_out) -> float:
-    """EKF measurement update of x(k/k-1), P(k/k-1) with the row z (index k; NaN components skipped) into
-    x_out, P_out; returns the log-likelihood increment.  Errors name ``method`` and, for an overflow,
-    the largest of ``inputs``."""
+def ekf_update(model: NonlinearModel, x, P, z, k: int, method: str, inputs: dict, x_out, P_out,
+               row: int | None = None) -> float:
+    """EKF measurement update of x(k/k-1), P(k/k-1) with z[row] (z (T, m), row default k; NaN components
+    skipped) into x_out, P_out; R(x, k).  Returns the log-likelihood increment.  Errors name ``method``
+    and, for an overflow, the largest of ``inputs``."""
     m, n = model.m, model.n
     H = user_array(model.H_at(x), (m, n), "jac_h", k)
     hx = user_array(model.h(x[None])[0], (m,), "h", k)
     R = model.R_at(x, k)                                          # validated, read-only
-    status, ll = steps.ekf_update_into(x, P, H, hx, R, z, model.angles, x_out, P_out)
+    status, ll = steps.ekf_update_into(x, P, H, hx, R, z, k if row is None else row, model.angles, x_out, P_out)
     if status != steps.OK:
         check_step(status, method, k, x, P, {"jac_h": H, "h": hx, "R": R}, inputs)
     return ll
@@ -94,17 +95,16 @@ def ekf_step(model: NonlinearModel, x, P, z, k: int = 0):
     k = check_int("k", k, minimum=0)
     xp, Pp, xu, Pu = np.empty_like(x), np.empty_like(P), np.empty_like(x), np.empty_like(P)
     ekf_predict(model, x, P, k, xp, Pp)
-    ll = ekf_update(model, xp, Pp, z, k, "EKF", {"x": x, "P": P, "z": z}, xu, Pu)
+    ll = ekf_update(model, xp, Pp, z[None], k, "EKF", {"x": x, "P": P, "z": z}, xu, Pu, row=0)
     return xu, Pu, xp, Pp, ll
 
 
 def _run(model, z, x0, P0, prior, predict, update, method, inputs=None):
     """The driver loop shared by the EKF and the discrete UKF, writing into the result's rows:
-    predict(model, x, P, k, x_out, P_out) and update(model, x, P, z_k, k, method, given, x_out, P_out)
-    -> loglik; ``inputs`` (the filter's settings for its smoother) go into the result."""
+    predict(model, x, P, k, x_out, P_out) and update(model, x, P, z, k, method, given, x_out, P_out)
+    -> loglik (with row k of z); ``inputs`` (the filter's settings for its smoother) go into the result."""
     first = check_prior(prior)
     T, n = z.shape[0], model.n
-    z = np.require(z, dtype=float, requirements=["C", "W"])
     observed = ~np.isnan(z).all(axis=1)
     given = {"z": z, "x0": x0, "P0": P0}
     xs, Ps = np.empty((T, n)), np.empty((T, n, n))
@@ -116,7 +116,7 @@ def _run(model, z, x0, P0, prior, predict, update, method, inputs=None):
         else:
             predict(model, x, P, k, xp[k], Pp[k])
         if observed[k]:
-            loglik += update(model, xp[k], Pp[k], z[k], k, method, given, xs[k], Ps[k])
+            loglik += update(model, xp[k], Pp[k], z, k, method, given, xs[k], Ps[k])
         else:
             xs[k], Ps[k] = xp[k], Pp[k]
         x, P = xs[k], Ps[k]
@@ -126,6 +126,7 @@ def _run(model, z, x0, P0, prior, predict, update, method, inputs=None):
                         x0=None if first else x0, P0=None if first else P0, inputs=inputs)
 
 
+@finite_result("the EKF")
 def ekf_filter(model: NonlinearModel, z, x0, P0, *, prior: str = "initial") -> FilterResult:
     """Extended Kalman filter over measurements z (T, m) (module docstring).
 

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._validation import as_matrix, as_vector, require_finite
+from .._validation import as_matrix, as_vector, finite_result, require_finite
 from ..errors import ParameterError, ShapeError
 from ..linear import FilterResult
 from ..models import LinearGaussianModel, MeasurementModel, NonlinearModel, constant_acceleration
@@ -53,6 +53,7 @@ def _transition(transition, r: int) -> np.ndarray:
     return Pi
 
 
+@finite_result("the IMM")
 def imm_filter(models, z, x0, P0, transition, *, mu0=None, prior: str = "initial") -> IMMResult:
     """IMM filter over ``models`` (a sequence of NonlinearModel / LinearGaussianModel of the same state and
     measurement), measurements z (T, m), the common prior x0, P0, the Markov ``transition`` matrix (r, r)
@@ -99,7 +100,7 @@ def imm_filter(models, z, x0, P0, transition, *, mu0=None, prior: str = "initial
                 ekf_predict(mdl, X0[j], P0m[j], k, pred_x[j], pred_P[j])
             else:
                 pred_x[j], pred_P[j] = X0[j], P0m[j]
-            lls[j] = ekf_update(mdl, pred_x[j], pred_P[j], z[k], k, "IMM", given, X[j], P[j])
+            lls[j] = ekf_update(mdl, pred_x[j], pred_P[j], z, k, "IMM", given, X[j], P[j])
         with np.errstate(divide="ignore"):
             a = lls + np.log(c)
         top = a.max()

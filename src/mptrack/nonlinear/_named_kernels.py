@@ -28,10 +28,11 @@ from ._step_kernels import (
     _cov_predict,
     _ekf_update,
     _finite,
+    _observed,
     _sigma,
     _store,
     _ukf_update,
-    ekf_buffers,
+    ekf_workspace,
     unscented_moments,
 )
 
@@ -97,7 +98,7 @@ def _ekf_track(F, Q, R, codes, pos, st, angles, z, x0, P0, first, xs, Ps, xp, Pp
     A = np.empty((n, n))
     hx = np.empty(m)
     Hf = np.empty((m, n))
-    idx, buf = ekf_buffers(n, m)
+    ws = ekf_workspace(n, m)
     loglik = 0.0
     for k in range(T):
         if not (first and k == 0):
@@ -111,7 +112,7 @@ def _ekf_track(F, Q, R, codes, pos, st, angles, z, x0, P0, first, xs, Ps, xp, Pp
         _store(x, P, xp, Pp, k)
         _h(x, codes, pos, st, hx)
         _jac_h(x, codes, pos, st, Hf)
-        status, ll = _ekf_update(x, P, Hf, hx, R, z[k], angles, idx, buf)
+        status, ll = _ekf_update(x, P, Hf, hx, R, z, k, angles, ws)
         if status != OK:
             return status, k, loglik
         loglik += ll
@@ -158,6 +159,7 @@ def ukf_named(F, Q, R, codes, pos, st, angles, z, x0, P0, first, c, Wm, Wc):
     P = P0.copy()
     X = np.empty((N, n))
     Zf = np.empty((N, m))
+    idx = np.empty(m, np.int64)
     loglik = 0.0
     for k in range(T):
         if not (first and k == 0):
@@ -165,12 +167,12 @@ def ukf_named(F, Q, R, codes, pos, st, angles, z, x0, P0, first, c, Wm, Wc):
                 return NOT_PD, k, xs, Ps, xp, Pp, loglik
             x, P = unscented_moments(X @ F.T, Wm, Wc, Q)
         _store(x, P, xp, Pp, k)
-        if not np.isnan(z[k]).all():
+        if _observed(z, k, idx) > 0:
             if not _sigma(x, P, c, X):
                 return NOT_PD, k, xs, Ps, xp, Pp, loglik
             for j in range(N):
                 _h(X[j], codes, pos, st, Zf[j])
-            status, x, P, ll = _ukf_update(x, P, X, Zf, Wm, Wc, R, z[k], angles)
+            status, x, P, ll = _ukf_update(x, P, X, Zf, Wm, Wc, R, z, k, angles)
             if status != OK:
                 return status, k, xs, Ps, xp, Pp, loglik
             loglik += ll

@@ -175,12 +175,13 @@ def _unscented_cross(model: NonlinearModel, x, P, sp: tuple) -> np.ndarray:
 
 def _unscented_update(model: NonlinearModel, x, P, z, k: int, sp: tuple, method: str, inputs: dict,
                       x_out, P_out) -> float:
-    """The unscented update with the sigma points of N(x(k/k-1), P(k/k-1)) through h, into x_out, P_out."""
+    """The unscented update with row k of z and the sigma points of N(x(k/k-1), P(k/k-1)) through h,
+    into x_out, P_out."""
     c, Wm, Wc, X = sp
     X = _points(x, P, c, X)
     Z = user_array(model.h(X), (X.shape[0], model.m), "h", k)
     R = model.R_at(x, k)
-    status, ll = steps.ukf_update_into(x, P, X, Z, Wm, Wc, R, z, model.angles, x_out, P_out)
+    status, ll = steps.ukf_update_into(x, P, X, Z, Wm, Wc, R, z, k, model.angles, x_out, P_out)
     if status != steps.OK:
         check_step(status, method, k, x, P, {"h": Z, "R": R}, inputs)
     return ll
