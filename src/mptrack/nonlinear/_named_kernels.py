@@ -5,13 +5,13 @@ models (ranges, bearings, range_bearing, position and stacks of them, constant R
 (codes: 0 range ||p - s||, 1 bearing atan2(p_y - s_y, p_x - s_x), 2 a state component; pos: the state
 indices of the position, -1 padded).  :func:`ekf_filter`, :func:`ukf_filter` and
 :func:`ekf_filter_batch` then validate once and run one compiled loop over the T steps (and the B
-tracks) with the arithmetic of the NumPy path: Joseph-form EKF, unscented transform through f and h
+tracks) with the arithmetic of the generic path: Joseph-form EKF, unscented transform through f and h
 with the circular mean of the angles, innovations wrapped into [-π, π), NaN components skipped, the
 same log-likelihood: the per-step cores of :mod:`mptrack.nonlinear._step_kernels`, which the generic
 path also calls.  The tests pin the two paths to 1e-10 on identical inputs.
 
 A kernel reports a problem (a non-positive-definite innovation covariance or square root, a
-non-finite estimate) by a status code instead of raising; the caller then reruns the NumPy path,
+non-finite estimate) by a status code instead of raising; the caller then reruns the generic path,
 which raises the specific error (or, for the UKF, takes the eigenvalue square root of a
 semi-definite P).  Kernels are serial, for the reason given in :mod:`mptrack.nonlinear._kernels`.
 """
