@@ -48,7 +48,7 @@ from numba.extending import intrinsic, is_jitted
 
 from .. import _jit_cache  # noqa: F401 - compiled kernels cache in the user's cache directory
 from ..errors import ParameterError
-from ._named_kernels import DIVERGED, NOT_PD, OK, _cholesky, _finite, _gain_loglik, _observed, _store, _symmetrise
+from ._step_kernels import DIVERGED, NOT_PD, OK, _cholesky, _finite, _gain_loglik, _observed, _store, _symmetrise
 
 __all__ = ["BlockKernels", "CompiledModel", "weighted_moments", "reweight", "systematic_indices", "resample",
            "SCHEMES"]
