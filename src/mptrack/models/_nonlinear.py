@@ -103,8 +103,8 @@ class NonlinearModel:
     dt: float | None = field(default=None, kw_only=True)
     name: str = field(default="", kw_only=True)
     periods: tuple = field(init=False, repr=False)
-    #: (m,) bool, True for the angle components (read by the compiled filter steps)
-    angles: np.ndarray = field(init=False, repr=False)
+    #: (m,) float, each component's period (2 pi for an angle, 0 for none; read by the compiled filter steps)
+    period_array: np.ndarray = field(init=False, repr=False)
     m: int = field(init=False)
     #: set by :func:`nonlinear_model` for a linear motion observed by named measurement models:
     #: (F, codes, pos, stations) read by the compiled filters (mptrack.nonlinear._named_kernels)
@@ -143,9 +143,9 @@ class NonlinearModel:
             raise ShapeError(f"angle_components: indices must be < m = {m}, got {angles}")
         set_(self, "angle_components", angles)
         set_(self, "periods", tuple(2.0 * np.pi if i in angles else None for i in range(m)))
-        mask = np.array([i in angles for i in range(m)], dtype=bool)
-        mask.setflags(write=False)
-        set_(self, "angles", mask)
+        period_array = np.array([0.0 if p is None else p for p in self.periods])
+        period_array.setflags(write=False)
+        set_(self, "period_array", period_array)
         if self.dt is not None:
             set_(self, "dt", check_positive("dt", self.dt))
         for attr, rows in (("jac_f", n), ("jac_h", m)):

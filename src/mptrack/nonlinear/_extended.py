@@ -70,7 +70,7 @@ def ekf_update(model: NonlinearModel, x, P, z, k: int, method: str, inputs: dict
     H = user_array(model.H_at(x), (m, n), "jac_h", k)
     hx = user_array(model.h(x[None])[0], (m,), "h", k)
     R = model.R_at(x, k)                                          # validated, read-only
-    status, ll = steps.ekf_update_into(x, P, H, hx, R, z, k if row is None else row, model.angles, x_out, P_out)
+    status, ll = steps.ekf_update_into(x, P, H, hx, R, z, k if row is None else row, model.period_array, x_out, P_out)
     if status != steps.OK:
         check_step(status, method, k, x, P, {"jac_h": H, "h": hx, "R": R}, inputs)
     return ll
@@ -147,9 +147,9 @@ def ekf_filter(model: NonlinearModel, z, x0, P0, *, prior: str = "initial") -> F
 
 
 def named_arguments(model: NonlinearModel) -> tuple:
-    """(F, Q, R, codes, pos, stations, angles) of a model tagged by nonlinear_model for the compiled kernels."""
+    """(F, Q, R, codes, pos, stations, periods) of a model tagged by nonlinear_model for the compiled kernels."""
     F, codes, pos, stations = model.named
-    return F, model.Q, model.R, codes, pos, stations, model.angles
+    return F, model.Q, model.R, codes, pos, stations, model.period_array
 
 
 def named_result(out, x0, P0, first: bool, method: str, inputs=None) -> FilterResult:

@@ -48,7 +48,7 @@ from numba.extending import intrinsic, is_jitted
 
 from .. import _jit_cache  # noqa: F401 - compiled kernels cache in the user's cache directory
 from ..errors import ParameterError
-from ._step_kernels import DIVERGED, NOT_PD, OK, _cholesky, _finite, _gain_loglik, _observed, _store, _symmetrise
+from ._step_kernels import DIVERGED, NOT_PD, OK, _cholesky, _finite, _store, _symmetrise, _ukf_update
 
 __all__ = ["BlockKernels", "CompiledModel", "weighted_moments", "reweight", "systematic_indices", "resample",
            "SCHEMES"]
@@ -590,12 +590,6 @@ def _cd_predict(m, P, h, steps, c, Wm, Wc, Q, drift, p, X, F, S, L, k):  # pragm
 
 
 @njit(cache=True, nogil=True)
-def _wrapped(v, period):  # pragma: no cover - compiled
-    """v wrapped into [-period/2, period/2) (wrap_angles); period 0: v."""
-    return (v + 0.5 * period) % period - 0.5 * period if period > 0.0 else v
-
-
-@njit(cache=True, nogil=True)
 def cd_ukf_run(z, x0, P0, dt, fixed_steps, drift_c, drift_jit, dp, meas_c, meas_jit, mp, periods, Q, R, c, Wm, Wc,
                xs, Ps, xp, Pp, steps_used):  # pragma: no cover - compiled
     """The continuous-discrete UKF over z (T, m) (:func:`mptrack.nonlinear.ukf_filter`'s NumPy path,
@@ -612,8 +606,6 @@ def cd_ukf_run(z, x0, P0, dt, fixed_steps, drift_c, drift_jit, dp, meas_c, meas_
     Xd, Fd = np.empty((n, N * (n + 1))), np.empty((n, N * (n + 1)))
     kst = np.empty((4, 2, n, n))
     Zc = np.empty((mdim, N))
-    zbar = np.empty(mdim)
-    idx = np.empty(mdim, np.int64)
     loglik = 0.0
     for k in range(T):
         steps = fixed_steps
@@ -627,52 +619,14 @@ def cd_ukf_run(z, x0, P0, dt, fixed_steps, drift_c, drift_jit, dp, meas_c, meas_
         if not _finite(x, P):
             return DIVERGED, k, loglik
         _store(x, P, xp, Pp, k)
-        q = _observed(z, k, idx)
-        if q > 0:
+        if not np.isnan(z[k]).all():   # a row without measurements only predicts
             if not _sigma_columns(x, P, c, X, S, L):
                 return NOT_PD, k, loglik
             meas(X, mp, Zc)
-            for i in range(mdim):
-                per = periods[i]
-                if per > 0.0:
-                    sn = 0.0
-                    cs = 0.0
-                    for j in range(N):
-                        sn += Wm[j] * np.sin(Zc[i, j] * (2.0 * np.pi / per))
-                        cs += Wm[j] * np.cos(Zc[i, j] * (2.0 * np.pi / per))
-                    zbar[i] = np.arctan2(sn, cs) * (per / (2.0 * np.pi))
-                else:
-                    acc = 0.0
-                    for j in range(N):
-                        acc += Wm[j] * Zc[i, j]
-                    zbar[i] = acc
-            dZ, nu = np.empty((N, q)), np.empty(q)
-            Sz, C = np.empty((q, q)), np.empty((n, q))
-            for a in range(q):
-                i = idx[a]
-                for j in range(N):
-                    dZ[j, a] = _wrapped(Zc[i, j] - zbar[i], periods[i])
-                nu[a] = _wrapped(z[k, i] - zbar[i], periods[i])
-            for a in range(q):
-                for b in range(q):
-                    acc = 0.0
-                    for j in range(N):
-                        acc += Wc[j] * dZ[j, a] * dZ[j, b]
-                    Sz[a, b] = acc + R[idx[a], idx[b]]
-            for r in range(n):
-                for a in range(q):
-                    acc = 0.0
-                    for j in range(N):
-                        acc += Wc[j] * (X[r, j] - x[r]) * dZ[j, a]
-                    C[r, a] = acc
-            Lz = np.empty((q, q))
-            if not _cholesky(Sz, Lz, q):
-                return NOT_PD, k, loglik
-            K, w = np.empty((n, q)), np.empty(q)
-            loglik += _gain_loglik(Lz, nu, C, K, w, n, q)
-            x = x + K @ nu
-            P = P - K @ Sz @ K.T
-            _symmetrise(P)
+            status, x, P, ll = _ukf_update(x, P, X.T, Zc.T, Wm, Wc, R, z, k, periods)
+            if status != OK:
+                return status, k, loglik
+            loglik += ll
         if not _finite(x, P):
             return DIVERGED, k, loglik
         _store(x, P, xs, Ps, k)

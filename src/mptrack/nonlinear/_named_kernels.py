@@ -88,7 +88,7 @@ def _jac_h(x, codes, pos, st, H):
 
 
 @njit(cache=True, nogil=True)
-def _ekf_track(F, Q, R, codes, pos, st, angles, z, x0, P0, first, xs, Ps, xp, Pp):
+def _ekf_track(F, Q, R, codes, pos, st, periods, z, x0, P0, first, xs, Ps, xp, Pp):
     """One EKF run writing into xs, Ps, xp, Pp (T, ...); returns (status, step, loglik).  All work arrays
     are allocated once per run; the step is loops over them."""
     T, m = z.shape
@@ -113,7 +113,7 @@ def _ekf_track(F, Q, R, codes, pos, st, angles, z, x0, P0, first, xs, Ps, xp, Pp
         _store(x, P, xp, Pp, k)
         _h(x, codes, pos, st, hx)
         _jac_h(x, codes, pos, st, Hf)
-        status, ll = _ekf_update(x, P, Hf, hx, R, z, k, angles, ws)
+        status, ll = _ekf_update(x, P, Hf, hx, R, z, k, periods, ws)
         if status != OK:
             return status, k, loglik
         loglik += ll
@@ -124,22 +124,22 @@ def _ekf_track(F, Q, R, codes, pos, st, angles, z, x0, P0, first, xs, Ps, xp, Pp
 
 
 @njit(cache=True, nogil=True)
-def ekf_named(F, Q, R, codes, pos, st, angles, z, x0, P0, first):
+def ekf_named(F, Q, R, codes, pos, st, periods, z, x0, P0, first):
     T = z.shape[0]
     n = x0.shape[0]
     xs, xp = np.empty((T, n)), np.empty((T, n))
     Ps, Pp = np.empty((T, n, n)), np.empty((T, n, n))
-    status, step, loglik = _ekf_track(F, Q, R, codes, pos, st, angles, z, x0, P0, first, xs, Ps, xp, Pp)
+    status, step, loglik = _ekf_track(F, Q, R, codes, pos, st, periods, z, x0, P0, first, xs, Ps, xp, Pp)
     return status, step, xs, Ps, xp, Pp, loglik
 
 
 @njit(cache=True, nogil=True)
-def ekf_named_batch(F, Q, R, codes, pos, st, angles, z, x0, P0, xs, Ps, xp, Pp, loglik):
+def ekf_named_batch(F, Q, R, codes, pos, st, periods, z, x0, P0, xs, Ps, xp, Pp, loglik):
     """B tracks z (B, T, m), x0 (B, n), P0 (B, n, n) into the (B, T, ...) outputs; returns
     (status, track, step) of the first failure or (OK, B, T)."""
     B, T = z.shape[0], z.shape[1]
     for b in range(B):
-        status, step, ll = _ekf_track(F, Q, R, codes, pos, st, angles, z[b], x0[b], P0[b], False,
+        status, step, ll = _ekf_track(F, Q, R, codes, pos, st, periods, z[b], x0[b], P0[b], False,
                                       xs[b], Ps[b], xp[b], Pp[b])
         if status != OK:
             return status, b, step
@@ -148,7 +148,7 @@ def ekf_named_batch(F, Q, R, codes, pos, st, angles, z, x0, P0, xs, Ps, xp, Pp, 
 
 
 @njit(cache=True, nogil=True)
-def ukf_named(F, Q, R, codes, pos, st, angles, z, x0, P0, first, c, Wm, Wc):
+def ukf_named(F, Q, R, codes, pos, st, periods, z, x0, P0, first, c, Wm, Wc):
     """The discrete UKF (scaled points, weights Wm, Wc, c = n + λ); returns
     (status, step, xs, Ps, xp, Pp, loglik)."""
     T, m = z.shape
@@ -173,7 +173,7 @@ def ukf_named(F, Q, R, codes, pos, st, angles, z, x0, P0, first, c, Wm, Wc):
                 return NOT_PD, k, xs, Ps, xp, Pp, loglik
             for j in range(N):
                 _h(X[j], codes, pos, st, Zf[j])
-            status, x, P, ll = _ukf_update(x, P, X, Zf, Wm, Wc, R, z, k, angles)
+            status, x, P, ll = _ukf_update(x, P, X, Zf, Wm, Wc, R, z, k, periods)
             if status != OK:
                 return status, k, xs, Ps, xp, Pp, loglik
             loglik += ll

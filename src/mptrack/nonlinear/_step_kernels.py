@@ -12,7 +12,7 @@ do the same arithmetic:
     EKF   P(k/k-1) = F P F^T + Q;  Joseph update (I - K H) P (I - K H)^T + K R K^T
     UKF   x(k/k-1), P(k/k-1) = Σ Wm Y, Σ Wc (Y - x)(Y - x)^T + Q for Y = f(sigma points);
           update with the sigma points of the prediction (Särkkä 2013, alg. 5.14), angles averaged on the
-          circle and innovations wrapped into [-π, π)
+          circle and innovations wrapped into [-π, π) (any period: the continuous-discrete UKF too)
 
 NaN components of z are skipped.  A core reports a problem by a status code instead of raising:
 NOT_PD (an innovation covariance without a Cholesky factor), DIVERGED (a non-finite input or result).
@@ -37,8 +37,9 @@ OK, NOT_PD, DIVERGED = 0, 1, 2
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _wrap(v):
-    return (v + np.pi) % _TWO_PI - np.pi
+def _wrap(v, period):
+    """v wrapped into [-period/2, period/2) (``wrap_angles``); period 0: v itself."""
+    return (v + 0.5 * period) % period - 0.5 * period if period > 0.0 else v
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -195,9 +196,10 @@ def _cov_predict(F, Q, P, A):
 
 
 @njit(cache=True, nogil=True)
-def _ekf_update(x, P, Hf, hx, R, z, k, angles, ws):
+def _ekf_update(x, P, Hf, hx, R, z, k, periods, ws):
     """The Joseph-form EKF update of x, P in place with row k of z (NaN components skipped), the
-    Jacobian Hf (m, n), h(x) hx (m,) and R (m, m) of all components; ws from :func:`ekf_workspace`.
+    Jacobian Hf (m, n), h(x) hx (m,), R (m, m) and periods (m,) (0: not an angle) of all components; ws
+    from :func:`ekf_workspace`.
     Returns (status, loglik)."""
     n = x.shape[0]
     idx, (H, HP, PHt, K, KR, Rq, S, L, IKH, A, nu, w) = ws
@@ -208,8 +210,7 @@ def _ekf_update(x, P, Hf, hx, R, z, k, angles, ws):
         i = idx[a]
         for b in range(n):
             H[a, b] = Hf[i, b]
-        v = z[k, i] - hx[i]
-        nu[a] = _wrap(v) if angles[i] else v
+        nu[a] = _wrap(z[k, i] - hx[i], periods[i])
         for b in range(q):
             Rq[a, b] = R[i, idx[b]]
     _mul(H, P, HP, q, n, n)
@@ -255,14 +256,14 @@ def ekf_predict_into(F, P, Q, P_out):
 
 
 @njit(cache=True, nogil=True)
-def ekf_update_into(x, P, H, hx, R, z, k, angles, x_out, P_out):
+def ekf_update_into(x, P, H, hx, R, z, k, periods, x_out, P_out):
     """One EKF update of x, P with row k of z into x_out, P_out: (status, loglik); DIVERGED for
     non-finite input or output."""
     x_out[:] = x
     P_out[:, :] = P
     if not (_finite(x, P) and np.isfinite(H.sum() + hx.sum() + R.sum())):
         return DIVERGED, 0.0
-    status, ll = _ekf_update(x_out, P_out, H, hx, R, z, k, angles, ekf_workspace(x.shape[0], z.shape[1]))
+    status, ll = _ekf_update(x_out, P_out, H, hx, R, z, k, periods, ekf_workspace(x.shape[0], z.shape[1]))
     if status == OK and not _finite(x_out, P_out):
         status = DIVERGED
     return status, ll
@@ -312,9 +313,10 @@ def unscented_moments_into(Y, Wm, Wc, Q, x_out, P_out):
 
 
 @njit(cache=True, nogil=True)
-def _ukf_update(x, P, X, Zf, Wm, Wc, R, z, k, angles):
+def _ukf_update(x, P, X, Zf, Wm, Wc, R, z, k, periods):
     """The unscented update of N(x, P) (sigma points X, their measurements Zf (N, m)) with row k of z
-    (NaN components skipped).  Returns (status, x, P, loglik) with new x, P."""
+    (NaN components skipped); components of period > 0 are averaged on the circle and wrapped.
+    Returns (status, x, P, loglik) with new x, P."""
     N, m = Zf.shape
     n = x.shape[0]
     idx = np.empty(m, np.int64)
@@ -323,13 +325,14 @@ def _ukf_update(x, P, X, Zf, Wm, Wc, R, z, k, angles):
         return OK, x, P, 0.0
     zbar = np.empty(m)
     for i in range(m):
-        if angles[i]:
+        per = periods[i]
+        if per > 0.0:
             sn = 0.0
             cs = 0.0
             for j in range(N):
-                sn += Wm[j] * np.sin(Zf[j, i])
-                cs += Wm[j] * np.cos(Zf[j, i])
-            zbar[i] = np.arctan2(sn, cs)
+                sn += Wm[j] * np.sin(Zf[j, i] * (_TWO_PI / per))
+                cs += Wm[j] * np.cos(Zf[j, i] * (_TWO_PI / per))
+            zbar[i] = np.arctan2(sn, cs) * (per / _TWO_PI)
         else:
             acc = 0.0
             for j in range(N):
@@ -341,10 +344,8 @@ def _ukf_update(x, P, X, Zf, Wm, Wc, R, z, k, angles):
     for a in range(q):
         i = idx[a]
         for j in range(N):
-            v = Zf[j, i] - zbar[i]
-            dZ[j, a] = _wrap(v) if angles[i] else v
-        v = z[k, i] - zbar[i]
-        nu[a] = _wrap(v) if angles[i] else v
+            dZ[j, a] = _wrap(Zf[j, i] - zbar[i], periods[i])
+        nu[a] = _wrap(z[k, i] - zbar[i], periods[i])
         for b in range(q):
             Rq[a, b] = R[i, idx[b]]
     WdZ = Wc.reshape(N, 1) * dZ
@@ -363,13 +364,13 @@ def _ukf_update(x, P, X, Zf, Wm, Wc, R, z, k, angles):
 
 
 @njit(cache=True, nogil=True)
-def ukf_update_into(x, P, X, Zf, Wm, Wc, R, z, k, angles, x_out, P_out):
+def ukf_update_into(x, P, X, Zf, Wm, Wc, R, z, k, periods, x_out, P_out):
     """:func:`_ukf_update` into x_out, P_out with the finiteness checks: (status, loglik)."""
     x_out[:] = x
     P_out[:, :] = P
     if not (_finite(x, P) and np.isfinite(Zf.sum() + R.sum())):
         return DIVERGED, 0.0
-    status, xu, Pu, ll = _ukf_update(x, P, X, Zf, Wm, Wc, R, z, k, angles)
+    status, xu, Pu, ll = _ukf_update(x, P, X, Zf, Wm, Wc, R, z, k, periods)
     if status != OK:
         return status, 0.0
     x_out[:] = xu

@@ -215,7 +215,7 @@ def _unscented_update(model: NonlinearModel, x, P, z, k: int, sp: tuple, method:
     X = _points(x, P, c, X)
     Z = user_array(model.h(X), (X.shape[0], model.m), "h", k)
     R = model.R_at(x, k)
-    status, ll = steps.ukf_update_into(x, P, X, Z, Wm, Wc, R, z, k, model.angles, x_out, P_out)
+    status, ll = steps.ukf_update_into(x, P, X, Z, Wm, Wc, R, z, k, model.period_array, x_out, P_out)
     if status != steps.OK:
         check_step(status, method, k, x, P, {"h": Z, "R": R}, inputs)
     return ll
