@@ -243,12 +243,12 @@ def test_reproduction_report_links_explained_cells(tmp_path):
 
     results = json.loads(json.dumps(RESULTS))
     results["tables"]["Table 1"]["explained_by"] = [[0, 2, "zhao2013-typo"]]
-    results["errata"] = {"zhao2013-typo": "docs/errata.md, 'Table 1: a typo in row 0': the paper prints 2.5"}
+    results["errata"] = {"zhao2013-typo": "Table 1 has a typo in row 0: the paper prints 2.5"}
     errata = tmp_path / "errata.md"
-    errata.write_text("# Errata\n## Table 1: a typo in row 0\n")
+    errata.write_text("# Errata\n<a id=\"zhao2013-typo\"></a>\n\n## Table 1: a typo in row 0\n")
     text = write_reproduction_report(results, tmp_path / "r.html", errata=errata).read_text()
     assert text.count("class='explained'") == 1 and text.count("class='differs'") == 1
-    assert f"href='{errata.as_uri()}#table-1-a-typo-in-row-0'" in text and "the paper prints 2.5" in text
+    assert f"href='{errata.as_uri()}#zhao2013-typo'" in text and "the paper prints 2.5" in text
 
 
 def test_unknown_reproduction_is_a_clear_error(tmp_path):

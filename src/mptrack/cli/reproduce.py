@@ -27,11 +27,11 @@ def _explained(table: dict) -> dict:
 
 
 def _named(value):
-    """results.json content with every text naming papers by author and year."""
+    """results.json content with every text (table labels included) naming papers by author and year."""
     if isinstance(value, str):
         return paper_names(value)
     if isinstance(value, dict):
-        return {k: _named(v) for k, v in value.items()}
+        return {_named(k): _named(v) for k, v in value.items()}
     if isinstance(value, list):
         return [_named(v) for v in value]
     return value
@@ -99,8 +99,8 @@ def _print_tables(results: dict, verbose: bool) -> None:
             for i, j in sorted(bad):
                 entry = why.get((i, j))
                 echo(f"  {label} {table['rows'][i][0]} / {table['columns'][j]}: "
-                     + (f"explained: {(results.get('errata') or {}).get(entry, entry)}" if entry is not None
-                        else "unexplained"))
+                     + (f"explained by {ERRATA}#{entry}: {(results.get('errata') or {}).get(entry, entry)}"
+                        if entry is not None else "unexplained"))
     for name, path in results.get("figures", {}).items():
         echo(f"{name}: {path}")
     for text in results.get("notes", []):

@@ -352,7 +352,7 @@ def _conclude_n(data: dict) -> str:
 # ---------------------------------------------------------------- Table 1: the readings
 
 ERRATA = {
-    "assimakis2016-table1-single-run": "docs/errata.md, 'Percent absolute average error (Table 1)': the paper "
+    "assimakis2016-table1-single-run": "'Percent absolute average error' (Table 1): the paper "
                                        "shows one run; the cell differs from our Monte-Carlo mean by less than "
                                        "the run-to-run standard deviation of a single run",
 }
