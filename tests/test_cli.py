@@ -125,12 +125,58 @@ def test_exit_codes(tmp_path, monkeypatch):
     (["simulate", "--scenario", "urban-3bts", "--sigma", "3", "--out", "OUT"], "--sigma applies to --scenario gps"),
     (["simulate", "--cells-out", "C.csv", "--out", "OUT"], "--cells-out applies to cellular scenarios"),
     (["evaluate", "IN", "--tolerance", "1"], "--tolerance applies with --truth"),
+    (["simulate", "--along", "IN", "--duration", "100", "--out", "OUT"], "--duration does not apply with --along"),
+    (["simulate", "--along", "IN", "--speed", "5", "--out", "OUT"], "--speed does not apply with --along"),
+    (["simulate", "--along", "IN", "--interval", "2", "--out", "OUT"], "--interval does not apply with --along"),
+    (["simulate", "--along", "IN", "--q", "3", "--out", "OUT"], "--q does not apply with --along"),
+    (["simulate", "--out", "OUT", "--scenario", "urban-3bts", "--accuracy"], "--accuracy applies to"),
+    (["simulate", "--out", "OUT", "--scenario", "urban-3bts", "--no-accuracy"], "--no-accuracy applies to"),
+    (["reproduce", "--list", "--no-resume"], "--no-resume applies to a reproduction run"),
+    (["bench", "--list", "--save", "OUT"], "--save does not apply with --list"),
+    (["bench", "--list", "--quick"], "--quick does not apply with --list"),
+    (["bench", "--list", "--suite", "linear"], "--suite does not apply with --list"),
+    (["reproduce", "--list", "--report"], "--report applies to a reproduction run, not to the list"),
+    (["reproduce", "--list", "--quick"], "--quick applies to a reproduction run, not to the list"),
+    (["reproduce", "--list", "--seed", "3"], "--seed applies to a reproduction run, not to the list"),
+    (["reproduce", "--list", "--out", "OUT"], "--out applies to a reproduction run, not to the list"),
+    (["reproduce", "--seed", "3"], "--seed applies to a reproduction run, not to the list"),
+    (["reproduce", "--list", "zhao2013"], "--list lists the reproductions and runs none"),
+    (["track", "IN", "--max-skip", "1%"], "--max-skip applies to --on-error skip"),  # given, even at its default
+    (["track", "IN", "--cells", "CELLS", "--gate", "0.99"], "--gate applies to position fixes"),
 ])
 def test_options_that_do_not_apply_are_rejected(tmp_path, args, message):
     subst = {"IN": str(REAL_TRACES["car"]), "CELLS": str(tmp_path / "cells.csv"), "OUT": str(tmp_path / "o.csv")}
-    res = runner.invoke(app, [subst.get(a, a) for a in args])
+    out = ["--out", str(tmp_path / "t.parquet")] if args[0] == "track" else []  # not beside the input
+    res = runner.invoke(app, [subst.get(a, a) for a in args] + out)
     assert res.exit_code == 2 and message in res.stderr, res.output
+    assert len(res.stderr.splitlines()) == 1 and res.stdout == ""
     assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("args, message", [
+    (["track", "IN", "--sigma", "-1"], "--sigma: expected a finite number > 0, got -1.0"),
+    (["track", "IN", "--gate", "-0.5"], "--gate:"),
+    (["track", "IN", "--chunk-rows", "0"], "--chunk-rows: expected an integer >= 1, got 0"),
+    (["track", "IN", "--model", "xx"], "--model: unknown name 'xx'"),
+    (["track", "IN", "--time-unit", "zz"], "--time-unit: expected one of"),
+    (["track", "IN", "--cells", "CELLS", "--range-sigma", "-5"], "--range-sigma: expected a finite number > 0"),
+    (["simulate", "--duration", "-5", "--out", "OUT"], "--duration: expected a finite number > 0"),
+    (["simulate", "--interval", "zz", "--out", "OUT"], "--interval: expected"),
+    (["simulate", "--sigma", "-2", "--out", "OUT"], "--sigma:"),
+    (["evaluate", "TRACKS", "--truth", "IN", "--tolerance", "-1"], "--tolerance: expected a finite number >= 0"),
+])
+def test_errors_name_the_option_the_user_typed(tmp_path, tracks, args, message):
+    """A bad value is one line naming the option as typed (--sigma), never the library's argument (sigma_m)."""
+    subst = {"IN": str(REAL_TRACES["car"]), "CELLS": str(tmp_path / "cells.csv"), "OUT": str(tmp_path / "o.csv"),
+             "TRACKS": str(tracks)}
+    (tmp_path / "cells.csv").write_text("radio,mcc,net,area,cell,lon,lat\n")
+    res = runner.invoke(app, [subst.get(a, a) for a in args] + ["--out" if args[0] == "track" else "-q",
+                                                               *([str(tmp_path / "t.parquet")] if args[0] == "track"
+                                                                 else [])])
+    assert res.exit_code == 2, res.output
+    line = res.stderr.strip().splitlines()[-1]
+    assert line.startswith("error: ") and message in line, res.stderr
+    assert not re.search(r"\b(sigma_m|gate_probability|chunk_rows|time_unit|r_km2|duration_s|tolerance_s)\b", line)
 
 
 def test_json_of_a_gps_run_lists_only_its_options(tmp_path):

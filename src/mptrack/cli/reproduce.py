@@ -13,7 +13,7 @@ from rich.table import Table as RichTable
 
 from ..errors import MptrackError
 from ._common import JSON, QUIET, VERBOSE, echo, err, fail, fmt, interrupted, out, paper_names, print_json, \
-    progress, short_paper
+    progress, reject, reject_given, short_paper
 
 __all__ = ["reproduce", "cell_counts", "summary_line"]
 
@@ -108,6 +108,7 @@ def _print_tables(results: dict, verbose: bool) -> None:
 
 
 def reproduce(
+    ctx: typer.Context,
     key: Optional[str] = typer.Argument(None, help="Reproduction key (see --list), or 'all'."),
     out_root: Path = typer.Option(Path("mptrack-results"), "--out", "-o", help="Output root; results go to "
                                                                                "OUT/KEY/."),
@@ -127,6 +128,10 @@ def reproduce(
 
     reg = experiments()
     if list_ or key is None:
+        if list_ and key is not None:
+            reject("--list", f"lists the reproductions and runs none: leave out --list to run {key}")
+        reject_given(ctx, ["out_root", "seed", "quick", "resume", "report"],
+                     "applies to a reproduction run, not to the list (give a KEY or 'all')")
         if json_out:
             print_json({k: {"paper": paper_names(e.paper), "description": paper_names(e.description)}
                         for k, e in reg.items()})

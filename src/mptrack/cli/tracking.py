@@ -19,8 +19,8 @@ from rich.markup import escape
 from rich.table import Table as RichTable
 
 from ..errors import MptrackError
-from ._common import JSON, QUIET, VERBOSE, command_line, echo, err, fail, interrupted, note, out, print_json, \
-    progress, reject
+from ._common import JSON, QUIET, VERBOSE, command_line, echo, err, fail, flags_named, interrupted, note, out, \
+    print_json, progress, reject_given
 
 __all__ = ["track", "simulate", "evaluate"]
 
@@ -38,17 +38,6 @@ def _kept(out: Path) -> str:
         return ""
     return (f"; {n} finished chunk{'s' if n != 1 else ''} kept in {store.dir}; "
             f"resume with: {command_line(resume=True)}")
-
-
-def _options(cls, **values):
-    """``cls(**values)``, its errors naming the command-line option (--time-unit) instead of the argument."""
-    from ..errors import ParameterError
-
-    try:
-        return cls(**values)
-    except ParameterError as exc:
-        name, _, rest = str(exc).partition(":")
-        raise ParameterError(f"--{name.replace('_', '-')}:{rest}") from None
 
 
 def _skipped(read: dict, verbose: bool) -> None:
@@ -80,11 +69,10 @@ def _summary_table(summary: dict, title: str, rows_max: int | None) -> RichTable
     return rt
 
 
-#: Options of ``track`` that apply to position fixes only / to cellular measurements (--cells) only.
-_FIX_ONLY = {"model": "--model", "filter": "--filter", "smooth": "--smooth", "q": "--q", "sigma_m": "--sigma",
-             "noise": "--noise", "gate_probability": "--gate"}
-_CELL_ONLY = {"method": "--method", "motion": "--motion", "path_loss": None, "q_km2": None, "r_km2": "--range-sigma",
-              "scan_interval_s": None}
+#: Settings (TrackOptions fields) of ``track`` that apply to position fixes only / to cellular measurements
+#: (--cells) only.
+_FIX_ONLY = ("model", "filter", "smooth", "q", "sigma_m", "noise", "gate_probability")
+_CELL_ONLY = ("method", "motion", "path_loss", "q_km2", "r_km2", "scan_interval_s")
 
 
 def _default_out(input: Path) -> Path:
@@ -94,6 +82,7 @@ def _default_out(input: Path) -> Path:
 
 
 def track(
+    ctx: typer.Context,
     input: Path = typer.Argument(..., help="Position fixes: CSV (any delimiter), Parquet (a file or a directory), "
                                            "GPX, TCX, FIT, NMEA 0183 or GeoJSON; or, with --cells, a cellular "
                                            "measurement log (CSV/Parquet)."),
@@ -159,19 +148,17 @@ def track(
 
     With no --sigma/--q the fix noise and the process noise are estimated from each track."""
     given = {"model": model, "filter": filter, "smooth": smooth or None, "q": q, "sigma_m": sigma, "noise": noise,
-             "gate_probability": gate, "method": method, "motion": motion,
-             "r_km2": None if range_sigma is None else (range_sigma / 1e3) ** 2}
-    for name, flag in (_FIX_ONLY if cells is not None else _CELL_ONLY).items():
-        if flag and given.get(name) is not None:
-            reject(flag, "applies to position fixes, not to cellular measurements (--cells)" if cells is not None
-                   else "applies to cellular measurements only: give the cell table with --cells")
-    if workers is not None and executor == "serial":
-        reject("--workers", "applies to --executor processes or dask")
-    if max_skip != "1%" and on_error != "skip":
-        reject("--max-skip", "applies to --on-error skip")
+             "gate_probability": gate, "method": method, "motion": motion}
+    reject_given(ctx, _FIX_ONLY if cells is not None else _CELL_ONLY,
+                 "applies to position fixes, not to cellular measurements (--cells)" if cells is not None
+                 else "applies to cellular measurements only: give the cell table with --cells")
+    if executor == "serial":
+        reject_given(ctx, ["max_workers"], "applies to --executor processes or dask")
+    if on_error != "skip":
+        reject_given(ctx, ["max_skip"], "applies to --on-error skip")
     out = out or _default_out(input)
     from .._io import output_lock
-    from .._validation import check_outputs
+    from .._validation import check_outputs, check_positive
     from ..io import ReadOptions
     from ..tracking import TrackOptions, track_file
 
@@ -181,12 +168,15 @@ def track(
         values = {k: v for k, v in given.items() if v is not None}
         if "gate_probability" in values and values["gate_probability"] >= 1:
             values["gate_probability"] = None
-        options = TrackOptions(**values)
-        read = _options(ReadOptions, columns=columns or (), time_unit=time_unit, time_format=time_format,
-                        coord_unit=coord_unit, max_skip=max_skip)
+        with flags_named(ctx):
+            if range_sigma is not None:  # the option is a standard deviation in m, the setting a variance in km^2
+                values["r_km2"] = (check_positive("range_sigma", range_sigma) / 1e3) ** 2
+            options = TrackOptions(**values)
+            read = ReadOptions(columns=columns or (), time_unit=time_unit, time_format=time_format,
+                               coord_unit=coord_unit, max_skip=max_skip)
         with output_lock(out, track_summary, report, note=command_line()):
             try:
-                with progress(quiet or json_out) as bar:
+                with progress(quiet or json_out) as bar, flags_named(ctx):
                     summary = track_file(input, out, cells=cells, options=options, on_error=on_error,
                                          read=read, resume=resume, executor=executor, max_workers=workers,
                                          chunk_rows=chunk_rows, track_summary=track_summary, progress=bar)
@@ -272,12 +262,8 @@ def _noise_lines(summary: dict, track_summary) -> list[str]:
     return lines
 
 
-_SIMULATE_OPTIONS = {"tracks": "--tracks", "duration_s": "--duration", "interval": "--interval", "q": "--q",
-                     "speed_mps": "--speed", "sigma_m": "--sigma", "outlier_rate": "--outliers",
-                     "accuracy_column": "--no-accuracy"}
-
-
 def simulate(
+    ctx: typer.Context,
     scenario: str = typer.Option("gps", "--scenario", help="gps or urban-3bts."),
     tracks: Optional[int] = typer.Option(None, "--tracks", help="Number of simulated tracks (default 10; not with "
                                                                 "--along)."),
@@ -302,20 +288,19 @@ def simulate(
     json_out: bool = JSON,
 ) -> None:
     """Simulate measurement logs with truth (GPS fixes or cellular RSS scans)."""
-    if along is not None and tracks is not None:
-        reject("--tracks", "does not apply with --along (one simulated track per track of the file)")
+    if along is not None:
+        reject_given(ctx, ["tracks", "duration_s", "interval", "q", "speed_mps"],
+                     "does not apply with --along (the tracks of that file are the truth: one simulated track "
+                     "per track of the file, at its times)")
     if scenario != "gps":
-        for flag, value in (("--sigma", sigma), ("--outliers", outliers), ("--accuracy/--no-accuracy", accuracy)):
-            if value is not None:
-                reject(flag, f"applies to --scenario gps, not {scenario}")
-    elif cells_out is not None:
-        reject("--cells-out", "applies to cellular scenarios (--scenario urban-3bts)")
+        reject_given(ctx, ["sigma_m", "outlier_rate", "accuracy_column"], f"applies to --scenario gps, not {scenario}")
+    else:
+        reject_given(ctx, ["cells_out"], "applies to cellular scenarios (--scenario urban-3bts)")
     import numpy as np
     import pandas as pd
 
     from .._io import output_lock
     from .._validation import check_outputs
-    from ..errors import ParameterError
     from ..io import write_table
     from ..tracking import simulate_chunks
 
@@ -335,13 +320,10 @@ def simulate(
 
     try:
         check_outputs(along, out=out, cells_out=cells_out)
-        try:
+        with flags_named(ctx):
             chunks = simulate_chunks(scenario, n_tracks, np.random.default_rng(seed), duration_s=duration,
                                      along=along, interval=interval, q=q, speed_mps=speed, sigma_m=sigma,
                                      outlier_rate=outliers, accuracy_column=accuracy)
-        except ParameterError as exc:  # name the option, not the library's argument
-            name, _, rest = str(exc).partition(":")
-            raise ParameterError(f"{_SIMULATE_OPTIONS.get(name, name)}:{rest}") from None
         cpath = cells_out or out.with_suffix(".cells.csv")
         with output_lock(out, cpath if cells_out or scenario != "gps" else None, note=command_line()), \
                 progress(quiet or json_out) as bar, \
@@ -363,6 +345,7 @@ def simulate(
 
 
 def evaluate(
+    ctx: typer.Context,
     tracks: Path = typer.Argument(..., help="Output of mptrack track (.parquet/.csv/.geojson)."),
     truth: Optional[Path] = typer.Option(None, "--truth", help="Truth in any input format (a GPX trace, a simulated "
                                                                 "log: true_lat/true_lon or lat/lon; true_x/true_y or "
@@ -376,8 +359,8 @@ def evaluate(
     json_out: bool = JSON,
 ) -> None:
     """RMSE, NEES/NIS consistency and the error CDF of a track table against truth."""
-    if tolerance is not None and truth is None:
-        reject("--tolerance", "applies with --truth")
+    if truth is None:
+        reject_given(ctx, ["tolerance_s"], "applies with --truth")
     from .._io import output_lock
     from .._validation import check_outputs
     from ..errors import DataError
@@ -393,8 +376,9 @@ def evaluate(
             with bar.task("evaluating"):
                 est = read_output(tracks)
                 est.attrs["file"] = tracks
-                summary, table = evaluate_tracks(est, truth, tolerance_s=0.5 if tolerance is None else tolerance,
-                                                 truth_file=truth)
+                with flags_named(ctx):
+                    summary, table = evaluate_tracks(est, truth, tolerance_s=0.5 if tolerance is None else tolerance,
+                                                     truth_file=truth)
             if report is not None:
                 with bar.task("report"):
                     from ..report import write_report

@@ -18,6 +18,7 @@ import numpy as np
 import pandas as pd
 import scipy.stats
 
+from .._validation import check_positive
 from ..errors import DataError
 from ..io import FIXES, LocalFrame, ReadOptions, read_table
 from ..io._formats import raw_chunks
@@ -146,6 +147,7 @@ def evaluate_tracks(tracks: pd.DataFrame, truth=None, *, tolerance_s: float = 0.
         raise DataError(f"not a table written by mptrack track (no column {', '.join(missing)}); track the log "
                         "first: mptrack track LOG --out TRACKS", file=tracks.attrs.get("file", "tracks"))
     if truth is not None:
+        tolerance_s = check_positive("tolerance_s", tolerance_s, allow_zero=True)
         tracks = attach_truth(tracks, truth, tolerance_s=tolerance_s, file=truth_file)
     per = {str(tid): _stats(g) for tid, g in tracks.groupby("track_id", sort=False)}
     summary = {"overall": _stats(tracks), "tracks": per}
