@@ -17,7 +17,7 @@ from typer.testing import CliRunner
 
 from mptrack import __version__
 from mptrack.cli import app
-from mptrack.cli._common import paper_names, short_paper
+from mptrack.cli._common import PAPERS, paper_names, short_paper
 from mptrack.cli.reproduce import cell_counts, summary_line
 
 from _data import REAL_TRACES
@@ -211,6 +211,48 @@ def test_piped_output_is_whole_lines_and_progress_goes_to_stderr(tmp_path):
     assert res.stdout.splitlines()[0].endswith(f"; report {deep / 'r.html'}")
 
 
+def test_evaluate_numbers_are_full_precision_in_a_pipe(tracks):
+    res = cli("evaluate", tracks)
+    assert res.returncode == 0, res.stderr
+    table = res.stdout.split("\n1 tracks")[0]
+    assert re.search(r"\d\.\d{9,}", table), table  # every digit (repr), not .4g
+
+
+def test_help_is_not_wrapped_in_a_pipe():
+    """Piped (COLUMNS=80), help is plain text with one line per option and per paragraph."""
+    res = cli("track", "-h")
+    assert res.returncode == 0 and "Usage:" in res.stdout
+    lines = res.stdout.splitlines()
+    out = next(line for line in lines if "--out" in line)
+    assert out.rstrip().endswith("Default: INPUT.tracks.parquet beside the input."), out
+    assert max(map(len, lines)) > 120 and not re.search("[╭│╰─]", res.stdout)
+    epilog = cli("-h").stdout
+    assert any(line.strip().startswith("Exit status: 0 success") and line.rstrip().endswith("errors to stderr.")
+               for line in epilog.splitlines()), epilog
+
+
+def test_results_on_stdout_notes_and_advice_on_stderr(tmp_path, tracks, monkeypatch):
+    res = runner.invoke(app, ["track", str(REAL_TRACES["car"]), "--out", str(tmp_path / "a.parquet")])
+    assert res.exit_code == 0, res.output
+    assert "note: 1 track(s) show no independent fix noise" in res.stderr and "independent" not in res.stdout
+    assert res.stdout.startswith("1 tracks") and "noise: fixes" in res.stdout
+    res = runner.invoke(app, ["track", str(REAL_TRACES["car"]), "--sigma", "50", "--out", str(tmp_path / "b.parquet")])
+    assert "advice: 1 track(s) have a mean NIS far below its band" in res.stderr and "advice" not in res.stdout
+    res = runner.invoke(app, ["evaluate", str(tmp_path / "b.parquet")])
+    assert "advice: 1 track(s) have a mean NIS far below" in res.stderr and "advice" not in res.stdout
+    import mptrack.experiments as experiments
+    from mptrack.experiments._results import Reproduction, Table
+
+    def fake(key, out, **kw):
+        return Reproduction(key=key, paper="Zhao, Chen & Ma (2013), An FEM", seed=1, parameters={},
+                            tables={"t": Table("t", ["a", "b"], [["r", 1.0]])}, notes=["a note (seed 004)"])
+
+    monkeypatch.setattr(experiments, "run_experiment", fake)
+    res = runner.invoke(app, ["reproduce", "zhao2013", "--out", str(tmp_path)])
+    assert res.exit_code == 0, res.output
+    assert "note: a note (Zhao et al. 2013)" in res.stderr and "note:" not in res.stdout
+
+
 def test_bench_numbers_are_full_precision_in_a_pipe():
     res = cli("bench", "--quick", "--suite", "linear")
     assert res.returncode == 0, res.stderr
@@ -234,7 +276,14 @@ def test_help_imports_no_numerical_library():
 
 def test_papers_are_named_by_author_and_year():
     assert paper_names("KF (seed 000 eq. 4); seed 004 section 3") == "KF (Assimakis & Adam 2014 eq. 4); " \
-                                                                    "Zhao, Chen & Ma 2013 section 3"
+                                                                    "Zhao et al. 2013 section 3"
+    # one short name per paper, everywhere: the seed numbers' names are the reproductions' own
+    from mptrack.experiments import experiments
+
+    reg = experiments()
+    for seed, key in {"000": "assimakis2014", "001": "assimakis2016", "002": "assimakis2015", "003": "bouzera2017",
+                      "004": "zhao2013"}.items():
+        assert PAPERS[seed] == short_paper(reg[key].paper), key
     assert short_paper("Assimakis, Tziallas, Adam, Polyzos & Papanastasiou (2016), Mobile") == "Assimakis et al. 2016"
     assert short_paper("Assimakis & Adam (2014), Global") == "Assimakis & Adam 2014"
     res = runner.invoke(app, ["filters"])

@@ -190,9 +190,10 @@ def progress(quiet: bool):
     return progress_for(err.console, disable=quiet)
 
 
-#: The papers as users know them (author and year), for text that still calls them by file number.
+#: The papers as users know them (author and year, as :func:`short_paper` writes them: one or two authors
+#: by name, three or more "First et al."), for text that still calls them by file number.
 PAPERS = {"000": "Assimakis & Adam 2014", "001": "Assimakis et al. 2016", "002": "Assimakis & Adam 2015",
-          "003": "Bouzera et al. 2017", "004": "Zhao, Chen & Ma 2013"}
+          "003": "Bouzera et al. 2017", "004": "Zhao et al. 2013"}
 
 
 def paper_names(text: str) -> str:

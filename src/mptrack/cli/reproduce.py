@@ -12,7 +12,7 @@ from rich.markup import escape
 from rich.table import Table as RichTable
 
 from ..errors import MptrackError
-from ._common import JSON, QUIET, VERBOSE, echo, err, fail, fmt, interrupted, out, paper_names, print_json, \
+from ._common import JSON, QUIET, VERBOSE, echo, err, fail, fmt, interrupted, note, out, paper_names, print_json, \
     progress, reject, reject_given, short_paper
 
 __all__ = ["reproduce", "cell_counts", "summary_line"]
@@ -104,7 +104,7 @@ def _print_tables(results: dict, verbose: bool) -> None:
     for name, path in results.get("figures", {}).items():
         echo(f"{name}: {path}")
     for text in results.get("notes", []):
-        out.print(f"[yellow]note:[/yellow] {escape(paper_names(text))}", highlight=False)
+        note(paper_names(text))
 
 
 def reproduce(

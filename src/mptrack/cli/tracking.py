@@ -19,8 +19,8 @@ from rich.markup import escape
 from rich.table import Table as RichTable
 
 from ..errors import MptrackError
-from ._common import JSON, QUIET, VERBOSE, command_line, echo, err, fail, flags_named, interrupted, note, out, \
-    print_json, progress, reject_given
+from ._common import JSON, QUIET, VERBOSE, command_line, echo, err, fail, flags_named, fmt, interrupted, note, \
+    out, print_json, progress, reject_given
 
 __all__ = ["track", "simulate", "evaluate"]
 
@@ -65,7 +65,7 @@ def _summary_table(summary: dict, title: str, rows_max: int | None) -> RichTable
     for c in cols:
         rt.add_column(c, justify="right")
     for k, r in rows.items():
-        rt.add_row(k, *[f"{r[c]:.4g}" if isinstance(r.get(c), float) else str(r.get(c, "")) for c in cols])
+        rt.add_row(k, *[fmt(r[c]) if isinstance(r.get(c), float) else str(r.get(c, "")) for c in cols])
     return rt
 
 
@@ -205,6 +205,7 @@ def track(
         out_print(_noise_table(summary["track_noise"]))
     for line in _noise_lines(summary, track_summary):
         echo(line)
+    _advise(summary)
 
 
 def out_print(renderable) -> None:
@@ -240,7 +241,7 @@ def _noise_table(rows: list[dict]) -> RichTable:
 
 
 def _noise_lines(summary: dict, track_summary) -> list[str]:
-    """The noise the run used, in a sentence (one track) or as medians and ranges (many), and the NIS advice."""
+    """The noise the run used, in a sentence (one track) or as medians and ranges (many)."""
     noise = summary.get("noise")
     lines = []
     if noise:
@@ -254,12 +255,18 @@ def _noise_lines(summary: dict, track_summary) -> list[str]:
                          f"(5-95 %: {s['p5']:.3g}-{s['p95']:.3g}), q {q['median']:.3g} median "
                          f"({q['p5']:.3g}-{q['p95']:.3g})"
                          + ("" if track_summary else "; --track-summary FILE writes every track's estimate"))
-        if noise.get("sigma_at_floor"):
-            lines.append(f"{noise['sigma_at_floor']} track(s) show no independent fix noise (sigma at its 1 mm "
-                         "floor): the receiver already smooths its fixes, the estimate follows them, and its "
-                         "covariance covers the noise between fixes, not the receiver's own error (metres)")
-    lines += summary.get("nis", {}).get("advice", [])
     return lines
+
+
+def _advise(summary: dict) -> None:
+    """What a run's numbers suggest, on stderr: fixes without independent noise, NIS far from its band."""
+    floor = (summary.get("noise") or {}).get("sigma_at_floor")
+    if floor:
+        note(f"{floor} track(s) show no independent fix noise (sigma at its 1 mm floor): the receiver already "
+             "smooths its fixes, the estimate follows them, and its covariance covers the noise between fixes, "
+             "not the receiver's own error (metres)")
+    for advice in (summary.get("nis") or {}).get("advice", []):
+        note(advice, "advice")
 
 
 def simulate(
@@ -402,8 +409,7 @@ def evaluate(
         line += f", RMSE {o['rmse_m']:.2f} m, 95 % error {o['cdf95_m']:.2f} m, mean NEES {o['mean_nees']:.2f}"
     line += f", mean NIS {o['mean_nis']:.2f} (dof {o['mean_nis_dof']:.2f})"
     echo(line)
-    for advice in _nis_advice(summary):
-        echo(advice)
+    _advise({"nis": {"advice": _nis_advice(summary)}})
 
 
 def _nis_advice(summary: dict) -> list[str]:
