@@ -253,6 +253,37 @@ def test_results_on_stdout_notes_and_advice_on_stderr(tmp_path, tracks, monkeypa
     assert "note: a note (Zhao et al. 2013)" in res.stderr and "note:" not in res.stdout
 
 
+def test_track_report_of_a_simulated_log_shows_its_error_against_truth(tmp_path, monkeypatch):
+    """A log with truth columns (simulate): the report of `track --report` evaluates against them (error
+    plot, RMSE in the table), the same numbers as `evaluate --truth LOG`; with a GeoJSON output the
+    report is built from the run's points, not by reading the GeoJSON back."""
+    sim = tmp_path / "s.csv"
+    assert runner.invoke(app, ["simulate", "--tracks", "3", "--duration", "120", "--out", str(sim), "-q"]).exit_code == 0
+    import mptrack.io
+    import mptrack.tracking
+
+    def read_back(*a, **k):
+        raise AssertionError("the report read the output back")
+
+    for module in (mptrack.io, mptrack.tracking):
+        monkeypatch.setattr(module, "read_output", read_back)
+    out, page = tmp_path / "t.geojson", tmp_path / "r.html"
+    res = runner.invoke(app, ["track", str(sim), "--out", str(out), "--report", str(page), "-q"])
+    assert res.exit_code == 0, res.output
+    monkeypatch.undo()
+    parquet = tmp_path / "t.parquet"  # full precision, for the comparison with evaluate
+    assert runner.invoke(app, ["track", str(sim), "--out", str(parquet), "--report", str(page), "-q"]).exit_code == 0
+    text = page.read_text()
+    data = json.loads(re.search(r"<script type='application/json' id='mptrack-data'>(.*?)</script>", text,
+                                re.S).group(1))
+    assert data["payload"]["has_error"] and all("err" in tr for tr in data["payload"]["tracks"])
+    summary = dict(zip(data["summary"]["columns"], data["summary"]["overall"]))
+    ev = json.loads(runner.invoke(app, ["evaluate", str(parquet), "--truth", str(sim), "--json"]).stdout)["overall"]
+    assert summary["rmse_m"] == pytest.approx(ev["rmse_m"], rel=1e-9) and summary["rmse_m"] > 0
+    assert summary["matched_points"] == ev["matched_points"] == ev["points"]
+    assert "truth (dashed black line)" in text
+
+
 def test_bench_numbers_are_full_precision_in_a_pipe():
     res = cli("bench", "--quick", "--suite", "linear")
     assert res.returncode == 0, res.stderr

@@ -162,9 +162,10 @@ def track(
     from ..io import ReadOptions
     from ..tracking import TrackOptions, track_file
 
-    kept, summary = "", None
+    kept, summary, points = "", None, []
     try:
-        check_outputs(input, cells, report=report)
+        with flags_named(ctx):
+            check_outputs(input, cells, report=report)
         values = {k: v for k, v in given.items() if v is not None}
         if "gate_probability" in values and values["gate_probability"] >= 1:
             values["gate_probability"] = None
@@ -179,10 +180,11 @@ def track(
                 with progress(quiet or json_out) as bar, flags_named(ctx):
                     summary = track_file(input, out, cells=cells, options=options, on_error=on_error,
                                          read=read, resume=resume, executor=executor, max_workers=workers,
-                                         chunk_rows=chunk_rows, track_summary=track_summary, progress=bar)
+                                         chunk_rows=chunk_rows, track_summary=track_summary, progress=bar,
+                                         on_points=None if report is None else _keep_points(points))
                     if report is not None:
                         with bar.task("report"):
-                            _write_report(out, report, summary, f"mptrack track {input.name}")
+                            _write_report(points.pop(), report, summary, f"mptrack track {input.name}")
                         summary["report"] = str(report)
             except (OSError, KeyboardInterrupt):
                 kept = _kept(out)  # under the lock: the parts are this run's
@@ -212,14 +214,30 @@ def out_print(renderable) -> None:
     out.print(renderable)
 
 
-def _write_report(tracks_file: Path, report: Path, run: dict, title: str) -> None:
-    """The report of a run: its output read back, evaluated (with truth columns when the log had
-    them) and drawn with the run's summary (rows skipped, NIS advice)."""
-    from ..report import write_report
-    from ..tracking import evaluate_tracks, read_output
+def _keep_points(kept: list):
+    """``track_file``'s ``on_points``: the columns of the run's points a report needs, appended to ``kept``
+    (read from the run's parts whatever the output format: a GeoJSON or GPX output is not read back).
+    Arrow's memory pool first gives back what writing the output left unused (about 0.2 GB for 10^6
+    points), so the report starts from what the tracking really holds."""
+    import pyarrow as pa
 
-    table = read_output(tracks_file)
-    summary, _ = evaluate_tracks(table)
+    from ..report import report_points
+
+    def keep(tables) -> None:
+        pa.default_memory_pool().release_unused()
+        kept.append(report_points(tables))
+    return keep
+
+
+def _write_report(table, report: Path, run: dict, title: str) -> None:
+    """The report of a run's points (:func:`_keep_points`), evaluated against the truth columns a
+    simulated log passes through (true_lat/true_lon or true_x/true_y) when it has them, drawn with
+    the run's summary (rows skipped, NIS advice)."""
+    from ..report import write_report
+    from ..tracking import TRUTH_COLUMNS, evaluate_tracks
+
+    own = any(a in table.columns and b in table.columns for a, b, _ in TRUTH_COLUMNS)
+    summary, table = evaluate_tracks(table, truth_columns=own)
     write_report(table, report, summary=summary, run=run, title=title)
 
 
@@ -326,8 +344,8 @@ def simulate(
             yield log
 
     try:
-        check_outputs(along, out=out, cells_out=cells_out)
         with flags_named(ctx):
+            check_outputs(along, out=out, cells_out=cells_out)
             chunks = simulate_chunks(scenario, n_tracks, np.random.default_rng(seed), duration_s=duration,
                                      along=along, interval=interval, q=q, speed_mps=speed, sigma_m=sigma,
                                      outlier_rate=outliers, accuracy_column=accuracy)
@@ -375,7 +393,8 @@ def evaluate(
 
     held = contextlib.ExitStack()  # the report's lock, from the start to the end of the command
     try:
-        check_outputs(tracks, truth, report=report)
+        with flags_named(ctx):
+            check_outputs(tracks, truth, report=report)
         held.enter_context(output_lock(report, note=command_line()))
         if not tracks.exists():
             raise DataError("file not found", file=tracks)

@@ -195,7 +195,8 @@ def _run(source, options: TrackOptions, *, cells_table, on_error, chunk_rows, ex
 
 def track_file(input, out, *, cells=None, options: TrackOptions = TrackOptions(), on_error: str = "raise",
                read: ReadOptions = ReadOptions(), resume: bool = False, chunk_rows: int = DEFAULT_CHUNK_ROWS, executor: str = "serial",
-               max_workers: int | None = None, client=None, track_summary=None, progress=None) -> dict:
+               max_workers: int | None = None, client=None, track_summary=None, progress=None,
+               on_points=None) -> dict:
     """Track every track of ``input`` and write the point table to ``out`` (.parquet, .csv or .geojson).
 
     input          position fixes (CSV/Parquet/GPX, or a directory of Parquet files, hive-partitioned
@@ -210,6 +211,10 @@ def track_file(input, out, *, cells=None, options: TrackOptions = TrackOptions()
     executor       "serial", "processes" or "dask" (see :func:`mptrack.batch.run_stream`); the output
                    is the same whichever runs it
     track_summary  optional path: the track table (one row per track: noise estimates, counts, NIS)
+    on_points      optional: called once, after ``out`` is written, with the paths of the chunks' point
+                   tables (Arrow IPC files, ``pyarrow.feather.read_table`` reads them; in output row
+                   order), to read the run's points again without reading ``out`` back (the HTML
+                   report); the files are removed after the call
 
     Memory is bounded by ``chunk_rows`` (rows of whole tracks per chunk) and the largest track, not
     by the input.  Returns a summary dict (JSON-safe).
@@ -249,6 +254,8 @@ def track_file(input, out, *, cells=None, options: TrackOptions = TrackOptions()
             points = sum(_rows(p) for p in store.parts("points"))
             tracks_resumed = sum(_rows(p) for p in resumed)
             store.finish("points", empty=_empty_points())
+            if on_points is not None:
+                on_points(store.parts("points"))
             tracks = _tracks_frame([read_part(p) for p in store.parts("tracks")])
             if track_summary is not None:
                 store.finish("tracks", to=track_summary, empty=pa.Table.from_pandas(tracks, preserve_index=False))
