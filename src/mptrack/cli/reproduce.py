@@ -61,10 +61,8 @@ def summary_line(key: str, results: dict, path: Path) -> str:
     """The last line of a paper's reproduction."""
     c = cell_counts(results)
     line = (f"{key} ({short_paper(results.get('paper', key))}): {c['matched']}/{c['published']} "
-            f"published numbers matched")
-    if c["explained"] or c["unexplained"]:
-        line += (f", {c['explained']} differ for a documented reason, {c['unexplained']} differ unexplained "
-                 f"(see {ERRATA})")
+            f"published numbers matched, {c['explained']} differ for a documented reason, {c['unexplained']} "
+            f"differ unexplained (see {ERRATA})")
     return line + f"; {len(results.get('figures', {}))} figures, {results.get('elapsed_s', 0):.1f} s → {path}"
 
 

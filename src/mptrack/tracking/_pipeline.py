@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import json
 import time
+from collections import deque
 from contextlib import nullcontext
 from dataclasses import asdict, dataclass, fields
 from pathlib import Path
@@ -184,13 +185,30 @@ def _run(source, options: TrackOptions, *, cells_table, on_error, chunk_rows, ex
         try:
             if cells_table is None and options.noise == "file" and (options.sigma_m is None or options.q is None):
                 fixed, chunks = _file_noise(chunks, options)
+            chunks, advance = _counting_tracks(chunks, progress)
             return run_stream(TrackTask(options, cells_table, fixed), chunks, parts=_PARTS,
                               out_dir=None if store is None else store.dir, part_format="arrow", executor=executor,
-                              max_workers=max_workers, client=client, manifest=manifest, progress=progress)
+                              max_workers=max_workers, client=client, manifest=manifest, progress=advance)
         except InputNotSorted:
             if store is not None:
                 store.discard()
             report.reset()
+
+
+def _counting_tracks(chunks, progress):
+    """(the chunks as they are read, a progress callback for run_stream): each finished chunk advances
+    ``progress`` by its number of tracks (taken in the order the chunks were read: exact with the
+    serial executor, close with the others), so progress counts tracks, not chunks."""
+    sizes: deque[int] = deque()
+
+    def read():
+        for chunk in chunks:
+            sizes.append(int(chunk.data["track_id"].nunique()))
+            yield chunk
+
+    def advance(k: int = 1) -> None:
+        progress(sum(sizes.popleft() for _ in range(min(k, len(sizes)))))
+    return read(), advance
 
 
 def track_file(input, out, *, cells=None, options: TrackOptions = TrackOptions(), on_error: str = "raise",
@@ -245,7 +263,7 @@ def track_file(input, out, *, cells=None, options: TrackOptions = TrackOptions()
         progress = progress or _NullProgress()
         resumed = store.parts("tracks")
         try:
-            with progress.task(f"tracking {input.name}", total=None) as advance:
+            with progress.task(f"tracking the tracks of {input.name}", total=None) as advance:
                 results = _run(input, options, cells_table=cell_table, on_error=on_error, chunk_rows=chunk_rows,
                                executor=executor, max_workers=max_workers, client=client, store=store,
                                manifest=_manifest(input, options, cells, chunk_rows, read), progress=advance,
