@@ -258,7 +258,8 @@ def test_track_report_of_a_simulated_log_shows_its_error_against_truth(tmp_path,
     plot, RMSE in the table), the same numbers as `evaluate --truth LOG`; with a GeoJSON output the
     report is built from the run's points, not by reading the GeoJSON back."""
     sim = tmp_path / "s.csv"
-    assert runner.invoke(app, ["simulate", "--tracks", "3", "--duration", "120", "--out", str(sim), "-q"]).exit_code == 0
+    res = runner.invoke(app, ["simulate", "--tracks", "3", "--duration", "120", "--out", str(sim), "-q"])
+    assert res.exit_code == 0, res.output
     import mptrack.io
     import mptrack.tracking
 

@@ -199,6 +199,8 @@ def _counting_tracks(chunks, progress):
     """(the chunks as they are read, a progress callback for run_stream): each finished chunk advances
     ``progress`` by its number of tracks (taken in the order the chunks were read: exact with the
     serial executor, close with the others), so progress counts tracks, not chunks."""
+    if progress is None:
+        return chunks, None
     sizes: deque[int] = deque()
 
     def read():
