@@ -12,8 +12,8 @@ from rich.markup import escape
 from rich.table import Table as RichTable
 
 from ..errors import MptrackError
-from ._common import JSON, QUIET, VERBOSE, echo, err, fail, fmt, interrupted, out, paper_names, print_json, \
-    progress, short_paper
+from ._common import JSON, QUIET, VERBOSE, echo, err, fail, fmt, interrupted, note, out, paper_names, print_json, \
+    progress, reject, reject_given, short_paper
 
 __all__ = ["reproduce", "cell_counts", "summary_line"]
 
@@ -27,11 +27,11 @@ def _explained(table: dict) -> dict:
 
 
 def _named(value):
-    """results.json content with every text naming papers by author and year."""
+    """results.json content with every text (table labels included) naming papers by author and year."""
     if isinstance(value, str):
         return paper_names(value)
     if isinstance(value, dict):
-        return {k: _named(v) for k, v in value.items()}
+        return {_named(k): _named(v) for k, v in value.items()}
     if isinstance(value, list):
         return [_named(v) for v in value]
     return value
@@ -108,15 +108,16 @@ def _print_tables(results: dict, verbose: bool) -> None:
             for i, j in sorted(bad):
                 entry = why.get((i, j))
                 echo(f"  {label} {table['rows'][i][0]} / {table['columns'][j]}: "
-                     + (f"explained: {(results.get('errata') or {}).get(entry, entry)}" if entry is not None
-                        else "unexplained"))
+                     + (f"explained by {ERRATA}#{entry}: {(results.get('errata') or {}).get(entry, entry)}"
+                        if entry is not None else "unexplained"))
     for name, path in results.get("figures", {}).items():
         echo(f"{name}: {path}")
     for text in results.get("notes", []):
-        out.print(f"[yellow]note:[/yellow] {escape(paper_names(text))}", highlight=False)
+        note(paper_names(text))
 
 
 def reproduce(
+    ctx: typer.Context,
     key: Optional[str] = typer.Argument(None, help="Reproduction key (see --list), or 'all'."),
     out_root: Path = typer.Option(Path("mptrack-results"), "--out", "-o", help="Output root; results go to "
                                                                                "OUT/KEY/."),
@@ -136,6 +137,10 @@ def reproduce(
 
     reg = experiments()
     if list_ or key is None:
+        if list_ and key is not None:
+            reject("--list", f"lists the reproductions and runs none: leave out --list to run {key}")
+        reject_given(ctx, ["out_root", "seed", "quick", "resume", "report"],
+                     "applies to a reproduction run, not to the list (give a KEY or 'all')")
         if json_out:
             print_json({k: {"paper": paper_names(e.paper), "description": paper_names(e.description)}
                         for k, e in reg.items()})

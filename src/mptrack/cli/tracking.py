@@ -19,8 +19,8 @@ from rich.markup import escape
 from rich.table import Table as RichTable
 
 from ..errors import MptrackError
-from ._common import JSON, QUIET, VERBOSE, command_line, echo, err, fail, interrupted, note, out, print_json, \
-    progress, reject
+from ._common import JSON, QUIET, VERBOSE, command_line, echo, err, fail, flags_named, fmt, interrupted, note, \
+    out, print_json, progress, reject_given
 
 __all__ = ["track", "simulate", "evaluate"]
 
@@ -38,17 +38,6 @@ def _kept(out: Path) -> str:
         return ""
     return (f"; {n} finished chunk{'s' if n != 1 else ''} kept in {store.dir}; "
             f"resume with: {command_line(resume=True)}")
-
-
-def _options(cls, **values):
-    """``cls(**values)``, its errors naming the command-line option (--time-unit) instead of the argument."""
-    from ..errors import ParameterError
-
-    try:
-        return cls(**values)
-    except ParameterError as exc:
-        name, _, rest = str(exc).partition(":")
-        raise ParameterError(f"--{name.replace('_', '-')}:{rest}") from None
 
 
 class _Reading(NamedTuple):
@@ -79,18 +68,16 @@ _ALONG_READING = _reading_options("the --along file")
 _TRUTH_READING = _reading_options("the --truth file")
 
 
-def _read_options(columns, time_unit, time_format, coord_unit, *, file="", option: str = "", **more):
-    """The :class:`mptrack.io.ReadOptions` of the reading options; given without the file they apply to
-    (``file`` None, named by ``option``) they are refused."""
+def _read_options(ctx, columns, time_unit, time_format, coord_unit, *, file="", option: str = "", **more):
+    """The :class:`mptrack.io.ReadOptions` of the reading options (errors name the option); given without
+    the file they apply to (``file`` None, named by ``option``) they are refused."""
     from ..io import ReadOptions
 
     if file is None:
-        for flag, value, default in (("--columns", columns, None), ("--time-unit", time_unit, "auto"),
-                                     ("--time-format", time_format, None), ("--coord-unit", coord_unit, "auto")):
-            if value != default:
-                reject(flag, f"applies to the file read with {option}")
-    return _options(ReadOptions, columns=columns or (), time_unit=time_unit, time_format=time_format,
-                    coord_unit=coord_unit, **more)
+        reject_given(ctx, _Reading._fields, f"applies to the file read with {option}")
+    with flags_named(ctx):
+        return ReadOptions(columns=columns or (), time_unit=time_unit, time_format=time_format,
+                           coord_unit=coord_unit, **more)
 
 
 def _skipped(read: dict, verbose: bool) -> None:
@@ -118,15 +105,14 @@ def _summary_table(summary: dict, title: str, rows_max: int | None) -> RichTable
     for c in cols:
         rt.add_column(c, justify="right")
     for k, r in rows.items():
-        rt.add_row(k, *[f"{r[c]:.4g}" if isinstance(r.get(c), float) else str(r.get(c, "")) for c in cols])
+        rt.add_row(k, *[fmt(r[c]) if isinstance(r.get(c), float) else str(r.get(c, "")) for c in cols])
     return rt
 
 
-#: Options of ``track`` that apply to position fixes only / to cellular measurements (--cells) only.
-_FIX_ONLY = {"model": "--model", "filter": "--filter", "smooth": "--smooth", "q": "--q", "sigma_m": "--sigma",
-             "noise": "--noise", "gate_probability": "--gate"}
-_CELL_ONLY = {"method": "--method", "motion": "--motion", "path_loss": None, "q_km2": None, "r_km2": "--range-sigma",
-              "scan_interval_s": None}
+#: Settings (TrackOptions fields) of ``track`` that apply to position fixes only / to cellular measurements
+#: (--cells) only.
+_FIX_ONLY = ("model", "filter", "smooth", "q", "sigma_m", "noise", "gate_probability")
+_CELL_ONLY = ("method", "motion", "path_loss", "q_km2", "r_km2", "scan_interval_s")
 
 
 def _default_out(input: Path) -> Path:
@@ -136,6 +122,7 @@ def _default_out(input: Path) -> Path:
 
 
 def track(
+    ctx: typer.Context,
     input: Path = typer.Argument(..., help="Position fixes: CSV (any delimiter), Parquet (a file or a directory), "
                                            "GPX, TCX, FIT, NMEA 0183 or GeoJSON; or, with --cells, a cellular "
                                            "measurement log (CSV/Parquet)."),
@@ -196,38 +183,41 @@ def track(
 
     With no --sigma/--q the fix noise and the process noise are estimated from each track."""
     given = {"model": model, "filter": filter, "smooth": smooth or None, "q": q, "sigma_m": sigma, "noise": noise,
-             "gate_probability": gate, "method": method, "motion": motion,
-             "r_km2": None if range_sigma is None else (range_sigma / 1e3) ** 2}
-    for name, flag in (_FIX_ONLY if cells is not None else _CELL_ONLY).items():
-        if flag and given.get(name) is not None:
-            reject(flag, "applies to position fixes, not to cellular measurements (--cells)" if cells is not None
-                   else "applies to cellular measurements only: give the cell table with --cells")
-    if workers is not None and executor == "serial":
-        reject("--workers", "applies to --executor processes or dask")
-    if max_skip != "1%" and on_error != "skip":
-        reject("--max-skip", "applies to --on-error skip")
+             "gate_probability": gate, "method": method, "motion": motion}
+    reject_given(ctx, _FIX_ONLY if cells is not None else _CELL_ONLY,
+                 "applies to position fixes, not to cellular measurements (--cells)" if cells is not None
+                 else "applies to cellular measurements only: give the cell table with --cells")
+    if executor == "serial":
+        reject_given(ctx, ["max_workers"], "applies to --executor processes or dask")
+    if on_error != "skip":
+        reject_given(ctx, ["max_skip"], "applies to --on-error skip")
     out = out or _default_out(input)
     from .._io import output_lock
-    from .._validation import check_outputs
+    from .._validation import check_outputs, check_positive
     from ..tracking import TrackOptions, track_file
 
-    kept, summary = "", None
+    kept, summary, points = "", None, []
     try:
-        check_outputs(input, cells, out=out, track_summary=track_summary, report=report)
+        with flags_named(ctx):
+            check_outputs(input, cells, out=out, track_summary=track_summary, report=report)
         values = {k: v for k, v in given.items() if v is not None}
         if "gate_probability" in values and values["gate_probability"] >= 1:
             values["gate_probability"] = None
-        options = TrackOptions(**values)
-        read = _read_options(columns, time_unit, time_format, coord_unit, max_skip=max_skip)
+        with flags_named(ctx):
+            if range_sigma is not None:  # the option is a standard deviation in m, the setting a variance in km^2
+                values["r_km2"] = (check_positive("range_sigma", range_sigma) / 1e3) ** 2
+            options = TrackOptions(**values)
+        read = _read_options(ctx, columns, time_unit, time_format, coord_unit, max_skip=max_skip)
         with output_lock(out, track_summary, report, note=command_line()):
             try:
-                with progress(quiet or json_out) as bar:
+                with progress(quiet or json_out) as bar, flags_named(ctx):
                     summary = track_file(input, out, cells=cells, options=options, on_error=on_error,
                                          read=read, resume=resume, executor=executor, max_workers=workers,
-                                         chunk_rows=chunk_rows, track_summary=track_summary, progress=bar)
+                                         chunk_rows=chunk_rows, track_summary=track_summary, progress=bar,
+                                         on_points=None if report is None else _keep_points(points))
                     if report is not None:
                         with bar.task("report"):
-                            _write_report(out, report, summary, f"mptrack track {input.name}")
+                            _write_report(points.pop(), report, summary, f"mptrack track {input.name}")
                         summary["report"] = str(report)
             except (OSError, KeyboardInterrupt):
                 kept = _kept(out)  # under the lock: the parts are this run's
@@ -250,20 +240,37 @@ def track(
         out_print(_noise_table(summary["track_noise"]))
     for line in _noise_lines(summary, track_summary):
         echo(line)
+    _advise(summary)
 
 
 def out_print(renderable) -> None:
     out.print(renderable)
 
 
-def _write_report(tracks_file: Path, report: Path, run: dict, title: str) -> None:
-    """The report of a run: its output read back, evaluated (with truth columns when the log had
-    them) and drawn with the run's summary (rows skipped, NIS advice)."""
-    from ..report import write_report
-    from ..tracking import evaluate_tracks, read_output
+def _keep_points(kept: list):
+    """``track_file``'s ``on_points``: the columns of the run's points a report needs, appended to ``kept``
+    (read from the run's parts whatever the output format: a GeoJSON or GPX output is not read back).
+    Arrow's memory pool first gives back what writing the output left unused (about 0.2 GB for 10^6
+    points), so the report starts from what the tracking really holds."""
+    import pyarrow as pa
 
-    table = read_output(tracks_file)
-    summary, _ = evaluate_tracks(table)
+    from ..report import report_points
+
+    def keep(tables) -> None:
+        pa.default_memory_pool().release_unused()
+        kept.append(report_points(tables))
+    return keep
+
+
+def _write_report(table, report: Path, run: dict, title: str) -> None:
+    """The report of a run's points (:func:`_keep_points`), evaluated against the truth columns a
+    simulated log passes through (true_lat/true_lon or true_x/true_y) when it has them, drawn with
+    the run's summary (rows skipped, NIS advice)."""
+    from ..report import write_report
+    from ..tracking import TRUTH_COLUMNS, evaluate_tracks
+
+    own = any(a in table.columns and b in table.columns for a, b, _ in TRUTH_COLUMNS)
+    summary, table = evaluate_tracks(table, truth_columns=own)
     write_report(table, report, summary=summary, run=run, title=title)
 
 
@@ -285,7 +292,7 @@ def _noise_table(rows: list[dict]) -> RichTable:
 
 
 def _noise_lines(summary: dict, track_summary) -> list[str]:
-    """The noise the run used, in a sentence (one track) or as medians and ranges (many), and the NIS advice."""
+    """The noise the run used, in a sentence (one track) or as medians and ranges (many)."""
     noise = summary.get("noise")
     lines = []
     if noise:
@@ -299,20 +306,22 @@ def _noise_lines(summary: dict, track_summary) -> list[str]:
                          f"(5-95 %: {s['p5']:.3g}-{s['p95']:.3g}), q {q['median']:.3g} median "
                          f"({q['p5']:.3g}-{q['p95']:.3g})"
                          + ("" if track_summary else "; --track-summary FILE writes every track's estimate"))
-        if noise.get("sigma_at_floor"):
-            lines.append(f"{noise['sigma_at_floor']} track(s) show no independent fix noise (sigma at its 1 mm "
-                         "floor): the receiver already smooths its fixes, the estimate follows them, and its "
-                         "covariance covers the noise between fixes, not the receiver's own error (metres)")
-    lines += summary.get("nis", {}).get("advice", [])
     return lines
 
 
-_SIMULATE_OPTIONS = {"tracks": "--tracks", "duration_s": "--duration", "interval": "--interval", "q": "--q",
-                     "speed_mps": "--speed", "sigma_m": "--sigma", "outlier_rate": "--outliers",
-                     "accuracy_column": "--no-accuracy"}
+def _advise(summary: dict) -> None:
+    """What a run's numbers suggest, on stderr: fixes without independent noise, NIS far from its band."""
+    floor = (summary.get("noise") or {}).get("sigma_at_floor")
+    if floor:
+        note(f"{floor} track(s) show no independent fix noise (sigma at its 1 mm floor): the receiver already "
+             "smooths its fixes, the estimate follows them, and its covariance covers the noise between fixes, "
+             "not the receiver's own error (metres)")
+    for advice in (summary.get("nis") or {}).get("advice", []):
+        note(advice, "advice")
 
 
 def simulate(
+    ctx: typer.Context,
     scenario: str = typer.Option("gps", "--scenario", help="gps or urban-3bts."),
     tracks: Optional[int] = typer.Option(None, "--tracks", help="Number of simulated tracks (default 10; not with "
                                                                 "--along)."),
@@ -341,20 +350,19 @@ def simulate(
     json_out: bool = JSON,
 ) -> None:
     """Simulate measurement logs with truth (GPS fixes or cellular RSS scans)."""
-    if along is not None and tracks is not None:
-        reject("--tracks", "does not apply with --along (one simulated track per track of the file)")
+    if along is not None:
+        reject_given(ctx, ["tracks", "duration_s", "interval", "q", "speed_mps"],
+                     "does not apply with --along (the tracks of that file are the truth: one simulated track "
+                     "per track of the file, at its times)")
     if scenario != "gps":
-        for flag, value in (("--sigma", sigma), ("--outliers", outliers), ("--accuracy/--no-accuracy", accuracy)):
-            if value is not None:
-                reject(flag, f"applies to --scenario gps, not {scenario}")
-    elif cells_out is not None:
-        reject("--cells-out", "applies to cellular scenarios (--scenario urban-3bts)")
+        reject_given(ctx, ["sigma_m", "outlier_rate", "accuracy_column"], f"applies to --scenario gps, not {scenario}")
+    else:
+        reject_given(ctx, ["cells_out"], "applies to cellular scenarios (--scenario urban-3bts)")
     import numpy as np
     import pandas as pd
 
     from .._io import output_lock
     from .._validation import check_outputs
-    from ..errors import ParameterError
     from ..io import ReadReport, write_table
     from ..tracking import simulate_chunks
 
@@ -376,16 +384,13 @@ def simulate(
     cells_to = cpath if cells_out or scenario != "gps" else None
     read_report = ReadReport()
     try:
-        check_outputs(along, out=out, cells_out=cells_to)
-        read = _read_options(columns, time_unit, time_format, coord_unit, file=along, option="--along")
-        try:
+        with flags_named(ctx):
+            check_outputs(along, out=out, cells_out=cells_to)
+            read = _read_options(ctx, columns, time_unit, time_format, coord_unit, file=along, option="--along")
             chunks = simulate_chunks(scenario, n_tracks, np.random.default_rng(seed), duration_s=duration,
                                      along=along, interval=interval, q=q, speed_mps=speed, sigma_m=sigma,
                                      outlier_rate=outliers, accuracy_column=accuracy, read=read,
                                      report=read_report)
-        except ParameterError as exc:  # name the option, not the library's argument
-            name, _, rest = str(exc).partition(":")
-            raise ParameterError(f"{_SIMULATE_OPTIONS.get(name, name)}:{rest}") from None
         with output_lock(out, cells_to, note=command_line()), \
                 progress(quiet or json_out) as bar, \
                 bar.task("simulating tracks", total=None if along is not None else n_tracks) as advance:
@@ -410,6 +415,7 @@ def simulate(
 
 
 def evaluate(
+    ctx: typer.Context,
     tracks: Path = typer.Argument(..., help="Output of mptrack track in any of its formats: .parquet (.pq), "
                                             ".csv, .geojson (.json), .gpx or .geoparquet."),
     truth: Optional[Path] = typer.Option(None, "--truth", help="Truth in any input format: CSV (any delimiter), "
@@ -430,8 +436,8 @@ def evaluate(
     json_out: bool = JSON,
 ) -> None:
     """RMSE, NEES/NIS consistency and the error CDF of a track table against truth."""
-    if tolerance is not None and truth is None:
-        reject("--tolerance", "applies with --truth")
+    if truth is None:
+        reject_given(ctx, ["tolerance_s"], "applies with --truth")
     from .._io import output_lock
     from .._validation import check_outputs
     from ..errors import DataError
@@ -441,8 +447,9 @@ def evaluate(
     held = contextlib.ExitStack()  # the report's lock, from the start to the end of the command
     truth_report = ReadReport()
     try:
-        check_outputs(tracks, truth, report=report)
-        read = _read_options(columns, time_unit, time_format, coord_unit, file=truth, option="--truth")
+        with flags_named(ctx):
+            check_outputs(tracks, truth, report=report)
+        read = _read_options(ctx, columns, time_unit, time_format, coord_unit, file=truth, option="--truth")
         held.enter_context(output_lock(report, note=command_line()))
         if not tracks.exists():
             raise DataError("file not found", file=tracks)
@@ -450,8 +457,9 @@ def evaluate(
             with bar.task("evaluating"):
                 est = read_output(tracks)
                 est.attrs["file"] = tracks
-                summary, table = evaluate_tracks(est, truth, tolerance_s=0.5 if tolerance is None else tolerance,
-                                                 truth_file=truth, read=read, report=truth_report)
+                with flags_named(ctx):
+                    summary, table = evaluate_tracks(est, truth, tolerance_s=0.5 if tolerance is None else tolerance,
+                                                     truth_file=truth, read=read, report=truth_report)
             if report is not None:
                 with bar.task("report"):
                     from ..report import write_report
@@ -479,8 +487,7 @@ def evaluate(
         line += f", RMSE {o['rmse_m']:.2f} m, 95 % error {o['cdf95_m']:.2f} m, mean NEES {o['mean_nees']:.2f}"
     line += f", mean NIS {o['mean_nis']:.2f} (dof {o['mean_nis_dof']:.2f})"
     echo(line)
-    for advice in _nis_advice(summary):
-        echo(advice)
+    _advise({"nis": {"advice": _nis_advice(summary)}})
 
 
 def _nis_advice(summary: dict) -> list[str]:

@@ -81,12 +81,12 @@ def _speedup_rows(burdens: dict[str, float]) -> list[list]:
     return [[name] + [round(burdens[name] / burdens[col], 3) for col in NAMES] for name in NAMES]
 
 
-# erratum keys cited by the tables (results.json "errata"; sections of docs/errata.md)
+# erratum keys cited by the tables (results.json "errata"): each is an anchor in docs/errata.md
 ERRATA = {
-    "assimakis2014-table4-burdens": "docs/errata.md, 'Table 4 (seed 000) uses different burdens from Table 3': "
+    "assimakis2014-table4-burdens": "Table 4 uses different burdens from Table 3: "
                                     "printed speedups are ratios of burdens 1191, 118, 640, 98 for JKLF-A, "
                                     "JSSKLF-A, JKLF-B, JSSKLF-B, not Table 3's 1207, 96, 326, 44",
-    "assimakis2014-table4-garbled": "docs/errata.md, 'Table 4 (seed 000) uses different burdens from Table 3': "
+    "assimakis2014-table4-garbled": "Table 4 as printed is garbled: "
                                     "a printed value that belongs to another cell (text extraction garbled)",
 }
 

@@ -327,11 +327,10 @@ def _published_tables(setup, paper, sims, per_run, names, counted: bool = True) 
     return tables
 
 
-
-# erratum keys cited by the tables (results.json "errata"; sections of docs/errata.md)
+# erratum keys cited by the tables (results.json "errata"): each is an anchor in docs/errata.md
 ERRATA = {
-    "bouzera2017-fekf-averaged-gain": "docs/errata.md, 'The ordering FEKF < EKF < FCS is not reproduced at "
-                                      "sigma = 0.001': the FEKF's normalised weights average single-station "
+    "bouzera2017-fekf-averaged-gain": "The ordering FEKF < EKF < FCS is not reproduced at "
+                                      "sigma = 0.001: the FEKF's normalised weights average single-station "
                                       "corrections (about 1/m of the EKF's gain), so under the paper's R0 it "
                                       "lags more than the EKF",
 }

@@ -45,9 +45,9 @@ FILTERS = ("FE", "PF", "UKF")
 VARIANTS = (("vdp", 0.01), ("vdp", 0.1), ("vdp", 1.0), ("printed", 0.001),
             # the two variants closest to the paper's magnitudes (RMSE ~0.2)
             ("printed", 0.003), ("vdp", 0.001))
-# erratum keys cited by the tables (results.json "errata"; sections of docs/errata.md)
+# erratum keys cited by the tables (results.json "errata"): each is an anchor in docs/errata.md
 ERRATA = {
-    "zhao2013-eq42-ill-posed": "docs/errata.md, 'The example of eq. 42 is ill-posed as printed': with the printed "
+    "zhao2013-eq42-ill-posed": "The example of eq. 42 is ill-posed as printed: with the printed "
                                "drift and Q every sample path diverges, so Table 1 is computed on stable variants "
                                "and no cell can be compared like for like",
 }

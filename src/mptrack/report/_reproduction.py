@@ -39,14 +39,14 @@ def _slug(text: str) -> str:
 
 
 def _link(key: str, described: dict, errata: Path | None) -> str:
-    """The erratum ``key`` of a differing cell: its description (results.json "errata": "docs/errata.md,
-    'Heading': why"), linked to the heading in ``errata`` when that file is known."""
-    text = described.get(key, key)
-    heading = re.search(r"'([^']+)'", text)
-    body = esc(text)
-    if errata is None or heading is None:
-        return body
-    return f"<a href='{esc(errata.resolve().as_uri())}#{esc(_slug(heading.group(1)))}'>{body}</a>"
+    """The erratum ``key`` of a differing cell and its description (results.json "errata"); the key
+    links to its anchor in ``errata`` (docs/errata.md marks each erratum with ``<a id="KEY">``) when
+    that file is known."""
+    name = esc(key)
+    if errata is not None:
+        name = f"<a href='{esc(errata.resolve().as_uri())}#{esc(key)}'>{name}</a>"
+    text = described.get(key)
+    return f"erratum {name}" + (f": {esc(text)}" if text and text != key else "")
 
 
 def _table_html(label: str, table: dict, described: dict, errata: Path | None) -> str:
@@ -104,8 +104,10 @@ def write_reproduction_report(results: dict, path, *, figures_dir=None, errata=N
     title        the page's title (default: the reproduction's key)
     """
     errata = Path(errata) if errata else None
-    body = [f"<p class='note'>{esc(results.get('paper', ''))}; seed {esc(results.get('seed'))}; "
-            f"mptrack {esc(results.get('mptrack_version', ''))}; {results.get('elapsed_s', 0):.1f} s</p>"]
+    seed = results.get("seed")
+    body = [f"<p class='note'>{esc(results.get('paper', ''))}"
+            + ("" if seed is None else f"; random seed {esc(seed)}")
+            + f"; mptrack {esc(results.get('mptrack_version', ''))}; {results.get('elapsed_s', 0):.1f} s</p>"]
     if counts:
         body.append(f"<p><strong>{counts['matched']} of {counts['published']} published numbers matched, "
                     f"{counts['explained']} differ for a documented reason (yellow, linked to the erratum), "
