@@ -545,6 +545,6 @@ def test_two_outputs_at_one_path_are_refused(tmp_path, logs, case):
             args += ["--out", tmp_path / "t.parquet"]
     res = run(*args, "-q")
     assert res.exit_code == 2, res.output
-    assert one_line(res.stderr) == (f"error: {second}: {given[second]} is also given as {first}; each output of a "
-                                    "run needs a file of its own")
+    assert one_line(res.stderr) == (f"error: {flag[second]}: {given[second]} is also given as {flag[first]}; each "
+                                    "output of a run needs a file of its own")
     assert [p.name for p in tmp_path.iterdir()] == (["here.parquet"] if case == "out-symlink" else [])

@@ -23,7 +23,7 @@ from rich.markup import escape
 from ..errors import MptrackError, ParameterError, UnknownNameError
 
 __all__ = ["out", "err", "QUIET", "VERBOSE", "JSON", "fail", "interrupted", "command_line", "print_json",
-           "progress", "reject", "reject_given", "given", "flag", "flags_named", "FLAGS", "EXIT_CODES", "echo",
+           "progress", "reject", "reject_given", "given", "flag", "flags_named", "FLAGS", "check_outputs", "EXIT_CODES", "echo",
            "note", "PAPERS", "paper_names", "fmt", "short_paper"]
 
 EXIT_CODES = "Exit status: 0 success, 1 internal error, 2 usage or data error, 130 interrupted."
@@ -101,6 +101,14 @@ FLAGS = {"sigma_m": "--sigma", "gate_probability": "--gate", "r_km2": "--range-s
 def flag(name: str) -> str:
     """The command-line option of a library argument (``sigma_m`` -> ``--sigma``)."""
     return FLAGS.get(name, "--" + name.replace("_", "-"))
+
+
+def check_outputs(*inputs, **outputs) -> None:
+    """:func:`mptrack._validation.check_outputs` with the outputs named by their options, so a clash
+    reads "--report: r.html is also given as --out"."""
+    from .._validation import check_outputs as check
+
+    check(*inputs, **{flag(name): path for name, path in outputs.items()})
 
 
 def _option(ctx, name: str):

@@ -19,8 +19,8 @@ from rich.markup import escape
 from rich.table import Table as RichTable
 
 from ..errors import MptrackError
-from ._common import JSON, QUIET, VERBOSE, command_line, echo, err, fail, flags_named, fmt, interrupted, note, \
-    out, print_json, progress, reject_given
+from ._common import JSON, QUIET, VERBOSE, check_outputs, command_line, echo, err, fail, flags_named, fmt, \
+    interrupted, note, out, print_json, progress, reject_given
 
 __all__ = ["track", "simulate", "evaluate"]
 
@@ -193,13 +193,12 @@ def track(
         reject_given(ctx, ["max_skip"], "applies to --on-error skip")
     out = out or _default_out(input)
     from .._io import output_lock
-    from .._validation import check_outputs, check_positive
+    from .._validation import check_positive
     from ..tracking import TrackOptions, track_file
 
     kept, summary, points = "", None, []
     try:
-        with flags_named(ctx):
-            check_outputs(input, cells, out=out, track_summary=track_summary, report=report)
+        check_outputs(input, cells, out=out, track_summary=track_summary, report=report)
         values = {k: v for k, v in given.items() if v is not None}
         if "gate_probability" in values and values["gate_probability"] >= 1:
             values["gate_probability"] = None
@@ -362,7 +361,6 @@ def simulate(
     import pandas as pd
 
     from .._io import output_lock
-    from .._validation import check_outputs
     from ..io import ReadReport, write_table
     from ..tracking import simulate_chunks
 
@@ -384,8 +382,8 @@ def simulate(
     cells_to = cpath if cells_out or scenario != "gps" else None
     read_report = ReadReport()
     try:
+        check_outputs(along, out=out, cells_out=cells_to)
         with flags_named(ctx):
-            check_outputs(along, out=out, cells_out=cells_to)
             read = _read_options(ctx, columns, time_unit, time_format, coord_unit, file=along, option="--along")
             chunks = simulate_chunks(scenario, n_tracks, np.random.default_rng(seed), duration_s=duration,
                                      along=along, interval=interval, q=q, speed_mps=speed, sigma_m=sigma,
@@ -439,7 +437,6 @@ def evaluate(
     if truth is None:
         reject_given(ctx, ["tolerance_s"], "applies with --truth")
     from .._io import output_lock
-    from .._validation import check_outputs
     from ..errors import DataError
     from ..io import ReadReport
     from ..tracking import evaluate_tracks, read_output
@@ -447,8 +444,7 @@ def evaluate(
     held = contextlib.ExitStack()  # the report's lock, from the start to the end of the command
     truth_report = ReadReport()
     try:
-        with flags_named(ctx):
-            check_outputs(tracks, truth, report=report)
+        check_outputs(tracks, truth, report=report)
         read = _read_options(ctx, columns, time_unit, time_format, coord_unit, file=truth, option="--truth")
         held.enter_context(output_lock(report, note=command_line()))
         if not tracks.exists():
