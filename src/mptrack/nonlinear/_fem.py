@@ -24,6 +24,13 @@ oscillates when the drift dominates: with little diffusion the Galerkin
 schemes below need a box spanning the whole move, elements wider than the
 density, and lose the state (docs/nonlinear.md).
 
+The paper's own scheme ("paper", _NodalRK4): the strong form F(p) = Δ₁p + Δ₂·∇p + ½Δ₃:∇²p
+(eqs. 17–19, the ½ of eq. 17 restored) at the nodes, by central differences on the node
+lattice, stepped by classical RK4 (eqs. 20–21 with the stages corrected to F(p + τ/2·K₁) etc.)
+with as many steps per dt as its stability needs; p = 0 on the boundary.  It converges with
+order 2 on a linear-Gaussian model but, being a central scheme, wiggles and loses accuracy
+when the drift dominates the diffusion on the element scale (docs/nonlinear.md).
+
 Galerkin time schemes ("sdirk2", "cn"): the paper's RK4 stages (eq. 21) are wrong (K2 = F(p) + Δt/2·K1), and
 explicit RK4 would need τ ≲ h²/‖Q‖ anyway.  We use ``substeps`` steps per dt
 of the L-stable, second-order SDIRK2 (Alexander; γ = 1 − 1/√2), whose two
@@ -158,6 +165,50 @@ def _topology(n1: int, n2: int):
     return out
 
 
+@functools.lru_cache(maxsize=16)
+def _nodal_derivatives(n1: int, n2: int):
+    """Central differences at the nodes of an n1 × n2 grid, in element units (an element is 1 × 1).
+
+    Returns (Du, Dv, Duu, Duv, Dvv, interior): CSR matrices mapping nodal values to first and
+    second derivatives at every interior node (boundary rows are empty), and the interior mask.
+    Each derivative is the central difference along a line of the node lattice with the
+    nearest nodes on it: half an element apart where they exist, a whole element where the
+    half-way point is an element centre (which has no node); the mixed derivative from the
+    four diagonal neighbours (half an element away from mid-side nodes, a whole element from
+    corners).  All are O(h²) and symmetric, so the second differences are negative
+    semi-definite (three-point Laplacians).
+
+    The derivatives of the serendipity interpolant itself, averaged over the elements sharing
+    a node, are not usable: at a corner the averaged ∂²/∂u² is ½(δ²p(u−½) + δ²p(u+½)), whose
+    symbol cos 2θ − 2 cos θ + 1 is +4 on the node-to-node sawtooth (anti-diffusion), and the
+    filter built on them does not converge to the Kalman filter (docs/nonlinear.md).
+    """
+    top = _topology(n1, n2)
+    node_id, N = top["node_id"], top["N"]
+    i, j = top["lattice"][:, 0], top["lattice"][:, 1]
+    interior = (i > 0) & (i < 2 * n1) & (j > 0) & (j < 2 * n2)
+    k, i, j = np.flatnonzero(interior), i[interior], j[interior]
+    su = np.where(j % 2 == 0, 1, 2)   # lattice step to the nearest node along u (half-element units)
+    sv = np.where(i % 2 == 0, 1, 2)
+    sd = np.where((i % 2 == 0) & (j % 2 == 0), 2, 1)  # diagonal step: corners skip the element centres
+
+    def stencil(terms):
+        rows = np.concatenate([k] * len(terms))
+        cols = np.concatenate([node_id[i + di, j + dj] for di, dj, _ in terms])
+        vals = np.concatenate([np.broadcast_to(w, k.shape) for _, _, w in terms])
+        return scipy.sparse.csr_matrix((vals, (rows, cols)), shape=(N, N))
+
+    # a lattice step s is s/2 element units: d/du = (p₊ − p₋)/s, d²/du² = 4(p₊ − 2p + p₋)/s²
+    Du = stencil([(su, 0, 1.0 / su), (-su, 0, -1.0 / su)])
+    Dv = stencil([(0, sv, 1.0 / sv), (0, -sv, -1.0 / sv)])
+    Duu = stencil([(su, 0, 4.0 / su**2), (0, 0, -8.0 / su**2), (-su, 0, 4.0 / su**2)])
+    Dvv = stencil([(0, sv, 4.0 / sv**2), (0, 0, -8.0 / sv**2), (0, -sv, 4.0 / sv**2)])
+    Duv = stencil([(sd, sd, 1.0 / sd**2), (sd, -sd, -1.0 / sd**2), (-sd, sd, -1.0 / sd**2),
+                   (-sd, -sd, 1.0 / sd**2)])
+    interior.setflags(write=False)
+    return Du, Dv, Duu, Duv, Dvv, interior
+
+
 @dataclass(frozen=True, eq=False)
 class FEMGrid:
     """A rectangle [lo, hi] cut into n1 × n2 serendipity elements, with its quadrature data.
@@ -288,6 +339,27 @@ class FEMGrid:
         Me, Ae = self.element_matrices(model, stabilise)
         return self.assemble(Me), self.assemble(Ae)
 
+    def nodal_operator(self, model: ContinuousDiscreteModel) -> scipy.sparse.csr_matrix:
+        """The paper's strong form at the nodes (seed 004 eqs. 17–19), as a matrix L with F(p) = L p:
+
+            F(p) = Δ₁ p + Δ₂ · ∇p + ½ Σᵢⱼ (Δ₃)ᵢⱼ ∂²p/∂xᵢ∂xⱼ,   Δ₁ = −∇·f,  Δ₂ = −f,  Δ₃ = Q
+
+        (constant Q, so the derivatives of gQgᵀ in eq. 18 vanish; eq. 19 drops the ½ of eq. 17,
+        restored here).  ∇p and ∇²p are central differences on the node lattice (the paper
+        does not say how; :func:`_nodal_derivatives`), ∇·f central differences of the drift.  Boundary rows are zero: p = 0 on the boundary
+        (homogeneous Dirichlet; the paper states no boundary condition)."""
+        Du, Dv, Duu, Duv, Dvv, interior = _nodal_derivatives(self.n1, self.n2)
+        (h1, h2), Q, X = self._h, model.Q, self.nodes
+        d = 1e-4 * float(np.min(self._h))
+        e = d * np.array([[1.0, 0.0], [-1.0, 0.0], [0.0, 1.0], [0.0, -1.0]])
+        f = model.drift(np.concatenate([X[None], X[None] + e[:, None]]))  # (5, N, 2)
+        div = ((f[1, :, 0] - f[2, :, 0]) + (f[3, :, 1] - f[4, :, 1])) / (2.0 * d)
+        diag = scipy.sparse.diags
+        L = (diag(-div) - diag(f[0, :, 0] / h1) @ Du - diag(f[0, :, 1] / h2) @ Dv
+             + (0.5 * Q[0, 0] / (h1 * h1)) * Duu + ((Q[0, 1] + Q[1, 0]) * 0.5 / (h1 * h2)) * Duv
+             + (0.5 * Q[1, 1] / (h2 * h2)) * Dvv)
+        return (diag(interior.astype(float)) @ L).tocsr()
+
 
 @dataclass(frozen=True, eq=False)
 class GridDensity:
@@ -313,7 +385,7 @@ class FEMStep:
     P: np.ndarray
     loglik: float
     clipped: float            # negative mass removed after the prediction
-    lost: float               # mass outside the new box when the grid moved
+    lost: float               # mass outside the new box when the grid moved ("paper": + boundary outflow)
     regridded: bool           # the grid moved before this prediction
     factorised: bool          # ... and its operator was assembled and factorised (not re-used)
 
@@ -330,7 +402,7 @@ def _clip_normalise(grid: FEMGrid, p: np.ndarray, what: str):
     return p / mass, clipped
 
 
-SCHEMES = ("characteristics", "sdirk2", "cn")
+SCHEMES = ("characteristics", "sdirk2", "cn", "paper")
 _GAMMA = 1.0 - np.sqrt(0.5)
 _MARGIN = 0.15   # a new box is the required one widened by this fraction on each side ...
 _SHRINK = 0.4    # ... and it is redrawn when the required box falls below this fraction of it
@@ -338,6 +410,7 @@ _BAND_BYTES = 4 * 2**20   # largest band-LU factors; SuperLU beyond (see _factor
 _SOLVE_DTYPE = np.float32  # precision of the factorisation and solves (see _factorise)
 _PLACEMENT_STEPS = 4        # Heun steps of the noise-free flow used to place the grid
 _FOCUS = 4                  # refinement of the lattice that locates a narrow posterior (_focus)
+_RK4_RADIUS = 2.5           # classical RK4 is stable on the left half-disc of this radius (2.6 is the largest)
 
 
 def _factorise(grid: FEMGrid, Be: np.ndarray):
@@ -410,6 +483,38 @@ class _Propagator:
                 k1 = solve(A @ p)
                 k2 = solve(A @ (p + (1.0 - _GAMMA) * tau * k1))
                 p = p + tau * ((1.0 - _GAMMA) * k1 + _GAMMA * k2)
+        return p
+
+
+class _NodalRK4:
+    """The paper's prediction (seed 004 eqs. 19–21): classical RK4 on dp/dt = F(p) = L p at the nodes
+    (:meth:`FEMGrid.nodal_operator`), with the stages of eq. 21 corrected to
+    K₂ = F(p + τ/2·K₁), K₃ = F(p + τ/2·K₂), K₄ = F(p + τ·K₃).
+
+    Explicit: τ·ρ(L) must stay inside RK4's stability region, so the number of steps per dt
+    is the larger of ``substeps`` and dt·ρ/_RK4_RADIUS, with ρ ≥ |λ| from Gershgorin's
+    bound (the largest absolute row sum of L).  One RK4 step over the whole dt (eq. 20 as
+    printed) is unstable on every grid of the eq. 42 example.  Not conservative: the mass
+    leaving through the Dirichlet boundary (and the strong form's own imbalance) is
+    renormalised away by the caller.
+    """
+
+    def __init__(self, grid: FEMGrid, model: ContinuousDiscreteModel, substeps: int):
+        self.L = grid.nodal_operator(model)
+        self.rho = float(np.max(np.abs(self.L).sum(axis=1)))
+        self.substeps = max(substeps, int(np.ceil(model.dt * self.rho / _RK4_RADIUS)))
+        self.tau = model.dt / self.substeps
+        self.interior = _nodal_derivatives(grid.n1, grid.n2)[-1]
+
+    def __call__(self, p):
+        L, tau = self.L, self.tau
+        p = np.where(self.interior, p, 0.0)
+        for _ in range(self.substeps):
+            k1 = L @ p
+            k2 = L @ (p + 0.5 * tau * k1)
+            k3 = L @ (p + 0.5 * tau * k2)
+            k4 = L @ (p + tau * k3)
+            p = p + (tau / 6.0) * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
         return p
 
 
@@ -524,7 +629,13 @@ def fem_steps(model: ContinuousDiscreteModel, z, x0, P0, *, grid: tuple[int, int
               grid placed around the predicted density, half a dt of diffusion there;
               "sdirk2" (L-stable) or "cn" (Crank–Nicolson): the Galerkin drift–diffusion
               operator, accurate while the density moves less than its own width per element
-              (docs/nonlinear.md: at low diffusion it loses the state)
+              (docs/nonlinear.md: at low diffusion it loses the state);
+              "paper": the paper's own scheme (eqs. 17–21) — the strong form
+              F(p) = Δ₁p + Δ₂·∇p + ½Δ₃:∇²p at the nodes (central differences), stepped by
+              classical RK4 with eq. 21's stages corrected; explicit, so ``substeps`` is raised
+              to its stability limit; p = 0 on the boundary (the mass that leaves is counted in
+              ``lost``).  Needs elements narrower than the density relative to the drift
+              (docs/nonlinear.md, "The paper's scheme")
     splits    Strang steps per dt of the "characteristics" scheme (its splitting error falls
               like (dt/splits)²); each places its own grid around the density it predicts
     stabilise add streamline diffusion (see FEMGrid.element_matrices); off by default: on the
@@ -574,8 +685,12 @@ def fem_steps(model: ContinuousDiscreteModel, z, x0, P0, *, grid: tuple[int, int
                 p, _ = _clip_normalise(g, q, "re-interpolation")
         factorised = prop is None
         if factorised:
-            prop = _Propagator(g, model, substeps, scheme, stabilise)
-        p, clipped = _clip_normalise(g, prop(p), "prediction")
+            prop = (_NodalRK4(g, model, substeps) if scheme == "paper"
+                    else _Propagator(g, model, substeps, scheme, stabilise))
+        q = prop(p)
+        if scheme == "paper":  # not conservative: count what left through the boundary
+            lost += max(0.0, 1.0 - float(g.W0 @ np.clip(q, 0.0, None)))
+        p, clipped = _clip_normalise(g, q, "prediction")
         prior = GridDensity(g, p)
         _, x_pred, P_pred = g.moments(p)
         ll = 0.0
