@@ -229,6 +229,24 @@ def _advance(X, Z, scheme, drift, p, L, h, cap):  # pragma: no cover - compiled
                 X[start + j, r] = x[r, j]
 
 
+@njit(nogil=True)
+def _flow(X, drift, p, h, steps, cap):  # pragma: no cover - compiled
+    """Advance the rows of X (N, n) in place by ``steps`` capped RK4 steps of length h of the
+    noise-free drift flow (``_model._rk4_step``, the same arithmetic)."""
+    N, n = X.shape
+    B = _BLOCK
+    x, y, inc = np.empty((n, B)), np.empty((n, B)), np.empty((n, B))
+    k1, k2, k3, k4 = np.empty((n, B)), np.empty((n, B)), np.empty((n, B)), np.empty((n, B))
+    d = np.empty(B)
+    for start in range(0, N, B):
+        _load(X, start, x)
+        for _ in range(steps):
+            _rk4(x, h, drift, p, k1, k2, k3, k4, y, inc, d, cap)
+        for j in range(min(B, N - start)):
+            for r in range(n):
+                X[start + j, r] = x[r, j]
+
+
 # ---------------------------------------------------------------- weighting
 @njit(nogil=True)
 def _loglik(X, z, ok, periods, Linv, logdet, klog2pi, measurement, p, m):  # pragma: no cover - compiled
@@ -266,7 +284,7 @@ def _loglik(X, z, ok, periods, Linv, logdet, klog2pi, measurement, p, m):  # pra
 
 @functools.lru_cache(maxsize=None)
 def _bound(drift, measurement):
-    """_advance and _loglik with the model kernels bound (compiled once per process and kernel pair): a
+    """_advance, _loglik and _flow with the model kernels bound (compiled once per process and kernel pair): a
     call then passes no function argument, whose typing costs ~15 µs per call in numba's dispatcher."""
 
     @njit(nogil=True)
@@ -277,7 +295,11 @@ def _bound(drift, measurement):
     def loglik(X, z, ok, periods, Linv, logdet, klog2pi, p, m):  # pragma: no cover - compiled
         return _loglik(X, z, ok, periods, Linv, logdet, klog2pi, measurement, p, m)
 
-    return advance, loglik
+    @njit(nogil=True)
+    def flow(X, p, h, steps, cap):  # pragma: no cover - compiled
+        _flow(X, drift, p, h, steps, cap)
+
+    return advance, loglik, flow
 
 
 class CompiledModel:
@@ -293,7 +315,7 @@ class CompiledModel:
         self.L = np.ascontiguousarray(model.noise_factor())
         self.periods = np.array([0.0 if p is None else p for p in model.periods])
         self._check_against_numpy()
-        self._advance, self._loglik = _bound(self.kernels.drift, self.kernels.measurement)
+        self._advance, self._loglik, self._flow = _bound(self.kernels.drift, self.kernels.measurement)
         self._weighting = {}  # pattern of observed components -> (indices, Linv, log det, k log 2π)
 
     def _check_against_numpy(self) -> None:
@@ -316,6 +338,14 @@ class CompiledModel:
         cap = np.inf if self.model.max_increment is None else self.model.max_increment
         self._advance(X, rng, steps, SCHEMES.index(scheme), self.kernels.drift_params, self.L, self.model.dt / steps,
                       cap)
+        return X
+
+    def flow(self, X: np.ndarray, duration: float, steps: int) -> np.ndarray:
+        """The points X (N, n) carried by the noise-free drift flow over ``duration``: ``steps``
+        capped RK4 steps (the compiled twin of :func:`_model.rk4_flow`); returns a new array."""
+        X = np.array(X, dtype=float, order="C")
+        cap = np.inf if self.model.max_increment is None else self.model.max_increment
+        self._flow(X, self.kernels.drift_params, duration / steps, steps, cap)
         return X
 
     def log_likelihood(self, z: np.ndarray, X: np.ndarray) -> np.ndarray:
