@@ -68,7 +68,13 @@ def _sweep(variant: str, scale: float, runs: int = 20, ref_particles: int = 10_0
     """Per filter (FE default scheme, PF-200, UKF): mean per-run RMSE (x1, x2) to the truth, mean RMS
     distance to the reference posterior mean, failed runs (left out of the means)."""
     from mptrack.errors import MptrackError
-    from mptrack.nonlinear import fem_filter, particle_filter, reference_filter, simulate_sde, ukf_filter
+    from mptrack.nonlinear import (
+        fem_filter,
+        particle_filter,
+        reference_filter,
+        simulate_sde,
+        ukf_filter,
+    )
 
     model = zhao2013_model(variant=variant, diffusion_scale=scale)
     x0, P0 = np.array(ZHAO2013_X0), 0.1 * np.eye(2)
