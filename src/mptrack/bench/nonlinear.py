@@ -64,7 +64,7 @@ def nonlinear_suite(quick: bool) -> dict:
         for label, options, pct in variants:
             t = best_time(lambda o=options, g=g: fem_filter(model, z, x0, P0, grid=(g, g), **o), repeats) / steps
             n_sub = options.get("substeps", substeps)
-            rows.append([f"FEM {g}x{g}, {label}, {n_sub} SDIRK2 sub-steps", t * 1e3, moving[0].prior.grid.size,
+            rows.append([f"FEM {g}x{g}, {label}, {n_sub} SDIRK2 sub-steps", t * 1e3, moving[0].prior.parts[0][1].grid.size,
                          round(pct)])
         grid = FEMGrid(box[0], box[1], g, g)
         t = best_time(lambda g=g: _Propagator(FEMGrid(box[0], box[1], g, g), model, substeps, "sdirk2", False),

@@ -27,7 +27,7 @@ from ._fekf import (
     fuse_local_solutions,
     local_solutions,
 )
-from ._fem import FEMGrid, FEMStep, GridDensity, fem_filter, fem_steps, shape_functions
+from ._fem import FEMGrid, FEMStep, GridDensity, GridMixture, fem_filter, fem_steps, shape_functions
 from ._imm import IMMResult, cv_ca_models, imm_filter
 from ._model import (
     ZHAO2013_X0,
@@ -68,6 +68,7 @@ __all__ = [
     "ZHAO2013_X0",
     "FEMGrid",
     "GridDensity",
+    "GridMixture",
     "FEMStep",
     "fem_filter",
     "fem_steps",

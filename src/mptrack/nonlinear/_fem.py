@@ -16,13 +16,24 @@ quadrature; the geometry-free data of an n1 × n2 grid is computed once.
 
 Default time scheme ("characteristics"): each dt is cut into ``splits``
 Strang steps — diffusion over τ/2 by SDIRK2 (the diffusion-only Galerkin
-operator), the density carried along the back-traced characteristics of the
-drift (Liouville: p(t+τ, x) = p(t, Φ₋τ(x))·|det DΦ₋τ(x)|) onto a grid placed
-around the density predicted for t + τ, diffusion over τ/2 there.  The grid
-only has to cover the density, not the path it travels, and nothing
-oscillates when the drift dominates: with little diffusion the Galerkin
-schemes below need a box spanning the whole move, elements wider than the
-density, and lose the state (docs/nonlinear.md).
+operator), the density carried by the drift's flow Φ_τ onto a grid placed
+around the density predicted for t + τ (the Galerkin projection of the
+pushed-forward density, ∫φ_j p(t+τ) = ∫φ_j(Φ_τ(y)) p(t, y) dy: mass, mean and
+covariance conserved; _push), diffusion over τ/2 there.  The grid only has to
+cover the density, not the path it travels, and nothing oscillates when the
+drift dominates: with little diffusion the Galerkin schemes below need a box
+spanning the whole move, elements wider than the density, and lose the state
+(docs/nonlinear.md).  Separate posterior modes (a range ring seen from an
+ambiguous bearing) get a grid each: the filter carries a mixture of parts
+(GridMixture), predicted independently since the equation is linear (_split,
+_update, _merge).
+
+The paper's own scheme ("paper", _NodalRK4): the strong form F(p) = Δ₁p + Δ₂·∇p + ½Δ₃:∇²p
+(eqs. 17–19, the ½ of eq. 17 restored) at the nodes, by central differences on the node
+lattice, stepped by classical RK4 (eqs. 20–21 with the stages corrected to F(p + τ/2·K₁) etc.)
+with as many steps per dt as its stability needs; p = 0 on the boundary.  It converges with
+order 2 on a linear-Gaussian model but, being a central scheme, wiggles and loses accuracy
+when the drift dominates the diffusion on the element scale (docs/nonlinear.md).
 
 Galerkin time schemes ("sdirk2", "cn"): the paper's RK4 stages (eq. 21) are wrong (K2 = F(p) + Δt/2·K1), and
 explicit RK4 would need τ ≲ h²/‖Q‖ anyway.  We use ``substeps`` steps per dt
@@ -60,6 +71,7 @@ from typing import Iterator
 
 import numpy as np
 import scipy.linalg.lapack
+import scipy.ndimage
 import scipy.sparse
 import scipy.sparse.linalg
 
@@ -67,11 +79,12 @@ from .._validation import as_array, check_int, check_positive
 from ..errors import ConvergenceError, ParameterError, ShapeError
 from ..linear import FilterResult
 from ._common import prepare_nonlinear
-from ._fem_kernels import band_cn, band_sdirk2, band_solve
-from ._model import ContinuousDiscreteModel
+from ._fem_kernels import band_cn, band_sdirk2, band_solve, deposit, interpolate
+from ._kernels import CompiledModel
+from ._model import ContinuousDiscreteModel, rk4_flow
 from ._ukf import sigma_points
 
-__all__ = ["FEMGrid", "GridDensity", "FEMStep", "fem_filter", "fem_steps", "shape_functions"]
+__all__ = ["FEMGrid", "GridDensity", "GridMixture", "FEMStep", "fem_filter", "fem_steps", "shape_functions"]
 
 # reference element nodes: corners, then mid-sides (bottom, right, top, left)
 _XI = np.array([-1.0, 1.0, 1.0, -1.0, 0.0, 1.0, 0.0, -1.0])
@@ -158,6 +171,50 @@ def _topology(n1: int, n2: int):
     return out
 
 
+@functools.lru_cache(maxsize=16)
+def _nodal_derivatives(n1: int, n2: int):
+    """Central differences at the nodes of an n1 × n2 grid, in element units (an element is 1 × 1).
+
+    Returns (Du, Dv, Duu, Duv, Dvv, interior): CSR matrices mapping nodal values to first and
+    second derivatives at every interior node (boundary rows are empty), and the interior mask.
+    Each derivative is the central difference along a line of the node lattice with the
+    nearest nodes on it: half an element apart where they exist, a whole element where the
+    half-way point is an element centre (which has no node); the mixed derivative from the
+    four diagonal neighbours (half an element away from mid-side nodes, a whole element from
+    corners).  All are O(h²) and symmetric, so the second differences are negative
+    semi-definite (three-point Laplacians).
+
+    The derivatives of the serendipity interpolant itself, averaged over the elements sharing
+    a node, are not usable: at a corner the averaged ∂²/∂u² is ½(δ²p(u−½) + δ²p(u+½)), whose
+    symbol cos 2θ − 2 cos θ + 1 is +4 on the node-to-node sawtooth (anti-diffusion), and the
+    filter built on them does not converge to the Kalman filter (docs/nonlinear.md).
+    """
+    top = _topology(n1, n2)
+    node_id, N = top["node_id"], top["N"]
+    i, j = top["lattice"][:, 0], top["lattice"][:, 1]
+    interior = (i > 0) & (i < 2 * n1) & (j > 0) & (j < 2 * n2)
+    k, i, j = np.flatnonzero(interior), i[interior], j[interior]
+    su = np.where(j % 2 == 0, 1, 2)   # lattice step to the nearest node along u (half-element units)
+    sv = np.where(i % 2 == 0, 1, 2)
+    sd = np.where((i % 2 == 0) & (j % 2 == 0), 2, 1)  # diagonal step: corners skip the element centres
+
+    def stencil(terms):
+        rows = np.concatenate([k] * len(terms))
+        cols = np.concatenate([node_id[i + di, j + dj] for di, dj, _ in terms])
+        vals = np.concatenate([np.broadcast_to(w, k.shape) for _, _, w in terms])
+        return scipy.sparse.csr_matrix((vals, (rows, cols)), shape=(N, N))
+
+    # a lattice step s is s/2 element units: d/du = (p₊ − p₋)/s, d²/du² = 4(p₊ − 2p + p₋)/s²
+    Du = stencil([(su, 0, 1.0 / su), (-su, 0, -1.0 / su)])
+    Dv = stencil([(0, sv, 1.0 / sv), (0, -sv, -1.0 / sv)])
+    Duu = stencil([(su, 0, 4.0 / su**2), (0, 0, -8.0 / su**2), (-su, 0, 4.0 / su**2)])
+    Dvv = stencil([(0, sv, 4.0 / sv**2), (0, 0, -8.0 / sv**2), (0, -sv, 4.0 / sv**2)])
+    Duv = stencil([(sd, sd, 1.0 / sd**2), (sd, -sd, -1.0 / sd**2), (-sd, sd, -1.0 / sd**2),
+                   (-sd, -sd, 1.0 / sd**2)])
+    interior.setflags(write=False)
+    return Du, Dv, Duu, Duv, Dvv, interior
+
+
 @dataclass(frozen=True, eq=False)
 class FEMGrid:
     """A rectangle [lo, hi] cut into n1 × n2 serendipity elements, with its quadrature data.
@@ -236,13 +293,10 @@ class FEMGrid:
     def evaluate(self, p: np.ndarray, X) -> np.ndarray:
         """The interpolant of nodal values p at points X (..., 2); zero outside the rectangle."""
         X = np.asarray(X, dtype=float)
-        u = (X - self.lo) / self._h
-        inside = np.all((u >= 0.0) & (u <= np.array([self.n1, self.n2])), axis=-1)
-        e = np.clip(np.floor(u).astype(np.int64), 0, np.array([self.n1, self.n2]) - 1)
-        loc = 2.0 * (u - e) - 1.0
-        N, _, _ = shape_functions(loc[..., 0], loc[..., 1])
-        vals = np.einsum("...a,...a->...", N, p[self.conn[e[..., 0] * self.n2 + e[..., 1]]])
-        return np.where(inside, vals, 0.0)
+        flat = np.ascontiguousarray(X.reshape(-1, 2))
+        out = interpolate(flat, self.lo, self._h, self.n1, self.n2, self.conn, np.asarray(p, dtype=float),
+                          np.empty(flat.shape[0]))
+        return out.reshape(X.shape[:-1])
 
     def element_matrices(self, model: ContinuousDiscreteModel, stabilise: bool = False, advection: bool = True):
         """Element mass matrix Me (8, 8) (the same for every element) and Fokker–Planck
@@ -288,6 +342,27 @@ class FEMGrid:
         Me, Ae = self.element_matrices(model, stabilise)
         return self.assemble(Me), self.assemble(Ae)
 
+    def nodal_operator(self, model: ContinuousDiscreteModel) -> scipy.sparse.csr_matrix:
+        """The paper's strong form at the nodes (seed 004 eqs. 17–19), as a matrix L with F(p) = L p:
+
+            F(p) = Δ₁ p + Δ₂ · ∇p + ½ Σᵢⱼ (Δ₃)ᵢⱼ ∂²p/∂xᵢ∂xⱼ,   Δ₁ = −∇·f,  Δ₂ = −f,  Δ₃ = Q
+
+        (constant Q, so the derivatives of gQgᵀ in eq. 18 vanish; eq. 19 drops the ½ of eq. 17,
+        restored here).  ∇p and ∇²p are central differences on the node lattice (the paper
+        does not say how; :func:`_nodal_derivatives`), ∇·f central differences of the drift.  Boundary rows are zero: p = 0 on the boundary
+        (homogeneous Dirichlet; the paper states no boundary condition)."""
+        Du, Dv, Duu, Duv, Dvv, interior = _nodal_derivatives(self.n1, self.n2)
+        (h1, h2), Q, X = self._h, model.Q, self.nodes
+        d = 1e-4 * float(np.min(self._h))
+        e = d * np.array([[1.0, 0.0], [-1.0, 0.0], [0.0, 1.0], [0.0, -1.0]])
+        f = model.drift(np.concatenate([X[None], X[None] + e[:, None]]))  # (5, N, 2)
+        div = ((f[1, :, 0] - f[2, :, 0]) + (f[3, :, 1] - f[4, :, 1])) / (2.0 * d)
+        diag = scipy.sparse.diags
+        L = (diag(-div) - diag(f[0, :, 0] / h1) @ Du - diag(f[0, :, 1] / h2) @ Dv
+             + (0.5 * Q[0, 0] / (h1 * h1)) * Duu + ((Q[0, 1] + Q[1, 0]) * 0.5 / (h1 * h2)) * Duv
+             + (0.5 * Q[1, 1] / (h2 * h2)) * Dvv)
+        return (diag(interior.astype(float)) @ L).tocsr()
+
 
 @dataclass(frozen=True, eq=False)
 class GridDensity:
@@ -301,19 +376,53 @@ class GridDensity:
 
 
 @dataclass(frozen=True, eq=False)
+class GridMixture:
+    """What the grid filter holds: Σᵢ wᵢ pᵢ, densities on one or more grids.
+
+    parts  ((weight, GridDensity), ...), heaviest first, weights summing to 1.  One part
+           unless the posterior split into separate modes (a range ring seen from an
+           ambiguous bearing: each arc gets its own grid, see docs/nonlinear.md).
+    """
+
+    parts: tuple
+
+    def __call__(self, X) -> np.ndarray:
+        return sum(w * d(X) for w, d in self.parts)
+
+    @property
+    def lo(self) -> np.ndarray:
+        """Lower corner of the rectangle covering every part's grid."""
+        return np.min([d.grid.lo for _, d in self.parts], axis=0)
+
+    @property
+    def hi(self) -> np.ndarray:
+        return np.max([d.grid.hi for _, d in self.parts], axis=0)
+
+    def moments(self):
+        """(mean (2,), covariance (2, 2)) of the mixture, exact integrals of the interpolants."""
+        mom = [(w, *d.grid.moments(d.p)[1:]) for w, d in self.parts]
+        mean = sum(w * m for w, m, _ in mom)
+        return mean, sum(w * (C + np.outer(m - mean, m - mean)) for w, m, C in mom)
+
+
+def _single(g: FEMGrid, p: np.ndarray) -> GridMixture:
+    return GridMixture(((1.0, GridDensity(g, p)),))
+
+
+@dataclass(frozen=True, eq=False)
 class FEMStep:
     """One measurement step of the grid filter (what ``fem_steps`` yields)."""
 
     k: int                    # measurement index (time t = (k+1)·dt)
-    prior: GridDensity
-    posterior: GridDensity
+    prior: GridMixture
+    posterior: GridMixture
     x_pred: np.ndarray
     P_pred: np.ndarray
     x: np.ndarray
     P: np.ndarray
     loglik: float
     clipped: float            # negative mass removed after the prediction
-    lost: float               # mass outside the new box when the grid moved
+    lost: float               # mass outside the new box when the grid moved ("paper": + boundary outflow)
     regridded: bool           # the grid moved before this prediction
     factorised: bool          # ... and its operator was assembled and factorised (not re-used)
 
@@ -330,14 +439,20 @@ def _clip_normalise(grid: FEMGrid, p: np.ndarray, what: str):
     return p / mass, clipped
 
 
-SCHEMES = ("characteristics", "sdirk2", "cn")
+SCHEMES = ("characteristics", "sdirk2", "cn", "paper")
 _GAMMA = 1.0 - np.sqrt(0.5)
 _MARGIN = 0.15   # a new box is the required one widened by this fraction on each side ...
 _SHRINK = 0.4    # ... and it is redrawn when the required box falls below this fraction of it
 _BAND_BYTES = 4 * 2**20   # largest band-LU factors; SuperLU beyond (see _factorise)
 _SOLVE_DTYPE = np.float32  # precision of the factorisation and solves (see _factorise)
-_PLACEMENT_STEPS = 4        # Heun steps of the noise-free flow used to place the grid
-_FOCUS = 4                  # refinement of the lattice that locates a narrow posterior (_focus)
+_FOCUS = 4                  # refinement of the lattice that locates the posterior's modes (_split) ...
+_LEVEL = 1e-3               # ... the modes: connected regions above this fraction of the maximum ...
+_MIN_MODE = 1e-3            # ... holding more than this fraction of the mass
+_MAX_PARTS = 4              # parts of the mixture kept (the heaviest) ...
+_MIN_PART = 1e-4            # ... with at least this fraction of the heaviest one's weight
+_PUSH_GAUSS = 3             # the transport's quadrature: Gauss points per axis ...
+_PUSH_SUB = 2               # ... on this many sub-cells per axis of every element (_push)
+_RK4_RADIUS = 2.5           # classical RK4 is stable on the left half-disc of this radius (2.6 is the largest)
 
 
 def _factorise(grid: FEMGrid, Be: np.ndarray):
@@ -413,6 +528,38 @@ class _Propagator:
         return p
 
 
+class _NodalRK4:
+    """The paper's prediction (seed 004 eqs. 19–21): classical RK4 on dp/dt = F(p) = L p at the nodes
+    (:meth:`FEMGrid.nodal_operator`), with the stages of eq. 21 corrected to
+    K₂ = F(p + τ/2·K₁), K₃ = F(p + τ/2·K₂), K₄ = F(p + τ·K₃).
+
+    Explicit: τ·ρ(L) must stay inside RK4's stability region, so the number of steps per dt
+    is the larger of ``substeps`` and dt·ρ/_RK4_RADIUS, with ρ ≥ |λ| from Gershgorin's
+    bound (the largest absolute row sum of L).  One RK4 step over the whole dt (eq. 20 as
+    printed) is unstable on every grid of the eq. 42 example.  Not conservative: the mass
+    leaving through the Dirichlet boundary (and the strong form's own imbalance) is
+    renormalised away by the caller.
+    """
+
+    def __init__(self, grid: FEMGrid, model: ContinuousDiscreteModel, substeps: int):
+        self.L = grid.nodal_operator(model)
+        self.rho = float(np.max(np.abs(self.L).sum(axis=1)))
+        self.substeps = max(substeps, int(np.ceil(model.dt * self.rho / _RK4_RADIUS)))
+        self.tau = model.dt / self.substeps
+        self.interior = _nodal_derivatives(grid.n1, grid.n2)[-1]
+
+    def __call__(self, p):
+        L, tau = self.L, self.tau
+        p = np.where(self.interior, p, 0.0)
+        for _ in range(self.substeps):
+            k1 = L @ p
+            k2 = L @ (p + 0.5 * tau * k1)
+            k3 = L @ (p + 0.5 * tau * k2)
+            k4 = L @ (p + tau * k3)
+            p = p + (tau / 6.0) * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
+        return p
+
+
 def default_substeps(grid: tuple[int, int]) -> int:
     """Time steps per dt of the grid filter by default: 0.8·max(n1, n2), at least 8 (a fixed Courant
     number; 16 on 20 × 20)."""
@@ -423,7 +570,7 @@ def _box(model, m, P, width, floor):
     """Rectangle covering mean ± width·σ now and after one dt.
 
     The predicted moments come from sigma points pushed through the noise-free
-    flow (a few Heun steps) plus Q·dt: cheap, good enough to place a grid.  P is
+    flow (:func:`_drift_flow`) plus Q·dt: cheap, good enough to place a grid.  P is
     projected onto the PSD cone and its eigenvalues floored at ``floor``² first (a
     posterior narrower than an element has moments that are not trustworthy).
     """
@@ -431,7 +578,7 @@ def _box(model, m, P, width, floor):
     P = (V * np.maximum(w, floor * floor)) @ V.T
     s = np.sqrt(np.diag(P))
     X, Wm, Wc = sigma_points(m, P)
-    Y = model.flow(X, steps=_PLACEMENT_STEPS)
+    Y = _drift_flow(model, X, model.dt)
     mp = Wm @ Y
     sp = np.sqrt(np.clip(Wc @ (Y - mp) ** 2 + np.diag(model.Q) * model.dt, 0.0, None))
     lo = np.minimum(m - width * s, mp - width * sp)
@@ -443,53 +590,75 @@ def _predicted_box(model, m, P, width, floor, duration):
     """Rectangle covering the predicted mean ± width·σ after ``duration`` (sigma points through
     the noise-free flow, plus Q·duration), σ floored at ``floor``."""
     X, Wm, Wc = sigma_points(m, P)
-    Y = model.flow(X, duration, steps=_PLACEMENT_STEPS)
+    Y = _drift_flow(model, X, duration)
     mp = Wm @ Y
     sp = np.maximum(np.sqrt(np.clip(Wc @ (Y - mp) ** 2 + np.diag(model.Q) * duration, 0.0, None)), floor)
     return mp - width * sp, mp + width * sp
 
 
-def _transport(old: FEMGrid, p: np.ndarray, new: FEMGrid, model, duration: float) -> np.ndarray:
-    """Nodal values on ``new`` of the density p on ``old`` carried by the noise-free flow over τ =
-    ``duration``: p(t + τ, x) = p(t, Φ₋τ(x))·|det DΦ₋τ(x)| (Liouville), the back-traced foot Φ₋τ(x)
-    by Heun steps and its Jacobian by central differences."""
-    X = new.nodes
+@functools.lru_cache(maxsize=16)
+def _unit_mass_solve(n1: int, n2: int):
+    """Solver of M u = b for the mass matrix of an n1 × n2 grid of unit elements (M of any grid of
+    that shape is h1·h2 times it): SuperLU, factorised once per shape."""
+    unit = FEMGrid(np.zeros(2), np.array([float(n1), float(n2)]), n1, n2)
+    return scipy.sparse.linalg.splu(unit.assemble(unit._top["Me"]).tocsc()).solve
+
+
+@functools.lru_cache(maxsize=16)
+def _push_rule(n1: int, n2: int, order: int, sub: int):
+    """Quadrature on every element of an n1 × n2 grid: order × order Gauss points on each of
+    sub × sub sub-cells.  Returns (points (E, P, 2) in lattice units, shape functions (P, 8)
+    at them, weights (P,) on a unit element)."""
+    g, w = np.polynomial.legendre.leggauss(order)
+    c = (np.arange(sub)[:, None] + 0.5 * (1.0 + g[None, :])).ravel() / sub   # (sub·order,) in [0, 1]
+    wc = np.tile(0.5 * w, sub) / sub
+    cx, cy = np.meshgrid(c, c, indexing="ij")
+    loc = np.stack([cx.ravel(), cy.ravel()], axis=-1)                        # (P, 2) in [0, 1]²
+    wq = np.outer(wc, wc).ravel()
+    phi, _, _ = shape_functions(2.0 * loc[:, 0] - 1.0, 2.0 * loc[:, 1] - 1.0)
+    e1, e2 = np.meshgrid(np.arange(n1), np.arange(n2), indexing="ij")
+    corner = np.stack([e1.ravel(), e2.ravel()], axis=-1).astype(float)
+    return corner[:, None, :] + loc[None], phi, wq
+
+
+@functools.lru_cache(maxsize=8)
+def _compiled(model: ContinuousDiscreteModel):
+    """The model's compiled kernels (None for a model without): compiled once per model."""
+    return None if model.kernels is None else CompiledModel(model)
+
+
+def _drift_flow(model: ContinuousDiscreteModel, X: np.ndarray, duration: float) -> np.ndarray:
+    """The points X (P, 2) carried by the noise-free drift flow over ``duration``: RK4 steps, at
+    least 2 per dt and as many as the drift's stiffness at the points needs (τ·‖∂f/∂x‖ ≤ 1
+    per step, the Frobenius norm by central differences; RK4 is then accurate to a few per cent
+    on the fastest mode); compiled when the model has kernels."""
     d = 1e-5 * max(1.0, float(np.max(np.abs(X))))
     e = d * np.array([[1.0, 0.0], [-1.0, 0.0], [0.0, 1.0], [0.0, -1.0]])
-    steps = max(_PLACEMENT_STEPS, int(np.ceil(model.substeps * duration / model.dt)))  # the model's Heun step
-    Y = model.flow(np.concatenate([X[None], X[None] + e[:, None]]), -duration, steps)  # (5, N, 2), one call
-    back = Y[0]
-    J = np.stack([Y[1] - Y[2], Y[3] - Y[4]], axis=-1) / (2.0 * d)               # (N, 2, 2): ∂Φ/∂x_i columns
-    return old.evaluate(p, back) * np.abs(np.linalg.det(J))
+    f = model.drift(X[None] + e[:, None])                                            # (4, P, 2)
+    stiff = float(np.max(np.sqrt(np.sum((f[0] - f[1]) ** 2 + (f[2] - f[3]) ** 2, axis=-1)))) / (2.0 * d)
+    steps = max(int(np.ceil(2.0 * duration / model.dt)), int(np.ceil(duration * stiff)), 1)
+    compiled = _compiled(model)
+    return rk4_flow(model, X, duration, steps) if compiled is None else compiled.flow(X, duration, steps)
 
 
-def _focus(g: FEMGrid, p: np.ndarray, model, zk, width: float):
-    """The prior moved onto a grid around the posterior when the likelihood is much narrower
-    than the prior (a range ring across a wide prior): the posterior's moments come from
-    prior × likelihood on a lattice _FOCUS times finer than g; if mean ± width·σ of it is
-    less than _SHRINK of g (per axis), the prior is re-interpolated onto a grid over that box
-    (intersected with g), so that the update resolves the likelihood.  Returns (grid, p, log of
-    the prior mass kept on it) — the last term belongs to the log evidence."""
-    fine = FEMGrid(g.lo, g.hi, _FOCUS * g.n1, _FOCUS * g.n2)
-    logl = model.log_likelihood(zk, fine.nodes)
-    w = fine.W0 * np.clip(g.evaluate(p, fine.nodes), 0.0, None) * np.exp(logl - logl.max())
-    total = w.sum()
-    if not np.isfinite(total) or total <= 0.0:
-        return g, p, 0.0
-    mean = w @ fine.nodes / total
-    sd = np.sqrt(np.clip(w @ (fine.nodes - mean) ** 2 / total, 0.0, None))
-    sd = np.maximum(sd, 0.5 * fine._h)
-    lo = np.maximum(mean - width * sd, g.lo)
-    hi = np.minimum(mean + width * sd, g.hi)
-    if np.any(hi - lo >= _SHRINK * (g.hi - g.lo)):
-        return g, p, 0.0
-    margin = _MARGIN * (hi - lo)
-    new = FEMGrid(np.maximum(lo - margin, g.lo), np.minimum(hi + margin, g.hi), g.n1, g.n2)
-    q = np.clip(g.evaluate(p, new.nodes), 0.0, None)
-    kept = float(new.W0 @ q)
-    if not np.isfinite(kept) or kept <= 0.0:
-        return g, p, 0.0
-    return new, q / kept, float(np.log(kept))
+def _push(old: FEMGrid, p: np.ndarray, new: FEMGrid, model, duration: float):
+    """The density p on ``old`` carried by the noise-free flow over τ = ``duration`` onto ``new``,
+    conserving mass: the L2 projection of the transported density onto new's elements,
+    M q = b with b_j = ∫ φ_j p(t+τ) dx = ∫ φ_j(Φ_τ(y)) p(y) dy (a change of variables, so no
+    Jacobian), by Gauss quadrature on old's elements (_PUSH_GAUSS² points on each of _PUSH_SUB²
+    sub-cells) with the points pushed forward (:func:`_drift_flow`).  Points carrying less than
+    10⁻¹² of the largest weight are not moved (their mass is dropped).
+    Returns (nodal values q, fraction of the mass that landed outside new)."""
+    uq, phi, wq = _push_rule(old.n1, old.n2, _PUSH_GAUSS, _PUSH_SUB)
+    w = ((p[old.conn] @ phi.T) * (wq * float(old._h[0] * old._h[1]))).ravel()   # mass of each point
+    keep = np.abs(w) > 1e-12 * np.max(np.abs(w))
+    Y = _drift_flow(model, old.lo + old._h * uq.reshape(-1, 2)[keep], duration)
+    w = w[keep]
+    b = np.zeros(new.size)
+    outside = deposit(Y, w, new.lo, new._h, new.n1, new.n2, new.conn, b)
+    q = _unit_mass_solve(new.n1, new.n2)(b) / float(new._h[0] * new._h[1])
+    total = float(w.sum())
+    return q, (outside / total if total > 0.0 else 0.0)
 
 
 def _bayes_update(grid: FEMGrid, p: np.ndarray, logl: np.ndarray, k: int):
@@ -520,11 +689,18 @@ def fem_steps(model: ContinuousDiscreteModel, z, x0, P0, *, grid: tuple[int, int
               number, 16 on the paper's 20 × 20 grid, where 32 are no more accurate on
               eq. 42 and 8 are measurably less (docs/design.md)
     scheme    "characteristics" (default): Strang splitting — half a dt of diffusion by SDIRK2,
-              the density carried along the back-traced characteristics of the drift onto a
+              the density carried by the drift's flow (mass-conserving projection) onto a
               grid placed around the predicted density, half a dt of diffusion there;
+              separate posterior modes get their own grids (``step.posterior.parts``);
               "sdirk2" (L-stable) or "cn" (Crank–Nicolson): the Galerkin drift–diffusion
               operator, accurate while the density moves less than its own width per element
-              (docs/nonlinear.md: at low diffusion it loses the state)
+              (docs/nonlinear.md: at low diffusion it loses the state);
+              "paper": the paper's own scheme (eqs. 17–21) — the strong form
+              F(p) = Δ₁p + Δ₂·∇p + ½Δ₃:∇²p at the nodes (central differences), stepped by
+              classical RK4 with eq. 21's stages corrected; explicit, so ``substeps`` is raised
+              to its stability limit; p = 0 on the boundary (the mass that leaves is counted in
+              ``lost``).  Needs elements narrower than the density relative to the drift
+              (docs/nonlinear.md, "The paper's scheme")
     splits    Strang steps per dt of the "characteristics" scheme (its splitting error falls
               like (dt/splits)²); each places its own grid around the density it predicts
     stabilise add streamline diffusion (see FEMGrid.element_matrices); off by default: on the
@@ -574,15 +750,19 @@ def fem_steps(model: ContinuousDiscreteModel, z, x0, P0, *, grid: tuple[int, int
                 p, _ = _clip_normalise(g, q, "re-interpolation")
         factorised = prop is None
         if factorised:
-            prop = _Propagator(g, model, substeps, scheme, stabilise)
-        p, clipped = _clip_normalise(g, prop(p), "prediction")
-        prior = GridDensity(g, p)
+            prop = (_NodalRK4(g, model, substeps) if scheme == "paper"
+                    else _Propagator(g, model, substeps, scheme, stabilise))
+        q = prop(p)
+        if scheme == "paper":  # not conservative: count what left through the boundary
+            lost += max(0.0, 1.0 - float(g.W0 @ np.clip(q, 0.0, None)))
+        p, clipped = _clip_normalise(g, q, "prediction")
+        prior = _single(g, p)
         _, x_pred, P_pred = g.moments(p)
         ll = 0.0
         if not np.isnan(z[k]).all():
             p, ll = _bayes_update(g, p, model.log_likelihood(z[k], g.nodes), k)
         _, m, P = g.moments(p)
-        yield FEMStep(k=k, prior=prior, posterior=GridDensity(g, p), x_pred=x_pred, P_pred=P_pred, x=m, P=P,
+        yield FEMStep(k=k, prior=prior, posterior=_single(g, p), x_pred=x_pred, P_pred=P_pred, x=m, P=P,
                       loglik=ll, clipped=clipped, lost=lost, regridded=regridded, factorised=factorised)
 
 
@@ -603,9 +783,9 @@ def _transport_steps(model, g, p, prop, width, splits, half, tau, fixed):
                 size = old  # a translated grid: same elements, the diffusion LU is re-used
             centre = 0.5 * (lo + hi)
             new = FEMGrid(centre - 0.5 * size, centre + 0.5 * size, *shape)
-        q = _transport(g, p, new, model, tau)
+        q, out = _push(g, p, new, model, tau)
+        lost += out
         if new is not g:
-            lost += max(0.0, 1.0 - float(new.W0 @ np.clip(q, 0.0, None)))
             regridded = True
             if not np.array_equal(new.hi - new.lo, g.hi - g.lo):
                 prop, factorised = _Propagator(new, model, half, "characteristics", False, 0.5 * tau), True
@@ -632,39 +812,152 @@ def _galerkin_step(model, g, p, m, P, width, substeps, fixed):
     return g, p, True, regridded, lost, clipped
 
 
+def _split(g: FEMGrid, p: np.ndarray, model, zk, width: float):
+    """The prior cut into pieces around the modes of the posterior, each on its own grid, when the
+    likelihood is much narrower than the prior (a range ring across a wide prior, or two arcs of
+    it): prior × likelihood on a lattice _FOCUS times finer than g; its 8-connected regions
+    above _LEVEL × its maximum holding more than _MIN_MODE of the mass are the modes; each mode's
+    box is mean ± width·σ (intersected with g), overlapping boxes are merged.  One box not
+    smaller than _SHRINK of g on some axis: g itself.  Otherwise the prior is re-interpolated
+    onto a grid per box (g's element counts), so that the update resolves the likelihood.
+    Returns [(grid, prior nodal values normalised on it, log of the prior mass kept)]; the last
+    term belongs to the log evidence."""
+    fine = FEMGrid(g.lo, g.hi, _FOCUS * g.n1, _FOCUS * g.n2)
+    logl = model.log_likelihood(zk, fine.nodes)
+    d = np.clip(g.evaluate(p, fine.nodes), 0.0, None) * np.exp(logl - logl.max())
+    if not np.all(np.isfinite(d)) or d.max() <= 0.0:
+        return [(g, p, 0.0)]
+    lattice = fine._top["lattice"]
+    img = np.zeros(fine._top["node_id"].shape)  # the half-spacing lattice; element centres have no node:
+    img[lattice[:, 0], lattice[:, 1]] = d       # they get the mean of their four mid-side neighbours
+    img[1::2, 1::2] = 0.25 * (img[:-1:2, 1::2] + img[2::2, 1::2] + img[1::2, :-1:2] + img[1::2, 2::2])
+    labels, count = scipy.ndimage.label(img > _LEVEL * img.max(), structure=np.ones((3, 3)))
+    ii, jj = np.nonzero(labels)
+    lab, w = labels[ii, jj] - 1, img[ii, jj]
+    X = fine.lo + 0.5 * fine._h * np.stack([ii, jj], axis=-1)
+    mass = np.bincount(lab, weights=w, minlength=count)
+    boxes = []
+    for c in np.flatnonzero(mass > _MIN_MODE * mass.sum()):
+        sel = lab == c
+        mu = w[sel] @ X[sel] / mass[c]
+        sd = np.maximum(np.sqrt(w[sel] @ (X[sel] - mu) ** 2 / mass[c]), 0.5 * fine._h)
+        box = (np.maximum(mu - width * sd, g.lo), np.minimum(mu + width * sd, g.hi))
+        for i in [i for i, b in enumerate(boxes) if np.all(b[0] <= box[1]) and np.all(box[0] <= b[1])][::-1]:
+            other = boxes.pop(i)
+            box = (np.minimum(box[0], other[0]), np.maximum(box[1], other[1]))
+        boxes.append(box)
+    if len(boxes) == 1 and np.any(boxes[0][1] - boxes[0][0] >= _SHRINK * (g.hi - g.lo)):
+        return [(g, p, 0.0)]
+    out = []
+    for lo, hi in boxes:
+        margin = _MARGIN * (hi - lo)
+        new = FEMGrid(np.maximum(lo - margin, g.lo), np.minimum(hi + margin, g.hi), g.n1, g.n2)
+        q = np.clip(g.evaluate(p, new.nodes), 0.0, None)
+        kept = float(new.W0 @ q)
+        if np.isfinite(kept) and kept > 0.0:
+            out.append((new, q / kept, float(np.log(kept))))
+    return out or [(g, p, 0.0)]
+
+
+@dataclass(eq=False)
+class _Part:
+    """One part of the filter's mixture (see GridMixture) while it runs."""
+
+    w: float
+    g: FEMGrid
+    p: np.ndarray
+    prop: _Propagator | None = None   # the diffusion half-step on g, kept while g keeps its size
+
+
+def _merge(parts: list) -> list:
+    """Parts whose grids overlap, merged onto one grid over the union of theirs (the nodal values
+    of Σ wᵢ pᵢ there): the modes have met again, one grid is cheaper and resolves them."""
+    parts = sorted(parts, key=lambda q: -q.w)
+    out: list = []
+    for part in parts:
+        for i, o in enumerate(out):
+            if np.all(part.g.lo <= o.g.hi) and np.all(o.g.lo <= part.g.hi):
+                g = FEMGrid(np.minimum(part.g.lo, o.g.lo), np.maximum(part.g.hi, o.g.hi), o.g.n1, o.g.n2)
+                w = o.w + part.w
+                q = (o.w * o.g.evaluate(o.p, g.nodes) + part.w * part.g.evaluate(part.p, g.nodes)) / w
+                out[i] = _Part(w, g, _clip_normalise(g, q, "merging")[0])
+                break
+        else:
+            out.append(part)
+    return out
+
+
+def _mixture(parts) -> GridMixture:
+    return GridMixture(tuple((q.w, GridDensity(q.g, q.p)) for q in parts))
+
+
 def _characteristic_steps(model, z, m, P, g: FEMGrid, width, substeps, fixed: bool, splits: int
                           ) -> Iterator[FEMStep]:
     """fem_steps with scheme="characteristics" from the initial grid g (arguments validated).
 
     Each dt is cut into ``splits`` intervals τ, each a Strang step: diffusion over τ/2 (SDIRK2 on
     the current grid), transport along the characteristics onto a grid placed around the density
-    predicted for t + τ, diffusion over τ/2 there.
+    predicted for t + τ, diffusion over τ/2 there.  The density is a mixture of parts on their
+    own grids (one unless the posterior has separate modes, see _split); the Fokker–Planck
+    equation is linear, so each part is predicted on its own, and parts whose grids come to
+    overlap are merged.
     """
     tau = model.dt / splits
     half = max(1, -(-substeps // (2 * splits)))
-    p, _ = _clip_normalise(g, _gaussian_on(g, m, P), "P0")
-    prop = None
+    parts = [_Part(1.0, g, _clip_normalise(g, _gaussian_on(g, m, P), "P0")[0])]
     for k in range(z.shape[0]):
-        g0, p0, m0, P0 = g, p, m, P
-        try:
-            g, p, prop, factorised, regridded, lost, clipped = _transport_steps(
-                model, g, p, prop, width, splits, half, tau, fixed)
-        except ConvergenceError:  # the characteristics left the grid (a stiff drift far out): Galerkin step
-            g, p, factorised, regridded, lost, clipped = _galerkin_step(model, g0, p0, m0, P0, width, substeps,
-                                                                        fixed)
-            prop = None
-        prior = GridDensity(g, p)
-        _, x_pred, P_pred = g.moments(p)
+        factorised = regridded = False
+        lost = clipped = 0.0
+        for part in parts:
+            try:
+                part.g, part.p, part.prop, f_, r_, l_, c_ = _transport_steps(
+                    model, part.g, part.p, part.prop, width, splits, half, tau, fixed)
+            except ConvergenceError:  # the characteristics left the grid (a stiff drift far out): Galerkin step
+                _, m, P = part.g.moments(part.p)
+                part.g, part.p, f_, r_, l_, c_ = _galerkin_step(model, part.g, part.p, m, P, width, substeps, fixed)
+                part.prop = None
+            factorised, regridded = factorised or f_, regridded or r_
+            lost += part.w * l_
+            clipped += part.w * c_
+        if len(parts) > 1:
+            parts = _merge(parts)
+        prior = _mixture(parts)
+        x_pred, P_pred = prior.moments()
         ll = 0.0
         if not np.isnan(z[k]).all():
-            focused, p, log_kept = (g, p, 0.0) if fixed else _focus(g, p, model, z[k], width)
-            if focused is not g:
-                g, prop, regridded = focused, None, True
-            p, ll = _bayes_update(g, p, model.log_likelihood(z[k], g.nodes), k)
-            ll += log_kept
-        _, m, P = g.moments(p)
-        yield FEMStep(k=k, prior=prior, posterior=GridDensity(g, p), x_pred=x_pred, P_pred=P_pred, x=m, P=P,
-                      loglik=ll, clipped=clipped, lost=lost, regridded=regridded, factorised=factorised)
+            parts, ll, split = _update(parts, model, z[k], k, width, fixed)
+            regridded = regridded or split
+        m, P = (posterior := _mixture(parts)).moments()
+        yield FEMStep(k=k, prior=prior, posterior=posterior, x_pred=x_pred, P_pred=P_pred, x=m, P=P, loglik=ll,
+                      clipped=clipped, lost=lost, regridded=regridded, factorised=factorised)
+
+
+def _update(parts: list, model, zk, k: int, width: float, fixed: bool):
+    """Bayes' rule on every part, each first cut around its posterior modes (_split); parts with
+    less than _MIN_PART of the heaviest one's weight are dropped, at most _MAX_PARTS kept.
+    Returns (parts, log evidence, whether a part moved to a new grid)."""
+    new, logs, moved = [], [], False
+    for part in parts:
+        pieces = [(part.g, part.p, 0.0)] if fixed else _split(part.g, part.p, model, zk, width)
+        for g, q, log_kept in pieces:
+            try:
+                q, lp = _bayes_update(g, q, model.log_likelihood(zk, g.nodes), k)
+            except ConvergenceError:
+                if len(parts) + len(pieces) > 2:  # another part holds the likelihood
+                    continue
+                raise
+            moved = moved or g is not part.g
+            new.append(_Part(part.w, g, q, part.prop if g is part.g else None))
+            logs.append(np.log(part.w) + log_kept + lp)
+    if not new:
+        raise ConvergenceError(f"z: measurement {k} has no likelihood mass on the grid")
+    logs = np.array(logs)
+    ll = float(logs.max() + np.log(np.sum(np.exp(logs - logs.max()))))
+    w = np.exp(logs - ll)
+    keep = [i for i in np.argsort(-w)[:_MAX_PARTS] if w[i] >= _MIN_PART * w.max()]
+    for i in keep:
+        new[i].w = w[i] / w[keep].sum()
+    return [new[i] for i in keep], ll, moved
 
 
 def fem_filter(model: ContinuousDiscreteModel, z, x0, P0, **options) -> FilterResult:

@@ -15,7 +15,7 @@ from numba import njit
 
 from .. import _jit_cache  # noqa: F401 - compiled kernels cache in the user's cache directory
 
-__all__ = ["band_solve", "band_sdirk2", "band_cn"]
+__all__ = ["band_solve", "band_sdirk2", "band_cn", "deposit", "interpolate"]
 
 
 @njit(cache=True)
@@ -97,3 +97,56 @@ def band_cn(F, piv, kl, conn, Re, p, substeps):
         _solve_into(F, piv, kl, q, work)
         p, q = q, p
     return p
+
+
+@njit(cache=True)
+def _locate(Y, k, lo, h, n1, n2, N):
+    """Element index of point Y[k] in the grid [lo, lo + h·(n1, n2)] (−1 outside, NaN included) and
+    the 8 serendipity shape functions there (``_fem.shape_functions``) written into N."""
+    u = (Y[k, 0] - lo[0]) / h[0]
+    v = (Y[k, 1] - lo[1]) / h[1]
+    if not (u >= 0.0 and u <= n1 and v >= 0.0 and v <= n2):
+        return -1
+    e1 = min(int(u), n1 - 1)
+    e2 = min(int(v), n2 - 1)
+    x = 2.0 * (u - e1) - 1.0
+    y = 2.0 * (v - e2) - 1.0
+    N[0] = 0.25 * (1.0 - x) * (1.0 - y) * (-x - y - 1.0)
+    N[1] = 0.25 * (1.0 + x) * (1.0 - y) * (x - y - 1.0)
+    N[2] = 0.25 * (1.0 + x) * (1.0 + y) * (x + y - 1.0)
+    N[3] = 0.25 * (1.0 - x) * (1.0 + y) * (-x + y - 1.0)
+    N[4] = 0.5 * (1.0 - x * x) * (1.0 - y)
+    N[5] = 0.5 * (1.0 + x) * (1.0 - y * y)
+    N[6] = 0.5 * (1.0 - x * x) * (1.0 + y)
+    N[7] = 0.5 * (1.0 - x) * (1.0 - y * y)
+    return e1 * n2 + e2
+
+
+@njit(cache=True)
+def deposit(Y, w, lo, h, n1, n2, conn, out):
+    """out[j] += Σₖ wₖ φⱼ(Yₖ) over the points Yₖ (P, 2) inside the grid [lo, lo + h·(n1, n2)];
+    returns the weight of the points outside it (NaN points count as outside)."""
+    N = np.empty(8)
+    outside = 0.0
+    for k in range(Y.shape[0]):
+        e = _locate(Y, k, lo, h, n1, n2, N)
+        if e < 0:
+            outside += w[k]
+            continue
+        for a in range(8):
+            out[conn[e, a]] += w[k] * N[a]
+    return outside
+
+
+@njit(cache=True)
+def interpolate(Y, lo, h, n1, n2, conn, p, out):
+    """out[k] = the interpolant of nodal values p at Yₖ (P, 2); zero outside the grid."""
+    N = np.empty(8)
+    for k in range(Y.shape[0]):
+        e = _locate(Y, k, lo, h, n1, n2, N)
+        s = 0.0
+        if e >= 0:
+            for a in range(8):
+                s += N[a] * p[conn[e, a]]
+        out[k] = s
+    return out

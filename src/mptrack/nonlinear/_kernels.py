@@ -262,6 +262,24 @@ def _advance(X, Z, scheme, drift, p, L, h, cap):  # pragma: no cover - compiled
                 X[start + j, r] = x[r, j]
 
 
+@njit(nogil=True)
+def _flow(X, drift, p, h, steps, cap):  # pragma: no cover - compiled
+    """Advance the rows of X (N, n) in place by ``steps`` capped RK4 steps of length h of the
+    noise-free drift flow (``_model._rk4_step``, the same arithmetic)."""
+    N, n = X.shape
+    B = _BLOCK
+    x, y, inc = np.empty((n, B)), np.empty((n, B)), np.empty((n, B))
+    k1, k2, k3, k4 = np.empty((n, B)), np.empty((n, B)), np.empty((n, B)), np.empty((n, B))
+    d = np.empty(B)
+    for start in range(0, N, B):
+        _load(X, start, x)
+        for _ in range(steps):
+            _rk4(x, h, drift, p, k1, k2, k3, k4, y, inc, d, cap)
+        for j in range(min(B, N - start)):
+            for r in range(n):
+                X[start + j, r] = x[r, j]
+
+
 # ---------------------------------------------------------------- weighting
 @njit(nogil=True)
 def _loglik(X, z, ok, periods, Linv, logdet, klog2pi, measurement, p, m):  # pragma: no cover - compiled
@@ -310,6 +328,12 @@ def _loglik_at(X, z, ok, periods, Linv, logdet, klog2pi, meas_c, meas_jit, p, m)
     return _loglik(X, z, ok, periods, Linv, logdet, klog2pi, _as_kernel(meas_c, meas_jit), p, m)
 
 
+@njit(cache=True, nogil=True)
+def _flow_at(X, drift_c, drift_jit, p, h, steps, cap):  # pragma: no cover - compiled
+    """:func:`_flow` with the drift given by its addresses."""
+    _flow(X, _as_kernel(drift_c, drift_jit), p, h, steps, cap)
+
+
 class CompiledModel:
     """A model's compiled kernels with the constants of a filter run computed once: the compiled
     twins of ``sample_transition`` (:meth:`propagate`) and ``log_likelihood`` (:meth:`log_likelihood`)."""
@@ -347,6 +371,14 @@ class CompiledModel:
         cap = np.inf if self.model.max_increment is None else self.model.max_increment
         _advance_at(X, rng, steps, SCHEMES.index(scheme), *self.drift_at, self.kernels.drift_params, self.L,
                     self.model.dt / steps, cap)
+        return X
+
+    def flow(self, X: np.ndarray, duration: float, steps: int) -> np.ndarray:
+        """The points X (N, n) carried by the noise-free drift flow over ``duration``: ``steps``
+        capped RK4 steps (the compiled twin of :func:`_model.rk4_flow`); returns a new array."""
+        X = np.array(X, dtype=float, order="C")
+        cap = np.inf if self.model.max_increment is None else self.model.max_increment
+        _flow_at(X, *self.drift_at, self.kernels.drift_params, duration / steps, steps, cap)
         return X
 
     def log_likelihood(self, z: np.ndarray, X: np.ndarray) -> np.ndarray:
