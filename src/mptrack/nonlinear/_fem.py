@@ -80,7 +80,7 @@ from ..errors import ConvergenceError, ParameterError, ShapeError
 from ..linear import FilterResult
 from ._common import prepare_nonlinear
 from ._fem_kernels import band_cn, band_sdirk2, band_solve, deposit, interpolate
-from ._kernels import CompiledModel
+from ._kernels import compiled_model
 from ._model import ContinuousDiscreteModel, rk4_flow
 from ._ukf import sigma_points
 
@@ -624,7 +624,7 @@ def _push_rule(n1: int, n2: int, order: int, sub: int):
 @functools.lru_cache(maxsize=8)
 def _compiled(model: ContinuousDiscreteModel):
     """The model's compiled kernels (None for a model without): compiled once per model."""
-    return None if model.kernels is None else CompiledModel(model)
+    return None if model.kernels is None else compiled_model(model)
 
 
 def _drift_flow(model: ContinuousDiscreteModel, X: np.ndarray, duration: float) -> np.ndarray:

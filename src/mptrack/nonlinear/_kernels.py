@@ -38,6 +38,7 @@ against 0.5 us for two integers).
 
 from __future__ import annotations
 
+import weakref
 from dataclasses import dataclass
 
 import numpy as np
@@ -50,8 +51,8 @@ from .. import _jit_cache  # noqa: F401 - compiled kernels cache in the user's c
 from ..errors import ParameterError
 from ._step_kernels import DIVERGED, NOT_PD, OK, _cholesky, _finite, _store, _symmetrise, _ukf_update
 
-__all__ = ["BlockKernels", "CompiledModel", "weighted_moments", "reweight", "systematic_indices", "resample",
-           "SCHEMES"]
+__all__ = ["BlockKernels", "CompiledModel", "compiled_model", "weighted_moments", "reweight", "systematic_indices",
+           "resample", "SCHEMES"]
 
 _LOG2PI = np.log(2.0 * np.pi)
 #: sub-step schemes of the SDE sampler: stochastic Heun, and Strang splitting with RK4 drift flows
@@ -392,6 +393,18 @@ class CompiledModel:
         idx, Linv, logdet, klog2pi = self._weighting[key]
         return _loglik_at(X, z, idx, self.periods, Linv, logdet, klog2pi, *self.measurement_at,
                           self.kernels.measurement_params, self.model.m)
+
+
+_COMPILED: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
+
+
+def compiled_model(model) -> CompiledModel:
+    """The :class:`CompiledModel` of ``model``, built (and checked against the NumPy callables) once per
+    model object: the filters of a study call it for every run."""
+    found = _COMPILED.get(model)
+    if found is None:
+        found = _COMPILED[model] = CompiledModel(model)
+    return found
 
 
 @njit(cache=True, nogil=True)

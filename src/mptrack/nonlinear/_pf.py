@@ -97,7 +97,7 @@ def particle_filter(model, z, x0, P0, rng: np.random.Generator, *,
             return model.log_likelihood(zk, X, k)
     else:
         if use_kernels:
-            compiled_model = kern.CompiledModel(model)
+            compiled_model = kern.compiled_model(model)
             advance, weigh = compiled_model.propagate, compiled_model.log_likelihood
         else:
             advance, weigh = model.sample_transition, model.log_likelihood

@@ -224,7 +224,7 @@ def _unscented_update(model: NonlinearModel, x, P, z, k: int, sp: tuple, method:
 def _cd_ukf_compiled(model: ContinuousDiscreteModel, z, x0, P0, substeps, ut):
     """The compiled continuous-discrete UKF, or None when a step needs the NumPy path (a semi-definite
     square root, an error to raise)."""
-    compiled = kern.CompiledModel(model)
+    compiled = kern.compiled_model(model)
     T, n = z.shape[0], model.n
     c, Wm, Wc = _weights(n, **ut)
     xs, xp, Ps, Pp = np.empty((T, n)), np.empty((T, n)), np.empty((T, n, n)), np.empty((T, n, n))
