@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..experiments.bouzera2017 import Setup, ranges, simulate
-from ..nonlinear import (
+from ..cellular import (
     ekf_ranges,
     ekf_ranges_batch,
     fcs_ranges,

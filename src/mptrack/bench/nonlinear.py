@@ -8,19 +8,9 @@ from __future__ import annotations
 import numpy as np
 
 from ..models import NonlinearModel, constant_velocity, nonlinear_model, range_bearing
-from ..nonlinear import (
-    ZHAO2013_X0,
-    FEMGrid,
-    ekf_filter,
-    ekf_filter_batch,
-    fem_filter,
-    fem_steps,
-    particle_filter,
-    simulate_sde,
-    ukf_filter,
-    zhao2013_model,
-)
-from ..nonlinear._fem import _bayes_update, _Propagator, default_substeps
+from ..continuous import ZHAO2013_X0, FEMGrid, fem_filter, fem_steps, simulate_sde, zhao2013_model
+from ..continuous._fem import _bayes_update, _Propagator, default_substeps
+from ..nonlinear import ekf_filter, ekf_filter_batch, particle_filter, ukf_filter
 from . import register_suite
 from ._timing import best_time
 

@@ -21,8 +21,7 @@ from .._validation import as_array, as_real, check_covariance, check_int, check_
 from ..errors import ParameterError, ShapeError, SingularMatrixError
 from ..linear import FilterResult
 from ..models import LinearGaussianModel, NonlinearModel, nonlinear_model, ranges
-from ._common import BatchFilterResult
-from ._extended import ekf_filter, ekf_filter_batch
+from ..nonlinear import BatchFilterResult, ekf_filter, ekf_filter_batch
 
 __all__ = [
     "BatchFilterResult",

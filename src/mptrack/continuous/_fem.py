@@ -78,11 +78,11 @@ import scipy.sparse.linalg
 from .._validation import as_array, check_int, check_positive
 from ..errors import ConvergenceError, ParameterError, ShapeError
 from ..linear import FilterResult
-from ._common import prepare_nonlinear
+from ..nonlinear._common import prepare_nonlinear
+from ..nonlinear._ukf import sigma_points
 from ._fem_kernels import band_cn, band_sdirk2, band_solve, deposit, interpolate
 from ._kernels import compiled_model
 from ._model import ContinuousDiscreteModel, rk4_flow
-from ._ukf import sigma_points
 
 __all__ = ["FEMGrid", "GridDensity", "GridMixture", "FEMStep", "fem_filter", "fem_steps", "shape_functions"]
 

@@ -49,7 +49,7 @@ from numba.extending import intrinsic, is_jitted
 
 from .. import _jit_cache  # noqa: F401 - compiled kernels cache in the user's cache directory
 from ..errors import ParameterError
-from ._step_kernels import DIVERGED, NOT_PD, OK, _cholesky, _finite, _store, _symmetrise, _ukf_update
+from ..nonlinear._step_kernels import DIVERGED, NOT_PD, OK, _cholesky, _finite, _store, _symmetrise, _ukf_update
 
 __all__ = ["BlockKernels", "CompiledModel", "compiled_model", "weighted_moments", "reweight", "systematic_indices",
            "resample", "SCHEMES"]

@@ -18,7 +18,7 @@ import numpy as np
 
 from ..errors import ParameterError
 from ..metrics import pcrb_ranges, position_error
-from ..nonlinear import ekf_ranges_batch
+from ..cellular import ekf_ranges_batch
 
 __all__ = ["NOISE_READINGS", "Setup", "trajectory", "simulate", "ranges", "scenario_bound", "GEOMETRY",
            "CALIBRATED", "scenario", "calibrated_setup", "ekf_noise_curve", "ekf_misfit", "distance_violation",

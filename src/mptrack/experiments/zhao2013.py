@@ -22,18 +22,17 @@ import numpy as np
 
 from ..errors import MptrackError
 from ..linear import kalman_filter
-from ..nonlinear import (
+from ..continuous import (
     ZHAO2013_X0,
     fem_filter,
     fem_steps,
     linear_sde_model,
-    particle_filter,
     reference_filter,
     simulate_sde,
-    ukf_filter,
     zhao2013_model,
 )
-from ..nonlinear._fem import SCHEMES, default_substeps
+from ..continuous._fem import SCHEMES, default_substeps
+from ..nonlinear import particle_filter, ukf_filter
 from . import Reproduction, RunContext, Table, register
 from ._plotting import plt, save_figure
 

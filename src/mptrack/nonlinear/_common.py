@@ -10,7 +10,7 @@ from .._validation import as_sequence, as_vector, check_covariance, check_int
 from ..errors import ParameterError
 from ..linear import FilterResult
 from ..models import NonlinearModel
-from ._model import ContinuousDiscreteModel
+from ..continuous._model import ContinuousDiscreteModel
 
 __all__ = ["prepare_nonlinear", "check_rng", "check_prior", "PRIORS", "BatchFilterResult"]
 

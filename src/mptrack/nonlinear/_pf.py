@@ -7,11 +7,11 @@ import numpy as np
 from .._validation import check_int, check_positive, check_allocation, finite_result
 from ..errors import ParameterError, ShapeError
 from ..linear import FilterResult
+from ..continuous import _kernels as kern
+from ..continuous._kernels import SCHEMES
+from ..continuous._model import ContinuousDiscreteModel
 from ..models import NonlinearModel
-from . import _kernels as kern
 from ._common import check_prior, check_rng, prepare_nonlinear
-from ._kernels import SCHEMES
-from ._model import ContinuousDiscreteModel
 
 __all__ = ["particle_filter", "systematic_resample", "pf_substeps"]
 

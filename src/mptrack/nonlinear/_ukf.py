@@ -36,13 +36,13 @@ import numpy as np
 from .._validation import as_vector, check_covariance, check_positive, finite_result
 from ..errors import ConvergenceError, NotPositiveDefiniteError, ParameterError
 from ..linear import FilterResult
+from ..continuous import _kernels as kern
+from ..continuous._model import ContinuousDiscreteModel
 from ..models import NonlinearModel
-from . import _kernels as kern
 from . import _named_kernels
 from ._common import check_prior, prepare_nonlinear
 from . import _step_kernels as steps
 from ._extended import _run, check_step, named_arguments, named_result, smooth_with, user_array
-from ._model import ContinuousDiscreteModel
 
 __all__ = ["ukf_filter", "ukf_smoother", "sigma_points"]
 
