@@ -6,9 +6,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from mptrack.cellular import ekf_ranges, ekf_ranges_batch, motion_matrix, range_measurement
 from mptrack.errors import NonFiniteError, ParameterError, ShapeError
 from mptrack.linear import kalman_step
-from mptrack.nonlinear import ekf_ranges, ekf_ranges_batch, motion_matrix, range_measurement
 
 STATIONS = np.array([[0.0, 0.0, 0.03], [2.0, 0.0, 0.03], [1.0, 1.7, 0.03]])
 Q0 = np.diag([0.02, 0.02, 0.002])
@@ -149,7 +149,7 @@ def test_bad_input():
 
 def test_range_fix_2d_3d_and_with_known_height():
     from mptrack.errors import SingularMatrixError
-    from mptrack.nonlinear import range_fix
+    from mptrack.cellular import range_fix
 
     p = np.array([0.7, 0.5, 0.0015])
     z = np.linalg.norm(p - STATIONS, axis=1)
@@ -168,7 +168,7 @@ def test_range_fix_2d_3d_and_with_known_height():
 
 
 def test_wild_ranges_never_give_nan_estimates():
-    from mptrack.nonlinear import fcs_ranges, fekf_ranges
+    from mptrack.cellular import fcs_ranges, fekf_ranges
 
     rng = np.random.default_rng(9)
     truth, z = _track(T=30)
@@ -194,7 +194,7 @@ def test_range_ekf_runs_the_compiled_named_model_with_the_generic_numbers(motion
     import dataclasses
 
     from mptrack.nonlinear import ekf_filter, ekf_filter_batch
-    from mptrack.nonlinear._ekf import _prepare, _ranges_model
+    from mptrack.cellular._ekf import _prepare, _ranges_model
     runs = [_track(T=15, seed=s) for s in range(3)]
     z = np.stack([r[1] for r in runs])
     z[1, 4, 2] = np.nan

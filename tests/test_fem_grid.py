@@ -5,10 +5,10 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from mptrack.continuous import FEMGrid, fem_filter, fem_steps, linear_sde_model, shape_functions, simulate_sde
+from mptrack.continuous._fem import _nodal_derivatives
 from mptrack.errors import NotPositiveDefiniteError, ParameterError, ShapeError
 from mptrack.linear import kalman_filter
-from mptrack.nonlinear import FEMGrid, fem_filter, fem_steps, linear_sde_model, shape_functions, simulate_sde
-from mptrack.nonlinear._fem import _nodal_derivatives
 
 A = np.array([[0.0, 1.0], [-1.0, -0.5]])
 Q = np.diag([0.1, 0.2])
@@ -137,7 +137,7 @@ def test_nodal_differences_are_exact_on_quadratics_and_the_laplacian_is_dissipat
 
 def test_paper_scheme_takes_enough_rk4_steps_to_be_stable(linear_case):
     """Explicit RK4: dt·rho(L)/substeps stays inside the stability half-disc (radius 2.5 < 2.6)."""
-    from mptrack.nonlinear._fem import _NodalRK4
+    from mptrack.continuous._fem import _NodalRK4
 
     model, _, _ = linear_case
     g = FEMGrid([-4.0, -4.0], [4.0, 4.0], 32, 32)
@@ -194,7 +194,7 @@ def test_band_and_sparse_factorisations_solve_the_assembled_system(n, monkeypatc
     """The band LU (small grids) and SuperLU (large grids) both solve (M − γτA) x = b."""
     import scipy.sparse.linalg
 
-    from mptrack.nonlinear import _fem
+    from mptrack.continuous import _fem
 
     model = linear_sde_model(A, Q, np.eye(2), np.eye(2), 1.0)
     g = FEMGrid([-4.0, -3.0], [4.0, 5.0], n, n)
@@ -214,7 +214,7 @@ def test_band_and_sparse_factorisations_solve_the_assembled_system(n, monkeypatc
 @pytest.mark.parametrize("scheme", ["sdirk2", "cn"])
 def test_compiled_band_steps_equal_the_sparse_loop(scheme, monkeypatch):
     """The compiled sub-steps on the band LU and the Python loop on SuperLU give the same prediction."""
-    from mptrack.nonlinear import _fem
+    from mptrack.continuous import _fem
 
     monkeypatch.setattr(_fem, "_SOLVE_DTYPE", np.float64)
     model = linear_sde_model(A, Q, np.eye(2), np.eye(2), 1.0)
@@ -231,7 +231,7 @@ def test_compiled_band_steps_equal_the_sparse_loop(scheme, monkeypatch):
 
 def test_single_precision_solves_change_the_filter_by_far_less_than_its_discretisation_error(linear_case,
                                                                                              monkeypatch):
-    from mptrack.nonlinear import _fem
+    from mptrack.continuous import _fem
 
     model, z, kf = linear_case
     single = fem_filter(model, z, X0, P0, grid=(24, 24))
@@ -280,7 +280,7 @@ def test_a_moving_grid_refactorises_only_when_it_moves(linear_case, scheme):
 
 
 def test_default_substeps_follow_the_grid():
-    from mptrack.nonlinear._fem import default_substeps
+    from mptrack.continuous._fem import default_substeps
 
     assert default_substeps((20, 20)) == 16
     assert default_substeps((40, 10)) == 32
@@ -295,7 +295,7 @@ def test_grid_must_be_two_counts(linear_case):
 
 def test_deposit_is_the_transpose_of_interpolation():
     """deposit (Σ w φ_j(Y)) and evaluate (Σ p_j φ_j(Y)) use the same shape functions: bᵀp = Σ w p(Y)."""
-    from mptrack.nonlinear._fem_kernels import deposit
+    from mptrack.continuous._fem_kernels import deposit
 
     g = FEMGrid([-1.0, -2.0], [3.0, 1.0], 5, 4)
     rng = np.random.default_rng(4)
@@ -311,9 +311,9 @@ def test_deposit_is_the_transpose_of_interpolation():
 
 
 def test_compiled_flow_equals_the_numpy_rk4_flow():
-    from mptrack.nonlinear import zhao2013_model
-    from mptrack.nonlinear._fem import _compiled
-    from mptrack.nonlinear._model import rk4_flow
+    from mptrack.continuous import zhao2013_model
+    from mptrack.continuous._fem import _compiled
+    from mptrack.continuous._model import rk4_flow
 
     model = zhao2013_model(variant="vdp", diffusion_scale=1.0)  # max_increment = 1: some steps are capped
     X = np.random.default_rng(5).uniform(-12, 12, (700, 2))
@@ -328,7 +328,7 @@ def test_transport_keeps_mass_mean_and_covariance_of_a_density_contracted_below_
     0.25 high, which sampling the density at the nodes misses (the FE failures at Q x 1)."""
     import scipy.linalg
 
-    from mptrack.nonlinear._fem import _push
+    from mptrack.continuous._fem import _push
 
     A_stiff = np.array([[0.0, 1.0], [20.0, -20.0]])       # x2 relaxes onto the line x2 = x1 at rate 20
     model = linear_sde_model(A_stiff, np.diag([0.5, 0.2]), np.eye(2), np.eye(2), 1.0)
@@ -349,7 +349,7 @@ def test_transport_keeps_mass_mean_and_covariance_of_a_density_contracted_below_
 
 def _abs_x1_model(Qs):
     """Zero drift, measurement |x1| (σ = 0.05): a wide prior across x1 = 0 gives two separate modes."""
-    from mptrack.nonlinear import ContinuousDiscreteModel
+    from mptrack.continuous import ContinuousDiscreteModel
 
     return ContinuousDiscreteModel(lambda X: np.zeros_like(X), np.diag(Qs), lambda X: np.abs(X[..., :1]),
                                    [[0.0025]], 1.0)

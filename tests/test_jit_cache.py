@@ -9,8 +9,9 @@ from pathlib import Path
 import mptrack
 
 PACKAGE = Path(mptrack.__file__).resolve().parent
-KERNEL_MODULES = ["batch._kernels", "io._geodesy", "linear._kernels", "linear._smoother", "nonlinear._fem_kernels",
-                  "nonlinear._kernels", "nonlinear._named_kernels", "tracking._engine", "tracking._kernels"]
+KERNEL_MODULES = ["batch._kernels", "continuous._fem_kernels", "continuous._kernels", "io._geodesy", "linear._kernels",
+                  "linear._smoother", "nonlinear._named_kernels", "nonlinear._step_kernels", "tracking._engine",
+                  "tracking._kernels"]
 
 
 def _python(code: str, **env) -> str:
@@ -53,20 +54,21 @@ def test_particle_filter_starts_warm_in_a_new_process():
     run = (
         "import numpy as np\n"
         "from numba import njit\n"
-        "from mptrack import nonlinear as nl\n"
-        "from mptrack.nonlinear._kernels import _advance_at, _loglik_at\n"
-        "m = nl.zhao2013_model()\n"
-        "x, z = nl.simulate_sde(m, 3, np.random.default_rng(0), nl.ZHAO2013_X0)\n"
-        "nl.particle_filter(m, z, nl.ZHAO2013_X0, np.eye(2), np.random.default_rng(1), particles=300)\n"
+        "from mptrack import continuous as cd\n"
+        "from mptrack.nonlinear import particle_filter\n"
+        "from mptrack.continuous._kernels import _advance_at, _loglik_at\n"
+        "m = cd.zhao2013_model()\n"
+        "x, z = cd.simulate_sde(m, 3, np.random.default_rng(0), cd.ZHAO2013_X0)\n"
+        "particle_filter(m, z, cd.ZHAO2013_X0, np.eye(2), np.random.default_rng(1), particles=300)\n"
         "@njit\n"
         "def decay(X, p, out):\n"
         "    for j in range(X.shape[1]):\n"
         "        out[0, j] = -p[0] * X[0, j]\n"
         "        out[1, j] = -p[0] * X[1, j]\n"
-        "own = nl.ContinuousDiscreteModel(lambda X: -0.5 * X, 0.01 * np.eye(2), lambda X: X, 0.1 * np.eye(2), 0.5,"
-        " kernels=nl.BlockKernels(decay, decay, np.array([0.5]), np.array([-1.0])))\n"
-        "x, z = nl.simulate_sde(own, 3, np.random.default_rng(0), np.ones(2))\n"
-        "nl.particle_filter(own, z, np.ones(2), np.eye(2), np.random.default_rng(1), particles=300)\n"
+        "own = cd.ContinuousDiscreteModel(lambda X: -0.5 * X, 0.01 * np.eye(2), lambda X: X, 0.1 * np.eye(2), 0.5,"
+        " kernels=cd.BlockKernels(decay, decay, np.array([0.5]), np.array([-1.0])))\n"
+        "x, z = cd.simulate_sde(own, 3, np.random.default_rng(0), np.ones(2))\n"
+        "particle_filter(own, z, np.ones(2), np.eye(2), np.random.default_rng(1), particles=300)\n"
         "print(sum(_advance_at.stats.cache_misses.values()) + sum(_loglik_at.stats.cache_misses.values()),"
         " sum(_advance_at.stats.cache_hits.values()) + sum(_loglik_at.stats.cache_hits.values()))\n")
     _python(run)  # compiles once if no earlier run did

@@ -7,8 +7,9 @@ from datetime import datetime, timedelta
 import numpy as np
 import pytest
 
+from mptrack.continuous import ContinuousDiscreteModel
 from mptrack.models import constant_velocity, nonlinear_model, range_bearing
-from mptrack.nonlinear import ContinuousDiscreteModel, particle_filter
+from mptrack.nonlinear import particle_filter
 
 pytest.importorskip("stonesoup")
 from stonesoup.models.measurement.nonlinear import CartesianToBearingRange  # noqa: E402

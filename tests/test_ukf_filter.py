@@ -5,9 +5,10 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from mptrack.continuous import linear_sde_model, simulate_sde, zhao2013_model
 from mptrack.errors import NotPositiveDefiniteError, ParameterError
 from mptrack.linear import kalman_filter
-from mptrack.nonlinear import linear_sde_model, sigma_points, simulate_sde, ukf_filter, zhao2013_model
+from mptrack.nonlinear import sigma_points, ukf_filter
 
 
 def test_ukf_equals_kalman_on_linear_model():

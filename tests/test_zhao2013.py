@@ -5,9 +5,9 @@ import json
 import numpy as np
 import pytest
 
+from mptrack.continuous import ZHAO2013_X0, zhao2013_model
 from mptrack.experiments import run_experiment
 from mptrack.experiments.zhao2013 import _paper, _table1_rows
-from mptrack.nonlinear import ZHAO2013_X0, zhao2013_model
 
 
 def test_published_table1_is_pinned():
@@ -68,13 +68,8 @@ def _sweep(variant: str, scale: float, runs: int = 20, ref_particles: int = 10_0
     """Per filter (FE default scheme, PF-200, UKF): mean per-run RMSE (x1, x2) to the truth, mean RMS
     distance to the reference posterior mean, failed runs (left out of the means)."""
     from mptrack.errors import MptrackError
-    from mptrack.nonlinear import (
-        fem_filter,
-        particle_filter,
-        reference_filter,
-        simulate_sde,
-        ukf_filter,
-    )
+    from mptrack.continuous import fem_filter, reference_filter, simulate_sde
+    from mptrack.nonlinear import particle_filter, ukf_filter
 
     model = zhao2013_model(variant=variant, diffusion_scale=scale)
     x0, P0 = np.array(ZHAO2013_X0), 0.1 * np.eye(2)
