@@ -70,6 +70,7 @@ from dataclasses import dataclass, field
 from typing import Iterator
 
 import numpy as np
+import scipy.linalg
 import scipy.linalg.lapack
 import scipy.ndimage
 import scipy.sparse
@@ -79,7 +80,16 @@ from .._validation import as_array, check_int, check_positive
 from ..errors import ConvergenceError, ParameterError, ShapeError
 from ..linear import FilterResult
 from ._common import prepare_nonlinear
-from ._fem_kernels import band_cn, band_sdirk2, band_solve, deposit, interpolate
+from ._fem_kernels import (
+    band_cn,
+    band_sdirk2,
+    band_solve,
+    cholesky_solve,
+    deposit,
+    flow_points,
+    interpolate,
+    push_points,
+)
 from ._kernels import CompiledModel
 from ._model import ContinuousDiscreteModel, rk4_flow
 from ._ukf import sigma_points
@@ -131,6 +141,8 @@ def _topology(n1: int, n2: int):
     V0, V1, V2  ∫φ_j du, ∫φ_j u du, ∫φ_j u uᵀ du (as (N,), (N, 2), (N, 3): uu, uv, vv)
     csc      (indices, indptr, slot): the CSC pattern and where each (e, a, b) entry goes
     band     (width, slot): LAPACK band storage (natural node order) and where each entry goes
+    sym      (width, slot, entries): the same for the lower band of a symmetric matrix (?pbtrf), slot
+             of each (e, a, b) entry on or below the diagonal, and those entries' flat indices
     """
     L1, L2 = 2 * n1 + 1, 2 * n2 + 1
     ii, jj = np.meshgrid(np.arange(L1), np.arange(L2), indexing="ij")
@@ -148,6 +160,8 @@ def _topology(n1: int, n2: int):
     width = int(np.max(np.abs(rows - cols)))
     # dgbtrf layout: A[i, j] at ab[2w + i − j, j] of a (3w+1, N) Fortran array, i.e. flat j·(3w+1) + 2w + i − j
     band_slot = cols * (3 * width + 1) + 2 * width + rows - cols
+    lower = rows >= cols  # pbtrf layout (lower): A[i, j], i ≥ j, at ab[i − j, j] of a (width + 1, N) array
+    sym = (width, (cols * (width + 1) + rows - cols)[lower], np.flatnonzero(lower))
     lattice = np.stack([ii[is_node], jj[is_node]], axis=-1)
     g, w = _GAUSS3
     gx, gy = np.meshgrid(g, g, indexing="ij")
@@ -163,7 +177,7 @@ def _topology(n1: int, n2: int):
     V0, V1, V2 = V[0], np.stack(V[1:3], axis=-1), np.stack(V[3:], axis=-1)
     out = dict(conn=conn, N=N, node_id=node_id, lattice=lattice, uq=uq, V0=V0, V1=V1, V2=V2,
                phi=phi, dxi=dxi, deta=deta, wq=wq, Me=pw.T @ phi,
-               csc=(indices, indptr, slot.ravel()), band=(width, band_slot))
+               csc=(indices, indptr, slot.ravel()), band=(width, band_slot), sym=sym)
     for val in out.values():
         for arr in (val if isinstance(val, tuple) else (val,)):
             if isinstance(arr, np.ndarray):
@@ -597,18 +611,35 @@ def _predicted_box(model, m, P, width, floor, duration):
 
 
 @functools.lru_cache(maxsize=16)
-def _unit_mass_solve(n1: int, n2: int):
-    """Solver of M u = b for the mass matrix of an n1 × n2 grid of unit elements (M of any grid of
-    that shape is h1·h2 times it): SuperLU, factorised once per shape."""
-    unit = FEMGrid(np.zeros(2), np.array([float(n1), float(n2)]), n1, n2)
-    return scipy.sparse.linalg.splu(unit.assemble(unit._top["Me"]).tocsc()).solve
+def _unit_mass_factor(n1: int, n2: int):
+    """Band Cholesky factor (L, kd) of the mass matrix of an n1 × n2 grid of unit elements (M of any
+    grid of that shape is h1·h2 times it; ``_fem_kernels.cholesky_solve``): factorised once per shape."""
+    top = _topology(n1, n2)
+    return _band_cholesky(top, np.broadcast_to(top["Me"], top["conn"].shape + (8,)), np.float64)
+
+
+def _band_cholesky(top: dict, Be: np.ndarray, dtype):
+    """Band Cholesky factor (L, kd) in ``dtype`` of the symmetric positive definite matrix assembled
+    from element matrices Be (E, 8, 8) on the grid of ``top`` (natural lattice order, kd ≈ 3·n2):
+    L[j, i] is the factor's entry at row j + i, column j (``_fem_kernels.cholesky_solve``)."""
+    kd, slot, lower = top["sym"]
+    N = top["N"]
+    ab = np.bincount(slot, weights=Be.ravel()[lower], minlength=(kd + 1) * N).reshape(N, kd + 1).T
+    try:
+        c = scipy.linalg.cholesky_banded(ab.astype(dtype, order="F"), lower=True, overwrite_ab=True,
+                                         check_finite=False)
+    except np.linalg.LinAlgError as exc:
+        raise ConvergenceError(f"grid filter: the time-step matrix is not positive definite ({exc})") from None
+    factor = np.ascontiguousarray(c.T)
+    factor.setflags(write=False)
+    return factor, kd
 
 
 @functools.lru_cache(maxsize=16)
 def _push_rule(n1: int, n2: int, order: int, sub: int):
-    """Quadrature on every element of an n1 × n2 grid: order × order Gauss points on each of
-    sub × sub sub-cells.  Returns (points (E, P, 2) in lattice units, shape functions (P, 8)
-    at them, weights (P,) on a unit element)."""
+    """Quadrature on every element: order × order Gauss points on each of sub × sub sub-cells.
+    Returns (points (P, 2) in [0, 1]² of an element, shape functions (P, 8) at them, weights (P,)
+    on a unit element)."""
     g, w = np.polynomial.legendre.leggauss(order)
     c = (np.arange(sub)[:, None] + 0.5 * (1.0 + g[None, :])).ravel() / sub   # (sub·order,) in [0, 1]
     wc = np.tile(0.5 * w, sub) / sub
@@ -616,9 +647,7 @@ def _push_rule(n1: int, n2: int, order: int, sub: int):
     loc = np.stack([cx.ravel(), cy.ravel()], axis=-1)                        # (P, 2) in [0, 1]²
     wq = np.outer(wc, wc).ravel()
     phi, _, _ = shape_functions(2.0 * loc[:, 0] - 1.0, 2.0 * loc[:, 1] - 1.0)
-    e1, e2 = np.meshgrid(np.arange(n1), np.arange(n2), indexing="ij")
-    corner = np.stack([e1.ravel(), e2.ravel()], axis=-1).astype(float)
-    return corner[:, None, :] + loc[None], phi, wq
+    return loc, phi, wq
 
 
 @functools.lru_cache(maxsize=8)
@@ -627,18 +656,28 @@ def _compiled(model: ContinuousDiscreteModel):
     return None if model.kernels is None else CompiledModel(model)
 
 
-def _drift_flow(model: ContinuousDiscreteModel, X: np.ndarray, duration: float) -> np.ndarray:
-    """The points X (P, 2) carried by the noise-free drift flow over ``duration``: RK4 steps, at
-    least 2 per dt and as many as the drift's stiffness at the points needs (τ·‖∂f/∂x‖ ≤ 1
-    per step, the Frobenius norm by central differences; RK4 is then accurate to a few per cent
-    on the fastest mode); compiled when the model has kernels."""
+def _flow_steps(model: ContinuousDiscreteModel, X: np.ndarray, duration: float) -> int:
+    """RK4 steps for carrying the points X (P, 2) over ``duration``: at least 2 per dt and as many
+    as the drift's stiffness at the points needs (τ·‖∂f/∂x‖ ≤ 1 per step, the Frobenius norm by
+    central differences; RK4 is then accurate to a few per cent on the fastest mode).  The NumPy
+    definition; ``_fem_kernels.flow_points`` computes the same compiled."""
     d = 1e-5 * max(1.0, float(np.max(np.abs(X))))
     e = d * np.array([[1.0, 0.0], [-1.0, 0.0], [0.0, 1.0], [0.0, -1.0]])
     f = model.drift(X[None] + e[:, None])                                            # (4, P, 2)
     stiff = float(np.max(np.sqrt(np.sum((f[0] - f[1]) ** 2 + (f[2] - f[3]) ** 2, axis=-1)))) / (2.0 * d)
-    steps = max(int(np.ceil(2.0 * duration / model.dt)), int(np.ceil(duration * stiff)), 1)
+    return max(int(np.ceil(2.0 * duration / model.dt)), int(np.ceil(duration * stiff)), 1)
+
+
+def _drift_flow(model: ContinuousDiscreteModel, X: np.ndarray, duration: float) -> np.ndarray:
+    """The points X (P, 2) carried by the noise-free drift flow over ``duration`` (RK4 steps by
+    :func:`_flow_steps`); compiled, step count included, when the model has kernels."""
     compiled = _compiled(model)
-    return rk4_flow(model, X, duration, steps) if compiled is None else compiled.flow(X, duration, steps)
+    if compiled is None:
+        return rk4_flow(model, X, duration, _flow_steps(model, X, duration))
+    Y = np.array(X, dtype=float, order="C")
+    cap = np.inf if model.max_increment is None else model.max_increment
+    flow_points(Y, *compiled.drift_at, model.kernels.drift_params, duration, model.dt, cap)
+    return Y
 
 
 def _push(old: FEMGrid, p: np.ndarray, new: FEMGrid, model, duration: float):
@@ -647,16 +686,16 @@ def _push(old: FEMGrid, p: np.ndarray, new: FEMGrid, model, duration: float):
     M q = b with b_j = ∫ φ_j p(t+τ) dx = ∫ φ_j(Φ_τ(y)) p(y) dy (a change of variables, so no
     Jacobian), by Gauss quadrature on old's elements (_PUSH_GAUSS² points on each of _PUSH_SUB²
     sub-cells) with the points pushed forward (:func:`_drift_flow`).  Points carrying less than
-    10⁻¹² of the largest weight are not moved (their mass is dropped).
-    Returns (nodal values q, fraction of the mass that landed outside new)."""
-    uq, phi, wq = _push_rule(old.n1, old.n2, _PUSH_GAUSS, _PUSH_SUB)
-    w = ((p[old.conn] @ phi.T) * (wq * float(old._h[0] * old._h[1]))).ravel()   # mass of each point
-    keep = np.abs(w) > 1e-12 * np.max(np.abs(w))
-    Y = _drift_flow(model, old.lo + old._h * uq.reshape(-1, 2)[keep], duration)
-    w = w[keep]
+    10⁻¹² of the largest weight are not moved (their mass is dropped).  Compiled throughout
+    (quadrature points, flow, deposit, the mass matrix's band Cholesky solve) when the model has
+    kernels.  Returns (nodal values q, fraction of the mass that landed outside new)."""
+    loc, phi, wq = _push_rule(old.n1, old.n2, _PUSH_GAUSS, _PUSH_SUB)
+    area = float(old._h[0] * old._h[1])
+    X, w = push_points(p, old.conn, phi, wq * area, loc, old.lo, old._h, old.n1, old.n2, 1e-12)
+    Y = _drift_flow(model, X, duration)
     b = np.zeros(new.size)
     outside = deposit(Y, w, new.lo, new._h, new.n1, new.n2, new.conn, b)
-    q = _unit_mass_solve(new.n1, new.n2)(b) / float(new._h[0] * new._h[1])
+    q = cholesky_solve(*_unit_mass_factor(new.n1, new.n2), b) / float(new._h[0] * new._h[1])
     total = float(w.sum())
     return q, (outside / total if total > 0.0 else 0.0)
 
