@@ -17,7 +17,7 @@ from .. import _jit_cache  # noqa: F401 - compiled kernels cache in the user's c
 from ._kernels import _BLOCK, _as_kernel, _flow
 
 __all__ = ["band_solve", "band_sdirk2", "band_cn", "deposit", "interpolate", "push_points", "flow_points",
-           "cholesky_solve"]
+           "cholesky_solve", "band_cholesky"]
 
 
 @njit(cache=True)
@@ -48,27 +48,57 @@ def band_solve(F, piv, kl, b):
 
 
 @njit(cache=True)
-def cholesky_solve(L, kd, b):
-    """Overwrite b with B⁻¹b, B = L Lᵀ from ?pbtrf (lower), stored transposed like the LU factors:
-    ``L[j, i]`` = B's factor at row j + i, column j (i = 0 … kd)."""
+def cholesky_solve(C, kd, b):
+    """Overwrite b with B⁻¹b, B = L Lᵀ with L from ?pbtrf (lower, half-bandwidth kd), stored twice so
+    that both triangular solves run over contiguous memory: C (n, 2(kd + 1)) holds column j of L in
+    C[j, :kd + 1] (C[j, i] = L[j + i, j]) and row j in C[j, kd + 1:] (C[j, kd + 1 + k] = L[j, j − kd + k])."""
     n = b.shape[0]
+    r = kd + 1
     for j in range(n):  # L y = b, column by column
-        bj = b[j] / L[j, 0]
+        bj = b[j] / C[j, 0]
         b[j] = bj
         m = min(kd, n - 1 - j)
-        col = L[j, 1:1 + m]
+        col = C[j, 1:1 + m]
         seg = b[j + 1:j + 1 + m]
         for i in range(m):
             seg[i] -= col[i] * bj
-    for j in range(n - 1, -1, -1):  # Lᵀ x = y, row by row
-        m = min(kd, n - 1 - j)
-        col = L[j, 1:1 + m]
-        seg = b[j + 1:j + 1 + m]
-        s = b[j]
-        for i in range(m):
-            s -= col[i] * seg[i]
-        b[j] = s / L[j, 0]
+    for j in range(n - 1, -1, -1):  # Lᵀ x = y, by the columns of Lᵀ (the rows of L)
+        bj = b[j] / C[j, r + kd]
+        b[j] = bj
+        lo = max(0, j - kd)
+        row = C[j, r + lo - (j - kd):r + kd]
+        seg = b[lo:j]
+        for i in range(j - lo):
+            seg[i] -= row[i] * bj
     return b
+
+
+@njit(cache=True)
+def band_cholesky(C, kd):
+    """Factorise in place the symmetric positive definite band matrix B (half-bandwidth kd) given by
+    its lower band in C[:, :kd + 1] (C[j, i] = B[j + i, j]) into the layout of ``cholesky_solve``
+    (right-looking: each column scaled, then its rank-one update of the columns below, all over
+    contiguous rows).  Returns False when B is not (numerically) positive definite."""
+    n = C.shape[0]
+    r = kd + 1
+    for j in range(n):
+        d = C[j, 0]
+        if not d > 0.0:
+            return False
+        d = np.sqrt(d)
+        C[j, 0] = d
+        C[j, r + kd] = d
+        m = min(kd, n - 1 - j)
+        for i in range(1, m + 1):
+            C[j, i] /= d
+            C[j + i, r + kd - i] = C[j, i]  # row j + i of L
+        for k in range(1, m + 1):
+            ljk = C[j, k]
+            row = C[j + k, :m + 1 - k]
+            src = C[j, k:m + 1]
+            for i in range(m + 1 - k):
+                row[i] -= src[i] * ljk
+    return True
 
 
 @njit(cache=True)
@@ -89,7 +119,8 @@ def _element_matvec(conn, Ke, x, out):
 @njit(cache=True)
 def _solve_into(F, piv, kl, b, work):
     """b ← B⁻¹b, solving in the factors' precision (``work`` has F's dtype); F, piv, kl: a band LU
-    (``band_solve``), or a band Cholesky factor (``cholesky_solve``, kl its bandwidth) when piv is empty."""
+    (``band_solve``), or a band Cholesky factor (``cholesky_solve``'s C, kl its half-bandwidth) when piv
+    is empty."""
     work[:] = b
     if piv.shape[0] == 0:
         cholesky_solve(F, kl, work)
