@@ -80,7 +80,17 @@ from ..errors import ConvergenceError, ParameterError, ShapeError
 from ..linear import FilterResult
 from ..nonlinear._common import prepare_nonlinear
 from ..nonlinear._ukf import sigma_points
-from ._fem_kernels import band_cn, band_sdirk2, band_solve, deposit, interpolate
+from ._fem_kernels import (
+    band_cholesky,
+    band_cn,
+    band_sdirk2,
+    band_solve,
+    cholesky_solve,
+    deposit,
+    flow_points,
+    interpolate,
+    push_points,
+)
 from ._kernels import compiled_model
 from ._model import ContinuousDiscreteModel, rk4_flow
 
@@ -131,6 +141,9 @@ def _topology(n1: int, n2: int):
     V0, V1, V2  ∫φ_j du, ∫φ_j u du, ∫φ_j u uᵀ du (as (N,), (N, 2), (N, 3): uu, uv, vv)
     csc      (indices, indptr, slot): the CSC pattern and where each (e, a, b) entry goes
     band     (width, slot): LAPACK band storage (natural node order) and where each entry goes
+    triples  (a, b, c): consecutive nodes along the even lattice rows and columns (b in the middle)
+    sym      (width, slot, entries): the same for the lower band of a symmetric matrix (?pbtrf), slot
+             of each (e, a, b) entry on or below the diagonal, and those entries' flat indices
     """
     L1, L2 = 2 * n1 + 1, 2 * n2 + 1
     ii, jj = np.meshgrid(np.arange(L1), np.arange(L2), indexing="ij")
@@ -148,6 +161,13 @@ def _topology(n1: int, n2: int):
     width = int(np.max(np.abs(rows - cols)))
     # dgbtrf layout: A[i, j] at ab[2w + i − j, j] of a (3w+1, N) Fortran array, i.e. flat j·(3w+1) + 2w + i − j
     band_slot = cols * (3 * width + 1) + 2 * width + rows - cols
+    # three consecutive nodes along the full lattice lines (the even rows and columns: half an element apart)
+    full = (ii % 2 == 0) & (jj > 0) & (jj < L2 - 1), (jj % 2 == 0) & (ii > 0) & (ii < L1 - 1)
+    triples = tuple(np.concatenate(t) for t in zip(
+        (node_id[ii[full[0]], jj[full[0]] - 1], node_id[full[0]], node_id[ii[full[0]], jj[full[0]] + 1]),
+        (node_id[ii[full[1]] - 1, jj[full[1]]], node_id[full[1]], node_id[ii[full[1]] + 1, jj[full[1]]])))
+    lower = rows >= cols  # lower band: A[i, j], i ≥ j, at [j, i − j] of an (N, width + 1) array
+    sym = (width, (cols * (width + 1) + rows - cols)[lower], np.flatnonzero(lower))
     lattice = np.stack([ii[is_node], jj[is_node]], axis=-1)
     g, w = _GAUSS3
     gx, gy = np.meshgrid(g, g, indexing="ij")
@@ -163,7 +183,7 @@ def _topology(n1: int, n2: int):
     V0, V1, V2 = V[0], np.stack(V[1:3], axis=-1), np.stack(V[3:], axis=-1)
     out = dict(conn=conn, N=N, node_id=node_id, lattice=lattice, uq=uq, V0=V0, V1=V1, V2=V2,
                phi=phi, dxi=dxi, deta=deta, wq=wq, Me=pw.T @ phi,
-               csc=(indices, indptr, slot.ravel()), band=(width, band_slot))
+               csc=(indices, indptr, slot.ravel()), band=(width, band_slot), sym=sym, triples=triples)
     for val in out.values():
         for arr in (val if isinstance(val, tuple) else (val,)):
             if isinstance(arr, np.ndarray):
@@ -447,28 +467,39 @@ _BAND_BYTES = 4 * 2**20   # largest band-LU factors; SuperLU beyond (see _factor
 _SOLVE_DTYPE = np.float32  # precision of the factorisation and solves (see _factorise)
 _FOCUS = 4                  # refinement of the lattice that locates the posterior's modes (_split) ...
 _LEVEL = 1e-3               # ... the modes: connected regions above this fraction of the maximum ...
-_MIN_MODE = 1e-3            # ... holding more than this fraction of the mass
+_MIN_MODE = 1e-3            # ... holding more than this fraction of the mass; the lattice is g's own
+_RESOLVED = 1.0            # ... where log p(z|x) has second differences below this between its nodes (_resolved)
 _MAX_PARTS = 4              # parts of the mixture kept (the heaviest) ...
 _MIN_PART = 1e-4            # ... with at least this fraction of the heaviest one's weight
 _PUSH_GAUSS = 3             # the transport's quadrature: Gauss points per axis ...
 _PUSH_SUB = 2               # ... on this many sub-cells per axis of every element (_push)
+_DIFFUSION_STEP = 0.25      # diffusion sub-steps of the characteristics scheme: duration·ρ ≤ this each (_Diffusion)
+_CACHE = 4                  # diffusion factorisations kept (_Diffusion)
 _RK4_RADIUS = 2.5           # classical RK4 is stable on the left half-disc of this radius (2.6 is the largest)
 
 
-def _factorise(grid: FEMGrid, Be: np.ndarray):
+def _factorise(grid: FEMGrid, Be: np.ndarray, symmetric: bool = False):
     """Factorise the matrix assembled from element matrices Be (E, 8, 8): (solve, band).
 
     A band LU (LAPACK ?gbtrf, partial pivoting) in the natural lattice order,
     half-bandwidth ≈ 3·n2, while its factors fit in _BAND_BYTES; ``band`` is then
-    (F, piv, kl) for the compiled kernels of _fem_kernels.  SuperLU with a
-    fill-reducing ordering beyond (band None).  Factors are in _SOLVE_DTYPE
+    (F, piv, kl) for the compiled kernels of _fem_kernels.  ``symmetric`` (a symmetric positive
+    definite matrix: the diffusion of the characteristics scheme): a band Cholesky factor
+    (?pbtrf) instead, half the work and a third of the storage, ``band`` = (L, empty piv, kd).
+    SuperLU with a fill-reducing ordering beyond (band None).  Factors are in _SOLVE_DTYPE
     (single precision); right-hand sides and solutions stay double.  Measured
     (docs/design.md): on 20 × 20 the band LU factorises 2× faster than SuperLU
     and solves faster; on 40 × 40 its factors make every solve slower.
     """
-    width, slot = grid._top["band"]
-    ld, N = 3 * width + 1, grid.size
+    top = grid._top
+    width, slot = top["band"]
+    N = grid.size
     dtype = np.dtype(_SOLVE_DTYPE)
+    if symmetric and (width + 1) * N * dtype.itemsize <= _BAND_BYTES:
+        L, kd = _band_cholesky(top, Be, dtype)
+        band = (L, np.empty(0, np.int32), kd)
+        return (lambda b: cholesky_solve(L, kd, b.astype(dtype)).astype(float)), band
+    ld = 3 * width + 1
     if ld * N * dtype.itemsize <= _BAND_BYTES:
         gbtrf = scipy.linalg.lapack.get_lapack_funcs("gbtrf", dtype=dtype)
         ab = np.bincount(slot, weights=Be.ravel(), minlength=ld * N).reshape(N, ld).T.astype(dtype, order="F")
@@ -500,10 +531,15 @@ class _Propagator:
                  stabilise: bool, duration: float | None = None):
         advection = scheme != "characteristics"   # there: the diffusion half-steps only, by SDIRK2
         Me, Ae = grid.element_matrices(model, stabilise and advection, advection)
-        Ae = np.ascontiguousarray(Ae)
         tau = (model.dt if duration is None else duration) / substeps
         gamma = 0.5 if scheme == "cn" else _GAMMA
-        self.solve, self.band = _factorise(grid, Me - gamma * tau * Ae)
+        if advection:
+            Ae = np.ascontiguousarray(Ae)
+            self.solve, self.band = _factorise(grid, Me - gamma * tau * Ae)
+        else:  # M − γτA symmetric positive definite, one element matrix for all: band Cholesky
+            Ae = np.ascontiguousarray(Ae[:1])
+            Be = np.broadcast_to(Me - gamma * tau * Ae[0], grid.conn.shape + (8,))
+            self.solve, self.band = _factorise(grid, Be, symmetric=True)
         self.conn, self.Ae = grid.conn, Ae
         self.Re = Me + 0.5 * tau * Ae if scheme == "cn" else None
         if self.band is None:  # the loop below multiplies with assembled matrices
@@ -597,18 +633,33 @@ def _predicted_box(model, m, P, width, floor, duration):
 
 
 @functools.lru_cache(maxsize=16)
-def _unit_mass_solve(n1: int, n2: int):
-    """Solver of M u = b for the mass matrix of an n1 × n2 grid of unit elements (M of any grid of
-    that shape is h1·h2 times it): SuperLU, factorised once per shape."""
-    unit = FEMGrid(np.zeros(2), np.array([float(n1), float(n2)]), n1, n2)
-    return scipy.sparse.linalg.splu(unit.assemble(unit._top["Me"]).tocsc()).solve
+def _unit_mass_factor(n1: int, n2: int):
+    """Band Cholesky factor (L, kd) of the mass matrix of an n1 × n2 grid of unit elements (M of any
+    grid of that shape is h1·h2 times it; ``_fem_kernels.cholesky_solve``): factorised once per shape."""
+    top = _topology(n1, n2)
+    return _band_cholesky(top, np.broadcast_to(top["Me"], top["conn"].shape + (8,)), np.float64)
+
+
+def _band_cholesky(top: dict, Be: np.ndarray, dtype):
+    """Band Cholesky factor (C, kd) in ``dtype`` of the symmetric positive definite matrix assembled
+    from element matrices Be (E, 8, 8) on the grid of ``top`` (natural lattice order, kd ≈ 3·n2), in
+    the layout of ``_fem_kernels.cholesky_solve`` (compiled: ``band_cholesky``, 1.5-2× LAPACK's
+    ?pbtrf at this bandwidth)."""
+    kd, slot, lower = top["sym"]
+    N = top["N"]
+    C = np.zeros((N, 2 * (kd + 1)), dtype)
+    C[:, :kd + 1] = np.bincount(slot, weights=Be.ravel()[lower], minlength=(kd + 1) * N).reshape(N, kd + 1)
+    if not band_cholesky(C, kd):
+        raise ConvergenceError("grid filter: the time-step matrix is not positive definite")
+    C.setflags(write=False)
+    return C, kd
 
 
 @functools.lru_cache(maxsize=16)
 def _push_rule(n1: int, n2: int, order: int, sub: int):
-    """Quadrature on every element of an n1 × n2 grid: order × order Gauss points on each of
-    sub × sub sub-cells.  Returns (points (E, P, 2) in lattice units, shape functions (P, 8)
-    at them, weights (P,) on a unit element)."""
+    """Quadrature on every element: order × order Gauss points on each of sub × sub sub-cells.
+    Returns (points (P, 2) in [0, 1]² of an element, shape functions (P, 8) at them, weights (P,)
+    on a unit element)."""
     g, w = np.polynomial.legendre.leggauss(order)
     c = (np.arange(sub)[:, None] + 0.5 * (1.0 + g[None, :])).ravel() / sub   # (sub·order,) in [0, 1]
     wc = np.tile(0.5 * w, sub) / sub
@@ -616,29 +667,36 @@ def _push_rule(n1: int, n2: int, order: int, sub: int):
     loc = np.stack([cx.ravel(), cy.ravel()], axis=-1)                        # (P, 2) in [0, 1]²
     wq = np.outer(wc, wc).ravel()
     phi, _, _ = shape_functions(2.0 * loc[:, 0] - 1.0, 2.0 * loc[:, 1] - 1.0)
-    e1, e2 = np.meshgrid(np.arange(n1), np.arange(n2), indexing="ij")
-    corner = np.stack([e1.ravel(), e2.ravel()], axis=-1).astype(float)
-    return corner[:, None, :] + loc[None], phi, wq
+    return loc, phi, wq
 
 
-@functools.lru_cache(maxsize=8)
 def _compiled(model: ContinuousDiscreteModel):
-    """The model's compiled kernels (None for a model without): compiled once per model."""
+    """The model's compiled kernels (None for a model without)."""
     return None if model.kernels is None else compiled_model(model)
 
 
-def _drift_flow(model: ContinuousDiscreteModel, X: np.ndarray, duration: float) -> np.ndarray:
-    """The points X (P, 2) carried by the noise-free drift flow over ``duration``: RK4 steps, at
-    least 2 per dt and as many as the drift's stiffness at the points needs (τ·‖∂f/∂x‖ ≤ 1
-    per step, the Frobenius norm by central differences; RK4 is then accurate to a few per cent
-    on the fastest mode); compiled when the model has kernels."""
+def _flow_steps(model: ContinuousDiscreteModel, X: np.ndarray, duration: float) -> int:
+    """RK4 steps for carrying the points X (P, 2) over ``duration``: at least 2 per dt and as many
+    as the drift's stiffness at the points needs (τ·‖∂f/∂x‖ ≤ 1 per step, the Frobenius norm by
+    central differences; RK4 is then accurate to a few per cent on the fastest mode).  The NumPy
+    definition; ``_fem_kernels.flow_points`` computes the same compiled."""
     d = 1e-5 * max(1.0, float(np.max(np.abs(X))))
     e = d * np.array([[1.0, 0.0], [-1.0, 0.0], [0.0, 1.0], [0.0, -1.0]])
     f = model.drift(X[None] + e[:, None])                                            # (4, P, 2)
     stiff = float(np.max(np.sqrt(np.sum((f[0] - f[1]) ** 2 + (f[2] - f[3]) ** 2, axis=-1)))) / (2.0 * d)
-    steps = max(int(np.ceil(2.0 * duration / model.dt)), int(np.ceil(duration * stiff)), 1)
+    return max(int(np.ceil(2.0 * duration / model.dt)), int(np.ceil(duration * stiff)), 1)
+
+
+def _drift_flow(model: ContinuousDiscreteModel, X: np.ndarray, duration: float) -> np.ndarray:
+    """The points X (P, 2) carried by the noise-free drift flow over ``duration`` (RK4 steps by
+    :func:`_flow_steps`); compiled, step count included, when the model has kernels."""
     compiled = _compiled(model)
-    return rk4_flow(model, X, duration, steps) if compiled is None else compiled.flow(X, duration, steps)
+    if compiled is None:
+        return rk4_flow(model, X, duration, _flow_steps(model, X, duration))
+    Y = np.array(X, dtype=float, order="C")
+    cap = np.inf if model.max_increment is None else model.max_increment
+    flow_points(Y, *compiled.drift_at, model.kernels.drift_params, duration, model.dt, cap)
+    return Y
 
 
 def _push(old: FEMGrid, p: np.ndarray, new: FEMGrid, model, duration: float):
@@ -647,16 +705,16 @@ def _push(old: FEMGrid, p: np.ndarray, new: FEMGrid, model, duration: float):
     M q = b with b_j = ∫ φ_j p(t+τ) dx = ∫ φ_j(Φ_τ(y)) p(y) dy (a change of variables, so no
     Jacobian), by Gauss quadrature on old's elements (_PUSH_GAUSS² points on each of _PUSH_SUB²
     sub-cells) with the points pushed forward (:func:`_drift_flow`).  Points carrying less than
-    10⁻¹² of the largest weight are not moved (their mass is dropped).
-    Returns (nodal values q, fraction of the mass that landed outside new)."""
-    uq, phi, wq = _push_rule(old.n1, old.n2, _PUSH_GAUSS, _PUSH_SUB)
-    w = ((p[old.conn] @ phi.T) * (wq * float(old._h[0] * old._h[1]))).ravel()   # mass of each point
-    keep = np.abs(w) > 1e-12 * np.max(np.abs(w))
-    Y = _drift_flow(model, old.lo + old._h * uq.reshape(-1, 2)[keep], duration)
-    w = w[keep]
+    10⁻¹² of the largest weight are not moved (their mass is dropped).  Compiled throughout
+    (quadrature points, flow, deposit, the mass matrix's band Cholesky solve) when the model has
+    kernels.  Returns (nodal values q, fraction of the mass that landed outside new)."""
+    loc, phi, wq = _push_rule(old.n1, old.n2, _PUSH_GAUSS, _PUSH_SUB)
+    area = float(old._h[0] * old._h[1])
+    X, w = push_points(p, old.conn, phi, wq * area, loc, old.lo, old._h, old.n1, old.n2, 1e-12)
+    Y = _drift_flow(model, X, duration)
     b = np.zeros(new.size)
     outside = deposit(Y, w, new.lo, new._h, new.n1, new.n2, new.conn, b)
-    q = _unit_mass_solve(new.n1, new.n2)(b) / float(new._h[0] * new._h[1])
+    q = cholesky_solve(*_unit_mass_factor(new.n1, new.n2), b) / float(new._h[0] * new._h[1])
     total = float(w.sum())
     return q, (outside / total if total > 0.0 else 0.0)
 
@@ -713,6 +771,7 @@ def fem_steps(model: ContinuousDiscreteModel, z, x0, P0, *, grid: tuple[int, int
     shape = tuple(check_int("grid", g, minimum=1) for g in np.atleast_1d(grid))
     if len(shape) != 2:
         raise ShapeError(f"grid: expected (n1, n2) elements per axis, got {grid!r}")
+    adaptive = substeps is None  # the characteristics scheme then sizes its diffusion sub-steps itself
     if substeps is None:
         substeps = default_substeps(shape)
     z, m, P, substeps = prepare_nonlinear(model, z, x0, P0, substeps, definite=True)
@@ -732,7 +791,7 @@ def fem_steps(model: ContinuousDiscreteModel, z, x0, P0, *, grid: tuple[int, int
     else:
         g = FEMGrid(*_box(model, m, P, width, 0.0), *shape)
     if scheme == "characteristics":
-        yield from _characteristic_steps(model, z, m, P, g, width, substeps, box is not None,
+        yield from _characteristic_steps(model, z, m, P, g, width, None if adaptive else substeps, box is not None,
                                          check_int("splits", splits, minimum=1))
         return
     p, _ = _clip_normalise(g, _gaussian_on(g, m, P), "P0")
@@ -766,34 +825,69 @@ def fem_steps(model: ContinuousDiscreteModel, z, x0, P0, *, grid: tuple[int, int
                       loglik=ll, clipped=clipped, lost=lost, regridded=regridded, factorised=factorised)
 
 
-def _transport_steps(model, g, p, prop, width, splits, half, tau, fixed):
+class _Diffusion:
+    """The diffusion half-steps of the characteristics scheme: SDIRK2 over ``duration`` (τ/2) on a
+    grid, in ``substeps`` steps, or (None) in as many as the diffusion's rate on the element scale
+    needs: n = ⌈duration·ρ/_DIFFUSION_STEP⌉ with ρ the largest eigenvalue of H⁻¹QH⁻¹, H = diag(h)
+    (SDIRK2 is L-stable; this bounds its error on the modes the elements resolve).  One
+    factorisation per element size: the operator depends on the elements' size only (the
+    diffusion's mass and stiffness matrices are translation-invariant), so translated grids,
+    grids that return to an earlier size and the parts of a mixture share it; the _CACHE most
+    recently used are kept."""
+
+    def __init__(self, model, substeps: int | None, duration: float):
+        self.model, self.substeps, self.duration = model, substeps, duration
+        self.cache: dict = {}
+        self.factorisations = 0
+
+    def __call__(self, g: FEMGrid, p: np.ndarray) -> np.ndarray:
+        key = f"{g._h[0]:.12e} {g._h[1]:.12e}"  # a translated grid's h differs in the last bits
+        prop = self.cache.pop(key, None)
+        if prop is None:
+            n = self.substeps
+            if n is None:
+                S = self.model.Q / np.outer(g._h, g._h)
+                rho = 0.5 * (S[0, 0] + S[1, 1]) + np.hypot(0.5 * (S[0, 0] - S[1, 1]), S[0, 1])
+                n = max(1, int(np.ceil(self.duration * rho / _DIFFUSION_STEP)))
+            prop = _Propagator(g, self.model, n, "characteristics", False, self.duration)
+            self.factorisations += 1
+            if len(self.cache) >= _CACHE:
+                del self.cache[next(iter(self.cache))]
+        self.cache[key] = prop  # the most recent last
+        return prop(p)
+
+
+def _grid_size(need: np.ndarray, old: np.ndarray) -> np.ndarray:
+    """Side lengths of the next grid: the current ones while the needed size lies within
+    [_SHRINK, 1] of them on both axes (a translated grid: its diffusion factorisation is kept), else
+    the needed ones on both.  Refitting both axes keeps the elements small: rounding the sizes up to
+    a ladder of rungs (2^¼ apart, so that factorisations could be re-used) or refitting only the
+    axis that outgrew its side made the filter measurably less accurate (docs/nonlinear.md)."""
+    keep = (need <= old) & (need >= _SHRINK * old)
+    return old if keep.all() else need
+
+
+def _transport_steps(model, g, p, diffusion: _Diffusion, width, splits, tau, fixed):
     """One dt of the characteristics scheme: ``splits`` Strang steps (see _characteristic_steps)."""
     shape = (g.n1, g.n2)
-    factorised, regridded, lost, clipped = prop is None, False, 0.0, 0.0
+    before, regridded, lost, clipped = diffusion.factorisations, False, 0.0, 0.0
     for _ in range(splits):
-        if prop is None:
-            prop = _Propagator(g, model, half, "characteristics", False, 0.5 * tau)
-        p, c = _clip_normalise(g, prop(p), "prediction")
+        p, c = _clip_normalise(g, diffusion(g, p), "prediction")
         new = g
         if not fixed:
             _, m, P = g.moments(p)
             lo, hi = _predicted_box(model, m, P, width, 0.5 * float(np.min(g._h)), tau)
-            size, old = (1.0 + 2.0 * _MARGIN) * (hi - lo), g.hi - g.lo
-            if np.all(size <= old) and np.all(size >= _SHRINK * old):
-                size = old  # a translated grid: same elements, the diffusion LU is re-used
+            size = _grid_size((1.0 + 2.0 * _MARGIN) * (hi - lo), g.hi - g.lo)
             centre = 0.5 * (lo + hi)
             new = FEMGrid(centre - 0.5 * size, centre + 0.5 * size, *shape)
         q, out = _push(g, p, new, model, tau)
         lost += out
-        if new is not g:
-            regridded = True
-            if not np.array_equal(new.hi - new.lo, g.hi - g.lo):
-                prop, factorised = _Propagator(new, model, half, "characteristics", False, 0.5 * tau), True
-            g = new
+        regridded = regridded or new is not g
+        g = new
         p, c1 = _clip_normalise(g, q, "prediction")
-        p, c2 = _clip_normalise(g, prop(p), "prediction")
+        p, c2 = _clip_normalise(g, diffusion(g, p), "prediction")
         clipped += c + c1 + c2
-    return g, p, prop, factorised, regridded, lost, clipped
+    return g, p, diffusion.factorisations > before, regridded, lost, clipped
 
 
 def _galerkin_step(model, g, p, m, P, width, substeps, fixed):
@@ -812,21 +906,26 @@ def _galerkin_step(model, g, p, m, P, width, substeps, fixed):
     return g, p, True, regridded, lost, clipped
 
 
-def _split(g: FEMGrid, p: np.ndarray, model, zk, width: float):
+def _split(g: FEMGrid, p: np.ndarray, model, zk, width: float, logl: np.ndarray):
     """The prior cut into pieces around the modes of the posterior, each on its own grid, when the
     likelihood is much narrower than the prior (a range ring across a wide prior, or two arcs of
-    it): prior × likelihood on a lattice _FOCUS times finer than g; its 8-connected regions
+    it): prior × likelihood on g's node lattice if the likelihood is resolved there (_resolved;
+    ``logl`` at g's nodes), else on a lattice _FOCUS times finer than g; its 8-connected regions
     above _LEVEL × its maximum holding more than _MIN_MODE of the mass are the modes; each mode's
     box is mean ± width·σ (intersected with g), overlapping boxes are merged.  One box not
     smaller than _SHRINK of g on some axis: g itself.  Otherwise the prior is re-interpolated
     onto a grid per box (g's element counts), so that the update resolves the likelihood.
     Returns [(grid, prior nodal values normalised on it, log of the prior mass kept)]; the last
     term belongs to the log evidence."""
-    fine = FEMGrid(g.lo, g.hi, _FOCUS * g.n1, _FOCUS * g.n2)
-    logl = model.log_likelihood(zk, fine.nodes)
-    d = np.clip(g.evaluate(p, fine.nodes), 0.0, None) * np.exp(logl - logl.max())
+    fine, d = g, np.clip(p, 0.0, None) * np.exp(logl - logl.max())
     if not np.all(np.isfinite(d)) or d.max() <= 0.0:
         return [(g, p, 0.0)]
+    if not _resolved(g, d, logl):
+        fine = FEMGrid(g.lo, g.hi, _FOCUS * g.n1, _FOCUS * g.n2)
+        logl = _log_likelihood(model, zk, fine.nodes)
+        d = np.clip(g.evaluate(p, fine.nodes), 0.0, None) * np.exp(logl - logl.max())
+        if not np.all(np.isfinite(d)) or d.max() <= 0.0:
+            return [(g, p, 0.0)]
     lattice = fine._top["lattice"]
     img = np.zeros(fine._top["node_id"].shape)  # the half-spacing lattice; element centres have no node:
     img[lattice[:, 0], lattice[:, 1]] = d       # they get the mean of their four mid-side neighbours
@@ -859,6 +958,23 @@ def _split(g: FEMGrid, p: np.ndarray, model, zk, width: float):
     return out or [(g, p, 0.0)]
 
 
+def _resolved(g: FEMGrid, d: np.ndarray, logl: np.ndarray) -> bool:
+    """Whether g's nodes resolve the likelihood where the posterior lives: along the lattice lines
+    (nodes half an element apart), at the nodes where prior × likelihood d exceeds _LEVEL of its
+    maximum, the second difference of log p(z | x) is at most _RESOLVED in size (a Gaussian
+    likelihood σ wide along the line has s²/σ² there, s the node spacing: σ ≥ 2s), so a finer
+    lattice would find the same modes."""
+    a, b, c = g._top["triples"]
+    on = d[b] > _LEVEL * d.max()
+    return bool(np.max(np.abs(logl[a] - 2.0 * logl[b] + logl[c])[on], initial=0.0) <= _RESOLVED)
+
+
+def _log_likelihood(model, zk, X: np.ndarray) -> np.ndarray:
+    """log p(z | x) at the points X (P, 2) (model.log_likelihood), compiled when the model has kernels."""
+    compiled = _compiled(model)
+    return model.log_likelihood(zk, X) if compiled is None else compiled.log_likelihood(zk, X)
+
+
 @dataclass(eq=False)
 class _Part:
     """One part of the filter's mixture (see GridMixture) while it runs."""
@@ -866,7 +982,6 @@ class _Part:
     w: float
     g: FEMGrid
     p: np.ndarray
-    prop: _Propagator | None = None   # the diffusion half-step on g, kept while g keeps its size
 
 
 def _merge(parts: list) -> list:
@@ -903,19 +1018,18 @@ def _characteristic_steps(model, z, m, P, g: FEMGrid, width, substeps, fixed: bo
     overlap are merged.
     """
     tau = model.dt / splits
-    half = max(1, -(-substeps // (2 * splits)))
+    diffusion = _Diffusion(model, None if substeps is None else max(1, -(-substeps // (2 * splits))), 0.5 * tau)
     parts = [_Part(1.0, g, _clip_normalise(g, _gaussian_on(g, m, P), "P0")[0])]
     for k in range(z.shape[0]):
         factorised = regridded = False
         lost = clipped = 0.0
         for part in parts:
             try:
-                part.g, part.p, part.prop, f_, r_, l_, c_ = _transport_steps(
-                    model, part.g, part.p, part.prop, width, splits, half, tau, fixed)
+                part.g, part.p, f_, r_, l_, c_ = _transport_steps(model, part.g, part.p, diffusion, width,
+                                                                  splits, tau, fixed)
             except ConvergenceError:  # the characteristics left the grid (a stiff drift far out): Galerkin step
                 _, m, P = part.g.moments(part.p)
                 part.g, part.p, f_, r_, l_, c_ = _galerkin_step(model, part.g, part.p, m, P, width, substeps, fixed)
-                part.prop = None
             factorised, regridded = factorised or f_, regridded or r_
             lost += part.w * l_
             clipped += part.w * c_
@@ -938,16 +1052,17 @@ def _update(parts: list, model, zk, k: int, width: float, fixed: bool):
     Returns (parts, log evidence, whether a part moved to a new grid)."""
     new, logs, moved = [], [], False
     for part in parts:
-        pieces = [(part.g, part.p, 0.0)] if fixed else _split(part.g, part.p, model, zk, width)
+        logl = _log_likelihood(model, zk, part.g.nodes)
+        pieces = [(part.g, part.p, 0.0)] if fixed else _split(part.g, part.p, model, zk, width, logl)
         for g, q, log_kept in pieces:
             try:
-                q, lp = _bayes_update(g, q, model.log_likelihood(zk, g.nodes), k)
+                q, lp = _bayes_update(g, q, logl if g is part.g else _log_likelihood(model, zk, g.nodes), k)
             except ConvergenceError:
                 if len(parts) + len(pieces) > 2:  # another part holds the likelihood
                     continue
                 raise
             moved = moved or g is not part.g
-            new.append(_Part(part.w, g, q, part.prop if g is part.g else None))
+            new.append(_Part(part.w, g, q))
             logs.append(np.log(part.w) + log_kept + lp)
     if not new:
         raise ConvergenceError(f"z: measurement {k} has no likelihood mass on the grid")
