@@ -12,7 +12,7 @@ from ._registry import (
     get_filter,
     get_implementation,
 )
-from ._result import FilterResult
+from ..result import FilterResult
 from ._steady import fir_coefficients, fir_filter, fir_order, steady_state_filter
 
 __all__ = [

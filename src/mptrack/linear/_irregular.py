@@ -10,7 +10,7 @@ from .._validation import as_array, as_sequence, as_vector, check_covariance
 from ..errors import ParameterError, ShapeError
 from ..models import ContinuousLinearModel, discretize_intervals, require_model
 from ._kernels import kf_loop
-from ._result import FilterResult
+from ..result import FilterResult, innovation_arrays
 from ._smoother import _rts_backward
 
 __all__ = ["kalman_filter_irregular", "rts_smoother_irregular", "sampling_intervals"]
@@ -68,15 +68,17 @@ def kalman_filter_irregular(model: ContinuousLinearModel, times, z, x0=None, P0=
     T, n = z.shape[0], model.n
     xs, Ps = np.empty((T, n)), np.empty((T, n, n))
     xp, Pp = np.empty((T, n)), np.empty((T, n, n))
+    nu, S, nis = innovation_arrays((T,), model.m)
     Fs, Qs = discretize_intervals(model, dts)
     loglik = 0.0
     # runs of equal intervals share (F, Q) and go through the compiled KF loop in one call
     bounds = np.concatenate(([0], np.flatnonzero(np.diff(dts)) + 1, [T]))
     for a, b in zip(bounds[:-1], bounds[1:]):
         loglik += kf_loop(Fs[a], model.H, Qs[a], model.R, z[a:b], x, P, bool(joseph),
-                          xs[a:b], Ps[a:b], xp[a:b], Pp[a:b])
+                          xs[a:b], Ps[a:b], xp[a:b], Pp[a:b], nu[a:b], S[a:b], nis[a:b])
         x, P = xs[b - 1], Ps[b - 1]
-    return FilterResult(x=xs, P=Ps, x_pred=xp, P_pred=Pp, loglik=float(loglik), method="KF-irregular")
+    return FilterResult(x=xs, P=Ps, x_pred=xp, P_pred=Pp, loglik=float(loglik), method="KF-irregular",
+                        innovation=nu, S=S, nis=nis)
 
 
 def rts_smoother_irregular(model: ContinuousLinearModel, times, result: FilterResult, *,

@@ -9,7 +9,7 @@ import numpy as np
 from .._validation import _to_array, as_sequence, as_vector, check_covariance, check_int
 from ..errors import ParameterError, ShapeError
 from ..models import LinearGaussianModel, require_model
-from ._result import FilterResult
+from ..result import FilterResult, mask_missing
 
 __all__ = ["join_results", "per_axis"]
 
@@ -68,4 +68,13 @@ def per_axis(run: Callable[..., FilterResult], axis_model: LinearGaussianModel, 
             P_pred[:, s, s] = p.P_pred
     lls = _cat("loglik")
     loglik = None if lls is None else float(sum(lls))
-    return FilterResult(x=x, P=P, x_pred=x_pred, P_pred=P_pred, loglik=loglik, method=parts[0].method)
+    innovation = _cat("innovation")
+    S = None
+    if innovation is not None:
+        innovation = np.concatenate(innovation, axis=1)
+        S = np.zeros((T, axes * ma, axes * ma))
+        for i, p in enumerate(parts):
+            S[:, i * ma:(i + 1) * ma, i * ma:(i + 1) * ma] = p.S
+        mask_missing(innovation, S)
+    return FilterResult(x=x, P=P, x_pred=x_pred, P_pred=P_pred, loglik=loglik, method=parts[0].method,
+                        innovation=innovation, S=S)

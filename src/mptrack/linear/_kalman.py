@@ -9,7 +9,7 @@ from ..errors import ParameterError, ShapeError
 from ..models import LinearGaussianModel
 from ._common import prepare_inputs
 from ._kernels import kf_loop
-from ._result import FilterResult
+from ..result import FilterResult, innovation_arrays
 
 __all__ = ["kalman_filter", "kalman_step"]
 
@@ -17,7 +17,8 @@ _LOG2PI = np.log(2.0 * np.pi)
 
 
 @finite_result("the Kalman step")
-def kalman_step(F, H, Q, R, x, P, z, joseph: bool = False, Bu=None, predict: bool = True):
+def kalman_step(F, H, Q, R, x, P, z, joseph: bool = False, Bu=None, predict: bool = True, *,
+                innovation: bool = False):
     """One KF iteration: from x(k/k), P(k/k) and z(k+1) to the next filtered pair.
 
     Bu is the control term added to the prediction (x(k+1/k) = F x + B u); predict=False
@@ -26,7 +27,8 @@ def kalman_step(F, H, Q, R, x, P, z, joseph: bool = False, Bu=None, predict: boo
     The readable NumPy form of the equations; :func:`kalman_filter` runs the
     same equations in a compiled loop (tests check that the two agree).
 
-    Returns (x_filt, P_filt, x_pred, P_pred, loglik_increment).  Components of
+    Returns (x_filt, P_filt, x_pred, P_pred, loglik_increment) and, with innovation=True, also the
+    innovation (m,) and its covariance S (m, m), NaN for the components not used.  Components of
     z that are NaN are not used; a fully missing z only predicts.
     """
     F = as_matrix("F", F)
@@ -36,6 +38,8 @@ def kalman_step(F, H, Q, R, x, P, z, joseph: bool = False, Bu=None, predict: boo
         raise ShapeError(f"F: expected a square matrix, got shape {F.shape}")
     H = as_matrix("H", H, None, n)
     R, z = as_matrix("R", R, H.shape[0], H.shape[0]), as_array("z", z, shape=(H.shape[0],), allow_nan=True)
+    m = z.shape[0]
+    nu_full, S_full = np.full(m, np.nan), np.full((m, m), np.nan)
     if predict:
         x_pred = F @ x if Bu is None else F @ x + Bu
         P_pred = F @ P @ F.T + Q
@@ -43,7 +47,7 @@ def kalman_step(F, H, Q, R, x, P, z, joseph: bool = False, Bu=None, predict: boo
         x_pred, P_pred = x, P
     ok = ~np.isnan(z)
     if not ok.any():
-        return x_pred, P_pred, x_pred, P_pred, 0.0
+        return (x_pred, P_pred, x_pred, P_pred, 0.0) + ((nu_full, S_full) if innovation else ())
     if not ok.all():
         H, R, z = H[ok], R[np.ix_(ok, ok)], z[ok]
     PHt = P_pred @ H.T
@@ -60,7 +64,11 @@ def kalman_step(F, H, Q, R, x, P, z, joseph: bool = False, Bu=None, predict: boo
     P_filt = 0.5 * (P_filt + P_filt.T)
     _, logdet = np.linalg.slogdet(S)
     ll = -0.5 * (innov @ S_inv @ innov + logdet + len(innov) * _LOG2PI)
-    return x_filt, P_filt, x_pred, P_pred, ll
+    if not innovation:
+        return x_filt, P_filt, x_pred, P_pred, ll
+    nu_full[ok] = innov
+    S_full[np.ix_(ok, ok)] = S
+    return x_filt, P_filt, x_pred, P_pred, ll, nu_full, S_full
 
 
 #: where the prior (x0, P0) sits (as in mptrack.nonlinear): at time 0, or at the first measurement
@@ -118,8 +126,9 @@ def kalman_filter(model: LinearGaussianModel, z, x0=None, P0=None, *, joseph: bo
     prior       "initial" (x0, P0 at time 0) or "first-measurement" (x0, P0 are the prior at the
                 first measurement: no prediction before it, as pykalman and simdkalman)
 
-    Returns a FilterResult with filtered and predicted means/covariances, the
-    measurement log-likelihood, the prior as x0, P0 and, for a time-varying or controlled run, the
+    Returns a FilterResult with filtered and predicted means/covariances, the innovations, their
+    covariances S and NIS, the measurement log-likelihood, the prior as x0, P0 and, for a
+    time-varying or controlled run, the
     per-step F, Q and B u as ``inputs`` (both for :func:`rts_smoother`).  The
     time-invariant loop is compiled (numba); the time-varying, controlled and
     first-measurement forms run :func:`kalman_step` per step.
@@ -134,20 +143,23 @@ def kalman_filter(model: LinearGaussianModel, z, x0=None, P0=None, *, joseph: bo
     Ps = np.empty((T, n, n))
     xp = np.empty((T, n))
     Pp = np.empty((T, n, n))
+    nu, S, nis = innovation_arrays((T,), model.m)
     prior0 = {"x0": x.copy(), "P0": P.copy()} if prior == "initial" else {}
     if all(v is None for v in (F, H, Q, R, B, u)) and prior == "initial":
-        loglik = kf_loop(model.F, model.H, model.Q, model.R, z, x, P, bool(joseph), xs, Ps, xp, Pp)
-        return FilterResult(x=xs, P=Ps, x_pred=xp, P_pred=Pp, loglik=float(loglik), method="KF", **prior0)
+        loglik = kf_loop(model.F, model.H, model.Q, model.R, z, x, P, bool(joseph), xs, Ps, xp, Pp, nu, S, nis)
+        return FilterResult(x=xs, P=Ps, x_pred=xp, P_pred=Pp, loglik=float(loglik), method="KF", innovation=nu,
+                            S=S, nis=nis, **prior0)
     mats = step_matrices(model, T, F, H, Q, R, B, u)
     varying = any(v is not None for v in (F, H, Q, R, B, u))
     loglik = 0.0
     for k in range(T):
         Bu = None if mats["Bu"] is None else mats["Bu"][k]
-        x, P, xp[k], Pp[k], ll = kalman_step(mats["F"][k], mats["H"][k], mats["Q"][k], mats["R"][k], x, P, z[k],
-                                             joseph, Bu=Bu, predict=not (k == 0 and prior != "initial"))
+        x, P, xp[k], Pp[k], ll, nu[k], S[k] = kalman_step(
+            mats["F"][k], mats["H"][k], mats["Q"][k], mats["R"][k], x, P, z[k], joseph, Bu=Bu,
+            predict=not (k == 0 and prior != "initial"), innovation=True)
         xs[k], Ps[k] = x, P
         loglik += ll
     # what the smoother must reuse (rts_smoother reads it: the model's constant F, Q would be wrong)
     inputs = {"F": mats["F"], "Q": mats["Q"], "Bu": mats["Bu"]} if varying else None
     return FilterResult(x=xs, P=Ps, x_pred=xp, P_pred=Pp, loglik=float(loglik), method="KF", inputs=inputs,
-                        **prior0)
+                        innovation=nu, S=S, **prior0)

@@ -20,8 +20,11 @@ _LOG2PI = np.log(2.0 * np.pi)
 
 
 @njit(cache=True)
-def kf_loop(F, H, Q, R, z, x0, P0, joseph, xs, Ps, xps, Pps):  # pragma: no cover - compiled
-    """KF over all steps; NaN components of z are skipped. Returns the log-likelihood."""
+def kf_loop(F, H, Q, R, z, x0, P0, joseph, xs, Ps, xps, Pps, nus, Ss, nis):  # pragma: no cover - compiled
+    """KF over all steps; NaN components of z are skipped. Returns the log-likelihood.
+
+    Writes the innovation, its covariance S and the NIS of the components used into nus (T, m),
+    Ss (T, m, m) and nis (T,), which the caller fills with NaN (left there for missing components)."""
     T, m = z.shape
     n = F.shape[0]
     x = x0.copy()
@@ -43,15 +46,15 @@ def kf_loop(F, H, Q, R, z, x0, P0, joseph, xs, Ps, xps, Pps):  # pragma: no cove
             x = xp
             P = Pp
         else:
+            idx = np.empty(n_ok, dtype=np.int64)
+            j = 0
+            for i in range(m):
+                if not np.isnan(zk[i]):
+                    idx[j] = i
+                    j += 1
             if n_ok == m:
                 Hk, Rk, zv = H, R, zk
             else:
-                idx = np.empty(n_ok, dtype=np.int64)
-                j = 0
-                for i in range(m):
-                    if not np.isnan(zk[i]):
-                        idx[j] = i
-                        j += 1
                 Hk = np.ascontiguousarray(H[idx])
                 Rk = np.empty((n_ok, n_ok))
                 for a in range(n_ok):
@@ -70,7 +73,13 @@ def kf_loop(F, H, Q, R, z, x0, P0, joseph, xs, Ps, xps, Pps):  # pragma: no cove
             else:
                 P = Pp - K @ np.ascontiguousarray(PHt.T)
             P = 0.5 * (P + P.T)
-            loglik -= 0.5 * (innov @ (Si @ innov) + np.log(np.linalg.det(S)) + n_ok * _LOG2PI)
+            e = innov @ (Si @ innov)
+            loglik -= 0.5 * (e + np.log(np.linalg.det(S)) + n_ok * _LOG2PI)
+            for a in range(n_ok):
+                nus[k, idx[a]] = innov[a]
+                for b in range(n_ok):
+                    Ss[k, idx[a], idx[b]] = S[a, b]
+            nis[k] = e
         xs[k] = x
         Ps[k] = P
     return loglik

@@ -9,7 +9,7 @@ from ..models import LinearGaussianModel
 from ..riccati import LainiotisParameters, lainiotis_parameters
 from ._common import prepare_inputs
 from ._kernels import lf_loop
-from ._result import FilterResult
+from ..result import FilterResult
 
 __all__ = ["lainiotis_filter", "lainiotis_step"]
 

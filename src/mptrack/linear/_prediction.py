@@ -26,7 +26,7 @@ from ..models import LinearGaussianModel, require_model
 from ..riccati import SteadyState, power_sum
 from ._common import prepare_inputs
 from ._kernels import ss_loop
-from ._result import FilterResult
+from ..result import FilterResult
 from ._steady import _steady, steady_state_filter
 
 __all__ = [

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Callable
 
 import numpy as np
@@ -13,7 +13,7 @@ from ..riccati import lainiotis_parameters, steady_state
 from ._joint import join_results, per_axis
 from ._kalman import kalman_filter
 from ._lainiotis import lainiotis_filter
-from ._result import FilterResult
+from ..result import FilterResult, mask_missing
 from ._steady import fir_filter, steady_state_filter
 
 __all__ = ["FilterSpec", "FILTERS", "get_filter", "Implementation", "IMPLEMENTATIONS", "get_implementation"]
@@ -33,7 +33,34 @@ class FilterSpec:
     prepare: Callable[[LinearGaussianModel], Runner]
 
     def run(self, model: LinearGaussianModel, z, x0=None, P0=None) -> FilterResult:
-        return self.prepare(model)(z, x0, P0)
+        """The filter on ``model`` and z from the prior x0, P0 (default zeros), with the one-step
+        prediction x_pred, P_pred and the innovation, S and NIS of every step: the filter's own where
+        it forms them (KF), else from the prediction of its previous estimate (:func:`one_step`)."""
+        result = self.prepare(model)(z, x0, P0)
+        n = model.n
+        return one_step(result, model, z, np.zeros(n) if x0 is None else x0,
+                        np.zeros((n, n)) if P0 is None else P0)
+
+
+def one_step(result: FilterResult, model: LinearGaussianModel, z, x0, P0) -> FilterResult:
+    """``result`` with x_pred, P_pred, innovation, S (and so nis) from the one-step prediction of the
+    filter's own previous estimate: x(k/k-1) = F x(k-1/k-1), P(k/k-1) = F P(k-1/k-1) F^T + Q (x0, P0
+    before the first), the innovation z(k) - H x(k/k-1), S = H P(k/k-1) H^T + R (NaN on the rows with
+    a NaN, which these filters do not use).
+    For the filters whose algebra forms none of them (LF, steady-state, FIR, joins); a result with an
+    innovation already is returned as it is."""
+    if result.innovation is not None:
+        return result
+    F, H, Q, R = model.F, model.H, model.Q, model.R
+    x_prev = np.vstack([np.asarray(x0, dtype=float)[None], result.x[:-1]])
+    P_prev = np.concatenate([np.asarray(P0, dtype=float)[None], result.P[:-1]])
+    x_pred = x_prev @ F.T
+    P_pred = F @ P_prev @ F.T + Q
+    S = H @ P_pred @ H.T + R
+    nu = np.asarray(z, dtype=float) - x_pred @ H.T
+    nu[np.isnan(nu).any(axis=1)] = np.nan       # these filters only predict at a row with a NaN
+    mask_missing(nu, S)
+    return replace(result, x_pred=x_pred, P_pred=P_pred, innovation=nu, S=S)
 
 
 def _prep_kf(model):

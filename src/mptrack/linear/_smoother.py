@@ -22,7 +22,7 @@ from ..errors import ParameterError, ShapeError
 from ..models import LinearGaussianModel, require_model
 from ..riccati import SteadyState
 from ._kernels import ss_loop
-from ._result import FilterResult
+from ..result import FilterResult
 from ._steady import _steady
 
 __all__ = ["rts_smoother", "steady_state_smoother", "rts_backward"]

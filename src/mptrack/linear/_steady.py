@@ -13,7 +13,7 @@ from ..models import LinearGaussianModel
 from ..riccati import SteadyState, steady_state
 from ._common import prepare_inputs
 from ._kernels import ss_loop
-from ._result import FilterResult
+from ..result import FilterResult
 
 __all__ = ["steady_state_filter", "fir_filter", "fir_order", "fir_coefficients"]
 

@@ -16,7 +16,8 @@ import pandas as pd
 
 from .._validation import as_real, check_positive
 from ..errors import ParameterError
-from ..linear import FilterResult, get_filter
+from ..linear import get_filter
+from ..result import FilterResult
 from ._columns import FixTable
 from ._gated import first_fix_prior, measured_states, nis_threshold, smooth_gated, track_gated
 from ._noise import SCOPES
@@ -179,18 +180,10 @@ def grid_filter_track(spec, q: float, options: TrackOptions, t, z, r):
     x0, P0 = first_fix_prior(disc.H, z[0], r[0] * np.eye(2), np.tile(spec.prior_variances, 2))
     # the prior is at the first fix: start one step before it
     x_start = np.linalg.solve(disc.F, x0)
+    # the result carries the NIS of each grid measurement against the one-step prediction
     res: FilterResult = get_filter(options.filter).run(disc, zg, x_start, P0)
-    # NIS of each grid measurement against the one-step prediction of the estimate before it
-    x_prev = np.vstack([x_start, res.x[:-1]])
-    P_prev = np.concatenate([P0[None], res.P[:-1]])
-    x_pred = x_prev @ disc.F.T
-    P_pred = disc.F @ P_prev @ disc.F.T + disc.Q
-    S = disc.H @ P_pred @ disc.H.T + disc.R
-    nu = zg - x_pred @ disc.H.T
-    ok = np.isfinite(nu).all(axis=1)
-    nis = np.full(len(t_grid), np.nan)
-    nis[ok] = np.einsum("ti,ti->t", nu[ok], np.linalg.solve(S[ok], nu[ok][..., None])[..., 0])
-    flags = np.where(ok, 0, 2).astype(np.int8)
+    nis = res.nis
+    flags = np.where(np.isnan(nis), 2, 0).astype(np.int8)
     extra = {"meas_east_m": zg[:, 0], "meas_north_m": zg[:, 1]}
     if options.smooth:
         res = rts_smoother(disc, res)

@@ -1,0 +1,145 @@
+"""The result record of every filter in mptrack: :class:`FilterResult` (one track) and
+:class:`BatchFilterResult` (B tracks, a leading track axis).
+
+Fields, for T measurement times z(1..T) with n states and m measurement components:
+
+    x           (T, n)     filtered means x(k/k)
+    P           (T, n, n)  filtered covariances P(k/k)
+    x_pred      (T, n)     predicted means x(k/k-1)
+    P_pred      (T, n, n)  predicted covariances P(k/k-1)
+    innovation  (T, m)     z(k) - zhat(k/k-1), the measurement minus its prediction (angles wrapped);
+                           NaN for a component that was missing (all NaN on a row that only predicts)
+    S           (T, m, m)  the innovation covariance the update used; rows and columns of missing
+                           components NaN (all NaN on a row that only predicts)
+    nis         (T,)       normalised innovation squared innovation^T S^-1 innovation over the
+                           components used; NaN on a row that only predicts.  Filled from innovation
+                           and S (:func:`normalised_innovation`) unless the filter gives it.
+    loglik      log-likelihood of the measurements (float)
+    method      the filter's name ("KF", "LF", "UKF", ...)
+    x0, P0      a filter's prior x(0/0), P(0/0) at time 0, or a smoother's x(0/T), P(0/T)
+    inputs      what a smoother must reuse (kalman_filter's per-step F, Q, B u; ukf_filter's
+                sigma-point parameters), or None
+
+A field that the algorithm does not form is None.  Which filter forms what:
+
+    KF, irregular-time KF, gated KF, EKF, UKF,          every field
+    range EKF (cellular)
+    FEKF, FCS (cellular)         every field; innovation = the per-station Inn_i of the common
+                                 prediction, S = H P(k/k-1) H^T + R of all stations (its diagonal
+                                 is the per-station S_i), loglik None (no joint likelihood)
+    LF, SSKF, SSLF, JKLF,        x, P only (the algebra has no prediction or innovation);
+    JSSKLF, FIR                  the registry's ``FilterSpec.run`` fills x_pred .. nis from the
+                                 previous estimate (:func:`with_one_step_prediction`)
+    IMM                          no innovation, S, nis (each mode forms its own; the combined
+                                 estimate forms none); adds mu, x_modes (IMMResult)
+    PF, reference, FEM           no innovation, S, nis (the likelihood is evaluated per particle or
+                                 grid node; no Gaussian innovation is formed)
+    smoothers, predictors        x, P (and x0, P0 for a smoother of a prior at time 0)
+
+Subclasses add what one filter alone has: the gated KF's flags and per-step transitions
+(:class:`mptrack.tracking.GatedResult`), the IMM's mode probabilities
+(:class:`mptrack.nonlinear.IMMResult`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, fields
+
+import numpy as np
+
+__all__ = ["FilterResult", "BatchFilterResult", "normalised_innovation", "innovation_arrays", "mask_missing"]
+
+
+def normalised_innovation(innovation, S) -> np.ndarray:
+    """innovation^T S^-1 innovation over the non-NaN components of each row (any leading axes);
+    NaN for a row without any.  innovation (..., m), S (..., m, m)."""
+    nu = np.asarray(innovation, dtype=float)
+    S = np.asarray(S, dtype=float)
+    m = nu.shape[-1]
+    lead = nu.shape[:-1]
+    nu, S = nu.reshape(-1, m), S.reshape(-1, m, m)
+    ok = ~np.isnan(nu)
+    out = np.full(nu.shape[0], np.nan)
+    # rows with the same observed components solve together
+    patterns, which = np.unique(ok, axis=0, return_inverse=True)
+    for p, pattern in enumerate(patterns):
+        if not pattern.any():
+            continue
+        rows = which.reshape(-1) == p
+        v = nu[rows][:, pattern]
+        Sp = S[rows][:, pattern][:, :, pattern]
+        out[rows] = np.einsum("ti,ti->t", v, np.linalg.solve(Sp, v[..., None])[..., 0])
+    return out.reshape(lead)
+
+
+def innovation_arrays(lead: tuple, m: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """NaN-filled (innovation (*lead, m), S (*lead, m, m), nis (*lead)) for a filter to write the
+    components it uses into (lead = (T,) or (B, T)); what it leaves is missing."""
+    return np.full((*lead, m), np.nan), np.full((*lead, m, m), np.nan), np.full(lead, np.nan)
+
+
+def mask_missing(innovation: np.ndarray, S: np.ndarray) -> np.ndarray:
+    """S (..., m, m) with NaN in the rows and columns of the components whose innovation is NaN
+    (in place; returns S)."""
+    missing = np.isnan(innovation)
+    S[missing[..., :, None] | missing[..., None, :]] = np.nan
+    return S
+
+
+@dataclass(frozen=True, eq=False)
+class _Fields:
+    x: np.ndarray
+    P: np.ndarray
+    x_pred: np.ndarray | None = None
+    P_pred: np.ndarray | None = None
+    loglik: float | np.ndarray | None = None
+    method: str = ""
+    x0: np.ndarray | None = None
+    P0: np.ndarray | None = None
+    inputs: dict | None = None
+    innovation: np.ndarray | None = None
+    S: np.ndarray | None = None
+    nis: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        if self.nis is None and self.innovation is not None and self.S is not None:
+            object.__setattr__(self, "nis", normalised_innovation(self.innovation, self.S))
+
+
+@dataclass(frozen=True, eq=False)
+class FilterResult(_Fields):
+    """Output of a filter run over T measurement times (module docstring: the fields, and which
+    filter forms which)."""
+
+    @property
+    def T(self) -> int:
+        return self.x.shape[0]
+
+    @property
+    def n(self) -> int:
+        return self.x.shape[1]
+
+
+@dataclass(frozen=True, eq=False)
+class BatchFilterResult(_Fields):
+    """B filter runs: the fields of :class:`FilterResult` with a leading track axis (x (B, T, n),
+    P (B, T, n, n), innovation (B, T, m), nis (B, T), loglik (B,), x0 (B, n), ...); ``inputs`` and
+    ``method`` are shared.  ``run(b)`` is track b as a FilterResult."""
+
+    @property
+    def B(self) -> int:
+        return self.x.shape[0]
+
+    def run(self, b: int) -> FilterResult:
+        """Track ``b`` as a FilterResult."""
+        row = {}
+        for f in fields(_Fields):
+            value = getattr(self, f.name)
+            if f.name in ("method", "inputs") or value is None:
+                row[f.name] = value
+            elif f.name == "loglik":
+                row[f.name] = float(value[b])
+            else:
+                row[f.name] = value[b]
+        return FilterResult(**row)
+
