@@ -72,10 +72,11 @@ def scenario(model, seed=3, T=60):
 
 
 def assert_same(a, b, tol=1e-10):
-    for f in ("x", "P", "x_pred", "P_pred"):
+    for f in ("x", "P", "x_pred", "P_pred", "innovation", "S", "nis"):
         got, want = getattr(a, f), getattr(b, f)
         assert got.shape == want.shape
-        assert np.max(np.abs(got - want) / (1.0 + np.abs(want))) < tol, f
+        assert np.array_equal(np.isnan(got), np.isnan(want)), f
+        assert np.nanmax(np.abs(got - want) / (1.0 + np.abs(want))) < tol, f
     assert abs(a.loglik - b.loglik) < tol * (1.0 + abs(b.loglik))
     for f in ("x0", "P0"):
         assert (getattr(a, f) is None) == (getattr(b, f) is None)
@@ -111,12 +112,15 @@ def test_batch_kernel_equals_numpy_batch_and_single_runs(name):
     x0 = np.stack([r[1] for r in runs])
     P0 = runs[0][2]
     fast = ekf_filter_batch(model, z, x0, P0)
-    xs, Ps, xp, Pp, ll = _ekf_batch_core(model, z, x0.copy(), np.broadcast_to(P0, (5,) + P0.shape).copy())
-    for got, want in ((fast.x, xs), (fast.P, Ps), (fast.x_pred, xp), (fast.P_pred, Pp), (fast.loglik, ll)):
-        assert np.max(np.abs(got - want) / (1.0 + np.abs(want))) < 1e-10
+    xs, Ps, xp, Pp, ll, nu, S = _ekf_batch_core(model, z, x0.copy(), np.broadcast_to(P0, (5,) + P0.shape).copy())
+    for got, want in ((fast.x, xs), (fast.P, Ps), (fast.x_pred, xp), (fast.P_pred, Pp), (fast.loglik, ll),
+                      (fast.innovation, nu), (fast.S, S)):
+        assert np.array_equal(np.isnan(got), np.isnan(want))
+        assert np.nanmax(np.abs(got - want) / (1.0 + np.abs(want))) < 1e-10
     for b in (0, 3):
         one = ekf_filter(model, z[b], x0[b], P0)
         assert np.max(np.abs(fast.x[b] - one.x) / (1.0 + np.abs(one.x))) < 1e-10
+        np.testing.assert_allclose(fast.nis[b], one.nis, rtol=1e-10)
         assert abs(fast.loglik[b] - one.loglik) < 1e-10 * abs(one.loglik)
 
 

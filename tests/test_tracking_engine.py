@@ -90,7 +90,7 @@ def run_reference(spec, b, offsets, t, ze, zn, w, c, q, smooth):
     s = slice(offsets[b], offsets[b + 1])
     g = track_gated(spec.build(q[b], 1.0), t[s], np.column_stack([ze[s], zn[s]]),
                     (c[b] * w[s])[:, None, None] * np.eye(2), np.tile(spec.prior_variances, 2), gate_probability=0.999)
-    return s, g, smooth_gated(g) if smooth else g.result
+    return s, g, smooth_gated(g) if smooth else g
 
 
 @pytest.mark.parametrize("name", ["cv", "ca"])
@@ -110,7 +110,7 @@ def test_engine_equals_the_per_track_reference(name, smooth):
         seen.update(FLAGS[f] for f in flag[s])
         # to 1e-10 on the scale of the computation: the largest predicted variance of the track (a
         # 2000 s gap predicts ~1e10 m^2, and the update cancels it down to the fix's variance)
-        p_scale = float(np.abs(g.result.P_pred if g.result.P_pred is not None else g.result.P).max())
+        p_scale = float(np.abs(g.P_pred if g.P_pred is not None else g.P).max())
         x_scale = float(np.abs(ref.x).max()) + np.sqrt(p_scale)
         # a restart's back prediction scales the restart state's rounding by its amplification
         amp = back_amplification(t[s], flag[s], order)
@@ -121,7 +121,7 @@ def test_engine_equals_the_per_track_reference(name, smooth):
         assert_within(P[s], ref.P[:, order:, order:], 1e-10 * p_scale * amp[:, None, None] ** 2)
         # NIS = nu^2 / S: S carries the covariances' error (1e-10 of p_scale), over S >= the smallest r
         np.testing.assert_allclose(nis[s], g.nis, rtol=max(1e-10, 1e-10 * p_scale / r.min()), equal_nan=True)
-        assert stats[b, 0] == pytest.approx(g.result.loglik, rel=1e-10, abs=1e-8)
+        assert stats[b, 0] == pytest.approx(g.loglik, rel=1e-10, abs=1e-8)
     # the test data exercise every rule
     assert {"init", "update", "outlier", "reset", "manoeuvre"} <= seen
 
@@ -140,7 +140,7 @@ def test_engine_equals_reference_on_random_tracks(seed, order):
         # the scale of the main test: the track's largest predicted variance (seed 154944337: a 254 s gap
         # of a ca track predicts 2.7e10 m^2; engine and reference are then 2.6e-6 and 1.2e-6 m from an
         # 80-bit computation of the same smoother, beyond 1e-10 of the smoothed covariances' scale)
-        p_scale = np.abs(g.result.P_pred if g.result.P_pred is not None else g.result.P).max()
+        p_scale = np.abs(g.P_pred if g.P_pred is not None else g.P).max()
         x_scale = float(np.abs(ref.x).max()) + np.sqrt(float(p_scale))
         amp = back_amplification(t[s], flag[s], order)
         assert_within(X[s][:, 0, 0], ref.x[:, 0], 1e-10 * x_scale * amp)

@@ -68,9 +68,9 @@ def test_ungated_regular_equals_the_reference_kalman_filter():
     model, t, z, x0, P0 = cv_data()
     g = kalman_filter_gated(model, t, z, x0, P0, t0=t[0] - 1.0, gate_probability=None)
     ref = kalman_filter(model.discretize(1.0), z, x0, P0)
-    np.testing.assert_allclose(g.result.x, ref.x, rtol=1e-10, atol=1e-9)
-    np.testing.assert_allclose(g.result.P, ref.P, rtol=1e-10, atol=1e-10)
-    assert g.result.loglik == pytest.approx(ref.loglik, rel=1e-10)
+    np.testing.assert_allclose(g.x, ref.x, rtol=1e-10, atol=1e-9)
+    np.testing.assert_allclose(g.P, ref.P, rtol=1e-10, atol=1e-10)
+    assert g.loglik == pytest.approx(ref.loglik, rel=1e-10)
     sm = smooth_gated(g)
     ref_sm = rts_smoother(model.discretize(1.0), ref)
     np.testing.assert_allclose(sm.x, ref_sm.x, rtol=1e-9, atol=1e-8)
@@ -82,11 +82,11 @@ def test_ungated_irregular_equals_kalman_filter_irregular():
     z[5] = np.nan
     g = kalman_filter_gated(model, t, z, x0, P0, t0=t[0] - 0.5, gate_probability=None)
     ref = kalman_filter_irregular(model, t, z, x0, P0, t0=t[0] - 0.5)
-    np.testing.assert_allclose(g.result.x, ref.x, rtol=1e-10, atol=1e-9)
-    np.testing.assert_allclose(g.result.P, ref.P, rtol=1e-10, atol=1e-10)
+    np.testing.assert_allclose(g.x, ref.x, rtol=1e-10, atol=1e-9)
+    np.testing.assert_allclose(g.P, ref.P, rtol=1e-10, atol=1e-10)
     assert g.flag[5] == 2 and np.isnan(g.nis[5])
     sm = smooth_gated(g)
-    assert np.all(np.linalg.eigvalsh(g.result.P - sm.P) > -1e-9)  # smoothing never adds uncertainty
+    assert np.all(np.linalg.eigvalsh(g.P - sm.P) > -1e-9)  # smoothing never adds uncertainty
 
 
 def test_gate_rejects_an_outlier_exactly_like_a_missing_measurement():
@@ -99,7 +99,7 @@ def test_gate_rejects_an_outlier_exactly_like_a_missing_measurement():
     ref = kalman_filter_irregular(model, t, z_nan, x0, P0, t0=t[0] - 1.0)
     assert g.flag[12] == 1 and g.nis[12] > nis_threshold(0.999, 2)
     assert np.count_nonzero(g.flag == 1) == 1
-    np.testing.assert_allclose(g.result.x, ref.x, rtol=1e-10, atol=1e-9)
+    np.testing.assert_allclose(g.x, ref.x, rtol=1e-10, atol=1e-9)
 
 
 def test_consecutive_consistent_rejections_reset_the_track():
@@ -109,9 +109,9 @@ def test_consecutive_consistent_rejections_reset_the_track():
     # the restart at the run's last fix; its earlier fixes take the restart state predicted back
     assert g.flag[15:18].tolist() == [3, 3, 3]
     assert np.all(g.flag[18:] == 0)
-    np.testing.assert_allclose(g.result.x[15:17][:, [0, 2]], z[15:17], atol=6.0)
-    np.testing.assert_allclose(g.result.x[17, [0, 2]], z[17], atol=6.0)  # a line through 3 noisy fixes
-    np.testing.assert_allclose(g.result.x[17, [1, 3]], [3.0, -1.0], atol=4.0)
+    np.testing.assert_allclose(g.x[15:17][:, [0, 2]], z[15:17], atol=6.0)
+    np.testing.assert_allclose(g.x[17, [0, 2]], z[17], atol=6.0)  # a line through 3 noisy fixes
+    np.testing.assert_allclose(g.x[17, [1, 3]], [3.0, -1.0], atol=4.0)
 
 
 def test_scattered_outliers_never_reset_the_track():
@@ -181,11 +181,11 @@ def test_track_fixes_equals_the_library_filter_on_the_same_data():
     P0 = np.diag([25.0, 900.0, 25.0, 900.0])
     t = rows["t"].to_numpy()
     g = kalman_filter_gated(model, t[1:], np.column_stack([e, n])[1:], x0, P0, t0=t[0])
-    np.testing.assert_allclose(out["east_m"].iloc[1:], g.result.x[:, 0], atol=1e-9)
-    np.testing.assert_allclose(out["var_north_m2"].iloc[1:], g.result.P[:, 2, 2], rtol=1e-12)
+    np.testing.assert_allclose(out["east_m"].iloc[1:], g.x[:, 0], atol=1e-9)
+    np.testing.assert_allclose(out["var_north_m2"].iloc[1:], g.P[:, 2, 2], rtol=1e-12)
     assert out["flag"].iloc[0] == "init" and np.isnan(out["nis"].iloc[0])
     assert out["east_m"].iloc[0] == e[0] and out["var_east_m2"].iloc[0] == 25.0
-    lat, lon = frame.to_geodetic(g.result.x[:, 0], g.result.x[:, 2])
+    lat, lon = frame.to_geodetic(g.x[:, 0], g.x[:, 2])
     np.testing.assert_allclose(out["lat"].iloc[1:], lat, atol=1e-12)
 
 

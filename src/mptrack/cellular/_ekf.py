@@ -19,12 +19,11 @@ from scipy.optimize import least_squares
 
 from .._validation import as_array, as_real, check_covariance, check_int, check_positive, finite_result
 from ..errors import ParameterError, ShapeError, SingularMatrixError
-from ..linear import FilterResult
 from ..models import LinearGaussianModel, NonlinearModel, nonlinear_model, ranges
-from ..nonlinear import BatchFilterResult, ekf_filter, ekf_filter_batch
+from ..nonlinear import ekf_filter, ekf_filter_batch
+from ..result import BatchFilterResult, FilterResult
 
 __all__ = [
-    "BatchFilterResult",
     "ekf_ranges",
     "ekf_ranges_batch",
     "range_measurement",

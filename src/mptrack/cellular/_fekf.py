@@ -22,6 +22,7 @@ When no station gives a positive weight (all ranges missing) the step only predi
 
 from __future__ import annotations
 
+from dataclasses import replace
 from typing import Callable
 
 import numpy as np
@@ -29,8 +30,8 @@ import numpy as np
 from .._validation import finite_result
 from ..errors import NotPositiveDefiniteError, ParameterError
 from ..fuzzy import TakagiSugeno, uniform_partition
-from ..linear import FilterResult
-from ._ekf import BatchFilterResult, _prepare, range_measurement
+from ..result import BatchFilterResult, FilterResult, innovation_arrays, mask_missing
+from ._ekf import _prepare, range_measurement
 
 __all__ = [
     "bouzera_fekf_fis",
@@ -121,6 +122,8 @@ def _fused_core(z, stations, x0, P0, F, Q, R, pos, weights: Callable, covariance
     n = F.shape[0]
     xs, xp = np.empty((B, T, n)), np.empty((B, T, n))
     Ps, Pp = np.empty((B, T, n, n)), np.empty((B, T, n, n))
+    nus, Ss, _ = innovation_arrays((B, T), m)
+    diag = np.arange(m)
     x = x0.copy()
     P = np.broadcast_to(P0, (B, n, n)).copy()
     for k in range(T):
@@ -130,11 +133,16 @@ def _fused_core(z, stations, x0, P0, F, Q, R, pos, weights: Callable, covariance
         dk = z[:, k]
         ok = ~np.isnan(dk)
         _, K, H, innov, S = local_solutions(x, P, dk, stations, R_diag, pos)
+        # the joint innovation covariance H P H^T + R of the stations, its diagonal the local S_i
+        S_all = H @ P @ H.transpose(0, 2, 1) + R
+        S_all[:, diag, diag] = S
+        nus[:, k] = np.where(ok, innov, np.nan)
+        Ss[:, k] = mask_missing(nus[:, k], S_all)
         y = np.where(ok, weights(np.abs(innov), S, np.where(ok, dk, 0.0)), 0.0)
         x, P = fuse_local_solutions(x, P, K, H, innov, S, R_diag, y, covariance=covariance)
         xs[:, k] = x
         Ps[:, k] = P
-    return xs, Ps, xp, Pp
+    return BatchFilterResult(x=xs, P=Ps, x_pred=xp, P_pred=Pp, innovation=nus, S=Ss)
 
 
 def _fis_weights(fis, kind: str):
@@ -149,8 +157,7 @@ def _fis_weights(fis, kind: str):
 
 def _run(kind, z, stations, x0, P0, Q, R, fis, motion, dt, covariance, batch):
     args = _prepare(z, stations, x0, P0, Q, R, motion, dt, batch=batch)
-    xs, Ps, xp, Pp = _fused_core(*args, weights=_fis_weights(fis, kind), covariance=covariance)
-    out = BatchFilterResult(x=xs, P=Ps, x_pred=xp, P_pred=Pp, method=kind)
+    out = replace(_fused_core(*args, weights=_fis_weights(fis, kind), covariance=covariance), method=kind)
     return out if batch else out.run(0)
 
 

@@ -77,7 +77,7 @@ import scipy.sparse.linalg
 
 from .._validation import as_array, check_int, check_positive
 from ..errors import ConvergenceError, ParameterError, ShapeError
-from ..linear import FilterResult
+from ..result import FilterResult
 from ..nonlinear._common import prepare_nonlinear
 from ..nonlinear._ukf import sigma_points
 from ._fem_kernels import (

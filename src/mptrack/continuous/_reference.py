@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..linear import FilterResult
+from ..result import FilterResult
 from ..nonlinear._pf import particle_filter, pf_substeps
 from ._model import ContinuousDiscreteModel
 

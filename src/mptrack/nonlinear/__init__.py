@@ -13,7 +13,7 @@ still import from here for one release, with a DeprecationWarning.
 # two packages is imported first imports the other one first (docs/design.md, Layout)
 from .. import continuous as _continuous  # noqa: F401  (isort: skip)
 from .._moved import moved_names
-from ._common import BatchFilterResult
+from ..result import BatchFilterResult
 from ._extended import ekf_filter, ekf_filter_batch, ekf_smoother, ekf_step
 from ._imm import IMMResult, cv_ca_models, imm_filter
 from ._pf import particle_filter, pf_substeps, systematic_resample

@@ -2,17 +2,14 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 
 from .._validation import as_sequence, as_vector, check_covariance, check_int
 from ..errors import ParameterError
-from ..linear import FilterResult
 from ..models import NonlinearModel
 from ..continuous._model import ContinuousDiscreteModel
 
-__all__ = ["prepare_nonlinear", "check_rng", "check_prior", "PRIORS", "BatchFilterResult"]
+__all__ = ["prepare_nonlinear", "check_rng", "check_prior", "PRIORS"]
 
 #: where the prior (x0, P0) sits: at time 0, one prediction before the first measurement ("initial"),
 #: or at the first measurement itself ("first-measurement": no prediction before it; pykalman, simdkalman
@@ -52,21 +49,3 @@ def check_rng(rng) -> np.random.Generator:
     if not isinstance(rng, np.random.Generator):
         raise ParameterError(f"rng: expected a numpy.random.Generator, got {type(rng).__name__}")
     return rng
-
-
-@dataclass(frozen=True, eq=False)
-class BatchFilterResult:
-    """A batch of B filter runs: x, x_pred (B, T, n), P, P_pred (B, T, n, n), loglik (B,) or None."""
-
-    x: np.ndarray
-    P: np.ndarray
-    x_pred: np.ndarray
-    P_pred: np.ndarray
-    loglik: np.ndarray | None = None
-    method: str = ""
-
-    def run(self, b: int) -> FilterResult:
-        """Run ``b`` as a FilterResult."""
-        ll = None if self.loglik is None else float(self.loglik[b])
-        return FilterResult(x=self.x[b], P=self.P[b], x_pred=self.x_pred[b], P_pred=self.P_pred[b], loglik=ll,
-                            method=self.method)

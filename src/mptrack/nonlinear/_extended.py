@@ -24,12 +24,12 @@ from ..errors import (
     ParameterError,
     ShapeError,
 )
-from ..linear import FilterResult
 from ..linear._smoother import rts_backward
 from ..models import NonlinearModel
 from . import _named_kernels
 from . import _step_kernels as steps
-from ._common import BatchFilterResult, check_prior, prepare_nonlinear
+from ..result import BatchFilterResult, FilterResult, innovation_arrays, mask_missing
+from ._common import check_prior, prepare_nonlinear
 
 __all__ = ["ekf_filter", "ekf_filter_batch", "ekf_smoother", "ekf_step"]
 
@@ -61,16 +61,23 @@ def check_step(status: int, method: str, k: int, x, P, outputs: dict, inputs: di
         require_finite(f"the {method} (at measurement {k})", np.nan, **inputs)
 
 
+#: the ``innovations`` argument of an update whose innovation is not recorded
+NOT_RECORDED = (np.empty((0, 0)), np.empty((0, 0, 0)))
+
+
 def ekf_update(model: NonlinearModel, x, P, z, k: int, method: str, inputs: dict, x_out, P_out,
-               row: int | None = None) -> float:
+               innovations: tuple = NOT_RECORDED, row: int | None = None) -> float:
     """EKF measurement update of x(k/k-1), P(k/k-1) with z[row] (z (T, m), row default k; NaN components
-    skipped) into x_out, P_out; R(x, k).  Returns the log-likelihood increment.  Errors name ``method``
+    skipped) into x_out, P_out; R(x, k); its innovation and S into row ``row`` of ``innovations`` (the
+    result's (T, m), (T, m, m) arrays).  Returns the log-likelihood increment.  Errors name ``method``
     and, for an overflow, the largest of ``inputs``."""
     m, n = model.m, model.n
     H = user_array(model.H_at(x), (m, n), "jac_h", k)
     hx = user_array(model.h(x[None])[0], (m,), "h", k)
     R = model.R_at(x, k)                                          # validated, read-only
-    status, ll = steps.ekf_update_into(x, P, H, hx, R, z, k if row is None else row, model.period_array, x_out, P_out)
+    row = k if row is None else row
+    status, ll = steps.ekf_update_into(x, P, H, hx, R, z, row, model.period_array, x_out, P_out, *innovations,
+                                       row if innovations[0].size else -1)
     if status != steps.OK:
         check_step(status, method, k, x, P, {"jac_h": H, "h": hx, "R": R}, inputs)
     return ll
@@ -101,14 +108,16 @@ def ekf_step(model: NonlinearModel, x, P, z, k: int = 0):
 
 def _run(model, z, x0, P0, prior, predict, update, method, inputs=None):
     """The driver loop shared by the EKF and the discrete UKF, writing into the result's rows:
-    predict(model, x, P, k, x_out, P_out) and update(model, x, P, z, k, method, given, x_out, P_out)
-    -> loglik (with row k of z); ``inputs`` (the filter's settings for its smoother) go into the result."""
+    predict(model, x, P, k, x_out, P_out) and update(model, x, P, z, k, method, given, x_out, P_out,
+    innovations) -> loglik (with row k of z, its innovation and S into row k of the result's arrays
+    ``innovations``); ``inputs`` (the filter's settings for its smoother) go into the result."""
     first = check_prior(prior)
     T, n = z.shape[0], model.n
     observed = ~np.isnan(z).all(axis=1)
     given = {"z": z, "x0": x0, "P0": P0}
     xs, Ps = np.empty((T, n)), np.empty((T, n, n))
     xp, Pp = np.empty((T, n)), np.empty((T, n, n))
+    nu, S, _ = innovation_arrays((T,), model.m)
     x, P, loglik = np.array(x0), np.array(P0), 0.0
     for k in range(T):
         if first and k == 0:
@@ -116,14 +125,14 @@ def _run(model, z, x0, P0, prior, predict, update, method, inputs=None):
         else:
             predict(model, x, P, k, xp[k], Pp[k])
         if observed[k]:
-            loglik += update(model, xp[k], Pp[k], z, k, method, given, xs[k], Ps[k])
+            loglik += update(model, xp[k], Pp[k], z, k, method, given, xs[k], Ps[k], (nu, S))
         else:
             xs[k], Ps[k] = xp[k], Pp[k]
         x, P = xs[k], Ps[k]
     # a non-finite estimate from finite input is an overflow: name the largest input
     require_finite(f"the {method}", (xs, Ps), **given)
     return FilterResult(x=xs, P=Ps, x_pred=xp, P_pred=Pp, loglik=float(loglik), method=method,
-                        x0=None if first else x0, P0=None if first else P0, inputs=inputs)
+                        x0=None if first else x0, P0=None if first else P0, inputs=inputs, innovation=nu, S=S)
 
 
 @finite_result("the EKF")
@@ -140,9 +149,10 @@ def ekf_filter(model: NonlinearModel, z, x0, P0, *, prior: str = "initial") -> F
     z, x0, P0, _ = prepare_nonlinear(model, z, x0, P0, kinds=(NonlinearModel,))
     if model.named is not None:
         first = check_prior(prior)
-        out = _named_kernels.ekf_named(*named_arguments(model), z, x0, P0, first)
+        nu, S, _ = innovation_arrays((z.shape[0],), model.m)
+        out = _named_kernels.ekf_named(*named_arguments(model), z, x0, P0, first, nu, S)
         if out[0] == _named_kernels.OK:
-            return named_result(out, x0, P0, first, "EKF")
+            return named_result(out, x0, P0, first, "EKF", nu, S)
     return _run(model, z, x0, P0, prior, ekf_predict, ekf_update, "EKF")
 
 
@@ -152,11 +162,13 @@ def named_arguments(model: NonlinearModel) -> tuple:
     return F, model.Q, model.R, codes, pos, stations, model.period_array
 
 
-def named_result(out, x0, P0, first: bool, method: str, inputs=None) -> FilterResult:
-    """The FilterResult of a compiled run (status, step, xs, Ps, xp, Pp, loglik) that succeeded."""
+def named_result(out, x0, P0, first: bool, method: str, innovation, S, inputs=None) -> FilterResult:
+    """The FilterResult of a compiled run (status, step, xs, Ps, xp, Pp, loglik) that succeeded, with the
+    innovations and their covariances it wrote."""
     _, _, xs, Ps, xp, Pp, loglik = out
     return FilterResult(x=xs, P=Ps, x_pred=xp, P_pred=Pp, loglik=float(loglik), method=method,
-                        x0=None if first else x0, P0=None if first else P0, inputs=inputs)
+                        x0=None if first else x0, P0=None if first else P0, inputs=inputs, innovation=innovation,
+                        S=S)
 
 
 def _check_result(model, result) -> None:
@@ -196,7 +208,7 @@ def ekf_filter_batch(model: NonlinearModel, z, x0, P0) -> BatchFilterResult:
     models and :func:`mptrack.models.nonlinear_model` broadcast) or by finite differences.  A linear motion
     with named measurement models (ranges, bearings, range_bearing, position) runs compiled
     (:mod:`mptrack.nonlinear._named_kernels`, same numbers).
-    Returns a BatchFilterResult (x, P, x_pred, P_pred, loglik (B,))."""
+    Returns a BatchFilterResult (x, P, x_pred, P_pred, innovation, S, nis, loglik (B,))."""
     if not isinstance(model, NonlinearModel):
         raise ParameterError(f"model: expected a NonlinearModel, got {type(model).__name__}")
     if callable(model.Q) or callable(model.R):
@@ -218,11 +230,13 @@ def ekf_filter_batch(model: NonlinearModel, z, x0, P0) -> BatchFilterResult:
         xs, xp = np.empty((B, T, n)), np.empty((B, T, n))
         Ps, Pp = np.empty((B, T, n, n)), np.empty((B, T, n, n))
         ll = np.empty(B)
-        status, _, _ = _named_kernels.ekf_named_batch(*named_arguments(model), z, x0, P0, xs, Ps, xp, Pp, ll)
+        nu, S, _ = innovation_arrays((B, T), m)
+        status, _, _ = _named_kernels.ekf_named_batch(*named_arguments(model), z, x0, P0, xs, Ps, xp, Pp, nu, S,
+                                                      ll)
         if status == _named_kernels.OK:
-            return BatchFilterResult(x=xs, P=Ps, x_pred=xp, P_pred=Pp, loglik=ll, method="EKF")
-    xs, Ps, xp, Pp, ll = _ekf_batch_core(model, z, x0, P0)
-    return BatchFilterResult(x=xs, P=Ps, x_pred=xp, P_pred=Pp, loglik=ll, method="EKF")
+            return BatchFilterResult(x=xs, P=Ps, x_pred=xp, P_pred=Pp, loglik=ll, method="EKF", innovation=nu, S=S)
+    xs, Ps, xp, Pp, ll, nu, S = _ekf_batch_core(model, z, x0, P0)
+    return BatchFilterResult(x=xs, P=Ps, x_pred=xp, P_pred=Pp, loglik=ll, method="EKF", innovation=nu, S=S)
 
 
 def _jacobians(model, X, which):
@@ -244,6 +258,7 @@ def _ekf_batch_core(model, z, x, P):
     xs, xp = np.empty((B, T, n)), np.empty((B, T, n))
     Ps, Pp = np.empty((B, T, n, n)), np.empty((B, T, n, n))
     loglik = np.zeros(B)
+    nus, Ss, _ = innovation_arrays((B, T), m)
     eye = np.eye(n)
     for k in range(T):
         F = _jacobians(model, x, "f")
@@ -257,6 +272,8 @@ def _ekf_batch_core(model, z, x, P):
         innov = np.where(ok, model.innovation(np.where(ok, dk, 0.0), model.h(x)), 0.0)
         PHt = P @ H.transpose(0, 2, 1)
         S = H @ PHt + Rk
+        nus[:, k] = np.where(ok, innov, np.nan)
+        Ss[:, k] = mask_missing(nus[:, k], S.copy())
         K = np.linalg.solve(S, PHt.transpose(0, 2, 1)).transpose(0, 2, 1)
         x = x + np.einsum("bnm,bm->bn", K, innov)
         IKH = eye - K @ H
@@ -266,4 +283,4 @@ def _ekf_batch_core(model, z, x, P):
         _, logdet = np.linalg.slogdet(S)
         quad = np.einsum("bm,bm->b", innov, np.linalg.solve(S, innov[..., None])[..., 0])
         loglik -= 0.5 * (quad + logdet + ok.sum(axis=1) * _LOG2PI)
-    return xs, Ps, xp, Pp, loglik
+    return xs, Ps, xp, Pp, loglik, nus, Ss

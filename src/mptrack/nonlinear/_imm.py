@@ -18,7 +18,7 @@ import numpy as np
 
 from .._validation import as_matrix, as_vector, finite_result, require_finite
 from ..errors import ParameterError, ShapeError
-from ..linear import FilterResult
+from ..result import FilterResult
 from ..models import LinearGaussianModel, MeasurementModel, NonlinearModel, constant_acceleration
 from ._common import check_prior, prepare_nonlinear
 from ._extended import ekf_predict, ekf_update

@@ -6,7 +6,7 @@ import numpy as np
 
 from .._validation import check_int, check_positive, check_allocation, finite_result
 from ..errors import ParameterError, ShapeError
-from ..linear import FilterResult
+from ..result import FilterResult
 from ..continuous import _kernels as kern
 from ..continuous._kernels import SCHEMES
 from ..continuous._model import ContinuousDiscreteModel

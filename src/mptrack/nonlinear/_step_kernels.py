@@ -163,6 +163,26 @@ def _store(x, P, xs, Ps, k):
             Ps[k, a, b] = P[a, b]
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _record(idx, q, nu, S, nus, Ss, row):
+    """nus[row], Ss[row] at the q components idx <- the innovation nu[:q] and its covariance S[:q, :q]
+    (rows of the filter's result; row < 0: not recorded)."""
+    if row < 0:
+        return
+    for a in range(q):
+        nus[row, idx[a]] = nu[a]
+        for b in range(q):
+            Ss[row, idx[a], idx[b]] = S[a, b]
+
+
+@njit(cache=True, nogil=True, inline="always")
+def record_ekf(ws, z, k, nus, Ss, row):
+    """After :func:`_ekf_update` with row k of z and the workspace ws: its innovation and S into row j of
+    nus, Ss (the workspace still holds both)."""
+    idx, (H, HP, PHt, K, KR, Rq, S, L, IKH, A, nu, w) = ws
+    _record(idx, _observed(z, k, idx), nu, S, nus, Ss, row)
+
+
 # ---------------------------------------------------------------- EKF
 @njit(cache=True, nogil=True)
 def ekf_workspace(n, m):
@@ -256,16 +276,19 @@ def ekf_predict_into(F, P, Q, P_out):
 
 
 @njit(cache=True, nogil=True)
-def ekf_update_into(x, P, H, hx, R, z, k, periods, x_out, P_out):
-    """One EKF update of x, P with row k of z into x_out, P_out: (status, loglik); DIVERGED for
-    non-finite input or output."""
+def ekf_update_into(x, P, H, hx, R, z, k, periods, x_out, P_out, nus, Ss, row):
+    """One EKF update of x, P with row k of z into x_out, P_out, its innovation and S into row ``row`` of
+    nus, Ss (row < 0: not recorded): (status, loglik); DIVERGED for non-finite input or output."""
     x_out[:] = x
     P_out[:, :] = P
     if not (_finite(x, P) and np.isfinite(H.sum() + hx.sum() + R.sum())):
         return DIVERGED, 0.0
-    status, ll = _ekf_update(x_out, P_out, H, hx, R, z, k, periods, ekf_workspace(x.shape[0], z.shape[1]))
+    ws = ekf_workspace(x.shape[0], z.shape[1])
+    status, ll = _ekf_update(x_out, P_out, H, hx, R, z, k, periods, ws)
     if status == OK and not _finite(x_out, P_out):
         status = DIVERGED
+    if status == OK:
+        record_ekf(ws, z, k, nus, Ss, row)
     return status, ll
 
 
@@ -313,9 +336,10 @@ def unscented_moments_into(Y, Wm, Wc, Q, x_out, P_out):
 
 
 @njit(cache=True, nogil=True)
-def _ukf_update(x, P, X, Zf, Wm, Wc, R, z, k, periods):
+def _ukf_update(x, P, X, Zf, Wm, Wc, R, z, k, periods, nus, Ss, row):
     """The unscented update of N(x, P) (sigma points X, their measurements Zf (N, m)) with row k of z
     (NaN components skipped); components of period > 0 are averaged on the circle and wrapped.
+    The innovation and its covariance S go into row ``row`` of nus, Ss (row < 0: not recorded).
     Returns (status, x, P, loglik) with new x, P."""
     N, m = Zf.shape
     n = x.shape[0]
@@ -354,6 +378,7 @@ def _ukf_update(x, P, X, Zf, Wm, Wc, R, z, k, periods):
     L = np.empty((q, q))
     if not _cholesky(S, L, q):
         return NOT_PD, x, P, 0.0
+    _record(idx, q, nu, S, nus, Ss, row)
     K = np.empty((n, q))
     w = np.empty(q)
     ll = _gain_loglik(L, nu, C, K, w, n, q)
@@ -364,13 +389,14 @@ def _ukf_update(x, P, X, Zf, Wm, Wc, R, z, k, periods):
 
 
 @njit(cache=True, nogil=True)
-def ukf_update_into(x, P, X, Zf, Wm, Wc, R, z, k, periods, x_out, P_out):
-    """:func:`_ukf_update` into x_out, P_out with the finiteness checks: (status, loglik)."""
+def ukf_update_into(x, P, X, Zf, Wm, Wc, R, z, k, periods, x_out, P_out, nus, Ss, row):
+    """:func:`_ukf_update` into x_out, P_out (and row ``row`` of nus, Ss) with the finiteness checks:
+    (status, loglik)."""
     x_out[:] = x
     P_out[:, :] = P
     if not (_finite(x, P) and np.isfinite(Zf.sum() + R.sum())):
         return DIVERGED, 0.0
-    status, xu, Pu, ll = _ukf_update(x, P, X, Zf, Wm, Wc, R, z, k, periods)
+    status, xu, Pu, ll = _ukf_update(x, P, X, Zf, Wm, Wc, R, z, k, periods, nus, Ss, row)
     if status != OK:
         return status, 0.0
     x_out[:] = xu

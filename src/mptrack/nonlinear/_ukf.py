@@ -35,7 +35,7 @@ import numpy as np
 
 from .._validation import as_vector, check_covariance, check_positive, finite_result
 from ..errors import ConvergenceError, NotPositiveDefiniteError, ParameterError
-from ..linear import FilterResult
+from ..result import FilterResult, innovation_arrays
 from ..continuous import _kernels as kern
 from ..continuous._model import ContinuousDiscreteModel
 from ..models import NonlinearModel
@@ -154,10 +154,12 @@ def ukf_predict(model: ContinuousDiscreteModel, m, P, *, substeps: int | None, u
 
 
 def ukf_update(model, m, P, z, *, ut: dict, k: int = 0):
-    """Unscented measurement update; NaN components of z are skipped.  Returns (m, P, loglik)."""
+    """Unscented measurement update; NaN components of z are skipped.  Returns (m, P, loglik, innovation
+    (m,), S (m, m)), the innovation and S NaN for the components not used."""
     ok = ~np.isnan(z)
+    nu_full, S_full = np.full(z.shape[0], np.nan), np.full((z.shape[0], z.shape[0]), np.nan)
     if not ok.any():
-        return m, P, 0.0
+        return m, P, 0.0, nu_full, S_full
     X, Wm, Wc = sigma_points(m, P, **ut)
     if isinstance(model, NonlinearModel):
         Z, R = model.h(X), model.R_at(m, k)
@@ -177,7 +179,9 @@ def ukf_update(model, m, P, z, *, ut: dict, k: int = 0):
     P = 0.5 * (P + P.T)
     w = np.linalg.solve(L, nu)
     ll = -0.5 * (w @ w + 2.0 * np.log(np.diag(L)).sum() + ok.sum() * _LOG2PI)
-    return m, P, float(ll)
+    nu_full[ok] = nu
+    S_full[np.ix_(ok, ok)] = S
+    return m, P, float(ll), nu_full, S_full
 
 
 def _points(x, P, c: float, X=None) -> np.ndarray:
@@ -208,14 +212,15 @@ def _unscented_cross(model: NonlinearModel, x, P, sp: tuple) -> np.ndarray:
 
 
 def _unscented_update(model: NonlinearModel, x, P, z, k: int, sp: tuple, method: str, inputs: dict,
-                      x_out, P_out) -> float:
+                      x_out, P_out, innovations: tuple) -> float:
     """The unscented update with row k of z and the sigma points of N(x(k/k-1), P(k/k-1)) through h,
-    into x_out, P_out."""
+    into x_out, P_out, and its innovation and S into row k of ``innovations`` (T, m), (T, m, m)."""
     c, Wm, Wc, X = sp
     X = _points(x, P, c, X)
     Z = user_array(model.h(X), (X.shape[0], model.m), "h", k)
     R = model.R_at(x, k)
-    status, ll = steps.ukf_update_into(x, P, X, Z, Wm, Wc, R, z, k, model.period_array, x_out, P_out)
+    status, ll = steps.ukf_update_into(x, P, X, Z, Wm, Wc, R, z, k, model.period_array, x_out, P_out,
+                                       *innovations, k)
     if status != steps.OK:
         check_step(status, method, k, x, P, {"h": Z, "R": R}, inputs)
     return ll
@@ -228,15 +233,16 @@ def _cd_ukf_compiled(model: ContinuousDiscreteModel, z, x0, P0, substeps, ut):
     T, n = z.shape[0], model.n
     c, Wm, Wc = _weights(n, **ut)
     xs, xp, Ps, Pp = np.empty((T, n)), np.empty((T, n)), np.empty((T, n, n)), np.empty((T, n, n))
+    nu, S, _ = innovation_arrays((T,), model.m)
     status, _, loglik = kern.cd_ukf_run(
         z, x0, P0, model.dt, 0 if substeps is None else substeps, *compiled.drift_at,
         model.kernels.drift_params, *compiled.measurement_at, model.kernels.measurement_params, compiled.periods,
-        np.asarray(model.Q, dtype=float), np.asarray(model.R, dtype=float), c, Wm, Wc, xs, Ps, xp, Pp,
+        np.asarray(model.Q, dtype=float), np.asarray(model.R, dtype=float), c, Wm, Wc, xs, Ps, xp, Pp, nu, S,
         np.empty(T, np.int64))
     if status != _named_kernels.OK:
         return None
     return FilterResult(x=xs, P=Ps, x_pred=xp, P_pred=Pp, loglik=float(loglik), method="UKF", x0=x0, P0=P0,
-                        inputs=ut)
+                        inputs=ut, innovation=nu, S=S)
 
 
 @finite_result("the UKF")
@@ -268,16 +274,17 @@ def ukf_filter(model, z, x0, P0, *, alpha: float = 1.0, beta: float = 2.0, kappa
         first = check_prior(prior)
         sp = _weights(model.n, **ut)
         if model.named is not None:
-            out = _named_kernels.ukf_named(*named_arguments(model), z, x, P, first, *sp)
+            nu, S, _ = innovation_arrays((z.shape[0],), model.m)
+            out = _named_kernels.ukf_named(*named_arguments(model), z, x, P, first, *sp, nu, S)
             if out[0] == _named_kernels.OK:
-                return named_result(out, x, P, first, "UKF", inputs=ut)
+                return named_result(out, x, P, first, "UKF", nu, S, inputs=ut)
         work = sp + (np.empty((2 * model.n + 1, model.n)),)
 
         def predict(mdl, x, P, k, x_out, P_out):
             _unscented_predict(mdl, x, P, k, work, x_out, P_out)
 
-        def update(mdl, x, P, z, k, method, given, x_out, P_out):
-            return _unscented_update(mdl, x, P, z, k, work, method, given, x_out, P_out)
+        def update(mdl, x, P, z, k, method, given, x_out, P_out, innovations):
+            return _unscented_update(mdl, x, P, z, k, work, method, given, x_out, P_out, innovations)
         return _run(model, z, x, P, prior, predict, update, "UKF", inputs=ut)
     if prior != "initial":
         raise ParameterError("prior: a ContinuousDiscreteModel's prior is at t = 0 (prior='initial')")
@@ -291,18 +298,20 @@ def ukf_filter(model, z, x0, P0, *, alpha: float = 1.0, beta: float = 2.0, kappa
     T, n = z.shape[0], model.n
     xs, Ps = np.empty((T, n)), np.empty((T, n, n))
     xp, Pp = np.empty((T, n)), np.empty((T, n, n))
+    nu, S, _ = innovation_arrays((T,), model.m)
     loglik = 0.0
     for k in range(T):
         try:
             with np.errstate(over="raise", invalid="raise"):
                 x, P = ukf_predict(model, x, P, substeps=substeps, ut=ut)
                 xp[k], Pp[k] = x, P
-                x, P, ll = ukf_update(model, x, P, z[k], ut=ut)
+                x, P, ll, nu[k], S[k] = ukf_update(model, x, P, z[k], ut=ut)
         except (FloatingPointError, np.linalg.LinAlgError) as exc:
             raise ConvergenceError(f"UKF diverged at measurement {k} ({exc})") from None
         xs[k], Ps[k] = x, P
         loglik += ll
-    return FilterResult(x=xs, P=Ps, x_pred=xp, P_pred=Pp, loglik=loglik, method="UKF", x0=x0, P0=P0, inputs=ut)
+    return FilterResult(x=xs, P=Ps, x_pred=xp, P_pred=Pp, loglik=loglik, method="UKF", x0=x0, P0=P0, inputs=ut,
+                        innovation=nu, S=S)
 
 
 def ukf_smoother(model: NonlinearModel, result: FilterResult, *, alpha: float | None = None,

@@ -21,7 +21,7 @@ import pandas as pd
 from ..errors import DataError
 from ..io import LocalFrame, ReadReport
 from ..models import constant_velocity_continuous
-from ..cellular import motion_position, range_measurement
+from ..cellular import motion_position
 from ..radio import arfcn_to_frequency, distance_from_rss
 from ._columns import time_values
 from ._fixes import TrackOptions, _time_like
@@ -119,7 +119,7 @@ def track_cells(track_id: str, rows: pd.DataFrame, cells: pd.DataFrame,
         x0, P0, Q = start, np.eye(2), options.cell_q_km2 * np.eye(2)
     # the filters' prior is one step before z[0]
     res = filt(z, stations, x0, P0, Q, options.r_km2, motion=options.motion, dt=dt)
-    nis, dof = _range_nis(res.x, res.P, z, stations, x0, P0, Q, options.r_km2, options.motion, dt)
+    nis, dof = res.nis, np.isfinite(res.innovation).sum(axis=1)
     flags = np.where(np.isfinite(z).any(axis=1), 0, 2).astype(np.int8)
     pos = list(motion_position(options.motion, 2))
     vel = res.x[:, [1, 3]] * 1e3 if options.motion == "cv" else None
@@ -130,26 +130,3 @@ def track_cells(track_id: str, rows: pd.DataFrame, cells: pd.DataFrame,
                        max(options.gap_s, 1.5 * dt), (np.array([frame.lat0]), np.array([frame.lon0])),
                        f"{options.method.upper()}-{options.motion}", extra).to_pandas()
 
-
-def _range_nis(x, P, z, stations, x0, P0, Q, r_km2, motion, dt):
-    """NIS of each scan's ranges against the one-step EKF prediction from the previous estimate."""
-    from ..cellular import motion_matrix
-
-    F = motion_matrix(motion, 2, dt)
-    pos = motion_position(motion, 2)
-    x_prev = np.vstack([x0, x[:-1]])
-    P_prev = np.concatenate([P0[None], P[:-1]])
-    x_pred = x_prev @ F.T
-    P_pred = F @ P_prev @ F.T + Q
-    h, H = range_measurement(x_pred, stations, pos)
-    nis = np.full(len(z), np.nan)
-    dof = np.zeros(len(z), dtype=np.int64)
-    for k in range(len(z)):
-        ok = np.isfinite(z[k])
-        if ok.any():
-            Hk = H[k][ok]
-            S = Hk @ P_pred[k] @ Hk.T + r_km2 * np.eye(int(ok.sum()))
-            nu = z[k][ok] - h[k][ok]
-            nis[k] = float(nu @ np.linalg.solve(S, nu))
-            dof[k] = int(ok.sum())
-    return nis, dof

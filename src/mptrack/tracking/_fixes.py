@@ -142,7 +142,7 @@ def track_fixes(track_id: str, rows: pd.DataFrame, options: TrackOptions = Track
     if options.filter == "kf":
         gated = track_gated(model, t, z, r[:, None, None] * np.eye(2), np.tile(spec.prior_variances, 2),
                             gate_probability=options.gate_probability)
-        res = smooth_gated(gated) if options.smooth else gated.result
+        res = smooth_gated(gated) if options.smooth else gated
         flags, nis, times, t_out = gated.flag, gated.nis, table.time, t
         method = "KF-gated" + ("+RTS" if options.smooth else "")
     else:

@@ -34,16 +34,17 @@ track while scattered outliers never restart it.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import warnings
+from dataclasses import dataclass, fields
 
 import numpy as np
 import scipy.stats
 
 from .._validation import as_array, as_real, as_sequence, as_vector, check_covariance, check_int, check_positive
 from ..errors import ParameterError, ShapeError
-from ..linear import FilterResult
 from ..models import ContinuousLinearModel, discretize_intervals, require_model
 from ..linear._smoother import _rts_backward
+from ..result import FilterResult, innovation_arrays
 from ._engine import FLAGS, INIT, MANOEUVRE_FACTOR
 from ._kernels import gated_loop
 
@@ -60,20 +61,29 @@ def nis_threshold(probability: float, dof: int) -> float:
 
 
 @dataclass(frozen=True, eq=False)
-class GatedResult:
-    """A gated irregular-time KF run: ``result`` (FilterResult) plus per-step data.
+class GatedResult(FilterResult):
+    """A gated irregular-time KF run: a :class:`mptrack.result.FilterResult` (method "KF-gated") plus
+    per-step data.
 
-    nis   (T,) NIS of each measurement (NaN where there was none)
+    x_pred, P_pred  the nominal prediction (the model's process noise)
+    innovation, S   of every measurement, used or rejected (NaN where there was none); at a manoeuvre
+                    S is the manoeuvre hypothesis's (``manoeuvre_factor`` times the process noise)
+    nis   (T,) the NIS the gate decided on, from innovation and S
     flag  (T,) index into FLAGS: 0 update, 1 outlier (rejected), 2 predicted (no measurement), 3 reset,
           4 init (the first fix of a track, :func:`track_gated`), 5 manoeuvre
     F, Q  (T, n, n) the transition used to reach step k from step k-1 (for smoothing)
     """
 
-    result: FilterResult
-    nis: np.ndarray
-    flag: np.ndarray
-    F: np.ndarray
-    Q: np.ndarray
+    flag: np.ndarray | None = None
+    F: np.ndarray | None = None
+    Q: np.ndarray | None = None
+
+    @property
+    def result(self) -> GatedResult:
+        """The run itself (a GatedResult is a FilterResult); deprecated."""
+        warnings.warn("GatedResult.result: a GatedResult is a FilterResult now; use it directly (.result will "
+                      "be removed in the next release)", DeprecationWarning, stacklevel=2)
+        return self
 
 
 def kalman_filter_gated(model: ContinuousLinearModel, times, z, x0, P0, *, t0: float | None = None, R=None,
@@ -117,14 +127,14 @@ def kalman_filter_gated(model: ContinuousLinearModel, times, z, x0, P0, *, t0: f
     H = np.ascontiguousarray(model.H)
     xs, Ps = np.empty((T, n)), np.empty((T, n, n))
     xp, Pp = np.empty((T, n)), np.empty((T, n, n))
-    nis = np.full(T, np.nan)
+    nu, S, nis = innovation_arrays((T,), m)
     flag = np.zeros(T, dtype=np.int8)
     Fs, Qs = discretize_intervals(model, dts)
     loglik = gated_loop(t, Fs, Qs, H, np.ascontiguousarray(Rs), z, x.copy(), P.copy(), gates,
                         gate_probability is not None, max_rejections, float(manoeuvre_factor), start,
-                        xs, Ps, xp, Pp, nis, flag)
-    res = FilterResult(x=xs, P=Ps, x_pred=xp, P_pred=Pp, loglik=float(loglik), method="KF-gated")
-    return GatedResult(result=res, nis=nis, flag=flag, F=Fs, Q=Qs)
+                        xs, Ps, xp, Pp, nu, S, nis, flag)
+    return GatedResult(x=xs, P=Ps, x_pred=xp, P_pred=Pp, loglik=float(loglik), method="KF-gated", innovation=nu,
+                       S=S, nis=nis, flag=flag, F=Fs, Q=Qs)
 
 
 def smooth_gated(gated: GatedResult) -> FilterResult:
@@ -133,7 +143,7 @@ def smooth_gated(gated: GatedResult) -> FilterResult:
     filter resets (a reset breaks the chain of predictions).  Rejected and missing
     measurements are prediction-only steps and need no special case.
     """
-    r = gated.result
+    r = gated
     xs, Ps = np.empty_like(r.x), np.empty_like(r.P)
     starts = np.flatnonzero(gated.flag == FLAGS.index("reset"))
     bounds = np.unique(np.r_[0, starts, r.T])
@@ -181,15 +191,14 @@ def track_gated(model: ContinuousLinearModel, times, z, R, prior_variances, *,
     Rs = as_array("R", R, shape=(T, model.m, model.m))
     x0, P0 = first_fix_prior(model.H, z[0], Rs[0], as_vector("prior_variances", prior_variances, n))
     flag0 = np.array([INIT], dtype=np.int8)
+    init = GatedResult(x=x0[None], P=P0[None], x_pred=x0[None], P_pred=P0[None], loglik=0.0, method="KF-gated",
+                       innovation=np.full((1, model.m), np.nan), S=np.full((1, model.m, model.m), np.nan),
+                       nis=np.full(1, np.nan), flag=flag0, F=np.eye(n)[None], Q=np.zeros((1, n, n)))
     if T == 1:
-        return GatedResult(FilterResult(x=x0[None], P=P0[None], loglik=0.0, method="KF-gated"),
-                           np.full(1, np.nan), flag0, np.eye(n)[None], np.zeros((1, n, n)))
+        return init
     g = kalman_filter_gated(model, t[1:], z[1:], x0, P0, t0=float(t[0]), R=Rs[1:],
                             gate_probability=gate_probability, max_rejections=max_rejections,
                             manoeuvre_factor=manoeuvre_factor)
-    r = g.result
-    res = FilterResult(x=np.vstack([x0[None], r.x]), P=np.concatenate([P0[None], r.P]),
-                       x_pred=np.vstack([x0[None], r.x_pred]), P_pred=np.concatenate([P0[None], r.P_pred]),
-                       loglik=r.loglik, method="KF-gated")
-    return GatedResult(res, np.r_[np.nan, g.nis], np.r_[flag0, g.flag], np.concatenate([np.eye(n)[None], g.F]),
-                       np.concatenate([np.zeros((1, n, n)), g.Q]))
+    rows = {f.name: np.concatenate([getattr(init, f.name), getattr(g, f.name)])
+            for f in fields(GatedResult) if isinstance(getattr(g, f.name), np.ndarray)}
+    return GatedResult(**rows, loglik=g.loglik, method="KF-gated")

@@ -139,6 +139,15 @@ def _innovation(x_pred, P_pred, H, R, zk):
 
 
 @njit(cache=True)
+def _record(k, idx, nu, S, nus, Ss):
+    """nus[k], Ss[k] at the components idx <- the innovation nu and its covariance S."""
+    for a in range(idx.shape[0]):
+        nus[k, idx[a]] = nu[a]
+        for b in range(idx.shape[0]):
+            Ss[k, idx[a], idx[b]] = S[a, b]
+
+
+@njit(cache=True)
 def _kalman_update(x_pred, P_pred, H, idx, nu, S):
     Hk = H[idx]
     PHt = P_pred @ Hk.T
@@ -149,8 +158,11 @@ def _kalman_update(x_pred, P_pred, H, idx, nu, S):
 
 
 @njit(cache=True)
-def gated_loop(t, F, Q, H, R, z, x, P, gates, use_gate, max_rej, factor, start, xs, Ps, xp, Pp, nis, flag):
-    """Run the gated filter; fills xs, Ps, xp, Pp, nis, flag in place; returns the log-likelihood.
+def gated_loop(t, F, Q, H, R, z, x, P, gates, use_gate, max_rej, factor, start, xs, Ps, xp, Pp, nus, Ss, nis,
+               flag):
+    """Run the gated filter; fills xs, Ps, xp, Pp, nus, Ss, nis, flag in place (nus, Ss, nis NaN-filled by
+    the caller: the innovation, its covariance and the NIS the gate decided on, where a measurement was
+    there); returns the log-likelihood.
 
     gates[d] is the NIS threshold for d measured components.  A measurement above it that passes
     against the prediction with process noise factor * Q[k] is a manoeuvre candidate: the filter
@@ -171,6 +183,8 @@ def gated_loop(t, F, Q, H, R, z, x, P, gates, use_gate, max_rej, factor, start, 
     P_coast = np.empty((n, n))
     pending = False               # measurement k - 1 is a manoeuvre candidate
     cand_e = cand_ll = 0.0        # its nominal NIS and its log-likelihood as a manoeuvre
+    cand_idx = np.empty(0, np.int64)
+    cand_S = np.empty((0, 0))     # its components and nominal innovation covariance
     loglik = 0.0
     for k in range(T):
         x_pred = F[k] @ x
@@ -186,6 +200,7 @@ def gated_loop(t, F, Q, H, R, z, x, P, gates, use_gate, max_rej, factor, start, 
                 count[0] = 0
             else:                              # the candidate at k - 1 was an outlier
                 nis[k - 1] = cand_e
+                _record(k - 1, cand_idx, nus[k - 1][cand_idx], cand_S, nus, Ss)
                 f1, x, P = _reject(k - 1, t, z, R, F, Q, H, rej, count, factor, start, gates[m],
                                    x_coast, P_coast, x_new, P_new)
                 flag[k - 1] = f1
@@ -205,6 +220,7 @@ def gated_loop(t, F, Q, H, R, z, x, P, gates, use_gate, max_rej, factor, start, 
             Ps[k] = P
             continue
         nis[k] = e
+        _record(k, idx, nu, S, nus, Ss)
         if not use_gate or e <= gates[mk]:
             count[0] = 0
             x, P = _kalman_update(x_pred, P_pred, H, idx, nu, S)
@@ -219,6 +235,8 @@ def gated_loop(t, F, Q, H, R, z, x, P, gates, use_gate, max_rej, factor, start, 
                 x, P = _kalman_update(x_pred, P_m, H, idx, nu, S_m)
                 flag[k] = 5
                 nis[k] = em
+                _record(k, idx, nu, S_m, nus, Ss)
+                cand_idx, cand_S = idx, S
                 pending = True
                 cand_e, cand_ll = e, -0.5 * (em + np.log(np.linalg.det(S_m)) + mk * _LOG2PI)
             else:
