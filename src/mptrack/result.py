@@ -74,13 +74,14 @@ def normalised_innovation(innovation, S) -> np.ndarray:
     lead = nu.shape[:-1]
     nu, S = nu.reshape(-1, m), S.reshape(-1, m, m)
     ok = ~np.isnan(nu)
+    if ok.all():
+        return np.einsum("ti,ti->t", nu, np.linalg.solve(S, nu[..., None])[..., 0]).reshape(lead)
     out = np.full(nu.shape[0], np.nan)
-    # rows with the same observed components solve together
-    patterns, which = np.unique(ok, axis=0, return_inverse=True)
-    for p, pattern in enumerate(patterns):
-        if not pattern.any():
-            continue
-        rows = which.reshape(-1) == p
+    # rows with the same observed components solve together (a pattern's code: its bits)
+    codes = ok @ (1 << np.arange(m))
+    for code in np.unique(codes[codes > 0]):
+        rows = codes == code
+        pattern = ok[np.argmax(rows)]
         v = nu[rows][:, pattern]
         Sp = S[rows][:, pattern][:, :, pattern]
         out[rows] = np.einsum("ti,ti->t", v, np.linalg.solve(Sp, v[..., None])[..., 0])

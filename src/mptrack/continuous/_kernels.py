@@ -636,10 +636,10 @@ def _cd_predict(m, P, h, steps, c, Wm, Wc, Q, drift, p, X, F, S, L, k):  # pragm
 
 @njit(cache=True, nogil=True)
 def cd_ukf_run(z, x0, P0, dt, fixed_steps, drift_c, drift_jit, dp, meas_c, meas_jit, mp, periods, Q, R, c, Wm, Wc,
-               xs, Ps, xp, Pp, nus, Ss, steps_used):  # pragma: no cover - compiled
+               xs, Ps, xp, Pp, nus, Ss, nis, steps_used):  # pragma: no cover - compiled
     """The continuous-discrete UKF over z (T, m) (:func:`mptrack.nonlinear.ukf_filter`'s NumPy path,
     compiled): returns (status, step, loglik) with status OK, NOT_PD or DIVERGED of the named kernels;
-    the innovations and their covariances go into nus, Ss (NaN-filled by the caller).
+    the innovations, their covariances and NIS go into nus, Ss, nis (NaN-filled by the caller).
     fixed_steps > 0: that many RK4 sub-steps per dt, else :func:`substeps_for` the drift's rate at the
     sigma points of each step's prior (recorded in steps_used)."""
     drift = _as_kernel(drift_c, drift_jit)
@@ -669,7 +669,7 @@ def cd_ukf_run(z, x0, P0, dt, fixed_steps, drift_c, drift_jit, dp, meas_c, meas_
             if not _sigma_columns(x, P, c, X, S, L):
                 return NOT_PD, k, loglik
             meas(X, mp, Zc)
-            status, x, P, ll = _ukf_update(x, P, X.T, Zc.T, Wm, Wc, R, z, k, periods, nus, Ss, k)
+            status, x, P, ll = _ukf_update(x, P, X.T, Zc.T, Wm, Wc, R, z, k, periods, nus, Ss, nis, k)
             if status != OK:
                 return status, k, loglik
             loglik += ll

@@ -62,14 +62,14 @@ def check_step(status: int, method: str, k: int, x, P, outputs: dict, inputs: di
 
 
 #: the ``innovations`` argument of an update whose innovation is not recorded
-NOT_RECORDED = (np.empty((0, 0)), np.empty((0, 0, 0)))
+NOT_RECORDED = (np.empty((0, 0)), np.empty((0, 0, 0)), np.empty(0))
 
 
 def ekf_update(model: NonlinearModel, x, P, z, k: int, method: str, inputs: dict, x_out, P_out,
                innovations: tuple = NOT_RECORDED, row: int | None = None) -> float:
     """EKF measurement update of x(k/k-1), P(k/k-1) with z[row] (z (T, m), row default k; NaN components
-    skipped) into x_out, P_out; R(x, k); its innovation and S into row ``row`` of ``innovations`` (the
-    result's (T, m), (T, m, m) arrays).  Returns the log-likelihood increment.  Errors name ``method``
+    skipped) into x_out, P_out; R(x, k); its innovation, S and NIS into row ``row`` of ``innovations``
+    (the result's (T, m), (T, m, m), (T,) arrays).  Returns the log-likelihood increment.  Errors name ``method``
     and, for an overflow, the largest of ``inputs``."""
     m, n = model.m, model.n
     H = user_array(model.H_at(x), (m, n), "jac_h", k)
@@ -109,15 +109,15 @@ def ekf_step(model: NonlinearModel, x, P, z, k: int = 0):
 def _run(model, z, x0, P0, prior, predict, update, method, inputs=None):
     """The driver loop shared by the EKF and the discrete UKF, writing into the result's rows:
     predict(model, x, P, k, x_out, P_out) and update(model, x, P, z, k, method, given, x_out, P_out,
-    innovations) -> loglik (with row k of z, its innovation and S into row k of the result's arrays
-    ``innovations``); ``inputs`` (the filter's settings for its smoother) go into the result."""
+    innovations) -> loglik (with row k of z, its innovation, S and NIS into row k of the result's
+    arrays ``innovations``); ``inputs`` (the filter's settings for its smoother) go into the result."""
     first = check_prior(prior)
     T, n = z.shape[0], model.n
     observed = ~np.isnan(z).all(axis=1)
     given = {"z": z, "x0": x0, "P0": P0}
     xs, Ps = np.empty((T, n)), np.empty((T, n, n))
     xp, Pp = np.empty((T, n)), np.empty((T, n, n))
-    nu, S, _ = innovation_arrays((T,), model.m)
+    nu, S, nis = innovation_arrays((T,), model.m)
     x, P, loglik = np.array(x0), np.array(P0), 0.0
     for k in range(T):
         if first and k == 0:
@@ -125,14 +125,15 @@ def _run(model, z, x0, P0, prior, predict, update, method, inputs=None):
         else:
             predict(model, x, P, k, xp[k], Pp[k])
         if observed[k]:
-            loglik += update(model, xp[k], Pp[k], z, k, method, given, xs[k], Ps[k], (nu, S))
+            loglik += update(model, xp[k], Pp[k], z, k, method, given, xs[k], Ps[k], (nu, S, nis))
         else:
             xs[k], Ps[k] = xp[k], Pp[k]
         x, P = xs[k], Ps[k]
     # a non-finite estimate from finite input is an overflow: name the largest input
     require_finite(f"the {method}", (xs, Ps), **given)
     return FilterResult(x=xs, P=Ps, x_pred=xp, P_pred=Pp, loglik=float(loglik), method=method,
-                        x0=None if first else x0, P0=None if first else P0, inputs=inputs, innovation=nu, S=S)
+                        x0=None if first else x0, P0=None if first else P0, inputs=inputs, innovation=nu, S=S,
+                        nis=nis)
 
 
 @finite_result("the EKF")
@@ -149,10 +150,10 @@ def ekf_filter(model: NonlinearModel, z, x0, P0, *, prior: str = "initial") -> F
     z, x0, P0, _ = prepare_nonlinear(model, z, x0, P0, kinds=(NonlinearModel,))
     if model.named is not None:
         first = check_prior(prior)
-        nu, S, _ = innovation_arrays((z.shape[0],), model.m)
-        out = _named_kernels.ekf_named(*named_arguments(model), z, x0, P0, first, nu, S)
+        innovations = innovation_arrays((z.shape[0],), model.m)
+        out = _named_kernels.ekf_named(*named_arguments(model), z, x0, P0, first, *innovations)
         if out[0] == _named_kernels.OK:
-            return named_result(out, x0, P0, first, "EKF", nu, S)
+            return named_result(out, x0, P0, first, "EKF", innovations)
     return _run(model, z, x0, P0, prior, ekf_predict, ekf_update, "EKF")
 
 
@@ -162,13 +163,14 @@ def named_arguments(model: NonlinearModel) -> tuple:
     return F, model.Q, model.R, codes, pos, stations, model.period_array
 
 
-def named_result(out, x0, P0, first: bool, method: str, innovation, S, inputs=None) -> FilterResult:
+def named_result(out, x0, P0, first: bool, method: str, innovations: tuple, inputs=None) -> FilterResult:
     """The FilterResult of a compiled run (status, step, xs, Ps, xp, Pp, loglik) that succeeded, with the
-    innovations and their covariances it wrote."""
+    innovations, their covariances and NIS it wrote."""
     _, _, xs, Ps, xp, Pp, loglik = out
+    nu, S, nis = innovations
     return FilterResult(x=xs, P=Ps, x_pred=xp, P_pred=Pp, loglik=float(loglik), method=method,
-                        x0=None if first else x0, P0=None if first else P0, inputs=inputs, innovation=innovation,
-                        S=S)
+                        x0=None if first else x0, P0=None if first else P0, inputs=inputs, innovation=nu, S=S,
+                        nis=nis)
 
 
 def _check_result(model, result) -> None:
@@ -230,11 +232,12 @@ def ekf_filter_batch(model: NonlinearModel, z, x0, P0) -> BatchFilterResult:
         xs, xp = np.empty((B, T, n)), np.empty((B, T, n))
         Ps, Pp = np.empty((B, T, n, n)), np.empty((B, T, n, n))
         ll = np.empty(B)
-        nu, S, _ = innovation_arrays((B, T), m)
+        nu, S, nis = innovation_arrays((B, T), m)
         status, _, _ = _named_kernels.ekf_named_batch(*named_arguments(model), z, x0, P0, xs, Ps, xp, Pp, nu, S,
-                                                      ll)
+                                                      nis, ll)
         if status == _named_kernels.OK:
-            return BatchFilterResult(x=xs, P=Ps, x_pred=xp, P_pred=Pp, loglik=ll, method="EKF", innovation=nu, S=S)
+            return BatchFilterResult(x=xs, P=Ps, x_pred=xp, P_pred=Pp, loglik=ll, method="EKF", innovation=nu, S=S,
+                                     nis=nis)
     xs, Ps, xp, Pp, ll, nu, S = _ekf_batch_core(model, z, x0, P0)
     return BatchFilterResult(x=xs, P=Ps, x_pred=xp, P_pred=Pp, loglik=ll, method="EKF", innovation=nu, S=S)
 

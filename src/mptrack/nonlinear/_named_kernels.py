@@ -89,8 +89,8 @@ def _jac_h(x, codes, pos, st, H):
 
 
 @njit(cache=True, nogil=True)
-def _ekf_track(F, Q, R, codes, pos, st, periods, z, x0, P0, first, xs, Ps, xp, Pp, nus, Ss):
-    """One EKF run writing into xs, Ps, xp, Pp, nus, Ss (T, ...; nus, Ss NaN-filled by the caller);
+def _ekf_track(F, Q, R, codes, pos, st, periods, z, x0, P0, first, xs, Ps, xp, Pp, nus, Ss, nis):
+    """One EKF run writing into xs, Ps, xp, Pp, nus, Ss, nis (T, ...; nus, Ss, nis NaN-filled by the caller);
     returns (status, step, loglik).  All work arrays are allocated once per run; the step is loops over
     them."""
     T, m = z.shape
@@ -118,7 +118,7 @@ def _ekf_track(F, Q, R, codes, pos, st, periods, z, x0, P0, first, xs, Ps, xp, P
         status, ll = _ekf_update(x, P, Hf, hx, R, z, k, periods, ws)
         if status != OK:
             return status, k, loglik
-        record_ekf(ws, z, k, nus, Ss, k)
+        record_ekf(ws, z, k, nus, Ss, nis, k)
         loglik += ll
         if not _finite(x, P):
             return DIVERGED, k, loglik
@@ -127,25 +127,25 @@ def _ekf_track(F, Q, R, codes, pos, st, periods, z, x0, P0, first, xs, Ps, xp, P
 
 
 @njit(cache=True, nogil=True)
-def ekf_named(F, Q, R, codes, pos, st, periods, z, x0, P0, first, nus, Ss):
-    """One EKF run: (status, step, xs, Ps, xp, Pp, loglik); the innovations into nus, Ss (NaN-filled)."""
+def ekf_named(F, Q, R, codes, pos, st, periods, z, x0, P0, first, nus, Ss, nis):
+    """One EKF run: (status, step, xs, Ps, xp, Pp, loglik); the innovations into nus, Ss, nis (NaN-filled)."""
     T = z.shape[0]
     n = x0.shape[0]
     xs, xp = np.empty((T, n)), np.empty((T, n))
     Ps, Pp = np.empty((T, n, n)), np.empty((T, n, n))
     status, step, loglik = _ekf_track(F, Q, R, codes, pos, st, periods, z, x0, P0, first, xs, Ps, xp, Pp, nus,
-                                      Ss)
+                                      Ss, nis)
     return status, step, xs, Ps, xp, Pp, loglik
 
 
 @njit(cache=True, nogil=True)
-def ekf_named_batch(F, Q, R, codes, pos, st, periods, z, x0, P0, xs, Ps, xp, Pp, nus, Ss, loglik):
+def ekf_named_batch(F, Q, R, codes, pos, st, periods, z, x0, P0, xs, Ps, xp, Pp, nus, Ss, nis, loglik):
     """B tracks z (B, T, m), x0 (B, n), P0 (B, n, n) into the (B, T, ...) outputs; returns
     (status, track, step) of the first failure or (OK, B, T)."""
     B, T = z.shape[0], z.shape[1]
     for b in range(B):
         status, step, ll = _ekf_track(F, Q, R, codes, pos, st, periods, z[b], x0[b], P0[b], False,
-                                      xs[b], Ps[b], xp[b], Pp[b], nus[b], Ss[b])
+                                      xs[b], Ps[b], xp[b], Pp[b], nus[b], Ss[b], nis[b])
         if status != OK:
             return status, b, step
         loglik[b] = ll
@@ -153,9 +153,9 @@ def ekf_named_batch(F, Q, R, codes, pos, st, periods, z, x0, P0, xs, Ps, xp, Pp,
 
 
 @njit(cache=True, nogil=True)
-def ukf_named(F, Q, R, codes, pos, st, periods, z, x0, P0, first, c, Wm, Wc, nus, Ss):
+def ukf_named(F, Q, R, codes, pos, st, periods, z, x0, P0, first, c, Wm, Wc, nus, Ss, nis):
     """The discrete UKF (scaled points, weights Wm, Wc, c = n + λ); returns
-    (status, step, xs, Ps, xp, Pp, loglik); the innovations into nus, Ss (NaN-filled)."""
+    (status, step, xs, Ps, xp, Pp, loglik); the innovations into nus, Ss, nis (NaN-filled)."""
     T, m = z.shape
     n = x0.shape[0]
     N = 2 * n + 1
@@ -178,7 +178,7 @@ def ukf_named(F, Q, R, codes, pos, st, periods, z, x0, P0, first, c, Wm, Wc, nus
                 return NOT_PD, k, xs, Ps, xp, Pp, loglik
             for j in range(N):
                 _h(X[j], codes, pos, st, Zf[j])
-            status, x, P, ll = _ukf_update(x, P, X, Zf, Wm, Wc, R, z, k, periods, nus, Ss, k)
+            status, x, P, ll = _ukf_update(x, P, X, Zf, Wm, Wc, R, z, k, periods, nus, Ss, nis, k)
             if status != OK:
                 return status, k, xs, Ps, xp, Pp, loglik
             loglik += ll

@@ -164,11 +164,16 @@ def _store(x, P, xs, Ps, k):
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _record(idx, q, nu, S, nus, Ss, row):
-    """nus[row], Ss[row] at the q components idx <- the innovation nu[:q] and its covariance S[:q, :q]
-    (rows of the filter's result; row < 0: not recorded)."""
-    if row < 0:
+def _record(idx, q, nu, S, w, nus, Ss, nis, row):
+    """nus[row], Ss[row] at the q components idx <- the innovation nu[:q] and its covariance S[:q, :q],
+    nis[row] <- the NIS w[:q]^T w[:q] of the whitened innovation w = L^-1 nu (rows of the filter's
+    result; row < 0 or no component: not recorded)."""
+    if row < 0 or q == 0:
         return
+    e = 0.0
+    for a in range(q):
+        e += w[a] * w[a]
+    nis[row] = e
     for a in range(q):
         nus[row, idx[a]] = nu[a]
         for b in range(q):
@@ -176,11 +181,11 @@ def _record(idx, q, nu, S, nus, Ss, row):
 
 
 @njit(cache=True, nogil=True, inline="always")
-def record_ekf(ws, z, k, nus, Ss, row):
-    """After :func:`_ekf_update` with row k of z and the workspace ws: its innovation and S into row j of
-    nus, Ss (the workspace still holds both)."""
+def record_ekf(ws, z, k, nus, Ss, nis, row):
+    """After :func:`_ekf_update` with row k of z and the workspace ws: its innovation, S and NIS into
+    row ``row`` of nus, Ss, nis (the workspace still holds them)."""
     idx, (H, HP, PHt, K, KR, Rq, S, L, IKH, A, nu, w) = ws
-    _record(idx, _observed(z, k, idx), nu, S, nus, Ss, row)
+    _record(idx, _observed(z, k, idx), nu, S, w, nus, Ss, nis, row)
 
 
 # ---------------------------------------------------------------- EKF
@@ -276,9 +281,10 @@ def ekf_predict_into(F, P, Q, P_out):
 
 
 @njit(cache=True, nogil=True)
-def ekf_update_into(x, P, H, hx, R, z, k, periods, x_out, P_out, nus, Ss, row):
-    """One EKF update of x, P with row k of z into x_out, P_out, its innovation and S into row ``row`` of
-    nus, Ss (row < 0: not recorded): (status, loglik); DIVERGED for non-finite input or output."""
+def ekf_update_into(x, P, H, hx, R, z, k, periods, x_out, P_out, nus, Ss, nis, row):
+    """One EKF update of x, P with row k of z into x_out, P_out, its innovation, S and NIS into row
+    ``row`` of nus, Ss, nis (row < 0: not recorded): (status, loglik); DIVERGED for non-finite input
+    or output."""
     x_out[:] = x
     P_out[:, :] = P
     if not (_finite(x, P) and np.isfinite(H.sum() + hx.sum() + R.sum())):
@@ -288,7 +294,7 @@ def ekf_update_into(x, P, H, hx, R, z, k, periods, x_out, P_out, nus, Ss, row):
     if status == OK and not _finite(x_out, P_out):
         status = DIVERGED
     if status == OK:
-        record_ekf(ws, z, k, nus, Ss, row)
+        record_ekf(ws, z, k, nus, Ss, nis, row)
     return status, ll
 
 
@@ -336,10 +342,11 @@ def unscented_moments_into(Y, Wm, Wc, Q, x_out, P_out):
 
 
 @njit(cache=True, nogil=True)
-def _ukf_update(x, P, X, Zf, Wm, Wc, R, z, k, periods, nus, Ss, row):
+def _ukf_update(x, P, X, Zf, Wm, Wc, R, z, k, periods, nus, Ss, nis, row):
     """The unscented update of N(x, P) (sigma points X, their measurements Zf (N, m)) with row k of z
     (NaN components skipped); components of period > 0 are averaged on the circle and wrapped.
-    The innovation and its covariance S go into row ``row`` of nus, Ss (row < 0: not recorded).
+    The innovation, its covariance S and the NIS go into row ``row`` of nus, Ss, nis (row < 0: not
+    recorded).
     Returns (status, x, P, loglik) with new x, P."""
     N, m = Zf.shape
     n = x.shape[0]
@@ -378,10 +385,10 @@ def _ukf_update(x, P, X, Zf, Wm, Wc, R, z, k, periods, nus, Ss, row):
     L = np.empty((q, q))
     if not _cholesky(S, L, q):
         return NOT_PD, x, P, 0.0
-    _record(idx, q, nu, S, nus, Ss, row)
     K = np.empty((n, q))
     w = np.empty(q)
     ll = _gain_loglik(L, nu, C, K, w, n, q)
+    _record(idx, q, nu, S, w, nus, Ss, nis, row)
     x = x + K @ nu
     P = P - K @ S @ K.T
     _symmetrise(P)
@@ -389,14 +396,14 @@ def _ukf_update(x, P, X, Zf, Wm, Wc, R, z, k, periods, nus, Ss, row):
 
 
 @njit(cache=True, nogil=True)
-def ukf_update_into(x, P, X, Zf, Wm, Wc, R, z, k, periods, x_out, P_out, nus, Ss, row):
-    """:func:`_ukf_update` into x_out, P_out (and row ``row`` of nus, Ss) with the finiteness checks:
+def ukf_update_into(x, P, X, Zf, Wm, Wc, R, z, k, periods, x_out, P_out, nus, Ss, nis, row):
+    """:func:`_ukf_update` into x_out, P_out (and row ``row`` of nus, Ss, nis) with the finiteness checks:
     (status, loglik)."""
     x_out[:] = x
     P_out[:, :] = P
     if not (_finite(x, P) and np.isfinite(Zf.sum() + R.sum())):
         return DIVERGED, 0.0
-    status, xu, Pu, ll = _ukf_update(x, P, X, Zf, Wm, Wc, R, z, k, periods, nus, Ss, row)
+    status, xu, Pu, ll = _ukf_update(x, P, X, Zf, Wm, Wc, R, z, k, periods, nus, Ss, nis, row)
     if status != OK:
         return status, 0.0
     x_out[:] = xu

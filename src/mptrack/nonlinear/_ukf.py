@@ -214,7 +214,7 @@ def _unscented_cross(model: NonlinearModel, x, P, sp: tuple) -> np.ndarray:
 def _unscented_update(model: NonlinearModel, x, P, z, k: int, sp: tuple, method: str, inputs: dict,
                       x_out, P_out, innovations: tuple) -> float:
     """The unscented update with row k of z and the sigma points of N(x(k/k-1), P(k/k-1)) through h,
-    into x_out, P_out, and its innovation and S into row k of ``innovations`` (T, m), (T, m, m)."""
+    into x_out, P_out, and its innovation, S and NIS into row k of ``innovations`` (T, m), (T, m, m), (T,)."""
     c, Wm, Wc, X = sp
     X = _points(x, P, c, X)
     Z = user_array(model.h(X), (X.shape[0], model.m), "h", k)
@@ -233,16 +233,16 @@ def _cd_ukf_compiled(model: ContinuousDiscreteModel, z, x0, P0, substeps, ut):
     T, n = z.shape[0], model.n
     c, Wm, Wc = _weights(n, **ut)
     xs, xp, Ps, Pp = np.empty((T, n)), np.empty((T, n)), np.empty((T, n, n)), np.empty((T, n, n))
-    nu, S, _ = innovation_arrays((T,), model.m)
+    nu, S, nis = innovation_arrays((T,), model.m)
     status, _, loglik = kern.cd_ukf_run(
         z, x0, P0, model.dt, 0 if substeps is None else substeps, *compiled.drift_at,
         model.kernels.drift_params, *compiled.measurement_at, model.kernels.measurement_params, compiled.periods,
         np.asarray(model.Q, dtype=float), np.asarray(model.R, dtype=float), c, Wm, Wc, xs, Ps, xp, Pp, nu, S,
-        np.empty(T, np.int64))
+        nis, np.empty(T, np.int64))
     if status != _named_kernels.OK:
         return None
     return FilterResult(x=xs, P=Ps, x_pred=xp, P_pred=Pp, loglik=float(loglik), method="UKF", x0=x0, P0=P0,
-                        inputs=ut, innovation=nu, S=S)
+                        inputs=ut, innovation=nu, S=S, nis=nis)
 
 
 @finite_result("the UKF")
@@ -274,10 +274,10 @@ def ukf_filter(model, z, x0, P0, *, alpha: float = 1.0, beta: float = 2.0, kappa
         first = check_prior(prior)
         sp = _weights(model.n, **ut)
         if model.named is not None:
-            nu, S, _ = innovation_arrays((z.shape[0],), model.m)
-            out = _named_kernels.ukf_named(*named_arguments(model), z, x, P, first, *sp, nu, S)
+            innovations = innovation_arrays((z.shape[0],), model.m)
+            out = _named_kernels.ukf_named(*named_arguments(model), z, x, P, first, *sp, *innovations)
             if out[0] == _named_kernels.OK:
-                return named_result(out, x, P, first, "UKF", nu, S, inputs=ut)
+                return named_result(out, x, P, first, "UKF", innovations, inputs=ut)
         work = sp + (np.empty((2 * model.n + 1, model.n)),)
 
         def predict(mdl, x, P, k, x_out, P_out):
