@@ -1,7 +1,7 @@
 """Per-iteration calculation burden (flop counts) of the papers' filters.
 
-Formulas of Assimakis & Adam (2014) Table 2 and Table 5 (seed 000; the same
-formulas are Table 2 of seed 002), for any state dimension n and measurement
+Formulas of Assimakis & Adam 2014, Tables 2 and 5 (the same formulas
+are Table 2 of Assimakis & Adam 2015), for any state dimension n and measurement
 dimension m, and the burden of the 12 implementations of Table 1.
 
 The papers count model B as ``axes`` independent per-axis filters but the
@@ -115,7 +115,7 @@ def fir_burden(n: int, m: int, M: int) -> int:
 
 
 def fir_break_even(fir: float, steady: float) -> int:
-    """mu: the nearest integer >= fir / steady (seed 000 section 7): the FIR filter is
+    """mu: the nearest integer >= fir / steady (Assimakis & Adam 2014, section 7): the FIR filter is
     cheaper than the recursive one when outputs are needed every mu or more steps."""
     return math.ceil(Fraction(fir) / Fraction(steady))
 

@@ -25,7 +25,7 @@ __all__ = ["position_error", "rmse", "nees", "pcrb", "pcrb_tichavsky", "range_fi
 
 @finite_result("the position error")
 def position_error(x_est, truth, dims: int | None = None) -> np.ndarray:
-    """Euclidean position error ||x̂ - x|| per time step (seed 003 eq. 25): (..., T).
+    """Euclidean position error ||x̂ - x|| per time step (Bouzera et al. 2017, eq. 25): (..., T).
 
     ``dims`` = number of leading state components that are the position (default: all of truth's).
     """
@@ -153,7 +153,7 @@ def range_fisher_information(positions, stations, R, n: int | None = None) -> np
 def pcrb_ranges(truth, stations, P0, Q, R, F=None) -> np.ndarray:
     """PCRB of the position RMSE, sqrt(trace of the position block of J^{-1}), per time step: (T,).
 
-    truth (T, d) or (B, T, d) true positions; F defaults to the identity (random walk, seed 003 eq. 1).
+    truth (T, d) or (B, T, d) true positions; F defaults to the identity (random walk, Bouzera et al. 2017, eq. 1).
     """
     Q = np.asarray(Q, dtype=float)
     n = Q.shape[0]

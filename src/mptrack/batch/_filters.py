@@ -55,7 +55,8 @@ def _steady_state_filter(model, z, x0=None, out=None, *, lengths=None, steady=No
 
 def steady_state_filter(model: LinearGaussianModel, z, x0=None, out=None, *, lengths=None,
                         steady: SteadyState | None = None) -> np.ndarray:
-    """Steady-state filter x(k/k) = A x(k-1/k-1) + B z(k) on a batch (seed 000 eqs. 9-10).
+    """Steady-state filter x(k/k) = A x(k-1/k-1) + B z(k) on a batch
+    (Assimakis & Adam 2014, eqs. 9-10).
 
     model    the LinearGaussianModel shared by all tracks
     z        (B, T, m) measurements z(1..T) of B tracks, float64 or float32
@@ -94,7 +95,7 @@ class GainSequence:
 
 
 def gain_sequence(model: LinearGaussianModel, steps: int, P0=None) -> GainSequence:
-    """The Kalman gains K(1..steps) and covariances from P(0/0) = P0 (seed 000 eq. 4).
+    """The Kalman gains K(1..steps) and covariances from P(0/0) = P0 (Assimakis & Adam 2014, eq. 4).
 
     They do not depend on the measurements, so one sequence serves every track
     that shares the model and the prior covariance.  Same formulas and order
@@ -151,7 +152,8 @@ def _kalman_filter(model, z, x0=None, P0=None, out=None, *, lengths=None, gains=
 
 def kalman_filter(model: LinearGaussianModel, z, x0=None, P0=None, out=None, *, lengths=None,
                   gains: GainSequence | None = None) -> np.ndarray:
-    """Time-varying Kalman filter on a batch with one shared gain sequence (seed 000 eq. 4).
+    """Time-varying Kalman filter on a batch with one shared gain sequence
+    (Assimakis & Adam 2014, eq. 4).
 
     All tracks share the model and the prior covariance P0 (default 0), so the
     gains K(k) are computed once (:func:`gain_sequence`, or pass ``gains``) and
@@ -183,7 +185,8 @@ def _fir_filter(model, z, out=None, *, lengths=None, eps=1e-3, norm=2, M=None, s
 
 def fir_filter(model: LinearGaussianModel, z, out=None, *, lengths=None, eps: float = 1e-3, norm=2,
                M: int | None = None, steady: SteadyState | None = None) -> np.ndarray:
-    """FIR steady-state filter x(k/k) = sum_{j<M} A^j B z(k-j) on a batch (seed 000 eq. 22).
+    """FIR steady-state filter x(k/k) = sum_{j<M} A^j B z(k-j) on a batch
+    (Assimakis & Adam 2014, eq. 22).
 
     The warm-up k < M uses the measurements available so far (the reference's
     ``warmup="truncate"``, which equals the steady-state filter from x0 = 0).
@@ -227,7 +230,8 @@ _PER_AXIS: dict[Callable, Callable] = {
 
 def per_axis(run: Callable[..., np.ndarray], axis_model: LinearGaussianModel, z, *args,
              **kwargs) -> np.ndarray:
-    """Run a batch filter per axis with an axis model (model B; seed 000 eqs. 17-18).
+    """Run a batch filter per axis with an axis model (model B;
+    Assimakis & Adam 2014, eqs. 17-18).
 
     run         :func:`steady_state_filter`, :func:`kalman_filter` or :func:`fir_filter`
     axis_model  the one-axis model (n_a, m_a), e.g. ``assimakis_model_b()``

@@ -1,4 +1,4 @@
-"""The continuous-discrete nonlinear model (seed 004 eq. 1) and its named examples.
+"""The continuous-discrete nonlinear model (Zhao et al. 2013, eq. 1) and its named examples.
 
     dx = f(x) dt + dβ,          E[dβ dβ^T] = Q dt     (Q constant, per second)
     z(k) = h(x(t_k)) + e(k),    e(k) ~ N(0, R),       t_k = k·dt
@@ -38,7 +38,7 @@ __all__ = [
 ]
 
 
-#: Seed 004 section 6: initial state [-0.6, -1].
+#: Zhao et al. 2013, section 6: initial state [-0.6, -1].
 ZHAO2013_X0 = (-0.6, -1.0)
 
 
@@ -72,7 +72,7 @@ def rk4_flow(model, X: np.ndarray, duration: float, steps: int) -> np.ndarray:
 
 @dataclass(frozen=True, eq=False)
 class ContinuousDiscreteModel:
-    """A validated continuous-time SDE with discrete-time measurements (seed 004 eq. 1).
+    """A validated continuous-time SDE with discrete-time measurements (Zhao et al. 2013, eq. 1).
 
     drift        f: (..., n) -> (..., n), state units per second
     Q            (n, n) diffusion covariance per second (g Q g^T of eq. 3, constant)
@@ -151,7 +151,7 @@ class ContinuousDiscreteModel:
         return wrap_angles(np.asarray(z, dtype=float) - np.asarray(zhat, dtype=float), self.periods)
 
     def log_likelihood(self, z: np.ndarray, X: np.ndarray) -> np.ndarray:
-        """log p(z | x) at points X (..., n) (seed 004 eq. 25); NaN components of z are skipped."""
+        """log p(z | x) at points X (..., n) (Zhao et al. 2013, eq. 25); NaN components of z are skipped."""
         ok = ~np.isnan(z)
         return gauss_logpdf(self.innovation(z, self.measurement(X))[..., ok], self.R[np.ix_(ok, ok)])
 
@@ -227,7 +227,7 @@ class ContinuousDiscreteModel:
 
 def zhao2013_model(*, variant: str = "printed", diffusion_scale: float = 1.0, bearing: str = "atan2",
                    dt: float = 1.0, substeps: int = 20) -> ContinuousDiscreteModel:
-    """Seed 004 eq. 42: a Van der Pol-type drift observed by range and bearing.
+    """The example of Zhao et al. 2013, eq. 42: a Van der Pol-type drift observed by range and bearing.
 
     variant "printed"  f(x) = [-x2, 0.2(x1² - 1)x2 + x1] as printed: a time-reversed
                        Van der Pol oscillator (stable origin inside an *unstable*

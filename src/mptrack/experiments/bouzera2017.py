@@ -1,4 +1,4 @@
-"""Reproduction of Bouzera, Oussalah, Mezhoud & Khireddine (2017), FEKF for mobile localisation (seed 003).
+"""Reproduction of Bouzera, Oussalah, Mezhoud & Khireddine (2017), FEKF for mobile localisation.
 
 Section 4.2 simulation (:mod:`._bouzera_scenario`): three base stations, a linear and a two-linear
 (manoeuvre) trajectory, ranges d = ||X - B_i|| + N(0, sigma) (eq. 26), 100 Monte-Carlo runs, filters

@@ -1,4 +1,4 @@
-"""Zero-order Takagi–Sugeno inference on a grid of rules (Takagi & Sugeno 1985; seed 003 eq. 13).
+"""Zero-order Takagi–Sugeno inference on a grid of rules (Takagi & Sugeno 1985; Bouzera et al. 2017, eq. 13).
 
 Rule (j1, ..., jp): IF x1 is A1[j1] AND ... AND xp is Ap[jp] THEN y = c[j1, ..., jp].
 Firing strength = product of memberships (the paper's "degree of fulfilment");

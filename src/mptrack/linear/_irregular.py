@@ -52,7 +52,7 @@ def kalman_filter_irregular(model: ContinuousLinearModel, times, z, x0=None, P0=
     x0, P0  the prior x(0/0), P(0/0) at time t0 (default zeros)
 
     Each step uses F = e^{Phi dt(k)}, Q = int_0^dt(k) e^{Phi s} L Qc L^T e^{Phi^T s} ds
-    (seed 001 sec. 2, Van Loan's method; :func:`mptrack.models.discretize_intervals`); each run
+    (Assimakis et al. 2016, sec. 2; Van Loan's method; :func:`mptrack.models.discretize_intervals`); each run
     of equal intervals goes through the compiled KF loop of :func:`kalman_filter`
     in one call.  With equal intervals dt this is :func:`kalman_filter` on
     ``model.discretize(dt)``.

@@ -1,4 +1,4 @@
-"""Join filters (JKLF, JSSKLF; seed 000 eqs. 8, 16) and per-axis running of model B."""
+"""Join filters (JKLF, JSSKLF; Assimakis & Adam 2014, eqs. 8, 16) and per-axis running of model B."""
 
 from __future__ import annotations
 
@@ -27,7 +27,7 @@ def per_axis(run: Callable[..., FilterResult], axis_model: LinearGaussianModel, 
     x0  (axes * n_axis,) prior, axis by axis;  P0 block-diagonal (off-diagonal
         blocks must be zero to rounding, 1e-12 relative: the axes are independent)
     The joint state is [x_axis0, x_axis1, ...] with a block-diagonal covariance
-    (seed 000 eqs. 17-18).
+    (Assimakis & Adam 2014, eqs. 17-18).
     """
     require_model(axis_model, "axis_model")
     if not callable(run):

@@ -1,4 +1,4 @@
-"""The time-invariant Kalman filter (seed 000 eq. 4)."""
+"""The time-invariant Kalman filter (Assimakis & Adam 2014, eq. 4)."""
 
 from __future__ import annotations
 
@@ -104,7 +104,7 @@ def step_matrices(model: LinearGaussianModel, T: int, F=None, H=None, Q=None, R=
 @finite_result("the Kalman filter")
 def kalman_filter(model: LinearGaussianModel, z, x0=None, P0=None, *, joseph: bool = False, F=None, H=None,
                   Q=None, R=None, B=None, u=None, prior: str = "initial") -> FilterResult:
-    """Kalman filter with the per-step Riccati recursion (seed 000 eq. 4).
+    """Kalman filter with the per-step Riccati recursion (Assimakis & Adam 2014, eq. 4).
 
     model       a LinearGaussianModel
     z           (T, m) measurements z(1..T); rows with NaN are treated as missing

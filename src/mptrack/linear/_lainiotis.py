@@ -1,4 +1,4 @@
-"""The Lainiotis filter (seed 000 eqs. 5-7)."""
+"""The Lainiotis filter (Assimakis & Adam 2014, eqs. 5-7)."""
 
 from __future__ import annotations
 
@@ -35,7 +35,7 @@ def lainiotis_step(lp: LainiotisParameters, F, Q, x, P, z, eye):
 @finite_result("the Lainiotis filter")
 def lainiotis_filter(model: LinearGaussianModel, z, x0=None, P0=None, *,
                      params: LainiotisParameters | None = None) -> FilterResult:
-    """Lainiotis filter (seed 000 eqs. 5-7): same estimates as the KF, other algebra.
+    """Lainiotis filter (Assimakis & Adam 2014, eqs. 5-7): same estimates as the KF, other algebra.
 
     ``params`` are the off-line Lainiotis parameters; computed from ``model``
     when not given.  Measurements with any NaN component only predict (the LF

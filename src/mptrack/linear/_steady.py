@@ -1,4 +1,4 @@
-"""Steady-state filters (seed 000 eqs. 9-16) and the FIR steady-state filter (eqs. 20-22)."""
+"""Steady-state filters (Assimakis & Adam 2014, eqs. 9-16) and the FIR steady-state filter (eqs. 20-22)."""
 
 from __future__ import annotations
 
@@ -78,7 +78,8 @@ def _matrix_norm(M: np.ndarray, norm) -> float:
 
 
 def fir_order(A, eps: float = 1e-3, norm=2, max_order: int = 100_000) -> int:
-    """FIR order M: the smallest M >= 1 with ||A^M|| < eps (so ||A^{M-1}|| >= eps), seed 000 eq. 22.
+    """FIR order M: the smallest M >= 1 with ||A^M|| < eps (so ||A^{M-1}|| >= eps),
+    Assimakis & Adam 2014, eq. 22.
 
     ``norm`` is any ``numpy.linalg.norm`` matrix order (2, 'fro', 1, inf, ...).
     The papers' example (eps = 1e-3, spectral norm) gives M = 17.
@@ -115,7 +116,7 @@ def fir_coefficients(A, B, M: int) -> np.ndarray:
 def fir_filter(model: LinearGaussianModel, z, x0=None, P0=None, *, eps: float = 1e-3, norm=2,
                M: int | None = None, steady: SteadyState | None = None,
                warmup: Literal["truncate", "steady-state"] = "truncate") -> FilterResult:
-    """FIR steady-state filter x(k/k) = sum_{j<M} A^j B z(k-j) (seed 000 eq. 22).
+    """FIR steady-state filter x(k/k) = sum_{j<M} A^j B z(k-j) (Assimakis & Adam 2014, eq. 22).
 
     M       filter order; by default from ||A^M|| < eps in the given matrix ``norm``
     warmup  for k < M, "truncate" uses the measurements available so far

@@ -5,13 +5,13 @@ A continuous-time linear time-invariant (LTI) model driven by white noise,
     dx = Phi x dt + L dbeta,     E[dbeta dbeta^T] = Qc dt,
     z(k) = H x(t_k) + v(k),      v(k) ~ N(0, R),
 
-sampled every dt seconds has the exact discrete transition (seed 001 sec. 2)
+sampled every dt seconds has the exact discrete transition (Assimakis et al. 2016, sec. 2)
 
     F = e^{Phi dt},      Q = int_0^dt e^{Phi s} L Qc L^T e^{Phi^T s} ds,
 
 which :func:`van_loan` computes with one matrix exponential (Van Loan 1978,
 "Computing integrals involving the matrix exponential", IEEE TAC 23(3)).
-The constant-velocity (CV) and constant-acceleration (CA) models of seed 001
+The constant-velocity (CV) and constant-acceleration (CA) models of Assimakis et al. 2016
 (eqs. 5-6) are special cases; their closed forms are what this general method
 gives.  The *discrete white-noise* variants (Q = q G G^T, the noise a
 piecewise-constant acceleration or acceleration increment per sample; seeds
@@ -47,7 +47,7 @@ __all__ = [
 
 @dataclass(frozen=True, eq=False)
 class ContinuousLinearModel:
-    """A validated, immutable continuous-time LTI model (seed 001 eqs. 1-2).
+    """A validated, immutable continuous-time LTI model (Assimakis et al. 2016, eqs. 1-2).
 
     Phi  (n, n)  drift matrix of dx = Phi x dt + L dbeta
     L    (n, p)  noise gain (the paper's G)
@@ -170,7 +170,7 @@ def discretize_intervals(model: ContinuousLinearModel, dts) -> tuple[np.ndarray,
 def discretize(model: ContinuousLinearModel, dt: float) -> LinearGaussianModel:
     """The exact discrete-time model of ``model`` sampled every ``dt`` > 0 seconds.
 
-    F = e^{Phi dt} and Q = int_0^dt e^{Phi s} L Qc L^T e^{Phi^T s} ds (seed 001
+    F = e^{Phi dt} and Q = int_0^dt e^{Phi s} L Qc L^T e^{Phi^T s} ds (Assimakis et al. 2016,
     sec. 2.1-2.2, computed by :func:`van_loan`); H and R are kept.
     """
     require_model(model, kind=ContinuousLinearModel)
@@ -199,7 +199,7 @@ def _integrator_chain(order: int, q: float, sigma_r2: float, axes: int, name: st
 
 
 def constant_velocity_continuous(q: float, axes: int = 1, *, sigma_r2: float = 1.0) -> ContinuousLinearModel:
-    """Continuous constant-velocity (white-noise acceleration) model, seed 001 sec. 2.1.
+    """Continuous constant-velocity (white-noise acceleration) model (Assimakis et al. 2016, sec. 2.1).
 
     Per axis, state [s, v] (metres, m/s): Phi = [[0, 1], [0, 0]], L = [0, 1]^T,
     white acceleration noise of spectral density ``q`` (m^2/s^3; the paper's
@@ -214,7 +214,7 @@ def constant_velocity_continuous(q: float, axes: int = 1, *, sigma_r2: float = 1
 
 def constant_acceleration_continuous(q: float, axes: int = 1, *,
                                      sigma_r2: float = 1.0) -> ContinuousLinearModel:
-    """Continuous constant-acceleration (white-noise jerk) model, seed 001 sec. 2.2.
+    """Continuous constant-acceleration (white-noise jerk) model (Assimakis et al. 2016, sec. 2.2).
 
     Per axis, state [s, v, a] (m, m/s, m/s^2): Phi = [[0,1,0],[0,0,1],[0,0,0]],
     L = [0, 0, 1]^T, white jerk noise of spectral density ``q`` (m^2/s^5; the
@@ -227,7 +227,7 @@ def constant_acceleration_continuous(q: float, axes: int = 1, *,
 
 
 def constant_velocity(dt: float, q: float, axes: int = 1, *, sigma_r2: float = 1.0) -> LinearGaussianModel:
-    """Exactly discretised constant-velocity model (seed 001 eq. 5), per axis
+    """Exactly discretised constant-velocity model (Assimakis et al. 2016, eq. 5), per axis
 
     F = [[1, dt], [0, 1]],  Q = q [[dt^3/3, dt^2/2], [dt^2/2, dt]],  H = [1, 0],  R = sigma_r2.
 
@@ -240,8 +240,8 @@ def constant_velocity(dt: float, q: float, axes: int = 1, *, sigma_r2: float = 1
 
 
 def constant_acceleration(dt: float, q: float, axes: int = 1, *, sigma_r2: float = 1.0) -> LinearGaussianModel:
-    """Exactly discretised constant-acceleration model (seed 001 eq. 6, with the (1,3)
-    entry corrected to dt^3/6, see docs/errata.md), per axis
+    """Exactly discretised constant-acceleration model (Assimakis et al. 2016, eq. 6, with
+    the (1,3) entry corrected to dt^3/6, see docs/errata.md), per axis
 
     F = [[1, dt, dt^2/2], [0, 1, dt], [0, 0, 1]],
     Q = q [[dt^5/20, dt^4/8, dt^3/6], [dt^4/8, dt^3/3, dt^2/2], [dt^3/6, dt^2/2, dt]],
@@ -267,7 +267,7 @@ def cv_discrete_white_noise(dt: float, q: float, axes: int = 1, *, sigma_r2: flo
     F = [[1, dt], [0, 1]],  G = [dt^2/2, dt]^T,  Q = q G G^T,  H = [1, 0],  R = sigma_r2.
 
     q is the acceleration variance (m^2/s^4).  Q has rank 1 per axis.  At dt = 1
-    this is the Q of seeds 000/002 (they print G = [dt/2, 1]^T, which agrees
+    this is the Q of Assimakis & Adam 2014 and 2015 (they print G = [dt/2, 1]^T, which agrees
     only at dt = 1; :func:`assimakis_model_b` keeps their printed form).
     """
     dt = check_positive("dt", dt)

@@ -109,7 +109,7 @@ def stack_axes(axis_model: LinearGaussianModel, axes: int, *, name: str = "") ->
     """The joint model of ``axes`` independent copies of ``axis_model`` (block-diagonal).
 
     The state is ordered axis by axis: ``[x_axis0, x_axis1, ...]``; this is how
-    the papers' model A arises from model B (seed 000 eq. 17-18).
+    the papers' model A arises from model B (Assimakis & Adam 2014, eqs. 17-18).
     """
     axis_model = require_model(axis_model, "axis_model")
     axes = check_int("axes", axes, minimum=1)

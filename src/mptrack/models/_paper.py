@@ -1,4 +1,4 @@
-"""The tracking models of Assimakis & Adam (2014, seed 000; 2015, seed 002)."""
+"""The tracking models of Assimakis & Adam 2014 (2-D) and 2015 (3-D)."""
 
 from __future__ import annotations
 
@@ -16,7 +16,7 @@ MeasurementForm = Literal["printed", "position"]
 
 def assimakis_model_b(dt: float = 1.0, sigma_q2: float = 0.01, sigma_r2: float = 0.1,
                       measurement: MeasurementForm = "printed") -> LinearGaussianModel:
-    """Model B: one axis, state [position, velocity], n = 2, m = 1 (seed 000 eq. 3).
+    """Model B: one axis, state [position, velocity], n = 2, m = 1 (Assimakis & Adam 2014, eq. 3).
 
     F = [[1, dt], [0, 1]], G = [dt/2, 1]^T, Q = sigma_q2 G G^T, R = sigma_r2.
 
@@ -44,7 +44,8 @@ def assimakis_model_b(dt: float = 1.0, sigma_q2: float = 0.01, sigma_r2: float =
 
 def assimakis_model_a(axes: int = 2, dt: float = 1.0, sigma_q2: float = 0.01, sigma_r2: float = 0.1,
                       measurement: MeasurementForm = "printed") -> LinearGaussianModel:
-    """Model A: all axes jointly, n = 2*axes, m = axes (seed 000 eq. 2; seed 002 for axes = 3).
+    """Model A: all axes jointly, n = 2*axes, m = axes (Assimakis & Adam 2014, eq. 2;
+    Assimakis & Adam 2015 for axes = 3).
 
     The state is [s_x, v_x, s_y, v_y(, s_z, v_z)]; F, G, H, Q, R are the
     block-diagonal stack of model B (the papers use equal variances per axis).

@@ -10,7 +10,7 @@ validity range; ``on_invalid`` chooses what happens outside it ("raise" a
 Sources: COST Action 231 final report (Damosso & Correia, 1999), ch. 4.4
 (Walfisch–Ikegami, eqs. 4.4.1–4.4.13) and 4.4.1 (COST-231 Hata); Hata (1980),
 IEEE Trans. Veh. Technol. 29(3); 3GPP TR 25.996 §5.3.1 (urban micro NLOS);
-Bouzera et al. (2017), Appendix (seed 003), whose printed constants are
+Bouzera et al. (2017), Appendix, whose printed constants are
 corrected as recorded in docs/errata.md.
 """
 

@@ -1,4 +1,4 @@
-"""The Lainiotis parameters (seed 000 eq. 7), shared by the LF and the RELF."""
+"""The Lainiotis parameters (Assimakis & Adam 2014, eq. 7), shared by the LF and the RELF."""
 
 from __future__ import annotations
 
@@ -14,7 +14,7 @@ __all__ = ["LainiotisParameters", "lainiotis_parameters"]
 
 @dataclass(frozen=True, eq=False)
 class LainiotisParameters:
-    """Off-line quantities of the Lainiotis filter (seed 000 eq. 7).
+    """Off-line quantities of the Lainiotis filter (Assimakis & Adam 2014, eq. 7).
 
     A  = [H Q H^T + R]^{-1}     (Q is the papers' G Q G^T)
     Kn = Q H^T A,   Km = F^T H^T A,   Pn = Q - Kn H Q,

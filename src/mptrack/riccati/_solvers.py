@@ -1,12 +1,12 @@
 """Steady-state solutions of the filter Riccati equations.
 
-REKF (seed 000 eq. 11), for the steady-state prediction covariance Pp:
+REKF (Assimakis & Adam 2014, eq. 11), for the steady-state prediction covariance Pp:
 
     Pp = Q + F Pp F^T - F Pp H^T [H Pp H^T + R]^{-1} H Pp F^T
 
 solved three independent ways: the per-step recursion, a doubling algorithm
 (the structure-preserving doubling algorithm, SDA) and the algebraic solution
-(scipy's DARE).  RELF (seed 000 eq. 14) for the Lainiotis form:
+(scipy's DARE).  RELF (Assimakis & Adam 2014, eq. 14) for the Lainiotis form:
 
     Pe = Pn + Fn [I + Pe On]^{-1} Pe Fn^T.
 """
@@ -230,7 +230,7 @@ def _dare(model):
 
 
 def _relf(model, P0, tol, max_iter):
-    """Per-step RELF recursion Pe <- Pn + Fn [I + Pe On]^{-1} Pe Fn^T (seed 000 eq. 14)."""
+    """Per-step RELF recursion Pe <- Pn + Fn [I + Pe On]^{-1} Pe Fn^T (Assimakis & Adam 2014, eq. 14)."""
     lp = lainiotis_parameters(model)
     eye = np.eye(model.n)
     return _iterate(lambda Pe: _sym(lp.Pn + lp.Fn @ np.linalg.solve(eye + Pe @ lp.On, Pe) @ lp.Fn.T),
