@@ -70,6 +70,12 @@ def steady_state_filter(model: LinearGaussianModel, z, x0=None, out=None, *, len
     Returns the (B, T, n) filtered states x(k/k) (``out`` when given); track b
     equals ``mptrack.linear.steady_state_filter(model, z[b], x0[b]).x``.
     The state is carried in float64; float32 input halves the memory traffic.
+
+    References
+    ----------
+    .. [1] N. Assimakis and M. Adam, "Global systems for mobile position tracking using Kalman and Lainiotis
+           filters", The Scientific World Journal, vol. 2014, Article ID 130512, 8 pp., 2014.
+           doi:10.1155/2014/130512
     """
     return _steady_state_filter(model, z, x0, out, lengths=lengths, steady=steady)
 
@@ -100,6 +106,14 @@ def gain_sequence(model: LinearGaussianModel, steps: int, P0=None) -> GainSequen
     They do not depend on the measurements, so one sequence serves every track
     that shares the model and the prior covariance.  Same formulas and order
     of operations as :func:`mptrack.linear.kalman_step`.
+
+    References
+    ----------
+    .. [1] N. Assimakis and M. Adam, "Global systems for mobile position tracking using Kalman and Lainiotis
+           filters", The Scientific World Journal, vol. 2014, Article ID 130512, 8 pp., 2014.
+           doi:10.1155/2014/130512
+    .. [2] R. E. Kalman, "A new approach to linear filtering and prediction problems", Journal of Basic
+           Engineering, vol. 82, no. 1, pp. 35–45, 1960. doi:10.1115/1.3662552
     """
     require_model(model)
     steps = check_int("steps", steps, minimum=1)
@@ -164,6 +178,14 @@ def kalman_filter(model: LinearGaussianModel, z, x0=None, P0=None, out=None, *, 
 
     z, x0, out, lengths as in :func:`steady_state_filter`.  Returns the (B, T, n)
     filtered states; the covariances of complete tracks are ``gains.P_filt``.
+
+    References
+    ----------
+    .. [1] N. Assimakis and M. Adam, "Global systems for mobile position tracking using Kalman and Lainiotis
+           filters", The Scientific World Journal, vol. 2014, Article ID 130512, 8 pp., 2014.
+           doi:10.1155/2014/130512
+    .. [2] R. E. Kalman, "A new approach to linear filtering and prediction problems", Journal of Basic
+           Engineering, vol. 82, no. 1, pp. 35–45, 1960. doi:10.1115/1.3662552
     """
     return _kalman_filter(model, z, x0, P0, out, lengths=lengths, gains=gains)
 
@@ -192,6 +214,12 @@ def fir_filter(model: LinearGaussianModel, z, out=None, *, lengths=None, eps: fl
     ``warmup="truncate"``, which equals the steady-state filter from x0 = 0).
     M defaults to the smallest order with ||A^M|| < eps in the matrix ``norm``.
     NaN inside a track's length is an error (NonFiniteError).
+
+    References
+    ----------
+    .. [1] N. Assimakis and M. Adam, "Global systems for mobile position tracking using Kalman and Lainiotis
+           filters", The Scientific World Journal, vol. 2014, Article ID 130512, 8 pp., 2014.
+           doi:10.1155/2014/130512
     """
     return _fir_filter(model, z, out, lengths=lengths, eps=eps, norm=norm, M=M, steady=steady)
 
@@ -240,6 +268,12 @@ def per_axis(run: Callable[..., np.ndarray], axis_model: LinearGaussianModel, z,
     the result is (B, T, axes * n_a), state axis by axis, and equals
     ``mptrack.linear.per_axis(reference, axis_model, z[b], ...)`` track by track.
     Other arguments are those of ``run`` (x0 of width axes * n_a).
+
+    References
+    ----------
+    .. [1] N. Assimakis and M. Adam, "Global systems for mobile position tracking using Kalman and Lainiotis
+           filters", The Scientific World Journal, vol. 2014, Article ID 130512, 8 pp., 2014.
+           doi:10.1155/2014/130512
     """
     impl = _PER_AXIS.get(run) if callable(run) else None
     if impl is None:

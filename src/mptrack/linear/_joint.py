@@ -15,7 +15,14 @@ __all__ = ["join_results", "per_axis"]
 
 
 def join_results(a: FilterResult, b: FilterResult, method: str) -> FilterResult:
-    """The papers' join: x = (x_a + x_b)/2, P = (P_a + P_b)/2 (weight 50 % each)."""
+    """The papers' join: x = (x_a + x_b)/2, P = (P_a + P_b)/2 (weight 50 % each).
+
+    References
+    ----------
+    .. [1] N. Assimakis and M. Adam, "Global systems for mobile position tracking using Kalman and Lainiotis
+           filters", The Scientific World Journal, vol. 2014, Article ID 130512, 8 pp., 2014.
+           doi:10.1155/2014/130512
+    """
     return FilterResult(x=0.5 * (a.x + b.x), P=0.5 * (a.P + b.P), method=method)
 
 
@@ -28,6 +35,12 @@ def per_axis(run: Callable[..., FilterResult], axis_model: LinearGaussianModel, 
         blocks must be zero to rounding, 1e-12 relative: the axes are independent)
     The joint state is [x_axis0, x_axis1, ...] with a block-diagonal covariance
     (Assimakis & Adam 2014, eqs. 17-18).
+
+    References
+    ----------
+    .. [1] N. Assimakis and M. Adam, "Global systems for mobile position tracking using Kalman and Lainiotis
+           filters", The Scientific World Journal, vol. 2014, Article ID 130512, 8 pp., 2014.
+           doi:10.1155/2014/130512
     """
     require_model(axis_model, "axis_model")
     if not callable(run):

@@ -49,6 +49,12 @@ def prediction_matrices(model: LinearGaussianModel, N: int, *,
     carries x(k+N-1/k-1) = F^{N-1} x(k/k-1), from which x(k/k-1) can only be
     recovered through F^{-(N-1)}.  Use :func:`steady_state_predictor` with
     ``method="inverse-free"`` then.
+
+    References
+    ----------
+    .. [1] N. Assimakis, G. Tziallas, M. Adam, A. Polyzos and C. Papanastasiou, "Mobile position estimation and
+           prediction using steady state Kalman filter", International Journal of Computer Science and
+           Information Technology Research, vol. 4, no. 3, pp. 261–272, 2016.
     """
     require_model(model)
     N = check_int("N", N, minimum=1)
@@ -105,6 +111,12 @@ def steady_state_predictor(model: LinearGaussianModel, z, N: int = 1, x0=None, *
 
     Returns a FilterResult whose row k-1 holds x(k+N/k) and the steady-state
     N-step prediction covariance F^N Pe F^{N T} + sum_{j<N} F^j Q F^{j T}.
+
+    References
+    ----------
+    .. [1] N. Assimakis, G. Tziallas, M. Adam, A. Polyzos and C. Papanastasiou, "Mobile position estimation and
+           prediction using steady state Kalman filter", International Journal of Computer Science and
+           Information Technology Research, vol. 4, no. 3, pp. 261–272, 2016.
     """
     require_model(model)
     N = check_int("N", N, minimum=1)
@@ -134,6 +146,12 @@ def predict_ahead(model: LinearGaussianModel, result: FilterResult, N: int) -> F
     With a :func:`kalman_filter` result this is the time-varying Kalman
     N-step predictor; with :func:`steady_state_filter` it is the inverse-free
     steady-state predictor.  Row k-1 holds x(k+N/k).
+
+    References
+    ----------
+    .. [1] N. Assimakis, G. Tziallas, M. Adam, A. Polyzos and C. Papanastasiou, "Mobile position estimation and
+           prediction using steady state Kalman filter", International Journal of Computer Science and
+           Information Technology Research, vol. 4, no. 3, pp. 261–272, 2016.
     """
     require_model(model)
     N = check_int("N", N, minimum=1)

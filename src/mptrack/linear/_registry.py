@@ -93,7 +93,16 @@ def get_filter(name: str) -> FilterSpec:
 
 @dataclass(frozen=True)
 class Implementation:
-    """One row of Table 1 of Assimakis & Adam 2014: a filter applied with model A (joint) or B (per axis)."""
+    """One row of Table 1 of Assimakis & Adam 2014: a filter applied with model A (joint) or B (per axis).
+
+    References
+    ----------
+    .. [1] N. Assimakis and M. Adam, "Global systems for mobile position tracking using Kalman and Lainiotis
+           filters", The Scientific World Journal, vol. 2014, Article ID 130512, 8 pp., 2014.
+           doi:10.1155/2014/130512
+    .. [2] N. Assimakis and M. Adam, "Mobile position tracking in three dimensions using Kalman and Lainiotis
+           filters", The Open Mathematics Journal, vol. 8, pp. 1–6, 2015 (Bentham Open).
+    """
 
     number: int
     model: str  # "A" or "B"
@@ -126,7 +135,16 @@ IMPLEMENTATIONS: tuple[Implementation, ...] = tuple(
 
 
 def get_implementation(key: int | str) -> Implementation:
-    """An implementation by its Table 1 number (1-12) or name ("KF-A", "jssklf-b", ...)."""
+    """An implementation by its Table 1 number (1-12) or name ("KF-A", "jssklf-b", ...).
+
+    References
+    ----------
+    .. [1] N. Assimakis and M. Adam, "Global systems for mobile position tracking using Kalman and Lainiotis
+           filters", The Scientific World Journal, vol. 2014, Article ID 130512, 8 pp., 2014.
+           doi:10.1155/2014/130512
+    .. [2] N. Assimakis and M. Adam, "Mobile position tracking in three dimensions using Kalman and Lainiotis
+           filters", The Open Mathematics Journal, vol. 8, pp. 1–6, 2015 (Bentham Open).
+    """
     for imp in IMPLEMENTATIONS:
         if key == imp.number or (isinstance(key, str) and key.upper() == imp.name.upper()):
             return imp

@@ -46,6 +46,12 @@ def steady_state_filter(model: LinearGaussianModel, z, x0=None, P0=None, *,
                 "exact": the actual error covariance of this constant-gain filter
                 started from P0, P <- (I-KH)(F P F^T + Q)(I-KH)^T + K R K^T.
     A NaN measurement row only predicts (x <- F x; with "exact" the covariance too).
+
+    References
+    ----------
+    .. [1] N. Assimakis and M. Adam, "Global systems for mobile position tracking using Kalman and Lainiotis
+           filters", The Scientific World Journal, vol. 2014, Article ID 130512, 8 pp., 2014.
+           doi:10.1155/2014/130512
     """
     if covariance not in ("steady", "exact"):
         raise ParameterError(f"covariance: expected 'steady' or 'exact', got {covariance!r}")
@@ -83,6 +89,12 @@ def fir_order(A, eps: float = 1e-3, norm=2, max_order: int = 100_000) -> int:
 
     ``norm`` is any ``numpy.linalg.norm`` matrix order (2, 'fro', 1, inf, ...).
     The papers' example (eps = 1e-3, spectral norm) gives M = 17.
+
+    References
+    ----------
+    .. [1] N. Assimakis and M. Adam, "Global systems for mobile position tracking using Kalman and Lainiotis
+           filters", The Scientific World Journal, vol. 2014, Article ID 130512, 8 pp., 2014.
+           doi:10.1155/2014/130512
     """
     A = as_matrix("A", A)
     if A.shape[0] != A.shape[1]:
@@ -104,7 +116,14 @@ def fir_order(A, eps: float = 1e-3, norm=2, max_order: int = 100_000) -> int:
 
 
 def fir_coefficients(A, B, M: int) -> np.ndarray:
-    """The FIR impulse response C_j = A^j B, j = 0..M-1, as an (M, n, m) array."""
+    """The FIR impulse response C_j = A^j B, j = 0..M-1, as an (M, n, m) array.
+
+    References
+    ----------
+    .. [1] N. Assimakis and M. Adam, "Global systems for mobile position tracking using Kalman and Lainiotis
+           filters", The Scientific World Journal, vol. 2014, Article ID 130512, 8 pp., 2014.
+           doi:10.1155/2014/130512
+    """
     C = np.empty((M,) + np.shape(B))
     C[0] = B
     for j in range(1, M):
@@ -124,6 +143,12 @@ def fir_filter(model: LinearGaussianModel, z, x0=None, P0=None, *, eps: float = 
             "steady-state" runs the recursive steady-state filter from x0 there.
     The FIR form needs a complete measurement window: NaN is an error.
     The covariance reported is the steady-state Pe.
+
+    References
+    ----------
+    .. [1] N. Assimakis and M. Adam, "Global systems for mobile position tracking using Kalman and Lainiotis
+           filters", The Scientific World Journal, vol. 2014, Article ID 130512, 8 pp., 2014.
+           doi:10.1155/2014/130512
     """
     z, x0, P0, missing = prepare_inputs(model, z, x0, P0)
     if missing.any():

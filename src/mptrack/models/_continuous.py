@@ -58,6 +58,12 @@ class ContinuousLinearModel:
 
     ``discretize(dt)`` gives the exact :class:`LinearGaussianModel` for a
     sampling interval of ``dt`` seconds.
+
+    References
+    ----------
+    .. [1] N. Assimakis, G. Tziallas, M. Adam, A. Polyzos and C. Papanastasiou, "Mobile position estimation and
+           prediction using steady state Kalman filter", International Journal of Computer Science and
+           Information Technology Research, vol. 4, no. 3, pp. 261–272, 2016.
     """
 
     Phi: np.ndarray
@@ -121,6 +127,11 @@ def van_loan(Phi, L, Qc, dt: float) -> tuple[np.ndarray, np.ndarray]:
     E = e^M = [[., E12], [0, E22]],  F = E22^T = e^{Phi dt} and
     Q = F E12 = int_0^dt e^{Phi s} L Qc L^T e^{Phi^T s} ds.
     ``dt = 0`` gives F = I, Q = 0.
+
+    References
+    ----------
+    .. [1] C. F. Van Loan, "Computing integrals involving the matrix exponential", IEEE Transactions on
+           Automatic Control, vol. 23, no. 3, pp. 395–404, 1978. doi:10.1109/TAC.1978.1101743
     """
     Phi = as_matrix("Phi", Phi)
     n = Phi.shape[0]
@@ -140,6 +151,11 @@ def discretize_intervals(model: ContinuousLinearModel, dts) -> tuple[np.ndarray,
     then the finite sum of (M dt)^j / j!, j < 2n, evaluated for all intervals
     at once (exact, and ~1000x faster than one expm per interval).  Other
     models take one :func:`van_loan` exponential per distinct interval.
+
+    References
+    ----------
+    .. [1] C. F. Van Loan, "Computing integrals involving the matrix exponential", IEEE Transactions on
+           Automatic Control, vol. 23, no. 3, pp. 395–404, 1978. doi:10.1109/TAC.1978.1101743
     """
     n = model.n
     dts = np.asarray(dts, dtype=float)
@@ -172,6 +188,14 @@ def discretize(model: ContinuousLinearModel, dt: float) -> LinearGaussianModel:
 
     F = e^{Phi dt} and Q = int_0^dt e^{Phi s} L Qc L^T e^{Phi^T s} ds (Assimakis et al. 2016,
     sec. 2.1-2.2, computed by :func:`van_loan`); H and R are kept.
+
+    References
+    ----------
+    .. [1] N. Assimakis, G. Tziallas, M. Adam, A. Polyzos and C. Papanastasiou, "Mobile position estimation and
+           prediction using steady state Kalman filter", International Journal of Computer Science and
+           Information Technology Research, vol. 4, no. 3, pp. 261–272, 2016.
+    .. [2] C. F. Van Loan, "Computing integrals involving the matrix exponential", IEEE Transactions on
+           Automatic Control, vol. 23, no. 3, pp. 395–404, 1978. doi:10.1109/TAC.1978.1101743
     """
     require_model(model, kind=ContinuousLinearModel)
     dt = check_positive("dt", dt)
@@ -205,6 +229,12 @@ def constant_velocity_continuous(q: float, axes: int = 1, *, sigma_r2: float = 1
     white acceleration noise of spectral density ``q`` (m^2/s^3; the paper's
     sigma_q^2); position measured with variance ``sigma_r2`` (m^2).
     ``axes`` = 1, 2 or 3, block-diagonal.
+
+    References
+    ----------
+    .. [1] N. Assimakis, G. Tziallas, M. Adam, A. Polyzos and C. Papanastasiou, "Mobile position estimation and
+           prediction using steady state Kalman filter", International Journal of Computer Science and
+           Information Technology Research, vol. 4, no. 3, pp. 261–272, 2016.
     """
     q = check_positive("q", q, allow_zero=True)
     sigma_r2 = check_positive("sigma_r2", sigma_r2)
@@ -219,6 +249,12 @@ def constant_acceleration_continuous(q: float, axes: int = 1, *,
     Per axis, state [s, v, a] (m, m/s, m/s^2): Phi = [[0,1,0],[0,0,1],[0,0,0]],
     L = [0, 0, 1]^T, white jerk noise of spectral density ``q`` (m^2/s^5; the
     paper's sigma_q^2); position measured with variance ``sigma_r2`` (m^2).
+
+    References
+    ----------
+    .. [1] N. Assimakis, G. Tziallas, M. Adam, A. Polyzos and C. Papanastasiou, "Mobile position estimation and
+           prediction using steady state Kalman filter", International Journal of Computer Science and
+           Information Technology Research, vol. 4, no. 3, pp. 261–272, 2016.
     """
     q = check_positive("q", q, allow_zero=True)
     sigma_r2 = check_positive("sigma_r2", sigma_r2)
@@ -235,6 +271,14 @@ def constant_velocity(dt: float, q: float, axes: int = 1, *, sigma_r2: float = 1
     sigma_r2 the position-measurement variance (m^2).  Obtained from
     :func:`constant_velocity_continuous` by Van Loan's method, not typed in.
     For Q = q G G^T with G = [dt^2/2, dt]^T use :func:`cv_discrete_white_noise`.
+
+    References
+    ----------
+    .. [1] N. Assimakis, G. Tziallas, M. Adam, A. Polyzos and C. Papanastasiou, "Mobile position estimation and
+           prediction using steady state Kalman filter", International Journal of Computer Science and
+           Information Technology Research, vol. 4, no. 3, pp. 261–272, 2016.
+    .. [2] C. F. Van Loan, "Computing integrals involving the matrix exponential", IEEE Transactions on
+           Automatic Control, vol. 23, no. 3, pp. 395–404, 1978. doi:10.1109/TAC.1978.1101743
     """
     return discretize(constant_velocity_continuous(q, axes, sigma_r2=sigma_r2), dt)
 
@@ -249,6 +293,14 @@ def constant_acceleration(dt: float, q: float, axes: int = 1, *, sigma_r2: float
 
     q is the continuous jerk-noise density (m^2/s^5).  For Q = q G G^T with
     G = [dt^2/2, dt, 1]^T use :func:`ca_discrete_white_noise`.
+
+    References
+    ----------
+    .. [1] N. Assimakis, G. Tziallas, M. Adam, A. Polyzos and C. Papanastasiou, "Mobile position estimation and
+           prediction using steady state Kalman filter", International Journal of Computer Science and
+           Information Technology Research, vol. 4, no. 3, pp. 261–272, 2016.
+    .. [2] C. F. Van Loan, "Computing integrals involving the matrix exponential", IEEE Transactions on
+           Automatic Control, vol. 23, no. 3, pp. 395–404, 1978. doi:10.1109/TAC.1978.1101743
     """
     return discretize(constant_acceleration_continuous(q, axes, sigma_r2=sigma_r2), dt)
 
@@ -269,6 +321,14 @@ def cv_discrete_white_noise(dt: float, q: float, axes: int = 1, *, sigma_r2: flo
     q is the acceleration variance (m^2/s^4).  Q has rank 1 per axis.  At dt = 1
     this is the Q of Assimakis & Adam 2014 and 2015 (they print G = [dt/2, 1]^T, which agrees
     only at dt = 1; :func:`assimakis_model_b` keeps their printed form).
+
+    References
+    ----------
+    .. [1] Y. Bar-Shalom, X. R. Li and T. Kirubarajan, Estimation with Applications to Tracking and Navigation,
+           Wiley, 2001. doi:10.1002/0471221279
+    .. [2] N. Assimakis and M. Adam, "Global systems for mobile position tracking using Kalman and Lainiotis
+           filters", The Scientific World Journal, vol. 2014, Article ID 130512, 8 pp., 2014.
+           doi:10.1155/2014/130512
     """
     dt = check_positive("dt", dt)
     q = check_positive("q", q, allow_zero=True)
@@ -287,6 +347,11 @@ def ca_discrete_white_noise(dt: float, q: float, axes: int = 1, *, sigma_r2: flo
     H = [1, 0, 0],  R = sigma_r2.
 
     q is the variance of the acceleration increment per sample (m^2/s^4).
+
+    References
+    ----------
+    .. [1] Y. Bar-Shalom, X. R. Li and T. Kirubarajan, Estimation with Applications to Tracking and Navigation,
+           Wiley, 2001. doi:10.1002/0471221279
     """
     dt = check_positive("dt", dt)
     q = check_positive("q", q, allow_zero=True)

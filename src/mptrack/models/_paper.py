@@ -26,6 +26,14 @@ def assimakis_model_b(dt: float = 1.0, sigma_q2: float = 0.01, sigma_r2: float =
 
     dt in seconds; sigma_q2 (acceleration-noise variance) and sigma_r2
     (measurement-noise variance) in the squared units of the state.
+
+    References
+    ----------
+    .. [1] N. Assimakis and M. Adam, "Global systems for mobile position tracking using Kalman and Lainiotis
+           filters", The Scientific World Journal, vol. 2014, Article ID 130512, 8 pp., 2014.
+           doi:10.1155/2014/130512
+    .. [2] N. Assimakis and M. Adam, "Mobile position tracking in three dimensions using Kalman and Lainiotis
+           filters", The Open Mathematics Journal, vol. 8, pp. 1–6, 2015 (Bentham Open).
     """
     dt = check_positive("dt", dt)
     sigma_q2 = check_positive("sigma_q2", sigma_q2, allow_zero=True)
@@ -49,6 +57,14 @@ def assimakis_model_a(axes: int = 2, dt: float = 1.0, sigma_q2: float = 0.01, si
 
     The state is [s_x, v_x, s_y, v_y(, s_z, v_z)]; F, G, H, Q, R are the
     block-diagonal stack of model B (the papers use equal variances per axis).
+
+    References
+    ----------
+    .. [1] N. Assimakis and M. Adam, "Global systems for mobile position tracking using Kalman and Lainiotis
+           filters", The Scientific World Journal, vol. 2014, Article ID 130512, 8 pp., 2014.
+           doi:10.1155/2014/130512
+    .. [2] N. Assimakis and M. Adam, "Mobile position tracking in three dimensions using Kalman and Lainiotis
+           filters", The Open Mathematics Journal, vol. 8, pp. 1–6, 2015 (Bentham Open).
     """
     axes = check_int("axes", axes, minimum=1)
     if axes not in (2, 3):
