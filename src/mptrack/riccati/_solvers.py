@@ -191,7 +191,7 @@ def _per_step(model, P0, tol, max_iter):
 
 
 def _doubling(model, tol, max_iter, X0=None):
-    """Structure-preserving doubling (Chu, Fan & Lin 2005) for the filter DARE.
+    """Structure-preserving doubling (Chu, Fan, Lin & Wang 2004) for the filter DARE.
 
     With A0 = F^T, G0 = H^T R^{-1} H, H0 = Q:
         W = I + G_k H_k
