@@ -1,7 +1,7 @@
 """Per-iteration calculation burden (flop counts) of the papers' filters.
 
-Formulas of Assimakis & Adam (2014) Table 2 and Table 5 (seed 000; the same
-formulas are Table 2 of seed 002), for any state dimension n and measurement
+Formulas of Assimakis & Adam 2014, Tables 2 and 5 (the same formulas
+are Table 2 of Assimakis & Adam 2015), for any state dimension n and measurement
 dimension m, and the burden of the 12 implementations of Table 1.
 
 The papers count model B as ``axes`` independent per-axis filters but the
@@ -67,7 +67,16 @@ def _dims(n, m):
 
 
 def join_burden(name: str, n: int) -> int:
-    """Burden of the join procedure of JKLF (n^2 + 3n) or JSSKLF (2n)."""
+    """Burden of the join procedure of JKLF (n^2 + 3n) or JSSKLF (2n).
+
+    References
+    ----------
+    .. [1] N. Assimakis and M. Adam, "Global systems for mobile position tracking using Kalman and Lainiotis
+           filters", The Scientific World Journal, vol. 2014, Article ID 130512, 8 pp., 2014.
+           doi:10.1155/2014/130512
+    .. [2] N. Assimakis and M. Adam, "Mobile position tracking in three dimensions using Kalman and Lainiotis
+           filters", The Open Mathematics Journal, vol. 8, pp. 1–6, 2015 (Bentham Open).
+    """
     if name not in _JOIN_PARTS:
         raise UnknownNameError(f"name: {name!r} has no join procedure; expected JKLF or JSSKLF")
     return _value(FORMULAS[name][1](check_int("n", n, minimum=1), 1))
@@ -77,6 +86,14 @@ def filter_burden(name: str, n: int, m: int) -> int | float:
     """Per-iteration burden of one filter on an (n, m) model (Table 2).
 
     For JKLF/JSSKLF this is both filters plus the join.
+
+    References
+    ----------
+    .. [1] N. Assimakis and M. Adam, "Global systems for mobile position tracking using Kalman and Lainiotis
+           filters", The Scientific World Journal, vol. 2014, Article ID 130512, 8 pp., 2014.
+           doi:10.1155/2014/130512
+    .. [2] N. Assimakis and M. Adam, "Mobile position tracking in three dimensions using Kalman and Lainiotis
+           filters", The Open Mathematics Journal, vol. 8, pp. 1–6, 2015 (Bentham Open).
     """
     n, m = _dims(n, m)
     if name not in FORMULAS:
@@ -93,6 +110,14 @@ def implementation_burden(filter_name: str, model: Literal["A", "B"], axes: int 
 
     model A: one filter with n = 2*axes, m = axes.  model B: ``axes`` filters
     with n = 2, m = 1; the join of JKLF/JSSKLF counted once (the papers) or per axis.
+
+    References
+    ----------
+    .. [1] N. Assimakis and M. Adam, "Global systems for mobile position tracking using Kalman and Lainiotis
+           filters", The Scientific World Journal, vol. 2014, Article ID 130512, 8 pp., 2014.
+           doi:10.1155/2014/130512
+    .. [2] N. Assimakis and M. Adam, "Mobile position tracking in three dimensions using Kalman and Lainiotis
+           filters", The Open Mathematics Journal, vol. 8, pp. 1–6, 2015 (Bentham Open).
     """
     axes = check_int("axes", axes, minimum=1)
     if model == "A":
@@ -108,18 +133,41 @@ def implementation_burden(filter_name: str, model: Literal["A", "B"], axes: int 
 
 
 def fir_burden(n: int, m: int, M: int) -> int:
-    """Burden of one FIR steady-state output, 2n^2 + 2nm - n + (M - 1) n (Table 5)."""
+    """Burden of one FIR steady-state output, 2n^2 + 2nm - n + (M - 1) n (Table 5).
+
+    References
+    ----------
+    .. [1] N. Assimakis and M. Adam, "Global systems for mobile position tracking using Kalman and Lainiotis
+           filters", The Scientific World Journal, vol. 2014, Article ID 130512, 8 pp., 2014.
+           doi:10.1155/2014/130512
+    """
     n, m = _dims(n, m)
     M = check_int("M", M, minimum=1)
     return _value(_ss(n, m) + (M - 1) * n)
 
 
 def fir_break_even(fir: float, steady: float) -> int:
-    """mu: the nearest integer >= fir / steady (seed 000 section 7): the FIR filter is
-    cheaper than the recursive one when outputs are needed every mu or more steps."""
+    """mu: the nearest integer >= fir / steady (Assimakis & Adam 2014, section 7): the FIR filter is
+    cheaper than the recursive one when outputs are needed every mu or more steps.
+
+    References
+    ----------
+    .. [1] N. Assimakis and M. Adam, "Global systems for mobile position tracking using Kalman and Lainiotis
+           filters", The Scientific World Journal, vol. 2014, Article ID 130512, 8 pp., 2014.
+           doi:10.1155/2014/130512
+    """
     return math.ceil(Fraction(fir) / Fraction(steady))
 
 
 def speedup(slow: float, fast: float) -> float:
-    """The papers' speedup of ``fast`` over ``slow``: burden(slow) / burden(fast)."""
+    """The papers' speedup of ``fast`` over ``slow``: burden(slow) / burden(fast).
+
+    References
+    ----------
+    .. [1] N. Assimakis and M. Adam, "Global systems for mobile position tracking using Kalman and Lainiotis
+           filters", The Scientific World Journal, vol. 2014, Article ID 130512, 8 pp., 2014.
+           doi:10.1155/2014/130512
+    .. [2] N. Assimakis and M. Adam, "Mobile position tracking in three dimensions using Kalman and Lainiotis
+           filters", The Open Mathematics Journal, vol. 8, pp. 1–6, 2015 (Bentham Open).
+    """
     return slow / fast

@@ -148,6 +148,12 @@ def range_ekf(model: RangeModel, z, x0, P0, out=None, *, lengths=None) -> np.nda
     P0       (n, n) prior covariance, shared
     out, lengths  as in :func:`mptrack.batch.steady_state_filter`
     Returns the (B, T, n) filtered states x(k/k).
+
+    References
+    ----------
+    .. [1] N. Bouzera, M. Oussalah, N. Mezhoud and A. Khireddine, "Fuzzy extended Kalman filter for dynamic
+           mobile localization in urban area using wireless network", Applied Soft Computing, vol. 57, pp.
+           452–467, 2017. doi:10.1016/j.asoc.2017.04.007
     """
     if x0 is None:
         raise ParameterError("x0: the EKF needs a prior state (the Jacobian at 0 may be undefined)")

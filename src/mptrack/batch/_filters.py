@@ -55,7 +55,8 @@ def _steady_state_filter(model, z, x0=None, out=None, *, lengths=None, steady=No
 
 def steady_state_filter(model: LinearGaussianModel, z, x0=None, out=None, *, lengths=None,
                         steady: SteadyState | None = None) -> np.ndarray:
-    """Steady-state filter x(k/k) = A x(k-1/k-1) + B z(k) on a batch (seed 000 eqs. 9-10).
+    """Steady-state filter x(k/k) = A x(k-1/k-1) + B z(k) on a batch
+    (Assimakis & Adam 2014, eqs. 9-10).
 
     model    the LinearGaussianModel shared by all tracks
     z        (B, T, m) measurements z(1..T) of B tracks, float64 or float32
@@ -69,6 +70,12 @@ def steady_state_filter(model: LinearGaussianModel, z, x0=None, out=None, *, len
     Returns the (B, T, n) filtered states x(k/k) (``out`` when given); track b
     equals ``mptrack.linear.steady_state_filter(model, z[b], x0[b]).x``.
     The state is carried in float64; float32 input halves the memory traffic.
+
+    References
+    ----------
+    .. [1] N. Assimakis and M. Adam, "Global systems for mobile position tracking using Kalman and Lainiotis
+           filters", The Scientific World Journal, vol. 2014, Article ID 130512, 8 pp., 2014.
+           doi:10.1155/2014/130512
     """
     return _steady_state_filter(model, z, x0, out, lengths=lengths, steady=steady)
 
@@ -94,11 +101,19 @@ class GainSequence:
 
 
 def gain_sequence(model: LinearGaussianModel, steps: int, P0=None) -> GainSequence:
-    """The Kalman gains K(1..steps) and covariances from P(0/0) = P0 (seed 000 eq. 4).
+    """The Kalman gains K(1..steps) and covariances from P(0/0) = P0 (Assimakis & Adam 2014, eq. 4).
 
     They do not depend on the measurements, so one sequence serves every track
     that shares the model and the prior covariance.  Same formulas and order
     of operations as :func:`mptrack.linear.kalman_step`.
+
+    References
+    ----------
+    .. [1] N. Assimakis and M. Adam, "Global systems for mobile position tracking using Kalman and Lainiotis
+           filters", The Scientific World Journal, vol. 2014, Article ID 130512, 8 pp., 2014.
+           doi:10.1155/2014/130512
+    .. [2] R. E. Kalman, "A new approach to linear filtering and prediction problems", Journal of Basic
+           Engineering, vol. 82, no. 1, pp. 35–45, 1960. doi:10.1115/1.3662552
     """
     require_model(model)
     steps = check_int("steps", steps, minimum=1)
@@ -151,7 +166,8 @@ def _kalman_filter(model, z, x0=None, P0=None, out=None, *, lengths=None, gains=
 
 def kalman_filter(model: LinearGaussianModel, z, x0=None, P0=None, out=None, *, lengths=None,
                   gains: GainSequence | None = None) -> np.ndarray:
-    """Time-varying Kalman filter on a batch with one shared gain sequence (seed 000 eq. 4).
+    """Time-varying Kalman filter on a batch with one shared gain sequence
+    (Assimakis & Adam 2014, eq. 4).
 
     All tracks share the model and the prior covariance P0 (default 0), so the
     gains K(k) are computed once (:func:`gain_sequence`, or pass ``gains``) and
@@ -162,6 +178,14 @@ def kalman_filter(model: LinearGaussianModel, z, x0=None, P0=None, out=None, *, 
 
     z, x0, out, lengths as in :func:`steady_state_filter`.  Returns the (B, T, n)
     filtered states; the covariances of complete tracks are ``gains.P_filt``.
+
+    References
+    ----------
+    .. [1] N. Assimakis and M. Adam, "Global systems for mobile position tracking using Kalman and Lainiotis
+           filters", The Scientific World Journal, vol. 2014, Article ID 130512, 8 pp., 2014.
+           doi:10.1155/2014/130512
+    .. [2] R. E. Kalman, "A new approach to linear filtering and prediction problems", Journal of Basic
+           Engineering, vol. 82, no. 1, pp. 35–45, 1960. doi:10.1115/1.3662552
     """
     return _kalman_filter(model, z, x0, P0, out, lengths=lengths, gains=gains)
 
@@ -183,12 +207,19 @@ def _fir_filter(model, z, out=None, *, lengths=None, eps=1e-3, norm=2, M=None, s
 
 def fir_filter(model: LinearGaussianModel, z, out=None, *, lengths=None, eps: float = 1e-3, norm=2,
                M: int | None = None, steady: SteadyState | None = None) -> np.ndarray:
-    """FIR steady-state filter x(k/k) = sum_{j<M} A^j B z(k-j) on a batch (seed 000 eq. 22).
+    """FIR steady-state filter x(k/k) = sum_{j<M} A^j B z(k-j) on a batch
+    (Assimakis & Adam 2014, eq. 22).
 
     The warm-up k < M uses the measurements available so far (the reference's
     ``warmup="truncate"``, which equals the steady-state filter from x0 = 0).
     M defaults to the smallest order with ||A^M|| < eps in the matrix ``norm``.
     NaN inside a track's length is an error (NonFiniteError).
+
+    References
+    ----------
+    .. [1] N. Assimakis and M. Adam, "Global systems for mobile position tracking using Kalman and Lainiotis
+           filters", The Scientific World Journal, vol. 2014, Article ID 130512, 8 pp., 2014.
+           doi:10.1155/2014/130512
     """
     return _fir_filter(model, z, out, lengths=lengths, eps=eps, norm=norm, M=M, steady=steady)
 
@@ -227,7 +258,8 @@ _PER_AXIS: dict[Callable, Callable] = {
 
 def per_axis(run: Callable[..., np.ndarray], axis_model: LinearGaussianModel, z, *args,
              **kwargs) -> np.ndarray:
-    """Run a batch filter per axis with an axis model (model B; seed 000 eqs. 17-18).
+    """Run a batch filter per axis with an axis model (model B;
+    Assimakis & Adam 2014, eqs. 17-18).
 
     run         :func:`steady_state_filter`, :func:`kalman_filter` or :func:`fir_filter`
     axis_model  the one-axis model (n_a, m_a), e.g. ``assimakis_model_b()``
@@ -236,6 +268,12 @@ def per_axis(run: Callable[..., np.ndarray], axis_model: LinearGaussianModel, z,
     the result is (B, T, axes * n_a), state axis by axis, and equals
     ``mptrack.linear.per_axis(reference, axis_model, z[b], ...)`` track by track.
     Other arguments are those of ``run`` (x0 of width axes * n_a).
+
+    References
+    ----------
+    .. [1] N. Assimakis and M. Adam, "Global systems for mobile position tracking using Kalman and Lainiotis
+           filters", The Scientific World Journal, vol. 2014, Article ID 130512, 8 pp., 2014.
+           doi:10.1155/2014/130512
     """
     impl = _PER_AXIS.get(run) if callable(run) else None
     if impl is None:

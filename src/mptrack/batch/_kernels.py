@@ -7,7 +7,7 @@ contiguous stream of ``z`` and writes one contiguous stream of ``out``, so
 each thread streams through memory front to back (hardware prefetch friendly)
 and never shares a cache line with another thread except at track borders.
 
-Axes as extra batch (model B run per axis, seed 000 eqs. 17-18): a track is
+Axes as extra batch (model B run per axis, Assimakis & Adam 2014, eqs. 17-18): a track is
 the pair (b, a) with ``a < axes``; it reads columns ``a*m .. a*m+m-1`` of
 ``z[b]`` and writes columns ``a*n .. a*n+n-1`` of ``out[b]``.  ``axes = 1`` is
 the plain joint model.
@@ -35,7 +35,7 @@ LANES = 4   # tracks advanced together by the n = 2, m = 1 kernels
 
 @nb.njit(**_OPTS)
 def ss_kernel(z, out, A, Bm, F, x0, lengths, axes):
-    """x(k/k) = A x(k-1/k-1) + B z(k) (seed 000 eq. 9); a row with NaN predicts, x = F x."""
+    """x(k/k) = A x(k-1/k-1) + B z(k) (Assimakis & Adam 2014, eq. 9); a row with NaN predicts, x = F x."""
     nb_, T = z.shape[0], z.shape[1]
     n = A.shape[0]
     m = Bm.shape[1]
@@ -241,7 +241,7 @@ def kf_update(xp, Pp, Hs, Rs, innov, x, P):
 
 @nb.njit(cache=True, nogil=True)
 def _kf_full_update(F, H, Q, R, x, P, zrow, zo):
-    """One Kalman step (seed 000 eq. 4) with this track's own covariance P (in place).
+    """One Kalman step (Assimakis & Adam 2014, eq. 4) with this track's own covariance P (in place).
 
     NaN components of the measurement are skipped; a fully missing row only predicts.
     """
@@ -270,7 +270,7 @@ def _kf_full_update(F, H, Q, R, x, P, zrow, zo):
 
 @nb.njit(**_OPTS)
 def kf_kernel(z, out, F, H, Q, R, K, Pf, P0, x0, lengths, axes):
-    """Kalman filter with the shared gain sequence K[t] (seed 000 eq. 4).
+    """Kalman filter with the shared gain sequence K[t] (Assimakis & Adam 2014, eq. 4).
 
     While a track's measurements are complete it uses the precomputed gains:
     x(k/k-1) = F x(k-1/k-1), x(k/k) = x(k/k-1) + K(k) [z(k) - H x(k/k-1)].
@@ -411,7 +411,8 @@ def kf_kernel_21(z, out, F, H, Q, R, K, Pf, P0, x0, lengths, axes):
 
 @nb.njit(**_OPTS)
 def fir_kernel(z, out, C, lengths, axes, bad):
-    """x(k/k) = sum_{j < min(M, k)} C_j z(k-j), C_j = A^j B (seed 000 eq. 22, truncated warm-up).
+    """x(k/k) = sum_{j < min(M, k)} C_j z(k-j), C_j = A^j B (Assimakis & Adam 2014, eq. 22,
+    truncated warm-up).
 
     ``bad[b]`` is set to 1 + the first time index with a NaN measurement of track b.
     """

@@ -48,7 +48,7 @@ def nonlinear_suite(quick: bool) -> dict:
         substeps = default_substeps((g, g))
         moving = list(fem_steps(model, z, x0, P0, grid=(g, g)))
         share = 100.0 * np.mean([s.factorised for s in moving])
-        variants = [("moving grid (seed 004 section 3.1)", {}, share),
+        variants = [("moving grid (Zhao et al. 2013, section 3.1)", {}, share),
                     ("fixed box (one factorisation)", {"box": box}, 100.0 / steps),
                     ("fixed box (one factorisation)", {"box": box, "substeps": substeps // 2}, 100.0 / steps)]
         for label, options, pct in variants:

@@ -1,4 +1,4 @@
-"""Speed of N-step prediction (seed 001), RTS smoothing and irregular-time filtering on the
+"""Speed of N-step prediction (Assimakis et al. 2016), RTS smoothing and irregular-time filtering on the
 2-D constant-velocity model, against FilterPy's RTS smoother, in one run."""
 
 from __future__ import annotations

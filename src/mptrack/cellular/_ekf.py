@@ -45,6 +45,12 @@ def range_measurement(x, stations, position=None):
     Returns (ranges (..., m), H (..., m, n)) with H[..., i, position] = (p - B_i)/||p - B_i||
     and zeros for non-position states.  At a station (range 0) the gradient is
     undefined; the range is floored at 1e-12 there so H stays finite.
+
+    References
+    ----------
+    .. [1] N. Bouzera, M. Oussalah, N. Mezhoud and A. Khireddine, "Fuzzy extended Kalman filter for dynamic
+           mobile localization in urban area using wireless network", Applied Soft Computing, vol. 57, pp.
+           452–467, 2017. doi:10.1016/j.asoc.2017.04.007
     """
     x = np.asarray(x, dtype=float)
     d = stations.shape[1]
@@ -66,7 +72,14 @@ def motion_position(motion: str, dim: int) -> tuple:
 
 def motion_matrix(motion: str, dim: int, dt: float = 1.0) -> np.ndarray:
     """Transition matrix F: identity (random walk, eq. 2) or constant velocity, axis by axis
-    (state [x, vx, y, vy(, z, vz)]: F = block-diag([[1, dt], [0, 1]]) per axis)."""
+    (state [x, vx, y, vy(, z, vz)]: F = block-diag([[1, dt], [0, 1]]) per axis).
+
+    References
+    ----------
+    .. [1] N. Bouzera, M. Oussalah, N. Mezhoud and A. Khireddine, "Fuzzy extended Kalman filter for dynamic
+           mobile localization in urban area using wireless network", Applied Soft Computing, vol. 57, pp.
+           452–467, 2017. doi:10.1016/j.asoc.2017.04.007
+    """
     if motion not in MOTIONS:
         raise ParameterError(f"motion: expected one of {MOTIONS}, got {motion!r}")
     dim = check_int("dim", dim, minimum=1, maximum=3)
@@ -129,6 +142,12 @@ def ekf_ranges(z, stations, x0, P0, Q, R, *, motion: str = "random-walk", dt: fl
     Any number of stations is accepted: with fewer than d + 1 the position is
     not observable from one scan and the prior and motion model carry the
     unobserved directions (the covariance shows it).
+
+    References
+    ----------
+    .. [1] N. Bouzera, M. Oussalah, N. Mezhoud and A. Khireddine, "Fuzzy extended Kalman filter for dynamic
+           mobile localization in urban area using wireless network", Applied Soft Computing, vol. 57, pp.
+           452–467, 2017. doi:10.1016/j.asoc.2017.04.007
     """
     z, stations, x0, P0, F, Q, R, pos = _prepare(z, stations, x0, P0, Q, R, motion, dt, batch=False)
     return ekf_filter(_ranges_model(stations, F, Q, R, pos, motion), z[0], x0[0], P0)
@@ -144,7 +163,14 @@ def _ranges_model(stations, F, Q, R, pos, motion) -> NonlinearModel:
 @finite_result("the range EKF")
 def ekf_ranges_batch(z, stations, x0, P0, Q, R, *, motion: str = "random-walk",
                      dt: float = 1.0) -> BatchFilterResult:
-    """:func:`ekf_ranges` on B independent tracks at once: z (B, T, m), x0 (B, n)."""
+    """:func:`ekf_ranges` on B independent tracks at once: z (B, T, m), x0 (B, n).
+
+    References
+    ----------
+    .. [1] N. Bouzera, M. Oussalah, N. Mezhoud and A. Khireddine, "Fuzzy extended Kalman filter for dynamic
+           mobile localization in urban area using wireless network", Applied Soft Computing, vol. 57, pp.
+           452–467, 2017. doi:10.1016/j.asoc.2017.04.007
+    """
     return _ekf(z, stations, x0, P0, Q, R, motion, dt, batch=True)
 
 

@@ -58,6 +58,12 @@ def bouzera_fekf_fis(inn_universe_km=(0.0, 1.5), s_universe_km2=(0.22, 0.32), co
     The universes are the ranges the paper reports (section 3.4: |Inn| in [0, 1.5] km,
     S in [0.22, 0.32]); the printed membership figures are not legible, so
     the sets are uniform triangular partitions (5 for |Inn|, 2 for S) over them.
+
+    References
+    ----------
+    .. [1] N. Bouzera, M. Oussalah, N. Mezhoud and A. Khireddine, "Fuzzy extended Kalman filter for dynamic
+           mobile localization in urban area using wireless network", Applied Soft Computing, vol. 57, pp.
+           452–467, 2017. doi:10.1016/j.asoc.2017.04.007
     """
     inn = uniform_partition(*inn_universe_km, 5, labels=_FIVE)
     s = uniform_partition(*s_universe_km2, 2, labels=("small", "large"))
@@ -66,7 +72,14 @@ def bouzera_fekf_fis(inn_universe_km=(0.0, 1.5), s_universe_km2=(0.22, 0.32), co
 
 
 def bouzera_fcs_fis(distance_universe_km=(0.0, 1.5), consequents=TABLE_III) -> TakagiSugeno:
-    """FIS2 of the FCS (paper Table III, Fig. 7): input the measured range (km), 5 uniform triangular sets."""
+    """FIS2 of the FCS (paper Table III, Fig. 7): input the measured range (km), 5 uniform triangular sets.
+
+    References
+    ----------
+    .. [1] N. Bouzera, M. Oussalah, N. Mezhoud and A. Khireddine, "Fuzzy extended Kalman filter for dynamic
+           mobile localization in urban area using wireless network", Applied Soft Computing, vol. 57, pp.
+           452–467, 2017. doi:10.1016/j.asoc.2017.04.007
+    """
     d = uniform_partition(*distance_universe_km, 5, labels=_FIVE)
     return TakagiSugeno((d,), np.asarray(consequents), universes=(tuple(distance_universe_km),), names=("distance",))
 
@@ -77,6 +90,12 @@ def local_solutions(x_pred, P_pred, z, stations, R_diag, position=None):
     x_pred (B, n), P_pred (B, n, n), z (B, m) ranges (NaN = missing), stations (m, d), R_diag (m,),
     position: indices of the position in the state (default the first d entries).
     Returns (x_local (B, m, n), K (B, m, n), H (B, m, n), innov (B, m) (0 where missing), S (B, m)).
+
+    References
+    ----------
+    .. [1] N. Bouzera, M. Oussalah, N. Mezhoud and A. Khireddine, "Fuzzy extended Kalman filter for dynamic
+           mobile localization in urban area using wireless network", Applied Soft Computing, vol. 57, pp.
+           452–467, 2017. doi:10.1016/j.asoc.2017.04.007
     """
     h, H = range_measurement(x_pred, stations, position)             # eqs. 7-10
     PHt = np.einsum("bnk,bmk->bmn", P_pred, H)                       # rows P^- H_i^T
@@ -96,6 +115,12 @@ def fuse_local_solutions(x_pred, P_pred, K, H, innov, S, R_diag, y, *, covarianc
     x_pred (B, n), P_pred (B, n, n), K (B, m, n) local gains, H (B, m, n), innov (B, m), S (B, m),
     R_diag (m,), y (B, m) >= 0.  Rows with sum(y) = 0 return the prediction.
     Returns (x_est (B, n), P_est (B, n, n)).
+
+    References
+    ----------
+    .. [1] N. Bouzera, M. Oussalah, N. Mezhoud and A. Khireddine, "Fuzzy extended Kalman filter for dynamic
+           mobile localization in urban area using wireless network", Applied Soft Computing, vol. 57, pp.
+           452–467, 2017. doi:10.1016/j.asoc.2017.04.007
     """
     total = y.sum(axis=1)
     live = total > 0
@@ -166,27 +191,54 @@ def fekf_ranges(z, stations, x0, P0, Q, R, *, fis: TakagiSugeno | None = None, m
                 dt: float = 1.0, covariance: str = "exact") -> FilterResult:
     """Fuzzy EKF (paper Table II): local per-station EKF updates fused with weights FIS1(|Inn_i|, S_i).
 
-    Arguments as :func:`mptrack.nonlinear.ekf_ranges` (R scalar or diagonal); any number of stations.
+    Arguments as :func:`mptrack.cellular.ekf_ranges` (R scalar or diagonal); any number of stations.
     fis         the two-input TS system (default :func:`bouzera_fekf_fis`, Table I)
     covariance  "exact" (eq. 16 with the cross-station terms, always PSD) or "paper" (eq. 16 as printed)
+
+    References
+    ----------
+    .. [1] N. Bouzera, M. Oussalah, N. Mezhoud and A. Khireddine, "Fuzzy extended Kalman filter for dynamic
+           mobile localization in urban area using wireless network", Applied Soft Computing, vol. 57, pp.
+           452–467, 2017. doi:10.1016/j.asoc.2017.04.007
     """
     return _run("FEKF", z, stations, x0, P0, Q, R, fis, motion, dt, covariance, False)
 
 
 def fekf_ranges_batch(z, stations, x0, P0, Q, R, *, fis=None, motion="random-walk", dt=1.0,
                       covariance="exact") -> BatchFilterResult:
-    """:func:`fekf_ranges` on B tracks at once: z (B, T, m), x0 (B, n)."""
+    """:func:`fekf_ranges` on B tracks at once: z (B, T, m), x0 (B, n).
+
+    References
+    ----------
+    .. [1] N. Bouzera, M. Oussalah, N. Mezhoud and A. Khireddine, "Fuzzy extended Kalman filter for dynamic
+           mobile localization in urban area using wireless network", Applied Soft Computing, vol. 57, pp.
+           452–467, 2017. doi:10.1016/j.asoc.2017.04.007
+    """
     return _run("FEKF", z, stations, x0, P0, Q, R, fis, motion, dt, covariance, True)
 
 
 @finite_result("the FCS filter")
 def fcs_ranges(z, stations, x0, P0, Q, R, *, fis: TakagiSugeno | None = None, motion: str = "random-walk",
                dt: float = 1.0, covariance: str = "exact") -> FilterResult:
-    """Fuzzy controller system (paper Table IV): as the FEKF but with weights FIS2(d_i) of the measured range."""
+    """Fuzzy controller system (paper Table IV): as the FEKF but with weights FIS2(d_i) of the measured range.
+
+    References
+    ----------
+    .. [1] N. Bouzera, M. Oussalah, N. Mezhoud and A. Khireddine, "Fuzzy extended Kalman filter for dynamic
+           mobile localization in urban area using wireless network", Applied Soft Computing, vol. 57, pp.
+           452–467, 2017. doi:10.1016/j.asoc.2017.04.007
+    """
     return _run("FCS", z, stations, x0, P0, Q, R, fis, motion, dt, covariance, False)
 
 
 def fcs_ranges_batch(z, stations, x0, P0, Q, R, *, fis=None, motion="random-walk", dt=1.0,
                      covariance="exact") -> BatchFilterResult:
-    """:func:`fcs_ranges` on B tracks at once: z (B, T, m), x0 (B, n)."""
+    """:func:`fcs_ranges` on B tracks at once: z (B, T, m), x0 (B, n).
+
+    References
+    ----------
+    .. [1] N. Bouzera, M. Oussalah, N. Mezhoud and A. Khireddine, "Fuzzy extended Kalman filter for dynamic
+           mobile localization in urban area using wireless network", Applied Soft Computing, vol. 57, pp.
+           452–467, 2017. doi:10.1016/j.asoc.2017.04.007
+    """
     return _run("FCS", z, stations, x0, P0, Q, R, fis, motion, dt, covariance, True)

@@ -205,7 +205,8 @@ PAPERS = {"000": "Assimakis & Adam 2014", "001": "Assimakis et al. 2016", "002":
 
 
 def paper_names(text: str) -> str:
-    """``text`` with "seed 000" etc. replaced by the paper's authors and year."""
+    """``text`` with a citation by the papers' internal file numbers (the word "seed" and 000-004, as
+    results stored by earlier versions have them) replaced by the paper's authors and year."""
     import re
 
     return re.sub(r"\bseeds? (00[0-4])\b", lambda m: PAPERS[m.group(1)], text)

@@ -1,4 +1,4 @@
-"""The finite-element (Fokker–Planck) grid filter for a 2-D state (seed 004 section 3).
+"""The finite-element (Fokker–Planck) grid filter for a 2-D state (Zhao et al. 2013, section 3).
 
 Between measurements the density p(x, t) obeys the Kolmogorov forward
 (Fokker–Planck) equation, eq. 3 with constant diffusion Q:
@@ -106,9 +106,15 @@ _GAUSS3 = (np.array([-np.sqrt(0.6), 0.0, np.sqrt(0.6)]), np.array([5.0, 8.0, 5.0
 
 
 def shape_functions(xi, eta):
-    """Serendipity shape functions N (…, 8) and derivatives dN/dξ, dN/dη (seed 004 eqs. 11–12).
+    """Serendipity shape functions N (…, 8) and derivatives dN/dξ, dN/dη (Zhao et al. 2013, eqs. 11–12).
 
     Corners: N = ¼(1+ξξᵢ)(1+ηηᵢ)(ξξᵢ+ηηᵢ−1); mid-sides: ½(1−ξ²)(1+ηηᵢ) or ½(1+ξξᵢ)(1−η²).
+
+    References
+    ----------
+    .. [1] Y.-X. Zhao, L.-J. Chen and Y. Ma, "An FEM-based state estimation approach to nonlinear hybrid
+           positioning systems", Mathematical Problems in Engineering, vol. 2013, Article ID 175425, 2013.
+           doi:10.1155/2013/175425
     """
     xi = np.asarray(xi, dtype=float)[..., None]
     eta = np.asarray(eta, dtype=float)[..., None]
@@ -246,6 +252,12 @@ class FEMGrid:
     Everything geometry-free (connectivity, quadrature, the moment weights in
     element units) is computed once per (n1, n2) and shared, so placing a new
     grid costs a few small array operations.
+
+    References
+    ----------
+    .. [1] Y.-X. Zhao, L.-J. Chen and Y. Ma, "An FEM-based state estimation approach to nonlinear hybrid
+           positioning systems", Mathematical Problems in Engineering, vol. 2013, Article ID 175425, 2013.
+           doi:10.1155/2013/175425
     """
 
     lo: np.ndarray
@@ -363,7 +375,7 @@ class FEMGrid:
         return self.assemble(Me), self.assemble(Ae)
 
     def nodal_operator(self, model: ContinuousDiscreteModel) -> scipy.sparse.csr_matrix:
-        """The paper's strong form at the nodes (seed 004 eqs. 17–19), as a matrix L with F(p) = L p:
+        """The paper's strong form at the nodes (Zhao et al. 2013, eqs. 17–19), as a matrix L with F(p) = L p:
 
             F(p) = Δ₁ p + Δ₂ · ∇p + ½ Σᵢⱼ (Δ₃)ᵢⱼ ∂²p/∂xᵢ∂xⱼ,   Δ₁ = −∇·f,  Δ₂ = −f,  Δ₃ = Q
 
@@ -565,7 +577,7 @@ class _Propagator:
 
 
 class _NodalRK4:
-    """The paper's prediction (seed 004 eqs. 19–21): classical RK4 on dp/dt = F(p) = L p at the nodes
+    """The paper's prediction (Zhao et al. 2013, eqs. 19–21): classical RK4 on dp/dt = F(p) = L p at the nodes
     (:meth:`FEMGrid.nodal_operator`), with the stages of eq. 21 corrected to
     K₂ = F(p + τ/2·K₁), K₃ = F(p + τ/2·K₂), K₄ = F(p + τ·K₃).
 
@@ -741,7 +753,7 @@ def fem_steps(model: ContinuousDiscreteModel, z, x0, P0, *, grid: tuple[int, int
               stabilise: bool = False, box: tuple | None = None, splits: int = 4) -> Iterator[FEMStep]:
     """Run the grid filter step by step, yielding a FEMStep (densities included) per measurement.
 
-    grid      (n1, n2) elements per axis (seed 004: 20 × 20)
+    grid      (n1, n2) elements per axis (Zhao et al. 2013: 20 × 20)
     width     half-width of the box in posterior standard deviations (section 3.1)
     substeps  time steps per dt; default 0.8·max(n1, n2), at least 8: a fixed Courant
               number, 16 on the paper's 20 × 20 grid, where 32 are no more accurate on
@@ -767,6 +779,16 @@ def fem_steps(model: ContinuousDiscreteModel, z, x0, P0, *, grid: tuple[int, int
     box       ((lo1, lo2), (hi1, hi2)): a fixed rectangle instead of the moving grid;
               it must cover the prior mean ± 3σ, and as its boundary is zero-flux no
               mass can leave it: choose it to contain the whole track
+
+    References
+    ----------
+    .. [1] Y.-X. Zhao, L.-J. Chen and Y. Ma, "An FEM-based state estimation approach to nonlinear hybrid
+           positioning systems", Mathematical Problems in Engineering, vol. 2013, Article ID 175425, 2013.
+           doi:10.1155/2013/175425
+    .. [2] A. N. Brooks and T. J. R. Hughes, "Streamline upwind/Petrov–Galerkin formulations for convection
+           dominated flows with particular emphasis on the incompressible Navier–Stokes equations", Computer
+           Methods in Applied Mechanics and Engineering, vol. 32, no. 1–3, pp. 199–259, 1982.
+           doi:10.1016/0045-7825(82)90071-8
     """
     shape = tuple(check_int("grid", g, minimum=1) for g in np.atleast_1d(grid))
     if len(shape) != 2:
@@ -1076,7 +1098,14 @@ def _update(parts: list, model, zk, k: int, width: float, fixed: bool):
 
 
 def fem_filter(model: ContinuousDiscreteModel, z, x0, P0, **options) -> FilterResult:
-    """The FEM grid filter (seed 004) as a FilterResult; options as for :func:`fem_steps`."""
+    """The FEM grid filter (Zhao et al. 2013) as a FilterResult; options as for :func:`fem_steps`.
+
+    References
+    ----------
+    .. [1] Y.-X. Zhao, L.-J. Chen and Y. Ma, "An FEM-based state estimation approach to nonlinear hybrid
+           positioning systems", Mathematical Problems in Engineering, vol. 2013, Article ID 175425, 2013.
+           doi:10.1155/2013/175425
+    """
     rows, loglik = [], 0.0
     for step in fem_steps(model, z, x0, P0, **options):  # the densities are not kept
         rows.append((step.x, step.P, step.x_pred, step.P_pred))

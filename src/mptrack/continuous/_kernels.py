@@ -1,4 +1,5 @@
-"""Compiled (numba) particle-filter kernels and the model kernels they call.
+"""Compiled (numba) kernels of the continuous-discrete filters (particle filter, UKF) and the model kernels
+they call.
 
 A model may carry :class:`BlockKernels`: njit functions that evaluate the drift
 and the measurement at a *block* of points stored column-wise,

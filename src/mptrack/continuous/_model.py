@@ -1,4 +1,4 @@
-"""The continuous-discrete nonlinear model (seed 004 eq. 1) and its named examples.
+"""The continuous-discrete nonlinear model (Zhao et al. 2013, eq. 1) and its named examples.
 
     dx = f(x) dt + dβ,          E[dβ dβ^T] = Q dt     (Q constant, per second)
     z(k) = h(x(t_k)) + e(k),    e(k) ~ N(0, R),       t_k = k·dt
@@ -7,7 +7,7 @@
 (..., n) and (..., m), so the grid filter evaluates them on every node and
 quadrature point at once and the particle filter on every particle.
 The named models also carry compiled block kernels (:class:`BlockKernels`,
-``mptrack.nonlinear._kernels``) that the particle filter uses instead.
+``mptrack.continuous._kernels``) that the particle filter and the UKF use instead.
 Measurement components that are angles carry a wrap period (2π for an
 ``arctan2`` bearing): innovations of those components are wrapped into
 [-period/2, period/2).
@@ -38,7 +38,7 @@ __all__ = [
 ]
 
 
-#: Seed 004 section 6: initial state [-0.6, -1].
+#: Zhao et al. 2013, section 6: initial state [-0.6, -1].
 ZHAO2013_X0 = (-0.6, -1.0)
 
 
@@ -72,12 +72,12 @@ def rk4_flow(model, X: np.ndarray, duration: float, steps: int) -> np.ndarray:
 
 @dataclass(frozen=True, eq=False)
 class ContinuousDiscreteModel:
-    """A validated continuous-time SDE with discrete-time measurements (seed 004 eq. 1).
+    """A validated continuous-time SDE with discrete-time measurements (Zhao et al. 2013, eq. 1).
 
     drift        f: (..., n) -> (..., n), state units per second
     Q            (n, n) diffusion covariance per second (g Q g^T of eq. 3, constant)
     measurement  h: (..., n) -> (..., m)
-    R            (m, n) measurement noise covariance, positive definite
+    R            (m, m) measurement noise covariance, positive definite
     dt           seconds between measurements
     periods      per measurement component: wrap period of an angle (2π for a
                  bearing), or None for an ordinary component
@@ -91,6 +91,15 @@ class ContinuousDiscreteModel:
                  Only for models whose state has a known scale: a cap of 1 on a model in
                  metres would limit the speed to 1 m per sub-step (the bug of issue 15).
                  :func:`zhao2013_model` sets 1 (its state is of order 1, see docs/nonlinear.md).
+
+    References
+    ----------
+    .. [1] Y.-X. Zhao, L.-J. Chen and Y. Ma, "An FEM-based state estimation approach to nonlinear hybrid
+           positioning systems", Mathematical Problems in Engineering, vol. 2013, Article ID 175425, 2013.
+           doi:10.1155/2013/175425
+    .. [2] M. Hutzenthaler, A. Jentzen and P. E. Kloeden, "Strong convergence of an explicit numerical method
+           for SDEs with nonglobally Lipschitz continuous coefficients", The Annals of Applied Probability, vol.
+           22, no. 4, pp. 1611–1641, 2012. doi:10.1214/11-AAP803
     """
 
     drift: Callable[[np.ndarray], np.ndarray]
@@ -151,7 +160,7 @@ class ContinuousDiscreteModel:
         return wrap_angles(np.asarray(z, dtype=float) - np.asarray(zhat, dtype=float), self.periods)
 
     def log_likelihood(self, z: np.ndarray, X: np.ndarray) -> np.ndarray:
-        """log p(z | x) at points X (..., n) (seed 004 eq. 25); NaN components of z are skipped."""
+        """log p(z | x) at points X (..., n) (Zhao et al. 2013, eq. 25); NaN components of z are skipped."""
         ok = ~np.isnan(z)
         return gauss_logpdf(self.innovation(z, self.measurement(X))[..., ok], self.R[np.ix_(ok, ok)])
 
@@ -227,7 +236,7 @@ class ContinuousDiscreteModel:
 
 def zhao2013_model(*, variant: str = "printed", diffusion_scale: float = 1.0, bearing: str = "atan2",
                    dt: float = 1.0, substeps: int = 20) -> ContinuousDiscreteModel:
-    """Seed 004 eq. 42: a Van der Pol-type drift observed by range and bearing.
+    """The example of Zhao et al. 2013, eq. 42: a Van der Pol-type drift observed by range and bearing.
 
     variant "printed"  f(x) = [-x2, 0.2(x1² - 1)x2 + x1] as printed: a time-reversed
                        Van der Pol oscillator (stable origin inside an *unstable*
@@ -239,6 +248,14 @@ def zhao2013_model(*, variant: str = "printed", diffusion_scale: float = 1.0, be
             "atan"     h2 = arctan(x1/x2) as printed, ambiguous modulo π (wrapped modulo π):
                        x and -x give the same measurement, the source of the paper's bimodality
     R = diag(0.1, 1) (range in state units, bearing in rad), dt = 1 s, x0 = ZHAO2013_X0.
+
+    References
+    ----------
+    .. [1] Y.-X. Zhao, L.-J. Chen and Y. Ma, "An FEM-based state estimation approach to nonlinear hybrid
+           positioning systems", Mathematical Problems in Engineering, vol. 2013, Article ID 175425, 2013.
+           doi:10.1155/2013/175425
+    .. [2] R. Beard, J. Gunther, J. Lawton and W. Stirling, "Nonlinear projection filter based on Galerkin
+           approximation", Journal of Guidance, Control, and Dynamics, vol. 22, no. 2, pp. 258–266, 1999.
     """
     if variant == "printed":
         drift_kernel = kern.printed_drift
@@ -296,9 +313,11 @@ def simulate_sde(model: ContinuousDiscreteModel, steps: int, rng: np.random.Gene
                  *, substeps: int | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Sample the truth x(t_k) and measurements z(k), k = 1..steps, from x(0) = x0.
 
-    The path is integrated with ``model.sample_transition`` (tamed Euler–Maruyama,
-    ``substeps`` per dt, default 5 × model.substeps).  Returns (truth (steps, n),
-    z (steps, m)); row k-1 is time k, as for the linear filters.
+    The path is integrated with ``model.sample_transition`` in its default scheme, the
+    stochastic Heun predictor–corrector (weak order 2 for additive noise), with ``substeps``
+    sub-steps per dt (default 5 × model.substeps); drift increments are capped ("tamed") only
+    when the model sets ``max_increment``, as :func:`zhao2013_model` does.  Returns
+    (truth (steps, n), z (steps, m)); row k-1 is time k, as for the linear filters.
     """
     if not isinstance(rng, np.random.Generator):
         raise ParameterError(f"rng: expected a numpy.random.Generator, got {type(rng).__name__}")

@@ -1,4 +1,4 @@
-"""Shared reproduction of Assimakis & Adam's 2-D (seed 000) and 3-D (seed 002) tracking papers.
+"""Shared reproduction of Assimakis & Adam's 2-D (2014) and 3-D (2015) tracking papers.
 
 Both papers have the same structure: models A (joint) and B (per axis), the
 12 implementations of Table 1, burden Tables 2-4, and (2-D only) the FIR

@@ -1,4 +1,4 @@
-"""Reproduction of Assimakis & Adam (2014), seed 000: 2-D tracking with KF/LF, steady-state and FIR filters."""
+"""Reproduction of Assimakis & Adam (2014): 2-D tracking with KF/LF, steady-state and FIR filters."""
 
 from ._assimakis import reproduce_assimakis
 from ._registry import RunContext, register

@@ -1,4 +1,4 @@
-"""Reproduction of Assimakis & Adam (2015), seed 002: the 3-D version of seed 000."""
+"""Reproduction of Assimakis & Adam (2015): the 3-D version of Assimakis & Adam (2014)."""
 
 from ._assimakis import reproduce_assimakis
 from ._registry import RunContext, register

@@ -1,4 +1,4 @@
-"""Reproduction of Assimakis, Tziallas, Adam, Polyzos & Papanastasiou (2016), seed 001:
+"""Reproduction of Assimakis, Tziallas, Adam, Polyzos & Papanastasiou (2016):
 steady-state estimation and N-step prediction of 2-D constant-velocity (CV) and
 constant-acceleration (CA) motion.
 
@@ -84,7 +84,7 @@ def motion_truth(kind: str, motion, dt: float, steps: int) -> np.ndarray:
 
 
 def axis_model(kind: str, dt: float, sigma_q2: float, sigma_r2: float) -> LinearGaussianModel:
-    """The one-axis model of seed 001 eq. 5 (CV) or eq. 6 (CA), exactly discretised."""
+    """The one-axis model of the paper's eq. 5 (CV) or eq. 6 (CA), exactly discretised."""
     make = constant_velocity if kind == "CV" else constant_acceleration
     return make(dt, sigma_q2, 1, sigma_r2=sigma_r2)
 
@@ -459,7 +459,7 @@ def run(ctx: RunContext) -> Reproduction:
     rep.tables.update(_table1_tables(ctx, motions, pub["table1"], runs_t1, labels))
 
     # Table 2
-    # seed 001 Table 2: the N-step predictor has the steady-state filter's burden 2n^2 + 2nm - n
+    # the paper's Table 2: the N-step predictor has the steady-state filter's burden 2n^2 + 2nm - n
     cb = {k: filter_burden("SSKF", n, 1) for k, n in (("CV", 2), ("CA", 3))}
     rep.tables["Table 2"] = Table(
         title="Per-iteration calculation burden of estimation and N-step prediction (2n^2 + 2nm - n)",

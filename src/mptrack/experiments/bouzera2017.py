@@ -1,4 +1,4 @@
-"""Reproduction of Bouzera, Oussalah, Mezhoud & Khireddine (2017), FEKF for mobile localisation (seed 003).
+"""Reproduction of Bouzera, Oussalah, Mezhoud & Khireddine (2017), FEKF for mobile localisation.
 
 Section 4.2 simulation (:mod:`._bouzera_scenario`): three base stations, a linear and a two-linear
 (manoeuvre) trajectory, ranges d = ||X - B_i|| + N(0, sigma) (eq. 26), 100 Monte-Carlo runs, filters
@@ -156,7 +156,8 @@ def table_viii(paper: dict) -> Table:
         title="Example of distance calculation using Walfisch-Ikegami model",
         columns=["Cell ID", "Hb (m)", "Tx (dBm)", "Rxlev (dBm)", "ARFCN", "f (MHz)", "Walfish distances (km)"],
         rows=rows, paper=prows, atol=1e-6, uncounted=("Hb (m)", "Tx (dBm)", "Rxlev (dBm)", "ARFCN"),
-        notes=("Hb, Tx, Rxlev and ARFCN are the paper's inputs (shown, not counted); the distances are compared. ""f = DCS 1800 downlink of the ARFCN (the paper's 1805 + 0.2 (ARFCN - 511)); loss = Tx - Rxlev; "
+        notes=("Hb, Tx, Rxlev and ARFCN are the paper's inputs (shown, not counted); the distances are compared. "
+               "f = DCS 1800 downlink of the ARFCN (the paper's 1805 + 0.2 (ARFCN - 511)); loss = Tx - Rxlev; "
                "COST-231 WI NLOS, metropolitan k_f, h_m = 1.5 m, b = 50 m, w = 25 m, phi = 30 deg, h_roof = 15 m, "
                "L0 constant 32.45 dB (exact free space; COST 231 prints 32.4, the paper 32.44); "
                "16139E's 52 m mast is outside the model's 4-50 m range (evaluated anyway, as the paper did)."))

@@ -1,4 +1,4 @@
-"""Reproduction of Zhao, Chen & Ma (2013), the FEM (Fokker–Planck) grid filter (seed 004).
+"""Reproduction of Zhao, Chen & Ma (2013), the FEM (Fokker–Planck) grid filter.
 
 The example of eq. 42 is ill-posed as printed (its drift is a time-reversed
 Van der Pol oscillator and with Q = diag(10, 0.1) almost every path diverges):
@@ -38,7 +38,7 @@ from ._plotting import plt, save_figure
 
 KEY = "zhao2013"
 PAPER = ("Zhao, Chen & Ma (2013), An FEM-Based State Estimation Approach to Nonlinear Hybrid Positioning "
-         "Systems, Journal of Applied Mathematics")
+         "Systems, Mathematical Problems in Engineering, 2013, 175425")
 P0_SCALE = 0.1            # prior covariance P0 = 0.1·I (not given in the paper)
 STEPS = 30                # measurement times t = 1..30 s (figure 3 goes to 28 s)
 FILTERS = ("FE", "PF", "UKF")

@@ -151,6 +151,14 @@ def anfis_train(inputs, target, *, sets_per_input, universes, epochs: int = 40, 
                     (scipy.optimize.lsq_linear); e.g. (0, 1) for weights as in the paper (c_j in [0, 1])
     membership      "gaussian" or "triangular" (the shape of every set)
     Deterministic: the same data give the same system.
+
+    References
+    ----------
+    .. [1] J.-S. R. Jang, "ANFIS: adaptive-network-based fuzzy inference system", IEEE Transactions on Systems,
+           Man, and Cybernetics, vol. 23, no. 3, pp. 665–685, 1993. doi:10.1109/21.256541
+    .. [2] N. Bouzera, M. Oussalah, N. Mezhoud and A. Khireddine, "Fuzzy extended Kalman filter for dynamic
+           mobile localization in urban area using wireless network", Applied Soft Computing, vol. 57, pp.
+           452–467, 2017. doi:10.1016/j.asoc.2017.04.007
     """
     x = as_array("inputs", inputs, ndim=2)
     y = as_array("target", target, ndim=1)

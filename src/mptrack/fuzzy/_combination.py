@@ -32,6 +32,12 @@ def fused_covariance_prop3(P_pred, P_local, H, S, y) -> np.ndarray:
 
     P_pred (n, n), P_local (N, n, n), H (N, m, n) local measurement Jacobians, S (N, m, m) local
     innovation covariances, y (N,) weights.  Equals eq. 16 (tested).
+
+    References
+    ----------
+    .. [1] N. Bouzera, M. Oussalah, N. Mezhoud and A. Khireddine, "Fuzzy extended Kalman filter for dynamic
+           mobile localization in urban area using wireless network", Applied Soft Computing, vol. 57, pp.
+           452–467, 2017. doi:10.1016/j.asoc.2017.04.007
     """
     w = _weights(y)
     P_pred, P_local = np.asarray(P_pred, float), np.asarray(P_local, float)
@@ -43,7 +49,14 @@ def fused_covariance_prop3(P_pred, P_local, H, S, y) -> np.ndarray:
 
 def fused_covariance_trace(P_pred, P_local, H, S, y) -> float:
     """The first eq. 30 (Proposition 4): trace(P_est) = 2 sum_i w_i trace(P_i)
-    + trace(P^- (sum_i w_i^2 H_i^T S_i^-1 H_i) P^-) - trace(P^-)."""
+    + trace(P^- (sum_i w_i^2 H_i^T S_i^-1 H_i) P^-) - trace(P^-).
+
+    References
+    ----------
+    .. [1] N. Bouzera, M. Oussalah, N. Mezhoud and A. Khireddine, "Fuzzy extended Kalman filter for dynamic
+           mobile localization in urban area using wireless network", Applied Soft Computing, vol. 57, pp.
+           452–467, 2017. doi:10.1016/j.asoc.2017.04.007
+    """
     w = _weights(y)
     P_pred = np.asarray(P_pred, float)
     H, S = np.asarray(H, float), np.asarray(S, float)
@@ -54,7 +67,14 @@ def fused_covariance_trace(P_pred, P_local, H, S, y) -> float:
 
 def probabilistic_fusion(X, P):
     """The second eq. 30: X = P sum_i P_i^-1 X_i, P = (sum_i P_i^-1)^-1, for X (N, n), P (N, n, n)
-    positive definite.  Returns (x (n,), P (n, n))."""
+    positive definite.  Returns (x (n,), P (n, n)).
+
+    References
+    ----------
+    .. [1] N. Bouzera, M. Oussalah, N. Mezhoud and A. Khireddine, "Fuzzy extended Kalman filter for dynamic
+           mobile localization in urban area using wireless network", Applied Soft Computing, vol. 57, pp.
+           452–467, 2017. doi:10.1016/j.asoc.2017.04.007
+    """
     X, P = np.asarray(X, float), np.asarray(P, float)
     if X.ndim != 2 or P.shape != X.shape + X.shape[-1:]:
         raise ParameterError(f"P: expected shape {X.shape + X.shape[-1:]} for X of shape {X.shape}, got {P.shape}")

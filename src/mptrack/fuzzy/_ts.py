@@ -1,4 +1,4 @@
-"""Zero-order Takagi–Sugeno inference on a grid of rules (Takagi & Sugeno 1985; seed 003 eq. 13).
+"""Zero-order Takagi–Sugeno inference on a grid of rules (Takagi & Sugeno 1985; Bouzera et al. 2017, eq. 13).
 
 Rule (j1, ..., jp): IF x1 is A1[j1] AND ... AND xp is Ap[jp] THEN y = c[j1, ..., jp].
 Firing strength = product of memberships (the paper's "degree of fulfilment");
@@ -27,6 +27,12 @@ class TakagiSugeno:
     consequents  array of shape (len(sets[0]), len(sets[1]), ...): the constant c of each rule
     universes    per input (lo, hi) to clip inputs to (None: no clipping)
     names        input names (for messages and display)
+
+    References
+    ----------
+    .. [1] T. Takagi and M. Sugeno, "Fuzzy identification of systems and its applications to modeling and
+           control", IEEE Transactions on Systems, Man, and Cybernetics, vol. SMC-15, no. 1, pp. 116–132, 1985.
+           doi:10.1109/TSMC.1985.6313399
     """
 
     sets: tuple[tuple[MembershipFunction, ...], ...]

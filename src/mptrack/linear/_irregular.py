@@ -52,10 +52,18 @@ def kalman_filter_irregular(model: ContinuousLinearModel, times, z, x0=None, P0=
     x0, P0  the prior x(0/0), P(0/0) at time t0 (default zeros)
 
     Each step uses F = e^{Phi dt(k)}, Q = int_0^dt(k) e^{Phi s} L Qc L^T e^{Phi^T s} ds
-    (seed 001 sec. 2, Van Loan's method; :func:`mptrack.models.discretize_intervals`); each run
+    (Assimakis et al. 2016, sec. 2; Van Loan's method; :func:`mptrack.models.discretize_intervals`); each run
     of equal intervals goes through the compiled KF loop of :func:`kalman_filter`
     in one call.  With equal intervals dt this is :func:`kalman_filter` on
     ``model.discretize(dt)``.
+
+    References
+    ----------
+    .. [1] N. Assimakis, G. Tziallas, M. Adam, A. Polyzos and C. Papanastasiou, "Mobile position estimation and
+           prediction using steady state Kalman filter", International Journal of Computer Science and
+           Information Technology Research, vol. 4, no. 3, pp. 261–272, 2016.
+    .. [2] C. F. Van Loan, "Computing integrals involving the matrix exponential", IEEE Transactions on
+           Automatic Control, vol. 23, no. 3, pp. 395–404, 1978. doi:10.1109/TAC.1978.1101743
     """
     require_model(model, kind=ContinuousLinearModel)
     dts = sampling_intervals(times, t0)
@@ -88,6 +96,11 @@ def rts_smoother_irregular(model: ContinuousLinearModel, times, result: FilterRe
     :func:`rts_smoother` with F, Q rediscretised for every interval.
 
     ``times`` and ``t0`` are those the filter ran with.
+
+    References
+    ----------
+    .. [1] H. E. Rauch, F. Tung and C. T. Striebel, "Maximum likelihood estimates of linear dynamic systems",
+           AIAA Journal, vol. 3, no. 8, pp. 1445–1450, 1965. doi:10.2514/3.3166
     """
     require_model(model, kind=ContinuousLinearModel)
     if not isinstance(result, FilterResult):

@@ -1,4 +1,4 @@
-"""Join filters (JKLF, JSSKLF; seed 000 eqs. 8, 16) and per-axis running of model B."""
+"""Join filters (JKLF, JSSKLF; Assimakis & Adam 2014, eqs. 8, 16) and per-axis running of model B."""
 
 from __future__ import annotations
 
@@ -15,7 +15,14 @@ __all__ = ["join_results", "per_axis"]
 
 
 def join_results(a: FilterResult, b: FilterResult, method: str) -> FilterResult:
-    """The papers' join: x = (x_a + x_b)/2, P = (P_a + P_b)/2 (weight 50 % each)."""
+    """The papers' join: x = (x_a + x_b)/2, P = (P_a + P_b)/2 (weight 50 % each).
+
+    References
+    ----------
+    .. [1] N. Assimakis and M. Adam, "Global systems for mobile position tracking using Kalman and Lainiotis
+           filters", The Scientific World Journal, vol. 2014, Article ID 130512, 8 pp., 2014.
+           doi:10.1155/2014/130512
+    """
     return FilterResult(x=0.5 * (a.x + b.x), P=0.5 * (a.P + b.P), method=method)
 
 
@@ -27,7 +34,13 @@ def per_axis(run: Callable[..., FilterResult], axis_model: LinearGaussianModel, 
     x0  (axes * n_axis,) prior, axis by axis;  P0 block-diagonal (off-diagonal
         blocks must be zero to rounding, 1e-12 relative: the axes are independent)
     The joint state is [x_axis0, x_axis1, ...] with a block-diagonal covariance
-    (seed 000 eqs. 17-18).
+    (Assimakis & Adam 2014, eqs. 17-18).
+
+    References
+    ----------
+    .. [1] N. Assimakis and M. Adam, "Global systems for mobile position tracking using Kalman and Lainiotis
+           filters", The Scientific World Journal, vol. 2014, Article ID 130512, 8 pp., 2014.
+           doi:10.1155/2014/130512
     """
     require_model(axis_model, "axis_model")
     if not callable(run):

@@ -1,4 +1,4 @@
-"""The time-invariant Kalman filter (seed 000 eq. 4)."""
+"""The time-invariant Kalman filter (Assimakis & Adam 2014, eq. 4)."""
 
 from __future__ import annotations
 
@@ -30,6 +30,14 @@ def kalman_step(F, H, Q, R, x, P, z, joseph: bool = False, Bu=None, predict: boo
     Returns (x_filt, P_filt, x_pred, P_pred, loglik_increment) and, with innovation=True, also the
     innovation (m,) and its covariance S (m, m), NaN for the components not used.  Components of
     z that are NaN are not used; a fully missing z only predicts.
+
+    References
+    ----------
+    .. [1] N. Assimakis and M. Adam, "Global systems for mobile position tracking using Kalman and Lainiotis
+           filters", The Scientific World Journal, vol. 2014, Article ID 130512, 8 pp., 2014.
+           doi:10.1155/2014/130512
+    .. [2] R. E. Kalman, "A new approach to linear filtering and prediction problems", Journal of Basic
+           Engineering, vol. 82, no. 1, pp. 35–45, 1960. doi:10.1115/1.3662552
     """
     F = as_matrix("F", F)
     n = F.shape[1]
@@ -112,7 +120,7 @@ def step_matrices(model: LinearGaussianModel, T: int, F=None, H=None, Q=None, R=
 @finite_result("the Kalman filter")
 def kalman_filter(model: LinearGaussianModel, z, x0=None, P0=None, *, joseph: bool = False, F=None, H=None,
                   Q=None, R=None, B=None, u=None, prior: str = "initial") -> FilterResult:
-    """Kalman filter with the per-step Riccati recursion (seed 000 eq. 4).
+    """Kalman filter with the per-step Riccati recursion (Assimakis & Adam 2014, eq. 4).
 
     model       a LinearGaussianModel
     z           (T, m) measurements z(1..T); rows with NaN are treated as missing
@@ -132,6 +140,14 @@ def kalman_filter(model: LinearGaussianModel, z, x0=None, P0=None, *, joseph: bo
     per-step F, Q and B u as ``inputs`` (both for :func:`rts_smoother`).  The
     time-invariant loop is compiled (numba); the time-varying, controlled and
     first-measurement forms run :func:`kalman_step` per step.
+
+    References
+    ----------
+    .. [1] N. Assimakis and M. Adam, "Global systems for mobile position tracking using Kalman and Lainiotis
+           filters", The Scientific World Journal, vol. 2014, Article ID 130512, 8 pp., 2014.
+           doi:10.1155/2014/130512
+    .. [2] R. E. Kalman, "A new approach to linear filtering and prediction problems", Journal of Basic
+           Engineering, vol. 82, no. 1, pp. 35–45, 1960. doi:10.1115/1.3662552
     """
     z, x, P, _ = prepare_inputs(model, z, x0, P0)
     if P0 is None:

@@ -87,7 +87,7 @@ def kf_loop(F, H, Q, R, z, x0, P0, joseph, xs, Ps, xps, Pps, nus, Ss, nis):  # p
 
 @njit(cache=True)
 def lf_loop(F, Q, Kn, Km, Pn, Fn, On, z, x0, P0, xs, Ps):  # pragma: no cover - compiled
-    """LF (seed 000 eqs. 5-6) over all steps; a row with NaN only predicts."""
+    """LF (Assimakis & Adam 2014, eqs. 5-6) over all steps; a row with NaN only predicts."""
     T, m = z.shape
     n = F.shape[0]
     x = x0.copy()

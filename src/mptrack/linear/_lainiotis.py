@@ -1,4 +1,4 @@
-"""The Lainiotis filter (seed 000 eqs. 5-7)."""
+"""The Lainiotis filter (Assimakis & Adam 2014, eqs. 5-7)."""
 
 from __future__ import annotations
 
@@ -21,6 +21,14 @@ def lainiotis_step(lp: LainiotisParameters, F, Q, x, P, z, eye):
 
     x(k+1/k+1) = Kn z + Fn [I + P On]^{-1} [P Km z + x]
     P(k+1/k+1) = Pn + Fn [I + P On]^{-1} P Fn^T
+
+    References
+    ----------
+    .. [1] N. Assimakis and M. Adam, "Global systems for mobile position tracking using Kalman and Lainiotis
+           filters", The Scientific World Journal, vol. 2014, Article ID 130512, 8 pp., 2014.
+           doi:10.1155/2014/130512
+    .. [2] D. G. Lainiotis, "Partitioned linear estimation algorithms: discrete case", IEEE Transactions on
+           Automatic Control, vol. 20, no. 2, pp. 255–257, 1975.
     """
     if np.isnan(z).any():
         P_new = F @ P @ F.T + Q
@@ -35,11 +43,19 @@ def lainiotis_step(lp: LainiotisParameters, F, Q, x, P, z, eye):
 @finite_result("the Lainiotis filter")
 def lainiotis_filter(model: LinearGaussianModel, z, x0=None, P0=None, *,
                      params: LainiotisParameters | None = None) -> FilterResult:
-    """Lainiotis filter (seed 000 eqs. 5-7): same estimates as the KF, other algebra.
+    """Lainiotis filter (Assimakis & Adam 2014, eqs. 5-7): same estimates as the KF, other algebra.
 
     ``params`` are the off-line Lainiotis parameters; computed from ``model``
     when not given.  Measurements with any NaN component only predict (the LF
     has no partial update).  Returns filtered means and covariances.
+
+    References
+    ----------
+    .. [1] N. Assimakis and M. Adam, "Global systems for mobile position tracking using Kalman and Lainiotis
+           filters", The Scientific World Journal, vol. 2014, Article ID 130512, 8 pp., 2014.
+           doi:10.1155/2014/130512
+    .. [2] D. G. Lainiotis, "Partitioned linear estimation algorithms: discrete case", IEEE Transactions on
+           Automatic Control, vol. 20, no. 2, pp. 255–257, 1975.
     """
     z, x, P, _ = prepare_inputs(model, z, x0, P0)
     lp = lainiotis_parameters(model) if params is None else params

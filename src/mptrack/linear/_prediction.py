@@ -1,7 +1,7 @@
-"""N-step prediction: the steady-state predictor of seed 001 (eqs. 13-20) and the
+"""N-step prediction: the steady-state predictor of Assimakis et al. 2016 (eqs. 13-20) and the
 inverse-free prediction from any filter's estimates.
 
-Seed 001 predicts N >= 1 steps ahead with a recursion of the same cost as the
+Assimakis et al. 2016 predict N >= 1 steps ahead with a recursion of the same cost as the
 steady-state filter (eq. 19):
 
     x(k+N/k) = A_N x(k+N-1/k-1) + B_N z(k),
@@ -39,7 +39,7 @@ __all__ = [
 
 def prediction_matrices(model: LinearGaussianModel, N: int, *,
                         steady: SteadyState | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """(A_N, B_N) of the steady-state N-step predictor (seed 001 eq. 20).
+    """(A_N, B_N) of the steady-state N-step predictor (Assimakis et al. 2016, eq. 20).
 
     A_N = F^N (I - K H) F^{-(N-1)} and B_N = F^N K, with K the steady-state
     Kalman gain (``steady`` or solved here with the DARE).  N = 1 gives
@@ -49,6 +49,12 @@ def prediction_matrices(model: LinearGaussianModel, N: int, *,
     carries x(k+N-1/k-1) = F^{N-1} x(k/k-1), from which x(k/k-1) can only be
     recovered through F^{-(N-1)}.  Use :func:`steady_state_predictor` with
     ``method="inverse-free"`` then.
+
+    References
+    ----------
+    .. [1] N. Assimakis, G. Tziallas, M. Adam, A. Polyzos and C. Papanastasiou, "Mobile position estimation and
+           prediction using steady state Kalman filter", International Journal of Computer Science and
+           Information Technology Research, vol. 4, no. 3, pp. 261–272, 2016.
     """
     require_model(model)
     N = check_int("N", N, minimum=1)
@@ -92,7 +98,7 @@ def prediction_covariance(model: LinearGaussianModel, P_filt, N: int) -> np.ndar
 def steady_state_predictor(model: LinearGaussianModel, z, N: int = 1, x0=None, *,
                            steady: SteadyState | None = None,
                            method: Literal["recursive", "inverse-free"] = "recursive") -> FilterResult:
-    """Steady-state N-step prediction x(k+N/k), k = 1..T (seed 001 eqs. 15-20).
+    """Steady-state N-step prediction x(k+N/k), k = 1..T (Assimakis et al. 2016, eqs. 15-20).
 
     model   a LinearGaussianModel (the steady state must exist)
     z       (T, m) measurements z(1..T); a NaN row only predicts
@@ -105,6 +111,12 @@ def steady_state_predictor(model: LinearGaussianModel, z, N: int = 1, x0=None, *
 
     Returns a FilterResult whose row k-1 holds x(k+N/k) and the steady-state
     N-step prediction covariance F^N Pe F^{N T} + sum_{j<N} F^j Q F^{j T}.
+
+    References
+    ----------
+    .. [1] N. Assimakis, G. Tziallas, M. Adam, A. Polyzos and C. Papanastasiou, "Mobile position estimation and
+           prediction using steady state Kalman filter", International Journal of Computer Science and
+           Information Technology Research, vol. 4, no. 3, pp. 261–272, 2016.
     """
     require_model(model)
     N = check_int("N", N, minimum=1)
@@ -128,12 +140,18 @@ def steady_state_predictor(model: LinearGaussianModel, z, N: int = 1, x0=None, *
 
 @finite_result("the N-step prediction")
 def predict_ahead(model: LinearGaussianModel, result: FilterResult, N: int) -> FilterResult:
-    """N-step predictions from any filter's estimates: x(k+N/k) = F^N x(k/k) (seed 001 eq. 14),
-    P(k+N/k) = F^N P(k/k) F^{N T} + sum_{j<N} F^j Q F^{j T}.
+    """N-step predictions from any filter's estimates, x(k+N/k) = F^N x(k/k)
+    (Assimakis et al. 2016, eq. 14) and P(k+N/k) = F^N P(k/k) F^{N T} + sum_{j<N} F^j Q F^{j T}.
 
     With a :func:`kalman_filter` result this is the time-varying Kalman
     N-step predictor; with :func:`steady_state_filter` it is the inverse-free
     steady-state predictor.  Row k-1 holds x(k+N/k).
+
+    References
+    ----------
+    .. [1] N. Assimakis, G. Tziallas, M. Adam, A. Polyzos and C. Papanastasiou, "Mobile position estimation and
+           prediction using steady state Kalman filter", International Journal of Computer Science and
+           Information Technology Research, vol. 4, no. 3, pp. 261–272, 2016.
     """
     require_model(model)
     N = check_int("N", N, minimum=1)

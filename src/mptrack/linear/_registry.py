@@ -1,4 +1,4 @@
-"""Registries: the linear filters by name, and the 12 implementations of seed 000 Table 1."""
+"""Registries: the linear filters by name, and the 12 implementations of Assimakis & Adam 2014, Table 1."""
 
 from __future__ import annotations
 
@@ -98,8 +98,8 @@ def _prep_fir(model):
 
 
 FILTERS: dict[str, FilterSpec] = {spec.name: spec for spec in (
-    FilterSpec("KF", "time invariant", "Kalman filter, per-step Riccati (seed 000 eq. 4)", _prep_kf),
-    FilterSpec("LF", "time invariant", "Lainiotis filter (seed 000 eqs. 5-7)", _prep_lf),
+    FilterSpec("KF", "time invariant", "Kalman filter, per-step Riccati (Assimakis & Adam 2014, eq. 4)", _prep_kf),
+    FilterSpec("LF", "time invariant", "Lainiotis filter (Assimakis & Adam 2014, eqs. 5-7)", _prep_lf),
     FilterSpec("JKLF", "time invariant", "Join Kalman-Lainiotis filter, 50/50 average (eq. 8)",
                _prep_join("JKLF", _prep_kf, _prep_lf)),
     FilterSpec("SSKF", "steady state", "Steady-state Kalman filter (eqs. 9-11)", _prep_ss("kalman")),
@@ -120,7 +120,16 @@ def get_filter(name: str) -> FilterSpec:
 
 @dataclass(frozen=True)
 class Implementation:
-    """One row of seed 000 Table 1: a filter applied with model A (joint) or B (per axis)."""
+    """One row of Table 1 of Assimakis & Adam 2014: a filter applied with model A (joint) or B (per axis).
+
+    References
+    ----------
+    .. [1] N. Assimakis and M. Adam, "Global systems for mobile position tracking using Kalman and Lainiotis
+           filters", The Scientific World Journal, vol. 2014, Article ID 130512, 8 pp., 2014.
+           doi:10.1155/2014/130512
+    .. [2] N. Assimakis and M. Adam, "Mobile position tracking in three dimensions using Kalman and Lainiotis
+           filters", The Open Mathematics Journal, vol. 8, pp. 1–6, 2015 (Bentham Open).
+    """
 
     number: int
     model: str  # "A" or "B"
@@ -153,7 +162,16 @@ IMPLEMENTATIONS: tuple[Implementation, ...] = tuple(
 
 
 def get_implementation(key: int | str) -> Implementation:
-    """An implementation by its Table 1 number (1-12) or name ("KF-A", "jssklf-b", ...)."""
+    """An implementation by its Table 1 number (1-12) or name ("KF-A", "jssklf-b", ...).
+
+    References
+    ----------
+    .. [1] N. Assimakis and M. Adam, "Global systems for mobile position tracking using Kalman and Lainiotis
+           filters", The Scientific World Journal, vol. 2014, Article ID 130512, 8 pp., 2014.
+           doi:10.1155/2014/130512
+    .. [2] N. Assimakis and M. Adam, "Mobile position tracking in three dimensions using Kalman and Lainiotis
+           filters", The Open Mathematics Journal, vol. 8, pp. 1–6, 2015 (Bentham Open).
+    """
     for imp in IMPLEMENTATIONS:
         if key == imp.number or (isinstance(key, str) and key.upper() == imp.name.upper()):
             return imp

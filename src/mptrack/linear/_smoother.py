@@ -121,6 +121,11 @@ def rts_smoother(model: LinearGaussianModel, result: FilterResult, *, F=None, Q=
     with prior="initial" records it), the smoothed x(0/T), P(0/T) as x0, P0.
     P(k/T) <= P(k/k) in the positive semi-definite order.  For irregular time
     stamps use :func:`rts_smoother_irregular`.
+
+    References
+    ----------
+    .. [1] H. E. Rauch, F. Tung and C. T. Striebel, "Maximum likelihood estimates of linear dynamic systems",
+           AIAA Journal, vol. 3, no. 8, pp. 1445–1450, 1965. doi:10.2514/3.3166
     """
     _check(model, result)
     has0 = result.x0 is not None and result.P0 is not None
@@ -183,6 +188,11 @@ def steady_state_smoother(model: LinearGaussianModel, result: FilterResult, *,
     solution of the Lyapunov equation Ps = C Ps C^T + Pe - C Pp C^T (the
     fixed point of the RTS covariance recursion, valid away from both ends).
     ``result`` is typically :func:`steady_state_filter`'s output.
+
+    References
+    ----------
+    .. [1] H. E. Rauch, F. Tung and C. T. Striebel, "Maximum likelihood estimates of linear dynamic systems",
+           AIAA Journal, vol. 3, no. 8, pp. 1445–1450, 1965. doi:10.2514/3.3166
     """
     _check(model, result)
     ss = _steady(model, steady, "kalman")

@@ -1,4 +1,4 @@
-"""Steady-state filters (seed 000 eqs. 9-16) and the FIR steady-state filter (eqs. 20-22)."""
+"""Steady-state filters (Assimakis & Adam 2014, eqs. 9-16) and the FIR steady-state filter (eqs. 20-22)."""
 
 from __future__ import annotations
 
@@ -46,6 +46,12 @@ def steady_state_filter(model: LinearGaussianModel, z, x0=None, P0=None, *,
                 "exact": the actual error covariance of this constant-gain filter
                 started from P0, P <- (I-KH)(F P F^T + Q)(I-KH)^T + K R K^T.
     A NaN measurement row only predicts (x <- F x; with "exact" the covariance too).
+
+    References
+    ----------
+    .. [1] N. Assimakis and M. Adam, "Global systems for mobile position tracking using Kalman and Lainiotis
+           filters", The Scientific World Journal, vol. 2014, Article ID 130512, 8 pp., 2014.
+           doi:10.1155/2014/130512
     """
     if covariance not in ("steady", "exact"):
         raise ParameterError(f"covariance: expected 'steady' or 'exact', got {covariance!r}")
@@ -78,10 +84,17 @@ def _matrix_norm(M: np.ndarray, norm) -> float:
 
 
 def fir_order(A, eps: float = 1e-3, norm=2, max_order: int = 100_000) -> int:
-    """FIR order M: the smallest M >= 1 with ||A^M|| < eps (so ||A^{M-1}|| >= eps), seed 000 eq. 22.
+    """FIR order M: the smallest M >= 1 with ||A^M|| < eps (so ||A^{M-1}|| >= eps),
+    Assimakis & Adam 2014, eq. 22.
 
     ``norm`` is any ``numpy.linalg.norm`` matrix order (2, 'fro', 1, inf, ...).
     The papers' example (eps = 1e-3, spectral norm) gives M = 17.
+
+    References
+    ----------
+    .. [1] N. Assimakis and M. Adam, "Global systems for mobile position tracking using Kalman and Lainiotis
+           filters", The Scientific World Journal, vol. 2014, Article ID 130512, 8 pp., 2014.
+           doi:10.1155/2014/130512
     """
     A = as_matrix("A", A)
     if A.shape[0] != A.shape[1]:
@@ -103,7 +116,14 @@ def fir_order(A, eps: float = 1e-3, norm=2, max_order: int = 100_000) -> int:
 
 
 def fir_coefficients(A, B, M: int) -> np.ndarray:
-    """The FIR impulse response C_j = A^j B, j = 0..M-1, as an (M, n, m) array."""
+    """The FIR impulse response C_j = A^j B, j = 0..M-1, as an (M, n, m) array.
+
+    References
+    ----------
+    .. [1] N. Assimakis and M. Adam, "Global systems for mobile position tracking using Kalman and Lainiotis
+           filters", The Scientific World Journal, vol. 2014, Article ID 130512, 8 pp., 2014.
+           doi:10.1155/2014/130512
+    """
     C = np.empty((M,) + np.shape(B))
     C[0] = B
     for j in range(1, M):
@@ -115,7 +135,7 @@ def fir_coefficients(A, B, M: int) -> np.ndarray:
 def fir_filter(model: LinearGaussianModel, z, x0=None, P0=None, *, eps: float = 1e-3, norm=2,
                M: int | None = None, steady: SteadyState | None = None,
                warmup: Literal["truncate", "steady-state"] = "truncate") -> FilterResult:
-    """FIR steady-state filter x(k/k) = sum_{j<M} A^j B z(k-j) (seed 000 eq. 22).
+    """FIR steady-state filter x(k/k) = sum_{j<M} A^j B z(k-j) (Assimakis & Adam 2014, eq. 22).
 
     M       filter order; by default from ||A^M|| < eps in the given matrix ``norm``
     warmup  for k < M, "truncate" uses the measurements available so far
@@ -123,6 +143,12 @@ def fir_filter(model: LinearGaussianModel, z, x0=None, P0=None, *, eps: float = 
             "steady-state" runs the recursive steady-state filter from x0 there.
     The FIR form needs a complete measurement window: NaN is an error.
     The covariance reported is the steady-state Pe.
+
+    References
+    ----------
+    .. [1] N. Assimakis and M. Adam, "Global systems for mobile position tracking using Kalman and Lainiotis
+           filters", The Scientific World Journal, vol. 2014, Article ID 130512, 8 pp., 2014.
+           doi:10.1155/2014/130512
     """
     z, x0, P0, missing = prepare_inputs(model, z, x0, P0)
     if missing.any():

@@ -5,13 +5,13 @@ A continuous-time linear time-invariant (LTI) model driven by white noise,
     dx = Phi x dt + L dbeta,     E[dbeta dbeta^T] = Qc dt,
     z(k) = H x(t_k) + v(k),      v(k) ~ N(0, R),
 
-sampled every dt seconds has the exact discrete transition (seed 001 sec. 2)
+sampled every dt seconds has the exact discrete transition (Assimakis et al. 2016, sec. 2)
 
     F = e^{Phi dt},      Q = int_0^dt e^{Phi s} L Qc L^T e^{Phi^T s} ds,
 
 which :func:`van_loan` computes with one matrix exponential (Van Loan 1978,
 "Computing integrals involving the matrix exponential", IEEE TAC 23(3)).
-The constant-velocity (CV) and constant-acceleration (CA) models of seed 001
+The constant-velocity (CV) and constant-acceleration (CA) models of Assimakis et al. 2016
 (eqs. 5-6) are special cases; their closed forms are what this general method
 gives.  The *discrete white-noise* variants (Q = q G G^T, the noise a
 piecewise-constant acceleration or acceleration increment per sample; seeds
@@ -47,7 +47,7 @@ __all__ = [
 
 @dataclass(frozen=True, eq=False)
 class ContinuousLinearModel:
-    """A validated, immutable continuous-time LTI model (seed 001 eqs. 1-2).
+    """A validated, immutable continuous-time LTI model (Assimakis et al. 2016, eqs. 1-2).
 
     Phi  (n, n)  drift matrix of dx = Phi x dt + L dbeta
     L    (n, p)  noise gain (the paper's G)
@@ -58,6 +58,12 @@ class ContinuousLinearModel:
 
     ``discretize(dt)`` gives the exact :class:`LinearGaussianModel` for a
     sampling interval of ``dt`` seconds.
+
+    References
+    ----------
+    .. [1] N. Assimakis, G. Tziallas, M. Adam, A. Polyzos and C. Papanastasiou, "Mobile position estimation and
+           prediction using steady state Kalman filter", International Journal of Computer Science and
+           Information Technology Research, vol. 4, no. 3, pp. 261–272, 2016.
     """
 
     Phi: np.ndarray
@@ -121,6 +127,11 @@ def van_loan(Phi, L, Qc, dt: float) -> tuple[np.ndarray, np.ndarray]:
     E = e^M = [[., E12], [0, E22]],  F = E22^T = e^{Phi dt} and
     Q = F E12 = int_0^dt e^{Phi s} L Qc L^T e^{Phi^T s} ds.
     ``dt = 0`` gives F = I, Q = 0.
+
+    References
+    ----------
+    .. [1] C. F. Van Loan, "Computing integrals involving the matrix exponential", IEEE Transactions on
+           Automatic Control, vol. 23, no. 3, pp. 395–404, 1978. doi:10.1109/TAC.1978.1101743
     """
     Phi = as_matrix("Phi", Phi)
     n = Phi.shape[0]
@@ -140,6 +151,11 @@ def discretize_intervals(model: ContinuousLinearModel, dts) -> tuple[np.ndarray,
     then the finite sum of (M dt)^j / j!, j < 2n, evaluated for all intervals
     at once (exact, and ~1000x faster than one expm per interval).  Other
     models take one :func:`van_loan` exponential per distinct interval.
+
+    References
+    ----------
+    .. [1] C. F. Van Loan, "Computing integrals involving the matrix exponential", IEEE Transactions on
+           Automatic Control, vol. 23, no. 3, pp. 395–404, 1978. doi:10.1109/TAC.1978.1101743
     """
     n = model.n
     dts = np.asarray(dts, dtype=float)
@@ -170,8 +186,16 @@ def discretize_intervals(model: ContinuousLinearModel, dts) -> tuple[np.ndarray,
 def discretize(model: ContinuousLinearModel, dt: float) -> LinearGaussianModel:
     """The exact discrete-time model of ``model`` sampled every ``dt`` > 0 seconds.
 
-    F = e^{Phi dt} and Q = int_0^dt e^{Phi s} L Qc L^T e^{Phi^T s} ds (seed 001
+    F = e^{Phi dt} and Q = int_0^dt e^{Phi s} L Qc L^T e^{Phi^T s} ds (Assimakis et al. 2016,
     sec. 2.1-2.2, computed by :func:`van_loan`); H and R are kept.
+
+    References
+    ----------
+    .. [1] N. Assimakis, G. Tziallas, M. Adam, A. Polyzos and C. Papanastasiou, "Mobile position estimation and
+           prediction using steady state Kalman filter", International Journal of Computer Science and
+           Information Technology Research, vol. 4, no. 3, pp. 261–272, 2016.
+    .. [2] C. F. Van Loan, "Computing integrals involving the matrix exponential", IEEE Transactions on
+           Automatic Control, vol. 23, no. 3, pp. 395–404, 1978. doi:10.1109/TAC.1978.1101743
     """
     require_model(model, kind=ContinuousLinearModel)
     dt = check_positive("dt", dt)
@@ -199,12 +223,18 @@ def _integrator_chain(order: int, q: float, sigma_r2: float, axes: int, name: st
 
 
 def constant_velocity_continuous(q: float, axes: int = 1, *, sigma_r2: float = 1.0) -> ContinuousLinearModel:
-    """Continuous constant-velocity (white-noise acceleration) model, seed 001 sec. 2.1.
+    """Continuous constant-velocity (white-noise acceleration) model (Assimakis et al. 2016, sec. 2.1).
 
     Per axis, state [s, v] (metres, m/s): Phi = [[0, 1], [0, 0]], L = [0, 1]^T,
     white acceleration noise of spectral density ``q`` (m^2/s^3; the paper's
     sigma_q^2); position measured with variance ``sigma_r2`` (m^2).
     ``axes`` = 1, 2 or 3, block-diagonal.
+
+    References
+    ----------
+    .. [1] N. Assimakis, G. Tziallas, M. Adam, A. Polyzos and C. Papanastasiou, "Mobile position estimation and
+           prediction using steady state Kalman filter", International Journal of Computer Science and
+           Information Technology Research, vol. 4, no. 3, pp. 261–272, 2016.
     """
     q = check_positive("q", q, allow_zero=True)
     sigma_r2 = check_positive("sigma_r2", sigma_r2)
@@ -214,11 +244,17 @@ def constant_velocity_continuous(q: float, axes: int = 1, *, sigma_r2: float = 1
 
 def constant_acceleration_continuous(q: float, axes: int = 1, *,
                                      sigma_r2: float = 1.0) -> ContinuousLinearModel:
-    """Continuous constant-acceleration (white-noise jerk) model, seed 001 sec. 2.2.
+    """Continuous constant-acceleration (white-noise jerk) model (Assimakis et al. 2016, sec. 2.2).
 
     Per axis, state [s, v, a] (m, m/s, m/s^2): Phi = [[0,1,0],[0,0,1],[0,0,0]],
     L = [0, 0, 1]^T, white jerk noise of spectral density ``q`` (m^2/s^5; the
     paper's sigma_q^2); position measured with variance ``sigma_r2`` (m^2).
+
+    References
+    ----------
+    .. [1] N. Assimakis, G. Tziallas, M. Adam, A. Polyzos and C. Papanastasiou, "Mobile position estimation and
+           prediction using steady state Kalman filter", International Journal of Computer Science and
+           Information Technology Research, vol. 4, no. 3, pp. 261–272, 2016.
     """
     q = check_positive("q", q, allow_zero=True)
     sigma_r2 = check_positive("sigma_r2", sigma_r2)
@@ -227,7 +263,7 @@ def constant_acceleration_continuous(q: float, axes: int = 1, *,
 
 
 def constant_velocity(dt: float, q: float, axes: int = 1, *, sigma_r2: float = 1.0) -> LinearGaussianModel:
-    """Exactly discretised constant-velocity model (seed 001 eq. 5), per axis
+    """Exactly discretised constant-velocity model (Assimakis et al. 2016, eq. 5), per axis
 
     F = [[1, dt], [0, 1]],  Q = q [[dt^3/3, dt^2/2], [dt^2/2, dt]],  H = [1, 0],  R = sigma_r2.
 
@@ -235,13 +271,21 @@ def constant_velocity(dt: float, q: float, axes: int = 1, *, sigma_r2: float = 1
     sigma_r2 the position-measurement variance (m^2).  Obtained from
     :func:`constant_velocity_continuous` by Van Loan's method, not typed in.
     For Q = q G G^T with G = [dt^2/2, dt]^T use :func:`cv_discrete_white_noise`.
+
+    References
+    ----------
+    .. [1] N. Assimakis, G. Tziallas, M. Adam, A. Polyzos and C. Papanastasiou, "Mobile position estimation and
+           prediction using steady state Kalman filter", International Journal of Computer Science and
+           Information Technology Research, vol. 4, no. 3, pp. 261–272, 2016.
+    .. [2] C. F. Van Loan, "Computing integrals involving the matrix exponential", IEEE Transactions on
+           Automatic Control, vol. 23, no. 3, pp. 395–404, 1978. doi:10.1109/TAC.1978.1101743
     """
     return discretize(constant_velocity_continuous(q, axes, sigma_r2=sigma_r2), dt)
 
 
 def constant_acceleration(dt: float, q: float, axes: int = 1, *, sigma_r2: float = 1.0) -> LinearGaussianModel:
-    """Exactly discretised constant-acceleration model (seed 001 eq. 6, with the (1,3)
-    entry corrected to dt^3/6, see docs/errata.md), per axis
+    """Exactly discretised constant-acceleration model (Assimakis et al. 2016, eq. 6, with
+    the (1,3) entry corrected to dt^3/6, see docs/errata.md), per axis
 
     F = [[1, dt, dt^2/2], [0, 1, dt], [0, 0, 1]],
     Q = q [[dt^5/20, dt^4/8, dt^3/6], [dt^4/8, dt^3/3, dt^2/2], [dt^3/6, dt^2/2, dt]],
@@ -249,6 +293,14 @@ def constant_acceleration(dt: float, q: float, axes: int = 1, *, sigma_r2: float
 
     q is the continuous jerk-noise density (m^2/s^5).  For Q = q G G^T with
     G = [dt^2/2, dt, 1]^T use :func:`ca_discrete_white_noise`.
+
+    References
+    ----------
+    .. [1] N. Assimakis, G. Tziallas, M. Adam, A. Polyzos and C. Papanastasiou, "Mobile position estimation and
+           prediction using steady state Kalman filter", International Journal of Computer Science and
+           Information Technology Research, vol. 4, no. 3, pp. 261–272, 2016.
+    .. [2] C. F. Van Loan, "Computing integrals involving the matrix exponential", IEEE Transactions on
+           Automatic Control, vol. 23, no. 3, pp. 395–404, 1978. doi:10.1109/TAC.1978.1101743
     """
     return discretize(constant_acceleration_continuous(q, axes, sigma_r2=sigma_r2), dt)
 
@@ -267,8 +319,16 @@ def cv_discrete_white_noise(dt: float, q: float, axes: int = 1, *, sigma_r2: flo
     F = [[1, dt], [0, 1]],  G = [dt^2/2, dt]^T,  Q = q G G^T,  H = [1, 0],  R = sigma_r2.
 
     q is the acceleration variance (m^2/s^4).  Q has rank 1 per axis.  At dt = 1
-    this is the Q of seeds 000/002 (they print G = [dt/2, 1]^T, which agrees
+    this is the Q of Assimakis & Adam 2014 and 2015 (they print G = [dt/2, 1]^T, which agrees
     only at dt = 1; :func:`assimakis_model_b` keeps their printed form).
+
+    References
+    ----------
+    .. [1] Y. Bar-Shalom, X. R. Li and T. Kirubarajan, Estimation with Applications to Tracking and Navigation,
+           Wiley, 2001. doi:10.1002/0471221279
+    .. [2] N. Assimakis and M. Adam, "Global systems for mobile position tracking using Kalman and Lainiotis
+           filters", The Scientific World Journal, vol. 2014, Article ID 130512, 8 pp., 2014.
+           doi:10.1155/2014/130512
     """
     dt = check_positive("dt", dt)
     q = check_positive("q", q, allow_zero=True)
@@ -287,6 +347,11 @@ def ca_discrete_white_noise(dt: float, q: float, axes: int = 1, *, sigma_r2: flo
     H = [1, 0, 0],  R = sigma_r2.
 
     q is the variance of the acceleration increment per sample (m^2/s^4).
+
+    References
+    ----------
+    .. [1] Y. Bar-Shalom, X. R. Li and T. Kirubarajan, Estimation with Applications to Tracking and Navigation,
+           Wiley, 2001. doi:10.1002/0471221279
     """
     dt = check_positive("dt", dt)
     q = check_positive("q", q, allow_zero=True)

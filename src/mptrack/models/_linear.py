@@ -109,7 +109,13 @@ def stack_axes(axis_model: LinearGaussianModel, axes: int, *, name: str = "") ->
     """The joint model of ``axes`` independent copies of ``axis_model`` (block-diagonal).
 
     The state is ordered axis by axis: ``[x_axis0, x_axis1, ...]``; this is how
-    the papers' model A arises from model B (seed 000 eq. 17-18).
+    the papers' model A arises from model B (Assimakis & Adam 2014, eqs. 17-18).
+
+    References
+    ----------
+    .. [1] N. Assimakis and M. Adam, "Global systems for mobile position tracking using Kalman and Lainiotis
+           filters", The Scientific World Journal, vol. 2014, Article ID 130512, 8 pp., 2014.
+           doi:10.1155/2014/130512
     """
     axis_model = require_model(axis_model, "axis_model")
     axes = check_int("axes", axes, minimum=1)

@@ -4,7 +4,7 @@
     z(k) = h(x(k)) + v(k),     v(k) ~ N(0, R(x(k), k))
 
 ``f`` and ``h`` are vectorised over leading axes: (..., n) -> (..., n) and (..., m),
-as for :class:`mptrack.nonlinear.ContinuousDiscreteModel` (the SDE model, which
+as for :class:`mptrack.continuous.ContinuousDiscreteModel` (the SDE model, which
 stays the model for continuous-time dynamics).  Q and R are constant matrices or
 callables ``Q(x, k)`` / ``R(x, k)`` of one state x (n,) and the row k = 0..T-1 of
 the measurement sequence, returning (n, n) / (m, m).

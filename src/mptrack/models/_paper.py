@@ -1,4 +1,4 @@
-"""The tracking models of Assimakis & Adam (2014, seed 000; 2015, seed 002)."""
+"""The tracking models of Assimakis & Adam 2014 (2-D) and 2015 (3-D)."""
 
 from __future__ import annotations
 
@@ -16,7 +16,7 @@ MeasurementForm = Literal["printed", "position"]
 
 def assimakis_model_b(dt: float = 1.0, sigma_q2: float = 0.01, sigma_r2: float = 0.1,
                       measurement: MeasurementForm = "printed") -> LinearGaussianModel:
-    """Model B: one axis, state [position, velocity], n = 2, m = 1 (seed 000 eq. 3).
+    """Model B: one axis, state [position, velocity], n = 2, m = 1 (Assimakis & Adam 2014, eq. 3).
 
     F = [[1, dt], [0, 1]], G = [dt/2, 1]^T, Q = sigma_q2 G G^T, R = sigma_r2.
 
@@ -26,6 +26,14 @@ def assimakis_model_b(dt: float = 1.0, sigma_q2: float = 0.01, sigma_r2: float =
 
     dt in seconds; sigma_q2 (acceleration-noise variance) and sigma_r2
     (measurement-noise variance) in the squared units of the state.
+
+    References
+    ----------
+    .. [1] N. Assimakis and M. Adam, "Global systems for mobile position tracking using Kalman and Lainiotis
+           filters", The Scientific World Journal, vol. 2014, Article ID 130512, 8 pp., 2014.
+           doi:10.1155/2014/130512
+    .. [2] N. Assimakis and M. Adam, "Mobile position tracking in three dimensions using Kalman and Lainiotis
+           filters", The Open Mathematics Journal, vol. 8, pp. 1–6, 2015 (Bentham Open).
     """
     dt = check_positive("dt", dt)
     sigma_q2 = check_positive("sigma_q2", sigma_q2, allow_zero=True)
@@ -44,10 +52,19 @@ def assimakis_model_b(dt: float = 1.0, sigma_q2: float = 0.01, sigma_r2: float =
 
 def assimakis_model_a(axes: int = 2, dt: float = 1.0, sigma_q2: float = 0.01, sigma_r2: float = 0.1,
                       measurement: MeasurementForm = "printed") -> LinearGaussianModel:
-    """Model A: all axes jointly, n = 2*axes, m = axes (seed 000 eq. 2; seed 002 for axes = 3).
+    """Model A: all axes jointly, n = 2*axes, m = axes (Assimakis & Adam 2014, eq. 2;
+    Assimakis & Adam 2015 for axes = 3).
 
     The state is [s_x, v_x, s_y, v_y(, s_z, v_z)]; F, G, H, Q, R are the
     block-diagonal stack of model B (the papers use equal variances per axis).
+
+    References
+    ----------
+    .. [1] N. Assimakis and M. Adam, "Global systems for mobile position tracking using Kalman and Lainiotis
+           filters", The Scientific World Journal, vol. 2014, Article ID 130512, 8 pp., 2014.
+           doi:10.1155/2014/130512
+    .. [2] N. Assimakis and M. Adam, "Mobile position tracking in three dimensions using Kalman and Lainiotis
+           filters", The Open Mathematics Journal, vol. 8, pp. 1–6, 2015 (Bentham Open).
     """
     axes = check_int("axes", axes, minimum=1)
     if axes not in (2, 3):

@@ -93,7 +93,13 @@ def ekf_predict(model: NonlinearModel, x, P, k: int, x_out, P_out) -> None:
 
 def ekf_step(model: NonlinearModel, x, P, z, k: int = 0):
     """One EKF iteration from x(k-1/k-1), P(k-1/k-1) with the measurement z (row k):
-    (x_filt, P_filt, x_pred, P_pred, loglik increment)."""
+    (x_filt, P_filt, x_pred, P_pred, loglik increment).
+
+    References
+    ----------
+    .. [1] S. Särkkä, Bayesian Filtering and Smoothing, Cambridge University Press, 2013.
+           doi:10.1017/CBO9781139344203
+    """
     if not isinstance(model, NonlinearModel):
         raise ParameterError(f"model: expected a NonlinearModel, got {type(model).__name__}")
     x = np.array(as_vector("x", x, model.n))
@@ -146,6 +152,11 @@ def ekf_filter(model: NonlinearModel, z, x0, P0, *, prior: str = "initial") -> F
     R(x, k) at x(k/k-1).  Returns a FilterResult with x0, P0 = the prior at time 0 (for the smoother).
     A :func:`~mptrack.models.nonlinear_model` of a linear motion and named measurement models (ranges,
     bearings, range_bearing, position, stacks of them; constant R) runs compiled with the same numbers.
+
+    References
+    ----------
+    .. [1] S. Särkkä, Bayesian Filtering and Smoothing, Cambridge University Press, 2013.
+           doi:10.1017/CBO9781139344203
     """
     z, x0, P0, _ = prepare_nonlinear(model, z, x0, P0, kinds=(NonlinearModel,))
     if model.named is not None:
@@ -199,7 +210,13 @@ def smooth_with(model, result, cross, method):
 
 def ekf_smoother(model: NonlinearModel, result: FilterResult) -> FilterResult:
     """Extended RTS smoother on :func:`ekf_filter`'s result: x(k/T), P(k/T), and x(0/T), P(0/T) as
-    x0, P0 when the filter's prior was at time 0 (method "ERTS")."""
+    x0, P0 when the filter's prior was at time 0 (method "ERTS").
+
+    References
+    ----------
+    .. [1] S. Särkkä, Bayesian Filtering and Smoothing, Cambridge University Press, 2013.
+           doi:10.1017/CBO9781139344203
+    """
     return smooth_with(model, result, lambda mdl, x, P: P @ mdl.F_at(x).T, "ERTS")
 
 
@@ -210,7 +227,13 @@ def ekf_filter_batch(model: NonlinearModel, z, x0, P0) -> BatchFilterResult:
     models and :func:`mptrack.models.nonlinear_model` broadcast) or by finite differences.  A linear motion
     with named measurement models (ranges, bearings, range_bearing, position) runs compiled
     (:mod:`mptrack.nonlinear._named_kernels`, same numbers).
-    Returns a BatchFilterResult (x, P, x_pred, P_pred, innovation, S, nis, loglik (B,))."""
+    Returns a BatchFilterResult (x, P, x_pred, P_pred, innovation, S, nis, loglik (B,)).
+
+    References
+    ----------
+    .. [1] S. Särkkä, Bayesian Filtering and Smoothing, Cambridge University Press, 2013.
+           doi:10.1017/CBO9781139344203
+    """
     if not isinstance(model, NonlinearModel):
         raise ParameterError(f"model: expected a NonlinearModel, got {type(model).__name__}")
     if callable(model.Q) or callable(model.R):

@@ -60,7 +60,14 @@ def imm_filter(models, z, x0, P0, transition, *, mu0=None, prior: str = "initial
     and the initial mode probabilities ``mu0`` (default uniform).
     prior  "initial" (x0, P0, mu0 at time 0) or "first-measurement" (x0, P0, mu0 are the prior at the
            first measurement: no prediction and no mode transition before it), as the other filters.
-    With one model it is the EKF (KF for a linear model).  Returns an :class:`IMMResult` (method "IMM")."""
+    With one model it is the EKF (KF for a linear model).  Returns an :class:`IMMResult` (method "IMM").
+
+    References
+    ----------
+    .. [1] H. A. P. Blom and Y. Bar-Shalom, "The interacting multiple model algorithm for systems with Markovian
+           switching coefficients", IEEE Transactions on Automatic Control, vol. 33, no. 8, pp. 780–783, 1988.
+           doi:10.1109/9.1299
+    """
     models = [_as_nonlinear(m, f"models[{i}]") for i, m in enumerate(models)] if not isinstance(
         models, (NonlinearModel, LinearGaussianModel)) else [_as_nonlinear(models, "models")]
     if not models:
@@ -125,7 +132,16 @@ def cv_ca_models(dt: float, q_cv: float, q_ca: float, measurement: MeasurementMo
     mode 0 constant velocity (acceleration held at 0: its row of F is zero; q_cv the white-acceleration
     density), mode 1 constant acceleration (white-jerk density q_ca), both observed by ``measurement``
     (built with position=(0, 3[, 6]) and, for range rate, velocity=(1, 4[, 7])).
-    Returns (models, transition) for :func:`imm_filter`; transition = [[p, 1-p], [1-p, p]], p = p_stay."""
+    Returns (models, transition) for :func:`imm_filter`; transition = [[p, 1-p], [1-p, p]], p = p_stay.
+
+    References
+    ----------
+    .. [1] H. A. P. Blom and Y. Bar-Shalom, "The interacting multiple model algorithm for systems with Markovian
+           switching coefficients", IEEE Transactions on Automatic Control, vol. 33, no. 8, pp. 780–783, 1988.
+           doi:10.1109/9.1299
+    .. [2] Y. Bar-Shalom, X. R. Li and T. Kirubarajan, Estimation with Applications to Tracking and Navigation,
+           Wiley, 2001. doi:10.1002/0471221279
+    """
     if not 0.0 < p_stay < 1.0:
         raise ParameterError(f"p_stay: expected a probability in (0, 1), got {p_stay!r}")
     ca = constant_acceleration(dt, q_ca, axes=axes)

@@ -13,7 +13,7 @@ path also calls.  The tests pin the two paths to 1e-10 on identical inputs.
 A kernel reports a problem (a non-positive-definite innovation covariance or square root, a
 non-finite estimate) by a status code instead of raising; the caller then reruns the generic path,
 which raises the specific error (or, for the UKF, takes the eigenvalue square root of a
-semi-definite P).  Kernels are serial, for the reason given in :mod:`mptrack.nonlinear._kernels`.
+semi-definite P).  Kernels are serial, for the reason given in :mod:`mptrack.continuous._kernels`.
 """
 
 from __future__ import annotations

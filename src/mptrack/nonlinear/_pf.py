@@ -25,7 +25,14 @@ NOISE_STEP = 0.5
 
 
 def systematic_resample(weights: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-    """Indices of N draws by systematic resampling (one uniform u, the N points (u + i)/N)."""
+    """Indices of N draws by systematic resampling (one uniform u, the N points (u + i)/N).
+
+    References
+    ----------
+    .. [1] G. Kitagawa, "Monte Carlo filter and smoother for non-Gaussian nonlinear state space models", Journal
+           of Computational and Graphical Statistics, vol. 5, no. 1, pp. 1–25, 1996.
+           doi:10.1080/10618600.1996.10474692
+    """
     w = np.ascontiguousarray(weights, dtype=float)
     if w.ndim != 1 or w.size == 0:
         raise ShapeError(f"weights: expected a non-empty vector, got shape {w.shape}")
@@ -70,6 +77,18 @@ def particle_filter(model, z, x0, P0, rng: np.random.Generator, *,
                    linear_sde_model), else NumPy; False: NumPy; True: require the kernels.
                    Both paths draw the same numbers and give the same result up to rounding.
     Estimates are the weighted mean/covariance after the update, before resampling.
+
+    References
+    ----------
+    .. [1] N. J. Gordon, D. J. Salmond and A. F. M. Smith, "Novel approach to nonlinear/non-Gaussian Bayesian
+           state estimation", IEE Proceedings F, vol. 140, no. 2, pp. 107–113, 1993.
+           doi:10.1049/ip-f-2.1993.0015
+    .. [2] G. Kitagawa, "Monte Carlo filter and smoother for non-Gaussian nonlinear state space models", Journal
+           of Computational and Graphical Statistics, vol. 5, no. 1, pp. 1–25, 1996.
+           doi:10.1080/10618600.1996.10474692
+    .. [3] C. Musso, N. Oudjane and F. Le Gland, "Improving regularised particle filters", in A. Doucet, N. de
+           Freitas and N. Gordon (eds.), Sequential Monte Carlo Methods in Practice, Springer, pp. 247–271,
+           2001.
     """
     if scheme not in SCHEMES:
         raise ParameterError(f"scheme: expected one of {SCHEMES}, got {scheme!r}")

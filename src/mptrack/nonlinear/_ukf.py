@@ -25,7 +25,7 @@ Pol, Zhao, Chen & Ma 2013) that is 4-13 sub-steps per second where a fixed 20
 were used, and the estimates move by ~1e-5, against a filter error of 0.36.
 A model with compiled kernels (``zhao2013_model``, ``linear_sde_model``, or
 ``kernels=BlockKernels(...)``) runs the whole filter compiled
-(:func:`mptrack.nonlinear._kernels.cd_ukf_run`), with the NumPy path's
+(:func:`mptrack.continuous._kernels.cd_ukf_run`), with the NumPy path's
 arithmetic (pinned to 1e-10 by a test) and about a hundred times faster.
 """
 
@@ -83,8 +83,13 @@ def sigma_points(m: np.ndarray, P: np.ndarray, *, alpha: float = 1.0, beta: floa
     """The 2n+1 scaled sigma points of N(m, P) and their mean/covariance weights.
 
     Returns (X (2n+1, n), Wm (2n+1,), Wc (2n+1,)).  The defaults (α = 1, β = 2,
-    κ = 0) keep every weight non-negative for n = 2, which keeps the
+    κ = 0) keep every weight non-negative for every n, which keeps the
     propagated covariance PSD.
+
+    References
+    ----------
+    .. [1] S. J. Julier, "The scaled unscented transformation", Proceedings of the 2002 American Control
+           Conference, vol. 6, pp. 4555–4559, 2002. doi:10.1109/ACC.2002.1025369
     """
     m = as_vector("m", m)
     n = m.shape[0]
@@ -265,6 +270,17 @@ def ukf_filter(model, z, x0, P0, *, alpha: float = 1.0, beta: float = 2.0, kappa
     compiled with the same numbers.
     Raises ConvergenceError when the moment equations blow up (stiff drift,
     far from the sigma points) and NotPositiveDefiniteError when P loses PSD.
+
+    References
+    ----------
+    .. [1] S. J. Julier, "The scaled unscented transformation", Proceedings of the 2002 American Control
+           Conference, vol. 6, pp. 4555–4559, 2002. doi:10.1109/ACC.2002.1025369
+    .. [2] E. A. Wan and R. van der Merwe, "The unscented Kalman filter for nonlinear estimation", Proceedings
+           of the IEEE 2000 Adaptive Systems for Signal Processing, Communications, and Control Symposium, pp.
+           153–158, 2000. doi:10.1109/ASSPCC.2000.882463
+    .. [3] S. Särkkä, "On unscented Kalman filtering for state estimation of continuous-time nonlinear systems",
+           IEEE Transactions on Automatic Control, vol. 52, no. 9, pp. 1631–1641, 2007.
+           doi:10.1109/TAC.2007.904453
     """
     adaptive = substeps is None
     z, x, P, substeps = prepare_nonlinear(model, z, x0, P0, substeps)
@@ -323,7 +339,13 @@ def ukf_smoother(model: NonlinearModel, result: FilterResult, *, alpha: float | 
     The sigma points must be the filter's (D is paired with the filter's P(k+1/k)): they are read from
     the result (``result.inputs``); alpha, beta, kappa may be omitted, and values other than the
     filter's raise a ParameterError.  For a result that does not record them (not from ukf_filter)
-    they default to α = 1, β = 2, κ = 0."""
+    they default to α = 1, β = 2, κ = 0.
+
+    References
+    ----------
+    .. [1] S. Särkkä, "Unscented Rauch–Tung–Striebel smoother", IEEE Transactions on Automatic Control, vol. 53,
+           no. 3, pp. 845–849, 2008. doi:10.1109/TAC.2008.919531
+    """
     if not isinstance(model, NonlinearModel):
         raise ParameterError(f"model: expected a NonlinearModel, got {type(model).__name__}")
     given = {"alpha": alpha, "beta": beta, "kappa": kappa}

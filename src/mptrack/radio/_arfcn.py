@@ -64,6 +64,14 @@ def arfcn_to_frequency(arfcn, band: str, link: str = "downlink"):
     band  one of GSM_BANDS: "P-GSM", "E-GSM", "R-GSM", "DCS1800", "PCS1900", "GSM850"
     link  "downlink" (base station transmit, what a handset measures) or "uplink"
     Raises UnknownNameError for an unknown band, ParameterError for a channel outside it.
+
+    References
+    ----------
+    .. [1] 3GPP, GSM/EDGE Radio transmission and reception, Technical Specification 45.005, §2 (frequency bands
+           and channel arrangement).
+    .. [2] N. Bouzera, M. Oussalah, N. Mezhoud and A. Khireddine, "Fuzzy extended Kalman filter for dynamic
+           mobile localization in urban area using wireless network", Applied Soft Computing, vol. 57, pp.
+           452–467, 2017. doi:10.1016/j.asoc.2017.04.007
     """
     spec, link = _band(band), _link(link)
     n = np.asarray(arfcn)

@@ -52,7 +52,14 @@ def path_loss(distance_km, model: str = "cost231-wi-nlos", **params):
 
 
 def path_loss_from_rss(rss_dbm, tx_power_dbm, *, tx_gain_dbi=0.0, rx_gain_dbi=0.0, losses_db=0.0):
-    """Link budget: L = P_tx + G_tx + G_rx - losses - RSS, in dB (paper Appendix: Loss = Tx - Rx)."""
+    """Link budget: L = P_tx + G_tx + G_rx - losses - RSS, in dB (paper Appendix: Loss = Tx - Rx).
+
+    References
+    ----------
+    .. [1] N. Bouzera, M. Oussalah, N. Mezhoud and A. Khireddine, "Fuzzy extended Kalman filter for dynamic
+           mobile localization in urban area using wireless network", Applied Soft Computing, vol. 57, pp.
+           452–467, 2017. doi:10.1016/j.asoc.2017.04.007
+    """
     rss = as_array("rss_dbm", rss_dbm)
     terms = [as_array(name, value) for name, value in (("tx_power_dbm", tx_power_dbm), ("tx_gain_dbi", tx_gain_dbi),
                                                         ("rx_gain_dbi", rx_gain_dbi), ("losses_db", losses_db))]
@@ -123,6 +130,12 @@ def distance_from_rss(rss_dbm, tx_power_dbm, model: str = "cost231-wi-nlos", *, 
     Path loss L = P_tx + G_tx + G_rx - losses - RSS (:func:`path_loss_from_rss`), inverted with
     :func:`distance_from_path_loss`.  Example (paper Table VIII, DCS 1800 channel 764):
     ``distance_from_rss(-69, 43, h_base_m=52, frequency_mhz=arfcn_to_frequency(764, "DCS1800"))``.
+
+    References
+    ----------
+    .. [1] N. Bouzera, M. Oussalah, N. Mezhoud and A. Khireddine, "Fuzzy extended Kalman filter for dynamic
+           mobile localization in urban area using wireless network", Applied Soft Computing, vol. 57, pp.
+           452–467, 2017. doi:10.1016/j.asoc.2017.04.007
     """
     loss = path_loss_from_rss(rss_dbm, tx_power_dbm, tx_gain_dbi=tx_gain_dbi, rx_gain_dbi=rx_gain_dbi,
                               losses_db=losses_db)

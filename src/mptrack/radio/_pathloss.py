@@ -10,7 +10,7 @@ validity range; ``on_invalid`` chooses what happens outside it ("raise" a
 Sources: COST Action 231 final report (Damosso & Correia, 1999), ch. 4.4
 (Walfisch–Ikegami, eqs. 4.4.1–4.4.13) and 4.4.1 (COST-231 Hata); Hata (1980),
 IEEE Trans. Veh. Technol. 29(3); 3GPP TR 25.996 §5.3.1 (urban micro NLOS);
-Bouzera et al. (2017), Appendix (seed 003), whose printed constants are
+Bouzera et al. (2017), Appendix, whose printed constants are
 corrected as recorded in docs/errata.md.
 """
 
@@ -87,6 +87,17 @@ def wi_free_space_loss(distance_km, frequency_mhz, *, constant_db: float = 32.4)
 
     COST 231 (and 3GPP TR 25.996) use 32.4; the exact Friis constant is 32.45,
     which is what reproduces the paper's Table VIII (its appendix prints 32.44).
+
+    References
+    ----------
+    .. [1] E. Damosso and L. M. Correia (eds.), Digital Mobile Radio Towards Future Generation Systems: COST 231
+           Final Report, European Commission, EUR 18957, 1999, ch. 4 (the COST-231 Hata and Walfisch–Ikegami
+           models).
+    .. [2] 3GPP, Spatial channel model for Multiple Input Multiple Output (MIMO) simulations, Technical Report
+           25.996, §5.3.1 (urban micro NLOS: COST-231 Walfisch–Ikegami).
+    .. [3] N. Bouzera, M. Oussalah, N. Mezhoud and A. Khireddine, "Fuzzy extended Kalman filter for dynamic
+           mobile localization in urban area using wireless network", Applied Soft Computing, vol. 57, pp.
+           452–467, 2017. doi:10.1016/j.asoc.2017.04.007
     """
     d = _positive("distance_km", distance_km)
     f = _positive("frequency_mhz", frequency_mhz)
@@ -102,6 +113,15 @@ def wi_orientation_loss(street_angle_deg):
     ends at 2.39 dB, 0.11 dB below the second (a step at 35 degrees).  The paper
     prints 0.3574 (which would close that step) and 0.1004; its own Table VIII
     is reproduced with 0.354 (docs/errata.md).
+
+    References
+    ----------
+    .. [1] E. Damosso and L. M. Correia (eds.), Digital Mobile Radio Towards Future Generation Systems: COST 231
+           Final Report, European Commission, EUR 18957, 1999, ch. 4 (the COST-231 Hata and Walfisch–Ikegami
+           models).
+    .. [2] N. Bouzera, M. Oussalah, N. Mezhoud and A. Khireddine, "Fuzzy extended Kalman filter for dynamic
+           mobile localization in urban area using wireless network", Applied Soft Computing, vol. 57, pp.
+           452–467, 2017. doi:10.1016/j.asoc.2017.04.007
     """
     phi = as_array("street_angle_deg", street_angle_deg)
     if not np.all(np.isfinite(phi)) or np.any((phi < 0) | (phi > 90)):
@@ -115,6 +135,12 @@ def wi_rooftop_to_street_loss(frequency_mhz, *, street_width_m, h_roof_m, h_mobi
     """Roof-top-to-street diffraction and scatter loss L_rts in dB (COST 231 eq. 4.4.4).
 
     L_rts = -16.9 - 10 log w + 10 log f + 20 log(h_roof - h_mobile) + L_ori(phi).
+
+    References
+    ----------
+    .. [1] E. Damosso and L. M. Correia (eds.), Digital Mobile Radio Towards Future Generation Systems: COST 231
+           Final Report, European Commission, EUR 18957, 1999, ch. 4 (the COST-231 Hata and Walfisch–Ikegami
+           models).
     """
     f = _positive("frequency_mhz", frequency_mhz)
     w = _positive("street_width_m", street_width_m)
@@ -137,6 +163,12 @@ def wi_multiscreen_loss(distance_km, frequency_mhz, *, h_base_m, h_roof_m, build
       k_d   = 18 (dh_b > 0); 18 - 15 dh_b / h_roof (dh_b <= 0)
       k_f   = -4 + 0.7 (f/925 - 1) (city="medium": medium-sized city, suburban)
               -4 + 1.5 (f/925 - 1) (city="metropolitan")
+
+    References
+    ----------
+    .. [1] E. Damosso and L. M. Correia (eds.), Digital Mobile Radio Towards Future Generation Systems: COST 231
+           Final Report, European Commission, EUR 18957, 1999, ch. 4 (the COST-231 Hata and Walfisch–Ikegami
+           models).
     """
     d = _positive("distance_km", distance_km)
     f = _positive("frequency_mhz", frequency_mhz)
@@ -164,6 +196,17 @@ def cost231_wi_nlos(distance_km, frequency_mhz, *, h_base_m, h_mobile_m=1.5, h_r
     0.02 <= d <= 5 km.  The defaults b = 50 m, w = b/2, phi = 30 deg, h_roof = 15 m
     are those of the paper's drive test.  ``free_space_constant_db`` is the
     constant of L0 (32.4 in COST 231; 32.45 reproduces the paper's Table VIII).
+
+    References
+    ----------
+    .. [1] E. Damosso and L. M. Correia (eds.), Digital Mobile Radio Towards Future Generation Systems: COST 231
+           Final Report, European Commission, EUR 18957, 1999, ch. 4 (the COST-231 Hata and Walfisch–Ikegami
+           models).
+    .. [2] 3GPP, Spatial channel model for Multiple Input Multiple Output (MIMO) simulations, Technical Report
+           25.996, §5.3.1 (urban micro NLOS: COST-231 Walfisch–Ikegami).
+    .. [3] N. Bouzera, M. Oussalah, N. Mezhoud and A. Khireddine, "Fuzzy extended Kalman filter for dynamic
+           mobile localization in urban area using wireless network", Applied Soft Computing, vol. 57, pp.
+           452–467, 2017. doi:10.1016/j.asoc.2017.04.007
     """
     _check("COST-231 Walfisch-Ikegami", WI_LIMITS, on_invalid, distance_km=distance_km,
            frequency_mhz=frequency_mhz, h_base_m=h_base_m, h_mobile_m=h_mobile_m)
@@ -185,6 +228,15 @@ def cost231_wi_los(distance_km, frequency_mhz, *, on_invalid: str = "warn"):
     """COST-231 Walfisch–Ikegami line-of-sight (street canyon) loss 42.6 + 26 log d + 20 log f in dB.
 
     COST 231 eq. 4.4.13, valid for d >= 0.02 km (800–2000 MHz); the paper prints 42.64.
+
+    References
+    ----------
+    .. [1] E. Damosso and L. M. Correia (eds.), Digital Mobile Radio Towards Future Generation Systems: COST 231
+           Final Report, European Commission, EUR 18957, 1999, ch. 4 (the COST-231 Hata and Walfisch–Ikegami
+           models).
+    .. [2] N. Bouzera, M. Oussalah, N. Mezhoud and A. Khireddine, "Fuzzy extended Kalman filter for dynamic
+           mobile localization in urban area using wireless network", Applied Soft Computing, vol. 57, pp.
+           452–467, 2017. doi:10.1016/j.asoc.2017.04.007
     """
     check_policy(on_invalid)
     check_range("COST-231 WI LOS", "distance_km", distance_km, 0.02, 5.0, "km", on_invalid)
@@ -200,6 +252,11 @@ def hata_mobile_correction(frequency_mhz, h_mobile_m, *, large_city: bool = Fals
 
     Small/medium city: (1.1 log f - 0.7) h_m - (1.56 log f - 0.8).
     Large city: 8.29 (log 1.54 h_m)^2 - 1.1 for f <= 300 MHz, 3.2 (log 11.75 h_m)^2 - 4.97 above.
+
+    References
+    ----------
+    .. [1] M. Hata, "Empirical formula for propagation loss in land mobile radio services", IEEE Transactions on
+           Vehicular Technology, vol. 29, no. 3, pp. 317–325, 1980. doi:10.1109/T-VT.1980.23859
     """
     f = _positive("frequency_mhz", frequency_mhz)
     hm = _positive("h_mobile_m", h_mobile_m)
@@ -232,6 +289,11 @@ def okumura_hata(distance_km, frequency_mhz, *, h_base_m, h_mobile_m=1.5, enviro
     "suburban" (L_u - 2 (log(f/28))^2 - 5.4) or "rural" (open area,
     L_u - 4.78 (log f)^2 + 18.33 log f - 40.94).
     Valid for 150 <= f <= 1500 MHz, 30 <= h_b <= 200 m, 1 <= h_m <= 10 m, 1 <= d <= 20 km.
+
+    References
+    ----------
+    .. [1] M. Hata, "Empirical formula for propagation loss in land mobile radio services", IEEE Transactions on
+           Vehicular Technology, vol. 29, no. 3, pp. 317–325, 1980. doi:10.1109/T-VT.1980.23859
     """
     envs = ("urban", "urban-large", "suburban", "rural")
     if environment not in envs:
@@ -255,6 +317,12 @@ def cost231_hata(distance_km, frequency_mhz, *, h_base_m, h_mobile_m=1.5, city: 
     a(h_m) of the small/medium city, C_m = 0 dB (city="medium": medium city, suburban)
     or 3 dB (city="metropolitan").  Valid for 1500 <= f <= 2000 MHz, 30 <= h_b <= 200 m,
     1 <= h_m <= 10 m, 1 <= d <= 20 km.
+
+    References
+    ----------
+    .. [1] E. Damosso and L. M. Correia (eds.), Digital Mobile Radio Towards Future Generation Systems: COST 231
+           Final Report, European Commission, EUR 18957, 1999, ch. 4 (the COST-231 Hata and Walfisch–Ikegami
+           models).
     """
     if city not in ("medium", "metropolitan"):
         raise ParameterError(f"city: expected 'medium' or 'metropolitan', got {city!r}")

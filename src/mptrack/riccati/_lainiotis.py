@@ -1,4 +1,4 @@
-"""The Lainiotis parameters (seed 000 eq. 7), shared by the LF and the RELF."""
+"""The Lainiotis parameters (Assimakis & Adam 2014, eq. 7), shared by the LF and the RELF."""
 
 from __future__ import annotations
 
@@ -14,11 +14,19 @@ __all__ = ["LainiotisParameters", "lainiotis_parameters"]
 
 @dataclass(frozen=True, eq=False)
 class LainiotisParameters:
-    """Off-line quantities of the Lainiotis filter (seed 000 eq. 7).
+    """Off-line quantities of the Lainiotis filter (Assimakis & Adam 2014, eq. 7).
 
     A  = [H Q H^T + R]^{-1}     (Q is the papers' G Q G^T)
     Kn = Q H^T A,   Km = F^T H^T A,   Pn = Q - Kn H Q,
     Fn = F - Kn H F,   On = F^T H^T A H F.
+
+    References
+    ----------
+    .. [1] N. Assimakis and M. Adam, "Global systems for mobile position tracking using Kalman and Lainiotis
+           filters", The Scientific World Journal, vol. 2014, Article ID 130512, 8 pp., 2014.
+           doi:10.1155/2014/130512
+    .. [2] D. G. Lainiotis, "Partitioned linear estimation algorithms: discrete case", IEEE Transactions on
+           Automatic Control, vol. 20, no. 2, pp. 255–257, 1975.
     """
 
     A: np.ndarray
@@ -30,6 +38,16 @@ class LainiotisParameters:
 
 
 def lainiotis_parameters(model: LinearGaussianModel) -> LainiotisParameters:
+    """The off-line :class:`LainiotisParameters` of ``model`` (Assimakis & Adam 2014, eq. 7).
+
+    References
+    ----------
+    .. [1] N. Assimakis and M. Adam, "Global systems for mobile position tracking using Kalman and Lainiotis
+           filters", The Scientific World Journal, vol. 2014, Article ID 130512, 8 pp., 2014.
+           doi:10.1155/2014/130512
+    .. [2] D. G. Lainiotis, "Partitioned linear estimation algorithms: discrete case", IEEE Transactions on
+           Automatic Control, vol. 20, no. 2, pp. 255–257, 1975.
+    """
     F, H, Q, R = (require_model(model).F, model.H, model.Q, model.R)
     S = H @ Q @ H.T + R
     try:

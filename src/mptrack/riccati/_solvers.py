@@ -1,12 +1,12 @@
 """Steady-state solutions of the filter Riccati equations.
 
-REKF (seed 000 eq. 11), for the steady-state prediction covariance Pp:
+REKF (Assimakis & Adam 2014, eq. 11), for the steady-state prediction covariance Pp:
 
     Pp = Q + F Pp F^T - F Pp H^T [H Pp H^T + R]^{-1} H Pp F^T
 
 solved three independent ways: the per-step recursion, a doubling algorithm
 (the structure-preserving doubling algorithm, SDA) and the algebraic solution
-(scipy's DARE).  RELF (seed 000 eq. 14) for the Lainiotis form:
+(scipy's DARE).  RELF (Assimakis & Adam 2014, eq. 14) for the Lainiotis form:
 
     Pe = Pn + Fn [I + Pe On]^{-1} Pe Fn^T.
 """
@@ -53,6 +53,12 @@ class SteadyState:
     steady_state_time   time step k from which the per-step recursion (from P0)
                         stays within the tolerance (per-step method; None otherwise)
     residual            relative residual of the REKF at P_pred
+
+    References
+    ----------
+    .. [1] N. Assimakis and M. Adam, "Global systems for mobile position tracking using Kalman and Lainiotis
+           filters", The Scientific World Journal, vol. 2014, Article ID 130512, 8 pp., 2014.
+           doi:10.1155/2014/130512
     """
 
     K: np.ndarray
@@ -80,7 +86,14 @@ def _gain(model: LinearGaussianModel, P_pred: np.ndarray) -> tuple[np.ndarray, n
 
 
 def riccati_step(model: LinearGaussianModel, P_pred: np.ndarray) -> np.ndarray:
-    """One step of the REKF recursion: P(k+1/k) from P(k/k-1) (a symmetric PSD (n, n) matrix)."""
+    """One step of the REKF recursion: P(k+1/k) from P(k/k-1) (a symmetric PSD (n, n) matrix).
+
+    References
+    ----------
+    .. [1] N. Assimakis and M. Adam, "Global systems for mobile position tracking using Kalman and Lainiotis
+           filters", The Scientific World Journal, vol. 2014, Article ID 130512, 8 pp., 2014.
+           doi:10.1155/2014/130512
+    """
     require_model(model)
     P_pred = check_covariance("P_pred", P_pred, model.n)
     with np.errstate(all="ignore"):
@@ -178,7 +191,7 @@ def _per_step(model, P0, tol, max_iter):
 
 
 def _doubling(model, tol, max_iter, X0=None):
-    """Structure-preserving doubling (Chu, Fan & Lin 2005) for the filter DARE.
+    """Structure-preserving doubling (Chu, Fan, Lin & Wang 2004) for the filter DARE.
 
     With A0 = F^T, G0 = H^T R^{-1} H, H0 = Q:
         W = I + G_k H_k
@@ -230,7 +243,7 @@ def _dare(model):
 
 
 def _relf(model, P0, tol, max_iter):
-    """Per-step RELF recursion Pe <- Pn + Fn [I + Pe On]^{-1} Pe Fn^T (seed 000 eq. 14)."""
+    """Per-step RELF recursion Pe <- Pn + Fn [I + Pe On]^{-1} Pe Fn^T (Assimakis & Adam 2014, eq. 14)."""
     lp = lainiotis_parameters(model)
     eye = np.eye(model.n)
     return _iterate(lambda Pe: _sym(lp.Pn + lp.Fn @ np.linalg.solve(eye + Pe @ lp.On, Pe) @ lp.Fn.T),
@@ -259,6 +272,12 @@ def steady_state(model: LinearGaussianModel, method: Method = "dare", *,
     Raises NotDetectableError / NotStabilisableError when no stabilising
     steady state exists, ConvergenceError when an iteration does not converge,
     NonFiniteError when the model's magnitudes overflow the solver.
+
+    References
+    ----------
+    .. [1] N. Assimakis and M. Adam, "Global systems for mobile position tracking using Kalman and Lainiotis
+           filters", The Scientific World Journal, vol. 2014, Article ID 130512, 8 pp., 2014.
+           doi:10.1155/2014/130512
     """
     require_model(model)
     if method not in METHODS:

@@ -53,7 +53,13 @@ __all__ = ["GatedResult", "kalman_filter_gated", "smooth_gated", "track_gated", 
 
 
 def nis_threshold(probability: float, dof: int) -> float:
-    """Chi-square quantile: the NIS gate that a consistent filter passes with ``probability``."""
+    """Chi-square quantile: the NIS gate that a consistent filter passes with ``probability``.
+
+    References
+    ----------
+    .. [1] Y. Bar-Shalom, X. R. Li and T. Kirubarajan, Estimation with Applications to Tracking and Navigation,
+           Wiley, 2001. doi:10.1002/0471221279
+    """
     p = as_real("gate_probability", probability)
     if not 0.0 < p < 1.0:
         raise ParameterError(f"gate_probability: expected a probability in (0, 1), got {probability!r}")
@@ -100,6 +106,11 @@ def kalman_filter_gated(model: ContinuousLinearModel, times, z, x0, P0, *, t0: f
     max_rejections    rejections in a row that may restart the filter (default and minimum: the
                       fixes a diffuse start needs, n / m, plus one)
     manoeuvre_factor  process noise of the manoeuvre hypothesis, as a multiple of the model's
+
+    References
+    ----------
+    .. [1] Y. Bar-Shalom, X. R. Li and T. Kirubarajan, Estimation with Applications to Tracking and Navigation,
+           Wiley, 2001. doi:10.1002/0471221279
     """
     require_model(model, kind=ContinuousLinearModel)
     t = as_array("times", times, ndim=1)
