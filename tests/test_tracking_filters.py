@@ -12,6 +12,7 @@ from mptrack.cellular import ekf_ranges, fekf_ranges
 from mptrack.errors import ParameterError, UnknownNameError
 from mptrack.io import LocalFrame, iter_tracks
 from mptrack.linear import kalman_filter, kalman_filter_irregular, rts_smoother
+from mptrack.result import FilterResult
 from mptrack.models import (
     constant_acceleration_continuous,
     constant_velocity_continuous,
@@ -100,6 +101,40 @@ def test_gate_rejects_an_outlier_exactly_like_a_missing_measurement():
     assert g.flag[12] == 1 and g.nis[12] > nis_threshold(0.999, 2)
     assert np.count_nonzero(g.flag == 1) == 1
     np.testing.assert_allclose(g.x, ref.x, rtol=1e-10, atol=1e-9)
+
+
+@pytest.mark.parametrize("case", ["manoeuvre", "candidate turned outlier"])
+def test_gated_result_records_the_innovation_its_gate_decided_on(case):
+    """A GatedResult is a FilterResult; innovation and S are those of each fix's NIS: the nominal
+    prediction's, and at a manoeuvre (flag 5) the manoeuvre hypothesis's (process noise x factor); a
+    manoeuvre candidate that the next fix turns into an outlier gets its nominal values back."""
+    rng = np.random.default_rng(3)
+    model = constant_velocity_continuous(0.3, axes=2, sigma_r2=4.0)
+    t = 10.0 + np.arange(1.0, 41.0)
+    z = rng.normal(0.0, 2.0, (40, 2)) + np.column_stack([3.0 * t, -1.0 * t])
+    if case == "manoeuvre":
+        z[10] += [40.0, 0.0]        # an outlier outside both gates
+        z[25:] += [0.0, 15.0]       # a jump the manoeuvre hypothesis follows
+        factor, row, flag = 30.0, 25, 5
+    else:
+        z[10] += [15.0, 0.0]        # inside the manoeuvre gate, and the next fix says: outlier
+        factor, row, flag = 100.0, 10, 1
+    g = kalman_filter_gated(model, t, z, np.array([30.0, 3.0, -10.0, -1.0]), np.diag([25.0, 4.0, 25.0, 4.0]),
+                            manoeuvre_factor=factor)
+    assert isinstance(g, FilterResult) and g.method == "KF-gated"
+    assert g.flag[10] == 1 and g.flag[row] == flag
+    with pytest.warns(DeprecationWarning, match="GatedResult.result"):
+        assert g.result is g
+    H, R = model.H, model.R
+    S_m = H @ (g.P_pred[row] + (factor - 1.0) * g.Q[row]) @ H.T + R
+    nu = g.innovation[row]
+    assert nu @ np.linalg.solve(S_m, nu) <= nis_threshold(0.999, 2)   # it was a manoeuvre candidate
+    for k in range(len(t)):
+        inflate = (factor - 1.0) * g.Q[k] if g.flag[k] == 5 else 0.0
+        np.testing.assert_allclose(g.innovation[k], z[k] - H @ g.x_pred[k], rtol=1e-12, atol=1e-12)
+        np.testing.assert_allclose(g.S[k], H @ (g.P_pred[k] + inflate) @ H.T + R, rtol=1e-12)
+        nu = g.innovation[k]
+        assert g.nis[k] == pytest.approx(nu @ np.linalg.solve(g.S[k], nu), rel=1e-10)
 
 
 def test_consecutive_consistent_rejections_reset_the_track():
