@@ -16,7 +16,7 @@ import math
 from fractions import Fraction
 from typing import Callable, Literal
 
-from ._validation import check_int
+from ._validation import check_int, check_positive
 from .errors import ParameterError, UnknownNameError
 
 __all__ = [
@@ -68,7 +68,7 @@ def _dims(n, m):
 
 def join_burden(name: str, n: int) -> int:
     """Burden of the join procedure of JKLF (n^2 + 3n) or JSSKLF (2n)."""
-    if name not in _JOIN_PARTS:
+    if not isinstance(name, str) or name not in _JOIN_PARTS:
         raise UnknownNameError(f"name: {name!r} has no join procedure; expected JKLF or JSSKLF")
     return _value(FORMULAS[name][1](check_int("n", n, minimum=1), 1))
 
@@ -79,7 +79,7 @@ def filter_burden(name: str, n: int, m: int) -> int | float:
     For JKLF/JSSKLF this is both filters plus the join.
     """
     n, m = _dims(n, m)
-    if name not in FORMULAS:
+    if not isinstance(name, str) or name not in FORMULAS:
         raise UnknownNameError(f"name: unknown filter {name!r}; known: {', '.join(FORMULAS)}")
     if name in _JOIN_PARTS:
         a, b = _JOIN_PARTS[name]
@@ -95,6 +95,8 @@ def implementation_burden(filter_name: str, model: Literal["A", "B"], axes: int 
     with n = 2, m = 1; the join of JKLF/JSSKLF counted once (the papers) or per axis.
     """
     axes = check_int("axes", axes, minimum=1)
+    if not isinstance(filter_name, str) or filter_name not in FORMULAS:
+        raise UnknownNameError(f"filter_name: unknown filter {filter_name!r}; known: {', '.join(FORMULAS)}")
     if model == "A":
         return filter_burden(filter_name, 2 * axes, axes)
     if model != "B":
@@ -117,9 +119,13 @@ def fir_burden(n: int, m: int, M: int) -> int:
 def fir_break_even(fir: float, steady: float) -> int:
     """mu: the nearest integer >= fir / steady (seed 000 section 7): the FIR filter is
     cheaper than the recursive one when outputs are needed every mu or more steps."""
+    fir, steady = check_positive("fir", fir), check_positive("steady", steady)
     return math.ceil(Fraction(fir) / Fraction(steady))
 
 
 def speedup(slow: float, fast: float) -> float:
     """The papers' speedup of ``fast`` over ``slow``: burden(slow) / burden(fast)."""
+    slow, fast = check_positive("slow", slow), check_positive("fast", fast)
+    if not math.isfinite(slow / fast):
+        raise ParameterError(f"fast: the ratio slow / fast = {slow!r} / {fast!r} overflows float64")
     return slow / fast

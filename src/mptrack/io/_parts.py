@@ -12,6 +12,7 @@ from pathlib import Path
 
 import pandas as pd
 
+from .._validation import check_path, renamed
 from ._writers import output_format, write_table
 
 __all__ = ["PartStore"]
@@ -36,8 +37,9 @@ class PartStore:
     """
 
     def __init__(self, out) -> None:
-        self.out = Path(out)
-        output_format(self.out)
+        self.out = check_path("out", out)
+        with renamed(path="out"):
+            output_format(self.out)
         self.dir = self.out.parent / f".{self.out.name}.parts"
 
     def parts(self, name: str) -> list[Path]:

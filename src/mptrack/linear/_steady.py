@@ -6,8 +6,7 @@ from typing import Literal
 
 import numpy as np
 
-from .._validation import finite_result
-from .._validation import as_matrix, check_int, check_positive
+from .._validation import as_matrix, check_allocation, check_int, check_positive, finite_result
 from ..errors import ConvergenceError, NonFiniteError, ParameterError, ShapeError
 from ..models import LinearGaussianModel
 from ..riccati import SteadyState, steady_state
@@ -102,8 +101,22 @@ def fir_order(A, eps: float = 1e-3, norm=2, max_order: int = 100_000) -> int:
     raise ConvergenceError(f"max_order: ||A^M|| is still >= {eps:g} at M = {max_order}")
 
 
+@finite_result("the FIR coefficients")
 def fir_coefficients(A, B, M: int) -> np.ndarray:
-    """The FIR impulse response C_j = A^j B, j = 0..M-1, as an (M, n, m) array."""
+    """The FIR impulse response C_j = A^j B, j = 0..M-1, as an (M, n, m) array.
+
+    A (n, n), B (n, m), M >= 1 (the result's size is checked against the memory limit first)."""
+    A = as_matrix("A", A)
+    if A.shape[0] != A.shape[1]:
+        raise ShapeError(f"A: expected a square matrix, got shape {A.shape}")
+    B = as_matrix("B", B, A.shape[0], None)
+    M = check_int("M", M, minimum=1)
+    check_allocation("M", M, 8.0 * M * B.size)
+    return coefficients_unchecked(A, B, M)
+
+
+def coefficients_unchecked(A: np.ndarray, B: np.ndarray, M: int) -> np.ndarray:
+    """:func:`fir_coefficients` of validated arguments."""
     C = np.empty((M,) + np.shape(B))
     C[0] = B
     for j in range(1, M):
@@ -133,8 +146,8 @@ def fir_filter(model: LinearGaussianModel, z, x0=None, P0=None, *, eps: float = 
         raise ParameterError(f"warmup: expected 'truncate' or 'steady-state', got {warmup!r}")
     ss = _steady(model, steady, "kalman")
     M = fir_order(ss.A, eps, norm) if M is None else check_int("M", M, minimum=1)
-    C = fir_coefficients(ss.A, ss.B, M)
     T = z.shape[0]
+    C = coefficients_unchecked(ss.A, ss.B, min(M, T))   # the window never reaches further back than T
     xs = np.zeros((T, model.n))
     for j in range(min(M, T)):
         xs[j:] += z[: T - j] @ C[j].T

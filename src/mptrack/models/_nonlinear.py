@@ -29,8 +29,9 @@ from typing import Callable
 
 import numpy as np
 
-from .._validation import as_matrix, as_vector, check_covariance, check_int, check_positive
-from ..errors import ParameterError, ShapeError
+from .._validation import (as_array, as_matrix, as_real, as_vector, check_covariance, check_int, check_positive,
+                           renamed)
+from ..errors import NonFiniteError, ParameterError, ShapeError
 from ._linear import LinearGaussianModel, _frozen
 
 __all__ = [
@@ -52,7 +53,22 @@ _TINY = 1e-12
 
 
 def wrap_angles(nu: np.ndarray, periods: tuple) -> np.ndarray:
-    """nu (..., m) with components of non-None period wrapped into [-period/2, period/2) (a copy)."""
+    """nu (..., m) with components of non-None period wrapped into [-period/2, period/2) (a copy).
+
+    periods: m entries, each None (not an angle) or a finite period > 0; NaN in nu (missing) stays NaN.
+    """
+    nu = as_array("nu", nu, allow_nan=True)
+    if nu.ndim == 0 or nu.shape[-1] == 0:
+        raise ShapeError(f"nu: expected components on the last axis (..., m), got shape {nu.shape}")
+    if not isinstance(periods, (tuple, list)) or len(periods) != nu.shape[-1]:
+        raise ParameterError(f"periods: expected a tuple of {nu.shape[-1]} periods (None or > 0, one per "
+                             f"component of nu), got {periods!r}")
+    periods = tuple(None if p is None else check_positive(f"periods[{i}]", p) for i, p in enumerate(periods))
+    return _wrap_angles(nu, periods)
+
+
+def _wrap_angles(nu, periods: tuple) -> np.ndarray:
+    """:func:`wrap_angles` without validation (the filters' innovations)."""
     nu = np.array(nu, dtype=float)
     for i, period in enumerate(periods):
         if period is not None:
@@ -68,7 +84,7 @@ def _numeric_jacobian(fn, x: np.ndarray, periods: tuple | None = None) -> np.nda
     Y = np.asarray(fn(X), dtype=float)
     diff = Y[:n] - Y[n:]
     if periods is not None:
-        diff = wrap_angles(diff, periods)
+        diff = _wrap_angles(diff, periods)
     return (diff / (2.0 * step)[:, None]).T
 
 
@@ -127,10 +143,9 @@ class NonlinearModel:
             set_(self, "Q", Q)
         set_(self, "n", n)
         probe = np.zeros((3, n)) + np.linspace(-0.5, 0.5, 3)[:, None] + 1.0
-        fx = np.asarray(self.f(probe))
+        fx, hx = (_probe(attr, getattr(self, attr), probe) for attr in ("f", "h"))
         if fx.shape != (3, n):
             raise ShapeError(f"f: must map states (k, {n}) to (k, {n}), got shape {fx.shape} for k = 3")
-        hx = np.asarray(self.h(probe))
         if hx.ndim != 2 or hx.shape[0] != 3:
             raise ShapeError(f"h: must map states (k, {n}) to (k, m), got shape {hx.shape} for k = 3")
         m = hx.shape[1]
@@ -178,7 +193,7 @@ class NonlinearModel:
 
     def innovation(self, z, zhat) -> np.ndarray:
         """z - h, angle components wrapped into [-π, π)."""
-        return wrap_angles(np.asarray(z, dtype=float) - np.asarray(zhat, dtype=float), self.periods)
+        return _wrap_angles(np.asarray(z, dtype=float) - np.asarray(zhat, dtype=float), self.periods)
 
     def log_likelihood(self, z: np.ndarray, X: np.ndarray, k: int = 0) -> np.ndarray:
         """log p(z | x) at states X (N, n); NaN components of z are skipped."""
@@ -198,6 +213,19 @@ class NonlinearModel:
     def __repr__(self) -> str:
         label = f" {self.name!r}" if self.name else ""
         return f"<NonlinearModel{label} n={self.n} m={self.m}>"
+
+
+def _probe(name: str, fn, states: np.ndarray) -> np.ndarray:
+    """``fn(states)`` as an array; a function that cannot take states of this size is a ShapeError."""
+    try:
+        with np.errstate(all="ignore"):
+            out = np.asarray(fn(states))
+    except (IndexError, ValueError, TypeError) as exc:
+        raise ShapeError(f"{name}: cannot be evaluated on states (k, {states.shape[1]}) ({type(exc).__name__}: "
+                         f"{exc})") from None
+    if out.dtype.kind in "fc" and not np.isfinite(out).all():
+        raise NonFiniteError(f"{name}: gives non-finite values at the probe states (k, {states.shape[1]}) near 1")
+    return out
 
 
 def _factor(Q: np.ndarray) -> np.ndarray:
@@ -253,6 +281,8 @@ def _join_specs(specs) -> tuple | None:
     return joined
 
 
+@renamed(h="measurement", jac_h="measurement", R="measurement", angle_components="measurement", f="motion",
+         jac_f="motion", Q="motion", dt="motion")      # the model's parts are the caller's motion and measurement
 def nonlinear_model(motion: LinearGaussianModel, measurement: MeasurementModel, *, name: str = "") -> NonlinearModel:
     """A linear-Gaussian motion model (F, Q; e.g. :func:`constant_velocity`) observed by a nonlinear
     ``measurement`` (one of :func:`ranges`, :func:`bearings`, ...): the NonlinearModel with the exact
@@ -273,17 +303,20 @@ def nonlinear_model(motion: LinearGaussianModel, measurement: MeasurementModel, 
     return model
 
 
-def _indices(name: str, idx, count: int | None = None) -> tuple:
+def _indices(name: str, idx, count: int | None = None, points: str = "") -> tuple:
+    """State indices; ``count`` of them when given, the dimension of the argument ``points``
+    (a 3-D sensor with the default 2-D position: the message names the points the caller passed)."""
     idx = tuple(check_int(name, i, minimum=0) for i in np.atleast_1d(idx).tolist())
     if count is not None and len(idx) != count:
-        raise ShapeError(f"{name}: expected {count} state indices, got {len(idx)}")
+        first = f"{points}: {count}-D {points} need" if points else f"{name}: expected"
+        raise ShapeError(f"{first} {count} state indices in {name}, got {idx}")
     if len(set(idx)) != len(idx):
         raise ParameterError(f"{name}: indices must be distinct, got {idx}")
     return idx
 
 
 def _points(name: str, value) -> np.ndarray:
-    pts = np.asarray(value, dtype=float)
+    pts = as_array(name, value)
     pts = pts[None] if pts.ndim == 1 else pts
     pts = as_matrix(name, pts)
     if pts.shape[1] not in (2, 3):
@@ -295,9 +328,9 @@ def _covariance(R, m: int):
     """R as a scalar variance (same for every component), a vector of variances, a matrix, or a callable."""
     if callable(R):
         return R
-    arr = np.asarray(R, dtype=float)
+    arr = as_array("R", R)
     if arr.ndim == 0:
-        arr = float(check_positive("R", float(arr))) * np.eye(m)
+        arr = check_positive("R", float(arr)) * np.eye(m)
     elif arr.ndim == 1:
         arr = np.diag(as_vector("R", arr, m))
     return _frozen(check_covariance("R", arr, m, definite=True))
@@ -323,7 +356,7 @@ def ranges(stations, R, *, position=(0, 2)) -> MeasurementModel:
     Jacobian rows (p - s_i)/||p - s_i|| (range floored at 1e-12 at a station).
     """
     s = _points("stations", stations)
-    pos = _indices("position", position, s.shape[1])
+    pos = _indices("position", position, s.shape[1], "stations")
 
     def h(X):
         diff = np.asarray(X)[..., None, list(pos)] - s
@@ -361,7 +394,8 @@ def bearings(stations, R, *, position=(0, 2)) -> MeasurementModel:
 def range_bearing(sensor, R, *, position=(0, 2)) -> MeasurementModel:
     """[bearing (rad), range (m)] of the 2-D position x[position] from ``sensor`` (2,): the order of
     Stone Soup's CartesianToBearingRange.  R: (2, 2), a vector of 2 variances, or R(x, k)."""
-    b, r = bearings(sensor, 1.0, position=position), ranges(sensor, 1.0, position=position)
+    with renamed(stations="sensor"):
+        b, r = bearings(sensor, 1.0, position=position), ranges(sensor, 1.0, position=position)
     return MeasurementModel(lambda X: np.concatenate([b.h(X), r.h(X)], axis=-1),
                             lambda x: np.concatenate([b.jac_h(x), r.jac_h(x)], axis=-2), _covariance(R, 2), (0,),
                             "range-bearing", _join_specs([b.kernel, r.kernel]))
@@ -375,7 +409,7 @@ def range_rate(sensor, R, *, position=(0, 2), velocity=(1, 3)) -> MeasurementMod
         raise ShapeError(f"sensor: expected one position (d,), got {s.shape}")
     s = s[0]
     d = s.shape[0]
-    pos, vel = _indices("position", position, d), _indices("velocity", velocity, d)
+    pos, vel = _indices("position", position, d, "sensor"), _indices("velocity", velocity, d, "sensor")
 
     def h(X):
         X = np.asarray(X)
@@ -410,7 +444,7 @@ def tdoa(stations, R, *, position=(0, 2), reference: int = 0) -> MeasurementMode
         raise ParameterError(f"reference: expected a station index < {k}, got {ref}")
     others = [i for i in range(k) if i != ref]
     if not callable(R) and np.ndim(R) == 0:
-        var = check_positive("R", float(R))
+        var = check_positive("R", as_real("R", R))
         R = var * (np.eye(k - 1) + np.ones((k - 1, k - 1)))
 
     def h(X):

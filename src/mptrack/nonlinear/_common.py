@@ -6,7 +6,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._validation import as_sequence, as_vector, check_covariance, check_int
+from .._validation import as_sequence, as_vector, check_covariance, check_int, check_rng
 from ..errors import ParameterError
 from ..linear import FilterResult
 from ..models import NonlinearModel
@@ -45,12 +45,6 @@ def check_prior(prior: str) -> bool:
     if prior not in PRIORS:
         raise ParameterError(f"prior: expected one of {PRIORS}, got {prior!r}")
     return prior == PRIORS[1]
-
-
-def check_rng(rng) -> np.random.Generator:
-    if not isinstance(rng, np.random.Generator):
-        raise ParameterError(f"rng: expected a numpy.random.Generator, got {type(rng).__name__}")
-    return rng
 
 
 @dataclass(frozen=True, eq=False)

@@ -13,7 +13,15 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._validation import as_array, check_covariance, require_finite
+from .._validation import (
+    as_array,
+    as_vector,
+    check_covariance,
+    check_int,
+    check_record,
+    finite_result,
+    require_finite,
+)
 from ..errors import (
     NotPositiveDefiniteError,
     ParameterError,
@@ -21,7 +29,7 @@ from ..errors import (
 )
 from ..linear import FilterResult
 from ..linear._smoother import rts_backward
-from ..models import NonlinearModel
+from ..models import NonlinearModel, require_model
 from . import _named_kernels
 from ._common import BatchFilterResult, check_prior, prepare_nonlinear
 
@@ -56,9 +64,13 @@ def ekf_predict(model: NonlinearModel, x, P, k: int):
     return model.f(x[None])[0], 0.5 * (P + P.T)
 
 
+@finite_result("the EKF step")
 def ekf_step(model: NonlinearModel, x, P, z, k: int = 0):
     """One EKF iteration from x(k-1/k-1), P(k-1/k-1) with the measurement z (row k):
     (x_filt, P_filt, x_pred, P_pred, loglik increment)."""
+    model = require_model(model, kind=NonlinearModel)
+    x, P = as_vector("x", x, model.n), check_covariance("P", P, model.n)
+    z, k = as_array("z", z, shape=(model.m,), allow_nan=True), check_int("k", k, minimum=0)
     xp, Pp = ekf_predict(model, x, P, k)
     x, P, ll = ekf_update(model, xp, Pp, z, k)
     return x, P, xp, Pp, ll
@@ -88,6 +100,7 @@ def _run(model, z, x0, P0, prior, predict, update, method):
                         x0=None if first else x0, P0=None if first else P0)
 
 
+@finite_result("the EKF")
 def ekf_filter(model: NonlinearModel, z, x0, P0, *, prior: str = "initial") -> FilterResult:
     """Extended Kalman filter over measurements z (T, m) (module docstring).
 
@@ -122,8 +135,11 @@ def named_result(out, x0, P0, first: bool, method: str) -> FilterResult:
 
 
 def _check_result(model, result) -> None:
+    if not isinstance(model, NonlinearModel):
+        raise ParameterError(f"model: expected a NonlinearModel, got {type(model).__name__}")
     if not isinstance(result, FilterResult) or result.x_pred is None:
         raise ParameterError(f"result: expected the FilterResult of a filter run, got {type(result).__name__}")
+    check_record("result", result)
     if result.n != model.n:
         raise ParameterError(f"result: state dimension {result.n} does not match the model's n = {model.n}")
 
@@ -144,12 +160,14 @@ def smooth_with(model, result, cross, method):
     return FilterResult(x=xs, P=Ps, method=method)
 
 
+@finite_result("the extended RTS smoother")
 def ekf_smoother(model: NonlinearModel, result: FilterResult) -> FilterResult:
     """Extended RTS smoother on :func:`ekf_filter`'s result: x(k/T), P(k/T), and x(0/T), P(0/T) as
     x0, P0 when the filter's prior was at time 0 (method "ERTS")."""
     return smooth_with(model, result, lambda mdl, x, P, k: P @ mdl.F_at(x).T, "ERTS")
 
 
+@finite_result("the EKF")
 def ekf_filter_batch(model: NonlinearModel, z, x0, P0) -> BatchFilterResult:
     """:func:`ekf_filter` on B independent tracks at once (prior at time 0): z (B, T, m) with NaN = missing,
     x0 (n,) or (B, n), P0 (n, n) or (B, n, n).  Vectorised over tracks (NumPy batched linear algebra), for
@@ -171,7 +189,7 @@ def ekf_filter_batch(model: NonlinearModel, z, x0, P0) -> BatchFilterResult:
     x0 = as_array("x0", x0)
     if x0.shape not in ((n,), (B, n)):
         raise ShapeError(f"x0: expected shape ({n},) or ({B}, {n}), got {x0.shape}")
-    P0 = np.asarray(P0, dtype=float)
+    P0 = as_array("P0", P0)
     P0 = check_covariance("P0", P0, n) if P0.ndim != 3 else np.stack(
         [check_covariance(f"P0[{b}]", p, n) for b, p in enumerate(P0)])
     x0, P0 = np.broadcast_to(x0, (B, n)).copy(), np.broadcast_to(P0, (B, n, n)).copy()

@@ -63,7 +63,15 @@ import scipy.linalg.lapack
 import scipy.sparse
 import scipy.sparse.linalg
 
-from .._validation import as_array, check_int, check_positive
+from .._validation import (
+    as_array,
+    broadcast_shape,
+    check_allocation,
+    check_int,
+    check_positive,
+    finite_result,
+    require_finite,
+)
 from ..errors import ConvergenceError, ParameterError, ShapeError
 from ..linear import FilterResult
 from ._common import prepare_nonlinear
@@ -82,13 +90,15 @@ _DJ = np.array([0, 0, 2, 2, 0, 1, 2, 1])
 _GAUSS3 = (np.array([-np.sqrt(0.6), 0.0, np.sqrt(0.6)]), np.array([5.0, 8.0, 5.0]) / 9.0)
 
 
+@finite_result("the shape functions")
 def shape_functions(xi, eta):
     """Serendipity shape functions N (…, 8) and derivatives dN/dξ, dN/dη (seed 004 eqs. 11–12).
 
     Corners: N = ¼(1+ξξᵢ)(1+ηηᵢ)(ξξᵢ+ηηᵢ−1); mid-sides: ½(1−ξ²)(1+ηηᵢ) or ½(1+ξξᵢ)(1−η²).
     """
-    xi = np.asarray(xi, dtype=float)[..., None]
-    eta = np.asarray(eta, dtype=float)[..., None]
+    xi = as_array("xi", xi)[..., None]
+    eta = as_array("eta", eta)[..., None]
+    broadcast_shape(xi=xi, eta=eta)
     a, b = 1.0 + xi * _XI, 1.0 + eta * _ETA
     N = np.empty(np.broadcast_shapes(xi.shape, eta.shape)[:-1] + (8,))
     dx, dy = np.empty_like(N), np.empty_like(N)
@@ -184,12 +194,16 @@ class FEMGrid:
         hi = as_array("hi", self.hi, shape=(2,))
         if np.any(hi <= lo):
             raise ParameterError(f"hi: must exceed lo in both coordinates, got lo={lo}, hi={hi}")
+        if not np.all(np.isfinite(hi - lo)):
+            raise ParameterError(f"hi: the box [lo, hi] is wider than the float64 range, lo={lo}, hi={hi}")
         n1 = check_int("n1", self.n1, minimum=1)
         n2 = check_int("n2", self.n2, minimum=1)
+        check_allocation("n1", n1 * n2, 8.0 * 64 * (2 * n1 + 1) * (2 * n2 + 1))   # nodes and their matrices
         top = _topology(n1, n2)
         h = (hi - lo) / np.array([n1, n2])
         nodes = lo + 0.5 * h * top["lattice"]
         W0 = (h[0] * h[1]) * top["V0"]
+        require_finite("the element areas", W0, lo=lo, hi=hi)
         set_ = object.__setattr__
         for name, val in (("lo", lo), ("hi", hi), ("nodes", nodes), ("W0", W0)):
             val.setflags(write=False)
@@ -509,6 +523,7 @@ def _gaussian_on(grid: FEMGrid, m, P):
     return np.exp(-0.5 * np.sum(D * w, axis=1))
 
 
+@finite_result("the FEM filter")
 def fem_steps(model: ContinuousDiscreteModel, z, x0, P0, *, grid: tuple[int, int] = (20, 20),
               width: float = 4.0, substeps: int | None = None, scheme: str = "characteristics",
               stabilise: bool = False, box: tuple | None = None, splits: int = 4) -> Iterator[FEMStep]:
@@ -667,6 +682,7 @@ def _characteristic_steps(model, z, m, P, g: FEMGrid, width, substeps, fixed: bo
                       loglik=ll, clipped=clipped, lost=lost, regridded=regridded, factorised=factorised)
 
 
+@finite_result("the FEM filter")
 def fem_filter(model: ContinuousDiscreteModel, z, x0, P0, **options) -> FilterResult:
     """The FEM grid filter (seed 004) as a FilterResult; options as for :func:`fem_steps`."""
     rows, loglik = [], 0.0

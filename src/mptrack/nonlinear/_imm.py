@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._validation import as_matrix, as_vector
+from .._validation import as_matrix, as_real, as_vector, check_positive, finite_result
 from ..errors import ParameterError, ShapeError
 from ..linear import FilterResult
 from ..models import LinearGaussianModel, MeasurementModel, NonlinearModel, constant_acceleration
@@ -106,6 +106,7 @@ def imm_filter(models, z, x0, P0, transition, *, mu0=None) -> IMMResult:
                      mu=mus, x_modes=xm)
 
 
+@finite_result("the CV/CA models")
 def cv_ca_models(dt: float, q_cv: float, q_ca: float, measurement: MeasurementModel, *, axes: int = 2,
                  p_stay: float = 0.95):
     """The two-model CV/CA manoeuvre tracker on the CA state [x, vx, ax, y, vy, ay(, z, vz, az)]:
@@ -113,8 +114,11 @@ def cv_ca_models(dt: float, q_cv: float, q_ca: float, measurement: MeasurementMo
     density), mode 1 constant acceleration (white-jerk density q_ca), both observed by ``measurement``
     (built with position=(0, 3[, 6]) and, for range rate, velocity=(1, 4[, 7])).
     Returns (models, transition) for :func:`imm_filter`; transition = [[p, 1-p], [1-p, p]], p = p_stay."""
-    if not 0.0 < p_stay < 1.0:
+    if not 0.0 < as_real("p_stay", p_stay) < 1.0:
         raise ParameterError(f"p_stay: expected a probability in (0, 1), got {p_stay!r}")
+    if not isinstance(measurement, MeasurementModel):
+        raise ParameterError(f"measurement: expected a MeasurementModel, got {type(measurement).__name__}")
+    dt, q_cv = check_positive("dt", dt), check_positive("q_cv", q_cv, allow_zero=True)
     ca = constant_acceleration(dt, q_ca, axes=axes)
     cv1 = np.array([[1.0, dt, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 0.0]])
     q1 = q_cv * np.array([[dt ** 3 / 3, dt ** 2 / 2, 0.0], [dt ** 2 / 2, dt, 0.0], [0.0, 0.0, 0.0]])

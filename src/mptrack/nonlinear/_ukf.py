@@ -22,7 +22,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._validation import as_vector, check_covariance, check_positive, finite_result
+from .._validation import (
+    as_real,
+    as_vector,
+    check_covariance,
+    check_positive,
+    finite_result,
+)
 from ..errors import ConvergenceError, NotPositiveDefiniteError, ParameterError
 from ..linear import FilterResult
 from ..models import NonlinearModel
@@ -60,9 +66,10 @@ def check_unscented(n: int, alpha, beta, kappa) -> dict:
     """Validated scaled-unscented-transform parameters: α > 0, β >= 0, n + κ > 0 (so (n + λ) > 0)."""
     alpha = check_positive("alpha", alpha)
     beta = check_positive("beta", beta, allow_zero=True)
-    if isinstance(kappa, bool) or not np.isfinite(np.asarray(kappa, dtype=float)) or n + float(kappa) <= 0:
+    kappa = as_real("kappa", kappa)
+    if n + kappa <= 0:
         raise ParameterError(f"kappa: expected a finite number with n + kappa > 0 (n = {n}), got {kappa!r}")
-    return {"alpha": alpha, "beta": beta, "kappa": float(kappa)}
+    return {"alpha": alpha, "beta": beta, "kappa": kappa}
 
 
 @finite_result("the sigma points")
@@ -74,9 +81,13 @@ def sigma_points(m: np.ndarray, P: np.ndarray, *, alpha: float = 1.0, beta: floa
     propagated covariance PSD.
     """
     m = as_vector("m", m)
+    P = check_covariance("P", P, m.shape[0])
+    return _sigma_points(m, P, **check_unscented(m.shape[0], alpha, beta, kappa))
+
+
+def _sigma_points(m: np.ndarray, P: np.ndarray, *, alpha: float, beta: float, kappa: float):
+    """:func:`sigma_points` of validated arguments (the filters' inner step)."""
     n = m.shape[0]
-    P = check_covariance("P", P, n)
-    alpha, beta, kappa = check_unscented(n, alpha, beta, kappa).values()
     c, Wm, Wc = _weights(n, alpha, beta, kappa)
     S = _sqrt(c * P, "P")
     X = np.empty((2 * n + 1, n))
@@ -96,7 +107,7 @@ def _circular_mean(model, Z: np.ndarray, Wm: np.ndarray) -> np.ndarray:
 
 
 def _moment_rate(model, m, P, ut):
-    X, Wm, Wc = sigma_points(m, P, **ut)
+    X, Wm, Wc = _sigma_points(m, P, **ut)
     F = model.drift(X)
     dm = Wm @ F
     D = X - m
@@ -123,7 +134,7 @@ def ukf_update(model, m, P, z, *, ut: dict, k: int = 0):
     ok = ~np.isnan(z)
     if not ok.any():
         return m, P, 0.0
-    X, Wm, Wc = sigma_points(m, P, **ut)
+    X, Wm, Wc = _sigma_points(m, P, **ut)
     if isinstance(model, NonlinearModel):
         Z, R = model.h(X), model.R_at(m, k)
     else:
@@ -147,7 +158,7 @@ def ukf_update(model, m, P, z, *, ut: dict, k: int = 0):
 
 def _unscented_prediction(model: NonlinearModel, x, P, k: int, ut: dict):
     """(x(k/k-1), P(k/k-1), cross-covariance of x(k-1) and x(k)) by the unscented transform through f."""
-    X, Wm, Wc = sigma_points(x, P, **ut)
+    X, Wm, Wc = _sigma_points(x, P, **ut)
     Y = model.f(X)
     m = Wm @ Y
     dY = Y - m
@@ -183,8 +194,8 @@ def ukf_filter(model, z, x0, P0, *, alpha: float = 1.0, beta: float = 2.0, kappa
         if out[0] == _named_kernels.OK:
             return named_result(out, x, P, first, "UKF")
     if isinstance(model, NonlinearModel):
-        predict = lambda mdl, x, P, k: _unscented_prediction(mdl, x, P, k, ut)[:2]  # noqa: E731
-        update = lambda mdl, x, P, z, k: ukf_update(mdl, x, P, z, ut=ut, k=k)  # noqa: E731
+        predict = lambda mdl, x, P, k: _unscented_prediction(mdl, x, P, k, ut)[:2]
+        update = lambda mdl, x, P, z, k: ukf_update(mdl, x, P, z, ut=ut, k=k)
         return _run(model, z, x, P, prior, predict, update, "UKF")
     if prior != "initial":
         raise ParameterError("prior: a ContinuousDiscreteModel's prior is at t = 0 (prior='initial')")
@@ -206,6 +217,7 @@ def ukf_filter(model, z, x0, P0, *, alpha: float = 1.0, beta: float = 2.0, kappa
     return FilterResult(x=xs, P=Ps, x_pred=xp, P_pred=Pp, loglik=loglik, method="UKF", x0=x0, P0=P0)
 
 
+@finite_result("the unscented RTS smoother")
 def ukf_smoother(model: NonlinearModel, result: FilterResult, *, alpha: float = 1.0, beta: float = 2.0,
                  kappa: float = 0.0) -> FilterResult:
     """Unscented RTS smoother (Särkkä 2008, IEEE TAC 53(3)) on :func:`ukf_filter`'s result for a

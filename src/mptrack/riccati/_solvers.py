@@ -19,7 +19,7 @@ from typing import Literal
 import numpy as np
 import scipy.linalg
 
-from .._validation import _overflow, check_covariance, check_int, check_positive, require_finite
+from .._validation import _overflow, check_covariance, check_int, check_positive, renamed, require_finite
 from ..errors import ConvergenceError, MptrackError, ParameterError
 from ..models import LinearGaussianModel, require_model
 from ._checks import check_detectable, check_stabilisable, undriven_modes
@@ -114,8 +114,9 @@ def _residual(model, P_pred, P_next=None) -> float:
 
 
 def _check_exists(model: LinearGaussianModel) -> None:
-    check_detectable(model.F, model.H)
-    check_stabilisable(model.F, model.noise_factor())
+    with renamed(F="model", H="model", Q_factor="model"):       # the caller passed the model
+        check_detectable(model.F, model.H)
+        check_stabilisable(model.F, model.noise_factor())
 
 
 #: The relative step at which the per-step recursion is "in steady state" (the steady-state time
@@ -223,10 +224,24 @@ def _doubling(model, tol, max_iter, X0=None):
         f"in {max_iter} doublings")
 
 
-def _dare(model):
-    # existence was checked before (PBH tests), so a failure here is numerical, not a missing solution
-    P = scipy.linalg.solve_discrete_are(model.F.T, model.H.T, model.Q, model.R)
-    return _sym(P), 0
+def _dare(model, X0, max_iter):
+    """scipy's DARE solver on the problem scaled to R of unit size: P solves the DARE of (Q, R) iff
+    P / c solves that of (Q / c, R / c), and scipy's QZ reordering fails (or loses digits) when R is far
+    from 1 (sigma_r = 1e7 m: "Reordering of (A, B) failed"; at 1e-6 m^2/s^3 and 1e7 m it was 3e-4 off
+    the doubling algorithm's answer, scaled 2e-8).  Existence was checked before (PBH tests), so when
+    the QZ method still fails (Q / R beyond ~1e40 either way: "Failed to find a finite solution") the
+    problem is solvable but ill-conditioned for it: the doubling algorithm solves it instead."""
+    c = float(np.abs(model.R).max())
+    try:
+        P = _sym(scipy.linalg.solve_discrete_are(model.F.T, model.H.T, model.Q / c, model.R / c) * c)
+    except (np.linalg.LinAlgError, ValueError):
+        return _doubling(model, None, max_iter, X0)
+    # QZ can also "succeed" with a wrong answer on such problems (q = 1e-6, sigma_r = 1e20: P with a
+    # negative diagonal of -4e39): a solution that is not PSD or not a fixed point is not accepted
+    with np.errstate(all="ignore"):
+        ok = np.all(np.isfinite(P)) and np.linalg.eigvalsh(P)[0] >= -1e-9 * np.abs(P).max() \
+            and _residual(model, P) <= 1e-8
+    return (P, 0) if ok else _doubling(model, None, max_iter, X0)
 
 
 def _relf(model, P0, tol, max_iter):
@@ -303,7 +318,7 @@ def _solve(model, method, form, P0, tol, max_iter) -> SteadyState:
                            residual=_residual(model, P_pred))
 
     if method == "dare":
-        P_pred, iters = _dare(model)
+        P_pred, iters = _dare(model, X0, max_iter)
         ss_time = None
     elif method == "doubling":
         P_pred, iters = _doubling(model, tol, max_iter, X0)

@@ -18,9 +18,11 @@ import numpy as np
 import pandas as pd
 import scipy.stats
 
+from .._validation import check_frame, check_path, check_positive
 from ..errors import DataError
 from ..io import FIXES, LocalFrame, ReadOptions, read_table
 from ..io._formats import raw_chunks
+from ._output import POINT_COLUMNS
 
 __all__ = ["attach_truth", "evaluate_tracks"]
 
@@ -55,6 +57,16 @@ def _one_track_ids(truth: pd.DataFrame, tracks: pd.DataFrame, file) -> pd.DataFr
     return truth
 
 
+def _check_points(name: str, tracks, columns=()) -> None:
+    """A point table: t finite, its other numeric columns (and any other column of numbers) numbers or
+    NaN (a point table's NaN marks what is not there: no NIS at a track's first fix, no velocity, no
+    geographic origin), never +-Inf."""
+    text = {"track_id", "time", "flag", "method", "gap", "is_outlier"}
+    numeric = [c for c in getattr(tracks, "columns", ()) if c not in text and not pd.api.types.is_bool_dtype(tracks[c])
+               and (c in POINT_COLUMNS or pd.api.types.is_numeric_dtype(tracks[c]))]
+    check_frame(name, tracks, columns, {c: {} if c == "t" else {"allow_nan": True} for c in numeric})
+
+
 #: The columns :func:`attach_truth` adds.
 _ADDED = ("true_lat", "true_lon", "true_x", "true_y", "true_east_m", "true_north_m", "error_m", "nees")
 
@@ -66,6 +78,10 @@ def attach_truth(tracks: pd.DataFrame, truth, *, tolerance_s: float = 0.5,
     Truth in lat/lon is projected into each track's local frame; truth in x/y (metres) is
     compared directly with tracks that were computed in x/y (no geographic origin).
     """
+    _check_points("tracks", tracks, ("track_id", "t", "origin_lat"))
+    tolerance_s = check_positive("tolerance_s", tolerance_s, allow_zero=True)
+    if not isinstance(truth, pd.DataFrame):
+        check_path("truth", truth)
     tt, geographic = _truth_table(truth, file)
     # columns this adds replace any of the same name (a simulated log's truth passed through the track)
     est = tracks.drop(columns=[c for c in _ADDED if c in tracks.columns])
@@ -138,6 +154,7 @@ def _stats(g: pd.DataFrame) -> dict:
 def evaluate_tracks(tracks: pd.DataFrame, truth=None, *, tolerance_s: float = 0.5,
                     truth_file="truth") -> tuple[dict, pd.DataFrame]:
     """(summary {"overall": {...}, "tracks": {id: {...}}}, tracks with error columns if truth given)."""
+    _check_points("tracks", tracks)
     needed = ["track_id", "t", "flag", "nis", "nis_dof"] + (
         ["east_m", "north_m", "var_east_m2", "cov_en_m2", "var_north_m2", "origin_lat", "origin_lon"]
         if truth is not None else [])
