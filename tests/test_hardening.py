@@ -49,8 +49,19 @@ def test_every_public_function_has_a_strategy():
     assert not missing, f"public functions without a strategy in tests/_hardening.py: {missing}"
     stale = sorted(name for name in H.TARGETS if ".".join(name.split(".")[:2]) not in public)
     assert not stale and H.RECORDS <= set(public), (stale, sorted(H.RECORDS - set(public)))
-    assert set(H.PACKAGES) >= {"linear", "batch", "riccati", "models", "nonlinear", "radio", "fuzzy", "metrics",
-                               "burden", "sim", "tracking", "io"}
+    assert set(H.PACKAGES) >= {"mptrack", "linear", "batch", "riccati", "models", "nonlinear", "cellular",
+                               "continuous", "radio", "fuzzy", "metrics", "burden", "sim", "tracking", "io"}
+
+
+def test_packages_are_found_not_listed():
+    """Every public module is fuzzed unless excluded with a reason: the packages are found on disk, so a
+    new package is in the harness as soon as it exists (and the test above fails until it has strategies)."""
+    modules = set(H.public_modules())
+    assert set(H.NOT_FUZZED) <= modules, sorted(set(H.NOT_FUZZED) - modules)
+    assert set(H.PACKAGES) == (modules - set(H.NOT_FUZZED)) | {"mptrack"}
+    for package in H.PACKAGES:
+        module = H._module(package)
+        assert isinstance(getattr(module, "__all__", None), list), f"mptrack.{package} has no __all__"
 
 
 def test_messages_must_start_with_an_argument():
@@ -292,7 +303,7 @@ def test_fir_order_beyond_the_data_costs_nothing():
 
 def test_ranges_of_huge_coordinates_are_finite():
     """hypot instead of the square root of a sum of squares: no overflow below the float range."""
-    r, H_ = __import__("mptrack.nonlinear").nonlinear.range_measurement(np.array([1e300, 0.0]), H.STATIONS)
+    r, H_ = __import__("mptrack.cellular").cellular.range_measurement(np.array([1e300, 0.0]), H.STATIONS)
     np.testing.assert_allclose(r, 1e300)
     assert np.isfinite(H_).all()
 
@@ -300,9 +311,9 @@ def test_ranges_of_huge_coordinates_are_finite():
 def test_a_singular_innovation_covariance_is_not_an_overflow():
     """R = 1e-30 on exact ranges: the innovation covariance is singular; the error says so and names R
     (it said "overflowed the float64 range" and named stations, the largest input)."""
-    from mptrack import nonlinear
+    from mptrack import cellular
     with pytest.raises(SingularMatrixError, match=r"^R: .*a matrix the EKF inverts became singular"):
-        nonlinear.ekf_ranges_batch(np.full((1, 3, 3), 500.0), H.STATIONS, [[1.0, 1.0]], np.eye(2), np.eye(2), 1e-30)
+        cellular.ekf_ranges_batch(np.full((1, 3, 3), 500.0), H.STATIONS, [[1.0, 1.0]], np.eye(2), np.eye(2), 1e-30)
 
 
 @pytest.mark.parametrize("q, sigma", [(1e-3, 1e7), (1.0, 1e9), (1e-6, 1e20), (1e80, 5.0)])

@@ -8,12 +8,16 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from mptrack.cellular import ekf_ranges, fekf_ranges
 from mptrack.errors import ParameterError, UnknownNameError
 from mptrack.io import LocalFrame, iter_tracks
 from mptrack.linear import kalman_filter, kalman_filter_irregular, rts_smoother
-from mptrack.models import (constant_acceleration_continuous, constant_velocity_continuous, discretize_intervals,
-                            van_loan)
-from mptrack.nonlinear import ekf_ranges, fekf_ranges
+from mptrack.models import (
+    constant_acceleration_continuous,
+    constant_velocity_continuous,
+    discretize_intervals,
+    van_loan,
+)
 from mptrack.radio import arfcn_to_frequency, path_loss
 from mptrack.tracking import (TA_STEP_M, TrackOptions, band_of_arfcn, get_cell_method, get_model, kalman_filter_gated,
                               nis_threshold, ranges_km, smooth_gated, simulate, track_cells, track_fixes)

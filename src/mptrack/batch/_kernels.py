@@ -24,6 +24,8 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
+from .. import _jit_cache  # noqa: F401 - compiled kernels cache in the user's cache directory
+
 __all__ = ["ss_kernel", "ss_kernel_21", "kf_kernel", "kf_kernel_21", "fir_kernel", "matvec_kernel",
            "copy_kernel"]
 

@@ -17,8 +17,8 @@ import numpy as np
 from .._validation import check_allocation, check_int, finite_result
 from ..errors import ParameterError
 from ..linear import FilterResult
+from ..nonlinear._pf import particle_filter, pf_substeps
 from ._model import ContinuousDiscreteModel
-from ._pf import particle_filter, pf_substeps
 
 __all__ = ["reference_filter", "pf_substep_study"]
 
