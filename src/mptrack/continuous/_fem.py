@@ -624,8 +624,7 @@ def _box(model, m, P, width, floor):
     projected onto the PSD cone and its eigenvalues floored at ``floor``² first (a
     posterior narrower than an element has moments that are not trustworthy).
     """
-    w, V = np.linalg.eigh(0.5 * (P + P.T))
-    P = (V * np.maximum(w, floor * floor)) @ V.T
+    P = _psd_floor(P, floor)
     s = np.sqrt(np.diag(P))
     X, Wm, Wc = sigma_points(m, P)
     Y = _drift_flow(model, X, model.dt)
@@ -636,9 +635,18 @@ def _box(model, m, P, width, floor):
     return lo, hi
 
 
+def _psd_floor(P, floor: float) -> np.ndarray:
+    """P projected onto the PSD cone, its eigenvalues floored at ``floor``²."""
+    w, V = np.linalg.eigh(0.5 * (P + P.T))
+    return (V * np.maximum(w, floor * floor)) @ V.T
+
+
 def _predicted_box(model, m, P, width, floor, duration):
     """Rectangle covering the predicted mean ± width·σ after ``duration`` (sigma points through
-    the noise-free flow, plus Q·duration), σ floored at ``floor``."""
+    the noise-free flow, plus Q·duration), σ floored at ``floor``.  A P that is not PSD (on a coarse grid
+    the moments of a density with clipped negative lobes need not be) is projected onto the PSD cone."""
+    if np.linalg.eigvalsh(0.5 * (P + P.T))[0] < 0.0:
+        P = _psd_floor(P, 0.0)
     X, Wm, Wc = sigma_points(m, P)
     Y = _drift_flow(model, X, duration)
     mp = Wm @ Y
