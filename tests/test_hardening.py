@@ -26,6 +26,7 @@ from mptrack import batch, linear, riccati
 from mptrack.errors import (
     ConvergenceError,
     NonFiniteError,
+    NotPositiveDefiniteError,
     ParameterError,
     ResourceError,
     ShapeError,
@@ -347,3 +348,91 @@ def test_tracking_sigma_bound_is_where_the_engine_stays_finite():
 def test_derived_and_passed_on_arguments_are_named_as_given(call, name):
     with pytest.raises(Exception, match=rf"^{name}:"):
         call()
+
+
+# --- the audit's fuzz re-run after the merge with main: what it still found -----------------------
+
+def test_memory_limit_respects_the_address_space_limit(monkeypatch):
+    """Under ``ulimit -v`` (6 GiB in the audit's runner) an allocation the physical-memory limit let
+    through (gain_sequence of 10^8 steps, 8 GB) died as a MemoryError; the limit is now at most half
+    the address-space limit, so it is refused first, by name."""
+    import resource
+
+    from mptrack._validation import memory_limit
+    monkeypatch.delenv("MPTRACK_MAX_BYTES", raising=False)
+    monkeypatch.setattr(resource, "getrlimit", lambda what: (6 * 2**30, resource.RLIM_INFINITY))
+    assert memory_limit() <= 3 * 2**30
+    with pytest.raises(ResourceError, match=r"^steps: 100000000 needs"):
+        batch.gain_sequence(B, 10**8)
+
+
+def test_a_relabelled_error_is_not_relabelled_again():
+    """cellular.ekf_ranges runs the generic EKF: its error was named twice ("stations: model: EKF: ...",
+    the largest input of each layer); a covariance that loses definiteness in a run comes from a scale
+    too small for the others, so the smallest input is named, once."""
+    from mptrack import cellular
+    with pytest.raises(NotPositiveDefiniteError, match=r"^R: EKF: the innovation covariance at measurement 0"):
+        cellular.ekf_ranges(np.full((3, 3), 500.0), H.STATIONS, [1.0, 1.0], np.eye(2), np.eye(2), 1e-30)
+
+
+def test_an_unpassed_parameter_is_a_name_of_the_call():
+    """A message about a parameter left out (P0 is required) starts with it; it used to be renamed
+    after the largest given input ("x0: P0: the prior covariance is required")."""
+    with pytest.raises(ParameterError, match=r"^P0: the prior covariance is required"):
+        linear.kalman_filter(B, np.zeros((3, 1)), x0=[1e308, 1e308])
+
+
+@pytest.mark.parametrize("call, name", [
+    (lambda: batch.range_ekf(batch.RangeModel.constant_velocity(1.0, 1.0, H.STATIONS, 1e-300),
+                             np.full((1, 3, 3), 500.0), [1.0, 0.0, 1.0, 0.0], np.eye(4)), "model"),
+    (lambda: batch.range_ekf(batch.RangeModel.constant_velocity(1.0, 1.0, H.STATIONS, 1e-30),
+                             np.linalg.norm(np.array([[300.0, 400.0]] * 3)[:, None] - H.STATIONS, axis=-1)[None],
+                             [300.0, 0.0, 400.0, 0.0], np.eye(4)), "model"),
+    (lambda: __import__("mptrack.metrics").metrics.nees(np.ones((2, 2)), np.array([np.eye(2) * 1e-320] * 2),
+                                                         np.zeros((2, 2))), "P"),
+])
+def test_a_negligible_scale_is_not_reported_as_an_overflow(call, name):
+    """NaN from moderate inputs of which one is negligible (sigma_r2 = 1e-300; P = 1e-320), and numba's
+    SystemError around a ZeroDivisionError, were "overflowed the float64 range" naming the largest input."""
+    with pytest.raises(SingularMatrixError, match=rf"^{name}: a matrix .* inverts became singular"):
+        call()
+
+
+def test_fir_order_of_a_slowly_decaying_matrix_is_immediate():
+    """||A^M|| >= rho^M: the scan starts where rho^M falls below eps (A^M by repeated squaring), not at
+    M = 1 (rho = 0.999999, eps = 1e-12: 2.8e7 products, over a minute)."""
+    start = time.perf_counter()
+    assert linear.fir_order(0.999999 * np.eye(2), 1e-12, max_order=10**12) == 27631008
+    with pytest.raises(ConvergenceError, match=r"^max_order: .* more than max_order = 100000"):
+        linear.fir_order(0.999999 * np.eye(2), 1e-12)
+    assert time.perf_counter() - start < 1.0
+
+
+def test_fir_order_is_the_smallest_order():
+    """The same M as the scan from 1, on random stable matrices, normal and not."""
+    def scan(A, eps, norm):
+        power = A.copy()
+        for M in range(1, 100_000):
+            if np.linalg.norm(power, norm) < eps:
+                return M
+            power = power @ A
+    rng = np.random.default_rng(16)
+    for _ in range(200):
+        A = rng.normal(size=(3, 3))
+        A *= rng.uniform(0.05, 0.995) / max(abs(np.linalg.eigvals(A)))
+        eps, norm = 10.0 ** rng.uniform(-12, -1), [2, 1, np.inf, "fro"][rng.integers(4)]
+        assert linear.fir_order(A, eps, norm=norm) == scan(A, eps, norm)
+
+
+def test_a_per_step_recursion_too_slow_to_finish_stops_with_advice():
+    """A mode of F at 0.999999 barely driven: the per-step recursion needs ~10^7 steps (minutes) even
+    with max_iter = 10^12; it stops from its measured rate and points to the doubling algorithm."""
+    model = LinearGaussianModel(np.eye(2) * 0.999999, [[1.0, 0.0]], np.eye(2) * 1e-12, [[1.0]])
+    start = time.perf_counter()
+    with pytest.raises(ConvergenceError, match=r"^method: the per-step Riccati recursion converges by a factor"):
+        riccati.steady_state(model, "per-step", max_iter=10**12)
+    with pytest.raises(ConvergenceError, match=r"^max_iter: .* more than max_iter = 100000; use method='doubling'"):
+        riccati.steady_state(model, "per-step")
+    assert time.perf_counter() - start < 30.0
+    P = riccati.steady_state(model, "doubling").P_pred
+    assert riccati.riccati_residual(model, P) < 1e-12

@@ -315,14 +315,25 @@ def check_rng(rng, name: str = "rng") -> np.random.Generator:
 
 
 def memory_limit() -> int:
-    """Bytes one call may allocate: ``MPTRACK_MAX_BYTES`` or half the physical memory."""
+    """Bytes one call may allocate: ``MPTRACK_MAX_BYTES``, else half the physical memory, or half the
+    process's address-space limit (``ulimit -v``) when that is lower (the process's own mappings,
+    the interpreter and the compiled code, take part of it)."""
     env = os.environ.get("MPTRACK_MAX_BYTES")
     if env:
         return int(float(env))
     try:
-        return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES") // 2
+        limit = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES") // 2
     except (ValueError, OSError, AttributeError):  # pragma: no cover - not POSIX
-        return 8 * 2**30
+        limit = 8 * 2**30
+    try:
+        import resource
+
+        soft = resource.getrlimit(resource.RLIMIT_AS)[0]
+        if soft != resource.RLIM_INFINITY:
+            limit = min(limit, soft // 2)
+    except (ImportError, ValueError, OSError):  # pragma: no cover - not POSIX
+        pass
+    return limit
 
 
 def _bytes_text(n: float) -> str:
@@ -410,30 +421,47 @@ def _by_magnitude(inputs: dict, smallest: bool = False) -> list:
 
 #: Inputs all below this magnitude cannot overflow the products of a filter step.
 _MODERATE = 1e150
+#: An input scale below this, next to moderate ones, leaves nothing to invert in float64 (1e-30 against
+#: the unit scale of the others is already below the rounding of their sum).
+_NEGLIGIBLE = 1e-100
 
 
 def _overflow(what: str, inputs: dict, cause) -> NonFiniteError | SingularMatrixError:
     """The error of a computation that broke down (``cause``) or gave NaN/infinity from finite
     ``inputs``: an overflow naming the input of largest magnitude; or, when a matrix turned singular
     although no input is near the float range (a noise variance negligible against the others,
-    sigma_r2 = 1e-30 on exact ranges), a SingularMatrixError naming the input of smallest scale."""
+    sigma_r2 = 1e-30 on exact ranges), a SingularMatrixError naming the input of smallest scale.  NaN
+    or infinity without an exception from moderate inputs of which one is negligible (below 1e-100)
+    is that case too (a division by a rounded-away difference), not an overflow."""
+    if isinstance(cause, SystemError) and isinstance(cause.__cause__, _BREAKDOWNS):
+        cause = cause.__cause__      # numba wraps an exception raised in compiled code
     sizes = _by_magnitude(inputs)
+    moderate = not sizes or sizes[0][0] < _MODERATE
     singular = isinstance(cause, ZeroDivisionError) or (
-        isinstance(cause, np.linalg.LinAlgError) and "singular" in str(cause).lower())
-    if singular and (not sizes or sizes[0][0] < _MODERATE):
+        isinstance(cause, np.linalg.LinAlgError) and "singular" in str(cause).lower()) or (
+        cause is None and moderate and inputs and 0 < _by_magnitude(inputs, smallest=True)[0][0] < _NEGLIGIBLE)
+    if singular and moderate:
         small = _by_magnitude(inputs, smallest=True) if inputs else [(0.0, "inputs")]
         first = small[0][1]
         scales = ", ".join(f"|{k}| down to {m:.3g}" for m, k in small if m > 0)
-        return SingularMatrixError(
-            f"{first}: a matrix {what} inverts became singular ({type(cause).__name__}: {cause}); the inputs "
-            f"hold {scales}: a noise variance negligible against the state's covariance (or an exact "
-            "measurement) leaves nothing to invert; increase the smallest noise variance")
+        why = f" ({type(cause).__name__}: {cause})" if cause is not None else " (a NaN or infinity appeared)"
+        return _labelled(SingularMatrixError, first,
+                         f"a matrix {what} inverts became singular{why}; the inputs "
+                         f"hold {scales}: a noise variance negligible against the state's covariance (or an exact "
+                         "measurement) leaves nothing to invert; increase the smallest noise variance")
     named = ", ".join(f"|{k}| up to {m:.3g}" for m, k in sizes if m > 0) or "no large values"
     first = sizes[0][1] if sizes else "inputs"
     why = f" ({type(cause).__name__}: {cause})" if cause is not None else ""
-    return NonFiniteError(
-        f"{first}: {what} overflowed the float64 range (a NaN or infinity appeared from finite input"
-        f"{why}); the inputs hold {named}; rescale them (e.g. metres -> km) or check the model")
+    return _labelled(NonFiniteError, first,
+                     f"{what} overflowed the float64 range (a NaN or infinity appeared from finite input"
+                     f"{why}); the inputs hold {named}; rescale them (e.g. metres -> km) or check the model")
+
+
+def _labelled(cls, name: str, message: str) -> MptrackError:
+    """``cls("name: message")``, remembering the message without the name (see :func:`_caller_named`)."""
+    exc = cls(f"{name}: {message}")
+    exc._unlabelled = message
+    return exc
 
 
 _BREAKDOWNS = (np.linalg.LinAlgError, ZeroDivisionError, FloatingPointError, OverflowError)
@@ -450,6 +478,7 @@ def finite_result(what: str):
     (missing data, where the function allows it)."""
     def wrap(fn):
         signature = inspect.signature(fn)
+        names = frozenset(signature.parameters)
         if inspect.isgeneratorfunction(fn):     # a generator's steps are results: check each as it comes
             @functools.wraps(fn)
             def steps(*args, **kwargs):
@@ -457,7 +486,7 @@ def finite_result(what: str):
                 run = fn(*args, **kwargs)
                 while True:
                     try:
-                        step = _checked(lambda: next(run), inputs, what)
+                        step = _checked(lambda: next(run), inputs, what, names)
                     except StopIteration:
                         return
                     yield step
@@ -465,19 +494,19 @@ def finite_result(what: str):
 
         @functools.wraps(fn)
         def checked(*args, **kwargs):
-            return _checked(lambda: fn(*args, **kwargs), _bound(signature, args, kwargs), what)
+            return _checked(lambda: fn(*args, **kwargs), _bound(signature, args, kwargs), what, names)
         return checked
     return wrap
 
 
-def _checked(call, inputs: dict, what: str):
+def _checked(call, inputs: dict, what: str, names=frozenset()):
     """``call()`` under the output-finiteness policy of :func:`finite_result` (``inputs``: the bound
-    arguments)."""
+    arguments; ``names``: every parameter name of the function, given or not)."""
     try:
         with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
             result = call()
     except MptrackError as exc:
-        named = _caller_named(exc, inputs)
+        named = _caller_named(exc, inputs, names, run=True)
         if named is exc:
             raise
         raise named from exc
@@ -518,28 +547,41 @@ def derived_from(**inputs):
         raise named from exc
 
 
-def _caller_named(exc: MptrackError, inputs: dict) -> MptrackError:
-    """``exc`` if its message starts with one of ``inputs`` (or it names a file), else a copy whose
-    message starts with the input of largest magnitude."""
+def _caller_named(exc: MptrackError, inputs: dict, names=frozenset(), run: bool = False) -> MptrackError:
+    """``exc`` if its message starts with one of ``inputs`` or ``names`` (the function's parameters,
+    given or not), or it names a file; else a copy whose message starts with the input of largest
+    magnitude, the likely cause.  A singular matrix, and in a filter run (``run``) a covariance that
+    lost positive definiteness, come from a scale too small for the others: they name the input of
+    smallest scale (see :func:`_overflow`).  An error relabelled before (by a function this one called)
+    is relabelled from its own message, so names do not pile up."""
+    message = getattr(exc, "_unlabelled", None) or str(exc)
     first = _FIRST_WORD.match(str(exc))
-    if (first and first.group(1) in inputs) or getattr(exc, "file", None) is not None \
+    if (first and (first.group(1) in inputs or first.group(1) in names)) or getattr(exc, "file", None) is not None \
             or getattr(exc, "path", None) is not None or not inputs:
         return exc
-    if isinstance(exc, SingularMatrixError):       # a scale too small for the others (see _overflow)
+    if isinstance(exc, SingularMatrixError) or (run and isinstance(exc, NotPositiveDefiniteError)):
         small = _by_magnitude(inputs, smallest=True)
-        return _relabelled(exc, f"{small[0][1]}: {exc}")
+        scales = ", ".join(f"|{k}| down to {m:.3g}" for m, k in small if m > 0)
+        why = "" if "negligible" in message else \
+            f" (the inputs hold {scales}: is a noise variance negligible against the others?)"
+        return _relabelled(exc, f"{small[0][1]}: {message}{why}", message)
     sizes = _by_magnitude(inputs)
     named = ", ".join(f"|{k}| up to {m:.3g}" for m, k in sizes if m > 0) or "no large values"
-    return _relabelled(exc, f"{sizes[0][1]}: {exc} (derived from the inputs, which hold {named})")
+    if "(derived from the inputs" in message:
+        message = message[:message.index(" (derived from the inputs")]
+    return _relabelled(exc, f"{sizes[0][1]}: {message} (derived from the inputs, which hold {named})", message)
 
 
 _FIRST_WORD = re.compile(r"\s*([A-Za-z_][A-Za-z0-9_]*)")
 
 
-def _relabelled(exc: MptrackError, message: str) -> MptrackError:
-    """A copy of ``exc`` (same class and attributes) with another message."""
+def _relabelled(exc: MptrackError, message: str, unlabelled: str | None = None) -> MptrackError:
+    """A copy of ``exc`` (same class and attributes) with another message; ``unlabelled``: the message
+    before a name was put in front (what a later relabelling starts from)."""
     new = copy.copy(exc)
     new.args = (message,) + exc.args[1:]
+    if unlabelled is not None:
+        new._unlabelled = unlabelled
     return new
 
 

@@ -93,8 +93,15 @@ def fir_order(A, eps: float = 1e-3, norm=2, max_order: int = 100_000) -> int:
     if rho >= 1.0:
         raise ConvergenceError(
             f"A: spectral radius {rho:.6g} >= 1, ||A^M|| never falls below eps; the FIR form does not exist")
-    power = A.copy()
-    for M in range(1, max_order + 1):  # M >= 1: eq. 22 with M = 0 would be an empty sum
+    # ||A^M|| >= rho^M in every norm, so no M with rho^M >= eps qualifies: the scan starts at the last of
+    # them (less a margin for the rounding of rho), A^start by repeated squaring; a slowly decaying A
+    # (rho = 0.999999, eps = 1e-12: M ~ 2.8e7) costs a few dozen products instead of M
+    start = 1 if rho == 0.0 or eps >= 1.0 else max(1, int(np.floor(np.log(eps) / np.log(rho))) - 1)
+    if start > max_order:
+        raise ConvergenceError(f"max_order: ||A^M|| >= rho^M >= {eps:g} for every M up to {start} "
+                               f"(spectral radius rho = {rho:.6g}), more than max_order = {max_order}")
+    power = np.linalg.matrix_power(A, start)
+    for M in range(start, max_order + 1):  # M >= 1: eq. 22 with M = 0 would be an empty sum
         if _matrix_norm(power, norm) < eps:
             return M
         power = power @ A

@@ -129,6 +129,10 @@ _EPS = np.finfo(float).eps
 #: or the recursion is taken to be lost in rounding (a converging one is far below it by then).
 _PROGRESS_EVERY = 1000
 _NO_PROGRESS = 0.1
+#: A per-step recursion whose rate of convergence (measured over the last _PROGRESS_EVERY steps)
+#: needs more iterations than this in all stops with advice instead (~5 s; the doubling algorithm
+#: reaches the same fixed point in about log2 of that many steps).
+MAX_PER_STEP = 1_000_000
 
 
 def _iterate(step, P, tol, max_iter, what):
@@ -140,7 +144,7 @@ def _iterate(step, P, tol, max_iter, what):
     on its DARE test cases; the first k with a relative step <= STEADY_TOL is reported as the
     steady-state time.  Returns (P, iterations, steady-state time)."""
     ss_time = None
-    last, stalled, worst = np.inf, 0, 0.0
+    last, stalled, worst, checked = np.inf, 0, 0.0, None
     for k in range(1, max_iter + 1):
         P_next = step(P)
         size = np.linalg.norm(P_next - P)
@@ -155,6 +159,8 @@ def _iterate(step, P, tol, max_iter, what):
                     f"method: {what} is not converging (relative steps up to {worst:.3g} after {k} "
                     "iterations: the model is too ill-conditioned for it in float64); use method='dare'")
             worst = 0.0
+            _check_rate(checked, size / scale, k, tol, max_iter, what)
+            checked = size / scale
         if ss_time is None and size <= STEADY_TOL * scale:
             ss_time = k
         if tol is not None:
@@ -169,6 +175,29 @@ def _iterate(step, P, tol, max_iter, what):
     raise ConvergenceError(
         f"max_iter: {what} did not converge to tol={tol if tol is not None else 'rounding level'} "
         f"in {max_iter} iterations")
+
+
+def _check_rate(before: float | None, now: float, k: int, tol, max_iter: int, what: str) -> None:
+    """Stop a recursion that converges too slowly to finish: from the relative step ``before`` (at
+    k - _PROGRESS_EVERY) and ``now`` (at k), the linear rate r per step, and the iterations it still
+    needs to reach the stopping rule's step (tol, or the rounding level)."""
+    if not before or not 0.0 < now < before:
+        return
+    rate = (now / before) ** (1.0 / _PROGRESS_EVERY)
+    target = tol if tol is not None else 4 * _EPS
+    if rate >= 1.0 or now <= target:
+        return
+    needed = k + np.log(target / now) / np.log(rate)
+    if needed > max_iter:
+        raise ConvergenceError(
+            f"max_iter: {what} converges by a factor {rate:.9f} per step: it needs about {needed:.3g} "
+            f"iterations to reach tol={tol if tol is not None else 'rounding level'}, more than max_iter = "
+            f"{max_iter}; use method='doubling' or 'dare' (the same fixed point, in far fewer steps)")
+    if needed > MAX_PER_STEP:
+        raise ConvergenceError(
+            f"method: {what} converges by a factor {rate:.9f} per step: it needs about {needed:.3g} "
+            f"iterations (more than {MAX_PER_STEP:,}); use method='doubling' or 'dare' (the same fixed "
+            "point, in far fewer steps)")
 
 
 def _per_step(model, P0, tol, max_iter):
