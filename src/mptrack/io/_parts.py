@@ -13,7 +13,7 @@ from pathlib import Path
 import pandas as pd
 
 from .._validation import check_path, renamed
-from ..errors import OutputError
+from ..errors import DataError, OutputError
 from ._writers import output_format, write_table
 
 __all__ = ["PartStore"]
@@ -94,7 +94,7 @@ class PartStore:
             for path in files:
                 try:
                     yield read_part(path)
-                except FileNotFoundError:  # pyarrow's carries no file name
+                except DataError:          # read_part's error for a part it cannot read: gone, or damaged
                     if Path(path).exists():
                         raise
                     self.discard()
