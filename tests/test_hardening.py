@@ -436,3 +436,15 @@ def test_a_per_step_recursion_too_slow_to_finish_stops_with_advice():
     assert time.perf_counter() - start < 30.0
     P = riccati.steady_state(model, "doubling").P_pred
     assert riccati.riccati_residual(model, P) < 1e-12
+
+
+def test_a_measurement_reading_beyond_the_state_is_refused():
+    """Since the named measurements index the state with slices (fast views), an index beyond the
+    motion's state was cut off silently: ranges at position=(0, 2) on a 2-state motion computed ranges
+    from x[0] alone (h) and failed in numpy (its Jacobian).  The constructors record the states they read."""
+    from mptrack import models
+    for measurement in (models.ranges(H.STATIONS, 25.0), models.range_rate([0.0, 0.0], 1.0),
+                        models.stack_measurements(models.position(np.eye(2)), models.bearings(H.STATIONS, 1e-4))):
+        with pytest.raises(ShapeError, match=r"^measurement: reads state component [23] .* motion has n = 2"):
+            models.nonlinear_model(B, measurement)
+    assert models.nonlinear_model(models.constant_velocity(1.0, 0.1, 2), models.ranges(H.STATIONS, 25.0)).n == 4

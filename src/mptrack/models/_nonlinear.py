@@ -263,6 +263,9 @@ class MeasurementModel:
     #: (0 range, 1 bearing, 2 state component), pos (m, 3) state indices of the position (-1 padded;
     #: code 2: the observed component) and stations (m, 3)
     kernel: tuple | None = field(default=None, repr=False)
+    #: set by the constructors: the state components it reads are below this (the largest index + 1;
+    #: :func:`nonlinear_model` checks it against the motion's n); 0 for your own h (not known)
+    states: int = 0
 
 
 _RANGE, _BEARING, _COMPONENT = 0, 1, 2
@@ -298,6 +301,10 @@ def nonlinear_model(motion: LinearGaussianModel, measurement: MeasurementModel, 
         raise ParameterError(f"motion: expected a LinearGaussianModel, got {type(motion).__name__}")
     if not isinstance(measurement, MeasurementModel):
         raise ParameterError(f"measurement: expected a MeasurementModel, got {type(measurement).__name__}")
+    if measurement.states > motion.n:     # indices beyond the state would be cut off silently (slices)
+        raise ShapeError(f"measurement: reads state component {measurement.states - 1} ({measurement.name}), but "
+                         f"motion has n = {motion.n} states; give the measurement's position= (velocity=) "
+                         "indices of this state")
     F = motion.F
     Ft = np.ascontiguousarray(F.T)
     model = NonlinearModel(lambda X: X @ Ft, measurement.h, motion.Q, measurement.R,
@@ -385,7 +392,7 @@ def ranges(stations, R, *, position=(0, 2)) -> MeasurementModel:
         diff = x[..., None, sel] - s
         return diff / np.maximum(np.sqrt(np.sum(diff * diff, axis=-1)), _TINY)[..., None]
     return MeasurementModel(h, _jac_from(pos, rows), _covariance(R, s.shape[0]), (), f"ranges to {len(s)}",
-                            _join_specs([_kernel_spec(_RANGE, pos, s)]))
+                            _join_specs([_kernel_spec(_RANGE, pos, s)]), states=max(pos) + 1)
 
 
 def bearings(stations, R, *, position=(0, 2)) -> MeasurementModel:
@@ -410,7 +417,7 @@ def bearings(stations, R, *, position=(0, 2)) -> MeasurementModel:
         return G
     k = s.shape[0]
     return MeasurementModel(h, _jac_from(pos, rows), _covariance(R, k), tuple(range(k)), f"bearings from {k}",
-                            _join_specs([_kernel_spec(_BEARING, pos, s)]))
+                            _join_specs([_kernel_spec(_BEARING, pos, s)]), states=max(pos) + 1)
 
 
 def range_bearing(sensor, R, *, position=(0, 2)) -> MeasurementModel:
@@ -420,7 +427,7 @@ def range_bearing(sensor, R, *, position=(0, 2)) -> MeasurementModel:
         b, r = bearings(sensor, 1.0, position=position), ranges(sensor, 1.0, position=position)
     return MeasurementModel(lambda X: np.concatenate([b.h(X), r.h(X)], axis=-1),
                             lambda x: np.concatenate([b.jac_h(x), r.jac_h(x)], axis=-2), _covariance(R, 2), (0,),
-                            "range-bearing", _join_specs([b.kernel, r.kernel]))
+                            "range-bearing", _join_specs([b.kernel, r.kernel]), states=max(b.states, r.states))
 
 
 def range_rate(sensor, R, *, position=(0, 2), velocity=(1, 3)) -> MeasurementModel:
@@ -449,7 +456,7 @@ def range_rate(sensor, R, *, position=(0, 2), velocity=(1, 3)) -> MeasurementMod
         J[..., 0, psel] = (v - rr * p / r) / r
         J[..., 0, vsel] = p / r
         return J
-    return MeasurementModel(h, jac, _covariance(R, 1), (), "range rate")
+    return MeasurementModel(h, jac, _covariance(R, 1), (), "range rate", states=max(pos + vel) + 1)
 
 
 def tdoa(stations, R, *, position=(0, 2), reference: int = 0) -> MeasurementModel:
@@ -477,7 +484,7 @@ def tdoa(stations, R, *, position=(0, 2), reference: int = 0) -> MeasurementMode
     def jac(x):
         J = toa.jac_h(x)
         return J[..., others, :] - J[..., ref:ref + 1, :]
-    return MeasurementModel(h, jac, _covariance(R, k - 1), (), f"TDOA to {k} stations")
+    return MeasurementModel(h, jac, _covariance(R, k - 1), (), f"TDOA to {k} stations", states=toa.states)
 
 
 def position(R, *, position=(0, 2)) -> MeasurementModel:
@@ -490,7 +497,8 @@ def position(R, *, position=(0, 2)) -> MeasurementModel:
     eye = np.eye(len(pos))
     return MeasurementModel(h, _jac_from(pos, lambda x: np.broadcast_to(eye, x.shape[:-1] + eye.shape)),
                             _covariance(R, len(pos)), (), "position",
-                            _join_specs([_kernel_spec(_COMPONENT, (i,), np.zeros((1, 1))) for i in pos]))
+                            _join_specs([_kernel_spec(_COMPONENT, (i,), np.zeros((1, 1))) for i in pos]),
+                            states=max(pos) + 1)
 
 
 def stack_measurements(*measurements: MeasurementModel) -> MeasurementModel:
@@ -509,4 +517,5 @@ def stack_measurements(*measurements: MeasurementModel) -> MeasurementModel:
                             lambda x: np.concatenate([mm.jac_h(x) for mm in measurements], axis=-2),
                             _frozen(scipy.linalg.block_diag(*[mm.R for mm in measurements])), angles,
                             " + ".join(mm.name for mm in measurements),
-                            _join_specs([mm.kernel for mm in measurements]))
+                            _join_specs([mm.kernel for mm in measurements]),
+                            states=max(mm.states for mm in measurements))
