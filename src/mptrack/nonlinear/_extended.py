@@ -49,7 +49,7 @@ def user_array(value, shape: tuple, name: str, k: int) -> np.ndarray:
     compiled step kernels take it (Q_at, R_at return validated read-only arrays)."""
     arr = np.array(value, dtype=float)
     if arr.shape != shape:
-        raise ShapeError(f"{name}: expected shape {shape} at measurement {k}, got {arr.shape}")
+        raise ShapeError(f"model: its {name} gives shape {arr.shape} at measurement {k}, expected {shape}")
     return arr
 
 
@@ -64,7 +64,7 @@ def check_step(status: int, method: str, k: int, x, P, outputs: dict, inputs: di
         if np.isfinite(x).all() and np.isfinite(P).all():
             for name, value in outputs.items():
                 if not np.isfinite(value).all():
-                    raise NonFiniteError(f"{name}: the model's {name} is not finite at measurement {k} "
+                    raise NonFiniteError(f"model: its {name} is not finite at measurement {k} "
                                          f"(state {np.array2string(np.asarray(x), precision=6)})")
         require_finite(f"the {method} (at measurement {k})", np.nan, **inputs)
 
