@@ -70,6 +70,9 @@ def _tables(frames: Iterable) -> Iterator:
     for df in frames:
         if not isinstance(df, (pa.Table, pd.DataFrame)):
             raise ParameterError(f"df: expected pandas DataFrames or pyarrow Tables, got {type(df).__name__}")
+        if isinstance(df, pd.DataFrame) and df.attrs:   # a run's summaries (tables) are not file metadata:
+            df = df.copy(deep=False)                     # pyarrow warns that it cannot store them
+            df.attrs = {}
         table = df if isinstance(df, pa.Table) else pa.Table.from_pandas(df, preserve_index=False)
         schema = table.schema if schema is None else schema
         yield table.cast(schema)
