@@ -43,6 +43,7 @@ __all__ = [
     "check_rng",
     "lookup",
     "check_frame",
+    "point_numbers",
     "check_path",
     "check_outputs",
     "as_real",
@@ -273,11 +274,11 @@ def check_path(name: str, value) -> Path:
     raise ParameterError(f"{name}: expected a file path (str or pathlib.Path), got {value!r}")
 
 
-def check_frame(name: str, value, columns=(), numbers: dict | None = None):
-    """A pandas DataFrame with the ``columns`` and at least one row.  ``numbers`` maps columns (where
-    present) to the :func:`as_array` options their values must meet (``{"t": {}}``: finite numbers;
-    ``{"rss_dbm": dict(allow_nan=True, low=-160, high=0)}``); each is checked as the array
-    ``name.column``, so messages start with the argument's name."""
+def check_frame(name: str, value, columns=(), numbers: dict | None = None, *, empty: bool = False):
+    """A pandas DataFrame with the ``columns`` and at least one row (any number with ``empty``).
+    ``numbers`` maps columns (where present) to the :func:`as_array` options their values must meet
+    (``{"t": {}}``: finite numbers; ``{"rss_dbm": dict(allow_nan=True, low=-160, high=0)}``); each is
+    checked as the array ``name.column``, so messages start with the argument's name."""
     import pandas as pd
 
     if not isinstance(value, pd.DataFrame):
@@ -286,7 +287,7 @@ def check_frame(name: str, value, columns=(), numbers: dict | None = None):
     if missing:
         raise ShapeError(f"{name}: expected the column(s) {', '.join(missing)}; it has "
                          f"{', '.join(map(str, value.columns))}")
-    if value.empty:
+    if value.empty and not empty:
         raise ShapeError(f"{name}: expected at least one row, got none")
     for col, options in (numbers or {}).items():
         if col in value.columns:
@@ -296,6 +297,23 @@ def check_frame(name: str, value, columns=(), numbers: dict | None = None):
                 raise DTypeError(f"{name}.{col}: expected numbers ({exc})") from None
             as_array(f"{name}.{col}", data, **options)
     return value
+
+
+#: The text columns of a point table (``mptrack track``'s output); its other columns hold numbers.
+POINT_TEXT = ("track_id", "time", "flag", "method", "gap", "is_outlier")
+
+
+def point_numbers(frame, known=()) -> dict:
+    """The :func:`check_frame` ``numbers`` of a point table: t finite, every other column that holds
+    numbers (the ``known`` numeric columns, and any column of a numeric dtype) numbers or NaN (what a
+    point table leaves out: no NIS at a track's first fix, no velocity, no geographic origin), never
+    +-Inf."""
+    import pandas as pd
+
+    numeric = [c for c in getattr(frame, "columns", ()) if c not in POINT_TEXT
+               and not pd.api.types.is_bool_dtype(frame[c])
+               and (c in known or pd.api.types.is_numeric_dtype(frame[c]))]
+    return {c: {} if c == "t" else {"allow_nan": True} for c in numeric}
 
 
 def lookup(name: str, value, registry: dict, *, what: str = "name", fold=str.lower):

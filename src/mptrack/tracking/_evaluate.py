@@ -20,7 +20,7 @@ import numpy as np
 import pandas as pd
 import scipy.stats
 
-from .._validation import check_frame, check_path, check_positive
+from .._validation import check_frame, check_path, check_positive, point_numbers
 from ..errors import DataError, ParameterError
 from ..io import FIXES, LocalFrame, ReadOptions, ReadReport, read_table
 from ..io._formats import raw_chunks
@@ -65,13 +65,8 @@ def _one_track_ids(truth: pd.DataFrame, tracks: pd.DataFrame, file) -> pd.DataFr
 
 
 def _check_points(name: str, tracks, columns=()) -> None:
-    """A point table: t finite, its other numeric columns (and any other column of numbers) numbers or
-    NaN (a point table's NaN marks what is not there: no NIS at a track's first fix, no velocity, no
-    geographic origin), never +-Inf."""
-    text = {"track_id", "time", "flag", "method", "gap", "is_outlier"}
-    numeric = [c for c in getattr(tracks, "columns", ()) if c not in text and not pd.api.types.is_bool_dtype(tracks[c])
-               and (c in POINT_COLUMNS or pd.api.types.is_numeric_dtype(tracks[c]))]
-    check_frame(name, tracks, columns, {c: {} if c == "t" else {"allow_nan": True} for c in numeric})
+    """A point table with ``columns``, its numbers checked (:func:`mptrack._validation.point_numbers`)."""
+    check_frame(name, tracks, columns, point_numbers(tracks, POINT_COLUMNS))
 
 
 #: The columns :func:`attach_truth` adds.
