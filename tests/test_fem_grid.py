@@ -383,3 +383,15 @@ def test_modes_that_meet_again_share_one_grid():
     z = np.array([[3.0], [np.nan], [np.nan], [np.nan]])
     parts = [len(s.posterior.parts) for s in fem_steps(model, z, np.zeros(2), np.diag([9.0, 0.1]), grid=(20, 20))]
     assert parts[0] == 2 and parts[-1] == 1
+
+
+def test_a_coarse_grid_with_moments_off_the_psd_cone_still_places_its_next_grid():
+    """On a 6 x 6 grid the posterior's moments (a density with clipped negative lobes) need not be PSD;
+    placing the next grid drew sigma points of them and failed ("P: must be positive semi-definite,
+    smallest eigenvalue -61.5", found by the hardening harness); they are projected as the box of the
+    prior's grid already was."""
+    from mptrack.continuous import ZHAO2013_X0, zhao2013_model
+    model = zhao2013_model(variant="vdp", diffusion_scale=0.01)
+    _, z = simulate_sde(model, 3, np.random.default_rng(1), ZHAO2013_X0)
+    result = fem_filter(model, z[:2], ZHAO2013_X0, np.eye(2), grid=(6, 6))
+    assert np.isfinite(result.x).all() and np.isfinite(result.P).all()

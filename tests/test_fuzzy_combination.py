@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from mptrack.cellular import fuse_local_solutions, local_solutions
-from mptrack.errors import ParameterError
+from mptrack.errors import ParameterError, ShapeError
 from mptrack.fuzzy import fused_covariance_prop3, fused_covariance_trace, probabilistic_fusion
 
 
@@ -64,5 +64,5 @@ def test_bad_input():
         fused_covariance_trace(np.eye(2), np.eye(2)[None], np.ones((1, 1, 2)), np.ones((1, 1, 1)), [0.0])
     with pytest.raises(ParameterError, match="P"):
         probabilistic_fusion(np.zeros((2, 2)), np.zeros((2, 2, 2)))
-    with pytest.raises(ParameterError, match="P"):
+    with pytest.raises(ShapeError, match="^P: expected shape"):     # a wrong shape is a ShapeError
         probabilistic_fusion(np.zeros((2, 2)), np.zeros((2, 3, 3)))

@@ -243,3 +243,18 @@ def test_track_command_writes_the_new_formats(tmp_path, fmt):
     assert res.exit_code == 0, res.output
     back = read_output(out)
     assert len(back) == 104 and back["track_id"].unique().tolist() == ["2020-12-18 07:24:29"]
+
+
+@pytest.mark.parametrize("suffix", [".parquet", ".csv", ".geojson"])
+def test_a_tracked_frame_writes_without_warnings(tmp_path, suffix):
+    """mptrack.track keeps its run summaries (tables) in the frame's attrs; writing the frame warned
+    that pyarrow cannot serialise them (they are not file metadata); the frame keeps them."""
+    import warnings
+
+    import mptrack
+    pts = mptrack.track(mptrack.simulate("gps", 1, seed=2, duration_s=20.0))
+    assert isinstance(pts.attrs["tracks"], pd.DataFrame)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        write_table(pts, tmp_path / f"p{suffix}")
+    assert "tracks" in pts.attrs

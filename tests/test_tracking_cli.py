@@ -260,7 +260,7 @@ def test_help_names_every_format_read():
 
 def test_unknown_names_exit_2(tmp_path):
     res = run("track", GPX, "--out", tmp_path / "o.parquet", "--model", "ctrv")
-    assert res.exit_code == 2 and "unknown name 'ctrv'" in res.stderr
+    assert res.exit_code == 2 and "model: unknown motion model 'ctrv'" in res.stderr
     res = run("simulate", "--scenario", "rural", "--out", tmp_path / "s.csv")
     assert res.exit_code == 2 and "scenario" in res.stderr
     assert list(tmp_path.iterdir()) == []

@@ -16,7 +16,7 @@ import math
 from fractions import Fraction
 from typing import Callable, Literal
 
-from ._validation import check_int
+from ._validation import check_int, check_positive
 from .errors import ParameterError, UnknownNameError
 
 __all__ = [
@@ -77,7 +77,7 @@ def join_burden(name: str, n: int) -> int:
     .. [2] N. Assimakis and M. Adam, "Mobile position tracking in three dimensions using Kalman and Lainiotis
            filters", The Open Mathematics Journal, vol. 8, pp. 1–6, 2015 (Bentham Open).
     """
-    if name not in _JOIN_PARTS:
+    if not isinstance(name, str) or name not in _JOIN_PARTS:
         raise UnknownNameError(f"name: {name!r} has no join procedure; expected JKLF or JSSKLF")
     return _value(FORMULAS[name][1](check_int("n", n, minimum=1), 1))
 
@@ -96,7 +96,7 @@ def filter_burden(name: str, n: int, m: int) -> int | float:
            filters", The Open Mathematics Journal, vol. 8, pp. 1–6, 2015 (Bentham Open).
     """
     n, m = _dims(n, m)
-    if name not in FORMULAS:
+    if not isinstance(name, str) or name not in FORMULAS:
         raise UnknownNameError(f"name: unknown filter {name!r}; known: {', '.join(FORMULAS)}")
     if name in _JOIN_PARTS:
         a, b = _JOIN_PARTS[name]
@@ -120,6 +120,8 @@ def implementation_burden(filter_name: str, model: Literal["A", "B"], axes: int 
            filters", The Open Mathematics Journal, vol. 8, pp. 1–6, 2015 (Bentham Open).
     """
     axes = check_int("axes", axes, minimum=1)
+    if not isinstance(filter_name, str) or filter_name not in FORMULAS:
+        raise UnknownNameError(f"filter_name: unknown filter {filter_name!r}; known: {', '.join(FORMULAS)}")
     if model == "A":
         return filter_burden(filter_name, 2 * axes, axes)
     if model != "B":
@@ -156,6 +158,7 @@ def fir_break_even(fir: float, steady: float) -> int:
            filters", The Scientific World Journal, vol. 2014, Article ID 130512, 8 pp., 2014.
            doi:10.1155/2014/130512
     """
+    fir, steady = check_positive("fir", fir), check_positive("steady", steady)
     return math.ceil(Fraction(fir) / Fraction(steady))
 
 
@@ -170,4 +173,7 @@ def speedup(slow: float, fast: float) -> float:
     .. [2] N. Assimakis and M. Adam, "Mobile position tracking in three dimensions using Kalman and Lainiotis
            filters", The Open Mathematics Journal, vol. 8, pp. 1–6, 2015 (Bentham Open).
     """
+    slow, fast = check_positive("slow", slow), check_positive("fast", fast)
+    if not math.isfinite(slow / fast):
+        raise ParameterError(f"fast: the ratio slow / fast = {slow!r} / {fast!r} overflows float64")
     return slow / fast

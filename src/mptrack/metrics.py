@@ -17,7 +17,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._validation import as_array, broadcast_shape, check_covariance, check_int, finite_result
+from ._validation import (as_array, as_matrix, broadcast_shape, check_allocation, check_covariance, check_int,
+                          finite_result, renamed)
 from .errors import ParameterError, ShapeError, SingularMatrixError
 
 __all__ = ["position_error", "rmse", "nees", "pcrb", "pcrb_tichavsky", "range_fisher_information", "pcrb_ranges"]
@@ -97,6 +98,7 @@ def nees(x_est, P, truth) -> np.ndarray:
         raise SingularMatrixError("P: a covariance is singular; the NEES needs P^-1") from None
 
 
+@finite_result("the PCRB")
 def pcrb(F, Q, P0, info) -> np.ndarray:
     """PCRB covariances J(k)^{-1}, k = 1..T, for linear-Gaussian dynamics (covariance form).
 
@@ -109,22 +111,34 @@ def pcrb(F, Q, P0, info) -> np.ndarray:
            nonlinear filtering", IEEE Transactions on Signal Processing, vol. 46, no. 5, pp. 1386–1396, 1998.
            doi:10.1109/78.668800
     """
-    F = as_array("F", F, ndim=2)
-    n = F.shape[0]
-    Q = check_covariance("Q", Q, n)
-    P = check_covariance("P0", P0, n, definite=True)
-    info = as_array("info", info, ndim=3)
-    if info.shape[1:] != (n, n):
-        raise ShapeError(f"info: expected shape (T, {n}, {n}), got {info.shape}")
+    F, Q, P, info = _pcrb_inputs(F, Q, P0, info, definite_Q=False)
     out = np.empty_like(info)
     for k in range(info.shape[0]):
         M = F @ P @ F.T + Q
-        J = np.linalg.inv(M) + info[k]
-        P = np.linalg.inv(J)
+        try:
+            J = np.linalg.inv(M) + info[k]
+            P = np.linalg.inv(J)
+        except np.linalg.LinAlgError:
+            raise SingularMatrixError(f"Q: the predicted covariance F P F^T + Q or the information J is singular "
+                                      f"at step {k}; the bound needs their inverses") from None
         out[k] = 0.5 * (P + P.T)
     return out
 
 
+def _pcrb_inputs(F, Q, P0, info, *, definite_Q: bool):
+    F = as_matrix("F", F)
+    n = F.shape[0]
+    if F.shape != (n, n):
+        raise ShapeError(f"F: expected a square matrix, got shape {F.shape}")
+    Q = check_covariance("Q", Q, n, definite=definite_Q)
+    P = check_covariance("P0", P0, n, definite=True)
+    info = as_array("info", info, ndim=3)
+    if info.shape[1:] != (n, n) or info.shape[0] == 0:
+        raise ShapeError(f"info: expected shape (T, {n}, {n}) with T >= 1, got {info.shape}")
+    return F, Q, P, info
+
+
+@finite_result("the PCRB")
 def pcrb_tichavsky(F, Q, P0, info) -> np.ndarray:
     """The same bound by Tichavský's D11/D12/D22 recursion (needs Q invertible); a cross-check of :func:`pcrb`.
 
@@ -134,25 +148,29 @@ def pcrb_tichavsky(F, Q, P0, info) -> np.ndarray:
            nonlinear filtering", IEEE Transactions on Signal Processing, vol. 46, no. 5, pp. 1386–1396, 1998.
            doi:10.1109/78.668800
     """
-    F = as_array("F", F, ndim=2)
-    n = F.shape[0]
-    Q = check_covariance("Q", Q, n, definite=True)
-    J = np.linalg.inv(check_covariance("P0", P0, n, definite=True))
-    info = as_array("info", info, ndim=3)
-    Qi = np.linalg.inv(Q)
+    F, Q, P0, info = _pcrb_inputs(F, Q, P0, info, definite_Q=True)
+    try:
+        J = np.linalg.inv(P0)
+        Qi = np.linalg.inv(Q)
+    except np.linalg.LinAlgError:
+        raise SingularMatrixError("Q: Q and P0 must be invertible (numerically)") from None
     D11, D12, D22_0 = F.T @ Qi @ F, -F.T @ Qi, Qi
     out = np.empty_like(info)
     for k in range(info.shape[0]):
-        J = D22_0 + info[k] - D12.T @ np.linalg.solve(J + D11, D12)
-        out[k] = np.linalg.inv(J)
+        try:
+            J = D22_0 + info[k] - D12.T @ np.linalg.solve(J + D11, D12)
+            out[k] = np.linalg.inv(J)
+        except np.linalg.LinAlgError:
+            raise SingularMatrixError(f"Q: the information J at step {k} is singular") from None
     return out
 
 
+@finite_result("the range Fisher information")
 def range_fisher_information(positions, stations, R, n: int | None = None) -> np.ndarray:
     """Fisher information of ranges at the true positions: sum_i H_i^T H_i / R_ii, (T, n, n).
 
     positions (T, d) or a batch (B, T, d) (the expectation is then the mean over runs);
-    stations (m, d); R scalar or (m,) range variances; n state size (position first, default d).
+    stations (m, d); R scalar or (m,) range variances (> 0); n state size (position first, default d).
 
     References
     ----------
@@ -160,18 +178,25 @@ def range_fisher_information(positions, stations, R, n: int | None = None) -> np
            nonlinear filtering", IEEE Transactions on Signal Processing, vol. 46, no. 5, pp. 1386–1396, 1998.
            doi:10.1109/78.668800
     """
-    pos = np.asarray(positions, dtype=float)
-    st = np.asarray(stations, dtype=float)
+    st = as_matrix("stations", stations)
     d = st.shape[1]
-    if pos.shape[-1] != d:
-        raise ShapeError(f"positions: expected last axis {d} (as stations), got shape {pos.shape}")
-    n = d if n is None else n
+    if d not in (2, 3):
+        raise ShapeError(f"stations: expected shape (m, 2) or (m, 3), got {st.shape}")
+    pos = as_array("positions", positions)
+    if pos.ndim not in (2, 3) or pos.shape[-1] != d or 0 in pos.shape:
+        raise ShapeError(f"positions: expected shape (T, {d}) or (B, T, {d}) (as stations), got {pos.shape}")
+    r = as_array("R", R)
+    if r.shape not in ((), (st.shape[0],)) or not np.all(r > 0):
+        raise ParameterError(f"R: expected a variance > 0 or one per station ({st.shape[0]},), got {R!r}")
+    n = d if n is None else check_int("n", n, minimum=d)
+    check_allocation("positions", f"{pos.size // d} positions", 8.0 * pos.size * st.shape[0] * 2 + 8.0 * pos.size * n)
     diff = pos[..., None, :] - st
-    rng = np.linalg.norm(diff, axis=-1)
+    with np.errstate(over="ignore", invalid="ignore"):
+        rng = np.linalg.norm(diff, axis=-1)
     if np.any(rng <= 0):
         raise SingularMatrixError("positions: a position coincides with a station; range information is undefined")
     u = diff / rng[..., None]
-    r = np.broadcast_to(np.asarray(R, dtype=float), (st.shape[0],))
+    r = np.broadcast_to(r, (st.shape[0],))
     info_pos = np.einsum("...mi,...mj,m->...ij", u, u, 1.0 / r)
     if info_pos.ndim == 4:
         info_pos = info_pos.mean(axis=0)
@@ -180,6 +205,7 @@ def range_fisher_information(positions, stations, R, n: int | None = None) -> np
     return info
 
 
+@finite_result("the PCRB")
 def pcrb_ranges(truth, stations, P0, Q, R, F=None) -> np.ndarray:
     """PCRB of the position RMSE, sqrt(trace of the position block of J^{-1}), per time step: (T,).
 
@@ -194,9 +220,11 @@ def pcrb_ranges(truth, stations, P0, Q, R, F=None) -> np.ndarray:
            mobile localization in urban area using wireless network", Applied Soft Computing, vol. 57, pp.
            452–467, 2017. doi:10.1016/j.asoc.2017.04.007
     """
-    Q = np.asarray(Q, dtype=float)
+    Q = as_matrix("Q", Q)
     n = Q.shape[0]
     F = np.eye(n) if F is None else F
-    d = np.asarray(stations).shape[1]
-    bound = pcrb(F, Q, P0, range_fisher_information(truth, stations, R, n))
+    with renamed(positions="truth", n="Q"):          # n is the size of Q
+        info = range_fisher_information(truth, stations, R, n)
+    bound = pcrb(F, Q, P0, info)
+    d = np.shape(stations)[1]
     return np.sqrt(np.trace(bound[:, :d, :d], axis1=1, axis2=2))

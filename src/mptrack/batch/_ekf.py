@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 import numba as nb
 import numpy as np
 
-from .._validation import _overflow, as_matrix, require_finite, check_covariance, check_positive
+from .._validation import _overflow, as_matrix, check_covariance, check_int, check_positive, require_finite
 from ..errors import ParameterError, ShapeError
 from ._inputs import check_finite_out, launch, prepare_batch
 from ._kernels import _OPTS, kf_predict, kf_update, observed
@@ -55,8 +55,14 @@ class RangeModel:
         Q = check_covariance("Q", self.Q, n)
         st = as_matrix("stations", self.stations)
         S, d = st.shape
-        pos = tuple(int(i) for i in self.position)
-        if len(pos) != d or any(not 0 <= i < n for i in pos) or len(set(pos)) != d:
+        if d not in (2, 3):
+            raise ShapeError(f"stations: expected shape (m, 2) or (m, 3), got {st.shape}")
+        if isinstance(self.position, (str, bytes)) or not np.iterable(self.position):
+            raise ParameterError(f"position: expected {d} state indices, got {self.position!r}")
+        pos = tuple(check_int("position", i, minimum=0, maximum=n - 1) for i in self.position)
+        if len(pos) != d:
+            raise ShapeError(f"stations: {d}-D stations need {d} state indices in position, got {pos}")
+        if len(set(pos)) != d:
             raise ShapeError(f"position: expected {d} distinct state indices in [0, {n}), "
                              f"got {self.position}")
         R = check_covariance("R", self.R, S, definite=True)

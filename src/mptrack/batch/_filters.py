@@ -13,7 +13,8 @@ import numpy as np
 
 from .._validation import _to_array, check_allocation, check_covariance, check_int, check_positive, require_finite
 from ..errors import NonFiniteError, ParameterError, ShapeError
-from ..linear import fir_coefficients, fir_order
+from ..linear import fir_order
+from ..linear._steady import coefficients_unchecked
 from ..models import LinearGaussianModel, require_model
 from ..riccati import SteadyState, steady_state
 from . import _kernels as K
@@ -195,7 +196,8 @@ def _fir_filter(model, z, out=None, *, lengths=None, eps=1e-3, norm=2, M=None, s
     ss = _steady(model, steady)
     eps = check_positive("eps", eps)
     M = fir_order(ss.A, eps, norm) if M is None else check_int("M", M, minimum=1)
-    C = np.ascontiguousarray(fir_coefficients(ss.A, ss.B, M))
+    M = min(M, bi.z.shape[1])         # the window never reaches further back than the T steps
+    C = np.ascontiguousarray(coefficients_unchecked(ss.A, ss.B, M))
     bad = np.zeros(bi.z.shape[0], dtype=np.int64)
     launch(K.fir_kernel, bi.out.size * M, bi.z, bi.out, C, bi.lengths, bi.axes, bad)
     if bad.any():

@@ -30,8 +30,8 @@ import numpy as np
 import pandas as pd
 
 from .._io import atomic_path, write_json
-from .._validation import check_allocation, check_int
-from ..errors import DTypeError, ParameterError, ShapeError
+from .._validation import _to_array, check_allocation, check_covariance, check_int, check_path, lookup
+from ..errors import DataError, DTypeError, ParameterError, ShapeError
 from ..models import LinearGaussianModel, require_model
 from ._filters import gain_sequence, kalman_filter, steady_state_filter
 
@@ -125,7 +125,12 @@ PART_FORMATS = {"parquet": ".parquet", "arrow": ".arrow"}
 
 def part_path(out_dir: Path, name: str, index: int, fmt: str = "parquet") -> Path:
     """The file of part ``name`` of chunk ``index`` in a run directory."""
-    return Path(out_dir) / f"{name}-{index:06d}{PART_FORMATS[fmt]}"
+    out_dir = check_path("out_dir", out_dir)
+    if not isinstance(name, str) or not name or "/" in name:
+        raise ParameterError(f"name: expected a part name (a non-empty str without '/'), got {name!r}")
+    index = check_int("index", index, minimum=0)
+    suffix = lookup("fmt", fmt, PART_FORMATS, what="part format")
+    return out_dir / f"{name}-{index:06d}{suffix}"
 
 
 def read_part(path):
@@ -133,8 +138,11 @@ def read_part(path):
     import pyarrow.feather as feather
     import pyarrow.parquet as pq
 
-    path = Path(path)
-    return feather.read_table(path, memory_map=True) if path.suffix == ".arrow" else pq.read_table(path)
+    path = check_path("path", path)
+    try:
+        return feather.read_table(path, memory_map=True) if path.suffix == ".arrow" else pq.read_table(path)
+    except (OSError, ValueError) as exc:          # missing, unreadable or not a part (pyarrow's ArrowInvalid)
+        raise DataError(f"cannot read the part ({exc})", file=path) from None
 
 
 def _write_part(table, path: Path) -> None:
@@ -210,6 +218,8 @@ def run_chunks(task: Callable[[Chunk], pd.DataFrame], n_items: int, *, chunk_siz
                 e.g. the ``advance`` of ``RunContext.progress.task``
     """
     chunks = make_chunks(n_items, chunk_size, seed)
+    # the results of all chunks are held before they are concatenated: at least a table (~1 KiB) each
+    check_allocation("n_items", n_items, 1024.0 * len(chunks))
     if data is not None and len(data) != n_items:
         raise ParameterError(f"data: expected {n_items} leading rows, got {len(data)}")
     if out_dir is not None:
@@ -247,6 +257,10 @@ def run_stream(task: Callable[[Chunk], Any], chunks: Iterable[Chunk], *, parts: 
         raise ParameterError(f"task: expected a callable, got {type(task).__name__}")
     if part_format not in PART_FORMATS:
         raise ParameterError(f"part_format: expected one of {tuple(PART_FORMATS)}, got {part_format!r}")
+    if isinstance(chunks, (str, bytes)) or not np.iterable(chunks):
+        raise ParameterError(f"chunks: expected an iterable of Chunk, got {type(chunks).__name__}")
+    if not isinstance(parts, tuple) or not parts or not all(isinstance(p, str) and p for p in parts):
+        raise ParameterError(f"parts: expected a tuple of part names, got {parts!r}")
     if max_workers is not None:
         max_workers = check_int("max_workers", max_workers, minimum=1)
     target = None
@@ -380,8 +394,19 @@ class MonteCarloTask:
     method: Literal["steady-state", "kalman"] = "steady-state"
     P0: np.ndarray | None = None
 
+    def __post_init__(self) -> None:
+        require_model(self.model)
+        object.__setattr__(self, "steps", check_int("steps", self.steps, minimum=1))
+        if self.method not in ("steady-state", "kalman"):
+            raise ParameterError(f"method: expected 'steady-state' or 'kalman', got {self.method!r}")
+        if self.P0 is not None:
+            object.__setattr__(self, "P0", check_covariance("P0", self.P0, self.model.n))
+
     def __call__(self, chunk: Chunk) -> pd.DataFrame:
         model, T = self.model, self.steps
+        if not isinstance(chunk, Chunk):
+            raise ParameterError(f"chunk: expected a Chunk (from make_chunks), got {type(chunk).__name__}")
+        check_allocation("steps", T, 8.0 * chunk.size * T * (3 * model.n + 2 * model.m))
         Lq = model.noise_factor()
         Lr = np.linalg.cholesky(model.R)
         runs = chunk.size
@@ -425,7 +450,7 @@ def monte_carlo(model: LinearGaussianModel, steps: int, runs: int, *, seed: int,
     check_allocation("runs", runs, 8.0 * runs * (model.n + 2))
     chunk_size = check_int("chunk_size", chunk_size, minimum=1)
     check_allocation("steps", steps, 8.0 * min(chunk_size, runs) * steps * (3 * model.n + 2 * model.m))
-    task = MonteCarloTask(model, steps, method, None if P0 is None else np.asarray(P0, dtype=float))
+    task = MonteCarloTask(model, steps, method, P0)
     desc = {"steps": steps, "method": method, "model": _digest(model.F, model.H, model.Q, model.R),
             "P0": None if P0 is None else _digest(task.P0)}
     return run_chunks(task, runs, chunk_size=chunk_size, seed=seed, out_dir=out_dir, executor=executor,
@@ -456,7 +481,7 @@ def filter_chunked(run: Callable[..., np.ndarray], model: LinearGaussianModel, z
     when given.  Returns the (B, T, n) states in z's dtype; equal to ``run(model, z)``.
     """
     require_model(model)
-    z = np.asarray(z)
+    z = _to_array("z", z)
     if z.ndim != 3:
         raise ShapeError(f"z: expected shape (B, T, m), got shape {z.shape}")
     sample = z.reshape(-1)[::max(1, z.size // 65536)]   # a fingerprint, not a full pass over z

@@ -17,7 +17,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.optimize import least_squares
 
-from .._validation import as_array, as_real, check_covariance, check_int, check_positive, finite_result
+from .._validation import (as_array, as_real, check_allocation, check_covariance, check_int, check_positive,
+                           finite_result)
 from ..errors import ParameterError, ShapeError, SingularMatrixError
 from ..models import LinearGaussianModel, NonlinearModel, nonlinear_model, ranges
 from ..nonlinear import ekf_filter, ekf_filter_batch
@@ -37,6 +38,7 @@ MOTIONS = ("random-walk", "cv")
 _TINY_RANGE = 1e-12
 
 
+@finite_result("the ranges")
 def range_measurement(x, stations, position=None):
     """Ranges from the position part of states ``x`` to ``stations`` and their Jacobian (eqs. 7–10).
 
@@ -52,14 +54,37 @@ def range_measurement(x, stations, position=None):
            mobile localization in urban area using wireless network", Applied Soft Computing, vol. 57, pp.
            452–467, 2017. doi:10.1016/j.asoc.2017.04.007
     """
-    x = np.asarray(x, dtype=float)
+    x = as_array("x", x)
+    stations = check_stations(stations)
     d = stations.shape[1]
-    pos = list(range(d)) if position is None else list(position)
+    if x.ndim == 0 or x.shape[-1] < d:
+        raise ShapeError(f"x: expected states (..., n) with n >= {d} (the stations' dimension), got shape {x.shape}")
+    pos = tuple(range(d)) if position is None else _state_indices("position", position, d, x.shape[-1])
+    check_allocation("x", f"{x.size // x.shape[-1]} states", 8.0 * x.size * stations.shape[0] * 3)
+    return ranges_and_jacobian(x, stations, pos)
+
+
+def ranges_and_jacobian(x: np.ndarray, stations: np.ndarray, pos) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`range_measurement` of validated arguments (the filters' inner step).  The range is
+    computed by hypot (no overflow of the squares for coordinates up to the float64 range)."""
+    pos = list(pos)
     diff = x[..., None, pos] - stations  # (..., m, d)
-    rng = np.sqrt(np.einsum("...md,...md->...m", diff, diff))
+    rng = np.hypot(diff[..., 0], diff[..., 1])
+    if diff.shape[-1] == 3:
+        rng = np.hypot(rng, diff[..., 2])
     H = np.zeros(x.shape[:-1] + (stations.shape[0], x.shape[-1]))
     H[..., pos] = diff / np.maximum(rng, _TINY_RANGE)[..., None]
     return rng, H
+
+
+def _state_indices(name: str, idx, count: int, n: int) -> tuple:
+    """``count`` distinct state indices in [0, n)."""
+    if isinstance(idx, (str, bytes)) or not np.iterable(idx):
+        raise ParameterError(f"{name}: expected {count} state indices, got {idx!r}")
+    idx = tuple(check_int(name, i, minimum=0, maximum=n - 1) for i in idx)
+    if len(idx) != count or len(set(idx)) != count:
+        raise ShapeError(f"{name}: expected {count} distinct state indices, got {idx}")
+    return idx
 
 
 def motion_position(motion: str, dim: int) -> tuple:
@@ -67,6 +92,7 @@ def motion_position(motion: str, dim: int) -> tuple:
     (0, 2, 4)[:d] for constant velocity ([x, vx, y, vy, z, vz])."""
     if motion not in MOTIONS:
         raise ParameterError(f"motion: expected one of {MOTIONS}, got {motion!r}")
+    dim = check_int("dim", dim, minimum=1, maximum=3)
     return tuple(range(dim)) if motion == "random-walk" else tuple(range(0, 2 * dim, 2))
 
 

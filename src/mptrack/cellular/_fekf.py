@@ -27,11 +27,11 @@ from typing import Callable
 
 import numpy as np
 
-from .._validation import finite_result
-from ..errors import NotPositiveDefiniteError, ParameterError
+from .._validation import as_array, as_vector, derived_from, finite_result, renamed
+from ..errors import NotPositiveDefiniteError, ParameterError, ShapeError
 from ..fuzzy import TakagiSugeno, uniform_partition
 from ..result import BatchFilterResult, FilterResult, innovation_arrays, mask_missing
-from ._ekf import _prepare, range_measurement
+from ._ekf import _prepare, _state_indices, check_stations, ranges_and_jacobian
 
 __all__ = [
     "bouzera_fekf_fis",
@@ -65,10 +65,23 @@ def bouzera_fekf_fis(inn_universe_km=(0.0, 1.5), s_universe_km2=(0.22, 0.32), co
            mobile localization in urban area using wireless network", Applied Soft Computing, vol. 57, pp.
            452–467, 2017. doi:10.1016/j.asoc.2017.04.007
     """
-    inn = uniform_partition(*inn_universe_km, 5, labels=_FIVE)
-    s = uniform_partition(*s_universe_km2, 2, labels=("small", "large"))
-    return TakagiSugeno((inn, s), np.asarray(consequents), universes=(tuple(inn_universe_km), tuple(s_universe_km2)),
+    inn_universe_km, s_universe_km2 = _universe("inn_universe_km", inn_universe_km), \
+        _universe("s_universe_km2", s_universe_km2)
+    consequents = as_array("consequents", consequents, shape=(5, 2))
+    with renamed(lo="inn_universe_km", hi="inn_universe_km"):
+        inn = uniform_partition(*inn_universe_km, 5, labels=_FIVE)
+    with renamed(lo="s_universe_km2", hi="s_universe_km2"):
+        s = uniform_partition(*s_universe_km2, 2, labels=("small", "large"))
+    return TakagiSugeno((inn, s), consequents, universes=(inn_universe_km, s_universe_km2),
                         names=("|innovation|", "S"))
+
+
+def _universe(name: str, value) -> tuple[float, float]:
+    """A universe of discourse (lo, hi), lo < hi."""
+    lo, hi = as_vector(name, value, 2)
+    if not hi > lo:
+        raise ParameterError(f"{name}: expected (lo, hi) with lo < hi, got {tuple(value)!r}")
+    return float(lo), float(hi)
 
 
 def bouzera_fcs_fis(distance_universe_km=(0.0, 1.5), consequents=TABLE_III) -> TakagiSugeno:
@@ -80,8 +93,11 @@ def bouzera_fcs_fis(distance_universe_km=(0.0, 1.5), consequents=TABLE_III) -> T
            mobile localization in urban area using wireless network", Applied Soft Computing, vol. 57, pp.
            452–467, 2017. doi:10.1016/j.asoc.2017.04.007
     """
-    d = uniform_partition(*distance_universe_km, 5, labels=_FIVE)
-    return TakagiSugeno((d,), np.asarray(consequents), universes=(tuple(distance_universe_km),), names=("distance",))
+    distance_universe_km = _universe("distance_universe_km", distance_universe_km)
+    consequents = as_vector("consequents", consequents, 5)
+    with renamed(lo="distance_universe_km", hi="distance_universe_km"):
+        d = uniform_partition(*distance_universe_km, 5, labels=_FIVE)
+    return TakagiSugeno((d,), consequents, universes=(distance_universe_km,), names=("distance",))
 
 
 def local_solutions(x_pred, P_pred, z, stations, R_diag, position=None):
@@ -97,7 +113,22 @@ def local_solutions(x_pred, P_pred, z, stations, R_diag, position=None):
            mobile localization in urban area using wireless network", Applied Soft Computing, vol. 57, pp.
            452–467, 2017. doi:10.1016/j.asoc.2017.04.007
     """
-    h, H = range_measurement(x_pred, stations, position)             # eqs. 7-10
+    stations = check_stations(stations)
+    m, d = stations.shape
+    x_pred = as_array("x_pred", x_pred, ndim=2)
+    B, n = x_pred.shape
+    if n < d:
+        raise ShapeError(f"x_pred: expected states (B, n) with n >= {d} (the stations' dimension), got {x_pred.shape}")
+    P_pred = as_array("P_pred", P_pred, shape=(B, n, n))
+    z = as_array("z", z, shape=(B, m), allow_nan=True)
+    R_diag = as_vector("R_diag", R_diag, m, low=0.0)
+    pos = tuple(range(d)) if position is None else _state_indices("position", position, d, n)
+    return _local_solutions(x_pred, P_pred, z, stations, R_diag, pos)
+
+
+def _local_solutions(x_pred, P_pred, z, stations, R_diag, pos):
+    """:func:`local_solutions` of validated arguments (the filters' inner step)."""
+    h, H = ranges_and_jacobian(x_pred, stations, pos)               # eqs. 7-10
     PHt = np.einsum("bnk,bmk->bmn", P_pred, H)                       # rows P^- H_i^T
     S = np.einsum("bmn,bmn->bm", H, PHt) + R_diag                    # eq. 12, per station
     if np.any(S <= 0):
@@ -122,6 +153,21 @@ def fuse_local_solutions(x_pred, P_pred, K, H, innov, S, R_diag, y, *, covarianc
            mobile localization in urban area using wireless network", Applied Soft Computing, vol. 57, pp.
            452–467, 2017. doi:10.1016/j.asoc.2017.04.007
     """
+    x_pred = as_array("x_pred", x_pred, ndim=2)
+    B, n = x_pred.shape
+    P_pred = as_array("P_pred", P_pred, shape=(B, n, n))
+    K = as_array("K", K, ndim=3)
+    m = K.shape[1]
+    K = as_array("K", K, shape=(B, m, n))
+    H = as_array("H", H, shape=(B, m, n))
+    innov, S = as_array("innov", innov, shape=(B, m)), as_array("S", S, shape=(B, m), low=0.0)
+    R_diag = as_vector("R_diag", R_diag, m, low=0.0)
+    y = as_array("y", y, shape=(B, m), low=0.0)
+    return _fuse(x_pred, P_pred, K, H, innov, S, R_diag, y, covariance)
+
+
+def _fuse(x_pred, P_pred, K, H, innov, S, R_diag, y, covariance: str):
+    """:func:`fuse_local_solutions` of validated arguments (the filters' inner step)."""
     total = y.sum(axis=1)
     live = total > 0
     w = np.where(live[:, None], y / np.where(live, total, 1.0)[:, None], 0.0)
@@ -157,14 +203,14 @@ def _fused_core(z, stations, x0, P0, F, Q, R, pos, weights: Callable, covariance
         xp[:, k], Pp[:, k] = x, P
         dk = z[:, k]
         ok = ~np.isnan(dk)
-        _, K, H, innov, S = local_solutions(x, P, dk, stations, R_diag, pos)
+        _, K, H, innov, S = _local_solutions(x, P, dk, stations, R_diag, pos)
         # the joint innovation covariance H P H^T + R of the stations, its diagonal the local S_i
         S_all = H @ P @ H.transpose(0, 2, 1) + R
         S_all[:, diag, diag] = S
         nus[:, k] = np.where(ok, innov, np.nan)
         Ss[:, k] = mask_missing(nus[:, k], S_all)
         y = np.where(ok, weights(np.abs(innov), S, np.where(ok, dk, 0.0)), 0.0)
-        x, P = fuse_local_solutions(x, P, K, H, innov, S, R_diag, y, covariance=covariance)
+        x, P = _fuse(x, P, K, H, innov, S, R_diag, y, covariance)
         xs[:, k] = x
         Ps[:, k] = P
     return BatchFilterResult(x=xs, P=Ps, x_pred=xp, P_pred=Pp, innovation=nus, S=Ss)
@@ -182,7 +228,11 @@ def _fis_weights(fis, kind: str):
 
 def _run(kind, z, stations, x0, P0, Q, R, fis, motion, dt, covariance, batch):
     args = _prepare(z, stations, x0, P0, Q, R, motion, dt, batch=batch)
-    out = replace(_fused_core(*args, weights=_fis_weights(fis, kind), covariance=covariance), method=kind)
+    if covariance not in ("paper", "exact"):
+        raise ParameterError(f"covariance: expected 'paper' or 'exact', got {covariance!r}")
+    weights = _fis_weights(fis, kind)
+    with derived_from(z=args[0], stations=args[1], x0=args[2], P0=args[3], Q=args[5], R=args[6]):
+        out = replace(_fused_core(*args, weights=weights, covariance=covariance), method=kind)
     return out if batch else out.run(0)
 
 
@@ -204,6 +254,7 @@ def fekf_ranges(z, stations, x0, P0, Q, R, *, fis: TakagiSugeno | None = None, m
     return _run("FEKF", z, stations, x0, P0, Q, R, fis, motion, dt, covariance, False)
 
 
+@finite_result("the FEKF")
 def fekf_ranges_batch(z, stations, x0, P0, Q, R, *, fis=None, motion="random-walk", dt=1.0,
                       covariance="exact") -> BatchFilterResult:
     """:func:`fekf_ranges` on B tracks at once: z (B, T, m), x0 (B, n).
@@ -231,6 +282,7 @@ def fcs_ranges(z, stations, x0, P0, Q, R, *, fis: TakagiSugeno | None = None, mo
     return _run("FCS", z, stations, x0, P0, Q, R, fis, motion, dt, covariance, False)
 
 
+@finite_result("the FCS filter")
 def fcs_ranges_batch(z, stations, x0, P0, Q, R, *, fis=None, motion="random-walk", dt=1.0,
                      covariance="exact") -> BatchFilterResult:
     """:func:`fcs_ranges` on B tracks at once: z (B, T, m), x0 (B, n).

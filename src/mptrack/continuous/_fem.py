@@ -75,7 +75,15 @@ import scipy.ndimage
 import scipy.sparse
 import scipy.sparse.linalg
 
-from .._validation import as_array, check_int, check_positive
+from .._validation import (
+    as_array,
+    broadcast_shape,
+    check_allocation,
+    check_int,
+    check_positive,
+    finite_result,
+    require_finite,
+)
 from ..errors import ConvergenceError, ParameterError, ShapeError
 from ..result import FilterResult
 from ..nonlinear._common import prepare_nonlinear
@@ -105,6 +113,7 @@ _DJ = np.array([0, 0, 2, 2, 0, 1, 2, 1])
 _GAUSS3 = (np.array([-np.sqrt(0.6), 0.0, np.sqrt(0.6)]), np.array([5.0, 8.0, 5.0]) / 9.0)
 
 
+@finite_result("the shape functions")
 def shape_functions(xi, eta):
     """Serendipity shape functions N (…, 8) and derivatives dN/dξ, dN/dη (Zhao et al. 2013, eqs. 11–12).
 
@@ -116,8 +125,9 @@ def shape_functions(xi, eta):
            positioning systems", Mathematical Problems in Engineering, vol. 2013, Article ID 175425, 2013.
            doi:10.1155/2013/175425
     """
-    xi = np.asarray(xi, dtype=float)[..., None]
-    eta = np.asarray(eta, dtype=float)[..., None]
+    xi = as_array("xi", xi)[..., None]
+    eta = as_array("eta", eta)[..., None]
+    broadcast_shape(xi=xi, eta=eta)
     a, b = 1.0 + xi * _XI, 1.0 + eta * _ETA
     N = np.empty(np.broadcast_shapes(xi.shape, eta.shape)[:-1] + (8,))
     dx, dy = np.empty_like(N), np.empty_like(N)
@@ -273,12 +283,16 @@ class FEMGrid:
         hi = as_array("hi", self.hi, shape=(2,))
         if np.any(hi <= lo):
             raise ParameterError(f"hi: must exceed lo in both coordinates, got lo={lo}, hi={hi}")
+        if not np.all(np.isfinite(hi - lo)):
+            raise ParameterError(f"hi: the box [lo, hi] is wider than the float64 range, lo={lo}, hi={hi}")
         n1 = check_int("n1", self.n1, minimum=1)
         n2 = check_int("n2", self.n2, minimum=1)
+        check_allocation("n1", n1 * n2, 8.0 * 64 * (2 * n1 + 1) * (2 * n2 + 1))   # nodes and their matrices
         top = _topology(n1, n2)
         h = (hi - lo) / np.array([n1, n2])
         nodes = lo + 0.5 * h * top["lattice"]
         W0 = (h[0] * h[1]) * top["V0"]
+        require_finite("the element areas", W0, lo=lo, hi=hi)
         set_ = object.__setattr__
         for name, val in (("lo", lo), ("hi", hi), ("nodes", nodes), ("W0", W0)):
             val.setflags(write=False)
@@ -622,8 +636,7 @@ def _box(model, m, P, width, floor):
     projected onto the PSD cone and its eigenvalues floored at ``floor``² first (a
     posterior narrower than an element has moments that are not trustworthy).
     """
-    w, V = np.linalg.eigh(0.5 * (P + P.T))
-    P = (V * np.maximum(w, floor * floor)) @ V.T
+    P = _psd_floor(P, floor)
     s = np.sqrt(np.diag(P))
     X, Wm, Wc = sigma_points(m, P)
     Y = _drift_flow(model, X, model.dt)
@@ -634,9 +647,18 @@ def _box(model, m, P, width, floor):
     return lo, hi
 
 
+def _psd_floor(P, floor: float) -> np.ndarray:
+    """P projected onto the PSD cone, its eigenvalues floored at ``floor``²."""
+    w, V = np.linalg.eigh(0.5 * (P + P.T))
+    return (V * np.maximum(w, floor * floor)) @ V.T
+
+
 def _predicted_box(model, m, P, width, floor, duration):
     """Rectangle covering the predicted mean ± width·σ after ``duration`` (sigma points through
-    the noise-free flow, plus Q·duration), σ floored at ``floor``."""
+    the noise-free flow, plus Q·duration), σ floored at ``floor``.  A P that is not PSD (on a coarse grid
+    the moments of a density with clipped negative lobes need not be) is projected onto the PSD cone."""
+    if np.linalg.eigvalsh(0.5 * (P + P.T))[0] < 0.0:
+        P = _psd_floor(P, 0.0)
     X, Wm, Wc = sigma_points(m, P)
     Y = _drift_flow(model, X, duration)
     mp = Wm @ Y
@@ -748,6 +770,7 @@ def _gaussian_on(grid: FEMGrid, m, P):
     return np.exp(-0.5 * np.sum(D * w, axis=1))
 
 
+@finite_result("the FEM filter")
 def fem_steps(model: ContinuousDiscreteModel, z, x0, P0, *, grid: tuple[int, int] = (20, 20),
               width: float = 4.0, substeps: int | None = None, scheme: str = "characteristics",
               stabilise: bool = False, box: tuple | None = None, splits: int = 4) -> Iterator[FEMStep]:
@@ -1097,6 +1120,7 @@ def _update(parts: list, model, zk, k: int, width: float, fixed: bool):
     return [new[i] for i in keep], ll, moved
 
 
+@finite_result("the FEM filter")
 def fem_filter(model: ContinuousDiscreteModel, z, x0, P0, **options) -> FilterResult:
     """The FEM grid filter (Zhao et al. 2013) as a FilterResult; options as for :func:`fem_steps`.
 

@@ -20,11 +20,12 @@ from typing import Callable
 
 import numpy as np
 
-from .._validation import as_matrix, as_vector, check_covariance, check_int, check_positive
+from .._validation import (as_matrix, as_vector, check_allocation, check_covariance, check_int, check_positive,
+                           check_rng, finite_result)
 from ..errors import ParameterError, ShapeError
-from ..models import LinearGaussianModel, van_loan, wrap_angles
+from ..models import LinearGaussianModel, van_loan
 from ..models._linear import _frozen
-from ..models._nonlinear import gauss_logpdf
+from ..models._nonlinear import _wrap_angles, gauss_logpdf
 from . import _kernels as kern
 from ._kernels import SCHEMES, BlockKernels
 
@@ -157,7 +158,7 @@ class ContinuousDiscreteModel:
 
     def innovation(self, z, zhat) -> np.ndarray:
         """z - h, with angle components wrapped into [-period/2, period/2)."""
-        return wrap_angles(np.asarray(z, dtype=float) - np.asarray(zhat, dtype=float), self.periods)
+        return _wrap_angles(np.asarray(z, dtype=float) - np.asarray(zhat, dtype=float), self.periods)
 
     def log_likelihood(self, z: np.ndarray, X: np.ndarray) -> np.ndarray:
         """log p(z | x) at points X (..., n) (Zhao et al. 2013, eq. 25); NaN components of z are skipped."""
@@ -309,6 +310,7 @@ def linear_sde_model(A, Q, H, R, dt: float, *, substeps: int = 20, name: str = "
                                    linear=(A, H), name=name or "linear SDE", kernels=kernels)
 
 
+@finite_result("the simulated path")
 def simulate_sde(model: ContinuousDiscreteModel, steps: int, rng: np.random.Generator, x0,
                  *, substeps: int | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Sample the truth x(t_k) and measurements z(k), k = 1..steps, from x(0) = x0.
@@ -319,9 +321,11 @@ def simulate_sde(model: ContinuousDiscreteModel, steps: int, rng: np.random.Gene
     when the model sets ``max_increment``, as :func:`zhao2013_model` does.  Returns
     (truth (steps, n), z (steps, m)); row k-1 is time k, as for the linear filters.
     """
-    if not isinstance(rng, np.random.Generator):
-        raise ParameterError(f"rng: expected a numpy.random.Generator, got {type(rng).__name__}")
+    if not isinstance(model, ContinuousDiscreteModel):
+        raise ParameterError(f"model: expected a ContinuousDiscreteModel, got {type(model).__name__}")
+    check_rng(rng)
     steps = check_int("steps", steps, minimum=1)
+    check_allocation("steps", steps, 16.0 * steps * (model.n + model.m))
     x = as_vector("x0", x0, model.n)
     substeps = 5 * model.substeps if substeps is None else check_int("substeps", substeps, minimum=1)
     truth = np.empty((steps, model.n))
@@ -330,4 +334,4 @@ def simulate_sde(model: ContinuousDiscreteModel, steps: int, rng: np.random.Gene
         truth[k] = x
     Lr = np.linalg.cholesky(model.R)
     z = model.measurement(truth) + rng.standard_normal((steps, model.m)) @ Lr.T
-    return truth, wrap_angles(z, model.periods)
+    return truth, _wrap_angles(z, model.periods)

@@ -14,6 +14,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from .._validation import check_allocation, check_int, finite_result
+from ..errors import ParameterError
 from ..result import FilterResult
 from ..nonlinear._pf import particle_filter, pf_substeps
 from ._model import ContinuousDiscreteModel
@@ -21,6 +23,7 @@ from ._model import ContinuousDiscreteModel
 __all__ = ["reference_filter", "pf_substep_study"]
 
 
+@finite_result("the reference filter")
 def reference_filter(model: ContinuousDiscreteModel, z, x0, P0, rng: np.random.Generator, *,
                      particles: int = 100_000, substeps: int | None = None,
                      scheme: str = "rk4-split") -> FilterResult:
@@ -39,6 +42,7 @@ def reference_filter(model: ContinuousDiscreteModel, z, x0, P0, rng: np.random.G
                            substeps=substeps, scheme=scheme, method="reference")
 
 
+@finite_result("the sub-step study")
 def pf_substep_study(model: ContinuousDiscreteModel, z, x0, P0, seed: int = 0, *, particles: int = 10_000,
                      runs: int = 12, substeps=(1, 2, 4, 5, 10, 20, 40), schemes=("heun", "rk4-split"),
                      ref_particles: int = 200_000, ref_runs: int = 2, ref_substeps: int = 40) -> dict:
@@ -52,13 +56,21 @@ def pf_substep_study(model: ContinuousDiscreteModel, z, x0, P0, seed: int = 0, *
       bias   RMS of (mean of the runs − reference): the bias, plus Monte-Carlo noise of
              about noise/√runs (reported as ``resolution``) and the reference's own noise.
     Returns {"rows": [[scheme, substeps, noise, bias, resolution], ...], "reference_spread": RMS
-    difference of the first two references (their noise), "reference": mean (T, n)}.
+    difference of the first two references (their noise; None with one reference), "reference": mean (T, n)}.
     """
+    seed = check_int("seed", seed, minimum=0)
+    runs, ref_runs = check_int("runs", runs, minimum=1), check_int("ref_runs", ref_runs, minimum=1)
+    for name, values in (("substeps", substeps), ("schemes", schemes)):
+        if isinstance(values, (str, bytes)) or not np.iterable(values) or not len(values):
+            raise ParameterError(f"{name}: expected a non-empty sequence, got {values!r}")
+    substeps = tuple(check_int("substeps", s, minimum=1) for s in substeps)
+    # every run's posterior means (T, n) are held, per scheme and sub-step count
+    check_allocation("runs", runs, 8.0 * (ref_runs + runs) * max(np.size(z), 1) * model.n)
     seeds = np.random.SeedSequence(seed).spawn(ref_runs + runs)
     refs = [particle_filter(model, z, x0, P0, np.random.default_rng(seeds[i]), particles=ref_particles,
                             substeps=ref_substeps, scheme="heun").x for i in range(ref_runs)]
     ref = np.mean(refs, axis=0)
-    spread = float(np.sqrt(np.mean((refs[0] - refs[1]) ** 2))) if ref_runs > 1 else float("nan")
+    spread = float(np.sqrt(np.mean((refs[0] - refs[1]) ** 2))) if ref_runs > 1 else None
     rows = []
     for scheme in schemes:
         for s in substeps:

@@ -15,18 +15,39 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..errors import ParameterError
+from .._validation import as_array, as_vector, check_covariance, finite_result
+from ..errors import ParameterError, ShapeError, SingularMatrixError
 
 __all__ = ["fused_covariance_prop3", "fused_covariance_trace", "probabilistic_fusion"]
 
 
-def _weights(y) -> np.ndarray:
-    y = np.asarray(y, dtype=float)
-    if np.any(y < 0) or not np.isfinite(y).all() or y.sum() <= 0:
+def _weights(y, count: int) -> np.ndarray:
+    y = as_vector("y", y, count, low=0.0)
+    if not y.sum() > 0:
         raise ParameterError(f"y: weights must be finite, >= 0 and not all zero, got {y.tolist()}")
+    y = y / y.max()                     # no overflow of the sum
     return y / y.sum()
 
 
+def _local_terms(P_pred, P_local, H, S, y):
+    """Validated (P_pred (n, n), P_local (N, n, n), H (N, m, n), S (N, m, m), w (N,)) and
+    sum_i w_i^2 H_i^T S_i^-1 H_i."""
+    P_local = as_array("P_local", P_local, ndim=3)
+    N, n = P_local.shape[:2]
+    P_local = as_array("P_local", P_local, shape=(N, n, n))
+    P_pred = check_covariance("P_pred", P_pred, n)
+    H = as_array("H", H, ndim=3)
+    H = as_array("H", H, shape=(N, H.shape[1], n))
+    S = as_array("S", S, shape=(N, H.shape[1], H.shape[1]))
+    w = _weights(y, N)
+    try:
+        Sinv = np.linalg.inv(S)
+    except np.linalg.LinAlgError:
+        raise SingularMatrixError("S: a local innovation covariance is singular") from None
+    return P_pred, P_local, w, np.einsum("i,imn,imk,ikl->nl", w ** 2, H, Sinv, H)   # sum_i w_i^2 H^T S^-1 H
+
+
+@finite_result("the fused covariance")
 def fused_covariance_prop3(P_pred, P_local, H, S, y) -> np.ndarray:
     """Eq. 29 (Proposition 3 with a symmetric P^-): P_est from the local covariances.
 
@@ -39,14 +60,12 @@ def fused_covariance_prop3(P_pred, P_local, H, S, y) -> np.ndarray:
            mobile localization in urban area using wireless network", Applied Soft Computing, vol. 57, pp.
            452–467, 2017. doi:10.1016/j.asoc.2017.04.007
     """
-    w = _weights(y)
-    P_pred, P_local = np.asarray(P_pred, float), np.asarray(P_local, float)
-    H, S = np.asarray(H, float), np.asarray(S, float)
-    info = np.einsum("i,imn,imk,ikl->nl", w ** 2, H, np.linalg.inv(S), H)       # sum_i w_i^2 H^T S^-1 H
+    P_pred, P_local, w, info = _local_terms(P_pred, P_local, H, S, y)
     sym = np.einsum("i,inm->nm", w, P_local + np.swapaxes(P_local, 1, 2))
     return sym + P_pred @ info @ P_pred - P_pred
 
 
+@finite_result("the fused covariance's trace")
 def fused_covariance_trace(P_pred, P_local, H, S, y) -> float:
     """The first eq. 30 (Proposition 4): trace(P_est) = 2 sum_i w_i trace(P_i)
     + trace(P^- (sum_i w_i^2 H_i^T S_i^-1 H_i) P^-) - trace(P^-).
@@ -57,14 +76,12 @@ def fused_covariance_trace(P_pred, P_local, H, S, y) -> float:
            mobile localization in urban area using wireless network", Applied Soft Computing, vol. 57, pp.
            452–467, 2017. doi:10.1016/j.asoc.2017.04.007
     """
-    w = _weights(y)
-    P_pred = np.asarray(P_pred, float)
-    H, S = np.asarray(H, float), np.asarray(S, float)
-    info = np.einsum("i,imn,imk,ikl->nl", w ** 2, H, np.linalg.inv(S), H)
-    return float(2.0 * w @ np.trace(np.asarray(P_local, float), axis1=1, axis2=2)
-                 + np.trace(P_pred @ info @ P_pred) - np.trace(P_pred))
+    P_pred, P_local, w, info = _local_terms(P_pred, P_local, H, S, y)
+    return float(2.0 * w @ np.trace(P_local, axis1=1, axis2=2) + np.trace(P_pred @ info @ P_pred)
+                 - np.trace(P_pred))
 
 
+@finite_result("the probabilistic fusion")
 def probabilistic_fusion(X, P):
     """The second eq. 30: X = P sum_i P_i^-1 X_i, P = (sum_i P_i^-1)^-1, for X (N, n), P (N, n, n)
     positive definite.  Returns (x (n,), P (n, n)).
@@ -75,9 +92,10 @@ def probabilistic_fusion(X, P):
            mobile localization in urban area using wireless network", Applied Soft Computing, vol. 57, pp.
            452–467, 2017. doi:10.1016/j.asoc.2017.04.007
     """
-    X, P = np.asarray(X, float), np.asarray(P, float)
-    if X.ndim != 2 or P.shape != X.shape + X.shape[-1:]:
-        raise ParameterError(f"P: expected shape {X.shape + X.shape[-1:]} for X of shape {X.shape}, got {P.shape}")
+    X = as_array("X", X, ndim=2)
+    if 0 in X.shape:
+        raise ShapeError(f"X: expected N >= 1 local solutions of n >= 1 states, got shape {X.shape}")
+    P = as_array("P", P, shape=X.shape + X.shape[-1:])
     try:
         info = np.linalg.inv(P)
         Pf = np.linalg.inv(info.sum(axis=0))

@@ -6,7 +6,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._validation import as_array, as_real, check_positive
+from .._validation import (
+    as_array,
+    as_real,
+    check_allocation,
+    check_int,
+    check_positive,
+    renamed,
+)
 from ..errors import ParameterError
 
 __all__ = ["MembershipFunction", "triangular", "trapezoidal", "gaussian", "uniform_partition"]
@@ -45,7 +52,8 @@ def triangular(x, a: float, b: float, c: float):
     b = as_real("b", b, infinite=True)
     if not as_real("a", a, infinite=True) <= b <= as_real("c", c, infinite=True):
         raise ParameterError(f"a, b, c: expected a <= b <= c, got {a!r}, {b!r}, {c!r}")
-    return trapezoidal(x, a, b, b, c)
+    with renamed(c="b", d="c"):         # the trapezoid's corners c, d are the triangle's b, c
+        return trapezoidal(x, a, b, b, c)
 
 
 def gaussian(x, mean: float, sigma: float):
@@ -71,10 +79,10 @@ class MembershipFunction:
         if self.kind not in _KINDS:
             raise ParameterError(f"kind: expected one of {tuple(_KINDS)}, got {self.kind!r}")
         want = _KINDS[self.kind][1]
-        if len(self.params) != want:
+        if isinstance(self.params, (str, bytes)) or not np.iterable(self.params) or len(self.params) != want:
             raise ParameterError(f"params: a {self.kind} membership function takes {want} parameters, "
-                                 f"got {len(self.params)}")
-        p = tuple(float(v) for v in self.params)
+                                 f"got {self.params!r}")
+        p = tuple(as_real("params", v, infinite=True) for v in self.params)
         object.__setattr__(self, "params", p)
         if self.kind == "gaussian":
             if not (np.isfinite(p[0]) and p[1] > 0):
@@ -93,8 +101,17 @@ def uniform_partition(lo: float, hi: float, count: int, *, labels=None, kind: st
     the first and last sets are shoulders (1 outside the universe).  Gaussian:
     same centres, sigma = spacing / 2 (memberships then only approximately sum to 1).
     """
-    if count < 2 or not hi > lo:
-        raise ParameterError(f"count, lo, hi: need count >= 2 and hi > lo, got {count}, {lo}, {hi}")
+    lo, hi = as_real("lo", lo), as_real("hi", hi)
+    count = check_int("count", count, minimum=2)
+    check_allocation("count", count, 1024.0 * count)     # one MembershipFunction (about 1 KiB) per set
+    if not hi > lo:
+        raise ParameterError(f"hi: expected hi > lo, got lo, hi = {lo!r}, {hi!r}")
+    if not np.isfinite(hi - lo):
+        raise ParameterError(f"hi: the universe [lo, hi] = [{lo!r}, {hi!r}] is wider than the float64 range")
+    if kind not in ("triangular", "gaussian"):
+        raise ParameterError(f"kind: expected 'triangular' or 'gaussian', got {kind!r}")
+    if labels is not None and (isinstance(labels, (str, bytes)) or not np.iterable(labels)):
+        raise ParameterError(f"labels: expected {count} labels, got {labels!r}")
     labels = list(labels) if labels is not None else [f"A{i}" for i in range(count)]
     if len(labels) != count:
         raise ParameterError(f"labels: expected {count} labels, got {len(labels)}")

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._validation import as_array
+from .._validation import as_array, as_vector
 from ..errors import ParameterError, ShapeError
 from ._membership import MembershipFunction
 
@@ -41,6 +41,8 @@ class TakagiSugeno:
     names: tuple[str, ...] | None = None
 
     def __post_init__(self) -> None:
+        if not _sequence(self.sets) or not all(_sequence(s) for s in self.sets):
+            raise ParameterError(f"sets: expected one sequence of fuzzy sets per input, got {self.sets!r}")
         sets = tuple(tuple(s) for s in self.sets)
         if not sets or any(len(s) == 0 for s in sets):
             raise ParameterError("sets: every input needs at least one fuzzy set")
@@ -52,9 +54,12 @@ class TakagiSugeno:
         c = as_array("consequents", self.consequents, shape=shape).copy()
         c.setflags(write=False)
         universes = self.universes if self.universes is not None else (None,) * len(sets)
-        if len(universes) != len(sets):
-            raise ShapeError(f"universes: expected {len(sets)} entries, got {len(universes)}")
+        if not _sequence(universes) or len(universes) != len(sets):
+            raise ShapeError(f"universes: expected {len(sets)} entries ((lo, hi) or None), got {universes!r}")
+        universes = tuple(None if u is None else _universe(u) for u in universes)
         names = self.names if self.names is not None else tuple(f"x{i + 1}" for i in range(len(sets)))
+        if not _sequence(names) or len(names) != len(sets) or not all(isinstance(n, str) for n in names):
+            raise ParameterError(f"names: expected {len(sets)} input names, got {names!r}")
         object.__setattr__(self, "sets", sets)
         object.__setattr__(self, "consequents", c)
         object.__setattr__(self, "universes", tuple(universes))
@@ -66,7 +71,7 @@ class TakagiSugeno:
 
     def memberships(self, i: int, x) -> np.ndarray:
         """Memberships (..., len(sets[i])) of input ``i`` at values x (clipped to its universe)."""
-        x = np.asarray(x, dtype=float)
+        x = as_array(f"x ({self.names[i]})", x)
         if self.universes[i] is not None:
             x = np.clip(x, *self.universes[i])
         return np.stack([mf(x) for mf in self.sets[i]], axis=-1)
@@ -75,7 +80,7 @@ class TakagiSugeno:
         """Rule firing strengths (..., n1, n2, ...) = product of the inputs' memberships."""
         if len(inputs) != self.n_inputs:
             raise ShapeError(f"inputs: expected {self.n_inputs} ({', '.join(self.names)}), got {len(inputs)}")
-        arrays = [as_array(name, x) for name, x in zip(self.names, inputs)]
+        arrays = [as_array(f"inputs[{i}] ({name})", x) for i, (name, x) in enumerate(zip(self.names, inputs))]
         arrays = np.broadcast_arrays(*arrays)
         w = None
         for i, x in enumerate(arrays):
@@ -94,3 +99,14 @@ class TakagiSugeno:
                                  "widen the fuzzy sets or give universes to clip to")
         out = (w * self.consequents).sum(axis=axes) / total
         return out[()] if out.ndim == 0 else out
+
+
+def _sequence(value) -> bool:
+    return isinstance(value, (tuple, list))
+
+
+def _universe(value) -> tuple[float, float]:
+    lo, hi = as_vector("universes", value, 2)
+    if not lo <= hi:
+        raise ParameterError(f"universes: expected (lo, hi) with lo <= hi, got {tuple(value)!r}")
+    return float(lo), float(hi)

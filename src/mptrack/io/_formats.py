@@ -33,6 +33,7 @@ from typing import Callable, Iterator
 
 import pandas as pd
 
+from .._validation import check_path
 from ..errors import DataError
 
 __all__ = ["FORMATS", "FORMAT_NAMES", "Skipped", "input_format", "raw_chunks"]
@@ -76,7 +77,7 @@ def input_format(path) -> str:
     ".txt" and ".log" files are NMEA 0183 when their first line (after ``#`` comments)
     is an NMEA sentence, CSV otherwise.
     """
-    path = Path(path)
+    path = check_path("path", path)
     suffix = path.suffix.lower()
     if suffix not in FORMATS:
         raise DataError(f"unknown input format {suffix!r}; expected one of {', '.join(sorted(FORMATS))} "

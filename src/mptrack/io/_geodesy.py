@@ -48,6 +48,8 @@ _DEG = 180.0 / math.pi           # degrees per radian
 _LATITUDE = dict(low=-90.0, high=90.0, unit="degrees")
 _LONGITUDE = dict(low=-180.0, high=180.0, unit="degrees")
 _METRES = dict(unit="m")
+#: east/north of enu_to_geodetic: their squares must stay finite (points that far miss the ellipsoid anyway)
+_PLANE = dict(low=-1e150, high=1e150, unit="m")
 
 _BLOCK = 4096                    # rows per prange task
 _SERIAL_ROWS = 1 << 14           # fewer rows: run on the calling thread (waking the others costs more)
@@ -298,7 +300,7 @@ def enu_to_geodetic(east, north, lat0, lon0, h0=0.0):
     The previous implementation (three fixed-point passes of pymap3d on "up") is
     the independent oracle of the tests.
     """
-    shape, columns = _columns(east=(east, _METRES), north=(north, _METRES), lat0=(lat0, _LATITUDE),
+    shape, columns = _columns(east=(east, _PLANE), north=(north, _PLANE), lat0=(lat0, _LATITUDE),
                               lon0=(lon0, _LONGITUDE), h0=(h0, _METRES))
     size = math.prod(shape)
     lat, lon = np.empty(size), np.empty(size)

@@ -12,6 +12,7 @@ from pathlib import Path
 import pandas as pd
 import pyarrow as pa
 
+from .._validation import check_path
 from ..errors import DataError, MptrackError
 
 __all__ = ["read_output", "restore"]
@@ -66,7 +67,7 @@ def read_output(path) -> pd.DataFrame:
     from ._gpx_out import read_gpx
     from ._writers import output_format
 
-    fmt = output_format(path)
+    fmt = output_format(check_path("path", path))
     if not Path(path).is_file():
         raise DataError("file not found", file=path)
     readers = {"parquet": pd.read_parquet, "csv": _read_csv, "geojson": read_geojson, "gpx": read_gpx,

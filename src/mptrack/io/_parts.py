@@ -12,7 +12,8 @@ from pathlib import Path
 
 import pandas as pd
 
-from ..errors import OutputError
+from .._validation import check_path, renamed
+from ..errors import DataError, OutputError
 from ._writers import output_format, write_table
 
 __all__ = ["PartStore"]
@@ -39,8 +40,9 @@ class PartStore:
     """
 
     def __init__(self, out) -> None:
-        self.out = Path(out)
-        output_format(self.out)
+        self.out = check_path("out", out)
+        with renamed(path="out"):
+            output_format(self.out)
         self.dir = self.out.parent / f".{self.out.name}.parts"
 
     def parts(self, name: str) -> list[Path]:
@@ -92,7 +94,7 @@ class PartStore:
             for path in files:
                 try:
                     yield read_part(path)
-                except FileNotFoundError:  # pyarrow's carries no file name
+                except DataError:          # read_part's error for a part it cannot read: gone, or damaged
                     if Path(path).exists():
                         raise
                     self.discard()

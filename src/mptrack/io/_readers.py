@@ -7,13 +7,13 @@ must be contiguous.
 
 from __future__ import annotations
 
-from pathlib import Path
 from typing import Iterator
 
 import numpy as np
 import pandas as pd
 
-from ..errors import DataError
+from .._validation import check_int, check_path
+from ..errors import DataError, ParameterError
 from ._formats import raw_chunks
 from ._interpret import ReadOptions, interpret
 from ._schema import CELLS, FIXES, ReadReport, Schema, cell_key, check_on_error, validate_chunk
@@ -28,7 +28,7 @@ FRAME_LABEL = "<DataFrame>"
 
 def source_label(source):
     """What errors name as the file of ``source``: its path, or FRAME_LABEL for a DataFrame."""
-    return FRAME_LABEL if isinstance(source, pd.DataFrame) else Path(source)
+    return FRAME_LABEL if isinstance(source, pd.DataFrame) else check_path("path", source)
 
 
 def track_offsets(ids) -> np.ndarray:
@@ -52,6 +52,11 @@ def read_chunks(path, schema: Schema = FIXES, *, on_error: str = "raise", chunk_
     """
     check_on_error(on_error)
     label = source_label(path)
+    chunk_rows = check_int("chunk_rows", chunk_rows, minimum=1)
+    if not isinstance(schema, Schema):
+        raise ParameterError(f"schema: expected a Schema (FIXES, MEASUREMENTS, CELLS), got {type(schema).__name__}")
+    if not isinstance(read, ReadOptions):
+        raise ParameterError(f"read: expected ReadOptions, got {type(read).__name__}")
     report = report if report is not None else ReadReport()
     report.file = str(label)
     first = 1

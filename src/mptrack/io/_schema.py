@@ -21,7 +21,8 @@ from dataclasses import dataclass, field
 import numpy as np
 import pandas as pd
 
-from ..errors import DataError, ParameterError
+from .._validation import _to_array
+from ..errors import DataError, DTypeError, ParameterError, ShapeError
 from ._interpret import MAX_SECONDS
 
 __all__ = ["Column", "Schema", "ReadReport", "FIXES", "MEASUREMENTS", "CELLS", "ON_ERROR", "check_on_error",
@@ -85,9 +86,30 @@ class Schema:
 
 
 def cell_key(mcc, net, area, cell) -> pd.Series:
-    """The cell identifier used to join measurement logs and cell tables: "mcc-net-area-cell"."""
-    parts = [pd.Series(v).astype("Int64").astype(str) for v in (mcc, net, area, cell)]
+    """The cell identifier used to join measurement logs and cell tables: "mcc-net-area-cell".
+
+    Each part is a non-negative integer or a 1-D sequence of them (all of one length)."""
+    parts = [_id_part(name, v) for name, v in (("mcc", mcc), ("net", net), ("area", area), ("cell", cell))]
+    sizes = {len(p) for p in parts} - {1}
+    if len(sizes) > 1:
+        raise ShapeError(f"cell: expected mcc, net, area and cell of one length, got lengths "
+                         f"{[len(p) for p in parts]}")
+    size = max(len(p) for p in parts)
+    parts = [p if len(p) == size else pd.Series([p.iloc[0]] * size) for p in parts]
     return parts[0] + "-" + parts[1] + "-" + parts[2] + "-" + parts[3]
+
+
+def _id_part(name: str, value) -> pd.Series:
+    """One part of a cell id as text: integers >= 0 (a DTypeError/ParameterError naming ``name``)."""
+    _to_array(name, value)                       # ragged lists, sizes beyond memory
+    try:
+        part = pd.Series(value).astype("Int64")
+    except (TypeError, ValueError, OverflowError) as exc:
+        raise DTypeError(f"{name}: expected integer identifiers ({exc})") from None
+    if part.isna().any() or (part < 0).any():
+        bad = part[part.isna() | (part < 0)].iloc[0]
+        raise ParameterError(f"{name}: expected integer identifiers >= 0, got {bad!r}")
+    return part.reset_index(drop=True).astype(str)
 
 
 _TRACK = Column("track_id", "id", "", "track (terminal) identifier, default \"1\"; the rows need not be "

@@ -30,6 +30,7 @@ from typing import Iterable, Iterator
 import pandas as pd
 
 from .._io import atomic_path
+from .._validation import check_path
 from ..errors import ParameterError
 from ._geojson import write_geojson
 from ._geoparquet import write_geoparquet
@@ -43,9 +44,9 @@ OUTPUT_FORMATS = {".parquet": "parquet", ".pq": "parquet", ".csv": "csv", ".geoj
 
 
 def output_format(path) -> str:
-    suffix = Path(path).suffix.lower()
+    suffix = check_path("path", path).suffix.lower()
     if suffix not in OUTPUT_FORMATS:
-        raise ParameterError(f"out: unknown output format {suffix!r}; expected one of "
+        raise ParameterError(f"path: unknown output format {suffix!r}; expected one of "
                              f"{', '.join(sorted(OUTPUT_FORMATS))}")
     return OUTPUT_FORMATS[suffix]
 
@@ -65,9 +66,13 @@ def _csv_ready(table):
 def _tables(frames: Iterable) -> Iterator:
     """Arrow tables of the frames (pandas or pyarrow), each cast to the first one's schema."""
     import pyarrow as pa
-
     schema = None
     for df in frames:
+        if not isinstance(df, (pa.Table, pd.DataFrame)):
+            raise ParameterError(f"df: expected pandas DataFrames or pyarrow Tables, got {type(df).__name__}")
+        if isinstance(df, pd.DataFrame) and df.attrs:   # a run's summaries (tables) are not file metadata:
+            df = df.copy(deep=False)                     # pyarrow warns that it cannot store them
+            df.attrs = {}
         table = df if isinstance(df, pa.Table) else pa.Table.from_pandas(df, preserve_index=False)
         schema = table.schema if schema is None else schema
         yield table.cast(schema)
@@ -149,7 +154,11 @@ def write_table(df, path) -> Path:
     """Write a table (pandas DataFrame or pyarrow Table), or an iterable of tables with the same
     columns (the rows of a track in one of them), atomically as Parquet, CSV, GeoJSON, GPX or
     GeoParquet, chosen by the file suffix."""
-    path = Path(path)
+    path = check_path("path", path)
+    if not (isinstance(df, pd.DataFrame) or hasattr(df, "schema")) and (
+            isinstance(df, (str, bytes)) or not hasattr(df, "__iter__")):
+        raise ParameterError(f"df: expected a pandas DataFrame, a pyarrow Table or an iterable of them, "
+                             f"got {type(df).__name__}")
     fmt = output_format(path)
     frames = [df] if isinstance(df, pd.DataFrame) or hasattr(df, "schema") else df
     with atomic_path(path) as tmp:

@@ -5,10 +5,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._validation import finite_result
-from .._validation import as_array, as_sequence, as_vector, check_covariance
+from .._validation import as_array, as_sequence, as_vector, check_covariance, check_record, finite_result, renamed
 from ..errors import ParameterError, ShapeError
-from ..models import ContinuousLinearModel, discretize_intervals, require_model
+from ..models import ContinuousLinearModel, require_model
+from ..models._continuous import intervals_unchecked
 from ._kernels import kf_loop
 from ..result import FilterResult, innovation_arrays
 from ._smoother import _rts_backward
@@ -77,7 +77,8 @@ def kalman_filter_irregular(model: ContinuousLinearModel, times, z, x0=None, P0=
     xs, Ps = np.empty((T, n)), np.empty((T, n, n))
     xp, Pp = np.empty((T, n)), np.empty((T, n, n))
     nu, S, nis = innovation_arrays((T,), model.m)
-    Fs, Qs = discretize_intervals(model, dts)
+    with renamed(dt="times"):
+        Fs, Qs = intervals_unchecked(model, dts)
     loglik = 0.0
     # runs of equal intervals share (F, Q) and go through the compiled KF loop in one call
     bounds = np.concatenate(([0], np.flatnonzero(np.diff(dts)) + 1, [T]))
@@ -89,6 +90,7 @@ def kalman_filter_irregular(model: ContinuousLinearModel, times, z, x0=None, P0=
                         innovation=nu, S=S, nis=nis)
 
 
+@finite_result("the irregular-time RTS smoother")
 def rts_smoother_irregular(model: ContinuousLinearModel, times, result: FilterResult, *,
                            t0: float = 0.0) -> FilterResult:
     """Fixed-interval RTS smoother for a filter run at irregular time stamps
@@ -105,9 +107,11 @@ def rts_smoother_irregular(model: ContinuousLinearModel, times, result: FilterRe
     require_model(model, kind=ContinuousLinearModel)
     if not isinstance(result, FilterResult):
         raise ParameterError(f"result: expected a FilterResult, got {type(result).__name__}")
+    check_record("result", result)
     dts = sampling_intervals(times, t0)
     if result.T != dts.shape[0] or result.n != model.n:
         raise ShapeError(f"result: expected {dts.shape[0]} steps of an n = {model.n} state "
                          f"(one per time stamp), got x of shape {result.x.shape}")
-    Fs, Qs = discretize_intervals(model, dts[1:])
+    with renamed(dt="times"):
+        Fs, Qs = intervals_unchecked(model, dts[1:])
     return _rts_backward(result, Fs, Qs)

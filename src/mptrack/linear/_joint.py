@@ -6,7 +6,14 @@ from typing import Callable
 
 import numpy as np
 
-from .._validation import _to_array, as_sequence, as_vector, check_covariance, check_int
+from .._validation import (
+    _to_array,
+    as_sequence,
+    as_vector,
+    check_covariance,
+    check_int,
+    check_record,
+)
 from ..errors import ParameterError, ShapeError
 from ..models import LinearGaussianModel, require_model
 from ..result import FilterResult, mask_missing
@@ -23,6 +30,14 @@ def join_results(a: FilterResult, b: FilterResult, method: str) -> FilterResult:
            filters", The Scientific World Journal, vol. 2014, Article ID 130512, 8 pp., 2014.
            doi:10.1155/2014/130512
     """
+    for name, result in (("a", a), ("b", b)):
+        if not isinstance(result, FilterResult):
+            raise ParameterError(f"{name}: expected a FilterResult, got {type(result).__name__}")
+        check_record(name, result, fields=("x", "P"))
+    if b.x.shape != a.x.shape or b.P.shape != a.P.shape:
+        raise ShapeError(f"b: expected x {a.x.shape} and P {a.P.shape} as a's, got {b.x.shape} and {b.P.shape}")
+    if not isinstance(method, str):
+        raise ParameterError(f"method: expected a name (str), got {method!r}")
     return FilterResult(x=0.5 * (a.x + b.x), P=0.5 * (a.P + b.P), method=method)
 
 

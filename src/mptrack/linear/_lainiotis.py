@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._validation import finite_result
+from .._validation import as_array, as_matrix, as_vector, finite_result
+from ..errors import ParameterError
 from ..models import LinearGaussianModel
 from ..riccati import LainiotisParameters, lainiotis_parameters
 from ._common import prepare_inputs
@@ -14,6 +15,7 @@ from ..result import FilterResult
 __all__ = ["lainiotis_filter", "lainiotis_step"]
 
 
+@finite_result("the Lainiotis step")
 def lainiotis_step(lp: LainiotisParameters, F, Q, x, P, z, eye):
     """One LF iteration (eqs. 5-6); a missing (NaN) measurement only predicts.
 
@@ -21,6 +23,9 @@ def lainiotis_step(lp: LainiotisParameters, F, Q, x, P, z, eye):
 
     x(k+1/k+1) = Kn z + Fn [I + P On]^{-1} [P Km z + x]
     P(k+1/k+1) = Pn + Fn [I + P On]^{-1} P Fn^T
+
+    lp from :func:`mptrack.riccati.lainiotis_parameters`; F, Q (n, n); x (n,); P (n, n); z (m,); eye the
+    (n, n) identity.
 
     References
     ----------
@@ -30,6 +35,11 @@ def lainiotis_step(lp: LainiotisParameters, F, Q, x, P, z, eye):
     .. [2] D. G. Lainiotis, "Partitioned linear estimation algorithms: discrete case", IEEE Transactions on
            Automatic Control, vol. 20, no. 2, pp. 255–257, 1975.
     """
+    if not isinstance(lp, LainiotisParameters):
+        raise ParameterError(f"lp: expected LainiotisParameters, got {type(lp).__name__}")
+    n, m = lp.Kn.shape
+    F, Q, P, eye = (as_matrix(name, v, n, n) for name, v in (("F", F), ("Q", Q), ("P", P), ("eye", eye)))
+    x, z = as_vector("x", x, n), as_array("z", z, shape=(m,), allow_nan=True)
     if np.isnan(z).any():
         P_new = F @ P @ F.T + Q
         return F @ x, 0.5 * (P_new + P_new.T)

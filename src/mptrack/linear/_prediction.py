@@ -23,7 +23,8 @@ import numpy as np
 from .._validation import as_array, check_int, check_record, finite_result
 from ..errors import ParameterError, ShapeError, SingularMatrixError
 from ..models import LinearGaussianModel, require_model
-from ..riccati import SteadyState, power_sum
+from ..riccati import SteadyState
+from ..riccati._lyapunov import power_sum_unchecked
 from ._common import prepare_inputs
 from ._kernels import ss_loop
 from ..result import FilterResult
@@ -89,7 +90,7 @@ def prediction_covariance(model: LinearGaussianModel, P_filt, N: int) -> np.ndar
     if P.ndim not in (2, 3) or P.shape[-2:] != (model.n, model.n):
         raise ShapeError(f"P_filt: expected shape ({model.n}, {model.n}) or (T, {model.n}, {model.n}), "
                          f"got shape {P.shape}")
-    FN, S = power_sum(model.F, model.Q, N)
+    FN, S = power_sum_unchecked(model.F, model.Q, N)
     P = FN @ P @ FN.T + S
     return 0.5 * (P + np.swapaxes(P, -1, -2))
 

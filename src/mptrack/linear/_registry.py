@@ -7,6 +7,7 @@ from typing import Callable
 
 import numpy as np
 
+from .._validation import lookup
 from ..errors import UnknownNameError
 from ..models import LinearGaussianModel, assimakis_model_a, assimakis_model_b
 from ..riccati import lainiotis_parameters, steady_state
@@ -112,10 +113,7 @@ FILTERS: dict[str, FilterSpec] = {spec.name: spec for spec in (
 
 
 def get_filter(name: str) -> FilterSpec:
-    try:
-        return FILTERS[name.upper()]
-    except (KeyError, AttributeError):
-        raise UnknownNameError(f"filter: unknown name {name!r}; known: {', '.join(FILTERS)}") from None
+    return lookup("name", name, FILTERS, what="filter", fold=str.upper)
 
 
 @dataclass(frozen=True)
@@ -176,4 +174,4 @@ def get_implementation(key: int | str) -> Implementation:
         if key == imp.number or (isinstance(key, str) and key.upper() == imp.name.upper()):
             return imp
     names = ", ".join(f"{i.number}={i.name}" for i in IMPLEMENTATIONS)
-    raise UnknownNameError(f"implementation: unknown key {key!r}; known: {names}")
+    raise UnknownNameError(f"key: unknown implementation {key!r}; known: {names}")

@@ -6,8 +6,7 @@ from typing import Literal
 
 import numpy as np
 
-from .._validation import finite_result
-from .._validation import as_matrix, check_int, check_positive
+from .._validation import as_matrix, check_allocation, check_int, check_positive, finite_result
 from ..errors import ConvergenceError, NonFiniteError, ParameterError, ShapeError
 from ..models import LinearGaussianModel
 from ..riccati import SteadyState, steady_state
@@ -107,16 +106,26 @@ def fir_order(A, eps: float = 1e-3, norm=2, max_order: int = 100_000) -> int:
     if rho >= 1.0:
         raise ConvergenceError(
             f"A: spectral radius {rho:.6g} >= 1, ||A^M|| never falls below eps; the FIR form does not exist")
-    power = A.copy()
-    for M in range(1, max_order + 1):  # M >= 1: eq. 22 with M = 0 would be an empty sum
+    # ||A^M|| >= rho^M in every norm, so no M with rho^M >= eps qualifies: the scan starts at the last of
+    # them (less a margin for the rounding of rho), A^start by repeated squaring; a slowly decaying A
+    # (rho = 0.999999, eps = 1e-12: M ~ 2.8e7) costs a few dozen products instead of M
+    start = 1 if rho == 0.0 or eps >= 1.0 else max(1, int(np.floor(np.log(eps) / np.log(rho))) - 1)
+    if start > max_order:
+        raise ConvergenceError(f"max_order: ||A^M|| >= rho^M >= {eps:g} for every M up to {start} "
+                               f"(spectral radius rho = {rho:.6g}), more than max_order = {max_order}")
+    power = np.linalg.matrix_power(A, start)
+    for M in range(start, max_order + 1):  # M >= 1: eq. 22 with M = 0 would be an empty sum
         if _matrix_norm(power, norm) < eps:
             return M
         power = power @ A
     raise ConvergenceError(f"max_order: ||A^M|| is still >= {eps:g} at M = {max_order}")
 
 
+@finite_result("the FIR coefficients")
 def fir_coefficients(A, B, M: int) -> np.ndarray:
     """The FIR impulse response C_j = A^j B, j = 0..M-1, as an (M, n, m) array.
+
+    A (n, n), B (n, m), M >= 1 (the result's size is checked against the memory limit first).
 
     References
     ----------
@@ -124,6 +133,17 @@ def fir_coefficients(A, B, M: int) -> np.ndarray:
            filters", The Scientific World Journal, vol. 2014, Article ID 130512, 8 pp., 2014.
            doi:10.1155/2014/130512
     """
+    A = as_matrix("A", A)
+    if A.shape[0] != A.shape[1]:
+        raise ShapeError(f"A: expected a square matrix, got shape {A.shape}")
+    B = as_matrix("B", B, A.shape[0], None)
+    M = check_int("M", M, minimum=1)
+    check_allocation("M", M, 8.0 * M * B.size)
+    return coefficients_unchecked(A, B, M)
+
+
+def coefficients_unchecked(A: np.ndarray, B: np.ndarray, M: int) -> np.ndarray:
+    """:func:`fir_coefficients` of validated arguments."""
     C = np.empty((M,) + np.shape(B))
     C[0] = B
     for j in range(1, M):
@@ -159,8 +179,8 @@ def fir_filter(model: LinearGaussianModel, z, x0=None, P0=None, *, eps: float = 
         raise ParameterError(f"warmup: expected 'truncate' or 'steady-state', got {warmup!r}")
     ss = _steady(model, steady, "kalman")
     M = fir_order(ss.A, eps, norm) if M is None else check_int("M", M, minimum=1)
-    C = fir_coefficients(ss.A, ss.B, M)
     T = z.shape[0]
+    C = coefficients_unchecked(ss.A, ss.B, min(M, T))   # the window never reaches further back than T
     xs = np.zeros((T, model.n))
     for j in range(min(M, T)):
         xs[j:] += z[: T - j] @ C[j].T

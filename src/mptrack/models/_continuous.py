@@ -28,7 +28,17 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.linalg
 
-from .._validation import as_matrix, check_covariance, check_int, check_positive
+from .._validation import (
+    as_matrix,
+    as_vector,
+    check_allocation,
+    check_covariance,
+    check_int,
+    check_positive,
+    derived_from,
+    finite_result,
+    renamed,
+)
 from ..errors import ParameterError, ShapeError
 from ._linear import LinearGaussianModel, _frozen, require_model, stack_axes
 
@@ -143,6 +153,7 @@ def van_loan(Phi, L, Qc, dt: float) -> tuple[np.ndarray, np.ndarray]:
     return _van_loan(Phi, L @ Qc @ L.T, dt)
 
 
+@finite_result("the discretisation e^(Phi dt), Q")
 def discretize_intervals(model: ContinuousLinearModel, dts) -> tuple[np.ndarray, np.ndarray]:
     """(F (T, n, n), Q (T, n, n)) of ``model`` over each interval ``dts[k] >= 0`` seconds (Van Loan).
 
@@ -151,14 +162,24 @@ def discretize_intervals(model: ContinuousLinearModel, dts) -> tuple[np.ndarray,
     then the finite sum of (M dt)^j / j!, j < 2n, evaluated for all intervals
     at once (exact, and ~1000x faster than one expm per interval).  Other
     models take one :func:`van_loan` exponential per distinct interval.
+    An interval too long for float64 is an error naming ``dts``.
 
     References
     ----------
     .. [1] C. F. Van Loan, "Computing integrals involving the matrix exponential", IEEE Transactions on
            Automatic Control, vol. 23, no. 3, pp. 395–404, 1978. doi:10.1109/TAC.1978.1101743
     """
+    require_model(model, kind=ContinuousLinearModel)
+    dts = as_vector("dts", dts, low=0.0)
+    check_allocation("dts", f"{dts.shape[0]} intervals", 8.0 * dts.shape[0] * (6 * model.n) ** 2)
+    with renamed(dt="dts"):
+        return intervals_unchecked(model, dts)
+
+
+def intervals_unchecked(model: ContinuousLinearModel, dts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`discretize_intervals` of validated intervals (an interval too long for float64 may give
+    infinities, or a ParameterError naming dt: the callers name their own argument)."""
     n = model.n
-    dts = np.asarray(dts, dtype=float)
     if dts.size == 0:
         return np.empty((0, n, n)), np.empty((0, n, n))
     LQL = model.L @ model.Qc @ model.L.T
@@ -171,10 +192,11 @@ def discretize_intervals(model: ContinuousLinearModel, dts) -> tuple[np.ndarray,
         powers.append(powers[-1] @ M)
     if not np.any(powers[-1]):
         factorial = np.cumprod(np.r_[1.0, np.arange(1, 2 * n)])
-        coef = dts[:, None] ** np.arange(2 * n) / factorial  # (T, 2n)
-        E = np.einsum("tj,jab->tab", coef, np.stack(powers[:-1]))
-        F = np.ascontiguousarray(E[:, n:, n:].transpose(0, 2, 1))
-        Q = F @ E[:, :n, n:]
+        with np.errstate(over="ignore", invalid="ignore"):
+            coef = dts[:, None] ** np.arange(2 * n) / factorial  # (T, 2n)
+            E = np.einsum("tj,jab->tab", coef, np.stack(powers[:-1]))
+            F = np.ascontiguousarray(E[:, n:, n:].transpose(0, 2, 1))
+            Q = F @ E[:, :n, n:]
     else:
         values, index = np.unique(dts, return_inverse=True)
         pairs = [_van_loan(model.Phi, LQL, float(dt)) for dt in values]
@@ -217,7 +239,7 @@ def _integrator_chain(order: int, q: float, sigma_r2: float, axes: int, name: st
     L1[-1, 0] = 1.0
     H1 = np.zeros((1, order))
     H1[0, 0] = 1.0
-    blocks = lambda M: scipy.linalg.block_diag(*([M] * axes))  # noqa: E731
+    blocks = lambda M: scipy.linalg.block_diag(*([M] * axes))
     return ContinuousLinearModel(blocks(Phi1), blocks(L1), q * np.eye(axes), blocks(H1),
                                  sigma_r2 * np.eye(axes), name=name)
 
@@ -308,7 +330,8 @@ def constant_acceleration(dt: float, q: float, axes: int = 1, *, sigma_r2: float
 def _discrete_white_noise(F1, G1, q, sigma_r2, axes, name) -> LinearGaussianModel:
     H1 = np.zeros((1, F1.shape[0]))
     H1[0, 0] = 1.0
-    axis = LinearGaussianModel.from_noise_gain(F1, H1, G1, [[q]], [[sigma_r2]], dt=F1[0, 1], name=name)
+    with derived_from(dt=F1[0, 1], q=q, sigma_r2=sigma_r2):     # G = [dt^2/2, dt(, 1)] overflows with dt
+        axis = LinearGaussianModel.from_noise_gain(F1, H1, G1, [[q]], [[sigma_r2]], dt=F1[0, 1], name=name)
     return axis if axes == 1 else stack_axes(axis, axes, name=f"{name} ({axes} axes)")
 
 

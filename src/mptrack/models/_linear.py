@@ -11,7 +11,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.linalg
 
-from .._validation import as_matrix, check_covariance, check_int, check_positive, require_finite
+from .._validation import as_matrix, check_allocation, check_covariance, check_int, check_positive, require_finite
 from ..errors import ParameterError, ShapeError
 
 __all__ = ["LinearGaussianModel", "stack_axes", "require_model"]
@@ -119,6 +119,8 @@ def stack_axes(axis_model: LinearGaussianModel, axes: int, *, name: str = "") ->
     """
     axis_model = require_model(axis_model, "axis_model")
     axes = check_int("axes", axes, minimum=1)
+    n, m = axis_model.n, axis_model.m
+    check_allocation("axes", axes, 16.0 * axes * axes * (2 * n * n + 2 * m * n + m * m))   # F, Q, G, H, R (x2)
     blocks = lambda M: scipy.linalg.block_diag(*([M] * axes))  # noqa: E731
     kwargs = dict(dt=axis_model.dt, name=name or f"{axes} x {axis_model.name or 'axis model'}")
     if axis_model.G is not None:
@@ -132,6 +134,10 @@ def stack_axes(axis_model: LinearGaussianModel, axes: int, *, name: str = "") ->
 def require_model(model, name: str = "model", kind: type = LinearGaussianModel):
     """``model`` itself if it is a ``kind`` (a LinearGaussianModel by default), else a
     ParameterError naming ``name``."""
+    if not isinstance(name, str) or not name.isidentifier():
+        raise ParameterError(f"name: expected the argument's name (an identifier), got {name!r}")
+    if not isinstance(kind, type):
+        raise ParameterError(f"kind: expected a class, got {kind!r}")
     if not isinstance(model, kind):
         raise ParameterError(f"{name}: expected a {kind.__name__}, got {type(model).__name__}")
     return model

@@ -29,8 +29,9 @@ from typing import Callable
 
 import numpy as np
 
-from .._validation import as_matrix, as_vector, check_covariance, check_int, check_positive
-from ..errors import ParameterError, ShapeError
+from .._validation import (as_array, as_matrix, as_real, as_vector, check_covariance, check_int, check_positive,
+                           renamed)
+from ..errors import NonFiniteError, ParameterError, ShapeError
 from ._linear import LinearGaussianModel, _frozen
 
 __all__ = [
@@ -52,7 +53,22 @@ _TINY = 1e-12
 
 
 def wrap_angles(nu: np.ndarray, periods: tuple) -> np.ndarray:
-    """nu (..., m) with components of non-None period wrapped into [-period/2, period/2) (a copy)."""
+    """nu (..., m) with components of non-None period wrapped into [-period/2, period/2) (a copy).
+
+    periods: m entries, each None (not an angle) or a finite period > 0; NaN in nu (missing) stays NaN.
+    """
+    nu = as_array("nu", nu, allow_nan=True)
+    if nu.ndim == 0 or nu.shape[-1] == 0:
+        raise ShapeError(f"nu: expected components on the last axis (..., m), got shape {nu.shape}")
+    if not isinstance(periods, (tuple, list)) or len(periods) != nu.shape[-1]:
+        raise ParameterError(f"periods: expected a tuple of {nu.shape[-1]} periods (None or > 0, one per "
+                             f"component of nu), got {periods!r}")
+    periods = tuple(None if p is None else check_positive(f"periods[{i}]", p) for i, p in enumerate(periods))
+    return _wrap_angles(nu, periods)
+
+
+def _wrap_angles(nu, periods: tuple) -> np.ndarray:
+    """:func:`wrap_angles` without validation (the filters' innovations)."""
     nu = np.array(nu, dtype=float)
     for i, period in enumerate(periods):
         if period is not None:
@@ -68,7 +84,7 @@ def _numeric_jacobian(fn, x: np.ndarray, periods: tuple | None = None) -> np.nda
     Y = np.asarray(fn(X), dtype=float)
     diff = Y[:n] - Y[n:]
     if periods is not None:
-        diff = wrap_angles(diff, periods)
+        diff = _wrap_angles(diff, periods)
     return (diff / (2.0 * step)[:, None]).T
 
 
@@ -129,10 +145,9 @@ class NonlinearModel:
             set_(self, "Q", Q)
         set_(self, "n", n)
         probe = np.zeros((3, n)) + np.linspace(-0.5, 0.5, 3)[:, None] + 1.0
-        fx = np.asarray(self.f(probe))
+        fx, hx = (_probe(attr, getattr(self, attr), probe) for attr in ("f", "h"))
         if fx.shape != (3, n):
             raise ShapeError(f"f: must map states (k, {n}) to (k, {n}), got shape {fx.shape} for k = 3")
-        hx = np.asarray(self.h(probe))
         if hx.ndim != 2 or hx.shape[0] != 3:
             raise ShapeError(f"h: must map states (k, {n}) to (k, m), got shape {hx.shape} for k = 3")
         m = hx.shape[1]
@@ -185,7 +200,7 @@ class NonlinearModel:
 
     def innovation(self, z, zhat) -> np.ndarray:
         """z - h, angle components wrapped into [-π, π)."""
-        return wrap_angles(np.asarray(z, dtype=float) - np.asarray(zhat, dtype=float), self.periods)
+        return _wrap_angles(np.asarray(z, dtype=float) - np.asarray(zhat, dtype=float), self.periods)
 
     def log_likelihood(self, z: np.ndarray, X: np.ndarray, k: int = 0) -> np.ndarray:
         """log p(z | x) at states X (N, n); NaN components of z are skipped."""
@@ -205,6 +220,19 @@ class NonlinearModel:
     def __repr__(self) -> str:
         label = f" {self.name!r}" if self.name else ""
         return f"<NonlinearModel{label} n={self.n} m={self.m}>"
+
+
+def _probe(name: str, fn, states: np.ndarray) -> np.ndarray:
+    """``fn(states)`` as an array; a function that cannot take states of this size is a ShapeError."""
+    try:
+        with np.errstate(all="ignore"):
+            out = np.asarray(fn(states))
+    except (IndexError, ValueError, TypeError) as exc:
+        raise ShapeError(f"{name}: cannot be evaluated on states (k, {states.shape[1]}) ({type(exc).__name__}: "
+                         f"{exc})") from None
+    if out.dtype.kind in "fc" and not np.isfinite(out).all():
+        raise NonFiniteError(f"{name}: gives non-finite values at the probe states (k, {states.shape[1]}) near 1")
+    return out
 
 
 def _factor(Q: np.ndarray) -> np.ndarray:
@@ -235,6 +263,9 @@ class MeasurementModel:
     #: (0 range, 1 bearing, 2 state component), pos (m, 3) state indices of the position (-1 padded;
     #: code 2: the observed component) and stations (m, 3)
     kernel: tuple | None = field(default=None, repr=False)
+    #: set by the constructors: the state components it reads are below this (the largest index + 1;
+    #: :func:`nonlinear_model` checks it against the motion's n); 0 for your own h (not known)
+    states: int = 0
 
 
 _RANGE, _BEARING, _COMPONENT = 0, 1, 2
@@ -260,6 +291,8 @@ def _join_specs(specs) -> tuple | None:
     return joined
 
 
+@renamed(h="measurement", jac_h="measurement", R="measurement", angle_components="measurement", f="motion",
+         jac_f="motion", Q="motion", dt="motion")      # the model's parts are the caller's motion and measurement
 def nonlinear_model(motion: LinearGaussianModel, measurement: MeasurementModel, *, name: str = "") -> NonlinearModel:
     """A linear-Gaussian motion model (F, Q; e.g. :func:`constant_velocity`) observed by a nonlinear
     ``measurement`` (one of :func:`ranges`, :func:`bearings`, ...): the NonlinearModel with the exact
@@ -268,6 +301,10 @@ def nonlinear_model(motion: LinearGaussianModel, measurement: MeasurementModel, 
         raise ParameterError(f"motion: expected a LinearGaussianModel, got {type(motion).__name__}")
     if not isinstance(measurement, MeasurementModel):
         raise ParameterError(f"measurement: expected a MeasurementModel, got {type(measurement).__name__}")
+    if measurement.states > motion.n:     # indices beyond the state would be cut off silently (slices)
+        raise ShapeError(f"measurement: reads state component {measurement.states - 1} ({measurement.name}), but "
+                         f"motion has n = {motion.n} states; give the measurement's position= (velocity=) "
+                         "indices of this state")
     F = motion.F
     Ft = np.ascontiguousarray(F.T)
     model = NonlinearModel(lambda X: X @ Ft, measurement.h, motion.Q, measurement.R,
@@ -289,17 +326,20 @@ def _selector(idx: tuple):
     return list(idx)
 
 
-def _indices(name: str, idx, count: int | None = None) -> tuple:
+def _indices(name: str, idx, count: int | None = None, points: str = "") -> tuple:
+    """State indices; ``count`` of them when given, the dimension of the argument ``points``
+    (a 3-D sensor with the default 2-D position: the message names the points the caller passed)."""
     idx = tuple(check_int(name, i, minimum=0) for i in np.atleast_1d(idx).tolist())
     if count is not None and len(idx) != count:
-        raise ShapeError(f"{name}: expected {count} state indices, got {len(idx)}")
+        first = f"{points}: {count}-D {points} need" if points else f"{name}: expected"
+        raise ShapeError(f"{first} {count} state indices in {name}, got {idx}")
     if len(set(idx)) != len(idx):
         raise ParameterError(f"{name}: indices must be distinct, got {idx}")
     return idx
 
 
 def _points(name: str, value) -> np.ndarray:
-    pts = np.asarray(value, dtype=float)
+    pts = as_array(name, value)
     pts = pts[None] if pts.ndim == 1 else pts
     pts = as_matrix(name, pts)
     if pts.shape[1] not in (2, 3):
@@ -311,9 +351,9 @@ def _covariance(R, m: int):
     """R as a scalar variance (same for every component), a vector of variances, a matrix, or a callable."""
     if callable(R):
         return R
-    arr = np.asarray(R, dtype=float)
+    arr = as_array("R", R)
     if arr.ndim == 0:
-        arr = float(check_positive("R", float(arr))) * np.eye(m)
+        arr = check_positive("R", float(arr)) * np.eye(m)
     elif arr.ndim == 1:
         arr = np.diag(as_vector("R", arr, m))
     return _frozen(check_covariance("R", arr, m, definite=True))
@@ -341,7 +381,7 @@ def ranges(stations, R, *, position=(0, 2)) -> MeasurementModel:
     Jacobian rows (p - s_i)/||p - s_i|| (range floored at 1e-12 at a station).
     """
     s = _points("stations", stations)
-    pos = _indices("position", position, s.shape[1])
+    pos = _indices("position", position, s.shape[1], "stations")
     sel = _selector(pos)
 
     def h(X):
@@ -352,7 +392,7 @@ def ranges(stations, R, *, position=(0, 2)) -> MeasurementModel:
         diff = x[..., None, sel] - s
         return diff / np.maximum(np.sqrt(np.sum(diff * diff, axis=-1)), _TINY)[..., None]
     return MeasurementModel(h, _jac_from(pos, rows), _covariance(R, s.shape[0]), (), f"ranges to {len(s)}",
-                            _join_specs([_kernel_spec(_RANGE, pos, s)]))
+                            _join_specs([_kernel_spec(_RANGE, pos, s)]), states=max(pos) + 1)
 
 
 def bearings(stations, R, *, position=(0, 2)) -> MeasurementModel:
@@ -377,16 +417,17 @@ def bearings(stations, R, *, position=(0, 2)) -> MeasurementModel:
         return G
     k = s.shape[0]
     return MeasurementModel(h, _jac_from(pos, rows), _covariance(R, k), tuple(range(k)), f"bearings from {k}",
-                            _join_specs([_kernel_spec(_BEARING, pos, s)]))
+                            _join_specs([_kernel_spec(_BEARING, pos, s)]), states=max(pos) + 1)
 
 
 def range_bearing(sensor, R, *, position=(0, 2)) -> MeasurementModel:
     """[bearing (rad), range (m)] of the 2-D position x[position] from ``sensor`` (2,): the order of
     Stone Soup's CartesianToBearingRange.  R: (2, 2), a vector of 2 variances, or R(x, k)."""
-    b, r = bearings(sensor, 1.0, position=position), ranges(sensor, 1.0, position=position)
+    with renamed(stations="sensor"):
+        b, r = bearings(sensor, 1.0, position=position), ranges(sensor, 1.0, position=position)
     return MeasurementModel(lambda X: np.concatenate([b.h(X), r.h(X)], axis=-1),
                             lambda x: np.concatenate([b.jac_h(x), r.jac_h(x)], axis=-2), _covariance(R, 2), (0,),
-                            "range-bearing", _join_specs([b.kernel, r.kernel]))
+                            "range-bearing", _join_specs([b.kernel, r.kernel]), states=max(b.states, r.states))
 
 
 def range_rate(sensor, R, *, position=(0, 2), velocity=(1, 3)) -> MeasurementModel:
@@ -397,7 +438,7 @@ def range_rate(sensor, R, *, position=(0, 2), velocity=(1, 3)) -> MeasurementMod
         raise ShapeError(f"sensor: expected one position (d,), got {s.shape}")
     s = s[0]
     d = s.shape[0]
-    pos, vel = _indices("position", position, d), _indices("velocity", velocity, d)
+    pos, vel = _indices("position", position, d, "sensor"), _indices("velocity", velocity, d, "sensor")
     psel, vsel = _selector(pos), _selector(vel)
 
     def h(X):
@@ -415,7 +456,7 @@ def range_rate(sensor, R, *, position=(0, 2), velocity=(1, 3)) -> MeasurementMod
         J[..., 0, psel] = (v - rr * p / r) / r
         J[..., 0, vsel] = p / r
         return J
-    return MeasurementModel(h, jac, _covariance(R, 1), (), "range rate")
+    return MeasurementModel(h, jac, _covariance(R, 1), (), "range rate", states=max(pos + vel) + 1)
 
 
 def tdoa(stations, R, *, position=(0, 2), reference: int = 0) -> MeasurementModel:
@@ -433,7 +474,7 @@ def tdoa(stations, R, *, position=(0, 2), reference: int = 0) -> MeasurementMode
         raise ParameterError(f"reference: expected a station index < {k}, got {ref}")
     others = [i for i in range(k) if i != ref]
     if not callable(R) and np.ndim(R) == 0:
-        var = check_positive("R", float(R))
+        var = check_positive("R", as_real("R", R))
         R = var * (np.eye(k - 1) + np.ones((k - 1, k - 1)))
 
     def h(X):
@@ -443,7 +484,7 @@ def tdoa(stations, R, *, position=(0, 2), reference: int = 0) -> MeasurementMode
     def jac(x):
         J = toa.jac_h(x)
         return J[..., others, :] - J[..., ref:ref + 1, :]
-    return MeasurementModel(h, jac, _covariance(R, k - 1), (), f"TDOA to {k} stations")
+    return MeasurementModel(h, jac, _covariance(R, k - 1), (), f"TDOA to {k} stations", states=toa.states)
 
 
 def position(R, *, position=(0, 2)) -> MeasurementModel:
@@ -456,7 +497,8 @@ def position(R, *, position=(0, 2)) -> MeasurementModel:
     eye = np.eye(len(pos))
     return MeasurementModel(h, _jac_from(pos, lambda x: np.broadcast_to(eye, x.shape[:-1] + eye.shape)),
                             _covariance(R, len(pos)), (), "position",
-                            _join_specs([_kernel_spec(_COMPONENT, (i,), np.zeros((1, 1))) for i in pos]))
+                            _join_specs([_kernel_spec(_COMPONENT, (i,), np.zeros((1, 1))) for i in pos]),
+                            states=max(pos) + 1)
 
 
 def stack_measurements(*measurements: MeasurementModel) -> MeasurementModel:
@@ -475,4 +517,5 @@ def stack_measurements(*measurements: MeasurementModel) -> MeasurementModel:
                             lambda x: np.concatenate([mm.jac_h(x) for mm in measurements], axis=-2),
                             _frozen(scipy.linalg.block_diag(*[mm.R for mm in measurements])), angles,
                             " + ".join(mm.name for mm in measurements),
-                            _join_specs([mm.kernel for mm in measurements]))
+                            _join_specs([mm.kernel for mm in measurements]),
+                            states=max(mm.states for mm in measurements))

@@ -4,8 +4,7 @@ from __future__ import annotations
 
 from typing import Literal
 
-
-from .._validation import check_int, check_positive
+from .._validation import check_int, check_positive, derived_from
 from ..errors import ParameterError
 from ._linear import LinearGaussianModel, stack_axes
 
@@ -46,8 +45,9 @@ def assimakis_model_b(dt: float = 1.0, sigma_q2: float = 0.01, sigma_r2: float =
         raise ParameterError(f"measurement: expected 'printed' or 'position', got {measurement!r}")
     F = [[1.0, dt], [0.0, 1.0]]
     G = [[0.5 * dt], [1.0]]
-    return LinearGaussianModel.from_noise_gain(F, H, G, [[sigma_q2]], [[sigma_r2]], dt=dt,
-                                               name=f"model B (H {measurement})")
+    with derived_from(dt=dt, sigma_q2=sigma_q2, sigma_r2=sigma_r2):
+        return LinearGaussianModel.from_noise_gain(F, H, G, [[sigma_q2]], [[sigma_r2]], dt=dt,
+                                                   name=f"model B (H {measurement})")
 
 
 def assimakis_model_a(axes: int = 2, dt: float = 1.0, sigma_q2: float = 0.01, sigma_r2: float = 0.1,

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._validation import as_sequence, as_vector, check_covariance, check_int
+from .._validation import as_sequence, as_vector, check_covariance, check_int, check_rng
 from ..errors import ParameterError
 from ..models import NonlinearModel
 from ..continuous._model import ContinuousDiscreteModel
@@ -45,7 +45,3 @@ def check_prior(prior: str) -> bool:
     return prior == PRIORS[1]
 
 
-def check_rng(rng) -> np.random.Generator:
-    if not isinstance(rng, np.random.Generator):
-        raise ParameterError(f"rng: expected a numpy.random.Generator, got {type(rng).__name__}")
-    return rng

@@ -17,7 +17,15 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._validation import as_array, as_vector, check_covariance, check_int, finite_result, require_finite
+from .._validation import (
+    as_array,
+    as_vector,
+    check_covariance,
+    check_int,
+    check_record,
+    finite_result,
+    require_finite,
+)
 from ..errors import (
     NonFiniteError,
     NotPositiveDefiniteError,
@@ -25,7 +33,7 @@ from ..errors import (
     ShapeError,
 )
 from ..linear._smoother import rts_backward
-from ..models import NonlinearModel
+from ..models import NonlinearModel, require_model
 from . import _named_kernels
 from . import _step_kernels as steps
 from ..result import BatchFilterResult, FilterResult, innovation_arrays, mask_missing
@@ -41,7 +49,7 @@ def user_array(value, shape: tuple, name: str, k: int) -> np.ndarray:
     compiled step kernels take it (Q_at, R_at return validated read-only arrays)."""
     arr = np.array(value, dtype=float)
     if arr.shape != shape:
-        raise ShapeError(f"{name}: expected shape {shape} at measurement {k}, got {arr.shape}")
+        raise ShapeError(f"model: its {name} gives shape {arr.shape} at measurement {k}, expected {shape}")
     return arr
 
 
@@ -56,7 +64,7 @@ def check_step(status: int, method: str, k: int, x, P, outputs: dict, inputs: di
         if np.isfinite(x).all() and np.isfinite(P).all():
             for name, value in outputs.items():
                 if not np.isfinite(value).all():
-                    raise NonFiniteError(f"{name}: the model's {name} is not finite at measurement {k} "
+                    raise NonFiniteError(f"model: its {name} is not finite at measurement {k} "
                                          f"(state {np.array2string(np.asarray(x), precision=6)})")
         require_finite(f"the {method} (at measurement {k})", np.nan, **inputs)
 
@@ -91,6 +99,7 @@ def ekf_predict(model: NonlinearModel, x, P, k: int, x_out, P_out) -> None:
     x_out[:] = user_array(model.f(x[None])[0], (n,), "f", k)
 
 
+@finite_result("the EKF step")
 def ekf_step(model: NonlinearModel, x, P, z, k: int = 0):
     """One EKF iteration from x(k-1/k-1), P(k-1/k-1) with the measurement z (row k):
     (x_filt, P_filt, x_pred, P_pred, loglik increment).
@@ -100,8 +109,7 @@ def ekf_step(model: NonlinearModel, x, P, z, k: int = 0):
     .. [1] S. Särkkä, Bayesian Filtering and Smoothing, Cambridge University Press, 2013.
            doi:10.1017/CBO9781139344203
     """
-    if not isinstance(model, NonlinearModel):
-        raise ParameterError(f"model: expected a NonlinearModel, got {type(model).__name__}")
+    model = require_model(model, kind=NonlinearModel)
     x = np.array(as_vector("x", x, model.n))
     P = np.array(check_covariance("P", P, model.n))
     z = np.array(as_array("z", z, shape=(model.m,), allow_nan=True))
@@ -185,8 +193,11 @@ def named_result(out, x0, P0, first: bool, method: str, innovations: tuple, inpu
 
 
 def _check_result(model, result) -> None:
+    if not isinstance(model, NonlinearModel):
+        raise ParameterError(f"model: expected a NonlinearModel, got {type(model).__name__}")
     if not isinstance(result, FilterResult) or result.x_pred is None:
         raise ParameterError(f"result: expected the FilterResult of a filter run, got {type(result).__name__}")
+    check_record("result", result)
     if result.n != model.n:
         raise ParameterError(f"result: state dimension {result.n} does not match the model's n = {model.n}")
 
@@ -208,6 +219,7 @@ def smooth_with(model, result, cross, method):
     return FilterResult(x=xs, P=Ps, method=method)
 
 
+@finite_result("the extended RTS smoother")
 def ekf_smoother(model: NonlinearModel, result: FilterResult) -> FilterResult:
     """Extended RTS smoother on :func:`ekf_filter`'s result: x(k/T), P(k/T), and x(0/T), P(0/T) as
     x0, P0 when the filter's prior was at time 0 (method "ERTS").
@@ -220,6 +232,7 @@ def ekf_smoother(model: NonlinearModel, result: FilterResult) -> FilterResult:
     return smooth_with(model, result, lambda mdl, x, P: P @ mdl.F_at(x).T, "ERTS")
 
 
+@finite_result("the EKF")
 def ekf_filter_batch(model: NonlinearModel, z, x0, P0) -> BatchFilterResult:
     """:func:`ekf_filter` on B independent tracks at once (prior at time 0): z (B, T, m) with NaN = missing,
     x0 (n,) or (B, n), P0 (n, n) or (B, n, n).  Vectorised over tracks (NumPy batched linear algebra), for
@@ -247,7 +260,7 @@ def ekf_filter_batch(model: NonlinearModel, z, x0, P0) -> BatchFilterResult:
     x0 = as_array("x0", x0)
     if x0.shape not in ((n,), (B, n)):
         raise ShapeError(f"x0: expected shape ({n},) or ({B}, {n}), got {x0.shape}")
-    P0 = np.asarray(P0, dtype=float)
+    P0 = as_array("P0", P0)
     P0 = check_covariance("P0", P0, n) if P0.ndim != 3 else np.stack(
         [check_covariance(f"P0[{b}]", p, n) for b, p in enumerate(P0)])
     x0, P0 = np.broadcast_to(x0, (B, n)).copy(), np.broadcast_to(P0, (B, n, n)).copy()

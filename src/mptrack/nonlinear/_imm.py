@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._validation import as_matrix, as_vector, finite_result, require_finite
+from .._validation import as_matrix, as_real, as_vector, check_positive, finite_result, require_finite
 from ..errors import ParameterError, ShapeError
 from ..result import FilterResult
 from ..models import LinearGaussianModel, MeasurementModel, NonlinearModel, constant_acceleration
@@ -126,6 +126,7 @@ def imm_filter(models, z, x0, P0, transition, *, mu0=None, prior: str = "initial
                      x0=None if at_first else x0, P0=None if at_first else P0, mu=mus, x_modes=xm)
 
 
+@finite_result("the CV/CA models")
 def cv_ca_models(dt: float, q_cv: float, q_ca: float, measurement: MeasurementModel, *, axes: int = 2,
                  p_stay: float = 0.95):
     """The two-model CV/CA manoeuvre tracker on the CA state [x, vx, ax, y, vy, ay(, z, vz, az)]:
@@ -142,8 +143,11 @@ def cv_ca_models(dt: float, q_cv: float, q_ca: float, measurement: MeasurementMo
     .. [2] Y. Bar-Shalom, X. R. Li and T. Kirubarajan, Estimation with Applications to Tracking and Navigation,
            Wiley, 2001. doi:10.1002/0471221279
     """
-    if not 0.0 < p_stay < 1.0:
+    if not 0.0 < as_real("p_stay", p_stay) < 1.0:
         raise ParameterError(f"p_stay: expected a probability in (0, 1), got {p_stay!r}")
+    if not isinstance(measurement, MeasurementModel):
+        raise ParameterError(f"measurement: expected a MeasurementModel, got {type(measurement).__name__}")
+    dt, q_cv = check_positive("dt", dt), check_positive("q_cv", q_cv, allow_zero=True)
     ca = constant_acceleration(dt, q_ca, axes=axes)
     cv1 = np.array([[1.0, dt, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 0.0]])
     q1 = q_cv * np.array([[dt ** 3 / 3, dt ** 2 / 2, 0.0], [dt ** 2 / 2, dt, 0.0], [0.0, 0.0, 0.0]])

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._validation import check_int, check_positive, check_allocation, finite_result
-from ..errors import ParameterError, ShapeError
+from .._validation import as_array, check_allocation, check_int, check_positive, finite_result
+from ..errors import ParameterError
 from ..result import FilterResult
 from ..continuous import _kernels as kern
 from ..continuous._kernels import SCHEMES
@@ -27,16 +27,21 @@ NOISE_STEP = 0.5
 def systematic_resample(weights: np.ndarray, rng: np.random.Generator) -> np.ndarray:
     """Indices of N draws by systematic resampling (one uniform u, the N points (u + i)/N).
 
+    weights: (N,) finite, >= 0, not all 0; they are normalised (divided by their sum) first.
+
     References
     ----------
     .. [1] G. Kitagawa, "Monte Carlo filter and smoother for non-Gaussian nonlinear state space models", Journal
            of Computational and Graphical Statistics, vol. 5, no. 1, pp. 1–25, 1996.
            doi:10.1080/10618600.1996.10474692
     """
-    w = np.ascontiguousarray(weights, dtype=float)
-    if w.ndim != 1 or w.size == 0:
-        raise ShapeError(f"weights: expected a non-empty vector, got shape {w.shape}")
-    return kern.systematic_indices(w, rng.random())
+    w = as_array("weights", weights, ndim=1, low=0.0)
+    if w.size == 0 or not w.max() > 0:
+        raise ParameterError(f"weights: expected non-negative weights, not all zero, got shape {w.shape}"
+                             + (f" summing to {w.sum()!r}" if w.size else ""))
+    w = w / w.max()
+    rng = check_rng(rng)
+    return kern.systematic_indices(np.ascontiguousarray(w / w.sum()), rng.random())
 
 
 def pf_substeps(model: ContinuousDiscreteModel, scheme: str = "rk4-split") -> int:

@@ -33,7 +33,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._validation import as_vector, check_covariance, check_positive, finite_result
+from .._validation import (
+    as_real,
+    as_vector,
+    check_covariance,
+    check_positive,
+    finite_result,
+)
 from ..errors import ConvergenceError, NotPositiveDefiniteError, ParameterError
 from ..result import FilterResult, innovation_arrays
 from ..continuous import _kernels as kern
@@ -73,9 +79,10 @@ def check_unscented(n: int, alpha, beta, kappa) -> dict:
     """Validated scaled-unscented-transform parameters: α > 0, β >= 0, n + κ > 0 (so (n + λ) > 0)."""
     alpha = check_positive("alpha", alpha)
     beta = check_positive("beta", beta, allow_zero=True)
-    if isinstance(kappa, bool) or not np.isfinite(np.asarray(kappa, dtype=float)) or n + float(kappa) <= 0:
+    kappa = as_real("kappa", kappa)
+    if n + kappa <= 0:
         raise ParameterError(f"kappa: expected a finite number with n + kappa > 0 (n = {n}), got {kappa!r}")
-    return {"alpha": alpha, "beta": beta, "kappa": float(kappa)}
+    return {"alpha": alpha, "beta": beta, "kappa": kappa}
 
 
 @finite_result("the sigma points")
@@ -92,9 +99,13 @@ def sigma_points(m: np.ndarray, P: np.ndarray, *, alpha: float = 1.0, beta: floa
            Conference, vol. 6, pp. 4555–4559, 2002. doi:10.1109/ACC.2002.1025369
     """
     m = as_vector("m", m)
+    P = check_covariance("P", P, m.shape[0])
+    return _sigma_points(m, P, **check_unscented(m.shape[0], alpha, beta, kappa))
+
+
+def _sigma_points(m: np.ndarray, P: np.ndarray, *, alpha: float, beta: float, kappa: float):
+    """:func:`sigma_points` of validated arguments (the filters' inner step)."""
     n = m.shape[0]
-    P = check_covariance("P", P, n)
-    alpha, beta, kappa = check_unscented(n, alpha, beta, kappa).values()
     c, Wm, Wc = _weights(n, alpha, beta, kappa)
     S = _sqrt(c * P, "P")
     X = np.empty((2 * n + 1, n))
@@ -114,7 +125,7 @@ def _circular_mean(model, Z: np.ndarray, Wm: np.ndarray) -> np.ndarray:
 
 
 def _moment_rate(model, m, P, ut):
-    X, Wm, Wc = sigma_points(m, P, **ut)
+    X, Wm, Wc = _sigma_points(m, P, **ut)
     F = model.drift(X)
     dm = Wm @ F
     D = X - m
@@ -165,7 +176,7 @@ def ukf_update(model, m, P, z, *, ut: dict, k: int = 0):
     nu_full, S_full = np.full(z.shape[0], np.nan), np.full((z.shape[0], z.shape[0]), np.nan)
     if not ok.any():
         return m, P, 0.0, nu_full, S_full
-    X, Wm, Wc = sigma_points(m, P, **ut)
+    X, Wm, Wc = _sigma_points(m, P, **ut)
     if isinstance(model, NonlinearModel):
         Z, R = model.h(X), model.R_at(m, k)
     else:
@@ -330,6 +341,7 @@ def ukf_filter(model, z, x0, P0, *, alpha: float = 1.0, beta: float = 2.0, kappa
                         innovation=nu, S=S)
 
 
+@finite_result("the unscented RTS smoother")
 def ukf_smoother(model: NonlinearModel, result: FilterResult, *, alpha: float | None = None,
                  beta: float | None = None, kappa: float | None = None) -> FilterResult:
     """Unscented RTS smoother (Särkkä 2008, IEEE TAC 53(3)) on :func:`ukf_filter`'s result for a

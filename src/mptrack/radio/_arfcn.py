@@ -74,12 +74,10 @@ def arfcn_to_frequency(arfcn, band: str, link: str = "downlink"):
            452–467, 2017. doi:10.1016/j.asoc.2017.04.007
     """
     spec, link = _band(band), _link(link)
-    n = np.asarray(arfcn)
-    if n.dtype.kind not in "iu":
-        if n.dtype.kind == "f" and np.all(np.isfinite(n)) and np.all(n == np.round(n)):
-            n = n.astype(np.int64)
-        else:
-            raise DTypeError(f"arfcn: expected integer channel numbers, got {arfcn!r}")
+    n = as_array("arfcn", arfcn)
+    if not np.all(n == np.round(n)):
+        raise DTypeError(f"arfcn: expected integer channel numbers, got {arfcn!r}")
+    n = n.astype(np.int64)
     ok = spec.contains(n)
     if not np.all(ok):
         bad = n[~ok].flat[0] if n.ndim else int(n)

@@ -8,14 +8,15 @@ bracketed root (scipy.optimize.brentq) over the model's distance range.
 
 from __future__ import annotations
 
+import inspect
 from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
 from scipy.optimize import brentq
 
-from .._validation import as_array, broadcast_shape, require_finite
-from ..errors import ParameterError, UnknownNameError
+from .._validation import as_array, broadcast_shape, lookup, require_finite
+from ..errors import ParameterError
 from . import _pathloss as pl
 from ._validity import check_policy, check_range
 
@@ -40,15 +41,20 @@ PATH_LOSS_MODELS: dict[str, _Model] = {
 }
 
 
-def _model(model: str) -> _Model:
-    if model not in PATH_LOSS_MODELS:
-        raise UnknownNameError(f"model: unknown path-loss model {model!r}; known: {', '.join(PATH_LOSS_MODELS)}")
-    return PATH_LOSS_MODELS[model]
+def _model(model: str, params: dict) -> _Model:
+    """The named model, whose function takes the keyword parameters ``params``."""
+    spec = lookup("model", model, PATH_LOSS_MODELS, what="path-loss model", fold=str)
+    accepted = inspect.signature(spec.fn).parameters
+    for name in params:
+        if name not in accepted or name == "distance_km":
+            known = [k for k in accepted if k != "distance_km"]
+            raise ParameterError(f"{name}: not a parameter of the {model} model (its parameters: {', '.join(known)})")
+    return spec
 
 
 def path_loss(distance_km, model: str = "cost231-wi-nlos", **params):
     """Path loss in dB of the named model (see PATH_LOSS_MODELS) at ``distance_km``."""
-    return _model(model).fn(distance_km, **params)
+    return _model(model, params).fn(distance_km, **params)
 
 
 def path_loss_from_rss(rss_dbm, tx_power_dbm, *, tx_gain_dbi=0.0, rx_gain_dbi=0.0, losses_db=0.0):
@@ -85,14 +91,14 @@ def distance_from_path_loss(loss_db, model: str = "cost231-wi-nlos", *, on_inval
 
 def _invert(loss: np.ndarray, model: str, on_invalid: str, label: str, params: dict):
     """distance_from_path_loss; ``label`` names the user's argument the loss came from."""
-    spec = _model(model)
+    spec = _model(model, params)
     check_policy(on_invalid)
     lo, hi = spec.distance_km
     kwargs = dict(params)
     if spec.has_policy:
         spec.fn(np.sqrt(lo * hi) if hi < 1e3 else 1.0, on_invalid=on_invalid, **kwargs)  # checks f, heights
         kwargs["on_invalid"] = "ignore"
-    fn = lambda d: spec.fn(d, **kwargs)  # noqa: E731
+    fn = lambda d: spec.fn(d, **kwargs)
     if spec.log_linear:
         a = np.asarray(fn(1.0))
         b = np.asarray(fn(10.0)) - a

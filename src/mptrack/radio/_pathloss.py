@@ -174,7 +174,9 @@ def wi_multiscreen_loss(distance_km, frequency_mhz, *, h_base_m, h_roof_m, build
     f = _positive("frequency_mhz", frequency_mhz)
     b = _positive("building_sep_m", building_sep_m)
     h_roof = _positive("h_roof_m", h_roof_m)
-    dhb = as_array("h_base_m", h_base_m) - h_roof
+    h_base = as_array("h_base_m", h_base_m)
+    broadcast_shape(distance_km=d, frequency_mhz=f, building_sep_m=b, h_roof_m=h_roof, h_base_m=h_base)
+    dhb = h_base - h_roof
     if city not in ("medium", "metropolitan"):
         raise ParameterError(f"city: expected 'medium' or 'metropolitan', got {city!r}")
     above = dhb > 0

@@ -8,6 +8,8 @@ import base64
 import re
 from pathlib import Path
 
+from .._validation import check_path
+from ..errors import ParameterError
 from ._page import esc, page, write_page
 
 __all__ = ["write_reproduction_report", "explained_cells", "uncounted_columns"]
@@ -19,8 +21,35 @@ def _num(v) -> str:
     return "—" if v is None else str(v)
 
 
+def _check_table(table, name: str = "table", whole: bool = False) -> dict:
+    """A results.json table (docs: RESULTS.md): a dict with a list of column names, its optional
+    ``explained_by`` entries [row, column, erratum key] and ``uncounted`` column names; ``whole``: also
+    its title, rows (lists as long as the columns) and the paper's rows (None, or as many rows)."""
+    if not isinstance(table, dict) or not isinstance(table.get("columns"), list):
+        raise ParameterError(f"{name}: expected a results.json table (a dict with a list of columns), "
+                             f"got {table!r:.80}")
+    if whole:
+        width = len(table["columns"])
+        rows, paper = table.get("rows"), table.get("paper")
+        good = (isinstance(table.get("title"), str) and isinstance(rows, list)
+                and all(isinstance(r, list) and len(r) == width for r in rows)
+                and (paper is None or (isinstance(paper, list) and len(paper) == len(rows)
+                                       and all(isinstance(r, list) and len(r) == width for r in paper))))
+        if not good:
+            raise ParameterError(f"{name}: expected a results.json table with a title, and rows (and the paper's "
+                                 f"rows) of {width} cells, got {table!r:.80}")
+    for entry in table.get("explained_by") or ():
+        if not (isinstance(entry, (list, tuple)) and len(entry) == 3 and all(
+                isinstance(i, int) and not isinstance(i, bool) for i in entry[:2])):
+            raise ParameterError(f"{name}: expected explained_by entries [row, column, erratum key], got {entry!r:.80}")
+    if not isinstance(table.get("uncounted") or [], (list, tuple)):
+        raise ParameterError(f"{name}: expected uncounted as a list of column names, got {table['uncounted']!r:.80}")
+    return table
+
+
 def explained_cells(table: dict) -> dict[tuple[int, int], str]:
     """{(row, column): erratum key} of a results.json table (its ``explained_by``: [[row, col, key], ...])."""
+    table = _check_table(table)
     return {(int(e[0]), int(e[1])): str(e[2]) for e in table.get("explained_by") or ()}
 
 
@@ -29,7 +58,8 @@ _UNCOUNTED = "shown beside the paper, not counted: an input or label it printed,
 
 def uncounted_columns(table: dict) -> set[int]:
     """Column indices a results.json table shows but does not count (its "uncounted" column names)."""
-    names = set(table.get("uncounted") or ())
+    table = _check_table(table)
+    names = set(map(str, table.get("uncounted") or ()))
     return {j for j, c in enumerate(table["columns"]) if c in names}
 
 
@@ -103,7 +133,20 @@ def write_reproduction_report(results: dict, path, *, figures_dir=None, errata=N
     counts       {"published", "matched", "explained", "unexplained"} for the heading line
     title        the page's title (default: the reproduction's key)
     """
-    errata = Path(errata) if errata else None
+    if not isinstance(results, dict) or not isinstance(results.get("tables", {}), dict):
+        raise ParameterError(f"results: expected the content of a results.json (a dict of tables ...), "
+                             f"got {results!r:.80}")
+    for table in results.get("tables", {}).values():
+        _check_table(table, "results", whole=True)
+    path = check_path("path", path)
+    errata = check_path("errata", errata) if errata else None
+    figures_dir = check_path("figures_dir", figures_dir) if figures_dir else None
+    if counts is not None and not (isinstance(counts, dict) and {"published", "matched", "explained",
+                                                                  "unexplained"} <= set(counts)):
+        raise ParameterError(f"counts: expected {{'published', 'matched', 'explained', 'unexplained'}}, got "
+                             f"{counts!r:.80}")
+    if title is not None and not isinstance(title, str):
+        raise ParameterError(f"title: expected a string or None, got {title!r:.80}")
     seed = results.get("seed")
     body = [f"<p class='note'>{esc(results.get('paper', ''))}"
             + ("" if seed is None else f"; random seed {esc(seed)}")

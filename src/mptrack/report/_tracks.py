@@ -12,6 +12,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from .._validation import check_frame, check_int, check_path, point_numbers
+from ..errors import DataError, ParameterError, ShapeError
 from ._decimate import DEFAULT_BUDGET
 from ._page import esc, json_script, page, write_page
 from ._payload import track_payload
@@ -41,10 +43,16 @@ def report_points(sources) -> pd.DataFrame:
     import pyarrow as pa
     import pyarrow.feather as feather
 
-    tables = [src if isinstance(src, pa.Table) else feather.read_table(src, memory_map=True) for src in sources]
+    if isinstance(sources, (str, bytes, pd.DataFrame)) or not np.iterable(sources):
+        raise ParameterError(f"sources: expected a list of pyarrow Tables or Arrow IPC files, got {sources!r:.80}")
+    tables = [src if isinstance(src, pa.Table) else _read_arrow(src) for src in sources]
     if not tables:
         return pd.DataFrame({c: [] for c in ("track_id", "t", "flag")})
     names = [c for c in REPORT_COLUMNS if c in tables[0].column_names]
+    for tb in tables[1:]:
+        if [c for c in REPORT_COLUMNS if c in tb.column_names] != names:
+            raise ShapeError(f"sources: the tables have different columns ({', '.join(names)} and "
+                             f"{', '.join(c for c in REPORT_COLUMNS if c in tb.column_names)})")
     n = sum(tb.num_rows for tb in tables)
     columns = {}
     for name in names:
@@ -68,6 +76,46 @@ def report_points(sources) -> pd.DataFrame:
                 columns[name][start:stop] = col.to_numpy()
         start = stop
     return pd.DataFrame(columns, copy=False)
+
+
+def _read_arrow(path):
+    """An Arrow IPC file memory-mapped as a pyarrow Table; a file that is not one is a DataError."""
+    import pyarrow as pa
+    import pyarrow.feather as feather
+
+    path = check_path("sources", path)
+    try:
+        return feather.read_table(path, memory_map=True)
+    except (OSError, pa.ArrowException) as exc:
+        raise DataError(f"cannot be read as an Arrow IPC file ({exc})", file=path) from None
+
+
+#: The columns a report needs: a track, its times and flags, the 1-sigma of the position and the position
+#: itself, in lat/lon or in local metres.
+_NEEDED = ("track_id", "t", "flag", "var_east_m2", "var_north_m2")
+
+
+def _check_report_inputs(tracks, path, summary, run, title, notes, budget) -> tuple:
+    """write_report's arguments checked: (path, notes, budget)."""
+    if isinstance(tracks, pd.DataFrame):
+        position = ("lat", "lon") if {"lat", "lon"} <= set(tracks.columns) else ("east_m", "north_m")
+        numbers = point_numbers(tracks, REPORT_COLUMNS)
+    else:
+        position, numbers = (), None
+    check_frame("tracks", tracks, _NEEDED + position, numbers, empty=True)
+    path = check_path("path", path)
+    if not (isinstance(summary, dict) and isinstance(summary.get("overall"), dict)
+            and isinstance(summary.get("tracks"), dict)):
+        raise ParameterError("summary: expected the summary of mptrack.tracking.evaluate_tracks "
+                             f"({{'overall': {{...}}, 'tracks': {{...}}}}), got {summary!r:.80}")
+    if run is not None and not isinstance(run, dict):
+        raise ParameterError(f"run: expected the summary of mptrack.tracking.track_file (a dict) or None, "
+                             f"got {type(run).__name__}")
+    if not isinstance(title, str):
+        raise ParameterError(f"title: expected a string, got {title!r:.80}")
+    if isinstance(notes, str) or not isinstance(notes, (list, tuple)) or not all(isinstance(n, str) for n in notes):
+        raise ParameterError(f"notes: expected a list of strings, got {notes!r:.80}")
+    return path, notes, check_int("budget", budget, minimum=1)
 
 
 _KIND_TEXT = {"raw": "raw fixes (grey dots)", "rejected": "fixes rejected by the NIS gate (orange rings)",
@@ -222,6 +270,7 @@ def write_report(tracks: pd.DataFrame, path, *, summary: dict, run: dict | None 
              (rows skipped by reason, records left out, the reader's notes, NIS advice)
     budget   about how many points the map and plots draw in all (larger tables are decimated)
     """
+    path, notes, budget = _check_report_inputs(tracks, path, summary, run, title, notes, budget)
     payload = track_payload(tracks, budget=budget)
     kinds = _kinds(payload)
     methods = ", ".join(map(str, pd.unique(tracks["method"]))) if "method" in tracks.columns else "?"

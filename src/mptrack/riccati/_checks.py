@@ -64,7 +64,7 @@ def check_detectable(F: np.ndarray, H: np.ndarray) -> None:
     bad = _analysed(unstable_modes_unobservable, F, H, names=("F", "H"))
     if bad:
         raise NotDetectableError(
-            "model: the pair (F, H) is not detectable; the unstable mode(s) "
+            "F: the pair (F, H) is not detectable; the unstable mode(s) "
             f"{', '.join(f'{complex(v):.4g}' for v in bad)} of F are not observed by H, "
             "so no steady-state filter exists")
 
@@ -79,6 +79,6 @@ def check_stabilisable(F: np.ndarray, Q_factor: np.ndarray) -> None:
     bad, _ = _analysed(undriven_modes, F, Q_factor, names=("F", "Q_factor"))
     if bad:
         raise NotStabilisableError(
-            "model: the pair (F, Q^{1/2}) is not stabilisable: mode(s) on the unit circle "
+            "F: the pair (F, Q^{1/2}) is not stabilisable: mode(s) on the unit circle "
             f"{', '.join(f'{complex(v):.4g}' for v in bad)} of F that the process noise does not drive, "
             "so no stabilising steady-state Riccati solution exists")

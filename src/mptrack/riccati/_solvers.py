@@ -19,7 +19,7 @@ from typing import Literal
 import numpy as np
 import scipy.linalg
 
-from .._validation import _overflow, check_covariance, check_int, check_positive, require_finite
+from .._validation import _overflow, check_covariance, check_int, check_positive, renamed, require_finite
 from ..errors import ConvergenceError, MptrackError, ParameterError
 from ..models import LinearGaussianModel, require_model
 from ._checks import check_detectable, check_stabilisable, undriven_modes
@@ -127,8 +127,9 @@ def _residual(model, P_pred, P_next=None) -> float:
 
 
 def _check_exists(model: LinearGaussianModel) -> None:
-    check_detectable(model.F, model.H)
-    check_stabilisable(model.F, model.noise_factor())
+    with renamed(F="model", H="model", Q_factor="model"):       # the caller passed the model
+        check_detectable(model.F, model.H)
+        check_stabilisable(model.F, model.noise_factor())
 
 
 #: The relative step at which the per-step recursion is "in steady state" (the steady-state time
@@ -141,6 +142,10 @@ _EPS = np.finfo(float).eps
 #: or the recursion is taken to be lost in rounding (a converging one is far below it by then).
 _PROGRESS_EVERY = 1000
 _NO_PROGRESS = 0.1
+#: A per-step recursion whose rate of convergence (measured over the last _PROGRESS_EVERY steps)
+#: needs more iterations than this in all stops with advice instead (~5 s; the doubling algorithm
+#: reaches the same fixed point in about log2 of that many steps).
+MAX_PER_STEP = 1_000_000
 
 
 def _iterate(step, P, tol, max_iter, what):
@@ -152,7 +157,7 @@ def _iterate(step, P, tol, max_iter, what):
     on its DARE test cases; the first k with a relative step <= STEADY_TOL is reported as the
     steady-state time.  Returns (P, iterations, steady-state time)."""
     ss_time = None
-    last, stalled, worst = np.inf, 0, 0.0
+    last, stalled, worst, checked = np.inf, 0, 0.0, None
     for k in range(1, max_iter + 1):
         P_next = step(P)
         size = np.linalg.norm(P_next - P)
@@ -167,6 +172,8 @@ def _iterate(step, P, tol, max_iter, what):
                     f"method: {what} is not converging (relative steps up to {worst:.3g} after {k} "
                     "iterations: the model is too ill-conditioned for it in float64); use method='dare'")
             worst = 0.0
+            _check_rate(checked, size / scale, k, tol, max_iter, what)
+            checked = size / scale
         if ss_time is None and size <= STEADY_TOL * scale:
             ss_time = k
         if tol is not None:
@@ -181,6 +188,29 @@ def _iterate(step, P, tol, max_iter, what):
     raise ConvergenceError(
         f"max_iter: {what} did not converge to tol={tol if tol is not None else 'rounding level'} "
         f"in {max_iter} iterations")
+
+
+def _check_rate(before: float | None, now: float, k: int, tol, max_iter: int, what: str) -> None:
+    """Stop a recursion that converges too slowly to finish: from the relative step ``before`` (at
+    k - _PROGRESS_EVERY) and ``now`` (at k), the linear rate r per step, and the iterations it still
+    needs to reach the stopping rule's step (tol, or the rounding level)."""
+    if not before or not 0.0 < now < before:
+        return
+    rate = (now / before) ** (1.0 / _PROGRESS_EVERY)
+    target = tol if tol is not None else 4 * _EPS
+    if rate >= 1.0 or now <= target:
+        return
+    needed = k + np.log(target / now) / np.log(rate)
+    if needed > max_iter:
+        raise ConvergenceError(
+            f"max_iter: {what} converges by a factor {rate:.9f} per step: it needs about {needed:.3g} "
+            f"iterations to reach tol={tol if tol is not None else 'rounding level'}, more than max_iter = "
+            f"{max_iter}; use method='doubling' or 'dare' (the same fixed point, in far fewer steps)")
+    if needed > MAX_PER_STEP:
+        raise ConvergenceError(
+            f"method: {what} converges by a factor {rate:.9f} per step: it needs about {needed:.3g} "
+            f"iterations (more than {MAX_PER_STEP:,}); use method='doubling' or 'dare' (the same fixed "
+            "point, in far fewer steps)")
 
 
 def _per_step(model, P0, tol, max_iter):
@@ -236,10 +266,24 @@ def _doubling(model, tol, max_iter, X0=None):
         f"in {max_iter} doublings")
 
 
-def _dare(model):
-    # existence was checked before (PBH tests), so a failure here is numerical, not a missing solution
-    P = scipy.linalg.solve_discrete_are(model.F.T, model.H.T, model.Q, model.R)
-    return _sym(P), 0
+def _dare(model, X0, max_iter):
+    """scipy's DARE solver on the problem scaled to R of unit size: P solves the DARE of (Q, R) iff
+    P / c solves that of (Q / c, R / c), and scipy's QZ reordering fails (or loses digits) when R is far
+    from 1 (sigma_r = 1e7 m: "Reordering of (A, B) failed"; at 1e-6 m^2/s^3 and 1e7 m it was 3e-4 off
+    the doubling algorithm's answer, scaled 2e-8).  Existence was checked before (PBH tests), so when
+    the QZ method still fails (Q / R beyond ~1e40 either way: "Failed to find a finite solution") the
+    problem is solvable but ill-conditioned for it: the doubling algorithm solves it instead."""
+    c = float(np.abs(model.R).max())
+    try:
+        P = _sym(scipy.linalg.solve_discrete_are(model.F.T, model.H.T, model.Q / c, model.R / c) * c)
+    except (np.linalg.LinAlgError, ValueError):
+        return _doubling(model, None, max_iter, X0)
+    # QZ can also "succeed" with a wrong answer on such problems (q = 1e-6, sigma_r = 1e20: P with a
+    # negative diagonal of -4e39): a solution that is not PSD or not a fixed point is not accepted
+    with np.errstate(all="ignore"):
+        ok = np.all(np.isfinite(P)) and np.linalg.eigvalsh(P)[0] >= -1e-9 * np.abs(P).max() \
+            and _residual(model, P) <= 1e-8
+    return (P, 0) if ok else _doubling(model, None, max_iter, X0)
 
 
 def _relf(model, P0, tol, max_iter):
@@ -322,7 +366,7 @@ def _solve(model, method, form, P0, tol, max_iter) -> SteadyState:
                            residual=_residual(model, P_pred))
 
     if method == "dare":
-        P_pred, iters = _dare(model)
+        P_pred, iters = _dare(model, X0, max_iter)
         ss_time = None
     elif method == "doubling":
         P_pred, iters = _doubling(model, tol, max_iter, X0)

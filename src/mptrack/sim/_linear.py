@@ -4,8 +4,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._validation import as_vector, check_allocation, check_int, finite_result
-from ..errors import ParameterError
+from .._validation import (
+    as_vector,
+    check_allocation,
+    check_int,
+    check_rng,
+    finite_result,
+)
 from ..models import LinearGaussianModel, require_model
 
 __all__ = ["simulate_linear"]
@@ -21,8 +26,7 @@ def simulate_linear(model: LinearGaussianModel, steps: int, rng: np.random.Gener
     convention that the prior is x(0/0) and z[0] = z(1).
     """
     require_model(model)
-    if not isinstance(rng, np.random.Generator):
-        raise ParameterError(f"rng: expected a numpy.random.Generator, got {type(rng).__name__}")
+    check_rng(rng)
     steps = check_int("steps", steps, minimum=1)
     check_allocation("steps", steps, 8.0 * steps * (2 * model.n + 2 * model.m))
     x = np.zeros(model.n) if x0 is None else as_vector("x0", x0, model.n)

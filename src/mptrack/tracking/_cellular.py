@@ -18,11 +18,14 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from ..errors import DataError
+from .._validation import as_real, check_frame, lookup
+from ..errors import DataError, ParameterError
 from ..io import LocalFrame, ReadReport
+from ..io._geodesy import _LATITUDE, _LONGITUDE
+from ..io._schema import check_on_error
 from ..models import constant_velocity_continuous
 from ..cellular import motion_position
-from ..radio import arfcn_to_frequency, distance_from_rss
+from ..radio import PATH_LOSS_MODELS, arfcn_to_frequency, distance_from_rss
 from ._columns import time_values
 from ._fixes import TrackOptions, _time_like
 from ._output import point_table
@@ -37,7 +40,9 @@ DEFAULT_FREQUENCY_MHZ = 1800.0
 def band_of_arfcn(arfcn: int) -> str:
     """The GSM band of a channel number: 0-124 and 975-1023 E-GSM, 128-251 GSM850, 512-885 DCS1800
     (PCS1900 reuses 512-810; give ``range_m`` or a frequency-consistent table for PCS networks)."""
-    a = int(arfcn)
+    a = as_real("arfcn", arfcn, low=0, high=1023)
+    if a != int(a):
+        raise ParameterError(f"arfcn: expected an integer channel number, got {arfcn!r}")
     if a <= 124 or 975 <= a <= 1023:
         return "E-GSM"
     if 128 <= a <= 251:
@@ -45,10 +50,39 @@ def band_of_arfcn(arfcn: int) -> str:
     return "DCS1800"
 
 
+def check_cell_rows(name: str, rows, columns=("t", "row", "cell_id")) -> pd.DataFrame:
+    """Cellular measurements as :func:`mptrack.io.iter_tracks` gives them (schema MEASUREMENTS)."""
+    return check_frame(name, rows, columns, {
+        "t": {}, "rss_dbm": dict(allow_nan=True, low=-160.0, high=0.0), "range_m": dict(allow_nan=True, low=0.0),
+        "ta": dict(allow_nan=True, low=0, high=63)})
+
+
+def check_cells(name: str, cells, columns=("lat", "lon", "height_m", "power_dbm", "arfcn")) -> pd.DataFrame:
+    """A cell table as :func:`mptrack.io.read_cells` gives it (indexed by cell_id, schema CELLS)."""
+    return check_frame(name, cells, columns, {
+        "lat": _LATITUDE, "lon": _LONGITUDE, "height_m": dict(low=0.0), "power_dbm": {},
+        "arfcn": dict(allow_nan=True, low=0, high=1023)})
+
+
+def _check_known(rows, cells, columns=("t", "row", "cell_id"), cell_columns=("lat", "lon")) -> None:
+    """Measurements (with ``columns``) and a cell table (with ``cell_columns``) listing each of their cells."""
+    check_cell_rows("rows", rows, columns)
+    check_cells("cells", cells, cell_columns)
+    unknown = ~rows["cell_id"].isin(cells.index)
+    if unknown.any():
+        raise ParameterError(f"rows: cell {rows['cell_id'][unknown].iloc[0]!r} is not in cells (check_cell_ids "
+                             "drops such rows)")
+
+
 def check_cell_ids(rows: pd.DataFrame, cells: pd.DataFrame, *, file, on_error: str,
                    report: ReadReport) -> pd.DataFrame:
     """Rows whose cell_id is in the cell table; an unknown id raises DataError (file, row, "cell_id")
     or is skipped and counted."""
+    check_cell_rows("rows", rows, ("row", "cell_id"))
+    check_cells("cells", cells, ())
+    check_on_error(on_error)
+    if not isinstance(report, ReadReport):
+        raise ParameterError(f"report: expected a ReadReport, got {type(report).__name__}")
     known = rows["cell_id"].isin(cells.index).to_numpy()
     if known.all():
         return rows
@@ -63,7 +97,10 @@ def check_cell_ids(rows: pd.DataFrame, cells: pd.DataFrame, *, file, on_error: s
 
 
 def ranges_km(rows: pd.DataFrame, cells: pd.DataFrame, path_loss: str = "cost231-wi-nlos") -> np.ndarray:
-    """Range (km) of every row: range_m, else timing advance, else RSS through ``path_loss``."""
+    """Range (km) of every row: range_m, else timing advance, else RSS through ``path_loss``; NaN (missing)
+    where a row has none of them."""
+    _check_known(rows, cells, ("cell_id",), ("height_m", "power_dbm", "arfcn"))
+    lookup("path_loss", path_loss, PATH_LOSS_MODELS, what="path-loss model", fold=str)
     r = np.full(len(rows), np.nan)
     if "range_m" in rows.columns:
         r = rows["range_m"].to_numpy(float) / 1e3
@@ -89,6 +126,11 @@ def ranges_km(rows: pd.DataFrame, cells: pd.DataFrame, path_loss: str = "cost231
 def track_cells(track_id: str, rows: pd.DataFrame, cells: pd.DataFrame,
                 options: TrackOptions = TrackOptions()) -> pd.DataFrame:
     """Filter one track of cellular measurements (rows with known cell ids); returns its point table."""
+    if not isinstance(options, TrackOptions):
+        raise ParameterError(f"options: expected TrackOptions, got {type(options).__name__}")
+    _check_known(rows, cells)
+    if np.any(np.diff(rows["t"].to_numpy(dtype=float)) < 0):
+        raise ParameterError("rows.t: expected non-decreasing times (one track in time order)")
     filt = get_cell_method(options.method)
     ids = list(pd.unique(rows["cell_id"]))
     tab = cells.loc[ids]

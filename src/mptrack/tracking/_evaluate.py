@@ -20,10 +20,11 @@ import numpy as np
 import pandas as pd
 import scipy.stats
 
-from .._validation import check_positive
+from .._validation import check_frame, check_path, check_positive, point_numbers
 from ..errors import DataError, ParameterError
 from ..io import FIXES, LocalFrame, ReadOptions, ReadReport, read_table
 from ..io._formats import raw_chunks
+from ._output import POINT_COLUMNS
 
 __all__ = ["attach_truth", "evaluate_tracks"]
 
@@ -63,6 +64,11 @@ def _one_track_ids(truth: pd.DataFrame, tracks: pd.DataFrame, file) -> pd.DataFr
     return truth
 
 
+def _check_points(name: str, tracks, columns=()) -> None:
+    """A point table with ``columns``, its numbers checked (:func:`mptrack._validation.point_numbers`)."""
+    check_frame(name, tracks, columns, point_numbers(tracks, POINT_COLUMNS))
+
+
 #: The columns :func:`attach_truth` adds.
 _ADDED = ("true_lat", "true_lon", "true_x", "true_y", "true_east_m", "true_north_m", "error_m", "nees")
 
@@ -76,6 +82,10 @@ def attach_truth(tracks: pd.DataFrame, truth, *, tolerance_s: float = 0.5, file=
     keys (track, time) are matched, so the table is not copied.  ``read``: the truth file's column
     names and units where they are not recognised; ``report`` receives how it was read (notes).
     """
+    _check_points("tracks", tracks, ("track_id", "t", "origin_lat"))
+    tolerance_s = check_positive("tolerance_s", tolerance_s, allow_zero=True)
+    if not isinstance(truth, pd.DataFrame):
+        check_path("truth", truth)
     tt, geographic = _truth_table(truth, file, read, report)
     keys = pd.DataFrame({"track_id": tracks["track_id"].astype("string").array,
                          "t": tracks["t"].to_numpy(float), "_order": np.arange(len(tracks))})
@@ -179,6 +189,7 @@ def evaluate_tracks(tracks: pd.DataFrame, truth=None, *, tolerance_s: float = 0.
                    true_x/true_y: a simulated log's truth passed through ``mptrack track``), no matching
     read, report   how the truth is read, and what its reading noted (:func:`attach_truth`)
     """
+    _check_points("tracks", tracks)
     if truth is not None and truth_columns:
         raise ParameterError("truth_columns: give a truth or truth_columns=True, not both")
     evaluated = truth is not None or truth_columns

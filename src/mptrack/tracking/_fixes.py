@@ -14,8 +14,9 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
-from .._validation import as_real, check_positive
+from .._validation import as_real, as_vector, check_frame, check_positive, renamed
 from ..errors import ParameterError
+from ..io._geodesy import _LATITUDE, _LONGITUDE
 from ..linear import get_filter
 from ..result import FilterResult
 from ._columns import FixTable
@@ -32,6 +33,8 @@ __all__ = ["TrackOptions", "track_fixes", "fix_variances", "grid_filter_track"]
 # drives (4 seeds x 6 tracks x 300 s, 3 cells) 1 m^2/s^3 beat the random walk on 21 of 24 tracks
 # (0.1 and 10 m^2/s^3 did worse); the random walk's number read as km^2/s^3 doubled the error.
 CELL_Q_KM2_RANDOM_WALK = 0.02
+#: The largest fix noise (m) the engine's arithmetic handles (TrackOptions.__post_init__).
+SIGMA_M_MAX = 1e70
 CELL_Q_KM2_CV = 1e-6
 
 
@@ -74,23 +77,29 @@ class TrackOptions:
     scan_interval_s: float | None = None
 
     def __post_init__(self) -> None:
-        get_model(self.model)
-        object.__setattr__(self, "filter", get_fix_filter(self.filter))
+        with renamed(name="model"):
+            get_model(self.model)
+        with renamed(name="filter"):
+            object.__setattr__(self, "filter", get_fix_filter(self.filter))
         if self.noise not in SCOPES:
             raise ParameterError(f"noise: expected one of {', '.join(SCOPES)}, got {self.noise!r}")
         for name, allow_zero in (("q", True), ("sigma_m", False), ("gap_s", False), ("q_km2", True),
                                  ("r_km2", False)):
             if getattr(self, name) is not None:
                 check_positive(name, getattr(self, name), allow_zero=allow_zero)
-        # the filters square sigma_m and integrate q over dt^3: keep both where that stays a normal float
+        # the filters square sigma_m and integrate q over dt^3: keep both where that stays a normal float;
+        # the gated KF also multiplies two variances (the 2x2 innovation covariance's determinant,
+        # sigma_m^4): it overflowed from sigma_m = 1e80 (NaN positions), 1e75 still ran; 1e70 leaves
+        # a factor 1e28 in sigma_m^4 for the data's own scale
         if self.sigma_m is not None:
-            as_real("sigma_m", self.sigma_m, low=1e-150, high=1e150, unit="m")
+            as_real("sigma_m", self.sigma_m, low=1e-150, high=SIGMA_M_MAX, unit="m")
         if self.q is not None:
             as_real("q", self.q, low=0.0, high=1e150)
         if self.scan_interval_s is not None:
             check_positive("scan_interval_s", self.scan_interval_s)
         if self.gate_probability is not None:
-            nis_threshold(self.gate_probability, 2)
+            with renamed(probability="gate_probability"):
+                nis_threshold(self.gate_probability, 2)
 
     @property
     def cell_q_km2(self) -> float:
@@ -115,6 +124,18 @@ def fix_variances(rows: pd.DataFrame, options: TrackOptions) -> np.ndarray:
     return np.where(np.isfinite(acc) & (acc > 0), acc ** 2, sigma ** 2)
 
 
+def check_fix_rows(name: str, rows) -> pd.DataFrame:
+    """Rows of one track of position fixes as :func:`mptrack.io.iter_tracks` gives them: columns time, t
+    (strictly increasing seconds), row, lat/lon or x/y, optional accuracy_m (NaN: not given)."""
+    coords = ("lat", "lon") if isinstance(rows, pd.DataFrame) and "lat" in rows.columns else ("x", "y")
+    check_frame(name, rows, ("time", "t", "row") + coords,
+                {"t": {}, "lat": _LATITUDE, "lon": _LONGITUDE, "x": {}, "y": {},
+                 "accuracy_m": dict(allow_nan=True, low=0.0)})
+    if np.any(np.diff(rows["t"].to_numpy(dtype=float)) <= 0):
+        raise ParameterError(f"{name}.t: expected strictly increasing times (one track in time order)")
+    return rows
+
+
 def _enu(rows: pd.DataFrame) -> tuple[FixTable, np.ndarray]:
     table = FixTable.from_frame(rows.assign(track_id="_"))
     return table, np.column_stack([table.east, table.north])
@@ -129,11 +150,14 @@ def track_fixes(track_id: str, rows: pd.DataFrame, options: TrackOptions = Track
     first fix).  ``fix_var`` (T,) m^2 and ``q`` are the noise to use (default:
     :func:`fix_variances` and ``options.q`` or the model's default; no estimation here).
     """
+    check_fix_rows("rows", rows)
+    if not isinstance(options, TrackOptions):
+        raise ParameterError(f"options: expected TrackOptions, got {type(options).__name__}")
     spec = get_model(options.model)
     table, z = _enu(rows)
     t = table.t
-    r = fix_variances(rows, options) if fix_var is None else np.asarray(fix_var, dtype=float)
-    q = (spec.default_q if options.q is None else options.q) if q is None else float(q)
+    r = fix_variances(rows, options) if fix_var is None else as_vector("fix_var", fix_var, len(rows), low=0.0)
+    q = (spec.default_q if options.q is None else options.q) if q is None else check_positive("q", q, allow_zero=True)
     model = spec.build(q, 1.0)
     pos = measured_states(model.H)
     extra = {"meas_east_m": z[:, 0], "meas_north_m": z[:, 1], "fix_sigma_m": np.sqrt(r)}

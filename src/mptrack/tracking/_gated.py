@@ -40,9 +40,11 @@ from dataclasses import dataclass, fields
 import numpy as np
 import scipy.stats
 
-from .._validation import as_array, as_real, as_sequence, as_vector, check_covariance, check_int, check_positive
+from .._validation import (as_array, as_real, as_sequence, as_vector, check_covariance, check_int,
+                           check_positive, check_record, finite_result, renamed)
 from ..errors import ParameterError, ShapeError
-from ..models import ContinuousLinearModel, discretize_intervals, require_model
+from ..models import ContinuousLinearModel, require_model
+from ..models._continuous import intervals_unchecked
 from ..linear._smoother import _rts_backward
 from ..result import FilterResult, innovation_arrays
 from ._engine import FLAGS, INIT, MANOEUVRE_FACTOR
@@ -60,9 +62,9 @@ def nis_threshold(probability: float, dof: int) -> float:
     .. [1] Y. Bar-Shalom, X. R. Li and T. Kirubarajan, Estimation with Applications to Tracking and Navigation,
            Wiley, 2001. doi:10.1002/0471221279
     """
-    p = as_real("gate_probability", probability)
+    p = as_real("probability", probability)
     if not 0.0 < p < 1.0:
-        raise ParameterError(f"gate_probability: expected a probability in (0, 1), got {probability!r}")
+        raise ParameterError(f"probability: expected a probability in (0, 1), got {probability!r}")
     return float(scipy.stats.chi2.ppf(p, check_int("dof", dof, minimum=1)))
 
 
@@ -133,14 +135,16 @@ def kalman_filter_gated(model: ContinuousLinearModel, times, z, x0, P0, *, t0: f
         Rs = np.broadcast_to(model.R, (T, m, m))
     else:
         Rs = as_array("R", R, shape=(T, m, m))
-    gates = np.array([np.inf] + [nis_threshold(gate_probability, d) if gate_probability is not None else np.inf
-                                 for d in range(1, m + 1)])
+    with renamed(probability="gate_probability"):
+        gates = np.array([np.inf] + [nis_threshold(gate_probability, d) if gate_probability is not None else np.inf
+                                     for d in range(1, m + 1)])
     H = np.ascontiguousarray(model.H)
     xs, Ps = np.empty((T, n)), np.empty((T, n, n))
     xp, Pp = np.empty((T, n)), np.empty((T, n, n))
     nu, S, nis = innovation_arrays((T,), m)
     flag = np.zeros(T, dtype=np.int8)
-    Fs, Qs = discretize_intervals(model, dts)
+    with renamed(dt="times"):
+        Fs, Qs = intervals_unchecked(model, dts)
     loglik = gated_loop(t, Fs, Qs, H, np.ascontiguousarray(Rs), z, x.copy(), P.copy(), gates,
                         gate_probability is not None, max_rejections, float(manoeuvre_factor), start,
                         xs, Ps, xp, Pp, nu, S, nis, flag)
@@ -148,12 +152,20 @@ def kalman_filter_gated(model: ContinuousLinearModel, times, z, x0, P0, *, t0: f
                        S=S, nis=nis, flag=flag, F=Fs, Q=Qs)
 
 
+@finite_result("the RTS smoother")
 def smooth_gated(gated: GatedResult) -> FilterResult:
     """RTS smoothing of a gated run: the backward pass of :func:`mptrack.linear.rts_smoother`
     with the per-step (F, Q) the filter used, run separately on each stretch between
     filter resets (a reset breaks the chain of predictions).  Rejected and missing
     measurements are prediction-only steps and need no special case.
     """
+    if not isinstance(gated, GatedResult):
+        raise ParameterError(f"gated: expected a GatedResult (from kalman_filter_gated), got {type(gated).__name__}")
+    check_record("gated", gated, fields=("x", "P"))
+    T, n = gated.x.shape
+    for name in ("F", "Q"):
+        as_array(f"gated.{name}", getattr(gated, name), shape=(T, n, n))
+    as_array("gated.flag", gated.flag, shape=(T,))
     r = gated
     xs, Ps = np.empty_like(r.x), np.empty_like(r.P)
     starts = np.flatnonzero(gated.flag == FLAGS.index("reset"))
@@ -200,7 +212,7 @@ def track_gated(model: ContinuousLinearModel, times, z, R, prior_variances, *,
         raise ShapeError(f"z: expected {t.shape[0]} rows (one per time stamp, at least one), got shape {z.shape}")
     n, T = model.n, t.shape[0]
     Rs = as_array("R", R, shape=(T, model.m, model.m))
-    x0, P0 = first_fix_prior(model.H, z[0], Rs[0], as_vector("prior_variances", prior_variances, n))
+    x0, P0 = first_fix_prior(model.H, z[0], Rs[0], as_vector("prior_variances", prior_variances, n, low=0.0))
     flag0 = np.array([INIT], dtype=np.int8)
     init = GatedResult(x=x0[None], P=P0[None], x_pred=x0[None], P_pred=P0[None], loglik=0.0, method="KF-gated",
                        innovation=np.full((1, model.m), np.nan), S=np.full((1, model.m, model.m), np.nan),

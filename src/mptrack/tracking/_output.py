@@ -13,6 +13,8 @@ import numpy as np
 import pyarrow as pa
 import scipy.stats
 
+from .._validation import as_array, as_vector, check_positive
+from ..errors import ParameterError, ShapeError
 from ..io._geodesy import enu_to_geodetic
 from ._engine import FLAGS
 
@@ -66,8 +68,32 @@ def point_table(ids, offsets: np.ndarray, time: np.ndarray, t: np.ndarray, east:
     method   one name for all tracks, or (B,) names
     extra    further columns (name -> (N,) array), appended in order
     """
-    counts = np.diff(offsets)
+    t = as_array("t", t, ndim=1)
     N = len(t)
+    offsets = as_array("offsets", offsets, ndim=1, low=0, high=N)
+    if len(offsets) < 1 or offsets[0] != 0 or offsets[-1] != N or np.any(np.diff(offsets) < 0) \
+            or np.any(offsets != np.round(offsets)):
+        raise ParameterError(f"offsets: expected non-decreasing integer row offsets from 0 to N = {N}")
+    offsets = offsets.astype(np.int64)
+    B = len(offsets) - 1
+    if isinstance(ids, (str, bytes)) or not np.iterable(ids) or len(ids) != B:
+        raise ShapeError(f"ids: expected {B} track ids (one per track of offsets), got {ids!r}"[:200])
+    east, north, var_e, cov_en, var_n = (as_array(k, v, shape=(N,)) for k, v in (
+        ("east", east), ("north", north), ("var_e", var_e), ("cov_en", cov_en), ("var_n", var_n)))
+    nis, nis_dof, flag = (as_array(k, v, shape=(N,), allow_nan=k == "nis", low=0) for k, v in (
+        ("nis", nis), ("nis_dof", nis_dof), ("flag", flag)))
+    if np.any(flag >= len(FLAGS)) or np.any(flag != np.round(flag)):
+        raise ParameterError(f"flag: expected indices into FLAGS (0..{len(FLAGS) - 1})")
+    flag = flag.astype(np.int8)
+    vel = None if vel is None else as_array("vel", vel, shape=(N, 2), allow_nan=True)
+    gap_s = check_positive("gap_s", gap_s)
+    if origin is not None:
+        if not isinstance(origin, (tuple, list)) or len(origin) != 2:
+            raise ShapeError(f"origin: expected (lat0 (B,), lon0 (B,)) or None, got {origin!r}"[:200])
+        origin = tuple(as_vector(k, v, B) for k, v in (("origin", origin[0]), ("origin", origin[1])))
+    if not isinstance(method, str) and (not np.iterable(method) or len(method) != B):
+        raise ShapeError(f"method: expected one name or {B} names, got {method!r}"[:200])
+    counts = np.diff(offsets)
     if origin is None:
         nan = np.full(N, np.nan)
         lat = lon = lat0 = lon0 = nan

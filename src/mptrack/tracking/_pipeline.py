@@ -27,7 +27,7 @@ import pandas as pd
 import pyarrow as pa
 
 from .._io import output_lock
-from .._validation import check_int, check_outputs
+from .._validation import check_int, check_outputs, check_path
 from ..batch import Chunk, read_part, run_stream
 from ..errors import MptrackError, ParameterError
 from ..io import (FIXES, MEASUREMENTS, InputNotSorted, PartStore, ReadOptions, ReadReport, iter_track_chunks,
@@ -248,7 +248,9 @@ def track_file(input, out, *, cells=None, options: TrackOptions = TrackOptions()
     nothing is left).
     """
     start = time.perf_counter()
-    input, out = Path(input), Path(out)
+    input, out = check_path("input", input), check_path("out", out)
+    if not isinstance(options, TrackOptions):
+        raise ParameterError(f"options: expected TrackOptions, got {type(options).__name__}")
     check_outputs(input, cells, out=out, track_summary=track_summary)
     chunk_rows = check_int("chunk_rows", chunk_rows, minimum=1)
     store = PartStore(out)
@@ -407,6 +409,8 @@ def track(data, *, cells=None, on_error: str = "raise", chunk_rows: int = DEFAUL
     estimates with their standard errors, counts, NIS consistency) and ``attrs["summary"]`` the
     run summary (as :func:`track_file` returns).
     """
+    if not isinstance(data, pd.DataFrame):
+        check_path("data", data)
     known = {f.name for f in fields(TrackOptions)}
     reading = {f.name for f in fields(ReadOptions)}
     unknown = sorted(set(options) - known - reading)

@@ -6,7 +6,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Callable
 
-from ..errors import UnknownNameError
+from .._validation import lookup
 from ..linear import FILTERS as LINEAR_FILTERS
 from ..models import ContinuousLinearModel, constant_acceleration_continuous, constant_velocity_continuous
 from ..cellular import ekf_ranges, fcs_ranges, fekf_ranges
@@ -61,22 +61,15 @@ FIX_FILTERS: dict[str, str] = {
 CELL_METHODS: dict[str, Callable] = {"ekf": ekf_ranges, "fekf": fekf_ranges, "fcs": fcs_ranges}
 
 
-def _get(registry: dict, kind: str, name: str):
-    key = name.lower()
-    if key not in registry:
-        raise UnknownNameError(f"{kind}: unknown name {name!r}; known: {', '.join(registry)}")
-    return registry[key]
-
-
 def get_model(name: str) -> MotionModel:
-    return _get(MODELS, "model", name)
+    return lookup("name", name, MODELS, what="motion model")
 
 
 def get_fix_filter(name: str) -> str:
     """The canonical name of a position-fix filter (validated)."""
-    _get(FIX_FILTERS, "filter", name)
+    lookup("name", name, FIX_FILTERS, what="position-fix filter")
     return name.lower()
 
 
 def get_cell_method(name: str) -> Callable:
-    return _get(CELL_METHODS, "method", name)
+    return lookup("name", name, CELL_METHODS, what="cellular method")

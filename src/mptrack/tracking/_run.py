@@ -14,6 +14,7 @@ import numpy as np
 import pandas as pd
 import pyarrow as pa
 
+from .._validation import derived_from, require_finite
 from ..io._readers import track_offsets
 from ._columns import FixTable
 from ._engine import filter_tracks
@@ -44,6 +45,13 @@ def track_table(table: FixTable, options: TrackOptions, fixed: dict | None = Non
     ``fixed`` (from an earlier chunk, for ``noise="file"``): noise parameters to use instead of
     estimating them, see :func:`mptrack.tracking._noise.estimate_noise`.
     """
+    # the options are what the caller (the CLI user) gave: a failure of the filters on the model derived
+    # from them names the noise option of larger magnitude, not an internal matrix
+    with derived_from(sigma_m=options.sigma_m, q=options.q):
+        return _track_table(table, options, fixed)
+
+
+def _track_table(table: FixTable, options: TrackOptions, fixed: dict | None) -> tuple[pa.Table, pa.Table]:
     spec = noise_spec(options)
     w, has_acc = fix_weights(table, options.sigma_m)
     noise = estimate_noise(table, w, has_acc, spec, fixed=fixed)
@@ -61,6 +69,8 @@ def track_table(table: FixTable, options: TrackOptions, fixed: dict | None = Non
         flag = np.empty(N, dtype=np.int8)
         filter_tracks(table.offsets, table.t, table.east, table.north, w, noise.c, noise.q, order, spec.prior,
                       spec.gate, spec.max_rej, True, options.smooth, X, P, nis, flag, stats)
+        require_finite("the gated Kalman filter", (X, P), sigma_m=options.sigma_m, q=options.q,
+                       east=table.east, north=table.north)
         method = "KF-gated" + ("+RTS" if options.smooth else "")
         var = P[:, 0, 0]
         points = point_table(table.ids, table.offsets, table.time, table.t, X[:, 0, 0], X[:, 1, 0], X[:, :, 1],

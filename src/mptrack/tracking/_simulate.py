@@ -37,7 +37,13 @@ from typing import Callable, Iterator
 import numpy as np
 import pandas as pd
 
-from .._validation import check_int, check_positive
+from .._validation import (
+    as_real,
+    check_allocation,
+    check_int,
+    check_positive,
+    check_rng,
+)
 from ..errors import DataError, ParameterError, UnknownNameError
 from ..io import FIXES, ReadOptions, ReadReport, cell_key, iter_track_chunks
 from ..io._geodesy import enu_to_geodetic
@@ -55,6 +61,9 @@ _TRACK_SPACING_MS = 3_600_000
 
 
 # --------------------------------------------------------------------------- parameters
+
+_MAX_INTERVAL_S = 1e9
+
 
 @dataclass(frozen=True)
 class Intervals:
@@ -74,11 +83,11 @@ class Intervals:
     def __post_init__(self) -> None:
         if self.kind not in ("exponential", "uniform"):
             raise UnknownNameError(f"interval: unknown kind {self.kind!r}; known: exponential, uniform")
-        if check_positive("interval", self.min_s) < 0.001:
-            raise ParameterError(f"interval: expected a minimum >= 0.001 s (the time resolution), got {self.min_s}")
+        # intervals are whole milliseconds in int64: keep them far inside that range (1e9 s = 32 years)
+        as_real("interval", self.min_s, low=0.001, high=_MAX_INTERVAL_S, unit="s")   # 0.001: the time resolution
         if self.kind == "exponential":
-            check_positive("interval", self.mean_s)
-        elif check_positive("interval", self.max_s) < self.min_s:
+            check_positive("interval", as_real("interval", self.mean_s, high=_MAX_INTERVAL_S, unit="s"))
+        elif as_real("interval", self.max_s, high=_MAX_INTERVAL_S, unit="s") < self.min_s:
             raise ParameterError(f"interval: expected min <= max, got {self.min_s} > {self.max_s}")
 
     @classmethod
@@ -343,6 +352,19 @@ def simulate_chunks(scenario: str, tracks: int, rng: np.random.Generator, *, dur
     outlier_rate (fraction), accuracy_column: options of the ``gps`` scenario (None: its default); giving
     one to a scenario without it is a ParameterError.
     """
+    return _chunks(scenario, tracks, rng, duration_s=duration_s, along=along, interval=interval, q=q,
+                   speed_mps=speed_mps, sigma_m=sigma_m, outlier_rate=outlier_rate, accuracy_column=accuracy_column,
+                   read=read, report=report, whole=False)
+
+
+#: Bytes a simulated row takes, its columns and the intermediate arrays (the memory estimate).
+_ROW_BYTES = 256
+
+
+def _chunks(scenario, tracks, rng, *, duration_s, along, interval, q, speed_mps, sigma_m, outlier_rate,
+            accuracy_column, read, report, whole: bool):
+    """:func:`simulate_chunks`; ``whole``: the chunks will be held at once (by :func:`simulate`), so their
+    total size is checked against the memory limit, not only one track's."""
     if scenario not in SCENARIOS:
         raise UnknownNameError(f"scenario: unknown name {scenario!r}; known: {', '.join(SCENARIOS)}")
     sc = SCENARIOS[scenario]
@@ -363,6 +385,12 @@ def simulate_chunks(scenario: str, tracks: int, rng: np.random.Generator, *, dur
         speed_mps = check_positive("speed_mps", speed_mps, allow_zero=True)
         interval = sc.interval if interval is None else \
             interval if isinstance(interval, Intervals) else Intervals.parse(interval)
+        check_rng(rng)
+        row_bytes = _ROW_BYTES * (3 if scenario == "urban-3bts" else 1)
+        per_track = (duration_s / interval.mean() + 1.0) * row_bytes      # a chunk holds at least one track
+        check_allocation("duration_s", duration_s, per_track)
+        if whole:
+            check_allocation("tracks", tracks, tracks * per_track)
         truths = _simulated_chunks(rng, tracks, duration_s, interval, q, speed_mps)
     return (sc.run(rng, truth, **options) for truth in truths)
 
@@ -374,8 +402,8 @@ def simulate(scenario: str, tracks: int, rng: np.random.Generator, *, duration_s
              report: ReadReport | None = None) -> tuple[pd.DataFrame, pd.DataFrame | None]:
     """(log with truth columns, cell table or None) of ``scenario``: all chunks of :func:`simulate_chunks`
     (same arguments) in one table."""
-    chunks = simulate_chunks(scenario, tracks, rng, duration_s=duration_s, along=along, interval=interval, q=q,
-                             speed_mps=speed_mps, sigma_m=sigma_m, outlier_rate=outlier_rate,
-                             accuracy_column=accuracy_column, read=read, report=report)
+    chunks = _chunks(scenario, tracks, rng, duration_s=duration_s, along=along, interval=interval, q=q,
+                     speed_mps=speed_mps, sigma_m=sigma_m, outlier_rate=outlier_rate,
+                     accuracy_column=accuracy_column, read=read, report=report, whole=True)
     logs, cells = zip(*chunks)
     return pd.concat(logs, ignore_index=True), None if cells[0] is None else pd.concat(cells, ignore_index=True)
