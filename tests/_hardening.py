@@ -321,7 +321,7 @@ RECORDS = {
     "riccati.SteadyState", "riccati.LainiotisParameters", "nonlinear.BatchFilterResult", "continuous.BlockKernels",
     "continuous.GridDensity", "continuous.GridMixture", "continuous.FEMStep", "nonlinear.IMMResult", "radio.GsmBand", "radio.ValidityWarning",
     "fuzzy.AnfisResult", "tracking.GatedResult", "tracking.MotionModel", "io.ReadReport", "io.InputNotSorted",
-    "io.Column", "io.Schema",
+    "io.Column", "io.Schema", "result.FilterResult", "result.BatchFilterResult",
 }
 
 
@@ -767,6 +767,8 @@ target("tracking.kalman_filter_gated", lambda times, z, x0, P0, gate_probability
     gate_probability=maybe(scalar(0, 1)), passed=("model",))
 target("tracking.smooth_gated", lambda x, P: tracking.smooth_gated(dataclasses.replace(GATED, x=x, P=P)),
        x=arg((3, 4), valid=GATED.x), P=arg((3, 4, 4), valid=GATED.P), passed=("gated",))
+target("result.normalised_innovation", innovation=arg((3, 2), valid=[[1.0, 2.0], [np.nan, 1.0], [np.nan, np.nan]]),
+       S=arg((3, 2, 2), valid=np.broadcast_to([[2.0, 0.5], [0.5, 1.0]], (3, 2, 2))))
 target("tracking.nis_threshold", probability=scalar(0, 1), dof=count(1, 10))
 target("tracking.get_model", name=names("cv", "ca"))
 target("tracking.get_fix_filter", name=names("kf", "sskf"))

@@ -62,14 +62,32 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 
-__all__ = ["FilterResult", "BatchFilterResult", "normalised_innovation", "innovation_arrays", "mask_missing"]
+from ._validation import as_array, finite_result
+from .errors import ParameterError, ShapeError, SingularMatrixError
+
+__all__ = ["FilterResult", "BatchFilterResult", "normalised_innovation"]
 
 
+@finite_result("the normalised innovation")
 def normalised_innovation(innovation, S) -> np.ndarray:
     """innovation^T S^-1 innovation over the non-NaN components of each row (any leading axes);
-    NaN for a row without any.  innovation (..., m), S (..., m, m)."""
-    nu = np.asarray(innovation, dtype=float)
-    S = np.asarray(S, dtype=float)
+    NaN for a row without any.  innovation (..., m), S (..., m, m) with finite entries where the
+    innovation is observed (a NaN innovation component marks it missing)."""
+    nu = as_array("innovation", innovation, allow_nan=True)
+    if nu.ndim == 0 or nu.shape[-1] == 0:
+        raise ShapeError(f"innovation: expected shape (..., m) with m >= 1, got {nu.shape}")
+    S = as_array("S", S, shape=nu.shape + (nu.shape[-1],), allow_nan=True)
+    ok = ~np.isnan(nu)
+    if np.isnan(S[ok[..., :, None] & ok[..., None, :]]).any():
+        raise ParameterError("S: NaN in the covariance of an observed innovation component")
+    try:
+        return _normalised(nu, S)
+    except np.linalg.LinAlgError:
+        raise SingularMatrixError("S: an innovation covariance is singular") from None
+
+
+def _normalised(nu: np.ndarray, S: np.ndarray) -> np.ndarray:
+    """:func:`normalised_innovation` of validated arrays."""
     m = nu.shape[-1]
     lead = nu.shape[:-1]
     nu, S = nu.reshape(-1, m), S.reshape(-1, m, m)
@@ -119,7 +137,7 @@ class _Fields:
 
     def __post_init__(self) -> None:
         if self.nis is None and self.innovation is not None and self.S is not None:
-            object.__setattr__(self, "nis", normalised_innovation(self.innovation, self.S))
+            object.__setattr__(self, "nis", _normalised(np.asarray(self.innovation, float), np.asarray(self.S, float)))
 
 
 @dataclass(frozen=True, eq=False)
