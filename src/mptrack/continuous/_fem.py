@@ -76,9 +76,10 @@ import scipy.sparse
 import scipy.sparse.linalg
 
 from .._validation import as_array, check_int, check_positive
-from ..errors import ConvergenceError, ParameterError, ShapeError
+from ..errors import ConvergenceError, NotPositiveDefiniteError, ParameterError, ShapeError
 from ..linear import FilterResult
 from ..nonlinear._common import prepare_nonlinear
+from ..nonlinear._ukf import _weights as _sigma_weights
 from ..nonlinear._ukf import sigma_points
 from ._fem_kernels import (
     band_cholesky,
@@ -86,10 +87,18 @@ from ._fem_kernels import (
     band_sdirk2,
     band_solve,
     cholesky_solve,
-    deposit,
+    clip_normalise,
+    diffuse,
     flow_points,
+    flow_sites,
+    grid_moments,
     interpolate,
-    push_points,
+    next_grid,
+    predicted_box,
+    project,
+    sigma_points_2d,
+    transport_points,
+    transport_split,
 )
 from ._kernels import compiled_model
 from ._model import ContinuousDiscreteModel, rk4_flow
@@ -181,7 +190,9 @@ def _topology(n1: int, n2: int):
     V = [np.bincount(flat, weights=np.broadcast_to(pw.sum(0), conn.shape).ravel(), minlength=N)]
     V += [np.bincount(flat, weights=(v @ pw).ravel(), minlength=N) for v in uu]
     V0, V1, V2 = V[0], np.stack(V[1:3], axis=-1), np.stack(V[3:], axis=-1)
-    out = dict(conn=conn, N=N, node_id=node_id, lattice=lattice, uq=uq, V0=V0, V1=V1, V2=V2,
+    d = np.stack([2.0 * dxi, 2.0 * deta])  # (2, 9, 8): derivatives in element units
+    G = np.stack([(d[0] * wq[:, None]).T @ d[0], (d[0] * wq[:, None]).T @ d[1], (d[1] * wq[:, None]).T @ d[1]])
+    out = dict(conn=conn, N=N, node_id=node_id, lattice=lattice, uq=uq, V0=V0, V1=V1, V2=V2, G=G,
                phi=phi, dxi=dxi, deta=deta, wq=wq, Me=pw.T @ phi,
                csc=(indices, indptr, slot.ravel()), band=(width, band_slot), sym=sym, triples=triples)
     for val in out.values():
@@ -261,8 +272,9 @@ class FEMGrid:
         hi = as_array("hi", self.hi, shape=(2,))
         if np.any(hi <= lo):
             raise ParameterError(f"hi: must exceed lo in both coordinates, got lo={lo}, hi={hi}")
-        n1 = check_int("n1", self.n1, minimum=1)
-        n2 = check_int("n2", self.n2, minimum=1)
+        self._fill(lo, hi, check_int("n1", self.n1, minimum=1), check_int("n2", self.n2, minimum=1))
+
+    def _fill(self, lo: np.ndarray, hi: np.ndarray, n1: int, n2: int) -> None:
         top = _topology(n1, n2)
         h = (hi - lo) / np.array([n1, n2])
         nodes = lo + 0.5 * h * top["lattice"]
@@ -273,6 +285,13 @@ class FEMGrid:
             set_(self, name, val)
         for name, val in (("n1", n1), ("n2", n2), ("conn", top["conn"]), ("_top", top), ("_h", h)):
             set_(self, name, val)
+
+    @classmethod
+    def _at(cls, lo: np.ndarray, hi: np.ndarray, n1: int, n2: int) -> "FEMGrid":
+        """A grid the filter placed itself (float64 corners, hi > lo): no argument checks."""
+        grid = object.__new__(cls)
+        grid._fill(lo, hi, n1, n2)
+        return grid
 
     @property
     def size(self) -> int:
@@ -302,13 +321,10 @@ class FEMGrid:
         Computed in element units u = (x − lo)/h and mapped back (x = lo + h∘u),
         which is exact and avoids cancellation far from the origin.
         """
-        top, h = self._top, self._h
-        m0 = top["V0"] @ p
-        mu = (top["V1"].T @ p) / m0
-        s = (top["V2"].T @ p) / m0
-        cross = s[1] - mu[0] * mu[1]
-        cov_u = np.array([[s[0] - mu[0] * mu[0], cross], [cross, s[2] - mu[1] * mu[1]]])
-        return (h[0] * h[1]) * m0, self.lo + h * mu, cov_u * np.outer(h, h)
+        top = self._top
+        mass, mean, cov = grid_moments(np.asarray(p, dtype=float), top["V0"], top["V1"], top["V2"], self.lo,
+                                       self._h)
+        return float(mass), mean, cov
 
     def evaluate(self, p: np.ndarray, X) -> np.ndarray:
         """The interpolant of nodal values p at points X (..., 2); zero outside the rectangle."""
@@ -318,7 +334,7 @@ class FEMGrid:
                           np.empty(flat.shape[0]))
         return out.reshape(X.shape[:-1])
 
-    def element_matrices(self, model: ContinuousDiscreteModel, stabilise: bool = False, advection: bool = True):
+    def element_matrices(self, model: ContinuousDiscreteModel, stabilise: bool = False):
         """Element mass matrix Me (8, 8) (the same for every element) and Fokker–Planck
         element matrices Ae (E, 8, 8), with M dp/dt = A p after assembly.
 
@@ -331,9 +347,7 @@ class FEMGrid:
         area = h[0] * h[1]
         phi, wq = top["phi"], top["wq"] * area
         grad = np.stack([top["dxi"] * (2.0 / h[0]), top["deta"] * (2.0 / h[1])], axis=-1)  # (9, 8, 2)
-        Ke = 0.5 * np.einsum("q,qad,de,qbe->ab", wq, grad, model.Q, grad)
-        if not advection:  # the diffusion part only (the characteristics scheme moves the density itself)
-            return area * top["Me"], np.broadcast_to(-Ke, (self.conn.shape[0], 8, 8))
+        Ke = area * _stiffness_unit(top, model.Q / np.outer(h, h))
         f = model.drift(self.lo + h * top["uq"])  # (E, 9, 2) at the quadrature points
         fgrad = f[..., 0, None] * grad[:, :, 0] + f[..., 1, None] * grad[:, :, 1]  # (E, 9, 8): f·∇φ_a
         Ce = np.swapaxes(fgrad * wq[:, None], 1, 2) @ phi  # (E, 8, 8)
@@ -448,15 +462,17 @@ class FEMStep:
 
 
 def _clip_normalise(grid: FEMGrid, p: np.ndarray, what: str):
-    neg = p < 0.0
-    clipped = float(-(grid.W0[neg] @ p[neg])) if neg.any() else 0.0
-    if neg.any():
-        p = np.where(neg, 0.0, p)
-    mass = grid.W0 @ p
-    if not np.isfinite(mass) or mass <= 0.0:
+    """(nodal values ≥ 0 integrating to 1, the negative mass removed): ``clip_normalise`` on a copy."""
+    p = np.array(p, dtype=float)
+    clipped, mass = clip_normalise(p, grid._top["V0"], float(grid._h[0] * grid._h[1]))
+    _check_mass(mass, what)
+    return p, clipped
+
+
+def _check_mass(mass: float, what: str) -> None:
+    if not (np.isfinite(mass) and mass > 0.0):
         raise ConvergenceError(f"{what}: the density on the grid has no positive mass left "
                                "(the grid does not cover it)")
-    return p / mass, clipped
 
 
 SCHEMES = ("characteristics", "sdirk2", "cn", "paper")
@@ -472,21 +488,24 @@ _RESOLVED = 1.0            # ... where log p(z|x) has second differences below t
 _MAX_PARTS = 4              # parts of the mixture kept (the heaviest) ...
 _MIN_PART = 1e-4            # ... with at least this fraction of the heaviest one's weight
 _PUSH_GAUSS = 3             # the transport's quadrature: Gauss points per axis ...
-_PUSH_SUB = 2               # ... on this many sub-cells per axis of every element (_push)
-_DIFFUSION_STEP = 0.25      # diffusion sub-steps of the characteristics scheme: duration·ρ ≤ this each (_Diffusion)
-_CACHE = 4                  # diffusion factorisations kept (_Diffusion)
+_PUSH_SUB = 2               # ... on this many sub-cells per axis of every element (_push) ...
+_TAIL = 1e-3                # ... and 2 × 2 Gauss points on the elements whose nodal values are all below this
+                            # fraction of the largest (the tails: 60 % of the elements, 1e-4 of the mass)
+_MAP_TOL = 0.01             # the flow interpolated from the nodes unless it misses an element's centre by
+                            # more than this fraction of an element (transport_points)
+_DIFFUSION_STEP = 1.0       # diffusion sub-steps of the characteristics scheme: duration·ρ ≤ this each (_Diffusion)
+_CACHE = 16                 # diffusion factorisations kept (_Diffusion) ...
+_CACHE_BYTES = 48 * 2**20   # ... at most this many bytes of them ...
+_REUSE = (0.8, 2.0)         # ... re-used for operators within these factors of theirs (_Diffusion)
 _RK4_RADIUS = 2.5           # classical RK4 is stable on the left half-disc of this radius (2.6 is the largest)
 
 
-def _factorise(grid: FEMGrid, Be: np.ndarray, symmetric: bool = False):
+def _factorise(grid: FEMGrid, Be: np.ndarray):
     """Factorise the matrix assembled from element matrices Be (E, 8, 8): (solve, band).
 
     A band LU (LAPACK ?gbtrf, partial pivoting) in the natural lattice order,
     half-bandwidth ≈ 3·n2, while its factors fit in _BAND_BYTES; ``band`` is then
-    (F, piv, kl) for the compiled kernels of _fem_kernels.  ``symmetric`` (a symmetric positive
-    definite matrix: the diffusion of the characteristics scheme): a band Cholesky factor
-    (?pbtrf) instead, half the work and a third of the storage, ``band`` = (L, empty piv, kd).
-    SuperLU with a fill-reducing ordering beyond (band None).  Factors are in _SOLVE_DTYPE
+    (F, piv, kl) for the compiled kernels of _fem_kernels.  SuperLU with a fill-reducing ordering beyond (band None).  Factors are in _SOLVE_DTYPE
     (single precision); right-hand sides and solutions stay double.  Measured
     (docs/design.md): on 20 × 20 the band LU factorises 2× faster than SuperLU
     and solves faster; on 40 × 40 its factors make every solve slower.
@@ -495,10 +514,6 @@ def _factorise(grid: FEMGrid, Be: np.ndarray, symmetric: bool = False):
     width, slot = top["band"]
     N = grid.size
     dtype = np.dtype(_SOLVE_DTYPE)
-    if symmetric and (width + 1) * N * dtype.itemsize <= _BAND_BYTES:
-        L, kd = _band_cholesky(top, Be, dtype)
-        band = (L, np.empty(0, np.int32), kd)
-        return (lambda b: cholesky_solve(L, kd, b.astype(dtype)).astype(float)), band
     ld = 3 * width + 1
     if ld * N * dtype.itemsize <= _BAND_BYTES:
         gbtrf = scipy.linalg.lapack.get_lapack_funcs("gbtrf", dtype=dtype)
@@ -528,18 +543,12 @@ class _Propagator:
     """
 
     def __init__(self, grid: FEMGrid, model: ContinuousDiscreteModel, substeps: int, scheme: str,
-                 stabilise: bool, duration: float | None = None):
-        advection = scheme != "characteristics"   # there: the diffusion half-steps only, by SDIRK2
-        Me, Ae = grid.element_matrices(model, stabilise and advection, advection)
-        tau = (model.dt if duration is None else duration) / substeps
+                 stabilise: bool):
+        Me, Ae = grid.element_matrices(model, stabilise)
+        Ae = np.ascontiguousarray(Ae)
+        tau = model.dt / substeps
         gamma = 0.5 if scheme == "cn" else _GAMMA
-        if advection:
-            Ae = np.ascontiguousarray(Ae)
-            self.solve, self.band = _factorise(grid, Me - gamma * tau * Ae)
-        else:  # M − γτA symmetric positive definite, one element matrix for all: band Cholesky
-            Ae = np.ascontiguousarray(Ae[:1])
-            Be = np.broadcast_to(Me - gamma * tau * Ae[0], grid.conn.shape + (8,))
-            self.solve, self.band = _factorise(grid, Be, symmetric=True)
+        self.solve, self.band = _factorise(grid, Me - gamma * tau * Ae)
         self.conn, self.Ae = grid.conn, Ae
         self.Re = Me + 0.5 * tau * Ae if scheme == "cn" else None
         if self.band is None:  # the loop below multiplies with assembled matrices
@@ -624,12 +633,17 @@ def _box(model, m, P, width, floor):
 
 def _predicted_box(model, m, P, width, floor, duration):
     """Rectangle covering the predicted mean ± width·σ after ``duration`` (sigma points through
-    the noise-free flow, plus Q·duration), σ floored at ``floor``."""
-    X, Wm, Wc = sigma_points(m, P)
+    the noise-free flow, plus Q·duration), σ floored at ``floor`` (``predicted_box``)."""
+    X = np.empty((5, 2))
+    if not sigma_points_2d(m, P, _SIGMA[0], X):
+        raise NotPositiveDefiniteError(f"P: the density's covariance lost positive semi-definiteness ({P.tolist()})")
     Y = _drift_flow(model, X, duration)
-    mp = Wm @ Y
-    sp = np.maximum(np.sqrt(np.clip(Wc @ (Y - mp) ** 2 + np.diag(model.Q) * duration, 0.0, None)), floor)
-    return mp - width * sp, mp + width * sp
+    lo, hi = np.empty(2), np.empty(2)
+    predicted_box(Y, _SIGMA[1], _SIGMA[2], np.diag(model.Q).copy(), duration, width, floor, lo, hi)
+    return lo, hi
+
+
+_SIGMA = _sigma_weights(2, 1.0, 2.0, 0.0)   # the sigma points of _predicted_box: scale, Wm, Wc
 
 
 @functools.lru_cache(maxsize=16)
@@ -656,8 +670,8 @@ def _band_cholesky(top: dict, Be: np.ndarray, dtype):
 
 
 @functools.lru_cache(maxsize=16)
-def _push_rule(n1: int, n2: int, order: int, sub: int):
-    """Quadrature on every element: order × order Gauss points on each of sub × sub sub-cells.
+def _push_rule(order: int, sub: int):
+    """Quadrature on an element: order × order Gauss points on each of sub × sub sub-cells.
     Returns (points (P, 2) in [0, 1]² of an element, shape functions (P, 8) at them, weights (P,)
     on a unit element)."""
     g, w = np.polynomial.legendre.leggauss(order)
@@ -704,19 +718,55 @@ def _push(old: FEMGrid, p: np.ndarray, new: FEMGrid, model, duration: float):
     conserving mass: the L2 projection of the transported density onto new's elements,
     M q = b with b_j = ∫ φ_j p(t+τ) dx = ∫ φ_j(Φ_τ(y)) p(y) dy (a change of variables, so no
     Jacobian), by Gauss quadrature on old's elements (_PUSH_GAUSS² points on each of _PUSH_SUB²
-    sub-cells) with the points pushed forward (:func:`_drift_flow`).  Points carrying less than
-    10⁻¹² of the largest weight are not moved (their mass is dropped).  Compiled throughout
-    (quadrature points, flow, deposit, the mass matrix's band Cholesky solve) when the model has
-    kernels.  Returns (nodal values q, fraction of the mass that landed outside new)."""
-    loc, phi, wq = _push_rule(old.n1, old.n2, _PUSH_GAUSS, _PUSH_SUB)
-    area = float(old._h[0] * old._h[1])
-    X, w = push_points(p, old.conn, phi, wq * area, loc, old.lo, old._h, old.n1, old.n2, 1e-12)
-    Y = _drift_flow(model, X, duration)
-    b = np.zeros(new.size)
-    outside = deposit(Y, w, new.lo, new._h, new.n1, new.n2, new.conn, b)
-    q = cholesky_solve(*_unit_mass_factor(new.n1, new.n2), b) / float(new._h[0] * new._h[1])
-    total = float(w.sum())
-    return q, (outside / total if total > 0.0 else 0.0)
+    sub-cells; 2 × 2 on the tail elements, _TAIL) with the points carried by the flow's
+    serendipity interpolant from old's nodes (the nodes flowed by :func:`_drift_flow`; points of
+    elements whose flowed centre the interpolant misses by more than _MAP_TOL of a new element are
+    flowed themselves).  Points carrying less than 10⁻¹² of the largest weight are not moved (their
+    mass is dropped).  ``transport_split`` runs the same steps compiled, flows included, when the
+    model has kernels.  Returns (nodal values q, fraction of the mass that landed outside new)."""
+    Z = _drift_flow(model, flow_sites(old.lo, old._h, old._top["lattice"], old.n1, old.n2), duration)
+    fine, coarse = _push_rules(old)
+    X, Y, w, exact = transport_points(p, old.conn, old.lo, old._h, old.n2, fine, coarse, _TAIL, Z, new._h,
+                                      _MAP_TOL, 1e-12)
+    if exact.any():
+        Y[exact] = _drift_flow(model, X[exact], duration)
+    return project(Y, w, new.lo, new._h, new.n1, new.n2, new.conn, *_unit_mass_factor(new.n1, new.n2))
+
+
+def _push_rules(g: FEMGrid):
+    """The transport's fine and coarse quadrature rules (loc, phi, wq) on g's elements (wq × area)."""
+    area = float(g._h[0] * g._h[1])
+    return tuple((loc, phi, wq * area) for loc, phi, wq in (_push_rule(_PUSH_GAUSS, _PUSH_SUB), _push_rule(2, 1)))
+
+
+def _transport(model, g: FEMGrid, p: np.ndarray, moving: bool, width: float, duration: float):
+    """The transport step of the characteristics scheme: the next grid (g itself when not ``moving``,
+    else placed around the density predicted for t + duration: _predicted_box, ``next_grid``) and
+    the density carried onto it (_push), clipped and normalised.  Compiled end to end
+    (``transport_split``) when the model has kernels.  Returns (grid, p, lost, clipped)."""
+    compiled = _compiled(model)
+    floor = 0.5 * float(np.min(g._h))
+    if compiled is None:
+        lo, hi = g.lo, g.hi
+        if moving:
+            _, m, P = g.moments(p)
+            blo, bhi = _predicted_box(model, m, P, width, floor, duration)
+            lo, hi = np.empty(2), np.empty(2)
+            next_grid(blo, bhi, g.lo, g.hi, _MARGIN, _SHRINK, lo, hi)
+        new = FEMGrid._at(lo, hi, g.n1, g.n2) if moving else g
+        q, lost = _push(g, p, new, model, duration)
+        p, clipped = _clip_normalise(new, q, "prediction")
+        return new, p, lost, clipped
+    top = g._top
+    cap = np.inf if model.max_increment is None else model.max_increment
+    status, lo, hi, q, lost, clipped, mass = transport_split(
+        p, g.lo, g.hi, g.n1, g.n2, g.conn, top["lattice"], top["V0"], top["V1"], top["V2"], moving, width,
+        *_SIGMA, np.diag(model.Q).copy(), duration, model.dt, _MARGIN, _SHRINK, *_push_rules(g), _TAIL,
+        _MAP_TOL, *_unit_mass_factor(g.n1, g.n2), *compiled.drift_at, model.kernels.drift_params, cap)
+    if status:
+        raise NotPositiveDefiniteError("P: the density's covariance lost positive semi-definiteness")
+    _check_mass(mass, "prediction")
+    return (FEMGrid._at(lo, hi, g.n1, g.n2) if moving else g), q, lost, clipped
 
 
 def _bayes_update(grid: FEMGrid, p: np.ndarray, logl: np.ndarray, k: int):
@@ -826,68 +876,85 @@ def fem_steps(model: ContinuousDiscreteModel, z, x0, P0, *, grid: tuple[int, int
 
 
 class _Diffusion:
-    """The diffusion half-steps of the characteristics scheme: SDIRK2 over ``duration`` (τ/2) on a
-    grid, in ``substeps`` steps, or (None) in as many as the diffusion's rate on the element scale
-    needs: n = ⌈duration·ρ/_DIFFUSION_STEP⌉ with ρ the largest eigenvalue of H⁻¹QH⁻¹, H = diag(h)
-    (SDIRK2 is L-stable; this bounds its error on the modes the elements resolve).  One
-    factorisation per element size: the operator depends on the elements' size only (the
-    diffusion's mass and stiffness matrices are translation-invariant), so translated grids,
-    grids that return to an earlier size and the parts of a mixture share it; the _CACHE most
-    recently used are kept."""
+    """The diffusion steps of the characteristics scheme: SDIRK2 over a duration on a grid, in
+    ⌈``substeps``·duration/dt⌉ steps, or (None) in as many as the diffusion's rate on the element scale
+    needs: n = ⌈duration·ρ/_DIFFUSION_STEP⌉ with ρ the largest eigenvalue of S = H⁻¹QH⁻¹, H = diag(h)
+    (SDIRK2 is L-stable; this bounds its error on the modes the elements resolve).
 
-    def __init__(self, model, substeps: int | None, duration: float):
-        self.model, self.substeps, self.duration = model, substeps, duration
-        self.cache: dict = {}
+    In element units the operator is M̂ dp/dt = −Â(S) p, with M̂ and Â(S) = ½ Σ S_de G_de the same
+    for every grid of a shape, so a stage matrix M̂ + γτ_s Â(S) depends on C = τ_s·S alone.  A kept
+    band Cholesky factorisation whose C' lies within _REUSE of C (_REUSE[0]·C ⪯ C' ⪯ _REUSE[1]·C) is
+    re-used with the grid's own, exact, right-hand side Â(S) p: a W-method (the stage matrix of a
+    nearby operator).  Its error on the modes the elements resolve is of the order of SDIRK2's own
+    (a fraction |1 − C'/C| of the stage's second-order term), and it stays stable for stiff modes
+    while C' ⪰ 0.75·C (the amplification at −∞ is 1 − 1/(γr) + (1 − γ)/(γr²), r = C'/C; 0 at r = 1,
+    |·| < 1 for r > 0.75).  The factorisation is the dominant cost of a step on a grid that changes
+    size (0.4 ms at 20 × 20, 9 solves' worth); re-use takes it from 3 per measurement step to 0.3-0.5
+    on eq. 42 at no measurable cost in accuracy (docs/nonlinear.md).  The _CACHE most recently used
+    (at most _CACHE_BYTES) are kept."""
+
+    def __init__(self, model, substeps: int | None):
+        self.model, self.substeps = model, substeps
+        self.cache: list = []   # [(C', (factor, kd))], the most recently used last
         self.factorisations = 0
 
-    def __call__(self, g: FEMGrid, p: np.ndarray) -> np.ndarray:
-        key = f"{g._h[0]:.12e} {g._h[1]:.12e}"  # a translated grid's h differs in the last bits
-        prop = self.cache.pop(key, None)
-        if prop is None:
-            n = self.substeps
-            if n is None:
-                S = self.model.Q / np.outer(g._h, g._h)
-                rho = 0.5 * (S[0, 0] + S[1, 1]) + np.hypot(0.5 * (S[0, 0] - S[1, 1]), S[0, 1])
-                n = max(1, int(np.ceil(self.duration * rho / _DIFFUSION_STEP)))
-            prop = _Propagator(g, self.model, n, "characteristics", False, self.duration)
+    def __call__(self, g: FEMGrid, p: np.ndarray, duration: float, what: str = "prediction"):
+        """(p diffused over ``duration`` on g, clipped and normalised; the negative mass removed)."""
+        S = self.model.Q / np.outer(g._h, g._h)
+        if self.substeps is None:
+            rho = 0.5 * (S[0, 0] + S[1, 1]) + np.hypot(0.5 * (S[0, 0] - S[1, 1]), S[0, 1])
+            n = max(1, int(np.ceil(duration * rho / _DIFFUSION_STEP)))
+        else:
+            n = max(1, int(np.ceil(self.substeps * duration / self.model.dt - 1e-9)))
+        tau = duration / n
+        top = g._top
+        C = tau * S
+        for i, (Ci, factor) in enumerate(self.cache):
+            if _within(Ci, C, _REUSE):
+                self.cache.append(self.cache.pop(i))
+                break
+        else:
+            Be = top["Me"] + _GAMMA * _stiffness_unit(top, C)
+            factor = _band_cholesky(top, np.broadcast_to(Be, top["conn"].shape + (8,)), np.dtype(_SOLVE_DTYPE))
             self.factorisations += 1
-            if len(self.cache) >= _CACHE:
-                del self.cache[next(iter(self.cache))]
-        self.cache[key] = prop  # the most recent last
-        return prop(p)
+            self.cache.append((C, factor))
+            while len(self.cache) > _CACHE or sum(f[0].nbytes for _, f in self.cache) > _CACHE_BYTES:
+                self.cache.pop(0)
+        q, clipped, mass = diffuse(*factor, g.conn, -_stiffness_unit(top, S)[None], p, tau, _GAMMA, n, top["V0"],
+                                   float(g._h[0] * g._h[1]))
+        _check_mass(mass, what)
+        return q, clipped
 
 
-def _grid_size(need: np.ndarray, old: np.ndarray) -> np.ndarray:
-    """Side lengths of the next grid: the current ones while the needed size lies within
-    [_SHRINK, 1] of them on both axes (a translated grid: its diffusion factorisation is kept), else
-    the needed ones on both.  Refitting both axes keeps the elements small: rounding the sizes up to
-    a ladder of rungs (2^¼ apart, so that factorisations could be re-used) or refitting only the
-    axis that outgrew its side made the filter measurably less accurate (docs/nonlinear.md)."""
-    keep = (need <= old) & (need >= _SHRINK * old)
-    return old if keep.all() else need
+def _within(A: np.ndarray, B: np.ndarray, bounds) -> bool:
+    """lo·B ⪯ A ⪯ hi·B, (lo, hi) = bounds, for symmetric 2 × 2 A, B ⪰ 0 (to rounding)."""
+    lo, hi = bounds
+    return _psd2((hi + 1e-9) * B - A, B) and _psd2(A - (lo - 1e-9) * B, B)
+
+
+def _psd2(D: np.ndarray, scale: np.ndarray) -> bool:
+    eps = 1e-12 * (abs(scale[0, 0]) + abs(scale[1, 1]))
+    return D[0, 0] >= -eps and D[1, 1] >= -eps and D[0, 0] * D[1, 1] - D[0, 1] * D[1, 0] >= -eps * eps
+
+
+def _stiffness_unit(top: dict, S: np.ndarray) -> np.ndarray:
+    """Â(S) = ½ Σ_de S_de G_de: the diffusion's element stiffness on a unit element (8, 8), with
+    G_de = ∫ ∂_dφ ∂_eφᵀ in element units and S = H⁻¹QH⁻¹."""
+    G = top["G"]
+    return 0.5 * (S[0, 0] * G[0] + S[0, 1] * (G[1] + G[1].T) + S[1, 1] * G[2])
 
 
 def _transport_steps(model, g, p, diffusion: _Diffusion, width, splits, tau, fixed):
-    """One dt of the characteristics scheme: ``splits`` Strang steps (see _characteristic_steps)."""
-    shape = (g.n1, g.n2)
-    before, regridded, lost, clipped = diffusion.factorisations, False, 0.0, 0.0
-    for _ in range(splits):
-        p, c = _clip_normalise(g, diffusion(g, p), "prediction")
-        new = g
-        if not fixed:
-            _, m, P = g.moments(p)
-            lo, hi = _predicted_box(model, m, P, width, 0.5 * float(np.min(g._h)), tau)
-            size = _grid_size((1.0 + 2.0 * _MARGIN) * (hi - lo), g.hi - g.lo)
-            centre = 0.5 * (lo + hi)
-            new = FEMGrid(centre - 0.5 * size, centre + 0.5 * size, *shape)
-        q, out = _push(g, p, new, model, tau)
+    """One dt of the characteristics scheme: ``splits`` Strang steps (see _characteristic_steps); the
+    diffusions over τ/2 that end one step and start the next run on the same grid, as one over τ."""
+    before, lost, clipped = diffusion.factorisations, 0.0, 0.0
+    p, clipped = diffusion(g, p, 0.5 * tau)
+    for i in range(splits):
+        g, p, out, c1 = _transport(model, g, p, not fixed, width, tau)
+        p, c2 = diffusion(g, p, tau if i < splits - 1 else 0.5 * tau)
         lost += out
-        regridded = regridded or new is not g
-        g = new
-        p, c1 = _clip_normalise(g, q, "prediction")
-        p, c2 = _clip_normalise(g, diffusion(g, p), "prediction")
-        clipped += c + c1 + c2
-    return g, p, diffusion.factorisations > before, regridded, lost, clipped
+        clipped += c1 + c2
+    return g, p, diffusion.factorisations > before, not fixed, lost, clipped
 
 
 def _galerkin_step(model, g, p, m, P, width, substeps, fixed):
@@ -1018,7 +1085,7 @@ def _characteristic_steps(model, z, m, P, g: FEMGrid, width, substeps, fixed: bo
     overlap are merged.
     """
     tau = model.dt / splits
-    diffusion = _Diffusion(model, None if substeps is None else max(1, -(-substeps // (2 * splits))), 0.5 * tau)
+    diffusion = _Diffusion(model, substeps)
     parts = [_Part(1.0, g, _clip_normalise(g, _gaussian_on(g, m, P), "P0")[0])]
     for k in range(z.shape[0]):
         factorised = regridded = False

@@ -16,8 +16,9 @@ from numba import njit
 from .. import _jit_cache  # noqa: F401 - compiled kernels cache in the user's cache directory
 from ._kernels import _BLOCK, _as_kernel, _flow
 
-__all__ = ["band_solve", "band_sdirk2", "band_cn", "deposit", "interpolate", "push_points", "flow_points",
-           "cholesky_solve", "band_cholesky"]
+__all__ = ["band_solve", "band_sdirk2", "band_cn", "deposit", "interpolate", "flow_points", "cholesky_solve",
+           "band_cholesky", "clip_normalise", "diffuse", "grid_moments", "sigma_points_2d", "predicted_box",
+           "next_grid", "flow_sites", "transport_points", "project", "transport_split"]
 
 
 @njit(cache=True)
@@ -218,43 +219,6 @@ def interpolate(Y, lo, h, n1, n2, conn, p, out):
 
 
 @njit(cache=True)
-def push_points(p, conn, phi, wq, loc, lo, h, n1, n2, rel):
-    """The transport's quadrature on a grid [lo, lo + h·(n1, n2)] with nodal values p: on every
-    element e (conn (E, 8), row-major over (e1, e2)) the points x = lo + h·((e1, e2) + loc[k]) (loc
-    (K, 2) in [0, 1]²) carrying mass w = (Σₐ p[conn[e, a]] φₐ(k)) · wq[k] (phi (K, 8), wq (K,)
-    including the element area).  Returns (X (P, 2), w (P,)) of the points with
-    |w| > rel · max |w|, in element-major order (``_fem._push``'s NumPy arithmetic)."""
-    E, K = conn.shape[0], phi.shape[0]
-    w = np.empty(E * K)
-    big = 0.0
-    for e in range(E):
-        for k in range(K):
-            s = 0.0
-            for a in range(8):
-                s += p[conn[e, a]] * phi[k, a]
-            v = s * wq[k]
-            w[e * K + k] = v
-            big = max(big, abs(v))
-    cut = rel * big
-    count = 0
-    for i in range(E * K):
-        count += abs(w[i]) > cut
-    X = np.empty((count, 2))
-    out = np.empty(count)
-    i = 0
-    for e in range(E):
-        u0, u1 = float(e // n2), float(e % n2)
-        for k in range(K):
-            v = w[e * K + k]
-            if abs(v) > cut:
-                X[i, 0] = lo[0] + h[0] * (u0 + loc[k, 0])
-                X[i, 1] = lo[1] + h[1] * (u1 + loc[k, 1])
-                out[i] = v
-                i += 1
-    return X, out
-
-
-@njit(cache=True)
 def _stiffness(X, drift, params):
     """max over the points X (P, 2) of the Frobenius norm of the drift's Jacobian by central
     differences with step d = 1e-5·max(1, max |X|) (``_fem._flow_steps``'s NumPy arithmetic)."""
@@ -297,3 +261,264 @@ def flow_points(X, drift_c, drift_jit, params, duration, dt, cap):
     steps = max(int(np.ceil(2.0 * duration / dt)), int(np.ceil(duration * stiff)), 1)
     _flow(X, drift, params, duration / steps, steps, cap)
     return steps
+
+
+
+# ---------------------------------------------------------------- the characteristics scheme's steps
+@njit(cache=True)
+def clip_normalise(p, V0, area):
+    """In place: negative nodal values set to zero, then p divided by its mass area·(V0 · p) (the
+    interpolant's integral, ``FEMGrid.W0 = area·V0``).  Returns (the negative mass removed, the mass
+    before dividing); a mass that is not positive and finite leaves p undivided (the caller raises)."""
+    clipped = 0.0
+    mass = 0.0
+    for j in range(p.shape[0]):
+        if p[j] < 0.0:
+            clipped -= V0[j] * p[j]
+            p[j] = 0.0
+        mass += V0[j] * p[j]
+    mass *= area
+    if mass > 0.0 and mass < np.inf:
+        for j in range(p.shape[0]):
+            p[j] /= mass
+    return clipped * area, mass
+
+
+@njit(cache=True)
+def diffuse(C, kd, conn, Ae, p, tau, gamma, substeps, V0, area):
+    """``substeps`` SDIRK2 steps of the diffusion M̂ dp/dt = Ae p on a band Cholesky factor (C, kd) of
+    its stage matrix (``band_sdirk2``), then ``clip_normalise``: returns (p, clipped, mass)."""
+    q = band_sdirk2(C, np.empty(0, np.int32), kd, conn, Ae, p, tau, gamma, substeps)
+    clipped, mass = clip_normalise(q, V0, area)
+    return q, clipped, mass
+
+
+@njit(cache=True)
+def grid_moments(p, V0, V1, V2, lo, h):
+    """(mass, mean (2,), covariance (2, 2)) of the interpolant of p on the grid with corner lo and
+    element sides h, from the unit-element moment weights V0 (N,), V1 (N, 2), V2 (N, 3)
+    (``FEMGrid.moments``: computed in element units, then mapped back)."""
+    m0 = 0.0
+    u = np.zeros(2)
+    s = np.zeros(3)
+    for j in range(p.shape[0]):
+        m0 += V0[j] * p[j]
+        u[0] += V1[j, 0] * p[j]
+        u[1] += V1[j, 1] * p[j]
+        s[0] += V2[j, 0] * p[j]
+        s[1] += V2[j, 1] * p[j]
+        s[2] += V2[j, 2] * p[j]
+    u /= m0
+    s /= m0
+    cross = s[1] - u[0] * u[1]
+    mean = lo + h * u
+    cov = np.empty((2, 2))
+    cov[0, 0] = (s[0] - u[0] * u[0]) * (h[0] * h[0])
+    cov[0, 1] = cross * (h[0] * h[1])
+    cov[1, 0] = cov[0, 1]
+    cov[1, 1] = (s[2] - u[1] * u[1]) * (h[1] * h[1])
+    return (h[0] * h[1]) * m0, mean, cov
+
+
+@njit(cache=True)
+def sigma_points_2d(m, P, c, X):
+    """X (5, 2) ← the sigma points m, m ± columns of √(cP) (``nonlinear._ukf.sigma_points``: a Cholesky
+    factor, else the eigen-decomposition with eigenvalues clipped at zero).  Returns False when cP is
+    not positive semi-definite (an eigenvalue below −1e-9 of the largest) or not finite."""
+    a, b, d = c * P[0, 0], c * P[0, 1], c * P[1, 1]
+    if not (np.isfinite(a) and np.isfinite(b) and np.isfinite(d) and np.isfinite(m[0]) and np.isfinite(m[1])):
+        return False
+    S = np.zeros((2, 2))
+    t = d - (b / np.sqrt(a)) ** 2 if a > 0.0 else -1.0
+    if a > 0.0 and t > 0.0:
+        S[0, 0] = np.sqrt(a)
+        S[1, 0] = b / S[0, 0]
+        S[1, 1] = np.sqrt(t)
+    else:
+        w, V = np.linalg.eigh(np.array([[a, b], [b, d]]))
+        if w[0] < -1e-9 * max(abs(w[1]), 1e-300):
+            return False
+        for i in range(2):
+            r = np.sqrt(max(w[i], 0.0))
+            S[0, i] = V[0, i] * r
+            S[1, i] = V[1, i] * r
+    for r in range(2):
+        X[0, r] = m[r]
+        for i in range(2):
+            X[1 + i, r] = m[r] + S[r, i]
+            X[3 + i, r] = m[r] - S[r, i]
+    return True
+
+
+@njit(cache=True)
+def predicted_box(Y, Wm, Wc, Qd, duration, width, floor, lo, hi):
+    """lo, hi ← the predicted mean ± width·σ from the flowed sigma points Y (5, 2) with weights Wm, Wc:
+    σ² = Wc·(Y − mean)² + Q_ii·duration, σ floored at ``floor``."""
+    for r in range(2):
+        mp = 0.0
+        for k in range(Y.shape[0]):
+            mp += Wm[k] * Y[k, r]
+        var = 0.0
+        for k in range(Y.shape[0]):
+            var += Wc[k] * (Y[k, r] - mp) ** 2
+        sp = max(np.sqrt(max(var + Qd[r] * duration, 0.0)), floor)
+        lo[r] = mp - width * sp
+        hi[r] = mp + width * sp
+
+
+@njit(cache=True)
+def next_grid(blo, bhi, lo, hi, margin, shrink, new_lo, new_hi):
+    """The next grid around the box [blo, bhi] widened by ``margin`` of its size on each side: centred on
+    it, with the current grid's sides (lo, hi) while the widened box's sides lie within [shrink, 1] of
+    them on both axes (a translated grid), else the widened box's own."""
+    keep = True
+    for r in range(2):
+        need = (1.0 + 2.0 * margin) * (bhi[r] - blo[r])
+        old = hi[r] - lo[r]
+        keep = keep and need <= old and need >= shrink * old
+    for r in range(2):
+        size = hi[r] - lo[r] if keep else (1.0 + 2.0 * margin) * (bhi[r] - blo[r])
+        centre = 0.5 * (blo[r] + bhi[r])
+        new_lo[r] = centre - 0.5 * size
+        new_hi[r] = centre + 0.5 * size
+
+
+@njit(cache=True)
+def flow_sites(lo, h, lattice, n1, n2):
+    """The points whose flow the transport interpolates: the grid's nodes (lattice (N, 2) on the
+    half-element lattice), then the centres of its elements (row-major over (e1, e2))."""
+    N = lattice.shape[0]
+    Z = np.empty((N + n1 * n2, 2))
+    for j in range(N):
+        Z[j, 0] = lo[0] + 0.5 * h[0] * lattice[j, 0]
+        Z[j, 1] = lo[1] + 0.5 * h[1] * lattice[j, 1]
+    for e in range(n1 * n2):
+        Z[N + e, 0] = lo[0] + h[0] * ((e // n2) + 0.5)
+        Z[N + e, 1] = lo[1] + h[1] * ((e % n2) + 0.5)
+    return Z
+
+
+# serendipity shape functions at the element centre (ξ = η = 0): corners −¼, mid-sides ½
+_CENTRE = np.array([-0.25, -0.25, -0.25, -0.25, 0.5, 0.5, 0.5, 0.5])
+
+
+@njit(cache=True)
+def transport_points(p, conn, lo, h, n2, fine, coarse, tail, Z, hnew, tol, rel):
+    """The transport's quadrature on the grid (corner lo, element sides h, n2 elements along the second
+    axis) with nodal values p, and where its points go.
+
+    Every element e (conn (E, 8), row-major) carries points x = lo + h·((e1, e2) + loc[k]) with mass
+    w = (Σₐ p[conn[e, a]] φₐ(k))·wq[k] by the rule ``fine`` = (loc (K, 2) in [0, 1]², phi (K, 8), wq (K,)
+    including the element area), or by ``coarse`` when all its nodal values are below ``tail`` × max p.
+    The flow maps them to Σₐ φₐ(k) Z[conn[e, a]]: the serendipity interpolant of the flowed nodes Z[:N]
+    (an isoparametric map); where it misses the flowed centre Z[N + e] by more than ``tol`` of an element
+    of the new grid (sides hnew), the element's points are marked for an exact flow.
+    Returns (X (P, 2) the points, Y (P, 2) their interpolated images, w (P,), exact (P,)), keeping the
+    points with |w| > rel · max |w| in element-major order."""
+    E, N = conn.shape[0], p.shape[0]
+    pmax = 0.0
+    for j in range(N):
+        pmax = max(pmax, abs(p[j]))
+    use_coarse = np.empty(E, np.bool_)
+    bad = np.empty(E, np.bool_)
+    total = 0
+    for e in range(E):
+        big = 0.0
+        ex, ey = Z[N + e, 0], Z[N + e, 1]
+        for a in range(8):
+            big = max(big, abs(p[conn[e, a]]))
+            ex -= _CENTRE[a] * Z[conn[e, a], 0]
+            ey -= _CENTRE[a] * Z[conn[e, a], 1]
+        use_coarse[e] = big < tail * pmax
+        bad[e] = not (max(abs(ex) / hnew[0], abs(ey) / hnew[1]) <= tol)
+        total += coarse[1].shape[0] if use_coarse[e] else fine[1].shape[0]
+    w = np.empty(total)
+    X, Y = np.empty((total, 2)), np.empty((total, 2))
+    exact = np.empty(total, np.bool_)
+    i = 0
+    big = 0.0
+    for e in range(E):
+        loc, phi, wq = coarse if use_coarse[e] else fine
+        u0, u1 = float(e // n2), float(e % n2)
+        for k in range(phi.shape[0]):
+            s = 0.0
+            yx = 0.0
+            yy = 0.0
+            for a in range(8):
+                j = conn[e, a]
+                s += p[j] * phi[k, a]
+                yx += phi[k, a] * Z[j, 0]
+                yy += phi[k, a] * Z[j, 1]
+            w[i] = s * wq[k]
+            big = max(big, abs(w[i]))
+            X[i, 0] = lo[0] + h[0] * (u0 + loc[k, 0])
+            X[i, 1] = lo[1] + h[1] * (u1 + loc[k, 1])
+            Y[i, 0] = yx
+            Y[i, 1] = yy
+            exact[i] = bad[e]
+            i += 1
+    keep = np.abs(w) > rel * big
+    return X[keep], Y[keep], w[keep], exact[keep]
+
+
+@njit(cache=True)
+def project(Y, w, lo, h, n1, n2, conn, Cm, kdm):
+    """The L2 projection onto the grid (corner lo, element sides h) of the point masses w at Y: M q = b,
+    b_j = Σ w φ_j(Y), M = h1·h2 × the unit mass matrix with band Cholesky factor (Cm, kdm).  Returns
+    (q, the fraction of Σ w that fell outside the grid)."""
+    b = np.zeros(Cm.shape[0])
+    outside = deposit(Y, w, lo, h, n1, n2, conn, b)
+    q = cholesky_solve(Cm, kdm, b)
+    area = h[0] * h[1]
+    for j in range(q.shape[0]):
+        q[j] /= area
+    total = 0.0
+    for k in range(w.shape[0]):
+        total += w[k]
+    return q, (outside / total if total > 0.0 else 0.0)
+
+
+@njit(cache=True)
+def _flow_marked(X, Y, exact, drift_c, drift_jit, params, duration, dt, cap):
+    """Y[exact] ← X[exact] carried by the flow (``flow_points``)."""
+    idx = np.flatnonzero(exact)
+    if idx.shape[0] == 0:
+        return
+    F = np.empty((idx.shape[0], 2))
+    for i in range(idx.shape[0]):
+        F[i] = X[idx[i]]
+    flow_points(F, drift_c, drift_jit, params, duration, dt, cap)
+    for i in range(idx.shape[0]):
+        Y[idx[i]] = F[i]
+
+
+@njit(cache=True)
+def transport_split(p, lo, hi, n1, n2, conn, lattice, V0, V1, V2, moving, width, c, Wm, Wc, Qd, duration, dt,
+                    margin, shrink, fine, coarse, tail, tol, Cm, kdm, drift_c, drift_jit, params, cap):
+    """One transport of the characteristics scheme, compiled end to end (``_fem._transport``, whose
+    NumPy-flow path runs the same steps): on a moving grid, the next grid from the density's moments
+    (sigma points with scale c, weights Wm, Wc, flowed over ``duration``; ``predicted_box``,
+    ``next_grid``), then the density carried onto it (``flow_sites``, ``transport_points``, exact flows of
+    the marked points, ``project``) and ``clip_normalise``d.  Returns (status, new lo, new hi, q, lost,
+    clipped, mass): status 1 when the moments have no sigma points (not positive semi-definite)."""
+    h = np.empty(2)
+    h[0], h[1] = (hi[0] - lo[0]) / n1, (hi[1] - lo[1]) / n2
+    new_lo, new_hi = lo.copy(), hi.copy()
+    if moving:
+        _, m, P = grid_moments(p, V0, V1, V2, lo, h)
+        S = np.empty((5, 2))
+        if not sigma_points_2d(m, P, c, S):
+            return 1, new_lo, new_hi, p, 0.0, 0.0, 0.0
+        flow_points(S, drift_c, drift_jit, params, duration, dt, cap)
+        blo, bhi = np.empty(2), np.empty(2)
+        predicted_box(S, Wm, Wc, Qd, duration, width, 0.5 * min(h[0], h[1]), blo, bhi)
+        next_grid(blo, bhi, lo, hi, margin, shrink, new_lo, new_hi)
+    hn = np.empty(2)
+    hn[0], hn[1] = (new_hi[0] - new_lo[0]) / n1, (new_hi[1] - new_lo[1]) / n2
+    Z = flow_sites(lo, h, lattice, n1, n2)
+    flow_points(Z, drift_c, drift_jit, params, duration, dt, cap)
+    X, Y, w, exact = transport_points(p, conn, lo, h, n2, fine, coarse, tail, Z, hn, tol, 1e-12)
+    _flow_marked(X, Y, exact, drift_c, drift_jit, params, duration, dt, cap)
+    q, lost = project(Y, w, new_lo, hn, n1, n2, conn, Cm, kdm)
+    clipped, mass = clip_normalise(q, V0, hn[0] * hn[1])
+    return 0, new_lo, new_hi, q, lost, clipped, mass
