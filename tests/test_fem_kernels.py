@@ -6,8 +6,8 @@ import scipy.linalg
 import scipy.sparse.linalg
 
 from mptrack.continuous import FEMGrid, linear_sde_model, zhao2013_model
-from mptrack.continuous import _fem
-from mptrack.continuous._fem_kernels import cholesky_solve, flow_points, flow_sites, transport_points
+from mptrack.continuous import _fem, _fem_kernels
+from mptrack.continuous._fem_kernels import cholesky_solve, deposit, flow_points, flow_sites, transport_deposit
 from mptrack.continuous._model import rk4_flow
 
 
@@ -17,39 +17,46 @@ def _density(g, m, P):
 
 
 @pytest.mark.parametrize("shape", [(3, 5), (20, 20)])
-def test_transport_points_equal_the_numpy_quadrature(shape):
+def test_transport_deposit_equals_the_numpy_quadrature(shape):
     """Every element's quadrature (the fine rule, or the coarse one where all its nodal values are below
-    the tail level), the points' images under the serendipity interpolant of the flowed nodes, and the
-    elements whose flowed centre that interpolant misses marked for an exact flow."""
+    the tail level), the points' images under the serendipity interpolant of the flowed nodes deposited
+    on the new grid, and the points of the elements whose flowed centre that interpolant misses
+    returned for an exact flow instead."""
     g = FEMGrid([-1.0, 0.5], [2.0, 1.7], *shape)
     p = _density(g, np.array([0.4, 1.1]), np.diag([0.05, 0.02]))
-    fine, coarse = _fem._push_rules(g)
+    fine, coarse = _fem._push_rules()
     sites = flow_sites(g.lo, g._h, g._top["lattice"], *shape)
     N = g.size
     np.testing.assert_array_equal(sites[:N], g.nodes)
     Z = sites @ np.array([[1.1, 0.2], [-0.3, 0.9]]).T + 0.5 + 0.05 * np.exp(np.prod(sites, axis=1, keepdims=True))
     # (a smooth map outside the serendipity space: its interpolant misses the centres by different amounts)
-    hnew = 1.3 * g._h
+    new = FEMGrid([-0.2, 0.8], [2.6, 2.3], shape[0] + 1, shape[1] + 2)  # some images fall outside it
     # NumPy: element by element, the interpolant's miss at the centres first
-    miss = [np.max(np.abs(Z[N + e] - _fem.shape_functions(0.0, 0.0)[0] @ Z[nodes]) / hnew)
+    miss = [np.max(np.abs(Z[N + e] - _fem.shape_functions(0.0, 0.0)[0] @ Z[nodes]) / new._h)
             for e, nodes in enumerate(g.conn)]
     tol = float(np.median(miss))
-    X, Y, w, exact = transport_points(p, g.conn, g.lo, g._h, shape[1], fine, coarse, 1e-3, Z, hnew, tol, 1e-12)
+    b = np.zeros(new.size)
+    outside, total, X, w = transport_deposit(p, g.conn, g.lo, g._h, shape[1], fine, coarse, 1e-3, Z, tol, 1e-12,
+                                             new.lo, new._h, new.n1, new.n2, new.conn, b)
     rows = []
     for e, nodes in enumerate(g.conn):
         corner = np.array([e // shape[1], e % shape[1]], dtype=float)
         loc, phi, wq = coarse if np.all(np.abs(p[nodes]) < 1e-3 * np.abs(p).max()) else fine
         for k in range(len(wq)):
-            rows.append((g.lo + g._h * (corner + loc[k]), phi[k] @ Z[nodes], (p[nodes] @ phi[k]) * wq[k],
+            rows.append((g.lo + g._h * (corner + loc[k]), phi[k] @ Z[nodes], (p[nodes] @ phi[k]) * wq[k] * np.prod(g._h),
                          miss[e] > tol))
     ref_X, ref_Y, ref_w, ref_exact = (np.array(c) for c in zip(*rows))
     keep = np.abs(ref_w) > 1e-12 * np.max(np.abs(ref_w))
-    assert len(fine[2]) == 36 and len(coarse[2]) == 4 and len(ref_w) < 36 * len(g.conn) or shape == (3, 5)
-    assert 0 < ref_exact.sum() < len(ref_exact)
-    np.testing.assert_allclose(w, ref_w[keep], rtol=1e-12, atol=1e-12 * np.abs(ref_w).max())
-    np.testing.assert_allclose(X, ref_X[keep], rtol=1e-14, atol=1e-14)
-    np.testing.assert_allclose(Y, ref_Y[keep], rtol=1e-12, atol=1e-12)
-    np.testing.assert_array_equal(exact, ref_exact[keep])
+    assert len(fine[2]) == 36 and len(coarse[2]) == 4 and (keep.sum() < 36 * len(g.conn) or shape == (3, 5))
+    exact, moved = keep & ref_exact, keep & ~ref_exact
+    assert exact.any() and moved.any()
+    np.testing.assert_allclose(X, ref_X[exact], rtol=1e-14, atol=1e-14)
+    np.testing.assert_allclose(w, ref_w[exact], rtol=1e-12, atol=1e-12 * np.abs(ref_w).max())
+    ref_b = np.zeros(new.size)
+    ref_outside = deposit(ref_Y[moved], ref_w[moved], new.lo, new._h, new.n1, new.n2, new.conn, ref_b)
+    assert ref_outside != 0.0                                           # (weights can be negative)
+    np.testing.assert_allclose(b, ref_b, rtol=1e-10, atol=1e-12 * np.abs(ref_b).max())
+    assert outside == pytest.approx(ref_outside, rel=1e-10) and total == pytest.approx(ref_w[keep].sum(), rel=1e-12)
 
 
 @pytest.mark.parametrize("variant, scale, spread", [("vdp", 0.01, 3.0), ("vdp", 1.0, 14.0), ("printed", 0.001, 2.0)])
@@ -137,3 +144,27 @@ def test_diffusion_reuses_a_nearby_factorisation_and_keeps_mean_and_covariance_g
         exact = _fem._Diffusion(model, None)(g, p, 0.125)[0]
         change = np.abs(exact - p).max()
         assert np.abs(q - exact).max() < (0.02 if factorisations == 1 else 1e-6) * change
+
+
+def test_lattice_modes_equal_scipy_labels():
+    """The compiled mode finder against scipy.ndimage.label (8-connected) on the lattice image of random
+    blobs, with the same raster-order labels and per-region weighted sums."""
+    import scipy.ndimage
+
+    g = FEMGrid([0.0, 0.0], [1.0, 1.0], 12, 9)
+    lattice = g._top["lattice"]
+    rng = np.random.default_rng(11)
+    for _ in range(5):
+        d = np.zeros(g.size)
+        for c in rng.uniform(0.0, 1.0, (4, 2)):
+            d += rng.uniform(0.5, 2.0) * np.exp(-0.5 * np.sum((g.nodes - c) ** 2, axis=1) / 0.004)
+        count, stats = _fem_kernels.lattice_modes(d, lattice, 25, 19, 0.05)
+        img = np.zeros((25, 19))
+        img[lattice[:, 0], lattice[:, 1]] = d
+        img[1::2, 1::2] = 0.25 * (img[:-1:2, 1::2] + img[2::2, 1::2] + img[1::2, :-1:2] + img[1::2, 2::2])
+        labels, n = scipy.ndimage.label(img > 0.05 * img.max(), structure=np.ones((3, 3)))
+        assert count == n and n >= 2
+        ii, jj = np.nonzero(labels)
+        lab, w = labels[ii, jj] - 1, img[ii, jj]
+        want = np.stack([np.bincount(lab, weights=w * f, minlength=n) for f in (1, ii, jj, ii * ii, jj * jj)], axis=1)
+        np.testing.assert_allclose(stats, want, rtol=1e-12)

@@ -71,7 +71,6 @@ from typing import Iterator
 
 import numpy as np
 import scipy.linalg.lapack
-import scipy.ndimage
 import scipy.sparse
 import scipy.sparse.linalg
 
@@ -82,22 +81,25 @@ from ..nonlinear._common import prepare_nonlinear
 from ..nonlinear._ukf import _weights as _sigma_weights
 from ..nonlinear._ukf import sigma_points
 from ._fem_kernels import (
-    band_cholesky,
+    element_band_cholesky,
     band_cn,
     band_sdirk2,
     band_solve,
     cholesky_solve,
     clip_normalise,
+    deposit,
     diffuse,
     flow_points,
     flow_sites,
     grid_moments,
     interpolate,
+    lattice_modes,
+    mass_solve,
     next_grid,
     predicted_box,
-    project,
+    second_difference_max,
     sigma_points_2d,
-    transport_points,
+    transport_deposit,
     transport_split,
 )
 from ._kernels import compiled_model
@@ -151,8 +153,7 @@ def _topology(n1: int, n2: int):
     csc      (indices, indptr, slot): the CSC pattern and where each (e, a, b) entry goes
     band     (width, slot): LAPACK band storage (natural node order) and where each entry goes
     triples  (a, b, c): consecutive nodes along the even lattice rows and columns (b in the middle)
-    sym      (width, slot, entries): the same for the lower band of a symmetric matrix (?pbtrf), slot
-             of each (e, a, b) entry on or below the diagonal, and those entries' flat indices
+    G        (3, 8, 8) ∫ ∂_dφ ∂_eφᵀ for (d, e) = (0, 0), (0, 1), (1, 1): the diffusion's element stiffness
     """
     L1, L2 = 2 * n1 + 1, 2 * n2 + 1
     ii, jj = np.meshgrid(np.arange(L1), np.arange(L2), indexing="ij")
@@ -175,8 +176,6 @@ def _topology(n1: int, n2: int):
     triples = tuple(np.concatenate(t) for t in zip(
         (node_id[ii[full[0]], jj[full[0]] - 1], node_id[full[0]], node_id[ii[full[0]], jj[full[0]] + 1]),
         (node_id[ii[full[1]] - 1, jj[full[1]]], node_id[full[1]], node_id[ii[full[1]] + 1, jj[full[1]]])))
-    lower = rows >= cols  # lower band: A[i, j], i ≥ j, at [j, i − j] of an (N, width + 1) array
-    sym = (width, (cols * (width + 1) + rows - cols)[lower], np.flatnonzero(lower))
     lattice = np.stack([ii[is_node], jj[is_node]], axis=-1)
     g, w = _GAUSS3
     gx, gy = np.meshgrid(g, g, indexing="ij")
@@ -194,7 +193,7 @@ def _topology(n1: int, n2: int):
     G = np.stack([(d[0] * wq[:, None]).T @ d[0], (d[0] * wq[:, None]).T @ d[1], (d[1] * wq[:, None]).T @ d[1]])
     out = dict(conn=conn, N=N, node_id=node_id, lattice=lattice, uq=uq, V0=V0, V1=V1, V2=V2, G=G,
                phi=phi, dxi=dxi, deta=deta, wq=wq, Me=pw.T @ phi,
-               csc=(indices, indptr, slot.ravel()), band=(width, band_slot), sym=sym, triples=triples)
+               csc=(indices, indptr, slot.ravel()), band=(width, band_slot), triples=triples)
     for val in out.values():
         for arr in (val if isinstance(val, tuple) else (val,)):
             if isinstance(arr, np.ndarray):
@@ -263,9 +262,7 @@ class FEMGrid:
     hi: np.ndarray
     n1: int
     n2: int
-    nodes: np.ndarray = field(init=False, repr=False)
     conn: np.ndarray = field(init=False, repr=False)
-    W0: np.ndarray = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
         lo = as_array("lo", self.lo, shape=(2,))
@@ -277,14 +274,26 @@ class FEMGrid:
     def _fill(self, lo: np.ndarray, hi: np.ndarray, n1: int, n2: int) -> None:
         top = _topology(n1, n2)
         h = (hi - lo) / np.array([n1, n2])
-        nodes = lo + 0.5 * h * top["lattice"]
-        W0 = (h[0] * h[1]) * top["V0"]
         set_ = object.__setattr__
-        for name, val in (("lo", lo), ("hi", hi), ("nodes", nodes), ("W0", W0)):
+        for name, val in (("lo", lo), ("hi", hi)):
             val.setflags(write=False)
             set_(self, name, val)
         for name, val in (("n1", n1), ("n2", n2), ("conn", top["conn"]), ("_top", top), ("_h", h)):
             set_(self, name, val)
+
+    @functools.cached_property
+    def nodes(self) -> np.ndarray:
+        """(N, 2) node coordinates (computed on first use: the filter's intermediate grids need none)."""
+        nodes = self.lo + 0.5 * self._h * self._top["lattice"]
+        nodes.setflags(write=False)
+        return nodes
+
+    @functools.cached_property
+    def W0(self) -> np.ndarray:
+        """∫φ_j, (N,)."""
+        W0 = (self._h[0] * self._h[1]) * self._top["V0"]
+        W0.setflags(write=False)
+        return W0
 
     @classmethod
     def _at(cls, lo: np.ndarray, hi: np.ndarray, n1: int, n2: int) -> "FEMGrid":
@@ -295,7 +304,7 @@ class FEMGrid:
 
     @property
     def size(self) -> int:
-        return self.nodes.shape[0]
+        return self._top["N"]
 
     @property
     def W1(self) -> np.ndarray:
@@ -651,19 +660,17 @@ def _unit_mass_factor(n1: int, n2: int):
     """Band Cholesky factor (L, kd) of the mass matrix of an n1 × n2 grid of unit elements (M of any
     grid of that shape is h1·h2 times it; ``_fem_kernels.cholesky_solve``): factorised once per shape."""
     top = _topology(n1, n2)
-    return _band_cholesky(top, np.broadcast_to(top["Me"], top["conn"].shape + (8,)), np.float64)
+    return _band_cholesky(top, top["Me"], np.float64)
 
 
 def _band_cholesky(top: dict, Be: np.ndarray, dtype):
     """Band Cholesky factor (C, kd) in ``dtype`` of the symmetric positive definite matrix assembled
-    from element matrices Be (E, 8, 8) on the grid of ``top`` (natural lattice order, kd ≈ 3·n2), in
-    the layout of ``_fem_kernels.cholesky_solve`` (compiled: ``band_cholesky``, 1.5-2× LAPACK's
-    ?pbtrf at this bandwidth)."""
-    kd, slot, lower = top["sym"]
-    N = top["N"]
-    C = np.zeros((N, 2 * (kd + 1)), dtype)
-    C[:, :kd + 1] = np.bincount(slot, weights=Be.ravel()[lower], minlength=(kd + 1) * N).reshape(N, kd + 1)
-    if not band_cholesky(C, kd):
+    from the element matrix Be (8, 8) on every element of the grid of ``top`` (natural lattice order,
+    kd ≈ 3·n2), in the layout of ``_fem_kernels.cholesky_solve`` (compiled: ``element_band_cholesky``,
+    1.5-2× LAPACK's ?pbtrf at this bandwidth)."""
+    kd = top["band"][0]   # the half-bandwidth
+    C = np.zeros((top["N"], 2 * (kd + 1)), dtype)
+    if not element_band_cholesky(np.asarray(Be, dtype=float), top["conn"], kd, C):
         raise ConvergenceError("grid filter: the time-step matrix is not positive definite")
     C.setflags(write=False)
     return C, kd
@@ -725,18 +732,19 @@ def _push(old: FEMGrid, p: np.ndarray, new: FEMGrid, model, duration: float):
     mass is dropped).  ``transport_split`` runs the same steps compiled, flows included, when the
     model has kernels.  Returns (nodal values q, fraction of the mass that landed outside new)."""
     Z = _drift_flow(model, flow_sites(old.lo, old._h, old._top["lattice"], old.n1, old.n2), duration)
-    fine, coarse = _push_rules(old)
-    X, Y, w, exact = transport_points(p, old.conn, old.lo, old._h, old.n2, fine, coarse, _TAIL, Z, new._h,
-                                      _MAP_TOL, 1e-12)
-    if exact.any():
-        Y[exact] = _drift_flow(model, X[exact], duration)
-    return project(Y, w, new.lo, new._h, new.n1, new.n2, new.conn, *_unit_mass_factor(new.n1, new.n2))
+    b = np.zeros(new.size)
+    outside, total, X, w = transport_deposit(p, old.conn, old.lo, old._h, old.n2, *_push_rules(), _TAIL, Z,
+                                             _MAP_TOL, 1e-12, new.lo, new._h, new.n1, new.n2, new.conn, b)
+    if len(w):
+        outside += deposit(_drift_flow(model, X, duration), w, new.lo, new._h, new.n1, new.n2, new.conn, b)
+    q = mass_solve(b, *_unit_mass_factor(new.n1, new.n2), new._h)
+    return q, (outside / total if total > 0.0 else 0.0)
 
 
-def _push_rules(g: FEMGrid):
-    """The transport's fine and coarse quadrature rules (loc, phi, wq) on g's elements (wq × area)."""
-    area = float(g._h[0] * g._h[1])
-    return tuple((loc, phi, wq * area) for loc, phi, wq in (_push_rule(_PUSH_GAUSS, _PUSH_SUB), _push_rule(2, 1)))
+@functools.lru_cache(maxsize=1)
+def _push_rules():
+    """The transport's fine and coarse quadrature rules (loc, phi, wq) on a unit element."""
+    return _push_rule(_PUSH_GAUSS, _PUSH_SUB), _push_rule(2, 1)
 
 
 def _transport(model, g: FEMGrid, p: np.ndarray, moving: bool, width: float, duration: float):
@@ -761,7 +769,7 @@ def _transport(model, g: FEMGrid, p: np.ndarray, moving: bool, width: float, dur
     cap = np.inf if model.max_increment is None else model.max_increment
     status, lo, hi, q, lost, clipped, mass = transport_split(
         p, g.lo, g.hi, g.n1, g.n2, g.conn, top["lattice"], top["V0"], top["V1"], top["V2"], moving, width,
-        *_SIGMA, np.diag(model.Q).copy(), duration, model.dt, _MARGIN, _SHRINK, *_push_rules(g), _TAIL,
+        *_SIGMA, np.diag(model.Q).copy(), duration, model.dt, _MARGIN, _SHRINK, *_push_rules(), _TAIL,
         _MAP_TOL, *_unit_mass_factor(g.n1, g.n2), *compiled.drift_at, model.kernels.drift_params, cap)
     if status:
         raise NotPositiveDefiniteError("P: the density's covariance lost positive semi-definiteness")
@@ -909,13 +917,14 @@ class _Diffusion:
         tau = duration / n
         top = g._top
         C = tau * S
-        for i, (Ci, factor) in enumerate(self.cache):
-            if _within(Ci, C, _REUSE):
+        for i in range(len(self.cache) - 1, -1, -1):   # the most recently used first
+            if _within(self.cache[i][0], C, _REUSE):
+                factor = self.cache[i][1]
                 self.cache.append(self.cache.pop(i))
                 break
         else:
             Be = top["Me"] + _GAMMA * _stiffness_unit(top, C)
-            factor = _band_cholesky(top, np.broadcast_to(Be, top["conn"].shape + (8,)), np.dtype(_SOLVE_DTYPE))
+            factor = _band_cholesky(top, Be, np.dtype(_SOLVE_DTYPE))
             self.factorisations += 1
             self.cache.append((C, factor))
             while len(self.cache) > _CACHE or sum(f[0].nbytes for _, f in self.cache) > _CACHE_BYTES:
@@ -988,25 +997,18 @@ def _split(g: FEMGrid, p: np.ndarray, model, zk, width: float, logl: np.ndarray)
     if not np.all(np.isfinite(d)) or d.max() <= 0.0:
         return [(g, p, 0.0)]
     if not _resolved(g, d, logl):
-        fine = FEMGrid(g.lo, g.hi, _FOCUS * g.n1, _FOCUS * g.n2)
+        fine = FEMGrid._at(g.lo, g.hi, _FOCUS * g.n1, _FOCUS * g.n2)
         logl = _log_likelihood(model, zk, fine.nodes)
         d = np.clip(g.evaluate(p, fine.nodes), 0.0, None) * np.exp(logl - logl.max())
         if not np.all(np.isfinite(d)) or d.max() <= 0.0:
             return [(g, p, 0.0)]
-    lattice = fine._top["lattice"]
-    img = np.zeros(fine._top["node_id"].shape)  # the half-spacing lattice; element centres have no node:
-    img[lattice[:, 0], lattice[:, 1]] = d       # they get the mean of their four mid-side neighbours
-    img[1::2, 1::2] = 0.25 * (img[:-1:2, 1::2] + img[2::2, 1::2] + img[1::2, :-1:2] + img[1::2, 2::2])
-    labels, count = scipy.ndimage.label(img > _LEVEL * img.max(), structure=np.ones((3, 3)))
-    ii, jj = np.nonzero(labels)
-    lab, w = labels[ii, jj] - 1, img[ii, jj]
-    X = fine.lo + 0.5 * fine._h * np.stack([ii, jj], axis=-1)
-    mass = np.bincount(lab, weights=w, minlength=count)
+    count, stats = lattice_modes(d, fine._top["lattice"], 2 * fine.n1 + 1, 2 * fine.n2 + 1, _LEVEL)
+    mass = stats[:, 0]
     boxes = []
     for c in np.flatnonzero(mass > _MIN_MODE * mass.sum()):
-        sel = lab == c
-        mu = w[sel] @ X[sel] / mass[c]
-        sd = np.maximum(np.sqrt(w[sel] @ (X[sel] - mu) ** 2 / mass[c]), 0.5 * fine._h)
+        mu = stats[c, 1:3] / mass[c]                                   # in half-spacing lattice units
+        sd = np.sqrt(np.maximum(stats[c, 3:5] / mass[c] - mu * mu, 0.0))
+        mu, sd = fine.lo + 0.5 * fine._h * mu, 0.5 * fine._h * np.maximum(sd, 1.0)
         box = (np.maximum(mu - width * sd, g.lo), np.minimum(mu + width * sd, g.hi))
         for i in [i for i, b in enumerate(boxes) if np.all(b[0] <= box[1]) and np.all(box[0] <= b[1])][::-1]:
             other = boxes.pop(i)
@@ -1017,7 +1019,7 @@ def _split(g: FEMGrid, p: np.ndarray, model, zk, width: float, logl: np.ndarray)
     out = []
     for lo, hi in boxes:
         margin = _MARGIN * (hi - lo)
-        new = FEMGrid(np.maximum(lo - margin, g.lo), np.minimum(hi + margin, g.hi), g.n1, g.n2)
+        new = FEMGrid._at(np.maximum(lo - margin, g.lo), np.minimum(hi + margin, g.hi), g.n1, g.n2)
         q = np.clip(g.evaluate(p, new.nodes), 0.0, None)
         kept = float(new.W0 @ q)
         if np.isfinite(kept) and kept > 0.0:
@@ -1031,9 +1033,7 @@ def _resolved(g: FEMGrid, d: np.ndarray, logl: np.ndarray) -> bool:
     maximum, the second difference of log p(z | x) is at most _RESOLVED in size (a Gaussian
     likelihood σ wide along the line has s²/σ² there, s the node spacing: σ ≥ 2s), so a finer
     lattice would find the same modes."""
-    a, b, c = g._top["triples"]
-    on = d[b] > _LEVEL * d.max()
-    return bool(np.max(np.abs(logl[a] - 2.0 * logl[b] + logl[c])[on], initial=0.0) <= _RESOLVED)
+    return second_difference_max(d, logl, *g._top["triples"], _LEVEL) <= _RESOLVED
 
 
 def _log_likelihood(model, zk, X: np.ndarray) -> np.ndarray:
@@ -1059,7 +1059,7 @@ def _merge(parts: list) -> list:
     for part in parts:
         for i, o in enumerate(out):
             if np.all(part.g.lo <= o.g.hi) and np.all(o.g.lo <= part.g.hi):
-                g = FEMGrid(np.minimum(part.g.lo, o.g.lo), np.maximum(part.g.hi, o.g.hi), o.g.n1, o.g.n2)
+                g = FEMGrid._at(np.minimum(part.g.lo, o.g.lo), np.maximum(part.g.hi, o.g.hi), o.g.n1, o.g.n2)
                 w = o.w + part.w
                 q = (o.w * o.g.evaluate(o.p, g.nodes) + part.w * part.g.evaluate(part.p, g.nodes)) / w
                 out[i] = _Part(w, g, _clip_normalise(g, q, "merging")[0])

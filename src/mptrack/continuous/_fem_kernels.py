@@ -17,8 +17,9 @@ from .. import _jit_cache  # noqa: F401 - compiled kernels cache in the user's c
 from ._kernels import _BLOCK, _as_kernel, _flow
 
 __all__ = ["band_solve", "band_sdirk2", "band_cn", "deposit", "interpolate", "flow_points", "cholesky_solve",
-           "band_cholesky", "clip_normalise", "diffuse", "grid_moments", "sigma_points_2d", "predicted_box",
-           "next_grid", "flow_sites", "transport_points", "project", "transport_split"]
+           "band_cholesky", "element_band_cholesky", "clip_normalise", "diffuse", "grid_moments", "sigma_points_2d", "predicted_box",
+           "next_grid", "flow_sites", "transport_deposit", "mass_solve", "transport_split", "lattice_modes",
+           "second_difference_max"]
 
 
 @njit(cache=True)
@@ -103,6 +104,22 @@ def band_cholesky(C, kd):
 
 
 @njit(cache=True)
+def element_band_cholesky(Be, conn, kd, C):
+    """Assemble the lower band of the matrix B = Σₑ Be on every element of conn (E, 8) (one element
+    matrix Be (8, 8) for all) into C[:, :kd + 1] (C[j, i] = B[j + i, j]; C zero on entry, dtype of the
+    factor), then factorise it in place (``band_cholesky``).  Returns False when B is not (numerically)
+    positive definite."""
+    for e in range(conn.shape[0]):
+        for a in range(8):
+            i = conn[e, a]
+            for c in range(8):
+                j = conn[e, c]
+                if i >= j:
+                    C[j, i - j] += Be[a, c]
+    return band_cholesky(C, kd)
+
+
+@njit(cache=True)
 def _element_matvec(conn, Ke, x, out):
     """out = K x for K assembled from element matrices Ke (E, 8, 8) on connectivity conn (E, 8);
     Ke (1, 8, 8): the same matrix for every element."""
@@ -169,8 +186,14 @@ def band_cn(F, piv, kl, conn, Re, p, substeps):
 def _locate(Y, k, lo, h, n1, n2, N):
     """Element index of point Y[k] in the grid [lo, lo + h·(n1, n2)] (−1 outside, NaN included) and
     the 8 serendipity shape functions there (``_fem.shape_functions``) written into N."""
-    u = (Y[k, 0] - lo[0]) / h[0]
-    v = (Y[k, 1] - lo[1]) / h[1]
+    return _locate_at(Y[k, 0], Y[k, 1], lo, h, n1, n2, N)
+
+
+@njit(cache=True)
+def _locate_at(y0, y1, lo, h, n1, n2, N):
+    """``_locate`` of the point (y0, y1)."""
+    u = (y0 - lo[0]) / h[0]
+    v = (y1 - lo[1]) / h[1]
     if not (u >= 0.0 and u <= n1 and v >= 0.0 and v <= n2):
         return -1
     e1 = min(int(u), n1 - 1)
@@ -403,25 +426,29 @@ _CENTRE = np.array([-0.25, -0.25, -0.25, -0.25, 0.5, 0.5, 0.5, 0.5])
 
 
 @njit(cache=True)
-def transport_points(p, conn, lo, h, n2, fine, coarse, tail, Z, hnew, tol, rel):
+def transport_deposit(p, conn, lo, h, n2, fine, coarse, tail, Z, tol, rel, new_lo, new_h, new_n1, new_n2, new_conn,
+                      b):
     """The transport's quadrature on the grid (corner lo, element sides h, n2 elements along the second
-    axis) with nodal values p, and where its points go.
+    axis) with nodal values p, deposited where the flow takes it on the new grid (corner new_lo, element
+    sides new_h, new_n1 × new_n2 elements, connectivity new_conn): b_j += Σ w φ_j(Y).
 
     Every element e (conn (E, 8), row-major) carries points x = lo + h·((e1, e2) + loc[k]) with mass
-    w = (Σₐ p[conn[e, a]] φₐ(k))·wq[k] by the rule ``fine`` = (loc (K, 2) in [0, 1]², phi (K, 8), wq (K,)
-    including the element area), or by ``coarse`` when all its nodal values are below ``tail`` × max p.
-    The flow maps them to Σₐ φₐ(k) Z[conn[e, a]]: the serendipity interpolant of the flowed nodes Z[:N]
-    (an isoparametric map); where it misses the flowed centre Z[N + e] by more than ``tol`` of an element
-    of the new grid (sides hnew), the element's points are marked for an exact flow.
-    Returns (X (P, 2) the points, Y (P, 2) their interpolated images, w (P,), exact (P,)), keeping the
-    points with |w| > rel · max |w| in element-major order."""
+    w = (Σₐ p[conn[e, a]] φₐ(k))·wq[k]·h1·h2 by the rule ``fine`` = (loc (K, 2) in [0, 1]², phi (K, 8),
+    wq (K,) on a unit element), or by ``coarse`` when all its nodal values are below ``tail`` × max p;
+    points with |w| ≤ rel × max |w| are dropped.  The flow takes a point to Y = Σₐ φₐ(k) Z[conn[e, a]],
+    the serendipity interpolant of the flowed nodes Z[:N] (an isoparametric map), except on the
+    elements where that interpolant misses the flowed centre Z[N + e] by more than ``tol`` of a new
+    element: their points are returned for an exact flow instead of deposited.
+    Returns (the weight that fell outside the new grid, the total weight, X (M, 2) and w (M,) of the
+    points to flow exactly)."""
     E, N = conn.shape[0], p.shape[0]
     pmax = 0.0
     for j in range(N):
         pmax = max(pmax, abs(p[j]))
     use_coarse = np.empty(E, np.bool_)
     bad = np.empty(E, np.bool_)
-    total = 0
+    start = np.empty(E + 1, np.int64)
+    start[0] = 0
     for e in range(E):
         big = 0.0
         ex, ey = Z[N + e, 0], Z[N + e, 1]
@@ -430,66 +457,64 @@ def transport_points(p, conn, lo, h, n2, fine, coarse, tail, Z, hnew, tol, rel):
             ex -= _CENTRE[a] * Z[conn[e, a], 0]
             ey -= _CENTRE[a] * Z[conn[e, a], 1]
         use_coarse[e] = big < tail * pmax
-        bad[e] = not (max(abs(ex) / hnew[0], abs(ey) / hnew[1]) <= tol)
-        total += coarse[1].shape[0] if use_coarse[e] else fine[1].shape[0]
-    w = np.empty(total)
-    X, Y = np.empty((total, 2)), np.empty((total, 2))
-    exact = np.empty(total, np.bool_)
-    i = 0
+        bad[e] = not (max(abs(ex) / new_h[0], abs(ey) / new_h[1]) <= tol)
+        start[e + 1] = start[e] + (coarse[1].shape[0] if use_coarse[e] else fine[1].shape[0])
+    w = np.empty(start[E])
+    area = h[0] * h[1]
     big = 0.0
+    n_exact = 0
     for e in range(E):
-        loc, phi, wq = coarse if use_coarse[e] else fine
-        u0, u1 = float(e // n2), float(e % n2)
+        phi, wq = (coarse[1], coarse[2]) if use_coarse[e] else (fine[1], fine[2])
         for k in range(phi.shape[0]):
             s = 0.0
-            yx = 0.0
-            yy = 0.0
             for a in range(8):
-                j = conn[e, a]
-                s += p[j] * phi[k, a]
-                yx += phi[k, a] * Z[j, 0]
-                yy += phi[k, a] * Z[j, 1]
-            w[i] = s * wq[k]
-            big = max(big, abs(w[i]))
-            X[i, 0] = lo[0] + h[0] * (u0 + loc[k, 0])
-            X[i, 1] = lo[1] + h[1] * (u1 + loc[k, 1])
-            Y[i, 0] = yx
-            Y[i, 1] = yy
-            exact[i] = bad[e]
-            i += 1
-    keep = np.abs(w) > rel * big
-    return X[keep], Y[keep], w[keep], exact[keep]
+                s += p[conn[e, a]] * phi[k, a]
+            w[start[e] + k] = s * (wq[k] * area)
+            big = max(big, abs(w[start[e] + k]))
+        if bad[e]:
+            n_exact += phi.shape[0]
+    cut = rel * big
+    X, wx = np.empty((n_exact, 2)), np.empty(n_exact)
+    Nn = np.empty(8)
+    outside, total = 0.0, 0.0
+    m = 0
+    for e in range(E):
+        loc, phi = (coarse[0], coarse[1]) if use_coarse[e] else (fine[0], fine[1])
+        u0, u1 = float(e // n2), float(e % n2)
+        for k in range(phi.shape[0]):
+            wk = w[start[e] + k]
+            if not abs(wk) > cut:
+                continue
+            total += wk
+            if bad[e]:
+                X[m, 0] = lo[0] + h[0] * (u0 + loc[k, 0])
+                X[m, 1] = lo[1] + h[1] * (u1 + loc[k, 1])
+                wx[m] = wk
+                m += 1
+                continue
+            y0 = 0.0
+            y1 = 0.0
+            for a in range(8):
+                y0 += phi[k, a] * Z[conn[e, a], 0]
+                y1 += phi[k, a] * Z[conn[e, a], 1]
+            f = _locate_at(y0, y1, new_lo, new_h, new_n1, new_n2, Nn)
+            if f < 0:
+                outside += wk
+                continue
+            for a in range(8):
+                b[new_conn[f, a]] += wk * Nn[a]
+    return outside, total, X[:m].copy(), wx[:m].copy()
 
 
 @njit(cache=True)
-def project(Y, w, lo, h, n1, n2, conn, Cm, kdm):
-    """The L2 projection onto the grid (corner lo, element sides h) of the point masses w at Y: M q = b,
-    b_j = Σ w φ_j(Y), M = h1·h2 × the unit mass matrix with band Cholesky factor (Cm, kdm).  Returns
-    (q, the fraction of Σ w that fell outside the grid)."""
-    b = np.zeros(Cm.shape[0])
-    outside = deposit(Y, w, lo, h, n1, n2, conn, b)
-    q = cholesky_solve(Cm, kdm, b)
+def mass_solve(b, Cm, kdm, h):
+    """q with M q = b on a grid of element sides h: M = h1·h2 × the unit mass matrix, whose band
+    Cholesky factor is (Cm, kdm)."""
+    q = cholesky_solve(Cm, kdm, b.copy())
     area = h[0] * h[1]
     for j in range(q.shape[0]):
         q[j] /= area
-    total = 0.0
-    for k in range(w.shape[0]):
-        total += w[k]
-    return q, (outside / total if total > 0.0 else 0.0)
-
-
-@njit(cache=True)
-def _flow_marked(X, Y, exact, drift_c, drift_jit, params, duration, dt, cap):
-    """Y[exact] ← X[exact] carried by the flow (``flow_points``)."""
-    idx = np.flatnonzero(exact)
-    if idx.shape[0] == 0:
-        return
-    F = np.empty((idx.shape[0], 2))
-    for i in range(idx.shape[0]):
-        F[i] = X[idx[i]]
-    flow_points(F, drift_c, drift_jit, params, duration, dt, cap)
-    for i in range(idx.shape[0]):
-        Y[idx[i]] = F[i]
+    return q
 
 
 @njit(cache=True)
@@ -498,8 +523,8 @@ def transport_split(p, lo, hi, n1, n2, conn, lattice, V0, V1, V2, moving, width,
     """One transport of the characteristics scheme, compiled end to end (``_fem._transport``, whose
     NumPy-flow path runs the same steps): on a moving grid, the next grid from the density's moments
     (sigma points with scale c, weights Wm, Wc, flowed over ``duration``; ``predicted_box``,
-    ``next_grid``), then the density carried onto it (``flow_sites``, ``transport_points``, exact flows of
-    the marked points, ``project``) and ``clip_normalise``d.  Returns (status, new lo, new hi, q, lost,
+    ``next_grid``), then the density carried onto it (``flow_sites``, ``transport_deposit``, the exact
+    flow and ``deposit`` of the points it returns, ``mass_solve``) and ``clip_normalise``d.  Returns (status, new lo, new hi, q, lost,
     clipped, mass): status 1 when the moments have no sigma points (not positive semi-definite)."""
     h = np.empty(2)
     h[0], h[1] = (hi[0] - lo[0]) / n1, (hi[1] - lo[1]) / n2
@@ -517,8 +542,71 @@ def transport_split(p, lo, hi, n1, n2, conn, lattice, V0, V1, V2, moving, width,
     hn[0], hn[1] = (new_hi[0] - new_lo[0]) / n1, (new_hi[1] - new_lo[1]) / n2
     Z = flow_sites(lo, h, lattice, n1, n2)
     flow_points(Z, drift_c, drift_jit, params, duration, dt, cap)
-    X, Y, w, exact = transport_points(p, conn, lo, h, n2, fine, coarse, tail, Z, hn, tol, 1e-12)
-    _flow_marked(X, Y, exact, drift_c, drift_jit, params, duration, dt, cap)
-    q, lost = project(Y, w, new_lo, hn, n1, n2, conn, Cm, kdm)
+    b = np.zeros(p.shape[0])
+    outside, total, X, w = transport_deposit(p, conn, lo, h, n2, fine, coarse, tail, Z, tol, 1e-12, new_lo, hn,
+                                             n1, n2, conn, b)
+    if X.shape[0]:
+        flow_points(X, drift_c, drift_jit, params, duration, dt, cap)
+        outside += deposit(X, w, new_lo, hn, n1, n2, conn, b)
+    q = mass_solve(b, Cm, kdm, hn)
+    lost = outside / total if total > 0.0 else 0.0
     clipped, mass = clip_normalise(q, V0, hn[0] * hn[1])
     return 0, new_lo, new_hi, q, lost, clipped, mass
+
+
+# ---------------------------------------------------------------- the posterior's modes (``_fem._split``)
+@njit(cache=True)
+def lattice_modes(d, lattice, L1, L2, level):
+    """The 8-connected regions of the half-spacing lattice (L1 × L2) where the image of the nodal values
+    d (at ``lattice`` (N, 2); the element centres, which have no node, get the mean of their four
+    mid-side neighbours) exceeds ``level`` × its maximum, labelled in raster order (as
+    scipy.ndimage.label).  Returns (count, stats (count, 5)): each region's Σw, Σw·i, Σw·j, Σw·i²,
+    Σw·j² over its lattice points (i, j) with weights w = the image there."""
+    img = np.zeros((L1, L2))
+    for k in range(lattice.shape[0]):
+        img[lattice[k, 0], lattice[k, 1]] = d[k]
+    for i in range(1, L1 - 1, 2):
+        for j in range(1, L2 - 1, 2):
+            img[i, j] = 0.25 * (img[i - 1, j] + img[i + 1, j] + img[i, j - 1] + img[i, j + 1])
+    cut = level * img.max()
+    label = np.full((L1, L2), -1, np.int64)
+    stack = np.empty(L1 * L2, np.int64)
+    stats = np.zeros((L1 * L2 // 2 + 1, 5))
+    count = 0
+    for i0 in range(L1):
+        for j0 in range(L2):
+            if label[i0, j0] >= 0 or not img[i0, j0] > cut:
+                continue
+            label[i0, j0] = count
+            top = 0
+            stack[0] = i0 * L2 + j0
+            top = 1
+            while top > 0:
+                top -= 1
+                i, j = stack[top] // L2, stack[top] % L2
+                w = img[i, j]
+                stats[count, 0] += w
+                stats[count, 1] += w * i
+                stats[count, 2] += w * j
+                stats[count, 3] += w * i * i
+                stats[count, 4] += w * j * j
+                for a in range(max(i - 1, 0), min(i + 2, L1)):
+                    for b in range(max(j - 1, 0), min(j + 2, L2)):
+                        if label[a, b] < 0 and img[a, b] > cut:
+                            label[a, b] = count
+                            stack[top] = a * L2 + b
+                            top += 1
+            count += 1
+    return count, stats[:count].copy()
+
+
+@njit(cache=True)
+def second_difference_max(d, logl, a, b, c, level):
+    """max |logl[a] − 2 logl[b] + logl[c]| over the node triples (a, b, c) where d[b] > level × max d
+    (0 when there are none)."""
+    cut = level * d.max()
+    big = 0.0
+    for k in range(b.shape[0]):
+        if d[b[k]] > cut:
+            big = max(big, abs(logl[a[k]] - 2.0 * logl[b[k]] + logl[c[k]]))
+    return big
