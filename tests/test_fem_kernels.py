@@ -24,7 +24,8 @@ def test_transport_deposit_equals_the_numpy_quadrature(shape):
     returned for an exact flow instead."""
     g = FEMGrid([-1.0, 0.5], [2.0, 1.7], *shape)
     p = _density(g, np.array([0.4, 1.1]), np.diag([0.05, 0.02]))
-    fine, coarse = _fem._push_rules()
+    loc, phi, wq, bounds, levels = rules = _fem._push_rules(((3, 1, 0.03), (2, 1, 1e-3)))   # three rules
+    fine, mid, coarse = ((loc[a:b], phi[a:b], wq[a:b]) for a, b in zip(bounds[:-1], bounds[1:]))
     sites = flow_sites(g.lo, g._h, g._top["lattice"], *shape)
     N = g.size
     np.testing.assert_array_equal(sites[:N], g.nodes)
@@ -36,18 +37,20 @@ def test_transport_deposit_equals_the_numpy_quadrature(shape):
             for e, nodes in enumerate(g.conn)]
     tol = float(np.median(miss))
     b = np.zeros(new.size)
-    outside, total, X, w = transport_deposit(p, g.conn, g.lo, g._h, shape[1], fine, coarse, 1e-3, Z, tol, 1e-12,
-                                             new.lo, new._h, new.n1, new.n2, new.conn, b)
+    outside, total, X, w = transport_deposit(p, g.conn, g.lo, g._h, shape[1], *rules, Z, tol, 1e-12, new.lo,
+                                             new._h, new.n1, new.n2, new.conn, b)
     rows = []
     for e, nodes in enumerate(g.conn):
         corner = np.array([e // shape[1], e % shape[1]], dtype=float)
-        loc, phi, wq = coarse if np.all(np.abs(p[nodes]) < 1e-3 * np.abs(p).max()) else fine
+        top = np.abs(p[nodes]).max() / np.abs(p).max()
+        loc, phi, wq = coarse if top < 1e-3 else mid if top < 0.03 else fine
         for k in range(len(wq)):
             rows.append((g.lo + g._h * (corner + loc[k]), phi[k] @ Z[nodes], (p[nodes] @ phi[k]) * wq[k] * np.prod(g._h),
                          miss[e] > tol))
     ref_X, ref_Y, ref_w, ref_exact = (np.array(c) for c in zip(*rows))
     keep = np.abs(ref_w) > 1e-12 * np.max(np.abs(ref_w))
-    assert len(fine[2]) == 36 and len(coarse[2]) == 4 and (keep.sum() < 36 * len(g.conn) or shape == (3, 5))
+    assert [len(r[2]) for r in (fine, mid, coarse)] == [36, 9, 4]
+    assert keep.sum() < 36 * len(g.conn) or shape == (3, 5)
     exact, moved = keep & ref_exact, keep & ~ref_exact
     assert exact.any() and moved.any()
     np.testing.assert_allclose(X, ref_X[exact], rtol=1e-14, atol=1e-14)
@@ -111,8 +114,8 @@ def test_compiled_transport_equals_the_numpy_flow_path(scale, moving):
     plain = dataclasses.replace(model, kernels=None)
     g = FEMGrid([-1.5, 0.5], [2.5, 3.5], 20, 20)
     p = _density(g, np.array([0.4, 2.0]), np.array([[0.3, 0.1], [0.1, 0.2]]))
-    got = _fem._transport(model, g, p, moving, 4.0, 0.25)
-    want = _fem._transport(plain, g, p, moving, 4.0, 0.25)
+    got = _fem._Characteristics(model, None, 4.0, 4, False).transport(g, p, moving, 0.25)
+    want = _fem._Characteristics(plain, None, 4.0, 4, False).transport(g, p, moving, 0.25)
     assert (got[0] is g) == (not moving) and (want[0] is g) == (not moving)
     np.testing.assert_allclose(got[0].lo, want[0].lo, rtol=1e-12)
     np.testing.assert_allclose(got[0].hi, want[0].hi, rtol=1e-12)

@@ -498,8 +498,8 @@ _MAX_PARTS = 4              # parts of the mixture kept (the heaviest) ...
 _MIN_PART = 1e-4            # ... with at least this fraction of the heaviest one's weight
 _PUSH_GAUSS = 3             # the transport's quadrature: Gauss points per axis ...
 _PUSH_SUB = 2               # ... on this many sub-cells per axis of every element (_push) ...
-_TAIL = 1e-3                # ... and 2 × 2 Gauss points on the elements whose nodal values are all below this
-                            # fraction of the largest (the tails: 60 % of the elements, 1e-4 of the mass)
+_PUSH_TIERS = ((3, 1, 0.03), (2, 1, 1e-3))  # ... 3 × 3 Gauss points on the elements whose nodal values are all
+                            # below 0.03 of the largest, 2 × 2 below 1e-3 (the tails: 60 % of the elements)
 _MAP_TOL = 0.01             # the flow interpolated from the nodes unless it misses an element's centre by
                             # more than this fraction of an element (transport_points)
 _DIFFUSION_STEP = 1.0       # diffusion sub-steps of the characteristics scheme: duration·ρ ≤ this each (_Diffusion)
@@ -725,7 +725,7 @@ def _push(old: FEMGrid, p: np.ndarray, new: FEMGrid, model, duration: float):
     conserving mass: the L2 projection of the transported density onto new's elements,
     M q = b with b_j = ∫ φ_j p(t+τ) dx = ∫ φ_j(Φ_τ(y)) p(y) dy (a change of variables, so no
     Jacobian), by Gauss quadrature on old's elements (_PUSH_GAUSS² points on each of _PUSH_SUB²
-    sub-cells; 2 × 2 on the tail elements, _TAIL) with the points carried by the flow's
+    sub-cells; coarser rules on the tail elements, _PUSH_TIERS) with the points carried by the flow's
     serendipity interpolant from old's nodes (the nodes flowed by :func:`_drift_flow`; points of
     elements whose flowed centre the interpolant misses by more than _MAP_TOL of a new element are
     flowed themselves).  Points carrying less than 10⁻¹² of the largest weight are not moved (their
@@ -733,7 +733,7 @@ def _push(old: FEMGrid, p: np.ndarray, new: FEMGrid, model, duration: float):
     model has kernels.  Returns (nodal values q, fraction of the mass that landed outside new)."""
     Z = _drift_flow(model, flow_sites(old.lo, old._h, old._top["lattice"], old.n1, old.n2), duration)
     b = np.zeros(new.size)
-    outside, total, X, w = transport_deposit(p, old.conn, old.lo, old._h, old.n2, *_push_rules(), _TAIL, Z,
+    outside, total, X, w = transport_deposit(p, old.conn, old.lo, old._h, old.n2, *_push_rules(), Z,
                                              _MAP_TOL, 1e-12, new.lo, new._h, new.n1, new.n2, new.conn, b)
     if len(w):
         outside += deposit(_drift_flow(model, X, duration), w, new.lo, new._h, new.n1, new.n2, new.conn, b)
@@ -741,40 +741,69 @@ def _push(old: FEMGrid, p: np.ndarray, new: FEMGrid, model, duration: float):
     return q, (outside / total if total > 0.0 else 0.0)
 
 
-@functools.lru_cache(maxsize=1)
-def _push_rules():
-    """The transport's fine and coarse quadrature rules (loc, phi, wq) on a unit element."""
-    return _push_rule(_PUSH_GAUSS, _PUSH_SUB), _push_rule(2, 1)
+@functools.lru_cache(maxsize=4)
+def _push_rules(tiers=None):
+    """The transport's quadrature rules on a unit element, stacked from the finest: (loc, phi, wq) of
+    all, each rule's first row (and the total), and the levels below which an element takes the next
+    coarser rule (_PUSH_TIERS: (Gauss points per axis, sub-cells per axis, level) after the fine rule)."""
+    tiers = _PUSH_TIERS if tiers is None else tiers
+    rules = [_push_rule(_PUSH_GAUSS, _PUSH_SUB)] + [_push_rule(order, sub) for order, sub, _ in tiers]
+    bounds = np.cumsum([0] + [len(r[2]) for r in rules])
+    levels = np.array([level for _, _, level in tiers], dtype=float)
+    return (*(np.ascontiguousarray(np.concatenate(r)) for r in zip(*rules)), bounds, levels)
 
 
-def _transport(model, g: FEMGrid, p: np.ndarray, moving: bool, width: float, duration: float):
-    """The transport step of the characteristics scheme: the next grid (g itself when not ``moving``,
-    else placed around the density predicted for t + duration: _predicted_box, ``next_grid``) and
-    the density carried onto it (_push), clipped and normalised.  Compiled end to end
-    (``transport_split``) when the model has kernels.  Returns (grid, p, lost, clipped)."""
-    compiled = _compiled(model)
-    floor = 0.5 * float(np.min(g._h))
-    if compiled is None:
-        lo, hi = g.lo, g.hi
-        if moving:
-            _, m, P = g.moments(p)
-            blo, bhi = _predicted_box(model, m, P, width, floor, duration)
-            lo, hi = np.empty(2), np.empty(2)
-            next_grid(blo, bhi, g.lo, g.hi, _MARGIN, _SHRINK, lo, hi)
-        new = FEMGrid._at(lo, hi, g.n1, g.n2) if moving else g
-        q, lost = _push(g, p, new, model, duration)
-        p, clipped = _clip_normalise(new, q, "prediction")
-        return new, p, lost, clipped
-    top = g._top
-    cap = np.inf if model.max_increment is None else model.max_increment
-    status, lo, hi, q, lost, clipped, mass = transport_split(
-        p, g.lo, g.hi, g.n1, g.n2, g.conn, top["lattice"], top["V0"], top["V1"], top["V2"], moving, width,
-        *_SIGMA, np.diag(model.Q).copy(), duration, model.dt, _MARGIN, _SHRINK, *_push_rules(), _TAIL,
-        _MAP_TOL, *_unit_mass_factor(g.n1, g.n2), *compiled.drift_at, model.kernels.drift_params, cap)
-    if status:
-        raise NotPositiveDefiniteError("P: the density's covariance lost positive semi-definiteness")
-    _check_mass(mass, "prediction")
-    return (FEMGrid._at(lo, hi, g.n1, g.n2) if moving else g), q, lost, clipped
+class _Characteristics:
+    """The prediction of the characteristics scheme over one filter run (see _characteristic_steps):
+    the model's constants for the compiled transport, and the diffusion with its factorisations."""
+
+    def __init__(self, model, substeps: int | None, width: float, splits: int, fixed: bool):
+        self.model, self.width, self.splits, self.fixed = model, width, splits, fixed
+        self.tau = model.dt / splits
+        self.diffusion = _Diffusion(model, substeps)
+        self.Qd = np.diag(model.Q).copy()
+        compiled = _compiled(model)
+        cap = np.inf if model.max_increment is None else model.max_increment
+        self.drift = None if compiled is None else (*compiled.drift_at, model.kernels.drift_params, cap)
+
+    def predict(self, g: FEMGrid, p: np.ndarray):
+        """One dt: ``splits`` Strang steps; the diffusions over τ/2 that end one step and start the next
+        run on the same grid, as one over τ.  Returns (grid, p, factorised, regridded, lost, clipped)."""
+        tau, diffusion = self.tau, self.diffusion
+        before, lost = diffusion.factorisations, 0.0
+        p, clipped = diffusion(g, p, 0.5 * tau)
+        for i in range(self.splits):
+            g, p, out, c1 = self.transport(g, p, not self.fixed, tau)
+            p, c2 = diffusion(g, p, tau if i < self.splits - 1 else 0.5 * tau)
+            lost += out
+            clipped += c1 + c2
+        return g, p, diffusion.factorisations > before, not self.fixed, lost, clipped
+
+    def transport(self, g: FEMGrid, p: np.ndarray, moving: bool, duration: float):
+        """The transport step: the next grid (g itself when not ``moving``, else placed around the
+        density predicted for t + duration: _predicted_box, ``next_grid``) and the density carried onto
+        it (_push), clipped and normalised.  Compiled end to end (``transport_split``) when the model
+        has kernels.  Returns (grid, p, lost, clipped)."""
+        if self.drift is None:
+            lo, hi = g.lo, g.hi
+            if moving:
+                _, m, P = g.moments(p)
+                blo, bhi = _predicted_box(self.model, m, P, self.width, 0.5 * float(np.min(g._h)), duration)
+                lo, hi = np.empty(2), np.empty(2)
+                next_grid(blo, bhi, g.lo, g.hi, _MARGIN, _SHRINK, lo, hi)
+            new = FEMGrid._at(lo, hi, g.n1, g.n2) if moving else g
+            q, lost = _push(g, p, new, self.model, duration)
+            p, clipped = _clip_normalise(new, q, "prediction")
+            return new, p, lost, clipped
+        top = g._top
+        status, lo, hi, q, lost, clipped, mass = transport_split(
+            p, g.lo, g.hi, g.n1, g.n2, g.conn, top["lattice"], top["V0"], top["V1"], top["V2"], moving, self.width,
+            *_SIGMA, self.Qd, duration, self.model.dt, _MARGIN, _SHRINK, *_push_rules(), _MAP_TOL,
+            *_unit_mass_factor(g.n1, g.n2), *self.drift)
+        if status:
+            raise NotPositiveDefiniteError("P: the density's covariance lost positive semi-definiteness")
+        _check_mass(mass, "prediction")
+        return (FEMGrid._at(lo, hi, g.n1, g.n2) if moving else g), q, lost, clipped
 
 
 def _bayes_update(grid: FEMGrid, p: np.ndarray, logl: np.ndarray, k: int):
@@ -953,19 +982,6 @@ def _stiffness_unit(top: dict, S: np.ndarray) -> np.ndarray:
     return 0.5 * (S[0, 0] * G[0] + S[0, 1] * (G[1] + G[1].T) + S[1, 1] * G[2])
 
 
-def _transport_steps(model, g, p, diffusion: _Diffusion, width, splits, tau, fixed):
-    """One dt of the characteristics scheme: ``splits`` Strang steps (see _characteristic_steps); the
-    diffusions over τ/2 that end one step and start the next run on the same grid, as one over τ."""
-    before, lost, clipped = diffusion.factorisations, 0.0, 0.0
-    p, clipped = diffusion(g, p, 0.5 * tau)
-    for i in range(splits):
-        g, p, out, c1 = _transport(model, g, p, not fixed, width, tau)
-        p, c2 = diffusion(g, p, tau if i < splits - 1 else 0.5 * tau)
-        lost += out
-        clipped += c1 + c2
-    return g, p, diffusion.factorisations > before, not fixed, lost, clipped
-
-
 def _galerkin_step(model, g, p, m, P, width, substeps, fixed):
     """One dt of the Galerkin SDIRK2 scheme on a box spanning the move (the fallback of the
     characteristics scheme)."""
@@ -1084,16 +1100,14 @@ def _characteristic_steps(model, z, m, P, g: FEMGrid, width, substeps, fixed: bo
     equation is linear, so each part is predicted on its own, and parts whose grids come to
     overlap are merged.
     """
-    tau = model.dt / splits
-    diffusion = _Diffusion(model, substeps)
+    scheme = _Characteristics(model, substeps, width, splits, fixed)
     parts = [_Part(1.0, g, _clip_normalise(g, _gaussian_on(g, m, P), "P0")[0])]
     for k in range(z.shape[0]):
         factorised = regridded = False
         lost = clipped = 0.0
         for part in parts:
             try:
-                part.g, part.p, f_, r_, l_, c_ = _transport_steps(model, part.g, part.p, diffusion, width,
-                                                                  splits, tau, fixed)
+                part.g, part.p, f_, r_, l_, c_ = scheme.predict(part.g, part.p)
             except ConvergenceError:  # the characteristics left the grid (a stiff drift far out): Galerkin step
                 _, m, P = part.g.moments(part.p)
                 part.g, part.p, f_, r_, l_, c_ = _galerkin_step(model, part.g, part.p, m, P, width, substeps, fixed)

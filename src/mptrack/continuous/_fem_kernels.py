@@ -183,45 +183,39 @@ def band_cn(F, piv, kl, conn, Re, p, substeps):
 
 
 @njit(cache=True)
-def _locate(Y, k, lo, h, n1, n2, N):
-    """Element index of point Y[k] in the grid [lo, lo + h·(n1, n2)] (−1 outside, NaN included) and
-    the 8 serendipity shape functions there (``_fem.shape_functions``) written into N."""
-    return _locate_at(Y[k, 0], Y[k, 1], lo, h, n1, n2, N)
-
-
-@njit(cache=True)
-def _locate_at(y0, y1, lo, h, n1, n2, N):
-    """``_locate`` of the point (y0, y1)."""
+def _element_at(y0, y1, lo, h, n1, n2):
+    """(element index, ξ, η) of the point (y0, y1) in the grid [lo, lo + h·(n1, n2)] (index −1 outside,
+    NaN included).  Scalars in and out: per-point helpers that take arrays cost a reference count
+    each call (8× the deposit's time)."""
     u = (y0 - lo[0]) / h[0]
     v = (y1 - lo[1]) / h[1]
     if not (u >= 0.0 and u <= n1 and v >= 0.0 and v <= n2):
-        return -1
+        return -1, 0.0, 0.0
     e1 = min(int(u), n1 - 1)
     e2 = min(int(v), n2 - 1)
-    x = 2.0 * (u - e1) - 1.0
-    y = 2.0 * (v - e2) - 1.0
-    N[0] = 0.25 * (1.0 - x) * (1.0 - y) * (-x - y - 1.0)
-    N[1] = 0.25 * (1.0 + x) * (1.0 - y) * (x - y - 1.0)
-    N[2] = 0.25 * (1.0 + x) * (1.0 + y) * (x + y - 1.0)
-    N[3] = 0.25 * (1.0 - x) * (1.0 + y) * (-x + y - 1.0)
-    N[4] = 0.5 * (1.0 - x * x) * (1.0 - y)
-    N[5] = 0.5 * (1.0 + x) * (1.0 - y * y)
-    N[6] = 0.5 * (1.0 - x * x) * (1.0 + y)
-    N[7] = 0.5 * (1.0 - x) * (1.0 - y * y)
-    return e1 * n2 + e2
+    return e1 * n2 + e2, 2.0 * (u - e1) - 1.0, 2.0 * (v - e2) - 1.0
+
+
+@njit(cache=True)
+def _serendipity(x, y):
+    """The 8 serendipity shape functions at (ξ, η) = (x, y) (``_fem.shape_functions``)."""
+    return (0.25 * (1.0 - x) * (1.0 - y) * (-x - y - 1.0), 0.25 * (1.0 + x) * (1.0 - y) * (x - y - 1.0),
+            0.25 * (1.0 + x) * (1.0 + y) * (x + y - 1.0), 0.25 * (1.0 - x) * (1.0 + y) * (-x + y - 1.0),
+            0.5 * (1.0 - x * x) * (1.0 - y), 0.5 * (1.0 + x) * (1.0 - y * y),
+            0.5 * (1.0 - x * x) * (1.0 + y), 0.5 * (1.0 - x) * (1.0 - y * y))
 
 
 @njit(cache=True)
 def deposit(Y, w, lo, h, n1, n2, conn, out):
     """out[j] += Σₖ wₖ φⱼ(Yₖ) over the points Yₖ (P, 2) inside the grid [lo, lo + h·(n1, n2)];
     returns the weight of the points outside it (NaN points count as outside)."""
-    N = np.empty(8)
     outside = 0.0
     for k in range(Y.shape[0]):
-        e = _locate(Y, k, lo, h, n1, n2, N)
+        e, x, y = _element_at(Y[k, 0], Y[k, 1], lo, h, n1, n2)
         if e < 0:
             outside += w[k]
             continue
+        N = _serendipity(x, y)
         for a in range(8):
             out[conn[e, a]] += w[k] * N[a]
     return outside
@@ -230,11 +224,11 @@ def deposit(Y, w, lo, h, n1, n2, conn, out):
 @njit(cache=True)
 def interpolate(Y, lo, h, n1, n2, conn, p, out):
     """out[k] = the interpolant of nodal values p at Yₖ (P, 2); zero outside the grid."""
-    N = np.empty(8)
     for k in range(Y.shape[0]):
-        e = _locate(Y, k, lo, h, n1, n2, N)
+        e, x, y = _element_at(Y[k, 0], Y[k, 1], lo, h, n1, n2)
         s = 0.0
         if e >= 0:
+            N = _serendipity(x, y)
             for a in range(8):
                 s += N[a] * p[conn[e, a]]
         out[k] = s
@@ -426,26 +420,28 @@ _CENTRE = np.array([-0.25, -0.25, -0.25, -0.25, 0.5, 0.5, 0.5, 0.5])
 
 
 @njit(cache=True)
-def transport_deposit(p, conn, lo, h, n2, fine, coarse, tail, Z, tol, rel, new_lo, new_h, new_n1, new_n2, new_conn,
-                      b):
+def transport_deposit(p, conn, lo, h, n2, loc, phi, wq, bounds, levels, Z, tol, rel, new_lo, new_h, new_n1, new_n2,
+                      new_conn, b):
     """The transport's quadrature on the grid (corner lo, element sides h, n2 elements along the second
     axis) with nodal values p, deposited where the flow takes it on the new grid (corner new_lo, element
     sides new_h, new_n1 × new_n2 elements, connectivity new_conn): b_j += Σ w φ_j(Y).
 
     Every element e (conn (E, 8), row-major) carries points x = lo + h·((e1, e2) + loc[k]) with mass
-    w = (Σₐ p[conn[e, a]] φₐ(k))·wq[k]·h1·h2 by the rule ``fine`` = (loc (K, 2) in [0, 1]², phi (K, 8),
-    wq (K,) on a unit element), or by ``coarse`` when all its nodal values are below ``tail`` × max p;
-    points with |w| ≤ rel × max |w| are dropped.  The flow takes a point to Y = Σₐ φₐ(k) Z[conn[e, a]],
-    the serendipity interpolant of the flowed nodes Z[:N] (an isoparametric map), except on the
-    elements where that interpolant misses the flowed centre Z[N + e] by more than ``tol`` of a new
-    element: their points are returned for an exact flow instead of deposited.
-    Returns (the weight that fell outside the new grid, the total weight, X (M, 2) and w (M,) of the
-    points to flow exactly)."""
+    w = (Σₐ p[conn[e, a]] φₐ(k))·wq[k]·h1·h2 by one of the quadrature rules stacked in loc (K, 2) in
+    [0, 1]², phi (K, 8), wq (K,) (on a unit element; rule r is rows bounds[r] .. bounds[r + 1] − 1, from
+    the finest): rule r = how many of the decreasing ``levels`` (× max p) exceed all the element's nodal
+    values; points with |w| ≤ rel × max |w| are dropped.  The flow
+    takes a point to Y = Σₐ φₐ(k) Z[conn[e, a]], the serendipity interpolant of the flowed nodes Z[:N]
+    (an isoparametric map), except on the elements where that interpolant misses the flowed centre
+    Z[N + e] by more than ``tol`` of a new element: their points are returned for an exact flow instead
+    of deposited.  Returns (the weight that fell outside the new grid, the total weight, X (M, 2) and
+    w (M,) of the points to flow exactly)."""
     E, N = conn.shape[0], p.shape[0]
     pmax = 0.0
     for j in range(N):
         pmax = max(pmax, abs(p[j]))
-    use_coarse = np.empty(E, np.bool_)
+    first = np.empty(E, np.int64)    # each element's rule: rows first[e] .. last[e] − 1
+    last = np.empty(E, np.int64)
     bad = np.empty(E, np.bool_)
     start = np.empty(E + 1, np.int64)
     start[0] = 0
@@ -456,33 +452,45 @@ def transport_deposit(p, conn, lo, h, n2, fine, coarse, tail, Z, tol, rel, new_l
             big = max(big, abs(p[conn[e, a]]))
             ex -= _CENTRE[a] * Z[conn[e, a], 0]
             ey -= _CENTRE[a] * Z[conn[e, a], 1]
-        use_coarse[e] = big < tail * pmax
+        r = 0
+        while r < levels.shape[0] and big < levels[r] * pmax:
+            r += 1
+        first[e], last[e] = bounds[r], bounds[r + 1]
         bad[e] = not (max(abs(ex) / new_h[0], abs(ey) / new_h[1]) <= tol)
-        start[e + 1] = start[e] + (coarse[1].shape[0] if use_coarse[e] else fine[1].shape[0])
+        start[e + 1] = start[e] + last[e] - first[e]
     w = np.empty(start[E])
     area = h[0] * h[1]
+    pe = np.empty(8)
     big = 0.0
     n_exact = 0
     for e in range(E):
-        phi, wq = (coarse[1], coarse[2]) if use_coarse[e] else (fine[1], fine[2])
-        for k in range(phi.shape[0]):
+        for a in range(8):
+            pe[a] = p[conn[e, a]]
+        i = start[e]
+        for k in range(first[e], last[e]):
             s = 0.0
             for a in range(8):
-                s += p[conn[e, a]] * phi[k, a]
-            w[start[e] + k] = s * (wq[k] * area)
-            big = max(big, abs(w[start[e] + k]))
+                s += pe[a] * phi[k, a]
+            s *= wq[k] * area
+            w[i] = s
+            i += 1
+            big = max(big, abs(s))
         if bad[e]:
-            n_exact += phi.shape[0]
+            n_exact += last[e] - first[e]
     cut = rel * big
     X, wx = np.empty((n_exact, 2)), np.empty(n_exact)
-    Nn = np.empty(8)
+    ze = np.empty((8, 2))
     outside, total = 0.0, 0.0
     m = 0
     for e in range(E):
-        loc, phi = (coarse[0], coarse[1]) if use_coarse[e] else (fine[0], fine[1])
         u0, u1 = float(e // n2), float(e % n2)
-        for k in range(phi.shape[0]):
-            wk = w[start[e] + k]
+        for a in range(8):
+            ze[a, 0] = Z[conn[e, a], 0]
+            ze[a, 1] = Z[conn[e, a], 1]
+        i = start[e]
+        for k in range(first[e], last[e]):
+            wk = w[i]
+            i += 1
             if not abs(wk) > cut:
                 continue
             total += wk
@@ -495,14 +503,15 @@ def transport_deposit(p, conn, lo, h, n2, fine, coarse, tail, Z, tol, rel, new_l
             y0 = 0.0
             y1 = 0.0
             for a in range(8):
-                y0 += phi[k, a] * Z[conn[e, a], 0]
-                y1 += phi[k, a] * Z[conn[e, a], 1]
-            f = _locate_at(y0, y1, new_lo, new_h, new_n1, new_n2, Nn)
+                y0 += phi[k, a] * ze[a, 0]
+                y1 += phi[k, a] * ze[a, 1]
+            f, x, y = _element_at(y0, y1, new_lo, new_h, new_n1, new_n2)
             if f < 0:
                 outside += wk
                 continue
+            N = _serendipity(x, y)
             for a in range(8):
-                b[new_conn[f, a]] += wk * Nn[a]
+                b[new_conn[f, a]] += wk * N[a]
     return outside, total, X[:m].copy(), wx[:m].copy()
 
 
@@ -519,7 +528,7 @@ def mass_solve(b, Cm, kdm, h):
 
 @njit(cache=True)
 def transport_split(p, lo, hi, n1, n2, conn, lattice, V0, V1, V2, moving, width, c, Wm, Wc, Qd, duration, dt,
-                    margin, shrink, fine, coarse, tail, tol, Cm, kdm, drift_c, drift_jit, params, cap):
+                    margin, shrink, loc, phi, wq, bounds, levels, tol, Cm, kdm, drift_c, drift_jit, params, cap):
     """One transport of the characteristics scheme, compiled end to end (``_fem._transport``, whose
     NumPy-flow path runs the same steps): on a moving grid, the next grid from the density's moments
     (sigma points with scale c, weights Wm, Wc, flowed over ``duration``; ``predicted_box``,
@@ -543,8 +552,8 @@ def transport_split(p, lo, hi, n1, n2, conn, lattice, V0, V1, V2, moving, width,
     Z = flow_sites(lo, h, lattice, n1, n2)
     flow_points(Z, drift_c, drift_jit, params, duration, dt, cap)
     b = np.zeros(p.shape[0])
-    outside, total, X, w = transport_deposit(p, conn, lo, h, n2, fine, coarse, tail, Z, tol, 1e-12, new_lo, hn,
-                                             n1, n2, conn, b)
+    outside, total, X, w = transport_deposit(p, conn, lo, h, n2, loc, phi, wq, bounds, levels, Z, tol, 1e-12, new_lo,
+                                             hn, n1, n2, conn, b)
     if X.shape[0]:
         flow_points(X, drift_c, drift_jit, params, duration, dt, cap)
         outside += deposit(X, w, new_lo, hn, n1, n2, conn, b)
