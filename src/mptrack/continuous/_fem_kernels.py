@@ -183,17 +183,23 @@ def band_cn(F, piv, kl, conn, Re, p, substeps):
 
 
 @njit(cache=True)
-def _element_at(y0, y1, lo, h, n1, n2):
-    """(element index, ξ, η) of the point (y0, y1) in the grid [lo, lo + h·(n1, n2)] (index −1 outside,
-    NaN included).  Scalars in and out: per-point helpers that take arrays cost a reference count
-    each call (8× the deposit's time)."""
-    u = (y0 - lo[0]) / h[0]
-    v = (y1 - lo[1]) / h[1]
-    if not (u >= 0.0 and u <= n1 and v >= 0.0 and v <= n2):
-        return -1, 0.0, 0.0
-    e1 = min(int(u), n1 - 1)
-    e2 = min(int(v), n2 - 1)
-    return e1 * n2 + e2, 2.0 * (u - e1) - 1.0, 2.0 * (v - e2) - 1.0
+def _locate(Y0, Y1, lo, h, n1, n2):
+    """(element (P,), ξ (P,), η (P,)) of the points (Y0[i], Y1[i]) in the grid [lo, lo + h·(n1, n2)]: the
+    element index (−1 outside, NaN included) and the point's coordinates in [−1, 1]² there.  Branch-free
+    over the points, so that the loop vectorises."""
+    P = Y0.shape[0]
+    el, xs, ys = np.empty(P, np.int64), np.empty(P), np.empty(P)
+    r0, r1 = 1.0 / h[0], 1.0 / h[1]
+    for i in range(P):
+        u = (Y0[i] - lo[0]) * r0
+        v = (Y1[i] - lo[1]) * r1
+        inside = (u >= 0.0) & (u <= n1) & (v >= 0.0) & (v <= n2)
+        e1 = min(int(u), n1 - 1) if inside else 0
+        e2 = min(int(v), n2 - 1) if inside else 0
+        el[i] = e1 * n2 + e2 if inside else -1
+        xs[i] = 2.0 * (u - e1) - 1.0
+        ys[i] = 2.0 * (v - e2) - 1.0
+    return el, xs, ys
 
 
 @njit(cache=True)
@@ -209,13 +215,20 @@ def _serendipity(x, y):
 def deposit(Y, w, lo, h, n1, n2, conn, out):
     """out[j] += Σₖ wₖ φⱼ(Yₖ) over the points Yₖ (P, 2) inside the grid [lo, lo + h·(n1, n2)];
     returns the weight of the points outside it (NaN points count as outside)."""
+    el, xs, ys = _locate(Y[:, 0], Y[:, 1], lo, h, n1, n2)
+    return _scatter(el, xs, ys, w, conn, out)
+
+
+@njit(cache=True)
+def _scatter(el, xs, ys, w, conn, out):
+    """out[j] += Σₖ wₖ φⱼ at the located points (``_locate``); returns the weight of those outside."""
     outside = 0.0
-    for k in range(Y.shape[0]):
-        e, x, y = _element_at(Y[k, 0], Y[k, 1], lo, h, n1, n2)
+    for k in range(el.shape[0]):
+        e = el[k]
         if e < 0:
             outside += w[k]
             continue
-        N = _serendipity(x, y)
+        N = _serendipity(xs[k], ys[k])
         for a in range(8):
             out[conn[e, a]] += w[k] * N[a]
     return outside
@@ -224,13 +237,13 @@ def deposit(Y, w, lo, h, n1, n2, conn, out):
 @njit(cache=True)
 def interpolate(Y, lo, h, n1, n2, conn, p, out):
     """out[k] = the interpolant of nodal values p at Yₖ (P, 2); zero outside the grid."""
-    for k in range(Y.shape[0]):
-        e, x, y = _element_at(Y[k, 0], Y[k, 1], lo, h, n1, n2)
+    el, xs, ys = _locate(Y[:, 0], Y[:, 1], lo, h, n1, n2)
+    for k in range(el.shape[0]):
         s = 0.0
-        if e >= 0:
-            N = _serendipity(x, y)
+        if el[k] >= 0:
+            N = _serendipity(xs[k], ys[k])
             for a in range(8):
-                s += N[a] * p[conn[e, a]]
+                s += N[a] * p[conn[el[k], a]]
         out[k] = s
     return out
 
@@ -437,6 +450,7 @@ def transport_deposit(p, conn, lo, h, n2, loc, phi, wq, bounds, levels, Z, tol, 
     of deposited.  Returns (the weight that fell outside the new grid, the total weight, X (M, 2) and
     w (M,) of the points to flow exactly)."""
     E, N = conn.shape[0], p.shape[0]
+    phiT = np.ascontiguousarray(phi.T)   # (8, K): the points of a rule contiguous, the loops below vectorise
     pmax = 0.0
     for j in range(N):
         pmax = max(pmax, abs(p[j]))
@@ -458,60 +472,51 @@ def transport_deposit(p, conn, lo, h, n2, loc, phi, wq, bounds, levels, Z, tol, 
         first[e], last[e] = bounds[r], bounds[r + 1]
         bad[e] = not (max(abs(ex) / new_h[0], abs(ey) / new_h[1]) <= tol)
         start[e + 1] = start[e] + last[e] - first[e]
-    w = np.empty(start[E])
+    P = start[E]
+    w, Y0, Y1 = np.zeros(P), np.zeros(P), np.zeros(P)   # each point's weight and image
     area = h[0] * h[1]
-    pe = np.empty(8)
+    for e in range(E):
+        i0, f0 = start[e] - first[e], first[e]
+        for a in range(8):
+            pa, za0, za1 = p[conn[e, a]], Z[conn[e, a], 0], Z[conn[e, a], 1]
+            for k in range(f0, last[e]):
+                v = phiT[a, k]
+                w[i0 + k] += pa * v
+                Y0[i0 + k] += za0 * v
+                Y1[i0 + k] += za1 * v
+        for k in range(f0, last[e]):
+            w[i0 + k] *= wq[k] * area
     big = 0.0
     n_exact = 0
     for e in range(E):
-        for a in range(8):
-            pe[a] = p[conn[e, a]]
-        i = start[e]
-        for k in range(first[e], last[e]):
-            s = 0.0
-            for a in range(8):
-                s += pe[a] * phi[k, a]
-            s *= wq[k] * area
-            w[i] = s
-            i += 1
-            big = max(big, abs(s))
+        for i in range(start[e], start[e + 1]):
+            big = max(big, abs(w[i]))
         if bad[e]:
-            n_exact += last[e] - first[e]
+            n_exact += start[e + 1] - start[e]
     cut = rel * big
+    for i in range(P):              # the dropped points and those to flow exactly take no part below
+        if not abs(w[i]) > cut:
+            w[i] = 0.0
     X, wx = np.empty((n_exact, 2)), np.empty(n_exact)
-    ze = np.empty((8, 2))
-    outside, total = 0.0, 0.0
+    total = 0.0
     m = 0
     for e in range(E):
+        if not bad[e]:
+            continue
         u0, u1 = float(e // n2), float(e % n2)
-        for a in range(8):
-            ze[a, 0] = Z[conn[e, a], 0]
-            ze[a, 1] = Z[conn[e, a], 1]
-        i = start[e]
-        for k in range(first[e], last[e]):
-            wk = w[i]
-            i += 1
-            if not abs(wk) > cut:
-                continue
-            total += wk
-            if bad[e]:
+        for i in range(start[e], start[e + 1]):
+            if w[i] != 0.0:
+                k = first[e] + i - start[e]
                 X[m, 0] = lo[0] + h[0] * (u0 + loc[k, 0])
                 X[m, 1] = lo[1] + h[1] * (u1 + loc[k, 1])
-                wx[m] = wk
+                wx[m] = w[i]
+                total += w[i]
                 m += 1
-                continue
-            y0 = 0.0
-            y1 = 0.0
-            for a in range(8):
-                y0 += phi[k, a] * ze[a, 0]
-                y1 += phi[k, a] * ze[a, 1]
-            f, x, y = _element_at(y0, y1, new_lo, new_h, new_n1, new_n2)
-            if f < 0:
-                outside += wk
-                continue
-            N = _serendipity(x, y)
-            for a in range(8):
-                b[new_conn[f, a]] += wk * N[a]
+                w[i] = 0.0
+    for i in range(P):
+        total += w[i]
+    el, xs, ys = _locate(Y0, Y1, new_lo, new_h, new_n1, new_n2)
+    outside = _scatter(el, xs, ys, w, new_conn, b)
     return outside, total, X[:m].copy(), wx[:m].copy()
 
 
