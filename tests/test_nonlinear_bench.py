@@ -8,9 +8,14 @@ def test_nonlinear_suite_quick():
     assert report["suite"] == "nonlinear"
     names = [row[0] for row in report["rows"]]
     for expected in ("memory copy of z (baseline)", "PF, 10^4 particles (compiled, 2 RK4-split sub-steps)",
-                     "FEM 20x20, moving grid (Zhao et al. 2013, section 3.1), 16 SDIRK2 sub-steps",
-                     "FEM 20x20, fixed box (one factorisation), 8 SDIRK2 sub-steps"):
+                     "FEM 20x20, moving grid (the default: characteristics, 4 Strang steps per second)",
+                     "FEM 20x20, fixed box (characteristics)"):
         assert expected in names
+    total = {row[0]: row[1] for row in report["rows"]}[
+        "FEM 20x20, moving grid (the default: characteristics, 4 Strang steps per second)"]
+    parts = [row[1] for row in report["rows"] if row[0].startswith("FEM 20x20 default, per step: ")]
+    assert len(parts) == 6 and parts[0] >= 0.0 and all(t > 0 for t in parts[1:-1])  # placement: a difference
+    assert 0.3 * total < sum(parts) < 3.0 * total        # the parts of one run add up to a step (timing noise)
     for row in report["rows"]:
         assert len(row) == len(report["columns"]) and row[1] > 0
         assert row[3] is None or 0 < row[3] <= 100

@@ -71,7 +71,6 @@ from typing import Iterator
 
 import numpy as np
 import scipy.linalg.lapack
-import scipy.ndimage
 import scipy.sparse
 import scipy.sparse.linalg
 
@@ -84,20 +83,31 @@ from .._validation import (
     finite_result,
     require_finite,
 )
-from ..errors import ConvergenceError, ParameterError, ShapeError
+from ..errors import ConvergenceError, NotPositiveDefiniteError, ParameterError, ShapeError
 from ..result import FilterResult
 from ..nonlinear._common import prepare_nonlinear
+from ..nonlinear._ukf import _weights as _sigma_weights
 from ..nonlinear._ukf import sigma_points
 from ._fem_kernels import (
-    band_cholesky,
+    element_band_cholesky,
     band_cn,
     band_sdirk2,
     band_solve,
-    cholesky_solve,
+    clip_normalise,
     deposit,
+    diffuse,
     flow_points,
+    flow_sites,
+    grid_moments,
     interpolate,
-    push_points,
+    lattice_modes,
+    mass_solve,
+    next_grid,
+    predicted_box,
+    second_difference_max,
+    sigma_points_2d,
+    transport_deposit,
+    transport_split,
 )
 from ._kernels import compiled_model
 from ._model import ContinuousDiscreteModel, rk4_flow
@@ -158,8 +168,7 @@ def _topology(n1: int, n2: int):
     csc      (indices, indptr, slot): the CSC pattern and where each (e, a, b) entry goes
     band     (width, slot): LAPACK band storage (natural node order) and where each entry goes
     triples  (a, b, c): consecutive nodes along the even lattice rows and columns (b in the middle)
-    sym      (width, slot, entries): the same for the lower band of a symmetric matrix (?pbtrf), slot
-             of each (e, a, b) entry on or below the diagonal, and those entries' flat indices
+    G        (3, 8, 8) ∫ ∂_dφ ∂_eφᵀ for (d, e) = (0, 0), (0, 1), (1, 1): the diffusion's element stiffness
     """
     L1, L2 = 2 * n1 + 1, 2 * n2 + 1
     ii, jj = np.meshgrid(np.arange(L1), np.arange(L2), indexing="ij")
@@ -182,8 +191,6 @@ def _topology(n1: int, n2: int):
     triples = tuple(np.concatenate(t) for t in zip(
         (node_id[ii[full[0]], jj[full[0]] - 1], node_id[full[0]], node_id[ii[full[0]], jj[full[0]] + 1]),
         (node_id[ii[full[1]] - 1, jj[full[1]]], node_id[full[1]], node_id[ii[full[1]] + 1, jj[full[1]]])))
-    lower = rows >= cols  # lower band: A[i, j], i ≥ j, at [j, i − j] of an (N, width + 1) array
-    sym = (width, (cols * (width + 1) + rows - cols)[lower], np.flatnonzero(lower))
     lattice = np.stack([ii[is_node], jj[is_node]], axis=-1)
     g, w = _GAUSS3
     gx, gy = np.meshgrid(g, g, indexing="ij")
@@ -197,9 +204,11 @@ def _topology(n1: int, n2: int):
     V = [np.bincount(flat, weights=np.broadcast_to(pw.sum(0), conn.shape).ravel(), minlength=N)]
     V += [np.bincount(flat, weights=(v @ pw).ravel(), minlength=N) for v in uu]
     V0, V1, V2 = V[0], np.stack(V[1:3], axis=-1), np.stack(V[3:], axis=-1)
-    out = dict(conn=conn, N=N, node_id=node_id, lattice=lattice, uq=uq, V0=V0, V1=V1, V2=V2,
+    d = np.stack([2.0 * dxi, 2.0 * deta])  # (2, 9, 8): derivatives in element units
+    G = np.stack([(d[0] * wq[:, None]).T @ d[0], (d[0] * wq[:, None]).T @ d[1], (d[1] * wq[:, None]).T @ d[1]])
+    out = dict(conn=conn, N=N, node_id=node_id, lattice=lattice, uq=uq, V0=V0, V1=V1, V2=V2, G=G,
                phi=phi, dxi=dxi, deta=deta, wq=wq, Me=pw.T @ phi,
-               csc=(indices, indptr, slot.ravel()), band=(width, band_slot), sym=sym, triples=triples)
+               csc=(indices, indptr, slot.ravel()), band=(width, band_slot), triples=triples)
     for val in out.values():
         for arr in (val if isinstance(val, tuple) else (val,)):
             if isinstance(arr, np.ndarray):
@@ -274,9 +283,7 @@ class FEMGrid:
     hi: np.ndarray
     n1: int
     n2: int
-    nodes: np.ndarray = field(init=False, repr=False)
     conn: np.ndarray = field(init=False, repr=False)
-    W0: np.ndarray = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
         lo = as_array("lo", self.lo, shape=(2,))
@@ -288,21 +295,44 @@ class FEMGrid:
         n1 = check_int("n1", self.n1, minimum=1)
         n2 = check_int("n2", self.n2, minimum=1)
         check_allocation("n1", n1 * n2, 8.0 * 64 * (2 * n1 + 1) * (2 * n2 + 1))   # nodes and their matrices
+        h = (hi - lo) / np.array([n1, n2])
+        require_finite("the element areas", np.array([h[0] * h[1]]), lo=lo, hi=hi)
+        self._fill(lo, hi, n1, n2)
+
+    def _fill(self, lo: np.ndarray, hi: np.ndarray, n1: int, n2: int) -> None:
         top = _topology(n1, n2)
         h = (hi - lo) / np.array([n1, n2])
-        nodes = lo + 0.5 * h * top["lattice"]
-        W0 = (h[0] * h[1]) * top["V0"]
-        require_finite("the element areas", W0, lo=lo, hi=hi)
         set_ = object.__setattr__
-        for name, val in (("lo", lo), ("hi", hi), ("nodes", nodes), ("W0", W0)):
+        for name, val in (("lo", lo), ("hi", hi)):
             val.setflags(write=False)
             set_(self, name, val)
         for name, val in (("n1", n1), ("n2", n2), ("conn", top["conn"]), ("_top", top), ("_h", h)):
             set_(self, name, val)
 
+    @functools.cached_property
+    def nodes(self) -> np.ndarray:
+        """(N, 2) node coordinates (computed on first use: the filter's intermediate grids need none)."""
+        nodes = self.lo + 0.5 * self._h * self._top["lattice"]
+        nodes.setflags(write=False)
+        return nodes
+
+    @functools.cached_property
+    def W0(self) -> np.ndarray:
+        """∫φ_j, (N,)."""
+        W0 = (self._h[0] * self._h[1]) * self._top["V0"]
+        W0.setflags(write=False)
+        return W0
+
+    @classmethod
+    def _at(cls, lo: np.ndarray, hi: np.ndarray, n1: int, n2: int) -> "FEMGrid":
+        """A grid the filter placed itself (float64 corners, hi > lo): no argument checks."""
+        grid = object.__new__(cls)
+        grid._fill(lo, hi, n1, n2)
+        return grid
+
     @property
     def size(self) -> int:
-        return self.nodes.shape[0]
+        return self._top["N"]
 
     @property
     def W1(self) -> np.ndarray:
@@ -328,13 +358,10 @@ class FEMGrid:
         Computed in element units u = (x − lo)/h and mapped back (x = lo + h∘u),
         which is exact and avoids cancellation far from the origin.
         """
-        top, h = self._top, self._h
-        m0 = top["V0"] @ p
-        mu = (top["V1"].T @ p) / m0
-        s = (top["V2"].T @ p) / m0
-        cross = s[1] - mu[0] * mu[1]
-        cov_u = np.array([[s[0] - mu[0] * mu[0], cross], [cross, s[2] - mu[1] * mu[1]]])
-        return (h[0] * h[1]) * m0, self.lo + h * mu, cov_u * np.outer(h, h)
+        top = self._top
+        mass, mean, cov = grid_moments(np.asarray(p, dtype=float), top["V0"], top["V1"], top["V2"], self.lo,
+                                       self._h)
+        return float(mass), mean, cov
 
     def evaluate(self, p: np.ndarray, X) -> np.ndarray:
         """The interpolant of nodal values p at points X (..., 2); zero outside the rectangle."""
@@ -344,7 +371,7 @@ class FEMGrid:
                           np.empty(flat.shape[0]))
         return out.reshape(X.shape[:-1])
 
-    def element_matrices(self, model: ContinuousDiscreteModel, stabilise: bool = False, advection: bool = True):
+    def element_matrices(self, model: ContinuousDiscreteModel, stabilise: bool = False):
         """Element mass matrix Me (8, 8) (the same for every element) and Fokker–Planck
         element matrices Ae (E, 8, 8), with M dp/dt = A p after assembly.
 
@@ -357,9 +384,7 @@ class FEMGrid:
         area = h[0] * h[1]
         phi, wq = top["phi"], top["wq"] * area
         grad = np.stack([top["dxi"] * (2.0 / h[0]), top["deta"] * (2.0 / h[1])], axis=-1)  # (9, 8, 2)
-        Ke = 0.5 * np.einsum("q,qad,de,qbe->ab", wq, grad, model.Q, grad)
-        if not advection:  # the diffusion part only (the characteristics scheme moves the density itself)
-            return area * top["Me"], np.broadcast_to(-Ke, (self.conn.shape[0], 8, 8))
+        Ke = area * _stiffness_unit(top, model.Q / np.outer(h, h))
         f = model.drift(self.lo + h * top["uq"])  # (E, 9, 2) at the quadrature points
         fgrad = f[..., 0, None] * grad[:, :, 0] + f[..., 1, None] * grad[:, :, 1]  # (E, 9, 8): f·∇φ_a
         Ce = np.swapaxes(fgrad * wq[:, None], 1, 2) @ phi  # (E, 8, 8)
@@ -474,15 +499,17 @@ class FEMStep:
 
 
 def _clip_normalise(grid: FEMGrid, p: np.ndarray, what: str):
-    neg = p < 0.0
-    clipped = float(-(grid.W0[neg] @ p[neg])) if neg.any() else 0.0
-    if neg.any():
-        p = np.where(neg, 0.0, p)
-    mass = grid.W0 @ p
-    if not np.isfinite(mass) or mass <= 0.0:
+    """(nodal values ≥ 0 integrating to 1, the negative mass removed): ``clip_normalise`` on a copy."""
+    p = np.array(p, dtype=float)
+    clipped, mass = clip_normalise(p, grid._top["V0"], float(grid._h[0] * grid._h[1]))
+    _check_mass(mass, what)
+    return p, clipped
+
+
+def _check_mass(mass: float, what: str) -> None:
+    if not (np.isfinite(mass) and mass > 0.0):
         raise ConvergenceError(f"{what}: the density on the grid has no positive mass left "
                                "(the grid does not cover it)")
-    return p / mass, clipped
 
 
 SCHEMES = ("characteristics", "sdirk2", "cn", "paper")
@@ -498,21 +525,24 @@ _RESOLVED = 1.0            # ... where log p(z|x) has second differences below t
 _MAX_PARTS = 4              # parts of the mixture kept (the heaviest) ...
 _MIN_PART = 1e-4            # ... with at least this fraction of the heaviest one's weight
 _PUSH_GAUSS = 3             # the transport's quadrature: Gauss points per axis ...
-_PUSH_SUB = 2               # ... on this many sub-cells per axis of every element (_push)
-_DIFFUSION_STEP = 0.25      # diffusion sub-steps of the characteristics scheme: duration·ρ ≤ this each (_Diffusion)
-_CACHE = 4                  # diffusion factorisations kept (_Diffusion)
+_PUSH_SUB = 2               # ... on this many sub-cells per axis of every element (_push) ...
+_PUSH_TIERS = ((3, 1, 0.03), (2, 1, 1e-3))  # ... 3 × 3 Gauss points on the elements whose nodal values are all
+                            # below 0.03 of the largest, 2 × 2 below 1e-3 (the tails: 60 % of the elements)
+_MAP_TOL = 0.01             # the flow interpolated from the nodes unless it misses an element's centre by
+                            # more than this fraction of an element (transport_points)
+_DIFFUSION_STEP = 1.0       # diffusion sub-steps of the characteristics scheme: duration·ρ ≤ this each (_Diffusion)
+_CACHE = 16                 # diffusion factorisations kept (_Diffusion) ...
+_CACHE_BYTES = 48 * 2**20   # ... at most this many bytes of them ...
+_REUSE = (0.8, 2.0)         # ... re-used for operators within these factors of theirs (_Diffusion)
 _RK4_RADIUS = 2.5           # classical RK4 is stable on the left half-disc of this radius (2.6 is the largest)
 
 
-def _factorise(grid: FEMGrid, Be: np.ndarray, symmetric: bool = False):
+def _factorise(grid: FEMGrid, Be: np.ndarray):
     """Factorise the matrix assembled from element matrices Be (E, 8, 8): (solve, band).
 
     A band LU (LAPACK ?gbtrf, partial pivoting) in the natural lattice order,
     half-bandwidth ≈ 3·n2, while its factors fit in _BAND_BYTES; ``band`` is then
-    (F, piv, kl) for the compiled kernels of _fem_kernels.  ``symmetric`` (a symmetric positive
-    definite matrix: the diffusion of the characteristics scheme): a band Cholesky factor
-    (?pbtrf) instead, half the work and a third of the storage, ``band`` = (L, empty piv, kd).
-    SuperLU with a fill-reducing ordering beyond (band None).  Factors are in _SOLVE_DTYPE
+    (F, piv, kl) for the compiled kernels of _fem_kernels.  SuperLU with a fill-reducing ordering beyond (band None).  Factors are in _SOLVE_DTYPE
     (single precision); right-hand sides and solutions stay double.  Measured
     (docs/design.md): on 20 × 20 the band LU factorises 2× faster than SuperLU
     and solves faster; on 40 × 40 its factors make every solve slower.
@@ -521,10 +551,6 @@ def _factorise(grid: FEMGrid, Be: np.ndarray, symmetric: bool = False):
     width, slot = top["band"]
     N = grid.size
     dtype = np.dtype(_SOLVE_DTYPE)
-    if symmetric and (width + 1) * N * dtype.itemsize <= _BAND_BYTES:
-        L, kd = _band_cholesky(top, Be, dtype)
-        band = (L, np.empty(0, np.int32), kd)
-        return (lambda b: cholesky_solve(L, kd, b.astype(dtype)).astype(float)), band
     ld = 3 * width + 1
     if ld * N * dtype.itemsize <= _BAND_BYTES:
         gbtrf = scipy.linalg.lapack.get_lapack_funcs("gbtrf", dtype=dtype)
@@ -554,18 +580,12 @@ class _Propagator:
     """
 
     def __init__(self, grid: FEMGrid, model: ContinuousDiscreteModel, substeps: int, scheme: str,
-                 stabilise: bool, duration: float | None = None):
-        advection = scheme != "characteristics"   # there: the diffusion half-steps only, by SDIRK2
-        Me, Ae = grid.element_matrices(model, stabilise and advection, advection)
-        tau = (model.dt if duration is None else duration) / substeps
+                 stabilise: bool):
+        Me, Ae = grid.element_matrices(model, stabilise)
+        Ae = np.ascontiguousarray(Ae)
+        tau = model.dt / substeps
         gamma = 0.5 if scheme == "cn" else _GAMMA
-        if advection:
-            Ae = np.ascontiguousarray(Ae)
-            self.solve, self.band = _factorise(grid, Me - gamma * tau * Ae)
-        else:  # M − γτA symmetric positive definite, one element matrix for all: band Cholesky
-            Ae = np.ascontiguousarray(Ae[:1])
-            Be = np.broadcast_to(Me - gamma * tau * Ae[0], grid.conn.shape + (8,))
-            self.solve, self.band = _factorise(grid, Be, symmetric=True)
+        self.solve, self.band = _factorise(grid, Me - gamma * tau * Ae)
         self.conn, self.Ae = grid.conn, Ae
         self.Re = Me + 0.5 * tau * Ae if scheme == "cn" else None
         if self.band is None:  # the loop below multiplies with assembled matrices
@@ -655,15 +675,21 @@ def _psd_floor(P, floor: float) -> np.ndarray:
 
 def _predicted_box(model, m, P, width, floor, duration):
     """Rectangle covering the predicted mean ± width·σ after ``duration`` (sigma points through
-    the noise-free flow, plus Q·duration), σ floored at ``floor``.  A P that is not PSD (on a coarse grid
-    the moments of a density with clipped negative lobes need not be) is projected onto the PSD cone."""
+    the noise-free flow, plus Q·duration), σ floored at ``floor`` (``predicted_box``).  A P that is not PSD
+    (on a coarse grid the moments of a density with clipped negative lobes need not be) is projected onto
+    the PSD cone."""
     if np.linalg.eigvalsh(0.5 * (P + P.T))[0] < 0.0:
         P = _psd_floor(P, 0.0)
-    X, Wm, Wc = sigma_points(m, P)
+    X = np.empty((5, 2))
+    if not sigma_points_2d(m, P, _SIGMA[0], X):
+        raise NotPositiveDefiniteError(f"P: the density's covariance lost positive semi-definiteness ({P.tolist()})")
     Y = _drift_flow(model, X, duration)
-    mp = Wm @ Y
-    sp = np.maximum(np.sqrt(np.clip(Wc @ (Y - mp) ** 2 + np.diag(model.Q) * duration, 0.0, None)), floor)
-    return mp - width * sp, mp + width * sp
+    lo, hi = np.empty(2), np.empty(2)
+    predicted_box(Y, _SIGMA[1], _SIGMA[2], np.diag(model.Q).copy(), duration, width, floor, lo, hi)
+    return lo, hi
+
+
+_SIGMA = _sigma_weights(2, 1.0, 2.0, 0.0)   # the sigma points of _predicted_box: scale, Wm, Wc
 
 
 @functools.lru_cache(maxsize=16)
@@ -671,27 +697,25 @@ def _unit_mass_factor(n1: int, n2: int):
     """Band Cholesky factor (L, kd) of the mass matrix of an n1 × n2 grid of unit elements (M of any
     grid of that shape is h1·h2 times it; ``_fem_kernels.cholesky_solve``): factorised once per shape."""
     top = _topology(n1, n2)
-    return _band_cholesky(top, np.broadcast_to(top["Me"], top["conn"].shape + (8,)), np.float64)
+    return _band_cholesky(top, top["Me"], np.float64)
 
 
 def _band_cholesky(top: dict, Be: np.ndarray, dtype):
     """Band Cholesky factor (C, kd) in ``dtype`` of the symmetric positive definite matrix assembled
-    from element matrices Be (E, 8, 8) on the grid of ``top`` (natural lattice order, kd ≈ 3·n2), in
-    the layout of ``_fem_kernels.cholesky_solve`` (compiled: ``band_cholesky``, 1.5-2× LAPACK's
-    ?pbtrf at this bandwidth)."""
-    kd, slot, lower = top["sym"]
-    N = top["N"]
-    C = np.zeros((N, 2 * (kd + 1)), dtype)
-    C[:, :kd + 1] = np.bincount(slot, weights=Be.ravel()[lower], minlength=(kd + 1) * N).reshape(N, kd + 1)
-    if not band_cholesky(C, kd):
+    from the element matrix Be (8, 8) on every element of the grid of ``top`` (natural lattice order,
+    kd ≈ 3·n2), in the layout of ``_fem_kernels.cholesky_solve`` (compiled: ``element_band_cholesky``,
+    1.5-2× LAPACK's ?pbtrf at this bandwidth)."""
+    kd = top["band"][0]   # the half-bandwidth
+    C = np.zeros((top["N"], 2 * (kd + 1)), dtype)
+    if not element_band_cholesky(np.asarray(Be, dtype=float), top["conn"], kd, C):
         raise ConvergenceError("grid filter: the time-step matrix is not positive definite")
     C.setflags(write=False)
     return C, kd
 
 
 @functools.lru_cache(maxsize=16)
-def _push_rule(n1: int, n2: int, order: int, sub: int):
-    """Quadrature on every element: order × order Gauss points on each of sub × sub sub-cells.
+def _push_rule(order: int, sub: int):
+    """Quadrature on an element: order × order Gauss points on each of sub × sub sub-cells.
     Returns (points (P, 2) in [0, 1]² of an element, shape functions (P, 8) at them, weights (P,)
     on a unit element)."""
     g, w = np.polynomial.legendre.leggauss(order)
@@ -738,19 +762,85 @@ def _push(old: FEMGrid, p: np.ndarray, new: FEMGrid, model, duration: float):
     conserving mass: the L2 projection of the transported density onto new's elements,
     M q = b with b_j = ∫ φ_j p(t+τ) dx = ∫ φ_j(Φ_τ(y)) p(y) dy (a change of variables, so no
     Jacobian), by Gauss quadrature on old's elements (_PUSH_GAUSS² points on each of _PUSH_SUB²
-    sub-cells) with the points pushed forward (:func:`_drift_flow`).  Points carrying less than
-    10⁻¹² of the largest weight are not moved (their mass is dropped).  Compiled throughout
-    (quadrature points, flow, deposit, the mass matrix's band Cholesky solve) when the model has
-    kernels.  Returns (nodal values q, fraction of the mass that landed outside new)."""
-    loc, phi, wq = _push_rule(old.n1, old.n2, _PUSH_GAUSS, _PUSH_SUB)
-    area = float(old._h[0] * old._h[1])
-    X, w = push_points(p, old.conn, phi, wq * area, loc, old.lo, old._h, old.n1, old.n2, 1e-12)
-    Y = _drift_flow(model, X, duration)
+    sub-cells; coarser rules on the tail elements, _PUSH_TIERS) with the points carried by the flow's
+    serendipity interpolant from old's nodes (the nodes flowed by :func:`_drift_flow`; points of
+    elements whose flowed centre the interpolant misses by more than _MAP_TOL of a new element are
+    flowed themselves).  Points carrying less than 10⁻¹² of the largest weight are not moved (their
+    mass is dropped).  ``transport_split`` runs the same steps compiled, flows included, when the
+    model has kernels.  Returns (nodal values q, fraction of the mass that landed outside new)."""
+    Z = _drift_flow(model, flow_sites(old.lo, old._h, old._top["lattice"], old.n1, old.n2), duration)
     b = np.zeros(new.size)
-    outside = deposit(Y, w, new.lo, new._h, new.n1, new.n2, new.conn, b)
-    q = cholesky_solve(*_unit_mass_factor(new.n1, new.n2), b) / float(new._h[0] * new._h[1])
-    total = float(w.sum())
+    outside, total, X, w = transport_deposit(p, old.conn, old.lo, old._h, old.n2, *_push_rules(), Z,
+                                             _MAP_TOL, 1e-12, new.lo, new._h, new.n1, new.n2, new.conn, b)
+    if len(w):
+        outside += deposit(_drift_flow(model, X, duration), w, new.lo, new._h, new.n1, new.n2, new.conn, b)
+    q = mass_solve(b, *_unit_mass_factor(new.n1, new.n2), new._h)
     return q, (outside / total if total > 0.0 else 0.0)
+
+
+@functools.lru_cache(maxsize=4)
+def _push_rules(tiers=None):
+    """The transport's quadrature rules on a unit element, stacked from the finest: (loc, phi, wq) of
+    all, each rule's first row (and the total), and the levels below which an element takes the next
+    coarser rule (_PUSH_TIERS: (Gauss points per axis, sub-cells per axis, level) after the fine rule)."""
+    tiers = _PUSH_TIERS if tiers is None else tiers
+    rules = [_push_rule(_PUSH_GAUSS, _PUSH_SUB)] + [_push_rule(order, sub) for order, sub, _ in tiers]
+    bounds = np.cumsum([0] + [len(r[2]) for r in rules])
+    levels = np.array([level for _, _, level in tiers], dtype=float)
+    return (*(np.ascontiguousarray(np.concatenate(r)) for r in zip(*rules)), bounds, levels)
+
+
+class _Characteristics:
+    """The prediction of the characteristics scheme over one filter run (see _characteristic_steps):
+    the model's constants for the compiled transport, and the diffusion with its factorisations."""
+
+    def __init__(self, model, substeps: int | None, width: float, splits: int, fixed: bool):
+        self.model, self.width, self.splits, self.fixed = model, width, splits, fixed
+        self.tau = model.dt / splits
+        self.diffusion = _Diffusion(model, substeps)
+        self.Qd = np.diag(model.Q).copy()
+        compiled = _compiled(model)
+        cap = np.inf if model.max_increment is None else model.max_increment
+        self.drift = None if compiled is None else (*compiled.drift_at, model.kernels.drift_params, cap)
+
+    def predict(self, g: FEMGrid, p: np.ndarray):
+        """One dt: ``splits`` Strang steps; the diffusions over τ/2 that end one step and start the next
+        run on the same grid, as one over τ.  Returns (grid, p, factorised, regridded, lost, clipped)."""
+        tau, diffusion = self.tau, self.diffusion
+        before, lost = diffusion.factorisations, 0.0
+        p, clipped = diffusion(g, p, 0.5 * tau)
+        for i in range(self.splits):
+            g, p, out, c1 = self.transport(g, p, not self.fixed, tau)
+            p, c2 = diffusion(g, p, tau if i < self.splits - 1 else 0.5 * tau)
+            lost += out
+            clipped += c1 + c2
+        return g, p, diffusion.factorisations > before, not self.fixed, lost, clipped
+
+    def transport(self, g: FEMGrid, p: np.ndarray, moving: bool, duration: float):
+        """The transport step: the next grid (g itself when not ``moving``, else placed around the
+        density predicted for t + duration: _predicted_box, ``next_grid``) and the density carried onto
+        it (_push), clipped and normalised.  Compiled end to end (``transport_split``) when the model
+        has kernels.  Returns (grid, p, lost, clipped)."""
+        if self.drift is None:
+            lo, hi = g.lo, g.hi
+            if moving:
+                _, m, P = g.moments(p)
+                blo, bhi = _predicted_box(self.model, m, P, self.width, 0.5 * float(np.min(g._h)), duration)
+                lo, hi = np.empty(2), np.empty(2)
+                next_grid(blo, bhi, g.lo, g.hi, _MARGIN, _SHRINK, lo, hi)
+            new = FEMGrid._at(lo, hi, g.n1, g.n2) if moving else g
+            q, lost = _push(g, p, new, self.model, duration)
+            p, clipped = _clip_normalise(new, q, "prediction")
+            return new, p, lost, clipped
+        top = g._top
+        status, lo, hi, q, lost, clipped, mass = transport_split(
+            p, g.lo, g.hi, g.n1, g.n2, g.conn, top["lattice"], top["V0"], top["V1"], top["V2"], moving, self.width,
+            *_SIGMA, self.Qd, duration, self.model.dt, _MARGIN, _SHRINK, *_push_rules(), _MAP_TOL,
+            *_unit_mass_factor(g.n1, g.n2), *self.drift)
+        if status:
+            raise NotPositiveDefiniteError("P: the density's covariance lost positive semi-definiteness")
+        _check_mass(mass, "prediction")
+        return (FEMGrid._at(lo, hi, g.n1, g.n2) if moving else g), q, lost, clipped
 
 
 def _bayes_update(grid: FEMGrid, p: np.ndarray, logl: np.ndarray, k: int):
@@ -871,68 +961,73 @@ def fem_steps(model: ContinuousDiscreteModel, z, x0, P0, *, grid: tuple[int, int
 
 
 class _Diffusion:
-    """The diffusion half-steps of the characteristics scheme: SDIRK2 over ``duration`` (τ/2) on a
-    grid, in ``substeps`` steps, or (None) in as many as the diffusion's rate on the element scale
-    needs: n = ⌈duration·ρ/_DIFFUSION_STEP⌉ with ρ the largest eigenvalue of H⁻¹QH⁻¹, H = diag(h)
-    (SDIRK2 is L-stable; this bounds its error on the modes the elements resolve).  One
-    factorisation per element size: the operator depends on the elements' size only (the
-    diffusion's mass and stiffness matrices are translation-invariant), so translated grids,
-    grids that return to an earlier size and the parts of a mixture share it; the _CACHE most
-    recently used are kept."""
+    """The diffusion steps of the characteristics scheme: SDIRK2 over a duration on a grid, in
+    ⌈``substeps``·duration/dt⌉ steps, or (None) in as many as the diffusion's rate on the element scale
+    needs: n = ⌈duration·ρ/_DIFFUSION_STEP⌉ with ρ the largest eigenvalue of S = H⁻¹QH⁻¹, H = diag(h)
+    (SDIRK2 is L-stable; this bounds its error on the modes the elements resolve).
 
-    def __init__(self, model, substeps: int | None, duration: float):
-        self.model, self.substeps, self.duration = model, substeps, duration
-        self.cache: dict = {}
+    In element units the operator is M̂ dp/dt = −Â(S) p, with M̂ and Â(S) = ½ Σ S_de G_de the same
+    for every grid of a shape, so a stage matrix M̂ + γτ_s Â(S) depends on C = τ_s·S alone.  A kept
+    band Cholesky factorisation whose C' lies within _REUSE of C (_REUSE[0]·C ⪯ C' ⪯ _REUSE[1]·C) is
+    re-used with the grid's own, exact, right-hand side Â(S) p: a W-method (the stage matrix of a
+    nearby operator).  Its error on the modes the elements resolve is of the order of SDIRK2's own
+    (a fraction |1 − C'/C| of the stage's second-order term), and it stays stable for stiff modes
+    while C' ⪰ 0.75·C (the amplification at −∞ is 1 − 1/(γr) + (1 − γ)/(γr²), r = C'/C; 0 at r = 1,
+    |·| < 1 for r > 0.75).  The factorisation is the dominant cost of a step on a grid that changes
+    size (0.4 ms at 20 × 20, 9 solves' worth); re-use takes it from 3 per measurement step to 0.3-0.5
+    on eq. 42 at no measurable cost in accuracy (docs/nonlinear.md).  The _CACHE most recently used
+    (at most _CACHE_BYTES) are kept."""
+
+    def __init__(self, model, substeps: int | None):
+        self.model, self.substeps = model, substeps
+        self.cache: list = []   # [(C', (factor, kd))], the most recently used last
         self.factorisations = 0
 
-    def __call__(self, g: FEMGrid, p: np.ndarray) -> np.ndarray:
-        key = f"{g._h[0]:.12e} {g._h[1]:.12e}"  # a translated grid's h differs in the last bits
-        prop = self.cache.pop(key, None)
-        if prop is None:
-            n = self.substeps
-            if n is None:
-                S = self.model.Q / np.outer(g._h, g._h)
-                rho = 0.5 * (S[0, 0] + S[1, 1]) + np.hypot(0.5 * (S[0, 0] - S[1, 1]), S[0, 1])
-                n = max(1, int(np.ceil(self.duration * rho / _DIFFUSION_STEP)))
-            prop = _Propagator(g, self.model, n, "characteristics", False, self.duration)
+    def __call__(self, g: FEMGrid, p: np.ndarray, duration: float, what: str = "prediction"):
+        """(p diffused over ``duration`` on g, clipped and normalised; the negative mass removed)."""
+        S = self.model.Q / np.outer(g._h, g._h)
+        if self.substeps is None:
+            rho = 0.5 * (S[0, 0] + S[1, 1]) + np.hypot(0.5 * (S[0, 0] - S[1, 1]), S[0, 1])
+            n = max(1, int(np.ceil(duration * rho / _DIFFUSION_STEP)))
+        else:
+            n = max(1, int(np.ceil(self.substeps * duration / self.model.dt - 1e-9)))
+        tau = duration / n
+        top = g._top
+        C = tau * S
+        for i in range(len(self.cache) - 1, -1, -1):   # the most recently used first
+            if _within(self.cache[i][0], C, _REUSE):
+                factor = self.cache[i][1]
+                self.cache.append(self.cache.pop(i))
+                break
+        else:
+            Be = top["Me"] + _GAMMA * _stiffness_unit(top, C)
+            factor = _band_cholesky(top, Be, np.dtype(_SOLVE_DTYPE))
             self.factorisations += 1
-            if len(self.cache) >= _CACHE:
-                del self.cache[next(iter(self.cache))]
-        self.cache[key] = prop  # the most recent last
-        return prop(p)
+            self.cache.append((C, factor))
+            while len(self.cache) > _CACHE or sum(f[0].nbytes for _, f in self.cache) > _CACHE_BYTES:
+                self.cache.pop(0)
+        q, clipped, mass = diffuse(*factor, g.conn, -_stiffness_unit(top, S)[None], p, tau, _GAMMA, n, top["V0"],
+                                   float(g._h[0] * g._h[1]))
+        _check_mass(mass, what)
+        return q, clipped
 
 
-def _grid_size(need: np.ndarray, old: np.ndarray) -> np.ndarray:
-    """Side lengths of the next grid: the current ones while the needed size lies within
-    [_SHRINK, 1] of them on both axes (a translated grid: its diffusion factorisation is kept), else
-    the needed ones on both.  Refitting both axes keeps the elements small: rounding the sizes up to
-    a ladder of rungs (2^¼ apart, so that factorisations could be re-used) or refitting only the
-    axis that outgrew its side made the filter measurably less accurate (docs/nonlinear.md)."""
-    keep = (need <= old) & (need >= _SHRINK * old)
-    return old if keep.all() else need
+def _within(A: np.ndarray, B: np.ndarray, bounds) -> bool:
+    """lo·B ⪯ A ⪯ hi·B, (lo, hi) = bounds, for symmetric 2 × 2 A, B ⪰ 0 (to rounding)."""
+    lo, hi = bounds
+    return _psd2((hi + 1e-9) * B - A, B) and _psd2(A - (lo - 1e-9) * B, B)
 
 
-def _transport_steps(model, g, p, diffusion: _Diffusion, width, splits, tau, fixed):
-    """One dt of the characteristics scheme: ``splits`` Strang steps (see _characteristic_steps)."""
-    shape = (g.n1, g.n2)
-    before, regridded, lost, clipped = diffusion.factorisations, False, 0.0, 0.0
-    for _ in range(splits):
-        p, c = _clip_normalise(g, diffusion(g, p), "prediction")
-        new = g
-        if not fixed:
-            _, m, P = g.moments(p)
-            lo, hi = _predicted_box(model, m, P, width, 0.5 * float(np.min(g._h)), tau)
-            size = _grid_size((1.0 + 2.0 * _MARGIN) * (hi - lo), g.hi - g.lo)
-            centre = 0.5 * (lo + hi)
-            new = FEMGrid(centre - 0.5 * size, centre + 0.5 * size, *shape)
-        q, out = _push(g, p, new, model, tau)
-        lost += out
-        regridded = regridded or new is not g
-        g = new
-        p, c1 = _clip_normalise(g, q, "prediction")
-        p, c2 = _clip_normalise(g, diffusion(g, p), "prediction")
-        clipped += c + c1 + c2
-    return g, p, diffusion.factorisations > before, regridded, lost, clipped
+def _psd2(D: np.ndarray, scale: np.ndarray) -> bool:
+    eps = 1e-12 * (abs(scale[0, 0]) + abs(scale[1, 1]))
+    return D[0, 0] >= -eps and D[1, 1] >= -eps and D[0, 0] * D[1, 1] - D[0, 1] * D[1, 0] >= -eps * eps
+
+
+def _stiffness_unit(top: dict, S: np.ndarray) -> np.ndarray:
+    """Â(S) = ½ Σ_de S_de G_de: the diffusion's element stiffness on a unit element (8, 8), with
+    G_de = ∫ ∂_dφ ∂_eφᵀ in element units and S = H⁻¹QH⁻¹."""
+    G = top["G"]
+    return 0.5 * (S[0, 0] * G[0] + S[0, 1] * (G[1] + G[1].T) + S[1, 1] * G[2])
 
 
 def _galerkin_step(model, g, p, m, P, width, substeps, fixed):
@@ -966,25 +1061,18 @@ def _split(g: FEMGrid, p: np.ndarray, model, zk, width: float, logl: np.ndarray)
     if not np.all(np.isfinite(d)) or d.max() <= 0.0:
         return [(g, p, 0.0)]
     if not _resolved(g, d, logl):
-        fine = FEMGrid(g.lo, g.hi, _FOCUS * g.n1, _FOCUS * g.n2)
+        fine = FEMGrid._at(g.lo, g.hi, _FOCUS * g.n1, _FOCUS * g.n2)
         logl = _log_likelihood(model, zk, fine.nodes)
         d = np.clip(g.evaluate(p, fine.nodes), 0.0, None) * np.exp(logl - logl.max())
         if not np.all(np.isfinite(d)) or d.max() <= 0.0:
             return [(g, p, 0.0)]
-    lattice = fine._top["lattice"]
-    img = np.zeros(fine._top["node_id"].shape)  # the half-spacing lattice; element centres have no node:
-    img[lattice[:, 0], lattice[:, 1]] = d       # they get the mean of their four mid-side neighbours
-    img[1::2, 1::2] = 0.25 * (img[:-1:2, 1::2] + img[2::2, 1::2] + img[1::2, :-1:2] + img[1::2, 2::2])
-    labels, count = scipy.ndimage.label(img > _LEVEL * img.max(), structure=np.ones((3, 3)))
-    ii, jj = np.nonzero(labels)
-    lab, w = labels[ii, jj] - 1, img[ii, jj]
-    X = fine.lo + 0.5 * fine._h * np.stack([ii, jj], axis=-1)
-    mass = np.bincount(lab, weights=w, minlength=count)
+    count, stats = lattice_modes(d, fine._top["lattice"], 2 * fine.n1 + 1, 2 * fine.n2 + 1, _LEVEL)
+    mass = stats[:, 0]
     boxes = []
     for c in np.flatnonzero(mass > _MIN_MODE * mass.sum()):
-        sel = lab == c
-        mu = w[sel] @ X[sel] / mass[c]
-        sd = np.maximum(np.sqrt(w[sel] @ (X[sel] - mu) ** 2 / mass[c]), 0.5 * fine._h)
+        mu = stats[c, 1:3] / mass[c]                                   # in half-spacing lattice units
+        sd = np.sqrt(np.maximum(stats[c, 3:5] / mass[c] - mu * mu, 0.0))
+        mu, sd = fine.lo + 0.5 * fine._h * mu, 0.5 * fine._h * np.maximum(sd, 1.0)
         box = (np.maximum(mu - width * sd, g.lo), np.minimum(mu + width * sd, g.hi))
         for i in [i for i, b in enumerate(boxes) if np.all(b[0] <= box[1]) and np.all(box[0] <= b[1])][::-1]:
             other = boxes.pop(i)
@@ -995,7 +1083,7 @@ def _split(g: FEMGrid, p: np.ndarray, model, zk, width: float, logl: np.ndarray)
     out = []
     for lo, hi in boxes:
         margin = _MARGIN * (hi - lo)
-        new = FEMGrid(np.maximum(lo - margin, g.lo), np.minimum(hi + margin, g.hi), g.n1, g.n2)
+        new = FEMGrid._at(np.maximum(lo - margin, g.lo), np.minimum(hi + margin, g.hi), g.n1, g.n2)
         q = np.clip(g.evaluate(p, new.nodes), 0.0, None)
         kept = float(new.W0 @ q)
         if np.isfinite(kept) and kept > 0.0:
@@ -1009,9 +1097,7 @@ def _resolved(g: FEMGrid, d: np.ndarray, logl: np.ndarray) -> bool:
     maximum, the second difference of log p(z | x) is at most _RESOLVED in size (a Gaussian
     likelihood σ wide along the line has s²/σ² there, s the node spacing: σ ≥ 2s), so a finer
     lattice would find the same modes."""
-    a, b, c = g._top["triples"]
-    on = d[b] > _LEVEL * d.max()
-    return bool(np.max(np.abs(logl[a] - 2.0 * logl[b] + logl[c])[on], initial=0.0) <= _RESOLVED)
+    return second_difference_max(d, logl, *g._top["triples"], _LEVEL) <= _RESOLVED
 
 
 def _log_likelihood(model, zk, X: np.ndarray) -> np.ndarray:
@@ -1037,7 +1123,7 @@ def _merge(parts: list) -> list:
     for part in parts:
         for i, o in enumerate(out):
             if np.all(part.g.lo <= o.g.hi) and np.all(o.g.lo <= part.g.hi):
-                g = FEMGrid(np.minimum(part.g.lo, o.g.lo), np.maximum(part.g.hi, o.g.hi), o.g.n1, o.g.n2)
+                g = FEMGrid._at(np.minimum(part.g.lo, o.g.lo), np.maximum(part.g.hi, o.g.hi), o.g.n1, o.g.n2)
                 w = o.w + part.w
                 q = (o.w * o.g.evaluate(o.p, g.nodes) + part.w * part.g.evaluate(part.p, g.nodes)) / w
                 out[i] = _Part(w, g, _clip_normalise(g, q, "merging")[0])
@@ -1062,16 +1148,14 @@ def _characteristic_steps(model, z, m, P, g: FEMGrid, width, substeps, fixed: bo
     equation is linear, so each part is predicted on its own, and parts whose grids come to
     overlap are merged.
     """
-    tau = model.dt / splits
-    diffusion = _Diffusion(model, None if substeps is None else max(1, -(-substeps // (2 * splits))), 0.5 * tau)
+    scheme = _Characteristics(model, substeps, width, splits, fixed)
     parts = [_Part(1.0, g, _clip_normalise(g, _gaussian_on(g, m, P), "P0")[0])]
     for k in range(z.shape[0]):
         factorised = regridded = False
         lost = clipped = 0.0
         for part in parts:
             try:
-                part.g, part.p, f_, r_, l_, c_ = _transport_steps(model, part.g, part.p, diffusion, width,
-                                                                  splits, tau, fixed)
+                part.g, part.p, f_, r_, l_, c_ = scheme.predict(part.g, part.p)
             except ConvergenceError:  # the characteristics left the grid (a stiff drift far out): Galerkin step
                 _, m, P = part.g.moments(part.p)
                 part.g, part.p, f_, r_, l_, c_ = _galerkin_step(model, part.g, part.p, m, P, width, substeps, fixed)

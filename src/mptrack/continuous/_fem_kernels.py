@@ -16,8 +16,10 @@ from numba import njit
 from .. import _jit_cache  # noqa: F401 - compiled kernels cache in the user's cache directory
 from ._kernels import _BLOCK, _as_kernel, _flow
 
-__all__ = ["band_solve", "band_sdirk2", "band_cn", "deposit", "interpolate", "push_points", "flow_points",
-           "cholesky_solve", "band_cholesky"]
+__all__ = ["band_solve", "band_sdirk2", "band_cn", "deposit", "interpolate", "flow_points", "cholesky_solve",
+           "band_cholesky", "element_band_cholesky", "clip_normalise", "diffuse", "grid_moments", "sigma_points_2d", "predicted_box",
+           "next_grid", "flow_sites", "transport_deposit", "mass_solve", "transport_split", "lattice_modes",
+           "second_difference_max"]
 
 
 @njit(cache=True)
@@ -102,6 +104,22 @@ def band_cholesky(C, kd):
 
 
 @njit(cache=True)
+def element_band_cholesky(Be, conn, kd, C):
+    """Assemble the lower band of the matrix B = Σₑ Be on every element of conn (E, 8) (one element
+    matrix Be (8, 8) for all) into C[:, :kd + 1] (C[j, i] = B[j + i, j]; C zero on entry, dtype of the
+    factor), then factorise it in place (``band_cholesky``).  Returns False when B is not (numerically)
+    positive definite."""
+    for e in range(conn.shape[0]):
+        for a in range(8):
+            i = conn[e, a]
+            for c in range(8):
+                j = conn[e, c]
+                if i >= j:
+                    C[j, i - j] += Be[a, c]
+    return band_cholesky(C, kd)
+
+
+@njit(cache=True)
 def _element_matvec(conn, Ke, x, out):
     """out = K x for K assembled from element matrices Ke (E, 8, 8) on connectivity conn (E, 8);
     Ke (1, 8, 8): the same matrix for every element."""
@@ -165,39 +183,52 @@ def band_cn(F, piv, kl, conn, Re, p, substeps):
 
 
 @njit(cache=True)
-def _locate(Y, k, lo, h, n1, n2, N):
-    """Element index of point Y[k] in the grid [lo, lo + h·(n1, n2)] (−1 outside, NaN included) and
-    the 8 serendipity shape functions there (``_fem.shape_functions``) written into N."""
-    u = (Y[k, 0] - lo[0]) / h[0]
-    v = (Y[k, 1] - lo[1]) / h[1]
-    if not (u >= 0.0 and u <= n1 and v >= 0.0 and v <= n2):
-        return -1
-    e1 = min(int(u), n1 - 1)
-    e2 = min(int(v), n2 - 1)
-    x = 2.0 * (u - e1) - 1.0
-    y = 2.0 * (v - e2) - 1.0
-    N[0] = 0.25 * (1.0 - x) * (1.0 - y) * (-x - y - 1.0)
-    N[1] = 0.25 * (1.0 + x) * (1.0 - y) * (x - y - 1.0)
-    N[2] = 0.25 * (1.0 + x) * (1.0 + y) * (x + y - 1.0)
-    N[3] = 0.25 * (1.0 - x) * (1.0 + y) * (-x + y - 1.0)
-    N[4] = 0.5 * (1.0 - x * x) * (1.0 - y)
-    N[5] = 0.5 * (1.0 + x) * (1.0 - y * y)
-    N[6] = 0.5 * (1.0 - x * x) * (1.0 + y)
-    N[7] = 0.5 * (1.0 - x) * (1.0 - y * y)
-    return e1 * n2 + e2
+def _locate(Y0, Y1, lo, h, n1, n2):
+    """(element (P,), ξ (P,), η (P,)) of the points (Y0[i], Y1[i]) in the grid [lo, lo + h·(n1, n2)]: the
+    element index (−1 outside, NaN included) and the point's coordinates in [−1, 1]² there.  Branch-free
+    over the points, so that the loop vectorises."""
+    P = Y0.shape[0]
+    el, xs, ys = np.empty(P, np.int64), np.empty(P), np.empty(P)
+    r0, r1 = 1.0 / h[0], 1.0 / h[1]
+    for i in range(P):
+        u = (Y0[i] - lo[0]) * r0
+        v = (Y1[i] - lo[1]) * r1
+        inside = (u >= 0.0) & (u <= n1) & (v >= 0.0) & (v <= n2)
+        e1 = min(int(u), n1 - 1) if inside else 0
+        e2 = min(int(v), n2 - 1) if inside else 0
+        el[i] = e1 * n2 + e2 if inside else -1
+        xs[i] = 2.0 * (u - e1) - 1.0
+        ys[i] = 2.0 * (v - e2) - 1.0
+    return el, xs, ys
+
+
+@njit(cache=True)
+def _serendipity(x, y):
+    """The 8 serendipity shape functions at (ξ, η) = (x, y) (``_fem.shape_functions``)."""
+    return (0.25 * (1.0 - x) * (1.0 - y) * (-x - y - 1.0), 0.25 * (1.0 + x) * (1.0 - y) * (x - y - 1.0),
+            0.25 * (1.0 + x) * (1.0 + y) * (x + y - 1.0), 0.25 * (1.0 - x) * (1.0 + y) * (-x + y - 1.0),
+            0.5 * (1.0 - x * x) * (1.0 - y), 0.5 * (1.0 + x) * (1.0 - y * y),
+            0.5 * (1.0 - x * x) * (1.0 + y), 0.5 * (1.0 - x) * (1.0 - y * y))
 
 
 @njit(cache=True)
 def deposit(Y, w, lo, h, n1, n2, conn, out):
     """out[j] += Σₖ wₖ φⱼ(Yₖ) over the points Yₖ (P, 2) inside the grid [lo, lo + h·(n1, n2)];
     returns the weight of the points outside it (NaN points count as outside)."""
-    N = np.empty(8)
+    el, xs, ys = _locate(Y[:, 0], Y[:, 1], lo, h, n1, n2)
+    return _scatter(el, xs, ys, w, conn, out)
+
+
+@njit(cache=True)
+def _scatter(el, xs, ys, w, conn, out):
+    """out[j] += Σₖ wₖ φⱼ at the located points (``_locate``); returns the weight of those outside."""
     outside = 0.0
-    for k in range(Y.shape[0]):
-        e = _locate(Y, k, lo, h, n1, n2, N)
+    for k in range(el.shape[0]):
+        e = el[k]
         if e < 0:
             outside += w[k]
             continue
+        N = _serendipity(xs[k], ys[k])
         for a in range(8):
             out[conn[e, a]] += w[k] * N[a]
     return outside
@@ -206,52 +237,15 @@ def deposit(Y, w, lo, h, n1, n2, conn, out):
 @njit(cache=True)
 def interpolate(Y, lo, h, n1, n2, conn, p, out):
     """out[k] = the interpolant of nodal values p at Yₖ (P, 2); zero outside the grid."""
-    N = np.empty(8)
-    for k in range(Y.shape[0]):
-        e = _locate(Y, k, lo, h, n1, n2, N)
+    el, xs, ys = _locate(Y[:, 0], Y[:, 1], lo, h, n1, n2)
+    for k in range(el.shape[0]):
         s = 0.0
-        if e >= 0:
+        if el[k] >= 0:
+            N = _serendipity(xs[k], ys[k])
             for a in range(8):
-                s += N[a] * p[conn[e, a]]
+                s += N[a] * p[conn[el[k], a]]
         out[k] = s
     return out
-
-
-@njit(cache=True)
-def push_points(p, conn, phi, wq, loc, lo, h, n1, n2, rel):
-    """The transport's quadrature on a grid [lo, lo + h·(n1, n2)] with nodal values p: on every
-    element e (conn (E, 8), row-major over (e1, e2)) the points x = lo + h·((e1, e2) + loc[k]) (loc
-    (K, 2) in [0, 1]²) carrying mass w = (Σₐ p[conn[e, a]] φₐ(k)) · wq[k] (phi (K, 8), wq (K,)
-    including the element area).  Returns (X (P, 2), w (P,)) of the points with
-    |w| > rel · max |w|, in element-major order (``_fem._push``'s NumPy arithmetic)."""
-    E, K = conn.shape[0], phi.shape[0]
-    w = np.empty(E * K)
-    big = 0.0
-    for e in range(E):
-        for k in range(K):
-            s = 0.0
-            for a in range(8):
-                s += p[conn[e, a]] * phi[k, a]
-            v = s * wq[k]
-            w[e * K + k] = v
-            big = max(big, abs(v))
-    cut = rel * big
-    count = 0
-    for i in range(E * K):
-        count += abs(w[i]) > cut
-    X = np.empty((count, 2))
-    out = np.empty(count)
-    i = 0
-    for e in range(E):
-        u0, u1 = float(e // n2), float(e % n2)
-        for k in range(K):
-            v = w[e * K + k]
-            if abs(v) > cut:
-                X[i, 0] = lo[0] + h[0] * (u0 + loc[k, 0])
-                X[i, 1] = lo[1] + h[1] * (u1 + loc[k, 1])
-                out[i] = v
-                i += 1
-    return X, out
 
 
 @njit(cache=True)
@@ -297,3 +291,336 @@ def flow_points(X, drift_c, drift_jit, params, duration, dt, cap):
     steps = max(int(np.ceil(2.0 * duration / dt)), int(np.ceil(duration * stiff)), 1)
     _flow(X, drift, params, duration / steps, steps, cap)
     return steps
+
+
+
+# ---------------------------------------------------------------- the characteristics scheme's steps
+@njit(cache=True)
+def clip_normalise(p, V0, area):
+    """In place: negative nodal values set to zero, then p divided by its mass area·(V0 · p) (the
+    interpolant's integral, ``FEMGrid.W0 = area·V0``).  Returns (the negative mass removed, the mass
+    before dividing); a mass that is not positive and finite leaves p undivided (the caller raises)."""
+    clipped = 0.0
+    mass = 0.0
+    for j in range(p.shape[0]):
+        if p[j] < 0.0:
+            clipped -= V0[j] * p[j]
+            p[j] = 0.0
+        mass += V0[j] * p[j]
+    mass *= area
+    if mass > 0.0 and mass < np.inf:
+        for j in range(p.shape[0]):
+            p[j] /= mass
+    return clipped * area, mass
+
+
+@njit(cache=True)
+def diffuse(C, kd, conn, Ae, p, tau, gamma, substeps, V0, area):
+    """``substeps`` SDIRK2 steps of the diffusion M̂ dp/dt = Ae p on a band Cholesky factor (C, kd) of
+    its stage matrix (``band_sdirk2``), then ``clip_normalise``: returns (p, clipped, mass)."""
+    q = band_sdirk2(C, np.empty(0, np.int32), kd, conn, Ae, p, tau, gamma, substeps)
+    clipped, mass = clip_normalise(q, V0, area)
+    return q, clipped, mass
+
+
+@njit(cache=True)
+def grid_moments(p, V0, V1, V2, lo, h):
+    """(mass, mean (2,), covariance (2, 2)) of the interpolant of p on the grid with corner lo and
+    element sides h, from the unit-element moment weights V0 (N,), V1 (N, 2), V2 (N, 3)
+    (``FEMGrid.moments``: computed in element units, then mapped back)."""
+    m0 = 0.0
+    u = np.zeros(2)
+    s = np.zeros(3)
+    for j in range(p.shape[0]):
+        m0 += V0[j] * p[j]
+        u[0] += V1[j, 0] * p[j]
+        u[1] += V1[j, 1] * p[j]
+        s[0] += V2[j, 0] * p[j]
+        s[1] += V2[j, 1] * p[j]
+        s[2] += V2[j, 2] * p[j]
+    u /= m0
+    s /= m0
+    cross = s[1] - u[0] * u[1]
+    mean = lo + h * u
+    cov = np.empty((2, 2))
+    cov[0, 0] = (s[0] - u[0] * u[0]) * (h[0] * h[0])
+    cov[0, 1] = cross * (h[0] * h[1])
+    cov[1, 0] = cov[0, 1]
+    cov[1, 1] = (s[2] - u[1] * u[1]) * (h[1] * h[1])
+    return (h[0] * h[1]) * m0, mean, cov
+
+
+@njit(cache=True)
+def sigma_points_2d(m, P, c, X):
+    """X (5, 2) ← the sigma points m, m ± columns of √(cP) (``nonlinear._ukf.sigma_points``: a Cholesky
+    factor, else the eigen-decomposition with eigenvalues clipped at zero).  Returns False when cP is
+    not positive semi-definite (an eigenvalue below −1e-9 of the largest) or not finite."""
+    a, b, d = c * P[0, 0], c * P[0, 1], c * P[1, 1]
+    if not (np.isfinite(a) and np.isfinite(b) and np.isfinite(d) and np.isfinite(m[0]) and np.isfinite(m[1])):
+        return False
+    S = np.zeros((2, 2))
+    t = d - (b / np.sqrt(a)) ** 2 if a > 0.0 else -1.0
+    if a > 0.0 and t > 0.0:
+        S[0, 0] = np.sqrt(a)
+        S[1, 0] = b / S[0, 0]
+        S[1, 1] = np.sqrt(t)
+    else:
+        w, V = np.linalg.eigh(np.array([[a, b], [b, d]]))
+        if w[0] < -1e-9 * max(abs(w[1]), 1e-300):
+            return False
+        for i in range(2):
+            r = np.sqrt(max(w[i], 0.0))
+            S[0, i] = V[0, i] * r
+            S[1, i] = V[1, i] * r
+    for r in range(2):
+        X[0, r] = m[r]
+        for i in range(2):
+            X[1 + i, r] = m[r] + S[r, i]
+            X[3 + i, r] = m[r] - S[r, i]
+    return True
+
+
+@njit(cache=True)
+def predicted_box(Y, Wm, Wc, Qd, duration, width, floor, lo, hi):
+    """lo, hi ← the predicted mean ± width·σ from the flowed sigma points Y (5, 2) with weights Wm, Wc:
+    σ² = Wc·(Y − mean)² + Q_ii·duration, σ floored at ``floor``."""
+    for r in range(2):
+        mp = 0.0
+        for k in range(Y.shape[0]):
+            mp += Wm[k] * Y[k, r]
+        var = 0.0
+        for k in range(Y.shape[0]):
+            var += Wc[k] * (Y[k, r] - mp) ** 2
+        sp = max(np.sqrt(max(var + Qd[r] * duration, 0.0)), floor)
+        lo[r] = mp - width * sp
+        hi[r] = mp + width * sp
+
+
+@njit(cache=True)
+def next_grid(blo, bhi, lo, hi, margin, shrink, new_lo, new_hi):
+    """The next grid around the box [blo, bhi] widened by ``margin`` of its size on each side: centred on
+    it, with the current grid's sides (lo, hi) while the widened box's sides lie within [shrink, 1] of
+    them on both axes (a translated grid), else the widened box's own."""
+    keep = True
+    for r in range(2):
+        need = (1.0 + 2.0 * margin) * (bhi[r] - blo[r])
+        old = hi[r] - lo[r]
+        keep = keep and need <= old and need >= shrink * old
+    for r in range(2):
+        size = hi[r] - lo[r] if keep else (1.0 + 2.0 * margin) * (bhi[r] - blo[r])
+        centre = 0.5 * (blo[r] + bhi[r])
+        new_lo[r] = centre - 0.5 * size
+        new_hi[r] = centre + 0.5 * size
+
+
+@njit(cache=True)
+def flow_sites(lo, h, lattice, n1, n2):
+    """The points whose flow the transport interpolates: the grid's nodes (lattice (N, 2) on the
+    half-element lattice), then the centres of its elements (row-major over (e1, e2))."""
+    N = lattice.shape[0]
+    Z = np.empty((N + n1 * n2, 2))
+    for j in range(N):
+        Z[j, 0] = lo[0] + 0.5 * h[0] * lattice[j, 0]
+        Z[j, 1] = lo[1] + 0.5 * h[1] * lattice[j, 1]
+    for e in range(n1 * n2):
+        Z[N + e, 0] = lo[0] + h[0] * ((e // n2) + 0.5)
+        Z[N + e, 1] = lo[1] + h[1] * ((e % n2) + 0.5)
+    return Z
+
+
+# serendipity shape functions at the element centre (ξ = η = 0): corners −¼, mid-sides ½
+_CENTRE = np.array([-0.25, -0.25, -0.25, -0.25, 0.5, 0.5, 0.5, 0.5])
+
+
+@njit(cache=True)
+def transport_deposit(p, conn, lo, h, n2, loc, phi, wq, bounds, levels, Z, tol, rel, new_lo, new_h, new_n1, new_n2,
+                      new_conn, b):
+    """The transport's quadrature on the grid (corner lo, element sides h, n2 elements along the second
+    axis) with nodal values p, deposited where the flow takes it on the new grid (corner new_lo, element
+    sides new_h, new_n1 × new_n2 elements, connectivity new_conn): b_j += Σ w φ_j(Y).
+
+    Every element e (conn (E, 8), row-major) carries points x = lo + h·((e1, e2) + loc[k]) with mass
+    w = (Σₐ p[conn[e, a]] φₐ(k))·wq[k]·h1·h2 by one of the quadrature rules stacked in loc (K, 2) in
+    [0, 1]², phi (K, 8), wq (K,) (on a unit element; rule r is rows bounds[r] .. bounds[r + 1] − 1, from
+    the finest): rule r = how many of the decreasing ``levels`` (× max p) exceed all the element's nodal
+    values; points with |w| ≤ rel × max |w| are dropped.  The flow
+    takes a point to Y = Σₐ φₐ(k) Z[conn[e, a]], the serendipity interpolant of the flowed nodes Z[:N]
+    (an isoparametric map), except on the elements where that interpolant misses the flowed centre
+    Z[N + e] by more than ``tol`` of a new element: their points are returned for an exact flow instead
+    of deposited.  Returns (the weight that fell outside the new grid, the total weight, X (M, 2) and
+    w (M,) of the points to flow exactly)."""
+    E, N = conn.shape[0], p.shape[0]
+    phiT = np.ascontiguousarray(phi.T)   # (8, K): the points of a rule contiguous, the loops below vectorise
+    pmax = 0.0
+    for j in range(N):
+        pmax = max(pmax, abs(p[j]))
+    first = np.empty(E, np.int64)    # each element's rule: rows first[e] .. last[e] − 1
+    last = np.empty(E, np.int64)
+    bad = np.empty(E, np.bool_)
+    start = np.empty(E + 1, np.int64)
+    start[0] = 0
+    for e in range(E):
+        big = 0.0
+        ex, ey = Z[N + e, 0], Z[N + e, 1]
+        for a in range(8):
+            big = max(big, abs(p[conn[e, a]]))
+            ex -= _CENTRE[a] * Z[conn[e, a], 0]
+            ey -= _CENTRE[a] * Z[conn[e, a], 1]
+        r = 0
+        while r < levels.shape[0] and big < levels[r] * pmax:
+            r += 1
+        first[e], last[e] = bounds[r], bounds[r + 1]
+        bad[e] = not (max(abs(ex) / new_h[0], abs(ey) / new_h[1]) <= tol)
+        start[e + 1] = start[e] + last[e] - first[e]
+    P = start[E]
+    w, Y0, Y1 = np.zeros(P), np.zeros(P), np.zeros(P)   # each point's weight and image
+    area = h[0] * h[1]
+    for e in range(E):
+        i0, f0 = start[e] - first[e], first[e]
+        for a in range(8):
+            pa, za0, za1 = p[conn[e, a]], Z[conn[e, a], 0], Z[conn[e, a], 1]
+            for k in range(f0, last[e]):
+                v = phiT[a, k]
+                w[i0 + k] += pa * v
+                Y0[i0 + k] += za0 * v
+                Y1[i0 + k] += za1 * v
+        for k in range(f0, last[e]):
+            w[i0 + k] *= wq[k] * area
+    big = 0.0
+    n_exact = 0
+    for e in range(E):
+        for i in range(start[e], start[e + 1]):
+            big = max(big, abs(w[i]))
+        if bad[e]:
+            n_exact += start[e + 1] - start[e]
+    cut = rel * big
+    for i in range(P):              # the dropped points and those to flow exactly take no part below
+        if not abs(w[i]) > cut:
+            w[i] = 0.0
+    X, wx = np.empty((n_exact, 2)), np.empty(n_exact)
+    total = 0.0
+    m = 0
+    for e in range(E):
+        if not bad[e]:
+            continue
+        u0, u1 = float(e // n2), float(e % n2)
+        for i in range(start[e], start[e + 1]):
+            if w[i] != 0.0:
+                k = first[e] + i - start[e]
+                X[m, 0] = lo[0] + h[0] * (u0 + loc[k, 0])
+                X[m, 1] = lo[1] + h[1] * (u1 + loc[k, 1])
+                wx[m] = w[i]
+                total += w[i]
+                m += 1
+                w[i] = 0.0
+    for i in range(P):
+        total += w[i]
+    el, xs, ys = _locate(Y0, Y1, new_lo, new_h, new_n1, new_n2)
+    outside = _scatter(el, xs, ys, w, new_conn, b)
+    return outside, total, X[:m].copy(), wx[:m].copy()
+
+
+@njit(cache=True)
+def mass_solve(b, Cm, kdm, h):
+    """q with M q = b on a grid of element sides h: M = h1·h2 × the unit mass matrix, whose band
+    Cholesky factor is (Cm, kdm)."""
+    q = cholesky_solve(Cm, kdm, b.copy())
+    area = h[0] * h[1]
+    for j in range(q.shape[0]):
+        q[j] /= area
+    return q
+
+
+@njit(cache=True)
+def transport_split(p, lo, hi, n1, n2, conn, lattice, V0, V1, V2, moving, width, c, Wm, Wc, Qd, duration, dt,
+                    margin, shrink, loc, phi, wq, bounds, levels, tol, Cm, kdm, drift_c, drift_jit, params, cap):
+    """One transport of the characteristics scheme, compiled end to end (``_fem._transport``, whose
+    NumPy-flow path runs the same steps): on a moving grid, the next grid from the density's moments
+    (sigma points with scale c, weights Wm, Wc, flowed over ``duration``; ``predicted_box``,
+    ``next_grid``), then the density carried onto it (``flow_sites``, ``transport_deposit``, the exact
+    flow and ``deposit`` of the points it returns, ``mass_solve``) and ``clip_normalise``d.  Returns (status, new lo, new hi, q, lost,
+    clipped, mass): status 1 when the moments have no sigma points (not positive semi-definite)."""
+    h = np.empty(2)
+    h[0], h[1] = (hi[0] - lo[0]) / n1, (hi[1] - lo[1]) / n2
+    new_lo, new_hi = lo.copy(), hi.copy()
+    if moving:
+        _, m, P = grid_moments(p, V0, V1, V2, lo, h)
+        S = np.empty((5, 2))
+        if not sigma_points_2d(m, P, c, S):
+            return 1, new_lo, new_hi, p, 0.0, 0.0, 0.0
+        flow_points(S, drift_c, drift_jit, params, duration, dt, cap)
+        blo, bhi = np.empty(2), np.empty(2)
+        predicted_box(S, Wm, Wc, Qd, duration, width, 0.5 * min(h[0], h[1]), blo, bhi)
+        next_grid(blo, bhi, lo, hi, margin, shrink, new_lo, new_hi)
+    hn = np.empty(2)
+    hn[0], hn[1] = (new_hi[0] - new_lo[0]) / n1, (new_hi[1] - new_lo[1]) / n2
+    Z = flow_sites(lo, h, lattice, n1, n2)
+    flow_points(Z, drift_c, drift_jit, params, duration, dt, cap)
+    b = np.zeros(p.shape[0])
+    outside, total, X, w = transport_deposit(p, conn, lo, h, n2, loc, phi, wq, bounds, levels, Z, tol, 1e-12, new_lo,
+                                             hn, n1, n2, conn, b)
+    if X.shape[0]:
+        flow_points(X, drift_c, drift_jit, params, duration, dt, cap)
+        outside += deposit(X, w, new_lo, hn, n1, n2, conn, b)
+    q = mass_solve(b, Cm, kdm, hn)
+    lost = outside / total if total > 0.0 else 0.0
+    clipped, mass = clip_normalise(q, V0, hn[0] * hn[1])
+    return 0, new_lo, new_hi, q, lost, clipped, mass
+
+
+# ---------------------------------------------------------------- the posterior's modes (``_fem._split``)
+@njit(cache=True)
+def lattice_modes(d, lattice, L1, L2, level):
+    """The 8-connected regions of the half-spacing lattice (L1 × L2) where the image of the nodal values
+    d (at ``lattice`` (N, 2); the element centres, which have no node, get the mean of their four
+    mid-side neighbours) exceeds ``level`` × its maximum, labelled in raster order (as
+    scipy.ndimage.label).  Returns (count, stats (count, 5)): each region's Σw, Σw·i, Σw·j, Σw·i²,
+    Σw·j² over its lattice points (i, j) with weights w = the image there."""
+    img = np.zeros((L1, L2))
+    for k in range(lattice.shape[0]):
+        img[lattice[k, 0], lattice[k, 1]] = d[k]
+    for i in range(1, L1 - 1, 2):
+        for j in range(1, L2 - 1, 2):
+            img[i, j] = 0.25 * (img[i - 1, j] + img[i + 1, j] + img[i, j - 1] + img[i, j + 1])
+    cut = level * img.max()
+    label = np.full((L1, L2), -1, np.int64)
+    stack = np.empty(L1 * L2, np.int64)
+    stats = np.zeros((L1 * L2 // 2 + 1, 5))
+    count = 0
+    for i0 in range(L1):
+        for j0 in range(L2):
+            if label[i0, j0] >= 0 or not img[i0, j0] > cut:
+                continue
+            label[i0, j0] = count
+            top = 0
+            stack[0] = i0 * L2 + j0
+            top = 1
+            while top > 0:
+                top -= 1
+                i, j = stack[top] // L2, stack[top] % L2
+                w = img[i, j]
+                stats[count, 0] += w
+                stats[count, 1] += w * i
+                stats[count, 2] += w * j
+                stats[count, 3] += w * i * i
+                stats[count, 4] += w * j * j
+                for a in range(max(i - 1, 0), min(i + 2, L1)):
+                    for b in range(max(j - 1, 0), min(j + 2, L2)):
+                        if label[a, b] < 0 and img[a, b] > cut:
+                            label[a, b] = count
+                            stack[top] = a * L2 + b
+                            top += 1
+            count += 1
+    return count, stats[:count].copy()
+
+
+@njit(cache=True)
+def second_difference_max(d, logl, a, b, c, level):
+    """max |logl[a] − 2 logl[b] + logl[c]| over the node triples (a, b, c) where d[b] > level × max d
+    (0 when there are none)."""
+    cut = level * d.max()
+    big = 0.0
+    for k in range(b.shape[0]):
+        if d[b[k]] > cut:
+            big = max(big, abs(logl[a[k]] - 2.0 * logl[b[k]] + logl[c[k]]))
+    return big
