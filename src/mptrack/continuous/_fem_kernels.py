@@ -351,6 +351,26 @@ def grid_moments(p, V0, V1, V2, lo, h):
 
 
 @njit(cache=True)
+def psd_project_2d(P):
+    """P (2, 2) symmetrised and projected onto the PSD cone (eigenvalues clipped at zero): the moments
+    of a coarse grid's density with clipped negative lobes need not be PSD.  A non-finite P is
+    returned as it is (:func:`sigma_points_2d` then refuses it)."""
+    A = 0.5 * (P + P.T)
+    if not np.all(np.isfinite(A)):
+        return A
+    w, V = np.linalg.eigh(A)
+    if w[0] >= 0.0:
+        return A
+    out = np.zeros((2, 2))
+    for i in range(2):
+        r = max(w[i], 0.0)
+        for a in range(2):
+            for b in range(2):
+                out[a, b] += V[a, i] * r * V[b, i]
+    return out
+
+
+@njit(cache=True)
 def sigma_points_2d(m, P, c, X):
     """X (5, 2) ← the sigma points m, m ± columns of √(cP) (``nonlinear._ukf.sigma_points``: a Cholesky
     factor, else the eigen-decomposition with eigenvalues clipped at zero).  Returns False when cP is
@@ -546,7 +566,7 @@ def transport_split(p, lo, hi, n1, n2, conn, lattice, V0, V1, V2, moving, width,
     if moving:
         _, m, P = grid_moments(p, V0, V1, V2, lo, h)
         S = np.empty((5, 2))
-        if not sigma_points_2d(m, P, c, S):
+        if not sigma_points_2d(m, psd_project_2d(P), c, S):
             return 1, new_lo, new_hi, p, 0.0, 0.0, 0.0
         flow_points(S, drift_c, drift_jit, params, duration, dt, cap)
         blo, bhi = np.empty(2), np.empty(2)
