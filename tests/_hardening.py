@@ -803,7 +803,7 @@ target("io.geodetic_to_enu", lat=arg((3,), valid=[45.0, 45.1, 45.2]), lon=arg((3
        lat0=scalar(-90, 90), lon0=scalar(-180, 180))
 target("io.enu_to_geodetic", east=arg((3,), valid=[0.0, 10.0, -5.0]), north=arg((3,), valid=[0.0, 10.0, -5.0]),
        lat0=scalar(-90, 90), lon0=scalar(-180, 180))
-# a table may hold +-Inf: GeoJSON writes it as null (tests/test_io_outputs.py), CSV/Parquet as is
+# a table may hold +-Inf: GeoJSON writes it as null (tests/io/test_io_outputs.py), CSV/Parquet as is
 target("io.write_table", df=frames(POINTS.iloc[:5], ["east_m", "lat"]), path=out_paths(), inf_args=("df",))
 target("io.read_output", path=paths(POINTS_CSV), nan_result=True)
 target("io.PartStore", lambda out: mio.PartStore(out), out=out_paths())

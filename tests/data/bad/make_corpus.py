@@ -2,7 +2,7 @@
 car trace (tests/data/around-visnjan-with-car.gpx, CC BY 4.0, see its LICENSE file).
 
 Run from the repository root: ``python tests/data/bad/make_corpus.py``.  The expected outcome of
-``mptrack track`` on each file is in ``tests/test_bad_inputs.py``.
+``mptrack track`` on each file is in ``tests/io/test_bad_inputs.py``.
 """
 
 from pathlib import Path

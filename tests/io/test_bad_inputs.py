@@ -15,7 +15,7 @@ from typer.testing import CliRunner
 
 from mptrack.cli import app
 
-BAD = Path(__file__).parent / "data" / "bad"
+BAD = Path(__file__).parents[1] / "data" / "bad"
 runner = CliRunner()
 
 #: file -> (extra options, exit status, words the stderr must hold, rows in the output or None)

@@ -17,7 +17,7 @@ from mptrack.io import PartStore, iter_tracks
 from mptrack.tracking import TrackOptions, track, track_file, track_fixes
 from mptrack.cli import app
 
-GPX = Path(__file__).parent / "data" / "around-visnjan-with-car.gpx"
+GPX = Path(__file__).parents[1] / "data" / "around-visnjan-with-car.gpx"
 runner = CliRunner()
 
 

@@ -19,7 +19,7 @@ from mptrack.io._formats import FORMATS, Skipped, raw_chunks, sniff_csv
 from mptrack.tracking import track
 from mptrack.cli import app
 
-DATA = Path(__file__).parent / "data"
+DATA = Path(__file__).parents[1] / "data"
 FMT = DATA / "formats"
 NMEA = FMT / "haicom-305N.nmea"          # SiRF-II, 2007, starts without a fix, then walks
 NMEA_RTK = FMT / "trimble-rtk.nmea"      # Trimble at 10 Hz, DGPS then RTK fixes

@@ -13,7 +13,7 @@ import mptrack.experiments as experiments_pkg
 from mptrack.experiments import experiments
 from mptrack.report import write_reproduction_report
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 ERRATA = ROOT / "docs" / "errata.md"
 SOURCE = ROOT / "src" / "mptrack" / "experiments"
 

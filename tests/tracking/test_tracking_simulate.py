@@ -17,7 +17,7 @@ from mptrack.tracking import simulate
 from mptrack.cli import app
 from mptrack.tracking._simulate import ORIGIN, Intervals, cv_noise_factor, cv_states, simulate_chunks
 
-GPX = Path(__file__).parent / "data" / "around-visnjan-with-car.gpx"
+GPX = Path(__file__).parents[1] / "data" / "around-visnjan-with-car.gpx"
 FRAME = LocalFrame(*ORIGIN)
 
 

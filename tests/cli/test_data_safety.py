@@ -25,7 +25,7 @@ from mptrack.cli import app
 
 fcntl = pytest.importorskip("fcntl", reason="POSIX locks, signals and mounts")
 
-SRC = str(Path(__file__).resolve().parents[1] / "src")
+SRC = str(Path(__file__).resolve().parents[2] / "src")
 ENV = dict(os.environ, PYTHONPATH=os.pathsep.join([SRC] + [p for p in [os.environ.get("PYTHONPATH")] if p]),
            MPLBACKEND="Agg", OPENBLAS_NUM_THREADS="1")
 CLI = [sys.executable, "-m", "mptrack.cli"]

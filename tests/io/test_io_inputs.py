@@ -22,7 +22,7 @@ from mptrack.io import (
     write_table,
 )
 
-DATA = Path(__file__).parent / "data"
+DATA = Path(__file__).parents[1] / "data"
 GPX = DATA / "around-visnjan-with-car.gpx"
 
 
@@ -316,7 +316,7 @@ def test_part_store_streams_its_parts_in_order_and_cleans_up(tmp_path):
     assert not store.dir.exists()  # a store that lost parts is not kept for a resume
 
 def test_user_guide_shows_the_current_schemas():
-    guide = (Path(__file__).parents[1] / "docs" / "tracking.md").read_text()
+    guide = (Path(__file__).parents[2] / "docs" / "tracking.md").read_text()
     for schema in (FIXES, MEASUREMENTS, CELLS):
         assert schema.markdown() in guide
 

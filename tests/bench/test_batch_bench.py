@@ -46,7 +46,7 @@ def test_a_peer_that_disagrees_stops_the_benchmark(monkeypatch):
 
 
 def test_plot_throughput_writes_a_png(tmp_path):
-    path = Path(__file__).parents[1] / "benchmarks" / "plot_throughput.py"
+    path = Path(__file__).parents[2] / "benchmarks" / "plot_throughput.py"
     spec = importlib.util.spec_from_file_location("plot_throughput", path)
     mod = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mod)

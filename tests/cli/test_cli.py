@@ -24,7 +24,7 @@ from _data import REAL_TRACES
 
 runner = CliRunner()
 COMMANDS = ("track", "simulate", "evaluate", "reproduce", "bench", "filters")
-SRC = str(Path(__file__).resolve().parents[1] / "src")
+SRC = str(Path(__file__).resolve().parents[2] / "src")
 ENV = dict(os.environ, PYTHONPATH=SRC, MPLBACKEND="Agg", COLUMNS="80")
 
 

@@ -356,8 +356,8 @@ def _report_in_a_fresh_process(tmp_path, n_tracks: int, per: int, budget: int) -
             "t = synthetic_table(%d, %d, rejected=0.4)\n"
             "write_report(t, %r, summary=evaluate_tracks(t)[0], budget=%d)\n"
             "print(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss)\n") % (
-        str(Path(__file__).parent), n_tracks, per, str(page), budget)
-    env = dict(os.environ, PYTHONPATH=str(Path(__file__).resolve().parents[1] / "src"))
+        str(Path(__file__).parents[1]), n_tracks, per, str(page), budget)
+    env = dict(os.environ, PYTHONPATH=str(Path(__file__).resolve().parents[2] / "src"))
     res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=600)
     assert res.returncode == 0, res.stderr
     return int(res.stdout.split()[-1]), page

@@ -23,7 +23,7 @@ from mptrack.radio import arfcn_to_frequency, path_loss
 from mptrack.tracking import (TA_STEP_M, TrackOptions, band_of_arfcn, get_cell_method, get_model, kalman_filter_gated,
                               nis_threshold, ranges_km, smooth_gated, simulate, track_cells, track_fixes)
 
-GPX = Path(__file__).parent / "data" / "around-visnjan-with-car.gpx"
+GPX = Path(__file__).parents[1] / "data" / "around-visnjan-with-car.gpx"
 
 
 def cv_data(T=40, seed=0, irregular=False):
