@@ -23,7 +23,10 @@ covariance conserved; _push), diffusion over τ/2 there.  The grid only has to
 cover the density, not the path it travels, and nothing oscillates when the
 drift dominates: with little diffusion the Galerkin schemes below need a box
 spanning the whole move, elements wider than the density, and lose the state
-(docs/nonlinear.md).  Separate posterior modes (a range ring seen from an
+(docs/nonlinear.md).  With a model's compiled kernels each transport (grid
+placement, node flow, quadrature, deposit, mass solve) is one compiled call
+(_Characteristics.transport); the diffusion's factorisations are kept and
+re-used across grids of nearby element sizes (_Diffusion).  Separate posterior modes (a range ring seen from an
 ambiguous bearing) get a grid each: the filter carries a mixture of parts
 (GridMixture), predicted independently since the equation is linear (_split,
 _update, _merge).
@@ -498,11 +501,12 @@ _MAX_PARTS = 4              # parts of the mixture kept (the heaviest) ...
 _MIN_PART = 1e-4            # ... with at least this fraction of the heaviest one's weight
 _PUSH_GAUSS = 3             # the transport's quadrature: Gauss points per axis ...
 _PUSH_SUB = 2               # ... on this many sub-cells per axis of every element (_push) ...
-_PUSH_TIERS = ((3, 1, 0.03), (2, 1, 1e-3))  # ... 3 × 3 Gauss points on the elements whose nodal values are all
-                            # below 0.03 of the largest, 2 × 2 below 1e-3 (the tails: 60 % of the elements)
+_PUSH_TIERS = ((2, 1, 1e-3),)  # ... and 2 × 2 Gauss points on the elements whose nodal values are all below
+                            # 1e-3 of the largest (the tails: 60 % of the elements); a 3 × 3 tier below 0.03
+                            # saved 25 % of the deposit but cost +0.0003 at Q x 0.001 (docs/nonlinear.md)
 _MAP_TOL = 0.01             # the flow interpolated from the nodes unless it misses an element's centre by
                             # more than this fraction of an element (transport_points)
-_DIFFUSION_STEP = 1.0       # diffusion sub-steps of the characteristics scheme: duration·ρ ≤ this each (_Diffusion)
+_DIFFUSION_STEP = 0.5       # diffusion sub-steps of the characteristics scheme: duration·ρ ≤ this each (_Diffusion)
 _CACHE = 16                 # diffusion factorisations kept (_Diffusion) ...
 _CACHE_BYTES = 48 * 2**20   # ... at most this many bytes of them ...
 _REUSE = (0.8, 2.0)         # ... re-used for operators within these factors of theirs (_Diffusion)

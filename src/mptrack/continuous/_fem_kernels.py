@@ -1,11 +1,18 @@
-"""Compiled prediction steps of the grid filter on a LAPACK band LU (see ``_fem._factorise``).
+"""Compiled steps of the grid filter (``_fem``).
 
-The factors are those of ``?gbtrf`` with kl = ku, stored transposed so that
-each column of the band is a contiguous row: ``F[j, r] = ab[r, j]`` with
-``ab`` LAPACK's (3·kl + 1, n) band array, and ``piv`` the 0-based row
-interchanges scipy returns.  Solves run in the factors' precision (single, see
-``_fem._SOLVE_DTYPE``); the density and the element matrix-vector products
-stay double.  Kernels are compiled on first use and cached on disk.
+Galerkin schemes: time steps on a LAPACK band LU (see ``_fem._factorise``).  The factors are
+those of ``?gbtrf`` with kl = ku, stored transposed so that each column of the band is a
+contiguous row: ``F[j, r] = ab[r, j]`` with ``ab`` LAPACK's (3·kl + 1, n) band array, and ``piv``
+the 0-based row interchanges scipy returns.  Solves run in the factors' precision (single, see
+``_fem._SOLVE_DTYPE``); the density and the element matrix-vector products stay double.
+
+The characteristics scheme: band Cholesky factorisations and solves, the diffusion's SDIRK2
+steps (``diffuse``), and the transport compiled end to end (``transport_split``: grid placement,
+flow, quadrature, deposit, mass solve), built from pieces the NumPy-flow path of a model without
+kernels calls one by one; the search for the posterior's modes (``lattice_modes``).  Per-point
+helpers take and return scalars: a helper called per point with array arguments costs a
+reference count per array and call (it made the deposit 8× slower).  Kernels are compiled on
+first use and cached on disk.
 """
 
 from __future__ import annotations
