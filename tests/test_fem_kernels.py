@@ -1,13 +1,26 @@
 """The grid filter's compiled kernels against their NumPy definitions (to 1e-12)."""
 
+import itertools
+
 import numpy as np
 import pytest
 import scipy.linalg
 import scipy.sparse.linalg
 
-from mptrack.continuous import FEMGrid, linear_sde_model, zhao2013_model
-from mptrack.continuous import _fem, _fem_kernels
-from mptrack.continuous._fem_kernels import cholesky_solve, deposit, flow_points, flow_sites, transport_deposit
+from mptrack.continuous import (
+    FEMGrid,
+    _fem,
+    _fem_kernels,
+    linear_sde_model,
+    zhao2013_model,
+)
+from mptrack.continuous._fem_kernels import (
+    cholesky_solve,
+    deposit,
+    flow_points,
+    flow_sites,
+    transport_deposit,
+)
 from mptrack.continuous._model import rk4_flow
 
 
@@ -24,8 +37,8 @@ def test_transport_deposit_equals_the_numpy_quadrature(shape):
     returned for an exact flow instead."""
     g = FEMGrid([-1.0, 0.5], [2.0, 1.7], *shape)
     p = _density(g, np.array([0.4, 1.1]), np.diag([0.05, 0.02]))
-    loc, phi, wq, bounds, levels = rules = _fem._push_rules(((3, 1, 0.03), (2, 1, 1e-3)))   # three rules
-    fine, mid, coarse = ((loc[a:b], phi[a:b], wq[a:b]) for a, b in zip(bounds[:-1], bounds[1:]))
+    loc, phi, wq, bounds, _ = rules = _fem._push_rules(((3, 1, 0.03), (2, 1, 1e-3)))   # three rules
+    fine, mid, coarse = ((loc[a:b], phi[a:b], wq[a:b]) for a, b in itertools.pairwise(bounds))
     sites = flow_sites(g.lo, g._h, g._top["lattice"], *shape)
     N = g.size
     np.testing.assert_array_equal(sites[:N], g.nodes)

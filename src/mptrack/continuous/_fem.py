@@ -78,7 +78,12 @@ import scipy.sparse
 import scipy.sparse.linalg
 
 from .._validation import as_array, check_int, check_positive
-from ..errors import ConvergenceError, NotPositiveDefiniteError, ParameterError, ShapeError
+from ..errors import (
+    ConvergenceError,
+    NotPositiveDefiniteError,
+    ParameterError,
+    ShapeError,
+)
 from ..linear import FilterResult
 from ..nonlinear._common import prepare_nonlinear
 from ..nonlinear._ukf import _weights as _sigma_weights
@@ -87,7 +92,6 @@ from ._fem_kernels import (
     band_cn,
     band_sdirk2,
     band_solve,
-    cholesky_solve,
     clip_normalise,
     deposit,
     diffuse_kept,
@@ -301,7 +305,7 @@ class FEMGrid:
         return W0
 
     @classmethod
-    def _at(cls, lo: np.ndarray, hi: np.ndarray, n1: int, n2: int) -> "FEMGrid":
+    def _at(cls, lo: np.ndarray, hi: np.ndarray, n1: int, n2: int) -> FEMGrid:
         """A grid the filter placed itself (float64 corners, hi > lo): no argument checks."""
         grid = object.__new__(cls)
         grid._fill(lo, hi, n1, n2)
@@ -1016,7 +1020,7 @@ def _split(g: FEMGrid, p: np.ndarray, model, zk, width: float, logl: np.ndarray)
         d = np.clip(g.evaluate(p, fine.nodes), 0.0, None) * np.exp(logl - logl.max())
         if not np.all(np.isfinite(d)) or d.max() <= 0.0:
             return [(g, p, 0.0)]
-    count, stats = lattice_modes(d, fine._top["lattice"], 2 * fine.n1 + 1, 2 * fine.n2 + 1, _LEVEL)
+    _, stats = lattice_modes(d, fine._top["lattice"], 2 * fine.n1 + 1, 2 * fine.n2 + 1, _LEVEL)
     mass = stats[:, 0]
     boxes = []
     for c in np.flatnonzero(mass > _MIN_MODE * mass.sum()):

@@ -621,7 +621,7 @@ def stiffness_unit(G, s00, s01, s11):
 
 @njit(cache=True)
 def diffuse_kept(kept, p, h, duration, grid, diff):
-    """The diffusion over ``duration`` of nodal values p on a grid with element sides h (``_fem._Diffusion``
+    """The diffusion over ``duration`` of nodal values p on a grid with element sides h (``_fem._Characteristics``
     describes the scheme): SDIRK2 in n steps of τ_s (n = ⌈substeps·duration/dt⌉, or with substeps = 0
     ⌈duration·ρ/step⌉, ρ the largest eigenvalue of S = H⁻¹QH⁻¹) on the band Cholesky factorisation of
     M̂ + γ·Â(C) kept for the C' = τ_s·S nearest in time of use with reuse_lo·C ⪯ C' ⪯ reuse_hi·C, or
