@@ -1,13 +1,26 @@
 """The grid filter's compiled kernels against their NumPy definitions (to 1e-12)."""
 
+import itertools
+
 import numpy as np
 import pytest
 import scipy.linalg
 import scipy.sparse.linalg
 
-from mptrack.continuous import FEMGrid, linear_sde_model, zhao2013_model
-from mptrack.continuous import _fem, _fem_kernels
-from mptrack.continuous._fem_kernels import cholesky_solve, deposit, flow_points, flow_sites, transport_deposit
+from mptrack.continuous import (
+    FEMGrid,
+    _fem,
+    _fem_kernels,
+    linear_sde_model,
+    zhao2013_model,
+)
+from mptrack.continuous._fem_kernels import (
+    cholesky_solve,
+    deposit,
+    flow_points,
+    flow_sites,
+    transport_deposit,
+)
 from mptrack.continuous._model import rk4_flow
 
 
@@ -24,8 +37,8 @@ def test_transport_deposit_equals_the_numpy_quadrature(shape):
     returned for an exact flow instead."""
     g = FEMGrid([-1.0, 0.5], [2.0, 1.7], *shape)
     p = _density(g, np.array([0.4, 1.1]), np.diag([0.05, 0.02]))
-    loc, phi, wq, bounds, levels = rules = _fem._push_rules(((3, 1, 0.03), (2, 1, 1e-3)))   # three rules
-    fine, mid, coarse = ((loc[a:b], phi[a:b], wq[a:b]) for a, b in zip(bounds[:-1], bounds[1:]))
+    loc, phi, wq, bounds, _ = rules = _fem._push_rules(((3, 1, 0.03), (2, 1, 1e-3)))   # three rules
+    fine, mid, coarse = ((loc[a:b], phi[a:b], wq[a:b]) for a, b in itertools.pairwise(bounds))
     sites = flow_sites(g.lo, g._h, g._top["lattice"], *shape)
     N = g.size
     np.testing.assert_array_equal(sites[:N], g.nodes)
@@ -114,8 +127,8 @@ def test_compiled_transport_equals_the_numpy_flow_path(scale, moving):
     plain = dataclasses.replace(model, kernels=None)
     g = FEMGrid([-1.5, 0.5], [2.5, 3.5], 20, 20)
     p = _density(g, np.array([0.4, 2.0]), np.array([[0.3, 0.1], [0.1, 0.2]]))
-    got = _fem._Characteristics(model, None, 4.0, 4, False).transport(g, p, moving, 0.25)
-    want = _fem._Characteristics(plain, None, 4.0, 4, False).transport(g, p, moving, 0.25)
+    got = _fem._Characteristics(model, None, 4.0, 4, False, (20, 20)).transport(g, p, moving, 0.25)
+    want = _fem._Characteristics(plain, None, 4.0, 4, False, (20, 20)).transport(g, p, moving, 0.25)
     assert (got[0] is g) == (not moving) and (want[0] is g) == (not moving)
     np.testing.assert_allclose(got[0].lo, want[0].lo, rtol=1e-12)
     np.testing.assert_allclose(got[0].hi, want[0].hi, rtol=1e-12)
@@ -131,20 +144,20 @@ def test_diffusion_reuses_a_nearby_factorisation_and_keeps_mean_and_covariance_g
     density differs from an exact one's by far less than the diffusion changes it."""
     model = linear_sde_model(np.zeros((2, 2)), np.array([[0.02, 0.005], [0.005, 0.01]]), np.eye(2), np.eye(2), 1.0)
     m, P = np.array([0.3, -0.2]), np.array([[0.04, 0.01], [0.01, 0.03]])
-    diffusion = _fem._Diffusion(model, None)
+    scheme = _fem._Characteristics(model, None, 4.0, 4, False, (20, 20))
     g0 = FEMGrid(m - 1.0, m + 1.0, 20, 20)
-    diffusion(g0, _density(g0, m, P), 0.125)
-    assert diffusion.factorisations == 1
+    scheme.diffuse(g0, _density(g0, m, P), 0.125)
+    assert scheme.factorisations == 1
     for grow, factorisations in ((1.1, 1), (1.5, 2)):
         g = FEMGrid(m - grow, m + grow, 20, 20)
         p = _density(g, m, P)
-        q, clipped = diffusion(g, p, 0.125)
-        assert diffusion.factorisations == factorisations
+        q, clipped = scheme.diffuse(g, p, 0.125)
+        assert scheme.factorisations == factorisations
         mass, mean, cov = g.moments(q)
         assert clipped < 1e-6 and mass == pytest.approx(1.0)
         np.testing.assert_allclose(mean, g.moments(p)[1], atol=1e-6)      # single-precision solves
         np.testing.assert_allclose(cov, g.moments(p)[2] + 0.125 * model.Q, atol=1e-6)
-        exact = _fem._Diffusion(model, None)(g, p, 0.125)[0]
+        exact = _fem._Characteristics(model, None, 4.0, 4, False, (20, 20)).diffuse(g, p, 0.125)[0]
         change = np.abs(exact - p).max()
         assert np.abs(q - exact).max() < (0.02 if factorisations == 1 else 1e-6) * change
 
@@ -171,3 +184,22 @@ def test_lattice_modes_equal_scipy_labels():
         lab, w = labels[ii, jj] - 1, img[ii, jj]
         want = np.stack([np.bincount(lab, weights=w * f, minlength=n) for f in (1, ii, jj, ii * ii, jj * jj)], axis=1)
         np.testing.assert_allclose(stats, want, rtol=1e-12)
+
+
+@pytest.mark.parametrize("scale, fixed", [(0.01, False), (1.0, False), (0.01, True)])
+def test_compiled_dt_equals_its_steps(scale, fixed):
+    """predict_dt (one compiled call per dt) against the same steps called one by one from Python, on
+    the same factorisation cache: grid, density, lost and clipped mass, factorisations."""
+    model = zhao2013_model(variant="vdp", diffusion_scale=scale)
+    g = FEMGrid([-1.5, 0.5], [2.5, 3.5], 20, 20)
+    p = _density(g, np.array([0.4, 2.0]), np.array([[0.3, 0.1], [0.1, 0.2]]))
+    whole, steps = (_fem._Characteristics(model, None, 4.0, 4, fixed, (20, 20)) for _ in range(2))
+    for _ in range(3):                                    # the kept factorisations carry over between dts
+        got, want = whole.predict(g, p), steps.predict_steps(g, p)
+        assert (got[0] is g) == fixed and got[2:4] == want[2:4]
+        np.testing.assert_allclose(got[0].lo, want[0].lo, rtol=1e-14)
+        np.testing.assert_allclose(got[0].hi, want[0].hi, rtol=1e-14)
+        np.testing.assert_allclose(got[1], want[1], rtol=1e-12, atol=1e-14 * np.abs(want[1]).max())
+        np.testing.assert_allclose(got[4:], want[4:], rtol=1e-12, atol=1e-16)
+        g, p = got[:2]
+    assert whole.factorisations == steps.factorisations >= 1

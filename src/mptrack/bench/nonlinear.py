@@ -54,15 +54,16 @@ def nonlinear_suite(quick: bool) -> dict:
         "t + tau (moments, sigma points, box), and a diffusion over tau/2 there (the two half-steps between "
         "transports run as one); the update is Bayes' rule at the nodes after a search for separate posterior "
         "modes. The transport is compiled end to end: the grid's nodes are carried by RK4 steps of the flow, "
-        "the quadrature points (36 per element, 9 or 4 on elements whose nodal values are all below 3 % or "
-        "0.1 % of the largest) by the flow's serendipity interpolant, deposited on the new grid, then one "
+        "the quadrature points (36 per element, 4 on elements whose nodal values are all below 0.1 % of "
+        "the largest) by the flow's serendipity interpolant, deposited on the new grid, then one "
         "band Cholesky solve with the mass matrix. The diffusion is SDIRK2 (2 single-precision band "
         "Cholesky solves per step) on factorisations kept across grids whose element sizes give a stage "
         "matrix within factors (0.8, 2) of theirs (a W-method); a new one is factorised when none is.",
-        "'per step' rows: where a default step's time goes, each component timed inside the run with the "
-        "smallest total; placement = the transport's extra cost on a moving grid (its calls replayed on a "
-        "fixed grid); the last row is the remainder (merging mixture parts, prior/posterior moments, the "
-        "step records, Python).",
+        "'per step' rows: where a default step's time goes, in the run with the smallest total: the time "
+        "in the predictions (one compiled call per second) split in proportion to the cost of their pieces, "
+        "each timed alone on the run's own inputs (grid placement, carrying the density, diffusion steps; "
+        "factorisations as their count times one's cost), the updates, and the rest (merging mixture "
+        "parts, prior/posterior moments, the step records, Python); the rows add up to that run's total.",
         "scheme='sdirk2' is the Galerkin drift-diffusion operator (16 SDIRK2 sub-steps on 20x20, an LU "
         "factorisation whenever the grid moves); it loses the state at low diffusion (docs/nonlinear.md).",
         "PF: 2 Strang-split RK4 sub-steps per second (bias on this example ~0.003, a third of the Monte-Carlo "
@@ -184,59 +185,66 @@ def _fem_rows(model, z, x0, P0, n: int, box, repeats: int) -> list:
 
 
 def _fem_breakdown(model, z, x0, P0, grid, repeats: int) -> dict:
-    """Seconds per step of the default FEM filter's parts, timed inside the run (of ``repeats``) with
-    the smallest total: transport calls (grid placement = their extra cost on a moving grid, from the
-    recorded calls replayed on a fixed grid), diffusion steps, diffusion factorisations, updates, and the
-    remainder."""
+    """Seconds per step of the default FEM filter's parts.  The run with the smallest total of
+    ``repeats`` gives the total, the time in the predictions (``_Characteristics.predict``: one compiled
+    call per dt) and in the updates.  The prediction's time is split in proportion to the cost of its
+    pieces, each timed alone on the run's own inputs (best of ``repeats``): the predictions replayed
+    piece by piece (``predict_steps``) for the inputs of every grid placement (``place_grid``), carrying
+    of the density (``carry``) and diffusion (``diffuse_kept`` on kept factorisations), and the run's
+    count of factorisations times one's cost.  The rest is the total minus predictions and updates."""
     import time
     from unittest import mock
 
-    from ..continuous import _fem
+    from ..continuous import _fem, _fem_kernels
 
-    spent: dict = {}
-    count: dict = {}
-    calls: list = []
-
-    def timed(key, fn, record=False):
+    def timed(fn, log, record=None):
         def wrapper(*args):
             t = time.perf_counter()
             out = fn(*args)
-            spent[key] = spent.get(key, 0.0) + time.perf_counter() - t
-            count[key] = count.get(key, 0) + 1
-            if record:
-                calls.append(args)
+            log.append(time.perf_counter() - t)
+            if record is not None:
+                record.append(args)
             return out
         return wrapper
 
     best = None
     for _ in range(max(1, repeats)):
-        spent.clear()
-        count.clear()
-        calls.clear()
-        with mock.patch.object(_fem._Characteristics, "transport", timed("transport", _fem._Characteristics.transport,
-                                                                           record=True)), \
-                mock.patch.object(_fem._Diffusion, "__call__", timed("diffusion", _fem._Diffusion.__call__)), \
-                mock.patch.object(_fem, "_band_cholesky", timed("factorisations", _fem._band_cholesky)), \
-                mock.patch.object(_fem, "_update", timed("update", _fem._update)):
+        updates, predictions, inputs = [], [], []
+        with mock.patch.object(_fem._Characteristics, "predict", timed(_fem._Characteristics.predict, predictions,
+                                                                        inputs)), \
+                mock.patch.object(_fem, "_update", timed(_fem._update, updates)):
             t = time.perf_counter()
             fem_filter(model, z, x0, P0, grid=grid)
             total = time.perf_counter() - t
         if best is None or total < best[0]:
-            best = (total, dict(spent), dict(count), list(calls))
-    total, spent, count, calls = best
+            best = (total, sum(predictions), sum(updates), inputs)
+    total, predict, update, inputs = best
+    scheme = inputs[0][0]
+    transports, diffusions = [], []
+    with mock.patch.object(_fem, "transport_split", timed(_fem.transport_split, [], transports)), \
+            mock.patch.object(_fem, "diffuse_kept", timed(_fem.diffuse_kept, [], diffusions)):
+        for s, g, p in inputs:
+            s.predict_steps(g, p)
+    placed = [_fem_kernels.place_grid(p, lo, hi, d, grid_, place, flow) for p, lo, hi, _, d, grid_, place, flow, _ in
+              transports]
+    pieces = {
+        "placement": sum(best_time(lambda a=a: _fem_kernels.place_grid(a[0], a[1], a[2], *a[4:8]), repeats) for a in transports),
+        "carry": sum(best_time(lambda a=a, new=new: _fem_kernels.carry(*a[:3], new[1], new[2], a[4], a[5], *a[7:]), repeats)
+                     for a, new in zip(transports, placed)),
+        "diffusion": sum(best_time(lambda a=a: _fem.diffuse_kept(*a), repeats) for a in diffusions),
+        "factorisations": scheme.factorisations * best_time(
+            lambda: _fem._band_cholesky(_fem._topology(*grid), _fem._topology(*grid)["Me"], np.float32), repeats)}
+    share = predict / sum(pieces.values())
     steps = z.shape[0]
-    moving = sum(best_time(lambda a=a: a[0].transport(a[1], a[2], True, a[4]), repeats) for a in calls)
-    fixed = sum(best_time(lambda a=a: a[0].transport(a[1], a[2], False, a[4]), repeats) for a in calls)
-    placement = max(0.0, moving - fixed) / moving * spent["transport"]
-    factorise = spent.get("factorisations", 0.0)
-    parts = {"grid placement (moments, sigma points, box; inside the transport kernel)": placement,
-             f"transport ({len(calls) / steps:.0f} per step: node flow, quadrature, deposit, mass solve)":
-                 spent["transport"] - placement,
-             f"diffusion ({count['diffusion'] / steps:.0f} per step: SDIRK2 on kept factorisations)":
-                 spent["diffusion"] - factorise,
-             f"diffusion factorisations ({count.get('factorisations', 0) / steps:.2f} per step)": factorise,
-             "update (likelihood, search for separate modes, Bayes' rule)": spent["update"]}
-    parts["the rest (merging mixture parts, moments, step records, Python)"] = total - sum(parts.values())
+    parts = {"grid placement (moments, sigma points, box)": pieces["placement"] * share,
+             f"transport ({len(transports) / steps:.0f} per step: node flow, quadrature, deposit, mass solve)":
+                 pieces["carry"] * share,
+             f"diffusion ({len(diffusions) / steps:.0f} per step: SDIRK2 on kept factorisations)":
+                 pieces["diffusion"] * share,
+             f"diffusion factorisations ({scheme.factorisations / steps:.2f} per step)":
+                 pieces["factorisations"] * share,
+             "update (likelihood, search for separate modes, Bayes' rule)": update,
+             "the rest (merging mixture parts, moments, step records, Python)": total - predict - update}
     return {label: t / steps for label, t in parts.items()}
 
 

@@ -23,7 +23,10 @@ covariance conserved; _push), diffusion over τ/2 there.  The grid only has to
 cover the density, not the path it travels, and nothing oscillates when the
 drift dominates: with little diffusion the Galerkin schemes below need a box
 spanning the whole move, elements wider than the density, and lose the state
-(docs/nonlinear.md).  Separate posterior modes (a range ring seen from an
+(docs/nonlinear.md).  With a model's compiled kernels each transport (grid
+placement, node flow, quadrature, deposit, mass solve) is one compiled call
+(_Characteristics.transport); the diffusion's factorisations are kept and
+re-used across grids of nearby element sizes (_Characteristics).  Separate posterior modes (a range ring seen from an
 ambiguous bearing) get a grid each: the filter carries a mixture of parts
 (GridMixture), predicted independently since the equation is linear (_split,
 _update, _merge).
@@ -89,13 +92,13 @@ from ..nonlinear._common import prepare_nonlinear
 from ..nonlinear._ukf import _weights as _sigma_weights
 from ..nonlinear._ukf import sigma_points
 from ._fem_kernels import (
-    element_band_cholesky,
     band_cn,
     band_sdirk2,
     band_solve,
     clip_normalise,
     deposit,
-    diffuse,
+    diffuse_kept,
+    element_band_cholesky,
     flow_points,
     flow_sites,
     grid_moments,
@@ -103,9 +106,11 @@ from ._fem_kernels import (
     lattice_modes,
     mass_solve,
     next_grid,
+    predict_dt,
     predicted_box,
     second_difference_max,
     sigma_points_2d,
+    stiffness_unit,
     transport_deposit,
     transport_split,
 )
@@ -324,7 +329,7 @@ class FEMGrid:
         return W0
 
     @classmethod
-    def _at(cls, lo: np.ndarray, hi: np.ndarray, n1: int, n2: int) -> "FEMGrid":
+    def _at(cls, lo: np.ndarray, hi: np.ndarray, n1: int, n2: int) -> FEMGrid:
         """A grid the filter placed itself (float64 corners, hi > lo): no argument checks."""
         grid = object.__new__(cls)
         grid._fill(lo, hi, n1, n2)
@@ -526,14 +531,15 @@ _MAX_PARTS = 4              # parts of the mixture kept (the heaviest) ...
 _MIN_PART = 1e-4            # ... with at least this fraction of the heaviest one's weight
 _PUSH_GAUSS = 3             # the transport's quadrature: Gauss points per axis ...
 _PUSH_SUB = 2               # ... on this many sub-cells per axis of every element (_push) ...
-_PUSH_TIERS = ((3, 1, 0.03), (2, 1, 1e-3))  # ... 3 × 3 Gauss points on the elements whose nodal values are all
-                            # below 0.03 of the largest, 2 × 2 below 1e-3 (the tails: 60 % of the elements)
+_PUSH_TIERS = ((2, 1, 1e-3),)  # ... and 2 × 2 Gauss points on the elements whose nodal values are all below
+                            # 1e-3 of the largest (the tails: 60 % of the elements); a 3 × 3 tier below 0.03
+                            # saved 25 % of the deposit but cost +0.0003 at Q x 0.001 (docs/nonlinear.md)
 _MAP_TOL = 0.01             # the flow interpolated from the nodes unless it misses an element's centre by
                             # more than this fraction of an element (transport_points)
-_DIFFUSION_STEP = 1.0       # diffusion sub-steps of the characteristics scheme: duration·ρ ≤ this each (_Diffusion)
-_CACHE = 16                 # diffusion factorisations kept (_Diffusion) ...
+_DIFFUSION_STEP = 0.5       # diffusion sub-steps of the characteristics scheme: duration·ρ ≤ this each (_Characteristics)
+_CACHE = 16                 # diffusion factorisations kept (_Characteristics) ...
 _CACHE_BYTES = 48 * 2**20   # ... at most this many bytes of them ...
-_REUSE = (0.8, 2.0)         # ... re-used for operators within these factors of theirs (_Diffusion)
+_REUSE = (0.8, 2.0)         # ... re-used for operators within these factors of theirs (_Characteristics)
 _RK4_RADIUS = 2.5           # classical RK4 is stable on the left half-disc of this radius (2.6 is the largest)
 
 
@@ -542,8 +548,9 @@ def _factorise(grid: FEMGrid, Be: np.ndarray):
 
     A band LU (LAPACK ?gbtrf, partial pivoting) in the natural lattice order,
     half-bandwidth ≈ 3·n2, while its factors fit in _BAND_BYTES; ``band`` is then
-    (F, piv, kl) for the compiled kernels of _fem_kernels.  SuperLU with a fill-reducing ordering beyond (band None).  Factors are in _SOLVE_DTYPE
-    (single precision); right-hand sides and solutions stay double.  Measured
+    (F, piv, kl) for the compiled kernels of _fem_kernels.  SuperLU with a fill-reducing ordering
+    beyond (band None).  Factors are in _SOLVE_DTYPE (single precision); right-hand sides and
+    solutions stay double.  Measured
     (docs/design.md): on 20 × 20 the band LU factorises 2× faster than SuperLU
     and solves faster; on 40 × 40 its factors make every solve slower.
     """
@@ -791,37 +798,87 @@ def _push_rules(tiers=None):
 
 
 class _Characteristics:
-    """The prediction of the characteristics scheme over one filter run (see _characteristic_steps):
-    the model's constants for the compiled transport, and the diffusion with its factorisations."""
+    """The prediction of the characteristics scheme over one filter run on n1 × n2 grids (see
+    _characteristic_steps): the constants of the compiled kernels, and the diffusion's factorisations.
 
-    def __init__(self, model, substeps: int | None, width: float, splits: int, fixed: bool):
+    Diffusion: SDIRK2 over a duration, in ⌈``substeps``·duration/dt⌉ steps, or (None) in as many as
+    the diffusion's rate on the element scale needs: n = ⌈duration·ρ/_DIFFUSION_STEP⌉ with ρ the
+    largest eigenvalue of S = H⁻¹QH⁻¹, H = diag(h) (SDIRK2 is L-stable; this bounds its error on the
+    modes the elements resolve).  In element units the operator is M̂ dp/dt = −Â(S) p, with M̂ and
+    Â(S) = ½ Σ S_de G_de the same for every grid of a shape, so a stage matrix M̂ + γτ_s Â(S) depends on
+    C = τ_s·S alone.  A kept band Cholesky factorisation whose C' lies within _REUSE of C
+    (_REUSE[0]·C ⪯ C' ⪯ _REUSE[1]·C) is re-used with the grid's own, exact, right-hand side Â(S) p: a
+    W-method (the stage matrix of a nearby operator).  Its error on the modes the elements resolve is
+    a fraction |1 − C'/C| of SDIRK2's own second-order term, and it stays stable for stiff modes while
+    C' ⪰ 0.75·C (the amplification at −∞ is 1 − 1/(γr) + (1 − γ)/(γr²), r = C'/C; 0 at r = 1, |·| < 1
+    for r > 0.75); the mean and covariance the diffusion adds do not depend on the stage matrix
+    (tested).  A factorisation costs 9 solves at 20 × 20; re-use takes them from 2.9 to 0.37 per
+    measurement step on eq. 42 at no measurable cost in accuracy (docs/nonlinear.md).  _CACHE kept (at
+    most _CACHE_BYTES), the least recently used replaced (``diffuse_kept``).
+
+    With the model's compiled kernels a whole dt runs in one call (``predict_dt``); without, the
+    same steps run from Python (:meth:`predict_steps`), the transport with the NumPy flow."""
+
+    def __init__(self, model, substeps: int | None, width: float, splits: int, fixed: bool, shape):
         self.model, self.width, self.splits, self.fixed = model, width, splits, fixed
         self.tau = model.dt / splits
-        self.diffusion = _Diffusion(model, substeps)
-        self.Qd = np.diag(model.Q).copy()
+        n1, n2 = shape
+        top = _topology(n1, n2)
+        kd = top["band"][0]
+        self.grid = (n1, n2, top["conn"], top["lattice"], top["V0"], top["V1"], top["V2"],
+                     *_unit_mass_factor(n1, n2), top["Me"], top["G"])
+        self.place = (width, *_SIGMA, np.diag(model.Q).copy(), _MARGIN, _SHRINK)
+        self.rules = (*_push_rules(), _MAP_TOL)
+        self.diff = (np.ascontiguousarray(model.Q, dtype=float), 0 if substeps is None else substeps,
+                     _DIFFUSION_STEP, model.dt, _GAMMA, *_REUSE)
+        width_bytes = top["N"] * 2 * (kd + 1) * np.dtype(_SOLVE_DTYPE).itemsize
+        K = max(1, min(_CACHE, _CACHE_BYTES // width_bytes))
+        self.kept = (np.zeros((K, 3)), np.zeros((K, top["N"], 2 * (kd + 1)), _SOLVE_DTYPE), np.zeros(K, np.int64),
+                     np.zeros(2, np.int64))
         compiled = _compiled(model)
         cap = np.inf if model.max_increment is None else model.max_increment
-        self.drift = None if compiled is None else (*compiled.drift_at, model.kernels.drift_params, cap)
+        self.flow = None if compiled is None else (*compiled.drift_at, model.kernels.drift_params, model.dt, cap)
+
+    @property
+    def factorisations(self) -> int:
+        """Diffusion factorisations made so far."""
+        return int(self.kept[3][1])
 
     def predict(self, g: FEMGrid, p: np.ndarray):
         """One dt: ``splits`` Strang steps; the diffusions over τ/2 that end one step and start the next
         run on the same grid, as one over τ.  Returns (grid, p, factorised, regridded, lost, clipped)."""
-        tau, diffusion = self.tau, self.diffusion
-        before, lost = diffusion.factorisations, 0.0
-        p, clipped = diffusion(g, p, 0.5 * tau)
+        if self.flow is None:
+            return self.predict_steps(g, p)
+        before = self.factorisations
+        status, lo, hi, q, lost, clipped = predict_dt(p, g.lo, g.hi, not self.fixed, self.splits, self.kept,
+                                                      self.grid, self.place, self.flow, self.rules, self.diff)
+        _raise(status, "prediction")
+        g = g if self.fixed else FEMGrid._at(lo, hi, g.n1, g.n2)
+        return g, q, self.factorisations > before, not self.fixed, lost, clipped
+
+    def predict_steps(self, g: FEMGrid, p: np.ndarray):
+        """:meth:`predict` step by step from Python (``predict_dt``'s steps)."""
+        tau, before, lost = self.tau, self.factorisations, 0.0
+        p, clipped = self.diffuse(g, p, 0.5 * tau)
         for i in range(self.splits):
             g, p, out, c1 = self.transport(g, p, not self.fixed, tau)
-            p, c2 = diffusion(g, p, tau if i < self.splits - 1 else 0.5 * tau)
+            p, c2 = self.diffuse(g, p, tau if i < self.splits - 1 else 0.5 * tau)
             lost += out
             clipped += c1 + c2
-        return g, p, diffusion.factorisations > before, not self.fixed, lost, clipped
+        return g, p, self.factorisations > before, not self.fixed, lost, clipped
+
+    def diffuse(self, g: FEMGrid, p: np.ndarray, duration: float):
+        """(p diffused over ``duration`` on g, clipped and normalised; the negative mass removed)."""
+        q, clipped, mass, status = diffuse_kept(self.kept, p, g._h, duration, self.grid, self.diff)
+        _raise(status or (2 if not (np.isfinite(mass) and mass > 0.0) else 0), "prediction")
+        return q, clipped
 
     def transport(self, g: FEMGrid, p: np.ndarray, moving: bool, duration: float):
         """The transport step: the next grid (g itself when not ``moving``, else placed around the
         density predicted for t + duration: _predicted_box, ``next_grid``) and the density carried onto
         it (_push), clipped and normalised.  Compiled end to end (``transport_split``) when the model
         has kernels.  Returns (grid, p, lost, clipped)."""
-        if self.drift is None:
+        if self.flow is None:
             lo, hi = g.lo, g.hi
             if moving:
                 _, m, P = g.moments(p)
@@ -832,15 +889,20 @@ class _Characteristics:
             q, lost = _push(g, p, new, self.model, duration)
             p, clipped = _clip_normalise(new, q, "prediction")
             return new, p, lost, clipped
-        top = g._top
-        status, lo, hi, q, lost, clipped, mass = transport_split(
-            p, g.lo, g.hi, g.n1, g.n2, g.conn, top["lattice"], top["V0"], top["V1"], top["V2"], moving, self.width,
-            *_SIGMA, self.Qd, duration, self.model.dt, _MARGIN, _SHRINK, *_push_rules(), _MAP_TOL,
-            *_unit_mass_factor(g.n1, g.n2), *self.drift)
-        if status:
-            raise NotPositiveDefiniteError("P: the density's covariance lost positive semi-definiteness")
-        _check_mass(mass, "prediction")
+        status, lo, hi, q, lost, clipped, mass = transport_split(p, g.lo, g.hi, moving, duration, self.grid,
+                                                                 self.place, self.flow, self.rules)
+        _raise(status or (2 if not (np.isfinite(mass) and mass > 0.0) else 0), "prediction")
         return (FEMGrid._at(lo, hi, g.n1, g.n2) if moving else g), q, lost, clipped
+
+
+def _raise(status: int, what: str) -> None:
+    """The error of a compiled step's status (0: none)."""
+    if status == 1:
+        raise NotPositiveDefiniteError("P: the density's covariance lost positive semi-definiteness")
+    if status == 2:
+        _check_mass(0.0, what)
+    if status == 3:
+        raise ConvergenceError("grid filter: the diffusion's time-step matrix is not positive definite")
 
 
 def _bayes_update(grid: FEMGrid, p: np.ndarray, logl: np.ndarray, k: int):
@@ -960,74 +1022,10 @@ def fem_steps(model: ContinuousDiscreteModel, z, x0, P0, *, grid: tuple[int, int
                       loglik=ll, clipped=clipped, lost=lost, regridded=regridded, factorised=factorised)
 
 
-class _Diffusion:
-    """The diffusion steps of the characteristics scheme: SDIRK2 over a duration on a grid, in
-    ⌈``substeps``·duration/dt⌉ steps, or (None) in as many as the diffusion's rate on the element scale
-    needs: n = ⌈duration·ρ/_DIFFUSION_STEP⌉ with ρ the largest eigenvalue of S = H⁻¹QH⁻¹, H = diag(h)
-    (SDIRK2 is L-stable; this bounds its error on the modes the elements resolve).
-
-    In element units the operator is M̂ dp/dt = −Â(S) p, with M̂ and Â(S) = ½ Σ S_de G_de the same
-    for every grid of a shape, so a stage matrix M̂ + γτ_s Â(S) depends on C = τ_s·S alone.  A kept
-    band Cholesky factorisation whose C' lies within _REUSE of C (_REUSE[0]·C ⪯ C' ⪯ _REUSE[1]·C) is
-    re-used with the grid's own, exact, right-hand side Â(S) p: a W-method (the stage matrix of a
-    nearby operator).  Its error on the modes the elements resolve is of the order of SDIRK2's own
-    (a fraction |1 − C'/C| of the stage's second-order term), and it stays stable for stiff modes
-    while C' ⪰ 0.75·C (the amplification at −∞ is 1 − 1/(γr) + (1 − γ)/(γr²), r = C'/C; 0 at r = 1,
-    |·| < 1 for r > 0.75).  The factorisation is the dominant cost of a step on a grid that changes
-    size (0.4 ms at 20 × 20, 9 solves' worth); re-use takes it from 3 per measurement step to 0.3-0.5
-    on eq. 42 at no measurable cost in accuracy (docs/nonlinear.md).  The _CACHE most recently used
-    (at most _CACHE_BYTES) are kept."""
-
-    def __init__(self, model, substeps: int | None):
-        self.model, self.substeps = model, substeps
-        self.cache: list = []   # [(C', (factor, kd))], the most recently used last
-        self.factorisations = 0
-
-    def __call__(self, g: FEMGrid, p: np.ndarray, duration: float, what: str = "prediction"):
-        """(p diffused over ``duration`` on g, clipped and normalised; the negative mass removed)."""
-        S = self.model.Q / np.outer(g._h, g._h)
-        if self.substeps is None:
-            rho = 0.5 * (S[0, 0] + S[1, 1]) + np.hypot(0.5 * (S[0, 0] - S[1, 1]), S[0, 1])
-            n = max(1, int(np.ceil(duration * rho / _DIFFUSION_STEP)))
-        else:
-            n = max(1, int(np.ceil(self.substeps * duration / self.model.dt - 1e-9)))
-        tau = duration / n
-        top = g._top
-        C = tau * S
-        for i in range(len(self.cache) - 1, -1, -1):   # the most recently used first
-            if _within(self.cache[i][0], C, _REUSE):
-                factor = self.cache[i][1]
-                self.cache.append(self.cache.pop(i))
-                break
-        else:
-            Be = top["Me"] + _GAMMA * _stiffness_unit(top, C)
-            factor = _band_cholesky(top, Be, np.dtype(_SOLVE_DTYPE))
-            self.factorisations += 1
-            self.cache.append((C, factor))
-            while len(self.cache) > _CACHE or sum(f[0].nbytes for _, f in self.cache) > _CACHE_BYTES:
-                self.cache.pop(0)
-        q, clipped, mass = diffuse(*factor, g.conn, -_stiffness_unit(top, S)[None], p, tau, _GAMMA, n, top["V0"],
-                                   float(g._h[0] * g._h[1]))
-        _check_mass(mass, what)
-        return q, clipped
-
-
-def _within(A: np.ndarray, B: np.ndarray, bounds) -> bool:
-    """lo·B ⪯ A ⪯ hi·B, (lo, hi) = bounds, for symmetric 2 × 2 A, B ⪰ 0 (to rounding)."""
-    lo, hi = bounds
-    return _psd2((hi + 1e-9) * B - A, B) and _psd2(A - (lo - 1e-9) * B, B)
-
-
-def _psd2(D: np.ndarray, scale: np.ndarray) -> bool:
-    eps = 1e-12 * (abs(scale[0, 0]) + abs(scale[1, 1]))
-    return D[0, 0] >= -eps and D[1, 1] >= -eps and D[0, 0] * D[1, 1] - D[0, 1] * D[1, 0] >= -eps * eps
-
-
 def _stiffness_unit(top: dict, S: np.ndarray) -> np.ndarray:
     """Â(S) = ½ Σ_de S_de G_de: the diffusion's element stiffness on a unit element (8, 8), with
-    G_de = ∫ ∂_dφ ∂_eφᵀ in element units and S = H⁻¹QH⁻¹."""
-    G = top["G"]
-    return 0.5 * (S[0, 0] * G[0] + S[0, 1] * (G[1] + G[1].T) + S[1, 1] * G[2])
+    G_de = ∫ ∂_dφ ∂_eφᵀ in element units and S = H⁻¹QH⁻¹ (``stiffness_unit``)."""
+    return stiffness_unit(top["G"], S[0, 0], S[0, 1], S[1, 1])
 
 
 def _galerkin_step(model, g, p, m, P, width, substeps, fixed):
@@ -1066,7 +1064,7 @@ def _split(g: FEMGrid, p: np.ndarray, model, zk, width: float, logl: np.ndarray)
         d = np.clip(g.evaluate(p, fine.nodes), 0.0, None) * np.exp(logl - logl.max())
         if not np.all(np.isfinite(d)) or d.max() <= 0.0:
             return [(g, p, 0.0)]
-    count, stats = lattice_modes(d, fine._top["lattice"], 2 * fine.n1 + 1, 2 * fine.n2 + 1, _LEVEL)
+    _, stats = lattice_modes(d, fine._top["lattice"], 2 * fine.n1 + 1, 2 * fine.n2 + 1, _LEVEL)
     mass = stats[:, 0]
     boxes = []
     for c in np.flatnonzero(mass > _MIN_MODE * mass.sum()):
@@ -1148,7 +1146,7 @@ def _characteristic_steps(model, z, m, P, g: FEMGrid, width, substeps, fixed: bo
     equation is linear, so each part is predicted on its own, and parts whose grids come to
     overlap are merged.
     """
-    scheme = _Characteristics(model, substeps, width, splits, fixed)
+    scheme = _Characteristics(model, substeps, width, splits, fixed, (g.n1, g.n2))
     parts = [_Part(1.0, g, _clip_normalise(g, _gaussian_on(g, m, P), "P0")[0])]
     for k in range(z.shape[0]):
         factorised = regridded = False

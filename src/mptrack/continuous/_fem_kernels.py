@@ -1,11 +1,18 @@
-"""Compiled prediction steps of the grid filter on a LAPACK band LU (see ``_fem._factorise``).
+"""Compiled steps of the grid filter (``_fem``).
 
-The factors are those of ``?gbtrf`` with kl = ku, stored transposed so that
-each column of the band is a contiguous row: ``F[j, r] = ab[r, j]`` with
-``ab`` LAPACK's (3·kl + 1, n) band array, and ``piv`` the 0-based row
-interchanges scipy returns.  Solves run in the factors' precision (single, see
-``_fem._SOLVE_DTYPE``); the density and the element matrix-vector products
-stay double.  Kernels are compiled on first use and cached on disk.
+Galerkin schemes: time steps on a LAPACK band LU (see ``_fem._factorise``).  The factors are
+those of ``?gbtrf`` with kl = ku, stored transposed so that each column of the band is a
+contiguous row: ``F[j, r] = ab[r, j]`` with ``ab`` LAPACK's (3·kl + 1, n) band array, and ``piv``
+the 0-based row interchanges scipy returns.  Solves run in the factors' precision (single, see
+``_fem._SOLVE_DTYPE``); the density and the element matrix-vector products stay double.
+
+The characteristics scheme: band Cholesky factorisations and solves, the diffusion's SDIRK2
+steps (``diffuse``), and the transport compiled end to end (``transport_split``: grid placement,
+flow, quadrature, deposit, mass solve), built from pieces the NumPy-flow path of a model without
+kernels calls one by one; the search for the posterior's modes (``lattice_modes``).  Per-point
+helpers take and return scalars: a helper called per point with array arguments costs a
+reference count per array and call (it made the deposit 8× slower).  Kernels are compiled on
+first use and cached on disk.
 """
 
 from __future__ import annotations
@@ -17,8 +24,9 @@ from .. import _jit_cache  # noqa: F401 - compiled kernels cache in the user's c
 from ._kernels import _BLOCK, _as_kernel, _flow
 
 __all__ = ["band_solve", "band_sdirk2", "band_cn", "deposit", "interpolate", "flow_points", "cholesky_solve",
-           "band_cholesky", "element_band_cholesky", "clip_normalise", "diffuse", "grid_moments", "sigma_points_2d", "predicted_box",
-           "next_grid", "flow_sites", "transport_deposit", "mass_solve", "transport_split", "lattice_modes",
+           "band_cholesky", "element_band_cholesky", "clip_normalise", "grid_moments", "sigma_points_2d", "predicted_box",
+           "next_grid", "flow_sites", "transport_deposit", "mass_solve", "place_grid", "carry", "transport_split", "within", "stiffness_unit",
+           "diffuse_kept", "predict_dt", "lattice_modes",
            "second_difference_max"]
 
 
@@ -315,15 +323,6 @@ def clip_normalise(p, V0, area):
 
 
 @njit(cache=True)
-def diffuse(C, kd, conn, Ae, p, tau, gamma, substeps, V0, area):
-    """``substeps`` SDIRK2 steps of the diffusion M̂ dp/dt = Ae p on a band Cholesky factor (C, kd) of
-    its stage matrix (``band_sdirk2``), then ``clip_normalise``: returns (p, clipped, mass)."""
-    q = band_sdirk2(C, np.empty(0, np.int32), kd, conn, Ae, p, tau, gamma, substeps)
-    clipped, mass = clip_normalise(q, V0, area)
-    return q, clipped, mass
-
-
-@njit(cache=True)
 def grid_moments(p, V0, V1, V2, lo, h):
     """(mass, mean (2,), covariance (2, 2)) of the interpolant of p on the grid with corner lo and
     element sides h, from the unit-element moment weights V0 (N,), V1 (N, 2), V2 (N, 3)
@@ -552,27 +551,38 @@ def mass_solve(b, Cm, kdm, h):
 
 
 @njit(cache=True)
-def transport_split(p, lo, hi, n1, n2, conn, lattice, V0, V1, V2, moving, width, c, Wm, Wc, Qd, duration, dt,
-                    margin, shrink, loc, phi, wq, bounds, levels, tol, Cm, kdm, drift_c, drift_jit, params, cap):
-    """One transport of the characteristics scheme, compiled end to end (``_fem._transport``, whose
-    NumPy-flow path runs the same steps): on a moving grid, the next grid from the density's moments
-    (sigma points with scale c, weights Wm, Wc, flowed over ``duration``; ``predicted_box``,
-    ``next_grid``), then the density carried onto it (``flow_sites``, ``transport_deposit``, the exact
-    flow and ``deposit`` of the points it returns, ``mass_solve``) and ``clip_normalise``d.  Returns (status, new lo, new hi, q, lost,
-    clipped, mass): status 1 when the moments have no sigma points (not positive semi-definite)."""
+def place_grid(p, lo, hi, duration, grid, place, flow):
+    """The next grid of the characteristics scheme's transport, around the density predicted for
+    t + duration from the moments of p on the grid [lo, hi] (sigma points flowed over ``duration``,
+    ``predicted_box``, ``next_grid``).  Returns (ok, new lo, new hi): not ok when the moments have no
+    sigma points (not positive semi-definite)."""
+    n1, n2, V0, V1, V2 = grid[0], grid[1], grid[4], grid[5], grid[6]
+    width, c, Wm, Wc, Qd, margin, shrink = place
+    drift_c, drift_jit, params, dt, cap = flow
     h = np.empty(2)
     h[0], h[1] = (hi[0] - lo[0]) / n1, (hi[1] - lo[1]) / n2
     new_lo, new_hi = lo.copy(), hi.copy()
-    if moving:
-        _, m, P = grid_moments(p, V0, V1, V2, lo, h)
-        S = np.empty((5, 2))
-        if not sigma_points_2d(m, psd_project_2d(P), c, S):
-            return 1, new_lo, new_hi, p, 0.0, 0.0, 0.0
-        flow_points(S, drift_c, drift_jit, params, duration, dt, cap)
-        blo, bhi = np.empty(2), np.empty(2)
-        predicted_box(S, Wm, Wc, Qd, duration, width, 0.5 * min(h[0], h[1]), blo, bhi)
-        next_grid(blo, bhi, lo, hi, margin, shrink, new_lo, new_hi)
-    hn = np.empty(2)
+    _, m, P = grid_moments(p, V0, V1, V2, lo, h)
+    S = np.empty((5, 2))
+    if not sigma_points_2d(m, psd_project_2d(P), c, S):
+        return False, new_lo, new_hi
+    flow_points(S, drift_c, drift_jit, params, duration, dt, cap)
+    blo, bhi = np.empty(2), np.empty(2)
+    predicted_box(S, Wm, Wc, Qd, duration, width, 0.5 * min(h[0], h[1]), blo, bhi)
+    next_grid(blo, bhi, lo, hi, margin, shrink, new_lo, new_hi)
+    return True, new_lo, new_hi
+
+
+@njit(cache=True)
+def carry(p, lo, hi, new_lo, new_hi, duration, grid, flow, rules):
+    """The density p on the grid [lo, hi] carried by the flow over ``duration`` onto the grid [new_lo,
+    new_hi] of the same shape (``flow_sites``, ``transport_deposit``, the exact flow and ``deposit`` of
+    the points it returns, ``mass_solve``) and ``clip_normalise``d: (q, lost, clipped, mass)."""
+    n1, n2, conn, lattice, V0, Cm, kd = grid[0], grid[1], grid[2], grid[3], grid[4], grid[7], grid[8]
+    drift_c, drift_jit, params, dt, cap = flow
+    loc, phi, wq, bounds, levels, tol = rules
+    h, hn = np.empty(2), np.empty(2)
+    h[0], h[1] = (hi[0] - lo[0]) / n1, (hi[1] - lo[1]) / n2
     hn[0], hn[1] = (new_hi[0] - new_lo[0]) / n1, (new_hi[1] - new_lo[1]) / n2
     Z = flow_sites(lo, h, lattice, n1, n2)
     flow_points(Z, drift_c, drift_jit, params, duration, dt, cap)
@@ -582,10 +592,137 @@ def transport_split(p, lo, hi, n1, n2, conn, lattice, V0, V1, V2, moving, width,
     if X.shape[0]:
         flow_points(X, drift_c, drift_jit, params, duration, dt, cap)
         outside += deposit(X, w, new_lo, hn, n1, n2, conn, b)
-    q = mass_solve(b, Cm, kdm, hn)
+    q = mass_solve(b, Cm, kd, hn)
     lost = outside / total if total > 0.0 else 0.0
     clipped, mass = clip_normalise(q, V0, hn[0] * hn[1])
+    return q, lost, clipped, mass
+
+
+@njit(cache=True)
+def transport_split(p, lo, hi, moving, duration, grid, place, flow, rules):
+    """One transport of the characteristics scheme, compiled end to end (``_fem._Characteristics``;
+    a model without kernels runs the same steps with the NumPy flow in between): on a moving grid the
+    next grid (``place_grid``), then the density carried onto it (``carry``).
+
+    grid = (n1, n2, conn, lattice, V0, V1, V2, mass factor, its kd, ...), place = (width, sigma-point
+    scale c, Wm, Wc, diag Q, margin, shrink), flow = (drift addresses, params, dt, cap), rules = (loc,
+    phi, wq, bounds, levels, tol) of ``transport_deposit``.  Returns (status, new lo, new hi, q, lost,
+    clipped, mass): status 1 when the moments have no sigma points (not positive semi-definite)."""
+    new_lo, new_hi = lo, hi
+    if moving:
+        ok, new_lo, new_hi = place_grid(p, lo, hi, duration, grid, place, flow)
+        if not ok:
+            return 1, new_lo, new_hi, p, 0.0, 0.0, 0.0
+    q, lost, clipped, mass = carry(p, lo, hi, new_lo, new_hi, duration, grid, flow, rules)
     return 0, new_lo, new_hi, q, lost, clipped, mass
+
+
+# ---------------------------------------------------------------- the diffusion on kept factorisations
+@njit(cache=True)
+def _psd2(d00, d01, d11, eps):
+    return d00 >= -eps and d11 >= -eps and d00 * d11 - d01 * d01 >= -eps * eps
+
+
+@njit(cache=True)
+def within(A, B, lo, hi):
+    """lo·B ⪯ A ⪯ hi·B for symmetric 2 × 2 A, B ⪰ 0 given as (a00, a01, a11) (to rounding)."""
+    eps = 1e-12 * (abs(B[0]) + abs(B[2]))
+    t, u = hi + 1e-9, lo - 1e-9
+    return (_psd2(t * B[0] - A[0], t * B[1] - A[1], t * B[2] - A[2], eps)
+            and _psd2(A[0] - u * B[0], A[1] - u * B[1], A[2] - u * B[2], eps))
+
+
+@njit(cache=True)
+def stiffness_unit(G, s00, s01, s11):
+    """Â(S) = ½ Σ_de S_de G_de: the diffusion's element stiffness on a unit element (8, 8) for
+    S = H⁻¹QH⁻¹ = [[s00, s01], [s01, s11]], G (3, 8, 8) = ∫ ∂_dφ ∂_eφᵀ for (d, e) = 00, 01, 11."""
+    return 0.5 * (s00 * G[0] + s01 * (G[1] + G[1].T) + s11 * G[2])
+
+
+@njit(cache=True)
+def diffuse_kept(kept, p, h, duration, grid, diff):
+    """The diffusion over ``duration`` of nodal values p on a grid with element sides h (``_fem._Characteristics``
+    describes the scheme): SDIRK2 in n steps of τ_s (n = ⌈substeps·duration/dt⌉, or with substeps = 0
+    ⌈duration·ρ/step⌉, ρ the largest eigenvalue of S = H⁻¹QH⁻¹) on the band Cholesky factorisation of
+    M̂ + γ·Â(C) kept for the C' = τ_s·S nearest in time of use with reuse_lo·C ⪯ C' ⪯ reuse_hi·C, or
+    on a new one (replacing the least recently used); then ``clip_normalise``.
+
+    kept = (keys (K, 3): each factorisation's C, factors (K, N, 2(kd + 1)), stamps (K,): last use (0:
+    empty), counters (2,): [clock, factorisations made]); grid as for ``transport_split`` (conn [2],
+    V0 [4], kd [8], unit mass element matrix Me [9], G [10]); diff = (Q (2, 2), substeps, step, dt, γ,
+    reuse_lo, reuse_hi).  Returns (q, clipped, mass, status): status 3 when a new stage matrix is not
+    positive definite."""
+    keys, factors, stamps, counters = kept
+    conn, V0, kd, Me, G = grid[2], grid[4], grid[8], grid[9], grid[10]
+    Q, substeps, step, dt, gamma, reuse_lo, reuse_hi = diff
+    s00, s01, s11 = Q[0, 0] / (h[0] * h[0]), Q[0, 1] / (h[0] * h[1]), Q[1, 1] / (h[1] * h[1])
+    if substeps > 0:
+        n = max(1, int(np.ceil(substeps * duration / dt - 1e-9)))
+    else:
+        rho = 0.5 * (s00 + s11) + np.hypot(0.5 * (s00 - s11), s01)
+        n = max(1, int(np.ceil(duration * rho / step)))
+    tau = duration / n
+    C = np.array([tau * s00, tau * s01, tau * s11])
+    slot = -1
+    for k in range(stamps.shape[0]):   # the most recently used within bounds
+        if stamps[k] > 0 and (slot < 0 or stamps[k] > stamps[slot]) and within(keys[k], C, reuse_lo, reuse_hi):
+            slot = k
+    if slot < 0:                       # a new factorisation, in an empty or the least recently used slot
+        slot = 0
+        for k in range(1, stamps.shape[0]):
+            if stamps[k] < stamps[slot]:
+                slot = k
+        F = factors[slot]
+        F[:] = 0.0
+        stamps[slot] = 0
+        if not element_band_cholesky(Me + gamma * stiffness_unit(G, C[0], C[1], C[2]), conn, kd, F):
+            return p, 0.0, 0.0, 3
+        keys[slot] = C
+        counters[1] += 1
+    counters[0] += 1
+    stamps[slot] = counters[0]
+    Ae = np.empty((1, 8, 8))
+    Ae[0] = -stiffness_unit(G, s00, s01, s11)
+    q = band_sdirk2(factors[slot], np.empty(0, np.int32), kd, conn, Ae, p, tau, gamma, n)
+    clipped, mass = clip_normalise(q, V0, h[0] * h[1])
+    return q, clipped, mass, 0
+
+
+@njit(cache=True)
+def _no_mass(mass):
+    return not (mass > 0.0 and mass < np.inf)
+
+
+@njit(cache=True)
+def predict_dt(p, lo, hi, moving, splits, kept, grid, place, flow, rules, diff):
+    """One dt of the characteristics scheme, compiled (``_fem._Characteristics.predict``): a diffusion
+    over τ/2 (``diffuse_kept``), then ``splits`` times a transport over τ = dt/splits
+    (``transport_split``) and a diffusion over τ (τ/2 after the last).  Returns (status, lo, hi, p, lost,
+    clipped): status 1 as for ``transport_split``, 2 when the density has no positive mass left after
+    a step, 3 as for ``diffuse_kept``."""
+    n1, n2 = grid[0], grid[1]
+    tau = flow[3] / splits
+    h = np.empty(2)
+    h[0], h[1] = (hi[0] - lo[0]) / n1, (hi[1] - lo[1]) / n2
+    p, clipped, mass, status = diffuse_kept(kept, p, h, 0.5 * tau, grid, diff)
+    lost = 0.0
+    for i in range(splits):
+        if status == 0 and _no_mass(mass):
+            status = 2
+        if status:
+            break
+        status, lo, hi, p, out, c1, mass = transport_split(p, lo, hi, moving, tau, grid, place, flow, rules)
+        if status == 0 and _no_mass(mass):
+            status = 2
+        if status:
+            break
+        h[0], h[1] = (hi[0] - lo[0]) / n1, (hi[1] - lo[1]) / n2
+        p, c2, mass, status = diffuse_kept(kept, p, h, tau if i < splits - 1 else 0.5 * tau, grid, diff)
+        lost += out
+        clipped += c1 + c2
+    if status == 0 and _no_mass(mass):
+        status = 2
+    return status, lo, hi, p, lost, clipped
 
 
 # ---------------------------------------------------------------- the posterior's modes (``_fem._split``)
