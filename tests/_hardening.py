@@ -370,7 +370,7 @@ target("linear.kalman_step", x=arg((2,)), P=covariance(2), z=arg((1,)), F=arg((2
 target("linear.lainiotis_step", lambda x, P, z, F: linear.lainiotis_step(LP, F, B.Q, x, P, z, np.eye(2)),
        x=arg((2,)), P=covariance(2), z=arg((1,)), F=arg((2, 2), valid=B.F))
 target("linear.fir_order", A=arg((2, 2), valid=0.5 * np.eye(2)), eps=scalar(0, 1), norm=names(2, 1, "fro", np.inf),
-       max_order=count(1, 1000))
+       max_order=count(1, 1000), inf_args=("norm",))     # norm=inf: numpy's max-row-sum order, not a number
 target("linear.fir_coefficients", A=arg((2, 2), valid=0.5 * np.eye(2)), B=arg((2, 1), valid=np.ones((2, 1))),
        M=count())
 target("linear.join_results", a=just(KF), b=st.one_of(st.just(KF), st.just(SS_RESULT), st.builds(
@@ -720,7 +720,8 @@ target("tracking.Intervals", lambda kind, min_s, mean_s, rng: tracking.simulate(
     passed=("interval", "max_s"))
 target("tracking.evaluate_tracks", lambda tracks, truth, tolerance_s, truth_columns: tracking.evaluate_tracks(
     tracks, truth, tolerance_s=tolerance_s, truth_columns=truth_columns),
-    tracks=st.one_of(frames(POINTS, ["t", "time", "east_m", "lat", "lon"]),
+    # not "time": evaluate reads t and passes the time column through untouched
+    tracks=st.one_of(frames(POINTS, ["t", "east_m", "lat", "lon", "var_east_m2"]),
                      frames(POINTS_WITH_TRUTH, ["true_lat", "true_lon", "east_m"])),
     truth=st.one_of(st.just(LOG), st.just(LOG), st.none()), tolerance_s=scalar(0, 5), truth_columns=flags(),
     nan_result=True)
@@ -740,7 +741,8 @@ target("tracking.track_gated", lambda times, z, R, prior_variances: tracking.tra
     CV2, times, z, R, prior_variances), times=arg((3,), valid=[0.0, 1.0, 2.0]),
     z=arg((3, 2), valid=[[0.0, 0.0], [1.0, 1.0], [2.0, 2.0]]), R=arg((3, 2, 2), valid=np.array([np.eye(2)] * 3)),
     prior_variances=arg((4,), valid=[1.0, 100.0, 1.0, 100.0]), passed=("model",))
-target("tracking.read_output", path=paths(POINTS_CSV), nan_result=True)
+# read_output returns what the file holds: write_table writes +-Inf as is (CSV, Parquet), so may the file
+target("tracking.read_output", path=paths(POINTS_CSV), nan_result=True, inf_result=True)
 target("tracking.track_fixes", lambda rows, q: tracking.track_fixes(TRACK_ID, rows, q=q),
        rows=frames(ROWS, ["t", "lat", "lon", "accuracy_m"]), q=maybe(scalar(0, 10)), passed=("track_id",),
        nan_result=True)
@@ -805,7 +807,7 @@ target("io.enu_to_geodetic", east=arg((3,), valid=[0.0, 10.0, -5.0]), north=arg(
        lat0=scalar(-90, 90), lon0=scalar(-180, 180))
 # a table may hold +-Inf: GeoJSON writes it as null (tests/io/test_io_outputs.py), CSV/Parquet as is
 target("io.write_table", df=frames(POINTS.iloc[:5], ["east_m", "lat"]), path=out_paths(), inf_args=("df",))
-target("io.read_output", path=paths(POINTS_CSV), nan_result=True)
+target("io.read_output", path=paths(POINTS_CSV), nan_result=True, inf_result=True)
 target("io.PartStore", lambda out: mio.PartStore(out), out=out_paths())
 
 

@@ -470,3 +470,63 @@ def test_a_measurement_reading_beyond_the_state_is_refused():
         with pytest.raises(ShapeError, match=r"^measurement: reads state component [23] .* motion has n = 2"):
             models.nonlinear_model(B, measurement)
     assert models.nonlinear_model(models.constant_velocity(1.0, 0.1, 2), models.ranges(H.STATIONS, 25.0)).n == 4
+
+
+# --- the large run after the second merge: its failures, one example each -------------------------
+
+def _simulate_q(q):
+    from mptrack.tracking import simulate
+    return simulate("gps", 1, np.random.default_rng(0), duration_s=2.0, q=q, speed_mps=0.0)
+
+
+def _object_column(frame, column, row, value):
+    frame = frame.copy()
+    frame[column] = frame[column].astype(object)
+    frame.iloc[row, frame.columns.get_loc(column)] = value
+    return frame
+
+
+@pytest.mark.parametrize("call, error, message", [
+    (lambda: __import__("mptrack.models").models.tdoa(H.STATIONS, [[1.0], [2.0, 3.0]]), Exception, r"^R: cannot"),
+    (lambda: __import__("mptrack.cellular").cellular.check_stations(H.STATIONS, min_count="3"), ParameterError,
+     r"^min_count: expected an integer"),
+    (lambda: __import__("mptrack.continuous").continuous.pf_substep_study(
+        H.ZHAO, [[1.0], [2.0, 3.0]], [0.0, 0.0], np.eye(2)), Exception, r"^z: cannot"),
+    (lambda: __import__("mptrack.radio").radio.wi_free_space_loss([0.1, 1.0], 900.0, constant_db=None),
+     ParameterError, r"^constant_db: expected a real number"),
+    (lambda: __import__("mptrack.radio").radio.cost231_wi_los(np.array([0.1, 1.0, 2.0]), np.array([900.0, 1800.0]),
+                                                             on_invalid="ignore"), ShapeError, r"^frequency_mhz:"),
+    (lambda: _simulate_q(1e30), ParameterError, r"^q: east, north: the point"),
+    (lambda: __import__("mptrack.tracking").tracking.evaluate_tracks(H.POINTS_WITH_TRUTH, truth_columns="yes"),
+     ParameterError, r"^truth_columns: expected True or False"),
+    (lambda: __import__("mptrack.tracking").tracking.evaluate_tracks(
+        _object_column(H.POINTS_WITH_TRUTH, "true_lon", 1, np.inf), truth_columns=True),
+     NonFiniteError, r"^tracks\.true_lon: contains infinite value"),
+    (lambda: __import__("mptrack.tracking").tracking.kalman_filter_gated(
+        H.CV2, [3e-31, 1e-30, 1e200], np.array([[0.0, 0.0], [1.0, 1.0], [2.0, 2.0]]), np.zeros(4), np.eye(4)),
+     NonFiniteError, r"^times: the discretisation"),
+    (lambda: __import__("mptrack.tracking").tracking.track_fixes(H.TRACK_ID, H.ROWS, q=1e308), NonFiniteError,
+     r"^q: the discretisation"),
+    (lambda: __import__("mptrack.tracking").tracking.track_fixes(
+        H.TRACK_ID, _object_column(H.ROWS, "t", 0, -1e300)), NonFiniteError, r"^rows: the discretisation"),
+])
+def test_large_run_findings_are_named_errors(call, error, message):
+    """Each raised a NumPy/numba error, named a derived quantity (R, lon, model, times), or accepted
+    garbage ("yes" as a flag, +-Inf in a truth column), before."""
+    with pytest.raises(error, match=message):
+        call()
+
+
+def test_a_covariance_near_the_float_maximum_is_symmetrised_without_overflow():
+    """0.5 (R + R^T) overflowed to inf for entries beyond 9e307: position(R=1e308) returned R = inf."""
+    from mptrack import models
+    assert np.isfinite(models.position(1e308).R).all()
+
+
+def test_duplicate_stations_are_found_by_sorting():
+    """The pairwise distances took m^2 memory (20,000 stations: 6 GB); -0.0 and 0.0 are one position."""
+    from mptrack.cellular import check_stations
+    many = np.column_stack([np.arange(20_000.0), np.zeros(20_000)])
+    assert check_stations(many).shape == (20_000, 2)
+    with pytest.raises(ParameterError, match=r"^stations: stations 0 and 2 are at the same position"):
+        check_stations([[0.0, 0.0], [1.0, 0.0], [-0.0, 0.0]])

@@ -41,6 +41,7 @@ __all__ = [
     "check_positive",
     "check_int",
     "check_rng",
+    "check_bool",
     "lookup",
     "check_frame",
     "point_numbers",
@@ -213,7 +214,7 @@ def check_covariance(name: str, value, size: int | None = None, *, definite: boo
     asym = float(np.max(np.abs(mat - mat.T)))
     if asym > rtol * scale:
         raise NotSymmetricError(f"{name}: must be symmetric, max |{name} - {name}^T| = {asym:.3g}")
-    mat = 0.5 * (mat + mat.T)
+    mat = 0.5 * mat + 0.5 * mat.T      # not 0.5 (mat + mat.T): entries beyond 9e307 would overflow
     try:
         eig = np.linalg.eigvalsh(mat)
     except np.linalg.LinAlgError:  # entries near the float range: LAPACK's scaling overflows
@@ -323,6 +324,13 @@ def lookup(name: str, value, registry: dict, *, what: str = "name", fold=str.low
     if key not in registry:
         raise UnknownNameError(f"{name}: unknown {what} {value!r}; known: {', '.join(map(str, registry))}")
     return registry[key]
+
+
+def check_bool(name: str, value) -> bool:
+    """True or False (a NumPy bool too); "yes", 1 or None are not flags."""
+    if not isinstance(value, (bool, np.bool_)):
+        raise ParameterError(f"{name}: expected True or False, got {value!r}")
+    return bool(value)
 
 
 def check_rng(rng, name: str = "rng") -> np.random.Generator:

@@ -117,14 +117,16 @@ def motion_matrix(motion: str, dim: int, dt: float = 1.0) -> np.ndarray:
 
 def check_stations(stations, *, min_count: int = 1) -> np.ndarray:
     """Validate station positions (m, d): d in {2, 3}, finite, at least ``min_count``, no duplicates."""
+    min_count = check_int("min_count", min_count, minimum=1)
     s = as_array("stations", stations, ndim=2)
     if s.shape[1] not in (2, 3):
         raise ShapeError(f"stations: expected shape (m, 2) or (m, 3), got {s.shape}")
     if s.shape[0] < min_count:
         raise ParameterError(f"stations: need at least {min_count} base stations, got {s.shape[0]}")
-    gap = np.linalg.norm(s[:, None, :] - s[None, :, :], axis=-1) + np.eye(s.shape[0])
-    if np.any(gap <= 0):
-        i, j = np.argwhere(gap <= 0)[0]
+    # duplicates by sorting (m log m; the pairwise distances took m^2 memory); + 0.0 makes -0.0 equal 0.0
+    unique, counts = np.unique(s + 0.0, axis=0, return_counts=True)
+    if np.any(counts > 1):
+        i, j = np.flatnonzero(((s + 0.0) == unique[np.argmax(counts > 1)]).all(axis=1))[:2]
         raise ParameterError(f"stations: stations {i} and {j} are at the same position {s[i].tolist()}")
     return s
 

@@ -17,6 +17,7 @@ import numpy as np
 from .._validation import check_allocation, check_int, finite_result
 from ..errors import ParameterError
 from ..result import FilterResult
+from ..nonlinear._common import prepare_nonlinear
 from ..nonlinear._pf import particle_filter, pf_substeps
 from ._model import ContinuousDiscreteModel
 
@@ -58,6 +59,7 @@ def pf_substep_study(model: ContinuousDiscreteModel, z, x0, P0, seed: int = 0, *
     Returns {"rows": [[scheme, substeps, noise, bias, resolution], ...], "reference_spread": RMS
     difference of the first two references (their noise; None with one reference), "reference": mean (T, n)}.
     """
+    z, x0, P0, _ = prepare_nonlinear(model, z, x0, P0, kinds=(ContinuousDiscreteModel,))
     seed = check_int("seed", seed, minimum=0)
     runs, ref_runs = check_int("runs", runs, minimum=1), check_int("ref_runs", ref_runs, minimum=1)
     for name, values in (("substeps", substeps), ("schemes", schemes)):
@@ -65,7 +67,7 @@ def pf_substep_study(model: ContinuousDiscreteModel, z, x0, P0, seed: int = 0, *
             raise ParameterError(f"{name}: expected a non-empty sequence, got {values!r}")
     substeps = tuple(check_int("substeps", s, minimum=1) for s in substeps)
     # every run's posterior means (T, n) are held, per scheme and sub-step count
-    check_allocation("runs", runs, 8.0 * (ref_runs + runs) * max(np.size(z), 1) * model.n)
+    check_allocation("runs", runs, 8.0 * (ref_runs + runs) * z.shape[0] * model.n)
     seeds = np.random.SeedSequence(seed).spawn(ref_runs + runs)
     refs = [particle_filter(model, z, x0, P0, np.random.default_rng(seeds[i]), particles=ref_particles,
                             substeps=ref_substeps, scheme="heun").x for i in range(ref_runs)]

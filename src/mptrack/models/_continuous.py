@@ -202,7 +202,7 @@ def intervals_unchecked(model: ContinuousLinearModel, dts: np.ndarray) -> tuple[
         pairs = [_van_loan(model.Phi, LQL, float(dt)) for dt in values]
         F = np.stack([f for f, _ in pairs])[index]
         Q = np.stack([q for _, q in pairs])[index]
-    return F, 0.5 * (Q + Q.transpose(0, 2, 1))
+    return F, 0.5 * Q + 0.5 * Q.transpose(0, 2, 1)      # no overflow of the sum near the float maximum
 
 
 def discretize(model: ContinuousLinearModel, dt: float) -> LinearGaussianModel:

@@ -29,7 +29,7 @@ from typing import Callable
 
 import numpy as np
 
-from .._validation import (as_array, as_matrix, as_real, as_vector, check_covariance, check_int, check_positive,
+from .._validation import (as_array, as_matrix, as_vector, check_covariance, check_int, check_positive,
                            renamed)
 from ..errors import NonFiniteError, ParameterError, ShapeError
 from ._linear import LinearGaussianModel, _frozen
@@ -473,8 +473,10 @@ def tdoa(stations, R, *, position=(0, 2), reference: int = 0) -> MeasurementMode
     if ref >= k:
         raise ParameterError(f"reference: expected a station index < {k}, got {ref}")
     others = [i for i in range(k) if i != ref]
-    if not callable(R) and np.ndim(R) == 0:
-        var = check_positive("R", as_real("R", R))
+    if not callable(R):
+        R = as_array("R", R)
+    if not callable(R) and R.ndim == 0:
+        var = check_positive("R", float(R))
         R = var * (np.eye(k - 1) + np.ones((k - 1, k - 1)))
 
     def h(X):

@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._validation import as_array, broadcast_shape, finite_result
+from .._validation import as_array, as_real, broadcast_shape, finite_result
 from ..errors import ParameterError
 from ._validity import check_policy, check_range
 
@@ -102,7 +102,7 @@ def wi_free_space_loss(distance_km, frequency_mhz, *, constant_db: float = 32.4)
     d = _positive("distance_km", distance_km)
     f = _positive("frequency_mhz", frequency_mhz)
     broadcast_shape(distance_km=d, frequency_mhz=f)
-    return _out(constant_db + 20.0 * np.log10(d) + 20.0 * np.log10(f))
+    return _out(as_real("constant_db", constant_db) + 20.0 * np.log10(d) + 20.0 * np.log10(f))
 
 
 def wi_orientation_loss(street_angle_deg):
@@ -142,6 +142,8 @@ def wi_rooftop_to_street_loss(frequency_mhz, *, street_width_m, h_roof_m, h_mobi
            Final Report, European Commission, EUR 18957, 1999, ch. 4 (the COST-231 Hata and Walfisch–Ikegami
            models).
     """
+    _same_shape(frequency_mhz=frequency_mhz, street_width_m=street_width_m, h_roof_m=h_roof_m,
+                h_mobile_m=h_mobile_m, street_angle_deg=street_angle_deg)
     f = _positive("frequency_mhz", frequency_mhz)
     w = _positive("street_width_m", street_width_m)
     dhm = as_array("h_roof_m", h_roof_m) - as_array("h_mobile_m", h_mobile_m)
@@ -241,6 +243,7 @@ def cost231_wi_los(distance_km, frequency_mhz, *, on_invalid: str = "warn"):
            452–467, 2017. doi:10.1016/j.asoc.2017.04.007
     """
     check_policy(on_invalid)
+    _same_shape(distance_km=distance_km, frequency_mhz=frequency_mhz)
     check_range("COST-231 WI LOS", "distance_km", distance_km, 0.02, 5.0, "km", on_invalid)
     check_range("COST-231 WI LOS", "frequency_mhz", frequency_mhz, 800.0, 2000.0, "MHz", on_invalid)
     d = _positive("distance_km", distance_km)

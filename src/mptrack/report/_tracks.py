@@ -41,7 +41,6 @@ def report_points(sources) -> pd.DataFrame:
     one at a time into the frame's columns (each unmapped once copied), text as one Python object per
     distinct value, so the peak is about the frame itself: 0.23 GB for 10^6 points."""
     import pyarrow as pa
-    import pyarrow.feather as feather
 
     if isinstance(sources, (str, bytes, pd.DataFrame)) or not np.iterable(sources):
         raise ParameterError(f"sources: expected a list of pyarrow Tables or Arrow IPC files, got {sources!r:.80}")

@@ -20,7 +20,7 @@ import numpy as np
 import pandas as pd
 import scipy.stats
 
-from .._validation import check_frame, check_path, check_positive, point_numbers
+from .._validation import check_bool, check_frame, check_path, check_positive, point_numbers
 from ..errors import DataError, ParameterError
 from ..io import FIXES, LocalFrame, ReadOptions, ReadReport, read_table
 from ..io._formats import raw_chunks
@@ -66,7 +66,7 @@ def _one_track_ids(truth: pd.DataFrame, tracks: pd.DataFrame, file) -> pd.DataFr
 
 def _check_points(name: str, tracks, columns=()) -> None:
     """A point table with ``columns``, its numbers checked (:func:`mptrack._validation.point_numbers`)."""
-    check_frame(name, tracks, columns, point_numbers(tracks, POINT_COLUMNS))
+    check_frame(name, tracks, columns, point_numbers(tracks, POINT_COLUMNS + _ADDED))
 
 
 #: The columns :func:`attach_truth` adds.
@@ -190,6 +190,8 @@ def evaluate_tracks(tracks: pd.DataFrame, truth=None, *, tolerance_s: float = 0.
     read, report   how the truth is read, and what its reading noted (:func:`attach_truth`)
     """
     _check_points("tracks", tracks)
+    truth_columns = check_bool("truth_columns", truth_columns)
+    tolerance_s = check_positive("tolerance_s", tolerance_s, allow_zero=True)
     if truth is not None and truth_columns:
         raise ParameterError("truth_columns: give a truth or truth_columns=True, not both")
     evaluated = truth is not None or truth_columns
@@ -201,7 +203,6 @@ def evaluate_tracks(tracks: pd.DataFrame, truth=None, *, tolerance_s: float = 0.
         raise DataError(f"not a table written by mptrack track (no column {', '.join(missing)}); track the log "
                         "first: mptrack track LOG --out TRACKS", file=tracks.attrs.get("file", "tracks"))
     if truth is not None:
-        tolerance_s = check_positive("tolerance_s", tolerance_s, allow_zero=True)
         tracks = attach_truth(tracks, truth, tolerance_s=tolerance_s, file=truth_file, read=read, report=report)
     elif truth_columns:
         tracks = _own_truth(tracks)

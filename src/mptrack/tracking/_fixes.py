@@ -163,16 +163,19 @@ def track_fixes(track_id: str, rows: pd.DataFrame, options: TrackOptions = Track
     extra = {"meas_east_m": z[:, 0], "meas_north_m": z[:, 1], "fix_sigma_m": np.sqrt(r)}
     if table.geographic:
         extra["meas_lat"], extra["meas_lon"] = table.lat, table.lon
-    if options.filter == "kf":
-        gated = track_gated(model, t, z, r[:, None, None] * np.eye(2), np.tile(spec.prior_variances, 2),
-                            gate_probability=options.gate_probability)
-        res = smooth_gated(gated) if options.smooth else gated
-        flags, nis, times, t_out = gated.flag, gated.nis, table.time, t
-        method = "KF-gated" + ("+RTS" if options.smooth else "")
-    else:
-        res, flags, nis, t_out, extra = grid_filter_track(spec, q, options, t, z, r)
-        times = _time_like(t_out, table.time)
-        method = options.filter.upper() + ("+RTS" if options.smooth else "")
+    # the filters' arrays are the columns of rows and the model is built from q: their errors name those
+    # (times 1e300 s apart, q = 1e308 overflow the discretisation)
+    with renamed(times="rows", z="rows", R="rows", gated="rows", model="q"):
+        if options.filter == "kf":
+            gated = track_gated(model, t, z, r[:, None, None] * np.eye(2), np.tile(spec.prior_variances, 2),
+                                gate_probability=options.gate_probability)
+            res = smooth_gated(gated) if options.smooth else gated
+            flags, nis, times, t_out = gated.flag, gated.nis, table.time, t
+            method = "KF-gated" + ("+RTS" if options.smooth else "")
+        else:
+            res, flags, nis, t_out, extra = grid_filter_track(spec, q, options, t, z, r)
+            times = _time_like(t_out, table.time)
+            method = options.filter.upper() + ("+RTS" if options.smooth else "")
     vel = res.x[:, [p + 1 for p in pos]]
     P = res.P
     dof = np.where(np.isnan(nis), 0, 2)

@@ -40,8 +40,8 @@ from dataclasses import dataclass, fields
 import numpy as np
 import scipy.stats
 
-from .._validation import (as_array, as_real, as_sequence, as_vector, check_covariance, check_int,
-                           check_positive, check_record, finite_result, renamed)
+from .._validation import (_overflow, as_array, as_real, as_sequence, as_vector, check_covariance, check_int,
+                           check_positive, check_record, finite_result, renamed, require_finite)
 from ..errors import ParameterError, ShapeError
 from ..models import ContinuousLinearModel, require_model
 from ..models._continuous import intervals_unchecked
@@ -145,9 +145,15 @@ def kalman_filter_gated(model: ContinuousLinearModel, times, z, x0, P0, *, t0: f
     flag = np.zeros(T, dtype=np.int8)
     with renamed(dt="times"):
         Fs, Qs = intervals_unchecked(model, dts)
-    loglik = gated_loop(t, Fs, Qs, H, np.ascontiguousarray(Rs), z, x.copy(), P.copy(), gates,
-                        gate_probability is not None, max_rejections, float(manoeuvre_factor), start,
-                        xs, Ps, xp, Pp, nu, S, nis, flag)
+    require_finite("the discretisation e^(Phi dt), Q of the intervals", (Fs, Qs), times=t, model=model)
+    inputs = dict(times=t, z=z, x0=x, P0=P, model=model) | ({} if R is None else {"R": Rs})
+    try:
+        loglik = gated_loop(t, Fs, Qs, H, np.ascontiguousarray(Rs), z, x.copy(), P.copy(), gates,
+                            gate_probability is not None, max_rejections, float(manoeuvre_factor), start,
+                            xs, Ps, xp, Pp, nu, S, nis, flag)
+    except (np.linalg.LinAlgError, ZeroDivisionError, SystemError) as exc:   # a breakdown inside numba
+        raise _overflow("the gated Kalman filter", inputs, exc) from exc
+    require_finite("the gated Kalman filter", (xs, Ps), **inputs)
     return GatedResult(x=xs, P=Ps, x_pred=xp, P_pred=Pp, loglik=float(loglik), method="KF-gated", innovation=nu,
                        S=S, nis=nis, flag=flag, F=Fs, Q=Qs)
 

@@ -40,9 +40,11 @@ import pandas as pd
 from .._validation import (
     as_real,
     check_allocation,
+    check_bool,
     check_int,
     check_positive,
     check_rng,
+    derived_from,
 )
 from ..errors import DataError, ParameterError, UnknownNameError
 from ..io import FIXES, ReadOptions, ReadReport, cell_key, iter_track_chunks
@@ -138,15 +140,9 @@ def _check_fraction(name: str, value) -> float:
     return float(value)
 
 
-def _check_bool(name: str, value) -> bool:
-    if not isinstance(value, (bool, np.bool_)):
-        raise ParameterError(f"{name}: expected True or False, got {value!r}")
-    return bool(value)
-
-
 _CHECKS = {"sigma_m": lambda v: check_positive("sigma_m", v, allow_zero=True),
            "outlier_rate": lambda v: _check_fraction("outlier_rate", v),
-           "accuracy_column": lambda v: _check_bool("accuracy_column", v)}
+           "accuracy_column": lambda v: check_bool("accuracy_column", v)}
 
 
 # --------------------------------------------------------------------------- truth
@@ -392,7 +388,15 @@ def _chunks(scenario, tracks, rng, *, duration_s, along, interval, q, speed_mps,
         if whole:
             check_allocation("tracks", tracks, tracks * per_track)
         truths = _simulated_chunks(rng, tracks, duration_s, interval, q, speed_mps)
+        return _named_runs(sc, rng, truths, options, dict(q=q, speed_mps=speed_mps, duration_s=duration_s))
     return (sc.run(rng, truth, **options) for truth in truths)
+
+
+def _named_runs(sc, rng, truths, options: dict, given: dict):
+    """The scenario's chunks of simulated truth; an error about a quantity derived from the simulation
+    (a position beyond the ellipsoid for q = 1e30) names the argument of largest magnitude."""
+    with derived_from(**given):
+        yield from (sc.run(rng, truth, **options) for truth in truths)
 
 
 def simulate(scenario: str, tracks: int, rng: np.random.Generator, *, duration_s: float = 300.0, along=None,
