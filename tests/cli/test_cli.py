@@ -157,7 +157,7 @@ def test_options_that_do_not_apply_are_rejected(tmp_path, args, message):
     (["track", "IN", "--sigma", "-1"], "--sigma: expected a finite number > 0, got -1.0"),
     (["track", "IN", "--gate", "-0.5"], "--gate:"),
     (["track", "IN", "--chunk-rows", "0"], "--chunk-rows: expected an integer >= 1, got 0"),
-    (["track", "IN", "--model", "xx"], "--model: unknown name 'xx'"),
+    (["track", "IN", "--model", "xx"], "--model: unknown motion model 'xx'; known: cv, ca"),
     (["track", "IN", "--time-unit", "zz"], "--time-unit: expected one of"),
     (["track", "IN", "--cells", "CELLS", "--range-sigma", "-5"], "--range-sigma: expected a finite number > 0"),
     (["simulate", "--duration", "-5", "--out", "OUT"], "--duration: expected a finite number > 0"),
