@@ -349,14 +349,14 @@ def _report_in_a_fresh_process(tmp_path, n_tracks: int, per: int, budget: int) -
     """(peak memory in KB, the page) of evaluating and writing the report of a synthetic table with 40 %
     of its fixes rejected, in a fresh process (ru_maxrss)."""
     page = tmp_path / "big.html"
-    code = ("import resource, sys; sys.path.insert(0, %r)\n"
+    code = ("import resource, sys; sys.path[:0] = %r\n"
             "from test_report_html import synthetic_table\n"
             "from mptrack.tracking import evaluate_tracks\n"
             "from mptrack.report import write_report\n"
             "t = synthetic_table(%d, %d, rejected=0.4)\n"
             "write_report(t, %r, summary=evaluate_tracks(t)[0], budget=%d)\n"
             "print(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss)\n") % (
-        str(Path(__file__).parents[1]), n_tracks, per, str(page), budget)
+        [str(Path(__file__).parent), str(Path(__file__).parents[1])], n_tracks, per, str(page), budget)
     env = dict(os.environ, PYTHONPATH=str(Path(__file__).resolve().parents[2] / "src"))
     res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=600)
     assert res.returncode == 0, res.stderr
