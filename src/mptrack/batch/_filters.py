@@ -57,18 +57,48 @@ def _steady(model: LinearGaussianModel, steady: SteadyState | None) -> SteadySta
 STREAM_BYTES = 1 << 25
 
 
-def _kernel(fixed: Callable, generic: Callable, model: LinearGaussianModel, bi: BatchInputs) -> Callable:
-    """The generated kernel of the model's (n, m) when there is one, else the generic one."""
+def _kernel(fixed: Callable, generic: Callable, model: LinearGaussianModel, bi: BatchInputs,
+            nz: Callable[[], tuple]) -> Callable:
+    """The generated kernel of the model's (n, m) and zero patterns ``nz()`` when there is one,
+    else the generic one."""
     if (model.n, model.m) in K.FIXED:
         lanes = K.LANES[model.n, model.m][bi.out.dtype == np.float32]
-        return fixed(model.n, model.m, lanes, bi.out.nbytes >= STREAM_BYTES and not bi.allocated)
+        return fixed(model.n, model.m, lanes, bi.out.nbytes >= STREAM_BYTES and not bi.allocated, nz())
     return generic
+
+
+#: The zeros of each model's steady-state A and B that its structure implies (see _ss_pattern).
+_STRUCTURE: "weakref.WeakKeyDictionary[LinearGaussianModel, tuple]" = weakref.WeakKeyDictionary()
+
+
+def _ss_pattern(model: LinearGaussianModel, ss: SteadyState) -> tuple:
+    """Zero patterns of (A, B, F) for a generated steady-state kernel.
+
+    A DARE solver returns the zero blocks of a block-structured model (model A: the axes are
+    independent) as rounding noise (~1e-17), which would make A and B dense.  The Kalman
+    recursion keeps exact zeros, so the entries that are zero in all of its first 2n + 2 steps
+    from P(0/0) = I are zeros of the structure; they are skipped when ``ss`` has nothing above
+    1e-12 of its largest entry there (else its exact non-zeros are used).  Kept per model and
+    values of A and B."""
+    cache = _STRUCTURE.get(model)
+    if cache is None:
+        g = gain_sequence(model, 2 * model.n + 2, np.eye(model.n))
+        A_k = (np.eye(model.n) - g.K @ model.H) @ model.F
+        cache = _STRUCTURE[model] = {"probe": ((A_k != 0).any(axis=0), (g.K != 0).any(axis=0))}
+    key = ss.A.tobytes() + ss.B.tobytes()
+    if key not in cache:
+        nz = []
+        for M, structural in zip((ss.A, ss.B), cache["probe"]):
+            noise = np.abs(M[~structural])
+            nz.append(structural if not noise.size or noise.max() <= 1e-12 * np.abs(M).max() else M != 0)
+        cache[key] = K.pattern(*nz, model.F, keep=(0, 2))
+    return cache[key]
 
 
 def _steady_state_filter(model, z, x0=None, out=None, *, lengths=None, steady=None, axes=1):
     bi = prepare_batch(model, z, x0, out, lengths, axes=axes, check_inf=False)
     ss = _steady(model, steady)
-    kernel = _kernel(K.fixed_ss_kernel, K.ss_kernel, model, bi)
+    kernel = _kernel(K.fixed_ss_kernel, K.ss_kernel, model, bi, lambda: _ss_pattern(model, ss))
     c = np.ascontiguousarray
     bad = launch(kernel, bi.out.size, bi.z, bi.out, c(ss.A), c(ss.B), c(model.F), bi.x0, bi.lengths, bi.axes)
     return check_finite_out(bi, "the steady-state filter", bad, model=model, z=bi.z, x0=bi.x0)
@@ -155,7 +185,8 @@ def _kalman_filter(model, z, x0=None, P0=None, out=None, *, lengths=None, gains=
                          f"got K of shape {gains.K.shape}")
     elif P0 is not None:
         raise ParameterError("P0: give P0 or gains (which already fix P0), not both")
-    kernel = _kernel(K.fixed_kf_kernel, K.kf_kernel, model, bi)
+    kernel = _kernel(K.fixed_kf_kernel, K.kf_kernel, model, bi,
+                     lambda: K.pattern(model.F, model.H, gains.K[:T], keep=(0,)))
     c = np.ascontiguousarray
     bad = launch(kernel, bi.out.size, bi.z, bi.out, c(model.F), c(model.H), c(model.Q), c(model.R), c(gains.K),
                  c(gains.P_filt), c(gains.P0), bi.x0, bi.lengths, bi.axes)

@@ -46,7 +46,7 @@ from numba import carray
 
 from ._intrinsics import load, narrow, stack_array, store, store_fence, stream
 
-__all__ = ["ss_kernel", "kf_kernel", "fixed_ss_kernel", "fixed_kf_kernel", "FIXED", "LANES",
+__all__ = ["ss_kernel", "kf_kernel", "fixed_ss_kernel", "fixed_kf_kernel", "pattern", "GENERATED", "FIXED", "LANES",
            "fir_kernel", "matvec_kernel", "copy_kernel"]
 
 _OPTS = dict(parallel=True, cache=True, nogil=True, boundscheck=False)
@@ -57,7 +57,7 @@ FIXED = ((2, 1), (4, 2), (6, 3))
 #: Tracks advanced together by the generated kernels of each (n, m), for float64 and float32
 #: storage (float32 needs conversions and a range check: with 8 lanes LLVM no longer unrolls
 #: the lane loop and the states leave the registers).
-LANES = {(2, 1): (8, 4), (4, 2): (1, 1), (6, 3): (1, 1)}
+LANES = {(2, 1): (8, 4), (4, 2): (2, 2), (6, 3): (1, 1)}
 
 
 @nb.njit(cache=True, nogil=True)
@@ -366,30 +366,43 @@ def _measure(zf, lane, w, t, mz, zz):
 
 
 @nb.njit(**_INLINE)
-def _matvec(M, x, w, r):
-    """(M x[w])[r], summed left to right."""
-    s = M[r, 0] * x[w, 0]
-    for c in range(1, M.shape[1]):
-        s += M[r, c] * x[w, c]
+def _matvec(M, nz, x, w, r):
+    """(M x[w])[r], summed left to right over the entries of row r that are not structural zeros:
+    bit r * cols + c of the constant ``nz`` is set for entry (r, c) (:func:`pattern`); 0.0 for a
+    zero row.  (Bits of an integer fold away once the loops are unrolled; a tuple would not.)"""
+    cols = M.shape[1]
+    s = 0.0
+    first = True
+    for c in range(cols):
+        if (nz >> (r * cols + c)) & 1:
+            if first:
+                s = M[r, c] * x[w, c]
+                first = False
+            else:
+                s += M[r, c] * x[w, c]
     return s
 
 
 @nb.njit(**_INLINE)
-def _ss_step(a, bm, f, x, xn, zz, w, miss):
-    """xn[w] = A x[w] + B zz[w] (F x[w] when the measurement is missing)."""
+def _ss_step(a, bm, f, nz, x, xn, zz, w, miss):
+    """xn[w] = A x[w] + B zz[w] (F x[w] when the measurement is missing); nz = patterns of A, B, F."""
     for r in range(x.shape[1]):
-        xn[w, r] = _matvec(f, x, w, r) if miss else _matvec(a, x, w, r) + _matvec(bm, zz, w, r)
+        if miss:
+            xn[w, r] = _matvec(f, nz[2], x, w, r)
+        else:
+            xn[w, r] = _matvec(a, nz[0], x, w, r) + _matvec(bm, nz[1], zz, w, r)
 
 
 @nb.njit(**_INLINE)
-def _kf_step(f, h, k, x, xn, e, w):
-    """xn[w] = F x[w] + K (zz[w] - H F x[w]) with the shared gain k; ``e`` holds zz on entry."""
+def _kf_step(f, h, k, nz, x, xn, e, w):
+    """xn[w] = F x[w] + K (zz[w] - H F x[w]) with the shared gain k; ``e`` holds zz on entry;
+    nz = patterns of F, H, K."""
     for r in range(x.shape[1]):
-        xn[w, r] = _matvec(f, x, w, r)
+        xn[w, r] = _matvec(f, nz[0], x, w, r)
     for c in range(e.shape[1]):
-        e[w, c] = e[w, c] - _matvec(h, xn, w, c)
+        e[w, c] = e[w, c] - _matvec(h, nz[1], xn, w, c)
     for r in range(x.shape[1]):
-        xn[w, r] = xn[w, r] + _matvec(k, e, w, r)
+        xn[w, r] = xn[w, r] + _matvec(k, nz[2], e, w, r)
 
 
 @nb.njit(**_INLINE)
@@ -425,9 +438,43 @@ def _copy(src, dst):
             dst[r, c] = src[r, c]
 
 
-@functools.cache
-def fixed_ss_kernel(n: int, m: int, lanes: int, streaming: bool):
-    """:func:`ss_kernel` compiled for one (n, m) of :data:`FIXED` (see the module docstring).
+def pattern(*matrices, keep=()) -> tuple:
+    """The structural-zero patterns of matrices (n, k) or stacks of them (T, n, k), one integer
+    each: bit r * k + c is set where entry (r, c) is not zero (in some matrix of a stack).  A
+    kernel generated for the patterns skips the zero terms: its sums are those of the dense
+    product except for the sign of a zero.  Matrices in ``keep`` must keep their diagonal (else
+    they count as dense), so that a NaN or infinity in a state component stays in it (the
+    finiteness test looks at the last state only)."""
+    out = []
+    for i, M in enumerate(matrices):
+        nz = np.asarray(M) != 0
+        if nz.ndim == 3:
+            nz = nz.any(axis=0)
+        if i in keep and not nz.diagonal().all():
+            nz = np.ones_like(nz)
+        out.append(int(np.dot(nz.ravel().astype(np.int64), 1 << np.arange(nz.size, dtype=np.int64))))
+    return tuple(out)
+
+
+#: The generated kernels made in this process, by their factory and arguments.
+GENERATED: dict = {}
+
+
+def _generated(factory):
+    """Make each kernel once per process (numba's cache keeps the machine code between them)."""
+    @functools.wraps(factory)
+    def get(*args):
+        key = (factory.__name__, *args)
+        if key not in GENERATED:
+            GENERATED[key] = factory(*args)
+        return GENERATED[key]
+    return get
+
+
+@_generated
+def fixed_ss_kernel(n: int, m: int, lanes: int, streaming: bool, nz: tuple):
+    """:func:`ss_kernel` compiled for one (n, m) of :data:`FIXED` (see the module docstring) and
+    the zero patterns ``nz`` of (A, B, F) (:func:`pattern`).
 
     ``lanes`` tracks advance together while all of them have a measurement; at a NaN,
     or when the shortest of them ends, each lane finishes alone."""
@@ -462,7 +509,7 @@ def fixed_ss_kernel(n: int, m: int, lanes: int, streaming: bool):
                 if miss:
                     break
                 for w in range(W):
-                    _ss_step(a, bm, f, x, xn, zz, w, False)
+                    _ss_step(a, bm, f, nz, x, xn, zz, w, False)
                     _put(of, lane, w, t, nx, x, xn, big, streaming, narrow(out))
                 t += 1
             y = carray(stack_array(n, np.float64), (1, n))      # one lane finishing alone
@@ -474,7 +521,7 @@ def fixed_ss_kernel(n: int, m: int, lanes: int, streaming: bool):
                 lane1 = lane[:, w:w + 1]
                 L = lane1[LEN, 0]
                 for tt in range(t, L):
-                    _ss_step(a, bm, f, y, yn, y1, 0, _measure(zf, lane1, 0, tt, mz, y1))
+                    _ss_step(a, bm, f, nz, y, yn, y1, 0, _measure(zf, lane1, 0, tt, mz, y1))
                     _put(of, lane1, 0, tt, nx, y, yn, ybig, streaming, narrow(out))
                 bad += track_end(zf, of, lane1[ZROW, 0], lane1[XROW, 0], mz, nx, m, n, L, T, ybig[0])
             if streaming:
@@ -484,9 +531,10 @@ def fixed_ss_kernel(n: int, m: int, lanes: int, streaming: bool):
     return kernel
 
 
-@functools.cache
-def fixed_kf_kernel(n: int, m: int, lanes: int, streaming: bool):
-    """:func:`kf_kernel` compiled for one (n, m) of :data:`FIXED` (see :func:`fixed_ss_kernel`).
+@_generated
+def fixed_kf_kernel(n: int, m: int, lanes: int, streaming: bool, nz: tuple):
+    """:func:`kf_kernel` compiled for one (n, m) of :data:`FIXED` and the zero patterns ``nz`` of
+    (F, H, K) (see :func:`fixed_ss_kernel`).
 
     A lane that meets a missing component finishes alone: with the shared gains up to it,
     then with its own covariance (as :func:`kf_kernel`)."""
@@ -521,7 +569,7 @@ def fixed_kf_kernel(n: int, m: int, lanes: int, streaming: bool):
                     break
                 _copy(K[t], k)
                 for w in range(W):
-                    _kf_step(f, h, k, x, xn, e, w)
+                    _kf_step(f, h, k, nz, x, xn, e, w)
                     _put(of, lane, w, t, nx, x, xn, big, streaming, narrow(out))
                 t += 1
             y = carray(stack_array(n, np.float64), (1, n))      # one lane finishing alone
@@ -535,7 +583,7 @@ def fixed_kf_kernel(n: int, m: int, lanes: int, streaming: bool):
                 tt = t
                 while tt < L and not _measure(zf, lane1, 0, tt, mz, y1):
                     _copy(K[tt], k)
-                    _kf_step(f, h, k, y, yn, y1, 0)
+                    _kf_step(f, h, k, nz, y, yn, y1, 0)
                     _put(of, lane1, 0, tt, nx, y, yn, ybig, streaming, narrow(out))
                     tt += 1
                 if tt < L:            # the first gap: leave the shared gains
