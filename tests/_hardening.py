@@ -27,6 +27,8 @@ import numpy as np
 from hypothesis import strategies as st
 
 import mptrack.batch as batch
+import mptrack.cellular as cellular
+import mptrack.continuous as continuous
 import mptrack.fuzzy as fuzzy
 import mptrack.linear as linear
 import mptrack.metrics as metrics
@@ -177,7 +179,7 @@ def _range_cv(dt, sigma_a2, sigma_r2):
 
 
 def _ekf_ranges(z, x0, R):
-    return nonlinear.ekf_ranges(z, STATIONS, x0, np.eye(2) * 100.0, np.eye(2), R)
+    return cellular.ekf_ranges(z, STATIONS, x0, np.eye(2) * 100.0, np.eye(2), R)
 
 
 TARGETS: dict = {
@@ -221,12 +223,12 @@ TARGETS: dict = {
     "linear.rts_smoother": (lambda x, P: linear.rts_smoother(B, _result(x, P)),
                             _fixed_b(x=real_arrays((3, 2)), P=real_arrays((3, 2, 2))), ("x", "P", "result")),
     "linear.kalman_filter_irregular": (_irregular, _fixed_b(times=arg((3,)), z=arg((3, 1))), ("times", "z")),
-    "nonlinear.ekf_ranges": (_ekf_ranges, _fixed_b(z=arg((3, 3)), x0=arg((2,)), R=covariance(3)),
+    "cellular.ekf_ranges": (_ekf_ranges, _fixed_b(z=arg((3, 3)), x0=arg((2,)), R=covariance(3)),
                              ("z", "x0", "R")),
-    "nonlinear.range_fix": (lambda ranges, height: nonlinear.range_fix(ranges, STATIONS, height=height),
+    "cellular.range_fix": (lambda ranges, height: cellular.range_fix(ranges, STATIONS, height=height),
                             _fixed_b(ranges=arg((3,)), height=st.one_of(st.none(), scalar())),
                             ("ranges", "height")),
-    "nonlinear.motion_matrix": (nonlinear.motion_matrix, _fixed_b(
+    "cellular.motion_matrix": (cellular.motion_matrix, _fixed_b(
         motion=st.sampled_from(["random-walk", "constant-velocity", "x"]), dim=count(), dt=scalar(0, 5)),
         ("motion", "dim", "dt")),
     "nonlinear.sigma_points": (lambda m, P, alpha, beta: nonlinear.sigma_points(m, P, alpha=alpha, beta=beta),
@@ -388,14 +390,14 @@ CORPUS = [
     (5, "kf ragged x0", lambda: _kf(B, [[1.0]], x0=[[1.0], [2.0, 3.0]]), ("x0",)),
     (5, "batch ragged z", lambda: batch.kalman_filter(B, [[[1.0]], [[2.0], [3.0]]]), ("z",)),
     (5, "ekf R abc", lambda: _ekf_ranges(np.ones((2, 3)), [1.0, 1.0], "abc"), ("R",)),
-    (5, "range_fix height abc", lambda: nonlinear.range_fix([1.0, 1.0, 1.0], STATIONS, height="abc"),
+    (5, "range_fix height abc", lambda: cellular.range_fix([1.0, 1.0, 1.0], STATIONS, height="abc"),
      ("height",)),
     (5, "wi_nlos h_roof abc", lambda: radio.cost231_wi_nlos(1.0, 900.0, h_base_m=30.0, h_roof_m="abc"),
      ("h_roof_m",)),
     (5, "path_loss 1j", lambda: radio.path_loss(1.0, "free-space", frequency_mhz=1j), ("frequency_mhz",)),
     (5, "triangular b", lambda: fuzzy.triangular(np.ones(3), 0, "b", 1), ("b",)),
     (5, "nis_threshold str", lambda: _nis("0.99", 2), ("probability", "gate_probability")),
-    (5, "motion_matrix 2.5", lambda: nonlinear.motion_matrix("cv", 2.5), ("dim",)),
+    (5, "motion_matrix 2.5", lambda: cellular.motion_matrix("cv", 2.5), ("dim",)),
     (5, "LocalFrame None", lambda: __import__("mptrack.io").io.LocalFrame(None, 13.0), ("lat0", "lat0_deg")),
     (5, "per_axis None", lambda: linear.per_axis(linear.kalman_filter, None, np.ones((3, 2))), ("axis_model",)),
     (6, "riccati_step 3x3", lambda: riccati.riccati_step(B, np.eye(3)), ("P_pred",)),
@@ -433,11 +435,11 @@ CORPUS = [
 ]
 
 
-ZHAO = nonlinear.zhao2013_model()
+ZHAO = continuous.zhao2013_model()
 
 
 def _pf(P0):
-    return nonlinear.particle_filter(ZHAO, np.zeros((2, ZHAO.m)), nonlinear.ZHAO2013_X0, P0,
+    return nonlinear.particle_filter(ZHAO, np.zeros((2, ZHAO.m)), continuous.ZHAO2013_X0, P0,
                                      np.random.default_rng(0), particles=50)
 
 

@@ -77,7 +77,7 @@ def test_range_model_validation():
 
 def test_range_ekf_agrees_with_the_numpy_batch_ekf_of_mptrack_nonlinear():
     """Independent implementation: mptrack.nonlinear.ekf_ranges_batch (state [p, v], cv motion)."""
-    from mptrack.nonlinear import ekf_ranges_batch, motion_matrix
+    from mptrack.cellular import ekf_ranges_batch, motion_matrix
 
     F = motion_matrix("cv", 2, 1.0)                     # state [x, vx, y, vy]
     Q = np.diag([1.0, 0.25, 1.0, 0.25])

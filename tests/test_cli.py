@@ -17,7 +17,7 @@ from typer.testing import CliRunner
 
 from mptrack import __version__
 from mptrack.cli import app
-from mptrack.cli._common import paper_names, short_paper
+from mptrack.cli._common import PAPERS, paper_names, short_paper
 from mptrack.cli.reproduce import cell_counts, summary_line
 
 from _data import REAL_TRACES
@@ -125,12 +125,58 @@ def test_exit_codes(tmp_path, monkeypatch):
     (["simulate", "--scenario", "urban-3bts", "--sigma", "3", "--out", "OUT"], "--sigma applies to --scenario gps"),
     (["simulate", "--cells-out", "C.csv", "--out", "OUT"], "--cells-out applies to cellular scenarios"),
     (["evaluate", "IN", "--tolerance", "1"], "--tolerance applies with --truth"),
+    (["simulate", "--along", "IN", "--duration", "100", "--out", "OUT"], "--duration does not apply with --along"),
+    (["simulate", "--along", "IN", "--speed", "5", "--out", "OUT"], "--speed does not apply with --along"),
+    (["simulate", "--along", "IN", "--interval", "2", "--out", "OUT"], "--interval does not apply with --along"),
+    (["simulate", "--along", "IN", "--q", "3", "--out", "OUT"], "--q does not apply with --along"),
+    (["simulate", "--out", "OUT", "--scenario", "urban-3bts", "--accuracy"], "--accuracy applies to"),
+    (["simulate", "--out", "OUT", "--scenario", "urban-3bts", "--no-accuracy"], "--no-accuracy applies to"),
+    (["reproduce", "--list", "--no-resume"], "--no-resume applies to a reproduction run"),
+    (["bench", "--list", "--save", "OUT"], "--save does not apply with --list"),
+    (["bench", "--list", "--quick"], "--quick does not apply with --list"),
+    (["bench", "--list", "--suite", "linear"], "--suite does not apply with --list"),
+    (["reproduce", "--list", "--report"], "--report applies to a reproduction run, not to the list"),
+    (["reproduce", "--list", "--quick"], "--quick applies to a reproduction run, not to the list"),
+    (["reproduce", "--list", "--seed", "3"], "--seed applies to a reproduction run, not to the list"),
+    (["reproduce", "--list", "--out", "OUT"], "--out applies to a reproduction run, not to the list"),
+    (["reproduce", "--seed", "3"], "--seed applies to a reproduction run, not to the list"),
+    (["reproduce", "--list", "zhao2013"], "--list lists the reproductions and runs none"),
+    (["track", "IN", "--max-skip", "1%"], "--max-skip applies to --on-error skip"),  # given, even at its default
+    (["track", "IN", "--cells", "CELLS", "--gate", "0.99"], "--gate applies to position fixes"),
 ])
 def test_options_that_do_not_apply_are_rejected(tmp_path, args, message):
     subst = {"IN": str(REAL_TRACES["car"]), "CELLS": str(tmp_path / "cells.csv"), "OUT": str(tmp_path / "o.csv")}
-    res = runner.invoke(app, [subst.get(a, a) for a in args])
+    out = ["--out", str(tmp_path / "t.parquet")] if args[0] == "track" else []  # not beside the input
+    res = runner.invoke(app, [subst.get(a, a) for a in args] + out)
     assert res.exit_code == 2 and message in res.stderr, res.output
+    assert len(res.stderr.splitlines()) == 1 and res.stdout == ""
     assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("args, message", [
+    (["track", "IN", "--sigma", "-1"], "--sigma: expected a finite number > 0, got -1.0"),
+    (["track", "IN", "--gate", "-0.5"], "--gate:"),
+    (["track", "IN", "--chunk-rows", "0"], "--chunk-rows: expected an integer >= 1, got 0"),
+    (["track", "IN", "--model", "xx"], "--model: unknown name 'xx'"),
+    (["track", "IN", "--time-unit", "zz"], "--time-unit: expected one of"),
+    (["track", "IN", "--cells", "CELLS", "--range-sigma", "-5"], "--range-sigma: expected a finite number > 0"),
+    (["simulate", "--duration", "-5", "--out", "OUT"], "--duration: expected a finite number > 0"),
+    (["simulate", "--interval", "zz", "--out", "OUT"], "--interval: expected"),
+    (["simulate", "--sigma", "-2", "--out", "OUT"], "--sigma:"),
+    (["evaluate", "TRACKS", "--truth", "IN", "--tolerance", "-1"], "--tolerance: expected a finite number >= 0"),
+])
+def test_errors_name_the_option_the_user_typed(tmp_path, tracks, args, message):
+    """A bad value is one line naming the option as typed (--sigma), never the library's argument (sigma_m)."""
+    subst = {"IN": str(REAL_TRACES["car"]), "CELLS": str(tmp_path / "cells.csv"), "OUT": str(tmp_path / "o.csv"),
+             "TRACKS": str(tracks)}
+    (tmp_path / "cells.csv").write_text("radio,mcc,net,area,cell,lon,lat\n")
+    res = runner.invoke(app, [subst.get(a, a) for a in args] + ["--out" if args[0] == "track" else "-q",
+                                                               *([str(tmp_path / "t.parquet")] if args[0] == "track"
+                                                                 else [])])
+    assert res.exit_code == 2, res.output
+    line = res.stderr.strip().splitlines()[-1]
+    assert line.startswith("error: ") and message in line, res.stderr
+    assert not re.search(r"\b(sigma_m|gate_probability|chunk_rows|time_unit|r_km2|duration_s|tolerance_s)\b", line)
 
 
 def test_json_of_a_gps_run_lists_only_its_options(tmp_path):
@@ -165,6 +211,100 @@ def test_piped_output_is_whole_lines_and_progress_goes_to_stderr(tmp_path):
     assert res.stdout.splitlines()[0].endswith(f"; report {deep / 'r.html'}")
 
 
+def test_evaluate_numbers_are_full_precision_in_a_pipe(tracks):
+    res = cli("evaluate", tracks)
+    assert res.returncode == 0, res.stderr
+    table = res.stdout.split("\n1 tracks")[0]
+    assert re.search(r"\d\.\d{9,}", table), table  # every digit (repr), not .4g
+
+
+def test_help_is_not_wrapped_in_a_pipe():
+    """Piped (COLUMNS=80), help is plain text with one line per option and per paragraph."""
+    res = cli("track", "-h")
+    assert res.returncode == 0 and "Usage:" in res.stdout
+    lines = res.stdout.splitlines()
+    out = next(line for line in lines if "--out" in line)
+    assert out.rstrip().endswith("Default: INPUT.tracks.parquet beside the input."), out
+    assert max(map(len, lines)) > 120 and not re.search("[╭│╰─]", res.stdout)
+    epilog = cli("-h").stdout
+    assert any(line.strip().startswith("Exit status: 0 success") and line.rstrip().endswith("errors to stderr.")
+               for line in epilog.splitlines()), epilog
+
+
+def test_results_on_stdout_notes_and_advice_on_stderr(tmp_path, tracks, monkeypatch):
+    res = runner.invoke(app, ["track", str(REAL_TRACES["car"]), "--out", str(tmp_path / "a.parquet")])
+    assert res.exit_code == 0, res.output
+    assert "note: 1 track(s) show no independent fix noise" in res.stderr and "independent" not in res.stdout
+    assert res.stdout.startswith("1 tracks") and "noise: fixes" in res.stdout
+    res = runner.invoke(app, ["track", str(REAL_TRACES["car"]), "--sigma", "50", "--out", str(tmp_path / "b.parquet")])
+    assert "advice: 1 track(s) have a mean NIS far below its band" in res.stderr and "advice" not in res.stdout
+    res = runner.invoke(app, ["evaluate", str(tmp_path / "b.parquet")])
+    assert "advice: 1 track(s) have a mean NIS far below" in res.stderr and "advice" not in res.stdout
+    import mptrack.experiments as experiments
+    from mptrack.experiments._results import Reproduction, Table
+
+    def fake(key, out, **kw):
+        return Reproduction(key=key, paper="Zhao, Chen & Ma (2013), An FEM", seed=1, parameters={},
+                            tables={"t": Table("t", ["a", "b"], [["r", 1.0]])}, notes=["a note (seed 004)"])
+
+    monkeypatch.setattr(experiments, "run_experiment", fake)
+    res = runner.invoke(app, ["reproduce", "zhao2013", "--out", str(tmp_path)])
+    assert res.exit_code == 0, res.output
+    assert "note: a note (Zhao et al. 2013)" in res.stderr and "note:" not in res.stdout
+
+
+def test_track_report_of_a_simulated_log_shows_its_error_against_truth(tmp_path, monkeypatch):
+    """A log with truth columns (simulate): the report of `track --report` evaluates against them (error
+    plot, RMSE in the table), the same numbers as `evaluate --truth LOG`; with a GeoJSON output the
+    report is built from the run's points, not by reading the GeoJSON back."""
+    sim = tmp_path / "s.csv"
+    res = runner.invoke(app, ["simulate", "--tracks", "3", "--duration", "120", "--out", str(sim), "-q"])
+    assert res.exit_code == 0, res.output
+    import mptrack.io
+    import mptrack.tracking
+
+    def read_back(*a, **k):
+        raise AssertionError("the report read the output back")
+
+    for module in (mptrack.io, mptrack.tracking):
+        monkeypatch.setattr(module, "read_output", read_back)
+    out, page = tmp_path / "t.geojson", tmp_path / "r.html"
+    res = runner.invoke(app, ["track", str(sim), "--out", str(out), "--report", str(page), "-q"])
+    assert res.exit_code == 0, res.output
+    monkeypatch.undo()
+    parquet = tmp_path / "t.parquet"  # full precision, for the comparison with evaluate
+    assert runner.invoke(app, ["track", str(sim), "--out", str(parquet), "--report", str(page), "-q"]).exit_code == 0
+    text = page.read_text()
+    data = json.loads(re.search(r"<script type='application/json' id='mptrack-data'>(.*?)</script>", text,
+                                re.S).group(1))
+    assert data["payload"]["has_error"] and all("err" in tr for tr in data["payload"]["tracks"])
+    summary = dict(zip(data["summary"]["columns"], data["summary"]["overall"]))
+    ev = json.loads(runner.invoke(app, ["evaluate", str(parquet), "--truth", str(sim), "--json"]).stdout)["overall"]
+    assert summary["rmse_m"] == pytest.approx(ev["rmse_m"], rel=1e-9) and summary["rmse_m"] > 0
+    assert summary["matched_points"] == ev["matched_points"] == ev["points"]
+    assert "truth (dashed black line)" in text
+
+
+def test_tracking_progress_counts_tracks_not_chunks(tmp_path):
+    sim = tmp_path / "s.parquet"
+    assert runner.invoke(app, ["simulate", "--tracks", "5", "--duration", "60", "--out", str(sim), "-q"]).exit_code == 0
+    args = ["track", sim, "--out", tmp_path / "t.parquet", "--chunk-rows", "70"]
+    chunks = json.loads(runner.invoke(app, [str(a) for a in args] + ["--json"]).stdout)["chunks"]
+    assert 1 < chunks < 5  # several tracks per chunk
+    res = cli(*args)
+    assert res.returncode == 0, res.stderr
+    assert re.search(r"^tracking the tracks of s\.parquet: 5 done in \d+\.\d s$", res.stderr, re.M), res.stderr
+
+
+def test_python_dash_m_mptrack():
+    res = subprocess.run([sys.executable, "-m", "mptrack", "--version"], capture_output=True, text=True, env=ENV,
+                         timeout=120)
+    assert res.returncode == 0 and res.stdout == f"mptrack {__version__}\n", res.stderr
+    res = subprocess.run([sys.executable, "-m", "mptrack", "reproduce", "--list", "--quick"], capture_output=True,
+                         text=True, env=ENV, timeout=120)
+    assert res.returncode == 2 and res.stderr.startswith("error: --quick")
+
+
 def test_bench_numbers_are_full_precision_in_a_pipe():
     res = cli("bench", "--quick", "--suite", "linear")
     assert res.returncode == 0, res.stderr
@@ -188,7 +328,14 @@ def test_help_imports_no_numerical_library():
 
 def test_papers_are_named_by_author_and_year():
     assert paper_names("KF (seed 000 eq. 4); seed 004 section 3") == "KF (Assimakis & Adam 2014 eq. 4); " \
-                                                                    "Zhao, Chen & Ma 2013 section 3"
+                                                                    "Zhao et al. 2013 section 3"
+    # one short name per paper, everywhere: the seed numbers' names are the reproductions' own
+    from mptrack.experiments import experiments
+
+    reg = experiments()
+    for seed, key in {"000": "assimakis2014", "001": "assimakis2016", "002": "assimakis2015", "003": "bouzera2017",
+                      "004": "zhao2013"}.items():
+        assert PAPERS[seed] == short_paper(reg[key].paper), key
     assert short_paper("Assimakis, Tziallas, Adam, Polyzos & Papanastasiou (2016), Mobile") == "Assimakis et al. 2016"
     assert short_paper("Assimakis & Adam (2014), Global") == "Assimakis & Adam 2014"
     res = runner.invoke(app, ["filters"])
@@ -214,6 +361,8 @@ def test_reproduce_counts_fall_back_to_matched_over_published():
     results = json.loads(json.dumps(RESULTS))
     results["tables"]["Table 1"]["explained_by"] = [[0, 2, "typo"]]
     assert cell_counts(results) == {"published": 3, "matched": 1, "explained": 1, "unexplained": 1}
+    results["tables"]["Table 1"].update(uncounted=["b"], mismatches=[[0, 2]])  # column b repeats inputs
+    assert cell_counts(results) == {"published": 1, "matched": 0, "explained": 1, "unexplained": 0}
 
 
 def test_reproduce_counts_come_from_the_comparison():
@@ -231,10 +380,12 @@ def test_reproduce_writes_results_and_its_report(tmp_path):
     data = json.loads((tmp_path / "assimakis2015" / "results.json").read_text())
     assert data["tables"]["Table 3"]["mismatches"] == []
     lines = result.stdout.strip().splitlines()
-    assert len(lines) == 1 and re.match(r"assimakis2015 \(Assimakis & Adam 2015\): (\d+)/\1 published numbers "
-                                        r"matched; 3 figures", lines[0]), lines
+    assert len(lines) == 1 and re.match(r"assimakis2015 \(Assimakis & Adam 2015\): 15/15 published numbers "
+                                        r"matched, 0 differ for a documented reason, 0 differ unexplained "
+                                        r"\(see docs/errata\.md\); 3 figures", lines[0]), lines
     page = (tmp_path / "assimakis2015" / "report.html").read_text()
-    assert "class='differs'" not in page and page.count("class='same'") >= 15 and "data:image/png;base64" in page
+    assert "class='differs'" not in page and page.count("class='same'") == 15 and "data:image/png;base64" in page
+    assert page.count("not counted: an input or label") == 42  # Table 2's formulas, Table 3's labels: plain
     assert "<title>assimakis2015: Assimakis &amp; Adam 2015</title>" in page
 
 
@@ -243,12 +394,12 @@ def test_reproduction_report_links_explained_cells(tmp_path):
 
     results = json.loads(json.dumps(RESULTS))
     results["tables"]["Table 1"]["explained_by"] = [[0, 2, "zhao2013-typo"]]
-    results["errata"] = {"zhao2013-typo": "docs/errata.md, 'Table 1: a typo in row 0': the paper prints 2.5"}
+    results["errata"] = {"zhao2013-typo": "Table 1 has a typo in row 0: the paper prints 2.5"}
     errata = tmp_path / "errata.md"
-    errata.write_text("# Errata\n## Table 1: a typo in row 0\n")
+    errata.write_text("# Errata\n<a id=\"zhao2013-typo\"></a>\n\n## Table 1: a typo in row 0\n")
     text = write_reproduction_report(results, tmp_path / "r.html", errata=errata).read_text()
     assert text.count("class='explained'") == 1 and text.count("class='differs'") == 1
-    assert f"href='{errata.as_uri()}#table-1-a-typo-in-row-0'" in text and "the paper prints 2.5" in text
+    assert f"href='{errata.as_uri()}#zhao2013-typo'" in text and "the paper prints 2.5" in text
 
 
 def test_unknown_reproduction_is_a_clear_error(tmp_path):

@@ -289,7 +289,7 @@ def test_an_output_over_the_input_is_refused(tmp_path, logs, case):
     res = run(*args, option, target, "-q")
     assert res.exit_code == 2
     line = one_line(res.stderr)
-    assert line.startswith(f"error: {option.lstrip('-').replace('-', '_')}: {target} is ")
+    assert line.startswith(f"error: {option}: {target} is ")  # the option as typed, not the library's argument
     assert ("inside the input directory" if case == "out-in-input-dir" else "is an input of this run") in line
     assert src.read_bytes() == before
     assert not (tmp_path / "t.parquet").exists() and not list(tmp_path.rglob(".*"))
@@ -303,14 +303,14 @@ def test_cells_truth_and_along_are_inputs_too(tmp_path, logs):
     before = cells.read_bytes()
     os.link(cells, tmp_path / "cells-link.csv")
     res = run("track", log, "--cells", cells, "--out", tmp_path / "cells-link.csv", "-q")
-    assert res.exit_code == 2 and "out: " in res.stderr and "is an input of this run" in one_line(res.stderr)
+    assert res.exit_code == 2 and "--out: " in res.stderr and "is an input of this run" in one_line(res.stderr)
     assert cells.read_bytes() == before
     truth = tmp_path / "truth.parquet"
     truth.write_bytes((logs / "small.parquet").read_bytes())
     res = run("evaluate", truth, "--truth", truth, "--report", truth)
-    assert res.exit_code == 2 and one_line(res.stderr).startswith(f"error: report: {truth} is an input")
+    assert res.exit_code == 2 and one_line(res.stderr).startswith(f"error: --report: {truth} is an input")
     res = run("simulate", "--along", truth, "--out", truth)
-    assert res.exit_code == 2 and one_line(res.stderr).startswith(f"error: out: {truth} is an input")
+    assert res.exit_code == 2 and one_line(res.stderr).startswith(f"error: --out: {truth} is an input")
     assert truth.read_bytes() == (logs / "small.parquet").read_bytes()
 
 
@@ -465,3 +465,86 @@ def test_resume_with_other_options_keeps_the_parts(tmp_path, logs):
         "manifest.json", "points-000000.arrow", "tracks-000000.arrow"]
     assert run("track", logs / "small.parquet", "--out", out, "--chunk-rows", 200, "--resume", "-q").exit_code == 0
     assert sorted(p.name for p in tmp_path.iterdir()) == ["t.parquet"]
+
+
+# --- (g) the part store vanishes during the run ----------------------------------------------------
+
+@pytest.mark.parametrize("case", ["directory", "one-part", "during-final-write"])
+def test_parts_that_vanish_during_the_run_fail_the_run(tmp_path, logs, monkeypatch, case):
+    """The part store removed (``rm -rf .t.parquet.parts``, a clean-up job) or a part deleted while the
+    run goes on: exit 2 and one line naming what vanished, no output (it would miss those chunks:
+    2331 of 3000 tracks, exit 0, before), nothing left behind."""
+    import shutil
+
+    import mptrack.io._parts as parts_module
+    import mptrack.tracking._pipeline as pipeline
+
+    out = tmp_path / "t.parquet"
+    store = tmp_path / ".t.parquet.parts"
+    real_call, real_finish = pipeline.TrackTask.__call__, parts_module.PartStore.finish
+
+    def vanish(self, chunk):
+        if chunk.index == 3:
+            if case == "directory":
+                shutil.rmtree(store)
+            elif case == "one-part":
+                (store / "points-000001.arrow").unlink()
+        return real_call(self, chunk)
+
+    def finish(self, files, *args, **kw):
+        (store / "points-000002.arrow").unlink()
+        return real_finish(self, files, *args, **kw)
+
+    monkeypatch.setattr(pipeline.TrackTask, "__call__", vanish)
+    if case == "during-final-write":
+        monkeypatch.setattr(parts_module.PartStore, "finish", finish)
+    res = run("track", logs / "big.parquet", "--out", out, *FAST, "-q")
+    assert res.exit_code == 2, res.output
+    what = {"directory": "6 of the 200 part files and the manifest", "one-part": "1 of the 200 part files",
+            "during-final-write": "1 of the 100 part files"}[case]
+    first = {"directory": "manifest.json", "one-part": "points-000001.arrow",
+             "during-final-write": "points-000002.arrow"}[case]
+    assert one_line(res.stderr) == (f"error: {out}: {what} of this run vanished from {store} while it ran (first: "
+                                    f"{first}; was the directory deleted?); the output was not written and the "
+                                    "remaining parts were removed: run again")
+    assert res.stdout == "" and list(tmp_path.iterdir()) == []
+
+
+# --- (h) two outputs of one run at one path --------------------------------------------------------
+
+@pytest.mark.parametrize("case", ["out-report", "out-track-summary", "report-track-summary", "out-symlink",
+                                  "simulate-cells-out", "simulate-cells-out-other-spelling"])
+def test_two_outputs_at_one_path_are_refused(tmp_path, logs, case):
+    """Two outputs of one run naming one file (the later overwrote the earlier, exit 0): exit 2, one
+    line naming both options, before any input is read and nothing written."""
+    src = logs / "small.csv"
+    first, second = {"out-report": ("out", "report"), "out-track-summary": ("out", "track_summary"),
+                     "report-track-summary": ("track_summary", "report"), "out-symlink": ("out", "report"),
+                     "simulate-cells-out": ("out", "cells_out"),
+                     "simulate-cells-out-other-spelling": ("out", "cells_out")}[case]
+    target = tmp_path / ("r.csv" if case != "out-report" else "r.parquet")
+    given = {first: target, second: target}
+    if case == "out-symlink":
+        (tmp_path / "here.parquet").symlink_to(target)
+        given[second] = tmp_path / "here.parquet"
+    flag = {"out": "--out", "report": "--report", "track_summary": "--track-summary", "cells_out": "--cells-out"}
+    if case.startswith("simulate"):
+        args = ["simulate", "--scenario", "urban-3bts", "--tracks", 1, "--duration", 30, "--out", target]
+        if case == "simulate-cells-out":
+            args += ["--cells-out", target]
+        else:  # the default cell table (OUT with suffix .cells.csv) of --out x.cells.csv is another file
+            assert run(*args[:-1], tmp_path / "x.cells.csv", "-q").exit_code == 0
+            assert sorted(p.name for p in tmp_path.iterdir()) == ["x.cells.cells.csv", "x.cells.csv"]
+            for p in tmp_path.iterdir():
+                p.unlink()
+            given[second] = tmp_path / "." / "r.csv"
+            args += ["--cells-out", given[second]]
+    else:
+        args = ["track", src, *(x for name in (first, second) for x in (flag[name], given[name]))]
+        if "out" not in (first, second):
+            args += ["--out", tmp_path / "t.parquet"]
+    res = run(*args, "-q")
+    assert res.exit_code == 2, res.output
+    assert one_line(res.stderr) == (f"error: {flag[second]}: {given[second]} is also given as {flag[first]}; each "
+                                    "output of a run needs a file of its own")
+    assert [p.name for p in tmp_path.iterdir()] == (["here.parquet"] if case == "out-symlink" else [])

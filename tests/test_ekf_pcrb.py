@@ -3,11 +3,11 @@
 import numpy as np
 import pytest
 
+from mptrack.cellular import ekf_ranges_batch
 from mptrack.errors import ShapeError, SingularMatrixError
 from mptrack.linear import kalman_filter
 from mptrack.metrics import nees, pcrb, pcrb_ranges, pcrb_tichavsky, position_error, range_fisher_information, rmse
 from mptrack.models import LinearGaussianModel
-from mptrack.nonlinear import ekf_ranges_batch
 
 STATIONS = np.array([[0.0, 0.0], [2.0, 0.0], [1.0, 1.7]])
 

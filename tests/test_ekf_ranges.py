@@ -6,9 +6,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from mptrack.cellular import ekf_ranges, ekf_ranges_batch, motion_matrix, range_measurement
 from mptrack.errors import NonFiniteError, ParameterError, ShapeError
 from mptrack.linear import kalman_step
-from mptrack.nonlinear import ekf_ranges, ekf_ranges_batch, motion_matrix, range_measurement
 
 STATIONS = np.array([[0.0, 0.0, 0.03], [2.0, 0.0, 0.03], [1.0, 1.7, 0.03]])
 Q0 = np.diag([0.02, 0.02, 0.002])
@@ -149,7 +149,7 @@ def test_bad_input():
 
 def test_range_fix_2d_3d_and_with_known_height():
     from mptrack.errors import SingularMatrixError
-    from mptrack.nonlinear import range_fix
+    from mptrack.cellular import range_fix
 
     p = np.array([0.7, 0.5, 0.0015])
     z = np.linalg.norm(p - STATIONS, axis=1)
@@ -168,7 +168,7 @@ def test_range_fix_2d_3d_and_with_known_height():
 
 
 def test_wild_ranges_never_give_nan_estimates():
-    from mptrack.nonlinear import fcs_ranges, fekf_ranges
+    from mptrack.cellular import fcs_ranges, fekf_ranges
 
     rng = np.random.default_rng(9)
     truth, z = _track(T=30)
@@ -185,3 +185,34 @@ def test_predictions_are_recorded():
     np.testing.assert_allclose(res.x_pred[1:], res.x[:-1])          # random walk: x(k/k-1) = x(k-1/k-1)
     np.testing.assert_allclose(res.P_pred[1:], res.P[:-1] + Q0)
     np.testing.assert_allclose(res.x_pred[0], truth[0])
+
+
+@pytest.mark.parametrize("motion", ["random-walk", "cv"])
+def test_range_ekf_runs_the_compiled_named_model_with_the_generic_numbers(motion):
+    """ekf_ranges / ekf_ranges_batch build nonlinear_model(motion, ranges(...)), which the compiled named
+    kernels run; the generic (untagged) path of the same model gives the same numbers to 1e-12."""
+    import dataclasses
+
+    from mptrack.nonlinear import ekf_filter, ekf_filter_batch
+    from mptrack.cellular._ekf import _prepare, _ranges_model
+    runs = [_track(T=15, seed=s) for s in range(3)]
+    z = np.stack([r[1] for r in runs])
+    z[1, 4, 2] = np.nan
+    n = 3 if motion == "random-walk" else 6
+    start = np.stack([r[0][0] for r in runs])
+    x0 = start if n == 3 else np.stack([start, np.zeros((3, 3))], -1).reshape(3, 6)   # [x, vx, y, vy, z, vz]
+    P0, Q = 1e-3 * np.eye(n), 1e-3 * np.eye(n)
+    prepared = _prepare(z, STATIONS, x0, P0, Q, 0.222, motion, 1.0, batch=True)
+    model = _ranges_model(*prepared[1:2], *prepared[4:], motion)
+    assert model.named is not None
+    generic = dataclasses.replace(model)
+    assert generic.named is None
+    batch = ekf_ranges_batch(z, STATIONS, x0, P0, Q, 0.222, motion=motion)
+    for b in range(3):
+        single = ekf_ranges(z[b], STATIONS, x0[b], P0, Q, 0.222, motion=motion)
+        ref = ekf_filter(generic, z[b], x0[b], P0)
+        for res in (single, batch.run(b)):
+            np.testing.assert_allclose(res.x, ref.x, rtol=1e-12, atol=1e-12 * np.abs(ref.x).max())
+            np.testing.assert_allclose(res.P, ref.P, rtol=1e-12, atol=1e-12 * np.abs(ref.P).max())
+            assert res.loglik == pytest.approx(ref.loglik, rel=1e-12)
+    np.testing.assert_allclose(ekf_filter_batch(generic, z, x0, P0).x, batch.x, rtol=1e-12, atol=1e-12)

@@ -6,9 +6,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from mptrack.errors import ParameterError
-from mptrack.fuzzy import TakagiSugeno, uniform_partition
-from mptrack.nonlinear import (
+from mptrack.cellular import (
     bouzera_fcs_fis,
     bouzera_fekf_fis,
     ekf_ranges,
@@ -19,6 +17,8 @@ from mptrack.nonlinear import (
     fuse_local_solutions,
     range_measurement,
 )
+from mptrack.errors import ParameterError
+from mptrack.fuzzy import TakagiSugeno, uniform_partition
 
 STATIONS = np.array([[0.0, 0.0, 0.03], [2.0, 0.0, 0.03], [1.0, 1.7, 0.03]])
 Q0 = np.diag([0.02, 0.02, 0.002])
@@ -173,7 +173,7 @@ def test_printed_eq16_can_go_indefinite_and_exact_cannot():
 
 def test_indefinite_prediction_raises_instead_of_nan():
     from mptrack.errors import NotPositiveDefiniteError
-    from mptrack.nonlinear import local_solutions
+    from mptrack.cellular import local_solutions
 
     x = np.array([[0.8, 0.6, 0.0015]])
     P = -np.eye(3)[None]

@@ -5,35 +5,42 @@ import pytest
 
 from mptrack.errors import ParameterError, ShapeError
 from mptrack.fuzzy import MembershipFunction, TakagiSugeno, anfis_train
-from mptrack.fuzzy._anfis import _forward, _predict, _premise_gradient
+from mptrack.fuzzy._anfis import _covers, _forward, _predict, _premise_gradient
 
 
-def _loss(u, means, sigmas, c, y):
-    _, w = _forward(u, means, sigmas)
+def _loss(u, params, kind, c, y):
+    w = _forward(u, params, kind)[2]
     return 0.5 * np.mean((_predict(w, c) - y) ** 2)
 
 
-def test_premise_gradient_matches_finite_differences():
+@pytest.mark.parametrize("kind, params", [
+    ("gaussian", [np.array([[0.0, 0.3], [0.4, 0.2], [1.0, 0.25]]), np.array([[0.1, 0.5], [0.9, 0.4]])]),
+    ("triangular", [np.array([[-0.5, 0.05, 0.45], [0.1, 0.4, 0.95], [0.35, 1.0, 1.5]]),
+                    np.array([[-1.1, 0.1, 1.2], [-0.2, 0.9, 1.9]])]),
+])
+def test_premise_gradient_matches_finite_differences(kind, params):
     rng = np.random.default_rng(0)
     u = rng.uniform(0, 1, (50, 2))
     y = rng.uniform(0, 1, 50)
-    means = [np.array([0.0, 0.4, 1.0]), np.array([0.1, 0.9])]
-    sigmas = [np.array([0.3, 0.2, 0.25]), np.array([0.5, 0.4])]
     c = rng.uniform(0, 1, (3, 2))
-    gm, gs = _premise_gradient(u, means, sigmas, c, y)
-    eps = 1e-6
+    grads = _premise_gradient(u, params, kind, c, y)
+    eps = 1e-7
     for j in range(2):
-        for a in range(len(means[j])):
-            for params, grad in ((means, gm), (sigmas, gs)):
-                up = [p.copy() for p in params]
-                dn = [p.copy() for p in params]
-                up[j][a] += eps
-                dn[j][a] -= eps
-                if params is means:
-                    num = (_loss(u, up, sigmas, c, y) - _loss(u, dn, sigmas, c, y)) / (2 * eps)
-                else:
-                    num = (_loss(u, means, up, c, y) - _loss(u, means, dn, c, y)) / (2 * eps)
-                assert grad[j][a] == pytest.approx(num, rel=1e-5, abs=1e-10)
+        for i, k in np.ndindex(params[j].shape):
+            up = [p.copy() for p in params]
+            dn = [p.copy() for p in params]
+            up[j][i, k] += eps
+            dn[j][i, k] -= eps
+            num = (_loss(u, up, kind, c, y) - _loss(u, dn, kind, c, y)) / (2 * eps)
+            assert grads[j][i, k] == pytest.approx(num, rel=1e-5, abs=1e-10), (kind, j, i, k)
+
+
+def test_triangle_coverage_check():
+    assert _covers([-0.5, 0.0, 0.5], [0.5, 1.0, 1.5])          # the initial grid of 3 sets
+    assert not _covers([0.1, 0.0, 0.5], [0.5, 1.0, 1.5])       # no set fires at 0
+    assert not _covers([-0.5, 0.6], [0.5, 1.5])                # a gap (0.5, 0.6]
+    assert not _covers([-0.5, 0.5], [0.5, 1.5])                # 0.5 itself fires nothing
+    assert not _covers([-0.5, 0.2], [0.6, 1.0])                # 1 fires nothing
 
 
 def test_recovers_consequents_of_a_generating_system():
@@ -62,6 +69,30 @@ def test_training_reduces_error_monotonically_and_is_deterministic():
     np.testing.assert_allclose(a.fis(x[:, 0], x[:, 1]), y, atol=0.1)
 
 
+def test_triangular_sets_recover_a_generating_system_and_stay_valid():
+    # data from a TS system on the initial triangular grid: least squares is exact at epoch 0
+    c_true = np.array([[0.9, 0.1], [0.4, 0.6], [0.0, 1.0]])
+    sets = (tuple(MembershipFunction("triangular", (m - 0.5, m, m + 0.5)) for m in (0.0, 0.5, 1.0)),
+            tuple(MembershipFunction("triangular", (m - 1.0, m, m + 1.0)) for m in (0.0, 1.0)))
+    gen = TakagiSugeno(sets, c_true)
+    x = np.random.default_rng(1).uniform(0, 1, (400, 2))
+    res = anfis_train(x, gen(x[:, 0], x[:, 1]), sets_per_input=(3, 2), universes=((0, 1), (0, 1)), epochs=3,
+                      ridge=1e-12, membership="triangular")
+    assert res.rmse[0] < 1e-8
+    np.testing.assert_allclose(res.fis.consequents, c_true, atol=1e-6)
+    # a target the initial grid cannot fit: training moves the breakpoints, lowers the error monotonically
+    # and keeps every value of the universes firing some rule
+    rng = np.random.default_rng(2)
+    x = np.column_stack([rng.uniform(0, 1.5, 800), rng.uniform(0.22, 0.32, 800)])
+    y = np.exp(-((x[:, 0] - 0.55) / 0.2) ** 2) * (1.3 - (x[:, 1] - 0.22) / 0.1) / 1.3
+    res = anfis_train(x, y, sets_per_input=(5, 2), universes=((0, 1.5), (0.22, 0.32)), epochs=40,
+                      membership="triangular", bounds=(0, 1))
+    assert np.all(np.diff(res.rmse) <= 1e-15) and res.rmse[-1] < 0.8 * res.rmse[0]
+    assert all(mf.kind == "triangular" for s in res.fis.sets for mf in s)
+    grid = np.meshgrid(np.linspace(0, 1.5, 301), np.linspace(0.22, 0.32, 51))
+    assert np.all(np.isfinite(res.fis(*grid)))
+
+
 def test_bad_input():
     x = np.zeros((10, 2))
     with pytest.raises(ShapeError, match="inputs, target"):
@@ -72,6 +103,8 @@ def test_bad_input():
         anfis_train(x, np.zeros(10), sets_per_input=(2, 2), universes=((0, 1), (1, 1)))
     with pytest.raises(ParameterError, match="sets_per_input"):
         anfis_train(x, np.zeros(10), sets_per_input=(1, 2), universes=((0, 1), (0, 1)))
+    with pytest.raises(ParameterError, match="membership"):
+        anfis_train(x, np.zeros(10), sets_per_input=(2, 2), universes=((0, 1), (0, 1)), membership="bell")
 
 
 def test_bounded_consequents_stay_in_the_box():

@@ -4,9 +4,9 @@ probabilistic combination rule (the second eq. 30)."""
 import numpy as np
 import pytest
 
+from mptrack.cellular import fuse_local_solutions, local_solutions
 from mptrack.errors import ParameterError
 from mptrack.fuzzy import fused_covariance_prop3, fused_covariance_trace, probabilistic_fusion
-from mptrack.nonlinear import fuse_local_solutions, local_solutions
 
 
 def _scenario(seed=0):

@@ -113,15 +113,16 @@ def test_imm_on_bouzera_two_linear_trajectory():
     63 km/h; km units), 30 Monte-Carlo runs: the CV/CA IMM against the single-model EKFs.  Position RMSE
     (m) over the turn (16 s) / whole track: IMM 1.16 / 0.86, CV EKF 14.4 / 5.8, CA EKF 1.19 / 1.22, and
     the paper's random-walk EKF with its own Q0, R0 34.4 / 37.4."""
-    from mptrack.experiments.bouzera2017 import Setup, simulate
+    from mptrack.experiments.bouzera2017 import PREVIOUS, Setup, scenario, simulate
     from mptrack.experiments.bouzera2017 import ranges as simulated_ranges
     from mptrack.models import ranges
 
-    s = Setup()
+    s = scenario(Setup(noise_reading="standard deviation"), **PREVIOUS)  # the 2 km triangle, sigma = 1 m
     runs = 30
     truth, x0s, eps = simulate(s, "two-linear", np.random.SeedSequence(2017), runs)
-    z = simulated_ranges(s, truth, eps, s.sigma_km)
-    models, Pi = cv_ca_models(s.dt_s, 1e-8, 1e-5, ranges(s.stations, s.sigma_km ** 2, position=(0, 3, 6)), axes=3)
+    z = simulated_ranges(s, truth, eps, s.sigma)
+    models, Pi = cv_ca_models(s.dt_s, 1e-8, 1e-5, ranges(s.stations, s.noise_variance(s.sigma), position=(0, 3, 6)),
+                              axes=3)
     v = s.speed_km_s * np.array([np.cos(np.radians(s.heading_deg)), np.sin(np.radians(s.heading_deg)), 0.0])
     P0 = np.diag([1e-3, 1e-5, 1e-6] * 3)
     turn = slice(s.steps // 2 - 1, s.steps // 2 + 15)
@@ -136,3 +137,29 @@ def test_imm_on_bouzera_two_linear_trajectory():
     whole = {k: 1000 * np.sqrt(np.mean(v)) for k, v in sq.items()}
     assert over_turn["imm"] < 0.1 * over_turn["cv"] and over_turn["imm"] < over_turn["ca"], over_turn
     assert whole["imm"] < 0.8 * whole["ca"] and whole["imm"] < 0.2 * whole["cv"], whole
+
+
+def test_prior_at_first_measurement_like_the_other_filters():
+    """prior="first-measurement": no prediction (and no mode transition) before the first update; with one
+    model the IMM is the EKF with the same option."""
+    model = nonlinear_model(constant_velocity(DT, 0.5, axes=2), range_bearing(SENSOR, R_BR))
+    rng = np.random.default_rng(3)
+    z = model.h(np.column_stack([np.arange(T) * 10.0, np.full(T, 10.0), np.arange(T) * 2.0, np.full(T, 2.0)]))
+    z = z + rng.standard_normal((T, 2)) * [0.005, 2.0]
+    x0, P0 = np.array([0.0, 10.0, 0.0, 2.0]), np.diag([20.0, 4.0, 20.0, 4.0])
+    a = imm_filter([model], z, x0, P0, [[1.0]], prior="first-measurement")
+    b = ekf_filter(model, z, x0, P0, prior="first-measurement")
+    np.testing.assert_allclose(a.x, b.x, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(a.P, b.P, rtol=1e-12, atol=1e-12)
+    assert a.x0 is None and a.P0 is None
+    np.testing.assert_array_equal(a.x_pred[0], x0)
+    _, zm, meas = _trajectory(np.random.default_rng(0))
+    models, Pi = cv_ca_models(DT, 0.01, 1.0, meas)
+    x6, P6 = np.array([0.0, 15.0, 0.0, 0.0, 0.0, 0.0]), np.diag([25.0, 4.0, 1.0, 25.0, 4.0, 1.0])
+    c = imm_filter(models, zm, x6, P6, Pi, mu0=[0.9, 0.1], prior="first-measurement")
+    # no transition before the first measurement: the first mode probabilities are mu0 times the likelihoods
+    ll = [ekf_filter(m, zm[:1], x6, P6, prior="first-measurement").loglik for m in models]
+    w = np.array([0.9, 0.1]) * np.exp(np.array(ll) - max(ll))
+    np.testing.assert_allclose(c.mu[0], w / w.sum(), rtol=1e-12)
+    with pytest.raises(ParameterError, match="prior"):
+        imm_filter(models, zm, x6, P6, Pi, prior="start")

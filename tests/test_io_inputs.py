@@ -8,7 +8,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from mptrack.errors import DataError, ParameterError
+from mptrack.errors import DataError, OutputError, ParameterError
 from mptrack.io import (
     ReadOptions,
     CELLS,
@@ -170,8 +170,33 @@ def test_cell_table_errors(tmp_path):
         read_cells(path)
     assert info.value.row == 3 and info.value.column == "cell" and "listed twice" in str(info.value)
     cell_table().drop(columns="mcc").to_csv(path, index=False)
-    with pytest.raises(DataError, match="'mcc': missing column"):
+    with pytest.raises(DataError, match="'mcc': missing column") as info:
         read_cells(path)
+    assert "--columns" not in str(info.value)  # the cell table's layout is fixed
+    cell_table().iloc[:0].to_csv(path, index=False)
+    with pytest.raises(DataError) as info:
+        read_cells(path)
+    assert str(info.value) == f"{path}: the cell table is empty: it has a header only, no cells"
+
+
+def test_missing_position_columns_list_the_files_columns(tmp_path):
+    """The file's own column names (not the mapped ones) and the option that maps them."""
+    path = tmp_path / "de.csv"
+    fixes_frame().rename(columns={"lat": "Breite", "lon": "Laenge", "time": "Zeit"}).to_csv(path, index=False)
+    with pytest.raises(DataError) as info:
+        read_table(path, read=ReadOptions(columns={"time": "Zeit"}))
+    assert str(info.value) == (f"{path}, column 'lat+lon': missing columns: need lat+lon or x+y (the file has: "
+                               "track_id, Zeit, Breite, Laenge, accuracy_m); name them with --columns "
+                               "lat=COLUMN,lon=COLUMN")
+    got = read_table(path, read=ReadOptions(columns={"time": "Zeit", "lat": "Breite", "lon": "Laenge"}))
+    assert got["lat"].tolist() == fixes_frame()["lat"].tolist()
+
+
+def test_tsv_is_read_as_csv(tmp_path):
+    path = tmp_path / "fixes.tsv"
+    fixes_frame().to_csv(path, sep="\t", index=False)
+    got = read_table(path)
+    assert len(got) == 18 and got["lon"].tolist() == fixes_frame()["lon"].tolist()
 
 
 def test_measurement_rows_need_one_measurement(tmp_path):
@@ -272,12 +297,23 @@ def test_part_store_streams_its_parts_in_order_and_cleans_up(tmp_path):
         feather.write_feather(pa.Table.from_pandas(part, preserve_index=False),
                               part_path(store.dir, "points", i, "arrow"))
     assert [p.name for p in store.parts("points")] == ["points-000000.arrow", "points-000001.arrow"]
-    store.finish("points")
+    (store.dir / "manifest.json").write_text("{}")
+    results = [{"points": part_path(store.dir, "points", i, "arrow")} for i in (0, 1)]
+    files = store.check(results)
+    assert files == {"points": store.parts("points")}
+    store.finish(files["points"])
     assert pd.read_parquet(tmp_path / "o.parquet")["track_id"].tolist() == ["a", "a", "b"]
     store.discard()
     assert not store.dir.exists()
     with pytest.raises(ParameterError, match="unknown output format"):
         PartStore(tmp_path / "o.xlsx")
+    store.dir.mkdir()
+    (store.dir / "manifest.json").write_text("{}")
+    feather.write_feather(pa.Table.from_pandas(_table(), preserve_index=False), results[1]["points"])
+    with pytest.raises(OutputError, match=r"o.parquet: 1 of the 2 part files of this run vanished .*\(first: "
+                                          r"points-000000\.arrow"):
+        store.check(results)
+    assert not store.dir.exists()  # a store that lost parts is not kept for a resume
 
 def test_user_guide_shows_the_current_schemas():
     guide = (Path(__file__).parents[1] / "docs" / "tracking.md").read_text()
@@ -298,3 +334,70 @@ def test_time_zones_and_datetime_columns(tmp_path):
         assert np.diff(g["t"]).tolist() == [1.5, 1.5]
         starts[name] = g["t"].iloc[0]
     assert starts["naive.parquet"] == starts["mixed.csv"] == starts["zoned.parquet"] + 3600.0
+
+
+#: (place, lat, lon, IANA zone): the extremes of legal time against longitude (western China, Spain in
+#: summer, Iceland, Argentina, the Pacific around the date line) and the usual places.
+PLACES = [
+    ("Madrid", 40.42, -3.70, "Europe/Madrid"), ("A Coruna", 43.36, -8.41, "Europe/Madrid"),
+    ("Brest", 48.39, -4.49, "Europe/Paris"), ("Paris", 48.86, 2.35, "Europe/Paris"),
+    ("London", 51.5, -0.12, "Europe/London"), ("Reykjavik", 64.15, -21.94, "Atlantic/Reykjavik"),
+    ("Kashgar", 39.47, 75.99, "Asia/Shanghai"), ("Tashkurgan", 37.77, 75.23, "Asia/Shanghai"),
+    ("Urumqi", 43.83, 87.62, "Asia/Urumqi"), ("Lhasa", 29.65, 91.1, "Asia/Shanghai"),
+    ("Beijing", 39.9, 116.4, "Asia/Shanghai"), ("Harbin", 45.8, 126.5, "Asia/Shanghai"),
+    ("Buenos Aires", -34.6, -58.4, "America/Argentina/Buenos_Aires"),
+    ("Ushuaia", -54.8, -68.3, "America/Argentina/Ushuaia"), ("Anchorage", 61.2, -149.9, "America/Anchorage"),
+    ("Nome", 64.5, -165.4, "America/Nome"), ("Adak", 51.9, -176.6, "America/Adak"),
+    ("Honolulu", 21.3, -157.9, "Pacific/Honolulu"), ("Kiritimati", 1.87, -157.4, "Pacific/Kiritimati"),
+    ("Apia", -13.8, -171.8, "Pacific/Apia"), ("Auckland", -36.85, 174.76, "Pacific/Auckland"),
+    ("Chatham", -43.95, -176.55, "Pacific/Chatham"), ("Perth", -31.95, 115.86, "Australia/Perth"),
+    ("Eucla", -31.7, 128.9, "Australia/Eucla"), ("Darwin", -12.46, 130.84, "Australia/Darwin"),
+    ("Tokyo", 35.68, 139.7, "Asia/Tokyo"), ("Anadyr", 64.7, 177.5, "Asia/Anadyr"),
+    ("Kaliningrad", 54.7, 20.5, "Europe/Kaliningrad"), ("Moscow", 55.75, 37.6, "Europe/Moscow"),
+    ("Cairo", 30.04, 31.24, "Africa/Cairo"), ("Lagos", 6.5, 3.4, "Africa/Lagos"),
+    ("Casablanca", 33.6, -7.6, "Africa/Casablanca"), ("Laayoune", 27.15, -13.2, "Africa/El_Aaiun"),
+    ("Nairobi", -1.29, 36.82, "Africa/Nairobi"), ("Mumbai", 19.08, 72.88, "Asia/Kolkata"),
+    ("Kathmandu", 27.7, 85.3, "Asia/Kathmandu"), ("Singapore", 1.35, 103.8, "Asia/Singapore"),
+    ("New York", 40.7, -74.0, "America/New_York"), ("Los Angeles", 34.05, -118.24, "America/Los_Angeles"),
+    ("Mexico City", 19.4, -99.1, "America/Mexico_City"), ("Lima", -12.05, -77.04, "America/Lima"),
+    ("Easter Island", -27.1, -109.35, "Pacific/Easter"), ("Sao Paulo", -23.55, -46.63, "America/Sao_Paulo"),
+    ("Nuuk", 64.18, -51.7, "America/Nuuk"), ("Azores", 37.74, -25.67, "Atlantic/Azores"),
+    ("St Johns", 47.56, -52.71, "America/St_Johns"), ("Tehran", 35.7, 51.4, "Asia/Tehran"),
+    ("Hovd", 48.0, 91.6, "Asia/Hovd"), ("Magadan", 59.56, 150.8, "Asia/Magadan"),
+    ("Samara", 53.2, 50.1, "Europe/Samara"), ("Visnjan", 45.27, 13.71, "Europe/Zagreb"),
+    ("Lubumbashi", -11.66, 27.48, "Africa/Lubumbashi"), ("Tongatapu", -21.1, -175.2, "Pacific/Tongatapu"),
+    ("Marquesas", -9.0, -139.5, "Pacific/Marquesas"), ("Galapagos", -0.9, -89.6, "Pacific/Galapagos"),
+]
+
+
+def test_the_utc_offset_flags_swapped_columns_and_no_real_place():
+    """The swap check from the time stamps' UTC offset: no warning for any of these places in winter
+    or summer (their real offsets, from the IANA zone database), a warning for most of them with
+    the columns swapped (a swap within the valid ranges; 27 of the 58 cases here: the documented
+    limit), and no opinion without an offset (Z, +00:00)."""
+    from datetime import datetime
+
+    from mptrack.io._interpret import Interpretation, _zone_check
+
+    zoneinfo = pytest.importorskip("zoneinfo")
+
+    def warned(lat, lon, offset):  # offset in seconds
+        sign, secs = "+-"[offset < 0], abs(int(offset))
+        time = f"2023-01-15T12:00:00{sign}{secs // 3600:02d}:{secs % 3600 // 60:02d}"
+        plan = Interpretation()
+        _zone_check(pd.DataFrame({"time": [time] * 3, "lat": [lat] * 3, "lon": [lon] * 3}), plan)
+        return bool(plan.notes)
+
+    caught = cases = 0
+    for name, lat, lon, zone in PLACES:
+        for month in (1, 7):
+            try:
+                offset = datetime(2023, month, 15, 12, tzinfo=zoneinfo.ZoneInfo(zone)).utcoffset().total_seconds()
+            except zoneinfo.ZoneInfoNotFoundError:
+                pytest.skip("no time zone database")
+            assert not warned(lat, lon, offset), (name, month)
+            if abs(lon) <= 90 and offset:
+                cases += 1
+                caught += warned(lon, lat, offset)
+    assert (caught, cases) == (27, 58)
+    assert not warned(13.7, 45.3, 0)

@@ -1,6 +1,8 @@
 """Linear-filter extras of issue 15 against FilterPy on identical inputs: control input B u, time-varying
 F/H/Q/R, the prior at the first measurement, x(0/T) from the RTS smoother, no silent P0 = 0."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -65,7 +67,9 @@ def test_control_input_matches_filterpy_and_smoother_uses_it():
     _close(sm.x, sm_plain.x + d)
     _close(sm.P, sm_plain.P)
     _close(sm.x0, sm_plain.x0)
-    assert np.abs(rts_smoother(model, ours).x - sm.x).max() > 1e-3   # B u is used by the smoother
+    # the run records B u: the smoother uses it without being told (the model alone has no control)
+    _close(rts_smoother(model, ours).x, sm.x)
+    assert np.abs(rts_smoother(model, dataclasses.replace(ours, inputs=None)).x - sm.x).max() > 1e-3
 
 
 def test_time_varying_model_matches_filterpy_and_its_rts():
@@ -136,3 +140,33 @@ def test_p0_is_required_and_stacks_are_checked():
         kalman_filter(model, z, x0, P0, B=np.eye(4))
     with pytest.raises(ParameterError, match="prior"):
         kalman_filter(model, z, x0, P0, prior="first")
+
+
+def test_smoother_reads_what_a_time_varying_or_controlled_filter_ran_with():
+    """rts_smoother(model, result) after a time-varying or controlled kalman_filter run uses the run's
+    F, Q and B u (recorded in result.inputs), not the model's constant F and Q (metres off before);
+    matrices passed again must be the run's (else a ParameterError naming them)."""
+    model, z, x0, P0 = _setup(6)
+    Fs, Hs, Qs, Rs = _time_varying(model, seed=7)
+    B = np.array([[0.5, 0.0], [1.0, 0.0], [0.0, 0.5], [0.0, 1.0]])
+    u = np.random.default_rng(8).standard_normal((T, 2))
+    for prior in ("initial", "first-measurement"):
+        tv = kalman_filter(model, z, x0, P0, F=Fs, H=Hs, Q=Qs, R=Rs, prior=prior)
+        explicit = rts_smoother(model, tv, F=Fs, Q=Qs)
+        _close(rts_smoother(model, tv).x, explicit.x)
+        _close(rts_smoother(model, tv).P, explicit.P)
+        ctl = kalman_filter(model, z, x0, P0, B=B, u=u, prior=prior)
+        explicit = rts_smoother(model, ctl, B=B, u=u)
+        _close(rts_smoother(model, ctl).x, explicit.x)
+        if prior == "initial":
+            _close(rts_smoother(model, tv).x0, rts_smoother(model, tv, F=Fs, Q=Qs).x0)
+            _close(rts_smoother(model, ctl).x0, explicit.x0)
+    xs_s, _, _, _ = filterpy_rts(*_filterpy(model, z, x0, P0, Fs, Hs, Qs, Rs), np.concatenate([Fs[1:], Fs[:1]]),
+                                 np.concatenate([Qs[1:], Qs[:1]]))
+    _close(rts_smoother(model, kalman_filter(model, z, x0, P0, F=Fs, H=Hs, Q=Qs, R=Rs)).x, xs_s)
+    with pytest.raises(ParameterError, match="Q"):
+        rts_smoother(model, tv, Q=2.0 * Qs)
+    with pytest.raises(ParameterError, match="F"):
+        rts_smoother(model, tv, F=model.F)
+    with pytest.raises(ParameterError, match="B and u"):
+        rts_smoother(model, ctl, B=B, u=2.0 * u)

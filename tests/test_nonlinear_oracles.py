@@ -129,9 +129,7 @@ def _filterpy_ukf(model, z, ut):
     ukf.x, ukf.P, ukf.Q, ukf.R = X0.copy(), P0.copy(), np.array(model.Q), R_BR
     xs, Ps = [], []
     for zk in z:
-        ukf.predict()
-        # FilterPy reuses f(sigma points) in the update; redraw them from the prediction (Stone Soup/Särkkä)
-        ukf.sigmas_f = points.sigma_points(ukf.x, ukf.P)
+        ukf.predict()   # FilterPy 1.4.4+ draws the update's sigma points from the prediction here, as we do
         ukf.update(zk)
         xs.append(ukf.x.copy())
         Ps.append(ukf.P.copy())
@@ -251,3 +249,121 @@ def test_batch_ekf_equals_ekf_filter_per_track():
         assert abs(batch.loglik[b] - one.loglik) <= 1e-12 * abs(one.loglik)
     with pytest.raises(ParameterError, match="constant Q and R"):
         ekf_filter_batch(NonlinearModel(model.f, model.h, model.Q, lambda x, k: R_BR), zb, x0, P0)
+
+
+def _linear_with_step_Q(calls):
+    """A linear CV model (position measured) with a step-indexed Q(x, k) = Qs[k] that records its calls."""
+    lin = constant_velocity(DT, Q_CV, axes=2, sigma_r2=9.0)
+    Qs = np.array([constant_velocity(DT, q, axes=2).Q for q in np.random.default_rng(11).uniform(0.1, 3.0, 20)])
+
+    def Q_of(x, k):
+        calls.append((k, np.array(x)))
+        return Qs[k]
+    Ft, Ht = lin.F.T.copy(), lin.H.T.copy()
+    model = NonlinearModel(lambda X: X @ Ft, lambda X: X @ Ht, Q_of, lin.R, n=4, jac_f=lambda x: lin.F,
+                           jac_h=lambda x: lin.H)
+    z = np.arange(1, 21)[:, None] * np.array([8.0, -3.0]) + 3 * np.random.default_rng(12).standard_normal((20, 2))
+    return lin, Qs, model, z
+
+
+@pytest.mark.parametrize("prior", ["initial", "first-measurement"])
+def test_smoothers_evaluate_step_indexed_Q_at_the_filters_step(prior):
+    """Q(x, k) is the noise of the step into row k: a smoother must not evaluate it with another k than the
+    filter's for the same state (they passed k + 1: an IndexError past the last row, or the wrong Q; now
+    they take P(k+1/k) from the result and do not call Q at all).  On a linear model with Q(x, k) = Qs[k]
+    the EKF/UKF are the time-varying KF and their smoothers its RTS."""
+    from mptrack.linear import kalman_filter, rts_smoother
+    calls = []
+    lin, Qs, model, z = _linear_with_step_Q(calls)
+    x0 = np.zeros(4)
+    kf = kalman_filter(lin, z, x0, P0, Q=Qs, prior=prior)
+    rts = rts_smoother(lin, kf, Q=Qs)
+    for filt, smoother in ((ekf_filter, ekf_smoother), (ukf_filter, ukf_smoother)):
+        calls.clear()
+        res = filt(model, z, x0, P0, prior=prior)
+        at_filter = list(calls)
+        calls.clear()
+        smooth = smoother(model, res)
+        for k, x in calls:
+            same = [kf_k for kf_k, kf_x in at_filter if np.array_equal(kf_x, x)]
+            assert same == [k], (k, same)
+        np.testing.assert_allclose(res.x, kf.x, rtol=0, atol=1e-9)
+        np.testing.assert_allclose(smooth.x, rts.x, rtol=0, atol=1e-9)
+        np.testing.assert_allclose(smooth.P, rts.P, rtol=1e-9, atol=1e-9)
+        if prior == "initial":
+            np.testing.assert_allclose(smooth.x0, rts.x0, rtol=0, atol=1e-9)
+
+
+def test_ukf_smoother_refuses_other_sigma_point_parameters():
+    """The unscented smoother's cross-covariances must come from the filter's sigma points: it reads
+    them from the result, and other values are an error naming the parameter."""
+    model, _, z = _data(2)
+    ut = dict(alpha=0.5, beta=2.0, kappa=-1.0)
+    res = ukf_filter(model, z, X0, P0, **ut)
+    np.testing.assert_array_equal(ukf_smoother(model, res).x, ukf_smoother(model, res, **ut).x)
+    with pytest.raises(ParameterError, match="alpha"):
+        ukf_smoother(model, res, alpha=1.0)
+    with pytest.raises(ParameterError, match="kappa"):
+        ukf_smoother(model, ukf_filter(model, z, X0, P0), kappa=1.0)
+
+
+def _complex_step_jacobian(h, x):
+    J = np.empty((h(x[None]).shape[-1], x.shape[0]))
+    for i in range(x.shape[0]):
+        xc = x.astype(complex)
+        xc[i] += 1e-30j
+        J[:, i] = h(xc[None])[0].imag / 1e-30
+    return J
+
+
+@pytest.mark.parametrize("kind", ["range_rate_2d", "range_rate_3d", "tdoa", "tdoa_ref2"])
+def test_range_rate_and_tdoa_jacobians_match_the_complex_step(kind):
+    """The analytic Jacobians of range_rate and tdoa against complex-step derivatives of their h (exact to
+    rounding) and the model's central differences, at random states (also one with a tiny range)."""
+    from mptrack.models import range_rate, tdoa
+    stations = np.array([[0.0, 0.0], [300.0, 10.0], [120.0, 250.0], [-80.0, 140.0]])
+    meas, n, pos, near = {
+        "range_rate_2d": (range_rate([10.0, -20.0], 0.25), 4, [0, 2], [10.0, -20.0]),
+        "range_rate_3d": (range_rate([10.0, -20.0, 5.0], 0.25, position=(0, 2, 4), velocity=(1, 3, 5)), 6,
+                          [0, 2, 4], [10.0, -20.0, 5.0]),
+        "tdoa": (tdoa(stations, 4.0), 4, [0, 2], stations[1]),
+        "tdoa_ref2": (tdoa(stations, 4.0, reference=2), 4, [0, 2], stations[2]),
+    }[kind]
+    rng = np.random.default_rng(13)
+    states = rng.normal(0.0, 200.0, (25, n))
+    states[0, pos] = np.asarray(near) + 1e-3                 # 1.7 mm from a station
+    numeric = NonlinearModel(lambda X: X, meas.h, np.eye(n), meas.R)
+    for x in states:
+        J = meas.jac_h(x)
+        np.testing.assert_allclose(J, _complex_step_jacobian(meas.h, x), rtol=1e-12, atol=1e-14)
+        if np.linalg.norm(x[pos] - near) > 1.0:
+            np.testing.assert_allclose(numeric.H_at(x), J, rtol=1e-6, atol=1e-9)
+    batch = meas.jac_h(states)
+    np.testing.assert_allclose(batch, np.stack([meas.jac_h(x) for x in states]), rtol=0, atol=0)
+
+
+@pytest.mark.parametrize("filt", [ekf_filter, ukf_filter])
+def test_generic_path_errors_name_the_cause(filt):
+    """The compiled step kernels report problems by status; the errors still name the cause: an
+    indefinite innovation covariance, a model function returning NaN or a wrong shape, an overflow."""
+    from mptrack.errors import NonFiniteError, NotPositiveDefiniteError, ShapeError
+    base, _, z = _data(0)
+
+    def model(**kw):
+        args = dict(f=base.f, h=base.h, Q=base.Q, R=R_BR, jac_f=base.jac_f, jac_h=base.jac_h, angle_components=(0,))
+        args.update(kw)
+        return NonlinearModel(args.pop("f"), args.pop("h"), args.pop("Q"), args.pop("R"), **args)
+    with pytest.raises(NotPositiveDefiniteError, match=f"{filt.__name__[:3].upper()}.*measurement 5"):
+        filt(model(R=lambda x, k: -np.eye(2) * 1e6 if k == 5 else R_BR), z, X0, P0)
+
+    def h_nan(X):
+        out = base.h(X)
+        return np.where(X[..., :1] > 140.0, np.nan, out)
+    with pytest.raises(NonFiniteError, match="^h: "):
+        filt(model(h=h_nan), z, X0, P0)
+    with pytest.raises(ShapeError, match="jac_h" if filt is ekf_filter else "^h: "):
+        wrong = (dict(jac_h=lambda x: np.zeros((3, 4)) if x[0] > 140.0 else base.jac_h(x)) if filt is ekf_filter
+                 else dict(h=lambda X: base.h(X) if X.shape[0] < 9 else base.h(X)[:, :1]))
+        filt(model(**wrong), z, X0, P0)
+    with pytest.raises(NonFiniteError, match="x0"):
+        filt(model(), z, np.array([1e308, 1e308, 1.0, 1.0]), P0)

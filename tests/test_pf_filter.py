@@ -3,17 +3,10 @@
 import numpy as np
 import pytest
 
+from mptrack.continuous import fem_filter, linear_sde_model, reference_filter, simulate_sde, zhao2013_model
 from mptrack.errors import ParameterError
 from mptrack.linear import kalman_filter
-from mptrack.nonlinear import (
-    fem_filter,
-    linear_sde_model,
-    particle_filter,
-    reference_filter,
-    simulate_sde,
-    systematic_resample,
-    zhao2013_model,
-)
+from mptrack.nonlinear import particle_filter, systematic_resample
 
 X0, P0 = np.array([-0.6, -1.0]), 0.1 * np.eye(2)
 

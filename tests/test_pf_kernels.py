@@ -5,20 +5,18 @@ import numpy as np
 import pytest
 from scipy.linalg import expm
 
-from mptrack.errors import ParameterError
-from mptrack.nonlinear import (
-    ContinuousDiscreteModel,
+from mptrack.continuous import (
     BlockKernels,
+    ContinuousDiscreteModel,
     linear_sde_model,
-    particle_filter,
     pf_substep_study,
-    pf_substeps,
     reference_filter,
     simulate_sde,
-    systematic_resample,
     zhao2013_model,
 )
-from mptrack.nonlinear import _kernels as kern
+from mptrack.continuous import _kernels as kern
+from mptrack.errors import ParameterError
+from mptrack.nonlinear import particle_filter, pf_substeps, systematic_resample
 
 X0, P0 = np.array([-0.6, -1.0]), 0.1 * np.eye(2)
 A_LIN = [[0.0, 1.0], [-1.0, -0.5]]

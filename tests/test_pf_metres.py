@@ -7,7 +7,9 @@ from datetime import datetime, timedelta
 import numpy as np
 import pytest
 
-from mptrack.nonlinear import ContinuousDiscreteModel, particle_filter
+from mptrack.continuous import ContinuousDiscreteModel
+from mptrack.models import constant_velocity, nonlinear_model, range_bearing
+from mptrack.nonlinear import particle_filter
 
 pytest.importorskip("stonesoup")
 from stonesoup.models.measurement.nonlinear import CartesianToBearingRange  # noqa: E402
@@ -73,14 +75,21 @@ def _position_rmse(est, truth):
     return float(np.sqrt(np.mean(np.sum((est[:, [0, 2]] - truth[:, [0, 2]]) ** 2, axis=1))))
 
 
-def _compare(speed, runs, model):
-    ours, theirs = [], []
+def _compare(speed, runs, *models):
+    """Position RMSE per run of our PF on each model and of Stone Soup's on the same data."""
+    ours, theirs = [[] for _ in models], []
     for r in range(runs):
         x0, truth, z = _scenario(np.random.default_rng([7, r]), speed)
-        ours.append(_position_rmse(particle_filter(model, z, x0, P0, np.random.default_rng([8, r]),
-                                                   particles=PARTICLES).x, truth))
+        for out, model in zip(ours, models):
+            out.append(_position_rmse(particle_filter(model, z, x0, P0, np.random.default_rng([8, r]),
+                                                      particles=PARTICLES).x, truth))
         theirs.append(_position_rmse(_stonesoup_pf(x0, z, 9000 + r), truth))
-    return np.array(ours), np.array(theirs)
+    return (*[np.array(o) for o in ours], np.array(theirs))
+
+
+def _discrete_model():
+    """The discrete-time model: Stone Soup's own transition (the same F and Q) and measurement."""
+    return nonlinear_model(constant_velocity(1.0, Q_CV, axes=2), range_bearing([0.0, 0.0], R))
 
 
 def _within_two_standard_errors(ours, theirs):
@@ -101,8 +110,13 @@ def test_pf_tracks_10_metres_per_second_like_stonesoup():
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("speed", [5.0, 30.0])
+@pytest.mark.parametrize("speed", [5.0, 10.0, 30.0])
 def test_pf_matches_stonesoup_over_50_runs(speed):
-    ours, theirs = _compare(speed, 50, _model())
-    ok, detail = _within_two_standard_errors(ours, theirs)
-    assert ok, detail
+    """50 seeded runs at 5, 10 and 30 m/s: the PF on the SDE model and on the discrete NonlinearModel each
+    within two standard errors of Stone Soup's bootstrap PF (same data, prior and N).  Position RMSE (m),
+    SDE / discrete / Stone Soup: 1.83 / 1.85 / 1.84 at 5 m/s, 2.20 / 2.24 / 2.20 at 10 m/s, 3.57 / 3.60 /
+    3.63 at 30 m/s (standard error of the difference 0.07, 0.10, 0.23)."""
+    continuous, discrete, theirs = _compare(speed, 50, _model(), _discrete_model())
+    for ours in (continuous, discrete):
+        ok, detail = _within_two_standard_errors(ours, theirs)
+        assert ok, detail

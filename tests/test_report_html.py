@@ -22,7 +22,7 @@ import pytest
 
 from mptrack.report import PALETTE, write_report
 from mptrack.report._page import asset
-from mptrack.report._decimate import MIN_PER_TRACK, keep_mask, point_budget
+from mptrack.report._decimate import BREAK, MIN_PER_TRACK, ORDINARY, REJECTED, keep_mask, point_budget
 from mptrack.report._payload import track_payload
 from mptrack.tracking import evaluate_tracks, read_output, simulate, track_file
 
@@ -35,8 +35,9 @@ needs_chromium = pytest.mark.skipif(not CHROMIUM.exists(), reason="headless rend
 
 # ---------------------------------------------------------------- data
 
-def synthetic_table(n_tracks: int, per: int, seed: int = 0) -> pd.DataFrame:
-    """A point table shaped like mptrack track's output (no tracking run: fast for many tracks)."""
+def synthetic_table(n_tracks: int, per: int, seed: int = 0, rejected: float = 0.01) -> pd.DataFrame:
+    """A point table shaped like mptrack track's output (no tracking run: fast for many tracks), with a
+    fraction ``rejected`` of the fixes rejected by the gate."""
     rng = np.random.default_rng(seed)
     n = n_tracks * per
     tid = np.repeat([f"dev{i:05d}" for i in range(n_tracks)], per)
@@ -47,7 +48,7 @@ def synthetic_table(n_tracks: int, per: int, seed: int = 0) -> pd.DataFrame:
     north = np.cumsum(rng.normal(0, 3, n))
     lat = lat0 + north / 111_320.0
     lon = lon0 + east / (111_320.0 * np.cos(np.radians(45.0)))
-    flag = np.where(rng.random(n) < 0.01, "outlier", "update").astype(object)
+    flag = np.where(rng.random(n) < rejected, "outlier", "update").astype(object)
     flag[np.arange(n_tracks) * per] = "init"
     var = rng.uniform(4, 9, n)
     return pd.DataFrame({
@@ -155,6 +156,10 @@ def test_data_quality_lists_skipped_rows_by_reason_and_left_out_records(reports,
     text = write_report(table, tmp_path / "h.html", summary=evaluate_tracks(table)[0], run=run).read_text()
     quality = text.split("id='quality-section'")[1].split("</section>")[0]
     assert "358" in quality and "records left out" in quality
+    # each left-out record once: a count in the table, its detail under it, not again as a note
+    assert quality.count("<td>GPX track without time stamps</td><td>358</td>") == 1
+    assert quality.count("has no &lt;time&gt; in any of its 358 points") == 1
+    assert "records left out:" not in quality and "note: " not in quality
 
 
 def test_far_nis_gets_a_verdict_and_the_run_advice(tmp_path):
@@ -177,22 +182,35 @@ def test_point_budget_and_keep_mask():
     b = point_budget(counts, 600)
     assert b.tolist() == [10, 99, 499] and (b >= np.minimum(counts, MIN_PER_TRACK)).all()
     offsets = np.concatenate([[0], np.cumsum(counts)])
-    events = np.zeros(offsets[-1], bool)
-    events[[500, 4000]] = True
-    keep = keep_mask(offsets, b, events)
+    kinds = np.full(offsets[-1], ORDINARY, np.int8)
+    kinds[offsets[1]::5] = REJECTED  # a fifth of every track rejected
+    kinds[[500, 4000]] = BREAK
+    kinds[offsets[2] + 1:offsets[2] + 2001:2] = BREAK  # track 3: 1000 breaks, more than half its share
+    keep = keep_mask(offsets, b, kinds)
     per = np.add.reduceat(keep, offsets[:-1])
-    # every 11th row (k = ceil(1000 / 99) = ceil(5000 / 499) = 11), the last row, and the event
-    assert per.tolist() == [10, 91 + 1 + 1, 455 + 1 + 1]
-    assert keep[500] and keep[4000] and keep[offsets[1:] - 1].all() and keep[offsets[:-1]].all()
+    assert per[0] == 10 and (per[1:] <= b[1:] + 1).all() and (per[1:] >= 0.9 * b[1:]).all()  # the budget holds
+    assert keep[500] and keep[offsets[1:] - 1].all() and keep[offsets[:-1]].all()  # breaks within half a share
+    for lo, hi in zip(offsets[1:-1], offsets[2:]):
+        k = kinds[lo:hi]
+        drawn, total = np.bincount(k[keep[lo:hi]], minlength=3), np.bincount(k, minlength=3)
+        # rejected fixes are thinned like the others: drawn in the proportion they occur (not all of them)
+        assert 0 < drawn[REJECTED] < total[REJECTED]
+        assert drawn[REJECTED] / drawn[:2].sum() == pytest.approx(total[REJECTED] / total[:2].sum(), abs=0.03)
+    t3 = kinds[offsets[2]:] == BREAK
+    assert keep[offsets[2]:][t3].sum() <= b[2] // 2 + 1  # breaks beyond half the share are thinned too
 
 
-def test_payload_decodes_to_the_table_and_keeps_every_rejected_fix():
-    table = synthetic_table(4, 3000, seed=2)
+def test_payload_shares_the_budget_between_layers_and_counts_what_is_not_drawn():
+    table = synthetic_table(4, 3000, seed=2, rejected=0.4)
+    table.loc[table.index[::1000], "flag"] = "reset"
     p = track_payload(table, budget=2000)
-    assert p["decimated"] and p["drawn"] < 2000 + int((table["flag"] == "outlier").sum()) + 8
-    outliers = table.groupby("track_id")["flag"].apply(lambda f: int((f == "outlier").sum()))
+    assert p["decimated"] and p["drawn"] <= 2000 + 4  # every layer within the budget (+ each track's last row)
+    outliers = int((table["flag"] == "outlier").sum())
+    assert p["totals"] == {"raw": 12000 - outliers, "rejected": outliers, "resets": 12, "gaps": 0}
+    drawn_o = sum(tr["f"].count("o") for tr in p["tracks"])
+    assert drawn_o / p["drawn"] == pytest.approx(outliers / len(table), abs=0.03)  # thinned alike
+    assert sum(tr["f"].count("r") for tr in p["tracks"]) == 12  # resets (few): all drawn
     for tr in p["tracks"]:
-        assert tr["f"].count("o") == outliers[tr["id"]]  # every rejected fix is drawn
         lat = np.cumsum(tr["y"]) / p["scale"]
         lon = np.cumsum(tr["x"]) / p["scale"]
         g = table[table["track_id"] == tr["id"]]
@@ -200,6 +218,19 @@ def test_payload_decodes_to_the_table_and_keeps_every_rejected_fix():
                                                                                                   abs=1e-6)
         assert lon[-1] == pytest.approx(g["lon"].iloc[-1], abs=1e-6)
         assert np.cumsum(tr["t"])[-1] / 10 == pytest.approx(g["t"].iloc[-1] - g["t"].iloc[0], abs=0.05)
+
+
+def test_layer_labels_and_caption_say_how_many_of_how_many_are_drawn(tmp_path):
+    table = synthetic_table(4, 3000, seed=2, rejected=0.4)
+    text = write_report(table, tmp_path / "r.html", summary=evaluate_tracks(table)[0], budget=2000).read_text()
+    kinds = _data(tmp_path / "r.html")["kinds"]
+    raw, rej = kinds["raw"], kinds["rejected"]
+    assert raw["count"] < raw["total"] == int((table["flag"] != "outlier").sum())
+    assert raw["text"] == f"{raw['count']:,} of {raw['total']:,} drawn".replace(",", "\u202f")
+    assert rej["count"] < rej["total"] and rej["text"].endswith(" drawn")
+    cap = re.search(r"id='map-caption'>(.*?)</p>", text).group(1)
+    assert "shared by every layer" in cap and "rejected fixes are thinned alike" in cap
+    assert f"({rej['text']})" in cap
 
 
 def test_payload_of_tracks_in_local_metres():
@@ -232,6 +263,7 @@ class _Dom(HTMLParser):
     def __init__(self):
         super().__init__()
         self.listed, self.attrs, self.paths = [], {}, []
+        self.plots = []  # per time plot: {"labels": y of each y-axis label, "values": y of each drawn value}
         self._in_plots = False
 
     def handle_starttag(self, tag, attrs):
@@ -242,6 +274,13 @@ class _Dom(HTMLParser):
             self.listed.append(a["data-track"])
         if tag == "path" and a.get("stroke") and a.get("d", "").startswith("M"):
             self.paths.append(a["d"])
+            self.plots[-1]["values"] += [float(y) for y in re.findall(r"[ML][\d.]+ ([\d.]+)", a["d"])]
+        if tag == "svg" and a.get("class") == "plot":
+            self.plots.append({"title": a.get("aria-label"), "labels": [], "values": []})
+        if tag == "text" and a.get("class") == "tick" and a.get("text-anchor") == "end":
+            self.plots[-1]["labels"].append(float(a["y"]) - 4)  # the label's baseline is 4 px below its tick
+        if tag == "circle" and self.plots:
+            self.plots[-1]["values"].append(float(a["cy"]))
         if a.get("id") == "page-info":
             self.attrs["page-info"] = True
 
@@ -287,6 +326,11 @@ def test_chromium_renders_every_track_offline_without_errors(reports, key, tmp_p
     first = next(t for t in _data(path)["payload"]["tracks"] if t["id"] == ids[0]) if key != "many" else \
         _data(path)["payload"]["tracks"][0]
     assert dom.paths and all(d.count("M") == 1 and d.count("L") == first["drawn"] - 1 for d in dom.paths[:2])
+    # every value of every time plot lies between two labels of its y axis (none below the lowest one)
+    assert dom.plots and all(len(p["labels"]) >= 2 for p in dom.plots), dom.plots
+    for p in dom.plots:
+        lo, hi = max(p["labels"]), min(p["labels"])  # SVG y grows downwards
+        assert all(hi - 0.5 <= y <= lo + 0.5 for y in p["values"]), (p["title"], lo, hi, max(p["values"]))
     shot = artefacts / f"{path.stem}.png"
     assert _colour_fraction(shot, PALETTE[0]) > 0.0005  # the first track's colour is on screen
     print(f"screenshot: {shot}")
@@ -301,23 +345,46 @@ def test_the_colour_check_can_fail(tmp_path):
     assert _colour_fraction(tmp_path / "blank.png", PALETTE[0]) == 0.0
 
 
-@pytest.mark.slow
-def test_a_million_point_report_is_small_and_stays_under_1_gb(tmp_path):
-    """10^6 points in 3000 tracks: the page is under 20 MB and writing it (evaluation included) peaks
-    under 1 GB (measured in a fresh process: ru_maxrss)."""
+def _report_in_a_fresh_process(tmp_path, n_tracks: int, per: int, budget: int) -> tuple[int, Path]:
+    """(peak memory in KB, the page) of evaluating and writing the report of a synthetic table with 40 %
+    of its fixes rejected, in a fresh process (ru_maxrss)."""
+    page = tmp_path / "big.html"
     code = ("import resource, sys; sys.path.insert(0, %r)\n"
             "from test_report_html import synthetic_table\n"
             "from mptrack.tracking import evaluate_tracks\n"
             "from mptrack.report import write_report\n"
-            "t = synthetic_table(3000, 334)\n"
-            "write_report(t, %r, summary=evaluate_tracks(t)[0])\n"
-            "print(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss)\n") % (str(Path(__file__).parent),
-                                                                              str(tmp_path / "big.html"))
+            "t = synthetic_table(%d, %d, rejected=0.4)\n"
+            "write_report(t, %r, summary=evaluate_tracks(t)[0], budget=%d)\n"
+            "print(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss)\n") % (
+        str(Path(__file__).parent), n_tracks, per, str(page), budget)
     env = dict(os.environ, PYTHONPATH=str(Path(__file__).resolve().parents[1] / "src"))
     res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=600)
     assert res.returncode == 0, res.stderr
-    assert int(res.stdout.split()[-1]) < 1_000_000  # KB
-    size = (tmp_path / "big.html").stat().st_size
+    return int(res.stdout.split()[-1]), page
+
+
+def test_the_budget_holds_with_many_rejected_fixes(tmp_path):
+    """10^5 points, 40 % of them rejected, a budget of 20 000 (the 10^6 test's proportions, a tenth of
+    the size): the page stays under 2 MB, every layer within the budget."""
+    _, page = _report_in_a_fresh_process(tmp_path, 300, 334, 20_000)
+    size = page.stat().st_size
+    assert size < 2_000_000, size  # 20 MB for 10^6 points, proportionally
+    data = _data(page)
+    p = data["payload"]
+    assert p["decimated"] and p["drawn"] <= 20_000 + 300  # + each track's last row
+    assert data["kinds"]["rejected"]["count"] <= 0.45 * p["drawn"]  # thinned alike, not all 40 000 drawn
+    assert data["kinds"]["rejected"]["total"] == int(data["summary"]["overall"][2])
+    assert len(data["summary"]["rows"]) == 300
+
+
+@pytest.mark.slow
+def test_a_million_point_report_is_small_and_stays_under_1_gb(tmp_path):
+    """10^6 points in 3000 tracks, 40 % of the fixes rejected: the page is under 20 MB and writing it
+    (evaluation included) peaks under 1 GB (measured in a fresh process: ru_maxrss)."""
+    peak, page = _report_in_a_fresh_process(tmp_path, 3000, 334, 200_000)
+    assert peak < 1_000_000  # KB
+    size = page.stat().st_size
     assert 2_000_000 < size < 20_000_000
-    data = _data(tmp_path / "big.html")
+    data = _data(page)
     assert data["payload"]["decimated"] and len(data["summary"]["rows"]) == 3000
+    assert data["payload"]["drawn"] <= 200_000 + 3000

@@ -34,3 +34,15 @@ def test_counts_of_a_reproduction_and_errata_check():
     assert "comparison" not in js["tables"]["own"]
     assert differences(rep) == {"T": [(0, 2), (1, 2)]}
     assert differences(rep, unexplained=True) == {"T": [(1, 2)]}
+
+
+def test_uncounted_columns_are_shown_but_not_compared():
+    """Inputs and labels a table repeats from the paper are neither compared nor counted."""
+    t = Table(title="t", columns=["row", "input", "label", "result"],
+              rows=[["x", 52, "A", 0.5], ["y", 36, "B", 0.7]], paper=[["x", 52, "A", 0.5], ["y", 35, "B", 0.9]],
+              uncounted=("input", "label"))
+    assert t.mismatches() == [(1, 3)]
+    assert t.comparison() == {"compared": 2, "matched": 1, "differing_explained": 0, "differing_unexplained": 1}
+    assert t.to_json()["uncounted"] == ["input", "label"]
+    with pytest.raises(ValueError, match="uncounted"):
+        Table(title="t", columns=["row", "a"], rows=[["x", 1]], uncounted=("row",))

@@ -122,7 +122,8 @@ def test_skip_counts_and_reports_bad_rows(tmp_path):
     assert read["skipped_by_reason"] == {"time: bad time stamp": 1}
     assert len(pd.read_parquet(out)) == 103
     res = run("track", path, "--out", out, "--on-error", "skip")
-    assert "skipped 1 of 104 rows" in res.stderr and "1 × time: bad time stamp" in res.stderr
+    assert f"skipped: 1 of 104 rows of {path}:" in res.stderr and "1 × time: bad time stamp" in res.stderr
+    assert "skipped: skipped" not in res.stderr
 
 
 def test_resume_after_interruption(tmp_path, sim, monkeypatch):
@@ -236,6 +237,25 @@ def test_evaluate_in_local_xy_metres(tmp_path, sim):
     # truth and tracks in different kinds of coordinates is an error, not a silent NaN
     res = run("evaluate", geo_out, "--truth", tmp_path / "xy.parquet")
     assert res.exit_code == 2 and "x/y" in res.stderr
+
+
+def test_help_names_every_format_read():
+    """`evaluate --help` lists every output format of `track` (its TRACKS) and every input format (its
+    --truth); `track --help` every input format, .tsv included."""
+    from mptrack.io import FORMATS, OUTPUT_FORMATS
+    from mptrack.io._formats import FORMAT_NAMES
+
+    def text(command):
+        res = runner.invoke(app, [command, "--help"], env={"COLUMNS": "300"})
+        assert res.exit_code == 0
+        return " ".join(res.stdout.replace("│", " ").split())
+
+    evaluate = text("evaluate")
+    assert all(suffix in evaluate for suffix in OUTPUT_FORMATS), evaluate
+    track_help = text("track")
+    for name in FORMAT_NAMES.values():
+        assert name in evaluate and name in track_help, name
+    assert ".tsv" in FORMATS and "CSV (any delimiter" in track_help
 
 
 def test_unknown_names_exit_2(tmp_path):

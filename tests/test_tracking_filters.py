@@ -8,6 +8,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from mptrack.cellular import ekf_ranges, fekf_ranges
 from mptrack.errors import ParameterError, UnknownNameError
 from mptrack.io import LocalFrame, iter_tracks
 from mptrack.linear import kalman_filter, kalman_filter_irregular, rts_smoother
@@ -17,7 +18,6 @@ from mptrack.models import (
     discretize_intervals,
     van_loan,
 )
-from mptrack.nonlinear import ekf_ranges, fekf_ranges
 from mptrack.radio import arfcn_to_frequency, path_loss
 from mptrack.tracking import (
     TA_STEP_M,

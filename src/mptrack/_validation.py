@@ -384,22 +384,26 @@ def _bound(signature, args, kwargs) -> dict:
 
 
 def check_outputs(*inputs, **outputs) -> None:
-    """Refuse an output (name=path) that is one of the input files, or lies inside an input
-    directory: writing it would overwrite the user's data (or add to the dataset).
+    """Refuse an output (name=path) that is one of the input files, lies inside an input directory
+    (writing it would overwrite the user's data, or add to the dataset), or is the same file as
+    another output of the run (the later would overwrite the earlier).
 
     The same file is found through symbolic links (paths resolved) and, for an output that exists,
     hard links too (:func:`os.path.samefile`).  Inputs that are not paths (None, a table in memory)
     are ignored."""
     sources = [Path(p) for p in inputs if isinstance(p, (str, os.PathLike))]
-    for name, path in outputs.items():
-        if path is None:
-            continue
+    named = [(name, Path(path)) for name, path in outputs.items() if path is not None]
+    for k, (name, path) in enumerate(named):
         for source in sources:
-            if _same_file(Path(path), source):
+            if _same_file(path, source):
                 raise ParameterError(f"{name}: {path} is an input of this run; writing it would overwrite the input")
-            if source.is_dir() and source.resolve() in Path(path).resolve().parents:
+            if source.is_dir() and source.resolve() in path.resolve().parents:
                 raise ParameterError(f"{name}: {path} is inside the input directory {source}; write it elsewhere "
                                      "(a later read of the directory would take it as input)")
+        for other, other_path in named[:k]:
+            if _same_file(path, other_path):
+                raise ParameterError(f"{name}: {path} is also given as {other}; each output of a run needs a "
+                                     "file of its own")
 
 
 def _same_file(a: Path, b: Path) -> bool:

@@ -44,6 +44,7 @@ import numba as nb
 import numpy as np
 from numba import carray
 
+from .. import _jit_cache  # noqa: F401 - compiled kernels cache in the user's cache directory
 from ._intrinsics import load, narrow, stack_array, store, store_fence, stream
 
 __all__ = ["ss_kernel", "kf_kernel", "fixed_ss_kernel", "fixed_kf_kernel", "pattern", "GENERATED", "FIXED", "LANES",

@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..experiments.bouzera2017 import Setup, ranges, simulate
-from ..nonlinear import (
+from ..cellular import (
     ekf_ranges,
     ekf_ranges_batch,
     fcs_ranges,
@@ -40,7 +40,7 @@ def cellular_suite(quick: bool) -> dict:
     setup = Setup()
     runs = 20 if quick else 100
     truth, x0, eps = simulate(setup, "linear", np.random.SeedSequence(0), runs)
-    z = ranges(setup, truth, eps, setup.sigma_km)
+    z = ranges(setup, truth, eps, setup.sigma)
     st, P0, Q0, R0 = setup.stations, np.diag(setup.P0_diag), np.diag(setup.Q0_diag), setup.R0
     repeats = 1 if quick else 3
     single_runs = min(runs, 10)

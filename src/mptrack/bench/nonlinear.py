@@ -7,20 +7,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..models import constant_velocity, nonlinear_model, range_bearing
-from ..nonlinear import (
-    ZHAO2013_X0,
-    FEMGrid,
-    ekf_filter,
-    ekf_filter_batch,
-    fem_filter,
-    fem_steps,
-    particle_filter,
-    simulate_sde,
-    ukf_filter,
-    zhao2013_model,
-)
-from ..nonlinear._fem import _bayes_update, _Propagator, default_substeps
+from ..models import NonlinearModel, constant_velocity, nonlinear_model, range_bearing
+from ..continuous import ZHAO2013_X0, FEMGrid, fem_filter, fem_steps, simulate_sde, zhao2013_model
+from ..continuous._fem import _bayes_update, _Propagator, default_substeps
+from ..nonlinear import ekf_filter, ekf_filter_batch, particle_filter, ukf_filter
 from . import register_suite
 from ._timing import best_time
 
@@ -37,7 +27,9 @@ def nonlinear_suite(quick: bool) -> dict:
     rng = np.random.default_rng(1)
     box = ((-4.5, -4.5), (4.5, 4.5))
     cases = [
-        ("UKF (RK4 moment equations, 20 sub-steps)", lambda: ukf_filter(model, z, x0, P0)),
+        ("UKF (compiled; RK4 moment equations, sub-steps by the drift's rate)", lambda: ukf_filter(model, z, x0, P0)),
+        ("UKF, NumPy path, 20 fixed sub-steps (before)",
+         lambda: ukf_filter(model, z, x0, P0, substeps=20, compiled=False)),
         ("PF, 200 particles (compiled, 2 RK4-split sub-steps)",
          lambda: particle_filter(model, z, x0, P0, rng, particles=200)),
         ("PF, 10^4 particles (compiled, 2 RK4-split sub-steps)",
@@ -62,7 +54,7 @@ def nonlinear_suite(quick: bool) -> dict:
         for label, options, pct in variants:
             t = best_time(lambda o=options, g=g: fem_filter(model, z, x0, P0, grid=(g, g), **o), repeats) / steps
             n_sub = options.get("substeps", substeps)
-            rows.append([f"FEM {g}x{g}, {label}, {n_sub} SDIRK2 sub-steps", t * 1e3, moving[0].prior.grid.size,
+            rows.append([f"FEM {g}x{g}, {label}, {n_sub} SDIRK2 sub-steps", t * 1e3, moving[0].prior.parts[0][1].grid.size,
                          round(pct)])
         grid = FEMGrid(box[0], box[1], g, g)
         t = best_time(lambda g=g: _Propagator(FEMGrid(box[0], box[1], g, g), model, substeps, "sdirk2", False),
@@ -145,9 +137,24 @@ def _filterpy_ekf(model, z):
     return xs
 
 
-def _filterpy_ukf(model, z, ut, redraw: bool):
-    """FilterPy's UnscentedKalmanFilter (Merwe points); redraw=True redraws the sigma points from the
-    prediction before the update (our and Stone Soup's UKF; docs/nonlinear_models.md)."""
+def _user_model(model) -> NonlinearModel:
+    """The range-bearing model as a user writes it: f, h in NumPy (vectorised over states) and FilterPy's
+    analytic Jacobian of one state (jac_h = _jac)."""
+    F = np.array(model.jac_f(_X0))
+    Ft = F.T.copy()
+
+    def f(X):
+        return X @ Ft
+
+    def h(X):
+        dx, dy = X[..., 0] - _SENSOR[0], X[..., 2] - _SENSOR[1]
+        return np.stack([np.arctan2(dy, dx), np.hypot(dx, dy)], axis=-1)
+    return NonlinearModel(f, h, np.array(model.Q), _R_BR, jac_f=lambda x: F, jac_h=_jac, angle_components=(0,))
+
+
+def _filterpy_ukf(model, z, ut):
+    """FilterPy's UnscentedKalmanFilter (Merwe points), predict()/update() per step; its predict() draws
+    the update's sigma points from the prediction, as ours does (the same numbers)."""
     from filterpy.kalman import MerweScaledSigmaPoints, UnscentedKalmanFilter
     F = np.array(model.jac_f(_X0))
     points = MerweScaledSigmaPoints(4, **ut)
@@ -158,8 +165,6 @@ def _filterpy_ukf(model, z, ut, redraw: bool):
     xs = np.empty((len(z), 4))
     for k, zk in enumerate(z):
         ukf.predict()
-        if redraw:
-            ukf.sigmas_f = points.sigma_points(ukf.x, ukf.P)
         ukf.update(zk)
         xs[k] = ukf.x
     return xs
@@ -177,7 +182,9 @@ def ekf_ukf_suite(quick: bool) -> dict:
     repeats = 2 if quick else 5
     model, zz = _range_bearing_data(steps, 1)
     z = zz[0]
-    numpy_path = dataclasses.replace(model)                     # the same model untagged: the NumPy path
+    untagged = dataclasses.replace(model)                       # the same model untagged: the generic path
+    user = _user_model(model)
+    numeric = dataclasses.replace(user, jac_f=None, jac_h=None)
     ut = {"alpha": 0.5, "beta": 2.0, "kappa": -1.0}
     rows = []
 
@@ -188,30 +195,33 @@ def ekf_ukf_suite(quick: bool) -> dict:
     try:
         import filterpy  # noqa: F401
         fp_ekf = per_step(lambda: _filterpy_ekf(model, z))
-        fp_ukf = per_step(lambda: _filterpy_ukf(model, z, ut, False))
-        ekf_diff = _rel(ekf_filter(model, z, _X0, _P0).x, _filterpy_ekf(model, z))
-        ukf_diff = _rel(ukf_filter(model, z, _X0, _P0, **ut).x, _filterpy_ukf(model, z, ut, True))
+        fp_ukf = per_step(lambda: _filterpy_ukf(model, z, ut))
+        fp_x = {"EKF": _filterpy_ekf(model, z), "UKF": _filterpy_ukf(model, z, ut)}
     except ImportError:
-        fp_ekf = fp_ukf = ekf_diff = ukf_diff = None
+        fp_ekf = fp_ukf = fp_x = None
 
-    def ratio(mine, theirs):
-        return None if theirs is None else theirs / mine
-    for label, fn, peer, diff in (
-            ("EKF, compiled (named model)", lambda: ekf_filter(model, z, _X0, _P0), fp_ekf, ekf_diff),
-            ("EKF, NumPy path (same model untagged)", lambda: ekf_filter(numpy_path, z, _X0, _P0), fp_ekf, None),
-            ("UKF, compiled (named model)", lambda: ukf_filter(model, z, _X0, _P0, **ut), fp_ukf, ukf_diff),
-            ("UKF, NumPy path (same model untagged)", lambda: ukf_filter(numpy_path, z, _X0, _P0, **ut), fp_ukf,
-             None)):
-        t = per_step(fn)
-        rows.append([label, t, peer, ratio(t, peer), 1e6 / t, diff])
+    def diff(method, res):
+        return None if fp_x is None else _rel(res.x, fp_x[method])
+    for method, run, peer in (("EKF", lambda m: ekf_filter(m, z, _X0, _P0), fp_ekf),
+                              ("UKF", lambda m: ukf_filter(m, z, _X0, _P0, **ut), fp_ukf)):
+        cases = [("compiled (named model)", model),
+                 ("generic path, user f, h and analytic Jacobians (FilterPy's)", user),
+                 ("generic path, the named model untagged", untagged)]
+        if method == "EKF":
+            cases.append(("generic path, user f, h, finite-difference Jacobians", numeric))
+        for label, mdl in cases:
+            t = per_step(lambda mdl=mdl: run(mdl))
+            rows.append([f"{method}, {label}", t, peer, None if peer is None else peer / t, 1e6 / t,
+                         diff(method, run(mdl))])
     _, zb = _range_bearing_data(batch_steps, tracks, seed=16)
     ekf_filter_batch(model, zb[:2, :2], _X0, _P0)
     t = best_time(lambda: ekf_filter_batch(model, zb, _X0, _P0), max(1, repeats // 2)) / (tracks * batch_steps)
     check = ekf_filter_batch(model, zb[:3], _X0, _P0)
-    diff = max(_rel(check.x[b], ekf_filter(numpy_path, zb[b], _X0, _P0).x) for b in range(3))
-    rows.append([f"batch EKF, compiled, {tracks} tracks x {batch_steps} steps", t * 1e6, None, None, 1.0 / t, diff])
+    batch_diff = max(_rel(check.x[b], ekf_filter(untagged, zb[b], _X0, _P0).x) for b in range(3))
+    rows.append([f"batch EKF, compiled, {tracks} tracks x {batch_steps} steps", t * 1e6, None, None, 1.0 / t,
+                 batch_diff])
     small = zb[:, : max(10, batch_steps // 20)]
-    t = best_time(lambda: ekf_filter_batch(numpy_path, small, _X0, _P0), 1) / small[:, :, 0].size
+    t = best_time(lambda: ekf_filter_batch(untagged, small, _X0, _P0), 1) / small[:, :, 0].size
     rows.append([f"batch EKF, NumPy path, {tracks} tracks x {small.shape[1]} steps", t * 1e6, None, None, 1.0 / t,
                  None])
     notes = [
@@ -220,11 +230,15 @@ def ekf_ukf_suite(quick: bool) -> dict:
         "µs per step = best of the repeats over a whole single-track run (validation included).",
         "FilterPy: ExtendedKalmanFilter (Joseph form) and UnscentedKalmanFilter (Merwe points, α = 0.5, "
         "β = 2, κ = -1), predict()/update() per step with plain NumPy h, Jacobian, residual and circular mean. "
-        "'max rel. diff' = max |x - x_FilterPy| / max |x_FilterPy| (for the UKF against FilterPy with the sigma "
-        "points redrawn before the update, which is our UKF; the timed FilterPy UKF is its standard loop); for "
-        "the batch row, against the NumPy-path ekf_filter per track.",
+        "'x FilterPy' = FilterPy's time / ours in the same run; 'max rel. diff' = max |x - x_FilterPy| / "
+        "max |x_FilterPy| (FilterPy's UKF draws the update's sigma points from the prediction, as ours); for "
+        "the batch row, against the generic-path ekf_filter per track.",
         "Compiled = mptrack.nonlinear._named_kernels, used automatically for nonlinear_model(linear motion, "
-        "named measurement model); 'NumPy path' = the same model through the generic Python code (user f, h).",
+        "named measurement model). Generic path = any NonlinearModel: the user's f, h, Jacobians, Q, R "
+        "evaluated in Python once per step (the UKF: f and h on all sigma points at once), the matrix "
+        "arithmetic in the compiled step kernels (mptrack.nonlinear._step_kernels). 'User f, h' = the "
+        "functions a user writes (FilterPy's Jacobian); 'the named model untagged' = the constructors' "
+        "vectorised h and Jacobians.",
     ]
     return {"suite": "ekf-ukf", "title": "EKF/UKF per step against FilterPy; batch EKF throughput",
             "columns": ["filter", "us per step", "FilterPy us per step", "x FilterPy", "track-steps/s",

@@ -8,6 +8,7 @@ Exit status: 0 success, 1 internal error, 2 usage or data error, 130 interrupted
 from __future__ import annotations
 
 import os
+import sys
 
 # mptrack's matrices are small (n <= 10): BLAS threads only add synchronisation cost
 # (milliseconds per call on a loaded machine). Parallelism is over tracks (numba).
@@ -28,10 +29,16 @@ from .tracking import evaluate, simulate, track  # noqa: E402
 
 __all__ = ["app", "main"]
 
+#: Help on a terminal: rich panels as wide as the terminal.  In a pipe or a file: plain text, one line per
+#: paragraph and per option (nothing wrapped at 80 columns), so it can be searched and reflowed.
+_PIPED = not (hasattr(sys.stdout, "isatty") and sys.stdout.isatty())
+_CONTEXT = {"help_option_names": ["-h", "--help"],
+            **({"terminal_width": 100_000, "max_content_width": 100_000} if _PIPED else {})}
+
 app = typer.Typer(add_completion=False, no_args_is_help=True, pretty_exceptions_enable=False,
-                  context_settings={"help_option_names": ["-h", "--help"]},
+                  context_settings=_CONTEXT, rich_markup_mode=None if _PIPED else "rich",
                   help="mptrack: mobile-terminal position tracking and paper reproductions.",
-                  epilog=EXIT_CODES + " Results go to stdout, progress and messages to stderr.")
+                  epilog=EXIT_CODES + " Results go to stdout; progress, notes, advice and errors to stderr.")
 
 
 def _version(value: bool) -> None:

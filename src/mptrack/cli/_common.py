@@ -8,20 +8,23 @@ kept).
 
 from __future__ import annotations
 
+import contextlib
 import json
 import shlex
 import shutil
 import sys
 from pathlib import Path
+from typing import Iterable, Iterator
 
 import typer
 from rich.console import Console
 from rich.markup import escape
 
-from ..errors import MptrackError
+from ..errors import MptrackError, ParameterError, UnknownNameError
 
 __all__ = ["out", "err", "QUIET", "VERBOSE", "JSON", "fail", "interrupted", "command_line", "print_json",
-           "progress", "reject", "EXIT_CODES", "echo", "note", "PAPERS", "paper_names", "fmt", "short_paper"]
+           "progress", "reject", "reject_given", "given", "flag", "flags_named", "FLAGS", "check_outputs", "EXIT_CODES", "echo",
+           "note", "PAPERS", "paper_names", "fmt", "short_paper"]
 
 EXIT_CODES = "Exit status: 0 success, 1 internal error, 2 usage or data error, 130 interrupted."
 
@@ -88,6 +91,75 @@ def reject(option: str, why: str) -> None:
     fail(f"{option} {why}")
 
 
+#: The library's names of settings that the command line spells otherwise (every other name ``n`` is the
+#: option ``--n`` with dashes): the one place that maps what an error names to what the user typed.
+FLAGS = {"sigma_m": "--sigma", "gate_probability": "--gate", "r_km2": "--range-sigma", "duration_s": "--duration",
+         "speed_mps": "--speed", "outlier_rate": "--outliers", "accuracy_column": "--accuracy/--no-accuracy",
+         "tolerance_s": "--tolerance", "max_workers": "--workers"}
+
+
+def flag(name: str) -> str:
+    """The command-line option of a library argument (``sigma_m`` -> ``--sigma``)."""
+    return FLAGS.get(name, "--" + name.replace("_", "-"))
+
+
+def check_outputs(*inputs, **outputs) -> None:
+    """:func:`mptrack._validation.check_outputs` with the outputs named by their options, so a clash
+    reads "--report: r.html is also given as --out"."""
+    from .._validation import check_outputs as check
+
+    check(*inputs, **{flag(name): path for name, path in outputs.items()})
+
+
+def _option(ctx, name: str):
+    """The option of the running command that sets ``name`` (its parameter name, or the library argument it
+    becomes: ``sigma_m`` -> the parameter of ``--sigma``), or None."""
+    if ctx is None:
+        return None
+    params = {p.name: p for p in ctx.command.params}
+    return params.get(name) or params.get(flag(name).split("/")[0].removeprefix("--").replace("-", "_"))
+
+
+def _spelling(ctx, option) -> str:
+    """An option as the user typed it: its long form (``--out`` for ``-o``); of a switch, the form that
+    gave its value (``--no-accuracy`` for False)."""
+    forms = option.secondary_opts if option.secondary_opts and ctx.params.get(option.name) is False else option.opts
+    return next((o for o in forms if o.startswith("--")), forms[0])
+
+
+def given(ctx, names: Iterable[str]) -> list[str]:
+    """The options among ``names`` (parameter or library names) that the user gave, on the command line or in
+    the environment (not left at their defaults), as typed (:func:`_spelling`)."""
+    found = []
+    for name in names:
+        option = _option(ctx, name)
+        source = ctx.get_parameter_source(option.name) if option is not None else None
+        if source is not None and source.name in ("COMMANDLINE", "ENVIRONMENT"):
+            found.append(_spelling(ctx, option))
+    return found
+
+
+def reject_given(ctx, names: Iterable[str], why: str) -> None:
+    """Refuse the first of the options ``names`` the user gave (:func:`given`): it does not apply to this
+    run, ``why`` says when it does (one line, exit status 2). Never ignore an option silently."""
+    for option in given(ctx, names)[:1]:
+        reject(option, why)
+
+
+@contextlib.contextmanager
+def flags_named(ctx) -> Iterator[None]:
+    """Errors of the library about an argument that an option of this command sets ("sigma_m: expected
+    ...") name the option the user typed ("--sigma: expected ..."); other errors pass unchanged."""
+    try:
+        yield
+    except (ParameterError, UnknownNameError) as exc:
+        name, sep, rest = str(exc).partition(":")
+        option = _option(ctx, name) if sep and name.isidentifier() else None
+        if option is None:
+            raise
+        raise type(exc)(f"{_spelling(ctx, option)}:{rest}") from None
+
+
 def interrupted(what: str) -> None:
     """Ctrl-C: one line saying what was kept, exit status 130."""
     err.print(escape(f"interrupted; {what}"), highlight=False, soft_wrap=True)
@@ -126,9 +198,10 @@ def progress(quiet: bool):
     return progress_for(err.console, disable=quiet)
 
 
-#: The papers as users know them (author and year), for text that still calls them by file number.
+#: The papers as users know them (author and year, as :func:`short_paper` writes them: one or two authors
+#: by name, three or more "First et al."), for text that still calls them by file number.
 PAPERS = {"000": "Assimakis & Adam 2014", "001": "Assimakis et al. 2016", "002": "Assimakis & Adam 2015",
-          "003": "Bouzera et al. 2017", "004": "Zhao, Chen & Ma 2013"}
+          "003": "Bouzera et al. 2017", "004": "Zhao et al. 2013"}
 
 
 def paper_names(text: str) -> str:

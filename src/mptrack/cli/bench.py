@@ -9,12 +9,14 @@ import typer
 from rich.table import Table as RichTable
 
 from ..errors import MptrackError
-from ._common import JSON, QUIET, VERBOSE, echo, fail, fmt, interrupted, out, paper_names, print_json, progress
+from ._common import JSON, QUIET, VERBOSE, echo, fail, fmt, interrupted, out, paper_names, print_json, progress, \
+    reject_given
 
 __all__ = ["bench"]
 
 
 def bench(
+    ctx: typer.Context,
     quick: bool = typer.Option(False, help="Small sizes, a few seconds."),
     suite: Optional[list[str]] = typer.Option(None, help="Run only these suites (repeatable)."),
     save: Optional[Path] = typer.Option(None, "--save", help="Also write the results as JSON to this file."),
@@ -28,6 +30,10 @@ def bench(
     from ..bench import run_suites, suites
 
     if list_:
+        reject_given(ctx, ["quick", "suite", "save"], "does not apply with --list (it lists the suites and runs none)")
+        if json_out:
+            print_json(list(suites()))
+            return
         for name in suites():
             echo(name)
         return

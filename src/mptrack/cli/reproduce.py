@@ -12,8 +12,8 @@ from rich.markup import escape
 from rich.table import Table as RichTable
 
 from ..errors import MptrackError
-from ._common import JSON, QUIET, VERBOSE, echo, err, fail, fmt, interrupted, out, paper_names, print_json, \
-    progress, short_paper
+from ._common import JSON, QUIET, VERBOSE, echo, err, fail, fmt, interrupted, note, out, paper_names, print_json, \
+    progress, reject, reject_given, short_paper
 
 __all__ = ["reproduce", "cell_counts", "summary_line"]
 
@@ -27,19 +27,26 @@ def _explained(table: dict) -> dict:
 
 
 def _named(value):
-    """results.json content with every text naming papers by author and year."""
+    """results.json content with every text (table labels included) naming papers by author and year."""
     if isinstance(value, str):
         return paper_names(value)
     if isinstance(value, dict):
-        return {k: _named(v) for k, v in value.items()}
+        return {_named(k): _named(v) for k, v in value.items()}
     if isinstance(value, list):
         return [_named(v) for v in value]
     return value
 
 
+def _uncounted(table: dict) -> set[int]:
+    from ..report import uncounted_columns
+
+    return uncounted_columns(table)
+
+
 def cell_counts(results: dict) -> dict:
-    """{"published", "matched", "explained", "unexplained"} over the published cells of a results.json:
-    its "comparison" when it has one, else counted from each table's paper, mismatches and explained_by."""
+    """{"published", "matched", "explained", "unexplained"} over the published cells of a results.json
+    that we compute (not its "uncounted" inputs and labels): its "comparison" when it has one, else counted
+    from each table's paper, mismatches and explained_by."""
     c = results.get("comparison")
     if c:
         return {"published": c["compared"], "matched": c["matched"], "explained": c["differing_explained"],
@@ -50,7 +57,8 @@ def cell_counts(results: dict) -> dict:
         if paper is None:
             continue
         bad = {tuple(c) for c in table.get("mismatches", ())}
-        published += sum(1 for row in paper for v in row[1:] if v is not None)
+        skip = _uncounted(table) | {0}
+        published += sum(1 for row in paper for j, v in enumerate(row) if v is not None and j not in skip)
         differing += len(bad)
         explained += len(bad & set(_explained(table)))
     return {"published": published, "matched": published - differing, "explained": explained,
@@ -61,10 +69,8 @@ def summary_line(key: str, results: dict, path: Path) -> str:
     """The last line of a paper's reproduction."""
     c = cell_counts(results)
     line = (f"{key} ({short_paper(results.get('paper', key))}): {c['matched']}/{c['published']} "
-            f"published numbers matched")
-    if c["explained"] or c["unexplained"]:
-        line += (f", {c['explained']} differ for a documented reason, {c['unexplained']} differ unexplained "
-                 f"(see {ERRATA})")
+            f"published numbers matched, {c['explained']} differ for a documented reason, {c['unexplained']} "
+            f"differ unexplained (see {ERRATA})")
     return line + f"; {len(results.get('figures', {}))} figures, {results.get('elapsed_s', 0):.1f} s → {path}"
 
 
@@ -75,6 +81,7 @@ def _print_tables(results: dict, verbose: bool) -> None:
         bad = {tuple(c) for c in table.get("mismatches", ())}
         why = _explained(table)
         paper = table.get("paper")
+        shown_only = _uncounted(table)
         rt = RichTable(title=f"{label}: {paper_names(table['title'])}", title_justify="left")
         rt.add_column(table["columns"][0])
         for col in table["columns"][1:]:
@@ -83,10 +90,12 @@ def _print_tables(results: dict, verbose: bool) -> None:
             cells = [str(row[0])]
             for j in range(1, len(row)):
                 ours = fmt(row[j])
-                if paper is None or paper[i][j] is None:
-                    cells.append(ours)
+                if paper is None or paper[i][j] is None or (j in shown_only and row[j] == paper[i][j]):
+                    cells.append(ours)  # the paper's input or label repeated: show it once, not counted
+                elif j in shown_only:
+                    cells.append(f"{ours} | {fmt(paper[i][j])}")  # shown beside the paper's, not counted
                 elif not isinstance(row[j], (int, float)) and (i, j) not in bad:
-                    cells.append(ours)  # identical text (a formula, a label): show it once
+                    cells.append(ours)  # identical computed text (a formula): show it once
                 else:
                     mark = ("[yellow]≠*[/yellow]" if (i, j) in why else "[red]≠[/red]") \
                         if (i, j) in bad else "[green]=[/green]"
@@ -99,15 +108,16 @@ def _print_tables(results: dict, verbose: bool) -> None:
             for i, j in sorted(bad):
                 entry = why.get((i, j))
                 echo(f"  {label} {table['rows'][i][0]} / {table['columns'][j]}: "
-                     + (f"explained: {(results.get('errata') or {}).get(entry, entry)}" if entry is not None
-                        else "unexplained"))
+                     + (f"explained by {ERRATA}#{entry}: {(results.get('errata') or {}).get(entry, entry)}"
+                        if entry is not None else "unexplained"))
     for name, path in results.get("figures", {}).items():
         echo(f"{name}: {path}")
     for text in results.get("notes", []):
-        out.print(f"[yellow]note:[/yellow] {escape(paper_names(text))}", highlight=False)
+        note(paper_names(text))
 
 
 def reproduce(
+    ctx: typer.Context,
     key: Optional[str] = typer.Argument(None, help="Reproduction key (see --list), or 'all'."),
     out_root: Path = typer.Option(Path("mptrack-results"), "--out", "-o", help="Output root; results go to "
                                                                                "OUT/KEY/."),
@@ -127,6 +137,10 @@ def reproduce(
 
     reg = experiments()
     if list_ or key is None:
+        if list_ and key is not None:
+            reject("--list", f"lists the reproductions and runs none: leave out --list to run {key}")
+        reject_given(ctx, ["out_root", "seed", "quick", "resume", "report"],
+                     "applies to a reproduction run, not to the list (give a KEY or 'all')")
         if json_out:
             print_json({k: {"paper": paper_names(e.paper), "description": paper_names(e.description)}
                         for k, e in reg.items()})

@@ -12,15 +12,15 @@ from __future__ import annotations
 
 import contextlib
 from pathlib import Path
-from typing import Optional
+from typing import NamedTuple, Optional
 
 import typer
 from rich.markup import escape
 from rich.table import Table as RichTable
 
 from ..errors import MptrackError
-from ._common import JSON, QUIET, VERBOSE, command_line, echo, err, fail, interrupted, note, out, print_json, \
-    progress, reject
+from ._common import JSON, QUIET, VERBOSE, check_outputs, command_line, echo, err, fail, flags_named, fmt, \
+    interrupted, note, out, print_json, progress, reject_given
 
 __all__ = ["track", "simulate", "evaluate"]
 
@@ -40,22 +40,51 @@ def _kept(out: Path) -> str:
             f"resume with: {command_line(resume=True)}")
 
 
-def _options(cls, **values):
-    """``cls(**values)``, its errors naming the command-line option (--time-unit) instead of the argument."""
-    from ..errors import ParameterError
+class _Reading(NamedTuple):
+    columns: typer.models.OptionInfo
+    time_unit: typer.models.OptionInfo
+    time_format: typer.models.OptionInfo
+    coord_unit: typer.models.OptionInfo
 
-    try:
-        return cls(**values)
-    except ParameterError as exc:
-        name, _, rest = str(exc).partition(":")
-        raise ParameterError(f"--{name.replace('_', '-')}:{rest}") from None
+
+def _reading_options(what: str) -> _Reading:
+    """The options that say how a position-fix file is read (its column names and units), defined once
+    for ``track``'s input, ``simulate --along`` and ``evaluate --truth``; ``what`` names the file in
+    the help."""
+    return _Reading(
+        typer.Option(None, "--columns", help=f"Which column of {what} is which where the names are not "
+                                             "recognised: time=ts,lat=Latitude,lon=Lng,track_id=device,"
+                                             "accuracy_m=acc (swapped columns: lat=lon,lon=lat)."),
+        typer.Option("auto", "--time-unit", help=f"Unit of numeric time stamps of {what}: auto (by magnitude), "
+                                                 "s, ms, us or ns."),
+        typer.Option(None, "--time-format", help=f"Layout of text time stamps of {what} that are not ISO 8601, "
+                                                 "e.g. '%d/%m/%Y %H:%M:%S'."),
+        typer.Option("auto", "--coord-unit", help=f"Unit of lat/lon of {what}: auto, deg, deg-e7 or deg-e6 "
+                                                  "(integer degrees x 10^7 / 10^6) or rad."))
+
+
+_TRACK_READING = _reading_options("the input")
+_ALONG_READING = _reading_options("the --along file")
+_TRUTH_READING = _reading_options("the --truth file")
+
+
+def _read_options(ctx, columns, time_unit, time_format, coord_unit, *, file="", option: str = "", **more):
+    """The :class:`mptrack.io.ReadOptions` of the reading options (errors name the option); given without
+    the file they apply to (``file`` None, named by ``option``) they are refused."""
+    from ..io import ReadOptions
+
+    if file is None:
+        reject_given(ctx, _Reading._fields, f"applies to the file read with {option}")
+    with flags_named(ctx):
+        return ReadOptions(columns=columns or (), time_unit=time_unit, time_format=time_format,
+                           coord_unit=coord_unit, **more)
 
 
 def _skipped(read: dict, verbose: bool) -> None:
     for text in read.get("notes", ()):
         note(text)
     if read.get("rows_skipped"):
-        note(f"skipped {read['rows_skipped']} of {read['rows_read']} rows of {read['file']}:", "skipped")
+        note(f"{read['rows_skipped']} of {read['rows_read']} rows of {read['file']}:", "skipped")
         for reason, count in read["skipped_by_reason"].items():
             err.print(escape(f"  {count} × {reason}"), highlight=False, soft_wrap=True)
         for example in read.get("examples", ()) if verbose else ():
@@ -76,15 +105,14 @@ def _summary_table(summary: dict, title: str, rows_max: int | None) -> RichTable
     for c in cols:
         rt.add_column(c, justify="right")
     for k, r in rows.items():
-        rt.add_row(k, *[f"{r[c]:.4g}" if isinstance(r.get(c), float) else str(r.get(c, "")) for c in cols])
+        rt.add_row(k, *[fmt(r[c]) if isinstance(r.get(c), float) else str(r.get(c, "")) for c in cols])
     return rt
 
 
-#: Options of ``track`` that apply to position fixes only / to cellular measurements (--cells) only.
-_FIX_ONLY = {"model": "--model", "filter": "--filter", "smooth": "--smooth", "q": "--q", "sigma_m": "--sigma",
-             "noise": "--noise", "gate_probability": "--gate"}
-_CELL_ONLY = {"method": "--method", "motion": "--motion", "path_loss": None, "q_km2": None, "r_km2": "--range-sigma",
-              "scan_interval_s": None}
+#: Settings (TrackOptions fields) of ``track`` that apply to position fixes only / to cellular measurements
+#: (--cells) only.
+_FIX_ONLY = ("model", "filter", "smooth", "q", "sigma_m", "noise", "gate_probability")
+_CELL_ONLY = ("method", "motion", "path_loss", "q_km2", "r_km2", "scan_interval_s")
 
 
 def _default_out(input: Path) -> Path:
@@ -94,6 +122,7 @@ def _default_out(input: Path) -> Path:
 
 
 def track(
+    ctx: typer.Context,
     input: Path = typer.Argument(..., help="Position fixes: CSV (any delimiter), Parquet (a file or a directory), "
                                            "GPX, TCX, FIT, NMEA 0183 or GeoJSON; or, with --cells, a cellular "
                                            "measurement log (CSV/Parquet)."),
@@ -136,15 +165,10 @@ def track(
     max_skip: str = typer.Option("1%", "--max-skip", help="With --on-error skip: fail (nothing written) when more "
                                                           "rows than this are dropped: a percentage of the rows "
                                                           "read or a count."),
-    columns: Optional[str] = typer.Option(None, "--columns", help="Which column is which where the names are not "
-                                                                  "recognised: time=ts,lat=Latitude,lon=Lng,"
-                                                                  "track_id=device,accuracy_m=acc."),
-    time_unit: str = typer.Option("auto", "--time-unit", help="Unit of numeric time stamps: auto (by magnitude), "
-                                                              "s, ms, us or ns."),
-    time_format: Optional[str] = typer.Option(None, "--time-format", help="Layout of text time stamps that are "
-                                                                          "not ISO 8601, e.g. '%d/%m/%Y %H:%M:%S'."),
-    coord_unit: str = typer.Option("auto", "--coord-unit", help="Unit of lat/lon: auto, deg, deg-e7 or deg-e6 "
-                                                                "(integer degrees x 10^7 / 10^6) or rad."),
+    columns: Optional[str] = _TRACK_READING.columns,
+    time_unit: str = _TRACK_READING.time_unit,
+    time_format: Optional[str] = _TRACK_READING.time_format,
+    coord_unit: str = _TRACK_READING.coord_unit,
     resume: bool = typer.Option(False, "--resume", help="Keep the work of an interrupted run of the same input "
                                                         "and options."),
     executor: str = typer.Option("serial", help="serial, processes or dask: who runs the chunks (the output "
@@ -159,40 +183,40 @@ def track(
 
     With no --sigma/--q the fix noise and the process noise are estimated from each track."""
     given = {"model": model, "filter": filter, "smooth": smooth or None, "q": q, "sigma_m": sigma, "noise": noise,
-             "gate_probability": gate, "method": method, "motion": motion,
-             "r_km2": None if range_sigma is None else (range_sigma / 1e3) ** 2}
-    for name, flag in (_FIX_ONLY if cells is not None else _CELL_ONLY).items():
-        if flag and given.get(name) is not None:
-            reject(flag, "applies to position fixes, not to cellular measurements (--cells)" if cells is not None
-                   else "applies to cellular measurements only: give the cell table with --cells")
-    if workers is not None and executor == "serial":
-        reject("--workers", "applies to --executor processes or dask")
-    if max_skip != "1%" and on_error != "skip":
-        reject("--max-skip", "applies to --on-error skip")
+             "gate_probability": gate, "method": method, "motion": motion}
+    reject_given(ctx, _FIX_ONLY if cells is not None else _CELL_ONLY,
+                 "applies to position fixes, not to cellular measurements (--cells)" if cells is not None
+                 else "applies to cellular measurements only: give the cell table with --cells")
+    if executor == "serial":
+        reject_given(ctx, ["max_workers"], "applies to --executor processes or dask")
+    if on_error != "skip":
+        reject_given(ctx, ["max_skip"], "applies to --on-error skip")
     out = out or _default_out(input)
     from .._io import output_lock
-    from .._validation import check_outputs
-    from ..io import ReadOptions
+    from .._validation import check_positive
     from ..tracking import TrackOptions, track_file
 
-    kept, summary = "", None
+    kept, summary, points = "", None, []
     try:
-        check_outputs(input, cells, report=report)
+        check_outputs(input, cells, out=out, track_summary=track_summary, report=report)
         values = {k: v for k, v in given.items() if v is not None}
         if "gate_probability" in values and values["gate_probability"] >= 1:
             values["gate_probability"] = None
-        options = TrackOptions(**values)
-        read = _options(ReadOptions, columns=columns or (), time_unit=time_unit, time_format=time_format,
-                        coord_unit=coord_unit, max_skip=max_skip)
+        with flags_named(ctx):
+            if range_sigma is not None:  # the option is a standard deviation in m, the setting a variance in km^2
+                values["r_km2"] = (check_positive("range_sigma", range_sigma) / 1e3) ** 2
+            options = TrackOptions(**values)
+        read = _read_options(ctx, columns, time_unit, time_format, coord_unit, max_skip=max_skip)
         with output_lock(out, track_summary, report, note=command_line()):
             try:
-                with progress(quiet or json_out) as bar:
+                with progress(quiet or json_out) as bar, flags_named(ctx):
                     summary = track_file(input, out, cells=cells, options=options, on_error=on_error,
                                          read=read, resume=resume, executor=executor, max_workers=workers,
-                                         chunk_rows=chunk_rows, track_summary=track_summary, progress=bar)
+                                         chunk_rows=chunk_rows, track_summary=track_summary, progress=bar,
+                                         on_points=None if report is None else _keep_points(points))
                     if report is not None:
                         with bar.task("report"):
-                            _write_report(out, report, summary, f"mptrack track {input.name}")
+                            _write_report(points.pop(), report, summary, f"mptrack track {input.name}")
                         summary["report"] = str(report)
             except (OSError, KeyboardInterrupt):
                 kept = _kept(out)  # under the lock: the parts are this run's
@@ -215,20 +239,37 @@ def track(
         out_print(_noise_table(summary["track_noise"]))
     for line in _noise_lines(summary, track_summary):
         echo(line)
+    _advise(summary)
 
 
 def out_print(renderable) -> None:
     out.print(renderable)
 
 
-def _write_report(tracks_file: Path, report: Path, run: dict, title: str) -> None:
-    """The report of a run: its output read back, evaluated (with truth columns when the log had
-    them) and drawn with the run's summary (rows skipped, NIS advice)."""
-    from ..report import write_report
-    from ..tracking import evaluate_tracks, read_output
+def _keep_points(kept: list):
+    """``track_file``'s ``on_points``: the columns of the run's points a report needs, appended to ``kept``
+    (read from the run's parts whatever the output format: a GeoJSON or GPX output is not read back).
+    Arrow's memory pool first gives back what writing the output left unused (about 0.2 GB for 10^6
+    points), so the report starts from what the tracking really holds."""
+    import pyarrow as pa
 
-    table = read_output(tracks_file)
-    summary, _ = evaluate_tracks(table)
+    from ..report import report_points
+
+    def keep(tables) -> None:
+        pa.default_memory_pool().release_unused()
+        kept.append(report_points(tables))
+    return keep
+
+
+def _write_report(table, report: Path, run: dict, title: str) -> None:
+    """The report of a run's points (:func:`_keep_points`), evaluated against the truth columns a
+    simulated log passes through (true_lat/true_lon or true_x/true_y) when it has them, drawn with
+    the run's summary (rows skipped, NIS advice)."""
+    from ..report import write_report
+    from ..tracking import TRUTH_COLUMNS, evaluate_tracks
+
+    own = any(a in table.columns and b in table.columns for a, b, _ in TRUTH_COLUMNS)
+    summary, table = evaluate_tracks(table, truth_columns=own)
     write_report(table, report, summary=summary, run=run, title=title)
 
 
@@ -250,7 +291,7 @@ def _noise_table(rows: list[dict]) -> RichTable:
 
 
 def _noise_lines(summary: dict, track_summary) -> list[str]:
-    """The noise the run used, in a sentence (one track) or as medians and ranges (many), and the NIS advice."""
+    """The noise the run used, in a sentence (one track) or as medians and ranges (many)."""
     noise = summary.get("noise")
     lines = []
     if noise:
@@ -264,20 +305,22 @@ def _noise_lines(summary: dict, track_summary) -> list[str]:
                          f"(5-95 %: {s['p5']:.3g}-{s['p95']:.3g}), q {q['median']:.3g} median "
                          f"({q['p5']:.3g}-{q['p95']:.3g})"
                          + ("" if track_summary else "; --track-summary FILE writes every track's estimate"))
-        if noise.get("sigma_at_floor"):
-            lines.append(f"{noise['sigma_at_floor']} track(s) show no independent fix noise (sigma at its 1 mm "
-                         "floor): the receiver already smooths its fixes, the estimate follows them, and its "
-                         "covariance covers the noise between fixes, not the receiver's own error (metres)")
-    lines += summary.get("nis", {}).get("advice", [])
     return lines
 
 
-_SIMULATE_OPTIONS = {"tracks": "--tracks", "duration_s": "--duration", "interval": "--interval", "q": "--q",
-                     "speed_mps": "--speed", "sigma_m": "--sigma", "outlier_rate": "--outliers",
-                     "accuracy_column": "--no-accuracy"}
+def _advise(summary: dict) -> None:
+    """What a run's numbers suggest, on stderr: fixes without independent noise, NIS far from its band."""
+    floor = (summary.get("noise") or {}).get("sigma_at_floor")
+    if floor:
+        note(f"{floor} track(s) show no independent fix noise (sigma at its 1 mm floor): the receiver already "
+             "smooths its fixes, the estimate follows them, and its covariance covers the noise between fixes, "
+             "not the receiver's own error (metres)")
+    for advice in (summary.get("nis") or {}).get("advice", []):
+        note(advice, "advice")
 
 
 def simulate(
+    ctx: typer.Context,
     scenario: str = typer.Option("gps", "--scenario", help="gps or urban-3bts."),
     tracks: Optional[int] = typer.Option(None, "--tracks", help="Number of simulated tracks (default 10; not with "
                                                                 "--along)."),
@@ -297,26 +340,28 @@ def simulate(
     accuracy: Optional[bool] = typer.Option(None, "--accuracy/--no-accuracy",
                                             help="gps: write the accuracy_m column (default: yes)."),
     seed: int = typer.Option(0, help="Seed of the random generator."),
+    columns: Optional[str] = _ALONG_READING.columns,
+    time_unit: str = _ALONG_READING.time_unit,
+    time_format: Optional[str] = _ALONG_READING.time_format,
+    coord_unit: str = _ALONG_READING.coord_unit,
     quiet: bool = QUIET,
     verbose: bool = VERBOSE,
     json_out: bool = JSON,
 ) -> None:
     """Simulate measurement logs with truth (GPS fixes or cellular RSS scans)."""
-    if along is not None and tracks is not None:
-        reject("--tracks", "does not apply with --along (one simulated track per track of the file)")
+    if along is not None:
+        reject_given(ctx, ["tracks", "duration_s", "interval", "q", "speed_mps"],
+                     "does not apply with --along (the tracks of that file are the truth: one simulated track "
+                     "per track of the file, at its times)")
     if scenario != "gps":
-        for flag, value in (("--sigma", sigma), ("--outliers", outliers), ("--accuracy/--no-accuracy", accuracy)):
-            if value is not None:
-                reject(flag, f"applies to --scenario gps, not {scenario}")
-    elif cells_out is not None:
-        reject("--cells-out", "applies to cellular scenarios (--scenario urban-3bts)")
+        reject_given(ctx, ["sigma_m", "outlier_rate", "accuracy_column"], f"applies to --scenario gps, not {scenario}")
+    else:
+        reject_given(ctx, ["cells_out"], "applies to cellular scenarios (--scenario urban-3bts)")
     import numpy as np
     import pandas as pd
 
     from .._io import output_lock
-    from .._validation import check_outputs
-    from ..errors import ParameterError
-    from ..io import write_table
+    from ..io import ReadReport, write_table
     from ..tracking import simulate_chunks
 
     n_tracks = 10 if tracks is None else tracks
@@ -333,17 +378,18 @@ def simulate(
                 cell_tables.append(cells)
             yield log
 
+    cpath = cells_out or out.with_suffix(".cells.csv")
+    cells_to = cpath if cells_out or scenario != "gps" else None
+    read_report = ReadReport()
     try:
-        check_outputs(along, out=out, cells_out=cells_out)
-        try:
+        check_outputs(along, out=out, cells_out=cells_to)
+        with flags_named(ctx):
+            read = _read_options(ctx, columns, time_unit, time_format, coord_unit, file=along, option="--along")
             chunks = simulate_chunks(scenario, n_tracks, np.random.default_rng(seed), duration_s=duration,
                                      along=along, interval=interval, q=q, speed_mps=speed, sigma_m=sigma,
-                                     outlier_rate=outliers, accuracy_column=accuracy)
-        except ParameterError as exc:  # name the option, not the library's argument
-            name, _, rest = str(exc).partition(":")
-            raise ParameterError(f"{_SIMULATE_OPTIONS.get(name, name)}:{rest}") from None
-        cpath = cells_out or out.with_suffix(".cells.csv")
-        with output_lock(out, cpath if cells_out or scenario != "gps" else None, note=command_line()), \
+                                     outlier_rate=outliers, accuracy_column=accuracy, read=read,
+                                     report=read_report)
+        with output_lock(out, cells_to, note=command_line()), \
                 progress(quiet or json_out) as bar, \
                 bar.task("simulating tracks", total=None if along is not None else n_tracks) as advance:
             write_table(logs(chunks, advance), out)
@@ -355,37 +401,51 @@ def simulate(
         interrupted(f"only {done[0]} was written" if done else "nothing was written")
     except (MptrackError, OSError) as exc:
         fail(exc)
+    if along is not None:
+        written["read"] = read_report.to_dict()
     if json_out:
         print_json(written)
     else:
+        if along is not None:
+            _skipped(written["read"], verbose)
         echo(f"{written['tracks']} tracks, {written['rows']} rows → {out}"
              + (f"; cells → {written['cells']}" if "cells" in written else ""))
 
 
 def evaluate(
-    tracks: Path = typer.Argument(..., help="Output of mptrack track (.parquet/.csv/.geojson)."),
-    truth: Optional[Path] = typer.Option(None, "--truth", help="Truth in any input format (a GPX trace, a simulated "
-                                                                "log: true_lat/true_lon or lat/lon; true_x/true_y or "
-                                                                "x/y in metres); track_id may be left out for one "
+    ctx: typer.Context,
+    tracks: Path = typer.Argument(..., help="Output of mptrack track in any of its formats: .parquet (.pq), "
+                                            ".csv, .geojson (.json), .gpx or .geoparquet."),
+    truth: Optional[Path] = typer.Option(None, "--truth", help="Truth in any input format: CSV (any delimiter), "
+                                                                "Parquet (a file or a directory), GPX, TCX, FIT, "
+                                                                "NMEA 0183 or GeoJSON (a GPS trace, a simulated log: "
+                                                                "true_lat/true_lon or lat/lon; true_x/true_y or x/y "
+                                                                "in metres); track_id may be left out for one "
                                                                 "track."),
     report: Optional[Path] = typer.Option(None, "--report", help="Write a self-contained HTML report."),
     tolerance: Optional[float] = typer.Option(None, help="With --truth: max time difference (s) to match an "
                                                          "estimate with truth (default 0.5)."),
+    columns: Optional[str] = _TRUTH_READING.columns,
+    time_unit: str = _TRUTH_READING.time_unit,
+    time_format: Optional[str] = _TRUTH_READING.time_format,
+    coord_unit: str = _TRUTH_READING.coord_unit,
     quiet: bool = QUIET,
     verbose: bool = VERBOSE,
     json_out: bool = JSON,
 ) -> None:
     """RMSE, NEES/NIS consistency and the error CDF of a track table against truth."""
-    if tolerance is not None and truth is None:
-        reject("--tolerance", "applies with --truth")
+    if truth is None:
+        reject_given(ctx, ["tolerance_s"], "applies with --truth")
     from .._io import output_lock
-    from .._validation import check_outputs
     from ..errors import DataError
+    from ..io import ReadReport
     from ..tracking import evaluate_tracks, read_output
 
     held = contextlib.ExitStack()  # the report's lock, from the start to the end of the command
+    truth_report = ReadReport()
     try:
         check_outputs(tracks, truth, report=report)
+        read = _read_options(ctx, columns, time_unit, time_format, coord_unit, file=truth, option="--truth")
         held.enter_context(output_lock(report, note=command_line()))
         if not tracks.exists():
             raise DataError("file not found", file=tracks)
@@ -393,8 +453,9 @@ def evaluate(
             with bar.task("evaluating"):
                 est = read_output(tracks)
                 est.attrs["file"] = tracks
-                summary, table = evaluate_tracks(est, truth, tolerance_s=0.5 if tolerance is None else tolerance,
-                                                 truth_file=truth)
+                with flags_named(ctx):
+                    summary, table = evaluate_tracks(est, truth, tolerance_s=0.5 if tolerance is None else tolerance,
+                                                     truth_file=truth, read=read, report=truth_report)
             if report is not None:
                 with bar.task("report"):
                     from ..report import write_report
@@ -407,9 +468,13 @@ def evaluate(
         fail(exc)
     finally:
         held.close()
+    if truth is not None:
+        summary["truth_read"] = truth_report.to_dict()
     if json_out:
         print_json(summary)
         return
+    if truth is not None:
+        _skipped(summary["truth_read"], verbose)
     o = summary["overall"]
     if not quiet:
         out_print(_summary_table(summary, f"Evaluation of {tracks.name}", None if verbose else 30))
@@ -418,8 +483,7 @@ def evaluate(
         line += f", RMSE {o['rmse_m']:.2f} m, 95 % error {o['cdf95_m']:.2f} m, mean NEES {o['mean_nees']:.2f}"
     line += f", mean NIS {o['mean_nis']:.2f} (dof {o['mean_nis_dof']:.2f})"
     echo(line)
-    for advice in _nis_advice(summary):
-        echo(advice)
+    _advise({"nis": {"advice": _nis_advice(summary)}})
 
 
 def _nis_advice(summary: dict) -> list[str]:

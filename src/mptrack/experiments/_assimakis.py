@@ -50,8 +50,9 @@ def _table2(axes: int) -> Table:
     return Table(
         title="Per-iteration calculation burden of filters (formula; evaluated without join for KF/LF parts)",
         columns=["filter", "formula", f"model A (n={n}, m={m})", "model B axis (n=2, m=1)"],
-        rows=rows, paper=paper,
-        notes="JKLF/JSSKLF rows are the join procedure only; the implementation burden adds both filters.")
+        rows=rows, paper=paper, uncounted=("formula",),
+        notes="JKLF/JSSKLF rows are the join procedure only; the implementation burden adds both filters. "
+              "The formulas are the paper's, shown, not counted; the evaluated burdens are ours.")
 
 
 def _table3(axes: int, published: dict | None) -> Table:
@@ -62,8 +63,9 @@ def _table3(axes: int, published: dict | None) -> Table:
         paper = [[imp.number, imp.model, imp.system, imp.filter, published[imp.name]] for imp in IMPLEMENTATIONS]
     return Table(title="Per-iteration calculation burden of implementations",
                  columns=["implementation", "model", "system", "filter", "calculation burden"],
-                 rows=rows, paper=paper,
-                 notes=f"model B = {axes} per-axis filters; the JKLF/JSSKLF join counted once, as in the paper")
+                 rows=rows, paper=paper, uncounted=("model", "system", "filter"),
+                 notes=f"model B = {axes} per-axis filters; the JKLF/JSSKLF join counted once, as in the paper. "
+                       "Model, system and filter are the paper's labels (shown, not counted).")
 
 
 def _table3_per_axis(axes: int) -> Table:
@@ -79,12 +81,12 @@ def _speedup_rows(burdens: dict[str, float]) -> list[list]:
     return [[name] + [round(burdens[name] / burdens[col], 3) for col in NAMES] for name in NAMES]
 
 
-# erratum keys cited by the tables (results.json "errata"; sections of docs/errata.md)
+# erratum keys cited by the tables (results.json "errata"): each is an anchor in docs/errata.md
 ERRATA = {
-    "assimakis2014-table4-burdens": "docs/errata.md, 'Table 4 (seed 000) uses different burdens from Table 3': "
+    "assimakis2014-table4-burdens": "Table 4 uses different burdens from Table 3: "
                                     "printed speedups are ratios of burdens 1191, 118, 640, 98 for JKLF-A, "
                                     "JSSKLF-A, JKLF-B, JSSKLF-B, not Table 3's 1207, 96, 326, 44",
-    "assimakis2014-table4-garbled": "docs/errata.md, 'Table 4 (seed 000) uses different burdens from Table 3': "
+    "assimakis2014-table4-garbled": "Table 4 as printed is garbled: "
                                     "a printed value that belongs to another cell (text extraction garbled)",
 }
 
@@ -157,7 +159,9 @@ def _fir_tables(axes: int, published: dict | None) -> dict[str, Table]:
         rows=[["SSKF/SSLF", "2n^2 + 2nm - n", "per-iteration"],
               ["FIR SSKF/SSLF", "2n^2 + 2nm - n + (M - 1)n", "when required"]],
         paper=[["SSKF/SSLF", "2n^2 + 2nm - n", "per-iteration"],
-               ["FIR SSKF/SSLF", "2n^2 + 2nm - n + (M - 1)n", "when required"]] if published else None)
+               ["FIR SSKF/SSLF", "2n^2 + 2nm - n + (M - 1)n", "when required"]] if published else None,
+        uncounted=("calculation burden", "when"),
+        notes="The paper's formulas, shown, not counted: Tables 6 and 7 evaluate them.")
     t6 = published.get("table6") if published else None
     tables["Table 6"] = Table(
         title="Calculation burden of classical and FIR steady-state implementations",

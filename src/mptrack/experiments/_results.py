@@ -13,8 +13,9 @@ from .._io import write_json
 __all__ = ["Table", "Reproduction", "differences", "COUNT_KEYS"]
 
 # The comparison counts of a table and of a whole reproduction (results.json "comparison"):
-# published cells compared, and how many of them we reproduce, differ for a documented reason
-# (an erratum key in "explained_by"), or differ unexplained.
+# published cells compared (numbers we compute; not the inputs or labels we repeat), and how many of
+# them we reproduce, differ for a documented reason (an erratum key in "explained_by"), or differ
+# unexplained.
 COUNT_KEYS = ("compared", "matched", "differing_explained", "differing_unexplained")
 
 
@@ -38,6 +39,12 @@ class Table:
     to the key of the erratum (``Reproduction.errata``, docs/errata.md) that
     explains why it differs from the paper; a differing cell without a key is
     unexplained.
+
+    ``uncounted`` names columns that repeat what the paper printed rather than
+    compute it (inputs such as Table VIII's heights and powers, labels such as
+    a model's name, formulas copied as text), or a second reading of cells
+    already counted elsewhere: they are shown beside the paper's values but are
+    neither compared nor counted.
     """
 
     title: str
@@ -48,8 +55,12 @@ class Table:
     rtol: float = 0.0
     atol: float = 0.0
     explained: dict[tuple[int, int], str] = field(default_factory=dict)
+    uncounted: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
+        unknown = set(self.uncounted) - set(self.columns[1:])
+        if unknown:
+            raise ValueError(f"table {self.title!r}: uncounted columns {sorted(unknown)} are not data columns")
         for row in self.rows:
             if len(row) != len(self.columns):
                 raise ValueError(f"table {self.title!r}: row {row!r} does not have {len(self.columns)} cells")
@@ -57,12 +68,16 @@ class Table:
             if len(self.paper) != len(self.rows) or any(len(p) != len(r) for p, r in zip(self.paper, self.rows)):
                 raise ValueError(f"table {self.title!r}: paper values must have the shape of rows")
 
+    def counted(self, j: int) -> bool:
+        """Whether column ``j`` holds numbers we compute and compare (not the row label, not uncounted)."""
+        return j > 0 and self.columns[j] not in self.uncounted
+
     def mismatches(self) -> list[tuple[int, int]]:
-        """(row, column) cells where our number differs from the published one."""
+        """(row, column) cells of the counted columns where our number differs from the published one."""
         if self.paper is None:
             return []
         return [(i, j) for i, (r, p) in enumerate(zip(self.rows, self.paper))
-                for j, (a, b) in enumerate(zip(r, p)) if j > 0 and not _same(a, b, self.rtol, self.atol)]
+                for j, (a, b) in enumerate(zip(r, p)) if self.counted(j) and not _same(a, b, self.rtol, self.atol)]
 
     def explain(self, cells, key: str) -> None:
         """Mark ``cells`` ((row, column) pairs) as differing because of erratum ``key``."""
@@ -74,10 +89,10 @@ class Table:
         return [(i, j, self.explained[i, j]) for i, j in self.mismatches() if (i, j) in self.explained]
 
     def comparison(self) -> dict[str, int]:
-        """Counts over the published (non-null) cells: see COUNT_KEYS."""
+        """Counts over the published (non-null) cells of the counted columns: see COUNT_KEYS."""
         if self.paper is None:
             return dict.fromkeys(COUNT_KEYS, 0)
-        compared = sum(1 for r in self.paper for v in r[1:] if v is not None)
+        compared = sum(1 for r in self.paper for j, v in enumerate(r) if v is not None and self.counted(j))
         bad = self.mismatches()
         explained = sum(1 for c in bad if c in self.explained)
         return {"compared": compared, "matched": compared - len(bad), "differing_explained": explained,
@@ -91,6 +106,8 @@ class Table:
             out["mismatches"] = [list(c) for c in self.mismatches()]
             out["explained_by"] = [list(c) for c in self.explained_by()]
             out["comparison"] = self.comparison()
+            if self.uncounted:
+                out["uncounted"] = list(self.uncounted)
         if self.notes:
             out["notes"] = self.notes
         return out

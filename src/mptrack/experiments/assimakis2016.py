@@ -253,7 +253,7 @@ def _plot_sweep(path, name: str, data: dict) -> None:
     left.set_ylabel("PAAE (mean relative |error|, percent)")
     right.set_ylabel(f"steady-state RMS position error (m), t > {SETTLE_S:g} s")
     left.legend(fontsize=7)
-    fig.suptitle(f"Seed 001 sweep over {name} ({STEPS} steps, Monte-Carlo mean)")
+    fig.suptitle(f"Assimakis et al. 2016: sweep over {name} ({STEPS} steps, Monte-Carlo mean)")
     fig.tight_layout()
     save_figure(fig, path, dpi=110)
 
@@ -274,7 +274,7 @@ def _plot_n_sweep(path, data: dict) -> None:
         ax.set_xlabel("prediction steps N (0 = estimation)")
         ax.grid(True, alpha=0.3)
         ax.legend(fontsize=8)
-    fig.suptitle(f"Seed 001 sweep over the prediction horizon N ({STEPS} steps, Monte-Carlo mean)")
+    fig.suptitle(f"Assimakis et al. 2016: sweep over the prediction horizon N ({STEPS} steps, Monte-Carlo mean)")
     fig.tight_layout()
     save_figure(fig, path, dpi=110)
 
@@ -352,7 +352,7 @@ def _conclude_n(data: dict) -> str:
 # ---------------------------------------------------------------- Table 1: the readings
 
 ERRATA = {
-    "assimakis2016-table1-single-run": "docs/errata.md, 'Percent absolute average error (Table 1)': the paper "
+    "assimakis2016-table1-single-run": "'Percent absolute average error' (Table 1): the paper "
                                        "shows one run; the cell differs from our Monte-Carlo mean by less than "
                                        "the run-to-run standard deviation of a single run",
 }

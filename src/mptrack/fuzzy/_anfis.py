@@ -3,13 +3,17 @@
 Each epoch: (1) with the premise (membership) parameters fixed, the rule
 constants c solve the (optionally box-bounded) linear least-squares problem  min ||W_bar c - y||  where
 W_bar holds the normalised firing strengths (forward pass); (2) with c fixed,
-the premise parameters take a gradient step on E = 1/2 sum (y_hat - y)^2
-(backward pass), with Jang's step-size heuristic reduced to: grow the step by
-10 % after a decrease of E, halve it and undo the step after an increase.
+the premise parameters take a gradient step of length kappa on E = 1/2 sum (y_hat - y)^2 (backward pass:
+Jang's normalised step, Delta = -kappa g / ||g|| over all premise parameters), with his step-size
+heuristic reduced to: grow kappa by 10 % after a decrease of E, halve it and undo the step after an
+increase.
 
-Membership functions are Gaussian (smooth gradients, as in Jang's ANFIS);
-each input is scaled to [0, 1] over its universe for training, and the
-result is returned as an ordinary :class:`TakagiSugeno` in the input's units.
+Membership functions are Gaussian (mean, sigma; smooth gradients, as in Jang's ANFIS) or triangular
+(feet a, c and peak b, as MATLAB's ``trimf``, which Bouzera et al. 2017 chose; the gradient is taken on
+each linear piece).  Each input is scaled to [0, 1] over its universe for training; the initial sets are
+evenly spaced (triangles with their feet at the neighbouring peaks, MATLAB's ``genfis1`` grid).  A
+triangular step that would leave part of a universe where no set fires is refused like a step that
+increases E.  The result is returned as an ordinary :class:`TakagiSugeno` in the input's units.
 """
 
 from __future__ import annotations
@@ -26,6 +30,8 @@ from ._ts import TakagiSugeno
 
 __all__ = ["AnfisResult", "anfis_train"]
 
+_MIN_WIDTH = 1e-3  # smallest sigma, or triangle side, in the scaled [0, 1] units
+
 
 @dataclass(frozen=True, eq=False)
 class AnfisResult:
@@ -35,13 +41,33 @@ class AnfisResult:
     rmse: np.ndarray
 
 
-def _forward(u, means, sigmas):
-    """Memberships per input (list of (N, n_j)) and grid firing strengths (N, n_1, ..., n_p)."""
-    mus = [np.exp(-0.5 * ((u[:, j, None] - means[j]) / sigmas[j]) ** 2) for j in range(u.shape[1])]
+def _membership(x, p, kind):
+    """Memberships (N, n) of the column x (N,) in the n sets with parameters p (n, 2 | 3), and their
+    derivatives (N, n, 2 | 3) with respect to the parameters."""
+    x = x[:, None]
+    if kind == "gaussian":
+        m, s = p[:, 0], p[:, 1]
+        d = x - m
+        mu = np.exp(-0.5 * (d / s) ** 2)
+        return mu, np.stack([mu * d / s ** 2, mu * d ** 2 / s ** 3], axis=-1)
+    a, b, c = p[:, 0], p[:, 1], p[:, 2]
+    rise = (x > a) & (x <= b)
+    fall = (x > b) & (x < c)
+    left, right = b - a, c - b
+    mu = np.where(rise, (x - a) / left, 0.0) + np.where(fall, (c - x) / right, 0.0)
+    da = np.where(rise, (x - b) / left ** 2, 0.0)
+    db = np.where(rise, -(x - a) / left ** 2, 0.0) + np.where(fall, (c - x) / right ** 2, 0.0)
+    dc = np.where(fall, (x - b) / right ** 2, 0.0)
+    return mu, np.stack([da, db, dc], axis=-1)
+
+
+def _forward(u, params, kind):
+    """Memberships and their derivatives per input, and the grid firing strengths (N, n_1, ..., n_p)."""
+    mus, dmus = zip(*(_membership(u[:, j], params[j], kind) for j in range(u.shape[1])))
     w = mus[0]
     for mu in mus[1:]:
         w = w[..., None] * mu.reshape(mu.shape[:1] + (1,) * (w.ndim - 1) + mu.shape[1:])
-    return mus, w
+    return mus, dmus, w
 
 
 def _consequents(w, y, ridge, bounds):
@@ -51,8 +77,9 @@ def _consequents(w, y, ridge, bounds):
     b = np.concatenate([y, np.zeros(wbar.shape[1])])
     if bounds is None:
         c = np.linalg.lstsq(A, b, rcond=None)[0]
-    else:
-        c = lsq_linear(A, b, bounds=bounds, method="bvls").x
+    else:  # ||A c - b||^2 = ||L^T c - L^-1 A^T b||^2 + const (A^T A = L L^T): the bounded problem, made small
+        L = np.linalg.cholesky(A.T @ A)
+        c = lsq_linear(L.T, np.linalg.solve(L, A.T @ b), bounds=bounds, method="bvls").x
     return c.reshape(w.shape[1:])
 
 
@@ -61,39 +88,76 @@ def _predict(w, c):
     return (w * c).reshape(N, -1).sum(axis=1) / w.reshape(N, -1).sum(axis=1)
 
 
-def _premise_gradient(u, means, sigmas, c, y):
-    """Gradient of E/N = mean of 1/2 (y_hat - y)^2 w.r.t. the Gaussian means and sigmas (c fixed)."""
+def _premise_gradient(u, params, kind, c, y):
+    """Gradient of E/N = mean of 1/2 (y_hat - y)^2 w.r.t. each input's membership parameters (c fixed)."""
     N, p = u.shape
-    _, w = _forward(u, means, sigmas)
+    mus, dmus, w = _forward(u, params, kind)
     total = w.reshape(N, -1).sum(axis=1)
     yhat = _predict(w, c)
     shape = (N,) + (1,) * p
-    g = ((yhat - y) / total).reshape(shape) * (c - yhat.reshape(shape)) * w  # dE/dw_r * w_r
-    grad_m, grad_s = [], []
+    g = ((yhat - y) / (N * total)).reshape(shape) * (c - yhat.reshape(shape))  # dE/dw_r
+    grads = []
     for j in range(p):
-        gj = g.sum(axis=tuple(a for a in range(1, p + 1) if a != j + 1))  # (N, n_j)
-        d = u[:, j, None] - means[j]
-        grad_m.append((gj * d / sigmas[j] ** 2).sum(axis=0) / N)
-        grad_s.append((gj * d ** 2 / sigmas[j] ** 3).sum(axis=0) / N)
-    return grad_m, grad_s
+        gj = g
+        for k in range(p):
+            if k != j:  # dw_r / dmu_j = product of the other inputs' memberships
+                gj = gj * mus[k].reshape((N,) + tuple(mus[k].shape[1] if a == k else 1 for a in range(p)))
+        gj = gj.sum(axis=tuple(a + 1 for a in range(p) if a != j))  # (N, n_j)
+        grads.append(np.einsum("ni,nik->ik", gj, dmus[j]))
+    return grads
 
 
-def anfis_train(inputs, target, *, sets_per_input, universes, epochs: int = 40, learning_rate: float = 0.05,
-                ridge: float = 1e-6, bounds: tuple[float, float] | None = None, names=None) -> AnfisResult:
+def _initial(count, kind):
+    peaks = np.linspace(0.0, 1.0, count)
+    step = 1.0 / (count - 1)
+    if kind == "gaussian":
+        return np.column_stack([peaks, np.full(count, 0.5 * step)])
+    return np.column_stack([peaks - step, peaks, peaks + step])
+
+
+def _covers(a, c) -> bool:
+    """Whether the open supports (a_i, c_i) of the triangles cover [0, 1]."""
+    reach = max((ci for ai, ci in zip(a, c) if ai < 0.0), default=0.0)
+    while 0.0 < reach <= 1.0:
+        further = max(ci for ai, ci in zip(a, c) if ai < reach)
+        if further <= reach:
+            return False
+        reach = further
+    return reach > 1.0
+
+
+def _valid(p, kind):
+    """A step's parameters put back into shape (ordered corners, a minimum width); None when the
+    triangles no longer cover [0, 1] (some input value would fire no rule)."""
+    if kind == "gaussian":
+        return np.column_stack([p[:, 0], np.maximum(p[:, 1], _MIN_WIDTH)])
+    a, b, c = np.sort(p, axis=1).T
+    a, c = np.minimum(a, b - _MIN_WIDTH), np.maximum(c, b + _MIN_WIDTH)
+    return np.column_stack([a, b, c]) if _covers(a, c) else None
+
+
+def anfis_train(inputs, target, *, sets_per_input, universes, epochs: int = 40, learning_rate: float = 0.01,
+                ridge: float = 1e-6, bounds: tuple[float, float] | None = None, names=None,
+                membership: str = "gaussian") -> AnfisResult:
     """Train a zero-order TS system on (inputs (N, p), target (N,)) by ANFIS hybrid learning.
 
     sets_per_input  number of fuzzy sets per input, e.g. (5, 2) for the paper's Table I
     universes       per input (lo, hi): inputs are clipped to it (as the TS system does at run time)
-                    and the initial sets are a uniform Gaussian partition of it
+                    and the initial sets are an even partition of it
     ridge           Tikhonov weight on the rule constants (keeps rules no sample fires near 0)
+    learning_rate   Jang's initial step size kappa: the length of the first premise step, in units of the
+                    universes (scaled to [0, 1])
     bounds          (lo, hi) box for the rule constants, solved by bounded least squares
                     (scipy.optimize.lsq_linear); e.g. (0, 1) for weights as in the paper (c_j in [0, 1])
+    membership      "gaussian" or "triangular" (the shape of every set)
     Deterministic: the same data give the same system.
     """
     x = as_array("inputs", inputs, ndim=2)
     y = as_array("target", target, ndim=1)
     if x.shape[0] != y.shape[0] or x.shape[0] == 0:
         raise ShapeError(f"inputs, target: need the same number (> 0) of samples, got {x.shape[0]} and {y.shape[0]}")
+    if membership not in ("gaussian", "triangular"):
+        raise ParameterError(f"membership: expected 'gaussian' or 'triangular', got {membership!r}")
     p = x.shape[1]
     counts = tuple(check_int("sets_per_input", c, minimum=2) for c in sets_per_input)
     if len(counts) != p or len(universes) != p:
@@ -105,33 +169,41 @@ def anfis_train(inputs, target, *, sets_per_input, universes, epochs: int = 40, 
     if np.any(hi <= lo):
         raise ParameterError(f"universes: need lo < hi for every input, got {universes}")
     u = (np.clip(x, lo, hi) - lo) / (hi - lo)
-    means = [np.linspace(0.0, 1.0, c) for c in counts]
-    sigmas = [np.full(c, 0.5 / (c - 1)) for c in counts]
+    params = [_initial(c, membership) for c in counts]
 
-    def loss(means, sigmas):
-        _, w = _forward(u, means, sigmas)
+    def loss(params):
+        w = _forward(u, params, membership)[2]
         c = _consequents(w, y, ridge, bounds)
-        err = _predict(w, c) - y
-        return float(np.sqrt(np.mean(err ** 2))), w, c, err
+        return float(np.sqrt(np.mean((_predict(w, c) - y) ** 2))), c
 
-    history = []
-    current, w, c, _ = loss(means, sigmas)
-    history.append(current)
+    current, c = loss(params)
+    history = [current]
     for _ in range(epochs):
-        grad_m, grad_s = _premise_gradient(u, means, sigmas, c, y)
-        new_means = [m - eta * g for m, g in zip(means, grad_m)]
-        new_sigmas = [np.maximum(s - eta * g, 1e-3) for s, g in zip(sigmas, grad_s)]
-        trial, _, c_t, _ = loss(new_means, new_sigmas)
-        if trial <= current:
-            means, sigmas, current, c = new_means, new_sigmas, trial, c_t
-            eta *= 1.1
-        else:
-            eta *= 0.5
+        grads = _premise_gradient(u, params, membership, c, y)
+        norm = np.sqrt(sum(float(np.sum(g ** 2)) for g in grads))
+        if norm == 0.0:  # a stationary point: no premise step changes E to first order
+            history.append(current)
+            continue
+        trial = [_valid(q - (eta / norm) * g, membership) for q, g in zip(params, grads)]
+        if all(t is not None for t in trial):
+            value, c_t = loss(trial)
+            if value <= current:
+                params, current, c = trial, value, c_t
+                eta *= 1.1
+                history.append(current)
+                continue
+        eta *= 0.5
         history.append(current)
 
-    sets = tuple(
-        tuple(MembershipFunction("gaussian", (lo[j] + m * (hi[j] - lo[j]), s * (hi[j] - lo[j])), f"A{j}{i}")
-              for i, (m, s) in enumerate(zip(means[j], sigmas[j])))
-        for j in range(p))
-    fis = TakagiSugeno(sets, c, universes=tuple((float(lo[j]), float(hi[j])) for j in range(p)), names=names)
+    scale = hi - lo
+    sets = []
+    for j in range(p):
+        if membership == "gaussian":
+            sets.append(tuple(MembershipFunction("gaussian", (lo[j] + m * scale[j], s * scale[j]), f"A{j}{i}")
+                              for i, (m, s) in enumerate(params[j])))
+        else:
+            sets.append(tuple(MembershipFunction("triangular", tuple(lo[j] + v * scale[j] for v in abc), f"A{j}{i}")
+                              for i, abc in enumerate(params[j])))
+    fis = TakagiSugeno(tuple(sets), c, universes=tuple((float(lo[j]), float(hi[j])) for j in range(p)),
+                       names=names)
     return AnfisResult(fis=fis, rmse=np.array(history))

@@ -37,8 +37,10 @@ from ..errors import DataError
 
 __all__ = ["FORMATS", "FORMAT_NAMES", "Skipped", "input_format", "raw_chunks"]
 
-#: file suffix -> input format (".csv.gz" is CSV; ".txt" and ".log" are NMEA when they hold NMEA sentences)
-FORMATS = {".csv": "csv", ".txt": "csv", ".log": "csv", ".gz": "csv", ".parquet": "parquet", ".pq": "parquet",
+#: file suffix -> input format (".csv.gz" and ".tsv" are CSV, the delimiter sniffed; ".txt" and ".log" are NMEA
+#: when they hold NMEA sentences)
+FORMATS = {".csv": "csv", ".tsv": "csv", ".txt": "csv", ".log": "csv", ".gz": "csv", ".parquet": "parquet",
+           ".pq": "parquet",
            ".gpx": "gpx", ".nmea": "nmea", ".nme": "nmea", ".fit": "fit", ".tcx": "tcx", ".geojson": "geojson",
            ".json": "geojson"}
 

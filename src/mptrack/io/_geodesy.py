@@ -29,6 +29,7 @@ from dataclasses import dataclass
 import numba as nb
 import numpy as np
 
+from .. import _jit_cache  # noqa: F401 - compiled kernels cache in the user's cache directory
 from .._validation import as_array, broadcast_shape
 from ..errors import ParameterError
 

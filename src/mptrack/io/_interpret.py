@@ -14,10 +14,14 @@ Rules (docs/tracking.md, "Column names and units"):
   canonical name, then case-insensitive synonyms (punctuation ignored); two
   columns that both fit one name is an error naming both.
 * ``hdop`` without an accuracy column: ``accuracy_m = HDOP_UERE_M x hdop``.
-* numeric times, by the median magnitude: below 1e10 seconds (from any origin,
-  epoch or not), 1e11..1e13 milliseconds, 1e14..1e16 microseconds,
-  1e17..1e19 nanoseconds since 1970; the decades between are ambiguous and
-  an error that names ``--time-unit``.
+* numeric times, by the median magnitude: below 1e10 seconds, 1e11..1e13
+  milliseconds, 1e14..1e16 microseconds, 1e17..1e19 nanoseconds since 1970;
+  the decades between are ambiguous and an error that names ``--time-unit``.
+  Seconds from 1e8 on (1973-03-03) are epoch seconds; below, seconds from any
+  start (they stay numbers).  Epoch times of every unit become UTC times, with
+  a note naming the unit and the first time.
+* text times (ISO 8601, or ``--time-format``) and datetimes without a zone are
+  read as UTC, with a note saying so.
 * coordinates, by the median magnitude: degrees when they fit; integers that
   fit as degrees x 10^7 or x 10^6 (exactly one of the two) are converted;
   latitude beyond 90 with longitude within 90 is a swap and is swapped back;
@@ -149,6 +153,7 @@ class Interpretation:
     rename: dict = field(default_factory=dict)     # file column -> canonical
     hdop: str | None = None                        # the HDOP column turned into accuracy_m
     time_scale: float = 1.0                        # numeric time / time_scale = seconds
+    time_epoch: bool = False                       # numeric times count from 1970 (-> UTC times)
     time_format: str | None = None
     coord_scale: float = 1.0                       # degrees = value x coord_scale
     swap: bool = False                             # the file's lat column holds longitudes
@@ -164,8 +169,8 @@ class Interpretation:
             for c in ("lat", "lon"):
                 if c in df.columns:
                     df[c] = pd.to_numeric(df[c], errors="coerce") * self.coord_scale
-        if self.hdop is not None:
-            df["accuracy_m"] = pd.to_numeric(df.pop(self.hdop), errors="coerce") * HDOP_UERE_M
+        if self.hdop is not None:  # the hdop column stays (it passes through to the output)
+            df["accuracy_m"] = pd.to_numeric(df[self.hdop], errors="coerce") * HDOP_UERE_M
         return df
 
 
@@ -183,10 +188,12 @@ def interpret(raw: pd.DataFrame, schema, options: ReadOptions, *, file) -> Inter
                               "estimates a scale on it)")
     df = raw.rename(columns=plan.rename)
     if "time" in df.columns and "time" in names:
-        plan.time_scale = _time_scale(df["time"], options.time_unit, plan, file)
+        _time_unit(df["time"], options.time_unit, plan, file)
     if "lat" in df.columns and "lon" in df.columns and schema.name == "position fixes":
         _coordinates(df, options.coord_unit, plan, file)
-        _speed_check(plan.apply(raw), plan)
+        read = plan.apply(raw)
+        _speed_check(read, plan)
+        _zone_check(read, plan)
     return plan
 
 
@@ -195,6 +202,7 @@ def _mapping(columns: list, schema, explicit: dict, file) -> dict:
     names = [c.name for c in schema.columns]
     present = {str(c): c for c in columns}
     rename = {}
+    sources = list(explicit.values())
     for canonical, source in explicit.items():
         if canonical not in names:
             raise ParameterError(f"--columns: {canonical!r} is not a column mptrack reads here; the names are "
@@ -202,8 +210,11 @@ def _mapping(columns: list, schema, explicit: dict, file) -> dict:
         if source not in present:
             raise ParameterError(f"--columns: {canonical}={source}: {file} has no column {source!r} (it has: "
                                  f"{', '.join(map(str, columns))})")
+        if sources.count(source) > 1:
+            raise ParameterError(f"--columns: the column {source!r} is given for "
+                                 f"{' and '.join(k for k, v in explicit.items() if v == source)}; one each")
         rename[present[source]] = canonical
-        if canonical in present and canonical != source:  # the file's own column of that name steps aside
+        if canonical in present and canonical not in sources:  # the file's own column of that name steps aside
             rename[present[canonical]] = f"input_{canonical}"
     taken = set(rename.values())
     for canonical in names:
@@ -232,36 +243,75 @@ def _row_ids(raw: pd.DataFrame, plan: Interpretation, options: ReadOptions) -> N
                           f"track id (one track; --columns track_id={source} to override)")
 
 
-def _time_scale(values: pd.Series, unit: str, plan: Interpretation, file) -> float:
-    """Seconds per unit of a numeric time column (1 for text and datetimes)."""
+def _time_unit(values: pd.Series, unit: str, plan: Interpretation, file) -> None:
+    """Decide how the time column is read: ``plan.time_scale`` (units per second of numeric time
+    stamps) and ``plan.time_epoch`` (numbers counted from 1970-01-01 UTC: they become UTC times),
+    with a note saying which unit was taken; text or datetimes without a zone get a note that they
+    are read as UTC."""
     if pd.api.types.is_datetime64_any_dtype(values):
-        return 1.0
+        if getattr(values.dt, "tz", None) is None:
+            plan.notes.append(f"time: time stamps without a zone (e.g. {_first(values)}) were read as UTC")
+        return
     num = pd.to_numeric(values, errors="coerce")
     if num.notna().sum() * 2 <= values.notna().sum():
-        return 1.0  # text time stamps
+        _zone_note(values, plan)  # text time stamps
+        return
+    numbers = num.to_numpy(dtype=float)
+    numbers = numbers[np.isfinite(numbers)]
+    finite = np.abs(numbers)
+    m = float(np.median(finite)) if len(finite) else 0.0
     if unit != "auto":
-        return TIME_UNITS[unit]
-    finite = np.abs(num.to_numpy(dtype=float))
-    finite = finite[np.isfinite(finite)]
-    if not len(finite):
-        return 1.0
-    m = float(np.median(finite))
-    for name, scale, lo, hi in (("s", 1.0, 0.0, 1e10), ("ms", 1e3, 1e11, 1e13), ("us", 1e6, 1e14, 1e16),
-                                ("ns", 1e9, 1e17, 1e19)):
-        if lo <= m < hi:
-            if name != "s":
-                plan.notes.append(f"time: epoch {_UNIT_WORDS[name]} (numbers around {m:.3g}); set "
-                                  "--time-unit if that is wrong")
-            elif m < 1e8 and _integral(finite) and np.median(np.diff(np.sort(finite))) >= 500:
-                plan.notes.append("time: numbers read as seconds from an arbitrary start, fixes about "
-                                  f"{float(np.median(np.diff(np.sort(finite)))):g} s apart; if they are "
-                                  "milliseconds set --time-unit ms")
-            return scale
-    raise DataError(f"numeric time stamps around {m:.3g} fit no unit unambiguously (seconds, milliseconds, "
-                    "microseconds or nanoseconds since 1970); set --time-unit s, ms, us or ns",
-                    file=file, column="time")
+        name = unit
+    else:
+        name = next((name for name, lo, hi in _UNIT_RANGES if lo <= m < hi), None)
+        if name is None:
+            raise DataError(f"numeric time stamps around {m:.3g} fit no unit unambiguously (seconds, milliseconds, "
+                            "microseconds or nanoseconds since 1970); set --time-unit s, ms, us or ns",
+                            file=file, column="time")
+    plan.time_scale = TIME_UNITS[name]
+    plan.time_epoch = name != "s" or m >= MIN_EPOCH_SECONDS
+    if plan.time_epoch:
+        valid = numbers[np.abs(numbers) / plan.time_scale <= MAX_SECONDS] / plan.time_scale
+        start = f", from {pd.Timestamp(float(valid.min()), unit='s', tz='UTC'):%Y-%m-%d %H:%M:%S} UTC" \
+            if len(valid) else ""
+        plan.notes.append(f"time: epoch {_UNIT_WORDS[name]} (numbers around {m:.3g}{start})"
+                          + ("; set --time-unit if that is wrong" if unit == "auto" else ""))
+    elif unit == "auto" and m < 1e8 and _integral(finite) and len(finite) > 1 \
+            and np.median(np.diff(np.sort(finite))) >= 500:
+        plan.notes.append("time: numbers read as seconds from an arbitrary start, fixes about "
+                          f"{float(np.median(np.diff(np.sort(finite)))):g} s apart; if they are "
+                          "milliseconds set --time-unit ms")
 
 
+#: A time of day followed by its zone (ISO 8601): Z, or a UTC offset's sign, hours and minutes
+#: (+01, +0100, +01:00).
+_ZONE = re.compile(r"\d\d:\d\d(?::\d\d(?:[.,]\d+)?)?\s*(?:Z|([+-])(\d\d):?(\d\d)?)\s*\Z", re.IGNORECASE)
+#: Text time stamps whose zone is looked at (the first of the file).
+_ZONE_SAMPLE = 1000
+
+
+def _zone_note(values: pd.Series, plan: Interpretation) -> None:
+    """A note when text time stamps (the first of the file) carry no zone: they are read as UTC."""
+    if plan.time_format is not None:
+        if not re.search("%[zZ]", plan.time_format):
+            plan.notes.append(f"time: the layout {plan.time_format!r} has no zone; the time stamps were read as UTC")
+        return
+    text = values.dropna().iloc[:_ZONE_SAMPLE].astype(str).str.strip()
+    naive = [x for x in text if not _ZONE.search(x)]
+    if naive:
+        plan.notes.append(f"time: ISO 8601 time stamps without a zone (e.g. {naive[0]!r}) were read as UTC; "
+                          "if they are local time, add the offset (e.g. +01:00) to them")
+
+
+def _first(values: pd.Series) -> str:
+    first = values.dropna()
+    return repr(str(first.iloc[0])) if len(first) else "none"
+
+
+#: Numeric time stamps by their median magnitude: (unit, lowest, highest); the decades between are ambiguous.
+_UNIT_RANGES = (("s", 0.0, 1e10), ("ms", 1e11, 1e13), ("us", 1e14, 1e16), ("ns", 1e17, 1e19))
+#: Seconds from this on (1973-03-03) are epoch seconds (UTC times); below, seconds from any start.
+MIN_EPOCH_SECONDS = 1e8
 _UNIT_WORDS = {"s": "seconds", "ms": "milliseconds", "us": "microseconds", "ns": "nanoseconds"}
 
 
@@ -347,3 +397,53 @@ def _speeds(lat, lon, secs, same) -> float | None:
     if ok.sum() < 3:
         return None
     return float(np.median(np.hypot(dx[ok], dy[ok]) / dt[ok]))
+
+
+#: Degrees of longitude that a legal time may lie from 15 deg x its UTC offset, besides an hour of
+#: summer time: legal time runs up to ~3 h ahead of solar time (western China, 44 deg), never 2 h behind.
+ZONE_MARGIN_DEG = 30.0
+
+
+def _zone_check(df: pd.DataFrame, plan: Interpretation) -> None:
+    """A warning note when the time stamps' UTC offset rules out the longitude column but fits the
+    latitude column: probably swapped columns (both within range, so nothing else shows it).
+
+    An offset of h hours puts the fixes within [15 (h - 1) - 30, 15 h + 30] degrees east (standard
+    or summer time, with :data:`ZONE_MARGIN_DEG`); only offsets other than 0 count (+00:00 and Z are
+    how most programs write UTC, wherever the fixes are)."""
+    if plan.swap or "time" not in df.columns or not (pd.api.types.is_string_dtype(df["time"])
+                                                     or df["time"].dtype == object):
+        return
+    found = df["time"].dropna().iloc[:_ZONE_SAMPLE].astype(str).str.extract(_ZONE)
+    found = found.dropna(subset=[0])
+    if found.empty:
+        return
+    hours = (found[1].astype(float) + found[2].fillna("0").astype(float) / 60) * found[0].map({"+": 1, "-": -1})
+    hours = hours[hours != 0]
+    if hours.empty:
+        return
+    offset = float(hours.mode().iloc[0])
+    lat = float(np.nanmedian(pd.to_numeric(df["lat"], errors="coerce")))
+    lon = float(np.nanmedian(pd.to_numeric(df["lon"], errors="coerce")))
+    lo, hi = 15 * (offset - 1) - ZONE_MARGIN_DEG, 15 * offset + ZONE_MARGIN_DEG
+    if not (_beyond(lon, lo, hi) > 0 and _beyond(lat, lo, hi) <= 0):
+        return
+    names = {v: str(k) for k, v in plan.rename.items()}
+    lat_col, lon_col = names.get("lat", "lat"), names.get("lon", "lon")
+    sign = "+" if offset >= 0 else "-"
+    shown = f"{sign}{int(abs(offset)):02d}:{round(abs(offset) % 1 * 60):02d}"
+    plan.notes.append(f"warning: the time stamps' UTC offset {shown} puts the fixes between {_east(lo)} and "
+                      f"{_east(hi)}, but the longitude column {lon_col!r} reads {lon:.4g} deg; the latitude column "
+                      f"{lat_col!r} ({lat:.4g} deg) would fit as longitude: if the two columns are swapped, read "
+                      f"them with --columns lat={lon_col},lon={lat_col}")
+
+
+def _beyond(x: float, lo: float, hi: float) -> float:
+    """Degrees by which longitude ``x`` lies outside [lo, hi] (around the globe; <= 0 inside)."""
+    centre, half = (lo + hi) / 2, (hi - lo) / 2
+    return abs((x - centre + 180) % 360 - 180) - half
+
+
+def _east(deg: float) -> str:
+    deg = (deg + 180) % 360 - 180
+    return f"{abs(deg):g} deg {'E' if deg >= 0 else 'W'}"

@@ -12,6 +12,7 @@ from pathlib import Path
 
 import pandas as pd
 
+from ..errors import OutputError
 from ._writers import output_format, write_table
 
 __all__ = ["PartStore"]
@@ -29,10 +30,12 @@ class PartStore:
     A run's chunks write their tables there (Arrow IPC files ``<name>-NNNNNN.arrow``,
     by :func:`mptrack.batch.run_stream`, each atomically) with a ``manifest.json``
     describing the run; a resumed run skips the chunks found there.
-    :meth:`finish` streams one kind of part, in chunk order and one part in
-    memory at a time, into the output (atomically); :meth:`discard` removes
-    the directory; :meth:`clean` removes the temporary files of parts whose
-    writer was killed.  Call them only while holding the output's lock.
+    :meth:`check` finds every part the run's chunks wrote (or refuses: a part
+    or the manifest vanished); :meth:`finish` streams one kind of part, in
+    chunk order and one part in memory at a time, into the output
+    (atomically); :meth:`discard` removes the directory; :meth:`clean` removes
+    the temporary files of parts whose writer was killed.  Call them only
+    while holding the output's lock.
     """
 
     def __init__(self, out) -> None:
@@ -52,14 +55,51 @@ class PartStore:
             p.unlink(missing_ok=True)
         return stale
 
-    def finish(self, name: str, to=None, *, empty=None) -> Path:
-        """Write the parts of kind ``name`` into ``to`` (default: the output); ``empty`` is the
-        (schema-only) table to write when there are none."""
+    def check(self, results: list[dict]) -> dict[str, list[Path]]:
+        """The part files of a finished run by kind, in chunk order, from ``results`` (what
+        :func:`mptrack.batch.run_stream` returned: each chunk's {kind: path}).
+
+        Every one of them and the manifest must still be there: a store removed or emptied during
+        the run (by hand, a clean-up job) would otherwise give an output missing those chunks.
+        Then the store (which can no longer be trusted for a resume) is discarded and an
+        OutputError names the output, how many parts vanished and the first of them."""
+        files = {}
+        for res in results:
+            for name, path in res.items():
+                files.setdefault(name, []).append(Path(path))
+        every = [p for paths in files.values() for p in paths]
+        gone = [p for p in [self.dir / "manifest.json", *every] if not p.is_file()]
+        if gone:
+            self.discard()
+            raise self._vanished(gone, len(every))
+        return files
+
+    def _vanished(self, gone: list, total: int) -> OutputError:
+        parts = [p for p in gone if p.name != "manifest.json"]
+        what = (f"{len(parts)} of the {total} part files" + (" and the manifest" if len(parts) < len(gone) else "")
+                if parts else "the manifest")
+        return OutputError(f"{self.out}: {what} of this run vanished from {self.dir} while it ran (first: "
+                           f"{gone[0].name}; was the directory deleted?); the output was not written and the "
+                           "remaining parts were removed: run again", path=self.out)
+
+    def finish(self, files: list, to=None, *, empty=None) -> Path:
+        """Write the parts ``files`` (one kind, in chunk order: :meth:`check`) into ``to`` (default:
+        the output); ``empty`` is the (schema-only) table to write when there are none.  A part
+        removed meanwhile is the OutputError of :meth:`check` (the output is not written)."""
         from ..batch import read_part
 
-        files = self.parts(name)
-        tables = (read_part(p) for p in files) if files else [empty if empty is not None else pd.DataFrame()]
-        return write_table(tables, self.out if to is None else to)
+        def tables():
+            for path in files:
+                try:
+                    yield read_part(path)
+                except FileNotFoundError:  # pyarrow's carries no file name
+                    if Path(path).exists():
+                        raise
+                    self.discard()
+                    raise self._vanished([Path(path)], len(files)) from None
+
+        return write_table(tables() if files else [empty if empty is not None else pd.DataFrame()],
+                           self.out if to is None else to)
 
     def discard(self) -> None:
         shutil.rmtree(self.dir, ignore_errors=True)

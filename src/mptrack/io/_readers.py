@@ -65,7 +65,8 @@ def read_chunks(path, schema: Schema = FIXES, *, on_error: str = "raise", chunk_
                 report.note(note)
         n = len(raw)
         yield validate_chunk(plan.apply(raw), schema, file=label, first_row=first, on_error=on_error,
-                             report=report, time_scale=plan.time_scale, time_format=plan.time_format)
+                             report=report, time_scale=plan.time_scale, time_format=plan.time_format,
+                             time_epoch=plan.time_epoch, file_columns=list(raw.columns))
         first += n
     report.leave_out(skipped)
 
@@ -316,15 +317,19 @@ def read_cells(path, *, wanted=None, on_error: str = "raise", report: ReadReport
     ``wanted``: keep only these cell ids (so a country-sized table is streamed,
     not held).  Missing optional columns get their documented defaults:
     height_m 30 m, power_dbm 43 dBm, arfcn empty (1800 MHz carrier).
-    A cell id listed twice raises DataError naming the second row.
+    A cell id listed twice raises DataError naming the second row; a table without rows (a header
+    only) raises DataError saying it is empty.
     """
     wanted = None if wanted is None else set(wanted)
+    report = report if report is not None else ReadReport()
     keep = []
     for chunk in read_chunks(path, CELLS, on_error=on_error, report=report, chunk_rows=chunk_rows):
         chunk["cell_id"] = cell_key(chunk["mcc"], chunk["net"], chunk["area"], chunk["cell"]).to_numpy()
         if wanted is not None:
             chunk = chunk.loc[chunk["cell_id"].isin(wanted)]
         keep.append(chunk)
+    if report.rows_read == 0:
+        raise DataError("the cell table is empty: it has a header only, no cells", file=source_label(path))
     cells = pd.concat(keep, ignore_index=True) if keep else pd.DataFrame(columns=["cell_id", "row"])
     dup = cells["cell_id"].duplicated()
     if dup.any():

@@ -61,6 +61,7 @@ class Schema:
     columns: tuple[Column, ...]
     one_of: tuple[tuple[str, ...], ...] = ()
     row_needs_one_of: tuple[str, ...] = ()  # per row, at least one of these must be non-empty
+    mapped: bool = True  # its columns can be named with --columns (not the cell table's fixed layout)
 
     def extra_columns(self, columns) -> list[str]:
         """The columns of ``columns`` that are not the schema's (passed through to the output)."""
@@ -131,7 +132,7 @@ CELLS = Schema("cell table (OpenCelliD layout)", (
            nullable=True),
     Column("arfcn", "int", "", "GSM channel number; sets the carrier frequency (default 1800 MHz)",
            required=False, lo=0, hi=1023, nullable=True),
-))
+), mapped=False)
 
 
 @dataclass
@@ -212,18 +213,18 @@ def _numeric_time(values: pd.Series) -> pd.Series | None:
 
 
 def _parse_time(values: pd.Series, scale: float = 1.0, fmt: str | None = None,
-                num: pd.Series | None = None) -> tuple[pd.Series, np.ndarray]:
+                num: pd.Series | None = None, epoch: bool = False) -> tuple[pd.Series, np.ndarray]:
     """(parsed column, seconds as float64 with NaN where unparseable or beyond +-MAX_SECONDS).
 
-    Numbers are ``scale`` units per second: seconds stay numbers, epoch milli/micro/nanoseconds
-    become UTC datetimes.  Text is ISO 8601 (no zone = UTC) or the strftime layout ``fmt``.
-    ``num``: the column's :func:`_numeric_time`, if already known."""
+    Numbers are ``scale`` units per second: counted from 1970 (``epoch``) they become UTC
+    datetimes, else (seconds from any start) they stay numbers.  Text is ISO 8601 (no zone = UTC)
+    or the strftime layout ``fmt``.  ``num``: the column's :func:`_numeric_time`, if already known."""
     num = _numeric_time(values) if num is None else num
     if num is not None:
         secs = num.to_numpy(dtype=float) / scale
         with np.errstate(invalid="ignore"):
             secs[~(np.abs(secs) <= MAX_SECONDS)] = np.nan
-        if scale == 1.0:
+        if not epoch:
             return num, secs
         ns = np.where(np.isnan(secs), 0, np.round(num.to_numpy(dtype=float) * (1e9 / scale))).astype("int64")
         ts = pd.Series(pd.to_datetime(ns, utc=True)).where(~np.isnan(secs))
@@ -243,24 +244,30 @@ def _shown(value) -> str:
 
 
 def validate_chunk(df: pd.DataFrame, schema: Schema, *, file, first_row: int, on_error: str,
-                   report: ReadReport, time_scale: float = 1.0, time_format: str | None = None) -> pd.DataFrame:
+                   report: ReadReport, time_scale: float = 1.0, time_format: str | None = None,
+                   time_epoch: bool = False, file_columns=None) -> pd.DataFrame:
     """Check one chunk (canonical column names, see :mod:`._interpret`) against ``schema``; return
     the good rows with a float column ``t`` (seconds), ``row``, and the file's other columns
     unchanged after the schema's (they pass through to the output).
 
     ``first_row`` is the 1-based record number of the chunk's first row; numeric times are
-    ``time_scale`` units per second and text times ISO 8601 or ``time_format``.  Raises
+    ``time_scale`` units per second (since 1970 with ``time_epoch``: they become UTC times) and
+    text times ISO 8601 or ``time_format``.  ``file_columns``: the file's own column names (before
+    they were mapped), which the error for a missing column lists.  Raises
     DataError for the first bad cell (on_error="raise") or drops and counts bad rows.
     """
     present = set(df.columns)
+    has = f"the file has: {', '.join(map(str, df.columns if file_columns is None else file_columns))}"
     for col in schema.columns:
         if col.required and col.name not in present:
-            raise DataError(f"missing column (the file has: {', '.join(map(str, df.columns))})",
-                            file=file, column=col.name)
+            hint = f"; name it with --columns {col.name}=COLUMN" if schema.mapped else ""
+            raise DataError(f"missing column ({has}){hint}", file=file, column=col.name)
     if schema.one_of and not any(all(c in present for c in g) for g in schema.one_of):
         want = " or ".join("+".join(g) for g in schema.one_of)
-        raise DataError(f"missing columns: need {want}", file=file,
-                        column="+".join(schema.one_of[0]))
+        first = schema.one_of[0]
+        hint = (f"; name {'them' if len(first) > 1 else 'it'} with --columns "
+                f"{','.join(f'{c}=COLUMN' for c in first)}") if schema.mapped else ""
+        raise DataError(f"missing columns: need {want} ({has}){hint}", file=file, column="+".join(first))
     df = df.reset_index(drop=True)
     rows = np.arange(first_row, first_row + len(df))
     report.rows_read += len(df)
@@ -287,7 +294,7 @@ def validate_chunk(df: pd.DataFrame, schema: Schema, *, file, first_row: int, on
             out[col.name] = values.astype("string").str.strip().astype(object)  # object: cheap to compare
         elif col.kind == "time":
             num = _numeric_time(values)
-            parsed, secs = _parse_time(values, time_scale, time_format, num)
+            parsed, secs = _parse_time(values, time_scale, time_format, num, time_epoch)
             text = num is None and not pd.api.types.is_datetime64_any_dtype(values)
             how = (f"not in the layout {time_format!r}" if time_format else
                    "not ISO 8601 (set --time-format for other layouts, e.g. '%d/%m/%Y %H:%M:%S')") if text \

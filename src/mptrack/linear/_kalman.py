@@ -119,7 +119,8 @@ def kalman_filter(model: LinearGaussianModel, z, x0=None, P0=None, *, joseph: bo
                 first measurement: no prediction before it, as pykalman and simdkalman)
 
     Returns a FilterResult with filtered and predicted means/covariances, the
-    measurement log-likelihood, and the prior as x0, P0 (for the smoother).  The
+    measurement log-likelihood, the prior as x0, P0 and, for a time-varying or controlled run, the
+    per-step F, Q and B u as ``inputs`` (both for :func:`rts_smoother`).  The
     time-invariant loop is compiled (numba); the time-varying, controlled and
     first-measurement forms run :func:`kalman_step` per step.
     """
@@ -138,6 +139,7 @@ def kalman_filter(model: LinearGaussianModel, z, x0=None, P0=None, *, joseph: bo
         loglik = kf_loop(model.F, model.H, model.Q, model.R, z, x, P, bool(joseph), xs, Ps, xp, Pp)
         return FilterResult(x=xs, P=Ps, x_pred=xp, P_pred=Pp, loglik=float(loglik), method="KF", **prior0)
     mats = step_matrices(model, T, F, H, Q, R, B, u)
+    varying = any(v is not None for v in (F, H, Q, R, B, u))
     loglik = 0.0
     for k in range(T):
         Bu = None if mats["Bu"] is None else mats["Bu"][k]
@@ -145,4 +147,7 @@ def kalman_filter(model: LinearGaussianModel, z, x0=None, P0=None, *, joseph: bo
                                              joseph, Bu=Bu, predict=not (k == 0 and prior != "initial"))
         xs[k], Ps[k] = x, P
         loglik += ll
-    return FilterResult(x=xs, P=Ps, x_pred=xp, P_pred=Pp, loglik=float(loglik), method="KF", **prior0)
+    # what the smoother must reuse (rts_smoother reads it: the model's constant F, Q would be wrong)
+    inputs = {"F": mats["F"], "Q": mats["Q"], "Bu": mats["Bu"]} if varying else None
+    return FilterResult(x=xs, P=Ps, x_pred=xp, P_pred=Pp, loglik=float(loglik), method="KF", inputs=inputs,
+                        **prior0)

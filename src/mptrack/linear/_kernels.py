@@ -12,6 +12,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from .. import _jit_cache  # noqa: F401 - compiled kernels cache in the user's cache directory
+
 __all__ = ["kf_loop", "lf_loop", "ss_loop"]
 
 _LOG2PI = np.log(2.0 * np.pi)

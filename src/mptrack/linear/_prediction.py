@@ -63,7 +63,7 @@ def prediction_matrices(model: LinearGaussianModel, N: int, *,
             rank = np.linalg.matrix_rank(F)
             raise SingularMatrixError(
                 f"model.F: singular (rank {rank} < n = {model.n}, cond(F^{N - 1}) = {cond:.3g}); "
-                f"A_N = F^N (I - KH) F^-(N-1) of seed 001 eq. 20 needs F^-1 for N = {N} >= 2 "
+                f"A_N = F^N (I - KH) F^-(N-1) of Assimakis et al. 2016 eq. 20 needs F^-1 for N = {N} >= 2 "
                 "because the recursion keeps x(k+N-1/k-1) instead of x(k/k); "
                 "use method='inverse-free' (x(k+N/k) = F^N x(k/k)) or predict_ahead")
         A = np.linalg.solve(FN1.T, A.T).T  # A F^-(N-1)

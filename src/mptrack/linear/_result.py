@@ -21,6 +21,10 @@ class FilterResult:
     method  the filter's registry name ("KF", "LF", "SSKF", ...)
     x0, P0  a filter's prior x(0/0), P(0/0) at time 0, or a smoother's x(0/T), P(0/T);
             None when the prior was given at the first measurement (or not recorded)
+    inputs  what the filter ran with besides the model that its smoother must reuse, or None:
+            kalman_filter's per-step {"F", "Q" (T, n, n), "Bu" (T, n) or None} of a time-varying or
+            controlled run (read by rts_smoother), ukf_filter's {"alpha", "beta", "kappa"}
+            (read by ukf_smoother)
     """
 
     x: np.ndarray
@@ -31,6 +35,7 @@ class FilterResult:
     method: str = ""
     x0: np.ndarray | None = None
     P0: np.ndarray | None = None
+    inputs: dict | None = None
 
     @property
     def T(self) -> int:

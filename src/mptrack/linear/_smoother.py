@@ -16,6 +16,7 @@ import numpy as np
 import scipy.linalg
 from numba import njit
 
+from .. import _jit_cache  # noqa: F401 - compiled kernels cache in the user's cache directory
 from .._validation import check_record, finite_result
 from ..errors import ParameterError, ShapeError
 from ..models import LinearGaussianModel, require_model
@@ -109,7 +110,11 @@ def rts_smoother(model: LinearGaussianModel, result: FilterResult, *, F=None, Q=
             :func:`kalman_filter` (any filter returning the exact P(k/k) works;
             the steady-state filters' constant Pe gives the steady-state smoother)
     F, Q, B, u  the time-varying matrices / control input the filter ran with
-            (:func:`kalman_filter`'s convention: row k predicts into measurement k)
+            (:func:`kalman_filter`'s convention: row k predicts into measurement k).  A
+            time-varying or controlled :func:`kalman_filter` run records them in
+            ``result.inputs`` and the smoother uses those: omit them (given again, they
+            must equal the run's, else a ParameterError naming them).  Give them for a
+            result that does not record them.
 
     Returns a FilterResult with the smoothed x(k/T), P(k/T) (method "RTS") and, when
     the result carries its prior at time 0 (``result.x0``, as :func:`kalman_filter`
@@ -119,13 +124,12 @@ def rts_smoother(model: LinearGaussianModel, result: FilterResult, *, F=None, Q=
     """
     _check(model, result)
     has0 = result.x0 is not None and result.P0 is not None
-    if all(v is None for v in (F, Q, B, u)):
+    mats = _run_matrices(model, result, F=F, Q=Q, B=B, u=u)
+    if mats is None:
         smoothed = _rts_backward(result, model.F, model.Q)
         if not has0:
             return smoothed
         return _with_time_zero(result, smoothed, model.F, model.Q, 0.0)
-    from ._kalman import step_matrices
-    mats = step_matrices(model, result.T, F=F, Q=Q, B=B, u=u)
     Fs, Qs = mats["F"], mats["Q"]
     Bu = np.zeros((result.T, model.n)) if mats["Bu"] is None else mats["Bu"]
     xf = np.asarray(result.x, dtype=float)
@@ -135,6 +139,27 @@ def rts_smoother(model: LinearGaussianModel, result: FilterResult, *, F=None, Q=
     xs, Ps = rts_backward(xf, Pf, x_pred, Fs[1:] @ cross + Qs[1:], cross)
     smoothed = FilterResult(x=xs, P=Ps, method="RTS")
     return _with_time_zero(result, smoothed, Fs[0], Qs[0], Bu[0]) if has0 else smoothed
+
+
+def _run_matrices(model, result: FilterResult, **given) -> dict | None:
+    """The per-step {"F", "Q", "Bu"} the filter ran with: recorded in result.inputs (given ones must
+    agree) or from the given F, Q, B, u; None for the model's constant F, Q without control."""
+    from ._kalman import step_matrices
+    recorded = result.inputs if result.inputs is not None and "F" in result.inputs else None
+    if all(v is None for v in given.values()):
+        return recorded
+    mats = step_matrices(model, result.T, **given)
+    if recorded is None:
+        return mats
+    for key, names, was_given in (("F", "F", given["F"] is not None), ("Q", "Q", given["Q"] is not None),
+                                  ("Bu", "B and u", given["B"] is not None)):
+        if not was_given:
+            continue
+        mine, ran = mats[key], recorded[key]
+        if ran is None or not np.allclose(mine, ran, rtol=1e-12, atol=1e-12 * np.abs(ran).max()):
+            raise ParameterError(f"{names}: not what the filter ran with (recorded in result.inputs); omit "
+                                 f"{names} and the smoother uses the run's")
+    return recorded
 
 
 def _with_time_zero(result: FilterResult, smoothed: FilterResult, F0, Q0, Bu0) -> FilterResult:

@@ -103,6 +103,8 @@ class NonlinearModel:
     dt: float | None = field(default=None, kw_only=True)
     name: str = field(default="", kw_only=True)
     periods: tuple = field(init=False, repr=False)
+    #: (m,) float, each component's period (2 pi for an angle, 0 for none; read by the compiled filter steps)
+    period_array: np.ndarray = field(init=False, repr=False)
     m: int = field(init=False)
     #: set by :func:`nonlinear_model` for a linear motion observed by named measurement models:
     #: (F, codes, pos, stations) read by the compiled filters (mptrack.nonlinear._named_kernels)
@@ -141,6 +143,9 @@ class NonlinearModel:
             raise ShapeError(f"angle_components: indices must be < m = {m}, got {angles}")
         set_(self, "angle_components", angles)
         set_(self, "periods", tuple(2.0 * np.pi if i in angles else None for i in range(m)))
+        period_array = np.array([0.0 if p is None else p for p in self.periods])
+        period_array.setflags(write=False)
+        set_(self, "period_array", period_array)
         if self.dt is not None:
             set_(self, "dt", check_positive("dt", self.dt))
         for attr, rows in (("jac_f", n), ("jac_h", m)):
@@ -164,7 +169,9 @@ class NonlinearModel:
         if arr.shape != (size, size) or not np.all(np.isfinite(arr)):
             raise ShapeError(f"{name}: the callable {name}(x, k) must return a finite ({size}, {size}) matrix, "
                              f"got shape {arr.shape}")
-        return 0.5 * (arr + arr.T)
+        arr = 0.5 * (arr + arr.T)
+        arr.setflags(write=False)   # read-only like a constant Q, R: one compiled variant of the filter steps
+        return arr
 
     def F_at(self, x: np.ndarray) -> np.ndarray:
         """Jacobian of f at x (n,)."""
@@ -273,6 +280,15 @@ def nonlinear_model(motion: LinearGaussianModel, measurement: MeasurementModel, 
     return model
 
 
+def _selector(idx: tuple):
+    """Indices as a slice when they step evenly (basic indexing: a view, several times faster than the
+    fancy indexing of a list on the single states of the filters' inner loops), else as a list."""
+    step = idx[1] - idx[0] if len(idx) > 1 else 1
+    if step > 0 and all(b - a == step for a, b in zip(idx, idx[1:])):
+        return slice(idx[0], idx[-1] + 1, step)
+    return list(idx)
+
+
 def _indices(name: str, idx, count: int | None = None) -> tuple:
     idx = tuple(check_int(name, i, minimum=0) for i in np.atleast_1d(idx).tolist())
     if count is not None and len(idx) != count:
@@ -306,11 +322,13 @@ def _covariance(R, m: int):
 def _jac_from(pos: tuple, rows_fn):
     """A Jacobian function placing rows_fn(x) (..., m, len(pos)) into the position columns of an (..., m, n)
     array (states x (..., n): the named models' Jacobians are vectorised like h)."""
+    sel = _selector(pos)
+
     def jac(x):
         x = np.asarray(x, dtype=float)
         G = rows_fn(x)
         J = np.zeros(G.shape[:-1] + (x.shape[-1],))
-        J[..., list(pos)] = G
+        J[..., sel] = G
         return J
     return jac
 
@@ -324,13 +342,14 @@ def ranges(stations, R, *, position=(0, 2)) -> MeasurementModel:
     """
     s = _points("stations", stations)
     pos = _indices("position", position, s.shape[1])
+    sel = _selector(pos)
 
     def h(X):
-        diff = np.asarray(X)[..., None, list(pos)] - s
+        diff = np.asarray(X)[..., None, sel] - s
         return np.sqrt(np.sum(diff * diff, axis=-1))
 
     def rows(x):
-        diff = x[..., None, list(pos)] - s
+        diff = x[..., None, sel] - s
         return diff / np.maximum(np.sqrt(np.sum(diff * diff, axis=-1)), _TINY)[..., None]
     return MeasurementModel(h, _jac_from(pos, rows), _covariance(R, s.shape[0]), (), f"ranges to {len(s)}",
                             _join_specs([_kernel_spec(_RANGE, pos, s)]))
@@ -343,16 +362,19 @@ def bearings(stations, R, *, position=(0, 2)) -> MeasurementModel:
     if s.shape[1] != 2:
         raise ShapeError(f"stations: bearings need 2-D stations (k, 2), got {s.shape}")
     pos = _indices("position", position, 2)
+    sel = _selector(pos)
 
     def h(X):
-        diff = np.asarray(X)[..., None, list(pos)] - s
+        diff = np.asarray(X)[..., None, sel] - s
         return np.arctan2(diff[..., 1], diff[..., 0])
 
     def rows(x):
-        diff = x[..., None, list(pos)] - s
-        dx, dy = diff[..., 0], diff[..., 1]
-        r2 = np.maximum(dx * dx + dy * dy, _TINY)
-        return np.stack([-dy / r2, dx / r2], axis=-1)
+        diff = x[..., None, sel] - s
+        r2 = np.maximum(np.sum(diff * diff, axis=-1), _TINY)
+        G = np.empty(diff.shape)
+        G[..., 0] = -diff[..., 1] / r2
+        G[..., 1] = diff[..., 0] / r2
+        return G
     k = s.shape[0]
     return MeasurementModel(h, _jac_from(pos, rows), _covariance(R, k), tuple(range(k)), f"bearings from {k}",
                             _join_specs([_kernel_spec(_BEARING, pos, s)]))
@@ -376,21 +398,22 @@ def range_rate(sensor, R, *, position=(0, 2), velocity=(1, 3)) -> MeasurementMod
     s = s[0]
     d = s.shape[0]
     pos, vel = _indices("position", position, d), _indices("velocity", velocity, d)
+    psel, vsel = _selector(pos), _selector(vel)
 
     def h(X):
         X = np.asarray(X)
-        p, v = X[..., list(pos)] - s, X[..., list(vel)]
+        p, v = X[..., psel] - s, X[..., vsel]
         r = np.maximum(np.sqrt(np.sum(p * p, axis=-1)), _TINY)
         return (np.sum(p * v, axis=-1) / r)[..., None]
 
     def jac(x):
         x = np.asarray(x, dtype=float)
-        p, v = x[..., list(pos)] - s, x[..., list(vel)]
+        p, v = x[..., psel] - s, x[..., vsel]
         r = np.maximum(np.sqrt(np.sum(p * p, axis=-1)), _TINY)[..., None]
         rr = np.sum(p * v, axis=-1)[..., None] / r
         J = np.zeros(x.shape[:-1] + (1, x.shape[-1]))
-        J[..., 0, list(pos)] = (v - rr * p / r) / r
-        J[..., 0, list(vel)] = p / r
+        J[..., 0, psel] = (v - rr * p / r) / r
+        J[..., 0, vsel] = p / r
         return J
     return MeasurementModel(h, jac, _covariance(R, 1), (), "range rate")
 
@@ -426,9 +449,10 @@ def tdoa(stations, R, *, position=(0, 2), reference: int = 0) -> MeasurementMode
 def position(R, *, position=(0, 2)) -> MeasurementModel:
     """The position x[position] itself (GPS fix; linear, included so a hybrid model can stack it)."""
     pos = _indices("position", position)
+    sel = _selector(pos)
 
     def h(X):
-        return np.asarray(X)[..., list(pos)]
+        return np.asarray(X)[..., sel].copy()
     eye = np.eye(len(pos))
     return MeasurementModel(h, _jac_from(pos, lambda x: np.broadcast_to(eye, x.shape[:-1] + eye.shape)),
                             _covariance(R, len(pos)), (), "position",

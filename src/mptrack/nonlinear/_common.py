@@ -10,7 +10,7 @@ from .._validation import as_sequence, as_vector, check_covariance, check_int
 from ..errors import ParameterError
 from ..linear import FilterResult
 from ..models import NonlinearModel
-from ._model import ContinuousDiscreteModel
+from ..continuous._model import ContinuousDiscreteModel
 
 __all__ = ["prepare_nonlinear", "check_rng", "check_prior", "PRIORS", "BatchFilterResult"]
 
@@ -28,7 +28,8 @@ def prepare_nonlinear(model, z, x0, P0, substeps=None, *, definite: bool = False
     if not isinstance(model, kinds):
         names = " or ".join(k.__name__ for k in kinds)
         raise ParameterError(f"model: expected a {names}, got {type(model).__name__}")
-    z = as_sequence("z", z, model.m, allow_nan=True)
+    # one memory layout (C-contiguous, writable) for the compiled kernels: one compiled variant each
+    z = np.require(as_sequence("z", z, model.m, allow_nan=True), dtype=float, requirements=["C", "W"])
     x0 = as_vector("x0", x0, model.n)
     if P0 is None:
         raise ParameterError("P0: the prior covariance is required (there is no safe default)")

@@ -7,14 +7,19 @@
 
 The smoother is the RTS backward pass with the linearisation of the forward pass,
 C(k) = P(k/k) F(k)^T P(k+1/k)^-1 (Särkkä 2013, sec. 9.1).
+
+Per step the model (f, h, Jacobians, Q, R) is evaluated in Python and the matrix arithmetic runs in
+the compiled kernels of :mod:`mptrack.nonlinear._step_kernels`; a named model runs the whole loop
+compiled (:mod:`mptrack.nonlinear._named_kernels`, the same cores).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from .._validation import as_array, check_covariance, require_finite
+from .._validation import as_array, as_vector, check_covariance, check_int, finite_result, require_finite
 from ..errors import (
+    NonFiniteError,
     NotPositiveDefiniteError,
     ParameterError,
     ShapeError,
@@ -23,6 +28,7 @@ from ..linear import FilterResult
 from ..linear._smoother import rts_backward
 from ..models import NonlinearModel
 from . import _named_kernels
+from . import _step_kernels as steps
 from ._common import BatchFilterResult, check_prior, prepare_nonlinear
 
 __all__ = ["ekf_filter", "ekf_filter_batch", "ekf_smoother", "ekf_step"]
@@ -30,64 +36,97 @@ __all__ = ["ekf_filter", "ekf_filter_batch", "ekf_smoother", "ekf_step"]
 _LOG2PI = np.log(2.0 * np.pi)
 
 
-def ekf_update(model: NonlinearModel, x, P, z, k: int):
-    """EKF measurement update at row k; NaN components of z are skipped.  Returns (x, P, loglik)."""
-    ok = ~np.isnan(z)
-    if not ok.any():
-        return x, P, 0.0
-    H = model.H_at(x)[ok]
-    R = model.R_at(x, k)[np.ix_(ok, ok)]
-    nu = model.innovation(z, model.h(x[None])[0])[ok]
-    PHt = P @ H.T
-    S = H @ PHt + R
-    L = np.linalg.cholesky(S)
-    K = np.linalg.solve(S, PHt.T).T
-    x = x + K @ nu
-    IKH = np.eye(x.shape[0]) - K @ H
-    P = IKH @ P @ IKH.T + K @ R @ K.T
-    P = 0.5 * (P + P.T)
-    w = np.linalg.solve(L, nu)
-    return x, P, float(-0.5 * (w @ w + 2.0 * np.log(np.diag(L)).sum() + ok.sum() * _LOG2PI))
+def user_array(value, shape: tuple, name: str, k: int) -> np.ndarray:
+    """A user function's value (f, h, a Jacobian) as a fresh float array of the expected shape, as the
+    compiled step kernels take it (Q_at, R_at return validated read-only arrays)."""
+    arr = np.array(value, dtype=float)
+    if arr.shape != shape:
+        raise ShapeError(f"{name}: expected shape {shape} at measurement {k}, got {arr.shape}")
+    return arr
 
 
-def ekf_predict(model: NonlinearModel, x, P, k: int):
-    F = model.F_at(x)
-    P = F @ P @ F.T + model.Q_at(x, k)
-    return model.f(x[None])[0], 0.5 * (P + P.T)
+def check_step(status: int, method: str, k: int, x, P, outputs: dict, inputs: dict) -> None:
+    """Raise the error of a step kernel's status: NOT_PD -> NotPositiveDefiniteError; DIVERGED -> a
+    NonFiniteError naming the model function that returned a non-finite value at a finite state, else
+    (an overflow) the run's input of largest magnitude."""
+    if status == steps.NOT_PD:
+        raise NotPositiveDefiniteError(f"{method}: the innovation covariance at measurement {k} is not positive "
+                                       "definite; check R and P0")
+    if status == steps.DIVERGED:
+        if np.isfinite(x).all() and np.isfinite(P).all():
+            for name, value in outputs.items():
+                if not np.isfinite(value).all():
+                    raise NonFiniteError(f"{name}: the model's {name} is not finite at measurement {k} "
+                                         f"(state {np.array2string(np.asarray(x), precision=6)})")
+        require_finite(f"the {method} (at measurement {k})", np.nan, **inputs)
+
+
+def ekf_update(model: NonlinearModel, x, P, z, k: int, method: str, inputs: dict, x_out, P_out,
+               row: int | None = None) -> float:
+    """EKF measurement update of x(k/k-1), P(k/k-1) with z[row] (z (T, m), row default k; NaN components
+    skipped) into x_out, P_out; R(x, k).  Returns the log-likelihood increment.  Errors name ``method``
+    and, for an overflow, the largest of ``inputs``."""
+    m, n = model.m, model.n
+    H = user_array(model.H_at(x), (m, n), "jac_h", k)
+    hx = user_array(model.h(x[None])[0], (m,), "h", k)
+    R = model.R_at(x, k)                                          # validated, read-only
+    status, ll = steps.ekf_update_into(x, P, H, hx, R, z, k if row is None else row, model.period_array, x_out, P_out)
+    if status != steps.OK:
+        check_step(status, method, k, x, P, {"jac_h": H, "h": hx, "R": R}, inputs)
+    return ll
+
+
+def ekf_predict(model: NonlinearModel, x, P, k: int, x_out, P_out) -> None:
+    """x(k/k-1) = f(x), P(k/k-1) = F P F^T + Q(x, k) from x(k-1/k-1), P(k-1/k-1) into x_out, P_out."""
+    n = model.n
+    F = user_array(model.F_at(x), (n, n), "jac_f", k)
+    steps.ekf_predict_into(F, P, model.Q_at(x, k), P_out)
+    x_out[:] = user_array(model.f(x[None])[0], (n,), "f", k)
 
 
 def ekf_step(model: NonlinearModel, x, P, z, k: int = 0):
     """One EKF iteration from x(k-1/k-1), P(k-1/k-1) with the measurement z (row k):
     (x_filt, P_filt, x_pred, P_pred, loglik increment)."""
-    xp, Pp = ekf_predict(model, x, P, k)
-    x, P, ll = ekf_update(model, xp, Pp, z, k)
-    return x, P, xp, Pp, ll
+    if not isinstance(model, NonlinearModel):
+        raise ParameterError(f"model: expected a NonlinearModel, got {type(model).__name__}")
+    x = np.array(as_vector("x", x, model.n))
+    P = np.array(check_covariance("P", P, model.n))
+    z = np.array(as_array("z", z, shape=(model.m,), allow_nan=True))
+    k = check_int("k", k, minimum=0)
+    xp, Pp, xu, Pu = np.empty_like(x), np.empty_like(P), np.empty_like(x), np.empty_like(P)
+    ekf_predict(model, x, P, k, xp, Pp)
+    ll = ekf_update(model, xp, Pp, z[None], k, "EKF", {"x": x, "P": P, "z": z}, xu, Pu, row=0)
+    return xu, Pu, xp, Pp, ll
 
 
-def _run(model, z, x0, P0, prior, predict, update, method):
-    """The driver loop shared by the EKF and the discrete UKF."""
+def _run(model, z, x0, P0, prior, predict, update, method, inputs=None):
+    """The driver loop shared by the EKF and the discrete UKF, writing into the result's rows:
+    predict(model, x, P, k, x_out, P_out) and update(model, x, P, z, k, method, given, x_out, P_out)
+    -> loglik (with row k of z); ``inputs`` (the filter's settings for its smoother) go into the result."""
     first = check_prior(prior)
     T, n = z.shape[0], model.n
+    observed = ~np.isnan(z).all(axis=1)
+    given = {"z": z, "x0": x0, "P0": P0}
     xs, Ps = np.empty((T, n)), np.empty((T, n, n))
     xp, Pp = np.empty((T, n)), np.empty((T, n, n))
-    x, P, loglik = x0, P0, 0.0
+    x, P, loglik = np.array(x0), np.array(P0), 0.0
     for k in range(T):
-        try:
-            if not (first and k == 0):
-                x, P = predict(model, x, P, k)
-            xp[k], Pp[k] = x, P
-            x, P, ll = update(model, x, P, z[k], k)
-        except np.linalg.LinAlgError as exc:
-            raise NotPositiveDefiniteError(f"{method}: the innovation covariance at measurement {k} is not "
-                                           f"positive definite ({exc}); check R and P0") from None
-        # a non-finite estimate from finite input is an overflow: name the largest input
-        require_finite(f"the {method} (at measurement {k})", (x, P), z=z, x0=x0, P0=P0)
-        xs[k], Ps[k] = x, P
-        loglik += ll
+        if first and k == 0:
+            xp[0], Pp[0] = x, P
+        else:
+            predict(model, x, P, k, xp[k], Pp[k])
+        if observed[k]:
+            loglik += update(model, xp[k], Pp[k], z, k, method, given, xs[k], Ps[k])
+        else:
+            xs[k], Ps[k] = xp[k], Pp[k]
+        x, P = xs[k], Ps[k]
+    # a non-finite estimate from finite input is an overflow: name the largest input
+    require_finite(f"the {method}", (xs, Ps), **given)
     return FilterResult(x=xs, P=Ps, x_pred=xp, P_pred=Pp, loglik=float(loglik), method=method,
-                        x0=None if first else x0, P0=None if first else P0)
+                        x0=None if first else x0, P0=None if first else P0, inputs=inputs)
 
 
+@finite_result("the EKF")
 def ekf_filter(model: NonlinearModel, z, x0, P0, *, prior: str = "initial") -> FilterResult:
     """Extended Kalman filter over measurements z (T, m) (module docstring).
 
@@ -108,17 +147,16 @@ def ekf_filter(model: NonlinearModel, z, x0, P0, *, prior: str = "initial") -> F
 
 
 def named_arguments(model: NonlinearModel) -> tuple:
-    """(F, Q, R, codes, pos, stations, angles) of a model tagged by nonlinear_model for the compiled kernels."""
+    """(F, Q, R, codes, pos, stations, periods) of a model tagged by nonlinear_model for the compiled kernels."""
     F, codes, pos, stations = model.named
-    angles = np.array([period is not None for period in model.periods])
-    return F, model.Q, model.R, codes, pos, stations, angles
+    return F, model.Q, model.R, codes, pos, stations, model.period_array
 
 
-def named_result(out, x0, P0, first: bool, method: str) -> FilterResult:
+def named_result(out, x0, P0, first: bool, method: str, inputs=None) -> FilterResult:
     """The FilterResult of a compiled run (status, step, xs, Ps, xp, Pp, loglik) that succeeded."""
     _, _, xs, Ps, xp, Pp, loglik = out
     return FilterResult(x=xs, P=Ps, x_pred=xp, P_pred=Pp, loglik=float(loglik), method=method,
-                        x0=None if first else x0, P0=None if first else P0)
+                        x0=None if first else x0, P0=None if first else P0, inputs=inputs)
 
 
 def _check_result(model, result) -> None:
@@ -129,15 +167,16 @@ def _check_result(model, result) -> None:
 
 
 def smooth_with(model, result, cross, method):
-    """Backward pass given cross(x, P, k) = the cross-covariance of x(k-1) and x(k) (n, n) of the forward
-    linearisation at the filtered x(k-1/k-1), P(k-1/k-1)."""
+    """Backward pass given cross(model, x, P) = the cross-covariance of x(k-1) and x(k) (n, n) of the
+    forward linearisation at the filtered x(k-1/k-1), P(k-1/k-1).  The predictions P(k/k-1) (with
+    Q(x, k) of the filter's own step k) come from the result: the smoother never evaluates Q."""
     _check_result(model, result)
     has0 = result.x0 is not None
     xf = np.concatenate([result.x0[None], result.x]) if has0 else np.asarray(result.x)
     Pf = np.concatenate([result.P0[None], result.P]) if has0 else np.asarray(result.P)
     start = 0 if has0 else 1
     xp, Pp = result.x_pred[start:], result.P_pred[start:]
-    D = np.stack([cross(model, xf[i], Pf[i], i + (1 - start)) for i in range(len(xf) - 1)])
+    D = np.stack([cross(model, xf[i], Pf[i]) for i in range(len(xf) - 1)])
     xs, Ps = rts_backward(xf, Pf, xp, Pp, D)
     if has0:
         return FilterResult(x=xs[1:], P=Ps[1:], method=method, x0=xs[0], P0=Ps[0])
@@ -147,7 +186,7 @@ def smooth_with(model, result, cross, method):
 def ekf_smoother(model: NonlinearModel, result: FilterResult) -> FilterResult:
     """Extended RTS smoother on :func:`ekf_filter`'s result: x(k/T), P(k/T), and x(0/T), P(0/T) as
     x0, P0 when the filter's prior was at time 0 (method "ERTS")."""
-    return smooth_with(model, result, lambda mdl, x, P, k: P @ mdl.F_at(x).T, "ERTS")
+    return smooth_with(model, result, lambda mdl, x, P: P @ mdl.F_at(x).T, "ERTS")
 
 
 def ekf_filter_batch(model: NonlinearModel, z, x0, P0) -> BatchFilterResult:

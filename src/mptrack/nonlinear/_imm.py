@@ -16,11 +16,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._validation import as_matrix, as_vector
+from .._validation import as_matrix, as_vector, finite_result, require_finite
 from ..errors import ParameterError, ShapeError
 from ..linear import FilterResult
 from ..models import LinearGaussianModel, MeasurementModel, NonlinearModel, constant_acceleration
-from ._common import prepare_nonlinear
+from ._common import check_prior, prepare_nonlinear
 from ._extended import ekf_predict, ekf_update
 
 __all__ = ["IMMResult", "imm_filter", "cv_ca_models"]
@@ -53,11 +53,14 @@ def _transition(transition, r: int) -> np.ndarray:
     return Pi
 
 
-def imm_filter(models, z, x0, P0, transition, *, mu0=None) -> IMMResult:
+@finite_result("the IMM")
+def imm_filter(models, z, x0, P0, transition, *, mu0=None, prior: str = "initial") -> IMMResult:
     """IMM filter over ``models`` (a sequence of NonlinearModel / LinearGaussianModel of the same state and
-    measurement), measurements z (T, m), the common prior x0, P0 at time 0, the Markov ``transition``
-    matrix (r, r) and the initial mode probabilities ``mu0`` (default uniform).  With one model it is the
-    EKF (KF for a linear model).  Returns an :class:`IMMResult` (method "IMM")."""
+    measurement), measurements z (T, m), the common prior x0, P0, the Markov ``transition`` matrix (r, r)
+    and the initial mode probabilities ``mu0`` (default uniform).
+    prior  "initial" (x0, P0, mu0 at time 0) or "first-measurement" (x0, P0, mu0 are the prior at the
+           first measurement: no prediction and no mode transition before it), as the other filters.
+    With one model it is the EKF (KF for a linear model).  Returns an :class:`IMMResult` (method "IMM")."""
     models = [_as_nonlinear(m, f"models[{i}]") for i, m in enumerate(models)] if not isinstance(
         models, (NonlinearModel, LinearGaussianModel)) else [_as_nonlinear(models, "models")]
     if not models:
@@ -69,6 +72,8 @@ def imm_filter(models, z, x0, P0, transition, *, mu0=None) -> IMMResult:
     r = len(models)
     Pi = _transition(transition, r)
     z, x0, P0, _ = prepare_nonlinear(first, z, x0, P0, kinds=(NonlinearModel,))
+    at_first = check_prior(prior)
+    given = {"z": z, "x0": x0, "P0": P0}
     mu = np.full(r, 1.0 / r) if mu0 is None else as_vector("mu0", mu0, r)
     if np.any(mu < 0) or abs(mu.sum() - 1.0) > 1e-12:
         raise ParameterError("mu0: expected mode probabilities (>= 0, summing to 1)")
@@ -79,16 +84,23 @@ def imm_filter(models, z, x0, P0, transition, *, mu0=None) -> IMMResult:
     P = np.repeat(P0[None], r, 0)
     loglik = 0.0
     for k in range(T):
-        c = mu @ Pi                                                    # (r,)
-        W = Pi * mu[:, None] / np.where(c > 0, c, 1.0)[None, :]        # W[i, j] = mu_{i|j}
-        X0 = W.T @ X
-        D = X[:, None, :] - X0[None, :, :]                             # (i, j, n)
-        P0m = np.einsum("ij,iab->jab", W, P) + np.einsum("ij,ija,ijb->jab", W, D, D)
+        predict = not (at_first and k == 0)
+        if predict:
+            c = mu @ Pi                                                # (r,)
+            W = Pi * mu[:, None] / np.where(c > 0, c, 1.0)[None, :]    # W[i, j] = mu_{i|j}
+            X0 = W.T @ X
+            D = X[:, None, :] - X0[None, :, :]                         # (i, j, n)
+            P0m = np.einsum("ij,iab->jab", W, P) + np.einsum("ij,ija,ijb->jab", W, D, D)
+        else:                                                          # the prior is at this measurement
+            c, X0, P0m = mu, X.copy(), P.copy()
         lls = np.empty(r)
         pred_x, pred_P = np.empty((r, n)), np.empty((r, n, n))
         for j, mdl in enumerate(models):
-            pred_x[j], pred_P[j] = ekf_predict(mdl, X0[j], P0m[j], k)
-            X[j], P[j], lls[j] = ekf_update(mdl, pred_x[j], pred_P[j], z[k], k)
+            if predict:
+                ekf_predict(mdl, X0[j], P0m[j], k, pred_x[j], pred_P[j])
+            else:
+                pred_x[j], pred_P[j] = X0[j], P0m[j]
+            lls[j] = ekf_update(mdl, pred_x[j], pred_P[j], z, k, "IMM", given, X[j], P[j])
         with np.errstate(divide="ignore"):
             a = lls + np.log(c)
         top = a.max()
@@ -102,8 +114,9 @@ def imm_filter(models, z, x0, P0, transition, *, mu0=None) -> IMMResult:
         dp = pred_x - xp[k]
         Pp[k] = np.einsum("j,jab->ab", c, pred_P) + (c[:, None] * dp).T @ dp
         mus[k], xm[k] = mu, X
-    return IMMResult(x=xs, P=Ps, x_pred=xp, P_pred=Pp, loglik=float(loglik), method="IMM", x0=x0, P0=P0,
-                     mu=mus, x_modes=xm)
+    require_finite("the IMM", (xs, Ps), **given)
+    return IMMResult(x=xs, P=Ps, x_pred=xp, P_pred=Pp, loglik=float(loglik), method="IMM",
+                     x0=None if at_first else x0, P0=None if at_first else P0, mu=mus, x_modes=xm)
 
 
 def cv_ca_models(dt: float, q_cv: float, q_ca: float, measurement: MeasurementModel, *, axes: int = 2,

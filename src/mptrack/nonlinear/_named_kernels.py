@@ -5,12 +5,13 @@ models (ranges, bearings, range_bearing, position and stacks of them, constant R
 (codes: 0 range ||p - s||, 1 bearing atan2(p_y - s_y, p_x - s_x), 2 a state component; pos: the state
 indices of the position, -1 padded).  :func:`ekf_filter`, :func:`ukf_filter` and
 :func:`ekf_filter_batch` then validate once and run one compiled loop over the T steps (and the B
-tracks) with the arithmetic of the NumPy path: Joseph-form EKF, unscented transform through f and h
+tracks) with the arithmetic of the generic path: Joseph-form EKF, unscented transform through f and h
 with the circular mean of the angles, innovations wrapped into [-π, π), NaN components skipped, the
-same log-likelihood.  The tests pin the two paths to 1e-10 on identical inputs.
+same log-likelihood: the per-step cores of :mod:`mptrack.nonlinear._step_kernels`, which the generic
+path also calls.  The tests pin the two paths to 1e-10 on identical inputs.
 
 A kernel reports a problem (a non-positive-definite innovation covariance or square root, a
-non-finite estimate) by a status code instead of raising; the caller then reruns the NumPy path,
+non-finite estimate) by a status code instead of raising; the caller then reruns the generic path,
 which raises the specific error (or, for the UKF, takes the eigenvalue square root of a
 semi-definite P).  Kernels are serial, for the reason given in :mod:`mptrack.nonlinear._kernels`.
 """
@@ -20,18 +21,25 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-__all__ = ["ekf_named", "ekf_named_batch", "ukf_named"]
+from .. import _jit_cache  # noqa: F401 - compiled kernels cache in the user's cache directory
+from ._step_kernels import (
+    DIVERGED,
+    NOT_PD,
+    OK,
+    _cov_predict,
+    _ekf_update,
+    _finite,
+    _observed,
+    _sigma,
+    _store,
+    _ukf_update,
+    ekf_workspace,
+    unscented_moments,
+)
 
-_LOG2PI = float(np.log(2.0 * np.pi))
+__all__ = ["ekf_named", "ekf_named_batch", "ukf_named", "OK", "NOT_PD", "DIVERGED"]
+
 _TINY = 1e-12
-_TWO_PI = 2.0 * np.pi
-
-OK, NOT_PD, DIVERGED = 0, 1, 2
-
-
-@njit(cache=True, nogil=True)
-def _wrap(v):
-    return (v + np.pi) % _TWO_PI - np.pi
 
 
 @njit(cache=True, nogil=True)
@@ -80,126 +88,7 @@ def _jac_h(x, codes, pos, st, H):
 
 
 @njit(cache=True, nogil=True)
-def _cholesky(S, L, q):
-    """Lower Cholesky factor of S[:q, :q] into L[:q, :q]; False when S is not positive definite."""
-    for i in range(q):
-        for j in range(q):
-            L[i, j] = 0.0
-    for j in range(q):
-        s = S[j, j]
-        for k in range(j):
-            s -= L[j, k] * L[j, k]
-        if not s > 0.0:
-            return False
-        L[j, j] = np.sqrt(s)
-        for i in range(j + 1, q):
-            s = S[i, j]
-            for k in range(j):
-                s -= L[i, k] * L[j, k]
-            L[i, j] = s / L[j, j]
-    return True
-
-
-@njit(cache=True, nogil=True)
-def _chol_solve(L, b, out, q):
-    """out[:q] = S^-1 b[:q] with S = L L^T (L[:q, :q])."""
-    for i in range(q):
-        s = b[i]
-        for k in range(i):
-            s -= L[i, k] * out[k]
-        out[i] = s / L[i, i]
-    for i in range(q - 1, -1, -1):
-        s = out[i]
-        for k in range(i + 1, q):
-            s -= L[k, i] * out[k]
-        out[i] = s / L[i, i]
-
-
-@njit(cache=True, nogil=True)
-def _gain_loglik(L, nu, PHt, K, w, n, q):
-    """K[:n, :q] = PHt S^-1 (rows solved with the Cholesky factor L of S, all [:q]) and log N(nu; 0, S)."""
-    for a in range(n):
-        _chol_solve(L, PHt[a], K[a], q)
-    quad = 0.0
-    logdet = 0.0
-    for i in range(q):
-        s = nu[i]
-        for k in range(i):
-            s -= L[i, k] * w[k]
-        w[i] = s / L[i, i]
-        quad += w[i] * w[i]
-        logdet += np.log(L[i, i])
-    return -0.5 * (quad + 2.0 * logdet + q * _LOG2PI)
-
-
-@njit(cache=True, nogil=True)
-def _finite(x, P):
-    acc = 0.0
-    for a in range(x.shape[0]):
-        acc += x[a]
-        for b in range(x.shape[0]):
-            acc += P[a, b]
-    return np.isfinite(acc)
-
-
-@njit(cache=True, nogil=True)
-def _symmetrise(P):
-    n = P.shape[0]
-    for a in range(n):
-        for b in range(a + 1, n):
-            v = 0.5 * (P[a, b] + P[b, a])
-            P[a, b] = v
-            P[b, a] = v
-
-
-@njit(cache=True, nogil=True)
-def _mul(A, B, out, ni, nk, nj):
-    """out[:ni, :nj] = A[:ni, :nk] B[:nk, :nj] (explicit loops: no temporaries, views or BLAS calls for
-    these small matrices)."""
-    for i in range(ni):
-        for j in range(nj):
-            acc = 0.0
-            for k in range(nk):
-                acc += A[i, k] * B[k, j]
-            out[i, j] = acc
-
-
-@njit(cache=True, nogil=True)
-def _sym_bt(A, B, out, n, nk):
-    """out[:n, :n] = A[:n, :nk] B[:n, :nk]^T for a product known to be symmetric: the upper triangle,
-    mirrored (the NumPy path's 0.5 (P + P^T) up to rounding)."""
-    for i in range(n):
-        for j in range(i, n):
-            acc = 0.0
-            for k in range(nk):
-                acc += A[i, k] * B[j, k]
-            out[i, j] = acc
-            out[j, i] = acc
-
-
-@njit(cache=True, nogil=True)
-def _observed(z, k, idx):
-    """The indices of the non-NaN components of z[k] into idx; returns their count."""
-    q = 0
-    for i in range(z.shape[1]):
-        if not np.isnan(z[k, i]):
-            idx[q] = i
-            q += 1
-    return q
-
-
-@njit(cache=True, nogil=True)
-def _store(x, P, xs, Ps, k):
-    """xs[k], Ps[k] = x, P."""
-    n = x.shape[0]
-    for a in range(n):
-        xs[k, a] = x[a]
-        for b in range(n):
-            Ps[k, a, b] = P[a, b]
-
-
-@njit(cache=True, nogil=True)
-def _ekf_track(F, Q, R, codes, pos, st, angles, z, x0, P0, first, xs, Ps, xp, Pp):
+def _ekf_track(F, Q, R, codes, pos, st, periods, z, x0, P0, first, xs, Ps, xp, Pp):
     """One EKF run writing into xs, Ps, xp, Pp (T, ...); returns (status, step, loglik).  All work arrays
     are allocated once per run; the step is loops over them."""
     T, m = z.shape
@@ -208,20 +97,9 @@ def _ekf_track(F, Q, R, codes, pos, st, angles, z, x0, P0, first, xs, Ps, xp, Pp
     P = P0.copy()
     xn = np.empty(n)
     A = np.empty((n, n))
-    IKH = np.empty((n, n))
     hx = np.empty(m)
     Hf = np.empty((m, n))
-    idx = np.empty(m, np.int64)
-    H = np.empty((m, n))
-    Rq = np.empty((m, m))
-    nu = np.empty(m)
-    HP = np.empty((m, n))
-    PHt = np.empty((n, m))
-    S = np.empty((m, m))
-    L = np.empty((m, m))
-    K = np.empty((n, m))
-    KR = np.empty((n, m))
-    w = np.empty(m)
+    ws = ekf_workspace(n, m)
     loglik = 0.0
     for k in range(T):
         if not (first and k == 0):
@@ -230,57 +108,15 @@ def _ekf_track(F, Q, R, codes, pos, st, angles, z, x0, P0, first, xs, Ps, xp, Pp
                 for b in range(n):
                     acc += F[a, b] * x[b]
                 xn[a] = acc
-            _mul(F, P, A, n, n, n)
-            _sym_bt(A, F, P, n, n)
-            for a in range(n):
-                x[a] = xn[a]
-                for b in range(n):
-                    P[a, b] += Q[a, b]
+            x[:] = xn
+            _cov_predict(F, Q, P, A)
         _store(x, P, xp, Pp, k)
-        q = _observed(z, k, idx)
-        if q > 0:
-            _h(x, codes, pos, st, hx)
-            _jac_h(x, codes, pos, st, Hf)
-            for a in range(q):
-                i = idx[a]
-                for b in range(n):
-                    H[a, b] = Hf[i, b]
-                v = z[k, i] - hx[i]
-                nu[a] = _wrap(v) if angles[i] else v
-                for b in range(q):
-                    Rq[a, b] = R[i, idx[b]]
-            _mul(H, P, HP, q, n, n)
-            _sym_bt(HP, H, S, q, n)
-            for a in range(q):
-                for b in range(q):
-                    S[a, b] += Rq[a, b]
-            for a in range(n):
-                for b in range(q):
-                    PHt[a, b] = HP[b, a]
-            if not _cholesky(S, L, q):
-                return NOT_PD, k, loglik
-            ll = _gain_loglik(L, nu, PHt, K, w, n, q)
-            for a in range(n):
-                acc = 0.0
-                for b in range(q):
-                    acc += K[a, b] * nu[b]
-                x[a] += acc
-            _mul(K, H, IKH, n, q, n)
-            for a in range(n):
-                for b in range(n):
-                    IKH[a, b] = (1.0 if a == b else 0.0) - IKH[a, b]
-            _mul(IKH, P, A, n, n, n)
-            _sym_bt(A, IKH, P, n, n)
-            _mul(K, Rq, KR, n, q, q)
-            for a in range(n):
-                for b in range(a, n):
-                    acc = 0.0
-                    for c in range(q):
-                        acc += KR[a, c] * K[b, c]
-                    P[a, b] += acc
-                    if b != a:
-                        P[b, a] = P[a, b]
-            loglik += ll
+        _h(x, codes, pos, st, hx)
+        _jac_h(x, codes, pos, st, Hf)
+        status, ll = _ekf_update(x, P, Hf, hx, R, z, k, periods, ws)
+        if status != OK:
+            return status, k, loglik
+        loglik += ll
         if not _finite(x, P):
             return DIVERGED, k, loglik
         _store(x, P, xs, Ps, k)
@@ -288,22 +124,22 @@ def _ekf_track(F, Q, R, codes, pos, st, angles, z, x0, P0, first, xs, Ps, xp, Pp
 
 
 @njit(cache=True, nogil=True)
-def ekf_named(F, Q, R, codes, pos, st, angles, z, x0, P0, first):
+def ekf_named(F, Q, R, codes, pos, st, periods, z, x0, P0, first):
     T = z.shape[0]
     n = x0.shape[0]
     xs, xp = np.empty((T, n)), np.empty((T, n))
     Ps, Pp = np.empty((T, n, n)), np.empty((T, n, n))
-    status, step, loglik = _ekf_track(F, Q, R, codes, pos, st, angles, z, x0, P0, first, xs, Ps, xp, Pp)
+    status, step, loglik = _ekf_track(F, Q, R, codes, pos, st, periods, z, x0, P0, first, xs, Ps, xp, Pp)
     return status, step, xs, Ps, xp, Pp, loglik
 
 
 @njit(cache=True, nogil=True)
-def ekf_named_batch(F, Q, R, codes, pos, st, angles, z, x0, P0, xs, Ps, xp, Pp, loglik):
+def ekf_named_batch(F, Q, R, codes, pos, st, periods, z, x0, P0, xs, Ps, xp, Pp, loglik):
     """B tracks z (B, T, m), x0 (B, n), P0 (B, n, n) into the (B, T, ...) outputs; returns
     (status, track, step) of the first failure or (OK, B, T)."""
     B, T = z.shape[0], z.shape[1]
     for b in range(B):
-        status, step, ll = _ekf_track(F, Q, R, codes, pos, st, angles, z[b], x0[b], P0[b], False,
+        status, step, ll = _ekf_track(F, Q, R, codes, pos, st, periods, z[b], x0[b], P0[b], False,
                                       xs[b], Ps[b], xp[b], Pp[b])
         if status != OK:
             return status, b, step
@@ -312,23 +148,7 @@ def ekf_named_batch(F, Q, R, codes, pos, st, angles, z, x0, P0, xs, Ps, xp, Pp, 
 
 
 @njit(cache=True, nogil=True)
-def _sigma(x, P, c, X):
-    """The 2n+1 sigma points of N(x, P) into X; False when c P has no Cholesky factor."""
-    n = x.shape[0]
-    L = np.empty((n, n))
-    if not _cholesky(c * P, L, n):
-        return False
-    for a in range(n):
-        X[0, a] = x[a]
-    for i in range(n):
-        for a in range(n):
-            X[1 + i, a] = x[a] + L[a, i]
-            X[1 + n + i, a] = x[a] - L[a, i]
-    return True
-
-
-@njit(cache=True, nogil=True)
-def ukf_named(F, Q, R, codes, pos, st, angles, z, x0, P0, first, c, Wm, Wc):
+def ukf_named(F, Q, R, codes, pos, st, periods, z, x0, P0, first, c, Wm, Wc):
     """The discrete UKF (scaled points, weights Wm, Wc, c = n + λ); returns
     (status, step, xs, Ps, xp, Pp, loglik)."""
     T, m = z.shape
@@ -340,62 +160,22 @@ def ukf_named(F, Q, R, codes, pos, st, angles, z, x0, P0, first, c, Wm, Wc):
     P = P0.copy()
     X = np.empty((N, n))
     Zf = np.empty((N, m))
-    zbar = np.empty(m)
     idx = np.empty(m, np.int64)
     loglik = 0.0
     for k in range(T):
         if not (first and k == 0):
             if not _sigma(x, P, c, X):
                 return NOT_PD, k, xs, Ps, xp, Pp, loglik
-            Y = X @ F.T
-            x = Wm @ Y
-            dY = Y - x
-            P = (Wc.reshape(N, 1) * dY).T @ dY + Q
-            _symmetrise(P)
+            x, P = unscented_moments(X @ F.T, Wm, Wc, Q)
         _store(x, P, xp, Pp, k)
-        q = _observed(z, k, idx)
-        if q > 0:
+        if _observed(z, k, idx) > 0:
             if not _sigma(x, P, c, X):
                 return NOT_PD, k, xs, Ps, xp, Pp, loglik
             for j in range(N):
                 _h(X[j], codes, pos, st, Zf[j])
-            for i in range(m):
-                if angles[i]:
-                    sn = 0.0
-                    cs = 0.0
-                    for j in range(N):
-                        sn += Wm[j] * np.sin(Zf[j, i])
-                        cs += Wm[j] * np.cos(Zf[j, i])
-                    zbar[i] = np.arctan2(sn, cs)
-                else:
-                    acc = 0.0
-                    for j in range(N):
-                        acc += Wm[j] * Zf[j, i]
-                    zbar[i] = acc
-            dZ = np.empty((N, q))
-            nu = np.empty(q)
-            Rq = np.empty((q, q))
-            for a in range(q):
-                i = idx[a]
-                for j in range(N):
-                    v = Zf[j, i] - zbar[i]
-                    dZ[j, a] = _wrap(v) if angles[i] else v
-                v = z[k, i] - zbar[i]
-                nu[a] = _wrap(v) if angles[i] else v
-                for b in range(q):
-                    Rq[a, b] = R[i, idx[b]]
-            WdZ = Wc.reshape(N, 1) * dZ
-            S = WdZ.T @ dZ + Rq
-            C = (Wc.reshape(N, 1) * (X - x)).T @ dZ
-            L = np.empty((q, q))
-            if not _cholesky(S, L, q):
-                return NOT_PD, k, xs, Ps, xp, Pp, loglik
-            K = np.empty((n, q))
-            w = np.empty(q)
-            ll = _gain_loglik(L, nu, C, K, w, n, q)
-            x = x + K @ nu
-            P = P - K @ S @ K.T
-            _symmetrise(P)
+            status, x, P, ll = _ukf_update(x, P, X, Zf, Wm, Wc, R, z, k, periods)
+            if status != OK:
+                return status, k, xs, Ps, xp, Pp, loglik
             loglik += ll
         if not _finite(x, P):
             return DIVERGED, k, xs, Ps, xp, Pp, loglik

@@ -7,11 +7,11 @@ import numpy as np
 from .._validation import check_int, check_positive, check_allocation, finite_result
 from ..errors import ParameterError, ShapeError
 from ..linear import FilterResult
+from ..continuous import _kernels as kern
+from ..continuous._kernels import SCHEMES
+from ..continuous._model import ContinuousDiscreteModel
 from ..models import NonlinearModel
-from . import _kernels as kern
 from ._common import check_prior, check_rng, prepare_nonlinear
-from ._kernels import SCHEMES
-from ._model import ContinuousDiscreteModel
 
 __all__ = ["particle_filter", "systematic_resample", "pf_substeps"]
 
@@ -97,7 +97,7 @@ def particle_filter(model, z, x0, P0, rng: np.random.Generator, *,
             return model.log_likelihood(zk, X, k)
     else:
         if use_kernels:
-            compiled_model = kern.CompiledModel(model)
+            compiled_model = kern.compiled_model(model)
             advance, weigh = compiled_model.propagate, compiled_model.log_likelihood
         else:
             advance, weigh = model.sample_transition, model.log_likelihood

@@ -2,7 +2,8 @@
 time plots, data quality and a table of every track; paper reproductions beside the published
 numbers."""
 
-from ._reproduction import explained_cells, write_reproduction_report
-from ._tracks import PALETTE, write_report
+from ._reproduction import explained_cells, uncounted_columns, write_reproduction_report
+from ._tracks import PALETTE, REPORT_COLUMNS, report_points, write_report
 
-__all__ = ["write_report", "write_reproduction_report", "explained_cells", "PALETTE"]
+__all__ = ["write_report", "report_points", "write_reproduction_report", "explained_cells", "uncounted_columns",
+           "PALETTE", "REPORT_COLUMNS"]

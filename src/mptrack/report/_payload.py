@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from ._decimate import DEFAULT_BUDGET, keep_mask, point_budget
+from ._decimate import BREAK, DEFAULT_BUDGET, ORDINARY, REJECTED, keep_mask, point_budget
 
 __all__ = ["track_payload", "FLAG_CODES"]
 
@@ -85,8 +85,9 @@ def track_payload(tracks: pd.DataFrame, *, budget: int = DEFAULT_BUDGET) -> dict
     gap = tracks["gap"].to_numpy(bool) if "gap" in tracks.columns else np.zeros(len(tracks), bool)
     if order is not None:
         flags, gap = flags[order], gap[order]
-    events = np.isin(flags, ("outlier", "reset")) | gap
-    keep = keep_mask(offsets, point_budget(counts, budget), events)
+    rejected, reset = flags == "outlier", flags == "reset"
+    kinds = np.where(reset | gap, BREAK, np.where(rejected, REJECTED, ORDINARY))
+    keep = keep_mask(offsets, point_budget(counts, budget), kinds)
     kept = np.add.reduceat(keep, offsets[:-1]) if len(counts) else np.zeros(0, np.int64)
     kept = np.where(counts > 0, kept, 0)
     k_off = np.concatenate([[0], np.cumsum(kept)]).astype(np.int64)
@@ -101,6 +102,7 @@ def track_payload(tracks: pd.DataFrame, *, budget: int = DEFAULT_BUDGET) -> dict
         scale, ny, nx = 100.0, _f(tracks, "north_m", order, keep), _f(tracks, "east_m", order, keep)
         my, mx = _f(tracks, "meas_north_m", order, keep), _f(tracks, "meas_east_m", order, keep)
         ty, tx = _f(tracks, "true_north_m", order, keep), _f(tracks, "true_east_m", order, keep)
+    totals = _totals(tracks, "meas_lat" if geo else "meas_north_m", order, rejected, reset, gap)
     iy, ix = np.round(ny * scale), np.round(nx * scale)
     drawable = np.isfinite(iy) & np.isfinite(ix)
     t = _f(tracks, "t", order, keep)
@@ -158,4 +160,15 @@ def track_payload(tracks: pd.DataFrame, *, budget: int = DEFAULT_BUDGET) -> dict
     return {"geo": geo, "scale": scale, "tracks": out_tracks, "bands": bands,
             "points": int(len(tracks)), "drawn": int(sum(r["drawn"] for r in out_tracks)),
             "decimated": bool(int(keep.sum()) < len(tracks)), "has_meas": has_meas, "has_truth": has_truth,
-            "has_error": err is not None and bool(np.isfinite(err).any())}
+            "has_error": err is not None and bool(np.isfinite(err).any()), "totals": totals}
+
+
+def _totals(tracks: pd.DataFrame, name: str, order, rejected: np.ndarray, reset: np.ndarray,
+            gap: np.ndarray) -> dict:
+    """How many points of each layer the whole table has (drawn or not): raw fixes accepted and
+    rejected (rows with a measured position in column ``name``), resets and gaps."""
+    measured = np.isfinite(tracks[name].to_numpy(float)) if name in tracks.columns else np.zeros(len(tracks), bool)
+    if order is not None:
+        measured = measured[order]
+    return {"raw": int((measured & ~rejected).sum()), "rejected": int((measured & rejected).sum()),
+            "resets": int(reset.sum()), "gaps": int(gap.sum())}

@@ -1,6 +1,6 @@
 """The report of a paper reproduction: each table with our numbers beside the paper's, matching cells
-green, differing cells red, differences explained by an erratum yellow with a link to it, and the
-figures embedded."""
+green, differing cells red, differences explained by an erratum yellow with a link to it, uncounted
+columns (the paper's inputs and labels repeated) plain, and the figures embedded."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ from pathlib import Path
 
 from ._page import esc, page, write_page
 
-__all__ = ["write_reproduction_report", "explained_cells"]
+__all__ = ["write_reproduction_report", "explained_cells", "uncounted_columns"]
 
 
 def _num(v) -> str:
@@ -24,26 +24,36 @@ def explained_cells(table: dict) -> dict[tuple[int, int], str]:
     return {(int(e[0]), int(e[1])): str(e[2]) for e in table.get("explained_by") or ()}
 
 
+_UNCOUNTED = "shown beside the paper, not counted: an input or label it printed, or a second version of counted cells"
+
+
+def uncounted_columns(table: dict) -> set[int]:
+    """Column indices a results.json table shows but does not count (its "uncounted" column names)."""
+    names = set(table.get("uncounted") or ())
+    return {j for j, c in enumerate(table["columns"]) if c in names}
+
+
 def _slug(text: str) -> str:
     """The anchor GitHub and most Markdown renderers give a heading."""
     return re.sub(r"[^\w\- ]", "", text.strip().lower()).replace(" ", "-")
 
 
 def _link(key: str, described: dict, errata: Path | None) -> str:
-    """The erratum ``key`` of a differing cell: its description (results.json "errata": "docs/errata.md,
-    'Heading': why"), linked to the heading in ``errata`` when that file is known."""
-    text = described.get(key, key)
-    heading = re.search(r"'([^']+)'", text)
-    body = esc(text)
-    if errata is None or heading is None:
-        return body
-    return f"<a href='{esc(errata.resolve().as_uri())}#{esc(_slug(heading.group(1)))}'>{body}</a>"
+    """The erratum ``key`` of a differing cell and its description (results.json "errata"); the key
+    links to its anchor in ``errata`` (docs/errata.md marks each erratum with ``<a id="KEY">``) when
+    that file is known."""
+    name = esc(key)
+    if errata is not None:
+        name = f"<a href='{esc(errata.resolve().as_uri())}#{esc(key)}'>{name}</a>"
+    text = described.get(key)
+    return f"erratum {name}" + (f": {esc(text)}" if text and text != key else "")
 
 
 def _table_html(label: str, table: dict, described: dict, errata: Path | None) -> str:
     paper = table.get("paper")
     bad = {tuple(c) for c in table.get("mismatches", ())}
     why = explained_cells(table)
+    shown_only = uncounted_columns(table)
     head = "".join(f"<th>{esc(c)}</th>" for c in table["columns"])
     if paper is not None:
         head = f"<th>{esc(table['columns'][0])}</th>" + "".join(
@@ -57,7 +67,10 @@ def _table_html(label: str, table: dict, described: dict, errata: Path | None) -
                 cells.append(f"<td>{ours}</td>")
                 continue
             theirs = esc(_num(paper[i][j]))
-            if (i, j) not in bad:
+            if j in shown_only:
+                cells.append(f"<td title='{_UNCOUNTED}'>{ours}"
+                             + ("" if ours == theirs else f" | {theirs}") + "</td>")
+            elif (i, j) not in bad:
                 cells.append(f"<td class='same' title='matches the paper'>{ours}"
                              + ("" if ours == theirs else f" | {theirs}") + "</td>")
             elif (i, j) in why:
@@ -91,15 +104,18 @@ def write_reproduction_report(results: dict, path, *, figures_dir=None, errata=N
     title        the page's title (default: the reproduction's key)
     """
     errata = Path(errata) if errata else None
-    body = [f"<p class='note'>{esc(results.get('paper', ''))}; seed {esc(results.get('seed'))}; "
-            f"mptrack {esc(results.get('mptrack_version', ''))}; {results.get('elapsed_s', 0):.1f} s</p>"]
+    seed = results.get("seed")
+    body = [f"<p class='note'>{esc(results.get('paper', ''))}"
+            + ("" if seed is None else f"; random seed {esc(seed)}")
+            + f"; mptrack {esc(results.get('mptrack_version', ''))}; {results.get('elapsed_s', 0):.1f} s</p>"]
     if counts:
         body.append(f"<p><strong>{counts['matched']} of {counts['published']} published numbers matched, "
                     f"{counts['explained']} differ for a documented reason (yellow, linked to the erratum), "
                     f"{counts['unexplained']} differ unexplained (red).</strong></p>")
     body.append("<p class='caption'>Cells: green = our number matches the paper's; yellow = differs, and "
                 "docs/errata.md explains why; red = differs without an explanation; plain = the paper gives "
-                "no number.</p>")
+                "no number, or the column is not counted (the paper's inputs or labels repeated, or a second "
+                "version of cells counted elsewhere).</p>")
     for label, table in results.get("tables", {}).items():
         body.append(_table_html(label, table, results.get("errata") or {}, errata))
     for name, file in results.get("figures", {}).items():

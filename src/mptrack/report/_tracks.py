@@ -16,13 +16,59 @@ from ._decimate import DEFAULT_BUDGET
 from ._page import esc, json_script, page, write_page
 from ._payload import track_payload
 
-__all__ = ["write_report", "PALETTE", "RAW_ON_BELOW"]
+__all__ = ["write_report", "report_points", "REPORT_COLUMNS", "PALETTE", "RAW_ON_BELOW"]
 
 #: The tracks' colours, in order (repeated beyond 16 tracks); the same list as in report.js.
 PALETTE = ("#1f77b4", "#d62728", "#2ca02c", "#9467bd", "#8c564b", "#e377c2", "#17becf", "#bcbd22",
            "#ff7f0e", "#393b79", "#637939", "#8c6d31", "#843c39", "#7b4173", "#3182bd", "#31a354")
 #: A point layer with more markers than this starts switched off (the page stays responsive).
 RAW_ON_BELOW = 30_000
+#: The columns of a point table that a report and its evaluation read (the input's other columns that
+#: pass through a run are not needed).
+REPORT_COLUMNS = ("track_id", "t", "method", "flag", "gap", "lat", "lon", "origin_lat", "origin_lon", "east_m",
+                  "north_m", "vel_east_mps", "vel_north_mps", "var_east_m2", "cov_en_m2", "var_north_m2",
+                  "ell_major_m", "ell_minor_m", "ell_azimuth_deg", "nis", "nis_dof", "meas_lat", "meas_lon",
+                  "meas_east_m", "meas_north_m", "true_lat", "true_lon", "true_x", "true_y", "true_east_m",
+                  "true_north_m", "error_m", "nees")
+
+
+def report_points(sources) -> pd.DataFrame:
+    """The point table a report needs from a run's point tables: :data:`REPORT_COLUMNS` only, in one
+    frame.  ``sources`` are pyarrow Tables or Arrow IPC files (the chunks' parts that
+    :func:`mptrack.tracking.track_file` hands to ``on_points``).  Files are memory-mapped and copied
+    one at a time into the frame's columns (each unmapped once copied), text as one Python object per
+    distinct value, so the peak is about the frame itself: 0.23 GB for 10^6 points."""
+    import pyarrow as pa
+    import pyarrow.feather as feather
+
+    tables = [src if isinstance(src, pa.Table) else feather.read_table(src, memory_map=True) for src in sources]
+    if not tables:
+        return pd.DataFrame({c: [] for c in ("track_id", "t", "flag")})
+    names = [c for c in REPORT_COLUMNS if c in tables[0].column_names]
+    n = sum(tb.num_rows for tb in tables)
+    columns = {}
+    for name in names:
+        typ = tables[0].schema.field(name).type
+        nulls = any(tb.column(name).null_count for tb in tables)
+        dtype = (object if pa.types.is_string(typ) or pa.types.is_large_string(typ) or pa.types.is_dictionary(typ)
+                 else np.float64 if nulls and not pa.types.is_floating(typ) else typ.to_pandas_dtype())
+        columns[name] = np.empty(n, dtype)
+    start = 0
+    for i in range(len(tables)):
+        tb, tables[i] = tables[i], None  # unmapped once copied
+        stop = start + tb.num_rows
+        for name in names:
+            col = tb.column(name)
+            if columns[name].dtype == object:  # codes into the distinct values: one object per value
+                enc = col.combine_chunks().dictionary_encode()
+                values = np.array(enc.dictionary.to_pylist() + [None], dtype=object)
+                codes = enc.indices.fill_null(len(values) - 1).to_numpy()
+                columns[name][start:stop] = values[codes]
+            else:
+                columns[name][start:stop] = col.to_numpy()
+        start = stop
+    return pd.DataFrame(columns, copy=False)
+
 
 _KIND_TEXT = {"raw": "raw fixes (grey dots)", "rejected": "fixes rejected by the NIS gate (orange rings)",
               "resets": "filter resets (purple rings)", "gaps": "the first estimate after a gap (white dots)",
@@ -30,44 +76,63 @@ _KIND_TEXT = {"raw": "raw fixes (grey dots)", "rejected": "fixes rejected by the
               "ellipses": "the 1-σ uncertainty ellipses of the selected track (blue)"}
 
 
+def _count(n: int) -> str:
+    """A count with its thousands apart: 150 600 (a narrow no-break space)."""
+    return f"{n:,}".replace(",", "\u202f")
+
+
 def _kinds(payload: dict) -> dict:
-    """The point/line layers present in the data: {kind: {"count": n, "on": shown at load}}."""
-    trs = payload["tracks"]
-    flags = "".join(t.get("f", "") for t in trs)
-    kinds = {}
+    """The point/line layers present in the data: {kind: {"count": drawn, "total": in the table,
+    "text": what the layer's label says of them, "on": shown at load}}."""
+    trs, totals = payload["tracks"], payload["totals"]
+    drawn = {}
     if payload["has_meas"]:
-        raw = sum(sum(1 for v, f in zip(t["my"], t["f"]) if v is not None and f != "o") for t in trs if "my" in t)
-        kinds["raw"] = {"count": raw, "on": raw <= RAW_ON_BELOW}
-        if flags.count("o"):
-            kinds["rejected"] = {"count": flags.count("o"), "on": flags.count("o") <= RAW_ON_BELOW}
-    if flags.count("r"):
-        kinds["resets"] = {"count": flags.count("r"), "on": flags.count("r") <= RAW_ON_BELOW}
-    gaps = sum(len(t.get("gap", ())) for t in trs)
-    if gaps:
-        kinds["gaps"] = {"count": gaps, "on": gaps <= RAW_ON_BELOW}
+        pairs = [(v, f) for t in trs if "my" in t for v, f in zip(t["my"], t["f"])]
+        drawn["raw"] = sum(1 for v, f in pairs if v is not None and f != "o")
+        drawn["rejected"] = sum(1 for v, f in pairs if v is not None and f == "o")
+    drawn["resets"] = sum(t.get("f", "").count("r") for t in trs)
+    drawn["gaps"] = sum(len(t.get("gap", ())) for t in trs)
+    kinds = {}
+    for kind, count in drawn.items():
+        total = totals[kind]
+        if total:
+            kinds[kind] = {"count": count, "total": total, "on": count <= RAW_ON_BELOW,
+                           "text": _count(total) if count == total else f"{_count(count)} of {_count(total)} drawn"}
     if payload["has_truth"]:
-        kinds["truth"] = {"count": sum(1 for t in trs if any(v is not None for v in t.get("ty", ()))), "on": True}
+        n = sum(1 for t in trs if any(v is not None for v in t.get("ty", ())))
+        kinds["truth"] = {"count": n, "total": n, "on": True, "text": f"{_count(n)} track{'s' if n != 1 else ''}"}
     if any("ell" in t for t in trs):
-        kinds["ellipses"] = {"count": 1, "on": True}
+        kinds["ellipses"] = {"count": 1, "total": 1, "on": True, "text": "the selected track"}
     return kinds
+
+
+#: How the caption names the layers thinned with the tracks (plural) or drawn in full (singular).
+_THINNED = {"rejected": ("rejected fixes", "rejected fix"), "resets": ("resets", "reset"), "gaps": ("gaps", "gap")}
 
 
 def _map_caption(payload: dict, kinds: dict, budget: int) -> str:
     n = len(payload["tracks"])
-    text = (("The estimate of the track as a line" if n == 1 else f"The estimate of each of the {n} tracks as a "
-                                                                  "line in its own colour")
+    text = (("The estimate of the track as a line" if n == 1 else f"The estimate of each of the {_count(n)} tracks "
+                                                                  "as a line in its own colour")
             + (f" (the {len(PALETTE)} colours repeat)" if n > len(PALETTE) else "")
             + ("; a line breaks at a reset or a gap" if {"resets", "gaps"} & set(kinds) else "") + ".")
-    on = [_KIND_TEXT[k] + (f" ({kinds[k]['count']})" if k not in ("truth", "ellipses") else "")
-          for k in kinds if kinds[k]["on"]]
-    off = [_KIND_TEXT[k] + f" ({kinds[k]['count']})" for k in kinds if not kinds[k]["on"]]
+    on = [f"{_KIND_TEXT[k]} ({kinds[k]['text']})" for k in kinds if kinds[k]["on"] and k not in ("truth", "ellipses")]
+    on += [_KIND_TEXT[k] for k in ("truth", "ellipses") if k in kinds]
+    off = [f"{_KIND_TEXT[k]} ({kinds[k]['text']})" for k in kinds if not kinds[k]["on"]]
     if on:
         text += " Also drawn: " + ", ".join(on) + "."
     if off:
         text += " Switched off at load (too many markers; tick them above the map): " + ", ".join(off) + "."
     if payload["decimated"]:
-        text += (f" {payload['drawn']:,} of {payload['points']:,} points are drawn: every k-th point of each "
-                 f"track (about {budget:,} in all), and every rejected fix, reset and gap.")
+        text += (f" {_count(payload['drawn'])} of {_count(payload['points'])} points are drawn, a budget of about "
+                 f"{_count(budget)} shared by every layer: every k-th point of each track")
+        thinned = [_THINNED[k][0] for k in _THINNED if k in kinds and kinds[k]["count"] < kinds[k]["total"]]
+        whole = [_THINNED[k][1] for k in _THINNED if k in kinds and kinds[k]["count"] == kinds[k]["total"]]
+        if thinned:
+            text += f"; {' and '.join(thinned)} are thinned alike (the counts above say how many are drawn)"
+        if whole:
+            text += f"; every {' and every '.join(whole)} is drawn"
+        text += "."
     text += (" Background: OpenStreetMap tiles when the browser is online, otherwise a plain background."
              if payload["geo"] else " Axes: local east/north metres (the input had no latitude/longitude).")
     return text + " Click a track (on the map, in the list or in the table) to plot it over time."
@@ -80,32 +145,35 @@ def _quality(tracks: pd.DataFrame, summary: dict, run: dict | None) -> str:
     read = (run or {}).get("read") or {}
     if read:
         skipped = read.get("rows_skipped", 0)
-        items.append(f"{read.get('rows_read', 0):,} rows read from {esc(read.get('file', 'the input'))}; "
-                     f"{skipped:,} skipped" + (" (the reasons below)" if skipped else ""))
+        items.append(f"{_count(read.get('rows_read', 0))} rows read from {esc(read.get('file', 'the input'))}; "
+                     f"{_count(skipped)} skipped" + (" (the reasons below)" if skipped else ""))
         reasons = read.get("skipped_by_reason") or {}
         if reasons:
-            rows = "".join(f"<tr><td>{esc(r)}</td><td>{c:,}</td></tr>"
-                           for r, c in sorted(reasons.items(), key=lambda kv: -kv[1]))
-            items.append("rows skipped by reason:<table class='reasons'><thead><tr><th>reason</th><th>rows</th>"
-                         f"</tr></thead><tbody>{rows}</tbody></table>")
+            items.append("rows skipped by reason:" + _count_table(reasons, "rows"))
         for ex in (read.get("examples") or [])[:5]:
             items.append(f"example: {esc(ex)}")
-        for reason, count in (read.get("left_out") or {}).items():
-            items.append(f"{count:,} records left out: {esc(reason)}")
+        notes = list(read.get("notes") or [])
+        left_out = read.get("left_out") or {}
+        if left_out:
+            # each left-out record also has a note (where in the file, and why): listed under the table, once
+            details = [n for n in notes if n.rstrip(". ").endswith("left out")]
+            notes = [n for n in notes if n not in details]
+            items.append("records left out (they are not fixes):" + _count_table(left_out, "records")
+                         + ("<ul>" + "".join(f"<li>{esc(d)}</li>" for d in details) + "</ul>" if details else ""))
         if read.get("duplicates_dropped"):
-            items.append(f"{read['duplicates_dropped']:,} duplicate fixes dropped")
+            items.append(f"{_count(read['duplicates_dropped'])} duplicate fixes dropped")
         if read.get("rows_reordered"):
-            items.append(f"{read['rows_reordered']:,} rows out of time order were sorted")
-        for note in read.get("notes") or []:
+            items.append(f"{_count(read['rows_reordered'])} rows out of time order were sorted")
+        for note in notes:
             items.append(f"note: {esc(note)}")
     elif run is None:
         items.append("rows skipped while reading are not known to this report (it was written from a track "
                      "table; mptrack track --report lists them)")
-    flags = tracks["flag"].astype(str)
+    flags = tracks["flag"]
     counts = {f: int((flags == f).sum()) for f in ("outlier", "reset", "predicted")}
     gaps = int(tracks["gap"].sum()) if "gap" in tracks.columns else 0
-    items.append(f"{counts['outlier']:,} fixes rejected by the NIS gate, {counts['reset']:,} filter resets, "
-                 f"{gaps:,} gaps, {counts['predicted']:,} points predicted without a fix")
+    items.append(f"{_count(counts['outlier'])} fixes rejected by the NIS gate, {_count(counts['reset'])} filter "
+                 f"resets, {_count(gaps)} gaps, {_count(counts['predicted'])} points predicted without a fix")
     o = summary["overall"]
     mean, dof = o.get("mean_nis"), o.get("mean_nis_dof")
     if mean is not None and dof and np.isfinite(mean) and np.isfinite(dof):
@@ -121,6 +189,14 @@ def _quality(tracks: pd.DataFrame, summary: dict, run: dict | None) -> str:
     for advice in ((run or {}).get("nis") or {}).get("advice") or []:
         items.append(f"<strong>advice:</strong> {esc(advice)}")
     return "<ul class='quality'>" + "".join(f"<li>{i}</li>" for i in items) + "</ul>"
+
+
+def _count_table(counts: dict, what: str) -> str:
+    """A table of counts by reason, the largest first."""
+    rows = "".join(f"<tr><td>{esc(r)}</td><td>{_count(c)}</td></tr>"
+                   for r, c in sorted(counts.items(), key=lambda kv: -kv[1]))
+    return (f"<table class='reasons'><thead><tr><th>reason</th><th>{what}</th></tr></thead>"
+            f"<tbody>{rows}</tbody></table>")
 
 
 def _summary_rows(summary: dict) -> dict:
@@ -150,8 +226,9 @@ def write_report(tracks: pd.DataFrame, path, *, summary: dict, run: dict | None 
     kinds = _kinds(payload)
     methods = ", ".join(map(str, pd.unique(tracks["method"]))) if "method" in tracks.columns else "?"
     n = len(payload["tracks"])
-    body = [f"<p class='note'>{n:,} track{'s' if n != 1 else ''}, {len(tracks):,} points; method: {esc(methods)}"
-            + (f"; drawn: {payload['drawn']:,} points (decimated)" if payload["decimated"] else "") + "</p>"]
+    body = [f"<p class='note'>{_count(n)} track{'s' if n != 1 else ''}, {_count(len(tracks))} points; method: "
+            f"{esc(methods)}" + (f"; drawn: {_count(payload['drawn'])} points (decimated)" if payload["decimated"]
+                                 else "") + "</p>"]
     body += [f"<p class='note'>{esc(note)}</p>" for note in notes]
     body.append("<noscript><p><strong>This report needs JavaScript for its map, plots and table.</strong></p>"
                 "</noscript>")

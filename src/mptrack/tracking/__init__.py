@@ -3,7 +3,7 @@ cellular measurements through the EKF/FEKF/FCS range filters, simulation of synt
 with truth, and evaluation against truth.  ``mptrack track/simulate/evaluate`` are in :mod:`mptrack.cli.tracking`."""
 
 from ._cellular import TA_STEP_M, band_of_arfcn, check_cell_ids, ranges_km, track_cells
-from ._evaluate import attach_truth, evaluate_tracks
+from ._evaluate import TRUTH_COLUMNS, attach_truth, evaluate_tracks
 from ._engine import FLAGS
 from ._fixes import TrackOptions, track_fixes
 from ._gated import GatedResult, kalman_filter_gated, nis_threshold, smooth_gated, track_gated
@@ -30,6 +30,7 @@ __all__ = [
     "SCENARIOS",
     "evaluate_tracks",
     "attach_truth",
+    "TRUTH_COLUMNS",
     "track_file",
     "track",
     "track_gated",

@@ -1,4 +1,4 @@
-"""Tracking one cellular measurement track with the EKF / FEKF / FCS of :mod:`mptrack.nonlinear`.
+"""Tracking one cellular measurement track with the EKF / FEKF / FCS of :mod:`mptrack.cellular`.
 
 Each row is one cell heard at one time.  Its range to the cell's antenna is,
 in this order of preference: ``range_m``; the timing advance, as the middle of
@@ -21,7 +21,7 @@ import pandas as pd
 from ..errors import DataError
 from ..io import LocalFrame, ReadReport
 from ..models import constant_velocity_continuous
-from ..nonlinear import motion_position, range_measurement
+from ..cellular import motion_position, range_measurement
 from ..radio import arfcn_to_frequency, distance_from_rss
 from ._columns import time_values
 from ._fixes import TrackOptions, _time_like
@@ -133,7 +133,7 @@ def track_cells(track_id: str, rows: pd.DataFrame, cells: pd.DataFrame,
 
 def _range_nis(x, P, z, stations, x0, P0, Q, r_km2, motion, dt):
     """NIS of each scan's ranges against the one-step EKF prediction from the previous estimate."""
-    from ..nonlinear import motion_matrix
+    from ..cellular import motion_matrix
 
     F = motion_matrix(motion, 2, dt)
     pos = motion_position(motion, 2)

@@ -41,6 +41,8 @@ import math
 import numba as nb
 import numpy as np
 
+from .. import _jit_cache  # noqa: F401 - compiled kernels cache in the user's cache directory
+
 __all__ = ["FLAGS", "INIT", "UPDATE", "OUTLIER", "PREDICTED", "RESET", "MANOEUVRE", "MANOEUVRE_FACTOR",
            "MAX_ORDER", "filter_tracks",
            "loglik_tracks", "moment_guess", "chain_transition"]

@@ -14,28 +14,36 @@ NIS, the fraction inside their two-sided 95 % chi-square interval, and the
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pandas as pd
 import scipy.stats
 
-from ..errors import DataError
-from ..io import FIXES, LocalFrame, ReadOptions, read_table
+from .._validation import check_positive
+from ..errors import DataError, ParameterError
+from ..io import FIXES, LocalFrame, ReadOptions, ReadReport, read_table
 from ..io._formats import raw_chunks
 
 __all__ = ["attach_truth", "evaluate_tracks"]
 
 
-def _truth_table(truth, file) -> tuple[pd.DataFrame, bool]:
+def _truth_table(truth, file, read: ReadOptions = ReadOptions(),
+                 report: ReadReport | None = None) -> tuple[pd.DataFrame, bool]:
     """(truth as track_id, t, true_a, true_b sorted by t; True if a, b are lat/lon, False if x/y in m).
 
     ``truth`` is a file in any input format or a DataFrame, read like a track's input (column names
-    and units recognised, :func:`mptrack.io.read_table`); ``true_lat``/``true_lon`` (or
-    ``true_x``/``true_y``), as in simulated logs, are preferred over ``lat``/``lon``."""
+    and units recognised, :func:`mptrack.io.read_table`, with what ``read`` says; its notes go to
+    ``report``); ``true_lat``/``true_lon`` (or ``true_x``/``true_y``), as in simulated logs, are
+    preferred over ``lat``/``lon`` unless ``read`` names the position columns."""
+    given = read.column_map
     columns = [str(c) for c in next(raw_chunks(truth, 1)).columns]
     prefer = next(({"lat": a, "lon": b} if geo else {"x": a, "y": b}
                    for a, b, geo in (("true_lat", "true_lon", True), ("true_x", "true_y", False))
                    if a in columns and b in columns), {})
-    rows = read_table(truth, FIXES, read=ReadOptions(columns=prefer))
+    if {"lat", "lon", "x", "y"} & set(given):
+        prefer = {}
+    rows = read_table(truth, FIXES, read=replace(read, columns={**prefer, **given}), report=report)
     geographic = "lat" in rows.columns and "lon" in rows.columns
     a, b = ("lat", "lon") if geographic else ("x", "y")
     out = pd.DataFrame({"track_id": rows["track_id"].astype("string"), "t": rows["t"].to_numpy(float),
@@ -59,51 +67,76 @@ def _one_track_ids(truth: pd.DataFrame, tracks: pd.DataFrame, file) -> pd.DataFr
 _ADDED = ("true_lat", "true_lon", "true_x", "true_y", "true_east_m", "true_north_m", "error_m", "nees")
 
 
-def attach_truth(tracks: pd.DataFrame, truth, *, tolerance_s: float = 0.5,
-                 file="truth") -> pd.DataFrame:
+def attach_truth(tracks: pd.DataFrame, truth, *, tolerance_s: float = 0.5, file="truth",
+                 read: ReadOptions = ReadOptions(), report: ReadReport | None = None) -> pd.DataFrame:
     """``tracks`` with error_m, nees and true east/north columns from the nearest truth sample.
 
     Truth in lat/lon is projected into each track's local frame; truth in x/y (metres) is
-    compared directly with tracks that were computed in x/y (no geographic origin).
+    compared directly with tracks that were computed in x/y (no geographic origin).  Only the
+    keys (track, time) are matched, so the table is not copied.  ``read``: the truth file's column
+    names and units where they are not recognised; ``report`` receives how it was read (notes).
     """
-    tt, geographic = _truth_table(truth, file)
-    # columns this adds replace any of the same name (a simulated log's truth passed through the track)
-    est = tracks.drop(columns=[c for c in _ADDED if c in tracks.columns])
-    est = est.assign(track_id=est["track_id"].astype("string"), _order=np.arange(len(est)))
-    tt = _one_track_ids(tt, est, file)
-    merged = pd.merge_asof(est.sort_values("t", kind="stable"), tt, on="t", by="track_id",
-                           direction="nearest", tolerance=tolerance_s).sort_values("_order")
-    has_origin = np.isfinite(merged["origin_lat"].to_numpy(float))
+    tt, geographic = _truth_table(truth, file, read, report)
+    keys = pd.DataFrame({"track_id": tracks["track_id"].astype("string").array,
+                         "t": tracks["t"].to_numpy(float), "_order": np.arange(len(tracks))})
+    tt = _one_track_ids(tt, keys, file)
+    merged = pd.merge_asof(keys.sort_values("t", kind="stable"), tt, on="t", by="track_id",
+                           direction="nearest", tolerance=tolerance_s)
+    a, b = np.full(len(tracks), np.nan), np.full(len(tracks), np.nan)
+    at = merged["_order"].to_numpy()
+    a[at], b[at] = merged["true_a"].to_numpy(float), merged["true_b"].to_numpy(float)
+    if len(tracks) and not np.isfinite(a).any():
+        raise DataError(f"no estimate has a truth sample within {tolerance_s:g} s of its time (of the same "
+                        "track); is it the truth of this run? (--tolerance widens the match)", file=file)
+    return _with_errors(tracks.assign(track_id=keys["track_id"].array), a, b, geographic, file)
+
+
+#: The truth columns a point table can carry (a simulated log's truth passed through ``mptrack track``):
+#: (first, second, geographic).
+TRUTH_COLUMNS = (("true_lat", "true_lon", True), ("true_x", "true_y", False))
+
+
+def _own_truth(tracks: pd.DataFrame) -> pd.DataFrame:
+    """``tracks`` with the columns of :func:`attach_truth` from the truth columns of its own rows."""
+    found = next(((a, b, geo) for a, b, geo in TRUTH_COLUMNS if a in tracks.columns and b in tracks.columns), None)
+    if found is None:
+        raise DataError("has no truth columns (true_lat/true_lon or true_x/true_y)", file=tracks.attrs.get("file",
+                                                                                                           "tracks"))
+    a, b, geographic = found
+    return _with_errors(tracks, tracks[a].to_numpy(float), tracks[b].to_numpy(float), geographic,
+                        f"the columns {a}/{b}")
+
+
+def _with_errors(tracks: pd.DataFrame, a: np.ndarray, b: np.ndarray, geographic: bool, file) -> pd.DataFrame:
+    """``tracks`` with error_m, nees, true_east_m/true_north_m (and true_lat/true_lon from a geographic
+    truth) for the truth ``a``, ``b`` (lat/lon or x/y in m) of each row (NaN where none)."""
+    origin = tracks[["origin_lat", "origin_lon"]].astype(float)
+    has_origin = np.isfinite(origin["origin_lat"].to_numpy())
     if geographic and not has_origin.all():
         raise DataError("the truth is in lat/lon but some tracks were computed in x/y (no geographic "
                         "origin); give the truth as x/y in metres", file=file, column="lat")
     if not geographic and has_origin.any():
         raise DataError("the truth is in x/y but the tracks are in lat/lon; give the truth as lat/lon",
                         file=file, column="x")
-    a, b = merged["true_a"].to_numpy(), merged["true_b"].to_numpy()
-    if len(merged) and not np.isfinite(a).any():
-        raise DataError(f"no estimate has a truth sample within {tolerance_s:g} s of its time (of the same "
-                        "track); is it the truth of this run? (--tolerance widens the match)", file=file)
-    e = np.full(len(merged), np.nan)
-    n = np.full(len(merged), np.nan)
+    e = np.full(len(tracks), np.nan)
+    n = np.full(len(tracks), np.nan)
     if geographic:
-        for (la, lo), idx in merged.groupby(["origin_lat", "origin_lon"]).indices.items():
+        for (la, lo), idx in origin.groupby(["origin_lat", "origin_lon"]).indices.items():
             ok = idx[np.isfinite(a[idx])]
             if ok.size:
                 e[ok], n[ok] = LocalFrame(la, lo).to_enu(a[ok], b[ok])
     else:
         e, n = a, b
-    de, dn = merged["east_m"].to_numpy() - e, merged["north_m"].to_numpy() - n
-    a, b, c = (merged[k].to_numpy() for k in ("var_east_m2", "cov_en_m2", "var_north_m2"))
-    det = a * c - b * b
+    de, dn = tracks["east_m"].to_numpy(float) - e, tracks["north_m"].to_numpy(float) - n
+    va, cov, vb = (tracks[k].to_numpy(float) for k in ("var_east_m2", "cov_en_m2", "var_north_m2"))
+    det = va * vb - cov * cov
     with np.errstate(invalid="ignore", divide="ignore"):
-        nees = (c * de * de - 2 * b * de * dn + a * dn * dn) / det
-    if geographic:
-        merged = merged.rename(columns={"true_a": "true_lat", "true_b": "true_lon"})
-    else:
-        merged = merged.drop(columns=["true_a", "true_b"])
-    return merged.drop(columns="_order").assign(true_east_m=e, true_north_m=n, error_m=np.hypot(de, dn),
-                                                nees=nees).reset_index(drop=True)
+        nees = (vb * de * de - 2 * cov * de * dn + va * dn * dn) / det
+    # columns this adds replace any of the same name (a simulated log's truth passed through the track)
+    est = tracks.drop(columns=[c for c in _ADDED if c in tracks.columns])
+    true = {"true_lat": a, "true_lon": b} if geographic else {}
+    return est.assign(**true, true_east_m=e, true_north_m=n, error_m=np.hypot(de, dn), nees=nees
+                      ).reset_index(drop=True)
 
 
 def _inside(values: np.ndarray, dof: np.ndarray) -> float:
@@ -135,20 +168,34 @@ def _stats(g: pd.DataFrame) -> dict:
     return row
 
 
-def evaluate_tracks(tracks: pd.DataFrame, truth=None, *, tolerance_s: float = 0.5,
-                    truth_file="truth") -> tuple[dict, pd.DataFrame]:
-    """(summary {"overall": {...}, "tracks": {id: {...}}}, tracks with error columns if truth given)."""
+def evaluate_tracks(tracks: pd.DataFrame, truth=None, *, tolerance_s: float = 0.5, truth_file="truth",
+                    truth_columns: bool = False, read: ReadOptions = ReadOptions(),
+                    report: ReadReport | None = None) -> tuple[dict, pd.DataFrame]:
+    """(summary {"overall": {...}, "tracks": {id: {...}}}, tracks with error columns if truth given).
+
+    truth          a file in any input format or a DataFrame, matched by track and nearest time
+                   (within ``tolerance_s``), see :func:`attach_truth`
+    truth_columns  instead: the truth columns of the table's own rows (true_lat/true_lon or
+                   true_x/true_y: a simulated log's truth passed through ``mptrack track``), no matching
+    read, report   how the truth is read, and what its reading noted (:func:`attach_truth`)
+    """
+    if truth is not None and truth_columns:
+        raise ParameterError("truth_columns: give a truth or truth_columns=True, not both")
+    evaluated = truth is not None or truth_columns
     needed = ["track_id", "t", "flag", "nis", "nis_dof"] + (
         ["east_m", "north_m", "var_east_m2", "cov_en_m2", "var_north_m2", "origin_lat", "origin_lon"]
-        if truth is not None else [])
+        if evaluated else [])
     missing = [c for c in needed if c not in tracks.columns]
     if missing:
         raise DataError(f"not a table written by mptrack track (no column {', '.join(missing)}); track the log "
                         "first: mptrack track LOG --out TRACKS", file=tracks.attrs.get("file", "tracks"))
     if truth is not None:
-        tracks = attach_truth(tracks, truth, tolerance_s=tolerance_s, file=truth_file)
+        tolerance_s = check_positive("tolerance_s", tolerance_s, allow_zero=True)
+        tracks = attach_truth(tracks, truth, tolerance_s=tolerance_s, file=truth_file, read=read, report=report)
+    elif truth_columns:
+        tracks = _own_truth(tracks)
     per = {str(tid): _stats(g) for tid, g in tracks.groupby("track_id", sort=False)}
     summary = {"overall": _stats(tracks), "tracks": per}
-    if truth is not None:
+    if evaluated:
         summary["overall"]["matched_points"] = int(np.isfinite(tracks["error_m"]).sum())
     return summary, tracks

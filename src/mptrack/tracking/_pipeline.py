@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import json
 import time
+from collections import deque
 from contextlib import nullcontext
 from dataclasses import asdict, dataclass, fields
 from pathlib import Path
@@ -81,10 +82,10 @@ class TrackTask:
 
 
 def _with_input_columns(points: pa.Table, rows: pd.DataFrame) -> pa.Table:
-    """The point table with the input's own further columns (elevation, speed, any user column)
-    appended, where it has one row per input row (the gated filter; the grid filters resample).
-    A name the point table already uses gets the prefix ``input_``."""
-    extra = FIXES.extra_columns(rows.columns)
+    """The point table with the input's own further columns (accuracy_m, hdop, elevation, speed, any
+    user column) appended, where it has one row per input row (the gated filter; the grid filters
+    resample).  A name the point table already uses gets the prefix ``input_``."""
+    extra = [c for c in ("accuracy_m",) if c in rows.columns] + FIXES.extra_columns(rows.columns)
     if not extra or points.num_rows != len(rows):
         return points
     for name in extra:
@@ -184,18 +185,38 @@ def _run(source, options: TrackOptions, *, cells_table, on_error, chunk_rows, ex
         try:
             if cells_table is None and options.noise == "file" and (options.sigma_m is None or options.q is None):
                 fixed, chunks = _file_noise(chunks, options)
+            chunks, advance = _counting_tracks(chunks, progress)
             return run_stream(TrackTask(options, cells_table, fixed), chunks, parts=_PARTS,
                               out_dir=None if store is None else store.dir, part_format="arrow", executor=executor,
-                              max_workers=max_workers, client=client, manifest=manifest, progress=progress)
+                              max_workers=max_workers, client=client, manifest=manifest, progress=advance)
         except InputNotSorted:
             if store is not None:
                 store.discard()
             report.reset()
 
 
+def _counting_tracks(chunks, progress):
+    """(the chunks as they are read, a progress callback for run_stream): each finished chunk advances
+    ``progress`` by its number of tracks (taken in the order the chunks were read: exact with the
+    serial executor, close with the others), so progress counts tracks, not chunks."""
+    if progress is None:
+        return chunks, None
+    sizes: deque[int] = deque()
+
+    def read():
+        for chunk in chunks:
+            sizes.append(int(chunk.data["track_id"].nunique()))
+            yield chunk
+
+    def advance(k: int = 1) -> None:
+        progress(sum(sizes.popleft() for _ in range(min(k, len(sizes)))))
+    return read(), advance
+
+
 def track_file(input, out, *, cells=None, options: TrackOptions = TrackOptions(), on_error: str = "raise",
                read: ReadOptions = ReadOptions(), resume: bool = False, chunk_rows: int = DEFAULT_CHUNK_ROWS, executor: str = "serial",
-               max_workers: int | None = None, client=None, track_summary=None, progress=None) -> dict:
+               max_workers: int | None = None, client=None, track_summary=None, progress=None,
+               on_points=None) -> dict:
     """Track every track of ``input`` and write the point table to ``out`` (.parquet, .csv or .geojson).
 
     input          position fixes (CSV/Parquet/GPX, or a directory of Parquet files, hive-partitioned
@@ -210,6 +231,10 @@ def track_file(input, out, *, cells=None, options: TrackOptions = TrackOptions()
     executor       "serial", "processes" or "dask" (see :func:`mptrack.batch.run_stream`); the output
                    is the same whichever runs it
     track_summary  optional path: the track table (one row per track: noise estimates, counts, NIS)
+    on_points      optional: called once, after ``out`` is written, with the paths of the chunks' point
+                   tables (Arrow IPC files, ``pyarrow.feather.read_table`` reads them; in output row
+                   order), to read the run's points again without reading ``out`` back (the HTML
+                   report); the files are removed after the call
 
     Memory is bounded by ``chunk_rows`` (rows of whole tracks per chunk) and the largest track, not
     by the input.  Returns a summary dict (JSON-safe).
@@ -240,18 +265,22 @@ def track_file(input, out, *, cells=None, options: TrackOptions = TrackOptions()
         progress = progress or _NullProgress()
         resumed = store.parts("tracks")
         try:
-            with progress.task(f"tracking {input.name}", total=None) as advance:
+            with progress.task(f"tracking the tracks of {input.name}", total=None) as advance:
                 results = _run(input, options, cells_table=cell_table, on_error=on_error, chunk_rows=chunk_rows,
                                executor=executor, max_workers=max_workers, client=client, store=store,
                                manifest=_manifest(input, options, cells, chunk_rows, read), progress=advance,
                                report=report, read=read)
             resumed = [p for p in resumed if p.exists()]  # an unsorted input starts again from scratch
-            points = sum(_rows(p) for p in store.parts("points"))
+            files = store.check(results)  # every chunk's parts, or an OutputError if some vanished
+            points = sum(_rows(p) for p in files.get("points", ()))
             tracks_resumed = sum(_rows(p) for p in resumed)
-            store.finish("points", empty=_empty_points())
-            tracks = _tracks_frame([read_part(p) for p in store.parts("tracks")])
+            store.finish(files.get("points", []), empty=_empty_points())
+            if on_points is not None:
+                on_points(files.get("points", []))
+            tracks = _tracks_frame([read_part(p) for p in files.get("tracks", ())])
             if track_summary is not None:
-                store.finish("tracks", to=track_summary, empty=pa.Table.from_pandas(tracks, preserve_index=False))
+                store.finish(files.get("tracks", []), to=track_summary,
+                             empty=pa.Table.from_pandas(tracks, preserve_index=False))
             store.discard()
         except BaseException as exc:
             if (_resumable(exc) or resumed) and store.parts(_PARTS[-1]):

@@ -9,7 +9,7 @@ from typing import Callable
 from ..errors import UnknownNameError
 from ..linear import FILTERS as LINEAR_FILTERS
 from ..models import ContinuousLinearModel, constant_acceleration_continuous, constant_velocity_continuous
-from ..nonlinear import ekf_ranges, fcs_ranges, fekf_ranges
+from ..cellular import ekf_ranges, fcs_ranges, fekf_ranges
 
 __all__ = ["MotionModel", "MODELS", "get_model", "FIX_FILTERS", "get_fix_filter", "CELL_METHODS",
            "get_cell_method", "DEFAULT_SIGMA_M"]
@@ -57,7 +57,7 @@ FIX_FILTERS: dict[str, str] = {
        for name, spec in LINEAR_FILTERS.items() if name != "KF"},
 }
 
-#: Cellular-range filters of :mod:`mptrack.nonlinear` (Bouzera et al. 2017).
+#: Cellular-range filters of :mod:`mptrack.cellular` (Bouzera et al. 2017).
 CELL_METHODS: dict[str, Callable] = {"ekf": ekf_ranges, "fekf": fekf_ranges, "fcs": fcs_ranges}
 
 

@@ -39,7 +39,7 @@ import pandas as pd
 
 from .._validation import check_int, check_positive
 from ..errors import DataError, ParameterError, UnknownNameError
-from ..io import FIXES, cell_key, iter_track_chunks
+from ..io import FIXES, ReadOptions, ReadReport, cell_key, iter_track_chunks
 from ..io._geodesy import enu_to_geodetic
 from ..radio import arfcn_to_frequency, path_loss
 
@@ -241,14 +241,14 @@ def _simulated_chunks(rng, tracks, duration_s, interval, q, speed_mps) -> Iterat
         yield _simulated_truth(rng, first, min(per_chunk, tracks - first), duration_s, interval, q, speed_mps)
 
 
-def _along_chunks(path) -> Iterator[_Truth]:
+def _along_chunks(path, read: ReadOptions, report: ReadReport | None) -> Iterator[_Truth]:
     """The tracks of a real position-fix file (lat/lon), each in the frame at its first fix, in chunks of
-    whole tracks of at least CHUNK_ROWS rows (:func:`mptrack.io.iter_track_chunks`, read whole and sorted:
-    truth traces are small)."""
+    whole tracks of at least CHUNK_ROWS rows (:func:`mptrack.io.iter_track_chunks` with ``read``, read whole
+    and sorted: truth traces are small; its notes go to ``report``)."""
     from ._columns import FixTable
 
     first = 0
-    for rows in iter_track_chunks(path, FIXES, chunk_rows=CHUNK_ROWS, sort=True):
+    for rows in iter_track_chunks(path, FIXES, chunk_rows=CHUNK_ROWS, sort=True, read=read, report=report):
         table = FixTable.from_frame(rows)
         if not table.geographic:
             raise DataError("along: the truth needs lat/lon columns", file=path, column="lat")
@@ -331,14 +331,17 @@ SCENARIOS: dict[str, Scenario] = {s.name: s for s in (
 def simulate_chunks(scenario: str, tracks: int, rng: np.random.Generator, *, duration_s: float = 300.0,
                     along=None, interval: Intervals | str | None = None, q: float = 0.5, speed_mps: float = 10.0,
                     sigma_m: float | None = None, outlier_rate: float | None = None,
-                    accuracy_column: bool | None = None) -> Iterator[tuple[pd.DataFrame, pd.DataFrame | None]]:
+                    accuracy_column: bool | None = None, read: ReadOptions = ReadOptions(),
+                    report: ReadReport | None = None) -> Iterator[tuple[pd.DataFrame, pd.DataFrame | None]]:
     """(log with truth columns, cell table or None) of ``scenario`` for chunks of whole tracks (see the module
     doc); the arguments are checked here, before the first chunk.
 
     tracks, duration_s, interval, q (m^2/s^3), speed_mps: the simulated truth (ignored with ``along``, a
-    position-fix file whose tracks are the truth).  interval: an :class:`Intervals`, its text form, or None
-    for the scenario's default.  sigma_m (m), outlier_rate (fraction), accuracy_column: options of the
-    ``gps`` scenario (None: its default); giving one to a scenario without it is a ParameterError.
+    position-fix file whose tracks are the truth, read like ``track``'s input: ``read`` says what its
+    column names and units are where they are not recognised, ``report`` receives how it was read).
+    interval: an :class:`Intervals`, its text form, or None for the scenario's default.  sigma_m (m),
+    outlier_rate (fraction), accuracy_column: options of the ``gps`` scenario (None: its default); giving
+    one to a scenario without it is a ParameterError.
     """
     if scenario not in SCENARIOS:
         raise UnknownNameError(f"scenario: unknown name {scenario!r}; known: {', '.join(SCENARIOS)}")
@@ -352,7 +355,7 @@ def simulate_chunks(scenario: str, tracks: int, rng: np.random.Generator, *, dur
                                      f"(its options: {', '.join(options) or 'none'})")
             options[name] = _CHECKS[name](value)
     if along is not None:
-        truths = _along_chunks(along)
+        truths = _along_chunks(along, read, report)
     else:
         tracks = check_int("tracks", tracks, minimum=1)
         duration_s = check_positive("duration_s", duration_s)
@@ -367,11 +370,12 @@ def simulate_chunks(scenario: str, tracks: int, rng: np.random.Generator, *, dur
 def simulate(scenario: str, tracks: int, rng: np.random.Generator, *, duration_s: float = 300.0, along=None,
              interval: Intervals | str | None = None, q: float = 0.5, speed_mps: float = 10.0,
              sigma_m: float | None = None, outlier_rate: float | None = None,
-             accuracy_column: bool | None = None) -> tuple[pd.DataFrame, pd.DataFrame | None]:
+             accuracy_column: bool | None = None, read: ReadOptions = ReadOptions(),
+             report: ReadReport | None = None) -> tuple[pd.DataFrame, pd.DataFrame | None]:
     """(log with truth columns, cell table or None) of ``scenario``: all chunks of :func:`simulate_chunks`
     (same arguments) in one table."""
     chunks = simulate_chunks(scenario, tracks, rng, duration_s=duration_s, along=along, interval=interval, q=q,
                              speed_mps=speed_mps, sigma_m=sigma_m, outlier_rate=outlier_rate,
-                             accuracy_column=accuracy_column)
+                             accuracy_column=accuracy_column, read=read, report=report)
     logs, cells = zip(*chunks)
     return pd.concat(logs, ignore_index=True), None if cells[0] is None else pd.concat(cells, ignore_index=True)

@@ -36,7 +36,10 @@ def main() -> None:
     write("crlf.csv", f, lineterminator="\r\n")
     write("semicolon-decimal-comma.csv", f, sep=";", decimal=",")
     write("quoted-numbers.csv", f, quoting=1)  # csv.QUOTE_ALL
-    write("tz-offset.csv", f.assign(time=(t.dt.tz_convert("Europe/Zagreb")).map(lambda x: x.isoformat())))
+    local = f.assign(time=(t.dt.tz_convert("Europe/Zagreb")).map(lambda x: x.isoformat()))
+    write("tz-offset.csv", local)
+    # swapped within the valid ranges (13.7 N 45.3 E); only the UTC offset +01:00 tells
+    write("lat-lon-swapped-tz.csv", local.assign(lat=f["lon"], lon=f["lat"]))
     mixed = t.map(lambda x: x.isoformat()).where(np.arange(N) % 2 == 0,
                                                   t.dt.tz_convert("Europe/Zagreb").map(lambda x: x.isoformat()))
     write("mixed-tz.csv", f.assign(time=mixed))
@@ -56,12 +59,14 @@ def main() -> None:
     # a trace at 113.7 E written with the columns swapped (the car trace moved 100 degrees east)
     write("lat-lon-swapped.csv", f.assign(lat=f["lon"] + 100.0, lon=f["lat"]))
     write("epoch-seconds.csv", f.assign(time=secs))
+    write("iso-without-zone.csv", f.assign(time=f["time"].str.removesuffix("Z")))
     write("epoch-milliseconds.csv", f.assign(time=secs * 1000))
     write("epoch-ambiguous.csv", f.assign(time=secs * 10))  # ~1.6e10: seconds in 2476 or ms in 1970
     (HERE / "empty.csv").write_bytes(b"")
     write("header-only.csv", f.iloc[:0])
     write("odd-column-names.csv", f.rename(columns={"track_id": "Device", "time": "Timestamp", "lat": "Latitude",
                                                      "lon": "Lng"}))
+    write("unknown-column-names.csv", f.rename(columns={"lat": "Breite", "lon": "Laenge"}))
     write("row-id-column.csv", f.rename(columns={"track_id": "id"}).assign(id=np.arange(1, N + 1)))
     write("two-latitudes.csv", f.rename(columns={"lat": "LAT"}).assign(Latitude=f["lat"]))
     dup = pd.concat([f.iloc[:10], f.iloc[5:8], f.iloc[10:]]).sort_values("time", kind="stable")

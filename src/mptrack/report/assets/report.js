@@ -13,7 +13,7 @@
     resets: {color: "#6a3d9a", label: "filter resets"},
     gaps: {color: "#000", label: "gaps (no fixes for a while)"},
     truth: {color: "#000", label: "truth"},
-    ellipses: {color: "#1f77b4", label: "1-σ uncertainty ellipses (selected track)"}
+    ellipses: {color: "#1f77b4", label: "1-σ uncertainty ellipses"}
   };
   function colour(i) { return PALETTE[i % PALETTE.length]; }
   function el(tag, attrs, text) {
@@ -176,7 +176,7 @@
     });
     lab.appendChild(box);
     lab.appendChild(el("span", {"class": "swatch " + kind}));
-    lab.appendChild(document.createTextNode(" " + KIND_STYLE[kind].label + " (" + info.count + ")"));
+    lab.appendChild(document.createTextNode(" " + KIND_STYLE[kind].label + " (" + info.text + ")"));
     panel.appendChild(lab);
   });
 
@@ -222,14 +222,30 @@
           if (m * v >= lo * 0.999 && m * v <= hi * 1.001) out.push(m * v);
         });
       }
+      // the bounds are labels (see logBounds): decades over two decades or more, else every 1-2-5 value
       var decades = out.filter(function (v) { return Math.abs(Math.log10(v) - Math.round(Math.log10(v))) < 1e-9; });
-      return decades.length >= 2 ? decades : out.length >= 2 ? out : ticks(lo, hi, false);
+      return Math.log10(hi / lo) >= 2 - 1e-9 && decades.length >= 2 ? decades : out.length >= 2 ? out : ticks(lo, hi, false);
     }
+    var span = hi - lo || 1, step = linearStep(lo, hi);
+    for (var t = Math.ceil(lo / step) * step; t <= hi + 1e-9 * span; t += step) out.push(t);
+    return out;
+  }
+  function linearStep(lo, hi) {  // 1, 2 or 5 times a power of ten, 4 to 10 steps from lo to hi
     var span = hi - lo || 1, step = Math.pow(10, Math.floor(Math.log10(span / 4)));
     if (span / step > 10) step *= 2;
     if (span / step > 10) step *= 2.5;
-    for (var t = Math.ceil(lo / step) * step; t <= hi + 1e-9 * span; t += step) out.push(t);
-    return out;
+    return step;
+  }
+  function nice125(v, up) {  // the nearest 1, 2 or 5 times a power of ten below (or above) v > 0
+    var p = Math.pow(10, Math.floor(Math.log10(v))), m = [1, 2, 5, 10];
+    if (up) { for (var i = 0; i < m.length; i++) if (m[i] * p >= v * (1 - 1e-9)) return m[i] * p; }
+    for (var j = m.length - 1; j >= 0; j--) if (m[j] * p <= v * (1 + 1e-9)) return m[j] * p;
+    return v;
+  }
+  function logBounds(lo, hi) {  // a log axis from a label to a label, so every value lies between two labels
+    var a = nice125(lo, false), b = nice125(hi, true);
+    if (Math.log10(b / a) < 2) return [a, b];  // labels at 1, 2 and 5 times powers of ten
+    return [Math.pow(10, Math.floor(Math.log10(lo) + 1e-9)), Math.pow(10, Math.ceil(Math.log10(hi) - 1e-9))];  // decades
   }
   function plot(spec) {
     var W = 560, H = 190, L0 = 58, R0 = 10, T0 = 22, B0 = 34;
@@ -243,8 +259,15 @@
     if (spec.band) { ymin = Math.min(ymin, spec.band[0]); ymax = Math.max(ymax, spec.band[1]); }
     if (spec.floor !== undefined) ymin = Math.max(ymin, spec.floor);
     if (!isFinite(xmin)) { s.appendChild(svg("text", {x: W / 2, y: H / 2, "text-anchor": "middle"})).textContent = "no values"; return s; }
+    if (spec.xr) { xmin = spec.xr[0]; xmax = spec.xr[1]; }  // every plot of a track on the same time axis
     if (!spec.log) { ymin = Math.min(0, ymin); }
-    if (ymax <= ymin) ymax = ymin + (spec.log ? ymin : 1);
+    if (ymax <= ymin) {  // a constant series: in the middle of the plot, between two labels
+      if (spec.log) { ymin = ymin / 2; ymax = ymax * 2; } else { ymin = ymin - 1; ymax = ymax + 1; }
+    }
+    if (spec.log) { var lb = logBounds(ymin, ymax); ymin = lb[0]; ymax = lb[1]; } else {
+      var st = linearStep(ymin, ymax);  // from a label to a label
+      ymin = Math.floor(ymin / st + 1e-9) * st; ymax = Math.ceil(ymax / st - 1e-9) * st;
+    }
     if (xmax <= xmin) xmax = xmin + 1;
     var ly = spec.log ? Math.log10 : function (v) { return v; };
     var a = ly(ymin), b = ly(ymax);
@@ -298,23 +321,24 @@
     box.textContent = "";
     if (!tr.drawn) { box.appendChild(el("p", {}, "Track " + id + " has no position to draw.")); return; }
     decode(tr);
-    var shown = [];
-    if (tr.sp) { box.appendChild(plot({title: "speed (m/s)", x: tr.time, y: tr.sp, colour: tr.colour})); shown.push("speed"); }
-    box.appendChild(plot({title: "1-σ position uncertainty (m)", x: tr.time, y: tr.sd, colour: tr.colour, log: true}));
+    var shown = [], xr = [tr.time[0], tr.time[tr.time.length - 1]];
+    if (tr.sp) { box.appendChild(plot({title: "speed (m/s)", x: tr.time, y: tr.sp, colour: tr.colour, xr: xr})); shown.push("speed"); }
+    box.appendChild(plot({title: "1-σ position uncertainty (m)", x: tr.time, y: tr.sd, colour: tr.colour, log: true, xr: xr}));
     shown.push("1-σ position uncertainty sqrt(var_east + var_north)");
     if (tr.nis) {
       var band = tr.dof ? P.bands[String(tr.dof)] : null;
       var rejected = tr.nis.map(function (v, i) { return tr.f[i] === "o"; });
+      var floor = band ? Math.pow(10, Math.floor(Math.log10(band[0] / 100))) : undefined;  // the axis starts there
+      var low = band && tr.nis.some(function (v) { return v !== null && v < floor; });
       box.appendChild(plot({title: "NIS" + (band ? " with its 95 % χ² band (" + tr.dof + " dof)" : ""), x: tr.time, y: tr.nis,
-                            colour: tr.colour, log: true, dots: true, band: band, mark: rejected,
-                            floor: band ? band[0] / 100 : undefined}));
+                            colour: tr.colour, log: true, dots: true, band: band, mark: rejected, floor: floor, xr: xr}));
       shown.push("NIS of every fix" + (band ? " against the 95 % χ² band of " + tr.dof + " degrees of freedom (green)" : "")
                  + (rejected.some(Boolean) ? ", fixes rejected by the gate as orange rings" : "")
-                 + (band ? "; values below " + fmt(band[0] / 100) + " are drawn on the axis" : ""));
+                 + (low ? "; values below " + fmt(floor) + " are drawn on the axis" : ""));
     }
-    if (tr.err) { box.appendChild(plot({title: "error against truth (m)", x: tr.time, y: tr.err, colour: "#d62728", log: true})); shown.push("error against truth"); }
+    if (tr.err) { box.appendChild(plot({title: "error against truth (m)", x: tr.time, y: tr.err, colour: "#d62728", log: true, xr: xr})); shown.push("error against truth"); }
     var cap = "Track " + id + ": " + shown.join("; ") + ". " + tr.drawn + " of " + tr.n + " points drawn"
-              + (tr.drawn < tr.n ? " (every k-th point, all rejected fixes, resets and gaps)" : "") + ".";
+              + (tr.drawn < tr.n ? " (every k-th point; rejected fixes thinned alike)" : "") + ".";
     document.getElementById("plots-caption").textContent = cap;
     document.getElementById("plots-track").textContent = id;
   }

@@ -60,6 +60,16 @@ def _rk4_step(f, X: np.ndarray, h: float, cap: float | None) -> np.ndarray:
     return X + _cap(h / 6 * (k1 + 2.0 * k2 + 2.0 * k3 + k4), cap)
 
 
+def rk4_flow(model, X: np.ndarray, duration: float, steps: int) -> np.ndarray:
+    """The points X (..., n) carried by the noise-free drift flow of ``model`` over ``duration``:
+    ``steps`` RK4 steps, increments capped at ``model.max_increment`` (:func:`_rk4_step`)."""
+    X = np.array(X, dtype=float)
+    h = duration / steps
+    for _ in range(steps):
+        X = _rk4_step(model.drift, X, h, model.max_increment)
+    return X
+
+
 @dataclass(frozen=True, eq=False)
 class ContinuousDiscreteModel:
     """A validated continuous-time SDE with discrete-time measurements (seed 004 eq. 1).

@@ -6,10 +6,10 @@
     d_i(k) = ||p(k) - B_i|| + v_i(k),  v ~ N(0, R)  p = position part of X, B_i = station i
 
 Units are the caller's (the paper works in km).  :func:`ekf_ranges` is
-:func:`mptrack.nonlinear.ekf_filter` on the model built from the motion and
-:func:`mptrack.models.ranges`; the batch functions run B independent tracks at
-once (leading axis) in one vectorised core, which is how the Monte-Carlo
-reproduction stays fast (the tests check both agree to 1e-12).
+:func:`mptrack.nonlinear.ekf_filter` on ``nonlinear_model(motion, ranges(...))``, a named
+model that runs compiled; the batch function runs B independent tracks at once
+(leading axis) in one compiled loop, which is how the Monte-Carlo reproduction
+stays fast (the tests check both agree with the generic path to 1e-12).
 """
 
 from __future__ import annotations
@@ -20,9 +20,8 @@ from scipy.optimize import least_squares
 from .._validation import as_array, as_real, check_covariance, check_int, check_positive, finite_result
 from ..errors import ParameterError, ShapeError, SingularMatrixError
 from ..linear import FilterResult
-from ..models import NonlinearModel, ranges
-from ._common import BatchFilterResult
-from ._extended import ekf_filter, ekf_filter_batch
+from ..models import LinearGaussianModel, NonlinearModel, nonlinear_model, ranges
+from ..nonlinear import BatchFilterResult, ekf_filter, ekf_filter_batch
 
 __all__ = [
     "BatchFilterResult",
@@ -137,11 +136,10 @@ def ekf_ranges(z, stations, x0, P0, Q, R, *, motion: str = "random-walk", dt: fl
 
 
 def _ranges_model(stations, F, Q, R, pos, motion) -> NonlinearModel:
-    meas = ranges(stations, R, position=pos)
-    Ft = F.T.copy()
-    return NonlinearModel(lambda X: X @ Ft, meas.h, Q, meas.R,
-                          jac_f=lambda x: np.broadcast_to(F, np.shape(x)[:-1] + F.shape), jac_h=meas.jac_h,
-                          name=f"ranges EKF ({motion})")
+    """The motion (F, Q) observed by :func:`mptrack.models.ranges`: a named model, which the EKF runs
+    compiled (the motion's own H, R are not used: the position with unit noise)."""
+    motion_model = LinearGaussianModel(F, np.eye(F.shape[0])[list(pos)], Q, np.eye(len(pos)))
+    return nonlinear_model(motion_model, ranges(stations, R, position=pos), name=f"ranges EKF ({motion})")
 
 
 @finite_result("the range EKF")

@@ -15,8 +15,8 @@ from __future__ import annotations
 import numpy as np
 
 from ..linear import FilterResult
+from ..nonlinear._pf import particle_filter, pf_substeps
 from ._model import ContinuousDiscreteModel
-from ._pf import particle_filter, pf_substeps
 
 __all__ = ["reference_filter", "pf_substep_study"]
 

@@ -25,32 +25,66 @@ parallel (``prange``) version was 3–12× *slower* whenever the other core was
 busy (OpenMP threads waiting for a descheduled peer), and serial SIMD code
 already meets the budget.
 
-The kernels that call a model kernel are bound to it once per process
-(:func:`_bound`) and compiled then (~1–2 s per model kernel pair): numba
-cannot cache functions that call a function passed in, and passing it at
-every call costs ~15 µs of dispatcher typing.  The model-independent kernels
-are cached on disk.
+The kernels that call a model kernel receive it as two addresses (its C wrapper and
+its numba entry point, :func:`kernel_addresses`) and rebuild a first-class
+function from them inside (:func:`_as_kernel`).  Their signatures then hold only
+arrays and integers, so they are compiled once and cached on disk like the others:
+a new process calls the particle filter of any model, named or the user's own,
+without compiling (a per-process closure over the kernels used to cost 1-2 s per
+model kernel pair at the first call).  Passing the kernel itself as an argument
+would also cache, but numba types a function object at every call (~50-150 us,
+against 0.5 us for two integers).
 """
 
 from __future__ import annotations
 
-import functools
+import weakref
 from dataclasses import dataclass
 
 import numpy as np
-from numba import njit
-from numba.extending import is_jitted
+from numba import njit, types
+from numba.core import cgutils
+from numba.experimental.function_type import _get_jit_address, _get_wrapper_address
+from numba.extending import intrinsic, is_jitted
 
+from .. import _jit_cache  # noqa: F401 - compiled kernels cache in the user's cache directory
 from ..errors import ParameterError
+from ..nonlinear._step_kernels import DIVERGED, NOT_PD, OK, _cholesky, _finite, _store, _symmetrise, _ukf_update
 
-__all__ = ["BlockKernels", "CompiledModel", "weighted_moments", "reweight", "systematic_indices", "resample",
-           "SCHEMES"]
+__all__ = ["BlockKernels", "CompiledModel", "compiled_model", "weighted_moments", "reweight", "systematic_indices",
+           "resample", "SCHEMES"]
 
 _LOG2PI = np.log(2.0 * np.pi)
 #: sub-step schemes of the SDE sampler: stochastic Heun, and Strang splitting with RK4 drift flows
 SCHEMES = ("heun", "rk4-split")
 _HEUN = SCHEMES.index("heun")  # the other scheme, "rk4-split", is 1
 _BLOCK = 256  # points per block: the (n, B) scratch arrays stay in L1
+#: the signature of a block kernel f(X (n, B), params (k,), out (m, B)): C-contiguous float64, params read-only
+KERNEL_SIGNATURE = types.void(types.float64[:, ::1], types.Array(types.float64, 1, "C", readonly=True),
+                              types.float64[:, ::1])
+_KERNEL_TYPE = types.FunctionType(KERNEL_SIGNATURE)
+
+
+def kernel_addresses(kernel) -> tuple[int, int]:
+    """The C-wrapper and numba entry-point addresses of a block kernel compiled for
+    :data:`KERNEL_SIGNATURE` (compiling it for that signature if needed)."""
+    return _get_wrapper_address(kernel, KERNEL_SIGNATURE), _get_jit_address(kernel, KERNEL_SIGNATURE)
+
+
+@intrinsic
+def _as_kernel(typingctx, c_addr, jit_addr):
+    """The block kernel at the addresses of :func:`kernel_addresses`, as a first-class function."""
+
+    def codegen(context, builder, signature, args):
+        fn = cgutils.create_struct_proxy(_KERNEL_TYPE)(context, builder)
+        voidptr = context.get_value_type(types.voidptr)
+        fn.c_addr = builder.inttoptr(args[0], voidptr)
+        fn.py_addr = voidptr(None)   # no Python object: every call goes through an address
+        if "jit_addr" in context.data_model_manager.lookup(_KERNEL_TYPE)._fields:
+            fn.jit_addr = builder.inttoptr(args[1], voidptr)
+        return fn._getvalue()
+
+    return _KERNEL_TYPE(types.intp, types.intp), codegen
 
 
 @dataclass(frozen=True, eq=False)
@@ -229,6 +263,24 @@ def _advance(X, Z, scheme, drift, p, L, h, cap):  # pragma: no cover - compiled
                 X[start + j, r] = x[r, j]
 
 
+@njit(nogil=True)
+def _flow(X, drift, p, h, steps, cap):  # pragma: no cover - compiled
+    """Advance the rows of X (N, n) in place by ``steps`` capped RK4 steps of length h of the
+    noise-free drift flow (``_model._rk4_step``, the same arithmetic)."""
+    N, n = X.shape
+    B = _BLOCK
+    x, y, inc = np.empty((n, B)), np.empty((n, B)), np.empty((n, B))
+    k1, k2, k3, k4 = np.empty((n, B)), np.empty((n, B)), np.empty((n, B)), np.empty((n, B))
+    d = np.empty(B)
+    for start in range(0, N, B):
+        _load(X, start, x)
+        for _ in range(steps):
+            _rk4(x, h, drift, p, k1, k2, k3, k4, y, inc, d, cap)
+        for j in range(min(B, N - start)):
+            for r in range(n):
+                X[start + j, r] = x[r, j]
+
+
 # ---------------------------------------------------------------- weighting
 @njit(nogil=True)
 def _loglik(X, z, ok, periods, Linv, logdet, klog2pi, measurement, p, m):  # pragma: no cover - compiled
@@ -264,20 +316,23 @@ def _loglik(X, z, ok, periods, Linv, logdet, klog2pi, measurement, p, m):  # pra
     return out
 
 
-@functools.lru_cache(maxsize=None)
-def _bound(drift, measurement):
-    """_advance and _loglik with the model kernels bound (compiled once per process and kernel pair): a
-    call then passes no function argument, whose typing costs ~15 µs per call in numba's dispatcher."""
+@njit(cache=True, nogil=True)
+def _advance_at(X, rng, steps, scheme, drift_c, drift_jit, p, L, h, cap):  # pragma: no cover - compiled
+    """:func:`_advance` with the normals drawn here and the drift given by its addresses."""
+    _advance(X, rng.standard_normal((steps, X.shape[0], X.shape[1])), scheme, _as_kernel(drift_c, drift_jit), p,
+             L, h, cap)
 
-    @njit(nogil=True)
-    def advance(X, rng, steps, scheme, p, L, h, cap):  # pragma: no cover - compiled
-        _advance(X, rng.standard_normal((steps, X.shape[0], X.shape[1])), scheme, drift, p, L, h, cap)
 
-    @njit(nogil=True)
-    def loglik(X, z, ok, periods, Linv, logdet, klog2pi, p, m):  # pragma: no cover - compiled
-        return _loglik(X, z, ok, periods, Linv, logdet, klog2pi, measurement, p, m)
+@njit(cache=True, nogil=True)
+def _loglik_at(X, z, ok, periods, Linv, logdet, klog2pi, meas_c, meas_jit, p, m):  # pragma: no cover - compiled
+    """:func:`_loglik` with the measurement given by its addresses."""
+    return _loglik(X, z, ok, periods, Linv, logdet, klog2pi, _as_kernel(meas_c, meas_jit), p, m)
 
-    return advance, loglik
+
+@njit(cache=True, nogil=True)
+def _flow_at(X, drift_c, drift_jit, p, h, steps, cap):  # pragma: no cover - compiled
+    """:func:`_flow` with the drift given by its addresses."""
+    _flow(X, _as_kernel(drift_c, drift_jit), p, h, steps, cap)
 
 
 class CompiledModel:
@@ -292,8 +347,9 @@ class CompiledModel:
         self.kernels = model.kernels
         self.L = np.ascontiguousarray(model.noise_factor())
         self.periods = np.array([0.0 if p is None else p for p in model.periods])
+        self.drift_at = kernel_addresses(self.kernels.drift)
+        self.measurement_at = kernel_addresses(self.kernels.measurement)
         self._check_against_numpy()
-        self._advance, self._loglik = _bound(self.kernels.drift, self.kernels.measurement)
         self._weighting = {}  # pattern of observed components -> (indices, Linv, log det, k log 2π)
 
     def _check_against_numpy(self) -> None:
@@ -314,8 +370,16 @@ class CompiledModel:
         if scheme not in SCHEMES:
             raise ParameterError(f"scheme: expected one of {SCHEMES}, got {scheme!r}")
         cap = np.inf if self.model.max_increment is None else self.model.max_increment
-        self._advance(X, rng, steps, SCHEMES.index(scheme), self.kernels.drift_params, self.L, self.model.dt / steps,
-                      cap)
+        _advance_at(X, rng, steps, SCHEMES.index(scheme), *self.drift_at, self.kernels.drift_params, self.L,
+                    self.model.dt / steps, cap)
+        return X
+
+    def flow(self, X: np.ndarray, duration: float, steps: int) -> np.ndarray:
+        """The points X (N, n) carried by the noise-free drift flow over ``duration``: ``steps``
+        capped RK4 steps (the compiled twin of :func:`_model.rk4_flow`); returns a new array."""
+        X = np.array(X, dtype=float, order="C")
+        cap = np.inf if self.model.max_increment is None else self.model.max_increment
+        _flow_at(X, *self.drift_at, self.kernels.drift_params, duration / steps, steps, cap)
         return X
 
     def log_likelihood(self, z: np.ndarray, X: np.ndarray) -> np.ndarray:
@@ -327,8 +391,20 @@ class CompiledModel:
             self._weighting[key] = (np.flatnonzero(ok), np.linalg.inv(L), 2.0 * np.log(np.diag(L)).sum(),
                                     ok.sum() * _LOG2PI)
         idx, Linv, logdet, klog2pi = self._weighting[key]
-        return self._loglik(X, z, idx, self.periods, Linv, logdet, klog2pi, self.kernels.measurement_params,
-                            self.model.m)
+        return _loglik_at(X, z, idx, self.periods, Linv, logdet, klog2pi, *self.measurement_at,
+                          self.kernels.measurement_params, self.model.m)
+
+
+_COMPILED: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
+
+
+def compiled_model(model) -> CompiledModel:
+    """The :class:`CompiledModel` of ``model``, built (and checked against the NumPy callables) once per
+    model object: the filters of a study call it for every run."""
+    found = _COMPILED.get(model)
+    if found is None:
+        found = _COMPILED[model] = CompiledModel(model)
+    return found
 
 
 @njit(cache=True, nogil=True)
@@ -447,3 +523,156 @@ def resample(X, w, u):  # pragma: no cover - compiled
         for r in range(n):
             out[i, r] = X[idx[i], r]
     return out
+
+
+# ---------------------------------------------------------------- continuous-discrete UKF
+#: the sub-step h of the UKF's moment equations keeps h * rho <= RATE_STEP, rho the drift's rate
+#: (the largest row sum of |df/dx| at the sigma points): see mptrack.nonlinear._ukf
+RATE_STEP = 0.25
+MAX_SUBSTEPS = 10_000
+
+
+@njit(cache=True, nogil=True)
+def _sigma_columns(m, P, c, X, S, L):  # pragma: no cover - compiled
+    """The 2n+1 sigma points of N(m, P) as the columns of X (n, 2n+1); False when c P has no Cholesky
+    factor (S, L: (n, n) scratch)."""
+    n = m.shape[0]
+    for a in range(n):
+        for b in range(n):
+            S[a, b] = c * P[a, b]
+    if not _cholesky(S, L, n):
+        return False
+    for a in range(n):
+        X[a, 0] = m[a]
+        for i in range(n):
+            X[a, 1 + i] = m[a] + L[a, i]
+            X[a, 1 + n + i] = m[a] - L[a, i]
+    return True
+
+
+@njit(cache=True, nogil=True)
+def drift_rate(drift, p, X, Xd, Fd):  # pragma: no cover - compiled
+    """rho = max over the points X (n, N) of the largest row sum of |df/dx| (forward differences with
+    steps 1e-6 (1 + |x|)); Xd, Fd: (n, N (n + 1)) scratch."""
+    n, N = X.shape
+    for j in range(N):
+        for i in range(n + 1):
+            for a in range(n):
+                Xd[a, j * (n + 1) + i] = X[a, j]
+            if i > 0:
+                Xd[i - 1, j * (n + 1) + i] += 1e-6 * (1.0 + abs(X[i - 1, j]))
+    drift(Xd, p, Fd)
+    rho = 0.0
+    for j in range(N):
+        base = j * (n + 1)
+        for a in range(n):
+            row = 0.0
+            for i in range(n):
+                row += abs(Fd[a, base + 1 + i] - Fd[a, base]) / (Xd[i, base + 1 + i] - X[i, j])
+            rho = max(rho, row)
+    return rho
+
+
+@njit(cache=True, nogil=True)
+def substeps_for(rho, dt):  # pragma: no cover - compiled
+    """Sub-steps of length h <= RATE_STEP / rho over dt (at least 1, at most MAX_SUBSTEPS)."""
+    if not rho < np.inf:
+        return MAX_SUBSTEPS
+    return min(max(int(np.ceil(dt * rho / RATE_STEP)), 1), MAX_SUBSTEPS)
+
+
+@njit(cache=True, nogil=True)
+def _moment_rate(m, P, c, Wm, Wc, Q, drift, p, X, F, S, L, dm, dP):  # pragma: no cover - compiled
+    """dm = E f(x), dP = E[f (x - m)^T] + E[(x - m) f^T] + Q by the unscented transform; False when P
+    has no square root."""
+    n, N = X.shape
+    if not _sigma_columns(m, P, c, X, S, L):
+        return False
+    drift(X, p, F)
+    for a in range(n):
+        acc = 0.0
+        for j in range(N):
+            acc += Wm[j] * F[a, j]
+        dm[a] = acc
+    for a in range(n):
+        for b in range(n):
+            acc = 0.0
+            for j in range(N):
+                acc += Wc[j] * F[a, j] * (X[b, j] - m[b])
+            S[a, b] = acc
+    for a in range(n):
+        for b in range(n):
+            dP[a, b] = S[a, b] + S[b, a] + Q[a, b]
+    return True
+
+
+@njit(cache=True, nogil=True)
+def _cd_predict(m, P, h, steps, c, Wm, Wc, Q, drift, p, X, F, S, L, k):  # pragma: no cover - compiled
+    """RK4 over ``steps`` sub-steps of length h of the unscented moment equations, in place; k: (4, 2, n, n)
+    scratch (stage rates: k[s, 0, :, 0] the mean's, k[s, 1] the covariance's)."""
+    n = m.shape[0]
+    mt, Pt = np.empty(n), np.empty((n, n))
+    for _ in range(steps):
+        for s in range(4):
+            if s == 0:
+                mt[:] = m
+                Pt[:, :] = P
+            else:
+                a = h if s == 3 else 0.5 * h
+                for r in range(n):
+                    mt[r] = m[r] + a * k[s - 1, 0, r, 0]
+                    for q in range(n):
+                        Pt[r, q] = P[r, q] + a * k[s - 1, 1, r, q]
+            if not _moment_rate(mt, Pt, c, Wm, Wc, Q, drift, p, X, F, S, L, k[s, 0, :, 0], k[s, 1]):
+                return False
+        h6 = h / 6.0
+        for r in range(n):
+            m[r] += h6 * (k[0, 0, r, 0] + 2.0 * k[1, 0, r, 0] + 2.0 * k[2, 0, r, 0] + k[3, 0, r, 0])
+            for q in range(n):
+                P[r, q] += h6 * (k[0, 1, r, q] + 2.0 * k[1, 1, r, q] + 2.0 * k[2, 1, r, q] + k[3, 1, r, q])
+        _symmetrise(P)
+    return True
+
+
+@njit(cache=True, nogil=True)
+def cd_ukf_run(z, x0, P0, dt, fixed_steps, drift_c, drift_jit, dp, meas_c, meas_jit, mp, periods, Q, R, c, Wm, Wc,
+               xs, Ps, xp, Pp, steps_used):  # pragma: no cover - compiled
+    """The continuous-discrete UKF over z (T, m) (:func:`mptrack.nonlinear.ukf_filter`'s NumPy path,
+    compiled): returns (status, step, loglik) with status OK, NOT_PD or DIVERGED of the named kernels.
+    fixed_steps > 0: that many RK4 sub-steps per dt, else :func:`substeps_for` the drift's rate at the
+    sigma points of each step's prior (recorded in steps_used)."""
+    drift = _as_kernel(drift_c, drift_jit)
+    meas = _as_kernel(meas_c, meas_jit)
+    T, mdim = z.shape
+    n = x0.shape[0]
+    N = 2 * n + 1
+    x, P = x0.copy(), P0.copy()
+    X, F, S, L = np.empty((n, N)), np.empty((n, N)), np.empty((n, n)), np.empty((n, n))
+    Xd, Fd = np.empty((n, N * (n + 1))), np.empty((n, N * (n + 1)))
+    kst = np.empty((4, 2, n, n))
+    Zc = np.empty((mdim, N))
+    loglik = 0.0
+    for k in range(T):
+        steps = fixed_steps
+        if steps <= 0:
+            if not _sigma_columns(x, P, c, X, S, L):
+                return NOT_PD, k, loglik
+            steps = substeps_for(drift_rate(drift, dp, X, Xd, Fd), dt)
+        steps_used[k] = steps
+        if not _cd_predict(x, P, dt / steps, steps, c, Wm, Wc, Q, drift, dp, X, F, S, L, kst):
+            return NOT_PD, k, loglik
+        if not _finite(x, P):
+            return DIVERGED, k, loglik
+        _store(x, P, xp, Pp, k)
+        if not np.isnan(z[k]).all():   # a row without measurements only predicts
+            if not _sigma_columns(x, P, c, X, S, L):
+                return NOT_PD, k, loglik
+            meas(X, mp, Zc)
+            status, x, P, ll = _ukf_update(x, P, X.T, Zc.T, Wm, Wc, R, z, k, periods)
+            if status != OK:
+                return status, k, loglik
+            loglik += ll
+        if not _finite(x, P):
+            return DIVERGED, k, loglik
+        _store(x, P, xs, Ps, k)
+    return OK, T, loglik

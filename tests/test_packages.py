@@ -1,0 +1,66 @@
+"""The package layout by model family (issue 19): every package imports first in a new process, and the
+names that moved out of mptrack.nonlinear still import from there for one release: the same object,
+with exactly one DeprecationWarning that names the new place."""
+
+import subprocess
+import sys
+import warnings
+
+import pytest
+
+import mptrack.cellular as cellular
+import mptrack.continuous as continuous
+import mptrack.nonlinear as nonlinear
+
+#: mptrack.nonlinear's public names before the split (release 0.1.0)
+NONLINEAR_0_1 = (
+    "BatchFilterResult", "check_stations", "ekf_ranges", "ekf_ranges_batch", "motion_matrix", "motion_position",
+    "range_measurement", "range_fix", "bouzera_fekf_fis", "bouzera_fcs_fis", "fekf_ranges", "fekf_ranges_batch",
+    "fcs_ranges", "fcs_ranges_batch", "fuse_local_solutions", "local_solutions", "ContinuousDiscreteModel",
+    "BlockKernels", "zhao2013_model", "linear_sde_model", "simulate_sde", "ZHAO2013_X0", "FEMGrid", "GridDensity",
+    "GridMixture", "FEMStep", "fem_filter", "fem_steps", "shape_functions", "ukf_filter", "ukf_smoother",
+    "ekf_filter", "ekf_smoother", "ekf_step", "ekf_filter_batch", "imm_filter", "IMMResult", "cv_ca_models",
+    "sigma_points", "particle_filter", "pf_substeps", "systematic_resample", "reference_filter", "pf_substep_study",
+)
+HOMES = {"mptrack.nonlinear": nonlinear, "mptrack.cellular": cellular, "mptrack.continuous": continuous}
+
+
+def _get(module, name: str):
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        value = getattr(module, name)
+    return value, caught
+
+
+@pytest.mark.parametrize("name", NONLINEAR_0_1)
+def test_every_name_of_the_old_nonlinear_package_still_imports(name):
+    """A name that stayed imports silently; a moved one is its new package's object, with one warning
+    that points at the caller and names the new path."""
+    value, caught = _get(nonlinear, name)
+    homes = [path for path, module in HOMES.items() if name in module.__all__]
+    assert len(homes) == 1, f"{name} is exported by {homes}"
+    if homes == ["mptrack.nonlinear"]:
+        assert not caught
+        return
+    assert value is getattr(HOMES[homes[0]], name)
+    assert [w.category for w in caught] == [DeprecationWarning]
+    assert f"moved to {homes[0]}.{name}" in str(caught[0].message)
+    assert caught[0].filename == __file__
+
+
+def test_the_from_import_statement_warns_and_unknown_names_still_fail():
+    with pytest.warns(DeprecationWarning, match=r"mptrack\.nonlinear\.fem_filter moved to mptrack\.continuous"):
+        from mptrack.nonlinear import fem_filter
+    assert fem_filter is continuous.fem_filter
+    with pytest.raises(ImportError):
+        from mptrack.nonlinear import no_such_name  # noqa: F401
+    assert not hasattr(nonlinear, "_fem")   # private modules moved without a forwarding path
+
+
+@pytest.mark.parametrize("module", ["mptrack.nonlinear", "mptrack.continuous", "mptrack.cellular",
+                                    "mptrack.continuous._model", "mptrack.nonlinear._common", "mptrack.batch"])
+def test_each_package_imports_first_in_a_new_process(module):
+    """nonlinear and continuous depend on each other: importing either one first must work."""
+    done = subprocess.run([sys.executable, "-W", "error::DeprecationWarning", "-c", f"import {module}"],
+                          capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
