@@ -1,5 +1,7 @@
 """Batch engine ≡ the reference filters of mptrack.linear, track by track."""
 
+import itertools
+
 import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
@@ -349,7 +351,9 @@ def _generic_model():
 
 
 def test_results_do_not_depend_on_the_thread_count(monkeypatch):
-    """1 and 2 numba threads give bitwise the same results (generated and generic kernels)."""
+    """1 and 2 numba threads give bitwise the same results (generated and generic kernels), on a
+    small ragged batch and on one large enough (3 * 10^5 steps) for the threads to run at the same
+    time: a scratch array shared by the threads went unnoticed on the small batch alone."""
     import numba
 
     from mptrack.batch import _inputs
@@ -363,8 +367,9 @@ def test_results_do_not_depend_on_the_thread_count(monkeypatch):
         for threads in (1, 2):
             numba.set_num_threads(threads)
             runs = []
-            for model in (*FIXED_MODELS.values(), _generic_model()):
-                z, lengths, x0 = _ragged_gappy(model, 3, B=37, T=60)
+            for model, (B, T) in itertools.product((*FIXED_MODELS.values(), _generic_model()),
+                                                   ((37, 60), (1500, 200))):
+                z, lengths, x0 = _ragged_gappy(model, 3, B=B, T=T)
                 for dtype in (np.float64, np.float32):
                     zs = z.astype(dtype)
                     runs.append(batch.steady_state_filter(model, zs, x0, lengths=lengths))
