@@ -25,15 +25,18 @@ def test_batch_suite_reports_rates_copy_ratios_with_spread_and_compile_times(mon
     rep = bench_batch.batch_suite(True)
     col = {c: i for i, c in enumerate(rep["columns"])}
     names = [row[0] for row in rep["rows"]]
-    assert names[0].startswith("memory copy")
+    assert names[0].startswith("numba copy")
     for name in ("plain kernel (anchor)", "batch SS f64, out=", "batch SS f64, allocating",
                  "batch KF shared gains f64, out=", "batch SS f32, out="):
         assert name in names
     assert any("model A 3-D" in n for n in names) and any("generic kernel" in n for n in names)
     for row in rep["rows"]:
-        assert row[col["updates/s"]] > 0 and row[col["x copy"]] > 0
+        assert row[col["updates/s (best)"]] > 0 and row[col["x copy (best)"]] > 0
+        assert row[col["x copy (median of pairs)"]] > 0
     plain = next(r for r in rep["rows"] if r[0] == "plain kernel (anchor)")
     assert plain[col["x plain kernel"]] == 1.0
+    # every figure is a throughput or a ratio of throughputs (higher is better): no times
+    assert not any(word in c for c in rep["columns"] for word in ("time", "seconds", "us/", "ms"))
     assert rep["agreement"]["plain kernel"] < 1e-8
     assert all(r["seconds"] > 0 for r in rep["compile"])
     assert any("load average" in note for note in rep["notes"])

@@ -275,8 +275,8 @@ def _ragged_gappy(model, seed, B=11, T=45):
     z[4, 10:14] = np.nan
     z[5, 0] = np.nan
     lengths = rng.integers(0, T + 1, B)
-    lengths[:4] = T
-    lengths[6] = 0
+    lengths[:8] = T              # a full group of eight: the vector blocks (with gaps)
+    lengths[-2] = 0
     return z, lengths, rng.standard_normal((B, model.n))
 
 
@@ -289,11 +289,10 @@ def _close_per_dtype(got, want, dtype):
         assert np.all(np.abs(got - want) <= 1e-6 * np.abs(want) + TOL * max(1.0, np.max(np.abs(want))))
 
 
-# every (n, m) and storage dtype with plain stores; the non-temporal variant (the same code but
-# the store instruction) for each storage dtype and a multi-lane and a one-lane kernel: each
-# generated kernel costs ~8 s of compilation on a cold numba cache
-GENERATED_CASES = [(dims, dtype, False) for dims in FIXED_MODELS for dtype in (np.float64, np.float32)] + [
-    ((2, 1), np.float64, True), ((2, 1), np.float32, True), ((6, 3), np.float64, True)]
+# every (n, m), storage dtype and kind of store (one kernel per (n, m) and dtype: ~20 s of compilation
+# each on a cold numba cache)
+GENERATED_CASES = [(dims, dtype, streaming) for dims in FIXED_MODELS for dtype in (np.float64, np.float32)
+                   for streaming in (False, True)]
 
 
 @pytest.mark.parametrize("dims, dtype, streaming", GENERATED_CASES,
@@ -312,14 +311,15 @@ def test_generated_kernels_equal_the_reference_on_ragged_gappy_batches(dims, dty
     P0 = 0.7 * np.eye(model.n)
     out_ss = np.empty((z.shape[0], z.shape[1], model.n), dtype)
     out_kf = np.empty_like(out_ss)
-    used = []
+    made, launched = [], []
     for name in ("fixed_ss_kernel", "fixed_kf_kernel"):
         real = getattr(_kernels, name)
-        monkeypatch.setattr(_kernels, name, lambda *args, real=real: used.append(args) or real(*args))
+        monkeypatch.setattr(_kernels, name, lambda *args, real=real: made.append(args[:2]) or real(*args))
+    real_launch = _filters.launch
+    monkeypatch.setattr(_filters, "launch", lambda *args: launched.append(args[-1]) or real_launch(*args))
     assert batch.steady_state_filter(model, zs, x0, out=out_ss, lengths=lengths) is out_ss
     assert batch.kalman_filter(model, zs, x0, P0, out=out_kf, lengths=lengths) is out_kf
-    lanes = _kernels.LANES[dims][dtype == np.float32]
-    assert [args[:4] for args in used] == [(*dims, lanes, streaming)] * 2
+    assert made == [dims] * 2 and launched == [streaming] * 2
     for b, L in enumerate(lengths):
         assert np.isnan(out_ss[b, L:]).all() and np.isnan(out_kf[b, L:]).all()
         if L:
@@ -343,6 +343,41 @@ def test_generated_kernels_per_axis_and_incomplete_lane_groups(dims):
                 if L:
                     want = ref(model, z[b, :L, a * model.m:(a + 1) * model.m], x0[b, cols], *extra).x
                     close(got[b, :L, cols], want)
+
+
+@pytest.mark.parametrize("dtype", [np.float64, np.float32], ids=["float64", "float32"])
+@pytest.mark.parametrize("dims", [(2, 1), (6, 3)], ids=["n2m1", "n6m3"])
+def test_vector_blocks_at_every_alignment_of_out(dims, dtype, monkeypatch):
+    """The vector path (eight whole-row tracks, eight steps a block, non-temporal stores at addresses
+    aligned to a vector): ``out`` at each of the eight offsets of that alignment, rows whose length
+    keeps the lanes in one phase (T = 64) or not (T = 43: no vector stores past the cache, then),
+    gaps inside the blocks (the steady-state blocks predict in their lane, the Kalman blocks hand
+    over to the scalar code) -- equal to the reference track by track."""
+    from mptrack.batch import _filters
+
+    monkeypatch.setattr(_filters, "STREAM_BYTES", 0)     # non-temporal stores for any size
+    model = FIXED_MODELS[dims]
+    n, m = dims
+    rng = np.random.default_rng(8)
+    for T in (64, 43):
+        z = 3 * rng.standard_normal((16, T, m)).astype(dtype)
+        z[3, 21, 0] = np.nan          # one component, inside the third block
+        z[6, 30:33] = np.nan          # whole rows
+        z[12, 9, m - 1] = np.nan      # the second group, second block
+        zr = z.astype(np.float64)
+        x0 = rng.standard_normal((16, n))
+        P0 = 0.3 * np.eye(n)
+        ss = [linear.steady_state_filter(model, zr[b], x0[b]).x for b in range(16)]
+        kf = [linear.kalman_filter(model, zr[b], x0[b], P0).x for b in range(16)]
+        buf = np.empty(16 * T * n + 8, dtype)
+        for offset in range(8):
+            out = buf[offset:offset + 16 * T * n].reshape(16, T, n)
+            batch.steady_state_filter(model, z, x0, out=out)
+            for b in range(16):
+                _close_per_dtype(out[b], ss[b], dtype)
+            batch.kalman_filter(model, z, x0, P0, out=out)
+            for b in range(16):
+                _close_per_dtype(out[b], kf[b], dtype)
 
 
 def _generic_model():
@@ -399,25 +434,32 @@ def test_a_clean_call_reads_its_data_once(monkeypatch):
 
 
 @pytest.mark.parametrize("model", [assimakis_model_b(), _generic_model()], ids=["generated", "generic"])
-def test_infinity_in_z_is_refused_inside_and_after_a_track(model):
+@pytest.mark.parametrize("B", [3, 9], ids=["scalar lanes", "vector blocks"])
+def test_infinity_in_z_is_refused_inside_and_after_a_track(model, B):
     for run in (batch.steady_state_filter, lambda m, z, **kw: batch.kalman_filter(m, z, P0=np.eye(m.n), **kw)):
-        z = np.zeros((3, 10, 1))
+        z = np.zeros((B, 20, 1))
         z[1, 4] = np.inf
         with pytest.raises(NonFiniteError, match="^z: "):
             run(model, z)
-        z = np.zeros((3, 10, 1))
-        z[1, 8] = -np.inf                # padding after the track's length
+        z = np.zeros((B, 20, 1))
+        z[1, 8] = np.inf                 # +inf and -inf in one block of a lane
+        z[1, 9] = -np.inf
         with pytest.raises(NonFiniteError, match="^z: "):
-            run(model, z, lengths=[10, 6, 10])
+            run(model, z)
+        z = np.zeros((B, 20, 1))
+        z[1, 18] = -np.inf               # padding after the track's length
+        with pytest.raises(NonFiniteError, match="^z: "):
+            run(model, z, lengths=[20, 6] + [20] * (B - 2))
 
 
 @pytest.mark.parametrize("model", [assimakis_model_b(), _generic_model()], ids=["generated", "generic"])
-def test_a_float32_overflow_that_later_decays_is_an_error(model):
+@pytest.mark.parametrize("B", [2, 8], ids=["scalar lanes", "vector blocks"])
+def test_a_float32_overflow_that_later_decays_is_an_error(model, B):
     """x0 = 2e39 fits float64 but not float32: the first stored states are infinite although the
     last one is finite again (the check of the last state alone would miss it)."""
     x0 = np.zeros(model.n)
     x0[0] = 2e39
-    z = np.zeros((2, 300, 1), np.float32)
+    z = np.zeros((B, 300, 1), np.float32)
     assert np.isfinite(batch.steady_state_filter(model, z.astype(np.float64), x0)).all()
     for run in (batch.steady_state_filter, lambda m, z, x0: batch.kalman_filter(m, z, x0, np.zeros((m.n, m.n)))):
         with pytest.raises(NonFiniteError, match="x0"):

@@ -58,13 +58,12 @@ STREAM_BYTES = 1 << 25
 
 
 def _kernel(fixed: Callable, generic: Callable, model: LinearGaussianModel, bi: BatchInputs,
-            nz: Callable[[], tuple]) -> Callable:
-    """The generated kernel of the model's (n, m) and zero patterns ``nz()`` when there is one,
-    else the generic one."""
+            nz: Callable[[], tuple]) -> tuple[Callable, tuple]:
+    """The generated kernel of the model's (n, m) and zero patterns ``nz()`` and its last argument
+    (non-temporal stores or not) when there is one, else the generic kernel and no argument."""
     if (model.n, model.m) in K.FIXED:
-        lanes = K.LANES[model.n, model.m][bi.out.dtype == np.float32]
-        return fixed(model.n, model.m, lanes, bi.out.nbytes >= STREAM_BYTES and not bi.allocated, nz())
-    return generic
+        return fixed(model.n, model.m, nz()), (bi.out.nbytes >= STREAM_BYTES and not bi.allocated,)
+    return generic, ()
 
 
 #: The zeros of each model's steady-state A and B that its structure implies (see _ss_pattern).
@@ -98,9 +97,10 @@ def _ss_pattern(model: LinearGaussianModel, ss: SteadyState) -> tuple:
 def _steady_state_filter(model, z, x0=None, out=None, *, lengths=None, steady=None, axes=1):
     bi = prepare_batch(model, z, x0, out, lengths, axes=axes, check_inf=False)
     ss = _steady(model, steady)
-    kernel = _kernel(K.fixed_ss_kernel, K.ss_kernel, model, bi, lambda: _ss_pattern(model, ss))
+    kernel, tail = _kernel(K.fixed_ss_kernel, K.ss_kernel, model, bi, lambda: _ss_pattern(model, ss))
     c = np.ascontiguousarray
-    bad = launch(kernel, bi.out.size, bi.z, bi.out, c(ss.A), c(ss.B), c(model.F), bi.x0, bi.lengths, bi.axes)
+    bad = launch(kernel, bi.out.size, bi.z, bi.out, c(ss.A), c(ss.B), c(model.F), bi.x0, bi.lengths, bi.axes,
+                 *tail)
     return check_finite_out(bi, "the steady-state filter", bad, model=model, z=bi.z, x0=bi.x0)
 
 
@@ -185,11 +185,11 @@ def _kalman_filter(model, z, x0=None, P0=None, out=None, *, lengths=None, gains=
                          f"got K of shape {gains.K.shape}")
     elif P0 is not None:
         raise ParameterError("P0: give P0 or gains (which already fix P0), not both")
-    kernel = _kernel(K.fixed_kf_kernel, K.kf_kernel, model, bi,
-                     lambda: K.pattern(model.F, model.H, gains.K[:T], keep=(0,)))
+    kernel, tail = _kernel(K.fixed_kf_kernel, K.kf_kernel, model, bi,
+                           lambda: K.pattern(model.F, model.H, gains.K[:T], keep=(0,)))
     c = np.ascontiguousarray
     bad = launch(kernel, bi.out.size, bi.z, bi.out, c(model.F), c(model.H), c(model.Q), c(model.R), c(gains.K),
-                 c(gains.P_filt), c(gains.P0), bi.x0, bi.lengths, bi.axes)
+                 c(gains.P_filt), c(gains.P0), bi.x0, bi.lengths, bi.axes, *tail)
     return check_finite_out(bi, "the Kalman filter", bad, model=model, z=bi.z, x0=bi.x0, P0=gains.P0)
 
 

@@ -14,12 +14,19 @@ the plain joint model.
 
 Two kinds of kernel share one contract:
 
-* ``fixed_ss_kernel(n, m, lanes, streaming)`` / ``fixed_kf_kernel(...)``: generated and
-  compiled for one (n, m) of :data:`FIXED` -- loops of constant length over
-  state and measurement (unrolled), the state and the model matrices in stack
-  scratch (:func:`stack_array`, registers in practice), ``lanes`` tracks advanced
-  together to hide the latency of the recursion (:data:`LANES`).  ``streaming`` selects
-  non-temporal stores of ``out`` (outputs far larger than the cache).
+* ``fixed_ss_kernel(n, m, nz)`` / ``fixed_kf_kernel(n, m, nz)``: generated and compiled
+  for one (n, m) of :data:`FIXED` and the structural zeros ``nz`` of the model's matrices
+  (:func:`pattern`) -- loops of constant length (unrolled), the state and the matrices in
+  stack scratch (:func:`stack_array`, registers in practice).  Tracks go in groups of eight
+  (lanes).  Where the eight are whole rows (``axes = 1``) and run together, they run in
+  *vector blocks*: one AVX-512 vector holds a value of all eight, a block is eight steps,
+  z is read as eight vectors per lane and transposed in registers, the states transposed
+  back and stored as they lie in ``out`` (:func:`_vtile_in`, :func:`_vtile_out`) -- about
+  four times the scalar code's work per cycle.  The rest (the steps before the first aligned
+  block and after the last, other axes, incomplete groups, a lane after its first gap in the
+  Kalman filter) runs the same recursion on scalars.  The last argument, ``streaming``,
+  selects non-temporal stores of ``out`` (outputs far larger than the cache): whole aligned
+  vectors in the blocks, scalars elsewhere.
 * ``ss_kernel`` / ``kf_kernel``: any (n, m), loops of run-time length.
 
 The state is carried in float64 whatever the storage dtype; float32 only
@@ -45,9 +52,10 @@ import numpy as np
 from numba import carray
 
 from .. import _jit_cache  # noqa: F401 - compiled kernels cache in the user's cache directory
-from ._intrinsics import load, narrow, stack_array, store, store_fence, stream
+from ._intrinsics import (LANES8, address, load, many, mor, narrow, stack_array, store, store_fence, stream, transpose8,
+                          visnan, vload, vmaxabs, vmul, vadd, vselect, vsplat, vstore, vstream, vsub)
 
-__all__ = ["ss_kernel", "kf_kernel", "fixed_ss_kernel", "fixed_kf_kernel", "pattern", "GENERATED", "FIXED", "LANES",
+__all__ = ["ss_kernel", "kf_kernel", "fixed_ss_kernel", "fixed_kf_kernel", "pattern", "GENERATED", "FIXED",
            "fir_kernel", "matvec_kernel", "copy_kernel"]
 
 _OPTS = dict(parallel=True, cache=True, nogil=True, boundscheck=False)
@@ -55,10 +63,6 @@ _F32_MAX = float(np.finfo(np.float32).max)
 
 #: The (n, m) with generated kernels: model B per axis, model A in 2-D and 3-D (Assimakis 2012).
 FIXED = ((2, 1), (4, 2), (6, 3))
-#: Tracks advanced together by the generated kernels of each (n, m), for float64 and float32
-#: storage (float32 needs conversions and a range check: with 8 lanes LLVM no longer unrolls
-#: the lane loop and the states leave the registers).
-LANES = {(2, 1): (8, 4), (4, 2): (2, 2), (6, 3): (1, 1)}
 
 
 @nb.njit(cache=True, nogil=True)
@@ -472,59 +476,287 @@ def _generated(factory):
     return get
 
 
+@nb.njit(**_INLINE)
+def _ss_together(a, bm, f, nz, zf, of, lane, x, xn, zz, big, t, stop, mz, nx, streaming, narrow_out):
+    """Steps t .. stop-1 of all lanes with the scalar code, until a lane's measurement has a
+    NaN; returns the first step not done."""
+    while t < stop:
+        miss = False
+        for w in range(x.shape[0]):
+            miss |= _measure(zf, lane, w, t, mz, zz)
+        if miss:
+            break
+        for w in range(x.shape[0]):
+            _ss_step(a, bm, f, nz, x, xn, zz, w, False)
+            _put(of, lane, w, t, nx, x, xn, big, streaming, narrow_out)
+        t += 1
+    return t
+
+
+@nb.njit(**_INLINE)
+def _kf_together(f, h, k, K, nz, zf, of, lane, x, xn, e, big, t, stop, mz, nx, streaming, narrow_out):
+    """As :func:`_ss_together` for the shared-gain Kalman step."""
+    while t < stop:
+        miss = False
+        for w in range(x.shape[0]):
+            miss |= _measure(zf, lane, w, t, mz, e)
+        if miss:
+            break
+        _copy(K[t], k)
+        for w in range(x.shape[0]):
+            _kf_step(f, h, k, nz, x, xn, e, w)
+            _put(of, lane, w, t, nx, x, xn, big, streaming, narrow_out)
+        t += 1
+    return t
+
+
+# --- the vector path: eight tracks in one vector, eight steps per block --------------------------
+#
+# A block reads z of the eight lanes for eight steps (m vectors per lane: contiguous when the
+# tracks are whole rows, axes = 1), transposes them to one vector per (step, component), runs
+# the recursion on those vectors and transposes the states back to n vectors per lane, stored
+# as they lie in ``out``.  The buffers are stack arrays of whole vectors: ``V[(i) * 8:(i + 1) * 8]``
+# is vector i.  Arithmetic in the scalar path's order (separate multiply and add, the same
+# structural zeros skipped), so a track's numbers do not depend on the path.
+
+@nb.njit(**_INLINE)
+def _vmatvec(M, nz, V, base, r):
+    """(M v)[r] for eight lanes, component c of v being vector base + c of V (see :func:`_matvec`)."""
+    cols = M.shape[1]
+    s = vsplat(0.0)
+    first = True
+    for c in range(cols):
+        if (nz >> (r * cols + c)) & 1:
+            term = vmul(vsplat(M[r, c]), vload(V, (base + c) * LANES8))
+            if first:
+                s = term
+                first = False
+            else:
+                s = vadd(s, term)
+    return s
+
+
+@nb.njit(**_INLINE)
+def _vlane(arr, lane, row, offset):
+    """The eight lanes' vectors at ``arr[lane[row, w] + offset:][:8]``, w = 0..7, transposed: vector j
+    holds element j of every lane."""
+    return transpose8((vload(arr, lane[row, 0] + offset), vload(arr, lane[row, 1] + offset),
+                       vload(arr, lane[row, 2] + offset), vload(arr, lane[row, 3] + offset),
+                       vload(arr, lane[row, 4] + offset), vload(arr, lane[row, 5] + offset),
+                       vload(arr, lane[row, 6] + offset), vload(arr, lane[row, 7] + offset)))
+
+
+@nb.njit(**_INLINE)
+def _vtile_in(zf, lane, t, m, ZT):
+    """ZT vector tt * m + c = component c of z at step t + tt of the eight lanes (tt < 8)."""
+    for k in range(m):
+        cols = _vlane(zf, lane, ZROW, t * m + LANES8 * k)
+        for j in range(LANES8):
+            vstore(ZT, (LANES8 * k + j) * LANES8, cols[j])
+
+
+@nb.njit(**_INLINE)
+def _vnan(V, count):
+    """True when one of the first ``count`` vectors of V has a NaN."""
+    miss = visnan(vload(V, 0))
+    for j in range(1, count):
+        miss = mor(miss, visnan(vload(V, j * LANES8)))
+    return many(miss)
+
+
+@nb.njit(**_INLINE)
+def _vcopy(src, dst, count):
+    for j in range(count):
+        vstore(dst, j * LANES8, vload(src, j * LANES8))
+
+
+@nb.njit(**_INLINE)
+def _vtile_out(of, lane, t, n, XT, streaming):
+    """Store XT (vector tt * n + r = component r of the state at step t + tt) into the lanes' rows."""
+    for k in range(n):
+        base = LANES8 * k * LANES8
+        rows = transpose8((vload(XT, base), vload(XT, base + 8), vload(XT, base + 16), vload(XT, base + 24),
+                           vload(XT, base + 32), vload(XT, base + 40), vload(XT, base + 48),
+                           vload(XT, base + 56)))
+        for w in range(LANES8):
+            j = lane[XROW, w] + t * n + LANES8 * k
+            if streaming:
+                vstream(of, j, rows[w])
+            else:
+                vstore(of, j, rows[w])
+
+
+@nb.njit(**_INLINE)
+def _vstate(S, XT, tt, n, big, narrow_out):
+    """The state after step tt becomes the current one (S); float32 storage tracks its magnitude."""
+    for r in range(n):
+        v = vload(XT, (tt * n + r) * LANES8)
+        vstore(S, r * LANES8, v)
+        if narrow_out:
+            vstore(big, 0, vmaxabs(vload(big, 0), v))
+
+
+@nb.njit(**_INLINE)
+def _vss_block(a, bm, f, nz, S, XT, ZT, big, narrow_out):
+    """Eight steady-state steps of eight lanes, x = A x + B z (no NaN in ZT)."""
+    n, m = a.shape[0], bm.shape[1]
+    for tt in range(LANES8):
+        for r in range(n):
+            vstore(XT, (tt * n + r) * LANES8, vadd(_vmatvec(a, nz[0], S, 0, r), _vmatvec(bm, nz[1], ZT, tt * m, r)))
+        _vstate(S, XT, tt, n, big, narrow_out)
+
+
+@nb.njit(**_INLINE)
+def _vss_gaps_block(a, bm, f, nz, S, XT, ZT, big, narrow_out):
+    """As :func:`_vss_block` where ZT has a NaN: x = F x in the lanes whose z has one.  (A separate
+    loop: with the test in the loop of the complete blocks, LLVM keeps that loop rolled and
+    its vectors in memory, 1.6x slower.)"""
+    n, m = a.shape[0], bm.shape[1]
+    for tt in range(LANES8):
+        miss = visnan(vload(ZT, tt * m * LANES8))
+        for c in range(1, m):
+            miss = mor(miss, visnan(vload(ZT, (tt * m + c) * LANES8)))
+        for r in range(n):
+            x = vadd(_vmatvec(a, nz[0], S, 0, r), _vmatvec(bm, nz[1], ZT, tt * m, r))
+            vstore(XT, (tt * n + r) * LANES8, vselect(miss, _vmatvec(f, nz[2], S, 0, r), x))
+        _vstate(S, XT, tt, n, big, narrow_out)
+
+
+@nb.njit(**_INLINE)
+def _vkf_block(f, h, K, t, nz, S, XT, ZT, XP, E, big, narrow_out):
+    """Eight shared-gain Kalman steps of eight lanes (no NaN in ZT): x = F x + K (z - H F x)."""
+    n, m = f.shape[0], h.shape[0]
+    for tt in range(LANES8):
+        k = K[t + tt]
+        for r in range(n):
+            vstore(XP, r * LANES8, _vmatvec(f, nz[0], S, 0, r))
+        for c in range(m):
+            vstore(E, c * LANES8, vsub(vload(ZT, (tt * m + c) * LANES8), _vmatvec(h, nz[1], XP, 0, c)))
+        for r in range(n):
+            vstore(XT, (tt * n + r) * LANES8, vadd(vload(XP, r * LANES8), _vmatvec(k, nz[2], E, 0, r)))
+        _vstate(S, XT, tt, n, big, narrow_out)
+
+
+@nb.njit(**_INLINE)
+def _pack(x, S):
+    """S vector r = component r of the lanes' states x[w, r] (and back: :func:`_unpack`)."""
+    for r in range(x.shape[1]):
+        for w in range(LANES8):
+            S[r * LANES8 + w] = x[w, r]
+
+
+@nb.njit(**_INLINE)
+def _unpack(S, x):
+    for r in range(x.shape[1]):
+        for w in range(LANES8):
+            x[w, r] = S[r * LANES8 + w]
+
+
+@nb.njit(**_INLINE)
+def _vector_start(of, lane, n, together, axes, nw, streaming):
+    """The step at which the group's vector blocks start, or -1 for none: the eight lanes must be
+    whole rows (axes = 1) running together for a block; with non-temporal stores each lane's
+    output address at that step must be aligned to a vector's size (the same step for all)."""
+    if axes != 1 or nw != LANES8:
+        return -1
+    if not streaming:
+        return 0 if together >= LANES8 else -1
+    size = of.itemsize
+    base = address(of)
+    for t0 in range(LANES8):
+        aligned = True
+        for w in range(LANES8):
+            aligned &= (base + (lane[XROW, w] + t0 * n) * size) % (LANES8 * size) == 0
+        if aligned:
+            return t0 if t0 + LANES8 <= together else -1
+    return -1
+
+
+def _feeds(nz: int, rows: int, cols: int) -> bool:
+    """True when every column of the (rows, cols) zero pattern ``nz`` of B or K has a non-zero.
+
+    A vector block then looks for a NaN in its z through the states it computed: every
+    component of z enters them (through B, or K), and a NaN stays in its state component (the
+    diagonal of A and F is kept, :func:`pattern`), so a block whose last states have no NaN had
+    none in z; checking the states costs n tests, z 8 m (1 ms of 8 per 10^7 steps of model B)."""
+    return all(any((nz >> (r * cols + c)) & 1 for r in range(rows)) for c in range(cols))
+
+
 @_generated
-def fixed_ss_kernel(n: int, m: int, lanes: int, streaming: bool, nz: tuple):
+def fixed_ss_kernel(n: int, m: int, nz: tuple):
     """:func:`ss_kernel` compiled for one (n, m) of :data:`FIXED` (see the module docstring) and
     the zero patterns ``nz`` of (A, B, F) (:func:`pattern`).
 
-    ``lanes`` tracks advance together while all of them have a measurement; at a NaN,
-    or when the shortest of them ends, each lane finishes alone."""
-    W = lanes
+    Eight tracks (lanes) advance together: in vector blocks of eight steps where they can
+    (:func:`_vector_start`; a NaN predicts in its lane), else with the scalar code while all of
+    them have a measurement; at a NaN there, or when the shortest of them ends, each lane
+    finishes alone."""
+    W = LANES8
     NN, NM, WN, WM, W5 = n * n, n * m, W * n, W * m, 5 * W
+    SV, XV, ZV = n * W, W * n * W, W * m * W        # vector buffers: state, a block's states, its z
+    FEEDS = _feeds(nz[1], n, m)
+
+    @nb.njit(cache=True, nogil=True)
+    def group(g, zf, of, A, Bm, F, x0, lengths, axes, ntr, T, mz, nx, streaming):
+        """Lane group g (tracks 8g .. 8g + 7); returns how many break the finiteness policy."""
+        a = carray(stack_array(NN, np.float64), (n, n))
+        f = carray(stack_array(NN, np.float64), (n, n))
+        bm = carray(stack_array(NM, np.float64), (n, m))
+        _copy(A, a)
+        _copy(F, f)
+        _copy(Bm, bm)
+        lane = carray(stack_array(W5, np.int64), (5, W))
+        x = carray(stack_array(WN, np.float64), (W, n))
+        xn = carray(stack_array(WN, np.float64), (W, n))
+        zz = carray(stack_array(WM, np.float64), (W, m))
+        big = carray(stack_array(W, np.float64), W)
+        nw, together = _lanes(g * W, ntr, axes, T, mz, nx, m, lengths, x0, lane, x, big)
+        t0 = _vector_start(of, lane, n, together, axes, nw, streaming)
+        if t0 < 0:
+            t = _ss_together(a, bm, f, nz, zf, of, lane, x, xn, zz, big, 0, together, mz, nx, streaming,
+                             narrow(of))
+        else:       # the scalar steps around the blocks write parts of lines: no non-temporal stores
+            t = _ss_together(a, bm, f, nz, zf, of, lane, x, xn, zz, big, 0, t0, mz, nx, False, narrow(of))
+            if t == t0:
+                S = carray(stack_array(SV, np.float64), SV)
+                S0 = carray(stack_array(SV, np.float64), SV)
+                XT = carray(stack_array(XV, np.float64), XV)
+                ZT = carray(stack_array(ZV, np.float64), ZV)
+                _pack(x, S)
+                while t + W <= together:
+                    _vtile_in(zf, lane, t, m, ZT)
+                    _vcopy(S, S0, n)
+                    _vss_block(a, bm, f, nz, S, XT, ZT, big, narrow(of))
+                    if _vnan(S, n) if FEEDS else _vnan(ZT, W * m):     # a NaN in z (see _feeds)
+                        _vcopy(S0, S, n)
+                        _vss_gaps_block(a, bm, f, nz, S, XT, ZT, big, narrow(of))
+                    _vtile_out(of, lane, t, n, XT, streaming)
+                    t += W
+                _unpack(S, x)
+            t = _ss_together(a, bm, f, nz, zf, of, lane, x, xn, zz, big, t, together, mz, nx, False, narrow(of))
+        bad = 0
+        y = carray(stack_array(n, np.float64), (1, n))      # one lane finishing alone
+        yn = carray(stack_array(n, np.float64), (1, n))
+        y1 = carray(stack_array(m, np.float64), (1, m))
+        ybig = carray(stack_array(1, np.float64), 1)
+        for w in range(nw):
+            _pick(x, w, y, big, ybig)
+            lane1 = lane[:, w:w + 1]
+            L = lane1[LEN, 0]
+            for tt in range(t, L):
+                _ss_step(a, bm, f, nz, y, yn, y1, 0, _measure(zf, lane1, 0, tt, mz, y1))
+                _put(of, lane1, 0, tt, nx, y, yn, ybig, streaming, narrow(of))
+            bad += track_end(zf, of, lane1[ZROW, 0], lane1[XROW, 0], mz, nx, m, n, L, T, ybig[0])
+        return bad
 
     @nb.njit(**_OPTS)
-    def kernel(z, out, A, Bm, F, x0, lengths, axes):
-        nb_, T = z.shape[0], z.shape[1]
-        mz, nx = z.shape[2], out.shape[2]
+    def kernel(z, out, A, Bm, F, x0, lengths, axes, streaming):
         zf, of = z.reshape(-1), out.reshape(-1)
-        ntr = nb_ * axes
+        ntr = z.shape[0] * axes
         bad = 0
         for g in nb.prange((ntr + W - 1) // W):
-            a = carray(stack_array(NN, np.float64), (n, n))
-            f = carray(stack_array(NN, np.float64), (n, n))
-            bm = carray(stack_array(NM, np.float64), (n, m))
-            _copy(A, a)
-            _copy(F, f)
-            _copy(Bm, bm)
-            lane = carray(stack_array(W5, np.int64), (5, W))
-            x = carray(stack_array(WN, np.float64), (W, n))
-            xn = carray(stack_array(WN, np.float64), (W, n))
-            zz = carray(stack_array(WM, np.float64), (W, m))
-            big = carray(stack_array(W, np.float64), W)
-            nw, together = _lanes(g * W, ntr, axes, T, mz, nx, m, lengths, x0, lane, x, big)
-            t = 0
-            while t < together:
-                miss = False
-                for w in range(W):
-                    miss |= _measure(zf, lane, w, t, mz, zz)
-                if miss:
-                    break
-                for w in range(W):
-                    _ss_step(a, bm, f, nz, x, xn, zz, w, False)
-                    _put(of, lane, w, t, nx, x, xn, big, streaming, narrow(out))
-                t += 1
-            y = carray(stack_array(n, np.float64), (1, n))      # one lane finishing alone
-            yn = carray(stack_array(n, np.float64), (1, n))
-            y1 = carray(stack_array(m, np.float64), (1, m))
-            ybig = carray(stack_array(1, np.float64), 1)
-            for w in range(nw):
-                _pick(x, w, y, big, ybig)
-                lane1 = lane[:, w:w + 1]
-                L = lane1[LEN, 0]
-                for tt in range(t, L):
-                    _ss_step(a, bm, f, nz, y, yn, y1, 0, _measure(zf, lane1, 0, tt, mz, y1))
-                    _put(of, lane1, 0, tt, nx, y, yn, ybig, streaming, narrow(out))
-                bad += track_end(zf, of, lane1[ZROW, 0], lane1[XROW, 0], mz, nx, m, n, L, T, ybig[0])
+            bad += group(g, zf, of, A, Bm, F, x0, lengths, axes, ntr, z.shape[1], z.shape[2], out.shape[2],
+                         streaming)
             if streaming:
                 store_fence()
         return bad
@@ -533,68 +765,90 @@ def fixed_ss_kernel(n: int, m: int, lanes: int, streaming: bool, nz: tuple):
 
 
 @_generated
-def fixed_kf_kernel(n: int, m: int, lanes: int, streaming: bool, nz: tuple):
+def fixed_kf_kernel(n: int, m: int, nz: tuple):
     """:func:`kf_kernel` compiled for one (n, m) of :data:`FIXED` and the zero patterns ``nz`` of
     (F, H, K) (see :func:`fixed_ss_kernel`).
 
-    A lane that meets a missing component finishes alone: with the shared gains up to it,
-    then with its own covariance (as :func:`kf_kernel`)."""
-    W = lanes
+    The vector blocks stop at the first NaN of any lane; a lane that meets a missing component
+    finishes alone: with the shared gains up to it, then with its own covariance (as
+    :func:`kf_kernel`)."""
+    W = LANES8
     NN, MN, NM, WN, WM, W5 = n * n, m * n, n * m, W * n, W * m, 5 * W
+    SV, XV, ZV, EV = n * W, W * n * W, W * m * W, m * W
+    FEEDS = _feeds(nz[2], n, m)
+
+    @nb.njit(cache=True, nogil=True)
+    def group(g, z, out, zf, of, F, H, Q, R, K, Pf, P0, x0, lengths, axes, ntr, T, mz, nx, streaming):
+        """Lane group g (tracks 8g .. 8g + 7); returns how many break the finiteness policy."""
+        f = carray(stack_array(NN, np.float64), (n, n))
+        h = carray(stack_array(MN, np.float64), (m, n))
+        k = carray(stack_array(NM, np.float64), (n, m))
+        _copy(F, f)
+        _copy(H, h)
+        lane = carray(stack_array(W5, np.int64), (5, W))
+        x = carray(stack_array(WN, np.float64), (W, n))
+        xn = carray(stack_array(WN, np.float64), (W, n))
+        e = carray(stack_array(WM, np.float64), (W, m))
+        big = carray(stack_array(W, np.float64), W)
+        nw, together = _lanes(g * W, ntr, axes, T, mz, nx, m, lengths, x0, lane, x, big)
+        t0 = _vector_start(of, lane, n, together, axes, nw, streaming)
+        if t0 < 0:
+            t = _kf_together(f, h, k, K, nz, zf, of, lane, x, xn, e, big, 0, together, mz, nx, streaming,
+                             narrow(of))
+        else:       # the scalar steps around the blocks write parts of lines: no non-temporal stores
+            t = _kf_together(f, h, k, K, nz, zf, of, lane, x, xn, e, big, 0, t0, mz, nx, False, narrow(of))
+            if t == t0:
+                S = carray(stack_array(SV, np.float64), SV)
+                XT = carray(stack_array(XV, np.float64), XV)
+                ZT = carray(stack_array(ZV, np.float64), ZV)
+                XP = carray(stack_array(SV, np.float64), SV)
+                E = carray(stack_array(EV, np.float64), EV)
+                S0 = carray(stack_array(SV, np.float64), SV)
+                _pack(x, S)
+                while t + W <= together:
+                    _vtile_in(zf, lane, t, m, ZT)
+                    _vcopy(S, S0, n)
+                    _vkf_block(f, h, K, t, nz, S, XT, ZT, XP, E, big, narrow(of))
+                    if _vnan(S, n) if FEEDS else _vnan(ZT, W * m):     # a NaN in z: the scalar code
+                        _vcopy(S0, S, n)                                # takes over at this block
+                        break
+                    _vtile_out(of, lane, t, n, XT, streaming)
+                    t += W
+                _unpack(S, x)
+            t = _kf_together(f, h, k, K, nz, zf, of, lane, x, xn, e, big, t, together, mz, nx, False, narrow(of))
+        bad = 0
+        y = carray(stack_array(n, np.float64), (1, n))      # one lane finishing alone
+        yn = carray(stack_array(n, np.float64), (1, n))
+        y1 = carray(stack_array(m, np.float64), (1, m))
+        ybig = carray(stack_array(1, np.float64), 1)
+        for w in range(nw):
+            _pick(x, w, y, big, ybig)
+            lane1 = lane[:, w:w + 1]
+            L = lane1[LEN, 0]
+            tt = t
+            while tt < L and not _measure(zf, lane1, 0, tt, mz, y1):
+                _copy(K[tt], k)
+                _kf_step(f, h, k, nz, y, yn, y1, 0)
+                _put(of, lane1, 0, tt, nx, y, yn, ybig, streaming, narrow(of))
+                tt += 1
+            if tt < L:            # the first gap: leave the shared gains
+                xv = np.empty(n)
+                for r in range(n):
+                    xv[r] = y[0, r]
+                P = P0.copy() if tt == 0 else Pf[tt - 1].copy()
+                b, a = lane1[B_, 0], lane1[AXIS, 0]
+                ybig[0] = max(ybig[0], _kf_own(z, out, F, H, Q, R, xv, P, b, a * m, a * n, tt, L))
+            bad += track_end(zf, of, lane1[ZROW, 0], lane1[XROW, 0], mz, nx, m, n, L, T, ybig[0])
+        return bad
 
     @nb.njit(**_OPTS)
-    def kernel(z, out, F, H, Q, R, K, Pf, P0, x0, lengths, axes):
-        nb_, T = z.shape[0], z.shape[1]
-        mz, nx = z.shape[2], out.shape[2]
+    def kernel(z, out, F, H, Q, R, K, Pf, P0, x0, lengths, axes, streaming):
         zf, of = z.reshape(-1), out.reshape(-1)
-        ntr = nb_ * axes
+        ntr = z.shape[0] * axes
         bad = 0
         for g in nb.prange((ntr + W - 1) // W):
-            f = carray(stack_array(NN, np.float64), (n, n))
-            h = carray(stack_array(MN, np.float64), (m, n))
-            k = carray(stack_array(NM, np.float64), (n, m))
-            _copy(F, f)
-            _copy(H, h)
-            lane = carray(stack_array(W5, np.int64), (5, W))
-            x = carray(stack_array(WN, np.float64), (W, n))
-            xn = carray(stack_array(WN, np.float64), (W, n))
-            e = carray(stack_array(WM, np.float64), (W, m))
-            big = carray(stack_array(W, np.float64), W)
-            nw, together = _lanes(g * W, ntr, axes, T, mz, nx, m, lengths, x0, lane, x, big)
-            t = 0
-            while t < together:
-                miss = False
-                for w in range(W):
-                    miss |= _measure(zf, lane, w, t, mz, e)
-                if miss:
-                    break
-                _copy(K[t], k)
-                for w in range(W):
-                    _kf_step(f, h, k, nz, x, xn, e, w)
-                    _put(of, lane, w, t, nx, x, xn, big, streaming, narrow(out))
-                t += 1
-            y = carray(stack_array(n, np.float64), (1, n))      # one lane finishing alone
-            yn = carray(stack_array(n, np.float64), (1, n))
-            y1 = carray(stack_array(m, np.float64), (1, m))
-            ybig = carray(stack_array(1, np.float64), 1)
-            for w in range(nw):
-                _pick(x, w, y, big, ybig)
-                lane1 = lane[:, w:w + 1]
-                L = lane1[LEN, 0]
-                tt = t
-                while tt < L and not _measure(zf, lane1, 0, tt, mz, y1):
-                    _copy(K[tt], k)
-                    _kf_step(f, h, k, nz, y, yn, y1, 0)
-                    _put(of, lane1, 0, tt, nx, y, yn, ybig, streaming, narrow(out))
-                    tt += 1
-                if tt < L:            # the first gap: leave the shared gains
-                    xv = np.empty(n)
-                    for r in range(n):
-                        xv[r] = y[0, r]
-                    P = P0.copy() if tt == 0 else Pf[tt - 1].copy()
-                    b, a = lane1[B_, 0], lane1[AXIS, 0]
-                    ybig[0] = max(ybig[0], _kf_own(z, out, F, H, Q, R, xv, P, b, a * m, a * n, tt, L))
-                bad += track_end(zf, of, lane1[ZROW, 0], lane1[XROW, 0], mz, nx, m, n, L, T, ybig[0])
+            bad += group(g, z, out, zf, of, F, H, Q, R, K, Pf, P0, x0, lengths, axes, ntr, z.shape[1],
+                         z.shape[2], out.shape[2], streaming)
             if streaming:
                 store_fence()
         return bad
