@@ -1,5 +1,7 @@
 """Batch engine ≡ the reference filters of mptrack.linear, track by track."""
 
+import itertools
+
 import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
@@ -7,7 +9,7 @@ from hypothesis import strategies as st
 
 from mptrack import batch, linear
 from mptrack.errors import DTypeError, NonFiniteError, ParameterError, ShapeError
-from mptrack.models import LinearGaussianModel, assimakis_model_a, assimakis_model_b
+from mptrack.models import LinearGaussianModel, assimakis_model_a, assimakis_model_b, constant_acceleration
 from mptrack.riccati import steady_state
 
 TOL = 1e-12
@@ -258,3 +260,246 @@ def test_parallel_launch_equals_single_thread_bitwise(monkeypatch):
     for p, s in zip(parallel, single):
         np.testing.assert_array_equal(p, s)
     close(parallel[1][7], linear.kalman_filter(model, z[7], P0=np.eye(2)).x)
+
+
+# --- the generated kernels, the generic kernel and the checks inside the kernels (issue 18) ----------
+
+FIXED_MODELS = {(2, 1): assimakis_model_b(), (4, 2): assimakis_model_a(2), (6, 3): assimakis_model_a(3)}
+
+
+def _ragged_gappy(model, seed, B=11, T=45):
+    """A batch with component and full-row gaps, a missing first measurement, empty and short tracks."""
+    rng = np.random.default_rng(seed)
+    z = 4 * rng.standard_normal((B, T, model.m))
+    z[rng.random(z.shape) < 0.03] = np.nan
+    z[4, 10:14] = np.nan
+    z[5, 0] = np.nan
+    lengths = rng.integers(0, T + 1, B)
+    lengths[:8] = T              # a full group of eight: the vector blocks (with gaps)
+    lengths[-2] = 0
+    return z, lengths, rng.standard_normal((B, model.n))
+
+
+def _close_per_dtype(got, want, dtype):
+    np.testing.assert_array_equal(np.isnan(got), np.isnan(want))
+    got, want = got[~np.isnan(want)], want[~np.isnan(want)]
+    if dtype == np.float64:
+        assert np.max(np.abs(got - want)) <= TOL * max(1.0, np.max(np.abs(want)))
+    else:   # float32 storage of the float64 state: relative rounding
+        assert np.all(np.abs(got - want) <= 1e-6 * np.abs(want) + TOL * max(1.0, np.max(np.abs(want))))
+
+
+# every (n, m), storage dtype and kind of store (one kernel per (n, m) and dtype: ~20 s of compilation
+# each on a cold numba cache)
+GENERATED_CASES = [(dims, dtype, streaming) for dims in FIXED_MODELS for dtype in (np.float64, np.float32)
+                   for streaming in (False, True)]
+
+
+@pytest.mark.parametrize("dims, dtype, streaming", GENERATED_CASES,
+                         ids=[f"n{d[0]}m{d[1]}-{np.dtype(t).name}-{'stream' if s else 'store'}"
+                              for d, t, s in GENERATED_CASES])
+def test_generated_kernels_equal_the_reference_on_ragged_gappy_batches(dims, dtype, streaming, monkeypatch):
+    """The generated kernels (n, m, storage dtype, plain or non-temporal stores) equal
+    mptrack.linear track by track: 1e-12 in float64, 1e-6 relative in float32."""
+    from mptrack.batch import _filters, _kernels
+
+    monkeypatch.setattr(_filters, "STREAM_BYTES", 0 if streaming else 1 << 62)
+    model = FIXED_MODELS[dims]
+    z, lengths, x0 = _ragged_gappy(model, 100 + model.n)
+    zs = z.astype(dtype)
+    zr = zs.astype(np.float64)           # the reference filters the stored values
+    P0 = 0.7 * np.eye(model.n)
+    out_ss = np.empty((z.shape[0], z.shape[1], model.n), dtype)
+    out_kf = np.empty_like(out_ss)
+    made, launched = [], []
+    for name in ("fixed_ss_kernel", "fixed_kf_kernel"):
+        real = getattr(_kernels, name)
+        monkeypatch.setattr(_kernels, name, lambda *args, real=real: made.append(args[:2]) or real(*args))
+    real_launch = _filters.launch
+    monkeypatch.setattr(_filters, "launch", lambda *args: launched.append(args[-1]) or real_launch(*args))
+    assert batch.steady_state_filter(model, zs, x0, out=out_ss, lengths=lengths) is out_ss
+    assert batch.kalman_filter(model, zs, x0, P0, out=out_kf, lengths=lengths) is out_kf
+    assert made == [dims] * 2 and launched == [streaming] * 2
+    for b, L in enumerate(lengths):
+        assert np.isnan(out_ss[b, L:]).all() and np.isnan(out_kf[b, L:]).all()
+        if L:
+            _close_per_dtype(out_ss[b, :L], linear.steady_state_filter(model, zr[b, :L], x0[b]).x, dtype)
+            _close_per_dtype(out_kf[b, :L], linear.kalman_filter(model, zr[b, :L], x0[b], P0).x, dtype)
+
+
+@pytest.mark.parametrize("dims", list(FIXED_MODELS), ids=lambda d: f"n{d[0]}m{d[1]}")
+def test_generated_kernels_per_axis_and_incomplete_lane_groups(dims):
+    """Axes as extra tracks, and a track count that is not a multiple of the lanes."""
+    model = FIXED_MODELS[dims]
+    z, lengths, x0 = _ragged_gappy(model, 7, B=7)   # 2 axes: 14 tracks, one full group of 8
+    z = np.concatenate([z, z[:, ::-1]], axis=2)          # two axes
+    x0 = np.concatenate([x0, -x0], axis=1)
+    for run, ref, extra in ((batch.steady_state_filter, linear.steady_state_filter, ()),
+                            (batch.kalman_filter, linear.kalman_filter, (np.eye(model.n),))):
+        got = batch.per_axis(run, model, z, x0, *extra, lengths=lengths)
+        for b, L in enumerate(lengths):
+            for a in range(2):
+                cols = slice(a * model.n, (a + 1) * model.n)
+                if L:
+                    want = ref(model, z[b, :L, a * model.m:(a + 1) * model.m], x0[b, cols], *extra).x
+                    close(got[b, :L, cols], want)
+
+
+@pytest.mark.parametrize("dtype", [np.float64, np.float32], ids=["float64", "float32"])
+@pytest.mark.parametrize("dims", [(2, 1), (6, 3)], ids=["n2m1", "n6m3"])
+def test_vector_blocks_at_every_alignment_of_out(dims, dtype, monkeypatch):
+    """The vector path (eight whole-row tracks, eight steps a block, non-temporal stores at addresses
+    aligned to a vector): ``out`` at each of the eight offsets of that alignment, rows whose length
+    keeps the lanes in one phase (T = 64) or not (T = 43: no vector stores past the cache, then),
+    gaps inside the blocks (the steady-state blocks predict in their lane, the Kalman blocks hand
+    over to the scalar code) -- equal to the reference track by track."""
+    from mptrack.batch import _filters
+
+    monkeypatch.setattr(_filters, "STREAM_BYTES", 0)     # non-temporal stores for any size
+    model = FIXED_MODELS[dims]
+    n, m = dims
+    rng = np.random.default_rng(8)
+    for T in (64, 43):
+        z = 3 * rng.standard_normal((16, T, m)).astype(dtype)
+        z[3, 21, 0] = np.nan          # one component, inside the third block
+        z[6, 30:33] = np.nan          # whole rows
+        z[12, 9, m - 1] = np.nan      # the second group, second block
+        zr = z.astype(np.float64)
+        x0 = rng.standard_normal((16, n))
+        P0 = 0.3 * np.eye(n)
+        ss = [linear.steady_state_filter(model, zr[b], x0[b]).x for b in range(16)]
+        kf = [linear.kalman_filter(model, zr[b], x0[b], P0).x for b in range(16)]
+        buf = np.empty(16 * T * n + 8, dtype)
+        for offset in range(8):
+            out = buf[offset:offset + 16 * T * n].reshape(16, T, n)
+            batch.steady_state_filter(model, z, x0, out=out)
+            for b in range(16):
+                _close_per_dtype(out[b], ss[b], dtype)
+            batch.kalman_filter(model, z, x0, P0, out=out)
+            for b in range(16):
+                _close_per_dtype(out[b], kf[b], dtype)
+
+
+def _generic_model():
+    """Constant acceleration (n = 3, m = 1): an (n, m) without a generated kernel."""
+    return constant_acceleration(1.0, 0.01)
+
+
+def test_results_do_not_depend_on_the_thread_count(monkeypatch):
+    """1 and 2 numba threads give bitwise the same results (generated and generic kernels), on a
+    small ragged batch and on one large enough (3 * 10^5 steps) for the threads to run at the same
+    time: a scratch array shared by the threads went unnoticed on the small batch alone."""
+    import numba
+
+    from mptrack.batch import _inputs
+
+    if numba.config.NUMBA_NUM_THREADS < 2:
+        pytest.skip("numba runs with one thread here (NUMBA_NUM_THREADS)")
+    monkeypatch.setattr(_inputs, "SMALL_WORK", 0)       # always parallel
+    previous = numba.get_num_threads()
+    results = {}
+    try:
+        for threads in (1, 2):
+            numba.set_num_threads(threads)
+            runs = []
+            for model, (B, T) in itertools.product((*FIXED_MODELS.values(), _generic_model()),
+                                                   ((37, 60), (1500, 200))):
+                z, lengths, x0 = _ragged_gappy(model, 3, B=B, T=T)
+                for dtype in (np.float64, np.float32):
+                    zs = z.astype(dtype)
+                    runs.append(batch.steady_state_filter(model, zs, x0, lengths=lengths))
+                    runs.append(batch.kalman_filter(model, zs, x0, np.eye(model.n), lengths=lengths))
+            results[threads] = runs
+    finally:
+        numba.set_num_threads(previous)
+    for one, two in zip(results[1], results[2]):
+        np.testing.assert_array_equal(one, two)
+
+
+def test_a_clean_call_reads_its_data_once(monkeypatch):
+    """The infinity check of z and the finiteness check of x are done inside the kernels:
+    a clean call makes no extra pass over z or x (two passes cost as much as the filter)."""
+    from mptrack.batch import _inputs
+
+    def no_pass(*args, **kwargs):
+        raise AssertionError("an extra pass over the data")
+
+    monkeypatch.setattr(_inputs, "as_array", no_pass)
+    monkeypatch.setattr(_inputs, "require_finite", no_pass)
+    z = np.random.default_rng(1).standard_normal((9, 30, 1))
+    z[2, 4] = np.nan
+    for model in (assimakis_model_b(), _generic_model()):
+        batch.steady_state_filter(model, z, lengths=np.full(9, 25))
+        batch.kalman_filter(model, z, P0=np.eye(model.n))
+
+
+@pytest.mark.parametrize("model", [assimakis_model_b(), _generic_model()], ids=["generated", "generic"])
+@pytest.mark.parametrize("B", [3, 9], ids=["scalar lanes", "vector blocks"])
+def test_infinity_in_z_is_refused_inside_and_after_a_track(model, B):
+    for run in (batch.steady_state_filter, lambda m, z, **kw: batch.kalman_filter(m, z, P0=np.eye(m.n), **kw)):
+        z = np.zeros((B, 20, 1))
+        z[1, 4] = np.inf
+        with pytest.raises(NonFiniteError, match="^z: "):
+            run(model, z)
+        z = np.zeros((B, 20, 1))
+        z[1, 8] = np.inf                 # +inf and -inf in one block of a lane
+        z[1, 9] = -np.inf
+        with pytest.raises(NonFiniteError, match="^z: "):
+            run(model, z)
+        z = np.zeros((B, 20, 1))
+        z[1, 18] = -np.inf               # padding after the track's length
+        with pytest.raises(NonFiniteError, match="^z: "):
+            run(model, z, lengths=[20, 6] + [20] * (B - 2))
+
+
+@pytest.mark.parametrize("model", [assimakis_model_b(), _generic_model()], ids=["generated", "generic"])
+@pytest.mark.parametrize("B", [2, 8], ids=["scalar lanes", "vector blocks"])
+def test_a_float32_overflow_that_later_decays_is_an_error(model, B):
+    """x0 = 2e39 fits float64 but not float32: the first stored states are infinite although the
+    last one is finite again (the check of the last state alone would miss it)."""
+    x0 = np.zeros(model.n)
+    x0[0] = 2e39
+    z = np.zeros((B, 300, 1), np.float32)
+    assert np.isfinite(batch.steady_state_filter(model, z.astype(np.float64), x0)).all()
+    for run in (batch.steady_state_filter, lambda m, z, x0: batch.kalman_filter(m, z, x0, np.zeros((m.n, m.n)))):
+        with pytest.raises(NonFiniteError, match="x0"):
+            run(model, z, x0)
+
+
+@pytest.mark.parametrize("model", [assimakis_model_b(), assimakis_model_a(2), _generic_model()],
+                         ids=["n2m1", "n4m2", "generic"])
+def test_a_float64_overflow_is_an_error_naming_the_large_input(model):
+    x0 = np.full(model.n, 1.5e308)       # the prediction F x0 of the missing first step overflows
+    z = np.zeros((9, 20, model.m))
+    z[:, 0] = np.nan
+    with pytest.raises(NonFiniteError, match="^x0: the steady-state filter overflowed"):
+        batch.steady_state_filter(model, z, x0)
+    with pytest.raises(NonFiniteError, match="^x0: the Kalman filter overflowed"):
+        batch.kalman_filter(model, z, x0, np.eye(model.n))
+
+
+def test_the_steady_state_of_a_model_is_solved_once(monkeypatch):
+    """scipy's DARE costs up to tens of ms a call: the batch filters keep it per model."""
+    from mptrack.batch import _filters
+
+    calls = []
+    real = _filters.steady_state
+    monkeypatch.setattr(_filters, "steady_state", lambda *a, **k: calls.append(1) or real(*a, **k))
+    model = assimakis_model_b()
+    z = np.zeros((2, 5, 1))
+    first = batch.steady_state_filter(model, z + 1.0)
+    np.testing.assert_array_equal(batch.steady_state_filter(model, z + 1.0), first)
+    batch.fir_filter(model, z)
+    assert len(calls) == 1
+
+
+def test_gain_sequence_is_the_reference_recursion_exactly():
+    """The gain sequence's covariances are those of mptrack.linear.kalman_filter, bit for bit."""
+    for model in (assimakis_model_b(), assimakis_model_a(3), _generic_model()):
+        P0 = 0.5 * np.eye(model.n)
+        g = batch.gain_sequence(model, 60, P0)
+        ref = linear.kalman_filter(model, np.zeros((60, model.m)), P0=P0)
+        np.testing.assert_array_equal(g.P_filt, ref.P)
+        np.testing.assert_array_equal(g.P_pred, ref.P_pred)
+        S = model.H @ ref.P_pred @ model.H.T + model.R
+        np.testing.assert_allclose(g.K, ref.P_pred @ model.H.T @ np.linalg.inv(S), rtol=1e-13, atol=1e-15)
