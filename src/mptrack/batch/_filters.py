@@ -18,6 +18,7 @@ from ..linear import fir_order
 from ..linear._kernels import kf_loop
 from ..linear._steady import coefficients_unchecked
 from ..models import LinearGaussianModel, require_model
+from ..result import innovation_arrays
 from ..riccati import SteadyState, steady_state
 from . import _kernels as K
 from ._inputs import BatchInputs, as_batch, check_finite_out, check_out, launch, prepare_batch
@@ -179,7 +180,7 @@ def gain_sequence(model: LinearGaussianModel, steps: int, P0=None) -> GainSequen
     with np.errstate(all="ignore"):  # an overflow is reported by require_finite below
         try:
             kf_loop(F, H, Q, R, np.zeros((steps, m)), np.zeros(n), P, False,
-                    np.empty((steps, n)), Pf, np.empty((steps, n)), Pp)
+                    np.empty((steps, n)), Pf, np.empty((steps, n)), Pp, *innovation_arrays((steps,), m))
             PHt = Pp @ H.T
             Ks = PHt @ np.linalg.inv(H @ PHt + R)
         except (np.linalg.LinAlgError, ZeroDivisionError):  # S overflowed to inf/NaN
