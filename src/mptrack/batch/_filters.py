@@ -6,7 +6,6 @@ in :mod:`mptrack.linear` and is tested against it track by track.
 
 from __future__ import annotations
 
-import weakref
 from dataclasses import dataclass
 from typing import Callable
 
@@ -15,13 +14,11 @@ import numpy as np
 from .._validation import _to_array, check_allocation, check_covariance, check_int, check_positive, require_finite
 from ..errors import NonFiniteError, ParameterError, ShapeError
 from ..linear import fir_order
-from ..linear._kernels import kf_loop
 from ..linear._steady import coefficients_unchecked
 from ..models import LinearGaussianModel, require_model
-from ..result import innovation_arrays
 from ..riccati import SteadyState, steady_state
 from . import _kernels as K
-from ._inputs import BatchInputs, as_batch, check_finite_out, check_out, launch, prepare_batch
+from ._inputs import as_batch, check_finite_out, check_out, launch, prepare_batch
 
 __all__ = [
     "GainSequence",
@@ -34,17 +31,9 @@ __all__ = [
 ]
 
 
-#: The DARE solution of each model a batch filter has seen (models are immutable; the entry
-#: goes with the model).  scipy's solver costs 0.1-30 ms a call, as much as filtering 10^7 steps.
-_STEADY: "weakref.WeakKeyDictionary[LinearGaussianModel, SteadyState]" = weakref.WeakKeyDictionary()
-
-
 def _steady(model: LinearGaussianModel, steady: SteadyState | None) -> SteadyState:
     if steady is None:
-        cached = _STEADY.get(model)
-        if cached is None:
-            cached = _STEADY[model] = steady_state(model, "dare")
-        return cached
+        return steady_state(model, "dare")
     if not isinstance(steady, SteadyState):
         raise ParameterError(f"steady: expected a SteadyState, got {type(steady).__name__}")
     if steady.A.shape != (model.n, model.n) or steady.B.shape != (model.n, model.m):
@@ -52,58 +41,17 @@ def _steady(model: LinearGaussianModel, steady: SteadyState | None) -> SteadySta
     return steady
 
 
-#: A given ``out`` of at least this many bytes is written with non-temporal stores (past the
-#: caches, without reading each line from memory first); smaller ones stay in the cache for
-#: the caller.  A new output is not: the kernel's first touch of a page has the operating
-#: system zero it, which leaves it in the cache, where a plain store finds it.
-STREAM_BYTES = 1 << 25
-
-
-def _kernel(fixed: Callable, generic: Callable, model: LinearGaussianModel, bi: BatchInputs,
-            nz: Callable[[], tuple]) -> tuple[Callable, tuple]:
-    """The generated kernel of the model's (n, m) and zero patterns ``nz()`` and its last argument
-    (non-temporal stores or not) when there is one, else the generic kernel and no argument."""
-    if (model.n, model.m) in K.FIXED:
-        return fixed(model.n, model.m, nz()), (bi.out.nbytes >= STREAM_BYTES and not bi.allocated,)
-    return generic, ()
-
-
-#: The zeros of each model's steady-state A and B that its structure implies (see _ss_pattern).
-_STRUCTURE: "weakref.WeakKeyDictionary[LinearGaussianModel, tuple]" = weakref.WeakKeyDictionary()
-
-
-def _ss_pattern(model: LinearGaussianModel, ss: SteadyState) -> tuple:
-    """Zero patterns of (A, B, F) for a generated steady-state kernel.
-
-    A DARE solver returns the zero blocks of a block-structured model (model A: the axes are
-    independent) as rounding noise (~1e-17), which would make A and B dense.  The Kalman
-    recursion keeps exact zeros, so the entries that are zero in all of its first 2n + 2 steps
-    from P(0/0) = I are zeros of the structure; they are skipped when ``ss`` has nothing above
-    1e-12 of its largest entry there (else its exact non-zeros are used).  Kept per model and
-    values of A and B."""
-    cache = _STRUCTURE.get(model)
-    if cache is None:
-        g = gain_sequence(model, 2 * model.n + 2, np.eye(model.n))
-        A_k = (np.eye(model.n) - g.K @ model.H) @ model.F
-        cache = _STRUCTURE[model] = {"probe": ((A_k != 0).any(axis=0), (g.K != 0).any(axis=0))}
-    key = ss.A.tobytes() + ss.B.tobytes()
-    if key not in cache:
-        nz = []
-        for M, structural in zip((ss.A, ss.B), cache["probe"]):
-            noise = np.abs(M[~structural])
-            nz.append(structural if not noise.size or noise.max() <= 1e-12 * np.abs(M).max() else M != 0)
-        cache[key] = K.pattern(*nz, model.F, keep=(0, 2))
-    return cache[key]
+def _is_21(model: LinearGaussianModel) -> bool:
+    return model.n == 2 and model.m == 1
 
 
 def _steady_state_filter(model, z, x0=None, out=None, *, lengths=None, steady=None, axes=1):
-    bi = prepare_batch(model, z, x0, out, lengths, axes=axes, check_inf=False)
+    bi = prepare_batch(model, z, x0, out, lengths, axes=axes)
     ss = _steady(model, steady)
-    kernel, tail = _kernel(K.fixed_ss_kernel, K.ss_kernel, model, bi, lambda: _ss_pattern(model, ss))
-    c = np.ascontiguousarray
-    bad = launch(kernel, bi.out.size, bi.z, bi.out, c(ss.A), c(ss.B), c(model.F), bi.x0, bi.lengths, bi.axes,
-                 *tail)
-    return check_finite_out(bi, "the steady-state filter", bad, model=model, z=bi.z, x0=bi.x0)
+    kernel = K.ss_kernel_21 if _is_21(model) else K.ss_kernel
+    launch(kernel, bi.out.size, bi.z, bi.out, np.ascontiguousarray(ss.A), np.ascontiguousarray(ss.B),
+           np.ascontiguousarray(model.F), bi.x0, bi.lengths, bi.axes)
+    return check_finite_out(bi, "the steady-state filter", model=model, z=bi.z, x0=bi.x0)
 
 
 def steady_state_filter(model: LinearGaussianModel, z, x0=None, out=None, *, lengths=None,
@@ -157,10 +105,8 @@ def gain_sequence(model: LinearGaussianModel, steps: int, P0=None) -> GainSequen
     """The Kalman gains K(1..steps) and covariances from P(0/0) = P0 (Assimakis & Adam 2014, eq. 4).
 
     They do not depend on the measurements, so one sequence serves every track
-    that shares the model and the prior covariance.  The covariances come from
-    the compiled loop of :func:`mptrack.linear.kalman_filter` run on complete
-    measurements (so they are exactly the reference's), and
-    K(k) = P(k/k-1) H^T S(k)^{-1}, S(k) = H P(k/k-1) H^T + R, for all k at once.
+    that shares the model and the prior covariance.  Same formulas and order
+    of operations as :func:`mptrack.linear.kalman_step`.
 
     References
     ----------
@@ -173,25 +119,35 @@ def gain_sequence(model: LinearGaussianModel, steps: int, P0=None) -> GainSequen
     require_model(model)
     steps = check_int("steps", steps, minimum=1)
     n, m = model.n, model.m
-    check_allocation("steps", steps, 8.0 * steps * (n * m + 2 * n * n + 2 * n + m))
+    check_allocation("steps", steps, 8.0 * steps * (n * m + 2 * n * n))
     P = np.zeros((n, n)) if P0 is None else check_covariance("P0", P0, n)
-    Pp, Pf = np.empty((steps, n, n)), np.empty((steps, n, n))
+    P0 = P.copy()
     F, H, Q, R = model.F, model.H, model.Q, model.R
+    Ks, Pp, Pf = np.empty((steps, n, m)), np.empty((steps, n, n)), np.empty((steps, n, n))
     with np.errstate(all="ignore"):  # an overflow is reported by require_finite below
-        try:
-            kf_loop(F, H, Q, R, np.zeros((steps, m)), np.zeros(n), P, False,
-                    np.empty((steps, n)), Pf, np.empty((steps, n)), Pp, *innovation_arrays((steps,), m))
-            PHt = Pp @ H.T
-            Ks = PHt @ np.linalg.inv(H @ PHt + R)
-        except (np.linalg.LinAlgError, ZeroDivisionError):  # S overflowed to inf/NaN
-            Ks, Pp[:], Pf[:] = np.full((steps, n, m), np.nan), np.nan, np.nan
-    result = GainSequence(K=Ks, P_pred=Pp, P_filt=Pf, P0=P.copy())
-    require_finite("the Kalman gain sequence", result, model=model, P0=P)
+        _gains(F, H, Q, R, P, Ks, Pp, Pf)
+    result = GainSequence(K=Ks, P_pred=Pp, P_filt=Pf, P0=P0)
+    require_finite("the Kalman gain sequence", result, model=model, P0=P0)
     return result
 
 
+def _gains(F, H, Q, R, P, Ks, Pp, Pf) -> None:
+    for k in range(Ks.shape[0]):
+        P_pred = F @ P @ F.T + Q
+        PHt = P_pred @ H.T
+        S = H @ PHt + R
+        try:
+            gain = PHt @ np.linalg.inv(S)
+        except np.linalg.LinAlgError:  # S overflowed to inf/NaN: leave NaN, reported as an overflow
+            Ks[k:] = Pp[k:] = Pf[k:] = np.nan
+            return
+        P = P_pred - gain @ PHt.T
+        P = 0.5 * (P + P.T)
+        Ks[k], Pp[k], Pf[k] = gain, P_pred, P
+
+
 def _kalman_filter(model, z, x0=None, P0=None, out=None, *, lengths=None, gains=None, axes=1):
-    bi = prepare_batch(model, z, x0, out, lengths, axes=axes, check_inf=False)
+    bi = prepare_batch(model, z, x0, out, lengths, axes=axes)
     T = bi.z.shape[1]
     if gains is None:
         gains = gain_sequence(model, T, P0)
@@ -202,12 +158,11 @@ def _kalman_filter(model, z, x0=None, P0=None, out=None, *, lengths=None, gains=
                          f"got K of shape {gains.K.shape}")
     elif P0 is not None:
         raise ParameterError("P0: give P0 or gains (which already fix P0), not both")
-    kernel, tail = _kernel(K.fixed_kf_kernel, K.kf_kernel, model, bi,
-                           lambda: K.pattern(model.F, model.H, gains.K[:T], keep=(0,)))
+    kernel = K.kf_kernel_21 if _is_21(model) else K.kf_kernel
     c = np.ascontiguousarray
-    bad = launch(kernel, bi.out.size, bi.z, bi.out, c(model.F), c(model.H), c(model.Q), c(model.R), c(gains.K),
-                 c(gains.P_filt), c(gains.P0), bi.x0, bi.lengths, bi.axes, *tail)
-    return check_finite_out(bi, "the Kalman filter", bad, model=model, z=bi.z, x0=bi.x0, P0=gains.P0)
+    launch(kernel, bi.out.size, bi.z, bi.out, c(model.F), c(model.H), c(model.Q), c(model.R), c(gains.K),
+           c(gains.P_filt), c(gains.P0), bi.x0, bi.lengths, bi.axes)
+    return check_finite_out(bi, "the Kalman filter", model=model, z=bi.z, x0=bi.x0, P0=gains.P0)
 
 
 def kalman_filter(model: LinearGaussianModel, z, x0=None, P0=None, out=None, *, lengths=None,

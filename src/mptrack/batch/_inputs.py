@@ -18,20 +18,20 @@ _FLOATS = (np.dtype(np.float64), np.dtype(np.float32))
 SMALL_WORK = 1 << 20   # output values below which one thread beats waking the others
 
 
-def launch(kernel, work: int, *args):
-    """Call a parallel kernel (and return what it returns); for less than SMALL_WORK updates
-    on one thread only.
+def launch(kernel, work: int, *args) -> None:
+    """Call a parallel kernel; for less than SMALL_WORK updates on one thread only.
 
     Waking the worker threads costs microseconds on an idle machine but a
     scheduler time slice (milliseconds) on a busy one; small batches do not
     need them.
     """
     if work >= SMALL_WORK or numba.get_num_threads() == 1:
-        return kernel(*args)
+        kernel(*args)
+        return
     previous = numba.get_num_threads()
     numba.set_num_threads(1)
     try:
-        return kernel(*args)
+        kernel(*args)
     finally:
         numba.set_num_threads(previous)
 
@@ -43,13 +43,11 @@ class BatchInputs:
     x0: np.ndarray       # (B, axes * n) float64
     lengths: np.ndarray  # (B,) int64 in [0, T]
     axes: int
-    allocated: bool = False  # out is a new array (its pages are not yet in memory)
 
 
-def as_batch(name: str, value, width: int, *, check_inf: bool = True) -> np.ndarray:
+def as_batch(name: str, value, width: int) -> np.ndarray:
     """A (B, T, width) float32/float64 C-contiguous array; other real dtypes become float64.
-    NaN (missing) is allowed, infinity is not (``check_inf=False``: the caller's kernel
-    looks for it, and :func:`check_finite_out` names it)."""
+    NaN (missing) is allowed, infinity is not."""
     arr = _to_array(name, value)
     if arr.dtype == object or arr.dtype.kind not in "biuf":
         raise DTypeError(f"{name}: expected real numbers (float64 or float32), got dtype {arr.dtype}")
@@ -59,23 +57,14 @@ def as_batch(name: str, value, width: int, *, check_inf: bool = True) -> np.ndar
         raise ShapeError(f"{name}: expected at least one track and one time step, got shape {arr.shape}")
     if arr.dtype not in _FLOATS:
         arr = arr.astype(np.float64)
-    if check_inf:
-        as_array(name, arr, allow_nan=True)  # refuses +-Inf (the check is two reductions, no copy)
+    as_array(name, arr, allow_nan=True)  # refuses +-Inf (the check is two reductions, no copy)
     return np.ascontiguousarray(arr)
 
 
-def check_finite_out(bi: "BatchInputs", what: str, bad: int | None = None, **inputs) -> np.ndarray:
+def check_finite_out(bi: "BatchInputs", what: str, **inputs) -> np.ndarray:
     """The output-finiteness policy for a batch: rows inside each track's length must be finite
-    (after it they are NaN by contract), and z must hold no infinity.
-
-    ``bad`` is what a filter kernel returns: the number of tracks that may break the policy
-    (0: none does, nothing is read again).  With ``bad=None`` (a kernel without that count)
-    or ``bad > 0`` the arrays are checked here and the error names the cause."""
+    (after it they are NaN by contract)."""
     out = bi.out
-    if bad == 0:
-        return out
-    if bad is not None:
-        as_array("z", bi.z, allow_nan=True)  # an infinite measurement is the caller's error
     if bool((bi.lengths == out.shape[1]).all()):
         require_finite(what, out, **inputs)
     else:
@@ -100,7 +89,7 @@ def check_out(out, shape: tuple, dtype, source: np.ndarray | None) -> np.ndarray
 
 
 def prepare_batch(model, z, x0, out, lengths, *, axes: int = 1,
-                  model_type: type = LinearGaussianModel, check_inf: bool = True) -> BatchInputs:
+                  model_type: type = LinearGaussianModel) -> BatchInputs:
     """Check and normalise the arguments every batch filter takes.
 
     z        (B, T, axes * model.m) measurements; NaN marks a missing value
@@ -108,12 +97,11 @@ def prepare_batch(model, z, x0, out, lengths, *, axes: int = 1,
     out      None (allocated) or a C-contiguous (B, T, axes * n) array of z's dtype
     lengths  None (all T) or (B,) integers in [0, T]: track b uses z[b, :lengths[b]]
              and gets NaN after it
-    check_inf  False when the kernel reports infinities in z (:func:`check_finite_out`)
     """
     if not isinstance(model, model_type):
         raise ParameterError(f"model: expected a {model_type.__name__}, got {type(model).__name__}")
     n, m = axes * model.n, axes * model.m
-    z = as_batch("z", z, m, check_inf=check_inf)
+    z = as_batch("z", z, m)
     B, T = z.shape[:2]
     if x0 is not None:
         x0 = _to_array("x0", x0)
@@ -137,10 +125,9 @@ def prepare_batch(model, z, x0, out, lengths, *, axes: int = 1,
             raise ParameterError(f"lengths: expected values in [0, {T}], "
                                  f"got min {raw.min()}, max {raw.max()}")
         lengths = np.ascontiguousarray(raw, dtype=np.int64)
-    allocated = out is None
-    if allocated:
+    if out is None:
         check_allocation("z", f"shape {z.shape}", float(B) * T * n * z.dtype.itemsize)
         out = np.empty((B, T, n), dtype=z.dtype)
     else:
         out = check_out(out, (B, T, n), z.dtype, z)
-    return BatchInputs(z=z, out=out, x0=x0, lengths=lengths, axes=axes, allocated=allocated)
+    return BatchInputs(z=z, out=out, x0=x0, lengths=lengths, axes=axes)
