@@ -53,7 +53,9 @@ def test_batched_range_ekf_matches_numpy_reference_with_gaps_and_ragged_lengths(
     z[2, 20, 1] = np.nan
     lengths = np.array([60, 60, 60, 5, 0, 60, 33, 60, 60])
     P0 = np.diag([100.0, 4.0, 100.0, 4.0])
-    got = batch.range_ekf(MODEL, z, x0, P0, lengths=lengths)
+    res = batch.range_ekf(MODEL, z, x0, P0, lengths=lengths)
+    assert res.method == "EKF" and res.P is None and res.loglik is None    # states only
+    got = res.x
     for b, L in enumerate(lengths):
         assert np.isnan(got[b, L:]).all()
         if L:
@@ -87,6 +89,6 @@ def test_range_ekf_agrees_with_the_numpy_batch_ekf_of_mptrack_nonlinear():
     x0 = np.array([300.0, 4.0, 450.0, -2.0]) + rng.normal(0, 10, (6, 4))
     _, z = simulate(model, 6, 40, rng, x0[0])
     P0 = np.diag([100.0, 4.0, 100.0, 4.0])
-    ours = batch.range_ekf(model, z, x0, P0)
+    ours = batch.range_ekf(model, z, x0, P0).x
     theirs = ekf_ranges_batch(z, STATIONS, x0, P0, Q, R, motion="cv", dt=1.0).x
     np.testing.assert_allclose(ours, theirs, rtol=1e-10, atol=1e-8)

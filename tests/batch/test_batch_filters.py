@@ -8,6 +8,7 @@ from hypothesis import strategies as st
 from mptrack import batch, linear
 from mptrack.errors import DTypeError, NonFiniteError, ParameterError, ShapeError
 from mptrack.models import LinearGaussianModel, assimakis_model_a, assimakis_model_b
+from mptrack.result import BatchFilterResult
 from mptrack.riccati import steady_state
 
 TOL = 1e-12
@@ -53,14 +54,16 @@ def test_batch_filters_match_reference_on_random_models(kind, seed, dims, B, T, 
     x0 = rng.standard_normal((B, model.n))
     if kind == "steady-state":
         ss = steady_state(model)
-        got = batch.steady_state_filter(model, z, x0, steady=ss)
-        want = [linear.steady_state_filter(model, z[b], x0[b], steady=ss).x for b in range(B)]
+        res = batch.steady_state_filter(model, z, x0, steady=ss)
+        want = [linear.steady_state_filter(model, z[b], x0[b], steady=ss) for b in range(B)]
     else:
         P0 = np.eye(model.n) * rng.uniform(0.0, 2.0)
-        got = batch.kalman_filter(model, z, x0, P0)
-        want = [linear.kalman_filter(model, z[b], x0[b], P0).x for b in range(B)]
+        res = batch.kalman_filter(model, z, x0, P0)
+        want = [linear.kalman_filter(model, z[b], x0[b], P0) for b in range(B)]
     for b in range(B):
-        close(got[b], want[b])
+        close(res.x[b], want[b].x)
+        if kind == "steady-state":     # the shared steady covariance, as the reference reports it
+            np.testing.assert_array_equal(res.run(b).P, want[b].P)
 
 
 @pytest.mark.parametrize("model", [assimakis_model_b(), assimakis_model_a(2)], ids=["B", "A"])
@@ -73,8 +76,8 @@ def test_paper_models_complete_and_gappy(model):
     if model.m > 1:
         z[4, 10, 0] = np.nan     # one component only
     P0 = np.eye(model.n)
-    ss_b = batch.steady_state_filter(model, z, np.ones(model.n))
-    kf_b = batch.kalman_filter(model, z, np.ones(model.n), P0)
+    ss_b = batch.steady_state_filter(model, z, np.ones(model.n)).x
+    kf_b = batch.kalman_filter(model, z, np.ones(model.n), P0).x
     for b in range(7):
         close(ss_b[b], linear.steady_state_filter(model, z[b], np.ones(model.n)).x)
         close(kf_b[b], linear.kalman_filter(model, z[b], np.ones(model.n), P0).x)
@@ -87,8 +90,8 @@ def test_complete_tracks_use_the_shared_gains_and_covariances():
     np.testing.assert_allclose(gains.P_filt, ref.P, rtol=0, atol=1e-14)
     np.testing.assert_allclose(gains.P_pred, ref.P_pred, rtol=0, atol=1e-14)
     z = np.random.default_rng(0).standard_normal((3, 40, 1))
-    np.testing.assert_array_equal(batch.kalman_filter(model, z, gains=gains),
-                                  batch.kalman_filter(model, z, P0=np.eye(2)))
+    np.testing.assert_array_equal(batch.kalman_filter(model, z, gains=gains).x,
+                                  batch.kalman_filter(model, z, P0=np.eye(2)).x)
 
 
 def test_ragged_lengths_equal_truncated_reference_and_nan_tail():
@@ -102,7 +105,7 @@ def test_ragged_lengths_equal_truncated_reference_and_nan_tail():
     for run, ref in ((batch.steady_state_filter, linear.steady_state_filter),
                      (batch.kalman_filter, lambda m, zb: linear.kalman_filter(m, zb, P0=np.zeros((2, 2)))),
                      (batch.fir_filter, linear.fir_filter)):
-        got = run(model, z_padded, lengths=lengths)
+        got = run(model, z_padded, lengths=lengths).x
         for b, L in enumerate(lengths):
             assert np.isnan(got[b, L:]).all()
             if L:
@@ -114,9 +117,12 @@ def test_fir_filter_matches_reference_and_rejects_gaps():
     z = np.random.default_rng(2).standard_normal((3, 40, 2))
     got = batch.fir_filter(model, z, M=12)
     for b in range(3):
-        close(got[b], linear.fir_filter(model, z[b], M=12).x)
+        want = linear.fir_filter(model, z[b], M=12)
+        close(got.x[b], want.x)
+        np.testing.assert_array_equal(got.run(b).P, want.P)
+    assert got.method == want.method == "FIR"
     default = batch.fir_filter(model, z)          # order from ||A^M|| < eps
-    close(default[0], linear.fir_filter(model, z[0]).x)
+    close(default.x[0], linear.fir_filter(model, z[0]).x)
     z[1, 7, 1] = np.nan
     with pytest.raises(NonFiniteError, match="track 1 has NaN at time index 7"):
         batch.fir_filter(model, z)
@@ -131,15 +137,18 @@ def test_per_axis_model_b_equals_reference_per_axis_and_model_a():
     for run, ref, extra in ((batch.steady_state_filter, linear.steady_state_filter, ()),
                             (batch.kalman_filter, linear.kalman_filter, (np.eye(2),))):
         got = batch.per_axis(run, axis, z, x0, *extra)
-        assert got.shape == (3, 60, 6)
+        assert got.x.shape == (3, 60, 6)
         for b in range(3):
-            close(got[b], linear.per_axis(ref, axis, z[b], x0, *(np.eye(6) for _ in extra)).x)
+            want = linear.per_axis(ref, axis, z[b], x0, *(np.eye(6) for _ in extra))
+            close(got.x[b], want.x)
+            if run is batch.steady_state_filter:       # block-diagonal steady covariance
+                np.testing.assert_array_equal(got.run(b).P, want.P)
     # model B per axis and model A jointly are the same filter on complete data (seed 000
     # eq. 17-18); with a gap in one axis the joint SS filter predicts every axis, per axis only one
     zc = np.nan_to_num(z)
     joint = batch.steady_state_filter(assimakis_model_a(3), zc, x0)
-    close(batch.per_axis(batch.steady_state_filter, axis, zc, x0), joint, 1e-10)
-    close(batch.per_axis(batch.fir_filter, axis, zc, M=9), batch.fir_filter(assimakis_model_a(3), zc, M=9))
+    close(batch.per_axis(batch.steady_state_filter, axis, zc, x0).x, joint.x, 1e-10)
+    close(batch.per_axis(batch.fir_filter, axis, zc, M=9).x, batch.fir_filter(assimakis_model_a(3), zc, M=9).x)
 
 
 def test_n_step_prediction_is_F_power_N_and_works_per_axis():
@@ -164,13 +173,13 @@ def test_float32_within_single_precision_and_out_in_place():
     z = (5 * rng.standard_normal((6, 200, 1))).astype(np.float32)
     z[2, 50:60] = np.nan
     out = np.empty((6, 200, 2), dtype=np.float32)
-    got = batch.steady_state_filter(model, z, out=out)
+    got = batch.steady_state_filter(model, z, out=out).x
     assert got is out and got.dtype == np.float32
-    ref = batch.steady_state_filter(model, z.astype(np.float64))
+    ref = batch.steady_state_filter(model, z.astype(np.float64)).x
     close(got.astype(np.float64), ref, 1e-6)
-    kf = batch.kalman_filter(model, z, P0=np.eye(2))
+    kf = batch.kalman_filter(model, z, P0=np.eye(2)).x
     assert kf.dtype == np.float32
-    close(kf.astype(np.float64), batch.kalman_filter(model, z.astype(np.float64), P0=np.eye(2)), 1e-6)
+    close(kf.astype(np.float64), batch.kalman_filter(model, z.astype(np.float64), P0=np.eye(2)).x, 1e-6)
 
 
 def test_bad_shapes_and_dtypes_raise_named_errors():
@@ -215,7 +224,7 @@ def test_bad_shapes_and_dtypes_raise_named_errors():
 def test_integer_input_is_converted_to_float64():
     model = assimakis_model_b()
     z = np.arange(10).reshape(1, 10, 1)
-    got = batch.steady_state_filter(model, z)
+    got = batch.steady_state_filter(model, z).x
     assert got.dtype == np.float64
     close(got[0], linear.steady_state_filter(model, z[0]).x)
 
@@ -234,7 +243,7 @@ def test_interleaved_groups_with_mixed_lengths_and_gaps(axes):
     P0 = 0.5 * np.eye(2)
     for run, ref, extra in ((batch.steady_state_filter, linear.steady_state_filter, ()),
                             (batch.kalman_filter, linear.kalman_filter, (P0,))):
-        got = batch.per_axis(run, model, z, x0, *extra, lengths=lengths)
+        got = batch.per_axis(run, model, z, x0, *extra, lengths=lengths).x
         for b in range(B):
             L = lengths[b]
             assert np.isnan(got[b, L:]).all()
@@ -256,5 +265,60 @@ def test_parallel_launch_equals_single_thread_bitwise(monkeypatch):
     monkeypatch.setattr(_inputs, "SMALL_WORK", 10**12)
     single = [batch.steady_state_filter(model, z), batch.kalman_filter(model, z, P0=np.eye(2))]
     for p, s in zip(parallel, single):
-        np.testing.assert_array_equal(p, s)
-    close(parallel[1][7], linear.kalman_filter(model, z[7], P0=np.eye(2)).x)
+        np.testing.assert_array_equal(p.x, s.x)
+    close(parallel[1].x[7], linear.kalman_filter(model, z[7], P0=np.eye(2)).x)
+
+
+def test_results_hold_the_out_array_and_views_of_the_shared_covariances():
+    """Every batch filter returns a BatchFilterResult made without copying: x is the ``out`` array
+    itself, P (steady-state, FIR) a read-only stride-0 view of the one steady covariance, the
+    shared steady state or gain sequence in ``inputs``; the fields the kernels do not form are None."""
+    model = assimakis_model_b()
+    z = np.random.default_rng(11).standard_normal((3, 20, 1))
+    ss = steady_state(model)
+    gains = batch.gain_sequence(model, 20, np.eye(2))
+    runs = {"SSKF": lambda out: batch.steady_state_filter(model, z, out=out, steady=ss),
+            "KF": lambda out: batch.kalman_filter(model, z, out=out, gains=gains),
+            "FIR": lambda out: batch.fir_filter(model, z, out=out, steady=ss)}
+    for method, run in runs.items():
+        out = np.empty((3, 20, 2))
+        res = run(out)
+        assert isinstance(res, BatchFilterResult) and res.method == method and res.B == 3
+        assert res.x is out
+        for field in ("x_pred", "P_pred", "innovation", "S", "nis", "loglik", "x0", "P0"):
+            assert getattr(res, field) is None, field
+        if method == "KF":
+            assert res.P is None and res.inputs["gains"] is gains
+        else:
+            assert res.inputs["steady"] is ss
+            assert res.P.shape == (3, 20, 2, 2) and not res.P.flags.writeable
+            assert res.P.strides[:2] == (0, 0) and np.shares_memory(res.P, ss.P_filt)
+            np.testing.assert_array_equal(res.P[2, 19], ss.P_filt)
+            with pytest.raises(ValueError):
+                res.P[0, 0, 0, 0] = 1.0
+    # per axis: the covariance is block-diagonal over the axes, still one (n, n) block of memory
+    res = batch.per_axis(batch.steady_state_filter, model, np.repeat(z, 2, axis=2), steady=ss)
+    assert res.P.shape == (3, 20, 4, 4) and res.P.strides[:2] == (0, 0)
+    np.testing.assert_array_equal(res.P[0, 0], np.kron(np.eye(2), ss.P_filt))
+
+
+def test_kalman_covariances_of_complete_tracks_are_the_shared_gain_sequence():
+    """P is None (a track with a gap has its own covariances); a complete track's are the gain
+    sequence's, which the result carries."""
+    model = assimakis_model_b()
+    z = np.random.default_rng(12).standard_normal((2, 25, 1))
+    res = batch.kalman_filter(model, z, P0=np.eye(2))
+    ref = linear.kalman_filter(model, z[0], P0=np.eye(2))
+    np.testing.assert_allclose(res.inputs["gains"].P_filt, ref.P, rtol=0, atol=1e-14)
+    np.testing.assert_allclose(res.inputs["gains"].P_pred, ref.P_pred, rtol=0, atol=1e-14)
+
+
+def test_predict_and_filter_chunked_name_a_result_where_an_array_is_expected():
+    model = assimakis_model_b()
+    z = np.zeros((2, 5, 1))
+    res = batch.steady_state_filter(model, z)
+    with pytest.raises(ParameterError, match=r"^x: expected the \(B, T, n\) states, got a BatchFilterResult"):
+        batch.predict(model, res)
+    np.testing.assert_array_equal(batch.predict(model, res.x), res.x)
+    with pytest.raises(DTypeError, match=r"^run: expected a batch filter returning a BatchFilterResult"):
+        batch.filter_chunked(lambda m, zz: batch.steady_state_filter(m, zz).x, model, z, chunk_size=1)

@@ -38,7 +38,10 @@ def test_dask_and_process_executors_equal_serial_bitwise():
         x = batch.filter_chunked(batch.steady_state_filter, MODEL, z, chunk_size=2, executor="dask",
                                  client=client)
     pd.testing.assert_frame_equal(serial, on_dask, check_exact=True)
-    np.testing.assert_array_equal(x, batch.steady_state_filter(MODEL, z))
+    direct = batch.steady_state_filter(MODEL, z)
+    np.testing.assert_array_equal(x.x, direct.x)
+    np.testing.assert_array_equal(x.P, direct.P)          # the shared steady covariance
+    assert x.method == direct.method == "SSKF"
     in_processes = batch.monte_carlo(MODEL, 30, 10, seed=3, chunk_size=3, executor="processes",
                                      max_workers=2)
     pd.testing.assert_frame_equal(serial, in_processes, check_exact=True)
@@ -101,10 +104,13 @@ def test_runner_argument_errors():
 def test_filter_chunked_resumes_and_refuses_other_data(tmp_path):
     z = np.random.default_rng(2).standard_normal((9, 15, 1))
     first = batch.filter_chunked(batch.kalman_filter, MODEL, z, chunk_size=4, out_dir=tmp_path, P0=np.eye(2))
-    np.testing.assert_array_equal(first, batch.kalman_filter(MODEL, z, P0=np.eye(2)))
+    direct = batch.kalman_filter(MODEL, z, P0=np.eye(2))
+    np.testing.assert_array_equal(first.x, direct.x)
+    assert first.P is None and first.method == "KF"
+    np.testing.assert_array_equal(first.inputs["gains"].P_filt, direct.inputs["gains"].P_filt)
     (tmp_path / "chunk-000001.parquet").unlink()          # as if interrupted
     again = batch.filter_chunked(batch.kalman_filter, MODEL, z, chunk_size=4, out_dir=tmp_path, P0=np.eye(2))
-    np.testing.assert_array_equal(first, again)
+    np.testing.assert_array_equal(first.x, again.x)
     with pytest.raises(ParameterError, match="different study"):
         batch.filter_chunked(batch.kalman_filter, MODEL, z + 1.0, chunk_size=4, out_dir=tmp_path,
                              P0=np.eye(2))

@@ -1,7 +1,8 @@
 """Batch engine: many tracks sharing one model, filtered in compiled kernels at memory speed.
 
 Functions take measurements ``z`` of shape (B, T, m) (float64 or float32) and
-return filtered states (B, T, n), optionally written in place into ``out``.
+return a :class:`mptrack.result.BatchFilterResult` whose ``x`` holds the filtered
+states (B, T, n), written in place into ``out`` when given (``result.x is out``).
 Each one equals its reference in :mod:`mptrack.linear` track by track.
 :func:`run_chunks` and friends split large batches and Monte-Carlo studies into
 chunks run serially, in local processes or on a Dask cluster, with resumable

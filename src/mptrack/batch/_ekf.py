@@ -21,6 +21,7 @@ import numpy as np
 
 from .._validation import _overflow, as_matrix, check_covariance, check_int, check_positive, require_finite
 from ..errors import ParameterError, ShapeError
+from ..result import BatchFilterResult
 from ._inputs import check_finite_out, launch, prepare_batch
 from ._kernels import _OPTS, kf_predict, kf_update, observed
 
@@ -146,14 +147,17 @@ def ekf_kernel(z, out, F, Q, R, stations, pos, x0, P0, lengths):
                 out[b, t, r] = np.nan
 
 
-def range_ekf(model: RangeModel, z, x0, P0, out=None, *, lengths=None) -> np.ndarray:
+def range_ekf(model: RangeModel, z, x0, P0, out=None, *, lengths=None) -> BatchFilterResult:
     """Extended Kalman filter of a batch of range tracks (one covariance per track).
 
     z        (B, T, S) ranges (metres) to the model's S stations; NaN = that range missing
     x0       the prior x(0/0), (n,) for all tracks or (B, n); it must not sit on a station
     P0       (n, n) prior covariance, shared
     out, lengths  as in :func:`mptrack.batch.steady_state_filter`
-    Returns the (B, T, n) filtered states x(k/k).
+    Returns a :class:`mptrack.result.BatchFilterResult` with x the (B, T, n) filtered
+    states x(k/k) (the ``out`` array itself when given) and method "EKF"; the other
+    fields are None: each track's covariances, innovations and likelihood are formed
+    and discarded by the kernel (``mptrack.cellular.ekf_ranges_batch`` returns them all).
 
     References
     ----------
@@ -170,5 +174,6 @@ def range_ekf(model: RangeModel, z, x0, P0, out=None, *, lengths=None) -> np.nda
                model.stations, np.asarray(model.position, dtype=np.int64), bi.x0, P0, bi.lengths)
     except (np.linalg.LinAlgError, ZeroDivisionError, SystemError) as exc:  # a breakdown inside numba
         raise _overflow("the range EKF", dict(model=model, z=bi.z, x0=bi.x0, P0=P0), exc) from exc
-    return check_finite_out(bi, "the range EKF", model=model, z=bi.z, x0=bi.x0, P0=P0)
+    x = check_finite_out(bi, "the range EKF", model=model, z=bi.z, x0=bi.x0, P0=P0)
+    return BatchFilterResult(x=x, P=None, method="EKF")
 

@@ -1,7 +1,12 @@
 """Batched linear filters: many tracks sharing one model, in compiled kernels.
 
 Each function here is the batch twin of the reference filter of the same name
-in :mod:`mptrack.linear` and is tested against it track by track.
+in :mod:`mptrack.linear` and is tested against it track by track.  They return a
+:class:`mptrack.result.BatchFilterResult` whose x is the kernel's output array
+(``out`` when given) and whose other fields cost nothing to make: the shared
+covariance of the steady-state and FIR filters as a read-only broadcast view,
+the shared steady state or gain sequence in ``inputs``, None for what the
+kernels do not form (docs/design.md, "Batch engine").
 """
 
 from __future__ import annotations
@@ -16,6 +21,7 @@ from ..errors import NonFiniteError, ParameterError, ShapeError
 from ..linear import fir_order
 from ..linear._steady import coefficients_unchecked
 from ..models import LinearGaussianModel, require_model
+from ..result import BatchFilterResult
 from ..riccati import SteadyState, steady_state
 from . import _kernels as K
 from ._inputs import as_batch, check_finite_out, check_out, launch, prepare_batch
@@ -45,17 +51,42 @@ def _is_21(model: LinearGaussianModel) -> bool:
     return model.n == 2 and model.m == 1
 
 
+def _shared(P: np.ndarray, x: np.ndarray, axes: int) -> np.ndarray:
+    """The covariance P (n_a, n_a) that every track has at every step, as a read-only (B, T, n, n)
+    view of it (no copy); block-diagonal over the axes of :func:`per_axis`.
+
+    The view is the one ``np.broadcast_to`` makes, built with the ndarray constructor: a few times
+    cheaper than broadcast_to's general machinery, on calls whose whole set-up is 11-50 µs."""
+    na = P.shape[0]
+    if axes > 1:
+        blocks = np.zeros((axes * na, axes * na))
+        for i in range(0, axes * na, na):
+            blocks[i:i + na, i:i + na] = P
+        P = blocks
+    P = np.ascontiguousarray(P, dtype=np.float64)
+    view = np.ndarray(x.shape + x.shape[-1:], P.dtype, P, 0, (0, 0) + P.strides)
+    view.flags.writeable = False
+    return view
+
+
+def _steady_result(x: np.ndarray, ss: SteadyState, method: str, axes: int) -> BatchFilterResult:
+    """The result of a filter with the steady-state covariance Pe at every step (as its reference
+    in :mod:`mptrack.linear` reports it, gaps included)."""
+    return BatchFilterResult(x=x, P=_shared(ss.P_filt, x, axes), method=method, inputs={"steady": ss})
+
+
 def _steady_state_filter(model, z, x0=None, out=None, *, lengths=None, steady=None, axes=1):
     bi = prepare_batch(model, z, x0, out, lengths, axes=axes)
     ss = _steady(model, steady)
     kernel = K.ss_kernel_21 if _is_21(model) else K.ss_kernel
     launch(kernel, bi.out.size, bi.z, bi.out, np.ascontiguousarray(ss.A), np.ascontiguousarray(ss.B),
            np.ascontiguousarray(model.F), bi.x0, bi.lengths, bi.axes)
-    return check_finite_out(bi, "the steady-state filter", model=model, z=bi.z, x0=bi.x0)
+    x = check_finite_out(bi, "the steady-state filter", model=model, z=bi.z, x0=bi.x0)
+    return _steady_result(x, ss, "SSKF" if ss.form == "kalman" else "SSLF", bi.axes)
 
 
 def steady_state_filter(model: LinearGaussianModel, z, x0=None, out=None, *, lengths=None,
-                        steady: SteadyState | None = None) -> np.ndarray:
+                        steady: SteadyState | None = None) -> BatchFilterResult:
     """Steady-state filter x(k/k) = A x(k-1/k-1) + B z(k) on a batch
     (Assimakis & Adam 2014, eqs. 9-10).
 
@@ -68,9 +99,19 @@ def steady_state_filter(model: LinearGaussianModel, z, x0=None, out=None, *, len
     lengths  optional (B,) track lengths; out[b, lengths[b]:] is NaN
     steady   a precomputed :func:`mptrack.riccati.steady_state` (default: DARE)
 
-    Returns the (B, T, n) filtered states x(k/k) (``out`` when given); track b
-    equals ``mptrack.linear.steady_state_filter(model, z[b], x0[b]).x``.
-    The state is carried in float64; float32 input halves the memory traffic.
+    Returns a :class:`mptrack.result.BatchFilterResult`:
+
+    x        the (B, T, n) filtered states x(k/k), in z's dtype: the ``out`` array
+             itself when given
+    P        the steady-state covariance Pe = ``steady.P_filt`` at every track and
+             step, a read-only (B, T, n, n) broadcast view (no memory of that size);
+             this is what the reference reports, gaps included
+    inputs   {"steady": the SteadyState used}
+    method   "SSKF" ("SSLF" for a Lainiotis-form ``steady``)
+    x_pred, P_pred, innovation, S, nis, loglik are None (the algebra has none).
+
+    Track b equals ``mptrack.linear.steady_state_filter(model, z[b], x0[b])`` (x, P,
+    method).  The state is carried in float64; float32 input halves the memory traffic.
 
     References
     ----------
@@ -162,11 +203,12 @@ def _kalman_filter(model, z, x0=None, P0=None, out=None, *, lengths=None, gains=
     c = np.ascontiguousarray
     launch(kernel, bi.out.size, bi.z, bi.out, c(model.F), c(model.H), c(model.Q), c(model.R), c(gains.K),
            c(gains.P_filt), c(gains.P0), bi.x0, bi.lengths, bi.axes)
-    return check_finite_out(bi, "the Kalman filter", model=model, z=bi.z, x0=bi.x0, P0=gains.P0)
+    x = check_finite_out(bi, "the Kalman filter", model=model, z=bi.z, x0=bi.x0, P0=gains.P0)
+    return BatchFilterResult(x=x, P=None, method="KF", inputs={"gains": gains})
 
 
 def kalman_filter(model: LinearGaussianModel, z, x0=None, P0=None, out=None, *, lengths=None,
-                  gains: GainSequence | None = None) -> np.ndarray:
+                  gains: GainSequence | None = None) -> BatchFilterResult:
     """Time-varying Kalman filter on a batch with one shared gain sequence
     (Assimakis & Adam 2014, eq. 4).
 
@@ -177,8 +219,15 @@ def kalman_filter(model: LinearGaussianModel, z, x0=None, P0=None, out=None, *, 
     its own covariance recursion from that step on (NaN components skipped, a
     full NaN row only predicts), exactly as :func:`mptrack.linear.kalman_filter`.
 
-    z, x0, out, lengths as in :func:`steady_state_filter`.  Returns the (B, T, n)
-    filtered states; the covariances of complete tracks are ``gains.P_filt``.
+    z, x0, out, lengths as in :func:`steady_state_filter`.  Returns a
+    :class:`mptrack.result.BatchFilterResult`:
+
+    x        the (B, T, n) filtered states (the ``out`` array itself when given)
+    P        None: a track with a missing component has its own covariances, which
+             the kernel forms and discards ((B, T, n, n) would be many times the data)
+    inputs   {"gains": the GainSequence used}; the covariances of a track without
+             missing components are ``inputs["gains"].P_filt[:T]`` (and ``.P_pred``)
+    method   "KF"; x_pred, P_pred, innovation, S, nis, loglik are None.
 
     References
     ----------
@@ -204,11 +253,12 @@ def _fir_filter(model, z, out=None, *, lengths=None, eps=1e-3, norm=2, M=None, s
         b = int(np.flatnonzero(bad)[0])
         raise NonFiniteError(f"z: the FIR filter needs every measurement; track {b} has NaN at time "
                              f"index {bad[b] - 1} (use steady_state_filter, which predicts through gaps)")
-    return check_finite_out(bi, "the FIR filter", model=model, z=bi.z)
+    x = check_finite_out(bi, "the FIR filter", model=model, z=bi.z)
+    return _steady_result(x, ss, "FIR", bi.axes)
 
 
 def fir_filter(model: LinearGaussianModel, z, out=None, *, lengths=None, eps: float = 1e-3, norm=2,
-               M: int | None = None, steady: SteadyState | None = None) -> np.ndarray:
+               M: int | None = None, steady: SteadyState | None = None) -> BatchFilterResult:
     """FIR steady-state filter x(k/k) = sum_{j<M} A^j B z(k-j) on a batch
     (Assimakis & Adam 2014, eq. 22).
 
@@ -216,6 +266,9 @@ def fir_filter(model: LinearGaussianModel, z, out=None, *, lengths=None, eps: fl
     ``warmup="truncate"``, which equals the steady-state filter from x0 = 0).
     M defaults to the smallest order with ||A^M|| < eps in the matrix ``norm``.
     NaN inside a track's length is an error (NonFiniteError).
+    Returns a :class:`mptrack.result.BatchFilterResult` with x, P, inputs as in
+    :func:`steady_state_filter` and method "FIR"; track b equals
+    ``mptrack.linear.fir_filter(model, z[b], M=M)`` (x, P, method).
 
     References
     ----------
@@ -229,13 +282,16 @@ def fir_filter(model: LinearGaussianModel, z, out=None, *, lengths=None, eps: fl
 def predict(model: LinearGaussianModel, x, steps: int = 1, out=None) -> np.ndarray:
     """N-step prediction x(k+N/k) = F^N x(k/k) of a batch of filtered states.
 
-    x      (B, T, n) filtered states (or (B, T, axes * n) from :func:`per_axis`
-           with an axis model: each axis block is predicted with F^N)
+    x      (B, T, n) filtered states, the ``x`` of a batch filter's result (or
+           (B, T, axes * n) from :func:`per_axis` with an axis model: each axis
+           block is predicted with F^N)
     steps  the horizon N >= 1 (time steps of model.dt)
     out    optional C-contiguous output of x's shape and dtype (may be x itself)
     """
     require_model(model)
     steps = check_int("steps", steps, minimum=1)
+    if isinstance(x, BatchFilterResult):
+        raise ParameterError("x: expected the (B, T, n) states, got a BatchFilterResult (pass its .x)")
     x = _to_array("x", x)
     if x.ndim != 3 or x.shape[2] == 0 or x.shape[2] % model.n:
         raise ShapeError(f"x: expected shape (B, T, axes * {model.n}), got shape {x.shape}")
@@ -251,15 +307,15 @@ def predict(model: LinearGaussianModel, x, steps: int = 1, out=None) -> np.ndarr
     return out
 
 
-_PER_AXIS: dict[Callable, Callable] = {
+_PER_AXIS: dict[Callable, Callable[..., BatchFilterResult]] = {
     steady_state_filter: _steady_state_filter,
     kalman_filter: _kalman_filter,
     fir_filter: _fir_filter,
 }
 
 
-def per_axis(run: Callable[..., np.ndarray], axis_model: LinearGaussianModel, z, *args,
-             **kwargs) -> np.ndarray:
+def per_axis(run: Callable[..., BatchFilterResult], axis_model: LinearGaussianModel, z, *args,
+             **kwargs) -> BatchFilterResult:
     """Run a batch filter per axis with an axis model (model B;
     Assimakis & Adam 2014, eqs. 17-18).
 
@@ -267,9 +323,10 @@ def per_axis(run: Callable[..., np.ndarray], axis_model: LinearGaussianModel, z,
     axis_model  the one-axis model (n_a, m_a), e.g. ``assimakis_model_b()``
     z           (B, T, axes * m_a), columns axis by axis [z_x, z_y, ...]
     The axes are run as extra tracks of the same kernel, without copying z;
-    the result is (B, T, axes * n_a), state axis by axis, and equals
-    ``mptrack.linear.per_axis(reference, axis_model, z[b], ...)`` track by track.
-    Other arguments are those of ``run`` (x0 of width axes * n_a).
+    the result is ``run``'s with x (B, T, axes * n_a), state axis by axis (P, when
+    ``run`` gives it, block-diagonal; ``inputs`` those of the axis model), and
+    equals ``mptrack.linear.per_axis(reference, axis_model, z[b], ...)`` track by
+    track.  Other arguments are those of ``run`` (x0 of width axes * n_a).
 
     References
     ----------

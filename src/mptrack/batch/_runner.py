@@ -33,7 +33,8 @@ from .._io import atomic_path, write_json
 from .._validation import _to_array, check_allocation, check_covariance, check_int, check_path, lookup
 from ..errors import DataError, DTypeError, ParameterError, ShapeError
 from ..models import LinearGaussianModel, require_model
-from ._filters import gain_sequence, kalman_filter, steady_state_filter
+from ..result import BatchFilterResult
+from ._filters import _shared, gain_sequence, kalman_filter, steady_state_filter
 
 __all__ = ["Chunk", "Chunks", "make_chunks", "run_chunks", "run_stream", "part_path", "read_part", "MonteCarloTask",
            "monte_carlo", "filter_chunked", "EXECUTORS"]
@@ -423,9 +424,9 @@ class MonteCarloTask:
             truth[:, k] = x
         z = truth @ model.H.T + v @ Lr.T
         if self.method == "kalman":
-            est = kalman_filter(model, z, gains=gain_sequence(model, T, self.P0))
+            est = kalman_filter(model, z, gains=gain_sequence(model, T, self.P0)).x
         else:
-            est = steady_state_filter(model, z)
+            est = steady_state_filter(model, z).x
         rmse = np.sqrt(np.mean((est - truth) ** 2, axis=1))
         cols = {"run": np.arange(chunk.start, chunk.stop)}
         cols.update({f"rmse_x{i}": rmse[:, i] for i in range(model.n)})
@@ -457,14 +458,22 @@ def monte_carlo(model: LinearGaussianModel, steps: int, runs: int, *, seed: int,
                       max_workers=max_workers, client=client, manifest=desc, progress=progress)
 
 
+def _filtered(run: Callable[..., BatchFilterResult], model, z, kwargs: dict) -> BatchFilterResult:
+    result = run(model, z, **kwargs)
+    if not isinstance(result, BatchFilterResult):
+        raise DTypeError(f"run: expected a batch filter returning a BatchFilterResult (e.g. "
+                         f"mptrack.batch.steady_state_filter), got {type(result).__name__}")
+    return result
+
+
 @dataclass(frozen=True, eq=False)
 class _FilterTask:
-    run: Callable[..., np.ndarray]
+    run: Callable[..., BatchFilterResult]
     model: LinearGaussianModel
     kwargs: dict
 
     def __call__(self, chunk: Chunk) -> pd.DataFrame:
-        x = self.run(self.model, chunk.data, **self.kwargs)
+        x = _filtered(self.run, self.model, chunk.data, self.kwargs).x
         B, T, n = x.shape
         cols = {"track": np.repeat(np.arange(chunk.start, chunk.stop), T), "t": np.tile(np.arange(T), B)}
         flat = x.reshape(B * T, n)
@@ -472,13 +481,16 @@ class _FilterTask:
         return pd.DataFrame(cols)
 
 
-def filter_chunked(run: Callable[..., np.ndarray], model: LinearGaussianModel, z, *, chunk_size: int,
+def filter_chunked(run: Callable[..., BatchFilterResult], model: LinearGaussianModel, z, *, chunk_size: int,
                    executor: Executor = "serial", out_dir=None, max_workers: int | None = None,
-                   client=None, progress=None, **kwargs) -> np.ndarray:
+                   client=None, progress=None, **kwargs) -> BatchFilterResult:
     """Filter a large batch ``z`` (B, T, m) in chunks of tracks with ``run`` (a batch filter).
 
     Each chunk's states go to a long table (track, t, x0 ..), Parquet in ``out_dir``
-    when given.  Returns the (B, T, n) states in z's dtype; equal to ``run(model, z)``.
+    when given.  Returns ``run``'s result for the whole batch, equal to ``run(model, z)``:
+    x the (B, T, n) states in z's dtype, read back from the chunks; the fields every track
+    shares (P of the steady-state and FIR filters, inputs, method) from ``run`` on the
+    first track; a field that differs from track to track is None.
     """
     require_model(model)
     z = _to_array("z", z)
@@ -491,5 +503,9 @@ def filter_chunked(run: Callable[..., np.ndarray], model: LinearGaussianModel, z
                     out_dir=out_dir, executor=executor, max_workers=max_workers, client=client,
                     manifest=manifest, progress=progress)
     cols = [c for c in df.columns if c.startswith("x")]
-    return df[cols].to_numpy().reshape(z.shape[0], z.shape[1], len(cols))
+    x = df[cols].to_numpy().reshape(z.shape[0], z.shape[1], len(cols))
+    first = _filtered(run, model, z[:1], kwargs)
+    shared = first.P is not None and first.P.strides[:2] == (0, 0)   # a view of one covariance
+    P = _shared(first.P[0, 0], x, 1) if shared else None
+    return BatchFilterResult(x=x, P=P, method=first.method, inputs=first.inputs)
 

@@ -136,8 +136,8 @@ def batch_suite(quick: bool) -> dict:
 
     # agreement on a common subset before any timing
     sub = np.ascontiguousarray(z[: s["sub_B"], : s["sub_T"]])
-    ss_sub = batch.steady_state_filter(model, sub, steady=ss)
-    kf_sub = batch.kalman_filter(model, sub, P0=P0)
+    ss_sub = batch.steady_state_filter(model, sub, steady=ss).x
+    kf_sub = batch.kalman_filter(model, sub, P0=P0).x
     agree = {"reference SS": _check("reference SS", np.stack(
         [linear.steady_state_filter(model, zb, steady=ss).x for zb in sub]), ss_sub)}
     agree["reference KF"] = _check("reference KF", np.stack(
