@@ -2,8 +2,13 @@
 
 The filters are found, not listed: the entries of the registries (``linear.FILTERS``,
 ``tracking.FIX_FILTERS``, ``tracking.CELL_METHODS``) and every public function of the filter
-packages whose return annotation is a filter result (:data:`PUBLIC`); a filter without a case
+packages whose return annotation is a filter result (:data:`PUBLIC`; the batch engine's as
+``batch.<name>``, since its filters share their references' names); a filter without a case
 below fails :func:`test_every_filter_has_a_contract_case`.
+
+A batch filter (``Case(batch=True)``) runs the problem as a batch of one track; it must return a
+:class:`mptrack.result.BatchFilterResult`, and its track 0 (``run(0)``) is held to the same
+contract as a single-track filter, and equals its single-track ``twin`` field by field.
 
 Each case runs its filter on one linear-Gaussian problem (a damped oscillator sampled at dt = 1 s
 with one missing measurement row, prior x0 = 0 and the steady-state covariance, so the KF is in
@@ -31,6 +36,7 @@ from typing import Callable
 import numpy as np
 import pytest
 
+import mptrack.batch as batch
 import mptrack.cellular as cellular
 import mptrack.linear as linear
 import mptrack.tracking as tracking
@@ -41,13 +47,17 @@ from mptrack.nonlinear import ekf_filter
 from mptrack.result import BatchFilterResult, FilterResult
 from mptrack.riccati import steady_state
 
-PACKAGES = ("mptrack.linear", "mptrack.nonlinear", "mptrack.continuous", "mptrack.cellular", "mptrack.tracking")
+PACKAGES = ("mptrack.linear", "mptrack.nonlinear", "mptrack.continuous", "mptrack.cellular", "mptrack.tracking",
+            "mptrack.batch")
+#: packages whose filters are named with the package (the batch twins have their references' names)
+QUALIFIED = ("mptrack.batch",)
 RESULTS = ("FilterResult", "GatedResult", "IMMResult", "BatchFilterResult")
 
 #: public functions that return a result but are not filters, and why
 NOT_FILTERS = {
     "join_results": "combines two results (the JKLF/JSSKLF registry entries run it)",
     "per_axis": "runs a filter per axis (model B of the Table 1 implementations)",
+    "filter_chunked": "runs a batch filter chunk by chunk (equal to it: tests/batch/test_batch_runner.py)",
     "rts_smoother": "smoother", "steady_state_smoother": "smoother", "rts_smoother_irregular": "smoother",
     "ekf_smoother": "smoother", "ukf_smoother": "smoother", "smooth_gated": "smoother",
     "predict_ahead": "N-step predictor of a filter result", "steady_state_predictor": "N-step predictor",
@@ -58,11 +68,13 @@ def _public_filters() -> dict[str, Callable]:
     found = {}
     for package in PACKAGES:
         module = importlib.import_module(package)
+        prefix = package.rsplit(".", 1)[1] + "." if package in QUALIFIED else ""
         for name in module.__all__:
             fn = getattr(module, name)
             ret = getattr(fn, "__annotations__", {}).get("return", "") if callable(fn) else ""
             if isinstance(ret, str) and any(r in ret for r in RESULTS) and name not in NOT_FILTERS:
-                found[name] = fn
+                assert prefix + name not in found, f"two public filters named {prefix + name}"
+                found[prefix + name] = fn
     return found
 
 
@@ -101,14 +113,26 @@ class Case:
     entry); ``forms`` the fields it forms besides x and P; ``nan`` "predicts" or "raises";
     ``arguments`` those of the prior and measurements it takes (for the bad-input checks); z the
     measurements of the comparison (by default the problem's, with its gap at row GAP), gapped
-    those of the NaN check; ``extra_rows`` rows the result has before those of z."""
+    those of the NaN check; ``extra_rows`` rows the result has before those of z.  ``batch``: the
+    filter runs a batch of one track (``run`` gets z (1, T, m)); ``covariance`` False: it returns
+    P None (documented in mptrack.result); ``twin`` the case of its single-track form; ``F`` the
+    motion a NaN row predicts with (checked directly where the filter gives no x_pred)."""
 
     def __init__(self, run: Callable, tol: float, *, reference: Callable = _kf,
                  forms: tuple = ("x_pred", "P_pred", "innovation", "S", "nis", "loglik"), nan: str = "predicts",
-                 z=Z, gapped=Z, x0=X0, P0=P0, arguments: tuple = ("z", "x0", "P0"), extra_rows: int = 0):
+                 z=Z, gapped=Z, x0=X0, P0=P0, arguments: tuple = ("z", "x0", "P0"), extra_rows: int = 0,
+                 batch: bool = False, covariance: bool = True, twin: str | None = None, F=MODEL.F):
         self.run, self.tol, self.reference, self.forms, self.nan = run, tol, reference, forms, nan
         self.z, self.gapped, self.x0, self.P0 = z, gapped, x0, P0
         self.arguments, self.extra_rows = arguments, extra_rows
+        self.batch, self.covariance, self.twin, self.F = batch, covariance, twin, F
+        if batch:
+            self.run = lambda z, x0, P0: run(np.asarray(z)[None], x0, P0)
+
+    @property
+    def fields(self) -> tuple:
+        """The fields the filter forms, x first."""
+        return ("x", "P", *self.forms) if self.covariance else ("x", *self.forms)
 
 
 GAUSSIAN = ("x_pred", "P_pred", "innovation", "S", "nis", "loglik")
@@ -154,7 +178,8 @@ def _one_station_ekf():
     return ekf_filter(model, Z_RANGES[:, :1], RANGE_X0, RANGE_P0)
 
 
-_CELL = {"z": Z_RANGES[:, :1], "gapped": Z_RANGES[:, :1], "x0": RANGE_X0, "P0": RANGE_P0, "reference": _one_station_ekf}
+_CELL = {"z": Z_RANGES[:, :1], "gapped": Z_RANGES[:, :1], "x0": RANGE_X0, "P0": RANGE_P0, "reference": _one_station_ekf,
+         "F": np.eye(2)}
 
 #: registry entries and public filter functions -> their case.  Tolerances: exact algebra 1e-9; the
 #: FIR its eps; the continuous-discrete UKF its RK4 error (docs/design.md); Monte-Carlo and grid
@@ -191,6 +216,16 @@ CASES: dict[str, Case] = {
     "ekf_ranges": Case(_cell(cellular.ekf_ranges), 0.0, **_CELL),
     "fekf_ranges": Case(_cell(cellular.fekf_ranges), 1e-9, forms=GAUSSIAN[:-1], **_CELL),
     "fcs_ranges": Case(_cell(cellular.fcs_ranges), 1e-9, forms=GAUSSIAN[:-1], **_CELL),
+    # the batch engine: states only, plus the shared steady covariance of the steady-state filters
+    "batch.steady_state_filter": Case(lambda z, x0, P0: batch.steady_state_filter(MODEL, z, x0), 1e-9, forms=(),
+                                      batch=True, twin="steady_state_filter", arguments=("z", "x0"), **STEADY),
+    "batch.fir_filter": Case(lambda z, x0, P0: batch.fir_filter(MODEL, z), FIR_EPS, forms=(), batch=True,
+                             twin="fir_filter", arguments=("z",), **FIR),
+    "batch.kalman_filter": Case(lambda z, x0, P0: batch.kalman_filter(MODEL, z, x0, P0), 1e-9, forms=(),
+                                batch=True, covariance=False, twin="kalman_filter"),
+    "batch.range_ekf": Case(lambda z, x0, P0: batch.range_ekf(batch.RangeModel(
+        np.eye(2), RANGE_Q, STATIONS[:1], [[0.222]], position=(0, 1)), z, x0, P0), 1e-9, forms=(), batch=True,
+        covariance=False, twin="ekf_ranges", **_CELL),
 }
 #: tracking's registries name the same filters: fix filters run linear.FILTERS (or the gated KF),
 #: cell methods the range filters
@@ -210,11 +245,19 @@ FILTERS = [f"linear.FILTERS[{n}]" for n in linear.FILTERS] + \
 _results: dict = {}
 
 
-def _run(name: str) -> FilterResult:
+def _run(name: str) -> FilterResult | BatchFilterResult:
     if name not in _results:
         case = CASES[name]
         _results[name] = case.run(case.z, case.x0, case.P0)
     return _results[name]
+
+
+def _track(case: Case, res) -> FilterResult:
+    """The one track a case's result holds (track 0 of a batch)."""
+    if case.batch:
+        assert isinstance(res, BatchFilterResult) and res.B == 1 and res.method
+        return res.run(0)
+    return res
 
 
 def test_every_filter_has_a_contract_case():
@@ -227,12 +270,17 @@ def test_every_filter_has_a_contract_case():
 
 @pytest.mark.parametrize("name", FILTERS)
 def test_result_type_and_shapes(name):
-    case, res = CASES[name], _run(name)
+    case = CASES[name]
+    res = _track(case, _run(name))
     T_, m = case.z.shape
     T_ += case.extra_rows
     n = case.x0.shape[0]
     assert isinstance(res, FilterResult) and res.method
-    assert res.x.shape == (T_, n) and res.P.shape == (T_, n, n)
+    assert res.x.shape == (T_, n)
+    if case.covariance:
+        assert res.P.shape == (T_, n, n)
+    else:
+        assert res.P is None, "P: the filter does not form it (mptrack.result documents None)"
     shapes = {"x_pred": (T_, n), "P_pred": (T_, n, n), "innovation": (T_, m), "S": (T_, m, m), "nis": (T_,)}
     for field, shape in shapes.items():
         value = getattr(res, field)
@@ -252,18 +300,18 @@ def test_a_nan_row_only_predicts(name):
         with pytest.raises(MptrackError, match=r"^z: "):
             case.run(case.gapped, case.x0, case.P0)
         return
-    res = _run(name) if case.z is case.gapped else case.run(case.gapped, case.x0, case.P0)
+    res = _track(case, _run(name) if case.z is case.gapped else case.run(case.gapped, case.x0, case.P0))
     row = GAP
     if res.x_pred is not None:   # to rounding: LF/SS/FIR predictions are formed outside their loops
         _close(res.x[row], res.x_pred[row], 1e-12, "x")
         if case.nan == "predicts":
             _close(res.P[row], res.P_pred[row], 1e-12, "P")
     else:
-        _close(res.x[row], MODEL.F @ res.x[row - 1], 1e-12, "x")
+        _close(res.x[row], case.F @ res.x[row - 1], 1e-12, "x")
     if res.innovation is not None:
         assert np.isnan(res.innovation[row]).all() and np.isnan(res.S[row]).all() and np.isnan(res.nis[row])
         assert np.isfinite(np.delete(res.nis, row)).all()
-    assert np.isfinite(res.x).all() and np.isfinite(res.P).all()
+    assert np.isfinite(res.x).all() and (res.P is None or np.isfinite(res.P).all())
 
 
 def _close(got, want, tol, what):
@@ -278,9 +326,9 @@ def test_equals_the_reference_within_its_tolerance(name):
     """x, P, x_pred, P_pred, innovation, S, NIS of the filter equal the reference's (the KF on the linear
     model) within the filter's tolerance; loglik too."""
     case = CASES[name]
-    res, kf = _run(name), case.reference()
+    res, kf = _track(case, _run(name)), case.reference()
     rows = slice(case.extra_rows, None)
-    for field in ("x", "P", *case.forms):
+    for field in case.fields:
         if field == "loglik":
             assert abs(res.loglik - kf.loglik) <= max(case.tol, 1e-12) * abs(kf.loglik), "loglik"
             continue
@@ -324,3 +372,14 @@ def test_batch_form_is_the_single_track_form(batch):
             assert got == pytest.approx(want, rel=1e-10)
         else:
             _close(got, want, 1e-10, field)
+
+
+@pytest.mark.parametrize("name", [n for n in CASES if CASES[n].twin])
+def test_batch_filter_is_its_single_track_twin(name):
+    """Track 0 of a batch filter equals its single-track form in every field it forms (the batch
+    engine's 1e-12 to the reference, with room for the FIR's summation order)."""
+    case = CASES[name]
+    one, ref = _track(case, _run(name)), _run(case.twin)
+    assert one.method == ref.method
+    for field in case.fields:
+        _close(getattr(one, field), getattr(ref, field), 1e-10, field)
