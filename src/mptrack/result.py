@@ -35,6 +35,11 @@ A field that the algorithm does not form is None.  Which filter forms what:
     PF, reference, FEM           no innovation, S, nis (the likelihood is evaluated per particle or
                                  grid node; no Gaussian innovation is formed)
     smoothers, predictors        x, P (and x0, P0 for a smoother of a prior at time 0)
+    batch SSKF, FIR              x, P, inputs: P a read-only view of the one steady-state Pe
+    (mptrack.batch)              (as the single-track forms report it), inputs {"steady": ...}
+    batch KF, range EKF          x only: each track's P is formed and discarded by the kernel;
+    (mptrack.batch)              the KF's shared gain sequence (the P of complete tracks) in
+                                 inputs {"gains": ...}
 
 On a linear-Gaussian model every filter is compared with the KF (tests/test_filter_contract.py, the
 largest difference relative to the largest entry of each field, x .. nis and loglik):
@@ -50,6 +55,7 @@ largest difference relative to the largest entry of each field, x .. nis and log
                                         measured over seeds)
     reference, 20000 particles          0.08 (0.023 measured)
     FEKF, FCS with one station          1e-9 to the range EKF (not a linear model: ranges)
+    batch filters (mptrack.batch)       those of their single-track forms, which they equal to 1e-10
 
 Subclasses add what one filter alone has: the gated KF's flags and per-step transitions
 (:class:`mptrack.tracking.GatedResult`), the IMM's mode probabilities
