@@ -65,7 +65,7 @@ def _shared(P: np.ndarray, x: np.ndarray, axes: int) -> np.ndarray:
         P = blocks
     P = np.ascontiguousarray(P, dtype=np.float64)
     view = np.ndarray(x.shape + x.shape[-1:], P.dtype, P, 0, (0, 0) + P.strides)
-    view.flags.writeable = False
+    view.setflags(write=False)
     return view
 
 
