@@ -305,6 +305,13 @@ def test_python_dash_m_mptrack():
     assert res.returncode == 2 and res.stderr.startswith("error: --quick")
 
 
+def test_bench_figure_keeps_three_significant_figures_with_their_trailing_zeros():
+    from mptrack.cli.bench import figure
+
+    values = (0.18, 1.2033342500217259e-05, 2.41e8, 1234.5, 1.0, 0.0989, None, 7)
+    assert [figure(v) for v in values] == ["0.180", "1.20e-05", "2.41e+08", "1234", "1.00", "0.0989", "—", "7"]
+
+
 def test_bench_tables_show_three_significant_figures_and_json_every_digit():
     res = cli("bench", "--quick", "--suite", "linear")
     assert res.returncode == 0, res.stderr

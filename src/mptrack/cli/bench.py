@@ -31,7 +31,7 @@ def figure(v) -> str:
     size = abs(v)
     if 1.0 <= size < 1e5:          # whole numbers keep their digits: 1235, not 1.24e+03
         return f"{v:.{max(0, FIGURES - len(str(int(size))))}f}"
-    return f"{v:.{FIGURES}g}"
+    return f"{v:#.{FIGURES}g}"   # "#": trailing zeros are significant (0.180, not 0.18)
 
 
 def bench(
