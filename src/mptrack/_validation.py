@@ -33,6 +33,7 @@ from .errors import (
 
 __all__ = [
     "as_array",
+    "check_values",
     "broadcast_shape",
     "as_matrix",
     "as_vector",
@@ -86,10 +87,17 @@ def as_array(name: str, value, *, ndim: int | None = None, shape: tuple | None =
         for want, got in zip(shape, arr.shape):
             if want is not None and want != got:
                 raise ShapeError(f"{name}: expected shape {_shape_text(shape)}, got shape {arr.shape}")
+    check_values(name, arr, finite=finite, allow_nan=allow_nan, low=low, high=high, unit=unit)
+    return arr
+
+
+def check_values(name: str, arr: np.ndarray, *, finite: bool = True, allow_nan: bool = False,
+                 low: float = -math.inf, high: float = math.inf, unit: str = "") -> None:
+    """The value checks of :func:`as_array` on a real array in its own dtype (a float32 array is
+    not copied to float64 to be checked)."""
     bounded = low > -math.inf or high < math.inf
     if (finite or bounded) and arr.size and not _extremes_ok(_finite_data(arr), low, high, finite):
         _check_values(name, arr, finite, allow_nan, low, high, unit)
-    return arr
 
 
 def _extremes_ok(arr: np.ndarray, low: float, high: float, finite: bool) -> bool:

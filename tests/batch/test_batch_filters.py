@@ -173,6 +173,27 @@ def test_float32_within_single_precision_and_out_in_place():
     close(kf.astype(np.float64), batch.kalman_filter(model, z.astype(np.float64), P0=np.eye(2)), 1e-6)
 
 
+def test_float32_input_is_checked_in_its_dtype_without_a_float64_copy():
+    """The infinity check of z runs in z's dtype: a float32 batch is not copied to float64 to be
+    checked (that copy cost more CPU than the rest of the check; see docs/batch.md)."""
+    import tracemalloc
+
+    from mptrack.batch._inputs import as_batch
+
+    z = np.ones((100, 1000, 1), np.float32)       # 400 kB; its float64 copy would be 800 kB
+    z[1, 2, 0] = np.nan                            # NaN (missing) is allowed, infinity is not
+    tracemalloc.start()
+    try:
+        assert as_batch("z", z, 1) is z
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert peak < 200_000, peak                  # at most a boolean mask (1 byte per value) to find the NaN
+    z[3, 4, 0] = -np.inf
+    with pytest.raises(NonFiniteError, match=r"^z: contains infinite value .*inf.* at index \(3, 4, 0\)"):
+        batch.steady_state_filter(assimakis_model_b(), z)
+
+
 def test_bad_shapes_and_dtypes_raise_named_errors():
     model = assimakis_model_b()
     z = np.zeros((2, 5, 1))

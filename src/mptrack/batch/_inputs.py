@@ -7,7 +7,7 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
-from .._validation import _to_array, as_array, as_vector, check_allocation, require_finite
+from .._validation import _to_array, as_array, as_vector, check_allocation, check_values, require_finite
 from ..errors import DTypeError, ParameterError, ShapeError
 from ..models import LinearGaussianModel
 
@@ -57,7 +57,7 @@ def as_batch(name: str, value, width: int) -> np.ndarray:
         raise ShapeError(f"{name}: expected at least one track and one time step, got shape {arr.shape}")
     if arr.dtype not in _FLOATS:
         arr = arr.astype(np.float64)
-    as_array(name, arr, allow_nan=True)  # refuses +-Inf (the check is two reductions, no copy)
+    check_values(name, arr, allow_nan=True)  # refuses +-Inf: two reductions in z's dtype, no copy
     return np.ascontiguousarray(arr)
 
 
