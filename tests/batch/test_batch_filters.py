@@ -279,3 +279,26 @@ def test_parallel_launch_equals_single_thread_bitwise(monkeypatch):
     for p, s in zip(parallel, single):
         np.testing.assert_array_equal(p, s)
     close(parallel[1][7], linear.kalman_filter(model, z[7], P0=np.eye(2)).x)
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+@pytest.mark.parametrize("kind", ["steady-state", "kalman"])
+def test_an_overflow_inside_a_ragged_track_is_an_error_even_when_it_decays(kind, dtype):
+    """The output check scans each track up to its length in the output's dtype: a float32
+    store that overflowed for 4 steps, with finite rows after it, is found; the NaN rows after
+    a track's end are not errors."""
+    model = assimakis_model_b()
+    z = np.random.default_rng(1).standard_normal((3, 300, 1)).astype(dtype)
+    lengths = np.array([300, 250, 10])
+    run = batch.steady_state_filter if kind == "steady-state" else batch.kalman_filter
+    x0 = np.zeros((3, 2))
+    fine = run(model, z, x0, lengths=lengths)
+    assert np.isnan(fine[2, 10:]).all() and np.isfinite(fine[2, :10]).all()
+    x0[1] = 1e39 if dtype == np.float32 else 1.75e308   # float64: A x0 + B z overflows with z = 1.7e308
+    if dtype == np.float64:
+        z[1, 0] = 1.7e308
+    out = np.empty((3, 300, 2), dtype)
+    with pytest.raises(NonFiniteError, match=r"^x0: the (steady-state|Kalman) filter overflowed"):
+        run(model, z, x0, out=out, lengths=lengths)
+    if dtype == np.float32:
+        assert not np.isfinite(out[1, 0]).all() and np.isfinite(out[1, 249]).all()

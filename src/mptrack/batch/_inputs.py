@@ -7,7 +7,15 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
-from .._validation import _to_array, as_array, as_vector, check_allocation, check_values, require_finite
+from .. import _jit_cache  # noqa: F401 - compiled kernels cache in the user's cache directory
+from .._validation import (
+    _overflow,
+    _to_array,
+    as_array,
+    as_vector,
+    check_allocation,
+    check_values,
+)
 from ..errors import DTypeError, ParameterError, ShapeError
 from ..models import LinearGaussianModel
 
@@ -18,20 +26,20 @@ _FLOATS = (np.dtype(np.float64), np.dtype(np.float32))
 SMALL_WORK = 1 << 20   # output values below which one thread beats waking the others
 
 
-def launch(kernel, work: int, *args) -> None:
-    """Call a parallel kernel; for less than SMALL_WORK updates on one thread only.
+def launch(kernel, work: int, *args):
+    """Call a parallel kernel (and return what it returns); for less than SMALL_WORK updates on
+    one thread only.
 
     Waking the worker threads costs microseconds on an idle machine but a
     scheduler time slice (milliseconds) on a busy one; small batches do not
     need them.
     """
     if work >= SMALL_WORK or numba.get_num_threads() == 1:
-        kernel(*args)
-        return
+        return kernel(*args)
     previous = numba.get_num_threads()
     numba.set_num_threads(1)
     try:
-        kernel(*args)
+        return kernel(*args)
     finally:
         numba.set_num_threads(previous)
 
@@ -61,15 +69,38 @@ def as_batch(name: str, value, width: int) -> np.ndarray:
     return np.ascontiguousarray(arr)
 
 
+@numba.njit(parallel=True, cache=True, nogil=True)
+def _largest_exponents(bits, counts, mask):  # pragma: no cover - compiled
+    """max over the first counts[b] words of row b of ``bits & mask``, for all rows.
+
+    ``bits`` is a float array read as unsigned integers and ``mask`` the exponent field:
+    the result equals ``mask`` exactly when a value is infinite or NaN.  One pass in
+    parallel over the rows; an integer max vectorises (a float test with an early exit
+    would not), so the scan runs at memory speed."""
+    largest = np.zeros(bits.shape[0], bits.dtype)
+    for b in numba.prange(bits.shape[0]):
+        row = bits[b]
+        top = bits.dtype.type(0)
+        for j in range(counts[b]):
+            top = max(top, row[j] & mask)
+        largest[b] = top
+    return largest
+
+
+_EXPONENT = {np.dtype(np.float64): np.uint64(0x7FF0000000000000), np.dtype(np.float32): np.uint32(0x7F800000)}
+
+
 def check_finite_out(bi: "BatchInputs", what: str, **inputs) -> np.ndarray:
     """The output-finiteness policy for a batch: rows inside each track's length must be finite
-    (after it they are NaN by contract)."""
+    (after it they are NaN by contract).  Scanned in one parallel pass in the output's dtype
+    (min and max over the whole output on one thread, and a masked copy for ragged batches,
+    cost more than the filter itself)."""
     out = bi.out
-    if bool((bi.lengths == out.shape[1]).all()):
-        require_finite(what, out, **inputs)
-    else:
-        inside = np.arange(out.shape[1]) < bi.lengths[:, None]
-        require_finite(what, out[inside], **inputs)
+    mask = _EXPONENT[out.dtype]
+    rows = out.reshape(out.shape[0], -1).view(mask.dtype)
+    counts = bi.lengths * out.shape[2]
+    if mask in launch(_largest_exponents, out.size, rows, counts, mask):
+        raise _overflow(what, inputs, None)
     return out
 
 
