@@ -96,8 +96,17 @@ def check_values(name: str, arr: np.ndarray, *, finite: bool = True, allow_nan: 
     """The value checks of :func:`as_array` on a real array in its own dtype (a float32 array is
     not copied to float64 to be checked)."""
     bounded = low > -math.inf or high < math.inf
-    if (finite or bounded) and arr.size and not _extremes_ok(_finite_data(arr), low, high, finite):
+    if finite and not bounded and _scannable(arr):   # large float data: one parallel pass
+        from ._float_scan import any_infinite, any_nonfinite
+        if (any_infinite if allow_nan else any_nonfinite)(arr):
+            _check_values(name, arr, finite, allow_nan, low, high, unit)
+    elif (finite or bounded) and arr.size and not _extremes_ok(_finite_data(arr), low, high, finite):
         _check_values(name, arr, finite, allow_nan, low, high, unit)
+
+
+def _scannable(arr: np.ndarray) -> bool:
+    """Large enough for the compiled scan of :mod:`mptrack._float_scan` to pay (and laid out for it)."""
+    return arr.size >= (1 << 20) and arr.dtype in (np.float64, np.float32) and arr.flags.c_contiguous
 
 
 def _extremes_ok(arr: np.ndarray, low: float, high: float, finite: bool) -> bool:

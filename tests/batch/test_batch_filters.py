@@ -267,14 +267,14 @@ def test_interleaved_groups_with_mixed_lengths_and_gaps(axes):
 
 def test_parallel_launch_equals_single_thread_bitwise(monkeypatch):
     """Large batches run on all threads, small ones on one: the numbers must not depend on it."""
-    from mptrack.batch import _inputs
+    from mptrack import _threads
 
     model = assimakis_model_b()
     z = np.random.default_rng(9).standard_normal((401, 200, 1))
     z[7, 50:60] = np.nan
-    monkeypatch.setattr(_inputs, "SMALL_WORK", 0)
+    monkeypatch.setattr(_threads, "SMALL_WORK", 0)
     parallel = [batch.steady_state_filter(model, z), batch.kalman_filter(model, z, P0=np.eye(2))]
-    monkeypatch.setattr(_inputs, "SMALL_WORK", 10**12)
+    monkeypatch.setattr(_threads, "SMALL_WORK", 10**12)
     single = [batch.steady_state_filter(model, z), batch.kalman_filter(model, z, P0=np.eye(2))]
     for p, s in zip(parallel, single):
         np.testing.assert_array_equal(p, s)

@@ -4,10 +4,10 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import numba
 import numpy as np
 
-from .. import _jit_cache  # noqa: F401 - compiled kernels cache in the user's cache directory
+from .._float_scan import any_nonfinite
+from .._threads import launch
 from .._validation import (
     _overflow,
     _to_array,
@@ -22,27 +22,6 @@ from ..models import LinearGaussianModel
 __all__ = ["BatchInputs", "prepare_batch", "as_batch", "check_out", "launch", "check_finite_out"]
 
 _FLOATS = (np.dtype(np.float64), np.dtype(np.float32))
-
-SMALL_WORK = 1 << 20   # output values below which one thread beats waking the others
-
-
-def launch(kernel, work: int, *args):
-    """Call a parallel kernel (and return what it returns); for less than SMALL_WORK updates on
-    one thread only.
-
-    Waking the worker threads costs microseconds on an idle machine but a
-    scheduler time slice (milliseconds) on a busy one; small batches do not
-    need them.
-    """
-    if work >= SMALL_WORK or numba.get_num_threads() == 1:
-        return kernel(*args)
-    previous = numba.get_num_threads()
-    numba.set_num_threads(1)
-    try:
-        return kernel(*args)
-    finally:
-        numba.set_num_threads(previous)
-
 
 @dataclass(frozen=True, eq=False)
 class BatchInputs:
@@ -69,37 +48,15 @@ def as_batch(name: str, value, width: int) -> np.ndarray:
     return np.ascontiguousarray(arr)
 
 
-@numba.njit(parallel=True, cache=True, nogil=True)
-def _largest_exponents(bits, counts, mask):  # pragma: no cover - compiled
-    """max over the first counts[b] words of row b of ``bits & mask``, for all rows.
-
-    ``bits`` is a float array read as unsigned integers and ``mask`` the exponent field:
-    the result equals ``mask`` exactly when a value is infinite or NaN.  One pass in
-    parallel over the rows; an integer max vectorises (a float test with an early exit
-    would not), so the scan runs at memory speed."""
-    largest = np.zeros(bits.shape[0], bits.dtype)
-    for b in numba.prange(bits.shape[0]):
-        row = bits[b]
-        top = bits.dtype.type(0)
-        for j in range(counts[b]):
-            top = max(top, row[j] & mask)
-        largest[b] = top
-    return largest
-
-
-_EXPONENT = {np.dtype(np.float64): np.uint64(0x7FF0000000000000), np.dtype(np.float32): np.uint32(0x7F800000)}
-
-
 def check_finite_out(bi: "BatchInputs", what: str, **inputs) -> np.ndarray:
     """The output-finiteness policy for a batch: rows inside each track's length must be finite
     (after it they are NaN by contract).  Scanned in one parallel pass in the output's dtype
     (min and max over the whole output on one thread, and a masked copy for ragged batches,
     cost more than the filter itself)."""
     out = bi.out
-    mask = _EXPONENT[out.dtype]
-    rows = out.reshape(out.shape[0], -1).view(mask.dtype)
-    counts = bi.lengths * out.shape[2]
-    if mask in launch(_largest_exponents, out.size, rows, counts, mask):
+    track = out.shape[1] * out.shape[2]
+    starts = np.arange(out.shape[0], dtype=np.int64) * track
+    if any_nonfinite(out, starts, bi.lengths * out.shape[2]):
         raise _overflow(what, inputs, None)
     return out
 
