@@ -133,7 +133,7 @@ def _check_values(name: str, arr: np.ndarray, finite: bool, allow_nan: bool, low
         if bad.any():
             idx = tuple(int(i) for i in np.argwhere(bad)[0])
             what = "infinite" if allow_nan else "non-finite"
-            raise NonFiniteError(f"{name}: contains {what} value {arr[idx]!r} at index {idx}")
+            raise NonFiniteError(f"{name}: contains {what} value {float(arr[idx])!r} at index {idx}")
     if low == -math.inf and high == math.inf:
         return
     outside = (arr < low) | (arr > high)
