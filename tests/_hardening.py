@@ -795,6 +795,7 @@ def _read_all(fn):
 
 
 target("io.read_table", path=paths(LOG_CSV))
+target("io.input_columns", path=paths(LOG_CSV))
 for _name in ("read_chunks", "iter_tracks", "iter_track_chunks"):
     target(f"io.{_name}", _read_all(getattr(mio, _name)), path=paths(LOG_CSV), chunk_rows=count(1, 1000))
 target("io.read_cells", lambda path, chunk_rows: mio.read_cells(path, chunk_rows=chunk_rows),
