@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .._rts import rts_backward
 from .._validation import (
     as_array,
     as_vector,
@@ -32,7 +33,6 @@ from ..errors import (
     ParameterError,
     ShapeError,
 )
-from ..linear._smoother import rts_backward
 from ..models import NonlinearModel, require_model
 from . import _named_kernels
 from . import _step_kernels as steps
