@@ -553,6 +553,8 @@ target("continuous.fem_steps", lambda z, x0, P0, scheme: list(continuous.fem_ste
                                                                                    scheme=scheme)),
        z=arg((2, 2), valid=ZZ[:2]), x0=arg((2,), valid=continuous.ZHAO2013_X0), P0=covariance(2),
        scheme=_FEM_SCHEMES, passed=("model",))
+target("continuous.fem_substeps", grid=st.one_of(st.just((20, 20)), st.sampled_from([(0, 3), (3,), "a", (2.5, 3),
+                                                                                    (10**6, 10**6), None])))
 target("continuous.shape_functions", xi=arg((3,), valid=[0.0, 0.5, -1.0]), eta=arg((3,), valid=[0.0, 1.0, 0.2]))
 target("nonlinear.ukf_filter", lambda z, x0, P0, alpha, beta, kappa, substeps, compiled: nonlinear.ukf_filter(
     ZHAO, z, x0, P0, alpha=alpha, beta=beta, kappa=kappa, substeps=substeps, compiled=compiled),

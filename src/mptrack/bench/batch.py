@@ -10,18 +10,19 @@ step, one filtered state), best of a few repeats.
 
 from __future__ import annotations
 
+import contextlib
 import time
 from typing import Callable
 
 import numpy as np
+from numba.core import event as numba_event
 
 from .. import batch, linear
-from ..batch import _kernels
 from ..errors import ConvergenceError
 from ..models import assimakis_model_a, assimakis_model_b
 from ..riccati import steady_state
 from . import register_suite
-from ._timing import best_time
+from ._timing import best_time, copy_kernel
 from .linear import _filterpy, _pykalman  # the same peers as the 'linear' suite
 
 __all__ = ["batch_suite", "batch_scaling_suite", "compile_times"]
@@ -36,7 +37,7 @@ class _Copier:
         words = max(1, max_bytes // 16)
         self.src = np.ones(words)
         self.dst = np.empty(words)
-        _kernels.copy_kernel(self.src[:1], self.dst[:1])
+        copy_kernel(self.src[:1], self.dst[:1])
 
     def copy_seconds(self, nbytes: int) -> float:
         """Time of the faster of memcpy (numpy) and a parallel numba copy moving ``nbytes``."""
@@ -45,7 +46,7 @@ class _Copier:
         t0 = time.perf_counter()
         np.copyto(dst, src)
         t1 = time.perf_counter()
-        _kernels.copy_kernel(src, dst)
+        copy_kernel(src, dst)
         return min(t1 - t0, time.perf_counter() - t1)
 
     def paired(self, fn: Callable[[], object], nbytes: int, repeats: int) -> tuple[float, float]:
@@ -60,8 +61,29 @@ class _Copier:
         return t_fn, t_copy
 
 
+class _Compiles(numba_event.Listener):
+    """Counts numba's compilations and its compiler-lock acquisitions (a compilation, or a signature
+    loaded from the cache; a signature already in memory takes neither)."""
+
+    def __init__(self):
+        self.counts = {"numba:compile": 0, "numba:compiler_lock": 0}
+
+    def on_start(self, event):
+        self.counts[event.kind] += 1
+
+    def on_end(self, event):
+        pass
+
+    def how(self, before: dict) -> str:
+        if self.counts["numba:compile"] > before["numba:compile"]:
+            return "compiled"
+        return "numba cache" if self.counts["numba:compiler_lock"] > before["numba:compiler_lock"] \
+            else "already in memory"
+
+
 def compile_times(dtypes=(np.float64, np.float32)) -> list[list]:
-    """First call of each kernel on a tiny input in this process: compile (or cache load) time."""
+    """First call of each kernel on a tiny input in this process: compile (or cache load) time, and which
+    of the two it was (numba's compile and compiler-lock events during the call)."""
     model_b, model_a = assimakis_model_b(), assimakis_model_a(2)
     rows = []
     cases = [
@@ -70,16 +92,17 @@ def compile_times(dtypes=(np.float64, np.float32)) -> list[list]:
         ("Kalman n=2 m=1", lambda z: batch.kalman_filter(model_b, z)),
         ("FIR", lambda z: batch.fir_filter(model_b, z)),
     ]
-    dispatchers = [_kernels.ss_kernel_21, _kernels.ss_kernel, _kernels.kf_kernel_21, _kernels.fir_kernel]
-    for (name, fn), disp in zip(cases, dispatchers):
-        for dtype in dtypes:
-            hits = sum(disp.stats.cache_hits.values())
-            t0 = time.perf_counter()
-            fn(np.zeros((2, 3, 1), dtype=dtype))
-            seconds = time.perf_counter() - t0
-            loaded = sum(disp.stats.cache_hits.values()) > hits
-            rows.append([f"{name} {np.dtype(dtype).name}", seconds,
-                         "numba cache" if loaded else "compiled (or already in memory)"])
+    events = _Compiles()
+    with contextlib.ExitStack() as stack:
+        for kind in events.counts:
+            stack.enter_context(numba_event.install_listener(kind, events))
+        for name, fn in cases:
+            for dtype in dtypes:
+                before = dict(events.counts)
+                t0 = time.perf_counter()
+                fn(np.zeros((2, 3, 1), dtype=dtype))
+                seconds = time.perf_counter() - t0
+                rows.append([f"{name} {np.dtype(dtype).name}", seconds, events.how(before)])
     return rows
 
 

@@ -8,8 +8,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..models import NonlinearModel, constant_velocity, nonlinear_model, range_bearing
-from ..continuous import ZHAO2013_X0, fem_filter, fem_steps, simulate_sde, zhao2013_model
-from ..continuous._fem import default_substeps
+from ..continuous import ZHAO2013_X0, fem_filter, fem_steps, fem_substeps, simulate_sde, zhao2013_model
 from ..nonlinear import ekf_filter, ekf_filter_batch, particle_filter, ukf_filter
 from . import register_suite
 from ._timing import best_time
@@ -172,7 +171,7 @@ def _fem_rows(model, z, x0, P0, n: int, box, repeats: int) -> list:
     variants = [("moving grid (the default: characteristics, 4 Strang steps per second)", {}, share),
                 ("fixed box (characteristics)", {"box": box}, None)]
     if n == 20:
-        variants.append((f"moving grid, scheme='sdirk2' ({default_substeps(grid)} SDIRK2 sub-steps, an LU "
+        variants.append((f"moving grid, scheme='sdirk2' ({fem_substeps(grid)} SDIRK2 sub-steps, an LU "
                          "per move)", {"scheme": "sdirk2"}, None))
     rows = []
     for label, options, pct in variants:

@@ -37,6 +37,8 @@ __all__ = [
     "bouzera_fekf_fis",
     "bouzera_fcs_fis",
     "fekf_ranges",
+    "TABLE_I",
+    "TABLE_III",
     "fekf_ranges_batch",
     "fcs_ranges",
     "fcs_ranges_batch",

@@ -12,7 +12,8 @@ Kalman filter and the particle filter of :mod:`mptrack.nonlinear` take these mod
 # this package's filters use mptrack.nonlinear's and those take this package's model: whichever of the
 # two packages is imported first imports the other one first (docs/design.md, Layout)
 from .. import nonlinear as _nonlinear  # noqa: F401  (isort: skip)
-from ._fem import FEMGrid, FEMStep, GridDensity, GridMixture, fem_filter, fem_steps, shape_functions
+from ._fem import SCHEMES as FEM_SCHEMES
+from ._fem import FEMGrid, FEMStep, GridDensity, GridMixture, fem_filter, fem_steps, fem_substeps, shape_functions
 from ._model import (
     ZHAO2013_X0,
     BlockKernels,
@@ -36,6 +37,8 @@ __all__ = [
     "FEMStep",
     "fem_filter",
     "fem_steps",
+    "fem_substeps",
+    "FEM_SCHEMES",
     "shape_functions",
     "reference_filter",
     "pf_substep_study",
