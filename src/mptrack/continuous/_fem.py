@@ -88,9 +88,9 @@ from .._validation import (
 )
 from ..errors import ConvergenceError, NotPositiveDefiniteError, ParameterError, ShapeError
 from ..result import FilterResult
-from ..nonlinear._common import prepare_nonlinear
-from ..nonlinear._ukf import _weights as _sigma_weights
-from ..nonlinear._ukf import sigma_points
+from .._filter_inputs import prepare_nonlinear
+from .._unscented import sigma_points
+from .._unscented import weights as _sigma_weights
 from ._fem_kernels import (
     band_cn,
     band_sdirk2,
@@ -983,7 +983,8 @@ def fem_steps(model: ContinuousDiscreteModel, z, x0, P0, *, grid: tuple[int, int
     adaptive = substeps is None  # the characteristics scheme then sizes its diffusion sub-steps itself
     if substeps is None:
         substeps = default_substeps(shape)
-    z, m, P, substeps = prepare_nonlinear(model, z, x0, P0, substeps, definite=True)
+    z, m, P, substeps = prepare_nonlinear(model, z, x0, P0, substeps, definite=True,
+                                          kinds=(ContinuousDiscreteModel,))
     if model.n != 2:
         raise ShapeError(f"model: the FEM grid filter is for a 2-D state, got n = {model.n}")
     width = check_positive("width", width)
