@@ -17,6 +17,7 @@ __all__ = ["particle_filter", "systematic_resample"]
 #: the SDE sub-step scheme of a continuous-discrete model by default (the only value for a NonlinearModel)
 _DEFAULT_SCHEME = "rk4-split"
 
+
 def systematic_resample(weights: np.ndarray, rng: np.random.Generator) -> np.ndarray:
     """Indices of N draws by systematic resampling (one uniform u, the N points (u + i)/N).
 
@@ -56,9 +57,10 @@ def particle_filter(model, z, x0, P0, rng: np.random.Generator, *,
                    whose covariance is h²·(weighted covariance), h the Silverman
                    bandwidth (N(n+2)/4)^(-1/(n+4)) (regularised PF, Musso et al. 2001)
     scheme         SDE sub-step scheme of :meth:`ContinuousDiscreteModel.sample_transition`:
-                   "rk4-split" (default; RK4 drift flows around the noise) or "heun"
-    substeps       sub-steps per dt (default :func:`pf_substeps`: 2 for eq. 42 with Q x 0.01,
-                   more when the diffusion is large); continuous-discrete models only
+                   "rk4-split" (default; RK4 drift flows around the noise) or "heun";
+                   continuous-discrete models only (a NonlinearModel takes the default only)
+    substeps       sub-steps per dt (default :func:`mptrack.continuous.pf_substeps`: 2 for eq. 42
+                   with Q x 0.01, more when the diffusion is large); continuous-discrete models only
     compiled       None: use the model's compiled kernels when it has them (zhao2013_model,
                    linear_sde_model), else NumPy; False: NumPy; True: require the kernels.
                    Both paths draw the same numbers and give the same result up to rounding.
@@ -80,7 +82,7 @@ def particle_filter(model, z, x0, P0, rng: np.random.Generator, *,
     default_substeps = substeps is None
     z, m0, P0, substeps = prepare_nonlinear(model, z, x0, P0, substeps)
     discrete = isinstance(model, NonlinearModel)
-    if discrete and scheme != _DEFAULT_SCHEME:
+    if discrete and not (isinstance(scheme, str) and scheme == _DEFAULT_SCHEME):
         raise ParameterError(f"scheme: only for a continuous-discrete model (a NonlinearModel is discrete-time), "
                              f"got {scheme!r}")
     rng = check_rng(rng)
