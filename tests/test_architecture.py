@@ -15,6 +15,8 @@ own package, and ``from package import _module`` counted as an import of that pr
 from __future__ import annotations
 
 import ast
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -95,6 +97,17 @@ def test_allowed_exceptions_are_still_needed():
         me = ".".join(p for p in path.relative_to(SRC).with_suffix("").parts if p != "__init__")
         used |= {(me, ".".join(module)) for _, module in imported_modules(SRC, path)}
     assert ALLOWED <= used, sorted(ALLOWED - used)
+
+
+def test_nonlinear_does_not_import_continuous():
+    """The dependency goes one way: mptrack.continuous uses mptrack.nonlinear's filters and registers its
+    model type with them (mptrack._model_families); importing mptrack.nonlinear loads nothing of
+    mptrack.continuous (the two packages used to import each other)."""
+    code = ("import sys, mptrack.nonlinear; "
+            "print(sorted(m for m in sys.modules if m.startswith('mptrack.continuous')))")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.strip() == "[]", done.stdout
 
 
 @pytest.mark.parametrize("source, bad", [

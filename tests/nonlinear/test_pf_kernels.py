@@ -284,3 +284,17 @@ def test_substep_study_split_scheme_bias_below_monte_carlo_noise():
     split, heun = rows[("rk4-split", 2)], rows[("heun", 2)]
     assert split[3] < 0.5 * split[2]       # bias < half the error of one 10^4-particle filter
     assert heun[3] > 3 * split[2]          # Heun at 2 sub-steps: bias dominates
+
+
+def test_a_nonlinear_model_takes_only_the_default_scheme():
+    """The SDE sub-step scheme means nothing for a discrete-time model: another value is an error naming
+    it (it used to be ignored), and so is compiled=True."""
+    from mptrack.models import constant_velocity, nonlinear_model, position
+
+    model = nonlinear_model(constant_velocity(1.0, 0.5, axes=1), position(np.eye(1), position=(0,)))
+    z, x0, P0 = np.zeros((3, 1)), np.zeros(2), np.eye(2)
+    assert particle_filter(model, z, x0, P0, np.random.default_rng(0), particles=50).x.shape == (3, 2)
+    with pytest.raises(ParameterError, match="^scheme: only for a continuous-discrete model"):
+        particle_filter(model, z, x0, P0, np.random.default_rng(0), particles=50, scheme="heun")
+    with pytest.raises(ParameterError, match="^compiled"):
+        particle_filter(model, z, x0, P0, np.random.default_rng(0), particles=50, compiled=True)
