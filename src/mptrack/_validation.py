@@ -59,6 +59,11 @@ __all__ = [
 ]
 
 
+# Valid ranges of geodetic coordinates, as keyword arguments of as_array.
+LATITUDE = dict(low=-90.0, high=90.0, unit="degrees")
+LONGITUDE = dict(low=-180.0, high=180.0, unit="degrees")
+
+
 def _shape_text(shape: tuple) -> str:
     return "(" + ", ".join("?" if s is None else str(s) for s in shape) + (",)" if len(shape) == 1 else ")")
 
@@ -216,6 +221,13 @@ def as_sequence(name: str, value, width: int, *, allow_nan: bool = False) -> np.
     return arr
 
 
+def frozen(arr) -> np.ndarray:
+    """A read-only float64 copy of ``arr``: the arrays of the immutable model records."""
+    arr = np.array(arr, dtype=np.float64, copy=True)
+    arr.setflags(write=False)
+    return arr
+
+
 def check_covariance(name: str, value, size: int | None = None, *, definite: bool = False,
                      rtol: float = 1e-9) -> np.ndarray:
     """A symmetric positive semi-definite (or definite) covariance matrix.
@@ -290,6 +302,29 @@ def check_path(name: str, value) -> Path:
             "\x00" not in str(value):
         return Path(value)
     raise ParameterError(f"{name}: expected a file path (str or pathlib.Path), got {value!r}")
+
+
+#: The name errors give a DataFrame passed instead of a file.
+FRAME_LABEL = "<DataFrame>"
+
+
+def source_label(source):
+    """What errors name as the file of ``source`` (a path, or a DataFrame read like a file): its path,
+    or FRAME_LABEL for a DataFrame; anything else is a ParameterError naming ``path``."""
+    import pandas as pd
+
+    return FRAME_LABEL if isinstance(source, pd.DataFrame) else check_path("path", source)
+
+
+#: what a reader does with a bad row: raise a DataError naming it, or skip it and count it
+ON_ERROR = ("raise", "skip")
+
+
+def check_on_error(on_error: str) -> str:
+    """``on_error`` if it is one of :data:`ON_ERROR`."""
+    if on_error not in ON_ERROR:
+        raise ParameterError(f"on_error: expected one of {ON_ERROR}, got {on_error!r}")
+    return on_error
 
 
 def check_frame(name: str, value, columns=(), numbers: dict | None = None, *, empty: bool = False):

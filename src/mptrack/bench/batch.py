@@ -19,6 +19,7 @@ CPU time on one numba thread (the work per core).
 
 from __future__ import annotations
 
+import contextlib
 import os
 import time
 from pathlib import Path
@@ -26,14 +27,14 @@ from typing import Callable
 
 import numba as nb
 import numpy as np
+from numba.core import event as numba_event
 
 from .. import batch, linear
-from ..batch import _kernels
 from ..errors import ConvergenceError
 from ..models import assimakis_model_a, assimakis_model_b
 from ..riccati import steady_state
 from . import register_suite
-from ._timing import best_time
+from ._timing import best_time, copy_kernel
 from .linear import _filterpy, _pykalman  # the same peers as the 'linear' suite
 
 __all__ = ["batch_suite", "batch_peers_suite", "batch_scaling_suite", "compile_times", "plain_kernel", "Anchor"]
@@ -109,11 +110,32 @@ class Anchor:
         """The same copy by all numba threads (a reference row: what two cores can move)."""
         w = max(1, nbytes // 16)
         src, dst = self.src[:w], self.dst[:w]
-        return lambda: _kernels.copy_kernel(src, dst)
+        return lambda: copy_kernel(src, dst)
+
+
+class _Compiles(numba_event.Listener):
+    """Counts numba's compilations and its compiler-lock acquisitions (a compilation, or a signature
+    loaded from the cache; a signature already in memory takes neither)."""
+
+    def __init__(self):
+        self.counts = {"numba:compile": 0, "numba:compiler_lock": 0}
+
+    def on_start(self, event):
+        self.counts[event.kind] += 1
+
+    def on_end(self, event):
+        pass
+
+    def how(self, before: dict) -> str:
+        if self.counts["numba:compile"] > before["numba:compile"]:
+            return "compiled"
+        return "numba cache" if self.counts["numba:compiler_lock"] > before["numba:compiler_lock"] \
+            else "already in memory"
 
 
 def compile_times(dtypes=(np.float64, np.float32)) -> list[list]:
-    """First call of each kernel on a tiny input in this process: compile (or cache load) time."""
+    """First call of each kernel on a tiny input in this process: compile (or cache load) time, and which
+    of the two it was (numba's compile and compiler-lock events during the call)."""
     model_b, model_a = assimakis_model_b(), assimakis_model_a(2)
     cases = [
         ("steady-state n=2 m=1", lambda z: batch.steady_state_filter(model_b, z)),
@@ -121,25 +143,19 @@ def compile_times(dtypes=(np.float64, np.float32)) -> list[list]:
         ("Kalman n=2 m=1", lambda z: batch.kalman_filter(model_b, z)),
         ("FIR", lambda z: batch.fir_filter(model_b, z)),
     ]
-    kernels = [_kernels.ss_kernel_21, _kernels.ss_kernel, _kernels.kf_kernel_21, _kernels.kf_kernel,
-               _kernels.fir_kernel]
     rows = []
-    for name, fn in cases:
-        for dtype in dtypes:
-            before = [_stats(d) for d in kernels]
-            t0 = time.perf_counter()
-            fn(np.zeros((2, 3, 1), dtype=dtype))
-            seconds = time.perf_counter() - t0
-            after = [_stats(d) for d in kernels]
-            hits = sum(h1 - h0 for (h0, _), (h1, _) in zip(before, after))
-            misses = sum(m1 - m0 for (_, m0), (_, m1) in zip(before, after))
-            source = "compiled" if misses else "numba cache" if hits else "already in memory"
-            rows.append([f"{name} {np.dtype(dtype).name}", seconds, source])
+    events = _Compiles()
+    with contextlib.ExitStack() as stack:
+        for kind in events.counts:
+            stack.enter_context(numba_event.install_listener(kind, events))
+        for name, fn in cases:
+            for dtype in dtypes:
+                before = dict(events.counts)
+                t0 = time.perf_counter()
+                fn(np.zeros((2, 3, 1), dtype=dtype))
+                seconds = time.perf_counter() - t0
+                rows.append([f"{name} {np.dtype(dtype).name}", seconds, events.how(before)])
     return rows
-
-
-def _stats(dispatcher) -> tuple[int, int]:
-    return sum(dispatcher.stats.cache_hits.values()), sum(dispatcher.stats.cache_misses.values())
 
 
 def _simdkalman_run(model, z, x0, P0):

@@ -46,7 +46,7 @@ def gpxpy_write(points: pd.DataFrame, path) -> None:
 
     import gpxpy.gpx as gpx
 
-    from ..io._gpx_out import NAMESPACE
+    from ..io import GPX_EXTENSION_NAMESPACE as NAMESPACE
 
     doc = gpx.GPX()
     doc.nsmap["mptrack"] = NAMESPACE
