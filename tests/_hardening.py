@@ -553,6 +553,12 @@ target("continuous.fem_steps", lambda z, x0, P0, scheme: list(continuous.fem_ste
                                                                                    scheme=scheme)),
        z=arg((2, 2), valid=ZZ[:2]), x0=arg((2,), valid=continuous.ZHAO2013_X0), P0=covariance(2),
        scheme=_FEM_SCHEMES, passed=("model",))
+target("continuous.fem_substeps", grid=st.one_of(st.just((20, 20)), st.sampled_from([(0, 3), (3,), "a", (2.5, 3),
+                                                                                    (10**6, 10**6), None])))
+target("continuous.fem_profile", lambda z, x0, P0, repeats: continuous.fem_profile(ZHAO, z, x0, P0, grid=(6, 6),
+                                                                                    repeats=repeats),
+       z=arg((2, 2), valid=ZZ[:2]), x0=arg((2,), valid=continuous.ZHAO2013_X0), P0=covariance(2),
+       repeats=count(1, 2, big=3), passed=("model", "grid"))
 target("continuous.shape_functions", xi=arg((3,), valid=[0.0, 0.5, -1.0]), eta=arg((3,), valid=[0.0, 1.0, 0.2]))
 target("nonlinear.ukf_filter", lambda z, x0, P0, alpha, beta, kappa, substeps, compiled: nonlinear.ukf_filter(
     ZHAO, z, x0, P0, alpha=alpha, beta=beta, kappa=kappa, substeps=substeps, compiled=compiled),
@@ -588,7 +594,7 @@ target("nonlinear.particle_filter", lambda z, x0, P0, rng, particles, ess_thresh
     ZHAO, z, x0, P0, rng, particles=particles, ess_threshold=ess_threshold), z=arg((2, 2), valid=ZZ[:2]),
     x0=arg((2,), valid=continuous.ZHAO2013_X0), P0=covariance(2), rng=rngs(), particles=count(1, 60),
     ess_threshold=scalar(0, 1), passed=("model",))
-target("nonlinear.pf_substeps", lambda scheme: nonlinear.pf_substeps(ZHAO, scheme), scheme=names("rk4-split", "heun"),
+target("continuous.pf_substeps", lambda scheme: continuous.pf_substeps(ZHAO, scheme), scheme=names("rk4-split", "heun"),
        passed=("model",))
 target("nonlinear.systematic_resample", weights=arg((3,), valid=[0.2, 0.3, 0.5]), rng=rngs())
 target("continuous.reference_filter", lambda z, x0, P0, rng, particles: continuous.reference_filter(
@@ -795,6 +801,7 @@ def _read_all(fn):
 
 
 target("io.read_table", path=paths(LOG_CSV))
+target("io.input_columns", path=paths(LOG_CSV))
 for _name in ("read_chunks", "iter_tracks", "iter_track_chunks"):
     target(f"io.{_name}", _read_all(getattr(mio, _name)), path=paths(LOG_CSV), chunk_rows=count(1, 1000))
 target("io.read_cells", lambda path, chunk_rows: mio.read_cells(path, chunk_rows=chunk_rows),

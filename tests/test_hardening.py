@@ -192,22 +192,22 @@ def _dare_residual(A, Bc, Q, R, X) -> float:
 def test_default_stopping_rule_meets_scipys_residual_bar(solve):
     """On each of scipy's real DARE test cases the default stopping rule leaves a residual within
     10x that of scipy's own solution (tol=1e-13, the old rule, missed it on 8 of them)."""
-    from test_riccati import DAREX, _darex_model
+    from _dare_cases import DAREX, darex_model
     for key, mats in DAREX.items():
         A, Bc, Q, R = (np.asarray(M, dtype=float) for M in mats)
         X = scipy.linalg.solve_discrete_are(A, Bc, Q, R)
-        ours = _dare_residual(A, Bc, Q, R, solve(_darex_model(key)).P_pred)
+        ours = _dare_residual(A, Bc, Q, R, solve(darex_model(key)).P_pred)
         assert ours <= 10 * _dare_residual(A, Bc, Q, R, X) + 1e-15, key
 
 
 def test_old_stopping_rule_missed_the_bar():
     """The test above can fail: the relative step 1e-13 leaves larger residuals."""
-    from test_riccati import DAREX, _darex_model
+    from _dare_cases import DAREX, darex_model
     missed = 0
     for key, mats in DAREX.items():
         A, Bc, Q, R = (np.asarray(M, dtype=float) for M in mats)
         X = scipy.linalg.solve_discrete_are(A, Bc, Q, R)
-        P = riccati.steady_state(_darex_model(key), "per-step", tol=1e-13).P_pred
+        P = riccati.steady_state(darex_model(key), "per-step", tol=1e-13).P_pred
         missed += _dare_residual(A, Bc, Q, R, P) > 10 * _dare_residual(A, Bc, Q, R, X) + 1e-15
     assert missed >= 5
 

@@ -33,6 +33,7 @@ from .errors import (
 
 __all__ = [
     "as_array",
+    "check_values",
     "broadcast_shape",
     "as_matrix",
     "as_vector",
@@ -56,6 +57,11 @@ __all__ = [
     "renamed",
     "derived_from",
 ]
+
+
+# Valid ranges of geodetic coordinates, as keyword arguments of as_array.
+LATITUDE = dict(low=-90.0, high=90.0, unit="degrees")
+LONGITUDE = dict(low=-180.0, high=180.0, unit="degrees")
 
 
 def _shape_text(shape: tuple) -> str:
@@ -86,10 +92,26 @@ def as_array(name: str, value, *, ndim: int | None = None, shape: tuple | None =
         for want, got in zip(shape, arr.shape):
             if want is not None and want != got:
                 raise ShapeError(f"{name}: expected shape {_shape_text(shape)}, got shape {arr.shape}")
-    bounded = low > -math.inf or high < math.inf
-    if (finite or bounded) and arr.size and not _extremes_ok(_finite_data(arr), low, high, finite):
-        _check_values(name, arr, finite, allow_nan, low, high, unit)
+    check_values(name, arr, finite=finite, allow_nan=allow_nan, low=low, high=high, unit=unit)
     return arr
+
+
+def check_values(name: str, arr: np.ndarray, *, finite: bool = True, allow_nan: bool = False,
+                 low: float = -math.inf, high: float = math.inf, unit: str = "") -> None:
+    """The value checks of :func:`as_array` on a real array in its own dtype (a float32 array is
+    not copied to float64 to be checked)."""
+    bounded = low > -math.inf or high < math.inf
+    if finite and not bounded and _scannable(arr):   # large float data: one parallel pass
+        from ._float_scan import any_infinite, any_nonfinite
+        if (any_infinite if allow_nan else any_nonfinite)(arr):
+            _check_values(name, arr, finite, allow_nan, low, high, unit)
+    elif (finite or bounded) and arr.size and not _extremes_ok(_finite_data(arr), low, high, finite):
+        _check_values(name, arr, finite, allow_nan, low, high, unit)
+
+
+def _scannable(arr: np.ndarray) -> bool:
+    """Large enough for the compiled scan of :mod:`mptrack._float_scan` to pay (and laid out for it)."""
+    return arr.size >= (1 << 20) and arr.dtype in (np.float64, np.float32) and arr.flags.c_contiguous
 
 
 def _extremes_ok(arr: np.ndarray, low: float, high: float, finite: bool) -> bool:
@@ -116,7 +138,7 @@ def _check_values(name: str, arr: np.ndarray, finite: bool, allow_nan: bool, low
         if bad.any():
             idx = tuple(int(i) for i in np.argwhere(bad)[0])
             what = "infinite" if allow_nan else "non-finite"
-            raise NonFiniteError(f"{name}: contains {what} value {arr[idx]!r} at index {idx}")
+            raise NonFiniteError(f"{name}: contains {what} value {float(arr[idx])!r} at index {idx}")
     if low == -math.inf and high == math.inf:
         return
     outside = (arr < low) | (arr > high)
@@ -199,6 +221,13 @@ def as_sequence(name: str, value, width: int, *, allow_nan: bool = False) -> np.
     return arr
 
 
+def frozen(arr) -> np.ndarray:
+    """A read-only float64 copy of ``arr``: the arrays of the immutable model records."""
+    arr = np.array(arr, dtype=np.float64, copy=True)
+    arr.setflags(write=False)
+    return arr
+
+
 def check_covariance(name: str, value, size: int | None = None, *, definite: bool = False,
                      rtol: float = 1e-9) -> np.ndarray:
     """A symmetric positive semi-definite (or definite) covariance matrix.
@@ -273,6 +302,29 @@ def check_path(name: str, value) -> Path:
             "\x00" not in str(value):
         return Path(value)
     raise ParameterError(f"{name}: expected a file path (str or pathlib.Path), got {value!r}")
+
+
+#: The name errors give a DataFrame passed instead of a file.
+FRAME_LABEL = "<DataFrame>"
+
+
+def source_label(source):
+    """What errors name as the file of ``source`` (a path, or a DataFrame read like a file): its path,
+    or FRAME_LABEL for a DataFrame; anything else is a ParameterError naming ``path``."""
+    import pandas as pd
+
+    return FRAME_LABEL if isinstance(source, pd.DataFrame) else check_path("path", source)
+
+
+#: what a reader does with a bad row: raise a DataError naming it, or skip it and count it
+ON_ERROR = ("raise", "skip")
+
+
+def check_on_error(on_error: str) -> str:
+    """``on_error`` if it is one of :data:`ON_ERROR`."""
+    if on_error not in ON_ERROR:
+        raise ParameterError(f"on_error: expected one of {ON_ERROR}, got {on_error!r}")
+    return on_error
 
 
 def check_frame(name: str, value, columns=(), numbers: dict | None = None, *, empty: bool = False):

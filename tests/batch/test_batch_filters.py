@@ -182,6 +182,27 @@ def test_float32_within_single_precision_and_out_in_place():
     close(kf.astype(np.float64), batch.kalman_filter(model, z.astype(np.float64), P0=np.eye(2)).x, 1e-6)
 
 
+def test_float32_input_is_checked_in_its_dtype_without_a_float64_copy():
+    """The infinity check of z runs in z's dtype: a float32 batch is not copied to float64 to be
+    checked (that copy cost more CPU than the rest of the check; see docs/batch.md)."""
+    import tracemalloc
+
+    from mptrack.batch._inputs import as_batch
+
+    z = np.ones((100, 1000, 1), np.float32)       # 400 kB; its float64 copy would be 800 kB
+    z[1, 2, 0] = np.nan                            # NaN (missing) is allowed, infinity is not
+    tracemalloc.start()
+    try:
+        assert as_batch("z", z, 1) is z
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert peak < 200_000, peak                  # at most a boolean mask (1 byte per value) to find the NaN
+    z[3, 4, 0] = -np.inf
+    with pytest.raises(NonFiniteError, match=r"^z: contains infinite value .*inf.* at index \(3, 4, 0\)"):
+        batch.steady_state_filter(assimakis_model_b(), z)
+
+
 def test_bad_shapes_and_dtypes_raise_named_errors():
     model = assimakis_model_b()
     z = np.zeros((2, 5, 1))
@@ -255,14 +276,14 @@ def test_interleaved_groups_with_mixed_lengths_and_gaps(axes):
 
 def test_parallel_launch_equals_single_thread_bitwise(monkeypatch):
     """Large batches run on all threads, small ones on one: the numbers must not depend on it."""
-    from mptrack.batch import _inputs
+    from mptrack import _threads
 
     model = assimakis_model_b()
     z = np.random.default_rng(9).standard_normal((401, 200, 1))
     z[7, 50:60] = np.nan
-    monkeypatch.setattr(_inputs, "SMALL_WORK", 0)
+    monkeypatch.setattr(_threads, "SMALL_WORK", 0)
     parallel = [batch.steady_state_filter(model, z), batch.kalman_filter(model, z, P0=np.eye(2))]
-    monkeypatch.setattr(_inputs, "SMALL_WORK", 10**12)
+    monkeypatch.setattr(_threads, "SMALL_WORK", 10**12)
     single = [batch.steady_state_filter(model, z), batch.kalman_filter(model, z, P0=np.eye(2))]
     for p, s in zip(parallel, single):
         np.testing.assert_array_equal(p.x, s.x)
@@ -322,3 +343,26 @@ def test_predict_and_filter_chunked_name_a_result_where_an_array_is_expected():
     np.testing.assert_array_equal(batch.predict(model, res.x), res.x)
     with pytest.raises(DTypeError, match=r"^run: expected a batch filter returning a BatchFilterResult"):
         batch.filter_chunked(lambda m, zz: batch.steady_state_filter(m, zz).x, model, z, chunk_size=1)
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+@pytest.mark.parametrize("kind", ["steady-state", "kalman"])
+def test_an_overflow_inside_a_ragged_track_is_an_error_even_when_it_decays(kind, dtype):
+    """The output check scans each track up to its length in the output's dtype: a float32
+    store that overflowed for 4 steps, with finite rows after it, is found; the NaN rows after
+    a track's end are not errors."""
+    model = assimakis_model_b()
+    z = np.random.default_rng(1).standard_normal((3, 300, 1)).astype(dtype)
+    lengths = np.array([300, 250, 10])
+    run = batch.steady_state_filter if kind == "steady-state" else batch.kalman_filter
+    x0 = np.zeros((3, 2))
+    fine = run(model, z, x0, lengths=lengths).x
+    assert np.isnan(fine[2, 10:]).all() and np.isfinite(fine[2, :10]).all()
+    x0[1] = 1e39 if dtype == np.float32 else 1.75e308   # float64: A x0 + B z overflows with z = 1.7e308
+    if dtype == np.float64:
+        z[1, 0] = 1.7e308
+    out = np.empty((3, 300, 2), dtype)
+    with pytest.raises(NonFiniteError, match=r"^x0: the (steady-state|Kalman) filter overflowed"):
+        run(model, z, x0, out=out, lengths=lengths)
+    if dtype == np.float32:
+        assert not np.isfinite(out[1, 0]).all() and np.isfinite(out[1, 249]).all()

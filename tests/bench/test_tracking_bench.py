@@ -8,7 +8,7 @@ from mptrack.bench import run_suites
 def test_tracking_suites_report_throughput_and_accuracy():
     speed, accuracy = run_suites(["tracking", "tracking-accuracy"], quick=True)
     assert speed["columns"][-1] == "x I/O floor"
-    rates = {row[0]: row[4] for row in speed["rows"]}
+    rates = {row[0]: row[3] for row in speed["rows"]}
     assert all(np.isfinite(v) and v > 0 for v in rates.values())
     assert any("peak resident memory" in note for note in speed["notes"])
     clean = np.array([row[5:] for row in accuracy["rows"] if row[0] == "0%"], dtype=float)

@@ -305,11 +305,24 @@ def test_python_dash_m_mptrack():
     assert res.returncode == 2 and res.stderr.startswith("error: --quick")
 
 
-def test_bench_numbers_are_full_precision_in_a_pipe():
+def test_bench_figure_keeps_three_significant_figures_with_their_trailing_zeros():
+    from mptrack.cli.bench import figure
+
+    values = (0.18, 1.2033342500217259e-05, 2.41e8, 1234.5, 1.0, 0.0989, None, 7)
+    assert [figure(v) for v in values] == ["0.180", "1.20e-05", "2.41e+08", "1234", "1.00", "0.0989", "—", "7"]
+
+
+def test_bench_tables_show_three_significant_figures_and_json_every_digit():
     res = cli("bench", "--quick", "--suite", "linear")
     assert res.returncode == 0, res.stderr
     assert "…" not in res.stdout
-    assert re.search(r"\d\.\d{7,}", res.stdout)  # every digit, not 6 significant ones or an ellipsis
+    cells = [c.strip() for line in res.stdout.splitlines() if line.startswith("│") for c in line.split("│")[2:-1]]
+    assert len(cells) > 20 and "1.00" in cells, res.stdout
+    three = re.compile(r"-?(\d{1,5}|\d\.\d\d|\d\d\.\d|0\.0*[1-9]\d{0,2}|\d(\.\d{1,2})?e[+-]\d\d)")
+    assert all(three.fullmatch(c) for c in cells), cells     # 0.0924, 1.10, 2.02e+05; not 1.2033342500217259e-05
+    res = cli("bench", "--quick", "--suite", "linear", "--json")
+    values = [v for row in json.loads(res.stdout)["reports"][0]["rows"] for v in row if isinstance(v, float)]
+    assert any(len(repr(v)) > 8 for v in values)           # the JSON keeps every digit
 
 
 # ---------------------------------------------------------------- mptrack --help is fast

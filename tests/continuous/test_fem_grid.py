@@ -248,7 +248,6 @@ def test_moment_weights_are_exact_integrals():
     g = FEMGrid([-1.5, 2.0], [2.5, 3.5], 4, 3)
     rng = np.random.default_rng(3)
     p = rng.random(g.size)
-    x, y = g.nodes[:, 0], g.nodes[:, 1]
     # the interpolant of p·(1, x, x², x y, y²) is not p times those, so compare against a fine Riemann sum
     u = np.linspace(0, 1, 801)[1:] - 1 / 1600
     X, Y = np.meshgrid(-1.5 + 4 * u, 2.0 + 1.5 * u, indexing="ij")

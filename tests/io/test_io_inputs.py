@@ -16,6 +16,7 @@ from mptrack.io import (
     MEASUREMENTS,
     PartStore,
     ReadReport,
+    input_columns,
     iter_tracks,
     read_cells,
     read_table,
@@ -401,3 +402,19 @@ def test_the_utc_offset_flags_swapped_columns_and_no_real_place():
                 caught += warned(lon, lat, offset)
     assert (caught, cases) == (27, 58)
     assert not warned(13.7, 45.3, 0)
+
+
+def test_input_columns_are_the_files_own_names(tmp_path):
+    """io.input_columns: the header as written (no recognition of names or units), for a CSV (pandas'
+    header as the oracle), a DataFrame, a GPX file (its decoded columns) and an empty file (DataError)."""
+    df = pd.DataFrame({"Track ID": ["a"], "Timestamp": ["2024-01-01T00:00:00Z"], "Lat (deg)": [45.0],
+                       "Lon (deg)": [13.0], "true_lat": [45.0]})
+    df.to_csv(tmp_path / "log.csv", index=False)
+    assert input_columns(tmp_path / "log.csv") == list(pd.read_csv(tmp_path / "log.csv", nrows=0).columns)
+    assert input_columns(df) == list(df.columns)
+    assert {"lat", "lon"} <= set(input_columns(GPX))
+    (tmp_path / "empty.csv").write_text("")
+    with pytest.raises(DataError, match="empty"):
+        input_columns(tmp_path / "empty.csv")
+    with pytest.raises(ParameterError, match="^path"):
+        input_columns(3)

@@ -150,7 +150,7 @@ def test_an_empty_table_keeps_its_columns(points, tmp_path, fmt):
 def test_gpx_loads_in_gpxpy_with_times_elevation_and_extensions(points, written):
     import gpxpy
 
-    from mptrack.io._gpx_out import NAMESPACE
+    from mptrack.io import GPX_EXTENSION_NAMESPACE as NAMESPACE
 
     with open(written["gpx"], encoding="utf-8") as fh:
         gpx = gpxpy.parse(fh)

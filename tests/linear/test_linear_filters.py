@@ -90,7 +90,7 @@ def test_kf_loglik_is_the_joint_gaussian_density_of_the_measurements():
     model = assimakis_model_a(2, dt=0.5, sigma_q2=0.2, sigma_r2=0.3, measurement="position")
     F, H, Q, R = model.F, model.H, model.Q, model.R
     x0, P0 = _prior(model, seed=7)
-    T, n, m = 6, model.n, model.m
+    T, m = 6, model.m
     z = np.random.default_rng(8).standard_normal((T, m))
     Fp = [np.linalg.matrix_power(F, k) for k in range(T + 1)]
     mean = np.concatenate([H @ Fp[k] @ x0 for k in range(1, T + 1)])

@@ -10,13 +10,15 @@ from mptrack.continuous import (
     ContinuousDiscreteModel,
     linear_sde_model,
     pf_substep_study,
+    pf_substeps,
     reference_filter,
     simulate_sde,
     zhao2013_model,
 )
 from mptrack.continuous import _kernels as kern
 from mptrack.errors import ParameterError
-from mptrack.nonlinear import particle_filter, pf_substeps, systematic_resample
+from mptrack.nonlinear import _pf_kernels as pfk
+from mptrack.nonlinear import particle_filter, systematic_resample
 
 X0, P0 = np.array([-0.6, -1.0]), 0.1 * np.eye(2)
 A_LIN = [[0.0, 1.0], [-1.0, -0.5]]
@@ -90,27 +92,27 @@ def test_weighting_moments_and_resampling_equal_numpy_oracles():
     logw -= np.log(np.exp(logw).sum())
     ll = -rng.random(1001) * 50
     lw, w = logw.copy(), np.exp(logw)
-    inc = kern.reweight(lw, w, ll)
+    inc = pfk.reweight(lw, w, ll)
     a = logw + ll
     total = a.max() + np.log(np.exp(a - a.max()).sum())
     assert inc == pytest.approx(total, abs=1e-12)
     np.testing.assert_allclose(lw, a - total, atol=1e-12)
     np.testing.assert_allclose(w, np.exp(a - total), rtol=1e-12)
-    m, P, ess = kern.weighted_moments(X, w)
+    m, P, ess = pfk.weighted_moments(X, w)
     np.testing.assert_allclose(m, w @ X, atol=1e-14)
     np.testing.assert_allclose(P, ((X - m).T * w) @ (X - m), atol=1e-14)
     assert ess == pytest.approx(1 / np.sum(w * w), rel=1e-12)
-    assert kern.reweight(lw.copy(), w.copy(), np.full(1001, -np.inf)) == -np.inf
+    assert pfk.reweight(lw.copy(), w.copy(), np.full(1001, -np.inf)) == -np.inf
     for u in (0.0, 0.37, 1 - 1e-12):
         w0 = w.copy()
         w0[::7] = 0.0
         w0 /= w0.sum()
         want = _systematic_oracle(w0, u)
-        np.testing.assert_array_equal(kern.systematic_indices(w0, u), want)
+        np.testing.assert_array_equal(pfk.systematic_indices(w0, u), want)
         assert not np.isin(np.flatnonzero(w0 == 0), want[want < len(w0) - 1]).any()
-    np.testing.assert_array_equal(kern.resample(X, w, 0.37), X[kern.systematic_indices(w, 0.37)])
+    np.testing.assert_array_equal(pfk.resample(X, w, 0.37), X[pfk.systematic_indices(w, 0.37)])
     np.testing.assert_array_equal(systematic_resample(w, np.random.default_rng(1)),
-                                  kern.systematic_indices(w, np.random.default_rng(1).random()))
+                                  pfk.systematic_indices(w, np.random.default_rng(1).random()))
 
 
 def _systematic_oracle(w, u):
@@ -130,11 +132,11 @@ def test_systematic_indices_match_searchsorted_on_random_and_tied_weights():
         w[0] += 1e-300
         w /= w.sum()
         u = (0.0, rng.random(), 1 - 1e-16)[trial % 3]
-        np.testing.assert_array_equal(kern.systematic_indices(w, u), _systematic_oracle(w, u))
+        np.testing.assert_array_equal(pfk.systematic_indices(w, u), _systematic_oracle(w, u))
     for N in (3, 10, 1000, 4096):  # equal weights: with u = 0 every t_i lies on a cdf step (ties)
         w = np.full(N, 1.0 / N)
-        np.testing.assert_array_equal(kern.systematic_indices(w, 0.0), _systematic_oracle(w, 0.0))
-        np.testing.assert_array_equal(kern.systematic_indices(w, 0.5), np.arange(N))  # one copy of each
+        np.testing.assert_array_equal(pfk.systematic_indices(w, 0.0), _systematic_oracle(w, 0.0))
+        np.testing.assert_array_equal(pfk.systematic_indices(w, 0.5), np.arange(N))  # one copy of each
 
 
 @pytest.mark.parametrize("scheme", ["heun", "rk4-split"])
@@ -282,3 +284,17 @@ def test_substep_study_split_scheme_bias_below_monte_carlo_noise():
     split, heun = rows[("rk4-split", 2)], rows[("heun", 2)]
     assert split[3] < 0.5 * split[2]       # bias < half the error of one 10^4-particle filter
     assert heun[3] > 3 * split[2]          # Heun at 2 sub-steps: bias dominates
+
+
+def test_a_nonlinear_model_takes_only_the_default_scheme():
+    """The SDE sub-step scheme means nothing for a discrete-time model: another value is an error naming
+    it (it used to be ignored), and so is compiled=True."""
+    from mptrack.models import constant_velocity, nonlinear_model, position
+
+    model = nonlinear_model(constant_velocity(1.0, 0.5, axes=1), position(np.eye(1), position=(0,)))
+    z, x0, P0 = np.zeros((3, 1)), np.zeros(2), np.eye(2)
+    assert particle_filter(model, z, x0, P0, np.random.default_rng(0), particles=50).x.shape == (3, 2)
+    with pytest.raises(ParameterError, match="^scheme: only for a continuous-discrete model"):
+        particle_filter(model, z, x0, P0, np.random.default_rng(0), particles=50, scheme="heun")
+    with pytest.raises(ParameterError, match="^compiled"):
+        particle_filter(model, z, x0, P0, np.random.default_rng(0), particles=50, compiled=True)

@@ -27,7 +27,7 @@ def test_default_substeps_follow_the_drift_rate():
     """By default the sub-steps keep h * rho <= 0.25 (rho: |df/dx| row sums at the sigma points): on the
     linear model, 5 sub-steps per dt = 0.5 (rho = 2.3) and the RK4 error stays below 1e-4 of the KF; a
     drift ten times faster takes ten times the sub-steps."""
-    from mptrack.nonlinear._ukf import drift_substeps
+    from mptrack.continuous._ukf import drift_substeps
 
     A = np.array([[0.0, 1.0], [-2.0, -0.3]])
     model = linear_sde_model(A, np.diag([0.2, 0.5]), [[1.0, 0.5]], [[0.3]], 0.5)

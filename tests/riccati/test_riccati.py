@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import scipy.linalg
+from _dare_cases import DAREX, darex_model
 
 from mptrack.linear import kalman_filter
 from mptrack.models import LinearGaussianModel, assimakis_model_a, assimakis_model_b
@@ -17,95 +18,11 @@ from mptrack.riccati import (
     steady_state,
 )
 
-# ---------------------------------------------------------------------------------------------
-# DAREX benchmark cases, as collected in scipy's test suite
-# (scipy/linalg/tests/test_solvers.py, class TestSolveDiscreteAre; BSD-3-Clause), from
-#   P. Benner, A.J. Laub, V. Mehrmann, "A Collection of Benchmark Examples for the Numerical
-#   Solution of Algebraic Riccati Equations II: Discrete-Time Case", TU Chemnitz SPC 95_23, 1995,
-# and the user-reported case gh-2251.  scipy solves the control DARE
-#   X = A^T X A - A^T X B (R + B^T X B)^{-1} B^T X A + Q,
-# which is our filter REKF (seed 000 eq. 11) with F = A^T, H = B^T, Pp = X.
-# Kept: real cases with R positive definite, Q positive semi-definite, (A, B) stabilisable and
-# (A, Q^{1/2}) detectable, i.e. (F, H) detectable and (F, Q^{1/2}) stabilisable.
-# Left out: scipy cases 0-2 (complex), 6 (R = 0), 7 (Q indefinite), 17 (eigenvalue 1 - 1e-8: the
-# per-step recursion needs ~1e9 steps) and 18 (n = 100, slow per-step).
-# ---------------------------------------------------------------------------------------------
-DAREX = {
-    "gh-2251": (
-        [[0.63399379, 0.54906824, 0.76253406],
-         [0.5404729, 0.53745766, 0.08731853],
-         [0.27524045, 0.84922129, 0.4681622]],
-        [[0.96861695], [0.05532739], [0.78934047]],
-        np.eye(3), np.eye(1)),
-    "darex1": ([[4, 3], [-4.5, -3.5]], [[1], [-1]], [[9, 6], [6, 4]], [[1]]),
-    "darex2": ([[0.9512, 0], [0, 0.9048]], [[4.877, 4.877], [-1.1895, 3.569]],
-               [[0.005, 0], [0, 0.02]], [[1 / 3, 0], [0, 3]]),
-    "darex5": ([[0, 1], [0, 0]], [[0], [1]], [[1, 2], [2, 4]], [[1]]),
-    "darex6": (
-        [[0.998, 0.067, 0, 0], [-.067, 0.998, 0, 0], [0, 0, 0.998, 0.153], [0, 0, -.153, 0.998]],
-        [[0.0033, 0.0200], [0.1000, -.0007], [0.0400, 0.0073], [-.0028, 0.1000]],
-        [[1.87, 0, 0, -0.244], [0, 0.744, 0.205, 0], [0, 0.205, 0.589, 0], [-0.244, 0, 0, 1.048]],
-        np.eye(2)),
-    "darex7": (
-        [[0.984750, -.079903, 0.0009054, -.0010765],
-         [0.041588, 0.998990, -.0358550, 0.0126840],
-         [-.546620, 0.044916, -.3299100, 0.1931800],
-         [2.662400, -.100450, -.9245500, -.2632500]],
-        [[0.0037112, 0.0007361], [-.0870510, 9.3411e-6], [-1.198440, -4.1378e-4],
-         [-3.192700, 9.2535e-4]],
-        np.eye(4) * 1e-2, np.eye(2)),
-    "darex8": (
-        [[-0.6, -2.2, -3.6, -5.4000180], [1.0, 0.6, 0.8, 3.3999820],
-         [0.0, 1.0, 1.8, 3.7999820], [0.0, 0.0, 0.0, -0.9999820]],
-        [[1.0, -1.0, -1.0, -1.0], [0.0, 1.0, -1.0, -1.0], [0.0, 0.0, 1.0, -1.0], [0.0, 0.0, 0.0, 1.0]],
-        [[2, 1, 3, 6], [1, 2, 2, 5], [3, 2, 6, 11], [6, 5, 11, 22]],
-        np.eye(4)),
-    "darex9": (
-        np.array([[95.4070, 1.9643, 0.3597, 0.0673, 0.0190],
-                  [40.8490, 41.3170, 16.0840, 4.4679, 1.1971],
-                  [12.2170, 26.3260, 36.1490, 15.9300, 12.3830],
-                  [4.1118, 12.8580, 27.2090, 21.4420, 40.9760],
-                  [0.1305, 0.5808, 1.8750, 3.6162, 94.2800]]) * 0.01,
-        np.array([[0.0434, -0.0122], [2.6606, -1.0453], [3.7530, -5.5100], [3.6076, -6.6000],
-                  [0.4617, -0.9148]]) * 0.01,
-        np.eye(5), np.eye(2)),
-    "darex10": (
-        np.kron(np.eye(2), np.diag([1, 1], k=1)),
-        np.kron(np.eye(2), np.array([[0], [0], [1]])),
-        [[1, 1, 0, 0, 0, 0], [1, 1, 0, 0, 0, 0], [0, 0, 0, 0, 0, 0],
-         [0, 0, 0, 1, -1, 0], [0, 0, 0, -1, 1, 0], [0, 0, 0, 0, 0, 0]],
-        [[3, 0], [0, 1]]),
-    "darex11": (
-        0.001 * np.array(
-            [[870.1, 135.0, 11.59, .5014, -37.22, .3484, 0, 4.242, 7.249],
-             [76.55, 897.4, 12.72, 0.5504, -40.16, .3743, 0, 4.53, 7.499],
-             [-127.2, 357.5, 817, 1.455, -102.8, .987, 0, 11.85, 18.72],
-             [-363.5, 633.9, 74.91, 796.6, -273.5, 2.653, 0, 31.72, 48.82],
-             [-960, 1645.9, -128.9, -5.597, 71.42, 7.108, 0, 84.52, 125.9],
-             [-664.4, 112.96, -88.89, -3.854, 84.47, 13.6, 0, 144.3, 101.6],
-             [-410.2, 693, -54.71, -2.371, 66.49, 12.49, .1063, 99.97, 69.67],
-             [-179.9, 301.7, -23.93, -1.035, 60.59, 22.16, 0, 213.9, 35.54],
-             [-345.1, 580.4, -45.96, -1.989, 105.6, 19.86, 0, 219.1, 215.2]]),
-        np.array([[4.7600, -0.5701, -83.6800], [0.8790, -4.7730, -2.7300], [1.4820, -13.1200, 8.8760],
-                  [3.8920, -35.1300, 24.8000], [10.3400, -92.7500, 66.8000], [7.2030, -61.5900, 38.3400],
-                  [4.4540, -36.8300, 20.2900], [1.9710, -15.5400, 6.9370],
-                  [3.7730, -30.2800, 14.6900]]) * 0.001,
-        np.diag([50, 0, 0, 0, 50, 0, 0, 0, 0]), np.eye(3)),
-    "darex12": ([[0, 1e6], [0, 0]], [[0], [1]], np.eye(2), [[1]]),
-    "darex13": (np.array([[16, 10, -2], [10, 13, -8], [-2, -8, 7]]) / 9, np.eye(3),
-                1e6 * np.eye(3), 1e6 * np.eye(3)),
-}
-
 # relative tolerance of each solver against scipy (per-step convergence is linear, so its
 # accuracy is limited by the closed-loop spectral radius; darex7/9 have |lambda| ~ 0.99).  "dare" is
 # scipy's solver on the problem scaled to R of unit size: on darex13 (R = 1e6 I) its DARE residual is
 # 3.7e-9 against scipy's own 1.6e-6, and the two solutions differ by 4e-13 (test below)
 RTOL = {"dare": 1e-12, "doubling": 1e-11, "per-step": 1e-10}
-
-
-def _darex_model(key: str) -> LinearGaussianModel:
-    A, B, Q, R = (np.asarray(M, dtype=float) for M in DAREX[key])
-    return LinearGaussianModel(A.T, B.T, Q, R, name=key)
 
 
 def _rel(a, b) -> float:
@@ -128,7 +45,7 @@ def _dare_residual(key, X) -> float:
 def test_scaled_dare_is_at_least_as_accurate_as_scipys(key, darex_scipy):
     """The DARE residual of method "dare" is never above that of scipy's unscaled solution (+1 ulp of
     its scale); on darex13 it is 430 times smaller."""
-    ours = _dare_residual(key, steady_state(_darex_model(key), "dare").P_pred)
+    ours = _dare_residual(key, steady_state(darex_model(key), "dare").P_pred)
     theirs = _dare_residual(key, darex_scipy[key])
     assert ours <= theirs * (1 + 1e-9) + np.finfo(float).eps * np.abs(darex_scipy[key]).max()
     if key == "darex13":
@@ -138,7 +55,7 @@ def test_scaled_dare_is_at_least_as_accurate_as_scipys(key, darex_scipy):
 @pytest.mark.parametrize("method", METHODS)
 @pytest.mark.parametrize("key", list(DAREX))
 def test_darex_solution_matches_scipy(key, method, darex_scipy):
-    model = _darex_model(key)
+    model = darex_model(key)
     ss = steady_state(model, method)
     X = darex_scipy[key]
     assert _rel(ss.P_pred, X) <= RTOL[method], f"{key}/{method}: {_rel(ss.P_pred, X):.3g}"
@@ -153,7 +70,7 @@ def test_darex_solution_matches_scipy(key, method, darex_scipy):
 def test_darex_steady_state_quantities_follow_eq_10(key, darex_scipy):
     """K = Pp H^T (H Pp H^T + R)^{-1}, Pe = (I - K H) Pp, A = (I - K H) F, B = K, and
     the Kalman closed loop A (hence F - F K H) is stable (the solution is the stabilising one)."""
-    model = _darex_model(key)
+    model = darex_model(key)
     ss = steady_state(model, "doubling")
     F, H, R = model.F, model.H, model.R
     Pp = darex_scipy[key]
@@ -177,7 +94,7 @@ def test_darex_steady_state_quantities_follow_eq_10(key, darex_scipy):
 @pytest.mark.parametrize("key", list(DAREX))
 def test_darex_lainiotis_form_gives_the_kalman_a_b(key):
     """RELF (eq. 14) + eq. 13 reproduce A_KF, B_KF (eq. 15) and the same Pe."""
-    model = _darex_model(key)
+    model = darex_model(key)
     kal = steady_state(model, "dare")
     lai = steady_state(model, "per-step", form="lainiotis")
     assert lai.form == "lainiotis"
@@ -191,7 +108,7 @@ def test_darex_lainiotis_form_gives_the_kalman_a_b(key):
 
 def test_doubling_needs_logarithmically_few_steps():
     """Doubling step k covers 2^k per-step iterations: far fewer steps on a slow case."""
-    model = _darex_model("darex7")
+    model = darex_model("darex7")
     per_step = steady_state(model, "per-step")
     doubling = steady_state(model, "doubling")
     assert steady_state(model, "dare").iterations == 0
@@ -283,7 +200,7 @@ def test_unobserved_stable_model_solves_the_lyapunov_equation():
 # --------------------------------------------------------------------------- step and residual
 
 def test_riccati_step_is_eq_11():
-    model = _darex_model("darex2")
+    model = darex_model("darex2")
     P = np.array([[2.0, 0.3], [0.3, 1.0]])
     F, H, Q, R = model.F, model.H, model.Q, model.R
     want = Q + F @ P @ F.T - F @ P @ H.T @ np.linalg.inv(H @ P @ H.T + R) @ H @ P @ F.T

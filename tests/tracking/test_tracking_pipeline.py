@@ -111,3 +111,16 @@ def test_python_api_errors_name_the_argument_and_row():
         mptrack.track(bad, on_error="skip")
     points = mptrack.track(bad, on_error="skip", max_skip="1")
     assert len(points) == 1 and points.attrs["summary"]["read"]["rows_skipped"] == 1
+
+
+def test_evaluation_summary_has_the_nis_advice_of_a_run(tmp_path):
+    """evaluate_tracks counts the tracks whose mean NIS is far outside its band and says what that means,
+    as a tracking run's summary does (the CLI prints it; it used to compute it itself)."""
+    from _data import REAL_TRACES
+
+    from mptrack.tracking import TrackOptions, evaluate_tracks, read_output
+
+    run = track_file(REAL_TRACES["car"], tmp_path / "b.parquet", options=TrackOptions(sigma_m=50.0))
+    summary, _ = evaluate_tracks(read_output(tmp_path / "b.parquet"))
+    assert summary["nis"]["far_low"] == run["nis"]["far_low"] == 1 and summary["nis"]["far_high"] == 0
+    assert summary["nis"]["advice"][0].startswith("1 track(s) have a mean NIS far below its band")

@@ -19,19 +19,13 @@ from dataclasses import dataclass, field
 import numba as nb
 import numpy as np
 
-from .._validation import _overflow, as_matrix, check_covariance, check_int, check_positive, require_finite
+from .._validation import _overflow, as_matrix, check_covariance, check_int, check_positive, frozen, require_finite
 from ..errors import ParameterError, ShapeError
 from ..result import BatchFilterResult
 from ._inputs import check_finite_out, launch, prepare_batch
 from ._kernels import _OPTS, kf_predict, kf_update, observed
 
 __all__ = ["RangeModel", "range_ekf"]
-
-
-def _frozen(a: np.ndarray) -> np.ndarray:
-    a = np.array(a, dtype=np.float64)
-    a.setflags(write=False)
-    return a
 
 
 @dataclass(frozen=True, eq=False)
@@ -68,7 +62,7 @@ class RangeModel:
                              f"got {self.position}")
         R = check_covariance("R", self.R, S, definite=True)
         for name, value in (("F", F), ("Q", Q), ("stations", st), ("R", R)):
-            object.__setattr__(self, name, _frozen(value))
+            object.__setattr__(self, name, frozen(value))
         object.__setattr__(self, "position", pos)
 
     @property

@@ -19,7 +19,7 @@ import numpy as np
 from .._validation import _to_array, check_allocation, check_covariance, check_int, check_positive, require_finite
 from ..errors import NonFiniteError, ParameterError, ShapeError
 from ..linear import fir_order
-from ..linear._steady import coefficients_unchecked
+from .._fir import coefficients_unchecked
 from ..models import LinearGaussianModel, require_model
 from ..result import BatchFilterResult
 from ..riccati import SteadyState, steady_state

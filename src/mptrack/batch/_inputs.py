@@ -4,37 +4,24 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import numba
 import numpy as np
 
-from .._validation import _to_array, as_array, as_vector, check_allocation, require_finite
+from .._float_scan import any_nonfinite
+from .._threads import launch
+from .._validation import (
+    _overflow,
+    _to_array,
+    as_array,
+    as_vector,
+    check_allocation,
+    check_values,
+)
 from ..errors import DTypeError, ParameterError, ShapeError
 from ..models import LinearGaussianModel
 
 __all__ = ["BatchInputs", "prepare_batch", "as_batch", "check_out", "launch", "check_finite_out"]
 
 _FLOATS = (np.dtype(np.float64), np.dtype(np.float32))
-
-SMALL_WORK = 1 << 20   # output values below which one thread beats waking the others
-
-
-def launch(kernel, work: int, *args) -> None:
-    """Call a parallel kernel; for less than SMALL_WORK updates on one thread only.
-
-    Waking the worker threads costs microseconds on an idle machine but a
-    scheduler time slice (milliseconds) on a busy one; small batches do not
-    need them.
-    """
-    if work >= SMALL_WORK or numba.get_num_threads() == 1:
-        kernel(*args)
-        return
-    previous = numba.get_num_threads()
-    numba.set_num_threads(1)
-    try:
-        kernel(*args)
-    finally:
-        numba.set_num_threads(previous)
-
 
 @dataclass(frozen=True, eq=False)
 class BatchInputs:
@@ -57,19 +44,20 @@ def as_batch(name: str, value, width: int) -> np.ndarray:
         raise ShapeError(f"{name}: expected at least one track and one time step, got shape {arr.shape}")
     if arr.dtype not in _FLOATS:
         arr = arr.astype(np.float64)
-    as_array(name, arr, allow_nan=True)  # refuses +-Inf (the check is two reductions, no copy)
+    check_values(name, arr, allow_nan=True)  # refuses +-Inf: two reductions in z's dtype, no copy
     return np.ascontiguousarray(arr)
 
 
 def check_finite_out(bi: "BatchInputs", what: str, **inputs) -> np.ndarray:
     """The output-finiteness policy for a batch: rows inside each track's length must be finite
-    (after it they are NaN by contract)."""
+    (after it they are NaN by contract).  Scanned in one parallel pass in the output's dtype
+    (min and max over the whole output on one thread, and a masked copy for ragged batches,
+    cost more than the filter itself)."""
     out = bi.out
-    if bool((bi.lengths == out.shape[1]).all()):
-        require_finite(what, out, **inputs)
-    else:
-        inside = np.arange(out.shape[1]) < bi.lengths[:, None]
-        require_finite(what, out[inside], **inputs)
+    track = out.shape[1] * out.shape[2]
+    starts = np.arange(out.shape[0], dtype=np.int64) * track
+    if any_nonfinite(out, starts, bi.lengths * out.shape[2]):
+        raise _overflow(what, inputs, None)
     return out
 
 

@@ -26,8 +26,7 @@ import numpy as np
 
 from .. import _jit_cache  # noqa: F401 - compiled kernels cache in the user's cache directory
 
-__all__ = ["ss_kernel", "ss_kernel_21", "kf_kernel", "kf_kernel_21", "fir_kernel", "matvec_kernel",
-           "copy_kernel"]
+__all__ = ["ss_kernel", "ss_kernel_21", "kf_kernel", "kf_kernel_21", "fir_kernel", "matvec_kernel"]
 
 _OPTS = dict(parallel=True, cache=True, nogil=True, boundscheck=False)
 LANES = 4   # tracks advanced together by the n = 2, m = 1 kernels
@@ -461,16 +460,3 @@ def matvec_kernel(x, out, M, axes):
                 y[r] = s
             for r in range(n):
                 out[b, t, o + r] = y[r]
-
-
-@nb.njit(**_OPTS)
-def copy_kernel(src, dst):
-    """The memory-copy baseline: dst[i] = src[i], parallel over the same two cores."""
-    N = src.shape[0]
-    nchunk = 64
-    step = (N + nchunk - 1) // nchunk
-    for k in nb.prange(nchunk):
-        lo = k * step
-        hi = min(N, lo + step)
-        for i in range(lo, hi):
-            dst[i] = src[i]

@@ -53,8 +53,8 @@ def linear_suite(quick: bool) -> dict:
     ours = kalman_filter(model, z, x0, P0)  # also compiles/loads the kernel before timing
     t_kf = best_time(lambda: kalman_filter(model, z, x0, P0), repeats)
     copy_t = best_time(lambda: (z.copy(), ours.x.copy(), ours.P.copy()), repeats)
-    rows = [["memory copy of z, x, P (baseline)", copy_t / steps * 1e6, steps / copy_t, copy_t / t_kf, None]]
-    rows.append(["mptrack kalman_filter (KF-A)", t_kf / steps * 1e6, steps / t_kf, 1.0, None])
+    rows = [["memory copy of z, x, P (baseline)", steps / copy_t, t_kf / copy_t]]
+    rows.append(["mptrack kalman_filter (KF-A)", steps / t_kf, 1.0])
     for name, fn in (("FilterPy KalmanFilter", _filterpy), ("pykalman KalmanFilter.filter", _pykalman)):
         try:
             peer = fn(model, z, x0, P0)
@@ -65,15 +65,16 @@ def linear_suite(quick: bool) -> dict:
         if err > 1e-8 * max(1.0, float(np.max(np.abs(ours.x)))):
             raise AssertionError(f"{name} disagrees with mptrack by {err:g}; not timing it")
         t = best_time(lambda fn=fn: fn(model, z, x0, P0), max(1, repeats // 2))
-        rows.append([name, t / steps * 1e6, steps / t, t / t_kf, t / t_kf])
+        rows.append([name, steps / t, t_kf / t])
     for imp in IMPLEMENTATIONS:
         runner = imp.prepare(2)
         runner(z, x0, np.zeros((4, 4)))
         t = best_time(lambda runner=runner: runner(z, x0, np.zeros((4, 4))), repeats)
-        rows.append([f"implementation {imp.number}: {imp.name}", t / steps * 1e6, steps / t, t / t_kf, None])
+        rows.append([f"implementation {imp.number}: {imp.name}", steps / t, t_kf / t])
     notes.append(f"{steps} steps of the 2-D model A (n=4, m=2); best of {repeats}; peers checked to agree "
-                 "with mptrack to 1e-8 before timing. 'time ratio' = time(row) / time(KF-A) (below 1: faster than KF-A); "
-                 "'mptrack speedup' = time(peer) / time(mptrack KF).")
+                 "with mptrack to 1e-8 before timing. 'x KF-A' = steps/s of the row / steps/s of mptrack's "
+                 "kalman_filter in the same run (above 1: faster than it; a peer's 1 / 'x KF-A' is mptrack's "
+                 "speed-up over it).")
     return {"suite": "linear", "title": "per-step filters, one track",
-            "columns": ["implementation", "us/step", "steps/s", "time ratio to KF-A", "mptrack speedup"],
+            "columns": ["implementation", "steps/s", "x KF-A"],
             "rows": rows, "notes": notes}

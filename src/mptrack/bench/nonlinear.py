@@ -8,8 +8,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..models import NonlinearModel, constant_velocity, nonlinear_model, range_bearing
-from ..continuous import ZHAO2013_X0, fem_filter, fem_steps, simulate_sde, zhao2013_model
-from ..continuous._fem import default_substeps
+from ..continuous import ZHAO2013_X0, fem_filter, fem_profile, fem_steps, fem_substeps, simulate_sde, zhao2013_model
 from ..nonlinear import ekf_filter, ekf_filter_batch, particle_filter, ukf_filter
 from . import register_suite
 from ._timing import best_time
@@ -164,7 +163,7 @@ def _rel(a, b) -> float:
 
 def _fem_rows(model, z, x0, P0, n: int, box, repeats: int) -> list:
     """The FEM rows of an n x n grid: the default on a moving grid and on a fixed box, scheme='sdirk2'
-    (20 x 20 only), and where a default step's time goes (_fem_breakdown)."""
+    (20 x 20 only), and where a default step's time goes (fem_profile)."""
     steps, grid = z.shape[0], (n, n)
     default = list(fem_steps(model, z, x0, P0, grid=grid))
     nodes = default[0].prior.parts[0][1].grid.size
@@ -172,80 +171,16 @@ def _fem_rows(model, z, x0, P0, n: int, box, repeats: int) -> list:
     variants = [("moving grid (the default: characteristics, 4 Strang steps per second)", {}, share),
                 ("fixed box (characteristics)", {"box": box}, None)]
     if n == 20:
-        variants.append((f"moving grid, scheme='sdirk2' ({default_substeps(grid)} SDIRK2 sub-steps, an LU "
+        variants.append((f"moving grid, scheme='sdirk2' ({fem_substeps(grid)} SDIRK2 sub-steps, an LU "
                          "per move)", {"scheme": "sdirk2"}, None))
     rows = []
     for label, options, pct in variants:
         t = best_time(lambda o=options: fem_filter(model, z, x0, P0, grid=grid, **o), repeats) / steps
         rows.append([f"FEM {n}x{n}, {label}", t * 1e3, nodes, pct])
-    parts = _fem_breakdown(model, z, x0, P0, grid, repeats)
+    parts = fem_profile(model, z, x0, P0, grid=grid, repeats=repeats)
     for label, t in parts.items():
         rows.append([f"FEM {n}x{n} default, per step: {label}", t * 1e3, nodes, None])
     return rows
-
-
-def _fem_breakdown(model, z, x0, P0, grid, repeats: int) -> dict:
-    """Seconds per step of the default FEM filter's parts.  The run with the smallest total of
-    ``repeats`` gives the total, the time in the predictions (``_Characteristics.predict``: one compiled
-    call per dt) and in the updates.  The prediction's time is split in proportion to the cost of its
-    pieces, each timed alone on the run's own inputs (best of ``repeats``): the predictions replayed
-    piece by piece (``predict_steps``) for the inputs of every grid placement (``place_grid``), carrying
-    of the density (``carry``) and diffusion (``diffuse_kept`` on kept factorisations), and the run's
-    count of factorisations times one's cost.  The rest is the total minus predictions and updates."""
-    import time
-    from unittest import mock
-
-    from ..continuous import _fem, _fem_kernels
-
-    def timed(fn, log, record=None):
-        def wrapper(*args):
-            t = time.perf_counter()
-            out = fn(*args)
-            log.append(time.perf_counter() - t)
-            if record is not None:
-                record.append(args)
-            return out
-        return wrapper
-
-    best = None
-    for _ in range(max(1, repeats)):
-        updates, predictions, inputs = [], [], []
-        with mock.patch.object(_fem._Characteristics, "predict", timed(_fem._Characteristics.predict, predictions,
-                                                                        inputs)), \
-                mock.patch.object(_fem, "_update", timed(_fem._update, updates)):
-            t = time.perf_counter()
-            fem_filter(model, z, x0, P0, grid=grid)
-            total = time.perf_counter() - t
-        if best is None or total < best[0]:
-            best = (total, sum(predictions), sum(updates), inputs)
-    total, predict, update, inputs = best
-    scheme = inputs[0][0]
-    transports, diffusions = [], []
-    with mock.patch.object(_fem, "transport_split", timed(_fem.transport_split, [], transports)), \
-            mock.patch.object(_fem, "diffuse_kept", timed(_fem.diffuse_kept, [], diffusions)):
-        for s, g, p in inputs:
-            s.predict_steps(g, p)
-    placed = [_fem_kernels.place_grid(p, lo, hi, d, grid_, place, flow) for p, lo, hi, _, d, grid_, place, flow, _ in
-              transports]
-    pieces = {
-        "placement": sum(best_time(lambda a=a: _fem_kernels.place_grid(a[0], a[1], a[2], *a[4:8]), repeats) for a in transports),
-        "carry": sum(best_time(lambda a=a, new=new: _fem_kernels.carry(*a[:3], new[1], new[2], a[4], a[5], *a[7:]), repeats)
-                     for a, new in zip(transports, placed)),
-        "diffusion": sum(best_time(lambda a=a: _fem.diffuse_kept(*a), repeats) for a in diffusions),
-        "factorisations": scheme.factorisations * best_time(
-            lambda: _fem._band_cholesky(_fem._topology(*grid), _fem._topology(*grid)["Me"], np.float32), repeats)}
-    share = predict / sum(pieces.values())
-    steps = z.shape[0]
-    parts = {"grid placement (moments, sigma points, box)": pieces["placement"] * share,
-             f"transport ({len(transports) / steps:.0f} per step: node flow, quadrature, deposit, mass solve)":
-                 pieces["carry"] * share,
-             f"diffusion ({len(diffusions) / steps:.0f} per step: SDIRK2 on kept factorisations)":
-                 pieces["diffusion"] * share,
-             f"diffusion factorisations ({scheme.factorisations / steps:.2f} per step)":
-                 pieces["factorisations"] * share,
-             "update (likelihood, search for separate modes, Bayes' rule)": update,
-             "the rest (merging mixture parts, moments, step records, Python)": total - predict - update}
-    return {label: t / steps for label, t in parts.items()}
 
 
 @register_suite("ekf-ukf")

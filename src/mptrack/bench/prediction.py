@@ -60,7 +60,7 @@ def prediction_suite(quick: bool) -> dict:
     ours_rts = rts_smoother(model, kf).x
     for name, fn in cases:
         t = best_time(fn, repeats)
-        rows.append([name, t / steps * 1e6, steps / t, t / t_ss, None])
+        rows.append([name, steps / t, t_ss / t, None])
     t_rts = best_time(lambda: rts_smoother(model, kf), repeats)
     for name, fn in (("FilterPy KalmanFilter.rts_smoother", lambda: _filterpy_rts(model, kf)),):
         try:
@@ -72,10 +72,11 @@ def prediction_suite(quick: bool) -> dict:
         if err > 1e-7 * max(1.0, float(np.max(np.abs(ours_rts)))):
             raise AssertionError(f"{name} disagrees with mptrack's RTS smoother by {err:g}; not timing it")
         t = best_time(fn, max(1, repeats // 2))
-        rows.append([name, t / steps * 1e6, steps / t, t / t_ss, t / t_rts])
+        rows.append([name, steps / t, t_ss / t, t_rts / t])
     notes.append(f"{steps} steps of the 2-D CV model (n=4, m=2), best of {repeats}; peers checked to agree "
-                 "with mptrack's RTS smoother before timing. 'time ratio' = time(row) / time(SSKF) (below 1: faster than the SSKF); "
-                 "'mptrack speedup' = time(peer) / time(mptrack rts_smoother).")
+                 "with mptrack's RTS smoother before timing. 'x SSKF' = steps/s of the row / steps/s of the "
+                 "steady-state filter; 'x mptrack RTS' = steps/s of the peer / steps/s of mptrack's rts_smoother "
+                 "(both in the same run; above 1: faster than the anchor).")
     return {"suite": "prediction", "title": "N-step prediction, smoothing, irregular sampling (one track)",
-            "columns": ["operation", "us/step", "steps/s", "time ratio to SSKF", "mptrack speedup"],
+            "columns": ["operation", "steps/s", "x SSKF", "x mptrack RTS"],
             "rows": rows, "notes": notes}

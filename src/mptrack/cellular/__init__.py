@@ -2,7 +2,8 @@
 
 The range measurement model (ranges and their Jacobian from the position part of the state), the
 range EKF and the fuzzy fusion filters FEKF and FCS with the paper's fuzzy weight systems (Tables
-I and III), their forms over a batch of Monte-Carlo runs, and the snapshot fix :func:`range_fix`.
+I and III, as published: :data:`TABLE_I`, :data:`TABLE_III`), their forms over a batch of Monte-Carlo
+runs, and the snapshot fix :func:`range_fix`.
 State: the position (random walk, the paper's eq. 1) or constant velocity ``[x, vx, y, vy]``, axis
 by axis like every model in mptrack.
 """
@@ -17,6 +18,8 @@ from ._ekf import (
     range_measurement,
 )
 from ._fekf import (
+    TABLE_I,
+    TABLE_III,
     bouzera_fcs_fis,
     bouzera_fekf_fis,
     fcs_ranges,
@@ -40,6 +43,8 @@ __all__ = [
     "fcs_ranges_batch",
     "bouzera_fekf_fis",
     "bouzera_fcs_fis",
+    "TABLE_I",
+    "TABLE_III",
     "local_solutions",
     "fuse_local_solutions",
     "range_fix",

@@ -37,6 +37,8 @@ __all__ = [
     "bouzera_fekf_fis",
     "bouzera_fcs_fis",
     "fekf_ranges",
+    "TABLE_I",
+    "TABLE_III",
     "fekf_ranges_batch",
     "fcs_ranges",
     "fcs_ranges_batch",
@@ -44,10 +46,12 @@ __all__ = [
     "local_solutions",
 ]
 
-#: Table I read with five innovation sets (columns) and two covariance sets (rows), as the text says;
+#: The FEKF's rule constants as published (Bouzera et al. 2017, Table I; the default of bouzera_fekf_fis),
+#: read with five innovation sets (columns) and two covariance sets (rows), as the text says;
 #: rows of this array: innovation Very Small .. Very Large; columns: S Small, S Large.
 TABLE_I = ((1.0, 0.75), (0.75, 0.5), (0.5, 0.5), (0.25, 0.5), (0.0, 0.25))
-#: Table III: distance Very Small .. Very Large.
+#: The FCS's rule constants as published (Bouzera et al. 2017, Table III; the default of bouzera_fcs_fis):
+#: distance Very Small .. Very Large.
 TABLE_III = (1.0, 0.75, 0.5, 0.25, 0.0)
 _FIVE = ("very small", "small", "neutral", "large", "very large")
 

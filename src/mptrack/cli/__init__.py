@@ -16,7 +16,6 @@ import sys
 for _var in ("OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
 
-from typing import Optional  # noqa: E402
 
 import typer  # noqa: E402
 

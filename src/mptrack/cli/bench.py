@@ -9,10 +9,29 @@ import typer
 from rich.table import Table as RichTable
 
 from ..errors import MptrackError
-from ._common import JSON, QUIET, VERBOSE, echo, fail, fmt, interrupted, out, paper_names, print_json, progress, \
+from ._common import JSON, QUIET, VERBOSE, echo, fail, interrupted, out, paper_names, print_json, progress, \
     reject_given
 
-__all__ = ["bench"]
+__all__ = ["bench", "figure"]
+
+#: Significant figures of a measured figure in a table: timings repeat to a few per cent at best
+#: (the JSON of --save / --json keeps every digit).
+FIGURES = 3
+
+
+def figure(v) -> str:
+    """A table cell: a float to FIGURES significant figures (0.0123, 1.23, 12.3, 1.2e-05, 2.41e+08;
+    from 1 to 10^5 every digit before the point: 1235); other values as text, None as a dash."""
+    if isinstance(v, bool) or not isinstance(v, float):
+        return "—" if v is None else str(v)
+    if v != v or v in (float("inf"), float("-inf")):
+        return str(v)
+    if v == 0.0:
+        return "0"
+    size = abs(v)
+    if 1.0 <= size < 1e5:          # whole numbers keep their digits: 1235, not 1.24e+03
+        return f"{v:.{max(0, FIGURES - len(str(int(size))))}f}"
+    return f"{v:#.{FIGURES}g}"   # "#": trailing zeros are significant (0.180, not 0.18)
 
 
 def bench(
@@ -61,7 +80,7 @@ def bench(
         for i, col in enumerate(rep["columns"]):
             rt.add_column(col, justify="left" if i == 0 else "right")
         for row in rep["rows"]:
-            rt.add_row(*[paper_names(fmt(v)) for v in row])
+            rt.add_row(*[paper_names(figure(v)) for v in row])
         out.print(rt)
         for text in rep.get("notes", []):
             out.print(paper_names(text), style="dim", highlight=False, markup=False)

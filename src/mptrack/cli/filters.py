@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import typer
 from rich.table import Table as RichTable
 
 from ._common import JSON, QUIET, VERBOSE, out, paper_names, print_json

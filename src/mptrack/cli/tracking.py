@@ -460,7 +460,7 @@ def evaluate(
                 with bar.task("report"):
                     from ..report import write_report
 
-                    write_report(table, report, summary=summary, run={"nis": {"advice": _nis_advice(summary)}},
+                    write_report(table, report, summary=summary, run={"nis": {"advice": summary["nis"]["advice"]}},
                                  title=f"mptrack evaluate {tracks.name}")
     except KeyboardInterrupt:
         interrupted("nothing was written")
@@ -483,20 +483,4 @@ def evaluate(
         line += f", RMSE {o['rmse_m']:.2f} m, 95 % error {o['cdf95_m']:.2f} m, mean NEES {o['mean_nees']:.2f}"
     line += f", mean NIS {o['mean_nis']:.2f} (dof {o['mean_nis_dof']:.2f})"
     echo(line)
-    _advise({"nis": {"advice": _nis_advice(summary)}})
-
-
-def _nis_advice(summary: dict) -> list[str]:
-    """What tracks whose mean NIS is far outside its band (below half or above twice its degrees of
-    freedom, from enough fixes) usually mean, in the words ``mptrack track`` uses."""
-    from ..tracking import TrackOptions
-    from ..tracking._pipeline import MIN_ADVISED_FIXES, nis_advice
-
-    low = high = 0
-    for row in summary["tracks"].values():
-        mean, dof = row.get("mean_nis"), row.get("mean_nis_dof")
-        if row.get("points", 0) - row.get("outliers", 0) < MIN_ADVISED_FIXES or not dof or mean != mean:
-            continue
-        low += mean / dof < 0.5
-        high += mean / dof > 2.0
-    return nis_advice(low, high, TrackOptions())
+    _advise({"nis": summary["nis"]})

@@ -6,13 +6,14 @@
 The model (:class:`ContinuousDiscreteModel`, with optional compiled :class:`BlockKernels`), its
 simulation, the named models (:func:`zhao2013_model`, :func:`linear_sde_model`), the FEM
 (Fokker–Planck) grid filter and a high-accuracy reference (a many-particle PF).  The unscented
-Kalman filter and the particle filter of :mod:`mptrack.nonlinear` take these models too.
+Kalman filter and the particle filter of :mod:`mptrack.nonlinear` take these models too
+(:func:`pf_substeps`: the particle filter's default sub-steps on them).
 """
 
-# this package's filters use mptrack.nonlinear's and those take this package's model: whichever of the
-# two packages is imported first imports the other one first (docs/design.md, Layout)
-from .. import nonlinear as _nonlinear  # noqa: F401  (isort: skip)
-from ._fem import FEMGrid, FEMStep, GridDensity, GridMixture, fem_filter, fem_steps, shape_functions
+from .._model_families import ModelFamily, register_family
+from ._fem import SCHEMES as FEM_SCHEMES
+from ._fem_profile import fem_profile
+from ._fem import FEMGrid, FEMStep, GridDensity, GridMixture, fem_filter, fem_steps, fem_substeps, shape_functions
 from ._model import (
     ZHAO2013_X0,
     BlockKernels,
@@ -21,7 +22,13 @@ from ._model import (
     simulate_sde,
     zhao2013_model,
 )
+from ._pf import pf_moves, pf_substeps
 from ._reference import pf_substep_study, reference_filter
+from ._ukf import cd_ukf
+
+# mptrack.nonlinear's UKF and particle filter run this package's models through this registration (this
+# package depends on mptrack.nonlinear, not the other way round: docs/design.md, Layout)
+register_family(ModelFamily(ContinuousDiscreteModel, ukf=cd_ukf, pf=pf_moves))
 
 __all__ = [
     "ContinuousDiscreteModel",
@@ -36,7 +43,11 @@ __all__ = [
     "FEMStep",
     "fem_filter",
     "fem_steps",
+    "fem_substeps",
+    "fem_profile",
+    "FEM_SCHEMES",
     "shape_functions",
     "reference_filter",
+    "pf_substeps",
     "pf_substep_study",
 ]

@@ -88,9 +88,9 @@ from .._validation import (
 )
 from ..errors import ConvergenceError, NotPositiveDefiniteError, ParameterError, ShapeError
 from ..result import FilterResult
-from ..nonlinear._common import prepare_nonlinear
-from ..nonlinear._ukf import _weights as _sigma_weights
-from ..nonlinear._ukf import sigma_points
+from .._filter_inputs import prepare_nonlinear
+from .._unscented import sigma_points
+from .._unscented import weights as _sigma_weights
 from ._fem_kernels import (
     band_cn,
     band_sdirk2,
@@ -117,7 +117,8 @@ from ._fem_kernels import (
 from ._kernels import compiled_model
 from ._model import ContinuousDiscreteModel, rk4_flow
 
-__all__ = ["FEMGrid", "GridDensity", "GridMixture", "FEMStep", "fem_filter", "fem_steps", "shape_functions"]
+__all__ = ["FEMGrid", "GridDensity", "GridMixture", "FEMStep", "fem_filter", "fem_steps", "fem_substeps",
+           "shape_functions", "SCHEMES"]
 
 # reference element nodes: corners, then mid-sides (bottom, right, top, left)
 _XI = np.array([-1.0, 1.0, 1.0, -1.0, 0.0, 1.0, 0.0, -1.0])
@@ -650,9 +651,22 @@ class _NodalRK4:
 
 
 def default_substeps(grid: tuple[int, int]) -> int:
-    """Time steps per dt of the grid filter by default: 0.8·max(n1, n2), at least 8 (a fixed Courant
-    number; 16 on 20 × 20)."""
+    """:func:`fem_substeps` of a checked grid shape."""
     return max(8, round(0.8 * max(grid)))
+
+
+def _grid_shape(grid) -> tuple[int, int]:
+    shape = tuple(check_int("grid", g, minimum=1) for g in np.atleast_1d(grid))
+    if len(shape) != 2:
+        raise ShapeError(f"grid: expected (n1, n2) elements per axis, got {grid!r}")
+    return shape
+
+
+def fem_substeps(grid: tuple[int, int]) -> int:
+    """Time steps per dt that :func:`fem_filter` takes on a ``grid`` of (n1, n2) elements when its
+    ``substeps`` is None: 0.8·max(n1, n2), at least 8 (a fixed Courant number; 16 on
+    20 × 20)."""
+    return default_substeps(_grid_shape(grid))
 
 
 def _box(model, m, P, width, floor):
@@ -965,13 +979,12 @@ def fem_steps(model: ContinuousDiscreteModel, z, x0, P0, *, grid: tuple[int, int
            Methods in Applied Mechanics and Engineering, vol. 32, no. 1–3, pp. 199–259, 1982.
            doi:10.1016/0045-7825(82)90071-8
     """
-    shape = tuple(check_int("grid", g, minimum=1) for g in np.atleast_1d(grid))
-    if len(shape) != 2:
-        raise ShapeError(f"grid: expected (n1, n2) elements per axis, got {grid!r}")
+    shape = _grid_shape(grid)
     adaptive = substeps is None  # the characteristics scheme then sizes its diffusion sub-steps itself
     if substeps is None:
         substeps = default_substeps(shape)
-    z, m, P, substeps = prepare_nonlinear(model, z, x0, P0, substeps, definite=True)
+    z, m, P, substeps = prepare_nonlinear(model, z, x0, P0, substeps, definite=True,
+                                          kinds=(ContinuousDiscreteModel,))
     if model.n != 2:
         raise ShapeError(f"model: the FEM grid filter is for a 2-D state, got n = {model.n}")
     width = check_positive("width", width)

@@ -371,7 +371,7 @@ def psd_project_2d(P):
 
 @njit(cache=True)
 def sigma_points_2d(m, P, c, X):
-    """X (5, 2) ← the sigma points m, m ± columns of √(cP) (``nonlinear._ukf.sigma_points``: a Cholesky
+    """X (5, 2) ← the sigma points m, m ± columns of √(cP) (``mptrack.nonlinear.sigma_points``: a Cholesky
     factor, else the eigen-decomposition with eigenvalues clipped at zero).  Returns False when cP is
     not positive semi-definite (an eigenvalue below −1e-9 of the largest) or not finite."""
     a, b, d = c * P[0, 0], c * P[0, 1], c * P[1, 1]

@@ -21,11 +21,10 @@ from typing import Callable
 import numpy as np
 
 from .._validation import (as_matrix, as_vector, check_allocation, check_covariance, check_int, check_positive,
-                           check_rng, finite_result)
+                           check_rng, finite_result, frozen)
 from ..errors import ParameterError, ShapeError
 from ..models import LinearGaussianModel, van_loan
-from ..models._linear import _frozen
-from ..models._nonlinear import _wrap_angles, gauss_logpdf
+from .._gaussian import gauss_logpdf, wrap_periods
 from . import _kernels as kern
 from ._kernels import SCHEMES, BlockKernels
 
@@ -125,8 +124,8 @@ class ContinuousDiscreteModel:
         R = check_covariance("R", self.R, definite=True)
         m = R.shape[0]
         set_ = object.__setattr__
-        set_(self, "Q", _frozen(Q))
-        set_(self, "R", _frozen(R))
+        set_(self, "Q", frozen(Q))
+        set_(self, "R", frozen(R))
         set_(self, "dt", check_positive("dt", self.dt))
         set_(self, "substeps", check_int("substeps", self.substeps, minimum=1))
         if self.max_increment is not None:
@@ -144,7 +143,7 @@ class ContinuousDiscreteModel:
         if self.linear is not None:
             A = as_matrix("linear[0] (A)", self.linear[0], n, n)
             H = as_matrix("linear[1] (H)", self.linear[1], m, n)
-            set_(self, "linear", (_frozen(A), _frozen(H)))
+            set_(self, "linear", (frozen(A), frozen(H)))
         if self.kernels is not None and not isinstance(self.kernels, BlockKernels):
             raise ParameterError(f"kernels: expected a BlockKernels or None, got {type(self.kernels).__name__}")
 
@@ -158,7 +157,7 @@ class ContinuousDiscreteModel:
 
     def innovation(self, z, zhat) -> np.ndarray:
         """z - h, with angle components wrapped into [-period/2, period/2)."""
-        return _wrap_angles(np.asarray(z, dtype=float) - np.asarray(zhat, dtype=float), self.periods)
+        return wrap_periods(np.asarray(z, dtype=float) - np.asarray(zhat, dtype=float), self.periods)
 
     def log_likelihood(self, z: np.ndarray, X: np.ndarray) -> np.ndarray:
         """log p(z | x) at points X (..., n) (Zhao et al. 2013, eq. 25); NaN components of z are skipped."""
@@ -334,4 +333,4 @@ def simulate_sde(model: ContinuousDiscreteModel, steps: int, rng: np.random.Gene
         truth[k] = x
     Lr = np.linalg.cholesky(model.R)
     z = model.measurement(truth) + rng.standard_normal((steps, model.m)) @ Lr.T
-    return truth, _wrap_angles(z, model.periods)
+    return truth, wrap_periods(z, model.periods)

@@ -17,9 +17,10 @@ import numpy as np
 from .._validation import check_allocation, check_int, finite_result
 from ..errors import ParameterError
 from ..result import FilterResult
-from ..nonlinear._common import prepare_nonlinear
-from ..nonlinear._pf import particle_filter, pf_substeps
+from .._filter_inputs import prepare_nonlinear
+from ..nonlinear import particle_filter
 from ._model import ContinuousDiscreteModel
+from ._pf import pf_substeps
 
 __all__ = ["reference_filter", "pf_substep_study"]
 

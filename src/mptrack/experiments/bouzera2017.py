@@ -20,6 +20,8 @@ from scipy import stats
 from ..fuzzy import anfis_train
 from ..metrics import position_error
 from ..cellular import (
+    TABLE_I,
+    TABLE_III,
     bouzera_fcs_fis,
     bouzera_fekf_fis,
     ekf_ranges_batch,
@@ -27,7 +29,6 @@ from ..cellular import (
     fekf_ranges_batch,
     local_solutions,
 )
-from ..cellular._fekf import TABLE_I, TABLE_III
 from ..radio import arfcn_to_frequency, distance_from_rss
 from ._bouzera_scenario import (
     CALIBRATED,

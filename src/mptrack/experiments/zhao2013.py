@@ -23,15 +23,16 @@ import numpy as np
 from ..errors import MptrackError
 from ..linear import kalman_filter
 from ..continuous import (
+    FEM_SCHEMES,
     ZHAO2013_X0,
     fem_filter,
     fem_steps,
+    fem_substeps,
     linear_sde_model,
     reference_filter,
     simulate_sde,
     zhao2013_model,
 )
-from ..continuous._fem import SCHEMES, default_substeps
 from ..nonlinear import particle_filter, ukf_filter
 from . import Reproduction, RunContext, Table, register
 from ._plotting import plt, save_figure
@@ -50,7 +51,7 @@ VARIANTS = (("vdp", 0.01), ("vdp", 0.1), ("vdp", 1.0), ("printed", 0.001),
 SWEEP = (("vdp", 0.001), ("vdp", 0.003), ("vdp", 0.01), ("vdp", 0.03), ("vdp", 0.1), ("vdp", 0.3), ("vdp", 1.0),
          ("printed", 0.001), ("printed", 0.003))
 SWEEP_QUICK = (("vdp", 0.01), ("vdp", 1.0))
-SCHEMES_SHOWN = ("paper",) + tuple(x for x in SCHEMES if x != "paper")
+SCHEMES_SHOWN = ("paper",) + tuple(x for x in FEM_SCHEMES if x != "paper")
 GOAL = 1.05               # the sweep's goal: FE RMSE <= GOAL x the better of PF and UKF, per coordinate
 # the time schemes of the grid filter compared (the paper's own first), on eq. 42 and on a linear-Gaussian model
 SCHEME_VARIANTS = (("vdp", 0.001), ("vdp", 0.01), ("vdp", 0.1), ("vdp", 1.0), ("printed", 0.003))
@@ -487,7 +488,7 @@ def run(ctx: RunContext) -> Reproduction:
         notes=f"observed order {_order(particle_counts, conv['pf']):.2f} (Monte-Carlo rate: 0.5)")
     nodes = [_nodes(g) for g in grids]
     fe_exp = _exponent(nodes, conv["cost_fe"])
-    fe_sub_exp = _exponent(nodes, [c / default_substeps((g, g)) for g, c in zip(grids, conv["cost_fe"])])
+    fe_sub_exp = _exponent(nodes, [c / fem_substeps((g, g)) for g, c in zip(grids, conv["cost_fe"])])
     pf_exp = _exponent(particle_counts, conv["cost_pf"])
     main = results[VARIANTS[0]]
     cost = {name: 1e3 * float(np.mean([r[name][2] for r in main if r[name] is not None])) for name in FILTERS}

@@ -8,9 +8,11 @@ with ``on_error="skip"`` bad rows are dropped and counted in a :class:`ReadRepor
 """
 
 from ._geodesy import LocalFrame, enu_to_geodetic, geodetic_to_enu
+from ._gpx_out import NAMESPACE as GPX_EXTENSION_NAMESPACE
 from ._formats import FORMATS, input_format
 from ._interpret import ReadOptions
-from ._readers import InputNotSorted, iter_track_chunks, iter_tracks, read_cells, read_chunks, read_table
+from ._readers import (InputNotSorted, input_columns, iter_track_chunks, iter_tracks, read_cells, read_chunks,
+                       read_table)
 from ._schema import CELLS, FIXES, MEASUREMENTS, ON_ERROR, Column, ReadReport, Schema, cell_key
 from ._parts import PartStore
 from ._outputs import read_output
@@ -31,6 +33,7 @@ __all__ = [
     "input_format",
     "read_chunks",
     "read_table",
+    "input_columns",
     "iter_tracks",
     "iter_track_chunks",
     "read_cells",
@@ -38,6 +41,7 @@ __all__ = [
     "geodetic_to_enu",
     "enu_to_geodetic",
     "OUTPUT_FORMATS",
+    "GPX_EXTENSION_NAMESPACE",
     "output_format",
     "write_table",
     "read_output",

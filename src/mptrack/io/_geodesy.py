@@ -30,7 +30,7 @@ import numba as nb
 import numpy as np
 
 from .. import _jit_cache  # noqa: F401 - compiled kernels cache in the user's cache directory
-from .._validation import as_array, broadcast_shape
+from .._validation import LATITUDE, LONGITUDE, as_array, broadcast_shape
 from ..errors import ParameterError
 
 __all__ = ["LocalFrame", "geodetic_to_enu", "enu_to_geodetic"]
@@ -44,9 +44,7 @@ _EP2 = _E2 / (1.0 - _E2)
 _RAD = math.pi / 180.0           # radians per degree
 _DEG = 180.0 / math.pi           # degrees per radian
 
-# Valid ranges, as keyword arguments of mptrack._validation.as_array.
-_LATITUDE = dict(low=-90.0, high=90.0, unit="degrees")
-_LONGITUDE = dict(low=-180.0, high=180.0, unit="degrees")
+# Valid ranges, as keyword arguments of mptrack._validation.as_array (and LATITUDE, LONGITUDE from there).
 _METRES = dict(unit="m")
 #: east/north of enu_to_geodetic: their squares must stay finite (points that far miss the ellipsoid anyway)
 _PLANE = dict(low=-1e150, high=1e150, unit="m")
@@ -261,8 +259,8 @@ def geodetic_to_enu(lat, lon, lat0, lon0, h=0.0, h0=0.0):
     of round-off; this one is ~1e-10 m at 100 km (tested against an 80-bit
     evaluation of the textbook route and against pymap3d).
     """
-    shape, columns = _columns(lat=(lat, _LATITUDE), lon=(lon, _LONGITUDE), lat0=(lat0, _LATITUDE),
-                              lon0=(lon0, _LONGITUDE), h=(h, _METRES), h0=(h0, _METRES))
+    shape, columns = _columns(lat=(lat, LATITUDE), lon=(lon, LONGITUDE), lat0=(lat0, LATITUDE),
+                              lon0=(lon0, LONGITUDE), h=(h, _METRES), h0=(h0, _METRES))
     size = math.prod(shape)
     east, north = np.empty(size), np.empty(size)
     _run(_enu_rows, _enu_parallel, columns[:5], [east, north])
@@ -300,8 +298,8 @@ def enu_to_geodetic(east, north, lat0, lon0, h0=0.0):
     The previous implementation (three fixed-point passes of pymap3d on "up") is
     the independent oracle of the tests.
     """
-    shape, columns = _columns(east=(east, _PLANE), north=(north, _PLANE), lat0=(lat0, _LATITUDE),
-                              lon0=(lon0, _LONGITUDE), h0=(h0, _METRES))
+    shape, columns = _columns(east=(east, _PLANE), north=(north, _PLANE), lat0=(lat0, LATITUDE),
+                              lon0=(lon0, LONGITUDE), h0=(h0, _METRES))
     size = math.prod(shape)
     lat, lon = np.empty(size), np.empty(size)
     if _run(_geodetic_rows, _geodetic_parallel, columns[:4], [lat, lon]):
@@ -324,8 +322,8 @@ class LocalFrame:
     h0: float = 0.0
 
     def __post_init__(self) -> None:
-        as_array("lat0", self.lat0, ndim=0, **_LATITUDE)
-        as_array("lon0", self.lon0, ndim=0, **_LONGITUDE)
+        as_array("lat0", self.lat0, ndim=0, **LATITUDE)
+        as_array("lon0", self.lon0, ndim=0, **LONGITUDE)
         as_array("h0", self.h0, ndim=0, **_METRES)
 
     @classmethod

@@ -12,31 +12,28 @@ from typing import Iterator
 import numpy as np
 import pandas as pd
 
-from .._validation import check_int, check_path
+from .._tracks import track_offsets
+from .._validation import check_int, check_on_error, source_label
 from ..errors import DataError, ParameterError
 from ._formats import raw_chunks
 from ._interpret import ReadOptions, interpret
-from ._schema import CELLS, FIXES, ReadReport, Schema, cell_key, check_on_error, validate_chunk
+from ._schema import CELLS, FIXES, ReadReport, Schema, cell_key, validate_chunk
 
-__all__ = ["read_chunks", "iter_track_chunks", "iter_tracks", "read_table", "read_cells", "source_label", "track_offsets"]
+__all__ = ["read_chunks", "iter_track_chunks", "iter_tracks", "read_table", "read_cells",
+           "input_columns"]
 
 DEFAULT_CHUNK_ROWS = 50_000
 
-#: The name errors give a DataFrame passed instead of a file.
-FRAME_LABEL = "<DataFrame>"
+def input_columns(path) -> list[str]:
+    """The column names of ``path`` (a file in any of :data:`FORMATS`, a directory of Parquet files, or a
+    DataFrame) as the file has them, before names and units are recognised (:func:`read_chunks` does
+    that): e.g. to see whether a log has ``true_lat``/``true_lon`` beside ``lat``/``lon``.
 
-
-def source_label(source):
-    """What errors name as the file of ``source``: its path, or FRAME_LABEL for a DataFrame."""
-    return FRAME_LABEL if isinstance(source, pd.DataFrame) else check_path("path", source)
-
-
-def track_offsets(ids) -> np.ndarray:
-    """(B+1,) int64 offsets of the runs of equal track ids (track b is rows offsets[b]:offsets[b+1]);
-    [0] for no rows."""
-    ids = np.asarray(ids, dtype=object)
-    return np.r_[0, np.flatnonzero(ids[1:] != ids[:-1]) + 1, len(ids)].astype(np.int64) if len(ids) \
-        else np.zeros(1, np.int64)
+    Reads only the first record.  A file that cannot be read raises DataError naming it.
+    """
+    source_label(path)
+    first = next(raw_chunks(path, 1), None)
+    return [] if first is None else [str(c) for c in first.columns]
 
 
 def read_chunks(path, schema: Schema = FIXES, *, on_error: str = "raise", chunk_rows: int = DEFAULT_CHUNK_ROWS,

@@ -21,23 +21,15 @@ from dataclasses import dataclass, field
 import numpy as np
 import pandas as pd
 
-from .._validation import _to_array
+from .._validation import ON_ERROR, _to_array
 from ..errors import DataError, DTypeError, ParameterError, ShapeError
 from ._interpret import MAX_SECONDS
 
-__all__ = ["Column", "Schema", "ReadReport", "FIXES", "MEASUREMENTS", "CELLS", "ON_ERROR", "check_on_error",
-           "cell_key"]
+__all__ = ["Column", "Schema", "ReadReport", "FIXES", "MEASUREMENTS", "CELLS", "ON_ERROR", "cell_key"]
 
-ON_ERROR = ("raise", "skip")
 #: Columns the readers add to every validated chunk (an input column of that name is not passed through).
 RESERVED = ("t", "row")
 _MAX_EXAMPLES = 20
-
-
-def check_on_error(on_error: str) -> str:
-    if on_error not in ON_ERROR:
-        raise ParameterError(f"on_error: expected one of {ON_ERROR}, got {on_error!r}")
-    return on_error
 
 
 @dataclass(frozen=True)

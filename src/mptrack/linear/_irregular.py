@@ -7,11 +7,11 @@ import numpy as np
 
 from .._validation import as_array, as_sequence, as_vector, check_covariance, check_record, finite_result, renamed
 from ..errors import ParameterError, ShapeError
+from .._rts import rts_backward_linear
+from .._van_loan import intervals_unchecked
 from ..models import ContinuousLinearModel, require_model
-from ..models._continuous import intervals_unchecked
 from ._kernels import kf_loop
 from ..result import FilterResult, innovation_arrays
-from ._smoother import _rts_backward
 
 __all__ = ["kalman_filter_irregular", "rts_smoother_irregular", "sampling_intervals"]
 
@@ -114,4 +114,4 @@ def rts_smoother_irregular(model: ContinuousLinearModel, times, result: FilterRe
                          f"(one per time stamp), got x of shape {result.x.shape}")
     with renamed(dt="times"):
         Fs, Qs = intervals_unchecked(model, dts[1:])
-    return _rts_backward(result, Fs, Qs)
+    return rts_backward_linear(result, Fs, Qs)

@@ -19,12 +19,11 @@ from typing import Literal
 
 import numpy as np
 
-
+from .._lyapunov import power_sum_unchecked
 from .._validation import as_array, check_int, check_record, finite_result
 from ..errors import ParameterError, ShapeError, SingularMatrixError
 from ..models import LinearGaussianModel, require_model
 from ..riccati import SteadyState
-from ..riccati._lyapunov import power_sum_unchecked
 from ._common import prepare_inputs
 from ._kernels import ss_loop
 from ..result import FilterResult

@@ -14,9 +14,8 @@ from __future__ import annotations
 
 import numpy as np
 import scipy.linalg
-from numba import njit
 
-from .. import _jit_cache  # noqa: F401 - compiled kernels cache in the user's cache directory
+from .._rts import rts_backward, rts_backward_linear, smoother_gains
 from .._validation import check_record, finite_result
 from ..errors import ParameterError, ShapeError
 from ..models import LinearGaussianModel, require_model
@@ -25,7 +24,7 @@ from ._kernels import ss_loop
 from ..result import FilterResult
 from ._steady import _steady
 
-__all__ = ["rts_smoother", "steady_state_smoother", "rts_backward"]
+__all__ = ["rts_smoother", "steady_state_smoother"]
 
 
 def _check(model, result) -> None:
@@ -35,69 +34,6 @@ def _check(model, result) -> None:
     check_record("result", result)
     if result.n != model.n:
         raise ShapeError(f"result: state dimension {result.n} does not match the model's n = {model.n}")
-
-
-def _smoother_gains(PFt: np.ndarray, P_pred: np.ndarray) -> np.ndarray:
-    """C = P_filt F^T P_pred^{-1} from PFt = P_filt F^T, for a stack (T, n, n) or one (n, n).
-
-    One batched solve when every P_pred is positive definite (Cholesky succeeds);
-    otherwise, per matrix, a pseudo-inverse where P_pred is singular (zero prior,
-    rank-deficient Q).
-    """
-    try:
-        np.linalg.cholesky(P_pred)
-        return np.swapaxes(np.linalg.solve(P_pred, np.swapaxes(PFt, -1, -2)), -1, -2)
-    except np.linalg.LinAlgError:
-        if P_pred.ndim == 2:
-            return PFt @ np.linalg.pinv(P_pred, hermitian=True)
-        return np.stack([_smoother_gains(a, b) for a, b in zip(PFt, P_pred)])
-
-
-def _rts_backward(result: FilterResult, F: np.ndarray, Q: np.ndarray) -> FilterResult:
-    """The RTS backward pass; F, Q are one (n, n) pair or per-step stacks (T-1, n, n)
-    where F[k], Q[k] take x(k) to x(k+1) (row k = time k+1 of the result)."""
-    x_filt = np.asarray(result.x, dtype=float)
-    P_filt = np.asarray(result.P, dtype=float)
-    Ft = np.swapaxes(F, -1, -2)
-    # off the backward loop: x(k+1/k), P(k+1/k) and the gains C(k) for k = 1..T-1
-    x_pred = (F @ x_filt[:-1, :, None])[..., 0]
-    PFt = P_filt[:-1] @ Ft
-    P_pred = F @ PFt + Q
-    P_pred = 0.5 * (P_pred + np.swapaxes(P_pred, -1, -2))
-    C = _smoother_gains(PFt, P_pred)
-    xs = np.empty_like(x_filt)
-    Ps = np.empty_like(P_filt)
-    c = np.ascontiguousarray
-    _rts_loop(c(x_filt), c(P_filt), c(x_pred), c(P_pred), c(C), xs, Ps)
-    return FilterResult(x=xs, P=Ps, method="RTS")
-
-
-def rts_backward(x_filt, P_filt, x_pred, P_pred, cross):
-    """The RTS backward pass from filtered x(k/k), P(k/k) (K, n), (K, n, n), the predictions
-    x(k+1/k), P(k+1/k) and the cross-covariances cross[k] = Cov(x(k), x(k+1) | k) (K-1 each):
-    C(k) = cross[k] P(k+1/k)^-1 (P(k/k) F^T for a linear model).  Returns (x(k/K), P(k/K))."""
-    c = np.ascontiguousarray
-    P_pred = np.asarray(P_pred, dtype=float)
-    P_pred = 0.5 * (P_pred + np.swapaxes(P_pred, -1, -2))
-    C = _smoother_gains(np.asarray(cross, dtype=float), P_pred)
-    xs, Ps = np.empty_like(x_filt, dtype=float), np.empty_like(P_filt, dtype=float)
-    _rts_loop(c(x_filt, dtype=float), c(P_filt, dtype=float), c(x_pred, dtype=float), c(P_pred), c(C), xs, Ps)
-    return xs, Ps
-
-
-@njit(cache=True)
-def _rts_loop(x_filt, P_filt, x_pred, P_pred, C, xs, Ps):  # pragma: no cover - compiled
-    """The backward recursion of the module docstring, compiled; row k of x_pred, P_pred, C
-    belongs to the step from time k+1 to k+2."""
-    T = x_filt.shape[0]
-    xs[T - 1] = x_filt[T - 1]
-    Ps[T - 1] = P_filt[T - 1]
-    for k in range(T - 2, -1, -1):
-        Ck = C[k]
-        Ckt = np.ascontiguousarray(Ck.T)
-        xs[k] = x_filt[k] + Ck @ (xs[k + 1] - x_pred[k])
-        P = P_filt[k] + Ck @ (Ps[k + 1] - P_pred[k]) @ Ckt
-        Ps[k] = 0.5 * (P + P.T)
 
 
 @finite_result("the RTS smoother")
@@ -131,7 +67,7 @@ def rts_smoother(model: LinearGaussianModel, result: FilterResult, *, F=None, Q=
     has0 = result.x0 is not None and result.P0 is not None
     mats = _run_matrices(model, result, F=F, Q=Q, B=B, u=u)
     if mats is None:
-        smoothed = _rts_backward(result, model.F, model.Q)
+        smoothed = rts_backward_linear(result, model.F, model.Q)
         if not has0:
             return smoothed
         return _with_time_zero(result, smoothed, model.F, model.Q, 0.0)
@@ -172,7 +108,7 @@ def _with_time_zero(result: FilterResult, smoothed: FilterResult, F0, Q0, Bu0) -
     x0, P0 = np.asarray(result.x0, dtype=float), np.asarray(result.P0, dtype=float)
     PFt = P0 @ F0.T
     P_pred = F0 @ PFt + Q0
-    C = _smoother_gains(PFt, 0.5 * (P_pred + P_pred.T))
+    C = smoother_gains(PFt, 0.5 * (P_pred + P_pred.T))
     x = x0 + C @ (smoothed.x[0] - (F0 @ x0 + Bu0))
     P = P0 + C @ (smoothed.P[0] - P_pred) @ C.T
     return FilterResult(x=smoothed.x, P=smoothed.P, method="RTS", x0=x, P0=0.5 * (P + P.T))
@@ -197,7 +133,7 @@ def steady_state_smoother(model: LinearGaussianModel, result: FilterResult, *,
     _check(model, result)
     ss = _steady(model, steady, "kalman")
     F, Pe, Pp = model.F, ss.P_filt, ss.P_pred
-    C = _smoother_gains(Pe @ F.T, Pp)
+    C = smoother_gains(Pe @ F.T, Pp)
     T = result.T
     x_filt = np.asarray(result.x, dtype=float)
     # x(k/T) = C x(k+1/T) + [x(k/k) - C F x(k/k)]: the steady-state filter's compiled recursion

@@ -6,6 +6,7 @@ from typing import Literal
 
 import numpy as np
 
+from .._fir import coefficients_unchecked
 from .._validation import as_matrix, check_allocation, check_int, check_positive, finite_result
 from ..errors import ConvergenceError, NonFiniteError, ParameterError, ShapeError
 from ..models import LinearGaussianModel
@@ -140,15 +141,6 @@ def fir_coefficients(A, B, M: int) -> np.ndarray:
     M = check_int("M", M, minimum=1)
     check_allocation("M", M, 8.0 * M * B.size)
     return coefficients_unchecked(A, B, M)
-
-
-def coefficients_unchecked(A: np.ndarray, B: np.ndarray, M: int) -> np.ndarray:
-    """:func:`fir_coefficients` of validated arguments."""
-    C = np.empty((M,) + np.shape(B))
-    C[0] = B
-    for j in range(1, M):
-        C[j] = A @ C[j - 1]
-    return C
 
 
 @finite_result("the FIR filter")

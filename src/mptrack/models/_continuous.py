@@ -37,10 +37,12 @@ from .._validation import (
     check_positive,
     derived_from,
     finite_result,
+    frozen,
     renamed,
 )
+from .._van_loan import intervals_unchecked, van_loan_unchecked
 from ..errors import ParameterError, ShapeError
-from ._linear import LinearGaussianModel, _frozen, require_model, stack_axes
+from ._linear import LinearGaussianModel, require_model, stack_axes
 
 __all__ = [
     "ContinuousLinearModel",
@@ -93,7 +95,7 @@ class ContinuousLinearModel:
         H = as_matrix("H", self.H, None, n)
         R = check_covariance("R", self.R, H.shape[0], definite=True)
         for attr, value in (("Phi", Phi), ("L", L), ("Qc", Qc), ("H", H), ("R", R)):
-            object.__setattr__(self, attr, _frozen(value))
+            object.__setattr__(self, attr, frozen(value))
 
     @property
     def n(self) -> int:
@@ -112,22 +114,6 @@ class ContinuousLinearModel:
     def __repr__(self) -> str:
         label = f" {self.name!r}" if self.name else ""
         return f"<ContinuousLinearModel{label} n={self.n} m={self.m}>"
-
-
-def _van_loan(Phi: np.ndarray, LQL: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
-    """(F, Q) from Phi and L Qc L^T for one dt, without validation."""
-    n = Phi.shape[0]
-    M = np.zeros((2 * n, 2 * n))
-    M[:n, :n] = -Phi
-    M[:n, n:] = LQL
-    M[n:, n:] = Phi.T
-    with np.errstate(over="ignore", invalid="ignore"):
-        E = scipy.linalg.expm(M * dt)
-        F = np.ascontiguousarray(E[n:, n:].T)
-        Q = F @ E[:n, n:]
-    if not (np.all(np.isfinite(F)) and np.all(np.isfinite(Q))):
-        raise ParameterError(f"dt: {dt!r} s is too long for this model; e^(Phi dt) or Q overflows float64")
-    return F, 0.5 * (Q + Q.T)
 
 
 def van_loan(Phi, L, Qc, dt: float) -> tuple[np.ndarray, np.ndarray]:
@@ -150,7 +136,7 @@ def van_loan(Phi, L, Qc, dt: float) -> tuple[np.ndarray, np.ndarray]:
     L = as_matrix("L", L, n, None)
     Qc = check_covariance("Qc", Qc, L.shape[1])
     dt = check_positive("dt", dt, allow_zero=True)
-    return _van_loan(Phi, L @ Qc @ L.T, dt)
+    return van_loan_unchecked(Phi, L @ Qc @ L.T, dt)
 
 
 @finite_result("the discretisation e^(Phi dt), Q")
@@ -176,35 +162,6 @@ def discretize_intervals(model: ContinuousLinearModel, dts) -> tuple[np.ndarray,
         return intervals_unchecked(model, dts)
 
 
-def intervals_unchecked(model: ContinuousLinearModel, dts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`discretize_intervals` of validated intervals (an interval too long for float64 may give
-    infinities, or a ParameterError naming dt: the callers name their own argument)."""
-    n = model.n
-    if dts.size == 0:
-        return np.empty((0, n, n)), np.empty((0, n, n))
-    LQL = model.L @ model.Qc @ model.L.T
-    M = np.zeros((2 * n, 2 * n))
-    M[:n, :n] = -model.Phi
-    M[:n, n:] = LQL
-    M[n:, n:] = model.Phi.T
-    powers = [np.eye(2 * n)]
-    for _ in range(2 * n):
-        powers.append(powers[-1] @ M)
-    if not np.any(powers[-1]):
-        factorial = np.cumprod(np.r_[1.0, np.arange(1, 2 * n)])
-        with np.errstate(over="ignore", invalid="ignore"):
-            coef = dts[:, None] ** np.arange(2 * n) / factorial  # (T, 2n)
-            E = np.einsum("tj,jab->tab", coef, np.stack(powers[:-1]))
-            F = np.ascontiguousarray(E[:, n:, n:].transpose(0, 2, 1))
-            Q = F @ E[:, :n, n:]
-    else:
-        values, index = np.unique(dts, return_inverse=True)
-        pairs = [_van_loan(model.Phi, LQL, float(dt)) for dt in values]
-        F = np.stack([f for f, _ in pairs])[index]
-        Q = np.stack([q for _, q in pairs])[index]
-    return F, 0.5 * Q + 0.5 * Q.transpose(0, 2, 1)      # no overflow of the sum near the float maximum
-
-
 def discretize(model: ContinuousLinearModel, dt: float) -> LinearGaussianModel:
     """The exact discrete-time model of ``model`` sampled every ``dt`` > 0 seconds.
 
@@ -221,7 +178,7 @@ def discretize(model: ContinuousLinearModel, dt: float) -> LinearGaussianModel:
     """
     require_model(model, kind=ContinuousLinearModel)
     dt = check_positive("dt", dt)
-    F, Q = _van_loan(model.Phi, model.L @ model.Qc @ model.L.T, dt)
+    F, Q = van_loan_unchecked(model.Phi, model.L @ model.Qc @ model.L.T, dt)
     return LinearGaussianModel(F, model.H, Q, model.R, dt=dt, name=model.name)
 
 

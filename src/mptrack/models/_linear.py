@@ -11,16 +11,10 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.linalg
 
-from .._validation import as_matrix, check_allocation, check_covariance, check_int, check_positive, require_finite
+from .._validation import as_matrix, check_allocation, check_covariance, check_int, check_positive, frozen, require_finite
 from ..errors import ParameterError, ShapeError
 
 __all__ = ["LinearGaussianModel", "stack_axes", "require_model"]
-
-
-def _frozen(arr: np.ndarray) -> np.ndarray:
-    arr = np.array(arr, dtype=np.float64, copy=True)
-    arr.setflags(write=False)
-    return arr
 
 
 @dataclass(frozen=True, eq=False)
@@ -73,7 +67,7 @@ class LinearGaussianModel:
         else:
             Q = check_covariance("Q", self.Q, n)
         for attr, value in (("F", F), ("H", H), ("Q", Q), ("R", R), ("G", G), ("Qw", Qw)):
-            object.__setattr__(self, attr, None if value is None else _frozen(value))
+            object.__setattr__(self, attr, None if value is None else frozen(value))
         if self.dt is not None:
             object.__setattr__(self, "dt", check_positive("dt", self.dt))
 

@@ -30,9 +30,10 @@ from typing import Callable
 import numpy as np
 
 from .._validation import (as_array, as_matrix, as_vector, check_covariance, check_int, check_positive,
-                           renamed)
+                           frozen, renamed)
+from .._gaussian import gauss_logpdf, wrap_periods
 from ..errors import NonFiniteError, ParameterError, ShapeError
-from ._linear import LinearGaussianModel, _frozen
+from ._linear import LinearGaussianModel
 
 __all__ = [
     "NonlinearModel",
@@ -48,7 +49,6 @@ __all__ = [
     "stack_measurements",
 ]
 
-_LOG2PI = np.log(2.0 * np.pi)
 _TINY = 1e-12
 
 
@@ -64,16 +64,7 @@ def wrap_angles(nu: np.ndarray, periods: tuple) -> np.ndarray:
         raise ParameterError(f"periods: expected a tuple of {nu.shape[-1]} periods (None or > 0, one per "
                              f"component of nu), got {periods!r}")
     periods = tuple(None if p is None else check_positive(f"periods[{i}]", p) for i, p in enumerate(periods))
-    return _wrap_angles(nu, periods)
-
-
-def _wrap_angles(nu, periods: tuple) -> np.ndarray:
-    """:func:`wrap_angles` without validation (the filters' innovations)."""
-    nu = np.array(nu, dtype=float)
-    for i, period in enumerate(periods):
-        if period is not None:
-            nu[..., i] = (nu[..., i] + 0.5 * period) % period - 0.5 * period
-    return nu
+    return wrap_periods(nu, periods)
 
 
 def _numeric_jacobian(fn, x: np.ndarray, periods: tuple | None = None) -> np.ndarray:
@@ -84,7 +75,7 @@ def _numeric_jacobian(fn, x: np.ndarray, periods: tuple | None = None) -> np.nda
     Y = np.asarray(fn(X), dtype=float)
     diff = Y[:n] - Y[n:]
     if periods is not None:
-        diff = _wrap_angles(diff, periods)
+        diff = wrap_periods(diff, periods)
     return (diff / (2.0 * step)[:, None]).T
 
 
@@ -92,7 +83,7 @@ def _noise(name: str, value, size: int | None):
     """A constant covariance (validated, frozen) or a callable (x, k) -> covariance."""
     if callable(value):
         return value
-    return _frozen(check_covariance(name, value, size, definite=name == "R"))
+    return frozen(check_covariance(name, value, size, definite=name == "R"))
 
 
 @dataclass(frozen=True, eq=False)
@@ -200,7 +191,7 @@ class NonlinearModel:
 
     def innovation(self, z, zhat) -> np.ndarray:
         """z - h, angle components wrapped into [-π, π)."""
-        return _wrap_angles(np.asarray(z, dtype=float) - np.asarray(zhat, dtype=float), self.periods)
+        return wrap_periods(np.asarray(z, dtype=float) - np.asarray(zhat, dtype=float), self.periods)
 
     def log_likelihood(self, z: np.ndarray, X: np.ndarray, k: int = 0) -> np.ndarray:
         """log p(z | x) at states X (N, n); NaN components of z are skipped."""
@@ -238,13 +229,6 @@ def _probe(name: str, fn, states: np.ndarray) -> np.ndarray:
 def _factor(Q: np.ndarray) -> np.ndarray:
     w, V = np.linalg.eigh(Q)
     return V * np.sqrt(np.clip(w, 0.0, None))
-
-
-def gauss_logpdf(nu: np.ndarray, R: np.ndarray):
-    """log N(nu; 0, R) for innovations nu (..., m)."""
-    L = np.linalg.cholesky(R)
-    w = nu @ np.linalg.inv(L).T
-    return -0.5 * (np.sum(w * w, axis=-1) + 2.0 * np.log(np.diag(L)).sum() + R.shape[0] * _LOG2PI)
 
 
 # ---------------------------------------------------------------- measurement models
@@ -313,7 +297,7 @@ def nonlinear_model(motion: LinearGaussianModel, measurement: MeasurementModel, 
                            name=name or f"{motion.name or 'linear motion'} + {measurement.name}")
     spec = measurement.kernel
     if spec is not None and not callable(model.R) and int(spec[1].max()) < model.n:
-        object.__setattr__(model, "named", (_frozen(np.ascontiguousarray(F, dtype=float)),) + tuple(spec))
+        object.__setattr__(model, "named", (frozen(np.ascontiguousarray(F, dtype=float)),) + tuple(spec))
     return model
 
 
@@ -344,7 +328,7 @@ def _points(name: str, value) -> np.ndarray:
     pts = as_matrix(name, pts)
     if pts.shape[1] not in (2, 3):
         raise ShapeError(f"{name}: expected positions of shape (d,) or (k, d) with d = 2 or 3, got {pts.shape}")
-    return _frozen(pts)
+    return frozen(pts)
 
 
 def _covariance(R, m: int):
@@ -356,7 +340,7 @@ def _covariance(R, m: int):
         arr = check_positive("R", float(arr)) * np.eye(m)
     elif arr.ndim == 1:
         arr = np.diag(as_vector("R", arr, m))
-    return _frozen(check_covariance("R", arr, m, definite=True))
+    return frozen(check_covariance("R", arr, m, definite=True))
 
 
 def _jac_from(pos: tuple, rows_fn):
@@ -517,7 +501,7 @@ def stack_measurements(*measurements: MeasurementModel) -> MeasurementModel:
     angles = tuple(int(o + i) for mm, o in zip(measurements, offsets) for i in mm.angle_components)
     return MeasurementModel(lambda X: np.concatenate([mm.h(X) for mm in measurements], axis=-1),
                             lambda x: np.concatenate([mm.jac_h(x) for mm in measurements], axis=-2),
-                            _frozen(scipy.linalg.block_diag(*[mm.R for mm in measurements])), angles,
+                            frozen(scipy.linalg.block_diag(*[mm.R for mm in measurements])), angles,
                             " + ".join(mm.name for mm in measurements),
                             _join_specs([mm.kernel for mm in measurements]),
                             states=max(mm.states for mm in measurements))

@@ -9,14 +9,11 @@ and :mod:`mptrack.continuous` (SDE models and the FEM grid filter of Zhao et al.
 still import from here for one release, with a DeprecationWarning.
 """
 
-# mptrack.continuous's filters use these filters and these filters take its model: whichever of the
-# two packages is imported first imports the other one first (docs/design.md, Layout)
-from .. import continuous as _continuous  # noqa: F401  (isort: skip)
 from .._moved import moved_names
 from ..result import BatchFilterResult
 from ._extended import ekf_filter, ekf_filter_batch, ekf_smoother, ekf_step
 from ._imm import IMMResult, cv_ca_models, imm_filter
-from ._pf import particle_filter, pf_substeps, systematic_resample
+from ._pf import particle_filter, systematic_resample
 from ._ukf import sigma_points, ukf_filter, ukf_smoother
 
 __all__ = [
@@ -29,7 +26,6 @@ __all__ = [
     "ukf_smoother",
     "sigma_points",
     "particle_filter",
-    "pf_substeps",
     "systematic_resample",
     "imm_filter",
     "IMMResult",
@@ -44,7 +40,7 @@ MOVED = {
                      "local_solutions"), "mptrack.cellular"),
     **dict.fromkeys(("ContinuousDiscreteModel", "BlockKernels", "zhao2013_model", "linear_sde_model",
                      "simulate_sde", "ZHAO2013_X0", "FEMGrid", "GridDensity", "GridMixture", "FEMStep",
-                     "fem_filter", "fem_steps", "shape_functions", "reference_filter", "pf_substep_study"),
+                     "fem_filter", "fem_steps", "shape_functions", "reference_filter", "pf_substep_study", "pf_substeps"),
                     "mptrack.continuous"),
 }
 __getattr__ = moved_names(__name__, MOVED)

@@ -17,6 +17,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from .._filter_inputs import check_prior, prepare_nonlinear
+from .._rts import rts_backward
 from .._validation import (
     as_array,
     as_vector,
@@ -32,12 +34,10 @@ from ..errors import (
     ParameterError,
     ShapeError,
 )
-from ..linear._smoother import rts_backward
 from ..models import NonlinearModel, require_model
 from . import _named_kernels
 from . import _step_kernels as steps
 from ..result import BatchFilterResult, FilterResult, innovation_arrays, mask_missing
-from ._common import check_prior, prepare_nonlinear
 
 __all__ = ["ekf_filter", "ekf_filter_batch", "ekf_smoother", "ekf_step"]
 

@@ -4,24 +4,18 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._validation import as_array, check_allocation, check_int, check_positive, finite_result
+from .._validation import as_array, check_allocation, check_int, check_positive, check_rng, finite_result
 from ..errors import ParameterError
 from ..result import FilterResult
-from ..continuous import _kernels as kern
-from ..continuous._kernels import SCHEMES
-from ..continuous._model import ContinuousDiscreteModel
+from .._filter_inputs import check_prior, prepare_nonlinear
+from .._model_families import model_family
 from ..models import NonlinearModel
-from ._common import check_prior, check_rng, prepare_nonlinear
+from . import _pf_kernels as kern
 
-__all__ = ["particle_filter", "systematic_resample", "pf_substeps"]
+__all__ = ["particle_filter", "systematic_resample"]
 
-#: default sub-steps of the "rk4-split" scheme (docs/nonlinear.md, study on eq. 42): at least
-#: model.substeps / SPLIT_RATIO (2 for the usual 20 per second: the bias of the 2-step split on
-#: the Q x 0.01 example is a third of the Monte-Carlo error of 10^4 particles), and enough that the
-#: noise per sub-step, sqrt(tr(Q) h), is at most NOISE_STEP state units (the weak error grows
-#: with it: Q x 0.1 needs 4-5 sub-steps, Q x 1 about 20-40)
-SPLIT_RATIO = 10
-NOISE_STEP = 0.5
+#: the SDE sub-step scheme of a continuous-discrete model by default (the only value for a NonlinearModel)
+_DEFAULT_SCHEME = "rk4-split"
 
 
 def systematic_resample(weights: np.ndarray, rng: np.random.Generator) -> np.ndarray:
@@ -44,18 +38,6 @@ def systematic_resample(weights: np.ndarray, rng: np.random.Generator) -> np.nda
     return kern.systematic_indices(np.ascontiguousarray(w / w.sum()), rng.random())
 
 
-def pf_substeps(model: ContinuousDiscreteModel, scheme: str = "rk4-split") -> int:
-    """The particle filter's default sub-steps per dt: model.substeps for "heun"; for "rk4-split"
-    max(ceil(model.substeps / SPLIT_RATIO), ceil(tr(Q)·dt / NOISE_STEP²)) (2 for eq. 42 with
-    Q x 0.01, 5 with Q x 0.1, 41 with Q x 1)."""
-    if scheme not in SCHEMES:
-        raise ParameterError(f"scheme: expected one of {SCHEMES}, got {scheme!r}")
-    if scheme == "heun":
-        return model.substeps
-    noise = int(np.ceil(np.trace(model.Q) * model.dt / NOISE_STEP ** 2 - 1e-12))
-    return max(-(-model.substeps // SPLIT_RATIO), noise)
-
-
 @finite_result("the particle filter")
 def particle_filter(model, z, x0, P0, rng: np.random.Generator, *,
                     particles: int = 200, ess_threshold: float = 0.5, regularise: bool = False,
@@ -75,9 +57,10 @@ def particle_filter(model, z, x0, P0, rng: np.random.Generator, *,
                    whose covariance is h²·(weighted covariance), h the Silverman
                    bandwidth (N(n+2)/4)^(-1/(n+4)) (regularised PF, Musso et al. 2001)
     scheme         SDE sub-step scheme of :meth:`ContinuousDiscreteModel.sample_transition`:
-                   "rk4-split" (default; RK4 drift flows around the noise) or "heun"
-    substeps       sub-steps per dt (default :func:`pf_substeps`: 2 for eq. 42 with Q x 0.01,
-                   more when the diffusion is large); continuous-discrete models only
+                   "rk4-split" (default; RK4 drift flows around the noise) or "heun";
+                   continuous-discrete models only (a NonlinearModel takes the default only)
+    substeps       sub-steps per dt (default :func:`mptrack.continuous.pf_substeps`: 2 for eq. 42
+                   with Q x 0.01, more when the diffusion is large); continuous-discrete models only
     compiled       None: use the model's compiled kernels when it has them (zhao2013_model,
                    linear_sde_model), else NumPy; False: NumPy; True: require the kernels.
                    Both paths draw the same numbers and give the same result up to rounding.
@@ -95,42 +78,31 @@ def particle_filter(model, z, x0, P0, rng: np.random.Generator, *,
            Freitas and N. Gordon (eds.), Sequential Monte Carlo Methods in Practice, Springer, pp. 247–271,
            2001.
     """
-    if scheme not in SCHEMES:
-        raise ParameterError(f"scheme: expected one of {SCHEMES}, got {scheme!r}")
     first = check_prior(prior)
     default_substeps = substeps is None
     z, m0, P0, substeps = prepare_nonlinear(model, z, x0, P0, substeps)
     discrete = isinstance(model, NonlinearModel)
-    if default_substeps and not discrete:
-        substeps = pf_substeps(model, scheme)
+    if discrete and not (isinstance(scheme, str) and scheme == _DEFAULT_SCHEME):
+        raise ParameterError(f"scheme: only for a continuous-discrete model (a NonlinearModel is discrete-time), "
+                             f"got {scheme!r}")
     rng = check_rng(rng)
     N = check_int("particles", particles, minimum=2)
     check_allocation("particles", N, 8.0 * N * (4 * model.n + 4))
     thr = check_positive("ess_threshold", ess_threshold, allow_zero=True)
     if thr > 1:
         raise ParameterError(f"ess_threshold: expected a number in [0, 1], got {ess_threshold!r}")
-    kernels = None if discrete else model.kernels
-    if compiled and kernels is None:
-        raise ParameterError("compiled: the model has no compiled kernels (BlockKernels)")
-    use_kernels = kernels is not None if compiled is None else bool(compiled)
     if discrete:
+        if compiled:
+            raise ParameterError("compiled: the model has no compiled kernels (BlockKernels)")
+
         def propagate(X, k):
             return model.sample_transition(X, rng, k)
 
         def log_likelihood(zk, X, k):
             return model.log_likelihood(zk, X, k)
     else:
-        if use_kernels:
-            compiled_model = kern.compiled_model(model)
-            advance, weigh = compiled_model.propagate, compiled_model.log_likelihood
-        else:
-            advance, weigh = model.sample_transition, model.log_likelihood
-
-        def propagate(X, k):
-            return advance(X, rng, substeps, scheme)
-
-        def log_likelihood(zk, X, k):
-            return weigh(zk, X)
+        propagate, log_likelihood = model_family(model).pf(
+            model, rng, substeps=None if default_substeps else substeps, scheme=scheme, compiled=compiled)
     n, T = model.n, z.shape[0]
     w0, V = np.linalg.eigh(P0)
     L0 = V * np.sqrt(np.clip(w0, 0.0, None))

@@ -5,9 +5,10 @@ from __future__ import annotations
 import numpy as np
 
 from .._validation import as_matrix, check_covariance, check_int, finite_result
+from .._lyapunov import power_sum_unchecked
 from ..errors import ShapeError
 
-__all__ = ["power_sum", "power_sum_unchecked"]
+__all__ = ["power_sum"]
 
 
 @finite_result("F^N and its Lyapunov sum")
@@ -23,18 +24,3 @@ def power_sum(F, Q, N: int) -> tuple[np.ndarray, np.ndarray]:
         raise ShapeError(f"F: expected a square matrix, got shape {F.shape}")
     Q = check_covariance("Q", Q, F.shape[0])
     return power_sum_unchecked(F, Q, check_int("N", N, minimum=0))
-
-
-def power_sum_unchecked(F: np.ndarray, Q: np.ndarray, N: int) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`power_sum` of validated arguments; an overflow gives infinities (the caller's
-    finiteness check names its own argument)."""
-    n = F.shape[0]
-    power, total = np.eye(n), np.zeros((n, n))
-    with np.errstate(all="ignore"):
-        for bit in bin(int(N))[2:]:
-            total = total + power @ total @ power.T
-            power = power @ power
-            if bit == "1":
-                total = Q + F @ total @ F.T
-                power = F @ power
-    return power, 0.5 * (total + total.T)

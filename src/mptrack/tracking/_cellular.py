@@ -18,11 +18,9 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from .._validation import as_real, check_frame, lookup
+from .._validation import LATITUDE, LONGITUDE, as_real, check_frame, check_on_error, lookup
 from ..errors import DataError, ParameterError
 from ..io import LocalFrame, ReadReport
-from ..io._geodesy import _LATITUDE, _LONGITUDE
-from ..io._schema import check_on_error
 from ..models import constant_velocity_continuous
 from ..cellular import motion_position
 from ..radio import PATH_LOSS_MODELS, arfcn_to_frequency, distance_from_rss
@@ -60,7 +58,7 @@ def check_cell_rows(name: str, rows, columns=("t", "row", "cell_id")) -> pd.Data
 def check_cells(name: str, cells, columns=("lat", "lon", "height_m", "power_dbm", "arfcn")) -> pd.DataFrame:
     """A cell table as :func:`mptrack.io.read_cells` gives it (indexed by cell_id, schema CELLS)."""
     return check_frame(name, cells, columns, {
-        "lat": _LATITUDE, "lon": _LONGITUDE, "height_m": dict(low=0.0), "power_dbm": {},
+        "lat": LATITUDE, "lon": LONGITUDE, "height_m": dict(low=0.0), "power_dbm": {},
         "arfcn": dict(allow_nan=True, low=0, high=1023)})
 
 

@@ -14,8 +14,8 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
-from ..io._geodesy import geodetic_to_enu
-from ..io._readers import track_offsets
+from .._tracks import track_offsets
+from ..io import geodetic_to_enu
 
 __all__ = ["FixTable", "median_by", "time_values"]
 

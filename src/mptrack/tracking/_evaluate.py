@@ -22,8 +22,8 @@ import scipy.stats
 
 from .._validation import check_bool, check_frame, check_path, check_positive, point_numbers
 from ..errors import DataError, ParameterError
-from ..io import FIXES, LocalFrame, ReadOptions, ReadReport, read_table
-from ..io._formats import raw_chunks
+from ..io import FIXES, LocalFrame, ReadOptions, ReadReport, input_columns, read_table
+from ._advice import evaluation_nis
 from ._output import POINT_COLUMNS
 
 __all__ = ["attach_truth", "evaluate_tracks"]
@@ -38,7 +38,7 @@ def _truth_table(truth, file, read: ReadOptions = ReadOptions(),
     ``report``); ``true_lat``/``true_lon`` (or ``true_x``/``true_y``), as in simulated logs, are
     preferred over ``lat``/``lon`` unless ``read`` names the position columns."""
     given = read.column_map
-    columns = [str(c) for c in next(raw_chunks(truth, 1)).columns]
+    columns = input_columns(truth)
     prefer = next(({"lat": a, "lon": b} if geo else {"x": a, "y": b}
                    for a, b, geo in (("true_lat", "true_lon", True), ("true_x", "true_y", False))
                    if a in columns and b in columns), {})
@@ -181,7 +181,9 @@ def _stats(g: pd.DataFrame) -> dict:
 def evaluate_tracks(tracks: pd.DataFrame, truth=None, *, tolerance_s: float = 0.5, truth_file="truth",
                     truth_columns: bool = False, read: ReadOptions = ReadOptions(),
                     report: ReadReport | None = None) -> tuple[dict, pd.DataFrame]:
-    """(summary {"overall": {...}, "tracks": {id: {...}}}, tracks with error columns if truth given).
+    """(summary {"overall": {...}, "tracks": {id: {...}}, "nis": {"far_low", "far_high", "advice"}}, tracks
+    with error columns if truth given); "nis" counts the tracks whose mean NIS is far outside its band
+    and says what that usually means, as a tracking run's summary does.
 
     truth          a file in any input format or a DataFrame, matched by track and nearest time
                    (within ``tolerance_s``), see :func:`attach_truth`
@@ -208,6 +210,7 @@ def evaluate_tracks(tracks: pd.DataFrame, truth=None, *, tolerance_s: float = 0.
         tracks = _own_truth(tracks)
     per = {str(tid): _stats(g) for tid, g in tracks.groupby("track_id", sort=False)}
     summary = {"overall": _stats(tracks), "tracks": per}
+    summary["nis"] = evaluation_nis(per)
     if evaluated:
         summary["overall"]["matched_points"] = int(np.isfinite(tracks["error_m"]).sum())
     return summary, tracks

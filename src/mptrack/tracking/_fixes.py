@@ -14,9 +14,8 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
-from .._validation import as_real, as_vector, check_frame, check_positive, renamed
+from .._validation import LATITUDE, LONGITUDE, as_real, as_vector, check_frame, check_positive, renamed
 from ..errors import ParameterError
-from ..io._geodesy import _LATITUDE, _LONGITUDE
 from ..linear import get_filter
 from ..result import FilterResult
 from ._columns import FixTable
@@ -129,7 +128,7 @@ def check_fix_rows(name: str, rows) -> pd.DataFrame:
     (strictly increasing seconds), row, lat/lon or x/y, optional accuracy_m (NaN: not given)."""
     coords = ("lat", "lon") if isinstance(rows, pd.DataFrame) and "lat" in rows.columns else ("x", "y")
     check_frame(name, rows, ("time", "t", "row") + coords,
-                {"t": {}, "lat": _LATITUDE, "lon": _LONGITUDE, "x": {}, "y": {},
+                {"t": {}, "lat": LATITUDE, "lon": LONGITUDE, "x": {}, "y": {},
                  "accuracy_m": dict(allow_nan=True, low=0.0)})
     if np.any(np.diff(rows["t"].to_numpy(dtype=float)) <= 0):
         raise ParameterError(f"{name}.t: expected strictly increasing times (one track in time order)")

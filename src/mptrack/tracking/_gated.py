@@ -43,9 +43,9 @@ import scipy.stats
 from .._validation import (_overflow, as_array, as_real, as_sequence, as_vector, check_covariance, check_int,
                            check_positive, check_record, finite_result, renamed, require_finite)
 from ..errors import ParameterError, ShapeError
+from .._rts import rts_backward_linear
+from .._van_loan import intervals_unchecked
 from ..models import ContinuousLinearModel, require_model
-from ..models._continuous import intervals_unchecked
-from ..linear._smoother import _rts_backward
 from ..result import FilterResult, innovation_arrays
 from ._engine import FLAGS, INIT, MANOEUVRE_FACTOR
 from ._kernels import gated_loop
@@ -178,7 +178,7 @@ def smooth_gated(gated: GatedResult) -> FilterResult:
     bounds = np.unique(np.r_[0, starts, r.T])
     for a, b in zip(bounds[:-1], bounds[1:]):
         part = FilterResult(x=r.x[a:b], P=r.P[a:b])
-        sm = _rts_backward(part, gated.F[a + 1:b], gated.Q[a + 1:b])
+        sm = rts_backward_linear(part, gated.F[a + 1:b], gated.Q[a + 1:b])
         xs[a:b], Ps[a:b] = sm.x, sm.P
     return FilterResult(x=xs, P=Ps, method="RTS-gated")
 

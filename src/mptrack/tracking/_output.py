@@ -15,7 +15,7 @@ import scipy.stats
 
 from .._validation import as_array, as_vector, check_positive
 from ..errors import ParameterError, ShapeError
-from ..io._geodesy import enu_to_geodetic
+from ..io import enu_to_geodetic
 from ._engine import FLAGS
 
 __all__ = ["point_table", "ellipse", "nis_band", "POINT_COLUMNS"]

@@ -27,13 +27,13 @@ import pandas as pd
 import pyarrow as pa
 
 from .._io import output_lock
-from .._validation import check_int, check_outputs, check_path
+from .._tracks import track_offsets
+from .._validation import check_int, check_outputs, check_path, source_label
 from ..batch import Chunk, read_part, run_stream
 from ..errors import MptrackError, ParameterError
 from ..io import (FIXES, MEASUREMENTS, InputNotSorted, PartStore, ReadOptions, ReadReport, iter_track_chunks,
-                  read_cells, read_chunks)
-from ..io._readers import source_label, track_offsets
-from ..io._writers import output_format
+                  output_format, read_cells, read_chunks)
+from ._advice import MIN_ADVISED_FIXES, nis_advice
 from ._cellular import check_cell_ids, track_cells
 from ._columns import FixTable
 from ._fixes import TrackOptions
@@ -47,8 +47,6 @@ __all__ = ["track_file", "track", "read_output", "TrackTask", "DEFAULT_CHUNK_ROW
 DEFAULT_CHUNK_ROWS = 200_000
 #: Up to this many tracks the run summary lists each track's noise estimates (beyond: the track table).
 MAX_LISTED_TRACKS = 1000
-#: A track's mean NIS is judged (advice in the summary) from this many used fixes on.
-MIN_ADVISED_FIXES = 10
 _PARTS = ("points", "tracks")
 
 
@@ -352,40 +350,6 @@ def _summary(tracks: pd.DataFrame, report: ReadReport, options: TrackOptions, ch
                       "far_high": int((far & ~low).sum()),
                       "advice": nis_advice(int(low.sum()), int((far & ~low).sum()), options, cellular=cellular)}
     return out
-
-
-def nis_advice(low: int, high: int, options: TrackOptions, *, cellular: bool = False) -> list[str]:
-    """What a mean NIS far below (``low`` tracks) or above (``high``) its band usually means, and
-    the option to change (``cellular``: the tracks come from ranges to cells, not from fixes)."""
-    if cellular:
-        return _cellular_nis_advice(low, high, options)
-    given = [f for f, v in (("--sigma", options.sigma_m), ("--q", options.q)) if v is not None]
-    notes = []
-    if low:
-        cause = (f"the filter assumes more noise than the fixes show ({' and '.join(given)} too large); leave "
-                 f"{' and '.join(given)} out to estimate {'it' if len(given) == 1 else 'them'} from the data"
-                 if given else "the fixes' errors are correlated in time (a receiver that smooths its output), "
-                 "which the filter cannot tell from motion")
-        notes.append(f"{low} track(s) have a mean NIS far below its band: {cause}")
-    if high:
-        cause = (f"the fixes are noisier or the motion more agile than {' and '.join(given)} say; leave "
-                 f"{' and '.join(given)} out to estimate {'it' if len(given) == 1 else 'them'} from the data"
-                 if given else "the motion has sharper manoeuvres than the model allows (try --model ca) or "
-                 "outliers passed the gate")
-        notes.append(f"{high} track(s) have a mean NIS far above its band: {cause}")
-    return notes
-
-
-def _cellular_nis_advice(low: int, high: int, options: TrackOptions) -> list[str]:
-    notes = []
-    r = f"the range noise (--range-sigma {1e3 * options.r_km2 ** 0.5:.0f} m)"
-    if low:
-        notes.append(f"{low} track(s) have a mean NIS far below its band: the ranges are more accurate than "
-                     f"{r} says; a smaller --range-sigma follows them more closely")
-    if high:
-        notes.append(f"{high} track(s) have a mean NIS far above its band: the ranges are noisier than {r} "
-                     "says, or the path-loss model (--path-loss) does not fit the area")
-    return notes
 
 
 def _distribution(x: np.ndarray) -> dict:

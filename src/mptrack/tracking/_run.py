@@ -15,7 +15,7 @@ import pandas as pd
 import pyarrow as pa
 
 from .._validation import derived_from, require_finite
-from ..io._readers import track_offsets
+from .._tracks import track_offsets
 from ._columns import FixTable
 from ._engine import filter_tracks
 from ._fixes import TrackOptions, track_fixes

@@ -48,7 +48,7 @@ from .._validation import (
 )
 from ..errors import DataError, ParameterError, UnknownNameError
 from ..io import FIXES, ReadOptions, ReadReport, cell_key, iter_track_chunks
-from ..io._geodesy import enu_to_geodetic
+from ..io import enu_to_geodetic
 from ..radio import arfcn_to_frequency, path_loss
 
 __all__ = ["SCENARIOS", "simulate", "simulate_chunks", "Scenario", "Intervals", "ORIGIN", "CHUNK_ROWS"]
