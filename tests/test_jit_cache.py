@@ -9,8 +9,8 @@ from pathlib import Path
 import mptrack
 
 PACKAGE = Path(mptrack.__file__).resolve().parent
-KERNEL_MODULES = ["batch._kernels", "continuous._fem_kernels", "continuous._kernels", "io._geodesy", "linear._kernels",
-                  "linear._smoother", "nonlinear._named_kernels", "nonlinear._step_kernels", "tracking._engine",
+KERNEL_MODULES = ["_kalman_core", "batch._kernels", "continuous._fem_kernels", "continuous._kernels", "io._geodesy",
+                  "linear._kernels", "linear._smoother", "nonlinear._named_kernels", "nonlinear._step_kernels", "tracking._engine",
                   "tracking._kernels"]
 
 

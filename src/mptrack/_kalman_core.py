@@ -44,7 +44,7 @@ from numba import njit
 from . import _jit_cache  # noqa: F401 - compiled kernels cache in the user's cache directory
 
 __all__ = ["OK", "NOT_PD", "DIVERGED", "LOG2PI", "workspace", "predict", "cov_predict", "innovation", "whiten",
-           "apply_gain", "update", "record_update", "unscented_update", "cholesky", "finite", "symmetrise",
+           "apply_gain", "update", "linear_update", "record_update", "unscented_update", "cholesky", "finite", "symmetrise",
            "store", "observed", "wrap"]
 
 LOG2PI = float(np.log(2.0 * np.pi))
@@ -333,6 +333,19 @@ def update(x, P, Hf, hx, R, z, k, periods, joseph, ws):
         return NOT_PD, 0.0
     apply_gain(x, P, ws, q, joseph)
     return OK, ll
+
+
+@njit(cache=True, nogil=True)
+def linear_update(x, P, H, R, z, k, periods, joseph, ws, hx):
+    """:func:`update` for a linear measurement h(x) = H x (hx: (m,) work, periods: (m,) zeros).
+    Returns (status, loglik)."""
+    n = x.shape[0]
+    for i in range(H.shape[0]):
+        acc = 0.0
+        for j in range(n):
+            acc += H[i, j] * x[j]
+        hx[i] = acc
+    return update(x, P, H, hx, R, z, k, periods, joseph, ws)
 
 
 @njit(cache=True, nogil=True, inline="always")

@@ -12,6 +12,12 @@ the pair (b, a) with ``a < axes``; it reads columns ``a*m .. a*m+m-1`` of
 ``z[b]`` and writes columns ``a*n .. a*n+n-1`` of ``out[b]``.  ``axes = 1`` is
 the plain joint model.
 
+A track with its own covariance (the KF after its first gap) runs the one compiled
+predict/update of :mod:`mptrack._kalman_core` (:func:`own_step`).  The n = 2, m = 1
+lane kernels (``ss_kernel_21``, ``kf_kernel_21``) are the documented exception: four
+tracks advance together in registers with the shared gains, the update written out
+per lane (tests/test_kalman_core.py checks them against the core).
+
 The state is carried in float64 whatever the storage dtype; float32 only
 halves the bytes streamed.  Steps ``t >= lengths[b]`` are written as NaN.
 The model matrices are always float64, so each kernel compiles once per
@@ -25,7 +31,7 @@ import numba as nb
 import numpy as np
 
 from .. import _jit_cache  # noqa: F401 - compiled kernels cache in the user's cache directory
-from .._kalman_core import OK, predict, update, workspace
+from .._kalman_core import OK, linear_update, predict, workspace
 
 __all__ = ["ss_kernel", "ss_kernel_21", "kf_kernel", "kf_kernel_21", "fir_kernel", "matvec_kernel",
            "copy_kernel"]
@@ -162,14 +168,8 @@ def own_step(F, H, Q, R, x, P, zb, t, ws, hx, periods):
     predict and update of :mod:`mptrack._kalman_core` with row t of zb (this track's (T, m) columns),
     ws, hx (m,), periods (m,) of zeros: its work arrays.  NaN components are skipped; a fully missing
     row only predicts; an innovation covariance without a Cholesky factor makes x, P NaN."""
-    n = F.shape[0]
     predict(F, Q, x, P, ws)
-    for i in range(H.shape[0]):
-        acc = 0.0
-        for j in range(n):
-            acc += H[i, j] * x[j]
-        hx[i] = acc
-    status, _ = update(x, P, H, hx, R, zb, t, periods, False, ws)
+    status, _ = linear_update(x, P, H, R, zb, t, periods, False, ws, hx)
     if status != OK:
         x[:] = np.nan
         P[:, :] = np.nan

@@ -14,7 +14,7 @@ import numpy as np
 from numba import njit
 
 from .. import _jit_cache  # noqa: F401 - compiled kernels cache in the user's cache directory
-from .._kalman_core import OK, predict, record_update, store, update, workspace
+from .._kalman_core import OK, linear_update, predict, record_update, store, workspace
 
 __all__ = ["kf_loop", "lf_loop", "ss_loop"]
 
@@ -38,12 +38,7 @@ def kf_loop(F, H, Q, R, z, x0, P0, joseph, xs, Ps, xps, Pps, nus, Ss, nis):  # p
     for k in range(T):
         predict(F, Q, x, P, ws)
         store(x, P, xps, Pps, k)
-        for i in range(m):
-            acc = 0.0
-            for j in range(n):
-                acc += H[i, j] * x[j]
-            hx[i] = acc
-        status, ll = update(x, P, H, hx, R, z, k, periods, joseph, ws)
+        status, ll = linear_update(x, P, H, R, z, k, periods, joseph, ws, hx)
         if status != OK:
             x[:] = np.nan
             P[:, :] = np.nan
