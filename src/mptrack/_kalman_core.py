@@ -217,7 +217,7 @@ def cov_predict(F, Q, P, A):
 @njit(cache=True, nogil=True)
 def predict(F, Q, x, P, ws):
     """x <- F x, P <- F P F^T + Q in place (ws from :func:`workspace`)."""
-    idx, (H, HP, PHt, K, KR, Rq, S, L, IKH, A, nu, w) = ws
+    _idx, (_H, _HP, _PHt, _K, _KR, _Rq, _S, _L, IKH, A, _nu, _w) = ws
     n = x.shape[0]
     for a in range(n):
         acc = 0.0
@@ -237,7 +237,7 @@ def innovation(P, Hf, hx, R, z, k, periods, ws):
     not an angle) of all components: ν, S = H P H^T + R, C = P H^T, H and R of the q observed
     components into ws.  Returns q."""
     n = P.shape[0]
-    idx, (H, HP, PHt, K, KR, Rq, S, L, IKH, A, nu, w) = ws
+    idx, (H, HP, PHt, _K, _KR, Rq, S, _L, _IKH, _A, nu, _w) = ws
     q = observed(z, k, idx)
     if q == 0:
         return 0
@@ -263,7 +263,7 @@ def innovation(P, Hf, hx, R, z, k, periods, ws):
 def whiten(ws, q):
     """The Cholesky factor L of S and w = L^-1 ν into ws: (positive definite, NIS |w|^2, log N(ν; 0, S))
     ((False, 0, 0) when S has no Cholesky factor)."""
-    idx, (H, HP, PHt, K, KR, Rq, S, L, IKH, A, nu, w) = ws
+    _idx, (_H, _HP, _PHt, _K, _KR, _Rq, S, L, _IKH, _A, nu, w) = ws
     if not cholesky(S, L, q):
         return False, 0.0, 0.0
     quad = 0.0
@@ -283,7 +283,7 @@ def apply_gain(x, P, ws, q, joseph):
     """After :func:`whiten`: K = C S^-1, x <- x + K ν and P <- P - K C^T (symmetrised), or the Joseph
     form (I - K H) P (I - K H)^T + K R K^T with the H, R of :func:`innovation`, in place."""
     n = x.shape[0]
-    idx, (H, HP, PHt, K, KR, Rq, S, L, IKH, A, nu, w) = ws
+    _idx, (H, _HP, PHt, K, KR, Rq, _S, L, IKH, A, nu, _w) = ws
     for a in range(n):
         _chol_solve(L, PHt[a], K[a], q)
     for a in range(n):
@@ -328,7 +328,7 @@ def update(x, P, Hf, hx, R, z, k, periods, joseph, ws):
     q = innovation(P, Hf, hx, R, z, k, periods, ws)
     if q == 0:
         return OK, 0.0
-    ok, e, ll = whiten(ws, q)
+    ok, _e, ll = whiten(ws, q)
     if not ok:
         return NOT_PD, 0.0
     apply_gain(x, P, ws, q, joseph)
@@ -352,7 +352,7 @@ def linear_update(x, P, H, R, z, k, periods, joseph, ws, hx):
 def record_update(ws, z, k, nus, Ss, nis, row):
     """After an update with row k of z and the workspace ws: its innovation, S and NIS into row ``row``
     of nus, Ss, nis (the workspace still holds them)."""
-    idx, (H, HP, PHt, K, KR, Rq, S, L, IKH, A, nu, w) = ws
+    idx, (_H, _HP, _PHt, _K, _KR, _Rq, S, _L, _IKH, _A, nu, w) = ws
     _record(idx, observed(z, k, idx), nu, S, w, nus, Ss, nis, row)
 
 
@@ -366,7 +366,7 @@ def unscented_update(x, P, X, Zf, Wm, Wc, R, z, k, periods, nus, Ss, nis, row):
     N, m = Zf.shape
     n = x.shape[0]
     ws = workspace(n, m)
-    idx, (H, HP, C, K, KR, Rq, S, L, IKH, A, nu, w) = ws
+    idx, (_H, _HP, C, _K, _KR, Rq, S, _L, _IKH, _A, nu, w) = ws
     q = observed(z, k, idx)
     if q == 0:
         return OK, x, P, 0.0
@@ -405,7 +405,7 @@ def unscented_update(x, P, X, Zf, Wm, Wc, R, z, k, periods, nus, Ss, nis, row):
             for j in range(N):
                 acc += Wc[j] * (X[j, a] - x[a]) * dZ[j, b]
             C[a, b] = acc
-    ok, e, ll = whiten(ws, q)
+    ok, _e, ll = whiten(ws, q)
     if not ok:
         return NOT_PD, x, P, 0.0
     _record(idx, q, nu, S, w, nus, Ss, nis, row)

@@ -110,7 +110,7 @@ def _after_reset(last, x, P, F, Q, H, R, z, gates, rej, xs, Ps, flag, ws):
             Pb = Fi @ (Pb + Q[k]) @ Fi.T
             k -= 1
         if not inside_run:
-            idx, nu, S, e = _innovation(xb, Pb, H, R[j], z, j, ws)
+            idx, _nu, _S, e = _innovation(xb, Pb, H, R[j], z, j, ws)
             if e > gates[idx.shape[0]]:
                 break
         flag[j] = 3
@@ -128,7 +128,7 @@ def _innovation(x_pred, P_pred, H, R, z, k, ws):
         ok, e, _ = whiten(ws, q)
         if not ok:
             e = np.inf
-    idx, (Hq, HP, C, K, KR, Rq, S, L, IKH, A, nu, w) = ws
+    idx, (_Hq, _HP, _C, _K, _KR, _Rq, S, _L, _IKH, _A, nu, _w) = ws
     return idx[:q].copy(), nu[:q].copy(), S[:q, :q].copy(), e
 
 
