@@ -114,19 +114,22 @@ def _states(result):
     return np.asarray(getattr(result, "x", result))
 
 
-def test_lane_kf_kernel_21_equals_the_core():
-    """kf_kernel_21 (four tracks in registers, shared gains, falls back to the core at a gap) against the
-    KF run by the core per track; tracks of different lengths and with NaN gaps."""
-    rng = np.random.default_rng(21)
-    model = _model_21(rng)
+@pytest.mark.parametrize("n, m", [(2, 1), (4, 2)])
+def test_shared_gain_kf_kernels_equal_the_core(n, m):
+    """The batch KF's shared-gain paths -- kf_kernel_21 (n = 2, m = 1: four tracks in registers) and
+    kf_kernel (any n, m) -- which fall back to the core at a track's first gap, against the KF run by the
+    core per track; tracks of different lengths, with NaN gaps (whole rows and single components)."""
+    rng = np.random.default_rng(21 + n)
+    model = _model_21(rng) if n == 2 else LinearGaussianModel(*_model(rng, n, m))
     B, T = 11, 60
-    z = np.cumsum(rng.normal(size=(B, T, 1)), axis=1)
+    z = np.cumsum(rng.normal(size=(B, T, m)), axis=1)
     z[2, 30:35] = np.nan
     z[5, 0] = np.nan
     z[9, rng.random(T) < 0.3] = np.nan
+    z[7, 20:25, 0] = np.nan
     lengths = np.full(B, T)
     lengths[3] = 17
-    x0, P0 = rng.normal(size=(B, 2)), np.diag([4.0, 1.0])
+    x0, P0 = rng.normal(size=(B, n)), np.diag(np.linspace(4.0, 1.0, n))
     out = _states(batch_kalman_filter(model, z, x0, P0, lengths=lengths))
     for b in range(B):
         L = lengths[b]
