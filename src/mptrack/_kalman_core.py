@@ -44,9 +44,28 @@ from numba import njit
 
 from . import _jit_cache  # noqa: F401 - compiled kernels cache in the user's cache directory
 
-__all__ = ["OK", "NOT_PD", "DIVERGED", "LOG2PI", "workspace", "predict", "cov_predict", "innovation", "whiten",
-           "apply_gain", "update", "linear_update", "record_update", "unscented_update", "cholesky", "finite", "symmetrise",
-           "store", "observed", "wrap"]
+__all__ = [
+    "DIVERGED",
+    "LOG2PI",
+    "NOT_PD",
+    "OK",
+    "apply_gain",
+    "cholesky",
+    "cov_predict",
+    "finite",
+    "innovation",
+    "linear_update",
+    "observed",
+    "predict",
+    "record_update",
+    "store",
+    "symmetrise",
+    "unscented_update",
+    "update",
+    "whiten",
+    "workspace",
+    "wrap",
+]
 
 LOG2PI = float(np.log(2.0 * np.pi))
 _TWO_PI = 2.0 * np.pi
