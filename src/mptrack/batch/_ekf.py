@@ -20,7 +20,15 @@ import numba as nb
 import numpy as np
 
 from .._kalman_core import OK, predict, update, workspace
-from .._validation import _overflow, as_matrix, check_covariance, check_int, check_positive, frozen, require_finite
+from .._validation import (
+    _overflow,
+    as_matrix,
+    check_covariance,
+    check_int,
+    check_positive,
+    frozen,
+    require_finite,
+)
 from ..errors import ParameterError, ShapeError
 from ._inputs import check_finite_out, launch, prepare_batch
 from ._kernels import _OPTS
