@@ -24,11 +24,9 @@ import pytest
 SRC = Path(__file__).resolve().parents[1] / "src"
 
 #: (importing module, imported private module) pairs allowed for now, each with its reason
-ALLOWED = {
-    # the core19 work (one compiled predict/update in a core kernel module) removes this: the continuous
-    # UKF kernel calls the compiled unscented update of mptrack.nonlinear until the core module exists
-    ("mptrack.continuous._kernels", "mptrack.nonlinear._step_kernels"),
-}
+#: (importing module, imported private module) pairs allowed to break the rule: none (the last one, the
+#: continuous UKF kernel's use of nonlinear._step_kernels, went with the shared Kalman core, mptrack._kalman_core)
+ALLOWED: set = set()
 
 
 def _is_module(src: Path, parts: list[str]) -> bool:

@@ -19,11 +19,20 @@ from dataclasses import dataclass, field
 import numba as nb
 import numpy as np
 
-from .._validation import _overflow, as_matrix, check_covariance, check_int, check_positive, frozen, require_finite
+from .._kalman_core import OK, predict, update, workspace
+from .._validation import (
+    _overflow,
+    as_matrix,
+    check_covariance,
+    check_int,
+    check_positive,
+    frozen,
+    require_finite,
+)
 from ..errors import ParameterError, ShapeError
 from ..result import BatchFilterResult
 from ._inputs import check_finite_out, launch, prepare_batch
-from ._kernels import _OPTS, kf_predict, kf_update, observed
+from ._kernels import _OPTS
 
 __all__ = ["RangeModel", "range_ekf"]
 
@@ -105,35 +114,35 @@ _TINY_RANGE = 1e-12   # metres; the floor of the single-track ekf_ranges
 
 @nb.njit(**_OPTS)
 def ekf_kernel(z, out, F, Q, R, stations, pos, x0, P0, lengths):
+    """The range EKF of every track: the predict and update of :mod:`mptrack._kalman_core` with the
+    ranges h(x(k/k-1)) and their Jacobian H (standard form); NaN ranges are skipped."""
     nb_, T = z.shape[0], z.shape[1]
     n = F.shape[0]
     S, d = stations.shape
     for b in nb.prange(nb_):
         x = x0[b].copy()
         P = P0.copy()
+        ws = workspace(n, S)
+        Hf = np.zeros((S, n))
+        hx = np.empty(S)
+        periods = np.zeros(S)
+        zb = z[b]
         for t in range(lengths[b]):
-            xp, Pp = kf_predict(F, Q, x, P)
-            ok, k = observed(z[b, t], 0, S)
-            if k == 0:
-                x[:] = xp
-                P[:, :] = Pp
-            else:
-                Hs = np.zeros((k, n))
-                Rs = np.empty((k, k))
-                innov = np.empty(k)
-                for i in range(k):
-                    r2 = 0.0
-                    for j in range(d):
-                        diff = xp[pos[j]] - stations[ok[i], j]
-                        r2 += diff * diff
-                    r = np.sqrt(r2)
-                    r_floor = max(r, _TINY_RANGE)  # on a station: H stays finite (as ekf_ranges)
-                    for j in range(d):
-                        Hs[i, pos[j]] = (xp[pos[j]] - stations[ok[i], j]) / r_floor
-                    innov[i] = z[b, t, ok[i]] - r
-                    for j in range(k):
-                        Rs[i, j] = R[ok[i], ok[j]]
-                kf_update(xp, Pp, Hs, Rs, innov, x, P)
+            predict(F, Q, x, P, ws)
+            for i in range(S):
+                r2 = 0.0
+                for j in range(d):
+                    diff = x[pos[j]] - stations[i, j]
+                    r2 += diff * diff
+                r = np.sqrt(r2)
+                r_floor = max(r, _TINY_RANGE)  # on a station: H stays finite (as ekf_ranges)
+                for j in range(d):
+                    Hf[i, pos[j]] = (x[pos[j]] - stations[i, j]) / r_floor
+                hx[i] = r
+            status, _ = update(x, P, Hf, hx, R, zb, t, periods, False, ws)
+            if status != OK:
+                x[:] = np.nan
+                P[:, :] = np.nan
             for r in range(n):
                 out[b, t, r] = x[r]
         for t in range(lengths[b], T):

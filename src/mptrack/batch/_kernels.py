@@ -12,6 +12,12 @@ the pair (b, a) with ``a < axes``; it reads columns ``a*m .. a*m+m-1`` of
 ``z[b]`` and writes columns ``a*n .. a*n+n-1`` of ``out[b]``.  ``axes = 1`` is
 the plain joint model.
 
+A track with its own covariance (the KF after its first gap) runs the one compiled
+predict/update of :mod:`mptrack._kalman_core` (:func:`own_step`).  The n = 2, m = 1
+lane kernels (``ss_kernel_21``, ``kf_kernel_21``) are the documented exception: four
+tracks advance together in registers with the shared gains, the update written out
+per lane (tests/test_kalman_core.py checks them against the core).
+
 The state is carried in float64 whatever the storage dtype; float32 only
 halves the bytes streamed.  Steps ``t >= lengths[b]`` are written as NaN.
 The model matrices are always float64, so each kernel compiles once per
@@ -25,6 +31,7 @@ import numba as nb
 import numpy as np
 
 from .. import _jit_cache  # noqa: F401 - compiled kernels cache in the user's cache directory
+from .._kalman_core import OK, linear_update, predict, workspace
 
 __all__ = ["ss_kernel", "ss_kernel_21", "kf_kernel", "kf_kernel_21", "fir_kernel", "matvec_kernel"]
 
@@ -155,116 +162,16 @@ def ss_kernel_21(z, out, A, Bm, F, x0, lengths, axes):
 
 
 @nb.njit(cache=True, nogil=True)
-def kf_predict(F, Q, x, P):
-    """x(k/k-1) = F x, P(k/k-1) = F P F^T + Q (new arrays)."""
-    n = F.shape[0]
-    xp = np.zeros(n)
-    FP = np.zeros((n, n))
-    Pp = np.empty((n, n))
-    for r in range(n):
-        for c in range(n):
-            xp[r] += F[r, c] * x[c]
-            for j in range(n):
-                FP[r, c] += F[r, j] * P[j, c]
-    for r in range(n):
-        for c in range(n):
-            s = 0.0
-            for j in range(n):
-                s += FP[r, j] * F[c, j]
-            Pp[r, c] = s + Q[r, c]
-    return xp, Pp
-
-
-@nb.njit(cache=True, nogil=True)
-def observed(zrow, zo, m):
-    """Indices c < m with zrow[zo + c] not NaN, and their count."""
-    ok = np.empty(m, dtype=np.int64)
-    k = 0
-    for c in range(m):
-        if not np.isnan(zrow[zo + c]):
-            ok[k] = c
-            k += 1
-    return ok, k
-
-
-@nb.njit(cache=True, nogil=True)
-def kf_update(xp, Pp, Hs, Rs, innov, x, P):
-    """Measurement update with the (k, n) matrix Hs, (k, k) noise Rs and innovation (k,):
-    K = P H^T S^{-1} (S = H P H^T + R by Cholesky), x = xp + K innov, P = Pp - K H Pp,
-    written into x and P (symmetrised).  Explicit loops keep numba's compile time low."""
-    n = xp.shape[0]
-    k = innov.shape[0]
-    PHt = np.zeros((n, k))          # P(k/k-1) H^T
-    for r in range(n):
-        for i in range(k):
-            for j in range(n):
-                PHt[r, i] += Pp[r, j] * Hs[i, j]
-    Lc = np.zeros((k, k))           # S = H P H^T + R = Lc Lc^T
-    for i in range(k):
-        for j in range(i + 1):
-            s = Rs[i, j]
-            for c in range(n):
-                s += Hs[i, c] * PHt[c, j]
-            for c in range(j):
-                s -= Lc[i, c] * Lc[j, c]
-            Lc[i, j] = np.sqrt(s) if i == j else s / Lc[j, j]
-    G = np.empty((n, k))            # K = PHt S^{-1}: solve Lc Lc^T K^T = PHt^T row by row
-    for r in range(n):
-        for i in range(k):
-            s = PHt[r, i]
-            for c in range(i):
-                s -= Lc[i, c] * G[r, c]
-            G[r, i] = s / Lc[i, i]
-        for i in range(k - 1, -1, -1):
-            s = G[r, i]
-            for c in range(i + 1, k):
-                s -= Lc[c, i] * G[r, c]
-            G[r, i] = s / Lc[i, i]
-    for r in range(n):
-        s = xp[r]
-        for i in range(k):
-            s += G[r, i] * innov[i]
-        x[r] = s
-    for r in range(n):
-        for c in range(n):
-            s = Pp[r, c]
-            for i in range(k):
-                s -= G[r, i] * PHt[c, i]
-            P[r, c] = s
-    for r in range(n):
-        for c in range(r):
-            avg = 0.5 * (P[r, c] + P[c, r])
-            P[r, c] = avg
-            P[c, r] = avg
-
-
-@nb.njit(cache=True, nogil=True)
-def _kf_full_update(F, H, Q, R, x, P, zrow, zo):
-    """One Kalman step (Assimakis & Adam 2014, eq. 4) with this track's own covariance P (in place).
-
-    NaN components of the measurement are skipped; a fully missing row only predicts.
-    """
-    n = F.shape[0]
-    xp, Pp = kf_predict(F, Q, x, P)
-    ok, k = observed(zrow, zo, H.shape[0])
-    if k == 0:
-        x[:] = xp
-        for r in range(n):
-            for c in range(n):
-                P[r, c] = Pp[r, c]
-        return
-    Hs = np.empty((k, n))
-    Rs = np.empty((k, k))
-    innov = np.empty(k)
-    for i in range(k):
-        s = zrow[zo + ok[i]]
-        for j in range(n):
-            Hs[i, j] = H[ok[i], j]
-            s -= H[ok[i], j] * xp[j]
-        innov[i] = s
-        for j in range(k):
-            Rs[i, j] = R[ok[i], ok[j]]
-    kf_update(xp, Pp, Hs, Rs, innov, x, P)
+def own_step(F, H, Q, R, x, P, zb, t, ws, hx, periods):
+    """One Kalman step (Assimakis & Adam 2014, eq. 4) with this track's own covariance P, in place: the
+    predict and update of :mod:`mptrack._kalman_core` with row t of zb (this track's (T, m) columns),
+    ws, hx (m,), periods (m,) of zeros: its work arrays.  NaN components are skipped; a fully missing
+    row only predicts; an innovation covariance without a Cholesky factor makes x, P NaN."""
+    predict(F, Q, x, P, ws)
+    status, _ = linear_update(x, P, H, R, zb, t, periods, False, ws, hx)
+    if status != OK:
+        x[:] = np.nan
+        P[:, :] = np.nan
 
 
 @nb.njit(**_OPTS)
@@ -287,6 +194,10 @@ def kf_kernel(z, out, F, H, Q, R, K, Pf, P0, x0, lengths, axes):
         xp = np.empty(n)
         innov = np.empty(m)
         P = np.empty((n, n))
+        zb = z[b, :, zo:zo + m]
+        ws = workspace(n, m)
+        hx = np.empty(m)
+        periods = np.zeros(m)
         shared = True
         for r in range(n):
             x[r] = x0[b, xo + r]
@@ -319,7 +230,7 @@ def kf_kernel(z, out, F, H, Q, R, K, Pf, P0, x0, lengths, axes):
                         s += K[t, r, c] * innov[c]
                     x[r] = xp[r] + s
             else:
-                _kf_full_update(F, H, Q, R, x, P, z[b, t], zo)
+                own_step(F, H, Q, R, x, P, zb, t, ws, hx, periods)
             for r in range(n):
                 out[b, t, xo + r] = x[r]
         for t in range(L, T):
@@ -351,8 +262,12 @@ def _kf21_track(z, out, b, a, t0, p, v, L, F, H, Q, R, K, Pf, P0):
         x[0] = p
         x[1] = v
         P = P0.copy() if t1 == 0 else Pf[t1 - 1].copy()
+        zb = z[b, :, a:a + 1]
+        ws = workspace(2, 1)
+        hx = np.empty(1)
+        periods = np.zeros(1)
         for t in range(t1, L):
-            _kf_full_update(F, H, Q, R, x, P, z[b, t], a)
+            own_step(F, H, Q, R, x, P, zb, t, ws, hx, periods)
             out[b, t, o] = x[0]
             out[b, t, o + 1] = x[1]
     for t in range(L, z.shape[1]):

@@ -50,7 +50,7 @@ from numba.extending import intrinsic, is_jitted
 
 from .. import _jit_cache  # noqa: F401 - compiled kernels cache in the user's cache directory
 from ..errors import ParameterError
-from ..nonlinear._step_kernels import DIVERGED, NOT_PD, OK, _cholesky, _finite, _store, _symmetrise, _ukf_update
+from .._kalman_core import DIVERGED, NOT_PD, OK, cholesky, finite, store, symmetrise, unscented_update
 
 __all__ = ["BlockKernels", "CompiledModel", "compiled_model", "SCHEMES"]
 
@@ -422,7 +422,7 @@ def _sigma_columns(m, P, c, X, S, L):  # pragma: no cover - compiled
     for a in range(n):
         for b in range(n):
             S[a, b] = c * P[a, b]
-    if not _cholesky(S, L, n):
+    if not cholesky(S, L, n):
         return False
     for a in range(n):
         X[a, 0] = m[a]
@@ -512,7 +512,7 @@ def _cd_predict(m, P, h, steps, c, Wm, Wc, Q, drift, p, X, F, S, L, k):  # pragm
             m[r] += h6 * (k[0, 0, r, 0] + 2.0 * k[1, 0, r, 0] + 2.0 * k[2, 0, r, 0] + k[3, 0, r, 0])
             for q in range(n):
                 P[r, q] += h6 * (k[0, 1, r, q] + 2.0 * k[1, 1, r, q] + 2.0 * k[2, 1, r, q] + k[3, 1, r, q])
-        _symmetrise(P)
+        symmetrise(P)
     return True
 
 
@@ -544,18 +544,18 @@ def cd_ukf_run(z, x0, P0, dt, fixed_steps, drift_c, drift_jit, dp, meas_c, meas_
         steps_used[k] = steps
         if not _cd_predict(x, P, dt / steps, steps, c, Wm, Wc, Q, drift, dp, X, F, S, L, kst):
             return NOT_PD, k, loglik
-        if not _finite(x, P):
+        if not finite(x, P):
             return DIVERGED, k, loglik
-        _store(x, P, xp, Pp, k)
+        store(x, P, xp, Pp, k)
         if not np.isnan(z[k]).all():   # a row without measurements only predicts
             if not _sigma_columns(x, P, c, X, S, L):
                 return NOT_PD, k, loglik
             meas(X, mp, Zc)
-            status, x, P, ll = _ukf_update(x, P, X.T, Zc.T, Wm, Wc, R, z, k, periods, nus, Ss, nis, k)
+            status, x, P, ll = unscented_update(x, P, X.T, Zc.T, Wm, Wc, R, z, k, periods, nus, Ss, nis, k)
             if status != OK:
                 return status, k, loglik
             loglik += ll
-        if not _finite(x, P):
+        if not finite(x, P):
             return DIVERGED, k, loglik
-        _store(x, P, xs, Ps, k)
+        store(x, P, xs, Ps, k)
     return OK, T, loglik

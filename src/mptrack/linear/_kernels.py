@@ -2,7 +2,8 @@
 
 The equations are those of the readable single-step functions
 :func:`kalman_step` and :func:`lainiotis_step` (the tests check that both give
-the same numbers); compiling the loop removes the per-call overhead of NumPy on
+the same numbers); the KF loop runs the one compiled predict/update of
+:mod:`mptrack._kalman_core`; compiling the loop removes the per-call overhead of NumPy on
 small matrices, which otherwise dominates (tens of microseconds per step).
 Kernels are compiled on first use and cached on disk (``cache=True``).
 """
@@ -13,75 +14,39 @@ import numpy as np
 from numba import njit
 
 from .. import _jit_cache  # noqa: F401 - compiled kernels cache in the user's cache directory
+from .._kalman_core import OK, linear_update, predict, record_update, store, workspace
 
 __all__ = ["kf_loop", "lf_loop", "ss_loop"]
-
-_LOG2PI = np.log(2.0 * np.pi)
-
 
 @njit(cache=True)
 def kf_loop(F, H, Q, R, z, x0, P0, joseph, xs, Ps, xps, Pps, nus, Ss, nis):  # pragma: no cover - compiled
     """KF over all steps; NaN components of z are skipped. Returns the log-likelihood.
 
-    Writes the innovation, its covariance S and the NIS of the components used into nus (T, m),
-    Ss (T, m, m) and nis (T,), which the caller fills with NaN (left there for missing components)."""
+    Predict and update are those of :mod:`mptrack._kalman_core` (standard form, or Joseph form when
+    ``joseph``).  Writes the innovation, its covariance S and the NIS of the components used into nus
+    (T, m), Ss (T, m, m) and nis (T,), which the caller fills with NaN (left there for missing
+    components).  An innovation covariance without a Cholesky factor makes the rest of the run NaN
+    (reported by the caller's finiteness check)."""
     T, m = z.shape
     n = F.shape[0]
     x = x0.copy()
     P = P0.copy()
-    Ft = np.ascontiguousarray(F.T)
-    eye = np.eye(n)
+    ws = workspace(n, m)
+    hx = np.empty(m)
+    periods = np.zeros(m)
     loglik = 0.0
     for k in range(T):
-        xp = F @ x
-        Pp = F @ P @ Ft + Q
-        xps[k] = xp
-        Pps[k] = Pp
-        zk = z[k]
-        n_ok = 0
-        for i in range(m):
-            if not np.isnan(zk[i]):
-                n_ok += 1
-        if n_ok == 0:
-            x = xp
-            P = Pp
+        predict(F, Q, x, P, ws)
+        store(x, P, xps, Pps, k)
+        status, ll = linear_update(x, P, H, R, z, k, periods, joseph, ws, hx)
+        if status != OK:
+            x[:] = np.nan
+            P[:, :] = np.nan
+            ll = np.nan
         else:
-            idx = np.empty(n_ok, dtype=np.int64)
-            j = 0
-            for i in range(m):
-                if not np.isnan(zk[i]):
-                    idx[j] = i
-                    j += 1
-            if n_ok == m:
-                Hk, Rk, zv = H, R, zk
-            else:
-                Hk = np.ascontiguousarray(H[idx])
-                Rk = np.empty((n_ok, n_ok))
-                for a in range(n_ok):
-                    for b in range(n_ok):
-                        Rk[a, b] = R[idx[a], idx[b]]
-                zv = zk[idx]
-            PHt = Pp @ np.ascontiguousarray(Hk.T)
-            S = Hk @ PHt + Rk
-            Si = np.linalg.inv(S)
-            K = PHt @ Si
-            innov = zv - Hk @ xp
-            x = xp + K @ innov
-            if joseph:
-                IKH = eye - K @ Hk
-                P = IKH @ Pp @ np.ascontiguousarray(IKH.T) + K @ Rk @ np.ascontiguousarray(K.T)
-            else:
-                P = Pp - K @ np.ascontiguousarray(PHt.T)
-            P = 0.5 * (P + P.T)
-            e = innov @ (Si @ innov)
-            loglik -= 0.5 * (e + np.log(np.linalg.det(S)) + n_ok * _LOG2PI)
-            for a in range(n_ok):
-                nus[k, idx[a]] = innov[a]
-                for b in range(n_ok):
-                    Ss[k, idx[a], idx[b]] = S[a, b]
-            nis[k] = e
-        xs[k] = x
-        Ps[k] = P
+            record_update(ws, z, k, nus, Ss, nis, k)
+        loglik += ll
+        store(x, P, xs, Ps, k)
     return loglik
 
 

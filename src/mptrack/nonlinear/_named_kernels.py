@@ -7,8 +7,9 @@ indices of the position, -1 padded).  :func:`ekf_filter`, :func:`ukf_filter` and
 :func:`ekf_filter_batch` then validate once and run one compiled loop over the T steps (and the B
 tracks) with the arithmetic of the generic path: Joseph-form EKF, unscented transform through f and h
 with the circular mean of the angles, innovations wrapped into [-π, π), NaN components skipped, the
-same log-likelihood: the per-step cores of :mod:`mptrack.nonlinear._step_kernels`, which the generic
-path also calls.  The tests pin the two paths to 1e-10 on identical inputs.
+same log-likelihood: the compiled Kalman update of :mod:`mptrack._kalman_core`, which the generic
+path also calls (through :mod:`mptrack.nonlinear._step_kernels`).  The tests pin the two paths to
+1e-10 on identical inputs.
 
 A kernel reports a problem (a non-positive-definite innovation covariance or square root, a
 non-finite estimate) by a status code instead of raising; the caller then reruns the generic path,
@@ -22,21 +23,20 @@ import numpy as np
 from numba import njit
 
 from .. import _jit_cache  # noqa: F401 - compiled kernels cache in the user's cache directory
-from ._step_kernels import (
+from .._kalman_core import (
     DIVERGED,
     NOT_PD,
     OK,
-    _cov_predict,
-    _ekf_update,
-    _finite,
-    _observed,
-    _sigma,
-    _store,
-    _ukf_update,
-    ekf_workspace,
-    record_ekf,
-    unscented_moments,
+    finite,
+    observed,
+    predict,
+    record_update,
+    store,
+    unscented_update,
+    update,
+    workspace,
 )
+from ._step_kernels import _sigma, unscented_moments
 
 __all__ = ["ekf_named", "ekf_named_batch", "ukf_named", "OK", "NOT_PD", "DIVERGED"]
 
@@ -97,32 +97,24 @@ def _ekf_track(F, Q, R, codes, pos, st, periods, z, x0, P0, first, xs, Ps, xp, P
     n = x0.shape[0]
     x = x0.copy()
     P = P0.copy()
-    xn = np.empty(n)
-    A = np.empty((n, n))
     hx = np.empty(m)
     Hf = np.empty((m, n))
-    ws = ekf_workspace(n, m)
+    ws = workspace(n, m)
     loglik = 0.0
     for k in range(T):
         if not (first and k == 0):
-            for a in range(n):
-                acc = 0.0
-                for b in range(n):
-                    acc += F[a, b] * x[b]
-                xn[a] = acc
-            x[:] = xn
-            _cov_predict(F, Q, P, A)
-        _store(x, P, xp, Pp, k)
+            predict(F, Q, x, P, ws)
+        store(x, P, xp, Pp, k)
         _h(x, codes, pos, st, hx)
         _jac_h(x, codes, pos, st, Hf)
-        status, ll = _ekf_update(x, P, Hf, hx, R, z, k, periods, ws)
+        status, ll = update(x, P, Hf, hx, R, z, k, periods, True, ws)
         if status != OK:
             return status, k, loglik
-        record_ekf(ws, z, k, nus, Ss, nis, k)
+        record_update(ws, z, k, nus, Ss, nis, k)
         loglik += ll
-        if not _finite(x, P):
+        if not finite(x, P):
             return DIVERGED, k, loglik
-        _store(x, P, xs, Ps, k)
+        store(x, P, xs, Ps, k)
     return OK, T, loglik
 
 
@@ -172,17 +164,17 @@ def ukf_named(F, Q, R, codes, pos, st, periods, z, x0, P0, first, c, Wm, Wc, nus
             if not _sigma(x, P, c, X):
                 return NOT_PD, k, xs, Ps, xp, Pp, loglik
             x, P = unscented_moments(X @ F.T, Wm, Wc, Q)
-        _store(x, P, xp, Pp, k)
-        if _observed(z, k, idx) > 0:
+        store(x, P, xp, Pp, k)
+        if observed(z, k, idx) > 0:
             if not _sigma(x, P, c, X):
                 return NOT_PD, k, xs, Ps, xp, Pp, loglik
             for j in range(N):
                 _h(X[j], codes, pos, st, Zf[j])
-            status, x, P, ll = _ukf_update(x, P, X, Zf, Wm, Wc, R, z, k, periods, nus, Ss, nis, k)
+            status, x, P, ll = unscented_update(x, P, X, Zf, Wm, Wc, R, z, k, periods, nus, Ss, nis, k)
             if status != OK:
                 return status, k, xs, Ps, xp, Pp, loglik
             loglik += ll
-        if not _finite(x, P):
+        if not finite(x, P):
             return DIVERGED, k, xs, Ps, xp, Pp, loglik
-        _store(x, P, xs, Ps, k)
+        store(x, P, xs, Ps, k)
     return OK, T, xs, Ps, xp, Pp, loglik

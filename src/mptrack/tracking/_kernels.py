@@ -1,7 +1,8 @@
 """The gated irregular-time Kalman loop of :func:`kalman_filter_gated`, compiled (numba).
 
-Same equations as :func:`mptrack.linear.kalman_step` per step (tests check the
-result against :func:`mptrack.linear.kalman_filter_irregular`), plus the
+Same equations as :func:`mptrack.linear.kalman_step` per step, run by the one
+compiled predict/update of :mod:`mptrack._kalman_core` (tests check the result
+against :func:`mptrack.linear.kalman_filter_irregular`), plus the
 two-level NIS gate and the restart of the module doc of ``_gated``, on the
 general (n, m) matrices of a continuous model.  This is the readable reference
 of the tracking engine (:mod:`._engine`), which specialises the same rules to
@@ -14,12 +15,11 @@ import numpy as np
 from numba import njit
 
 from .. import _jit_cache  # noqa: F401 - compiled kernels cache in the user's cache directory
-
-_LOG2PI = np.log(2.0 * np.pi)
+from .._kalman_core import LOG2PI, OK, apply_gain, innovation, predict, update, whiten, workspace
 
 
 @njit(cache=True)
-def _restart(t, z, R, Fs, Qs, H, rej, nrej, factor, start, gate, x_out, P_out):
+def _restart(t, z, R, Fs, Qs, H, rej, nrej, factor, start, gate, x_out, P_out, ws):
     """The rejected fixes ``rej`` (consecutive rows) agree with each other under the manoeuvre
     process noise factor * Q: a diffuse start (information form, from zero information) on the
     first ``start`` of them, then every further one passes the NIS gate against the prediction
@@ -55,26 +55,22 @@ def _restart(t, z, R, Fs, Qs, H, rej, nrej, factor, start, gate, x_out, P_out):
     P = np.linalg.inv(Y)
     P = 0.5 * (P + P.T)
     x = P @ y
+    periods = np.zeros(H.shape[0])
     for j in range(start, nrej):
         k = rej[j]
-        x = Fs[k] @ x
-        P = Fs[k] @ P @ Fs[k].T + factor * Qs[k]
-        nu = z[k] - H @ x
-        S = H @ P @ H.T + R[k]
-        S_inv = np.linalg.inv(S)
-        if nu @ S_inv @ nu > gate:
+        predict(Fs[k], factor * Qs[k], x, P, ws)
+        q = innovation(P, H, H @ x, R[k], z, k, periods, ws)
+        ok, e, _ = whiten(ws, q)
+        if not ok or e > gate:
             return False
-        K = P @ H.T @ S_inv
-        x = x + K @ nu
-        P = P - K @ H @ P
-        P = 0.5 * (P + P.T)
+        apply_gain(x, P, ws, q, False)
     x_out[:] = x
     P_out[:, :] = P
     return True
 
 
 @njit(cache=True)
-def _reject(k, t, z, R, F, Q, H, rej, count, factor, start, gate, x_coast, P_coast, x_new, P_new):
+def _reject(k, t, z, R, F, Q, H, rej, count, factor, start, gate, x_coast, P_coast, x_new, P_new, ws):
     """Measurement k is rejected: add it to the run ``rej`` (count[0] long); returns (flag, x, P):
     3 and the restart state if the full run agrees (:func:`_restart`), else 1 and the coasting state."""
     max_rej = rej.shape[0]
@@ -83,14 +79,14 @@ def _reject(k, t, z, R, F, Q, H, rej, count, factor, start, gate, x_coast, P_coa
         count[0] -= 1
     rej[count[0]] = k
     count[0] += 1
-    if count[0] == max_rej and _restart(t, z, R, F, Q, H, rej, max_rej, factor, start, gate, x_new, P_new):
+    if count[0] == max_rej and _restart(t, z, R, F, Q, H, rej, max_rej, factor, start, gate, x_new, P_new, ws):
         count[0] = 0
         return 3, x_new.copy(), P_new.copy()
     return 1, x_coast.copy(), P_coast.copy()
 
 
 @njit(cache=True)
-def _after_reset(last, x, P, F, Q, H, R, z, gates, rej, xs, Ps, flag):
+def _after_reset(last, x, P, F, Q, H, R, z, gates, rej, xs, Ps, flag, ws):
     """A restart at ``last`` (the end of the rejection run ``rej``): the run's earlier fixes, and the
     rejected ones just before it that lie inside the gate of the restart state predicted back to
     them (walking back, up to the first that does not), are flagged 3 (reset) and get that state:
@@ -114,7 +110,7 @@ def _after_reset(last, x, P, F, Q, H, R, z, gates, rej, xs, Ps, flag):
             Pb = Fi @ (Pb + Q[k]) @ Fi.T
             k -= 1
         if not inside_run:
-            idx, nu, S, e = _innovation(xb, Pb, H, R[j], z[j])
+            idx, _nu, _S, e = _innovation(xb, Pb, H, R[j], z, j, ws)
             if e > gates[idx.shape[0]]:
                 break
         flag[j] = 3
@@ -123,19 +119,17 @@ def _after_reset(last, x, P, F, Q, H, R, z, gates, rej, xs, Ps, flag):
 
 
 @njit(cache=True)
-def _innovation(x_pred, P_pred, H, R, zk):
-    """(observed component indices, innovation, its covariance S, NIS) of measurement zk."""
-    idx = np.flatnonzero(~np.isnan(zk))
-    mk = idx.shape[0]
-    Hk = H[idx]
-    Rk = np.empty((mk, mk))
-    for a in range(mk):
-        for b in range(mk):
-            Rk[a, b] = R[idx[a], idx[b]]
-    nu = zk[idx] - Hk @ x_pred
-    S = Hk @ P_pred @ Hk.T + Rk
-    e = nu @ np.linalg.inv(S) @ nu if mk else 0.0
-    return idx, nu, S, e
+def _innovation(x_pred, P_pred, H, R, z, k, ws):
+    """(observed component indices, innovation, its covariance S, NIS) of row k of z (copies out of the
+    workspace ws of :func:`mptrack._kalman_core.innovation`); NIS inf when S is not positive definite."""
+    q = innovation(P_pred, H, H @ x_pred, R, z, k, np.zeros(H.shape[0]), ws)
+    e = 0.0
+    if q > 0:
+        ok, e, _ = whiten(ws, q)
+        if not ok:
+            e = np.inf
+    idx, (_Hq, _HP, _C, _K, _KR, _Rq, S, _L, _IKH, _A, nu, _w) = ws
+    return idx[:q].copy(), nu[:q].copy(), S[:q, :q].copy(), e
 
 
 @njit(cache=True)
@@ -148,13 +142,16 @@ def _record(k, idx, nu, S, nus, Ss):
 
 
 @njit(cache=True)
-def _kalman_update(x_pred, P_pred, H, idx, nu, S):
-    Hk = H[idx]
-    PHt = P_pred @ Hk.T
-    K = PHt @ np.linalg.inv(S)
-    x = x_pred + K @ nu
-    P = P_pred - K @ PHt.T
-    return x, 0.5 * (P + P.T)
+def _kalman_update(x_pred, P_pred, H, R, z, k, ws):
+    """x(k/k), P(k/k) from the prediction and row k of z (:func:`mptrack._kalman_core.update`, standard
+    form); NaN when the innovation covariance is not positive definite."""
+    x = x_pred.copy()
+    P = P_pred.copy()
+    status, _ = update(x, P, H, H @ x_pred, R, z, k, np.zeros(H.shape[0]), False, ws)
+    if status != OK:
+        x[:] = np.nan
+        P[:, :] = np.nan
+    return x, P
 
 
 @njit(cache=True)
@@ -181,6 +178,7 @@ def gated_loop(t, F, Q, H, R, z, x, P, gates, use_gate, max_rej, factor, start, 
     P_new = np.empty((n, n))
     x_coast = np.empty(n)
     P_coast = np.empty((n, n))
+    ws = workspace(n, m)
     pending = False               # measurement k - 1 is a manoeuvre candidate
     cand_e = cand_ll = 0.0        # its nominal NIS and its log-likelihood as a manoeuvre
     cand_idx = np.empty(0, np.int64)
@@ -191,7 +189,7 @@ def gated_loop(t, F, Q, H, R, z, x, P, gates, use_gate, max_rej, factor, start, 
         P_pred = F[k] @ P @ F[k].T + Q[k]
         xp[k] = x_pred
         Pp[k] = P_pred
-        idx, nu, S, e = _innovation(x_pred, P_pred, H, R[k], z[k])
+        idx, nu, S, e = _innovation(x_pred, P_pred, H, R[k], z, k, ws)
         mk = idx.shape[0]
         if pending:
             pending = False
@@ -202,17 +200,17 @@ def gated_loop(t, F, Q, H, R, z, x, P, gates, use_gate, max_rej, factor, start, 
                 nis[k - 1] = cand_e
                 _record(k - 1, cand_idx, nus[k - 1][cand_idx], cand_S, nus, Ss)
                 f1, x, P = _reject(k - 1, t, z, R, F, Q, H, rej, count, factor, start, gates[m],
-                                   x_coast, P_coast, x_new, P_new)
+                                   x_coast, P_coast, x_new, P_new, ws)
                 flag[k - 1] = f1
                 if f1 == 3:
-                    _after_reset(k - 1, x, P, F, Q, H, R, z, gates, rej, xs, Ps, flag)
+                    _after_reset(k - 1, x, P, F, Q, H, R, z, gates, rej, xs, Ps, flag, ws)
                 xs[k - 1] = x
                 Ps[k - 1] = P
                 x_pred = F[k] @ x
                 P_pred = F[k] @ P @ F[k].T + Q[k]
                 xp[k] = x_pred
                 Pp[k] = P_pred
-                idx, nu, S, e = _innovation(x_pred, P_pred, H, R[k], z[k])
+                idx, nu, S, e = _innovation(x_pred, P_pred, H, R[k], z, k, ws)
         if mk == 0:
             flag[k] = 2
             x, P = x_pred, P_pred
@@ -223,28 +221,28 @@ def gated_loop(t, F, Q, H, R, z, x, P, gates, use_gate, max_rej, factor, start, 
         _record(k, idx, nu, S, nus, Ss)
         if not use_gate or e <= gates[mk]:
             count[0] = 0
-            x, P = _kalman_update(x_pred, P_pred, H, idx, nu, S)
+            x, P = _kalman_update(x_pred, P_pred, H, R[k], z, k, ws)
             flag[k] = 0
-            loglik -= 0.5 * (e + np.log(np.linalg.det(S)) + mk * _LOG2PI)
+            loglik -= 0.5 * (e + np.log(np.linalg.det(S)) + mk * LOG2PI)
         else:
             x_coast[:] = x_pred
             P_coast[:, :] = P_pred
             P_m = P_pred + (factor - 1.0) * Q[k]
-            idx, nu, S_m, em = _innovation(x_pred, P_m, H, R[k], z[k])
+            idx, nu, S_m, em = _innovation(x_pred, P_m, H, R[k], z, k, ws)
             if em <= gates[mk]:
-                x, P = _kalman_update(x_pred, P_m, H, idx, nu, S_m)
+                x, P = _kalman_update(x_pred, P_m, H, R[k], z, k, ws)
                 flag[k] = 5
                 nis[k] = em
                 _record(k, idx, nu, S_m, nus, Ss)
                 cand_idx, cand_S = idx, S
                 pending = True
-                cand_e, cand_ll = e, -0.5 * (em + np.log(np.linalg.det(S_m)) + mk * _LOG2PI)
+                cand_e, cand_ll = e, -0.5 * (em + np.log(np.linalg.det(S_m)) + mk * LOG2PI)
             else:
                 f1, x, P = _reject(k, t, z, R, F, Q, H, rej, count, factor, start, gates[m],
-                                   x_coast, P_coast, x_new, P_new)
+                                   x_coast, P_coast, x_new, P_new, ws)
                 flag[k] = f1
                 if f1 == 3:
-                    _after_reset(k, x, P, F, Q, H, R, z, gates, rej, xs, Ps, flag)
+                    _after_reset(k, x, P, F, Q, H, R, z, gates, rej, xs, Ps, flag, ws)
         xs[k] = x
         Ps[k] = P
     if pending:                                # a candidate at the last step is a manoeuvre

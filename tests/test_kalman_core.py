@@ -1,0 +1,179 @@
+"""The one compiled Kalman predict/update (mptrack._kalman_core) against the readable NumPy reference
+:func:`mptrack.linear.kalman_step`, and the documented exceptions (the n = 2, m = 1 lane kernels of the
+batch engine, the tracking engine's rank-one update) against the core, on random models with NaN gaps."""
+
+import numpy as np
+import pytest
+
+from mptrack import _kalman_core as core
+from mptrack.batch import kalman_filter as batch_kalman_filter
+from mptrack.batch import steady_state_filter as batch_steady_state_filter
+from mptrack.linear import kalman_step
+from mptrack.models import LinearGaussianModel
+from mptrack.riccati import steady_state
+
+
+def _spd(rng, n, scale=1.0):
+    A = rng.normal(size=(n, n))
+    return scale * (A @ A.T + n * np.eye(n))
+
+
+def _model(rng, n, m):
+    F = np.eye(n) + 0.3 * rng.normal(size=(n, n)) / n
+    return F, rng.normal(size=(m, n)), _spd(rng, n, 0.1), _spd(rng, m)
+
+
+def _gapped(rng, T, m, x_dim=1.0):
+    z = x_dim * rng.normal(size=(T, m))
+    z[rng.random((T, m)) < 0.25] = np.nan
+    z[rng.random(T) < 0.1] = np.nan                       # whole rows missing: predict only
+    return z
+
+
+def _core_run(F, H, Q, R, z, x0, P0, joseph):
+    """The KF driven step by step through the core (predict, update, record)."""
+    T, m = z.shape
+    n = F.shape[0]
+    x, P = x0.copy(), P0.copy()
+    ws = core.workspace(n, m)
+    periods = np.zeros(m)
+    nus, Ss, nis = np.full((T, m), np.nan), np.full((T, m, m), np.nan), np.full(T, np.nan)
+    xs, Ps, lls = np.empty((T, n)), np.empty((T, n, n)), np.empty(T)
+    for k in range(T):
+        core.predict(F, Q, x, P, ws)
+        status, lls[k] = core.update(x, P, H, H @ x, R, z, k, periods, joseph, ws)
+        assert status == core.OK
+        core.record_update(ws, z, k, nus, Ss, nis, k)
+        xs[k], Ps[k] = x, P
+    return xs, Ps, lls, nus, Ss, nis
+
+
+@pytest.mark.parametrize("joseph", [False, True])
+@pytest.mark.parametrize("n, m", [(1, 1), (2, 1), (3, 2), (4, 3)])
+def test_core_equals_kalman_step(n, m, joseph):
+    rng = np.random.default_rng(100 * n + 10 * m + joseph)
+    F, H, Q, R = _model(rng, n, m)
+    z = _gapped(rng, 40, m)
+    x0, P0 = rng.normal(size=n), _spd(rng, n)
+    xs, Ps, lls, nus, Ss, nis = _core_run(F, H, Q, R, z, x0, P0, joseph)
+    x, P = x0, P0
+    for k in range(z.shape[0]):
+        x, P, _, _, ll, nu, S = kalman_step(F, H, Q, R, x, P, z[k], joseph, innovation=True)
+        np.testing.assert_allclose(xs[k], x, rtol=1e-10, atol=1e-12)
+        np.testing.assert_allclose(Ps[k], P, rtol=1e-10, atol=1e-12)
+        np.testing.assert_allclose(lls[k], ll, rtol=1e-10, atol=1e-12)
+        np.testing.assert_allclose(nus[k], nu, rtol=1e-10, atol=1e-12)
+        np.testing.assert_allclose(Ss[k], S, rtol=1e-10, atol=1e-12)
+        ok = ~np.isnan(z[k])
+        if ok.any():
+            v = nu[ok]
+            np.testing.assert_allclose(nis[k], v @ np.linalg.solve(S[np.ix_(ok, ok)], v), rtol=1e-10)
+        else:
+            assert np.isnan(nis[k])
+
+
+def test_unscented_update_of_a_linear_measurement_is_the_kalman_update():
+    """For h(x) = H x the unscented transform is exact: the UKF's gain step with C = P_xz gives the KF update."""
+    rng = np.random.default_rng(7)
+    n, m = 3, 2
+    _, H, _, R = _model(rng, n, m)
+    x, P = rng.normal(size=n), _spd(rng, n)
+    kappa = 1.0
+    c = n + kappa
+    Wm = np.full(2 * n + 1, 0.5 / c)
+    Wm[0] = kappa / c
+    L = np.linalg.cholesky(c * P)
+    X = np.vstack([x, x + L.T, x - L.T])
+    z = np.array([[0.3, np.nan], [0.3, -1.2]])
+    for k in range(2):
+        nus, Ss, nis = np.full((2, m), np.nan), np.full((2, m, m), np.nan), np.full(2, np.nan)
+        status, xu, Pu, ll = core.unscented_update(x, P, X, X @ H.T, Wm, Wm, R, z, k, np.zeros(m), nus, Ss, nis, k)
+        assert status == core.OK
+        xr, Pr, _, _, llr = kalman_step(np.eye(n), H, np.zeros((n, n)), R, x, P, z[k], predict=False)
+        np.testing.assert_allclose(xu, xr, rtol=1e-10, atol=1e-12)
+        np.testing.assert_allclose(Pu, Pr, rtol=1e-10, atol=1e-12)
+        np.testing.assert_allclose(ll, llr, rtol=1e-10)
+
+
+def test_update_reports_a_covariance_without_cholesky_factor():
+    ws = core.workspace(2, 1)
+    x, P = np.zeros(2), np.zeros((2, 2))
+    status, _ = core.update(x, P, np.array([[1.0, 0.0]]), np.zeros(1), np.zeros((1, 1)), np.ones((1, 1)), 0,
+                            np.zeros(1), False, ws)
+    assert status == core.NOT_PD
+
+
+def _model_21(rng):
+    dt = 1.0
+    F = np.array([[1.0, dt], [0.0, 1.0]])
+    g = np.array([[0.5 * dt * dt], [dt]])
+    return LinearGaussianModel(F, np.array([[1.0, 0.0]]), 0.2 * g @ g.T, np.array([[2.0]]))
+
+
+def _states(result):
+    return np.asarray(getattr(result, "x", result))
+
+
+@pytest.mark.parametrize("n, m", [(2, 1), (4, 2)])
+def test_shared_gain_kf_kernels_equal_the_core(n, m):
+    """The batch KF's shared-gain paths -- kf_kernel_21 (n = 2, m = 1: four tracks in registers) and
+    kf_kernel (any n, m) -- which fall back to the core at a track's first gap, against the KF run by the
+    core per track; tracks of different lengths, with NaN gaps (whole rows and single components)."""
+    rng = np.random.default_rng(21 + n)
+    model = _model_21(rng) if n == 2 else LinearGaussianModel(*_model(rng, n, m))
+    B, T = 11, 60
+    z = np.cumsum(rng.normal(size=(B, T, m)), axis=1)
+    z[2, 30:35] = np.nan
+    z[5, 0] = np.nan
+    z[9, rng.random(T) < 0.3] = np.nan
+    z[7, 20:25, 0] = np.nan
+    lengths = np.full(B, T)
+    lengths[3] = 17
+    x0, P0 = rng.normal(size=(B, n)), np.diag(np.linspace(4.0, 1.0, n))
+    out = _states(batch_kalman_filter(model, z, x0, P0, lengths=lengths))
+    for b in range(B):
+        L = lengths[b]
+        xs = _core_run(model.F, model.H, model.Q, model.R, z[b, :L], x0[b], P0, False)[0]
+        np.testing.assert_allclose(out[b, :L], xs, rtol=1e-10, atol=1e-10)
+        assert np.isnan(out[b, L:]).all()
+
+
+def test_lane_ss_kernel_21_equals_the_core_from_the_steady_state():
+    """ss_kernel_21 (x = A x + B z, four tracks in registers) against the KF run by the core from the
+    steady-state covariance, which stays there (complete measurements)."""
+    rng = np.random.default_rng(22)
+    model = _model_21(rng)
+    B, T = 9, 50
+    z = np.cumsum(rng.normal(size=(B, T, 1)), axis=1)
+    x0 = rng.normal(size=(B, 2))
+    ss = steady_state(model, "dare")
+    out = _states(batch_steady_state_filter(model, z, x0, steady=ss))
+    for b in range(B):
+        xs = _core_run(model.F, model.H, model.Q, model.R, z[b], x0[b], ss.P_filt, False)[0]
+        np.testing.assert_allclose(out[b], xs, rtol=1e-9, atol=1e-9)
+
+
+@pytest.mark.parametrize("order", [2, 3])
+def test_tracking_engine_update_equals_the_core(order):
+    """The tracking engine's rank-one update of two axes sharing one covariance (position fix of variance r)
+    against the core on each axis with H = [1, 0, ...]."""
+    from mptrack.tracking._engine import _update
+
+    rng = np.random.default_rng(order)
+    Pp = _spd(rng, order)
+    xp = rng.normal(size=(2, order))
+    r, ze, zn = 0.7, 1.3, -0.4
+    x, P = np.empty((2, order)), np.empty((order, order))
+    e, S = _update(order, xp, Pp, r, ze, zn, x, P)
+    H = np.eye(1, order)
+    nis = 0.0
+    for a, za in enumerate((ze, zn)):
+        xa, Pa = xp[a].copy(), Pp.copy()
+        ws = core.workspace(order, 1)
+        status, _ = core.update(xa, Pa, H, H @ xa, np.array([[r]]), np.array([[za]]), 0, np.zeros(1), False, ws)
+        assert status == core.OK
+        nis += (za - xp[a, 0]) ** 2 / (Pp[0, 0] + r)
+        np.testing.assert_allclose(x[a], xa, rtol=1e-12, atol=1e-12)
+        np.testing.assert_allclose(P, Pa, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(e, nis, rtol=1e-12)
+    np.testing.assert_allclose(S, Pp[0, 0] + r, rtol=1e-14)
