@@ -16,13 +16,21 @@ from typing import Callable
 
 import numpy as np
 
-from .._validation import _to_array, check_allocation, check_covariance, check_int, check_positive, require_finite
+from .._fir import coefficients_unchecked
+from .._steady_input import steady_argument
+from .._validation import (
+    _to_array,
+    check_allocation,
+    check_covariance,
+    check_int,
+    check_positive,
+    require_finite,
+)
 from ..errors import NonFiniteError, ParameterError, ShapeError
 from ..linear import fir_order
-from .._fir import coefficients_unchecked
 from ..models import LinearGaussianModel, require_model
 from ..result import BatchFilterResult
-from ..riccati import SteadyState, steady_state
+from ..riccati import SteadyState
 from . import _kernels as K
 from ._inputs import as_batch, check_finite_out, check_out, launch, prepare_batch
 
@@ -35,16 +43,6 @@ __all__ = [
     "predict",
     "per_axis",
 ]
-
-
-def _steady(model: LinearGaussianModel, steady: SteadyState | None) -> SteadyState:
-    if steady is None:
-        return steady_state(model, "dare")
-    if not isinstance(steady, SteadyState):
-        raise ParameterError(f"steady: expected a SteadyState, got {type(steady).__name__}")
-    if steady.A.shape != (model.n, model.n) or steady.B.shape != (model.n, model.m):
-        raise ParameterError("steady: its A, B do not match the model's dimensions")
-    return steady
 
 
 def _is_21(model: LinearGaussianModel) -> bool:
@@ -77,7 +75,7 @@ def _steady_result(x: np.ndarray, ss: SteadyState, method: str, axes: int) -> Ba
 
 def _steady_state_filter(model, z, x0=None, out=None, *, lengths=None, steady=None, axes=1):
     bi = prepare_batch(model, z, x0, out, lengths, axes=axes)
-    ss = _steady(model, steady)
+    ss = steady_argument(model, steady)
     kernel = K.ss_kernel_21 if _is_21(model) else K.ss_kernel
     launch(kernel, bi.out.size, bi.z, bi.out, np.ascontiguousarray(ss.A), np.ascontiguousarray(ss.B),
            np.ascontiguousarray(model.F), bi.x0, bi.lengths, bi.axes)
@@ -242,7 +240,7 @@ def kalman_filter(model: LinearGaussianModel, z, x0=None, P0=None, out=None, *, 
 
 def _fir_filter(model, z, out=None, *, lengths=None, eps=1e-3, norm=2, M=None, steady=None, axes=1):
     bi = prepare_batch(model, z, None, out, lengths, axes=axes)
-    ss = _steady(model, steady)
+    ss = steady_argument(model, steady)
     eps = check_positive("eps", eps)
     M = fir_order(ss.A, eps, norm) if M is None else check_int("M", M, minimum=1)
     M = min(M, bi.z.shape[1])         # the window never reaches further back than the T steps

@@ -1,6 +1,7 @@
 """Linear filters: Kalman (KF), Lainiotis (LF), their join (JKLF), steady-state (SSKF,
 SSLF, JSSKLF), FIR steady-state, and per-axis running of model B."""
 
+from ..result import FilterResult
 from ._joint import join_results, per_axis
 from ._kalman import kalman_filter, kalman_step
 from ._lainiotis import lainiotis_filter, lainiotis_step
@@ -12,7 +13,6 @@ from ._registry import (
     get_filter,
     get_implementation,
 )
-from ..result import FilterResult
 from ._steady import fir_coefficients, fir_filter, fir_order, steady_state_filter
 
 __all__ = [
@@ -34,7 +34,11 @@ __all__ = [
     "Implementation",
     "get_implementation",
 ]
-from ._irregular import kalman_filter_irregular, rts_smoother_irregular, sampling_intervals
+from ._irregular import (
+    kalman_filter_irregular,
+    rts_smoother_irregular,
+    sampling_intervals,
+)
 from ._prediction import (
     predict_ahead,
     prediction_covariance,

@@ -5,13 +5,21 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._validation import as_array, as_sequence, as_vector, check_covariance, check_record, finite_result, renamed
-from ..errors import ParameterError, ShapeError
 from .._rts import rts_backward_linear
+from .._validation import (
+    as_array,
+    as_sequence,
+    as_vector,
+    check_covariance,
+    check_record,
+    finite_result,
+    renamed,
+)
 from .._van_loan import intervals_unchecked
+from ..errors import ParameterError, ShapeError
 from ..models import ContinuousLinearModel, require_model
-from ._kernels import kf_loop
 from ..result import FilterResult, innovation_arrays
+from ._kernels import kf_loop
 
 __all__ = ["kalman_filter_irregular", "rts_smoother_irregular", "sampling_intervals"]
 

@@ -7,9 +7,9 @@ import numpy as np
 from .._validation import as_array, as_matrix, as_vector, finite_result
 from ..errors import ParameterError, ShapeError
 from ..models import LinearGaussianModel
+from ..result import FilterResult, innovation_arrays
 from ._common import prepare_inputs
 from ._kernels import kf_loop
-from ..result import FilterResult, innovation_arrays
 
 __all__ = ["kalman_filter", "kalman_step"]
 

@@ -7,10 +7,10 @@ import numpy as np
 from .._validation import as_array, as_matrix, as_vector, finite_result
 from ..errors import ParameterError
 from ..models import LinearGaussianModel
+from ..result import FilterResult
 from ..riccati import LainiotisParameters, lainiotis_parameters
 from ._common import prepare_inputs
 from ._kernels import lf_loop
-from ..result import FilterResult
 
 __all__ = ["lainiotis_filter", "lainiotis_step"]
 

@@ -20,14 +20,15 @@ from typing import Literal
 import numpy as np
 
 from .._lyapunov import power_sum_unchecked
+from .._steady_input import steady_argument
 from .._validation import as_array, check_int, check_record, finite_result
 from ..errors import ParameterError, ShapeError, SingularMatrixError
 from ..models import LinearGaussianModel, require_model
+from ..result import FilterResult
 from ..riccati import SteadyState
 from ._common import prepare_inputs
 from ._kernels import ss_loop
-from ..result import FilterResult
-from ._steady import _steady, steady_state_filter
+from ._steady import steady_state_filter
 
 __all__ = [
     "prediction_matrices",
@@ -58,7 +59,7 @@ def prediction_matrices(model: LinearGaussianModel, N: int, *,
     """
     require_model(model)
     N = check_int("N", N, minimum=1)
-    ss = _steady(model, steady, "kalman")
+    ss = steady_argument(model, steady)
     F, K, H = model.F, ss.K, model.H
     FN = np.linalg.matrix_power(F, N)
     A = FN @ (np.eye(model.n) - K @ H)
@@ -123,7 +124,7 @@ def steady_state_predictor(model: LinearGaussianModel, z, N: int = 1, x0=None, *
     if method not in ("recursive", "inverse-free"):
         raise ParameterError(f"method: expected 'recursive' or 'inverse-free', got {method!r}")
     z, x0, _, _ = prepare_inputs(model, z, x0, None)
-    ss = _steady(model, steady, "kalman")
+    ss = steady_argument(model, steady)
     T, n = z.shape[0], model.n
     FN = np.linalg.matrix_power(model.F, N)
     if method == "inverse-free":

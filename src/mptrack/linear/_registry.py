@@ -10,11 +10,11 @@ import numpy as np
 from .._validation import lookup
 from ..errors import UnknownNameError
 from ..models import LinearGaussianModel, assimakis_model_a, assimakis_model_b
+from ..result import FilterResult, mask_missing
 from ..riccati import lainiotis_parameters, steady_state
 from ._joint import join_results, per_axis
 from ._kalman import kalman_filter
 from ._lainiotis import lainiotis_filter
-from ..result import FilterResult, mask_missing
 from ._steady import fir_filter, steady_state_filter
 
 __all__ = ["FilterSpec", "FILTERS", "get_filter", "Implementation", "IMPLEMENTATIONS", "get_implementation"]

@@ -16,13 +16,13 @@ import numpy as np
 import scipy.linalg
 
 from .._rts import rts_backward, rts_backward_linear, smoother_gains
+from .._steady_input import steady_argument
 from .._validation import check_record, finite_result
 from ..errors import ParameterError, ShapeError
 from ..models import LinearGaussianModel, require_model
+from ..result import FilterResult
 from ..riccati import SteadyState
 from ._kernels import ss_loop
-from ..result import FilterResult
-from ._steady import _steady
 
 __all__ = ["rts_smoother", "steady_state_smoother"]
 
@@ -131,7 +131,7 @@ def steady_state_smoother(model: LinearGaussianModel, result: FilterResult, *,
            AIAA Journal, vol. 3, no. 8, pp. 1445–1450, 1965. doi:10.2514/3.3166
     """
     _check(model, result)
-    ss = _steady(model, steady, "kalman")
+    ss = steady_argument(model, steady)
     F, Pe, Pp = model.F, ss.P_filt, ss.P_pred
     C = smoother_gains(Pe @ F.T, Pp)
     T = result.T

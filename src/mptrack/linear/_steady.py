@@ -7,29 +7,22 @@ from typing import Literal
 import numpy as np
 
 from .._fir import coefficients_unchecked
-from .._validation import as_matrix, check_allocation, check_int, check_positive, finite_result
+from .._steady_input import steady_argument
+from .._validation import (
+    as_matrix,
+    check_allocation,
+    check_int,
+    check_positive,
+    finite_result,
+)
 from ..errors import ConvergenceError, NonFiniteError, ParameterError, ShapeError
 from ..models import LinearGaussianModel
-from ..riccati import SteadyState, steady_state
+from ..result import FilterResult
+from ..riccati import SteadyState
 from ._common import prepare_inputs
 from ._kernels import ss_loop
-from ..result import FilterResult
 
 __all__ = ["steady_state_filter", "fir_filter", "fir_order", "fir_coefficients"]
-
-
-def _steady(model, steady, form):
-    if form not in ("kalman", "lainiotis"):
-        raise ParameterError(f"form: expected 'kalman' or 'lainiotis', got {form!r}")
-    if steady is not None:
-        if not isinstance(steady, SteadyState):
-            raise ParameterError(f"steady: expected a SteadyState, got {type(steady).__name__}")
-        if steady.A.shape != (model.n, model.n) or steady.B.shape != (model.n, model.m):
-            raise ParameterError("steady: its A, B do not match the model's dimensions")
-        return steady
-    if form == "kalman":
-        return steady_state(model, "dare")
-    return steady_state(model, "per-step", form="lainiotis")
 
 
 @finite_result("the steady-state filter")
@@ -56,7 +49,7 @@ def steady_state_filter(model: LinearGaussianModel, z, x0=None, P0=None, *,
     if covariance not in ("steady", "exact"):
         raise ParameterError(f"covariance: expected 'steady' or 'exact', got {covariance!r}")
     z, x, P, missing = prepare_inputs(model, z, x0, P0)
-    ss = _steady(model, steady, form)
+    ss = steady_argument(model, steady, form)
     A, B, F = ss.A, ss.B, model.F
     T = z.shape[0]
     xs = np.empty((T, model.n))
@@ -169,7 +162,7 @@ def fir_filter(model: LinearGaussianModel, z, x0=None, P0=None, *, eps: float = 
                              "(use steady_state_filter, which predicts through gaps)")
     if warmup not in ("truncate", "steady-state"):
         raise ParameterError(f"warmup: expected 'truncate' or 'steady-state', got {warmup!r}")
-    ss = _steady(model, steady, "kalman")
+    ss = steady_argument(model, steady)
     M = fir_order(ss.A, eps, norm) if M is None else check_int("M", M, minimum=1)
     T = z.shape[0]
     C = coefficients_unchecked(ss.A, ss.B, min(M, T))   # the window never reaches further back than T
