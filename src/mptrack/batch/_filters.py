@@ -144,8 +144,10 @@ def gain_sequence(model: LinearGaussianModel, steps: int, P0=None) -> GainSequen
     """The Kalman gains K(1..steps) and covariances from P(0/0) = P0 (Assimakis & Adam 2014, eq. 4).
 
     They do not depend on the measurements, so one sequence serves every track
-    that shares the model and the prior covariance.  Same formulas and order
-    of operations as :func:`mptrack.linear.kalman_step`.
+    that shares the model and the prior covariance.  Computed by the compiled
+    Kalman predict/update that the single-track Kalman filter runs (a Cholesky
+    solve with S), so a shared-gain track equals :func:`mptrack.linear.kalman_filter`
+    to rounding.
 
     References
     ----------
@@ -159,30 +161,14 @@ def gain_sequence(model: LinearGaussianModel, steps: int, P0=None) -> GainSequen
     steps = check_int("steps", steps, minimum=1)
     n, m = model.n, model.m
     check_allocation("steps", steps, 8.0 * steps * (n * m + 2 * n * n))
-    P = np.zeros((n, n)) if P0 is None else check_covariance("P0", P0, n)
-    P0 = P.copy()
-    F, H, Q, R = model.F, model.H, model.Q, model.R
+    P0 = np.zeros((n, n)) if P0 is None else np.array(check_covariance("P0", P0, n))   # a copy: P0 is kept
+    c = np.ascontiguousarray
     Ks, Pp, Pf = np.empty((steps, n, m)), np.empty((steps, n, n)), np.empty((steps, n, n))
-    with np.errstate(all="ignore"):  # an overflow is reported by require_finite below
-        _gains(F, H, Q, R, P, Ks, Pp, Pf)
+    # an overflow leaves NaN, reported by require_finite below
+    K.gain_loop(c(model.F), c(model.H), c(model.Q), c(model.R), P0.copy(), Ks, Pp, Pf)
     result = GainSequence(K=Ks, P_pred=Pp, P_filt=Pf, P0=P0)
     require_finite("the Kalman gain sequence", result, model=model, P0=P0)
     return result
-
-
-def _gains(F, H, Q, R, P, Ks, Pp, Pf) -> None:
-    for k in range(Ks.shape[0]):
-        P_pred = F @ P @ F.T + Q
-        PHt = P_pred @ H.T
-        S = H @ PHt + R
-        try:
-            gain = PHt @ np.linalg.inv(S)
-        except np.linalg.LinAlgError:  # S overflowed to inf/NaN: leave NaN, reported as an overflow
-            Ks[k:] = Pp[k:] = Pf[k:] = np.nan
-            return
-        P = P_pred - gain @ PHt.T
-        P = 0.5 * (P + P.T)
-        Ks[k], Pp[k], Pf[k] = gain, P_pred, P
 
 
 def _kalman_filter(model, z, x0=None, P0=None, out=None, *, lengths=None, gains=None, axes=1):

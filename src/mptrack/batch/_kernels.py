@@ -33,7 +33,7 @@ import numpy as np
 from .. import _jit_cache  # noqa: F401 - compiled kernels cache in the user's cache directory
 from .._kalman_core import OK, linear_update, predict, workspace
 
-__all__ = ["ss_kernel", "ss_kernel_21", "kf_kernel", "kf_kernel_21", "fir_kernel", "matvec_kernel"]
+__all__ = ["ss_kernel", "ss_kernel_21", "kf_kernel", "kf_kernel_21", "gain_loop", "fir_kernel", "matvec_kernel"]
 
 _OPTS = dict(parallel=True, cache=True, nogil=True, boundscheck=False)
 LANES = 4   # tracks advanced together by the n = 2, m = 1 kernels
@@ -172,6 +172,31 @@ def own_step(F, H, Q, R, x, P, zb, t, ws, hx, periods):
     if status != OK:
         x[:] = np.nan
         P[:, :] = np.nan
+
+
+@nb.njit(cache=True, nogil=True)
+def gain_loop(F, H, Q, R, P, Ks, Pp, Pf):
+    """The shared gain sequence from P = P(0/0) through the core's predict and update (the same
+    arithmetic as a track's own covariance in :func:`own_step`): K(k), P(k/k-1), P(k/k) for k = 1 ..
+    len(Ks).  From a step whose innovation covariance has no Cholesky factor (an overflow) on, NaN."""
+    n, m = F.shape[0], H.shape[0]
+    ws = workspace(n, m)
+    gain = ws[1][3]
+    x = np.zeros(n)          # a zero state and measurement: the update changes only P
+    z = np.zeros((1, m))
+    hx = np.empty(m)
+    periods = np.zeros(m)
+    for k in range(Ks.shape[0]):
+        predict(F, Q, x, P, ws)
+        Pp[k] = P
+        status, _ = linear_update(x, P, H, R, z, 0, periods, False, ws, hx)
+        if status != OK:
+            Ks[k:] = np.nan
+            Pp[k:] = np.nan
+            Pf[k:] = np.nan
+            return
+        Ks[k] = gain
+        Pf[k] = P
 
 
 @nb.njit(**_OPTS)

@@ -21,16 +21,23 @@ import hashlib
 import json
 import multiprocessing
 import os
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from collections.abc import Sequence
 from typing import Any, Callable, Iterable, Literal
 
 import numpy as np
 import pandas as pd
 
 from .._io import atomic_path, write_json
-from .._validation import _to_array, check_allocation, check_covariance, check_int, check_path, lookup
+from .._validation import (
+    _to_array,
+    check_allocation,
+    check_covariance,
+    check_int,
+    check_path,
+    lookup,
+)
 from ..errors import DataError, DTypeError, ParameterError, ShapeError
 from ..models import LinearGaussianModel, require_model
 from ..result import BatchFilterResult
