@@ -2,8 +2,11 @@
 
 Log-linear models (L = A + B log10 d: free space, WI line of sight, Hata,
 COST-231 Hata) are inverted in closed form; COST-231 Walfisch–Ikegami NLOS
-(piecewise in d through k_a and the L0 floor, but strictly increasing) by a
-bracketed root (scipy.optimize.brentq) over the model's distance range.
+(piecewise in d through k_a and the L0 floor, but strictly increasing) by
+bisection in log-distance over the model's distance range, all values at once:
+about 50 calls of the model on the whole array, whatever its size (a bracketed
+scalar root per value, as scipy.optimize.brentq does, called the validated model
+~15 times per value: 6 ms per fix, 32 s for a 5,400-row cellular log).
 """
 
 from __future__ import annotations
@@ -13,7 +16,6 @@ from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
-from scipy.optimize import brentq
 
 from .._validation import as_array, broadcast_shape, lookup, require_finite
 from ..errors import ParameterError
@@ -115,8 +117,7 @@ def _invert(loss: np.ndarray, model: str, on_invalid: str, label: str, params: d
             raise ParameterError(
                 f"{label}: the loss {flat[outside][0]:.2f} dB is not explained by {model} for {blo:g}..{bhi:g} km "
                 f"(it covers {llo:.2f}..{lhi:.2f} dB)")
-        d = np.array([brentq(lambda x, L=L: float(fn(x)) - L, blo, bhi, xtol=1e-12, rtol=1e-13)
-                      for L in flat]).reshape(loss.shape)
+        d = _bisect_log10(fn, flat, blo, bhi).reshape(loss.shape)
     lo_tol, hi_tol = lo * (1 - 1e-9), hi * (1 + 1e-9)  # round-off at the range edges
     if on_invalid == "raise" and np.any((d < lo_tol) | (d > hi_tol)):
         bad = np.asarray(d)[(d < lo_tol) | (d > hi_tol)].flat[0]
@@ -127,6 +128,23 @@ def _invert(loss: np.ndarray, model: str, on_invalid: str, label: str, params: d
     check_range(model, "distance_km", d, lo_tol, hi_tol, "km", on_invalid)
     d = np.asarray(d, dtype=float)
     return d[()] if d.ndim == 0 else d
+
+
+#: Bisection stops when the bracket of log10(d) is this narrow: a relative error of d below 2.3e-14.
+_LOG10_TOL = 1e-14
+
+
+def _bisect_log10(fn: Callable, loss: np.ndarray, lo: float, hi: float) -> np.ndarray:
+    """The d in [lo, hi] with fn(d) = loss for each value of ``loss`` (fn strictly increasing and
+    vectorised, fn(lo) <= loss <= fn(hi)): bisection on log10(d) for all values together."""
+    a = np.full(loss.shape, np.log10(lo))
+    b = np.full(loss.shape, np.log10(hi))
+    while loss.size and float(np.max(b - a)) > _LOG10_TOL:
+        mid = 0.5 * (a + b)
+        above = np.asarray(fn(10.0 ** mid)) > loss
+        b = np.where(above, mid, b)
+        a = np.where(above, a, mid)
+    return 10.0 ** (0.5 * (a + b))
 
 
 def distance_from_rss(rss_dbm, tx_power_dbm, model: str = "cost231-wi-nlos", *, tx_gain_dbi=0.0,
