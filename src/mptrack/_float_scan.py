@@ -4,9 +4,9 @@ NumPy's ``np.isinf(a).any()`` builds a boolean temporary and ``min``/``max`` rea
 array twice, on one thread; for the 10^7-value arrays of the batch engine such checks
 cost more than the filter.  Here the floats are read as unsigned integers: a value is
 infinite or NaN exactly when its exponent field is all ones, and infinite when, in
-addition, its mantissa is zero.  An integer test with an OR-reduction vectorises
-(a float test with an early exit does not), so a scan runs at memory speed, split
-over numba's threads by segments.
+addition, its mantissa is zero.  The matches are counted with integer adds, which
+vectorise (a float test with an early exit, or a boolean OR, does not), so a scan
+runs at memory speed, split over numba's threads by segments.
 """
 
 from __future__ import annotations
