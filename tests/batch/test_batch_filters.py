@@ -1,5 +1,7 @@
 """Batch engine ≡ the reference filters of mptrack.linear, track by track."""
 
+import re
+
 import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
@@ -201,6 +203,62 @@ def test_float32_input_is_checked_in_its_dtype_without_a_float64_copy():
     z[3, 4, 0] = -np.inf
     with pytest.raises(NonFiniteError, match=r"^z: contains infinite value .*inf.* at index \(3, 4, 0\)"):
         batch.steady_state_filter(assimakis_model_b(), z)
+
+
+@pytest.mark.parametrize("kind", ["steady-state", "kalman"])
+@pytest.mark.parametrize("axes", [1, 2])
+@pytest.mark.parametrize("dtype", [np.float64, np.float32])
+def test_an_infinity_anywhere_in_z_is_refused_by_name(kind, axes, dtype):
+    """The kernels check z while they read it (no pass over z before the filter): an infinity among a
+    track's steps, beside a NaN in the same row (a row that only predicts, so the value is never used)
+    or in the padding after the track's length gives the error naming z and the index, as before;
+    ``out`` is then left unspecified, and a finite batch after it filters as usual."""
+    model = assimakis_model_b() if axes == 1 else assimakis_model_a(2)   # n, m = 2, 1 (lane kernels) or 4, 2
+    run = batch.steady_state_filter if kind == "steady-state" else batch.kalman_filter
+    rng = np.random.default_rng(31)
+    z = rng.standard_normal((9, 40, model.m)).astype(dtype)
+    lengths = np.array([40, 40, 40, 40, 40, 25, 40, 40, 40])
+    want = run(model, z, lengths=lengths).x
+    places = [(6, 17, 0), (5, 33, model.m - 1)]              # inside a track; after its length
+    if model.m > 1:
+        places.append((2, 8, 1))                             # beside a NaN: the row only predicts
+        z[2, 8, 0] = np.nan
+    for index in places:
+        bad = z.copy()
+        bad[index] = -np.inf
+        pattern = r"^z: contains infinite value -inf at index " + re.escape(str(index))
+        with pytest.raises(NonFiniteError, match=pattern):
+            run(model, bad, lengths=lengths, out=np.empty(want.shape, dtype))
+    np.testing.assert_array_equal(run(model, z[:, :, :], lengths=lengths).x[[0, 1, 3]], want[[0, 1, 3]])
+
+
+def test_the_float32_overflow_flag_misses_no_overflow():
+    """The kernels find a float32 store that overflowed without reading it back: (OUT_SCALE * x) * 0.0 is
+    NaN for every float64 state that float32 stores as +-inf (|x| >= (2 - 2**-24) 2**127) and, of the
+    finite ones, only for |x| >= 2**127 (a flag makes the exact scan look; it is not the verdict)."""
+    from mptrack.batch._kernels import OUT_SCALE
+
+    edge = (2 - 2.0 ** -24) * 2.0 ** 127                     # the first value float32 rounds to inf
+    xs = np.array([np.finfo(np.float32).max, np.nextafter(edge, 0), edge, np.nextafter(edge, np.inf), 1e39,
+                   np.inf, np.nan, 1e300, 2.0 ** 127, np.nextafter(2.0 ** 127, 0), 1e38, 1.0, 0.0])
+    xs = np.concatenate([xs, -xs])
+    with np.errstate(over="ignore", invalid="ignore"):
+        flagged = ~((OUT_SCALE[np.dtype(np.float32)] * xs) * 0.0 == 0.0)
+        stored = ~np.isfinite(xs.astype(np.float32))
+        assert stored.sum() == 12 and (flagged[stored]).all()
+        assert (np.abs(xs[flagged & ~stored]) >= 2.0 ** 127).all() and (flagged & ~stored).sum() == 6
+        assert (~((OUT_SCALE[np.dtype(np.float64)] * xs) * 0.0 == 0.0) == ~np.isfinite(xs)).all()
+
+
+@pytest.mark.parametrize("kind", ["steady-state", "kalman"])
+def test_a_float32_state_flagged_but_finite_is_not_an_error(kind):
+    """States between 2**127 and float32's largest value are flagged by the kernel (see above) but stored
+    finite: the exact scan then finds nothing and the call returns them."""
+    model = LinearGaussianModel(0.5 * np.eye(2), [[1.0, 0.0]], 1e6 * np.eye(2), [[1.0]])   # gain ~ 1: x ~ z
+    z = np.full((5, 8, 1), 3.0e38, np.float32)
+    got = batch.steady_state_filter(model, z).x if kind == "steady-state" else batch.kalman_filter(
+        model, z, x0=[3.0e38, 0.0]).x
+    assert got.dtype == np.float32 and np.isfinite(got).all() and (np.abs(got[..., 0]) > 2.0 ** 127).all()
 
 
 def test_bad_shapes_and_dtypes_raise_named_errors():

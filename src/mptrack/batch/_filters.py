@@ -32,7 +32,7 @@ from ..models import LinearGaussianModel, require_model
 from ..result import BatchFilterResult
 from ..riccati import SteadyState
 from . import _kernels as K
-from ._inputs import as_batch, check_finite_out, check_out, launch, prepare_batch
+from ._inputs import as_batch, check_finite_out, check_flagged, check_out, launch, prepare_batch
 
 __all__ = [
     "GainSequence",
@@ -74,12 +74,12 @@ def _steady_result(x: np.ndarray, ss: SteadyState, method: str, axes: int) -> Ba
 
 
 def _steady_state_filter(model, z, x0=None, out=None, *, lengths=None, steady=None, axes=1):
-    bi = prepare_batch(model, z, x0, out, lengths, axes=axes)
+    bi = prepare_batch(model, z, x0, out, lengths, axes=axes, scan_z=False)
     ss = steady_argument(model, steady)
     kernel = K.ss_kernel_21 if _is_21(model) else K.ss_kernel
-    launch(kernel, bi.out.size, bi.z, bi.out, np.ascontiguousarray(ss.A), np.ascontiguousarray(ss.B),
-           np.ascontiguousarray(model.F), bi.x0, bi.lengths, bi.axes)
-    x = check_finite_out(bi, "the steady-state filter", model=model, z=bi.z, x0=bi.x0)
+    flagged = launch(kernel, bi.out.size, bi.z, bi.out, np.ascontiguousarray(ss.A), np.ascontiguousarray(ss.B),
+                     np.ascontiguousarray(model.F), bi.x0, bi.lengths, bi.axes, K.OUT_SCALE[bi.out.dtype])
+    x = check_flagged(bi, flagged, "the steady-state filter", model=model, z=bi.z, x0=bi.x0)
     return _steady_result(x, ss, "SSKF" if ss.form == "kalman" else "SSLF", bi.axes)
 
 
@@ -172,7 +172,7 @@ def gain_sequence(model: LinearGaussianModel, steps: int, P0=None) -> GainSequen
 
 
 def _kalman_filter(model, z, x0=None, P0=None, out=None, *, lengths=None, gains=None, axes=1):
-    bi = prepare_batch(model, z, x0, out, lengths, axes=axes)
+    bi = prepare_batch(model, z, x0, out, lengths, axes=axes, scan_z=False)
     T = bi.z.shape[1]
     if gains is None:
         gains = gain_sequence(model, T, P0)
@@ -185,9 +185,10 @@ def _kalman_filter(model, z, x0=None, P0=None, out=None, *, lengths=None, gains=
         raise ParameterError("P0: give P0 or gains (which already fix P0), not both")
     kernel = K.kf_kernel_21 if _is_21(model) else K.kf_kernel
     c = np.ascontiguousarray
-    launch(kernel, bi.out.size, bi.z, bi.out, c(model.F), c(model.H), c(model.Q), c(model.R), c(gains.K),
-           c(gains.P_filt), c(gains.P0), bi.x0, bi.lengths, bi.axes)
-    x = check_finite_out(bi, "the Kalman filter", model=model, z=bi.z, x0=bi.x0, P0=gains.P0)
+    flagged = launch(kernel, bi.out.size, bi.z, bi.out, c(model.F), c(model.H), c(model.Q), c(model.R),
+                     c(gains.K), c(gains.P_filt), c(gains.P0), bi.x0, bi.lengths, bi.axes,
+                     K.OUT_SCALE[bi.out.dtype])
+    x = check_flagged(bi, flagged, "the Kalman filter", model=model, z=bi.z, x0=bi.x0, P0=gains.P0)
     return BatchFilterResult(x=x, P=None, method="KF", inputs={"gains": gains})
 
 

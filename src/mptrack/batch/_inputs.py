@@ -19,7 +19,7 @@ from .._validation import (
 from ..errors import DTypeError, ParameterError, ShapeError
 from ..models import LinearGaussianModel
 
-__all__ = ["BatchInputs", "prepare_batch", "as_batch", "check_out", "launch", "check_finite_out"]
+__all__ = ["BatchInputs", "prepare_batch", "as_batch", "check_out", "launch", "check_finite_out", "check_flagged"]
 
 _FLOATS = (np.dtype(np.float64), np.dtype(np.float32))
 
@@ -32,9 +32,10 @@ class BatchInputs:
     axes: int
 
 
-def as_batch(name: str, value, width: int) -> np.ndarray:
+def as_batch(name: str, value, width: int, *, scan: bool = True) -> np.ndarray:
     """A (B, T, width) float32/float64 C-contiguous array; other real dtypes become float64.
-    NaN (missing) is allowed, infinity is not."""
+    NaN (missing) is allowed, infinity is not: refused here, or with ``scan=False`` by the caller's
+    kernel, which flags it while it reads the array (then :func:`check_flagged`)."""
     arr = _to_array(name, value)
     if arr.dtype == object or arr.dtype.kind not in "biuf":
         raise DTypeError(f"{name}: expected real numbers (float64 or float32), got dtype {arr.dtype}")
@@ -44,7 +45,8 @@ def as_batch(name: str, value, width: int) -> np.ndarray:
         raise ShapeError(f"{name}: expected at least one track and one time step, got shape {arr.shape}")
     if arr.dtype not in _FLOATS:
         arr = arr.astype(np.float64)
-    check_values(name, arr, allow_nan=True)  # refuses +-Inf: two reductions in z's dtype, no copy
+    if scan:
+        check_values(name, arr, allow_nan=True)  # refuses +-Inf: in z's dtype, no copy
     return np.ascontiguousarray(arr)
 
 
@@ -59,6 +61,17 @@ def check_finite_out(bi: "BatchInputs", what: str, **inputs) -> np.ndarray:
     if any_nonfinite(out, starts, bi.lengths * out.shape[2]):
         raise _overflow(what, inputs, None)
     return out
+
+
+def check_flagged(bi: "BatchInputs", flagged: int, what: str, **inputs) -> np.ndarray:
+    """The output of a kernel that checks as it streams (:mod:`mptrack.batch._kernels`): ``flagged``
+    tracks had an infinite measurement or a non-finite state.  None: nothing more is read.  Some:
+    the shared checks find and name it -- an infinity in z (NonFiniteError naming z), else the
+    filter's overflow (:func:`check_finite_out`)."""
+    if flagged:
+        check_values("z", bi.z, allow_nan=True)
+        check_finite_out(bi, what, **inputs)
+    return bi.out
 
 
 def check_out(out, shape: tuple, dtype, source: np.ndarray | None) -> np.ndarray:
@@ -77,7 +90,7 @@ def check_out(out, shape: tuple, dtype, source: np.ndarray | None) -> np.ndarray
 
 
 def prepare_batch(model, z, x0, out, lengths, *, axes: int = 1,
-                  model_type: type = LinearGaussianModel) -> BatchInputs:
+                  model_type: type = LinearGaussianModel, scan_z: bool = True) -> BatchInputs:
     """Check and normalise the arguments every batch filter takes.
 
     z        (B, T, axes * model.m) measurements; NaN marks a missing value
@@ -85,11 +98,12 @@ def prepare_batch(model, z, x0, out, lengths, *, axes: int = 1,
     out      None (allocated) or a C-contiguous (B, T, axes * n) array of z's dtype
     lengths  None (all T) or (B,) integers in [0, T]: track b uses z[b, :lengths[b]]
              and gets NaN after it
+    scan_z   False for a kernel that flags an infinite z itself (then :func:`check_flagged`)
     """
     if not isinstance(model, model_type):
         raise ParameterError(f"model: expected a {model_type.__name__}, got {type(model).__name__}")
     n, m = axes * model.n, axes * model.m
-    z = as_batch("z", z, m)
+    z = as_batch("z", z, m, scan=scan_z)
     B, T = z.shape[:2]
     if x0 is not None:
         x0 = _to_array("x0", x0)

@@ -20,6 +20,16 @@ per lane (tests/test_kalman_core.py checks them against the core).
 
 The state is carried in float64 whatever the storage dtype; float32 only
 halves the bytes streamed.  Steps ``t >= lengths[b]`` are written as NaN.
+
+The filters' kernels also do the finiteness checks of their data while they stream it (a separate
+pass over z and one over the output cost as much as the filter, docs/design.md "Checks fused into
+the batch kernels"): each returns the number of tracks *flagged* -- an infinite measurement anywhere
+in the track's row of z (padding included), or a non-finite state written inside its length.  A
+track's flag is a float accumulating ``(out_scale * x) * 0.0`` over the states it stores: 0.0 when
+all are finite as stored.  ``out_scale`` (:data:`OUT_SCALE`) is 1 for float64 storage and 2**897 for
+float32, which takes every state that float32 stores as inf (|x| >= (2 - 2**-24) 2**127) beyond
+float64's range, and with them the finite ones from 2**127 up: a flag is a reason to look, not a
+verdict.  A flagged call is then checked again by the shared checks, which raise the named error.
 The model matrices are always float64, so each kernel compiles once per
 storage dtype (two signatures in total), and ``cache=True`` keeps the
 machine code between processes.
@@ -37,14 +47,32 @@ __all__ = ["ss_kernel", "ss_kernel_21", "kf_kernel", "kf_kernel_21", "gain_loop"
 
 _OPTS = dict(parallel=True, cache=True, nogil=True, boundscheck=False)
 LANES = 4   # tracks advanced together by the n = 2, m = 1 kernels
+#: The ``out_scale`` argument of the filters' kernels by storage dtype (see the module's docstring).
+OUT_SCALE = {np.dtype(np.float64): 1.0, np.dtype(np.float32): 2.0 ** 897}
+
+
+@nb.njit(cache=True, nogil=True)
+def _pad(z, out, b, zo, xo, m, n, L):
+    """Steps L .. T-1 of track b (columns zo.. of z, xo.. of out): out NaN.  Returns the track's flag
+    for them: 0.0, or NaN when z holds an infinity there (z is refused with one anywhere)."""
+    flag = 0.0
+    for t in range(L, z.shape[1]):
+        for c in range(m):
+            if np.isinf(z[b, t, zo + c]):
+                flag = np.nan
+        for r in range(n):
+            out[b, t, xo + r] = np.nan
+    return flag
 
 
 @nb.njit(**_OPTS)
-def ss_kernel(z, out, A, Bm, F, x0, lengths, axes):
-    """x(k/k) = A x(k-1/k-1) + B z(k) (Assimakis & Adam 2014, eq. 9); a row with NaN predicts, x = F x."""
-    nb_, T = z.shape[0], z.shape[1]
+def ss_kernel(z, out, A, Bm, F, x0, lengths, axes, out_scale):
+    """x(k/k) = A x(k-1/k-1) + B z(k) (Assimakis & Adam 2014, eq. 9); a row with NaN predicts, x = F x.
+    Returns the number of flagged tracks."""
+    nb_ = z.shape[0]
     n = A.shape[0]
     m = Bm.shape[1]
+    flagged = 0
     for i in nb.prange(nb_ * axes):
         b = i // axes
         zo = (i - b * axes) * m
@@ -54,12 +82,16 @@ def ss_kernel(z, out, A, Bm, F, x0, lengths, axes):
         for r in range(n):
             x[r] = x0[b, xo + r]
         L = lengths[b]
+        flag = 0.0
         for t in range(L):
             miss = False
             for c in range(m):
                 if np.isnan(z[b, t, zo + c]):
                     miss = True
             if miss:
+                for c in range(m):          # an infinity beside a NaN is not used, but still refused
+                    if np.isinf(z[b, t, zo + c]):
+                        flag = np.nan
                 for r in range(n):
                     s = 0.0
                     for c in range(n):
@@ -77,9 +109,11 @@ def ss_kernel(z, out, A, Bm, F, x0, lengths, axes):
             for r in range(n):
                 x[r] = xn[r]
                 out[b, t, xo + r] = xn[r]
-        for t in range(L, T):
-            for r in range(n):
-                out[b, t, xo + r] = np.nan
+                flag += (out_scale * x[r]) * 0.0
+        flag += _pad(z, out, b, zo, xo, m, n, L)
+        if flag != 0.0:
+            flagged += 1
+    return flagged
 
 
 @nb.njit(cache=True, nogil=True)
@@ -99,11 +133,13 @@ def _lane_priors(x0, b1, b2, b3, b4, c1, c2, c3, c4):
 
 
 @nb.njit(cache=True, nogil=True)
-def _ss21_track(z, out, b, a, t0, p, v, L, A, Bm, F):
-    """Track (b, axis a) of :func:`ss_kernel_21` from time index t0 with state (p, v)."""
+def _ss21_track(z, out, b, a, t0, p, v, L, A, Bm, F, out_scale):
+    """Track (b, axis a) of :func:`ss_kernel_21` from time index t0 with state (p, v); returns its flag
+    for those steps."""
     a00, a01, a10, a11 = A[0, 0], A[0, 1], A[1, 0], A[1, 1]
     b0, b1 = Bm[0, 0], Bm[1, 0]
     o = 2 * a
+    flag = 0.0
     for t in range(t0, L):
         zz = z[b, t, a]
         if np.isnan(zz):
@@ -112,14 +148,14 @@ def _ss21_track(z, out, b, a, t0, p, v, L, A, Bm, F):
             p, v = (a00 * p + a01 * v) + b0 * zz, (a10 * p + a11 * v) + b1 * zz
         out[b, t, o] = p
         out[b, t, o + 1] = v
-    for t in range(L, z.shape[1]):
-        out[b, t, o] = np.nan
-        out[b, t, o + 1] = np.nan
+        flag += (out_scale * p + out_scale * v) * 0.0
+    return flag + _pad(z, out, b, a, o, 1, 2, L)
 
 
 @nb.njit(**_OPTS)
-def ss_kernel_21(z, out, A, Bm, F, x0, lengths, axes):
-    """:func:`ss_kernel` written out for n = 2, m = 1 (model B per axis).
+def ss_kernel_21(z, out, A, Bm, F, x0, lengths, axes, out_scale):
+    """:func:`ss_kernel` written out for n = 2, m = 1 (model B per axis); returns the number of
+    flagged tracks.
 
     Four tracks advance together (``LANES``): their states live in registers
     and their four independent recursions hide the floating-point latency, so
@@ -131,16 +167,20 @@ def ss_kernel_21(z, out, A, Bm, F, x0, lengths, axes):
     a00, a01, a10, a11 = A[0, 0], A[0, 1], A[1, 0], A[1, 1]
     b0, b1 = Bm[0, 0], Bm[1, 0]
     ngroups = (ntr + LANES - 1) // LANES
+    flagged = 0
     for g in nb.prange(ngroups):
         i0 = g * LANES
         if i0 + LANES > ntr:            # the last, incomplete group: one track at a time
             for i in range(i0, ntr):
                 b = i // axes
                 a = i - b * axes
-                _ss21_track(z, out, b, a, 0, x0[b, 2 * a], x0[b, 2 * a + 1], lengths[b], A, Bm, F)
+                if _ss21_track(z, out, b, a, 0, x0[b, 2 * a], x0[b, 2 * a + 1], lengths[b], A, Bm, F,
+                               out_scale) != 0.0:
+                    flagged += 1
             continue
         b1_, b2_, b3_, b4_, c1, c2, c3, c4, Lmin = _lanes(i0, axes, lengths)
         p1, v1, p2, v2, p3, v3, p4, v4 = _lane_priors(x0, b1_, b2_, b3_, b4_, c1, c2, c3, c4)
+        f1 = f2 = f3 = f4 = 0.0
         t = 0
         while t < Lmin:
             z1, z2, z3, z4 = z[b1_, t, c1], z[b2_, t, c2], z[b3_, t, c3], z[b4_, t, c4]
@@ -154,11 +194,23 @@ def ss_kernel_21(z, out, A, Bm, F, x0, lengths, axes):
             out[b2_, t, 2 * c2], out[b2_, t, 2 * c2 + 1] = p2, v2
             out[b3_, t, 2 * c3], out[b3_, t, 2 * c3 + 1] = p3, v3
             out[b4_, t, 2 * c4], out[b4_, t, 2 * c4 + 1] = p4, v4
+            f1 += (out_scale * p1 + out_scale * v1) * 0.0
+            f2 += (out_scale * p2 + out_scale * v2) * 0.0
+            f3 += (out_scale * p3 + out_scale * v3) * 0.0
+            f4 += (out_scale * p4 + out_scale * v4) * 0.0
             t += 1
-        _ss21_track(z, out, b1_, c1, t, p1, v1, lengths[b1_], A, Bm, F)
-        _ss21_track(z, out, b2_, c2, t, p2, v2, lengths[b2_], A, Bm, F)
-        _ss21_track(z, out, b3_, c3, t, p3, v3, lengths[b3_], A, Bm, F)
-        _ss21_track(z, out, b4_, c4, t, p4, v4, lengths[b4_], A, Bm, F)
+        f1 += _ss21_track(z, out, b1_, c1, t, p1, v1, lengths[b1_], A, Bm, F, out_scale)
+        f2 += _ss21_track(z, out, b2_, c2, t, p2, v2, lengths[b2_], A, Bm, F, out_scale)
+        f3 += _ss21_track(z, out, b3_, c3, t, p3, v3, lengths[b3_], A, Bm, F, out_scale)
+        f4 += _ss21_track(z, out, b4_, c4, t, p4, v4, lengths[b4_], A, Bm, F, out_scale)
+        flagged += _count_flags(f1, f2, f3, f4)
+    return flagged
+
+
+@nb.njit(cache=True, nogil=True)
+def _count_flags(f1, f2, f3, f4):
+    """How many of four lanes' flags are set (not 0.0)."""
+    return int(f1 != 0.0) + int(f2 != 0.0) + int(f3 != 0.0) + int(f4 != 0.0)
 
 
 @nb.njit(cache=True, nogil=True)
@@ -200,17 +252,19 @@ def gain_loop(F, H, Q, R, P, Ks, Pp, Pf):
 
 
 @nb.njit(**_OPTS)
-def kf_kernel(z, out, F, H, Q, R, K, Pf, P0, x0, lengths, axes):
+def kf_kernel(z, out, F, H, Q, R, K, Pf, P0, x0, lengths, axes, out_scale):
     """Kalman filter with the shared gain sequence K[t] (Assimakis & Adam 2014, eq. 4).
 
     While a track's measurements are complete it uses the precomputed gains:
     x(k/k-1) = F x(k-1/k-1), x(k/k) = x(k/k-1) + K(k) [z(k) - H x(k/k-1)].
     At its first missing component it leaves the shared sequence: it takes
     P(k-1/k-1) = Pf[k-1] (or P0) and runs its own Riccati recursion from there.
+    Returns the number of flagged tracks.
     """
-    nb_, T = z.shape[0], z.shape[1]
+    nb_ = z.shape[0]
     n = F.shape[0]
     m = H.shape[0]
+    flagged = 0
     for i in nb.prange(nb_ * axes):
         b = i // axes
         zo = (i - b * axes) * m
@@ -227,6 +281,7 @@ def kf_kernel(z, out, F, H, Q, R, K, Pf, P0, x0, lengths, axes):
         for r in range(n):
             x[r] = x0[b, xo + r]
         L = lengths[b]
+        flag = 0.0
         for t in range(L):
             if shared:
                 miss = False
@@ -258,17 +313,21 @@ def kf_kernel(z, out, F, H, Q, R, K, Pf, P0, x0, lengths, axes):
                 own_step(F, H, Q, R, x, P, zb, t, ws, hx, periods)
             for r in range(n):
                 out[b, t, xo + r] = x[r]
-        for t in range(L, T):
-            for r in range(n):
-                out[b, t, xo + r] = np.nan
+                flag += (out_scale * x[r]) * 0.0
+        flag += _pad(z, out, b, zo, xo, m, n, L)
+        if flag != 0.0:
+            flagged += 1
+    return flagged
 
 
 @nb.njit(cache=True, nogil=True)
-def _kf21_track(z, out, b, a, t0, p, v, L, F, H, Q, R, K, Pf, P0):
-    """Track (b, axis a) of :func:`kf_kernel_21` from time index t0 with state (p, v)."""
+def _kf21_track(z, out, b, a, t0, p, v, L, F, H, Q, R, K, Pf, P0, out_scale):
+    """Track (b, axis a) of :func:`kf_kernel_21` from time index t0 with state (p, v); returns its flag
+    for those steps."""
     f00, f01, f10, f11 = F[0, 0], F[0, 1], F[1, 0], F[1, 1]
     h0, h1 = H[0, 0], H[0, 1]
     o = 2 * a
+    flag = 0.0
     t1 = L
     for t in range(t0, L):
         zz = z[b, t, a]
@@ -282,6 +341,7 @@ def _kf21_track(z, out, b, a, t0, p, v, L, F, H, Q, R, K, Pf, P0):
         v = vp + K[t, 1, 0] * e
         out[b, t, o] = p
         out[b, t, o + 1] = v
+        flag += (out_scale * p + out_scale * v) * 0.0
     if t1 < L:                          # first gap: leave the shared gains
         x = np.empty(2)
         x[0] = p
@@ -295,30 +355,33 @@ def _kf21_track(z, out, b, a, t0, p, v, L, F, H, Q, R, K, Pf, P0):
             own_step(F, H, Q, R, x, P, zb, t, ws, hx, periods)
             out[b, t, o] = x[0]
             out[b, t, o + 1] = x[1]
-    for t in range(L, z.shape[1]):
-        out[b, t, o] = np.nan
-        out[b, t, o + 1] = np.nan
+            flag += (out_scale * x[0] + out_scale * x[1]) * 0.0
+    return flag + _pad(z, out, b, a, o, 1, 2, L)
 
 
 @nb.njit(**_OPTS)
-def kf_kernel_21(z, out, F, H, Q, R, K, Pf, P0, x0, lengths, axes):
-    """:func:`kf_kernel` written out for n = 2, m = 1, four tracks at a time (see :func:`ss_kernel_21`)."""
+def kf_kernel_21(z, out, F, H, Q, R, K, Pf, P0, x0, lengths, axes, out_scale):
+    """:func:`kf_kernel` written out for n = 2, m = 1, four tracks at a time (see :func:`ss_kernel_21`);
+    returns the number of flagged tracks."""
     nb_ = z.shape[0]
     ntr = nb_ * axes
     f00, f01, f10, f11 = F[0, 0], F[0, 1], F[1, 0], F[1, 1]
     h0, h1 = H[0, 0], H[0, 1]
     ngroups = (ntr + LANES - 1) // LANES
+    flagged = 0
     for g in nb.prange(ngroups):
         i0 = g * LANES
         if i0 + LANES > ntr:
             for i in range(i0, ntr):
                 b = i // axes
                 a = i - b * axes
-                _kf21_track(z, out, b, a, 0, x0[b, 2 * a], x0[b, 2 * a + 1], lengths[b],
-                            F, H, Q, R, K, Pf, P0)
+                if _kf21_track(z, out, b, a, 0, x0[b, 2 * a], x0[b, 2 * a + 1], lengths[b],
+                               F, H, Q, R, K, Pf, P0, out_scale) != 0.0:
+                    flagged += 1
             continue
         b1_, b2_, b3_, b4_, c1, c2, c3, c4, Lmin = _lanes(i0, axes, lengths)
         p1, v1, p2, v2, p3, v3, p4, v4 = _lane_priors(x0, b1_, b2_, b3_, b4_, c1, c2, c3, c4)
+        g1 = g2 = g3 = g4 = 0.0
         t = 0
         while t < Lmin:
             z1, z2, z3, z4 = z[b1_, t, c1], z[b2_, t, c2], z[b3_, t, c3], z[b4_, t, c4]
@@ -341,11 +404,17 @@ def kf_kernel_21(z, out, F, H, Q, R, K, Pf, P0, x0, lengths, axes):
             out[b2_, t, 2 * c2], out[b2_, t, 2 * c2 + 1] = p2, v2
             out[b3_, t, 2 * c3], out[b3_, t, 2 * c3 + 1] = p3, v3
             out[b4_, t, 2 * c4], out[b4_, t, 2 * c4 + 1] = p4, v4
+            g1 += (out_scale * p1 + out_scale * v1) * 0.0
+            g2 += (out_scale * p2 + out_scale * v2) * 0.0
+            g3 += (out_scale * p3 + out_scale * v3) * 0.0
+            g4 += (out_scale * p4 + out_scale * v4) * 0.0
             t += 1
-        _kf21_track(z, out, b1_, c1, t, p1, v1, lengths[b1_], F, H, Q, R, K, Pf, P0)
-        _kf21_track(z, out, b2_, c2, t, p2, v2, lengths[b2_], F, H, Q, R, K, Pf, P0)
-        _kf21_track(z, out, b3_, c3, t, p3, v3, lengths[b3_], F, H, Q, R, K, Pf, P0)
-        _kf21_track(z, out, b4_, c4, t, p4, v4, lengths[b4_], F, H, Q, R, K, Pf, P0)
+        g1 += _kf21_track(z, out, b1_, c1, t, p1, v1, lengths[b1_], F, H, Q, R, K, Pf, P0, out_scale)
+        g2 += _kf21_track(z, out, b2_, c2, t, p2, v2, lengths[b2_], F, H, Q, R, K, Pf, P0, out_scale)
+        g3 += _kf21_track(z, out, b3_, c3, t, p3, v3, lengths[b3_], F, H, Q, R, K, Pf, P0, out_scale)
+        g4 += _kf21_track(z, out, b4_, c4, t, p4, v4, lengths[b4_], F, H, Q, R, K, Pf, P0, out_scale)
+        flagged += _count_flags(g1, g2, g3, g4)
+    return flagged
 
 
 @nb.njit(**_OPTS)
