@@ -49,6 +49,38 @@ def _is_21(model: LinearGaussianModel) -> bool:
     return model.n == 2 and model.m == 1
 
 
+def _equal_blocks(M: np.ndarray, k: int, rtol: float = 0.0) -> np.ndarray | None:
+    """The first diagonal block of ``M`` (..., k r, k c) when M is block diagonal with k equal blocks
+    (r, c) -- the other blocks zero and the diagonal ones equal, to ``rtol`` times M's largest entry
+    -- else None."""
+    r, c = M.shape[-2] // k, M.shape[-1] // k
+    block = M[..., :r, :c]
+    atol = rtol * float(np.abs(M).max(initial=0.0))
+    for i in range(k):
+        for j in range(k):
+            part = M[..., i * r:(i + 1) * r, j * c:(j + 1) * c]
+            if np.abs(part - block if i == j else part).max(initial=0.0) > atol:
+                return None
+    return np.ascontiguousarray(block, dtype=np.float64)
+
+
+#: How far the steady state of a model of equal axes may be from block diagonal with equal blocks: its
+#: solver works on the joint matrices, so the zero blocks come out as rounding (2e-16 for model A 2-D).
+_STEADY_RTOL = 1e-12
+
+
+def _lane_axes(model: LinearGaussianModel, *matrices, rtol: float = 0.0) -> tuple[int, list]:
+    """(k, blocks) when the model is k equal axes of n = 2, m = 1 -- F, H, Q, R block diagonal with k
+    equal blocks, exactly, as :func:`mptrack.models.stack_axes` builds them -- and so are the given
+    ``matrices`` (to ``rtol``): the n = 2, m = 1 lane kernels then run its axes as tracks.  Else (1, [])."""
+    k = model.m
+    if k < 2 or model.n != 2 * k:
+        return 1, []
+    blocks = [_equal_blocks(np.asarray(M, dtype=np.float64), k) for M in (model.F, model.H, model.Q, model.R)]
+    blocks += [_equal_blocks(np.asarray(M, dtype=np.float64), k, rtol) for M in matrices]
+    return (k, blocks) if all(b is not None for b in blocks) else (1, [])
+
+
 def _shared(P: np.ndarray, x: np.ndarray, axes: int) -> np.ndarray:
     """The covariance P (n_a, n_a) that every track has at every step, as a read-only (B, T, n, n)
     view of it (no copy); block-diagonal over the axes of :func:`per_axis`.
@@ -76,9 +108,18 @@ def _steady_result(x: np.ndarray, ss: SteadyState, method: str, axes: int) -> Ba
 def _steady_state_filter(model, z, x0=None, out=None, *, lengths=None, steady=None, axes=1):
     bi = prepare_batch(model, z, x0, out, lengths, axes=axes, scan_z=False)
     ss = steady_argument(model, steady)
-    kernel = K.ss_kernel_21 if _is_21(model) else K.ss_kernel
-    flagged = launch(kernel, bi.out.size, bi.z, bi.out, np.ascontiguousarray(ss.A), np.ascontiguousarray(ss.B),
-                     np.ascontiguousarray(model.F), bi.x0, bi.lengths, bi.axes, K.OUT_SCALE[bi.out.dtype])
+    c = np.ascontiguousarray
+    k, blocks = (1, []) if bi.axes > 1 else _lane_axes(model, ss.A, ss.B, rtol=_STEADY_RTOL)
+    if k > 1:          # equal n = 2, m = 1 axes of one model: its axes run as lanes, with its NaN rule
+        F, _, _, _, A, Bm = blocks
+        flagged = launch(K.ss_kernel_21, bi.out.size, bi.z, bi.out, A, Bm, F, bi.x0, bi.lengths, k,
+                         K.OUT_SCALE[bi.out.dtype], True)
+    elif _is_21(model):
+        flagged = launch(K.ss_kernel_21, bi.out.size, bi.z, bi.out, c(ss.A), c(ss.B), c(model.F), bi.x0,
+                         bi.lengths, bi.axes, K.OUT_SCALE[bi.out.dtype], False)
+    else:
+        flagged = launch(K.ss_kernel, bi.out.size, bi.z, bi.out, c(ss.A), c(ss.B), c(model.F), bi.x0,
+                         bi.lengths, bi.axes, K.OUT_SCALE[bi.out.dtype])
     x = check_flagged(bi, flagged, "the steady-state filter", model=model, z=bi.z, x0=bi.x0)
     return _steady_result(x, ss, "SSKF" if ss.form == "kalman" else "SSLF", bi.axes)
 
@@ -183,10 +224,15 @@ def _kalman_filter(model, z, x0=None, P0=None, out=None, *, lengths=None, gains=
                          f"got K of shape {gains.K.shape}")
     elif P0 is not None:
         raise ParameterError("P0: give P0 or gains (which already fix P0), not both")
-    kernel = K.kf_kernel_21 if _is_21(model) else K.kf_kernel
     c = np.ascontiguousarray
-    flagged = launch(kernel, bi.out.size, bi.z, bi.out, c(model.F), c(model.H), c(model.Q), c(model.R),
-                     c(gains.K), c(gains.P_filt), c(gains.P0), bi.x0, bi.lengths, bi.axes,
+    k, blocks = (1, []) if bi.axes > 1 else _lane_axes(model, gains.K[:T], gains.P_filt[:T], gains.P0)
+    if k > 1:          # equal n = 2, m = 1 axes of one model (P stays block diagonal): axes as lanes
+        args = (*blocks, k)
+    else:
+        args = (c(model.F), c(model.H), c(model.Q), c(model.R), c(gains.K), c(gains.P_filt), c(gains.P0),
+                bi.axes)
+    kernel = K.kf_kernel_21 if k > 1 or _is_21(model) else K.kf_kernel
+    flagged = launch(kernel, bi.out.size, bi.z, bi.out, *args[:7], bi.x0, bi.lengths, args[7],
                      K.OUT_SCALE[bi.out.dtype])
     x = check_flagged(bi, flagged, "the Kalman filter", model=model, z=bi.z, x0=bi.x0, P0=gains.P0)
     return BatchFilterResult(x=x, P=None, method="KF", inputs={"gains": gains})

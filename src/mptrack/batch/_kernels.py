@@ -133,7 +133,21 @@ def _lane_priors(x0, b1, b2, b3, b4, c1, c2, c3, c4):
 
 
 @nb.njit(cache=True, nogil=True)
-def _ss21_track(z, out, b, a, t0, p, v, L, A, Bm, F, out_scale):
+def _missing(z, b, t, a, joint):
+    """Whether axis a of track b only predicts at step t: its measurement is NaN, or (``joint``: the
+    axes are the blocks of one model, whose steady-state filter predicts a row with any NaN) any
+    axis's is."""
+    if not joint:
+        return np.isnan(z[b, t, a])
+    miss = False
+    for c in range(z.shape[2]):
+        if np.isnan(z[b, t, c]):
+            miss = True
+    return miss
+
+
+@nb.njit(cache=True, nogil=True)
+def _ss21_track(z, out, b, a, t0, p, v, L, A, Bm, F, out_scale, joint):
     """Track (b, axis a) of :func:`ss_kernel_21` from time index t0 with state (p, v); returns its flag
     for those steps."""
     a00, a01, a10, a11 = A[0, 0], A[0, 1], A[1, 0], A[1, 1]
@@ -142,7 +156,9 @@ def _ss21_track(z, out, b, a, t0, p, v, L, A, Bm, F, out_scale):
     flag = 0.0
     for t in range(t0, L):
         zz = z[b, t, a]
-        if np.isnan(zz):
+        if _missing(z, b, t, a, joint):
+            if np.isinf(zz):            # beside a NaN of another axis: not used, but still refused
+                flag = np.nan
             p, v = F[0, 0] * p + F[0, 1] * v, F[1, 0] * p + F[1, 1] * v
         else:
             p, v = (a00 * p + a01 * v) + b0 * zz, (a10 * p + a11 * v) + b1 * zz
@@ -153,9 +169,10 @@ def _ss21_track(z, out, b, a, t0, p, v, L, A, Bm, F, out_scale):
 
 
 @nb.njit(**_OPTS)
-def ss_kernel_21(z, out, A, Bm, F, x0, lengths, axes, out_scale):
+def ss_kernel_21(z, out, A, Bm, F, x0, lengths, axes, out_scale, joint):
     """:func:`ss_kernel` written out for n = 2, m = 1 (model B per axis); returns the number of
-    flagged tracks.
+    flagged tracks.  ``joint``: the axes are the equal diagonal blocks of one model (A, Bm, F those
+    blocks), so a row with a NaN in any axis only predicts, as :func:`ss_kernel` does.
 
     Four tracks advance together (``LANES``): their states live in registers
     and their four independent recursions hide the floating-point latency, so
@@ -167,6 +184,7 @@ def ss_kernel_21(z, out, A, Bm, F, x0, lengths, axes, out_scale):
     a00, a01, a10, a11 = A[0, 0], A[0, 1], A[1, 0], A[1, 1]
     b0, b1 = Bm[0, 0], Bm[1, 0]
     ngroups = (ntr + LANES - 1) // LANES
+    rows = joint and LANES % axes != 0   # else a group holds whole tracks: a NaN in any lane stops it
     flagged = 0
     for g in nb.prange(ngroups):
         i0 = g * LANES
@@ -175,7 +193,7 @@ def ss_kernel_21(z, out, A, Bm, F, x0, lengths, axes, out_scale):
                 b = i // axes
                 a = i - b * axes
                 if _ss21_track(z, out, b, a, 0, x0[b, 2 * a], x0[b, 2 * a + 1], lengths[b], A, Bm, F,
-                               out_scale) != 0.0:
+                               out_scale, joint) != 0.0:
                     flagged += 1
             continue
         b1_, b2_, b3_, b4_, c1, c2, c3, c4, Lmin = _lanes(i0, axes, lengths)
@@ -183,9 +201,10 @@ def ss_kernel_21(z, out, A, Bm, F, x0, lengths, axes, out_scale):
         f1 = f2 = f3 = f4 = 0.0
         t = 0
         while t < Lmin:
-            z1, z2, z3, z4 = z[b1_, t, c1], z[b2_, t, c2], z[b3_, t, c3], z[b4_, t, c4]
-            if np.isnan(z1) or np.isnan(z2) or np.isnan(z3) or np.isnan(z4):
+            if (_missing(z, b1_, t, c1, rows) or _missing(z, b2_, t, c2, rows)
+                    or _missing(z, b3_, t, c3, rows) or _missing(z, b4_, t, c4, rows)):
                 break
+            z1, z2, z3, z4 = z[b1_, t, c1], z[b2_, t, c2], z[b3_, t, c3], z[b4_, t, c4]
             p1, v1 = (a00 * p1 + a01 * v1) + b0 * z1, (a10 * p1 + a11 * v1) + b1 * z1
             p2, v2 = (a00 * p2 + a01 * v2) + b0 * z2, (a10 * p2 + a11 * v2) + b1 * z2
             p3, v3 = (a00 * p3 + a01 * v3) + b0 * z3, (a10 * p3 + a11 * v3) + b1 * z3
@@ -199,10 +218,10 @@ def ss_kernel_21(z, out, A, Bm, F, x0, lengths, axes, out_scale):
             f3 += (out_scale * p3 + out_scale * v3) * 0.0
             f4 += (out_scale * p4 + out_scale * v4) * 0.0
             t += 1
-        f1 += _ss21_track(z, out, b1_, c1, t, p1, v1, lengths[b1_], A, Bm, F, out_scale)
-        f2 += _ss21_track(z, out, b2_, c2, t, p2, v2, lengths[b2_], A, Bm, F, out_scale)
-        f3 += _ss21_track(z, out, b3_, c3, t, p3, v3, lengths[b3_], A, Bm, F, out_scale)
-        f4 += _ss21_track(z, out, b4_, c4, t, p4, v4, lengths[b4_], A, Bm, F, out_scale)
+        f1 += _ss21_track(z, out, b1_, c1, t, p1, v1, lengths[b1_], A, Bm, F, out_scale, joint)
+        f2 += _ss21_track(z, out, b2_, c2, t, p2, v2, lengths[b2_], A, Bm, F, out_scale, joint)
+        f3 += _ss21_track(z, out, b3_, c3, t, p3, v3, lengths[b3_], A, Bm, F, out_scale, joint)
+        f4 += _ss21_track(z, out, b4_, c4, t, p4, v4, lengths[b4_], A, Bm, F, out_scale, joint)
         flagged += _count_flags(f1, f2, f3, f4)
     return flagged
 
