@@ -264,17 +264,21 @@ def test_a_float32_state_flagged_but_finite_is_not_an_error(kind):
 @pytest.mark.parametrize("kind", ["steady-state", "kalman"])
 @pytest.mark.parametrize("axes", [2, 3])
 @pytest.mark.parametrize("dtype", [np.float64, np.float32])
-def test_equal_axes_of_one_model_run_as_lanes_and_equal_the_reference(kind, axes, dtype, monkeypatch):
-    """Model A (equal n = 2, m = 1 axes, block diagonal) runs its axes as tracks of the lane kernels, with
-    the joint model's rules: a steady-state row with a NaN in any axis only predicts, a Kalman track
-    updates the axes it has.  Equal to the reference track by track, and to the generic kernel, on
-    ragged tracks with whole-row, one-axis and first-step gaps; a model whose axes differ (R per axis)
-    takes the generic kernel and is equal to the reference too."""
+def test_axes_of_one_model_run_as_lanes_and_equal_the_reference(kind, axes, dtype, monkeypatch):
+    """A block-diagonal model of n = 2, m = 1 axes (model A; here also with a different R per axis) runs
+    its axes as tracks of the lane kernels, with the joint model's rules: a steady-state row with a NaN
+    in any axis only predicts, a Kalman track updates the axes it has.  Equal to the reference track by
+    track, and to the generic kernel, on ragged tracks with whole-row, one-axis and first-step gaps; a
+    model whose axes are coupled (Q across axes) takes the generic kernel and equals the reference too."""
     from mptrack.batch import _filters
 
     rng = np.random.default_rng(40 + axes)
     model = assimakis_model_a(axes)
     uneven = LinearGaussianModel(model.F, model.H, model.Q, np.diag(np.linspace(0.1, 0.3, axes)))
+    v = np.zeros(model.n)
+    v[[0, 2]] = 1.0                                   # a noise common to the x and y positions
+    Qc = model.Q + 0.01 * np.outer(v, v)
+    coupled = LinearGaussianModel(model.F, model.H, Qc, model.R)
     z = (10 * rng.standard_normal((9, 70, axes))).astype(dtype)
     z[1, 5:9] = np.nan
     z[2, 0, 0] = np.nan
@@ -283,30 +287,30 @@ def test_equal_axes_of_one_model_run_as_lanes_and_equal_the_reference(kind, axes
     lengths = np.array([70, 70, 70, 70, 33, 70, 70, 0, 70])
     x0 = rng.standard_normal((9, model.n))
     tol = 1e-5 if dtype == np.float32 else TOL
-    for mdl in (model, uneven):
+    for mdl, lanes in ((model, True), (uneven, True), (coupled, False)):
+        ss, gains = steady_state(mdl), batch.gain_sequence(mdl, 70, np.eye(mdl.n))
+        assert (_filters._lane_axes(mdl, 1, ss.A, ss.B, rtol=_filters._STEADY_RTOL) is not None) == lanes
+        assert (_filters._lane_axes(mdl, 1, gains.K, gains.P_filt, gains.P0) is not None) == lanes
         if kind == "steady-state":
-            got = batch.steady_state_filter(mdl, z, x0, lengths=lengths).x
+            def run():
+                return batch.steady_state_filter(mdl, z, x0, lengths=lengths).x
             want = {b: linear.steady_state_filter(mdl, z[b, :lengths[b]].astype(np.float64), x0[b]).x
                     for b in range(9) if lengths[b]}
         else:
-            got = batch.kalman_filter(mdl, z, x0, np.eye(mdl.n), lengths=lengths).x
+            def run():
+                return batch.kalman_filter(mdl, z, x0, np.eye(mdl.n), lengths=lengths).x
             want = {b: linear.kalman_filter(mdl, z[b, :lengths[b]].astype(np.float64), x0[b], np.eye(mdl.n)).x
                     for b in range(9) if lengths[b]}
+        got = run()
         for b in range(9):
             if b in want:
                 close(got[b, :lengths[b]].astype(np.float64), want[b], tol)
             assert np.isnan(got[b, lengths[b]:]).all()
-    ss, gains = steady_state(model), batch.gain_sequence(model, 70)
-    assert _filters._lane_axes(model, ss.A, ss.B, rtol=_filters._STEADY_RTOL)[0] == axes   # model A: lanes
-    assert _filters._lane_axes(model, gains.K, gains.P_filt, gains.P0)[0] == axes
-    assert _filters._lane_axes(uneven)[0] == 1
-    run = batch.steady_state_filter if kind == "steady-state" else batch.kalman_filter
-    lanes = run(model, z, x0, lengths=lengths).x
-    calls = []
-    monkeypatch.setattr(_filters, "_lane_axes", lambda *a, **kw: calls.append(a) or (1, []))   # the generic kernel
-    generic = run(model, z, x0, lengths=lengths).x
-    assert len(calls) == 1
-    np.testing.assert_allclose(lanes, generic, rtol=1e-6 if dtype == np.float32 else 1e-12, atol=1e-12)
+        if lanes:
+            with monkeypatch.context() as patch:
+                patch.setattr(_filters, "_lane_axes", lambda *a, **kw: None)     # the generic kernels
+                generic = run()
+            np.testing.assert_allclose(got, generic, rtol=1e-6 if dtype == np.float32 else 1e-12, atol=1e-12)
 
 
 def test_bad_shapes_and_dtypes_raise_named_errors():

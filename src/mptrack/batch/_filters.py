@@ -45,40 +45,50 @@ __all__ = [
 ]
 
 
-def _is_21(model: LinearGaussianModel) -> bool:
-    return model.n == 2 and model.m == 1
-
-
-def _equal_blocks(M: np.ndarray, k: int, rtol: float = 0.0) -> np.ndarray | None:
-    """The first diagonal block of ``M`` (..., k r, k c) when M is block diagonal with k equal blocks
-    (r, c) -- the other blocks zero and the diagonal ones equal, to ``rtol`` times M's largest entry
-    -- else None."""
+def _axis_blocks(M: np.ndarray, k: int, rtol: float = 0.0) -> np.ndarray | None:
+    """The k diagonal blocks (..., k, r, c) of ``M`` (..., k r, k c) when the blocks off the diagonal
+    are zero (to ``rtol`` times M's largest entry), else None."""
+    M = np.asarray(M, dtype=np.float64)
     r, c = M.shape[-2] // k, M.shape[-1] // k
-    block = M[..., :r, :c]
     atol = rtol * float(np.abs(M).max(initial=0.0))
+    blocks = np.empty(M.shape[:-2] + (k, r, c))
     for i in range(k):
         for j in range(k):
             part = M[..., i * r:(i + 1) * r, j * c:(j + 1) * c]
-            if np.abs(part - block if i == j else part).max(initial=0.0) > atol:
+            if i == j:
+                blocks[..., i, :, :] = part
+            elif np.abs(part).max(initial=0.0) > atol:
                 return None
-    return np.ascontiguousarray(block, dtype=np.float64)
+    return blocks
 
 
-#: How far the steady state of a model of equal axes may be from block diagonal with equal blocks: its
-#: solver works on the joint matrices, so the zero blocks come out as rounding (2e-16 for model A 2-D).
+#: How far from block diagonal with equal blocks the steady state of such a model may be: its solver works
+#: on the joint matrices, so the zero blocks and the differences of equal ones come out as rounding
+#: (2e-16 of the largest entry for model A).
 _STEADY_RTOL = 1e-12
 
 
-def _lane_axes(model: LinearGaussianModel, *matrices, rtol: float = 0.0) -> tuple[int, list]:
-    """(k, blocks) when the model is k equal axes of n = 2, m = 1 -- F, H, Q, R block diagonal with k
-    equal blocks, exactly, as :func:`mptrack.models.stack_axes` builds them -- and so are the given
-    ``matrices`` (to ``rtol``): the n = 2, m = 1 lane kernels then run its axes as tracks.  Else (1, [])."""
+def _lane_axes(model: LinearGaussianModel, axes: int, *matrices, rtol: float = 0.0) -> tuple[int, list] | None:
+    """How the n = 2, m = 1 lane kernels run this model: (tracks per row k, the blocks (..., q, r, c) of
+    F, H, Q, R and ``matrices``), or None (the generic kernels).  q = 1 when every axis has the same
+    blocks, else k.
+
+    Model B-like axis models (n = 2, m = 1) run ``axes`` tracks per row (:func:`per_axis`); a model of k
+    such axes -- F, H, Q, R block diagonal with 2 x 2, 1 x 2, 2 x 2, 1 x 1 blocks, exactly, as
+    :func:`mptrack.models.stack_axes` builds them (the axes may differ, e.g. in R) -- runs each axis as a
+    track when ``matrices`` (its steady state or gains) are block diagonal too (to ``rtol``)."""
+    mats = (model.F, model.H, model.Q, model.R, *matrices)
+    if model.n == 2 and model.m == 1:
+        return axes, [np.require(M, np.float64, ["C", "W"])[..., None, :, :] for M in mats]
     k = model.m
-    if k < 2 or model.n != 2 * k:
-        return 1, []
-    blocks = [_equal_blocks(np.asarray(M, dtype=np.float64), k) for M in (model.F, model.H, model.Q, model.R)]
-    blocks += [_equal_blocks(np.asarray(M, dtype=np.float64), k, rtol) for M in matrices]
-    return (k, blocks) if all(b is not None for b in blocks) else (1, [])
+    if axes > 1 or k < 2 or model.n != 2 * k:
+        return None
+    blocks = [_axis_blocks(M, k, 0.0 if i < 4 else rtol) for i, M in enumerate(mats)]
+    if any(b is None for b in blocks):
+        return None
+    if all(np.abs(b - b[..., :1, :, :]).max() <= rtol * np.abs(b).max() for b in blocks):
+        blocks = [np.ascontiguousarray(b[..., :1, :, :]) for b in blocks]
+    return k, blocks
 
 
 def _shared(P: np.ndarray, x: np.ndarray, axes: int) -> np.ndarray:
@@ -108,16 +118,13 @@ def _steady_result(x: np.ndarray, ss: SteadyState, method: str, axes: int) -> Ba
 def _steady_state_filter(model, z, x0=None, out=None, *, lengths=None, steady=None, axes=1):
     bi = prepare_batch(model, z, x0, out, lengths, axes=axes, scan_z=False)
     ss = steady_argument(model, steady)
-    c = np.ascontiguousarray
-    k, blocks = (1, []) if bi.axes > 1 else _lane_axes(model, ss.A, ss.B, rtol=_STEADY_RTOL)
-    if k > 1:          # equal n = 2, m = 1 axes of one model: its axes run as lanes, with its NaN rule
-        F, _, _, _, A, Bm = blocks
+    lanes = _lane_axes(model, bi.axes, ss.A, ss.B, rtol=_STEADY_RTOL)
+    if lanes is not None:          # axes of n = 2, m = 1 (with a joint model's NaN rule when it is one)
+        k, (F, _, _, _, A, Bm) = lanes
         flagged = launch(K.ss_kernel_21, bi.out.size, bi.z, bi.out, A, Bm, F, bi.x0, bi.lengths, k,
-                         K.OUT_SCALE[bi.out.dtype], True)
-    elif _is_21(model):
-        flagged = launch(K.ss_kernel_21, bi.out.size, bi.z, bi.out, c(ss.A), c(ss.B), c(model.F), bi.x0,
-                         bi.lengths, bi.axes, K.OUT_SCALE[bi.out.dtype], False)
+                         K.OUT_SCALE[bi.out.dtype], k > 1 and bi.axes == 1)
     else:
+        c = np.ascontiguousarray
         flagged = launch(K.ss_kernel, bi.out.size, bi.z, bi.out, c(ss.A), c(ss.B), c(model.F), bi.x0,
                          bi.lengths, bi.axes, K.OUT_SCALE[bi.out.dtype])
     x = check_flagged(bi, flagged, "the steady-state filter", model=model, z=bi.z, x0=bi.x0)
@@ -224,16 +231,16 @@ def _kalman_filter(model, z, x0=None, P0=None, out=None, *, lengths=None, gains=
                          f"got K of shape {gains.K.shape}")
     elif P0 is not None:
         raise ParameterError("P0: give P0 or gains (which already fix P0), not both")
-    c = np.ascontiguousarray
-    k, blocks = (1, []) if bi.axes > 1 else _lane_axes(model, gains.K[:T], gains.P_filt[:T], gains.P0)
-    if k > 1:          # equal n = 2, m = 1 axes of one model (P stays block diagonal): axes as lanes
-        args = (*blocks, k)
+    lanes = _lane_axes(model, bi.axes, gains.K[:T], gains.P_filt[:T], gains.P0)
+    if lanes is not None:          # axes of n = 2, m = 1: the covariance stays block diagonal
+        k, blocks = lanes
+        flagged = launch(K.kf_kernel_21, bi.out.size, bi.z, bi.out, *blocks, bi.x0, bi.lengths, k,
+                         K.OUT_SCALE[bi.out.dtype])
     else:
-        args = (c(model.F), c(model.H), c(model.Q), c(model.R), c(gains.K), c(gains.P_filt), c(gains.P0),
-                bi.axes)
-    kernel = K.kf_kernel_21 if k > 1 or _is_21(model) else K.kf_kernel
-    flagged = launch(kernel, bi.out.size, bi.z, bi.out, *args[:7], bi.x0, bi.lengths, args[7],
-                     K.OUT_SCALE[bi.out.dtype])
+        c = np.ascontiguousarray
+        flagged = launch(K.kf_kernel, bi.out.size, bi.z, bi.out, c(model.F), c(model.H), c(model.Q), c(model.R),
+                         c(gains.K), c(gains.P_filt), c(gains.P0), bi.x0, bi.lengths, bi.axes,
+                         K.OUT_SCALE[bi.out.dtype])
     x = check_flagged(bi, flagged, "the Kalman filter", model=model, z=bi.z, x0=bi.x0, P0=gains.P0)
     return BatchFilterResult(x=x, P=None, method="KF", inputs={"gains": gains})
 

@@ -133,6 +133,12 @@ def _lane_priors(x0, b1, b2, b3, b4, c1, c2, c3, c4):
 
 
 @nb.njit(cache=True, nogil=True)
+def _entries(M, a):
+    """The four entries of block a of M (axes, 2, 2)."""
+    return M[a, 0, 0], M[a, 0, 1], M[a, 1, 0], M[a, 1, 1]
+
+
+@nb.njit(cache=True, nogil=True)
 def _missing(z, b, t, a, joint):
     """Whether axis a of track b only predicts at step t: its measurement is NaN, or (``joint``: the
     axes are the blocks of one model, whose steady-state filter predicts a row with any NaN) any
@@ -150,8 +156,10 @@ def _missing(z, b, t, a, joint):
 def _ss21_track(z, out, b, a, t0, p, v, L, A, Bm, F, out_scale, joint):
     """Track (b, axis a) of :func:`ss_kernel_21` from time index t0 with state (p, v); returns its flag
     for those steps."""
-    a00, a01, a10, a11 = A[0, 0], A[0, 1], A[1, 0], A[1, 1]
-    b0, b1 = Bm[0, 0], Bm[1, 0]
+    q = a if A.shape[0] > 1 else 0      # the axis's blocks (one for all axes: q = 0)
+    a00, a01, a10, a11 = _entries(A, q)
+    f00, f01, f10, f11 = _entries(F, q)
+    b0, b1 = Bm[q, 0, 0], Bm[q, 1, 0]
     o = 2 * a
     flag = 0.0
     for t in range(t0, L):
@@ -159,7 +167,7 @@ def _ss21_track(z, out, b, a, t0, p, v, L, A, Bm, F, out_scale, joint):
         if _missing(z, b, t, a, joint):
             if np.isinf(zz):            # beside a NaN of another axis: not used, but still refused
                 flag = np.nan
-            p, v = F[0, 0] * p + F[0, 1] * v, F[1, 0] * p + F[1, 1] * v
+            p, v = f00 * p + f01 * v, f10 * p + f11 * v
         else:
             p, v = (a00 * p + a01 * v) + b0 * zz, (a10 * p + a11 * v) + b1 * zz
         out[b, t, o] = p
@@ -170,19 +178,19 @@ def _ss21_track(z, out, b, a, t0, p, v, L, A, Bm, F, out_scale, joint):
 
 @nb.njit(**_OPTS)
 def ss_kernel_21(z, out, A, Bm, F, x0, lengths, axes, out_scale, joint):
-    """:func:`ss_kernel` written out for n = 2, m = 1 (model B per axis); returns the number of
-    flagged tracks.  ``joint``: the axes are the equal diagonal blocks of one model (A, Bm, F those
-    blocks), so a row with a NaN in any axis only predicts, as :func:`ss_kernel` does.
+    """:func:`ss_kernel` written out for axes of n = 2, m = 1; returns the number of flagged tracks.
 
-    Four tracks advance together (``LANES``): their states live in registers
-    and their four independent recursions hide the floating-point latency, so
-    the loop runs at memory speed.  When a lane meets a NaN, or the shortest
-    of the four tracks ends, each lane finishes on its own (:func:`_ss21_track`).
+    A (q, 2, 2), Bm (q, 2, 1), F (q, 2, 2): axis a of a row is the track (b, a) with the matrices
+    A[a], Bm[a], F[a] (q = axes), or A[0], Bm[0], F[0] for every axis (q = 1) -- model B per axis, or
+    the diagonal blocks of a block-diagonal model (``joint``: then a row with a NaN in any axis only
+    predicts, as :func:`ss_kernel` does).
+    Four tracks advance together (``LANES``): their states and coefficients live in registers and
+    their four independent recursions hide the floating-point latency, so the loop runs at memory
+    speed.  When a lane meets a NaN, or the shortest of the four tracks ends, each lane finishes on
+    its own (:func:`_ss21_track`).
     """
     nb_ = z.shape[0]
     ntr = nb_ * axes
-    a00, a01, a10, a11 = A[0, 0], A[0, 1], A[1, 0], A[1, 1]
-    b0, b1 = Bm[0, 0], Bm[1, 0]
     ngroups = (ntr + LANES - 1) // LANES
     rows = joint and LANES % axes != 0   # else a group holds whole tracks: a NaN in any lane stops it
     flagged = 0
@@ -197,33 +205,52 @@ def ss_kernel_21(z, out, A, Bm, F, x0, lengths, axes, out_scale, joint):
                     flagged += 1
             continue
         b1_, b2_, b3_, b4_, c1, c2, c3, c4, Lmin = _lanes(i0, axes, lengths)
-        p1, v1, p2, v2, p3, v3, p4, v4 = _lane_priors(x0, b1_, b2_, b3_, b4_, c1, c2, c3, c4)
-        f1 = f2 = f3 = f4 = 0.0
-        t = 0
-        while t < Lmin:
-            if (_missing(z, b1_, t, c1, rows) or _missing(z, b2_, t, c2, rows)
-                    or _missing(z, b3_, t, c3, rows) or _missing(z, b4_, t, c4, rows)):
-                break
-            z1, z2, z3, z4 = z[b1_, t, c1], z[b2_, t, c2], z[b3_, t, c3], z[b4_, t, c4]
-            p1, v1 = (a00 * p1 + a01 * v1) + b0 * z1, (a10 * p1 + a11 * v1) + b1 * z1
-            p2, v2 = (a00 * p2 + a01 * v2) + b0 * z2, (a10 * p2 + a11 * v2) + b1 * z2
-            p3, v3 = (a00 * p3 + a01 * v3) + b0 * z3, (a10 * p3 + a11 * v3) + b1 * z3
-            p4, v4 = (a00 * p4 + a01 * v4) + b0 * z4, (a10 * p4 + a11 * v4) + b1 * z4
-            out[b1_, t, 2 * c1], out[b1_, t, 2 * c1 + 1] = p1, v1
-            out[b2_, t, 2 * c2], out[b2_, t, 2 * c2 + 1] = p2, v2
-            out[b3_, t, 2 * c3], out[b3_, t, 2 * c3 + 1] = p3, v3
-            out[b4_, t, 2 * c4], out[b4_, t, 2 * c4 + 1] = p4, v4
-            f1 += (out_scale * p1 + out_scale * v1) * 0.0
-            f2 += (out_scale * p2 + out_scale * v2) * 0.0
-            f3 += (out_scale * p3 + out_scale * v3) * 0.0
-            f4 += (out_scale * p4 + out_scale * v4) * 0.0
-            t += 1
-        f1 += _ss21_track(z, out, b1_, c1, t, p1, v1, lengths[b1_], A, Bm, F, out_scale, joint)
-        f2 += _ss21_track(z, out, b2_, c2, t, p2, v2, lengths[b2_], A, Bm, F, out_scale, joint)
-        f3 += _ss21_track(z, out, b3_, c3, t, p3, v3, lengths[b3_], A, Bm, F, out_scale, joint)
-        f4 += _ss21_track(z, out, b4_, c4, t, p4, v4, lengths[b4_], A, Bm, F, out_scale, joint)
-        flagged += _count_flags(f1, f2, f3, f4)
+        if A.shape[0] == 1:             # one block for every lane: 6 coefficients in registers, not 24
+            flagged += _ss21_group(z, out, x0, A, Bm, F, lengths, out_scale, joint, rows, b1_, b2_, b3_, b4_,
+                                   c1, c2, c3, c4, Lmin, 0, 0, 0, 0)
+        else:
+            flagged += _ss21_group(z, out, x0, A, Bm, F, lengths, out_scale, joint, rows, b1_, b2_, b3_, b4_,
+                                   c1, c2, c3, c4, Lmin, c1, c2, c3, c4)
     return flagged
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _ss21_group(z, out, x0, A, Bm, F, lengths, out_scale, joint, rows, b1_, b2_, b3_, b4_, c1, c2, c3, c4, Lmin,
+                q1, q2, q3, q4):
+    """One group of :func:`ss_kernel_21`: lanes (b1_, c1) .. (b4_, c4) with the blocks q1 .. q4 of
+    A, Bm, F; returns how many of them are flagged."""
+    p1, v1, p2, v2, p3, v3, p4, v4 = _lane_priors(x0, b1_, b2_, b3_, b4_, c1, c2, c3, c4)
+    a1, e1, h1, k1 = _entries(A, q1)
+    a2, e2, h2, k2 = _entries(A, q2)
+    a3, e3, h3, k3 = _entries(A, q3)
+    a4, e4, h4, k4 = _entries(A, q4)
+    u1, w1, u2, w2 = Bm[q1, 0, 0], Bm[q1, 1, 0], Bm[q2, 0, 0], Bm[q2, 1, 0]
+    u3, w3, u4, w4 = Bm[q3, 0, 0], Bm[q3, 1, 0], Bm[q4, 0, 0], Bm[q4, 1, 0]
+    f1 = f2 = f3 = f4 = 0.0
+    t = 0
+    while t < Lmin:
+        if (_missing(z, b1_, t, c1, rows) or _missing(z, b2_, t, c2, rows)
+                or _missing(z, b3_, t, c3, rows) or _missing(z, b4_, t, c4, rows)):
+            break
+        z1, z2, z3, z4 = z[b1_, t, c1], z[b2_, t, c2], z[b3_, t, c3], z[b4_, t, c4]
+        p1, v1 = (a1 * p1 + e1 * v1) + u1 * z1, (h1 * p1 + k1 * v1) + w1 * z1
+        p2, v2 = (a2 * p2 + e2 * v2) + u2 * z2, (h2 * p2 + k2 * v2) + w2 * z2
+        p3, v3 = (a3 * p3 + e3 * v3) + u3 * z3, (h3 * p3 + k3 * v3) + w3 * z3
+        p4, v4 = (a4 * p4 + e4 * v4) + u4 * z4, (h4 * p4 + k4 * v4) + w4 * z4
+        out[b1_, t, 2 * c1], out[b1_, t, 2 * c1 + 1] = p1, v1
+        out[b2_, t, 2 * c2], out[b2_, t, 2 * c2 + 1] = p2, v2
+        out[b3_, t, 2 * c3], out[b3_, t, 2 * c3 + 1] = p3, v3
+        out[b4_, t, 2 * c4], out[b4_, t, 2 * c4 + 1] = p4, v4
+        f1 += (out_scale * p1 + out_scale * v1) * 0.0
+        f2 += (out_scale * p2 + out_scale * v2) * 0.0
+        f3 += (out_scale * p3 + out_scale * v3) * 0.0
+        f4 += (out_scale * p4 + out_scale * v4) * 0.0
+        t += 1
+    f1 += _ss21_track(z, out, b1_, c1, t, p1, v1, lengths[b1_], A, Bm, F, out_scale, joint)
+    f2 += _ss21_track(z, out, b2_, c2, t, p2, v2, lengths[b2_], A, Bm, F, out_scale, joint)
+    f3 += _ss21_track(z, out, b3_, c3, t, p3, v3, lengths[b3_], A, Bm, F, out_scale, joint)
+    f4 += _ss21_track(z, out, b4_, c4, t, p4, v4, lengths[b4_], A, Bm, F, out_scale, joint)
+    return _count_flags(f1, f2, f3, f4)
 
 
 @nb.njit(cache=True, nogil=True)
@@ -343,8 +370,9 @@ def kf_kernel(z, out, F, H, Q, R, K, Pf, P0, x0, lengths, axes, out_scale):
 def _kf21_track(z, out, b, a, t0, p, v, L, F, H, Q, R, K, Pf, P0, out_scale):
     """Track (b, axis a) of :func:`kf_kernel_21` from time index t0 with state (p, v); returns its flag
     for those steps."""
-    f00, f01, f10, f11 = F[0, 0], F[0, 1], F[1, 0], F[1, 1]
-    h0, h1 = H[0, 0], H[0, 1]
+    q = a if F.shape[0] > 1 else 0      # the axis's blocks (one for all axes: q = 0)
+    f00, f01, f10, f11 = _entries(F, q)
+    h0, h1 = H[q, 0, 0], H[q, 0, 1]
     o = 2 * a
     flag = 0.0
     t1 = L
@@ -356,8 +384,8 @@ def _kf21_track(z, out, b, a, t0, p, v, L, F, H, Q, R, K, Pf, P0, out_scale):
         pp = f00 * p + f01 * v
         vp = f10 * p + f11 * v
         e = zz - (h0 * pp + h1 * vp)
-        p = pp + K[t, 0, 0] * e
-        v = vp + K[t, 1, 0] * e
+        p = pp + K[t, q, 0, 0] * e
+        v = vp + K[t, q, 1, 0] * e
         out[b, t, o] = p
         out[b, t, o + 1] = v
         flag += (out_scale * p + out_scale * v) * 0.0
@@ -365,13 +393,13 @@ def _kf21_track(z, out, b, a, t0, p, v, L, F, H, Q, R, K, Pf, P0, out_scale):
         x = np.empty(2)
         x[0] = p
         x[1] = v
-        P = P0.copy() if t1 == 0 else Pf[t1 - 1].copy()
+        P = P0[q].copy() if t1 == 0 else Pf[t1 - 1, q].copy()
         zb = z[b, :, a:a + 1]
         ws = workspace(2, 1)
         hx = np.empty(1)
         periods = np.zeros(1)
         for t in range(t1, L):
-            own_step(F, H, Q, R, x, P, zb, t, ws, hx, periods)
+            own_step(F[q], H[q], Q[q], R[q], x, P, zb, t, ws, hx, periods)
             out[b, t, o] = x[0]
             out[b, t, o + 1] = x[1]
             flag += (out_scale * x[0] + out_scale * x[1]) * 0.0
@@ -380,12 +408,13 @@ def _kf21_track(z, out, b, a, t0, p, v, L, F, H, Q, R, K, Pf, P0, out_scale):
 
 @nb.njit(**_OPTS)
 def kf_kernel_21(z, out, F, H, Q, R, K, Pf, P0, x0, lengths, axes, out_scale):
-    """:func:`kf_kernel` written out for n = 2, m = 1, four tracks at a time (see :func:`ss_kernel_21`);
-    returns the number of flagged tracks."""
+    """:func:`kf_kernel` written out for axes of n = 2, m = 1, four tracks at a time (see
+    :func:`ss_kernel_21`); returns the number of flagged tracks.  F, H, Q, R, P0 (q, ., .), K and Pf
+    (T, q, ., .): the blocks of axis a (of axis 0 when q = 1) are the track (b, a)'s model and gains.  A joint
+    block-diagonal model needs no joint rule here: its covariance stays block diagonal, so a NaN in
+    one axis leaves the others' updates as they are."""
     nb_ = z.shape[0]
     ntr = nb_ * axes
-    f00, f01, f10, f11 = F[0, 0], F[0, 1], F[1, 0], F[1, 1]
-    h0, h1 = H[0, 0], H[0, 1]
     ngroups = (ntr + LANES - 1) // LANES
     flagged = 0
     for g in nb.prange(ngroups):
@@ -399,41 +428,59 @@ def kf_kernel_21(z, out, F, H, Q, R, K, Pf, P0, x0, lengths, axes, out_scale):
                     flagged += 1
             continue
         b1_, b2_, b3_, b4_, c1, c2, c3, c4, Lmin = _lanes(i0, axes, lengths)
-        p1, v1, p2, v2, p3, v3, p4, v4 = _lane_priors(x0, b1_, b2_, b3_, b4_, c1, c2, c3, c4)
-        g1 = g2 = g3 = g4 = 0.0
-        t = 0
-        while t < Lmin:
-            z1, z2, z3, z4 = z[b1_, t, c1], z[b2_, t, c2], z[b3_, t, c3], z[b4_, t, c4]
-            if np.isnan(z1) or np.isnan(z2) or np.isnan(z3) or np.isnan(z4):
-                break
-            k0, k1 = K[t, 0, 0], K[t, 1, 0]
-            pp1, vp1 = f00 * p1 + f01 * v1, f10 * p1 + f11 * v1
-            pp2, vp2 = f00 * p2 + f01 * v2, f10 * p2 + f11 * v2
-            pp3, vp3 = f00 * p3 + f01 * v3, f10 * p3 + f11 * v3
-            pp4, vp4 = f00 * p4 + f01 * v4, f10 * p4 + f11 * v4
-            e1 = z1 - (h0 * pp1 + h1 * vp1)
-            e2 = z2 - (h0 * pp2 + h1 * vp2)
-            e3 = z3 - (h0 * pp3 + h1 * vp3)
-            e4 = z4 - (h0 * pp4 + h1 * vp4)
-            p1, v1 = pp1 + k0 * e1, vp1 + k1 * e1
-            p2, v2 = pp2 + k0 * e2, vp2 + k1 * e2
-            p3, v3 = pp3 + k0 * e3, vp3 + k1 * e3
-            p4, v4 = pp4 + k0 * e4, vp4 + k1 * e4
-            out[b1_, t, 2 * c1], out[b1_, t, 2 * c1 + 1] = p1, v1
-            out[b2_, t, 2 * c2], out[b2_, t, 2 * c2 + 1] = p2, v2
-            out[b3_, t, 2 * c3], out[b3_, t, 2 * c3 + 1] = p3, v3
-            out[b4_, t, 2 * c4], out[b4_, t, 2 * c4 + 1] = p4, v4
-            g1 += (out_scale * p1 + out_scale * v1) * 0.0
-            g2 += (out_scale * p2 + out_scale * v2) * 0.0
-            g3 += (out_scale * p3 + out_scale * v3) * 0.0
-            g4 += (out_scale * p4 + out_scale * v4) * 0.0
-            t += 1
-        g1 += _kf21_track(z, out, b1_, c1, t, p1, v1, lengths[b1_], F, H, Q, R, K, Pf, P0, out_scale)
-        g2 += _kf21_track(z, out, b2_, c2, t, p2, v2, lengths[b2_], F, H, Q, R, K, Pf, P0, out_scale)
-        g3 += _kf21_track(z, out, b3_, c3, t, p3, v3, lengths[b3_], F, H, Q, R, K, Pf, P0, out_scale)
-        g4 += _kf21_track(z, out, b4_, c4, t, p4, v4, lengths[b4_], F, H, Q, R, K, Pf, P0, out_scale)
-        flagged += _count_flags(g1, g2, g3, g4)
+        if F.shape[0] == 1:             # one block for every lane: shared coefficients and gains
+            flagged += _kf21_group(z, out, x0, F, H, Q, R, K, Pf, P0, lengths, out_scale, b1_, b2_, b3_, b4_,
+                                   c1, c2, c3, c4, Lmin, 0, 0, 0, 0)
+        else:
+            flagged += _kf21_group(z, out, x0, F, H, Q, R, K, Pf, P0, lengths, out_scale, b1_, b2_, b3_, b4_,
+                                   c1, c2, c3, c4, Lmin, c1, c2, c3, c4)
     return flagged
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _kf21_group(z, out, x0, F, H, Q, R, K, Pf, P0, lengths, out_scale, b1_, b2_, b3_, b4_, c1, c2, c3, c4, Lmin,
+                q1, q2, q3, q4):
+    """One group of :func:`kf_kernel_21`: lanes (b1_, c1) .. (b4_, c4) with the blocks q1 .. q4 of the
+    model and gains; returns how many of them are flagged."""
+    p1, v1, p2, v2, p3, v3, p4, v4 = _lane_priors(x0, b1_, b2_, b3_, b4_, c1, c2, c3, c4)
+    a1, e1, h1, k1 = _entries(F, q1)
+    a2, e2, h2, k2 = _entries(F, q2)
+    a3, e3, h3, k3 = _entries(F, q3)
+    a4, e4, h4, k4 = _entries(F, q4)
+    u1, w1, u2, w2 = H[q1, 0, 0], H[q1, 0, 1], H[q2, 0, 0], H[q2, 0, 1]
+    u3, w3, u4, w4 = H[q3, 0, 0], H[q3, 0, 1], H[q4, 0, 0], H[q4, 0, 1]
+    g1 = g2 = g3 = g4 = 0.0
+    t = 0
+    while t < Lmin:
+        z1, z2, z3, z4 = z[b1_, t, c1], z[b2_, t, c2], z[b3_, t, c3], z[b4_, t, c4]
+        if np.isnan(z1) or np.isnan(z2) or np.isnan(z3) or np.isnan(z4):
+            break
+        pp1, vp1 = a1 * p1 + e1 * v1, h1 * p1 + k1 * v1
+        pp2, vp2 = a2 * p2 + e2 * v2, h2 * p2 + k2 * v2
+        pp3, vp3 = a3 * p3 + e3 * v3, h3 * p3 + k3 * v3
+        pp4, vp4 = a4 * p4 + e4 * v4, h4 * p4 + k4 * v4
+        d1 = z1 - (u1 * pp1 + w1 * vp1)
+        d2 = z2 - (u2 * pp2 + w2 * vp2)
+        d3 = z3 - (u3 * pp3 + w3 * vp3)
+        d4 = z4 - (u4 * pp4 + w4 * vp4)
+        p1, v1 = pp1 + K[t, q1, 0, 0] * d1, vp1 + K[t, q1, 1, 0] * d1
+        p2, v2 = pp2 + K[t, q2, 0, 0] * d2, vp2 + K[t, q2, 1, 0] * d2
+        p3, v3 = pp3 + K[t, q3, 0, 0] * d3, vp3 + K[t, q3, 1, 0] * d3
+        p4, v4 = pp4 + K[t, q4, 0, 0] * d4, vp4 + K[t, q4, 1, 0] * d4
+        out[b1_, t, 2 * c1], out[b1_, t, 2 * c1 + 1] = p1, v1
+        out[b2_, t, 2 * c2], out[b2_, t, 2 * c2 + 1] = p2, v2
+        out[b3_, t, 2 * c3], out[b3_, t, 2 * c3 + 1] = p3, v3
+        out[b4_, t, 2 * c4], out[b4_, t, 2 * c4 + 1] = p4, v4
+        g1 += (out_scale * p1 + out_scale * v1) * 0.0
+        g2 += (out_scale * p2 + out_scale * v2) * 0.0
+        g3 += (out_scale * p3 + out_scale * v3) * 0.0
+        g4 += (out_scale * p4 + out_scale * v4) * 0.0
+        t += 1
+    g1 += _kf21_track(z, out, b1_, c1, t, p1, v1, lengths[b1_], F, H, Q, R, K, Pf, P0, out_scale)
+    g2 += _kf21_track(z, out, b2_, c2, t, p2, v2, lengths[b2_], F, H, Q, R, K, Pf, P0, out_scale)
+    g3 += _kf21_track(z, out, b3_, c3, t, p3, v3, lengths[b3_], F, H, Q, R, K, Pf, P0, out_scale)
+    g4 += _kf21_track(z, out, b4_, c4, t, p4, v4, lengths[b4_], F, H, Q, R, K, Pf, P0, out_scale)
+    return _count_flags(g1, g2, g3, g4)
 
 
 @nb.njit(**_OPTS)
