@@ -31,7 +31,7 @@ from numba.core import event as numba_event
 
 from .. import batch, linear
 from ..errors import ConvergenceError
-from ..models import assimakis_model_a, assimakis_model_b
+from ..models import LinearGaussianModel, assimakis_model_a, assimakis_model_b
 from ..riccati import steady_state
 from . import register_suite
 from ._timing import best_time, copy_kernel
@@ -133,13 +133,23 @@ class _Compiles(numba_event.Listener):
             else "already in memory"
 
 
+def _coupled(model: LinearGaussianModel) -> LinearGaussianModel:
+    """Model A with a process noise common to the first two axes' positions: not block diagonal, so
+    the generic (n, m) kernel runs it (the rate of that kernel)."""
+    v = np.zeros(model.n)
+    v[[0, 2]] = 1.0
+    return LinearGaussianModel(model.F, model.H, model.Q + 0.01 * np.outer(v, v), model.R, dt=model.dt,
+                               name="model A, coupled axes")
+
+
 def compile_times(dtypes=(np.float64, np.float32)) -> list[list]:
     """First call of each kernel on a tiny input in this process: compile (or cache load) time, and which
     of the two it was (numba's compile and compiler-lock events during the call)."""
     model_b, model_a = assimakis_model_b(), assimakis_model_a(2)
     cases = [
         ("steady-state n=2 m=1", lambda z: batch.steady_state_filter(model_b, z)),
-        ("steady-state n=4 m=2 (generic)", lambda z: batch.steady_state_filter(model_a, np.repeat(z, 2, axis=2))),
+        ("steady-state n=4 m=2 (generic)", lambda z: batch.steady_state_filter(_coupled(model_a),
+                                                                                np.repeat(z, 2, axis=2))),
         ("Kalman n=2 m=1", lambda z: batch.kalman_filter(model_b, z)),
         ("FIR", lambda z: batch.fir_filter(model_b, z)),
     ]
@@ -256,14 +266,18 @@ def _engine_cases(s: dict, rng) -> tuple[list, dict]:
         Ba = max(8, s["steps"] // (T * axes))
         za = rng.standard_normal((Ba, T, m))
         outa = np.empty((Ba, T, n))
-        cases.append((f"batch SS model A {axes}-D (n={n}, m={m}, generic kernel), out=", f"{Ba}x{T}",
+        cases.append((f"batch SS model A {axes}-D (n={n}, m={m}: its axes as lanes), out=", f"{Ba}x{T}",
                       8 * (n + m), Ba * T, lambda model_a=model_a, za=za, outa=outa:
                       batch.steady_state_filter(model_a, za, out=outa), False))
         if axes == 2:
             ga = batch.gain_sequence(model_a, T, np.eye(n))
-            cases.append((f"batch KF model A 2-D (n={n}, m={m}, generic kernel), out=", f"{Ba}x{T}",
+            cases.append((f"batch KF model A 2-D (n={n}, m={m}: its axes as lanes), out=", f"{Ba}x{T}",
                           8 * (n + m), Ba * T, lambda model_a=model_a, za=za, outa=outa, ga=ga:
                           batch.kalman_filter(model_a, za, out=outa, gains=ga), False))
+            coupled = _coupled(model_a)
+            cases.append((f"batch SS coupled axes (n={n}, m={m}, generic kernel), out=", f"{Ba}x{T}",
+                          8 * (n + m), Ba * T, lambda coupled=coupled, za=za, outa=outa:
+                          batch.steady_state_filter(coupled, za, out=outa), False))
     M = linear.fir_order(ss.A)
     cases.append((f"batch FIR M={M}, out=", full, 24, upd,
                   lambda: batch.fir_filter(model, z, out=out, M=M, steady=ss), True))

@@ -19,6 +19,7 @@ from typing import Literal
 import numpy as np
 import scipy.linalg
 
+from .._blas import one_blas_thread
 from .._validation import _overflow, check_covariance, check_int, check_positive, renamed, require_finite
 from ..errors import ConvergenceError, MptrackError, ParameterError
 from ..models import LinearGaussianModel, require_model
@@ -331,14 +332,15 @@ def steady_state(model: LinearGaussianModel, method: Method = "dare", *,
     tol = None if tol is None else check_positive("tol", tol)
     max_iter = check_int("max_iter", max_iter, minimum=1)
     P0 = None if P0 is None else check_covariance("P0", P0, model.n)
-    _check_exists(model)
-    try:
-        with np.errstate(all="ignore"):
-            ss = _solve(model, method, form, P0, tol, max_iter)
-    except MptrackError:
-        raise
-    except (np.linalg.LinAlgError, ValueError, ZeroDivisionError) as exc:
-        raise _overflow(f"the Riccati solution ({method})", dict(model=model, P0=P0), exc) from None
+    with one_blas_thread(model.n):   # few-by-few matrices: BLAS's threads would only spin afterwards
+        _check_exists(model)
+        try:
+            with np.errstate(all="ignore"):
+                ss = _solve(model, method, form, P0, tol, max_iter)
+        except MptrackError:
+            raise
+        except (np.linalg.LinAlgError, ValueError, ZeroDivisionError) as exc:
+            raise _overflow(f"the Riccati solution ({method})", dict(model=model, P0=P0), exc) from None
     require_finite(f"the Riccati solution ({method})", ss, model=model, P0=P0)
     return ss
 
