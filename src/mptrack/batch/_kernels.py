@@ -205,7 +205,7 @@ def ss_kernel_21(z, out, A, Bm, F, x0, lengths, axes, out_scale, joint):
                     flagged += 1
             continue
         b1_, b2_, b3_, b4_, c1, c2, c3, c4, Lmin = _lanes(i0, axes, lengths)
-        if A.shape[0] == 1:             # one block for every lane: 6 coefficients in registers, not 24
+        if A.shape[0] == 1:             # one block for every lane
             flagged += _ss21_group(z, out, x0, A, Bm, F, lengths, out_scale, joint, rows, b1_, b2_, b3_, b4_,
                                    c1, c2, c3, c4, Lmin, 0, 0, 0, 0)
         else:
@@ -214,7 +214,7 @@ def ss_kernel_21(z, out, A, Bm, F, x0, lengths, axes, out_scale, joint):
     return flagged
 
 
-@nb.njit(cache=True, nogil=True, inline="always")
+@nb.njit(cache=True, nogil=True)
 def _ss21_group(z, out, x0, A, Bm, F, lengths, out_scale, joint, rows, b1_, b2_, b3_, b4_, c1, c2, c3, c4, Lmin,
                 q1, q2, q3, q4):
     """One group of :func:`ss_kernel_21`: lanes (b1_, c1) .. (b4_, c4) with the blocks q1 .. q4 of
@@ -437,7 +437,7 @@ def kf_kernel_21(z, out, F, H, Q, R, K, Pf, P0, x0, lengths, axes, out_scale):
     return flagged
 
 
-@nb.njit(cache=True, nogil=True, inline="always")
+@nb.njit(cache=True, nogil=True)
 def _kf21_group(z, out, x0, F, H, Q, R, K, Pf, P0, lengths, out_scale, b1_, b2_, b3_, b4_, c1, c2, c3, c4, Lmin,
                 q1, q2, q3, q4):
     """One group of :func:`kf_kernel_21`: lanes (b1_, c1) .. (b4_, c4) with the blocks q1 .. q4 of the
