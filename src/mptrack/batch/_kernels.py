@@ -139,6 +139,13 @@ def _entries(M, a):
 
 
 @nb.njit(cache=True, nogil=True)
+def _coefficients(M, V, q):
+    """The four entries of block q of M (., 2, 2) and the two of block q of V: Bm (., 2, 1) or H (., 1, 2)."""
+    w = V.shape[2]
+    return M[q, 0, 0], M[q, 0, 1], M[q, 1, 0], M[q, 1, 1], V[q, 0, 0], V[q, 1 // w, 1 % w]
+
+
+@nb.njit(cache=True, nogil=True)
 def _missing(z, b, t, a, joint):
     """Whether axis a of track b only predicts at step t: its measurement is NaN, or (``joint``: the
     axes are the blocks of one model, whose steady-state filter predicts a row with any NaN) any
@@ -157,9 +164,8 @@ def _ss21_track(z, out, b, a, t0, p, v, L, A, Bm, F, out_scale, joint):
     """Track (b, axis a) of :func:`ss_kernel_21` from time index t0 with state (p, v); returns its flag
     for those steps."""
     q = a if A.shape[0] > 1 else 0      # the axis's blocks (one for all axes: q = 0)
-    a00, a01, a10, a11 = _entries(A, q)
+    a00, a01, a10, a11, b0, b1 = _coefficients(A, Bm, q)
     f00, f01, f10, f11 = _entries(F, q)
-    b0, b1 = Bm[q, 0, 0], Bm[q, 1, 0]
     o = 2 * a
     flag = 0.0
     for t in range(t0, L):
@@ -215,17 +221,26 @@ def ss_kernel_21(z, out, A, Bm, F, x0, lengths, axes, out_scale, joint):
 
 
 @nb.njit(cache=True, nogil=True)
+def _store_lanes(out, t, b1_, b2_, b3_, b4_, c1, c2, c3, c4, p1, v1, p2, v2, p3, v3, p4, v4, out_scale):
+    """Write the four lanes' states at step t; returns the terms of their flags."""
+    out[b1_, t, 2 * c1], out[b1_, t, 2 * c1 + 1] = p1, v1
+    out[b2_, t, 2 * c2], out[b2_, t, 2 * c2 + 1] = p2, v2
+    out[b3_, t, 2 * c3], out[b3_, t, 2 * c3 + 1] = p3, v3
+    out[b4_, t, 2 * c4], out[b4_, t, 2 * c4 + 1] = p4, v4
+    return ((out_scale * p1 + out_scale * v1) * 0.0, (out_scale * p2 + out_scale * v2) * 0.0,
+            (out_scale * p3 + out_scale * v3) * 0.0, (out_scale * p4 + out_scale * v4) * 0.0)
+
+
+@nb.njit(cache=True, nogil=True)
 def _ss21_group(z, out, x0, A, Bm, F, lengths, out_scale, joint, rows, b1_, b2_, b3_, b4_, c1, c2, c3, c4, Lmin,
                 q1, q2, q3, q4):
     """One group of :func:`ss_kernel_21`: lanes (b1_, c1) .. (b4_, c4) with the blocks q1 .. q4 of
     A, Bm, F; returns how many of them are flagged."""
     p1, v1, p2, v2, p3, v3, p4, v4 = _lane_priors(x0, b1_, b2_, b3_, b4_, c1, c2, c3, c4)
-    a1, e1, h1, k1 = _entries(A, q1)
-    a2, e2, h2, k2 = _entries(A, q2)
-    a3, e3, h3, k3 = _entries(A, q3)
-    a4, e4, h4, k4 = _entries(A, q4)
-    u1, w1, u2, w2 = Bm[q1, 0, 0], Bm[q1, 1, 0], Bm[q2, 0, 0], Bm[q2, 1, 0]
-    u3, w3, u4, w4 = Bm[q3, 0, 0], Bm[q3, 1, 0], Bm[q4, 0, 0], Bm[q4, 1, 0]
+    a1, e1, h1, k1, u1, w1 = _coefficients(A, Bm, q1)
+    a2, e2, h2, k2, u2, w2 = _coefficients(A, Bm, q2)
+    a3, e3, h3, k3, u3, w3 = _coefficients(A, Bm, q3)
+    a4, e4, h4, k4, u4, w4 = _coefficients(A, Bm, q4)
     f1 = f2 = f3 = f4 = 0.0
     t = 0
     while t < Lmin:
@@ -237,14 +252,9 @@ def _ss21_group(z, out, x0, A, Bm, F, lengths, out_scale, joint, rows, b1_, b2_,
         p2, v2 = (a2 * p2 + e2 * v2) + u2 * z2, (h2 * p2 + k2 * v2) + w2 * z2
         p3, v3 = (a3 * p3 + e3 * v3) + u3 * z3, (h3 * p3 + k3 * v3) + w3 * z3
         p4, v4 = (a4 * p4 + e4 * v4) + u4 * z4, (h4 * p4 + k4 * v4) + w4 * z4
-        out[b1_, t, 2 * c1], out[b1_, t, 2 * c1 + 1] = p1, v1
-        out[b2_, t, 2 * c2], out[b2_, t, 2 * c2 + 1] = p2, v2
-        out[b3_, t, 2 * c3], out[b3_, t, 2 * c3 + 1] = p3, v3
-        out[b4_, t, 2 * c4], out[b4_, t, 2 * c4 + 1] = p4, v4
-        f1 += (out_scale * p1 + out_scale * v1) * 0.0
-        f2 += (out_scale * p2 + out_scale * v2) * 0.0
-        f3 += (out_scale * p3 + out_scale * v3) * 0.0
-        f4 += (out_scale * p4 + out_scale * v4) * 0.0
+        r1, r2, r3, r4 = _store_lanes(out, t, b1_, b2_, b3_, b4_, c1, c2, c3, c4, p1, v1, p2, v2, p3, v3, p4, v4,
+                                      out_scale)
+        f1, f2, f3, f4 = f1 + r1, f2 + r2, f3 + r3, f4 + r4
         t += 1
     f1 += _ss21_track(z, out, b1_, c1, t, p1, v1, lengths[b1_], A, Bm, F, out_scale, joint)
     f2 += _ss21_track(z, out, b2_, c2, t, p2, v2, lengths[b2_], A, Bm, F, out_scale, joint)
@@ -371,8 +381,7 @@ def _kf21_track(z, out, b, a, t0, p, v, L, F, H, Q, R, K, Pf, P0, out_scale):
     """Track (b, axis a) of :func:`kf_kernel_21` from time index t0 with state (p, v); returns its flag
     for those steps."""
     q = a if F.shape[0] > 1 else 0      # the axis's blocks (one for all axes: q = 0)
-    f00, f01, f10, f11 = _entries(F, q)
-    h0, h1 = H[q, 0, 0], H[q, 0, 1]
+    f00, f01, f10, f11, h0, h1 = _coefficients(F, H, q)
     o = 2 * a
     flag = 0.0
     t1 = L
@@ -443,12 +452,10 @@ def _kf21_group(z, out, x0, F, H, Q, R, K, Pf, P0, lengths, out_scale, b1_, b2_,
     """One group of :func:`kf_kernel_21`: lanes (b1_, c1) .. (b4_, c4) with the blocks q1 .. q4 of the
     model and gains; returns how many of them are flagged."""
     p1, v1, p2, v2, p3, v3, p4, v4 = _lane_priors(x0, b1_, b2_, b3_, b4_, c1, c2, c3, c4)
-    a1, e1, h1, k1 = _entries(F, q1)
-    a2, e2, h2, k2 = _entries(F, q2)
-    a3, e3, h3, k3 = _entries(F, q3)
-    a4, e4, h4, k4 = _entries(F, q4)
-    u1, w1, u2, w2 = H[q1, 0, 0], H[q1, 0, 1], H[q2, 0, 0], H[q2, 0, 1]
-    u3, w3, u4, w4 = H[q3, 0, 0], H[q3, 0, 1], H[q4, 0, 0], H[q4, 0, 1]
+    a1, e1, h1, k1, u1, w1 = _coefficients(F, H, q1)
+    a2, e2, h2, k2, u2, w2 = _coefficients(F, H, q2)
+    a3, e3, h3, k3, u3, w3 = _coefficients(F, H, q3)
+    a4, e4, h4, k4, u4, w4 = _coefficients(F, H, q4)
     g1 = g2 = g3 = g4 = 0.0
     t = 0
     while t < Lmin:
@@ -467,14 +474,9 @@ def _kf21_group(z, out, x0, F, H, Q, R, K, Pf, P0, lengths, out_scale, b1_, b2_,
         p2, v2 = pp2 + K[t, q2, 0, 0] * d2, vp2 + K[t, q2, 1, 0] * d2
         p3, v3 = pp3 + K[t, q3, 0, 0] * d3, vp3 + K[t, q3, 1, 0] * d3
         p4, v4 = pp4 + K[t, q4, 0, 0] * d4, vp4 + K[t, q4, 1, 0] * d4
-        out[b1_, t, 2 * c1], out[b1_, t, 2 * c1 + 1] = p1, v1
-        out[b2_, t, 2 * c2], out[b2_, t, 2 * c2 + 1] = p2, v2
-        out[b3_, t, 2 * c3], out[b3_, t, 2 * c3 + 1] = p3, v3
-        out[b4_, t, 2 * c4], out[b4_, t, 2 * c4 + 1] = p4, v4
-        g1 += (out_scale * p1 + out_scale * v1) * 0.0
-        g2 += (out_scale * p2 + out_scale * v2) * 0.0
-        g3 += (out_scale * p3 + out_scale * v3) * 0.0
-        g4 += (out_scale * p4 + out_scale * v4) * 0.0
+        r1, r2, r3, r4 = _store_lanes(out, t, b1_, b2_, b3_, b4_, c1, c2, c3, c4, p1, v1, p2, v2, p3, v3, p4, v4,
+                                      out_scale)
+        g1, g2, g3, g4 = g1 + r1, g2 + r2, g3 + r3, g4 + r4
         t += 1
     g1 += _kf21_track(z, out, b1_, c1, t, p1, v1, lengths[b1_], F, H, Q, R, K, Pf, P0, out_scale)
     g2 += _kf21_track(z, out, b2_, c2, t, p2, v2, lengths[b2_], F, H, Q, R, K, Pf, P0, out_scale)
