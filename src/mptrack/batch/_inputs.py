@@ -65,9 +65,9 @@ def check_finite_out(bi: "BatchInputs", what: str, **inputs) -> np.ndarray:
 
 def check_flagged(bi: "BatchInputs", flagged: int, what: str, **inputs) -> np.ndarray:
     """The output of a kernel that checks as it streams (:mod:`mptrack.batch._kernels`): ``flagged``
-    tracks had an infinite measurement or a non-finite state.  None: nothing more is read.  Some:
-    the shared checks find and name it -- an infinity in z (NonFiniteError naming z), else the
-    filter's overflow (:func:`check_finite_out`)."""
+    tracks may hold an infinite measurement or a non-finite state.  When 0, nothing more is read;
+    else the shared checks find and name it -- an infinity in z (NonFiniteError naming z), else the
+    filter's overflow (:func:`check_finite_out`) -- or find nothing (a flag is not a verdict)."""
     if flagged:
         check_values("z", bi.z, allow_nan=True)
         check_finite_out(bi, what, **inputs)

@@ -10,7 +10,8 @@ and never shares a cache line with another thread except at track borders.
 Axes as extra batch (model B run per axis, Assimakis & Adam 2014, eqs. 17-18): a track is
 the pair (b, a) with ``a < axes``; it reads columns ``a*m .. a*m+m-1`` of
 ``z[b]`` and writes columns ``a*n .. a*n+n-1`` of ``out[b]``.  ``axes = 1`` is
-the plain joint model.
+the plain joint model.  The n = 2, m = 1 lane kernels also run the axes of a block-diagonal joint
+model (model A) this way, each with its own blocks of the model's matrices.
 
 A track with its own covariance (the KF after its first gap) runs the one compiled
 predict/update of :mod:`mptrack._kalman_core` (:func:`own_step`).  The n = 2, m = 1
@@ -23,7 +24,7 @@ halves the bytes streamed.  Steps ``t >= lengths[b]`` are written as NaN.
 
 The filters' kernels also do the finiteness checks of their data while they stream it (a separate
 pass over z and one over the output cost as much as the filter, docs/design.md "Checks fused into
-the batch kernels"): each returns the number of tracks *flagged* -- an infinite measurement anywhere
+the kernels"): each returns the number of tracks *flagged* -- an infinite measurement anywhere
 in the track's row of z (padding included), or a non-finite state written inside its length.  A
 track's flag is a float accumulating ``(out_scale * x) * 0.0`` over the states it stores: 0.0 when
 all are finite as stored.  ``out_scale`` (:data:`OUT_SCALE`) is 1 for float64 storage and 2**897 for
