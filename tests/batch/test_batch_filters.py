@@ -444,6 +444,20 @@ def test_kalman_covariances_of_complete_tracks_are_the_shared_gain_sequence():
     np.testing.assert_allclose(res.inputs["gains"].P_pred, ref.P_pred, rtol=0, atol=1e-14)
 
 
+def test_the_gain_sequence_gives_the_filter_matrices_of_complete_steps():
+    """GainSequence.A(k) = [I - K(k) H] F, so x(k/k) = A(k) x + K(k) z(k) is the Kalman update of a
+    complete step (the form the lane kernels run); computed once per sequence."""
+    model = assimakis_model_a(2)
+    gains = batch.gain_sequence(model, 30, np.eye(4))
+    A = gains.A
+    assert A is gains.A and A.shape == (30, 4, 4)
+    x, z = np.array([1.0, -2.0, 0.5, 3.0]), np.array([0.7, -1.1])
+    for k in (0, 1, 29):
+        xp = model.F @ x
+        want = xp + gains.K[k] @ (z - model.H @ xp)
+        np.testing.assert_allclose(A[k] @ x + gains.K[k] @ z, want, rtol=1e-14, atol=1e-14)
+
+
 def test_predict_and_filter_chunked_name_a_result_where_an_array_is_expected():
     model = assimakis_model_b()
     z = np.zeros((2, 5, 1))

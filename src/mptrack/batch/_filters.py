@@ -12,6 +12,7 @@ kernels do not form (docs/design.md, "Batch engine").
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 from typing import Callable
 
 import numpy as np
@@ -176,16 +177,27 @@ class GainSequence:
     P_pred  (T, n, n) predicted covariances P(k/k-1)
     P_filt  (T, n, n) filtered covariances P(k/k) of a track with complete measurements
     P0      (n, n) the prior covariance P(0/0) they start from
+    F, H    (n, n), (m, n) the model's transition and measurement matrices
     """
 
     K: np.ndarray
     P_pred: np.ndarray
     P_filt: np.ndarray
     P0: np.ndarray
+    F: np.ndarray
+    H: np.ndarray
 
     @property
     def T(self) -> int:
         return self.K.shape[0]
+
+    @cached_property
+    def A(self) -> np.ndarray:
+        """(T, n, n) A(k) = [I - K(k) H] F: with complete measurements the filter is
+        x(k/k) = A(k) x(k-1/k-1) + K(k) z(k), the time-varying form of the steady-state filter
+        (Assimakis & Adam 2014, eq. 9).  Computed once, on first use."""
+        n = self.F.shape[0]
+        return (np.eye(n) - self.K @ self.H) @ self.F
 
 
 def gain_sequence(model: LinearGaussianModel, steps: int, P0=None) -> GainSequence:
@@ -214,7 +226,7 @@ def gain_sequence(model: LinearGaussianModel, steps: int, P0=None) -> GainSequen
     Ks, Pp, Pf = np.empty((steps, n, m)), np.empty((steps, n, n)), np.empty((steps, n, n))
     # an overflow leaves NaN, reported by require_finite below
     K.gain_loop(c(model.F), c(model.H), c(model.Q), c(model.R), P0.copy(), Ks, Pp, Pf)
-    result = GainSequence(K=Ks, P_pred=Pp, P_filt=Pf, P0=P0)
+    result = GainSequence(K=Ks, P_pred=Pp, P_filt=Pf, P0=P0, F=np.array(model.F), H=np.array(model.H))
     require_finite("the Kalman gain sequence", result, model=model, P0=P0)
     return result
 
@@ -231,7 +243,7 @@ def _kalman_filter(model, z, x0=None, P0=None, out=None, *, lengths=None, gains=
                          f"got K of shape {gains.K.shape}")
     elif P0 is not None:
         raise ParameterError("P0: give P0 or gains (which already fix P0), not both")
-    lanes = _lane_axes(model, bi.axes, gains.K[:T], gains.P_filt[:T], gains.P0)
+    lanes = _lane_axes(model, bi.axes, gains.A[:T], gains.K[:T], gains.P_filt[:T], gains.P0)
     if lanes is not None:          # axes of n = 2, m = 1: the covariance stays block diagonal
         k, blocks = lanes
         flagged = launch(K.kf_kernel_21, bi.out.size, bi.z, bi.out, *blocks, bi.x0, bi.lengths, k,

@@ -142,8 +142,8 @@ def _entries(M, a):
 @nb.njit(cache=True, nogil=True)
 def _coefficients(M, V, q):
     """The four entries of block q of M (., 2, 2) and the two of block q of V: Bm (., 2, 1) or H (., 1, 2)."""
-    w = V.shape[2]
-    return M[q, 0, 0], M[q, 0, 1], M[q, 1, 0], M[q, 1, 1], V[q, 0, 0], V[q, 1 // w, 1 % w]
+    second = V[q, 1, 0] if V.shape[2] == 1 else V[q, 0, 1]
+    return M[q, 0, 0], M[q, 0, 1], M[q, 1, 0], M[q, 1, 1], V[q, 0, 0], second
 
 
 @nb.njit(cache=True, nogil=True)
@@ -378,11 +378,10 @@ def kf_kernel(z, out, F, H, Q, R, K, Pf, P0, x0, lengths, axes, out_scale):
 
 
 @nb.njit(cache=True, nogil=True)
-def _kf21_track(z, out, b, a, t0, p, v, L, F, H, Q, R, K, Pf, P0, out_scale):
+def _kf21_track(z, out, b, a, t0, p, v, L, F, H, Q, R, AK, K, Pf, P0, out_scale):
     """Track (b, axis a) of :func:`kf_kernel_21` from time index t0 with state (p, v); returns its flag
     for those steps."""
     q = a if F.shape[0] > 1 else 0      # the axis's blocks (one for all axes: q = 0)
-    f00, f01, f10, f11, h0, h1 = _coefficients(F, H, q)
     o = 2 * a
     flag = 0.0
     t1 = L
@@ -391,11 +390,8 @@ def _kf21_track(z, out, b, a, t0, p, v, L, F, H, Q, R, K, Pf, P0, out_scale):
         if np.isnan(zz):
             t1 = t
             break
-        pp = f00 * p + f01 * v
-        vp = f10 * p + f11 * v
-        e = zz - (h0 * pp + h1 * vp)
-        p = pp + K[t, q, 0, 0] * e
-        v = vp + K[t, q, 1, 0] * e
+        a00, a01, a10, a11, k0, k1 = _coefficients(AK[t], K[t], q)
+        p, v = (a00 * p + a01 * v) + k0 * zz, (a10 * p + a11 * v) + k1 * zz
         out[b, t, o] = p
         out[b, t, o + 1] = v
         flag += (out_scale * p + out_scale * v) * 0.0
@@ -417,12 +413,18 @@ def _kf21_track(z, out, b, a, t0, p, v, L, F, H, Q, R, K, Pf, P0, out_scale):
 
 
 @nb.njit(**_OPTS)
-def kf_kernel_21(z, out, F, H, Q, R, K, Pf, P0, x0, lengths, axes, out_scale):
+def kf_kernel_21(z, out, F, H, Q, R, AK, K, Pf, P0, x0, lengths, axes, out_scale):
     """:func:`kf_kernel` written out for axes of n = 2, m = 1, four tracks at a time (see
-    :func:`ss_kernel_21`); returns the number of flagged tracks.  F, H, Q, R, P0 (q, ., .), K and Pf
-    (T, q, ., .): the blocks of axis a (of axis 0 when q = 1) are the track (b, a)'s model and gains.  A joint
-    block-diagonal model needs no joint rule here: its covariance stays block diagonal, so a NaN in
-    one axis leaves the others' updates as they are."""
+    :func:`ss_kernel_21`); returns the number of flagged tracks.
+
+    F, H, Q, R, P0 (q, ., .), and the shared sequences AK, K, Pf (T, q, ., .): the blocks of axis a (of
+    axis 0 when q = 1) are the track (b, a)'s model and gains.  While a track's measurements are
+    complete it runs x(k/k) = A(k) x(k-1/k-1) + K(k) z(k) with A(k) = [I - K(k) H] F
+    (:attr:`mptrack.batch.GainSequence.A`), the same filter as x(k/k-1) + K(k) [z(k) - H x(k/k-1)]
+    with a chain of two dependent multiply-adds per step instead of five (four lanes did not hide the
+    longer one); at its first gap it leaves the shared gains for its own covariance (:func:`own_step`).
+    A joint block-diagonal model needs no joint rule here: its covariance stays block diagonal, so a
+    NaN in one axis leaves the others' updates as they are."""
     nb_ = z.shape[0]
     ntr = nb_ * axes
     ngroups = (ntr + LANES - 1) // LANES
@@ -434,55 +436,48 @@ def kf_kernel_21(z, out, F, H, Q, R, K, Pf, P0, x0, lengths, axes, out_scale):
                 b = i // axes
                 a = i - b * axes
                 if _kf21_track(z, out, b, a, 0, x0[b, 2 * a], x0[b, 2 * a + 1], lengths[b],
-                               F, H, Q, R, K, Pf, P0, out_scale) != 0.0:
+                               F, H, Q, R, AK, K, Pf, P0, out_scale) != 0.0:
                     flagged += 1
             continue
         b1_, b2_, b3_, b4_, c1, c2, c3, c4, Lmin = _lanes(i0, axes, lengths)
-        if F.shape[0] == 1:             # one block for every lane: shared coefficients and gains
-            flagged += _kf21_group(z, out, x0, F, H, Q, R, K, Pf, P0, lengths, out_scale, b1_, b2_, b3_, b4_,
+        if F.shape[0] == 1:             # one block for every lane: shared gains
+            flagged += _kf21_group(z, out, x0, F, H, Q, R, AK, K, Pf, P0, lengths, out_scale, b1_, b2_, b3_, b4_,
                                    c1, c2, c3, c4, Lmin, 0, 0, 0, 0)
         else:
-            flagged += _kf21_group(z, out, x0, F, H, Q, R, K, Pf, P0, lengths, out_scale, b1_, b2_, b3_, b4_,
+            flagged += _kf21_group(z, out, x0, F, H, Q, R, AK, K, Pf, P0, lengths, out_scale, b1_, b2_, b3_, b4_,
                                    c1, c2, c3, c4, Lmin, c1, c2, c3, c4)
     return flagged
 
 
 @nb.njit(cache=True, nogil=True)
-def _kf21_group(z, out, x0, F, H, Q, R, K, Pf, P0, lengths, out_scale, b1_, b2_, b3_, b4_, c1, c2, c3, c4, Lmin,
+def _kf21_group(z, out, x0, F, H, Q, R, AK, K, Pf, P0, lengths, out_scale, b1_, b2_, b3_, b4_, c1, c2, c3, c4, Lmin,
                 q1, q2, q3, q4):
     """One group of :func:`kf_kernel_21`: lanes (b1_, c1) .. (b4_, c4) with the blocks q1 .. q4 of the
     model and gains; returns how many of them are flagged."""
     p1, v1, p2, v2, p3, v3, p4, v4 = _lane_priors(x0, b1_, b2_, b3_, b4_, c1, c2, c3, c4)
-    a1, e1, h1, k1, u1, w1 = _coefficients(F, H, q1)
-    a2, e2, h2, k2, u2, w2 = _coefficients(F, H, q2)
-    a3, e3, h3, k3, u3, w3 = _coefficients(F, H, q3)
-    a4, e4, h4, k4, u4, w4 = _coefficients(F, H, q4)
     g1 = g2 = g3 = g4 = 0.0
     t = 0
     while t < Lmin:
         z1, z2, z3, z4 = z[b1_, t, c1], z[b2_, t, c2], z[b3_, t, c3], z[b4_, t, c4]
         if np.isnan(z1) or np.isnan(z2) or np.isnan(z3) or np.isnan(z4):
             break
-        pp1, vp1 = a1 * p1 + e1 * v1, h1 * p1 + k1 * v1
-        pp2, vp2 = a2 * p2 + e2 * v2, h2 * p2 + k2 * v2
-        pp3, vp3 = a3 * p3 + e3 * v3, h3 * p3 + k3 * v3
-        pp4, vp4 = a4 * p4 + e4 * v4, h4 * p4 + k4 * v4
-        d1 = z1 - (u1 * pp1 + w1 * vp1)
-        d2 = z2 - (u2 * pp2 + w2 * vp2)
-        d3 = z3 - (u3 * pp3 + w3 * vp3)
-        d4 = z4 - (u4 * pp4 + w4 * vp4)
-        p1, v1 = pp1 + K[t, q1, 0, 0] * d1, vp1 + K[t, q1, 1, 0] * d1
-        p2, v2 = pp2 + K[t, q2, 0, 0] * d2, vp2 + K[t, q2, 1, 0] * d2
-        p3, v3 = pp3 + K[t, q3, 0, 0] * d3, vp3 + K[t, q3, 1, 0] * d3
-        p4, v4 = pp4 + K[t, q4, 0, 0] * d4, vp4 + K[t, q4, 1, 0] * d4
+        At, Kt = AK[t], K[t]
+        a1, e1, h1, k1, u1, w1 = _coefficients(At, Kt, q1)
+        a2, e2, h2, k2, u2, w2 = _coefficients(At, Kt, q2)
+        a3, e3, h3, k3, u3, w3 = _coefficients(At, Kt, q3)
+        a4, e4, h4, k4, u4, w4 = _coefficients(At, Kt, q4)
+        p1, v1 = (a1 * p1 + e1 * v1) + u1 * z1, (h1 * p1 + k1 * v1) + w1 * z1
+        p2, v2 = (a2 * p2 + e2 * v2) + u2 * z2, (h2 * p2 + k2 * v2) + w2 * z2
+        p3, v3 = (a3 * p3 + e3 * v3) + u3 * z3, (h3 * p3 + k3 * v3) + w3 * z3
+        p4, v4 = (a4 * p4 + e4 * v4) + u4 * z4, (h4 * p4 + k4 * v4) + w4 * z4
         r1, r2, r3, r4 = _store_lanes(out, t, b1_, b2_, b3_, b4_, c1, c2, c3, c4, p1, v1, p2, v2, p3, v3, p4, v4,
                                       out_scale)
         g1, g2, g3, g4 = g1 + r1, g2 + r2, g3 + r3, g4 + r4
         t += 1
-    g1 += _kf21_track(z, out, b1_, c1, t, p1, v1, lengths[b1_], F, H, Q, R, K, Pf, P0, out_scale)
-    g2 += _kf21_track(z, out, b2_, c2, t, p2, v2, lengths[b2_], F, H, Q, R, K, Pf, P0, out_scale)
-    g3 += _kf21_track(z, out, b3_, c3, t, p3, v3, lengths[b3_], F, H, Q, R, K, Pf, P0, out_scale)
-    g4 += _kf21_track(z, out, b4_, c4, t, p4, v4, lengths[b4_], F, H, Q, R, K, Pf, P0, out_scale)
+    g1 += _kf21_track(z, out, b1_, c1, t, p1, v1, lengths[b1_], F, H, Q, R, AK, K, Pf, P0, out_scale)
+    g2 += _kf21_track(z, out, b2_, c2, t, p2, v2, lengths[b2_], F, H, Q, R, AK, K, Pf, P0, out_scale)
+    g3 += _kf21_track(z, out, b3_, c3, t, p3, v3, lengths[b3_], F, H, Q, R, AK, K, Pf, P0, out_scale)
+    g4 += _kf21_track(z, out, b4_, c4, t, p4, v4, lengths[b4_], F, H, Q, R, AK, K, Pf, P0, out_scale)
     return _count_flags(g1, g2, g3, g4)
 
 
