@@ -79,8 +79,9 @@ def _lane_axes(model: LinearGaussianModel, axes: int, *matrices, rtol: float = 0
     :func:`mptrack.models.stack_axes` builds them (the axes may differ, e.g. in R) -- runs each axis as a
     track when ``matrices`` (its steady state or gains) are block diagonal too (to ``rtol``)."""
     mats = (model.F, model.H, model.Q, model.R, *matrices)
-    if model.n == 2 and model.m == 1:
-        return axes, [np.require(M, np.float64, ["C", "W"])[..., None, :, :] for M in mats]
+    if model.n == 2 and model.m == 1:     # one block for all axes; as writeable arrays (one kernel type)
+        return axes, [(M if M.flags.writeable and M.flags.c_contiguous and M.dtype == np.float64
+                       else np.array(M, dtype=np.float64))[..., None, :, :] for M in mats]
     k = model.m
     if axes > 1 or k < 2 or model.n != 2 * k:
         return None
