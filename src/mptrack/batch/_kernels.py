@@ -200,6 +200,7 @@ def ss_kernel_21(z, out, A, Bm, F, x0, lengths, axes, out_scale, joint):
     ntr = nb_ * axes
     ngroups = (ntr + LANES - 1) // LANES
     rows = joint and LANES % axes != 0   # else a group holds whole tracks: a NaN in any lane stops it
+    # (axes 1, 2 or 4); rows: axes >= 3, so a group's four lanes span two tracks at most
     flagged = 0
     for g in nb.prange(ngroups):
         i0 = g * LANES
@@ -245,8 +246,11 @@ def _ss21_group(z, out, x0, A, Bm, F, lengths, out_scale, joint, rows, b1_, b2_,
     f1 = f2 = f3 = f4 = 0.0
     t = 0
     while t < Lmin:
-        if (_missing(z, b1_, t, c1, rows) or _missing(z, b2_, t, c2, rows)
-                or _missing(z, b3_, t, c3, rows) or _missing(z, b4_, t, c4, rows)):
+        if rows:                        # whole rows (axes >= 3: the four lanes span two tracks at most)
+            if _missing(z, b1_, t, c1, True) or _missing(z, b4_, t, c4, True):
+                break
+        elif (np.isnan(z[b1_, t, c1]) or np.isnan(z[b2_, t, c2]) or np.isnan(z[b3_, t, c3])
+                or np.isnan(z[b4_, t, c4])):
             break
         z1, z2, z3, z4 = z[b1_, t, c1], z[b2_, t, c2], z[b3_, t, c3], z[b4_, t, c4]
         p1, v1 = (a1 * p1 + e1 * v1) + u1 * z1, (h1 * p1 + k1 * v1) + w1 * z1
