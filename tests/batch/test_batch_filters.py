@@ -206,14 +206,17 @@ def test_float32_input_is_checked_in_its_dtype_without_a_float64_copy():
 
 
 @pytest.mark.parametrize("kind", ["steady-state", "kalman"])
-@pytest.mark.parametrize("axes", [1, 2])
+@pytest.mark.parametrize("which", ["B", "A", "coupled"])
 @pytest.mark.parametrize("dtype", [np.float64, np.float32])
-def test_an_infinity_anywhere_in_z_is_refused_by_name(kind, axes, dtype):
+def test_an_infinity_anywhere_in_z_is_refused_by_name(kind, which, dtype):
     """The kernels check z while they read it (no pass over z before the filter): an infinity among a
     track's steps, beside a NaN in the same row (a row that only predicts, so the value is never used)
     or in the padding after the track's length gives the error naming z and the index, as before;
     ``out`` is then left unspecified, and a finite batch after it filters as usual."""
-    model = assimakis_model_b() if axes == 1 else assimakis_model_a(2)   # n, m = 2, 1 (lane kernels) or 4, 2
+    from mptrack.bench.batch import _coupled
+
+    # the lane kernels (model B; model A's axes as lanes) and the generic kernel (axes coupled)
+    model = {"B": assimakis_model_b(), "A": assimakis_model_a(2), "coupled": _coupled(assimakis_model_a(2))}[which]
     run = batch.steady_state_filter if kind == "steady-state" else batch.kalman_filter
     rng = np.random.default_rng(31)
     z = rng.standard_normal((9, 40, model.m)).astype(dtype)
@@ -230,6 +233,26 @@ def test_an_infinity_anywhere_in_z_is_refused_by_name(kind, axes, dtype):
         with pytest.raises(NonFiniteError, match=pattern):
             run(model, bad, lengths=lengths, out=np.empty(want.shape, dtype))
     np.testing.assert_array_equal(run(model, z[:, :, :], lengths=lengths).x[[0, 1, 3]], want[[0, 1, 3]])
+
+
+@pytest.mark.parametrize("kind", ["steady-state", "kalman"])
+@pytest.mark.parametrize("which", ["B", "A", "coupled"])
+@pytest.mark.parametrize("dtype", [np.float64, np.float32])
+def test_an_overflow_while_tracks_advance_together_is_an_error(kind, which, dtype):
+    """An overflow inside the four-track loop of each kernel (lane kernels, model A's axes as lanes, the
+    generic kernel) is found without a pass over the output: the call raises naming x0."""
+    from mptrack.bench.batch import _coupled
+
+    model = {"B": assimakis_model_b(), "A": assimakis_model_a(2), "coupled": _coupled(assimakis_model_a(2))}[which]
+    run = batch.steady_state_filter if kind == "steady-state" else batch.kalman_filter
+    z = np.random.default_rng(3).standard_normal((8, 40, model.m)).astype(dtype)
+    x0 = np.zeros((8, model.n))
+    assert np.isfinite(run(model, z, x0).x).all()
+    x0[5] = 1e39 if dtype == np.float32 else 1.75e308          # float32: overflows only when stored
+    if dtype == np.float64:
+        z[5, 0] = 1.7e308
+    with pytest.raises(NonFiniteError, match=r"^x0: the (steady-state|Kalman) filter overflowed"):
+        run(model, z, x0)
 
 
 def test_the_float32_overflow_flag_misses_no_overflow():

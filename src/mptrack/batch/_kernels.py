@@ -66,54 +66,109 @@ def _pad(z, out, b, zo, xo, m, n, L):
     return flag
 
 
+@nb.njit(cache=True, nogil=True)
+def _ss_track(z, out, b, zo, xo, t0, x, L, A, Bm, F, out_scale):
+    """Track b (columns zo.. of z, xo.. of out) of :func:`ss_kernel` from time index t0 with state x
+    (overwritten); returns its flag for those steps."""
+    n = A.shape[0]
+    m = Bm.shape[1]
+    xn = np.empty(n)
+    flag = 0.0
+    for t in range(t0, L):
+        miss = False
+        for c in range(m):
+            if np.isnan(z[b, t, zo + c]):
+                miss = True
+        if miss:
+            for c in range(m):          # an infinity beside a NaN is not used, but still refused
+                if np.isinf(z[b, t, zo + c]):
+                    flag = np.nan
+            for r in range(n):
+                s = 0.0
+                for c in range(n):
+                    s += F[r, c] * x[c]
+                xn[r] = s
+        else:
+            for r in range(n):
+                s = 0.0
+                for c in range(n):
+                    s += A[r, c] * x[c]
+                u = 0.0
+                for c in range(m):
+                    u += Bm[r, c] * z[b, t, zo + c]
+                xn[r] = s + u
+        for r in range(n):
+            x[r] = xn[r]
+            out[b, t, xo + r] = xn[r]
+            flag += (out_scale * x[r]) * 0.0
+    return flag + _pad(z, out, b, zo, xo, m, n, L)
+
+
 @nb.njit(**_OPTS)
 def ss_kernel(z, out, A, Bm, F, x0, lengths, axes, out_scale):
     """x(k/k) = A x(k-1/k-1) + B z(k) (Assimakis & Adam 2014, eq. 9); a row with NaN predicts, x = F x.
-    Returns the number of flagged tracks."""
+    Returns the number of flagged tracks.
+
+    Any (n, m), sizes known at run time.  As in the lane kernels, four tracks advance together while
+    their rows are complete (their states side by side in small arrays, so the four recursions hide
+    each other's latency); at a NaN or the shortest track's end each finishes on its own
+    (:func:`_ss_track`)."""
     nb_ = z.shape[0]
     n = A.shape[0]
     m = Bm.shape[1]
+    ntr = nb_ * axes
     flagged = 0
-    for i in nb.prange(nb_ * axes):
-        b = i // axes
-        zo = (i - b * axes) * m
-        xo = (i - b * axes) * n
-        x = np.empty(n)
-        xn = np.empty(n)
-        for r in range(n):
-            x[r] = x0[b, xo + r]
-        L = lengths[b]
-        flag = 0.0
-        for t in range(L):
+    for g in nb.prange((ntr + LANES - 1) // LANES):
+        i0 = g * LANES
+        lanes = min(LANES, ntr - i0)
+        bl = np.empty(LANES, np.int64)
+        zo = np.empty(LANES, np.int64)
+        xo = np.empty(LANES, np.int64)
+        X = np.empty((n, LANES))
+        XN = np.empty((n, LANES))
+        Z = np.empty((m, LANES))
+        fl = np.zeros(LANES)
+        Lmin = z.shape[1]
+        for lane in range(lanes):
+            b = (i0 + lane) // axes
+            bl[lane] = b
+            zo[lane] = (i0 + lane - b * axes) * m
+            xo[lane] = (i0 + lane - b * axes) * n
+            Lmin = min(Lmin, lengths[b])
+            for r in range(n):
+                X[r, lane] = x0[b, xo[lane] + r]
+        t = 0
+        while lanes == LANES and t < Lmin:
             miss = False
             for c in range(m):
-                if np.isnan(z[b, t, zo + c]):
-                    miss = True
+                for lane in range(LANES):
+                    v = z[bl[lane], t, zo[lane] + c]
+                    Z[c, lane] = v
+                    if np.isnan(v):
+                        miss = True
             if miss:
-                for c in range(m):          # an infinity beside a NaN is not used, but still refused
-                    if np.isinf(z[b, t, zo + c]):
-                        flag = np.nan
-                for r in range(n):
+                break
+            for r in range(n):
+                for lane in range(LANES):
                     s = 0.0
                     for c in range(n):
-                        s += F[r, c] * x[c]
-                    xn[r] = s
-            else:
-                for r in range(n):
-                    s = 0.0
-                    for c in range(n):
-                        s += A[r, c] * x[c]
+                        s += A[r, c] * X[c, lane]
                     u = 0.0
                     for c in range(m):
-                        u += Bm[r, c] * z[b, t, zo + c]
-                    xn[r] = s + u
+                        u += Bm[r, c] * Z[c, lane]
+                    XN[r, lane] = s + u
             for r in range(n):
-                x[r] = xn[r]
-                out[b, t, xo + r] = xn[r]
-                flag += (out_scale * x[r]) * 0.0
-        flag += _pad(z, out, b, zo, xo, m, n, L)
-        if flag != 0.0:
-            flagged += 1
+                for lane in range(LANES):
+                    v = XN[r, lane]
+                    X[r, lane] = v
+                    out[bl[lane], t, xo[lane] + r] = v
+                    fl[lane] += (out_scale * v) * 0.0
+            t += 1
+        for lane in range(lanes):
+            b = bl[lane]
+            if fl[lane] + _ss_track(z, out, b, zo[lane], xo[lane], t, X[:, lane].copy(), lengths[b], A, Bm, F,
+                                    out_scale) != 0.0:
+                flagged += 1
     return flagged
 
 
