@@ -252,7 +252,7 @@ def _kalman_filter(model, z, x0=None, P0=None, out=None, *, lengths=None, gains=
     else:
         c = np.ascontiguousarray
         flagged = launch(K.kf_kernel, bi.out.size, bi.z, bi.out, c(model.F), c(model.H), c(model.Q), c(model.R),
-                         c(gains.K), c(gains.P_filt), c(gains.P0), bi.x0, bi.lengths, bi.axes,
+                         c(gains.A), c(gains.K), c(gains.P_filt), c(gains.P0), bi.x0, bi.lengths, bi.axes,
                          K.OUT_SCALE[bi.out.dtype])
     x = check_flagged(bi, flagged, "the Kalman filter", model=model, z=bi.z, x0=bi.x0, P0=gains.P0)
     return BatchFilterResult(x=x, P=None, method="KF", inputs={"gains": gains})

@@ -14,10 +14,11 @@ the plain joint model.  The n = 2, m = 1 lane kernels also run the axes of a blo
 model (model A) this way, each with its own blocks of the model's matrices.
 
 A track with its own covariance (the KF after its first gap) runs the one compiled
-predict/update of :mod:`mptrack._kalman_core` (:func:`own_step`).  The n = 2, m = 1
-lane kernels (``ss_kernel_21``, ``kf_kernel_21``) are the documented exception: four
-tracks advance together in registers with the shared gains, the update written out
-per lane (tests/test_kalman_core.py checks them against the core).
+predict/update of :mod:`mptrack._kalman_core` (:func:`own_step`).  The shared-gain paths are the
+documented exception: four tracks advance together with the shared gains, x = A(k) x + K(k) z --
+in registers in the n = 2, m = 1 lane kernels (``ss_kernel_21``, ``kf_kernel_21``), side by side in
+small arrays in the generic ones (:func:`_lane_steps`); tests/test_kalman_core.py checks them
+against the core.
 
 The state is carried in float64 whatever the storage dtype; float32 only
 halves the bytes streamed.  Steps ``t >= lengths[b]`` are written as NaN.
@@ -104,15 +105,76 @@ def _ss_track(z, out, b, zo, xo, t0, x, L, A, Bm, F, out_scale):
     return flag + _pad(z, out, b, zo, xo, m, n, L)
 
 
+@nb.njit(cache=True, nogil=True)
+def _group(i0, lanes, axes, lengths, x0, n, m):
+    """Tracks i0 .. i0+lanes-1 of the generic kernels as their b, first z column and first x column,
+    their priors X (n, LANES), and the shortest of their lengths."""
+    bl = np.empty(LANES, np.int64)
+    zo = np.empty(LANES, np.int64)
+    xo = np.empty(LANES, np.int64)
+    X = np.empty((n, LANES))
+    Lmin = lengths[i0 // axes]
+    for lane in range(lanes):
+        b = (i0 + lane) // axes
+        bl[lane] = b
+        zo[lane] = (i0 + lane - b * axes) * m
+        xo[lane] = (i0 + lane - b * axes) * n
+        Lmin = min(Lmin, lengths[b])
+        for r in range(n):
+            X[r, lane] = x0[b, xo[lane] + r]
+    return bl, zo, xo, X, Lmin
+
+
+@nb.njit(cache=True, nogil=True)
+def _lane_steps(z, out, M, V, bl, zo, xo, X, fl, Lmin, out_scale):
+    """Four tracks of the generic kernels together from step 0: x(k) = M[k] x(k-1) + V[k] z(k) (M, V
+    of shape (1 or T, n, n) and (1 or T, n, m); one matrix for every step when the first axis is 1),
+    while all four rows are complete and k < Lmin.  Updates X (n, LANES) and the flags fl; returns the
+    step where it stopped.  The states sit side by side so the four recursions hide each other's
+    latency."""
+    n = M.shape[1]
+    m = V.shape[2]
+    XN = np.empty((n, LANES))
+    Z = np.empty((m, LANES))
+    t = 0
+    while t < Lmin:
+        miss = False
+        for c in range(m):
+            for lane in range(LANES):
+                v = z[bl[lane], t, zo[lane] + c]
+                Z[c, lane] = v
+                if np.isnan(v):
+                    miss = True
+        if miss:
+            break
+        k = t if M.shape[0] > 1 else 0
+        for r in range(n):
+            for lane in range(LANES):
+                s = 0.0
+                for c in range(n):
+                    s += M[k, r, c] * X[c, lane]
+                u = 0.0
+                for c in range(m):
+                    u += V[k, r, c] * Z[c, lane]
+                XN[r, lane] = s + u
+        for r in range(n):
+            for lane in range(LANES):
+                v = XN[r, lane]
+                X[r, lane] = v
+                out[bl[lane], t, xo[lane] + r] = v
+                fl[lane] += (out_scale * v) * 0.0
+        t += 1
+    return t
+
+
 @nb.njit(**_OPTS)
 def ss_kernel(z, out, A, Bm, F, x0, lengths, axes, out_scale):
     """x(k/k) = A x(k-1/k-1) + B z(k) (Assimakis & Adam 2014, eq. 9); a row with NaN predicts, x = F x.
     Returns the number of flagged tracks.
 
     Any (n, m), sizes known at run time.  As in the lane kernels, four tracks advance together while
-    their rows are complete (their states side by side in small arrays, so the four recursions hide
-    each other's latency); at a NaN or the shortest track's end each finishes on its own
-    (:func:`_ss_track`)."""
+    their rows are complete (:func:`_lane_steps`); at a NaN or the shortest track's end each finishes
+    on its own (:func:`_ss_track`)."""
     nb_ = z.shape[0]
     n = A.shape[0]
     m = Bm.shape[1]
@@ -121,49 +183,10 @@ def ss_kernel(z, out, A, Bm, F, x0, lengths, axes, out_scale):
     for g in nb.prange((ntr + LANES - 1) // LANES):
         i0 = g * LANES
         lanes = min(LANES, ntr - i0)
-        bl = np.empty(LANES, np.int64)
-        zo = np.empty(LANES, np.int64)
-        xo = np.empty(LANES, np.int64)
-        X = np.empty((n, LANES))
-        XN = np.empty((n, LANES))
-        Z = np.empty((m, LANES))
+        bl, zo, xo, X, Lmin = _group(i0, lanes, axes, lengths, x0, n, m)
         fl = np.zeros(LANES)
-        Lmin = z.shape[1]
-        for lane in range(lanes):
-            b = (i0 + lane) // axes
-            bl[lane] = b
-            zo[lane] = (i0 + lane - b * axes) * m
-            xo[lane] = (i0 + lane - b * axes) * n
-            Lmin = min(Lmin, lengths[b])
-            for r in range(n):
-                X[r, lane] = x0[b, xo[lane] + r]
-        t = 0
-        while lanes == LANES and t < Lmin:
-            miss = False
-            for c in range(m):
-                for lane in range(LANES):
-                    v = z[bl[lane], t, zo[lane] + c]
-                    Z[c, lane] = v
-                    if np.isnan(v):
-                        miss = True
-            if miss:
-                break
-            for r in range(n):
-                for lane in range(LANES):
-                    s = 0.0
-                    for c in range(n):
-                        s += A[r, c] * X[c, lane]
-                    u = 0.0
-                    for c in range(m):
-                        u += Bm[r, c] * Z[c, lane]
-                    XN[r, lane] = s + u
-            for r in range(n):
-                for lane in range(LANES):
-                    v = XN[r, lane]
-                    X[r, lane] = v
-                    out[bl[lane], t, xo[lane] + r] = v
-                    fl[lane] += (out_scale * v) * 0.0
-            t += 1
+        t = _lane_steps(z, out, A.reshape((1, n, n)), Bm.reshape((1, n, m)), bl, zo, xo, X, fl,
+                        Lmin if lanes == LANES else 0, out_scale)
         for lane in range(lanes):
             b = bl[lane]
             if fl[lane] + _ss_track(z, out, b, zo[lane], xo[lane], t, X[:, lane].copy(), lengths[b], A, Bm, F,
@@ -367,72 +390,78 @@ def gain_loop(F, H, Q, R, P, Ks, Pp, Pf):
         Pf[k] = P
 
 
+@nb.njit(cache=True, nogil=True)
+def _kf_track(z, out, b, zo, xo, t0, x, L, F, H, Q, R, AK, K, Pf, P0, out_scale):
+    """Track b (columns zo.. of z, xo.. of out) of :func:`kf_kernel` from time index t0, still on the
+    shared gains, with state x (overwritten); returns its flag for those steps."""
+    n = F.shape[0]
+    m = H.shape[0]
+    xn = np.empty(n)
+    P = np.empty((n, n))
+    zb = z[b, :, zo:zo + m]
+    ws = workspace(n, m)
+    hx = np.empty(m)
+    periods = np.zeros(m)
+    shared = True
+    flag = 0.0
+    for t in range(t0, L):
+        if shared:
+            miss = False
+            for c in range(m):
+                if np.isnan(z[b, t, zo + c]):
+                    miss = True
+            if miss:
+                shared = False
+                for r in range(n):
+                    for c in range(n):
+                        P[r, c] = P0[r, c] if t == 0 else Pf[t - 1, r, c]
+        if shared:
+            for r in range(n):
+                s = 0.0
+                for c in range(n):
+                    s += AK[t, r, c] * x[c]
+                u = 0.0
+                for c in range(m):
+                    u += K[t, r, c] * z[b, t, zo + c]
+                xn[r] = s + u
+            for r in range(n):
+                x[r] = xn[r]
+        else:
+            own_step(F, H, Q, R, x, P, zb, t, ws, hx, periods)
+        for r in range(n):
+            out[b, t, xo + r] = x[r]
+            flag += (out_scale * x[r]) * 0.0
+    return flag + _pad(z, out, b, zo, xo, m, n, L)
+
+
 @nb.njit(**_OPTS)
-def kf_kernel(z, out, F, H, Q, R, K, Pf, P0, x0, lengths, axes, out_scale):
-    """Kalman filter with the shared gain sequence K[t] (Assimakis & Adam 2014, eq. 4).
+def kf_kernel(z, out, F, H, Q, R, AK, K, Pf, P0, x0, lengths, axes, out_scale):
+    """Kalman filter with the shared gain sequence K[t] (Assimakis & Adam 2014, eq. 4); returns the
+    number of flagged tracks.
 
     While a track's measurements are complete it uses the precomputed gains:
-    x(k/k-1) = F x(k-1/k-1), x(k/k) = x(k/k-1) + K(k) [z(k) - H x(k/k-1)].
-    At its first missing component it leaves the shared sequence: it takes
-    P(k-1/k-1) = Pf[k-1] (or P0) and runs its own Riccati recursion from there.
-    Returns the number of flagged tracks.
+    x(k/k) = A(k) x(k-1/k-1) + K(k) z(k) with A(k) = [I - K(k) H] F (:attr:`GainSequence.A`), which is
+    x(k/k-1) + K(k) [z(k) - H x(k/k-1)] with a shorter chain of dependent operations; four tracks
+    advance together while their rows are complete (:func:`_lane_steps`).  At its first missing
+    component a track leaves the shared sequence: it takes P(k-1/k-1) = Pf[k-1] (or P0) and runs its
+    own Riccati recursion from there (:func:`_kf_track`).
     """
     nb_ = z.shape[0]
     n = F.shape[0]
     m = H.shape[0]
+    ntr = nb_ * axes
     flagged = 0
-    for i in nb.prange(nb_ * axes):
-        b = i // axes
-        zo = (i - b * axes) * m
-        xo = (i - b * axes) * n
-        x = np.empty(n)
-        xp = np.empty(n)
-        innov = np.empty(m)
-        P = np.empty((n, n))
-        zb = z[b, :, zo:zo + m]
-        ws = workspace(n, m)
-        hx = np.empty(m)
-        periods = np.zeros(m)
-        shared = True
-        for r in range(n):
-            x[r] = x0[b, xo + r]
-        L = lengths[b]
-        flag = 0.0
-        for t in range(L):
-            if shared:
-                miss = False
-                for c in range(m):
-                    if np.isnan(z[b, t, zo + c]):
-                        miss = True
-                if miss:
-                    shared = False
-                    for r in range(n):
-                        for c in range(n):
-                            P[r, c] = P0[r, c] if t == 0 else Pf[t - 1, r, c]
-            if shared:
-                for r in range(n):
-                    s = 0.0
-                    for c in range(n):
-                        s += F[r, c] * x[c]
-                    xp[r] = s
-                for c in range(m):
-                    s = 0.0
-                    for j in range(n):
-                        s += H[c, j] * xp[j]
-                    innov[c] = z[b, t, zo + c] - s
-                for r in range(n):
-                    s = 0.0
-                    for c in range(m):
-                        s += K[t, r, c] * innov[c]
-                    x[r] = xp[r] + s
-            else:
-                own_step(F, H, Q, R, x, P, zb, t, ws, hx, periods)
-            for r in range(n):
-                out[b, t, xo + r] = x[r]
-                flag += (out_scale * x[r]) * 0.0
-        flag += _pad(z, out, b, zo, xo, m, n, L)
-        if flag != 0.0:
-            flagged += 1
+    for g in nb.prange((ntr + LANES - 1) // LANES):
+        i0 = g * LANES
+        lanes = min(LANES, ntr - i0)
+        bl, zo, xo, X, Lmin = _group(i0, lanes, axes, lengths, x0, n, m)
+        fl = np.zeros(LANES)
+        t = _lane_steps(z, out, AK, K, bl, zo, xo, X, fl, Lmin if lanes == LANES else 0, out_scale)
+        for lane in range(lanes):
+            b = bl[lane]
+            if fl[lane] + _kf_track(z, out, b, zo[lane], xo[lane], t, X[:, lane].copy(), lengths[b], F, H, Q, R,
+                                    AK, K, Pf, P0, out_scale) != 0.0:
+                flagged += 1
     return flagged
 
 
