@@ -106,14 +106,21 @@ def _ss_track(z, out, b, zo, xo, t0, x, L, A, Bm, F, out_scale):
 
 
 @nb.njit(cache=True, nogil=True)
-def _group(i0, lanes, axes, lengths, x0, n, m):
-    """Tracks i0 .. i0+lanes-1 of the generic kernels as their b, first z column and first x column,
-    their priors X (n, LANES), and the shortest of their lengths."""
+def _lane_steps(z, out, M, V, x0, lengths, axes, i0, lanes, out_scale):
+    """Tracks i0 .. i0+lanes-1 of the generic kernels: their b, first z and x columns, and, when they
+    are four, their steps together from step 0: x(k) = M[k] x(k-1) + V[k] z(k) (M, V of shape
+    (1 or T, n, n) and (1 or T, n, m); one matrix for every step when the first axis is 1), while all
+    four rows are complete and k is below the shortest length.  Returns (bl, zo, xo, the states X
+    (n, LANES), the flags, the step where they stopped).  The states sit side by side so the four
+    recursions hide each other's latency."""
+    n = M.shape[1]
+    m = V.shape[2]
     bl = np.empty(LANES, np.int64)
     zo = np.empty(LANES, np.int64)
     xo = np.empty(LANES, np.int64)
     X = np.empty((n, LANES))
-    Lmin = lengths[i0 // axes]
+    fl = np.zeros(LANES)
+    Lmin = lengths[i0 // axes] if lanes == LANES else 0
     for lane in range(lanes):
         b = (i0 + lane) // axes
         bl[lane] = b
@@ -122,18 +129,6 @@ def _group(i0, lanes, axes, lengths, x0, n, m):
         Lmin = min(Lmin, lengths[b])
         for r in range(n):
             X[r, lane] = x0[b, xo[lane] + r]
-    return bl, zo, xo, X, Lmin
-
-
-@nb.njit(cache=True, nogil=True)
-def _lane_steps(z, out, M, V, bl, zo, xo, X, fl, Lmin, out_scale):
-    """Four tracks of the generic kernels together from step 0: x(k) = M[k] x(k-1) + V[k] z(k) (M, V
-    of shape (1 or T, n, n) and (1 or T, n, m); one matrix for every step when the first axis is 1),
-    while all four rows are complete and k < Lmin.  Updates X (n, LANES) and the flags fl; returns the
-    step where it stopped.  The states sit side by side so the four recursions hide each other's
-    latency."""
-    n = M.shape[1]
-    m = V.shape[2]
     XN = np.empty((n, LANES))
     Z = np.empty((m, LANES))
     t = 0
@@ -164,7 +159,7 @@ def _lane_steps(z, out, M, V, bl, zo, xo, X, fl, Lmin, out_scale):
                 out[bl[lane], t, xo[lane] + r] = v
                 fl[lane] += (out_scale * v) * 0.0
         t += 1
-    return t
+    return bl, zo, xo, X, fl, t
 
 
 @nb.njit(**_OPTS)
@@ -183,10 +178,8 @@ def ss_kernel(z, out, A, Bm, F, x0, lengths, axes, out_scale):
     for g in nb.prange((ntr + LANES - 1) // LANES):
         i0 = g * LANES
         lanes = min(LANES, ntr - i0)
-        bl, zo, xo, X, Lmin = _group(i0, lanes, axes, lengths, x0, n, m)
-        fl = np.zeros(LANES)
-        t = _lane_steps(z, out, A.reshape((1, n, n)), Bm.reshape((1, n, m)), bl, zo, xo, X, fl,
-                        Lmin if lanes == LANES else 0, out_scale)
+        bl, zo, xo, X, fl, t = _lane_steps(z, out, A.reshape((1, n, n)), Bm.reshape((1, n, m)), x0, lengths,
+                                           axes, i0, lanes, out_scale)
         for lane in range(lanes):
             b = bl[lane]
             if fl[lane] + _ss_track(z, out, b, zo[lane], xo[lane], t, X[:, lane].copy(), lengths[b], A, Bm, F,
@@ -291,12 +284,9 @@ def ss_kernel_21(z, out, A, Bm, F, x0, lengths, axes, out_scale, joint):
                     flagged += 1
             continue
         b1_, b2_, b3_, b4_, c1, c2, c3, c4, Lmin = _lanes(i0, axes, lengths)
-        if A.shape[0] == 1:             # one block for every lane
-            flagged += _ss21_group(z, out, x0, A, Bm, F, lengths, out_scale, joint, rows, b1_, b2_, b3_, b4_,
-                                   c1, c2, c3, c4, Lmin, 0, 0, 0, 0)
-        else:
-            flagged += _ss21_group(z, out, x0, A, Bm, F, lengths, out_scale, joint, rows, b1_, b2_, b3_, b4_,
-                                   c1, c2, c3, c4, Lmin, c1, c2, c3, c4)
+        q = 0 if A.shape[0] == 1 else 1     # one block for every lane, or each lane's axis's
+        flagged += _ss21_group(z, out, x0, A, Bm, F, lengths, out_scale, joint, rows, b1_, b2_, b3_, b4_,
+                               c1, c2, c3, c4, Lmin, q * c1, q * c2, q * c3, q * c4)
     return flagged
 
 
@@ -447,16 +437,12 @@ def kf_kernel(z, out, F, H, Q, R, AK, K, Pf, P0, x0, lengths, axes, out_scale):
     own Riccati recursion from there (:func:`_kf_track`).
     """
     nb_ = z.shape[0]
-    n = F.shape[0]
-    m = H.shape[0]
     ntr = nb_ * axes
     flagged = 0
     for g in nb.prange((ntr + LANES - 1) // LANES):
         i0 = g * LANES
         lanes = min(LANES, ntr - i0)
-        bl, zo, xo, X, Lmin = _group(i0, lanes, axes, lengths, x0, n, m)
-        fl = np.zeros(LANES)
-        t = _lane_steps(z, out, AK, K, bl, zo, xo, X, fl, Lmin if lanes == LANES else 0, out_scale)
+        bl, zo, xo, X, fl, t = _lane_steps(z, out, AK, K, x0, lengths, axes, i0, lanes, out_scale)
         for lane in range(lanes):
             b = bl[lane]
             if fl[lane] + _kf_track(z, out, b, zo[lane], xo[lane], t, X[:, lane].copy(), lengths[b], F, H, Q, R,
@@ -528,12 +514,9 @@ def kf_kernel_21(z, out, F, H, Q, R, AK, K, Pf, P0, x0, lengths, axes, out_scale
                     flagged += 1
             continue
         b1_, b2_, b3_, b4_, c1, c2, c3, c4, Lmin = _lanes(i0, axes, lengths)
-        if F.shape[0] == 1:             # one block for every lane: shared gains
-            flagged += _kf21_group(z, out, x0, F, H, Q, R, AK, K, Pf, P0, lengths, out_scale, b1_, b2_, b3_, b4_,
-                                   c1, c2, c3, c4, Lmin, 0, 0, 0, 0)
-        else:
-            flagged += _kf21_group(z, out, x0, F, H, Q, R, AK, K, Pf, P0, lengths, out_scale, b1_, b2_, b3_, b4_,
-                                   c1, c2, c3, c4, Lmin, c1, c2, c3, c4)
+        q = 0 if F.shape[0] == 1 else 1     # one block (and gain) for every lane, or each lane's axis's
+        flagged += _kf21_group(z, out, x0, F, H, Q, R, AK, K, Pf, P0, lengths, out_scale, b1_, b2_, b3_, b4_,
+                               c1, c2, c3, c4, Lmin, q * c1, q * c2, q * c3, q * c4)
     return flagged
 
 
