@@ -424,15 +424,24 @@ def test_ctrl_c_keeps_the_finished_chunks_and_says_how_to_resume(tmp_path, logs,
     completes the output, equal to an uninterrupted run's."""
     out = tmp_path / "t.parquet"
     extra = ["--executor", "processes", "--workers", "2"] if executor == "processes" else []
-    proc = subprocess.Popen(CLI + ["track", str(logs / "big.parquet"), "--out", str(out), *FAST, "-q"] + extra,
-                            cwd=tmp_path, env=ENV, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            start_new_session=True)
     parts = tmp_path / ".t.parquet.parts"
-    deadline = time.monotonic() + 300
-    while not list(parts.glob("tracks-*.arrow")):
-        assert proc.poll() is None and time.monotonic() < deadline, proc.communicate()
-        time.sleep(0.005)
-    os.killpg(proc.pid, signal.SIGSTOP)  # frozen half-way (the interrupt must not come after the end)
+    for _ in range(3):
+        proc = subprocess.Popen(CLI + ["track", str(logs / "big.parquet"), "--out", str(out), *FAST, "-q"] + extra,
+                                cwd=tmp_path, env=ENV, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                                start_new_session=True)
+        deadline = time.monotonic() + 300
+        while not list(parts.glob("tracks-*.arrow")):
+            assert proc.poll() is None and time.monotonic() < deadline, proc.communicate()
+            time.sleep(0.005)
+        os.killpg(proc.pid, signal.SIGSTOP)  # frozen half-way (the interrupt must not come after the end)
+        if proc.poll() is None:
+            break
+        # the run ended between seeing its first part and the stop (this test process starved for the
+        # whole run on a loaded machine: seen once in CI): nothing was interrupted, so run it again
+        assert proc.communicate()[1] == "" and proc.returncode == 0
+        out.unlink()
+    else:
+        pytest.fail("the run ended before it could be interrupted, three times")
     os.killpg(proc.pid, signal.SIGINT)
     os.killpg(proc.pid, signal.SIGCONT)
     stdout, stderr = proc.communicate(timeout=120)
