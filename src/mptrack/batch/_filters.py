@@ -12,7 +12,7 @@ kernels do not form (docs/design.md, "Batch engine").
 from __future__ import annotations
 
 from dataclasses import dataclass
-from functools import cached_property
+from functools import cached_property, lru_cache
 from typing import Callable
 
 import numpy as np
@@ -93,6 +93,47 @@ def _lane_axes(model: LinearGaussianModel, axes: int, *matrices, rtol: float = 0
     return k, blocks
 
 
+#: Steps per time block of the vector kernels (:func:`mptrack.batch._kernels.ss_kernel_blocks`).
+BLOCK = 8
+
+
+def time_blocks(M: np.ndarray, V: np.ndarray) -> np.ndarray:
+    """The coefficients of the time-block kernels for x(k) = M(k) x(k-1) + V(k) z(k), n = 2, m = 1:
+    M (N 8, 2, 2), V (N 8, 2, 1) -> C (N, 160), block i for steps 8i .. 8i+7 (s = 0..7):
+    x(8i+s) = Phi(s) x(8i-1) + sum_{j <= s} Phi(s, j) V(8i+j) z(8i+j), Phi(s, j) = M(8i+s) .. M(8i+j+1),
+    Phi(s) = M(8i+s) .. M(8i).  Row j < 8 of a block's (10, 16) holds the weights of z(8i+j) in the
+    states as they lie in the output (entry 2s + r: component r of step s), rows 8 and 9 those of the
+    two components of x(8i-1)."""
+    N = M.shape[0] // BLOCK
+    Ms = M[:N * BLOCK].reshape(N, BLOCK, 2, 2)
+    Vs = V[:N * BLOCK].reshape(N, BLOCK, 2)
+    C = np.zeros((N, BLOCK + 2, BLOCK, 2))
+    Phi = np.broadcast_to(np.eye(2), (N, 2, 2))
+    Psi = np.zeros((N, BLOCK, 2))                # Psi[:, j] = Phi(s, j) V(j) at the current s
+    for s in range(BLOCK):
+        Phi = Ms[:, s] @ Phi
+        Psi[:, :s] = np.einsum("nrc,njc->njr", Ms[:, s], Psi[:, :s])
+        Psi[:, s] = Vs[:, s]
+        C[:, :BLOCK, s, :] = Psi
+        C[:, BLOCK:, s, :] = Phi.transpose(0, 2, 1)
+    return C.reshape(N, 16 * (BLOCK + 2))
+
+
+@lru_cache(maxsize=16)
+def _steady_blocks_of(key: bytes) -> np.ndarray:
+    A, Bm = np.frombuffer(key, np.float64)[:4].reshape(2, 2), np.frombuffer(key, np.float64)[4:].reshape(2, 1)
+    C = time_blocks(np.broadcast_to(A, (BLOCK, 2, 2)), np.broadcast_to(Bm, (BLOCK, 2, 1)))[0]
+    C.setflags(write=False)
+    return C
+
+
+def _steady_blocks(A: np.ndarray, Bm: np.ndarray) -> np.ndarray:
+    """The (160,) time-block coefficients of x = A x + B z (A (1, 2, 2), Bm (1, 2, 1)), kept for the
+    last few steady states (a call on a small batch costs tens of microseconds; these take 40)."""
+    return _steady_blocks_of(np.ascontiguousarray(A, np.float64).tobytes()
+                             + np.ascontiguousarray(Bm, np.float64).tobytes())
+
+
 def _shared(P: np.ndarray, x: np.ndarray, axes: int) -> np.ndarray:
     """The covariance P (n_a, n_a) that every track has at every step, as a read-only (B, T, n, n)
     view of it (no copy); block-diagonal over the axes of :func:`per_axis`.
@@ -121,7 +162,11 @@ def _steady_state_filter(model, z, x0=None, out=None, *, lengths=None, steady=No
     bi = prepare_batch(model, z, x0, out, lengths, axes=axes, scan_z=False)
     ss = steady_argument(model, steady)
     lanes = _lane_axes(model, bi.axes, ss.A, ss.B, rtol=_STEADY_RTOL)
-    if lanes is not None:          # axes of n = 2, m = 1 (with a joint model's NaN rule when it is one)
+    if lanes is not None and lanes[0] == 1:     # one axis per row: eight steps at a time
+        _, (F, _, _, _, A, Bm) = lanes
+        flagged = launch(K.ss_kernel_blocks, bi.out.size, bi.z, bi.out, bi.z.reshape(-1), bi.out.reshape(-1),
+                         A, Bm, F, _steady_blocks(A, Bm), bi.x0, bi.lengths, K.OUT_SCALE[bi.out.dtype])
+    elif lanes is not None:        # axes of n = 2, m = 1 (with a joint model's NaN rule when it is one)
         k, (F, _, _, _, A, Bm) = lanes
         flagged = launch(K.ss_kernel_21, bi.out.size, bi.z, bi.out, A, Bm, F, bi.x0, bi.lengths, k,
                          K.OUT_SCALE[bi.out.dtype], k > 1 and bi.axes == 1)
@@ -200,6 +245,16 @@ class GainSequence:
         n = self.F.shape[0]
         return (np.eye(n) - self.K @ self.H) @ self.F
 
+    @cached_property
+    def blocks(self) -> tuple[np.ndarray, int]:
+        """For n = 2, m = 1: (C, i) -- C (T // 8, 160) the coefficients of eight steps at a time of
+        x(k/k) = A(k) x(k-1/k-1) + K(k) z(k) (the vector kernels' form, :func:`time_blocks`), and the
+        first block i from which on all are equal (T // 8 when the last two differ).  Computed once,
+        on first use."""
+        C = time_blocks(self.A, self.K)
+        differ = np.flatnonzero((C != C[-1:]).any(axis=1)) if len(C) else np.empty(0, int)
+        return C, int(differ[-1]) + 1 if len(differ) else 0
+
 
 def gain_sequence(model: LinearGaussianModel, steps: int, P0=None) -> GainSequence:
     """The Kalman gains K(1..steps) and covariances from P(0/0) = P0 (Assimakis & Adam 2014, eq. 4).
@@ -245,7 +300,11 @@ def _kalman_filter(model, z, x0=None, P0=None, out=None, *, lengths=None, gains=
     elif P0 is not None:
         raise ParameterError("P0: give P0 or gains (which already fix P0), not both")
     lanes = _lane_axes(model, bi.axes, gains.A[:T], gains.K[:T], gains.P_filt[:T], gains.P0)
-    if lanes is not None:          # axes of n = 2, m = 1: the covariance stays block diagonal
+    if lanes is not None and lanes[0] == 1:     # one axis per row: eight steps at a time
+        flagged = launch(K.kf_kernel_blocks, bi.out.size, bi.z, bi.out, bi.z.reshape(-1), bi.out.reshape(-1),
+                         *lanes[1], *gains.blocks, bi.x0, bi.lengths,
+                         K.OUT_SCALE[bi.out.dtype])
+    elif lanes is not None:        # axes of n = 2, m = 1: the covariance stays block diagonal
         k, blocks = lanes
         flagged = launch(K.kf_kernel_21, bi.out.size, bi.z, bi.out, *blocks, bi.x0, bi.lengths, k,
                          K.OUT_SCALE[bi.out.dtype])

@@ -44,8 +44,9 @@ import numpy as np
 
 from .. import _jit_cache  # noqa: F401 - compiled kernels cache in the user's cache directory
 from .._kalman_core import OK, linear_update, predict, workspace
+from ._vectors import fma, lane, vadd, vbcast, vfma, vload, vmul, vsplat, vstore2, vsum
 
-__all__ = ["ss_kernel", "ss_kernel_21", "kf_kernel", "kf_kernel_21", "gain_loop", "fir_kernel", "matvec_kernel"]
+__all__ = ["ss_kernel", "ss_kernel_21", "ss_kernel_blocks", "kf_kernel", "kf_kernel_21", "kf_kernel_blocks", "gain_loop", "fir_kernel", "matvec_kernel"]
 
 _OPTS = dict(parallel=True, cache=True, nogil=True, boundscheck=False)
 LANES = 4   # tracks advanced together by the n = 2, m = 1 kernels
@@ -232,15 +233,15 @@ def _missing(z, b, t, a, joint):
 
 
 @nb.njit(cache=True, nogil=True)
-def _ss21_track(z, out, b, a, t0, p, v, L, A, Bm, F, out_scale, joint):
-    """Track (b, axis a) of :func:`ss_kernel_21` from time index t0 with state (p, v); returns its flag
-    for those steps."""
+def _ss21_steps(z, out, b, a, t0, t1, p, v, A, Bm, F, out_scale, joint):
+    """Steps t0 .. t1-1 of track (b, axis a) of :func:`ss_kernel_21` from state (p, v); returns the
+    state after them and their flag."""
     q = a if A.shape[0] > 1 else 0      # the axis's blocks (one for all axes: q = 0)
     a00, a01, a10, a11, b0, b1 = _coefficients(A, Bm, q)
     f00, f01, f10, f11 = _entries(F, q)
     o = 2 * a
     flag = 0.0
-    for t in range(t0, L):
+    for t in range(t0, t1):
         zz = z[b, t, a]
         if _missing(z, b, t, a, joint):
             if np.isinf(zz):            # beside a NaN of another axis: not used, but still refused
@@ -251,7 +252,15 @@ def _ss21_track(z, out, b, a, t0, p, v, L, A, Bm, F, out_scale, joint):
         out[b, t, o] = p
         out[b, t, o + 1] = v
         flag += (out_scale * p + out_scale * v) * 0.0
-    return flag + _pad(z, out, b, a, o, 1, 2, L)
+    return p, v, flag
+
+
+@nb.njit(cache=True, nogil=True)
+def _ss21_track(z, out, b, a, t0, p, v, L, A, Bm, F, out_scale, joint):
+    """Track (b, axis a) of :func:`ss_kernel_21` from time index t0 with state (p, v); returns its flag
+    for those steps."""
+    p, v, flag = _ss21_steps(z, out, b, a, t0, L, p, v, A, Bm, F, out_scale, joint)
+    return flag + _pad(z, out, b, a, 2 * a, 1, 2, L)
 
 
 @nb.njit(**_OPTS)
@@ -550,6 +559,105 @@ def _kf21_group(z, out, x0, F, H, Q, R, AK, K, Pf, P0, lengths, out_scale, b1_, 
     g3 += _kf21_track(z, out, b3_, c3, t, p3, v3, lengths[b3_], F, H, Q, R, AK, K, Pf, P0, out_scale)
     g4 += _kf21_track(z, out, b4_, c4, t, p4, v4, lengths[b4_], F, H, Q, R, AK, K, Pf, P0, out_scale)
     return _count_flags(g1, g2, g3, g4)
+
+
+@nb.njit(cache=True, nogil=True)
+def _time_block(zf, zi, of, oi, p, v, C, c0, acc, scale):
+    """Eight steps of an n = 2, m = 1 track as vectors (see :func:`ss_kernel_blocks`): the
+    measurements zf[zi .. zi+7], the states of.reshape(-1, 2)[oi/2 ..] from the state (p, v) before
+    them, with the coefficients C[c0 .. c0+159]: rows j = 0..7 (16 entries each) the weights of z_j in
+    the sixteen outputs (position, velocity of each step), rows 8, 9 those of p and v.  Stores them
+    and returns (p, v, acc, True) when the last state is finite, else stores nothing and returns
+    False (a NaN or infinity among the eight measurements reaches it).  ``acc`` accumulates
+    ``scale`` times every state stored: it stays finite while they are (see the module's docstring)."""
+    z0, z1, z2, z3 = vbcast(zf, zi), vbcast(zf, zi + 1), vbcast(zf, zi + 2), vbcast(zf, zi + 3)
+    z4, z5, z6, z7 = vbcast(zf, zi + 4), vbcast(zf, zi + 5), vbcast(zf, zi + 6), vbcast(zf, zi + 7)
+    # the first four steps do not depend on z4 .. z7 (their weights are zero)
+    lo = vadd(vfma(z1, vload(C, c0 + 16), vmul(z0, vload(C, c0))),
+              vfma(z3, vload(C, c0 + 48), vmul(z2, vload(C, c0 + 32))))
+    hi = vadd(vfma(z3, vload(C, c0 + 56), vfma(z2, vload(C, c0 + 40),
+                                           vfma(z1, vload(C, c0 + 24), vmul(z0, vload(C, c0 + 8))))),
+              vfma(z7, vload(C, c0 + 120), vfma(z6, vload(C, c0 + 104),
+                                               vfma(z5, vload(C, c0 + 88), vmul(z4, vload(C, c0 + 72))))))
+    # the state's part last: the chain from one block's state to the next is two multiply-adds
+    pn = fma(v, C[c0 + 158], fma(p, C[c0 + 142], lane(hi, 6)))
+    vn = fma(v, C[c0 + 159], fma(p, C[c0 + 143], lane(hi, 7)))
+    if pn * 0.0 + vn * 0.0 != 0.0:
+        return p, v, acc, False
+    ps, vs = vsplat(p), vsplat(v)
+    lo = vfma(vs, vload(C, c0 + 144), vfma(ps, vload(C, c0 + 128), lo))
+    hi = vfma(vs, vload(C, c0 + 152), vfma(ps, vload(C, c0 + 136), hi))
+    vstore2(of, oi, lo, hi)
+    return pn, vn, vfma(hi, scale, vfma(lo, scale, acc)), True
+
+
+@nb.njit(**_OPTS)
+def ss_kernel_blocks(z, out, zf, of, A, Bm, F, C, x0, lengths, out_scale):
+    """:func:`ss_kernel_21` for one n = 2, m = 1 track per row (model B on z (B, T, 1)), eight steps
+    at a time as vectors: x(k+s) = A^(s+1) x(k-1) + sum_{j <= s} A^(s-j) B z(k+j), s = 0..7 (the
+    FIR form of eq. 22 of Assimakis & Adam 2014 over one block, exact), in sixteen lanes that lie as
+    the states lie in ``out`` (position, velocity of each step): measurements are read as broadcasts,
+    states stored as whole vectors, and one block's state reaches the next through two multiply-adds.
+    zf, of: z and out as 1-D arrays; C (160,): the coefficients (:func:`_time_block`).  A block with a
+    NaN (or infinity) among its measurements runs the scalar steps (:func:`_ss21_steps`), as do the
+    last L mod 8 steps.  Returns the number of flagged tracks."""
+    nb_, T = z.shape[0], z.shape[1]
+    flagged = 0
+    for b in nb.prange(nb_):
+        L = lengths[b]
+        p, v = x0[b, 0], x0[b, 1]
+        acc = vsplat(0.0)
+        scale = vsplat(out_scale)
+        flag = 0.0
+        t = 0
+        while t + 8 <= L:
+            p, v, acc, ok = _time_block(zf, b * T + t, of, 2 * (b * T + t), p, v, C, 0, acc, scale)
+            if not ok:
+                p, v, f = _ss21_steps(z, out, b, 0, t, t + 8, p, v, A, Bm, F, out_scale, False)
+                flag += f
+            t += 8
+        p, v, f = _ss21_steps(z, out, b, 0, t, L, p, v, A, Bm, F, out_scale, False)
+        flag += f + _pad(z, out, b, 0, 0, 1, 2, L)
+        if flag != 0.0 or vsum(acc) * 0.0 != 0.0:
+            flagged += 1
+    return flagged
+
+
+@nb.njit(**_OPTS)
+def kf_kernel_blocks(z, out, zf, of, F, H, Q, R, AK, K, Pf, P0, C, settled, x0, lengths, out_scale):
+    """:func:`kf_kernel_21` for one n = 2, m = 1 track per row, eight steps at a time as vectors as in
+    :func:`ss_kernel_blocks`, with the shared gains: block i (steps 8i .. 8i+7) has its own
+    coefficients C[i] (from A(k) and K(k), :attr:`mptrack.batch.GainSequence.blocks`) up to block
+    ``settled``, from which on they are all equal (the gains reach their limit exactly in floating
+    point after some tens of steps) and stay in registers: loading them for every block made the
+    loop twice as slow.  At a block with a NaN or infinity the track goes on in :func:`_kf21_track`
+    (which leaves the shared gains at its first gap), as do its last L mod 8 steps.  Returns the
+    number of flagged tracks."""
+    nb_, T = z.shape[0], z.shape[1]
+    stride = C.shape[1]
+    Cf = C.reshape(-1)
+    Cs = C[min(settled, C.shape[0] - 1)]
+    flagged = 0
+    for b in nb.prange(nb_):
+        L = lengths[b]
+        p, v = x0[b, 0], x0[b, 1]
+        acc = vsplat(0.0)
+        scale = vsplat(out_scale)
+        t = 0
+        ok = True
+        while ok and t + 8 <= L and t < 8 * settled:
+            p, v, acc, ok = _time_block(zf, b * T + t, of, 2 * (b * T + t), p, v, Cf, (t // 8) * stride, acc,
+                                        scale)
+            if ok:
+                t += 8
+        while ok and t + 8 <= L:
+            p, v, acc, ok = _time_block(zf, b * T + t, of, 2 * (b * T + t), p, v, Cs, 0, acc, scale)
+            if ok:
+                t += 8
+        flag = _kf21_track(z, out, b, 0, t, p, v, L, F, H, Q, R, AK, K, Pf, P0, out_scale)
+        if flag != 0.0 or vsum(acc) * 0.0 != 0.0:
+            flagged += 1
+    return flagged
 
 
 @nb.njit(**_OPTS)
