@@ -249,8 +249,8 @@ class GainSequence:
     def blocks(self) -> tuple[np.ndarray, int]:
         """For n = 2, m = 1: (C, i) -- C (T // 8, 160) the coefficients of eight steps at a time of
         x(k/k) = A(k) x(k-1/k-1) + K(k) z(k) (the vector kernels' form, :func:`time_blocks`), and the
-        first block i from which on all are equal (T // 8 when the last two differ).  Computed once,
-        on first use."""
+        first block i from which on all are equal (the last block when it differs from the one
+        before: the gains have not settled by then).  Computed once, on first use."""
         C = time_blocks(self.A, self.K)
         differ = np.flatnonzero((C != C[-1:]).any(axis=1)) if len(C) else np.empty(0, int)
         return C, int(differ[-1]) + 1 if len(differ) else 0

@@ -562,33 +562,43 @@ def _kf21_group(z, out, x0, F, H, Q, R, AK, K, Pf, P0, lengths, out_scale, b1_, 
 
 
 @nb.njit(cache=True, nogil=True)
-def _time_block(zf, zi, of, oi, p, v, C, c0, acc, scale):
+def _coefficients8(C, c0):
+    """The coefficients C[c0 .. c0+159] of one time block (:func:`mptrack.batch._filters.time_blocks`) as
+    vectors: per row (the weights of z_j, j = 0..7, then of the two state components) its first and
+    last eight entries, and the four weights of the state in the block's last state.  Loaded before a
+    loop of blocks, they stay in registers: loaded inside it, every store to ``out`` (which LLVM cannot
+    tell apart from C) makes them be loaded again."""
+    return ((vload(C, c0), vload(C, c0 + 8), vload(C, c0 + 16), vload(C, c0 + 24), vload(C, c0 + 32),
+             vload(C, c0 + 40), vload(C, c0 + 48), vload(C, c0 + 56), vload(C, c0 + 72), vload(C, c0 + 88),
+             vload(C, c0 + 104), vload(C, c0 + 120), vload(C, c0 + 128), vload(C, c0 + 136), vload(C, c0 + 144),
+             vload(C, c0 + 152)),
+            (C[c0 + 142], C[c0 + 158], C[c0 + 143], C[c0 + 159]))
+
+
+@nb.njit(cache=True, nogil=True)
+def _time_block(zf, zi, of, oi, p, v, W, g, acc):
     """Eight steps of an n = 2, m = 1 track as vectors (see :func:`ss_kernel_blocks`): the
-    measurements zf[zi .. zi+7], the states of.reshape(-1, 2)[oi/2 ..] from the state (p, v) before
-    them, with the coefficients C[c0 .. c0+159]: rows j = 0..7 (16 entries each) the weights of z_j in
-    the sixteen outputs (position, velocity of each step), rows 8, 9 those of p and v.  Stores them
-    and returns (p, v, acc, True) when the last state is finite, else stores nothing and returns
-    False (a NaN or infinity among the eight measurements reaches it).  ``acc`` accumulates
-    ``scale`` times every state stored: it stays finite while they are (see the module's docstring)."""
+    measurements zf[zi .. zi+7] and the states after them, stored in of[oi .. oi+15] (position,
+    velocity of each step) from the state (p, v) before them, with the block's coefficients
+    (W, g) = :func:`_coefficients8`.  Stores them and returns (p, v, acc, True) when the last state is
+    finite, else stores nothing and returns False (a NaN or infinity among the eight measurements
+    always reaches it: its weights multiply every one of them, zero weights included).  ``acc``
+    accumulates the states stored: it stays finite while they are."""
     z0, z1, z2, z3 = vbcast(zf, zi), vbcast(zf, zi + 1), vbcast(zf, zi + 2), vbcast(zf, zi + 3)
     z4, z5, z6, z7 = vbcast(zf, zi + 4), vbcast(zf, zi + 5), vbcast(zf, zi + 6), vbcast(zf, zi + 7)
     # the first four steps do not depend on z4 .. z7 (their weights are zero)
-    lo = vadd(vfma(z1, vload(C, c0 + 16), vmul(z0, vload(C, c0))),
-              vfma(z3, vload(C, c0 + 48), vmul(z2, vload(C, c0 + 32))))
-    hi = vadd(vfma(z3, vload(C, c0 + 56), vfma(z2, vload(C, c0 + 40),
-                                           vfma(z1, vload(C, c0 + 24), vmul(z0, vload(C, c0 + 8))))),
-              vfma(z7, vload(C, c0 + 120), vfma(z6, vload(C, c0 + 104),
-                                               vfma(z5, vload(C, c0 + 88), vmul(z4, vload(C, c0 + 72))))))
+    lo = vadd(vfma(z1, W[2], vmul(z0, W[0])), vfma(z3, W[6], vmul(z2, W[4])))
+    hi = vadd(vfma(z3, W[7], vfma(z2, W[5], vfma(z1, W[3], vmul(z0, W[1])))),
+              vfma(z7, W[11], vfma(z6, W[10], vfma(z5, W[9], vmul(z4, W[8])))))
     # the state's part last: the chain from one block's state to the next is two multiply-adds
-    pn = fma(v, C[c0 + 158], fma(p, C[c0 + 142], lane(hi, 6)))
-    vn = fma(v, C[c0 + 159], fma(p, C[c0 + 143], lane(hi, 7)))
+    pn = fma(v, g[1], fma(p, g[0], lane(hi, 6)))
+    vn = fma(v, g[3], fma(p, g[2], lane(hi, 7)))
     if pn * 0.0 + vn * 0.0 != 0.0:
         return p, v, acc, False
     ps, vs = vsplat(p), vsplat(v)
-    lo = vfma(vs, vload(C, c0 + 144), vfma(ps, vload(C, c0 + 128), lo))
-    hi = vfma(vs, vload(C, c0 + 152), vfma(ps, vload(C, c0 + 136), hi))
-    vstore2(of, oi, lo, hi)
-    return pn, vn, vfma(hi, scale, vfma(lo, scale, acc)), True
+    lo = vfma(vs, W[14], vfma(ps, W[12], lo))
+    hi = vfma(vs, W[15], vfma(ps, W[13], hi))
+    return pn, vn, vadd(acc, vstore2(of, oi, lo, hi)), True
 
 
 @nb.njit(**_OPTS)
@@ -606,16 +616,20 @@ def ss_kernel_blocks(z, out, zf, of, A, Bm, F, C, x0, lengths, out_scale):
     for b in nb.prange(nb_):
         L = lengths[b]
         p, v = x0[b, 0], x0[b, 1]
+        W, g = _coefficients8(C, 0)
         acc = vsplat(0.0)
-        scale = vsplat(out_scale)
         flag = 0.0
         t = 0
         while t + 8 <= L:
-            p, v, acc, ok = _time_block(zf, b * T + t, of, 2 * (b * T + t), p, v, C, 0, acc, scale)
+            ok = True
+            while ok and t + 8 <= L:    # no call in this loop: the coefficients stay in registers
+                p, v, acc, ok = _time_block(zf, b * T + t, of, 2 * (b * T + t), p, v, W, g, acc)
+                if ok:
+                    t += 8
             if not ok:
                 p, v, f = _ss21_steps(z, out, b, 0, t, t + 8, p, v, A, Bm, F, out_scale, False)
                 flag += f
-            t += 8
+                t += 8
         p, v, f = _ss21_steps(z, out, b, 0, t, L, p, v, A, Bm, F, out_scale, False)
         flag += f + _pad(z, out, b, 0, 0, 1, 2, L)
         if flag != 0.0 or vsum(acc) * 0.0 != 0.0:
@@ -636,22 +650,22 @@ def kf_kernel_blocks(z, out, zf, of, F, H, Q, R, AK, K, Pf, P0, C, settled, x0, 
     nb_, T = z.shape[0], z.shape[1]
     stride = C.shape[1]
     Cf = C.reshape(-1)
-    Cs = C[min(settled, C.shape[0] - 1)]
+    Cs = C[min(settled, max(C.shape[0] - 1, 0))]     # (a view only; T < 8 has no block to read it)
     flagged = 0
     for b in nb.prange(nb_):
         L = lengths[b]
         p, v = x0[b, 0], x0[b, 1]
         acc = vsplat(0.0)
-        scale = vsplat(out_scale)
         t = 0
         ok = True
         while ok and t + 8 <= L and t < 8 * settled:
-            p, v, acc, ok = _time_block(zf, b * T + t, of, 2 * (b * T + t), p, v, Cf, (t // 8) * stride, acc,
-                                        scale)
+            W, g = _coefficients8(Cf, (t // 8) * stride)
+            p, v, acc, ok = _time_block(zf, b * T + t, of, 2 * (b * T + t), p, v, W, g, acc)
             if ok:
                 t += 8
+        W, g = _coefficients8(Cs, 0)
         while ok and t + 8 <= L:
-            p, v, acc, ok = _time_block(zf, b * T + t, of, 2 * (b * T + t), p, v, Cs, 0, acc, scale)
+            p, v, acc, ok = _time_block(zf, b * T + t, of, 2 * (b * T + t), p, v, W, g, acc)
             if ok:
                 t += 8
         flag = _kf21_track(z, out, b, 0, t, p, v, L, F, H, Q, R, AK, K, Pf, P0, out_scale)

@@ -140,20 +140,25 @@ def vsum(typingctx, v):
 
 @intrinsic
 def vstore2(typingctx, arr, index, a, b):
-    """``arr[index:index + 16] = a, b`` converted to the array's dtype (float32: one 64-byte store)."""
+    """``arr[index:index + 16] = a, b`` converted to the array's dtype (float32: one 64-byte store).
+    Returns the sum of the two halves as stored (float32: added in float32, then widened): finite
+    when every value stored is finite, and when one is not, not finite either (an infinity or a NaN
+    stays one in a sum; two finite values large enough to sum to an infinity are a false alarm)."""
     def codegen(context, builder, sig, args):
         arrty = sig.args[0]
         width = arrty.dtype.bitwidth // 8
         ptr = _element(context, builder, arrty, args[0], args[1])
         if width == 8:
             parts = [(ptr, args[2]), (builder.gep(ptr, [ir.IntType(64)(_WIDTH)]), args[3])]
+            total = builder.fadd(args[2], args[3])
         else:
             half = ir.VectorType(context.get_data_type(arrty.dtype), _WIDTH)
-            both = builder.shuffle_vector(builder.fptrunc(args[2], half), builder.fptrunc(args[3], half),
-                                          ir.Constant(ir.VectorType(_I32, 2 * _WIDTH), list(range(2 * _WIDTH))))
+            lo, hi = builder.fptrunc(args[2], half), builder.fptrunc(args[3], half)
+            both = builder.shuffle_vector(lo, hi, ir.Constant(ir.VectorType(_I32, 2 * _WIDTH), list(range(2 * _WIDTH))))
             parts = [(ptr, both)]
+            total = builder.fpext(builder.fadd(lo, hi), _F64X8)
         for p, value in parts:
             builder.store(value, builder.bitcast(p, value.type.as_pointer()), align=width)
-        return context.get_dummy_value()
+        return total
 
-    return types.void(arr, index, a, b), codegen
+    return vec8(arr, index, a, b), codegen

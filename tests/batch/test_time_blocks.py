@@ -1,0 +1,102 @@
+"""The batch engine's time blocks: eight steps of an n = 2, m = 1 track as vectors (one axis per row)."""
+
+import re
+
+import numpy as np
+import pytest
+
+from mptrack import batch, linear
+from mptrack.batch._filters import BLOCK, time_blocks
+from mptrack.errors import NonFiniteError
+from mptrack.models import LinearGaussianModel, assimakis_model_b
+from mptrack.riccati import steady_state
+
+
+def test_time_blocks_are_the_recursion_over_eight_steps():
+    """C from time_blocks applied to x(8i-1) and z(8i .. 8i+7) gives the sixteen numbers the recursion
+    x(k) = M(k) x(k-1) + V(k) z(k) stores, in out's order, for time-varying M, V."""
+    rng = np.random.default_rng(5)
+    N = 3
+    M = rng.standard_normal((N * BLOCK, 2, 2)) * 0.6
+    V = rng.standard_normal((N * BLOCK, 2, 1))
+    C = time_blocks(M, V)
+    assert C.shape == (N, 16 * (BLOCK + 2))
+    x = rng.standard_normal(2)
+    z = rng.standard_normal(N * BLOCK)
+    for i in range(N):
+        rows = C[i].reshape(BLOCK + 2, 2 * BLOCK)
+        got = z[i * BLOCK:(i + 1) * BLOCK] @ rows[:BLOCK] + x @ rows[BLOCK:]
+        want = []
+        for s in range(BLOCK):
+            k = i * BLOCK + s
+            x = M[k] @ x + V[k, :, 0] * z[k]
+            want.extend(x)
+        np.testing.assert_allclose(got, want, rtol=1e-13, atol=1e-13)
+
+
+def _batch(rng, T):
+    """Tracks of every length from 0 to 25 and longer ones with NaN at a block's first and last step,
+    a whole block of NaN, a NaN in the last incomplete block, and at step 0."""
+    lengths = np.concatenate([np.arange(26), [T] * 6])
+    B = len(lengths)
+    z = 5.0 * rng.standard_normal((B, T, 1))
+    gaps = {26: [8], 27: [15], 28: list(range(16, 24)), 29: [T - 2], 30: [0], 31: [3, 11, 12, 40]}
+    for b, steps in gaps.items():
+        z[b, steps] = np.nan
+    return z, lengths, rng.standard_normal((B, 2))
+
+
+@pytest.mark.parametrize("T", [50, 203])
+@pytest.mark.parametrize("dtype", [np.float64, np.float32])
+@pytest.mark.parametrize("kind", ["steady-state", "kalman"])
+def test_time_blocks_equal_the_reference_around_every_block_edge(kind, dtype, T):
+    """Each track equals the reference filter (float64: 1e-12 of the scale; float32 storage: 1e-6
+    relative) on lengths 0 .. 25 (no block, one, parts of a block) and on tracks with NaN at a block's
+    edges, a whole block of NaN and a NaN in the last steps; the padding is NaN.  T = 50: the Kalman
+    gains have not settled (every block has its own coefficients); T = 203: they settle."""
+    rng = np.random.default_rng(T)
+    model = assimakis_model_b()
+    z, lengths, x0 = _batch(rng, T)
+    P0 = np.diag([3.0, 0.5])
+    if kind == "steady-state":
+        ss = steady_state(model)
+        got = batch.steady_state_filter(model, z.astype(dtype), x0, lengths=lengths, steady=ss).x
+        ref = lambda b, L: linear.steady_state_filter(model, z[b, :L], x0[b], steady=ss).x  # noqa: E731
+    else:
+        gains = batch.gain_sequence(model, T, P0)
+        assert gains.blocks[1] <= 8 if T == 203 else gains.blocks[1] == T // BLOCK - 1
+        got = batch.kalman_filter(model, z.astype(dtype), x0, lengths=lengths, gains=gains).x
+        ref = lambda b, L: linear.kalman_filter(model, z[b, :L], x0[b], P0).x  # noqa: E731
+    assert got.dtype == dtype
+    tol = 1e-12 if dtype == np.float64 else 1e-6
+    for b, L in enumerate(lengths):
+        assert np.isnan(got[b, L:]).all()
+        if L:
+            want = ref(b, L)
+            assert np.abs(got[b, :L] - want).max() <= tol * max(1.0, np.abs(want).max()), b
+
+
+def test_settled_kalman_blocks_are_all_equal_and_the_ones_before_differ():
+    """GainSequence.blocks gives the coefficients and the first block from which they are all equal, the
+    kernel keeping those in registers; for a sequence that has not settled by its end, the last block."""
+    model = assimakis_model_b()
+    C, settled = batch.gain_sequence(model, 400, np.eye(2)).blocks
+    assert 0 < settled < len(C) == 50
+    assert (C[settled:] == C[-1]).all() and (C[settled - 1] != C[-1]).any()
+    C, settled = batch.gain_sequence(model, 40, 100 * np.eye(2)).blocks
+    assert settled == len(C) - 1 == 4
+    still = LinearGaussianModel(np.eye(2), [[1.0, 0.0]], np.zeros((2, 2)), [[1.0]])   # P keeps shrinking
+    C, settled = batch.gain_sequence(still, 64, np.eye(2)).blocks
+    assert settled == len(C) - 1
+
+
+@pytest.mark.parametrize("kind", ["steady-state", "kalman"])
+def test_an_infinity_in_a_block_with_a_nan_is_refused_by_name(kind):
+    """A block with a NaN runs the scalar steps; an infinity in the same block is still refused."""
+    model = assimakis_model_b()
+    run = batch.steady_state_filter if kind == "steady-state" else batch.kalman_filter
+    z = np.random.default_rng(2).standard_normal((3, 40, 1))
+    z[1, 9] = np.nan
+    z[1, 12] = np.inf
+    with pytest.raises(NonFiniteError, match="^" + re.escape("z: contains infinite value inf at index (1, 12, 0)")):
+        run(model, z)
