@@ -14,9 +14,11 @@ from __future__ import annotations
 import llvmlite.ir as ir
 from numba import types
 from numba.core import cgutils
-from numba.extending import intrinsic, models, register_model
+from numba.core import errors
+from numba.extending import intrinsic, models, overload, register_model
 
-__all__ = ["vec8", "vload", "vbcast", "vsplat", "vfma", "vmul", "vadd", "lane", "vsum", "fma", "vstore2"]
+__all__ = ["vec8", "vload", "vbcast", "vsplat", "vfma", "vmul", "vadd", "lane", "vsum", "fma", "vstore2",
+           "stack_buffer", "narrow", "vstore"]
 
 _WIDTH = 8
 _F64X8 = ir.VectorType(ir.DoubleType(), _WIDTH)
@@ -49,12 +51,26 @@ def _splat(builder, x, vt):
 
 @intrinsic
 def vload(typingctx, arr, index):
-    """``arr[index:index + 8]`` of a float64 array."""
+    """``arr[index:index + 8]`` as float64 (float32 is widened)."""
     def codegen(context, builder, sig, args):
-        ptr = builder.bitcast(_element(context, builder, sig.args[0], *args), _F64X8.as_pointer())
-        return builder.load(ptr, align=8)
+        arrty = sig.args[0]
+        vt = ir.VectorType(context.get_data_type(arrty.dtype), _WIDTH)
+        ptr = builder.bitcast(_element(context, builder, arrty, *args), vt.as_pointer())
+        v = builder.load(ptr, align=arrty.dtype.bitwidth // 8)
+        return v if vt == _F64X8 else builder.fpext(v, _F64X8)
 
     return vec8(arr, index), codegen
+
+
+@intrinsic
+def vstore(typingctx, arr, index, v):
+    """``arr[index:index + 8] = v`` (a float64 array)."""
+    def codegen(context, builder, sig, args):
+        ptr = builder.bitcast(_element(context, builder, sig.args[0], args[0], args[1]), _F64X8.as_pointer())
+        builder.store(args[2], ptr, align=8)
+        return context.get_dummy_value()
+
+    return types.void(arr, index, v), codegen
 
 
 @intrinsic
@@ -162,3 +178,29 @@ def vstore2(typingctx, arr, index, a, b):
         return total
 
     return vec8(arr, index, a, b), codegen
+
+
+@intrinsic
+def stack_buffer(typingctx, size):
+    """A pointer to ``size`` (a compile-time integer) float64 on the stack (``numba.carray(p, size)``
+    makes it an array): scratch memory without an allocation, which LLVM knows no other array shares."""
+    if not isinstance(size, types.IntegerLiteral):
+        raise errors.RequireLiteralValue(size)
+
+    def codegen(context, builder, sig, args):
+        ptr = cgutils.alloca_once(builder, ir.DoubleType(), size=size.literal_value)
+        ptr.align = 64
+        return ptr
+
+    return types.CPointer(types.float64)(size), codegen
+
+
+def narrow(arr):  # pragma: no cover - replaced by the overload in compiled code
+    """True when ``arr`` stores fewer bits than float64 (a constant in compiled code)."""
+    return arr.dtype.itemsize < 8
+
+
+@overload(narrow)
+def _narrow(arr):
+    flag = arr.dtype.bitwidth < 64
+    return lambda arr: flag
