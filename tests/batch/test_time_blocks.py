@@ -77,17 +77,24 @@ def test_time_blocks_equal_the_reference_around_every_block_edge(kind, dtype, T)
 
 
 def test_settled_kalman_blocks_are_all_equal_and_the_ones_before_differ():
-    """GainSequence.blocks gives the coefficients and the first block from which they are all equal, the
-    kernel keeping those in registers; for a sequence that has not settled by its end, the last block."""
+    """GainSequence.blocks gives the coefficients up to the first block whose steps all have the last
+    gains (every later block is the same; the kernel keeps it in registers), and no further: a long
+    sequence costs no more memory for them; one that has not settled by its end has a block for each
+    eight steps."""
     model = assimakis_model_b()
-    C, settled = batch.gain_sequence(model, 400, np.eye(2)).blocks
-    assert 0 < settled < len(C) == 50
-    assert (C[settled:] == C[-1]).all() and (C[settled - 1] != C[-1]).any()
-    C, settled = batch.gain_sequence(model, 40, 100 * np.eye(2)).blocks
-    assert settled == len(C) - 1 == 4
+    gains = batch.gain_sequence(model, 4000, np.eye(2))
+    C, settled = gains.blocks
+    assert 0 < settled < 20 and C.shape == (settled + 1, 16 * (BLOCK + 2))
+    full = time_blocks(gains.A, gains.K)
+    np.testing.assert_array_equal(full[:settled + 1], C)
+    assert (full[settled:] == C[settled]).all()
+    before = slice(BLOCK * (settled - 1), BLOCK * settled)      # a step of the block before has other gains
+    assert (gains.K[before] != gains.K[-1]).any() or (gains.A[before] != gains.A[-1]).any()
     still = LinearGaussianModel(np.eye(2), [[1.0, 0.0]], np.zeros((2, 2)), [[1.0]])   # P keeps shrinking
     C, settled = batch.gain_sequence(still, 64, np.eye(2)).blocks
-    assert settled == len(C) - 1
+    assert settled == len(C) - 1 == 7
+    C, settled = batch.gain_sequence(model, 7, np.eye(2)).blocks     # no whole block
+    assert C.shape == (0, 160) and settled == 0
 
 
 @pytest.mark.parametrize("kind", ["steady-state", "kalman"])

@@ -247,13 +247,17 @@ class GainSequence:
 
     @cached_property
     def blocks(self) -> tuple[np.ndarray, int]:
-        """For n = 2, m = 1: (C, i) -- C (T // 8, 160) the coefficients of eight steps at a time of
-        x(k/k) = A(k) x(k-1/k-1) + K(k) z(k) (the vector kernels' form, :func:`time_blocks`), and the
-        first block i from which on all are equal (the last block when it differs from the one
-        before: the gains have not settled by then).  Computed once, on first use."""
-        C = time_blocks(self.A, self.K)
-        differ = np.flatnonzero((C != C[-1:]).any(axis=1)) if len(C) else np.empty(0, int)
-        return C, int(differ[-1]) + 1 if len(differ) else 0
+        """For n = 2, m = 1: (C, i) -- the coefficients of the vector kernels' eight steps at a time of
+        x(k/k) = A(k) x(k-1/k-1) + K(k) z(k) (:func:`time_blocks`), C[j] for blocks j = 0..i, where
+        block i is the first whose steps all have the sequence's last A(k) and K(k): every later block
+        is C[i] too (the gains reach their limit exactly in floating point after some tens of steps),
+        so C holds no more than that (i = T // 8 - 1 when the gains have not settled by then).
+        Computed once, on first use."""
+        N = self.T // BLOCK
+        moving = np.flatnonzero((self.A != self.A[-1]).any(axis=(1, 2)) | (self.K != self.K[-1]).any(axis=(1, 2)))
+        settled = min(int(moving[-1]) // BLOCK + 1 if len(moving) else 0, max(N - 1, 0))
+        end = BLOCK * min(settled + 1, N)
+        return time_blocks(self.A[:end], self.K[:end]), settled
 
 
 def gain_sequence(model: LinearGaussianModel, steps: int, P0=None) -> GainSequence:
