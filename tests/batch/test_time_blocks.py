@@ -61,12 +61,12 @@ def test_time_blocks_equal_the_reference_around_every_block_edge(kind, dtype, T)
     if kind == "steady-state":
         ss = steady_state(model)
         got = batch.steady_state_filter(model, z.astype(dtype), x0, lengths=lengths, steady=ss).x
-        ref = lambda b, L: linear.steady_state_filter(model, z[b, :L], x0[b], steady=ss).x  # noqa: E731
+        ref = lambda b, L: linear.steady_state_filter(model, z[b, :L], x0[b], steady=ss).x
     else:
         gains = batch.gain_sequence(model, T, P0)
         assert gains.blocks[1] <= 8 if T == 203 else gains.blocks[1] == T // BLOCK - 1
         got = batch.kalman_filter(model, z.astype(dtype), x0, lengths=lengths, gains=gains).x
-        ref = lambda b, L: linear.kalman_filter(model, z[b, :L], x0[b], P0).x  # noqa: E731
+        ref = lambda b, L: linear.kalman_filter(model, z[b, :L], x0[b], P0).x
     assert got.dtype == dtype
     tol = 1e-12 if dtype == np.float64 else 1e-6
     for b, L in enumerate(lengths):

@@ -18,7 +18,9 @@ predict/update of :mod:`mptrack._kalman_core` (:func:`own_step`).  The shared-ga
 documented exception: four tracks advance together with the shared gains, x = A(k) x + K(k) z --
 in registers in the n = 2, m = 1 lane kernels (``ss_kernel_21``, ``kf_kernel_21``), side by side in
 small arrays in the generic ones (:func:`_lane_steps`); tests/test_kalman_core.py checks them
-against the core.
+against the core.  One n = 2, m = 1 track per row (model B on z (B, T, 1)) runs in *time blocks*
+instead: eight steps at a time as vectors (``ss_kernel_blocks``, ``kf_kernel_blocks``, docs/design.md
+"Time blocks"), with the scalar steps above for blocks with a gap and for a track's last steps.
 
 The state is carried in float64 whatever the storage dtype; float32 only
 halves the bytes streamed.  Steps ``t >= lengths[b]`` are written as NaN.
@@ -31,7 +33,9 @@ track's flag is a float accumulating ``(out_scale * x) * 0.0`` over the states i
 all are finite as stored.  ``out_scale`` (:data:`OUT_SCALE`) is 1 for float64 storage and 2**897 for
 float32, which takes every state that float32 stores as inf (|x| >= (2 - 2**-24) 2**127) beyond
 float64's range, and with them the finite ones from 2**127 up: a flag is a reason to look, not a
-verdict.  A flagged call is then checked again by the shared checks, which raise the named error.
+verdict.  The time blocks sum the values they store instead (:func:`mptrack.batch._vectors.vstore2`;
+float32 sums what it stored): the sum is finite while they are.  A flagged call is then checked
+again by the shared checks, which raise the named error.
 The model matrices are always float64, so each kernel compiles once per
 storage dtype (two signatures in total), and ``cache=True`` keeps the
 machine code between processes.
@@ -44,10 +48,10 @@ import numpy as np
 
 from .. import _jit_cache  # noqa: F401 - compiled kernels cache in the user's cache directory
 from .._kalman_core import OK, linear_update, predict, workspace
-from ._vectors import (fma, lane, narrow, stack_buffer, vadd, vbcast, vfma, vload, vmul, vsplat, vstore,
-                       vstore2, vsum)
+from ._vectors import fma, narrow, stack_buffer, vadd, vbcast, vfma, vlane, vload, vmul, vsplat, vstore, vstore2, vsum
 
-__all__ = ["ss_kernel", "ss_kernel_21", "ss_kernel_blocks", "kf_kernel", "kf_kernel_21", "kf_kernel_blocks", "gain_loop", "fir_kernel", "matvec_kernel"]
+__all__ = ["ss_kernel", "ss_kernel_21", "ss_kernel_blocks", "kf_kernel", "kf_kernel_21", "kf_kernel_blocks",
+           "gain_loop", "fir_kernel", "matvec_kernel"]
 
 _OPTS = dict(parallel=True, cache=True, nogil=True, boundscheck=False)
 LANES = 4   # tracks advanced together by the n = 2, m = 1 kernels
@@ -592,8 +596,8 @@ def _time_block(zf, zi, of, oi, p, v, W, g, acc):
     hi = vadd(vfma(z3, W[7], vfma(z2, W[5], vfma(z1, W[3], vmul(z0, W[1])))),
               vfma(z7, W[11], vfma(z6, W[10], vfma(z5, W[9], vmul(z4, W[8])))))
     # the state's part last: the chain from one block's state to the next is two multiply-adds
-    pn = fma(v, g[1], fma(p, g[0], lane(hi, 6)))
-    vn = fma(v, g[3], fma(p, g[2], lane(hi, 7)))
+    pn = fma(v, g[1], fma(p, g[0], vlane(hi, 6)))
+    vn = fma(v, g[3], fma(p, g[2], vlane(hi, 7)))
     if pn * 0.0 + vn * 0.0 != 0.0:
         return p, v, acc, False
     ps, vs = vsplat(p), vsplat(v)
@@ -641,7 +645,8 @@ def ss_kernel_blocks(z, out, zf, of, A, Bm, F, C, x0, lengths, out_scale):
     FIR form of eq. 22 of Assimakis & Adam 2014 over one block, exact), in sixteen lanes that lie as
     the states lie in ``out`` (position, velocity of each step): measurements are read as broadcasts,
     states stored as whole vectors, and one block's state reaches the next through two multiply-adds.
-    zf, of: z and out as 1-D arrays; C (160,): the coefficients (:func:`_time_block`).  A block with a
+    zf, of: z and out as 1-D arrays; C (160,): the block's coefficients
+    (:func:`mptrack.batch._filters.time_blocks`).  A block with a
     NaN (or infinity) among its measurements runs the scalar steps (:func:`_ss21_steps`), as do the
     last L mod 8 steps.  Returns the number of flagged tracks."""
     nb_, T = z.shape[0], z.shape[1]

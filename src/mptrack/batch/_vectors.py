@@ -11,14 +11,27 @@ never negative).
 
 from __future__ import annotations
 
-import llvmlite.ir as ir
+from llvmlite import ir
 from numba import types
-from numba.core import cgutils
-from numba.core import errors
+from numba.core import cgutils, errors
 from numba.extending import intrinsic, models, overload, register_model
 
-__all__ = ["vec8", "vload", "vbcast", "vsplat", "vfma", "vmul", "vadd", "lane", "vsum", "fma", "vstore2",
-           "stack_buffer", "narrow", "vstore"]
+__all__ = [
+    "fma",
+    "narrow",
+    "stack_buffer",
+    "vadd",
+    "vbcast",
+    "vec8",
+    "vfma",
+    "vlane",
+    "vload",
+    "vmul",
+    "vsplat",
+    "vstore",
+    "vstore2",
+    "vsum",
+]
 
 _WIDTH = 8
 _F64X8 = ir.VectorType(ir.DoubleType(), _WIDTH)
@@ -134,7 +147,7 @@ def vadd(typingctx, a, b):
 
 
 @intrinsic
-def lane(typingctx, v, i):
+def vlane(typingctx, v, i):
     """Lane ``i`` of ``v``."""
     def codegen(context, builder, sig, args):
         return builder.extract_element(*args)
