@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from mptrack import batch, linear
-from mptrack.batch._filters import BLOCK, time_blocks
+from mptrack.batch._filters import BLOCK, _gain_blocks, gain_blocks, time_blocks
 from mptrack.errors import NonFiniteError
 from mptrack.models import LinearGaussianModel, assimakis_model_b
 from mptrack.riccati import steady_state
@@ -64,7 +64,8 @@ def test_time_blocks_equal_the_reference_around_every_block_edge(kind, dtype, T)
         ref = lambda b, L: linear.steady_state_filter(model, z[b, :L], x0[b], steady=ss).x
     else:
         gains = batch.gain_sequence(model, T, P0)
-        assert gains.blocks[1] <= 8 if T == 203 else gains.blocks[1] == T // BLOCK - 1
+        settled = _gain_blocks(gains, 1)[1]
+        assert settled <= 8 if T == 203 else settled == T // BLOCK - 1
         got = batch.kalman_filter(model, z.astype(dtype), x0, lengths=lengths, gains=gains).x
         ref = lambda b, L: linear.kalman_filter(model, z[b, :L], x0[b], P0).x
     assert got.dtype == dtype
@@ -77,24 +78,27 @@ def test_time_blocks_equal_the_reference_around_every_block_edge(kind, dtype, T)
 
 
 def test_settled_kalman_blocks_are_all_equal_and_the_ones_before_differ():
-    """GainSequence.blocks gives the coefficients up to the first block whose steps all have the last
-    gains (every later block is the same; the kernel keeps it in registers), and no further: a long
-    sequence costs no more memory for them; one that has not settled by its end has a block for each
-    eight steps."""
+    """gain_blocks gives the coefficients up to the first block whose steps all have the last gains
+    (every later block is the same; the kernel keeps it in registers), and no further: a long sequence
+    costs no more memory for them; one that has not settled by its end has a block for each eight
+    steps.  A sequence keeps them (one computation per sequence and number of axis blocks)."""
     model = assimakis_model_b()
     gains = batch.gain_sequence(model, 4000, np.eye(2))
-    C, settled = gains.blocks
-    assert 0 < settled < 20 and C.shape == (settled + 1, 16 * (BLOCK + 2))
+    C, settled = _gain_blocks(gains, 1)
+    assert _gain_blocks(gains, 1)[0] is C
+    assert 0 < settled < 20 and C.shape == (1, settled + 1, 16 * (BLOCK + 2))
     full = time_blocks(gains.A, gains.K)
-    np.testing.assert_array_equal(full[:settled + 1], C)
-    assert (full[settled:] == C[settled]).all()
+    np.testing.assert_array_equal(full[:settled + 1], C[0])
+    assert (full[settled:] == C[0, settled]).all()
     before = slice(BLOCK * (settled - 1), BLOCK * settled)      # a step of the block before has other gains
     assert (gains.K[before] != gains.K[-1]).any() or (gains.A[before] != gains.A[-1]).any()
     still = LinearGaussianModel(np.eye(2), [[1.0, 0.0]], np.zeros((2, 2)), [[1.0]])   # P keeps shrinking
-    C, settled = batch.gain_sequence(still, 64, np.eye(2)).blocks
-    assert settled == len(C) - 1 == 7
-    C, settled = batch.gain_sequence(model, 7, np.eye(2)).blocks     # no whole block
-    assert C.shape == (0, 160) and settled == 0
+    g = batch.gain_sequence(still, 64, np.eye(2))
+    C, settled = gain_blocks(g.A[:, None], g.K[:, None])
+    assert settled == C.shape[1] - 1 == 7
+    g = batch.gain_sequence(model, 7, np.eye(2))                   # no whole block
+    C, settled = gain_blocks(g.A[:, None], g.K[:, None])
+    assert C.shape == (1, 0, 160) and settled == 0
 
 
 @pytest.mark.parametrize("kind", ["steady-state", "kalman"])
@@ -107,3 +111,25 @@ def test_an_infinity_in_a_block_with_a_nan_is_refused_by_name(kind):
     z[1, 12] = np.inf
     with pytest.raises(NonFiniteError, match="^" + re.escape("z: contains infinite value inf at index (1, 12, 0)")):
         run(model, z)
+
+
+@pytest.mark.parametrize("axes", [8, 9])
+def test_rows_of_many_axes(axes):
+    """Rows of up to MAX_AXES = 8 axes run the block kernels (their states on the stack), more the generic
+    kernels: both equal the reference axis by axis, with a gap in one axis."""
+    from mptrack.batch._kernels import MAX_AXES
+
+    assert MAX_AXES == 8
+    model = assimakis_model_b()
+    rng = np.random.default_rng(axes)
+    z = rng.standard_normal((3, 37, axes))
+    z[1, 10:13, axes - 1] = np.nan
+    ss = steady_state(model)
+    got = batch.per_axis(batch.steady_state_filter, model, z, steady=ss).x
+    kf = batch.per_axis(batch.kalman_filter, model, z, None, np.eye(2)).x
+    for b in range(3):
+        for a in range(axes):
+            want = linear.steady_state_filter(model, z[b, :, a:a + 1], steady=ss).x
+            np.testing.assert_allclose(got[b, :, 2 * a:2 * a + 2], want, rtol=1e-12, atol=1e-12)
+            want = linear.kalman_filter(model, z[b, :, a:a + 1], None, np.eye(2)).x
+            np.testing.assert_allclose(kf[b, :, 2 * a:2 * a + 2], want, rtol=1e-12, atol=1e-12)

@@ -129,7 +129,7 @@ def _steady_blocks_of(key: bytes) -> np.ndarray:
 
 
 def _steady_blocks(A: np.ndarray, Bm: np.ndarray) -> np.ndarray:
-    """The (160,) time-block coefficients of x = A x + B z (A (1, 2, 2), Bm (1, 2, 1)), kept for the
+    """The (160,) time-block coefficients of x = A x + B z (A (2, 2), Bm (2, 1)), kept for the
     last few steady states (a call on a small batch costs 16 microseconds; these take 45)."""
     return _steady_blocks_of(np.ascontiguousarray(A, np.float64).tobytes()
                              + np.ascontiguousarray(Bm, np.float64).tobytes())
@@ -163,14 +163,11 @@ def _steady_state_filter(model, z, x0=None, out=None, *, lengths=None, steady=No
     bi = prepare_batch(model, z, x0, out, lengths, axes=axes, scan_z=False)
     ss = steady_argument(model, steady)
     lanes = _lane_axes(model, bi.axes, ss.A, ss.B, rtol=_STEADY_RTOL)
-    if lanes is not None and lanes[0] == 1:     # one axis per row: eight steps at a time
-        _, (F, _, _, _, A, Bm) = lanes
-        flagged = launch(K.ss_kernel_blocks, bi.out.size, bi.z, bi.out, bi.z.reshape(-1), bi.out.reshape(-1),
-                         A, Bm, F, _steady_blocks(A, Bm), bi.x0, bi.lengths, K.OUT_SCALE[bi.out.dtype])
-    elif lanes is not None:        # axes of n = 2, m = 1 (with a joint model's NaN rule when it is one)
+    if lanes is not None and lanes[0] <= K.MAX_AXES:     # rows of k axes of n = 2, m = 1: time blocks
         k, (F, _, _, _, A, Bm) = lanes
-        flagged = launch(K.ss_kernel_21, bi.out.size, bi.z, bi.out, A, Bm, F, bi.x0, bi.lengths, k,
-                         K.OUT_SCALE[bi.out.dtype], k > 1 and bi.axes == 1)
+        C = np.stack([_steady_blocks(A[a], Bm[a]) for a in range(A.shape[0])])[:, None]
+        flagged = launch(K.ss_kernel_blocks, bi.out.size, bi.z, bi.out, bi.z.reshape(-1), bi.out.reshape(-1),
+                         A, Bm, F, C, bi.x0, bi.lengths, K.OUT_SCALE[bi.out.dtype], k > 1 and bi.axes == 1)
     else:
         c = np.ascontiguousarray
         flagged = launch(K.ss_kernel, bi.out.size, bi.z, bi.out, c(ss.A), c(ss.B), c(model.F), bi.x0,
@@ -247,18 +244,36 @@ class GainSequence:
         return (np.eye(n) - self.K @ self.H) @ self.F
 
     @cached_property
-    def blocks(self) -> tuple[np.ndarray, int]:
-        """For n = 2, m = 1: (C, i) -- the coefficients of the vector kernels' eight steps at a time of
-        x(k/k) = A(k) x(k-1/k-1) + K(k) z(k) (:func:`time_blocks`), C[j] for blocks j = 0..i, where
-        block i is the first whose steps all have the sequence's last A(k) and K(k): every later block
-        is C[i] too (the gains reach their limit exactly in floating point after some tens of steps),
-        so C holds no more than that (i = T // 8 - 1 when the gains have not settled by then).
-        Computed once, on first use."""
-        N = self.T // BLOCK
-        moving = np.flatnonzero((self.A != self.A[-1]).any(axis=(1, 2)) | (self.K != self.K[-1]).any(axis=(1, 2)))
-        settled = min(int(moving[-1]) // BLOCK + 1 if len(moving) else 0, max(N - 1, 0))
-        end = BLOCK * min(settled + 1, N)
-        return time_blocks(self.A[:end], self.K[:end]), settled
+    def _memo(self) -> dict:
+        """What the batch kernels derive from the sequence, kept with it (:func:`_gain_blocks`)."""
+        return {}
+
+
+def gain_blocks(AK: np.ndarray, K: np.ndarray) -> tuple[np.ndarray, int]:
+    """The time-block coefficients of x(k/k) = A(k) x(k-1/k-1) + K(k) z(k) for q axes of n = 2, m = 1:
+    AK (T, q, 2, 2), K (T, q, 2, 1) -> (C (q, i + 1, 160), i), C[a, j] the coefficients of axis a's block
+    j (:func:`time_blocks`) for j = 0..i, where block i is the first whose steps all have the last A(k)
+    and K(k) of every axis: every later block is C[:, i] too (the gains reach their limit exactly in
+    floating point after some tens of steps), so C holds no more than that (i = T // 8 - 1 when the
+    gains have not settled by then)."""
+    N = AK.shape[0] // BLOCK
+    moving = np.flatnonzero((AK != AK[-1]).any(axis=(1, 2, 3)) | (K != K[-1]).any(axis=(1, 2, 3)))
+    settled = min(int(moving[-1]) // BLOCK + 1 if len(moving) else 0, max(N - 1, 0))
+    end = BLOCK * min(settled + 1, N)
+    return np.stack([time_blocks(AK[:end, a], K[:end, a]) for a in range(AK.shape[1])]), settled
+
+
+def _gain_blocks(gains: GainSequence, q: int) -> tuple[np.ndarray, int]:
+    """:func:`gain_blocks` of the whole sequence with q blocks: the sequence of an n = 2, m = 1 model
+    (q = 1), or of a block-diagonal model of m such axes, each axis's (q = m) or axis 0's for all
+    (q = 1, the axes alike); computed once per sequence and q."""
+    key = ("time blocks", q)
+    if key not in gains._memo:
+        m = gains.K.shape[2]
+        AK, K = (gains.A[:, None], gains.K[:, None]) if m == 1 else (_axis_blocks(gains.A, m)[:, :q],
+                                                                     _axis_blocks(gains.K, m)[:, :q])
+        gains._memo[key] = gain_blocks(AK, K)
+    return gains._memo[key]
 
 
 def gain_sequence(model: LinearGaussianModel, steps: int, P0=None) -> GainSequence:
@@ -305,14 +320,11 @@ def _kalman_filter(model, z, x0=None, P0=None, out=None, *, lengths=None, gains=
     elif P0 is not None:
         raise ParameterError("P0: give P0 or gains (which already fix P0), not both")
     lanes = _lane_axes(model, bi.axes, gains.A[:T], gains.K[:T], gains.P_filt[:T], gains.P0)
-    if lanes is not None and lanes[0] == 1:     # one axis per row: eight steps at a time
+    if lanes is not None and lanes[0] <= K.MAX_AXES:     # rows of k axes of n = 2, m = 1: time blocks
+        blocks = lanes[1]
+        C, settled = _gain_blocks(gains, blocks[0].shape[0])
         flagged = launch(K.kf_kernel_blocks, bi.out.size, bi.z, bi.out, bi.z.reshape(-1), bi.out.reshape(-1),
-                         *lanes[1], *gains.blocks, bi.x0, bi.lengths,
-                         K.OUT_SCALE[bi.out.dtype])
-    elif lanes is not None:        # axes of n = 2, m = 1: the covariance stays block diagonal
-        k, blocks = lanes
-        flagged = launch(K.kf_kernel_21, bi.out.size, bi.z, bi.out, *blocks, bi.x0, bi.lengths, k,
-                         K.OUT_SCALE[bi.out.dtype])
+                         *blocks, C, settled, bi.x0, bi.lengths, K.OUT_SCALE[bi.out.dtype])
     else:
         c = np.ascontiguousarray
         flagged = launch(K.kf_kernel, bi.out.size, bi.z, bi.out, c(model.F), c(model.H), c(model.Q), c(model.R),

@@ -10,17 +10,17 @@ and never shares a cache line with another thread except at track borders.
 Axes as extra batch (model B run per axis, Assimakis & Adam 2014, eqs. 17-18): a track is
 the pair (b, a) with ``a < axes``; it reads columns ``a*m .. a*m+m-1`` of
 ``z[b]`` and writes columns ``a*n .. a*n+n-1`` of ``out[b]``.  ``axes = 1`` is
-the plain joint model.  The n = 2, m = 1 lane kernels also run the axes of a block-diagonal joint
+the plain joint model.  The n = 2, m = 1 block kernels also run the axes of a block-diagonal joint
 model (model A) this way, each with its own blocks of the model's matrices.
 
 A track with its own covariance (the KF after its first gap) runs the one compiled
 predict/update of :mod:`mptrack._kalman_core` (:func:`own_step`).  The shared-gain paths are the
-documented exception: four tracks advance together with the shared gains, x = A(k) x + K(k) z --
-in registers in the n = 2, m = 1 lane kernels (``ss_kernel_21``, ``kf_kernel_21``), side by side in
-small arrays in the generic ones (:func:`_lane_steps`); tests/test_kalman_core.py checks them
-against the core.  One n = 2, m = 1 track per row (model B on z (B, T, 1)) runs in *time blocks*
-instead: eight steps at a time as vectors (``ss_kernel_blocks``, ``kf_kernel_blocks``, docs/design.md
-"Time blocks"), with the scalar steps above for blocks with a gap and for a track's last steps.
+documented exception: complete steps run x = A(k) x + K(k) z with the shared gains -- in the generic
+kernels four tracks side by side in small arrays (:func:`_lane_steps`); tests/test_kalman_core.py
+checks them against the core.  Rows of k axes of n = 2, m = 1 (model B on z (B, T, 1), per axis, the
+axes of a block-diagonal model such as model A) run in *time blocks*: each axis eight steps at a time
+as vectors (``ss_kernel_blocks``, ``kf_kernel_blocks``, docs/design.md "Time blocks"), with scalar
+steps (:func:`_ss21_steps`, :func:`_kf21_track`) for blocks with a gap and a row's last steps.
 
 The state is carried in float64 whatever the storage dtype; float32 only
 halves the bytes streamed.  Steps ``t >= lengths[b]`` are written as NaN.
@@ -48,13 +48,14 @@ import numpy as np
 
 from .. import _jit_cache  # noqa: F401 - compiled kernels cache in the user's cache directory
 from .._kalman_core import OK, linear_update, predict, workspace
-from ._vectors import fma, narrow, stack_buffer, vadd, vbcast, vfma, vlane, vload, vmul, vsplat, vstore, vstore2, vsum
+from ._vectors import (fma, source, stack_buffer, vadd, vbcast, vfma, vlane, vload, vmul, vsplat,
+                       vstore2, vstore_pairs, vsum)
 
-__all__ = ["ss_kernel", "ss_kernel_21", "ss_kernel_blocks", "kf_kernel", "kf_kernel_21", "kf_kernel_blocks",
-           "gain_loop", "fir_kernel", "matvec_kernel"]
+__all__ = ["ss_kernel", "ss_kernel_blocks", "kf_kernel", "kf_kernel_blocks", "gain_loop", "fir_kernel",
+           "matvec_kernel"]
 
 _OPTS = dict(parallel=True, cache=True, nogil=True, boundscheck=False)
-LANES = 4   # tracks advanced together by the n = 2, m = 1 kernels
+LANES = 4   # tracks advanced together by the generic kernels
 #: The ``out_scale`` argument of the filters' kernels by storage dtype (see the module's docstring).
 OUT_SCALE = {np.dtype(np.float64): 1.0, np.dtype(np.float32): 2.0 ** 897}
 
@@ -195,22 +196,6 @@ def ss_kernel(z, out, A, Bm, F, x0, lengths, axes, out_scale):
 
 
 @nb.njit(cache=True, nogil=True)
-def _lanes(i0, axes, lengths):
-    """Tracks i0 .. i0+3 of a group as (b, axis) pairs, and the shortest of their lengths."""
-    b1, b2, b3, b4 = i0 // axes, (i0 + 1) // axes, (i0 + 2) // axes, (i0 + 3) // axes
-    c1, c2, c3, c4 = i0 - b1 * axes, i0 + 1 - b2 * axes, i0 + 2 - b3 * axes, i0 + 3 - b4 * axes
-    Lmin = min(min(lengths[b1], lengths[b2]), min(lengths[b3], lengths[b4]))
-    return b1, b2, b3, b4, c1, c2, c3, c4, Lmin
-
-
-@nb.njit(cache=True, nogil=True)
-def _lane_priors(x0, b1, b2, b3, b4, c1, c2, c3, c4):
-    """The priors (position, velocity) of the four lanes."""
-    return (x0[b1, 2 * c1], x0[b1, 2 * c1 + 1], x0[b2, 2 * c2], x0[b2, 2 * c2 + 1],
-            x0[b3, 2 * c3], x0[b3, 2 * c3 + 1], x0[b4, 2 * c4], x0[b4, 2 * c4 + 1])
-
-
-@nb.njit(cache=True, nogil=True)
 def _entries(M, a):
     """The four entries of block a of M (axes, 2, 2)."""
     return M[a, 0, 0], M[a, 0, 1], M[a, 1, 0], M[a, 1, 1]
@@ -239,8 +224,9 @@ def _missing(z, b, t, a, joint):
 
 @nb.njit(cache=True, nogil=True)
 def _ss21_steps(z, out, b, a, t0, t1, p, v, A, Bm, F, out_scale, joint):
-    """Steps t0 .. t1-1 of track (b, axis a) of :func:`ss_kernel_21` from state (p, v); returns the
-    state after them and their flag."""
+    """Steps t0 .. t1-1 of axis a of row b (its blocks A[a], Bm[a], F[a], or the 0th when there is one)
+    of the steady-state filter, one at a time, from state (p, v); returns the state after them and
+    their flag.  ``joint``: a row with a NaN in any axis only predicts."""
     q = a if A.shape[0] > 1 else 0      # the axis's blocks (one for all axes: q = 0)
     a00, a01, a10, a11, b0, b1 = _coefficients(A, Bm, q)
     f00, f01, f10, f11 = _entries(F, q)
@@ -258,102 +244,6 @@ def _ss21_steps(z, out, b, a, t0, t1, p, v, A, Bm, F, out_scale, joint):
         out[b, t, o + 1] = v
         flag += (out_scale * p + out_scale * v) * 0.0
     return p, v, flag
-
-
-@nb.njit(cache=True, nogil=True)
-def _ss21_track(z, out, b, a, t0, p, v, L, A, Bm, F, out_scale, joint):
-    """Track (b, axis a) of :func:`ss_kernel_21` from time index t0 with state (p, v); returns its flag
-    for those steps."""
-    p, v, flag = _ss21_steps(z, out, b, a, t0, L, p, v, A, Bm, F, out_scale, joint)
-    return flag + _pad(z, out, b, a, 2 * a, 1, 2, L)
-
-
-@nb.njit(**_OPTS)
-def ss_kernel_21(z, out, A, Bm, F, x0, lengths, axes, out_scale, joint):
-    """:func:`ss_kernel` written out for axes of n = 2, m = 1; returns the number of flagged tracks.
-
-    A (q, 2, 2), Bm (q, 2, 1), F (q, 2, 2): axis a of a row is the track (b, a) with the matrices
-    A[a], Bm[a], F[a] (q = axes), or A[0], Bm[0], F[0] for every axis (q = 1) -- model B per axis, or
-    the diagonal blocks of a block-diagonal model (``joint``: then a row with a NaN in any axis only
-    predicts, as :func:`ss_kernel` does).
-    Four tracks advance together (``LANES``): their states and coefficients live in registers and
-    their four independent recursions hide the floating-point latency, so the loop runs at memory
-    speed.  When a lane meets a NaN, or the shortest of the four tracks ends, each lane finishes on
-    its own (:func:`_ss21_track`).
-    """
-    nb_ = z.shape[0]
-    ntr = nb_ * axes
-    ngroups = (ntr + LANES - 1) // LANES
-    rows = joint and LANES % axes != 0   # else a group holds whole tracks: a NaN in any lane stops it
-    # (axes 1, 2 or 4); rows: axes >= 3, so a group's four lanes span two tracks at most
-    flagged = 0
-    for g in nb.prange(ngroups):
-        i0 = g * LANES
-        if i0 + LANES > ntr:            # the last, incomplete group: one track at a time
-            for i in range(i0, ntr):
-                b = i // axes
-                a = i - b * axes
-                if _ss21_track(z, out, b, a, 0, x0[b, 2 * a], x0[b, 2 * a + 1], lengths[b], A, Bm, F,
-                               out_scale, joint) != 0.0:
-                    flagged += 1
-            continue
-        b1_, b2_, b3_, b4_, c1, c2, c3, c4, Lmin = _lanes(i0, axes, lengths)
-        q = 0 if A.shape[0] == 1 else 1     # one block for every lane, or each lane's axis's
-        flagged += _ss21_group(z, out, x0, A, Bm, F, lengths, out_scale, joint, rows, b1_, b2_, b3_, b4_,
-                               c1, c2, c3, c4, Lmin, q * c1, q * c2, q * c3, q * c4)
-    return flagged
-
-
-@nb.njit(cache=True, nogil=True)
-def _store_lanes(out, t, b1_, b2_, b3_, b4_, c1, c2, c3, c4, p1, v1, p2, v2, p3, v3, p4, v4, out_scale):
-    """Write the four lanes' states at step t; returns the terms of their flags."""
-    out[b1_, t, 2 * c1], out[b1_, t, 2 * c1 + 1] = p1, v1
-    out[b2_, t, 2 * c2], out[b2_, t, 2 * c2 + 1] = p2, v2
-    out[b3_, t, 2 * c3], out[b3_, t, 2 * c3 + 1] = p3, v3
-    out[b4_, t, 2 * c4], out[b4_, t, 2 * c4 + 1] = p4, v4
-    return ((out_scale * p1 + out_scale * v1) * 0.0, (out_scale * p2 + out_scale * v2) * 0.0,
-            (out_scale * p3 + out_scale * v3) * 0.0, (out_scale * p4 + out_scale * v4) * 0.0)
-
-
-@nb.njit(cache=True, nogil=True)
-def _ss21_group(z, out, x0, A, Bm, F, lengths, out_scale, joint, rows, b1_, b2_, b3_, b4_, c1, c2, c3, c4, Lmin,
-                q1, q2, q3, q4):
-    """One group of :func:`ss_kernel_21`: lanes (b1_, c1) .. (b4_, c4) with the blocks q1 .. q4 of
-    A, Bm, F; returns how many of them are flagged."""
-    p1, v1, p2, v2, p3, v3, p4, v4 = _lane_priors(x0, b1_, b2_, b3_, b4_, c1, c2, c3, c4)
-    a1, e1, h1, k1, u1, w1 = _coefficients(A, Bm, q1)
-    a2, e2, h2, k2, u2, w2 = _coefficients(A, Bm, q2)
-    a3, e3, h3, k3, u3, w3 = _coefficients(A, Bm, q3)
-    a4, e4, h4, k4, u4, w4 = _coefficients(A, Bm, q4)
-    f1 = f2 = f3 = f4 = 0.0
-    t = 0
-    while t < Lmin:
-        if rows:                        # whole rows (axes >= 3: the four lanes span two tracks at most)
-            if _missing(z, b1_, t, c1, True) or _missing(z, b4_, t, c4, True):
-                break
-        elif (np.isnan(z[b1_, t, c1]) or np.isnan(z[b2_, t, c2]) or np.isnan(z[b3_, t, c3])
-                or np.isnan(z[b4_, t, c4])):
-            break
-        z1, z2, z3, z4 = z[b1_, t, c1], z[b2_, t, c2], z[b3_, t, c3], z[b4_, t, c4]
-        p1, v1 = (a1 * p1 + e1 * v1) + u1 * z1, (h1 * p1 + k1 * v1) + w1 * z1
-        p2, v2 = (a2 * p2 + e2 * v2) + u2 * z2, (h2 * p2 + k2 * v2) + w2 * z2
-        p3, v3 = (a3 * p3 + e3 * v3) + u3 * z3, (h3 * p3 + k3 * v3) + w3 * z3
-        p4, v4 = (a4 * p4 + e4 * v4) + u4 * z4, (h4 * p4 + k4 * v4) + w4 * z4
-        r1, r2, r3, r4 = _store_lanes(out, t, b1_, b2_, b3_, b4_, c1, c2, c3, c4, p1, v1, p2, v2, p3, v3, p4, v4,
-                                      out_scale)
-        f1, f2, f3, f4 = f1 + r1, f2 + r2, f3 + r3, f4 + r4
-        t += 1
-    f1 += _ss21_track(z, out, b1_, c1, t, p1, v1, lengths[b1_], A, Bm, F, out_scale, joint)
-    f2 += _ss21_track(z, out, b2_, c2, t, p2, v2, lengths[b2_], A, Bm, F, out_scale, joint)
-    f3 += _ss21_track(z, out, b3_, c3, t, p3, v3, lengths[b3_], A, Bm, F, out_scale, joint)
-    f4 += _ss21_track(z, out, b4_, c4, t, p4, v4, lengths[b4_], A, Bm, F, out_scale, joint)
-    return _count_flags(f1, f2, f3, f4)
-
-
-@nb.njit(cache=True, nogil=True)
-def _count_flags(f1, f2, f3, f4):
-    """How many of four lanes' flags are set (not 0.0)."""
-    return int(f1 != 0.0) + int(f2 != 0.0) + int(f3 != 0.0) + int(f4 != 0.0)
 
 
 @nb.njit(cache=True, nogil=True)
@@ -467,8 +357,9 @@ def kf_kernel(z, out, F, H, Q, R, AK, K, Pf, P0, x0, lengths, axes, out_scale):
 
 @nb.njit(cache=True, nogil=True)
 def _kf21_track(z, out, b, a, t0, p, v, L, F, H, Q, R, AK, K, Pf, P0, out_scale):
-    """Track (b, axis a) of :func:`kf_kernel_21` from time index t0 with state (p, v); returns its flag
-    for those steps."""
+    """Axis a of row b (its blocks of the model and gains, or the 0th when there is one) of the
+    shared-gain Kalman filter from time index t0 with state (p, v), one step at a time, leaving the
+    shared gains at its first gap (:func:`own_step`); returns its flag for those steps."""
     q = a if F.shape[0] > 1 else 0      # the axis's blocks (one for all axes: q = 0)
     o = 2 * a
     flag = 0.0
@@ -500,72 +391,6 @@ def _kf21_track(z, out, b, a, t0, p, v, L, F, H, Q, R, AK, K, Pf, P0, out_scale)
     return flag + _pad(z, out, b, a, o, 1, 2, L)
 
 
-@nb.njit(**_OPTS)
-def kf_kernel_21(z, out, F, H, Q, R, AK, K, Pf, P0, x0, lengths, axes, out_scale):
-    """:func:`kf_kernel` written out for axes of n = 2, m = 1, four tracks at a time (see
-    :func:`ss_kernel_21`); returns the number of flagged tracks.
-
-    F, H, Q, R, P0 (q, ., .), and the shared sequences AK, K, Pf (T, q, ., .): the blocks of axis a (of
-    axis 0 when q = 1) are the track (b, a)'s model and gains.  While a track's measurements are
-    complete it runs x(k/k) = A(k) x(k-1/k-1) + K(k) z(k) with A(k) = [I - K(k) H] F
-    (:attr:`mptrack.batch.GainSequence.A`), the same filter as x(k/k-1) + K(k) [z(k) - H x(k/k-1)]
-    with a chain of two dependent multiply-adds per step instead of five (four lanes did not hide the
-    longer one); at its first gap it leaves the shared gains for its own covariance (:func:`own_step`).
-    A joint block-diagonal model needs no joint rule here: its covariance stays block diagonal, so a
-    NaN in one axis leaves the others' updates as they are."""
-    nb_ = z.shape[0]
-    ntr = nb_ * axes
-    ngroups = (ntr + LANES - 1) // LANES
-    flagged = 0
-    for g in nb.prange(ngroups):
-        i0 = g * LANES
-        if i0 + LANES > ntr:
-            for i in range(i0, ntr):
-                b = i // axes
-                a = i - b * axes
-                if _kf21_track(z, out, b, a, 0, x0[b, 2 * a], x0[b, 2 * a + 1], lengths[b],
-                               F, H, Q, R, AK, K, Pf, P0, out_scale) != 0.0:
-                    flagged += 1
-            continue
-        b1_, b2_, b3_, b4_, c1, c2, c3, c4, Lmin = _lanes(i0, axes, lengths)
-        q = 0 if F.shape[0] == 1 else 1     # one block (and gain) for every lane, or each lane's axis's
-        flagged += _kf21_group(z, out, x0, F, H, Q, R, AK, K, Pf, P0, lengths, out_scale, b1_, b2_, b3_, b4_,
-                               c1, c2, c3, c4, Lmin, q * c1, q * c2, q * c3, q * c4)
-    return flagged
-
-
-@nb.njit(cache=True, nogil=True)
-def _kf21_group(z, out, x0, F, H, Q, R, AK, K, Pf, P0, lengths, out_scale, b1_, b2_, b3_, b4_, c1, c2, c3, c4, Lmin,
-                q1, q2, q3, q4):
-    """One group of :func:`kf_kernel_21`: lanes (b1_, c1) .. (b4_, c4) with the blocks q1 .. q4 of the
-    model and gains; returns how many of them are flagged."""
-    p1, v1, p2, v2, p3, v3, p4, v4 = _lane_priors(x0, b1_, b2_, b3_, b4_, c1, c2, c3, c4)
-    g1 = g2 = g3 = g4 = 0.0
-    t = 0
-    while t < Lmin:
-        z1, z2, z3, z4 = z[b1_, t, c1], z[b2_, t, c2], z[b3_, t, c3], z[b4_, t, c4]
-        if np.isnan(z1) or np.isnan(z2) or np.isnan(z3) or np.isnan(z4):
-            break
-        At, Kt = AK[t], K[t]
-        a1, e1, h1, k1, u1, w1 = _coefficients(At, Kt, q1)
-        a2, e2, h2, k2, u2, w2 = _coefficients(At, Kt, q2)
-        a3, e3, h3, k3, u3, w3 = _coefficients(At, Kt, q3)
-        a4, e4, h4, k4, u4, w4 = _coefficients(At, Kt, q4)
-        p1, v1 = (a1 * p1 + e1 * v1) + u1 * z1, (h1 * p1 + k1 * v1) + w1 * z1
-        p2, v2 = (a2 * p2 + e2 * v2) + u2 * z2, (h2 * p2 + k2 * v2) + w2 * z2
-        p3, v3 = (a3 * p3 + e3 * v3) + u3 * z3, (h3 * p3 + k3 * v3) + w3 * z3
-        p4, v4 = (a4 * p4 + e4 * v4) + u4 * z4, (h4 * p4 + k4 * v4) + w4 * z4
-        r1, r2, r3, r4 = _store_lanes(out, t, b1_, b2_, b3_, b4_, c1, c2, c3, c4, p1, v1, p2, v2, p3, v3, p4, v4,
-                                      out_scale)
-        g1, g2, g3, g4 = g1 + r1, g2 + r2, g3 + r3, g4 + r4
-        t += 1
-    g1 += _kf21_track(z, out, b1_, c1, t, p1, v1, lengths[b1_], F, H, Q, R, AK, K, Pf, P0, out_scale)
-    g2 += _kf21_track(z, out, b2_, c2, t, p2, v2, lengths[b2_], F, H, Q, R, AK, K, Pf, P0, out_scale)
-    g3 += _kf21_track(z, out, b3_, c3, t, p3, v3, lengths[b3_], F, H, Q, R, AK, K, Pf, P0, out_scale)
-    g4 += _kf21_track(z, out, b4_, c4, t, p4, v4, lengths[b4_], F, H, Q, R, AK, K, Pf, P0, out_scale)
-    return _count_flags(g1, g2, g3, g4)
-
-
 @nb.njit(cache=True, nogil=True)
 def _coefficients8(C, c0):
     """The coefficients C[c0 .. c0+159] of one time block (:func:`mptrack.batch._filters.time_blocks`) as
@@ -581,94 +406,117 @@ def _coefficients8(C, c0):
 
 
 @nb.njit(cache=True, nogil=True)
-def _time_block(zf, zi, of, oi, p, v, W, g, acc):
-    """Eight steps of an n = 2, m = 1 track as vectors (see :func:`ss_kernel_blocks`): the
-    measurements zf[zi .. zi+7] and the states after them, stored in of[oi .. oi+15] (position,
-    velocity of each step) from the state (p, v) before them, with the block's coefficients
-    (W, g) = :func:`_coefficients8`.  Stores them and returns (p, v, acc, True) when the last state is
-    finite, else stores nothing and returns False (a NaN or infinity among the eight measurements
-    always reaches it: its weights multiply every one of them, zero weights included).  ``acc``
-    accumulates the states stored: it stays finite while they are."""
-    z0, z1, z2, z3 = vbcast(zf, zi), vbcast(zf, zi + 1), vbcast(zf, zi + 2), vbcast(zf, zi + 3)
-    z4, z5, z6, z7 = vbcast(zf, zi + 4), vbcast(zf, zi + 5), vbcast(zf, zi + 6), vbcast(zf, zi + 7)
+def _block(zf, zi, zs, p, v, W, g):
+    """Eight steps of one n = 2, m = 1 axis as vectors (see :func:`ss_kernel_blocks`): from the state
+    (p, v) before them and the measurements zf[zi + j zs], j = 0..7, with the block's coefficients
+    (W, g) = :func:`_coefficients8`; returns the last state and the sixteen states (position, velocity
+    of each step) as two vectors."""
+    z0, z1, z2, z3 = vbcast(zf, zi), vbcast(zf, zi + zs), vbcast(zf, zi + 2 * zs), vbcast(zf, zi + 3 * zs)
+    z4, z5 = vbcast(zf, zi + 4 * zs), vbcast(zf, zi + 5 * zs)
+    z6, z7 = vbcast(zf, zi + 6 * zs), vbcast(zf, zi + 7 * zs)
     # the first four steps do not depend on z4 .. z7 (their weights are zero)
     lo = vadd(vfma(z1, W[2], vmul(z0, W[0])), vfma(z3, W[6], vmul(z2, W[4])))
     hi = vadd(vfma(z3, W[7], vfma(z2, W[5], vfma(z1, W[3], vmul(z0, W[1])))),
               vfma(z7, W[11], vfma(z6, W[10], vfma(z5, W[9], vmul(z4, W[8])))))
-    # the state's part last: the chain from one block's state to the next is two multiply-adds
+    # the state's part last: the chain from one block's state to the next is two multiply-adds (the
+    # same fused operations as the vector lane's, so bitwise its value)
     pn = fma(v, g[1], fma(p, g[0], vlane(hi, 6)))
     vn = fma(v, g[3], fma(p, g[2], vlane(hi, 7)))
-    if pn * 0.0 + vn * 0.0 != 0.0:
-        return p, v, acc, False
     ps, vs = vsplat(p), vsplat(v)
-    lo = vfma(vs, W[14], vfma(ps, W[12], lo))
-    hi = vfma(vs, W[15], vfma(ps, W[13], hi))
-    return pn, vn, vadd(acc, vstore2(of, oi, lo, hi)), True
-
-
-#: Steps of a float32 track widened to float64 at a time before its blocks read them (a multiple of 8).
-WIDEN = 256
+    return pn, vn, vfma(vs, W[14], vfma(ps, W[12], lo)), vfma(vs, W[15], vfma(ps, W[13], hi))
 
 
 @nb.njit(cache=True, nogil=True)
-def _blocks(zf, zi, of, oi, n, p, v, W, g, acc, buf):
-    """Up to n time blocks (:func:`_time_block`) from zf[zi] and of[oi] with the coefficients (W, g)
-    from the state (p, v); returns (p, v, acc, the number of blocks done), fewer than n when a block's
-    last state is not finite (that block is not done).  float32 measurements are first widened to
-    float64 in ``buf`` (WIDEN steps at a time, one conversion per eight values) so that the blocks read
-    them as float64 broadcasts: widened one at a time as they are broadcast, they cost a float32 block a
-    third more instructions."""
-    if narrow(zf):
-        done = 0
-        while done < n:
-            k = min(n - done, WIDEN // 8)
-            z0 = zi + 8 * done
-            for i in range(k):
-                vstore(buf, 8 * i, vload(zf, z0 + 8 * i))
-            for j in range(k):
-                p, v, acc, ok = _time_block(buf, 8 * j, of, oi + 16 * (done + j), p, v, W, g, acc)
-                if not ok:
-                    return p, v, acc, done + j
-            done += k
-        return p, v, acc, n
-    for j in range(n):
-        p, v, acc, ok = _time_block(zf, zi + 8 * j, of, oi + 16 * j, p, v, W, g, acc)
-        if not ok:
-            return p, v, acc, j
-    return p, v, acc, n
+def _axis_blocks(zf, zi, zs, of, oi, os, n, p, v, W, g, acc):
+    """n blocks of one axis (:func:`_block`) from zf[zi] (a step every zs values) into of[oi] (a step
+    every os values: 2 when the row is this axis alone, stored as whole vectors, else as pairs);
+    returns the state after them and ``acc`` plus the sum of the values stored, which stays finite
+    while they are (:func:`mptrack.batch._vectors.vstore2`)."""
+    for i in range(n):
+        p, v, lo, hi = _block(zf, zi + 8 * zs * i, zs, p, v, W, g)
+        if os == 2:
+            acc = vadd(acc, vstore2(of, oi + 16 * i, lo, hi))
+        else:
+            acc = vadd(acc, vstore_pairs(of, oi + 8 * os * i, os, lo, hi))
+    return p, v, acc
+
+
+@nb.njit(cache=True, nogil=True)
+def _rows(src, s0, k, of, o0, n, P, V, C, c, step, acc):
+    """n blocks of rows of k axes (states P, V, updated) from src[s0] into of[o0], one axis after the
+    other (:func:`_axis_blocks`), axis a's block i with the coefficients C[a, c + step i] (C[0, ..] for
+    all when C has one axis block): step 0 keeps them in registers for the n blocks.  Returns ``acc``
+    plus the sum of the values stored."""
+    for a in range(k):
+        ca = a if C.shape[0] > 1 else 0
+        if step == 0:
+            W, g = _coefficients8(C[ca, c], 0)
+            if k == 1:                  # (strides as constants: 5-10 % faster)
+                P[0], V[0], acc = _axis_blocks(src, s0, 1, of, o0, 2, n, P[0], V[0], W, g, acc)
+            else:
+                P[a], V[a], acc = _axis_blocks(src, s0 + a, k, of, o0 + 2 * a, 2 * k, n, P[a], V[a], W, g, acc)
+        else:
+            for i in range(n):
+                W, g = _coefficients8(C[ca, c + step * i], 0)
+                P[a], V[a], acc = _axis_blocks(src, s0 + a + 8 * k * i, k, of, o0 + 2 * a + 16 * k * i, 2 * k, 1,
+                                               P[a], V[a], W, g, acc)
+    return acc
+
+
+#: Axes per row the block kernels take (their states live on the stack); more run the generic kernels.
+MAX_AXES = 8
+#: Measurements per chunk: a chunk's rows are checked (float32: widened to float64, one conversion per
+#: eight values) before their blocks run; 2048 steps of one axis, 256 of eight (16 KiB of stack).
+_WIDE = 2048
+
+
+@nb.njit(cache=True, nogil=True)
+def _states(x0, b, k):
+    """The prior states of row b's k axes (position, velocity) in stack arrays."""
+    P = nb.carray(stack_buffer(MAX_AXES), MAX_AXES)
+    V = nb.carray(stack_buffer(MAX_AXES), MAX_AXES)
+    for a in range(k):
+        P[a] = x0[b, 2 * a]
+        V[a] = x0[b, 2 * a + 1]
+    return P, V
 
 
 @nb.njit(**_OPTS)
-def ss_kernel_blocks(z, out, zf, of, A, Bm, F, C, x0, lengths, out_scale):
-    """:func:`ss_kernel_21` for one n = 2, m = 1 track per row (model B on z (B, T, 1)), eight steps
-    at a time as vectors: x(k+s) = A^(s+1) x(k-1) + sum_{j <= s} A^(s-j) B z(k+j), s = 0..7 (the
-    FIR form of eq. 22 of Assimakis & Adam 2014 over one block, exact), in sixteen lanes that lie as
-    the states lie in ``out`` (position, velocity of each step): measurements are read as broadcasts,
-    states stored as whole vectors, and one block's state reaches the next through two multiply-adds.
-    zf, of: z and out as 1-D arrays; C (160,): the block's coefficients
-    (:func:`mptrack.batch._filters.time_blocks`).  A block with a
-    NaN (or infinity) among its measurements runs the scalar steps (:func:`_ss21_steps`), as do the
-    last L mod 8 steps.  Returns the number of flagged tracks."""
-    nb_, T = z.shape[0], z.shape[1]
+def ss_kernel_blocks(z, out, zf, of, A, Bm, F, C, x0, lengths, out_scale, joint):
+    """x(k/k) = A x(k-1/k-1) + B z(k) (Assimakis & Adam 2014, eq. 9) for rows of k axes of n = 2, m = 1
+    (model B on z (B, T, 1); per axis; the axes of a block-diagonal model, ``joint``: its rule that a
+    row with a NaN in any axis only predicts), eight steps at a time as vectors: x(k+s) = A^(s+1) x(k-1)
+    + sum_{j <= s} A^(s-j) B z(k+j), s = 0..7 (the FIR form of eq. 22 over one block, exact), in
+    sixteen lanes that lie as the states of one axis lie in ``out`` (position, velocity of each step):
+    measurements are read as broadcasts, the states stored as whole vectors (one axis per row) or as
+    pairs into the rows, and one block's state reaches the next through two multiply-adds.
+    zf, of: z and out as 1-D arrays; A, Bm, F (q, ., .) and C (q, 1, 160): axis a's blocks and time-block
+    coefficients (:func:`mptrack.batch._filters.time_blocks`) are those of a (q = k) or of 0 (q = 1).
+    The rows are taken in chunks (:data:`_WIDE` values); blocks before the first with a NaN or an infinity run
+    as vectors, that one step by step (:func:`_ss21_steps`, which also refuses an infinity beside a
+    NaN), as do the last L mod 8 steps.  Returns the number of flagged rows."""
+    nb_, T, k = z.shape[0], z.shape[1], z.shape[2]
     flagged = 0
     for b in nb.prange(nb_):
         L = lengths[b]
-        p, v = x0[b, 0], x0[b, 1]
-        W, g = _coefficients8(C, 0)
-        buf = nb.carray(stack_buffer(WIDEN), WIDEN)
+        P, V = _states(x0, b, k)
+        buf = nb.carray(stack_buffer(_WIDE), _WIDE)
         acc = vsplat(0.0)
         flag = 0.0
         t = 0
         while t + 8 <= L:
-            n = (L - t) // 8
-            p, v, acc, k = _blocks(zf, b * T + t, of, 2 * (b * T + t), n, p, v, W, g, acc, buf)
-            t += 8 * k
-            if k < n:                   # a block with a NaN: its scalar steps
-                p, v, f = _ss21_steps(z, out, b, 0, t, t + 8, p, v, A, Bm, F, out_scale, False)
-                flag += f
+            n = min((L - t) // 8, _WIDE // (8 * k))
+            src, s0, done = source(zf, (b * T + t) * k, k, n, buf)
+            acc = _rows(src, s0, k, of, 2 * (b * T + t) * k, done, P, V, C, 0, 0, acc)
+            t += 8 * done
+            if done < n:                # a block with a NaN or an infinity: its rows step by step
+                for a in range(k):
+                    P[a], V[a], f = _ss21_steps(z, out, b, a, t, t + 8, P[a], V[a], A, Bm, F, out_scale, joint)
+                    flag += f
                 t += 8
-        p, v, f = _ss21_steps(z, out, b, 0, t, L, p, v, A, Bm, F, out_scale, False)
-        flag += f + _pad(z, out, b, 0, 0, 1, 2, L)
+        for a in range(k):
+            P[a], V[a], f = _ss21_steps(z, out, b, a, t, L, P[a], V[a], A, Bm, F, out_scale, joint)
+            flag += f + _pad(z, out, b, a, 2 * a, 1, 2, L)
         if flag != 0.0 or vsum(acc) * 0.0 != 0.0:
             flagged += 1
     return flagged
@@ -676,39 +524,36 @@ def ss_kernel_blocks(z, out, zf, of, A, Bm, F, C, x0, lengths, out_scale):
 
 @nb.njit(**_OPTS)
 def kf_kernel_blocks(z, out, zf, of, F, H, Q, R, AK, K, Pf, P0, C, settled, x0, lengths, out_scale):
-    """:func:`kf_kernel_21` for one n = 2, m = 1 track per row, eight steps at a time as vectors as in
-    :func:`ss_kernel_blocks`, with the shared gains: block i (steps 8i .. 8i+7) has its own
-    coefficients C[i] (from A(k) and K(k), :attr:`mptrack.batch.GainSequence.blocks`) up to block
-    ``settled``, from which on they are all equal (the gains reach their limit exactly in floating
-    point after some tens of steps) and stay in registers: loading them for every block made the
-    loop twice as slow.  At a block with a NaN or infinity the track goes on in :func:`_kf21_track`
-    (which leaves the shared gains at its first gap), as do its last L mod 8 steps.  Returns the
-    number of flagged tracks."""
-    nb_, T = z.shape[0], z.shape[1]
-    stride = C.shape[1]
-    Cf = C.reshape(-1)
-    Cs = C[min(settled, max(C.shape[0] - 1, 0))]     # (a view only; T < 8 has no block to read it)
+    """Kalman filter with the shared gain sequence (Assimakis & Adam 2014, eq. 4) for rows of k axes of
+    n = 2, m = 1, eight steps at a time as vectors as in :func:`ss_kernel_blocks`, with
+    x(k/k) = A(k) x(k-1/k-1) + K(k) z(k): F, H, Q, R, P0 (q, ., .), AK, K, Pf (T, q, ., .) the axes'
+    blocks, C (q, N, 160) their time-block coefficients for blocks 0 .. N-1 (from A(k), K(k)), all equal
+    from block ``settled`` = N - 1 on (:func:`mptrack.batch._filters.gain_blocks`): from there they are
+    loaded once per chunk, before it per block.  A block of rows with a NaN or an infinity hands every
+    axis over to :func:`_kf21_track` (which leaves the shared gains at the axis's first gap), as do
+    the last L mod 8 steps.  Returns the number of flagged rows."""
+    nb_, T, k = z.shape[0], z.shape[1], z.shape[2]
     flagged = 0
     for b in nb.prange(nb_):
         L = lengths[b]
-        p, v = x0[b, 0], x0[b, 1]
-        buf = nb.carray(stack_buffer(WIDEN), WIDEN)
+        P, V = _states(x0, b, k)
+        buf = nb.carray(stack_buffer(_WIDE), _WIDE)
         acc = vsplat(0.0)
         t = 0
-        k = n = 1
-        while k == n and t + 8 <= L and t < 8 * settled:
-            W, g = _coefficients8(Cf, (t // 8) * stride)
-            p, v, acc, k = _blocks(zf, b * T + t, of, 2 * (b * T + t), 1, p, v, W, g, acc, buf)
-            t += 8 * k
-        if k == n and t + 8 <= L:
-            W, g = _coefficients8(Cs, 0)
-            n = (L - t) // 8
-            p, v, acc, k = _blocks(zf, b * T + t, of, 2 * (b * T + t), n, p, v, W, g, acc, buf)
-            t += 8 * k
-        if t < L:
-            flag = _kf21_track(z, out, b, 0, t, p, v, L, F, H, Q, R, AK, K, Pf, P0, out_scale)
-        else:                           # (calling it for no step cost 100 ns a track)
-            flag = _pad(z, out, b, 0, 0, 1, 2, L)
+        n = done = 0
+        while done == n and t + 8 <= L:
+            i = t // 8                  # the blocks before ``settled`` each with its coefficients
+            n = min((L - t) // 8, _WIDE // (8 * k), settled - i if i < settled else L)
+            src, s0, done = source(zf, (b * T + t) * k, k, n, buf)
+            acc = _rows(src, s0, k, of, 2 * (b * T + t) * k, done, P, V, C, min(i, settled), int(i < settled),
+                        acc)
+            t += 8 * done
+        flag = 0.0
+        for a in range(k):
+            if t < L:
+                flag += _kf21_track(z, out, b, a, t, P[a], V[a], L, F, H, Q, R, AK, K, Pf, P0, out_scale)
+            else:                       # (calling it for no step cost 100 ns a track)
+                flag += _pad(z, out, b, a, 2 * a, 1, 2, L)
         if flag != 0.0 or vsum(acc) * 0.0 != 0.0:
             flagged += 1
     return flagged

@@ -18,8 +18,8 @@ from numba.extending import intrinsic, models, overload, register_model
 
 __all__ = [
     "fma",
-    "narrow",
     "stack_buffer",
+    "source",
     "vadd",
     "vbcast",
     "vec8",
@@ -27,9 +27,11 @@ __all__ = [
     "vlane",
     "vload",
     "vmul",
+    "vfinite",
     "vsplat",
     "vstore",
     "vstore2",
+    "vstore_pairs",
     "vsum",
 ]
 
@@ -208,12 +210,77 @@ def stack_buffer(typingctx, size):
     return types.CPointer(types.float64)(size), codegen
 
 
-def narrow(arr):  # pragma: no cover - replaced by the overload in compiled code
-    """True when ``arr`` stores fewer bits than float64 (a constant in compiled code)."""
-    return arr.dtype.itemsize < 8
+@intrinsic
+def vstore_pairs(typingctx, arr, index, stride, a, b):
+    """The eight pairs (a[0:2], a[2:4], .., b[6:8]) to ``arr[index + i stride : .. + 2]``, i = 0..7,
+    converted to the array's dtype: the (position, velocity) of eight steps of one axis into rows that
+    hold several axes.  Returns the sum of the two halves as stored, as :func:`vstore2` does."""
+    def codegen(context, builder, sig, args):
+        arrty = sig.args[0]
+        elt = context.get_data_type(arrty.dtype)
+        base = _element(context, builder, arrty, args[0], args[1])
+        stride = context.cast(builder, args[2], sig.args[2], types.int64)
+        halves = [args[3], args[4]]
+        if elt != ir.DoubleType():
+            halves = [builder.fptrunc(h, ir.VectorType(elt, _WIDTH)) for h in halves]
+        pair = ir.VectorType(elt, 2)
+        for h, half in enumerate(halves):
+            for i in range(_WIDTH // 2):
+                value = builder.shuffle_vector(half, ir.Constant(half.type, ir.Undefined),
+                                               ir.Constant(ir.VectorType(_I32, 2), [2 * i, 2 * i + 1]))
+                offset = builder.mul(stride, ir.IntType(64)(h * _WIDTH // 2 + i))
+                ptr = builder.bitcast(builder.gep(base, [offset]), pair.as_pointer())
+                builder.store(value, ptr, align=arrty.dtype.bitwidth // 8)
+        total = builder.fadd(halves[0], halves[1])
+        return total if total.type == _F64X8 else builder.fpext(total, _F64X8)
+
+    return vec8(arr, index, stride, a, b), codegen
 
 
-@overload(narrow)
-def _narrow(arr):
-    flag = arr.dtype.bitwidth < 64
-    return lambda arr: flag
+@intrinsic
+def vfinite(typingctx, v):
+    """True when every lane of ``v`` is finite."""
+    def codegen(context, builder, sig, args):
+        zero = builder.fmul(args[0], ir.Constant(_F64X8, [0.0] * _WIDTH))      # NaN where v is not finite
+        bad = builder.fcmp_unordered("uno", zero, zero)
+        return builder.icmp_unsigned("==", builder.bitcast(bad, ir.IntType(_WIDTH)), ir.IntType(_WIDTH)(0))
+
+    return types.boolean(v), codegen
+
+
+def source(zf, base, k, n, buf):  # pragma: no cover - replaced by the overload in compiled code
+    """The measurements of n blocks of rows of k values from zf[base] as float64 for the time blocks,
+    and how many of those blocks come before the first with a NaN or an infinity (a sum of finite
+    values that overflows counts as one: its rows then run the scalar steps, which give the same
+    numbers): (zf, base, clean) for float64; float32 is widened into ``buf`` (whole vectors, up to that
+    block), (buf, 0, clean)."""
+    raise NotImplementedError
+
+
+@overload(source)
+def _source(zf, base, k, n, buf):
+    if zf.dtype.bitwidth == 64:
+        def scan(zf, base, k, n, buf):
+            for i in range(n):
+                s = vload(zf, base + 8 * k * i)
+                for c in range(1, k):
+                    s = vadd(s, vload(zf, base + 8 * (k * i + c)))
+                if not vfinite(s):
+                    return zf, base, i
+            return zf, base, n
+
+        return scan
+
+    def widen(zf, base, k, n, buf):
+        for i in range(n):
+            s = vload(zf, base + 8 * k * i)
+            vstore(buf, 8 * k * i, s)
+            for c in range(1, k):
+                v = vload(zf, base + 8 * (k * i + c))
+                vstore(buf, 8 * (k * i + c), v)
+                s = vadd(s, v)
+            if not vfinite(s):
+                return buf, 0, i
+        return buf, 0, n
+
+    return widen
