@@ -1,5 +1,5 @@
 """The one compiled Kalman predict/update (mptrack._kalman_core) against the readable NumPy reference
-:func:`mptrack.linear.kalman_step`, and the documented exceptions (the n = 2, m = 1 lane kernels of the
+:func:`mptrack.linear.kalman_step`, and the documented exceptions (the n = 2, m = 1 time blocks of the
 batch engine, the tracking engine's rank-one update) against the core, on random models with NaN gaps."""
 
 import numpy as np
@@ -116,7 +116,7 @@ def _states(result):
 
 @pytest.mark.parametrize("n, m", [(2, 1), (4, 2)])
 def test_shared_gain_kf_kernels_equal_the_core(n, m):
-    """The batch KF's shared-gain paths -- kf_kernel_21 (n = 2, m = 1: four tracks in registers) and
+    """The batch KF's shared-gain paths -- kf_kernel_blocks (n = 2, m = 1: eight steps as vectors) and
     kf_kernel (any n, m) -- which fall back to the core at a track's first gap, against the KF run by the
     core per track; tracks of different lengths, with NaN gaps (whole rows and single components)."""
     rng = np.random.default_rng(21 + n)
@@ -138,8 +138,8 @@ def test_shared_gain_kf_kernels_equal_the_core(n, m):
         assert np.isnan(out[b, L:]).all()
 
 
-def test_lane_ss_kernel_21_equals_the_core_from_the_steady_state():
-    """ss_kernel_21 (x = A x + B z, four tracks in registers) against the KF run by the core from the
+def test_block_ss_kernel_equals_the_core_from_the_steady_state():
+    """ss_kernel_blocks (x = A x + B z, eight steps as vectors) against the KF run by the core from the
     steady-state covariance, which stays there (complete measurements)."""
     rng = np.random.default_rng(22)
     model = _model_21(rng)

@@ -23,10 +23,10 @@ reference; tests/test_kalman_core.py checks this module against it.
 The documented exceptions (their own arithmetic, each tested against this core):
 
 * the batch engine's shared-gain paths in :mod:`mptrack.batch._kernels`, above all the n = 2, m = 1
-  lane kernels (``kf_kernel_21``, ``ss_kernel_21``; also the complete-track branch of ``kf_kernel``):
-  a shared, precomputed gain sequence and no covariance -- x = A(k) x + K(k) z with
-  A(k) = (I - K(k) H) F, which is x = F x + K (z - H F x), four tracks at a time; they fall back to this
-  core at a track's first gap;
+  time blocks (``kf_kernel_blocks``, ``ss_kernel_blocks``; also the complete-track branch of
+  ``kf_kernel``): a shared, precomputed gain sequence and no covariance -- x = A(k) x + K(k) z with
+  A(k) = (I - K(k) H) F, which is x = F x + K (z - H F x), eight steps at a time (four tracks at a time
+  in ``kf_kernel``); they fall back to this core at a track's first gap;
 * the tracking engine (:mod:`mptrack.tracking._engine`): integrator chains with a position fix of
   variance r on two axes sharing one covariance, where the update is a rank-one correction
   S = P_00 + r, K = P[:, 0] / S, inlined in the per-fix loop for speed.

@@ -215,7 +215,7 @@ def test_an_infinity_anywhere_in_z_is_refused_by_name(kind, which, dtype):
     ``out`` is then left unspecified, and a finite batch after it filters as usual."""
     from mptrack.bench.batch import _coupled
 
-    # the lane kernels (model B; model A's axes as lanes) and the generic kernel (axes coupled)
+    # the block kernels (model B; model A's axes as rows of two) and the generic kernel (axes coupled)
     model = {"B": assimakis_model_b(), "A": assimakis_model_a(2), "coupled": _coupled(assimakis_model_a(2))}[which]
     run = batch.steady_state_filter if kind == "steady-state" else batch.kalman_filter
     rng = np.random.default_rng(31)
@@ -239,8 +239,8 @@ def test_an_infinity_anywhere_in_z_is_refused_by_name(kind, which, dtype):
 @pytest.mark.parametrize("which", ["B", "A", "coupled"])
 @pytest.mark.parametrize("dtype", [np.float64, np.float32])
 def test_an_overflow_while_tracks_advance_together_is_an_error(kind, which, dtype):
-    """An overflow inside the four-track loop of each kernel (lane kernels, model A's axes as lanes, the
-    generic kernel) is found without a pass over the output: the call raises naming x0."""
+    """An overflow inside the vector blocks (model B, model A's axes) and the generic kernel's four-track
+    loop is found without a pass over the output: the call raises naming x0."""
     from mptrack.bench.batch import _coupled
 
     model = {"B": assimakis_model_b(), "A": assimakis_model_a(2), "coupled": _coupled(assimakis_model_a(2))}[which]
@@ -289,7 +289,7 @@ def test_a_float32_state_flagged_but_finite_is_not_an_error(kind):
 @pytest.mark.parametrize("dtype", [np.float64, np.float32])
 def test_axes_of_one_model_run_as_lanes_and_equal_the_reference(kind, axes, dtype, monkeypatch):
     """A block-diagonal model of n = 2, m = 1 axes (model A; here also with a different R per axis) runs
-    its axes as tracks of the lane kernels, with the joint model's rules: a steady-state row with a NaN
+    its axes as rows of the block kernels, with the joint model's rules: a steady-state row with a NaN
     in any axis only predicts, a Kalman track updates the axes it has.  Equal to the reference track by
     track, and to the generic kernel, on ragged tracks with whole-row, one-axis and first-step gaps; a
     model whose axes are coupled (Q across axes) takes the generic kernel and equals the reference too."""
@@ -469,7 +469,7 @@ def test_kalman_covariances_of_complete_tracks_are_the_shared_gain_sequence():
 
 def test_the_gain_sequence_gives_the_filter_matrices_of_complete_steps():
     """GainSequence.A(k) = [I - K(k) H] F, so x(k/k) = A(k) x + K(k) z(k) is the Kalman update of a
-    complete step (the form the lane kernels run); computed once per sequence."""
+    complete step (the form the block kernels run); computed once per sequence."""
     model = assimakis_model_a(2)
     gains = batch.gain_sequence(model, 30, np.eye(4))
     A = gains.A

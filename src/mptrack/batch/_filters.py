@@ -70,7 +70,7 @@ _STEADY_RTOL = 1e-12
 
 
 def _lane_axes(model: LinearGaussianModel, axes: int, *matrices, rtol: float = 0.0) -> tuple[int, list] | None:
-    """How the n = 2, m = 1 lane kernels run this model: (tracks per row k, the blocks (..., q, r, c) of
+    """How the n = 2, m = 1 block kernels run this model: (axes per row k, the blocks (..., q, r, c) of
     F, H, Q, R and ``matrices``), or None (the generic kernels).  q = 1 when every axis has the same
     blocks, else k.
 
@@ -120,19 +120,22 @@ def time_blocks(M: np.ndarray, V: np.ndarray) -> np.ndarray:
 
 
 @lru_cache(maxsize=16)
-def _steady_blocks_of(key: bytes) -> np.ndarray:
+def _steady_blocks_of(key: bytes, q: int) -> np.ndarray:
     """:func:`_steady_blocks` of the bytes of A and Bm (read-only: it is shared)."""
-    A, Bm = np.frombuffer(key, np.float64)[:4].reshape(2, 2), np.frombuffer(key, np.float64)[4:].reshape(2, 1)
-    C = time_blocks(np.broadcast_to(A, (BLOCK, 2, 2)), np.broadcast_to(Bm, (BLOCK, 2, 1)))[0]
+    AB = np.frombuffer(key, np.float64)
+    A, Bm = AB[:4 * q].reshape(q, 2, 2), AB[4 * q:].reshape(q, 2, 1)
+    C = np.stack([time_blocks(np.broadcast_to(A[a], (BLOCK, 2, 2)), np.broadcast_to(Bm[a], (BLOCK, 2, 1)))
+                  for a in range(q)])
     C.setflags(write=False)
     return C
 
 
 def _steady_blocks(A: np.ndarray, Bm: np.ndarray) -> np.ndarray:
-    """The (160,) time-block coefficients of x = A x + B z (A (2, 2), Bm (2, 1)), kept for the
-    last few steady states (a call on a small batch costs 16 microseconds; these take 45)."""
+    """The (q, 1, 160) time-block coefficients of x = A x + B z for q axis blocks (A (q, 2, 2), Bm (q, 2,
+    1)), kept for the last few steady states (a call on a small batch costs 16 microseconds; these take
+    45 per axis)."""
     return _steady_blocks_of(np.ascontiguousarray(A, np.float64).tobytes()
-                             + np.ascontiguousarray(Bm, np.float64).tobytes())
+                             + np.ascontiguousarray(Bm, np.float64).tobytes(), A.shape[0])
 
 
 def _shared(P: np.ndarray, x: np.ndarray, axes: int) -> np.ndarray:
@@ -165,7 +168,7 @@ def _steady_state_filter(model, z, x0=None, out=None, *, lengths=None, steady=No
     lanes = _lane_axes(model, bi.axes, ss.A, ss.B, rtol=_STEADY_RTOL)
     if lanes is not None and lanes[0] <= K.MAX_AXES:     # rows of k axes of n = 2, m = 1: time blocks
         k, (F, _, _, _, A, Bm) = lanes
-        C = np.stack([_steady_blocks(A[a], Bm[a]) for a in range(A.shape[0])])[:, None]
+        C = _steady_blocks(A, Bm)
         flagged = launch(K.ss_kernel_blocks, bi.out.size, bi.z, bi.out, bi.z.reshape(-1), bi.out.reshape(-1),
                          A, Bm, F, C, bi.x0, bi.lengths, K.OUT_SCALE[bi.out.dtype], k > 1 and bi.axes == 1)
     else:

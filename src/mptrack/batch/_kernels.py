@@ -174,7 +174,7 @@ def ss_kernel(z, out, A, Bm, F, x0, lengths, axes, out_scale):
     """x(k/k) = A x(k-1/k-1) + B z(k) (Assimakis & Adam 2014, eq. 9); a row with NaN predicts, x = F x.
     Returns the number of flagged tracks.
 
-    Any (n, m), sizes known at run time.  As in the lane kernels, four tracks advance together while
+    Any (n, m), sizes known at run time.  Four tracks advance together while
     their rows are complete (:func:`_lane_steps`); at a NaN or the shortest track's end each finishes
     on its own (:func:`_ss_track`)."""
     nb_ = z.shape[0]

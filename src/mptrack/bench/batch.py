@@ -266,12 +266,12 @@ def _engine_cases(s: dict, rng) -> tuple[list, dict]:
         Ba = max(8, s["steps"] // (T * axes))
         za = rng.standard_normal((Ba, T, m))
         outa = np.empty((Ba, T, n))
-        cases.append((f"batch SS model A {axes}-D (n={n}, m={m}: its axes as lanes), out=", f"{Ba}x{T}",
+        cases.append((f"batch SS model A {axes}-D (n={n}, m={m}: its axes in time blocks), out=", f"{Ba}x{T}",
                       8 * (n + m), Ba * T, lambda model_a=model_a, za=za, outa=outa:
                       batch.steady_state_filter(model_a, za, out=outa), False))
         if axes == 2:
             ga = batch.gain_sequence(model_a, T, np.eye(n))
-            cases.append((f"batch KF model A 2-D (n={n}, m={m}: its axes as lanes), out=", f"{Ba}x{T}",
+            cases.append((f"batch KF model A 2-D (n={n}, m={m}: its axes in time blocks), out=", f"{Ba}x{T}",
                           8 * (n + m), Ba * T, lambda model_a=model_a, za=za, outa=outa, ga=ga:
                           batch.kalman_filter(model_a, za, out=outa, gains=ga), False))
             coupled = _coupled(model_a)
