@@ -1,4 +1,4 @@
-"""The batch engine's time blocks: eight steps of an n = 2, m = 1 track as vectors (one axis per row)."""
+"""The batch engine's time blocks: eight steps of each n = 2, m = 1 axis as vectors (rows of one or more axes)."""
 
 import re
 
@@ -133,3 +133,25 @@ def test_rows_of_many_axes(axes):
             np.testing.assert_allclose(got[b, :, 2 * a:2 * a + 2], want, rtol=1e-12, atol=1e-12)
             want = linear.kalman_filter(model, z[b, :, a:a + 1], None, np.eye(2)).x
             np.testing.assert_allclose(kf[b, :, 2 * a:2 * a + 2], want, rtol=1e-12, atol=1e-12)
+
+
+@pytest.mark.parametrize("axes, T, gaps", [(1, 4500, [2047, 2048, 4100]), (8, 700, [255, 256, 300, 512])])
+@pytest.mark.parametrize("dtype", [np.float64, np.float32])
+def test_chunk_edges(axes, T, gaps, dtype):
+    """Rows are taken in chunks of 2048 measurements (2048 steps of one axis, 256 of eight): NaN just
+    before and at a chunk's first step, a float32 chunk widened after a gap, and chunks after the
+    Kalman gains settle all equal the reference axis by axis."""
+    model = assimakis_model_b()
+    rng = np.random.default_rng(axes)
+    z = rng.standard_normal((2, T, axes))
+    z[1, gaps, axes - 1] = np.nan
+    ss = steady_state(model)
+    got = batch.per_axis(batch.steady_state_filter, model, z.astype(dtype), steady=ss).x
+    kf = batch.per_axis(batch.kalman_filter, model, z.astype(dtype), None, np.eye(2)).x
+    tol = 1e-12 if dtype == np.float64 else 1e-5
+    for b in range(2):
+        for a in range(axes):
+            want = linear.steady_state_filter(model, z[b, :, a:a + 1], steady=ss).x
+            np.testing.assert_allclose(got[b, :, 2 * a:2 * a + 2], want, rtol=tol, atol=tol)
+            want = linear.kalman_filter(model, z[b, :, a:a + 1], None, np.eye(2)).x
+            np.testing.assert_allclose(kf[b, :, 2 * a:2 * a + 2], want, rtol=tol, atol=tol)

@@ -471,14 +471,11 @@ _WIDE = 2048
 
 
 @nb.njit(cache=True, nogil=True)
-def _states(x0, b, k):
-    """The prior states of row b's k axes (position, velocity) in stack arrays."""
-    P = nb.carray(stack_buffer(MAX_AXES), MAX_AXES)
-    V = nb.carray(stack_buffer(MAX_AXES), MAX_AXES)
+def _priors(x0, b, k, P, V):
+    """The prior states of row b's k axes (position, velocity) into P, V."""
     for a in range(k):
         P[a] = x0[b, 2 * a]
         V[a] = x0[b, 2 * a + 1]
-    return P, V
 
 
 @nb.njit(**_OPTS)
@@ -499,8 +496,10 @@ def ss_kernel_blocks(z, out, zf, of, A, Bm, F, C, x0, lengths, out_scale, joint)
     flagged = 0
     for b in nb.prange(nb_):
         L = lengths[b]
-        P, V = _states(x0, b, k)
+        # scratch on the stack of the kernel itself (a helper's stack is gone when it returns)
+        P, V = nb.carray(stack_buffer(MAX_AXES), MAX_AXES), nb.carray(stack_buffer(MAX_AXES), MAX_AXES)
         buf = nb.carray(stack_buffer(_WIDE), _WIDE)
+        _priors(x0, b, k, P, V)
         acc = vsplat(0.0)
         flag = 0.0
         t = 0
@@ -536,8 +535,10 @@ def kf_kernel_blocks(z, out, zf, of, F, H, Q, R, AK, K, Pf, P0, C, settled, x0, 
     flagged = 0
     for b in nb.prange(nb_):
         L = lengths[b]
-        P, V = _states(x0, b, k)
+        # scratch on the stack of the kernel itself (a helper's stack is gone when it returns)
+        P, V = nb.carray(stack_buffer(MAX_AXES), MAX_AXES), nb.carray(stack_buffer(MAX_AXES), MAX_AXES)
         buf = nb.carray(stack_buffer(_WIDE), _WIDE)
+        _priors(x0, b, k, P, V)
         acc = vsplat(0.0)
         t = 0
         n = done = 0

@@ -198,7 +198,9 @@ def vstore2(typingctx, arr, index, a, b):
 @intrinsic
 def stack_buffer(typingctx, size):
     """A pointer to ``size`` (a compile-time integer) float64 on the stack (``numba.carray(p, size)``
-    makes it an array): scratch memory without an allocation, which LLVM knows no other array shares."""
+    makes it an array): scratch memory without an allocation, which LLVM knows no other array shares.
+    It lives as long as the function that calls this (the kernel's own body, never a helper that
+    returns it)."""
     if not isinstance(size, types.IntegerLiteral):
         raise errors.RequireLiteralValue(size)
 
