@@ -203,9 +203,9 @@ def _entries(M, a):
 
 @nb.njit(cache=True, nogil=True)
 def _coefficients(M, V, q):
-    """The four entries of block q of M (., 2, 2) and the two of block q of V: Bm (., 2, 1) or H (., 1, 2)."""
-    second = V[q, 1, 0] if V.shape[2] == 1 else V[q, 0, 1]
-    return M[q, 0, 0], M[q, 0, 1], M[q, 1, 0], M[q, 1, 1], V[q, 0, 0], second
+    """The four entries of block q of M (., 2, 2) and the two of block q of V (., 2, 1): A and B of the
+    steady state, A(k) and K(k) of the gain sequence."""
+    return M[q, 0, 0], M[q, 0, 1], M[q, 1, 0], M[q, 1, 1], V[q, 0, 0], V[q, 1, 0]
 
 
 @nb.njit(cache=True, nogil=True)

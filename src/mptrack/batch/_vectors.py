@@ -90,13 +90,13 @@ def vstore(typingctx, arr, index, v):
 
 @intrinsic
 def vbcast(typingctx, arr, index):
-    """``arr[index]`` in every lane, as float64 (float32 is broadcast first, then widened: one
-    instruction with AVX-512)."""
+    """``arr[index]`` in every lane (a float64 array: the blocks read float32 measurements after
+    :func:`source` widened them)."""
+    if arr.dtype != types.float64:
+        raise errors.TypingError(f"vbcast: expected a float64 array, got {arr}")
+
     def codegen(context, builder, sig, args):
-        arrty = sig.args[0]
-        elt = context.get_data_type(arrty.dtype)
-        v = _splat(builder, builder.load(_element(context, builder, arrty, *args)), ir.VectorType(elt, _WIDTH))
-        return v if v.type == _F64X8 else builder.fpext(v, _F64X8)
+        return _splat(builder, builder.load(_element(context, builder, sig.args[0], *args)), _F64X8)
 
     return vec8(arr, index), codegen
 
