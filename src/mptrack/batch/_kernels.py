@@ -451,10 +451,7 @@ def _rows(src, s0, k, of, o0, n, P, V, C, c, step, acc):
         ca = a if C.shape[0] > 1 else 0
         if step == 0:
             W, g = _coefficients8(C[ca, c], 0)
-            if k == 1:                  # (strides as constants: a few per cent faster)
-                P[0], V[0], acc = _axis_blocks(src, s0, 1, of, o0, 2, n, P[0], V[0], W, g, acc)
-            else:
-                P[a], V[a], acc = _axis_blocks(src, s0 + a, k, of, o0 + 2 * a, 2 * k, n, P[a], V[a], W, g, acc)
+            P[a], V[a], acc = _axis_blocks(src, s0 + a, k, of, o0 + 2 * a, 2 * k, n, P[a], V[a], W, g, acc)
         else:
             for i in range(n):
                 W, g = _coefficients8(C[ca, c + step * i], 0)
