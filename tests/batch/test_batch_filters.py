@@ -236,14 +236,15 @@ def test_an_infinity_anywhere_in_z_is_refused_by_name(kind, which, dtype):
 
 
 @pytest.mark.parametrize("kind", ["steady-state", "kalman"])
-@pytest.mark.parametrize("which", ["B", "A", "coupled"])
+@pytest.mark.parametrize("which", ["B", "A", "A3", "coupled"])
 @pytest.mark.parametrize("dtype", [np.float64, np.float32])
 def test_an_overflow_while_tracks_advance_together_is_an_error(kind, which, dtype):
-    """An overflow inside the vector blocks (model B, model A's axes) and the generic kernel's four-track
-    loop is found without a pass over the output: the call raises naming x0."""
+    """An overflow inside the vector blocks (model B, model A's axes in 2-D and 3-D) and the generic
+    kernel's four-track loop is found without a pass over the output: the call raises naming x0."""
     from mptrack.bench.batch import _coupled
 
-    model = {"B": assimakis_model_b(), "A": assimakis_model_a(2), "coupled": _coupled(assimakis_model_a(2))}[which]
+    model = {"B": assimakis_model_b(), "A": assimakis_model_a(2), "A3": assimakis_model_a(3),
+             "coupled": _coupled(assimakis_model_a(2))}[which]
     run = batch.steady_state_filter if kind == "steady-state" else batch.kalman_filter
     z = np.random.default_rng(3).standard_normal((8, 40, model.m)).astype(dtype)
     x0 = np.zeros((8, model.n))

@@ -113,10 +113,11 @@ def test_an_infinity_in_a_block_with_a_nan_is_refused_by_name(kind):
         run(model, z)
 
 
-@pytest.mark.parametrize("axes", [8, 9])
+@pytest.mark.parametrize("axes", [2, 3, 8, 9])
 def test_rows_of_many_axes(axes):
-    """Rows of up to MAX_AXES = 8 axes run the block kernels (their states on the stack), more the generic
-    kernels: both equal the reference axis by axis, with a gap in one axis."""
+    """Rows of up to MAX_AXES = 8 axes run the block kernels (their states on the stack; two and three
+    axes block by block with whole-vector stores), more the generic kernels: all equal the reference
+    axis by axis, with a gap in one axis."""
     from mptrack.batch._kernels import MAX_AXES
 
     assert MAX_AXES == 8
@@ -135,10 +136,12 @@ def test_rows_of_many_axes(axes):
             np.testing.assert_allclose(kf[b, :, 2 * a:2 * a + 2], want, rtol=1e-12, atol=1e-12)
 
 
-@pytest.mark.parametrize("axes, T, gaps", [(1, 4500, [2047, 2048, 4100]), (8, 700, [255, 256, 300, 512])])
+@pytest.mark.parametrize("axes, T, gaps", [(1, 4500, [2047, 2048, 4100]), (2, 2100, [1023, 1024, 2050]),
+                                           (3, 1400, [679, 680, 700, 1361]), (8, 700, [255, 256, 300, 512])])
 @pytest.mark.parametrize("dtype", [np.float64, np.float32])
 def test_chunk_edges(axes, T, gaps, dtype):
-    """Rows are taken in chunks of 2048 measurements (2048 steps of one axis, 256 of eight): NaN just
+    """Rows are taken in chunks of 2048 measurements (2048 steps of one axis, 1024 of two, 680 of three,
+    256 of eight): NaN just
     before and at a chunk's first step, a float32 chunk widened after a gap, and chunks after the
     Kalman gains settle all equal the reference axis by axis."""
     model = assimakis_model_b()

@@ -31,6 +31,7 @@ __all__ = [
     "vsplat",
     "vstore",
     "vstore2",
+    "vstore_axes",
     "vstore_pairs",
     "vsum",
 ]
@@ -237,6 +238,59 @@ def vstore_pairs(typingctx, arr, index, stride, a, b):
         return total if total.type == _F64X8 else builder.fpext(total, _F64X8)
 
     return vec8(arr, index, stride, a, b), codegen
+
+
+def _interleave(builder, halves, k):
+    """The 2k vectors of eight steps of a row of k axes as they lie in ``out`` (step j: position,
+    velocity of axis 0, then of axis 1, ..), from each axis's two halves (``halves[2a]``: its steps
+    0..3, ``halves[2a + 1]``: 4..7, as :func:`vstore2` takes them); each vector gathers its lanes from
+    the halves it needs with two-vector shuffles."""
+    width = ir.VectorType(_I32, _WIDTH)
+    vectors = []
+    for m in range(2 * k):
+        lanes = []                      # (half, lane) of each value of vector m
+        for f in range(_WIDTH * m, _WIDTH * (m + 1)):
+            step, r = divmod(f, 2 * k)
+            axis, c = divmod(r, 2)
+            lanes.append((2 * axis + step // 4, 2 * (step % 4) + c))
+        sources = list(dict.fromkeys(h for h, _ in lanes))
+        first, second = sources[0], sources[1] if len(sources) > 1 else None
+        order = [lane if h == first else _WIDTH + lane if h == second else 0 for h, lane in lanes]
+        v = builder.shuffle_vector(halves[first], halves[first] if second is None else halves[second],
+                                   ir.Constant(width, order))
+        for h in sources[2:]:           # each further half fills its lanes, the others stay
+            order = [_WIDTH + lane if g == h else i for i, (g, lane) in enumerate(lanes)]
+            v = builder.shuffle_vector(v, halves[h], ir.Constant(width, order))
+        vectors.append(v)
+    return vectors
+
+
+@intrinsic
+def vstore_axes(typingctx, arr, index, halves):
+    """The eight steps of a row of k axes, given as each axis's two halves (a tuple of 2k vectors as
+    :func:`vstore2` takes one axis's), to ``arr[index:index + 16 k]`` interleaved as the row holds them,
+    converted to the array's dtype: whole-vector stores where :func:`vstore_pairs` stores 8 k pairs.
+    Returns the sum of the values stored, as :func:`vstore2` does."""
+    if not (isinstance(halves, types.UniTuple) and halves.dtype == vec8 and halves.count % 2 == 0):
+        raise errors.TypingError(f"vstore_axes: expected an even tuple of Vec8, got {halves}")
+
+    def codegen(context, builder, sig, args):
+        arrty = sig.args[0]
+        k = sig.args[2].count // 2
+        halves = [builder.extract_value(args[2], i) for i in range(2 * k)]
+        vectors = _interleave(builder, halves, k)
+        elt = context.get_data_type(arrty.dtype)
+        if elt != ir.DoubleType():
+            vectors = [builder.fptrunc(v, ir.VectorType(elt, _WIDTH)) for v in vectors]
+        base = _element(context, builder, arrty, args[0], args[1])
+        total = vectors[0]
+        for m, v in enumerate(vectors):
+            ptr = builder.gep(base, [ir.IntType(64)(_WIDTH * m)])
+            builder.store(v, builder.bitcast(ptr, v.type.as_pointer()), align=arrty.dtype.bitwidth // 8)
+            total = builder.fadd(total, v) if m else total
+        return total if total.type == _F64X8 else builder.fpext(total, _F64X8)
+
+    return vec8(arr, index, halves), codegen
 
 
 @intrinsic
