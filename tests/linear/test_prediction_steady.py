@@ -170,3 +170,26 @@ def test_predict_ahead_checks_dimensions():
     res = steady_state_filter(MODELS["cv"], np.zeros((4, 1)))
     with pytest.raises(ShapeError, match="result"):
         predict_ahead(MODELS["ca"], res, 1)
+
+
+def test_the_steady_state_is_solved_once_per_model_and_shared_read_only():
+    """Filters given no ``steady`` solve the model's steady state once (equal models built apart share
+    it, as the batch and single-track filters do) and get it read-only; another model, or the other
+    form, gets its own, equal to a fresh solve."""
+    from mptrack import batch
+    from mptrack._steady_input import steady_argument
+
+    one, two = constant_velocity(1.0, 0.01, 1, sigma_r2=0.1), constant_velocity(1.0, 0.01, 1, sigma_r2=0.1)
+    ss = steady_argument(one, None)
+    assert steady_argument(two, None) is ss
+    assert batch.steady_state_filter(two, np.zeros((2, 5, 1))).inputs["steady"] is ss
+    assert not ss.K.flags.writeable and not ss.P_filt.flags.writeable and not ss.A.flags.writeable
+    with pytest.raises(ValueError):
+        ss.K[0, 0] = 1.0
+    other = steady_argument(constant_velocity(1.0, 0.02, 1, sigma_r2=0.1), None)
+    assert other is not ss and not np.allclose(other.K, ss.K)
+    lainiotis = steady_argument(one, None, "lainiotis")
+    assert lainiotis is not ss and lainiotis.form == "lainiotis"
+    fresh = steady_state(one, "dare")
+    for field in ("K", "P_pred", "P_filt", "A", "B"):
+        np.testing.assert_array_equal(getattr(ss, field), getattr(fresh, field))

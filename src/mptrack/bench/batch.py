@@ -37,7 +37,8 @@ from . import register_suite
 from ._timing import best_time, copy_kernel
 from .linear import _filterpy, _pykalman  # the same peers as the 'linear' suite
 
-__all__ = ["batch_suite", "batch_peers_suite", "batch_scaling_suite", "compile_times", "plain_kernel", "Anchor"]
+__all__ = ["batch_suite", "batch_peers_suite", "batch_scaling_suite", "compile_times", "plain_kernel", "write_floor",
+           "Anchor"]
 
 AGREE_RTOL = 1e-8
 
@@ -57,6 +58,17 @@ def plain_kernel(z, x, A, Bm):  # pragma: no cover - compiled
             p, v = (a00 * p + a01 * v) + b0 * zz, (a10 * p + a11 * v) + b1 * zz
             x[b, t, 0] = p
             x[b, t, 1] = v
+
+
+@nb.njit(parallel=True, cache=True, nogil=True, boundscheck=False)
+def write_floor(z, x):  # pragma: no cover - compiled
+    """A reference row: the filters' memory traffic with no arithmetic, x[b, t] = (z[b, t], z[b, t]) for
+    z (B, T), x (B, T, 2), batch-major over the same threads -- the floor of any kernel that reads z
+    and writes x with ordinary stores (each of which reads its line first; NumPy's copy does not)."""
+    for b in nb.prange(z.shape[0]):
+        for t in range(z.shape[1]):
+            x[b, t, 0] = z[b, t]
+            x[b, t, 1] = z[b, t]
 
 
 class Anchor:
@@ -244,6 +256,8 @@ def _engine_cases(s: dict, rng) -> tuple[list, dict]:
     full = f"{B}x{T}"
     cases = [
         ("plain kernel (anchor)", full, 24, upd, lambda: plain_kernel(z2, out, A, Bm), True),
+        ("write floor: z read, x written, no arithmetic (reference)", full, 24, upd, lambda: write_floor(z2, out),
+         True),
         ("batch SS f64, out=", full, 24, upd, lambda: batch.steady_state_filter(model, z, out=out), True),
         ("batch SS f64, allocating", full, 24, upd, lambda: batch.steady_state_filter(model, z), True),
         ("batch SS f32, out=", full, 12, upd, lambda: batch.steady_state_filter(model, z32, out=out32), True),
