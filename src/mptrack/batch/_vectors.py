@@ -170,27 +170,35 @@ def vsum(typingctx, v):
     return types.float64(v), codegen
 
 
+def _as_stored(context, builder, dtype, vectors):
+    """``vectors`` converted to an array's dtype (float32: narrowed), and their sum as stored, widened
+    to float64 (float32: added in float32): the stores' return value, finite when every value stored
+    is finite, and when one is not, not finite either (an infinity or a NaN stays one in a sum; finite
+    values large enough to sum to an infinity are a false alarm)."""
+    elt = context.get_data_type(dtype)
+    if elt != ir.DoubleType():
+        vectors = [builder.fptrunc(v, ir.VectorType(elt, _WIDTH)) for v in vectors]
+    total = vectors[0]
+    for v in vectors[1:]:
+        total = builder.fadd(total, v)
+    return vectors, total if total.type == _F64X8 else builder.fpext(total, _F64X8)
+
+
 @intrinsic
 def vstore2(typingctx, arr, index, a, b):
     """``arr[index:index + 16] = a, b`` converted to the array's dtype (float32: one 64-byte store).
-    Returns the sum of the two halves as stored (float32: added in float32, then widened): finite
-    when every value stored is finite, and when one is not, not finite either (an infinity or a NaN
-    stays one in a sum; two finite values large enough to sum to an infinity are a false alarm)."""
+    Returns the sum of the two halves as stored (:func:`_as_stored`)."""
     def codegen(context, builder, sig, args):
         arrty = sig.args[0]
-        width = arrty.dtype.bitwidth // 8
         ptr = _element(context, builder, arrty, args[0], args[1])
-        if width == 8:
-            parts = [(ptr, args[2]), (builder.gep(ptr, [ir.IntType(64)(_WIDTH)]), args[3])]
-            total = builder.fadd(args[2], args[3])
+        (lo, hi), total = _as_stored(context, builder, arrty.dtype, [args[2], args[3]])
+        if arrty.dtype == types.float64:
+            parts = [(ptr, lo), (builder.gep(ptr, [ir.IntType(64)(_WIDTH)]), hi)]
         else:
-            half = ir.VectorType(context.get_data_type(arrty.dtype), _WIDTH)
-            lo, hi = builder.fptrunc(args[2], half), builder.fptrunc(args[3], half)
             both = builder.shuffle_vector(lo, hi, ir.Constant(ir.VectorType(_I32, 2 * _WIDTH), list(range(2 * _WIDTH))))
             parts = [(ptr, both)]
-            total = builder.fpext(builder.fadd(lo, hi), _F64X8)
         for p, value in parts:
-            builder.store(value, builder.bitcast(p, value.type.as_pointer()), align=width)
+            builder.store(value, builder.bitcast(p, value.type.as_pointer()), align=arrty.dtype.bitwidth // 8)
         return total
 
     return vec8(arr, index, a, b), codegen
@@ -220,13 +228,10 @@ def vstore_pairs(typingctx, arr, index, stride, a, b):
     hold several axes.  Returns the sum of the two halves as stored, as :func:`vstore2` does."""
     def codegen(context, builder, sig, args):
         arrty = sig.args[0]
-        elt = context.get_data_type(arrty.dtype)
         base = _element(context, builder, arrty, args[0], args[1])
         stride = context.cast(builder, args[2], sig.args[2], types.int64)
-        halves = [args[3], args[4]]
-        if elt != ir.DoubleType():
-            halves = [builder.fptrunc(h, ir.VectorType(elt, _WIDTH)) for h in halves]
-        pair = ir.VectorType(elt, 2)
+        halves, total = _as_stored(context, builder, arrty.dtype, [args[3], args[4]])
+        pair = ir.VectorType(context.get_data_type(arrty.dtype), 2)
         for h, half in enumerate(halves):
             for i in range(_WIDTH // 2):
                 value = builder.shuffle_vector(half, ir.Constant(half.type, ir.Undefined),
@@ -234,8 +239,7 @@ def vstore_pairs(typingctx, arr, index, stride, a, b):
                 offset = builder.mul(stride, ir.IntType(64)(h * _WIDTH // 2 + i))
                 ptr = builder.bitcast(builder.gep(base, [offset]), pair.as_pointer())
                 builder.store(value, ptr, align=arrty.dtype.bitwidth // 8)
-        total = builder.fadd(halves[0], halves[1])
-        return total if total.type == _F64X8 else builder.fpext(total, _F64X8)
+        return total
 
     return vec8(arr, index, stride, a, b), codegen
 
@@ -270,7 +274,7 @@ def vstore_axes(typingctx, arr, index, halves):
     """The eight steps of a row of k axes, given as each axis's two halves (a tuple of 2k vectors as
     :func:`vstore2` takes one axis's), to ``arr[index:index + 16 k]`` interleaved as the row holds them,
     converted to the array's dtype: whole-vector stores where :func:`vstore_pairs` stores 8 k pairs.
-    Returns the sum of the values stored, as :func:`vstore2` does."""
+    Returns the sum of the values as stored (:func:`_as_stored`)."""
     if not (isinstance(halves, types.UniTuple) and halves.dtype == vec8 and halves.count % 2 == 0):
         raise errors.TypingError(f"vstore_axes: expected an even tuple of Vec8, got {halves}")
 
@@ -278,17 +282,12 @@ def vstore_axes(typingctx, arr, index, halves):
         arrty = sig.args[0]
         k = sig.args[2].count // 2
         halves = [builder.extract_value(args[2], i) for i in range(2 * k)]
-        vectors = _interleave(builder, halves, k)
-        elt = context.get_data_type(arrty.dtype)
-        if elt != ir.DoubleType():
-            vectors = [builder.fptrunc(v, ir.VectorType(elt, _WIDTH)) for v in vectors]
+        vectors, total = _as_stored(context, builder, arrty.dtype, _interleave(builder, halves, k))
         base = _element(context, builder, arrty, args[0], args[1])
-        total = vectors[0]
         for m, v in enumerate(vectors):
             ptr = builder.gep(base, [ir.IntType(64)(_WIDTH * m)])
             builder.store(v, builder.bitcast(ptr, v.type.as_pointer()), align=arrty.dtype.bitwidth // 8)
-            total = builder.fadd(total, v) if m else total
-        return total if total.type == _F64X8 else builder.fpext(total, _F64X8)
+        return total
 
     return vec8(arr, index, halves), codegen
 
