@@ -141,9 +141,8 @@ def test_rows_of_many_axes(axes):
 @pytest.mark.parametrize("dtype", [np.float64, np.float32])
 def test_chunk_edges(axes, T, gaps, dtype):
     """Rows are taken in chunks of 2048 measurements (2048 steps of one axis, 1024 of two, 680 of three,
-    256 of eight): NaN just
-    before and at a chunk's first step, a float32 chunk widened after a gap, and chunks after the
-    Kalman gains settle all equal the reference axis by axis."""
+    256 of eight): NaN just before and at a chunk's first step, a float32 chunk widened after a gap,
+    and chunks after the Kalman gains settle all equal the reference axis by axis."""
     model = assimakis_model_b()
     rng = np.random.default_rng(axes)
     z = rng.standard_normal((2, T, axes))
