@@ -36,20 +36,19 @@ def darex_scipy():
             for key in DAREX}
 
 
-def _dare_residual(key, X) -> float:
-    A, Bc, Q, R = (np.asarray(M, dtype=float) for M in DAREX[key])
-    return float(np.abs(A.T @ X @ A - X + Q - A.T @ X @ Bc @ np.linalg.solve(R + Bc.T @ X @ Bc, Bc.T @ X @ A)).max())
-
-
 @pytest.mark.parametrize("key", list(DAREX))
-def test_scaled_dare_is_at_least_as_accurate_as_scipys(key, darex_scipy):
-    """The DARE residual of method "dare" is never above that of scipy's unscaled solution (+1 ulp of
-    its scale); on darex13 it is 430 times smaller."""
-    ours = _dare_residual(key, steady_state(darex_model(key), "dare").P_pred)
-    theirs = _dare_residual(key, darex_scipy[key])
-    assert ours <= theirs * (1 + 1e-9) + np.finfo(float).eps * np.abs(darex_scipy[key]).max()
-    if key == "darex13":
-        assert ours < theirs / 100
+def test_scaled_dare_is_backward_stable(key):
+    """What method "dare" promises: its solution satisfies the DARE to a small multiple of the rounding of
+    its terms, |A'XA - X + Q - A'XB (R + B'XB)^-1 B'XA| <= 8 n eps max|term| on every DAREX case (measured:
+    at most 2.5 n eps, darex6).  A property of our solution alone, not a comparison with scipy's rounding:
+    scipy's unscaled solve_discrete_are misses this bound on darex13 (R = 1e6 I; 195 eps against our 0.45
+    with scipy 1.17), which is why the problem is scaled to R of unit size first."""
+    A, Bc, Q, R = (np.asarray(M, dtype=float) for M in DAREX[key])
+    X = steady_state(darex_model(key), "dare").P_pred
+    terms = (A.T @ X @ A, X, Q, A.T @ X @ Bc @ np.linalg.solve(R + Bc.T @ X @ Bc, Bc.T @ X @ A))
+    residual = np.abs(terms[0] - terms[1] + terms[2] - terms[3]).max()
+    scale = max(np.abs(t).max() for t in terms)
+    assert residual <= 8 * A.shape[0] * np.finfo(float).eps * scale, f"{key}: {residual / scale:.3g}"
 
 
 @pytest.mark.parametrize("method", METHODS)
