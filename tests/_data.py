@@ -3,11 +3,25 @@
 ``REAL_TRACES[kind]`` is the GPX file of one real recording of each kind.
 ``REAL_TRACK_IDS[kind]`` names the <trk> elements that hold the timed recording
 (the ``track_id`` values that ``mptrack.io`` gives them).
+:func:`shared_data` is a file of the real data kept beside the repository, in ``../shared/data``
+(receiver logs, LTE walks; sources and licences in each folder's README), never copied here.
 """
 
 from pathlib import Path
 
+import pytest
+
 DATA = Path(__file__).parent / "data"
+#: The shared real data beside the repository (``../shared/data`` from its root).
+SHARED_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
+
+
+def shared_data(*parts: str) -> Path:
+    """The path of ``../shared/data/<parts>``; skips the calling test with a message when it is absent."""
+    path = SHARED_DATA.joinpath(*parts)
+    if not path.exists():
+        pytest.skip(f"real data {path} is absent (it lives beside the repository in ../shared/data)")
+    return path
 
 REAL_TRACES = {
     # One <trk>, 104 points, Garmin eTrex 20x, irregular 1-49 s intervals.
