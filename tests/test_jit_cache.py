@@ -11,7 +11,8 @@ import mptrack
 PACKAGE = Path(mptrack.__file__).resolve().parent
 KERNEL_MODULES = ["_float_scan", "_kalman_core", "_rts", "batch._kernels", "bench._timing", "continuous._fem_kernels",
                   "continuous._kernels", "io._geodesy", "linear._kernels", "nonlinear._named_kernels",
-                  "nonlinear._pf_kernels", "nonlinear._step_kernels", "tracking._engine", "tracking._kernels"]
+                  "nonlinear._pf_kernels", "nonlinear._step_kernels", "tracking._chain", "tracking._engine",
+                  "tracking._kernels", "tracking._likelihood"]
 
 
 def _python(code: str, **env) -> str:

@@ -157,7 +157,7 @@ def test_block_ss_kernel_equals_the_core_from_the_steady_state():
 def test_tracking_engine_update_equals_the_core(order):
     """The tracking engine's rank-one update of two axes sharing one covariance (position fix of variance r)
     against the core on each axis with H = [1, 0, ...]."""
-    from mptrack.tracking._engine import _update
+    from mptrack.tracking._chain import update as _update
 
     rng = np.random.default_rng(order)
     Pp = _spd(rng, order)

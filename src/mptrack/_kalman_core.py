@@ -27,9 +27,17 @@ The documented exceptions (their own arithmetic, each tested against this core):
   ``kf_kernel``): a shared, precomputed gain sequence and no covariance -- x = A(k) x + K(k) z with
   A(k) = (I - K(k) H) F, which is x = F x + K (z - H F x), eight steps at a time (four tracks at a time
   in ``kf_kernel``); they fall back to this core at a track's first gap;
-* the tracking engine (:mod:`mptrack.tracking._engine`): integrator chains with a position fix of
-  variance r on two axes sharing one covariance, where the update is a rank-one correction
-  S = P_00 + r, K = P[:, 0] / S, inlined in the per-fix loop for speed.
+* the tracking engine (:mod:`mptrack.tracking._chain` and ``_engine``; ``_likelihood`` runs the same steps):
+  integrator chains with a position fix of variance r on two axes sharing one covariance, so one
+  covariance and two means -- its predict (closed-form F, Q of the chain), its update (a rank-one
+  correction S = P_00 + r, K = P[:, 0] / S; tests/test_kalman_core.py), its RTS backward pass (one
+  smoother gain for both axes; against :func:`mptrack.tracking.smooth_gated`, which runs
+  :mod:`mptrack._rts`) and its back prediction at a restart, all inlined in the per-fix loops for speed;
+  the engine as a whole is tested against the per-track reference :func:`mptrack.tracking.track_gated`,
+  which runs this core;
+* the diffuse (information-form) start of a restart test (``tracking._kernels``, ``tracking._chain``) and
+  of the tracking likelihood: information-filter algebra from zero information, which the covariance
+  form cannot start from; tested against dense Gaussian algebra (tests/tracking/test_tracking_engine.py).
 
 All work arrays are carved once from one buffer (:func:`workspace`), so a whole-run loop allocates
 nothing per step; NaN components of z are skipped.  A function reports a problem by a status code,

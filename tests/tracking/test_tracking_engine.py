@@ -17,7 +17,9 @@ from hypothesis import strategies as st
 
 from mptrack.models import constant_acceleration_continuous, constant_velocity_continuous, discretize_intervals
 from mptrack.tracking import FLAGS, get_model, nis_threshold, smooth_gated, track_gated
-from mptrack.tracking._engine import chain_transition, filter_tracks, loglik_tracks
+from mptrack.tracking._chain import chain_transition
+from mptrack.tracking._engine import filter_tracks
+from mptrack.tracking._likelihood import loglik_tracks
 
 GATE = nis_threshold(0.999, 2)
 

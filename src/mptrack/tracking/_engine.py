@@ -1,241 +1,434 @@
-"""The columnar tracking engine: one compiled pass over all tracks of a table of position fixes.
+"""The columnar tracking engine: the gated filter of every track of a table of position fixes in one
+compiled pass, from each track's first fix or continued from its saved state.
 
 Layout (shared/DESIGN.md, "Many tracks"): the fixes of B tracks are flat
 columns sorted by (track, time); track b is rows ``offsets[b]:offsets[b+1]``.
-Every kernel here loops over tracks with ``prange`` and over a track's fixes
-in order, and no Python runs per track.  The filter and likelihood kernels
-split the tracks into blocks, and each block allocates one workspace
-(:func:`_work`) for all its tracks, so they allocate nothing per track or per
-fix; the method-of-moments start (:func:`moment_guess`, once per estimation)
-allocates its scratch per track.
+The kernel loops over tracks with ``prange`` and over a track's fixes in
+order; no Python runs per track, and each block of tracks allocates one
+workspace (:func:`._chain.work`), nothing per track or per fix.
 
-The motion models of ``mptrack track`` are integrator chains per axis (cv:
-position, velocity; ca: + acceleration) driven by white noise of density q on
-the highest derivative, with the same model on the east and north axes and an
-isotropic fix noise R = r I.  Then the 2-D Kalman filter splits exactly into
-two per-axis filters that share one covariance (it depends on the times and
-r only), so the engine carries one (order x order) covariance and two means.
-Each interval is discretised in closed form, F_ij = dt^(j-i)/(j-i)! and
-Q_ij = q dt^p / (p (r-1-i)! (r-1-j)!), p = 2r-1-i-j (the exact Van Loan
-result for an integrator chain of order r; Assimakis et al. 2016, sec. 2, for
-r = 2, 3).  These are the models of ``mptrack track`` (:data:`MODELS`: cv, ca);
-the per-track reference (:func:`~._fixes.track_fixes`) runs the general
-continuous model and is what the engine is tested against.
+One track's complete filter state -- the estimate, the pending manoeuvre
+candidate, the run of rejected fixes, the counters -- is one row of float64
+(:data:`STATE_FIELDS`, :func:`state_size`), so that :func:`advance_tracks`
+continues many tracks from their saved states with their new fixes in one
+call, and :func:`filter_tracks` is the same kernel from empty states
+(optionally followed by the RTS pass).  A live server keeps one row per device
+and stores it as bytes (:func:`state_to_bytes`).  The filter itself (the
+two-level NIS gate with a one-fix lookahead, restarts) is the one of
+:mod:`._gated`, specialised to the integrator chains of :mod:`._chain`, and
+equal to that per-track reference to rounding (tests).
 
-Two kernels:
-
-* :func:`filter_tracks` -- the gated filter of :mod:`._gated` (two-level NIS
-  gate with a one-fix lookahead, restarts), optional RTS smoothing, per-track
-  log-likelihood; equal to the per-track reference to rounding (tests).
-* :func:`loglik_tracks` -- the log-likelihood pieces that noise estimation
-  (:mod:`._noise`) maximises: the innovations of the fixes a mask accepts,
-  conditional on the first ``order`` fixes of each segment (exact diffuse
-  start in information form, Durbin & Koopman 2012, sec. 5.2), so the noise
-  scale can be concentrated out of the likelihood.
+Rows decided again later.  Two rules revise the decision on an earlier fix:
+the fix after a manoeuvre candidate decides whether it was a manoeuvre or an
+outlier (one fix back), and a restart relabels the rejected fixes of its run,
+and those just before it that lie inside the gate of the restart state
+predicted back to them, as the start of the new stretch (flag reset, the
+back-predicted state; at most :data:`STREAK_CAP` fixes back, the rejected
+fixes the state keeps).  Rows of the same call are rewritten in place; rows
+of an earlier call are reported in a :class:`Revisions` record (what each of
+them is now), so that a track advanced piece by piece ends with the same
+rows, NIS and counters as one run over all its fixes, bit for bit.
 """
 
 from __future__ import annotations
 
 import math
+import struct
+from dataclasses import dataclass
 
 import numba as nb
 import numpy as np
 
-from .. import _jit_cache  # noqa: F401 - compiled kernels cache in the user's cache directory
+from ..errors import DTypeError, ParameterError, ShapeError
+from ._chain import (BLOCKS, INLINE, LOG2PI, M_C, M_D, M_F, M_P, M_PC, M_PI, M_PP, M_QU, M_RF, M_RP, M_RPP, M_RQU,
+                     M_RT, M_T, MAX_ORDER, PAR, S_DX, S_RX, S_RXP, S_X, S_XC, S_XP, SEQ, chain_transition,
+                     congruence, copy_state, info_start, inverse, predict, product, update, work)
 
 __all__ = ["FLAGS", "INIT", "UPDATE", "OUTLIER", "PREDICTED", "RESET", "MANOEUVRE", "MANOEUVRE_FACTOR",
-           "MAX_ORDER", "filter_tracks",
-           "loglik_tracks", "moment_guess", "chain_transition"]
+           "MAX_ORDER", "STREAK_CAP", "STATE_VERSION", "STATE_FIELDS", "state_size", "empty_states",
+           "Revisions", "advance_tracks", "filter_tracks", "state_to_bytes", "state_from_bytes"]
 
 #: Per-point flags of a tracking result (the output's ``flag`` column), by index.
 FLAGS = ("update", "outlier", "predicted", "reset", "init", "manoeuvre")
 UPDATE, OUTLIER, PREDICTED, RESET, INIT, MANOEUVRE = range(6)
 #: Process noise of the manoeuvre hypothesis, as a multiple of the model's density q.
 MANOEUVRE_FACTOR = 10.0
-MAX_ORDER = 3
-_LOG2PI = math.log(2.0 * math.pi)
-# mask codes of loglik_tracks
-USE, SKIP, RESTART = 0, 1, 2
+#: The rejected fixes in a row that a track's state keeps (the restart test's run and the fixes
+#: before it that a restart may relabel).
+STREAK_CAP = 16
 
-# error_model="numpy": a division by zero gives inf/NaN as in NumPy (checked by the callers), not an exception
-_PAR = dict(parallel=True, cache=True, nogil=True, boundscheck=False, error_model="numpy")
-_SEQ = dict(cache=True, nogil=True, boundscheck=False, error_model="numpy")
-# Inlined: the per-fix steps and the diffuse start (once per track, several calls): a call passes
-# every array as ~7 scalars (the workspace tuple as ~240), which made short tracks 5x slower; the
-# rest stays a call, as inlining everything took minutes to compile.
-_INLINE = dict(_SEQ, inline="always")
+# ---- one track's state: a row of float64 --------------------------------------------------------------
+#: Version of the state layout (bump it when the layout changes; :func:`state_from_bytes` checks it).
+STATE_VERSION = 1
+#: The scalar fields at the start of a state row, in order.  Then, for a chain of order r: the
+#: estimate x (2, r) and its covariance P (r, r) after the last fix; the coasting state (the
+#: prediction) at a pending manoeuvre candidate, x (2, r) and P (r, r); the candidate's fix (east,
+#: north, unit variance w); and the last STREAK_CAP rejected fixes of the current run, oldest first,
+#: as four blocks of STREAK_CAP: times, east, north, w.
+STATE_FIELDS = (
+    "fixes",        # fixes taken so far (0: an empty state; the next fix initialises the track)
+    "t_last",       # time of the last fix (s)
+    "pending",      # 1 if the last fix is a manoeuvre candidate (the next fix decides)
+    "cand_nis",     # the candidate's NIS against the nominal prediction (its NIS if it is an outlier)
+    "cand_loglik",  # its log-likelihood as a manoeuvre
+    "cand_nis_m",   # its NIS under the manoeuvre hypothesis (its NIS if it is a manoeuvre)
+    "window",       # rejected fixes in the restart test's window (<= max_rej)
+    "streak",       # rejected fixes in a row (the state keeps the last STREAK_CAP)
+    "before_flag",  # the flag of the fix before that run (a restart's reset rows join a reset before them)
+    "loglik", "updates", "outliers", "resets", "nis_sum", "manoeuvres",   # the track's counters so far
+)
+(_FIXES, _T_LAST, _PENDING, _CAND_E, _CAND_LL, _CAND_EM, _WINDOW, _STREAK, _BEFORE, _LOGLIK, _UPDATES, _OUTLIERS,
+ _RESETS, _NIS_SUM, _MANOEUVRES) = range(len(STATE_FIELDS))
+_HEADER = len(STATE_FIELDS)
 
 
-@nb.njit(**_INLINE)
-def chain_transition(order, dt, F, Qu):
-    """F and the unit-density Q (q = 1) of an integrator chain of ``order`` (2 or 3) over ``dt`` seconds:
-    F_ij = dt^(j-i)/(j-i)!, Qu_ij = dt^p / (p (r-1-i)! (r-1-j)!), p = 2r-1-i-j (written out)."""
-    d2 = dt * dt
-    d3 = d2 * dt
-    if order == 2:
-        F[0, 0] = 1.0
-        F[0, 1] = dt
-        F[1, 0] = 0.0
-        F[1, 1] = 1.0
-        Qu[0, 0] = d3 / 3.0
-        Qu[0, 1] = d2 / 2.0
-        Qu[1, 0] = d2 / 2.0
-        Qu[1, 1] = dt
+@nb.njit(**INLINE)
+def _layout(order):
+    """Offsets of x, P, the coasting x and P, the candidate's fix, the streak, and the row's size."""
+    x0 = _HEADER
+    p0 = x0 + 2 * order
+    xc0 = p0 + order * order
+    pc0 = xc0 + 2 * order
+    cand0 = pc0 + order * order
+    streak0 = cand0 + 3
+    return x0, p0, xc0, pc0, cand0, streak0, streak0 + 4 * STREAK_CAP
+
+
+def state_size(order: int) -> int:
+    """The length of one track's state row for a chain of ``order`` states per axis (2 cv, 3 ca)."""
+    return _layout.py_func(order)[-1]
+
+
+def empty_states(B: int, order: int) -> np.ndarray:
+    """(B, state_size(order)) empty states: each track's next fix initialises it (flag init)."""
+    return np.zeros((B, state_size(order)))
+
+
+@dataclass(frozen=True, eq=False)
+class Revisions:
+    """What :func:`advance_tracks` decided again about fixes of earlier calls (see the module doc).
+
+    n     (B,) how many fixes before the call's first fix of track b were revised: entry i < n[b]
+          is the fix i + 1 rows before it (the most recent first)
+    flag  (B, R) their flags now; nis (B, R) their NIS now (NaN: unchanged)
+    X, P  (B, R, 2, order), (B, R, order, order) their states now (written where the call stores states)
+    R = STREAK_CAP holds every revision a call can make.
+    """
+
+    n: np.ndarray
+    flag: np.ndarray
+    nis: np.ndarray
+    X: np.ndarray
+    P: np.ndarray
+
+    @classmethod
+    def empty(cls, B: int, order: int) -> Revisions:
+        R = STREAK_CAP
+        return cls(np.zeros(B, np.int64), np.zeros((B, R), np.int8), np.full((B, R), np.nan),
+                   np.zeros((B, R, 2, order)), np.zeros((B, R, order, order)))
+
+
+# ---- the per-track filter ------------------------------------------------------------------------------
+
+@nb.njit(**INLINE)
+def _put_state(order, j, f, e, x, P, store, X, Pout, flag, nis, rev_n, rev_flag, rev_nis, rev_X, rev_P):
+    """Row j of the call (j < 0: the fix -j rows before the call's first, a revision) <- flag f,
+    NIS e (NaN: unchanged) and, with ``store``, the state x, P."""
+    if j >= 0:
+        flag[j] = f
+        if not np.isnan(e):
+            nis[j] = e
+        if store:
+            copy_state(order, x, P, X[j], Pout[j])
         return
-    d4 = d3 * dt
-    d5 = d4 * dt
-    for i in range(3):
-        for j in range(3):
-            F[i, j] = 0.0
-    F[0, 0] = F[1, 1] = F[2, 2] = 1.0
-    F[0, 1] = F[1, 2] = dt
-    F[0, 2] = d2 / 2.0
-    Qu[0, 0] = d5 / 20.0
-    Qu[0, 1] = Qu[1, 0] = d4 / 8.0
-    Qu[0, 2] = Qu[2, 0] = d3 / 6.0
-    Qu[1, 1] = d3 / 3.0
-    Qu[1, 2] = Qu[2, 1] = d2 / 2.0
-    Qu[2, 2] = dt
+    d = -j - 1
+    if d >= rev_flag.shape[0]:
+        return   # no room: the caller asked for no revisions
+    rev_flag[d] = f
+    if not np.isnan(e):
+        rev_nis[d] = e
+    if store:
+        copy_state(order, x, P, rev_X[d], rev_P[d])
+    if d + 1 > rev_n[0]:
+        rev_n[0] = d + 1
 
 
-@nb.njit(**_INLINE)
-def _product(order, A, B, out, ta, tb):
-    """out = op(A) op(B) for order x order matrices, op(X) = X^T where ta / tb."""
-    for i in range(order):
-        for j in range(order):
-            s = 0.0
-            for m in range(order):
-                s += (A[m, i] if ta else A[i, m]) * (B[j, m] if tb else B[m, j])
-            out[i, j] = s
-
-
-@nb.njit(**_INLINE)
-def _congruence(order, A, B, T, base, scale, out):
-    """out = A B A^T + scale * base, symmetric (T is scratch: it holds A B afterwards)."""
-    _product(order, A, B, T, False, False)
-    for i in range(order):
-        for j in range(i, order):
-            s = 0.0
-            for m in range(order):
-                s += T[i, m] * A[j, m]
-            s += scale * base[i, j]
-            out[i, j] = s
-            out[j, i] = s
-
-
-@nb.njit(**_INLINE)
-def _predict(order, F, Qu, q, x, P, xp, Pp, T):
-    """xp = F x (both axes), Pp = F P F^T + q Qu (T is scratch: F P afterwards)."""
-    for a in range(2):
-        for i in range(order):
-            s = 0.0
-            for j in range(order):
-                s += F[i, j] * x[a, j]
-            xp[a, i] = s
-    _congruence(order, F, P, T, Qu, q, Pp)
-
-
-@nb.njit(**_INLINE)
-def _update(order, xp, Pp, r, ze, zn, x, P):
-    """Kalman update of both axes with the fix (ze, zn) of variance r; returns (NIS, S).
-
-    The rank-one form of :func:`mptrack._kalman_core.update` for H = [1, 0, ...] and one covariance
-    shared by the two axes (S = P_00 + r, K = P[:, 0] / S), written out because it is inlined in the
-    per-fix loop: a documented exception to the one compiled update, tested against it
-    (tests/test_kalman_core.py)."""
-    S = Pp[0, 0] + r
-    ne = ze - xp[0, 0]
-    nn = zn - xp[1, 0]
-    for i in range(order):
-        k = Pp[i, 0] / S
-        x[0, i] = xp[0, i] + k * ne
-        x[1, i] = xp[1, i] + k * nn
-        for j in range(i, order):
-            v = Pp[i, j] - Pp[i, 0] * Pp[j, 0] / S
-            P[i, j] = v
-            P[j, i] = v
-    return (ne * ne + nn * nn) / S, S
-
-
-@nb.njit(**_INLINE)
-def _copy_state(order, xs, Ps, xd, Pd):
-    for i in range(order):
-        xd[0, i] = xs[0, i]
-        xd[1, i] = xs[1, i]
-        for j in range(order):
-            Pd[i, j] = Ps[i, j]
-
-
-# ---- the workspace: every small array the per-track functions use, allocated once per block ----------
-# Five arrays (so a call passes ~35 scalars, not ~240 as a tuple of 34 named arrays did): slots of
-# (order, order) matrices, (2, order) states, (order,) vectors, the Gauss-Jordan work, and ints.
-# Nested functions use disjoint slots (R*: _restart, I*: _info_start / _info_predict).
-(_F, _QU, _T, _P, _PP, _PC, _PI, _C, _D, _RF, _RQU, _RT, _RPP, _RP, _IF, _IQU, _IA, _IM, _IMI, _IT,
- _IY) = range(21)
-(_X, _XP, _XC, _DX, _RX, _RXP) = range(6)
-(_IYE, _IYN, _IV) = range(3)
-
-
-@nb.njit(**_SEQ)
-def _work(order, max_rej):
-    """The workspace of one block: (mats, states, vectors, W, ints); ints = rej[max_rej], rows[order], count."""
-    return (np.zeros((21, order, order)), np.zeros((6, 2, order)), np.zeros((3, order)),
-            np.zeros((MAX_ORDER, 2 * MAX_ORDER)), np.zeros(max(max_rej, 1) + order + 1, dtype=np.int64))
-
-
-@nb.njit(**_SEQ)
-def _inverse(n, A, out, W):
-    """out = A^-1 for n <= 3 (Gauss-Jordan, partial pivoting, W work); False if A is numerically singular."""
-    scale = 0.0
-    for i in range(n):
-        for j in range(n):
-            W[i, j] = A[i, j]
-            W[i, n + j] = 1.0 if i == j else 0.0
-            scale = max(scale, abs(A[i, j]))
-    if not scale > 0.0:
+@nb.njit(**SEQ)
+def _restart(bt, bze, bzn, bw, L, c, qm, order, nrej, gate, x, P, wk):
+    """The restart test of the last ``nrej`` rejected fixes (the streak's entries L - nrej .. L - 1):
+    a diffuse start on the first ``order`` of them under the manoeuvre density ``qm``, then each
+    further one must pass the NIS gate against the prediction from those before it.  If all do,
+    x, P <- the state at the last one and True (the track restarts there)."""
+    mats, st, _, _, rows = wk
+    for j in range(nrej):
+        rows[j] = L - nrej + j
+    xs, Ps = st[S_RX], mats[M_RP]
+    if not info_start(bt, bze, bzn, bw, c, rows, order, qm, order, xs, Ps, wk):
         return False
-    for col in range(n):
-        piv = col
-        for i in range(col + 1, n):
-            if abs(W[i, col]) > abs(W[piv, col]):
-                piv = i
-        if not abs(W[piv, col]) > 1e-13 * scale:
+    F, Qu, T, xp, Pp = mats[M_RF], mats[M_RQU], mats[M_RT], st[S_RXP], mats[M_RPP]
+    for j in range(order, nrej):
+        k = rows[j]
+        chain_transition(order, bt[k] - bt[k - 1], F, Qu)
+        predict(order, F, Qu, qm, xs, Ps, xp, Pp, T)
+        S = Pp[0, 0] + c * bw[k]
+        ne = bze[k] - xp[0, 0]
+        nn = bzn[k] - xp[1, 0]
+        if (ne * ne + nn * nn) / S > gate:
             return False
-        if piv != col:
-            for j in range(2 * n):
-                tmp = W[col, j]
-                W[col, j] = W[piv, j]
-                W[piv, j] = tmp
-        d = W[col, col]
-        for j in range(2 * n):
-            W[col, j] /= d
-        for i in range(n):
-            if i != col:
-                f = W[i, col]
-                if f != 0.0:
-                    for j in range(2 * n):
-                        W[i, j] -= f * W[col, j]
-    for i in range(n):
-        for j in range(n):
-            out[i, j] = W[i, n + j]
+        update(order, xp, Pp, c * bw[k], bze[k], bzn[k], xs, Ps)
+    copy_state(order, xs, Ps, x, P)
     return True
 
 
-@nb.njit(**_SEQ)
+@nb.njit(**SEQ)
+def _after_reset(k, L, streak, nrej, bt, bze, bzn, bw, c, q, gate, order, store, x, P, X, Pout, flag, nis,
+                 rev_n, rev_flag, rev_nis, rev_X, rev_P, wk):
+    """A restart at row k, the last of the streak's L kept entries: the run's earlier fixes were not
+    outliers but the start of the new stretch, and so are the rejected fixes just before the run
+    that lie inside the gate of the restart state predicted back to them (walking back, up to the
+    first that does not, or the first the state keeps).  They are flagged RESET and, with ``store``,
+    get that back-predicted state instead of the coasting state of the old stretch; the prediction
+    goes back one fix at a time, x_(k-1) = F(-d) x_k, P_(k-1) = F(-d) (P_k + q Qu(d)) F(-d)^T,
+    d = t_k - t_(k-1).  Returns (rows relabelled, whether they reach back to the fix before the
+    run of rejections)."""
+    mats, st, _, _, _ = wk
+    F, Qu, T, Pb, Pp, xb, xp = mats[M_RF], mats[M_RQU], mats[M_RT], mats[M_RP], mats[M_RPP], st[S_RX], st[S_RXP]
+    copy_state(order, x, P, xb, Pb)
+    relabelled = 0
+    i = L - 1
+    while i > 0:
+        d = bt[i] - bt[i - 1]
+        chain_transition(order, d, F, Qu)
+        for a in range(order):
+            for b in range(order):
+                Pb[a, b] += q * Qu[a, b]
+        chain_transition(order, -d, F, T)
+        predict(order, F, Qu, 0.0, xb, Pb, xp, Pp, T)
+        copy_state(order, xp, Pp, xb, Pb)
+        i -= 1
+        if i < L - nrej:          # before the run: inside the gate of the back prediction?
+            ne = bze[i] - xb[0, 0]
+            nn = bzn[i] - xb[1, 0]
+            if (ne * ne + nn * nn) / (Pb[0, 0] + c * bw[i]) > gate:
+                return relabelled, False
+        _put_state(order, k - (L - 1 - i), RESET, np.nan, xb, Pb, store, X, Pout, flag, nis,
+                   rev_n, rev_flag, rev_nis, rev_X, rev_P)
+        relabelled += 1
+    return relabelled, streak == L
+
+
+@nb.njit(**SEQ)
+def _reject(k, tk, zek, znk, wk_, st, streak0, c, q, order, max_rej, gate, store, x, P, x_coast, P_coast,
+            X, Pout, flag, nis, rev_n, rev_flag, rev_nis, rev_X, rev_P, wk):
+    """Row k (time tk, fix (zek, znk), unit variance wk_) is rejected: it joins the streak of
+    rejected fixes and the restart test's window; if the window is full and its fixes agree
+    (:func:`_restart`), x, P <- the restart state, the run is relabelled (:func:`_after_reset`)
+    and RESET is returned; else x, P <- the coasting state and OUTLIER."""
+    bt = st[streak0:streak0 + STREAK_CAP]
+    bze = st[streak0 + STREAK_CAP:streak0 + 2 * STREAK_CAP]
+    bzn = st[streak0 + 2 * STREAK_CAP:streak0 + 3 * STREAK_CAP]
+    bw = st[streak0 + 3 * STREAK_CAP:streak0 + 4 * STREAK_CAP]
+    streak = int(st[_STREAK])
+    L = min(streak, STREAK_CAP)
+    if L == STREAK_CAP:                     # keep the last STREAK_CAP
+        for j in range(STREAK_CAP - 1):
+            bt[j] = bt[j + 1]
+            bze[j] = bze[j + 1]
+            bzn[j] = bzn[j + 1]
+            bw[j] = bw[j + 1]
+        L -= 1
+    bt[L] = tk
+    bze[L] = zek
+    bzn[L] = znk
+    bw[L] = wk_
+    L += 1
+    streak += 1
+    st[_STREAK] = streak
+    st[_OUTLIERS] += 1.0
+    window = min(int(st[_WINDOW]) + 1, max_rej)
+    st[_WINDOW] = window
+    if window == max_rej and _restart(bt, bze, bzn, bw, L, c, MANOEUVRE_FACTOR * q, order, max_rej, gate, x, P, wk):
+        relabelled, whole = _after_reset(k, L, streak, max_rej, bt, bze, bzn, bw, c, q, gate, order, store, x, P,
+                                         X, Pout, flag, nis, rev_n, rev_flag, rev_nis, rev_X, rev_P, wk)
+        st[_OUTLIERS] -= 1.0 + relabelled
+        if not (whole and st[_BEFORE] == RESET):   # a restart run is one reset (it may join one before it)
+            st[_RESETS] += 1.0
+        _end_streak(st, RESET)
+        return RESET
+    copy_state(order, x_coast, P_coast, x, P)
+    return OUTLIER
+
+
+@nb.njit(**INLINE)
+def _end_streak(st, f):
+    """A fix flagged f that is not rejected ends the run of rejections."""
+    st[_WINDOW] = 0.0
+    st[_STREAK] = 0.0
+    st[_BEFORE] = f
+
+
+@nb.njit(**INLINE)
+def _load(order, st, x0, p0, x, P):
+    for a in range(2):
+        for i in range(order):
+            x[a, i] = st[x0 + a * order + i]
+    for i in range(order):
+        for j in range(order):
+            P[i, j] = st[p0 + i * order + j]
+
+
+@nb.njit(**INLINE)
+def _save(order, st, x0, p0, x, P):
+    for a in range(2):
+        for i in range(order):
+            st[x0 + a * order + i] = x[a, i]
+    for i in range(order):
+        for j in range(order):
+            st[p0 + i * order + j] = P[i, j]
+
+
+@nb.njit(**SEQ)
+def _advance_track(st, t, ze, zn, w, c, q, order, prior, gate, max_rej, store, X, P, nis, flag, stats,
+                   rev_n, rev_flag, rev_nis, rev_X, rev_P, wk):
+    """The gated filter over one track's new rows from its state ``st`` (updated in place), fix
+    variances c w[k]; stats <- (loglik, updates, outliers, resets, NIS sum of the updates and
+    manoeuvres, manoeuvres) of all its fixes so far, a pending candidate counted as a manoeuvre.
+
+    A fix that fails the gate but passes it under the manoeuvre density qm is a candidate: the
+    filter goes on from its manoeuvre update, and the next fix decides: inside the (nominal) gate
+    of that track, the candidate is a manoeuvre; otherwise it was an outlier and the filter goes
+    back to coasting through it.  A candidate at the last fix so far counts as a manoeuvre."""
+    n = t.shape[0]
+    if n == 0 and st[_FIXES] == 0.0:
+        return   # an empty track without fixes: nothing to report
+    mats, sts, _, _, _ = wk
+    F, Qu, T, Pc, Pp, P_coast = mats[M_F], mats[M_QU], mats[M_T], mats[M_P], mats[M_PP], mats[M_PC]
+    x, xp, x_coast = sts[S_X], sts[S_XP], sts[S_XC]
+    x0, p0, xc0, pc0, cand0, streak0, _ = _layout(order)
+    qm = MANOEUVRE_FACTOR * q
+    rev_n[0] = 0
+    for d in range(rev_nis.shape[0]):
+        rev_nis[d] = np.nan
+    first = 0
+    if n > 0 and st[_FIXES] == 0.0:   # the first fix initialises the track
+        for i in range(order):
+            x[0, i] = 0.0
+            x[1, i] = 0.0
+            for j in range(order):
+                Pc[i, j] = 0.0
+        x[0, 0] = ze[0]
+        x[1, 0] = zn[0]
+        Pc[0, 0] = c * w[0]
+        for i in range(1, order):
+            Pc[i, i] = prior[i]
+        nis[0] = np.nan
+        flag[0] = INIT
+        if store:
+            copy_state(order, x, Pc, X[0], P[0])
+        st[_T_LAST] = t[0]
+        st[_FIXES] = 1.0
+        _end_streak(st, INIT)
+        first = 1
+    else:
+        _load(order, st, x0, p0, x, Pc)
+        _load(order, st, xc0, pc0, x_coast, P_coast)
+    pending = st[_PENDING] != 0.0
+    t_last = st[_T_LAST]
+    for k in range(first, n):
+        rk = c * w[k]
+        chain_transition(order, t[k] - t_last, F, Qu)
+        predict(order, F, Qu, q, x, Pc, xp, Pp, T)
+        S = Pp[0, 0] + rk
+        ne = ze[k] - xp[0, 0]
+        nn = zn[k] - xp[1, 0]
+        e = (ne * ne + nn * nn) / S
+        if pending:
+            pending = False
+            if e <= gate:                 # fix k confirms the manoeuvre at k - 1
+                st[_LOGLIK] += st[_CAND_LL]
+                st[_NIS_SUM] += st[_CAND_EM]
+                st[_MANOEUVRES] += 1.0
+                _end_streak(st, MANOEUVRE)
+            else:                         # it does not: k - 1 was an outlier
+                f = _reject(k - 1, t_last, st[cand0], st[cand0 + 1], st[cand0 + 2], st, streak0, c, q, order,
+                            max_rej, gate, store, x, Pc, x_coast, P_coast, X, P, flag, nis,
+                            rev_n, rev_flag, rev_nis, rev_X, rev_P, wk)
+                _put_state(order, k - 1, f, st[_CAND_E], x, Pc, store, X, P, flag, nis,
+                           rev_n, rev_flag, rev_nis, rev_X, rev_P)
+                predict(order, F, Qu, q, x, Pc, xp, Pp, T)
+                S = Pp[0, 0] + rk
+                ne = ze[k] - xp[0, 0]
+                nn = zn[k] - xp[1, 0]
+                e = (ne * ne + nn * nn) / S
+        nis[k] = e
+        if e <= gate:
+            e, S = update(order, xp, Pp, rk, ze[k], zn[k], x, Pc)
+            flag[k] = UPDATE
+            st[_LOGLIK] -= 0.5 * (e + 2.0 * math.log(S) + 2.0 * LOG2PI)
+            st[_NIS_SUM] += nis[k]
+            st[_UPDATES] += 1.0
+            _end_streak(st, UPDATE)
+        else:
+            copy_state(order, xp, Pp, x_coast, P_coast)
+            for i in range(order):        # the manoeuvre hypothesis: the prediction with density qm
+                for j in range(order):
+                    Pp[i, j] += (qm - q) * Qu[i, j]
+            Sm = Pp[0, 0] + rk
+            em = (ne * ne + nn * nn) / Sm
+            if em <= gate:                # a candidate: the next fix decides
+                em, Sm = update(order, xp, Pp, rk, ze[k], zn[k], x, Pc)
+                flag[k] = MANOEUVRE
+                nis[k] = em
+                pending = True
+                st[_CAND_E] = e
+                st[_CAND_LL] = -0.5 * (em + 2.0 * math.log(Sm) + 2.0 * LOG2PI)
+                st[_CAND_EM] = em
+                st[cand0] = ze[k]
+                st[cand0 + 1] = zn[k]
+                st[cand0 + 2] = w[k]
+            else:
+                flag[k] = _reject(k, t[k], ze[k], zn[k], w[k], st, streak0, c, q, order, max_rej, gate, store,
+                                  x, Pc, x_coast, P_coast, X, P, flag, nis, rev_n, rev_flag, rev_nis, rev_X, rev_P,
+                                  wk)
+        if store:
+            copy_state(order, x, Pc, X[k], P[k])
+        t_last = t[k]
+        st[_FIXES] += 1.0
+    st[_T_LAST] = t_last
+    st[_PENDING] = 1.0 if pending else 0.0
+    _save(order, st, x0, p0, x, Pc)
+    _save(order, st, xc0, pc0, x_coast, P_coast)
+    stats[0] = st[_LOGLIK]
+    stats[1] = st[_UPDATES]
+    stats[2] = st[_OUTLIERS]
+    stats[3] = st[_RESETS]
+    stats[4] = st[_NIS_SUM]
+    stats[5] = st[_MANOEUVRES]
+    if pending:                           # a candidate at the last fix so far counts as a manoeuvre
+        stats[0] += st[_CAND_LL]
+        stats[4] += st[_CAND_EM]
+        stats[5] += 1.0
+
+
+@nb.njit(**SEQ)
 def _smooth_track(t, q, order, flag, X, P, wk):
     """RTS backward pass over one track's X, P (filtered -> smoothed, in place), separately on
-    each stretch that starts at the track's first fix or at a reset."""
+    each stretch that starts at the track's first fix or at a reset.
+
+    The backward recursion of :mod:`mptrack._rts` written out for the engine's shared covariance of
+    two axes (one smoother gain C for both): a documented exception to the one RTS pass, tested
+    against it through :func:`._gated.smooth_gated` (tests/tracking/test_tracking_engine.py)."""
     mats, st, _, W, _ = wk
-    F, Qu, Pp, Pi, T, C, D = mats[_F], mats[_QU], mats[_PP], mats[_PI], mats[_T], mats[_C], mats[_D]
-    xp, dx = st[_XP], st[_DX]
+    F, Qu, Pp, Pi, T, C, D = mats[M_F], mats[M_QU], mats[M_PP], mats[M_PI], mats[M_T], mats[M_C], mats[M_D]
+    xp, dx = st[S_XP], st[S_DX]
     for k in range(t.shape[0] - 2, -1, -1):
         if flag[k + 1] == RESET:
             continue  # k ends a stretch: its filtered state is its smoothed state
         chain_transition(order, t[k + 1] - t[k], F, Qu)
-        _predict(order, F, Qu, q, X[k], P[k], xp, Pp, T)
-        if not _inverse(order, Pp, Pi, W):
+        predict(order, F, Qu, q, X[k], P[k], xp, Pp, T)
+        if not inverse(order, Pp, Pi, W):
             continue  # cannot happen for q > 0 or r > 0; keep the filtered state
-        _product(order, T, Pi, C, True, False)   # C = P F^T Pp^-1; T holds F P, so P F^T = T^T
+        product(order, T, Pi, C, True, False)   # C = P F^T Pp^-1; T holds F P, so P F^T = T^T
         for ax in range(2):
             for i in range(order):
                 dx[ax, i] = X[k + 1, ax, i] - xp[ax, i]
@@ -248,406 +441,52 @@ def _smooth_track(t, q, order, flag, X, P, wk):
         for i in range(order):                   # P <- P + C (Ps(k+1) - Pp) C^T
             for j in range(order):
                 D[i, j] = P[k + 1, i, j] - Pp[i, j]
-        _congruence(order, C, D, T, P[k], 1.0, P[k])
+        congruence(order, C, D, T, P[k], 1.0, P[k])
 
 
-@nb.njit(**_SEQ)
-def _reject(k, t, ze, zn, w, c, qm, order, gate, x, P, x_coast, P_coast, wk):
-    """Fix k is rejected: add it to the run of rejections (the workspace's rej, count); if the
-    run is full and its fixes agree (:func:`_restart`), x, P <- the restart state and RESET, else
-    x, P <- the coasting state and OUTLIER."""
-    ints = wk[4]
-    max_rej = ints.shape[0] - order - 1
-    rej = ints[:max_rej]
-    count = ints[max_rej + order:]
-    if count[0] == max_rej:
-        for j in range(max_rej - 1):
-            rej[j] = rej[j + 1]
-        count[0] -= 1
-    rej[count[0]] = k
-    count[0] += 1
-    if count[0] == max_rej and _restart(t, ze, zn, w, c, rej, max_rej, qm, order, gate, x, P, wk):
-        count[0] = 0
-        return RESET
-    _copy_state(order, x_coast, P_coast, x, P)
-    return OUTLIER
+# ---- the parallel kernel, compiled once per model order ------------------------------------------------
 
-
-@nb.njit(**_SEQ)
-def _after_reset(store, t, ze, zn, w, c, q, gate, order, x, P, X, Pout, flag, wk):
-    """A restart at the last fix of the rejection run: the run's earlier fixes were not outliers but
-    the start of the new stretch, and so are the rejected fixes just before the run that lie inside
-    the gate of the restart state predicted back to them (walking back, up to the first that does
-    not).  They are flagged RESET and, with ``store``, get that back-predicted state instead of the
-    coasting state of the old stretch; the prediction goes back one row at a time,
-    x_(k-1) = F(-d) x_k, P_(k-1) = F(-d) (P_k + q Qu(d)) F(-d)^T, d = t_k - t_(k-1)."""
-    mats, st, _, _, ints = wk
-    max_rej = ints.shape[0] - order - 1
-    rej = ints[:max_rej]
-    F, Qu, T, Pb, Pp, xb, xp = mats[_RF], mats[_RQU], mats[_RT], mats[_RP], mats[_RPP], st[_RX], st[_RXP]
-    k = rej[max_rej - 1]
-    _copy_state(order, x, P, xb, Pb)
-    m = max_rej - 1
-    while True:
-        if m > 0:                 # the run's own fixes
-            m -= 1
-            j = rej[m]
-            inside_run = True
-        else:                     # the rejected fixes just before it
-            j = k - 1
-            if j < 1 or flag[j] != OUTLIER:
-                break
-            inside_run = False
-        while k > j:
-            d = t[k] - t[k - 1]
-            chain_transition(order, d, F, Qu)
-            for a in range(order):
-                for b in range(order):
-                    Pb[a, b] += q * Qu[a, b]
-            chain_transition(order, -d, F, T)
-            _predict(order, F, Qu, 0.0, xb, Pb, xp, Pp, T)
-            _copy_state(order, xp, Pp, xb, Pb)
-            k -= 1
-        if not inside_run:
-            ne = ze[j] - xb[0, 0]
-            nn = zn[j] - xb[1, 0]
-            if (ne * ne + nn * nn) / (Pb[0, 0] + c * w[j]) > gate:
-                break
-        flag[j] = RESET
-        if store:
-            _copy_state(order, xb, Pb, X[j], Pout[j])
-
-
-@nb.njit(**_SEQ)
-def _filter_track(t, ze, zn, w, c, q, order, prior, gate, store, X, P, nis, flag, stats, wk):
-    """The gated filter over one track's rows (see filter_tracks), fix variances c w[k]; stats <-
-    (loglik, updates, outliers, resets, NIS sum of the updates and manoeuvres, manoeuvres).
-
-    A fix that fails the gate but passes it under the manoeuvre density qm is a candidate: the
-    filter goes on from its manoeuvre update, and the next fix decides: inside the (nominal) gate
-    of that track, the candidate is a manoeuvre; otherwise it was an outlier and the filter goes
-    back to coasting through it.  A candidate at a track's last fix is taken as a manoeuvre."""
-    n = t.shape[0]
-    mats, st, _, _, ints = wk
-    F, Qu, T, Pc, Pp, P_coast = mats[_F], mats[_QU], mats[_T], mats[_P], mats[_PP], mats[_PC]
-    x, xp, x_coast = st[_X], st[_XP], st[_XC]
-    count = ints[ints.shape[0] - 1:]
-    count[0] = 0
-    loglik = 0.0
-    qm = MANOEUVRE_FACTOR * q
-    pending = False               # fix k - 1 is a manoeuvre candidate
-    cand_e = cand_ll = 0.0        # its nominal NIS and its log-likelihood as a manoeuvre
-    for i in range(order):
-        x[0, i] = 0.0
-        x[1, i] = 0.0
-        for j in range(order):
-            Pc[i, j] = 0.0
-    x[0, 0] = ze[0]
-    x[1, 0] = zn[0]
-    Pc[0, 0] = c * w[0]
-    for i in range(1, order):
-        Pc[i, i] = prior[i]
-    nis[0] = np.nan
-    flag[0] = INIT
-    if store:
-        _copy_state(order, x, Pc, X[0], P[0])
-    for k in range(1, n):
-        rk = c * w[k]
-        chain_transition(order, t[k] - t[k - 1], F, Qu)
-        _predict(order, F, Qu, q, x, Pc, xp, Pp, T)
-        S = Pp[0, 0] + rk
-        ne = ze[k] - xp[0, 0]
-        nn = zn[k] - xp[1, 0]
-        e = (ne * ne + nn * nn) / S
-        if pending:
-            pending = False
-            if e <= gate:                 # fix k confirms the manoeuvre at k - 1
-                loglik += cand_ll
-                count[0] = 0
-            else:                         # it does not: k - 1 was an outlier
-                nis[k - 1] = cand_e
-                flag[k - 1] = _reject(k - 1, t, ze, zn, w, c, qm, order, gate, x, Pc, x_coast, P_coast, wk)
-                if flag[k - 1] == RESET:
-                    _after_reset(store, t, ze, zn, w, c, q, gate, order, x, Pc, X, P, flag, wk)
-                if store:
-                    _copy_state(order, x, Pc, X[k - 1], P[k - 1])
-                _predict(order, F, Qu, q, x, Pc, xp, Pp, T)
-                S = Pp[0, 0] + rk
-                ne = ze[k] - xp[0, 0]
-                nn = zn[k] - xp[1, 0]
-                e = (ne * ne + nn * nn) / S
-        nis[k] = e
-        if e <= gate:
-            count[0] = 0
-            e, S = _update(order, xp, Pp, rk, ze[k], zn[k], x, Pc)
-            flag[k] = UPDATE
-            loglik -= 0.5 * (e + 2.0 * math.log(S) + 2.0 * _LOG2PI)
-        else:
-            _copy_state(order, xp, Pp, x_coast, P_coast)
-            for i in range(order):        # the manoeuvre hypothesis: the prediction with density qm
-                for j in range(order):
-                    Pp[i, j] += (qm - q) * Qu[i, j]
-            Sm = Pp[0, 0] + rk
-            em = (ne * ne + nn * nn) / Sm
-            if em <= gate:                # a candidate: the next fix decides
-                em, Sm = _update(order, xp, Pp, rk, ze[k], zn[k], x, Pc)
-                flag[k] = MANOEUVRE
-                nis[k] = em
-                pending = True
-                cand_e, cand_ll = e, -0.5 * (em + 2.0 * math.log(Sm) + 2.0 * _LOG2PI)
-            else:
-                flag[k] = _reject(k, t, ze, zn, w, c, qm, order, gate, x, Pc, x_coast, P_coast, wk)
-                if flag[k] == RESET:
-                    _after_reset(store, t, ze, zn, w, c, q, gate, order, x, Pc, X, P, flag, wk)
-        if store:
-            _copy_state(order, x, Pc, X[k], P[k])
-    if pending:                           # a candidate at the last fix is a manoeuvre
-        loglik += cand_ll
-    stats[0] = loglik
-    for i in range(1, 6):
-        stats[i] = 0.0
-    for k in range(1, n):                 # counts and NIS sum from the flags
-        f = flag[k]
-        if f == UPDATE or f == MANOEUVRE:
-            stats[4] += nis[k]
-        if f == UPDATE:
-            stats[1] += 1.0
-        elif f == OUTLIER:
-            stats[2] += 1.0
-        elif f == RESET and flag[k - 1] != RESET:  # a restart run is one reset
-            stats[3] += 1.0
-        elif f == MANOEUVRE:
-            stats[5] += 1.0
-
-
-# ---- noise estimation: the conditional (diffuse-start) log-likelihood ---------------------------------
-
-@nb.njit(**_INLINE)
-def _info_predict(order, dt, q, Y, ye, yn, wk):
-    """Information-form prediction over dt of a possibly singular information matrix Y:
-    Y <- A (I + Q A)^-1, y <- (I + A Q)^-1 F^-T y with A = F^-T Y F^-1 (exact also for singular
-    Y or Q, since I + Q A is invertible for PSD Q, A)."""
-    if dt == 0.0:
-        return True
-    mats, _, vec, W, _ = wk
-    F, Qu, A, M, Mi, tmp, v = mats[_IF], mats[_IQU], mats[_IA], mats[_IM], mats[_IMI], mats[_IT], vec[_IV]
-    chain_transition(order, -dt, F, Qu)   # F(-dt) = F(dt)^-1; Qu of -dt is not used
-    chain_transition(order, dt, M, Qu)    # only Qu(dt) is kept (M is overwritten below)
-    _product(order, Y, F, tmp, False, False)   # A = Fi^T Y Fi
-    _product(order, F, tmp, A, True, False)
-    for i in range(order):                # M = I + Q A
-        for j in range(order):
-            s = 1.0 if i == j else 0.0
-            for m in range(order):
-                s += q * Qu[i, m] * A[m, j]
-            M[i, j] = s
-    if not _inverse(order, M, Mi, W):
-        return False
-    _product(order, A, Mi, tmp, False, False)  # Y = A M^-1 (symmetric)
-    for i in range(order):
-        for j in range(order):
-            Y[i, j] = 0.5 * (tmp[i, j] + tmp[j, i])
-    for ax in range(2):                   # y = M^-T Fi^T y
-        y = ye if ax == 0 else yn
-        for i in range(order):
-            s = 0.0
-            for m in range(order):
-                s += F[m, i] * y[m]
-            v[i] = s
-        for i in range(order):
-            s = 0.0
-            for m in range(order):
-                s += Mi[m, i] * v[m]
-            y[i] = s
-    return True
-
-
-@nb.njit(**_INLINE)
-def _info_start(t, ze, zn, w, c, rows, n_rows, q, order, x, P, wk):
-    """The exact state after the fixes ``rows[:n_rows]`` from zero information (a diffuse start):
-    information-form predictions between them (density q), x, P <- the state at the last one.
-    False if their information is singular (fewer than ``order`` distinct times) or numerically lost."""
-    distinct = 1
-    for j in range(1, n_rows):
-        if t[rows[j]] != t[rows[j - 1]]:
-            distinct += 1
-    if distinct < order:  # a chain of order r needs fixes at r distinct times
-        return False
-    mats, _, vec, W, _ = wk
-    Y, ye, yn = mats[_IY], vec[_IYE], vec[_IYN]
-    for i in range(order):
-        ye[i] = 0.0
-        yn[i] = 0.0
-        for j in range(order):
-            Y[i, j] = 0.0
-    for j in range(n_rows):
-        k = rows[j]
-        if j > 0 and not _info_predict(order, t[k] - t[rows[j - 1]], q, Y, ye, yn, wk):
-            return False
-        rk = c * w[k]
-        Y[0, 0] += 1.0 / rk
-        ye[0] += ze[k] / rk
-        yn[0] += zn[k] / rk
-    if not _inverse(order, Y, P, W):
-        return False
-    for i in range(order):
-        for j in range(i + 1, order):
-            v = 0.5 * (P[i, j] + P[j, i])
-            P[i, j] = v
-            P[j, i] = v
-    for i in range(order):
-        se = 0.0
-        sn = 0.0
-        for j in range(order):
-            se += P[i, j] * ye[j]
-            sn += P[i, j] * yn[j]
-        x[0, i] = se
-        x[1, i] = sn
-    return True
-
-
-@nb.njit(**_SEQ)
-def _restart(t, ze, zn, w, c, rej, nrej, qm, order, gate, x, P, wk):
-    """The restart test of a run of ``nrej`` rejected fixes ``rej``: a diffuse start on the first
-    ``order`` of them under the manoeuvre density ``qm``, then each further one must pass the NIS
-    gate against the prediction from those before it.  If all do, x, P <- the state at the last
-    one and True (the track restarts there); the fixes are left alone otherwise."""
-    mats, st, _, _, _ = wk
-    xs, Ps = st[_RX], mats[_RP]
-    if not _info_start(t, ze, zn, w, c, rej, order, qm, order, xs, Ps, wk):
-        return False
-    F, Qu, T, xp, Pp = mats[_RF], mats[_RQU], mats[_RT], st[_RXP], mats[_RPP]
-    for j in range(order, nrej):
-        k = rej[j]
-        chain_transition(order, t[k] - t[rej[j - 1]], F, Qu)
-        _predict(order, F, Qu, qm, xs, Ps, xp, Pp, T)
-        S = Pp[0, 0] + c * w[k]
-        ne = ze[k] - xp[0, 0]
-        nn = zn[k] - xp[1, 0]
-        if (ne * ne + nn * nn) / S > gate:
-            return False
-        _update(order, xp, Pp, c * w[k], ze[k], zn[k], xs, Ps)
-    _copy_state(order, xs, Ps, x, P)
-    return True
-
-
-@nb.njit(**_INLINE)
-def _diffuse_start(k, t, ze, zn, w, mask, c, q, order, x, P, wk):
-    """Collect the next ``order`` accepted fixes from row k on (a RESTART begins the collection
-    again) and start from them (:func:`_info_start`).  Returns the row after the last of them, or
-    -1 if the rows run out first."""
-    n = t.shape[0]
-    ints = wk[4]
-    rows = ints[ints.shape[0] - order - 1:ints.shape[0] - 1]
-    count = 0
-    while k < n:
-        code = mask[k]
-        if code != SKIP:
-            if code == RESTART:
-                count = 0
-            rows[count] = k
-            count += 1
-            if count == order:
-                if _info_start(t, ze, zn, w, c, rows, order, q, order, x, P, wk):
-                    return k + 1
-                for j in range(order - 1):  # singular (equal times): slide the window on
-                    rows[j] = rows[j + 1]
-                count -= 1
-        k += 1
-    return -1
-
-
-@nb.njit(**_INLINE)
-def _track_loglik(t, ze, zn, w, mask, c, q, order, out, wk):
-    """out <- (E, L, N): sum of NIS, sum of log det S and number of scalar innovations of the fixes
-    ``mask`` accepts, conditional on the first ``order`` accepted fixes of each stretch (a stretch
-    starts at row 0 and at each RESTART)."""
-    mats, st, _, _, _ = wk
-    F, Qu, tmp, P, Ps, Pp = mats[_F], mats[_QU], mats[_T], mats[_P], mats[_PC], mats[_PP]
-    x, xs, xp = st[_X], st[_XC], st[_XP]
-    E = 0.0
-    L = 0.0
-    N = 0.0
-    n = t.shape[0]
-    k = 0
-    while k < n:
-        k = _diffuse_start(k, t, ze, zn, w, mask, c, q, order, xs, Ps, wk)
-        if k < 0:
-            break
-        _copy_state(order, xs, Ps, x, P)
-        t_last = t[k - 1]
-        while k < n:           # the hot loop: no calls that are not inlined
-            code = mask[k]
-            if code == RESTART:
-                break
-            if code != SKIP:
-                chain_transition(order, t[k] - t_last, F, Qu)
-                _predict(order, F, Qu, q, x, P, xp, Pp, tmp)
-                e, S = _update(order, xp, Pp, c * w[k], ze[k], zn[k], x, P)
-                E += e
-                L += 2.0 * math.log(S)
-                N += 2.0
-                t_last = t[k]
-            k += 1
-    out[0] = E
-    out[1] = L
-    out[2] = N
-
-
-# ---- the parallel kernels, compiled once per model order ------------------------------------------------
-
-_BLOCKS = 256   # tracks are split into at most this many blocks; each allocates one workspace
-
-
-def _make_kernels(order: int):
-    """The parallel kernels with ``order`` a compile-time constant (the small per-fix loops unroll;
+def _make_kernel(order: int):
+    """The parallel kernel with ``order`` a compile-time constant (the small per-fix loops unroll;
     a runtime order made them 3x slower).  numba caches each closure per constant."""
 
-    @nb.njit(**_PAR)
-    def filter_kernel(offsets, t, ze, zn, w, c, q, prior, gate, max_rej, store, smooth, X, P, nis, flag, stats):
+    @nb.njit(**PAR)
+    def advance_kernel(states, offsets, t, ze, zn, w, c, q, prior, gate, max_rej, store, smooth, X, P, nis, flag,
+                       stats, rev_n, rev_flag, rev_nis, rev_X, rev_P):
         B = offsets.shape[0] - 1
-        nblk = min(B, _BLOCKS)
+        nblk = min(B, BLOCKS)
         for blk in nb.prange(nblk):
-            wk = _work(order, max_rej)
+            wk = work(order, STREAK_CAP)
             for b in range(blk * B // nblk, (blk + 1) * B // nblk):
                 a0 = offsets[b]
                 b0 = offsets[b + 1]
-                if b0 <= a0:
-                    continue
-                _filter_track(t[a0:b0], ze[a0:b0], zn[a0:b0], w[a0:b0], c[b], q[b], order, prior, gate, store,
-                              X[a0:b0], P[a0:b0], nis[a0:b0], flag[a0:b0], stats[b], wk)
-                if smooth and store:
+                _advance_track(states[b], t[a0:b0], ze[a0:b0], zn[a0:b0], w[a0:b0], c[b], q[b], order, prior, gate,
+                               max_rej, store, X[a0:b0], P[a0:b0], nis[a0:b0], flag[a0:b0], stats[b],
+                               rev_n[b:b + 1], rev_flag[b], rev_nis[b], rev_X[b], rev_P[b], wk)
+                if smooth and store and b0 > a0:
                     _smooth_track(t[a0:b0], q[b], order, flag[a0:b0], X[a0:b0], P[a0:b0], wk)
 
-    @nb.njit(**_PAR)
-    def loglik_kernel(offsets, active, t, ze, zn, w, mask, c, q, out):
-        B = offsets.shape[0] - 1
-        nblk = min(B, _BLOCKS)
-        for blk in nb.prange(nblk):
-            wk = _work(order, 1)
-            for b in range(blk * B // nblk, (blk + 1) * B // nblk):
-                if not active[b]:
-                    continue
-                a0 = offsets[b]
-                b0 = offsets[b + 1]
-                _track_loglik(t[a0:b0], ze[a0:b0], zn[a0:b0], w[a0:b0], mask[a0:b0], c[b], q[b], order, out[b], wk)
-
-    return filter_kernel, loglik_kernel
+    return advance_kernel
 
 
 _KERNELS = {}
 
 
-def _kernels(order: int):
+def _kernel(order: int):
     if order not in _KERNELS:
         if order not in (2, 3):
             raise ValueError(f"order: the engine runs integrator chains of order 2 or 3, got {order}")
-        _KERNELS[order] = _make_kernels(order)
+        _KERNELS[order] = _make_kernel(order)
     return _KERNELS[order]
 
 
+def _no_revisions(B: int, order: int) -> tuple:
+    return (np.zeros(B, np.int64), np.zeros((B, 0), np.int8), np.zeros((B, 0)), np.zeros((B, 0, 2, order)),
+            np.zeros((B, 0, order, order)))
+
+
 def filter_tracks(offsets, t, ze, zn, w, c, q, order, prior, gate, max_rej, store, smooth, X, P, nis, flag, stats):
-    """Gated Kalman filter (and RTS smoother) of every track; fills the outputs in place.
+    """Gated Kalman filter (and RTS smoother) of every track from its first fix; fills the outputs in place.
 
     offsets  (B+1,) track b is rows offsets[b]:offsets[b+1]; rows in time order
     t, ze, zn  (N,) seconds, east and north metres of the fixes
@@ -662,102 +501,136 @@ def filter_tracks(offsets, t, ze, zn, w, c, q, order, prior, gate, max_rej, stor
     smooth   replace the stored filtered states by RTS-smoothed ones
     nis, flag (N,)  NIS of each fix (NaN at a track's first fix), index into FLAGS
     stats    (B, 6)  loglik, updates, outliers, resets, NIS sum of the updates and manoeuvres, manoeuvres
+
+    The same kernel as :func:`advance_tracks`, from empty states, in one call.
     """
-    _kernels(order)[0](offsets, t, ze, zn, w, c, q, prior, gate, max_rej, store, smooth, X, P, nis, flag, stats)
+    B = len(offsets) - 1
+    _kernel(order)(empty_states(B, order), offsets, t, ze, zn, w, c, q, prior, gate, max_rej, store, smooth,
+                   X, P, nis, flag, stats, *_no_revisions(B, order))
 
 
-def loglik_tracks(offsets, active, t, ze, zn, w, mask, c, q, order, out):
-    """(E, L, N) of :func:`_track_loglik` for every track b with active[b] (out (B, 3)); track b
-    uses fix variances c[b] w[k] and process-noise density q[b]."""
-    _kernels(order)[1](offsets, active, t, ze, zn, w, mask, c, q, out)
+def advance_tracks(states, offsets, t, ze, zn, w, c, q, order, prior, gate, max_rej, X, P, nis, flag, stats,
+                   revisions: Revisions | None = None, *, store: bool = True) -> None:
+    """Continue the gated filter of B tracks from their states with their new fixes, in one call.
+
+    Parameters
+    ----------
+    states : (B, state_size(order)) float64
+        Each track's state (:func:`empty_states` for a new track); updated in place.
+    offsets : (B+1,) int64
+        Track b's new fixes are rows offsets[b]:offsets[b+1] of the columns, in time order, none
+        before the track's last fix (a track without new fixes is left as it is).
+    t, ze, zn, w : (N,) float64
+        Times (s), east and north (m) of the fixes, and their unit variances: fix k of track b has
+        variance c[b] w[k] per axis.
+    c, q : (B,) float64
+        Fix-variance factor and process-noise density of each track for these fixes.
+    order, prior, gate, max_rej
+        As in :func:`filter_tracks`.
+    X, P, nis, flag : (N, 2, order), (N, order, order), (N,), (N,) int8
+        Written for the new rows: each fix's state (if ``store``), NIS and flag, as decided by the
+        end of this call.
+    stats : (B, 6) float64
+        Written: each track's counters over all its fixes so far (:func:`filter_tracks`).
+    revisions : Revisions or None
+        Filled with the fixes of earlier calls whose decision this call revised (the module doc);
+        None: not reported.
+
+    Raises
+    ------
+    ShapeError, DTypeError, ParameterError
+        An array of the wrong shape or dtype, offsets that do not delimit the rows, a fix before
+        its track's last fix or out of time order, a non-finite fix.
+    """
+    order = _check_order(order)
+    states = _array("states", states, np.float64, 2)
+    B = states.shape[0]
+    if states.shape[1] != state_size(order):
+        raise ShapeError(f"states: expected shape ({B}, {state_size(order)}) for order {order}, got {states.shape}")
+    offsets = _array("offsets", offsets, np.int64, 1)
+    t, ze, zn, w = (_array(k, v, np.float64, 1) for k, v in (("t", t), ("ze", ze), ("zn", zn), ("w", w)))
+    N = t.shape[0]
+    if offsets.shape != (B + 1,) or offsets[0] != 0 or offsets[-1] != N or np.any(np.diff(offsets) < 0):
+        raise ParameterError(f"offsets: expected {B + 1} non-decreasing row offsets from 0 to {N}")
+    for name, a in (("ze", ze), ("zn", zn), ("w", w)):
+        if a.shape != (N,):
+            raise ShapeError(f"{name}: expected shape ({N},), got {a.shape}")
+    if not (np.isfinite(t).all() and np.isfinite(ze).all() and np.isfinite(zn).all() and (w > 0).all()
+            and np.isfinite(w).all()):
+        raise ParameterError("t, ze, zn, w: expected finite fixes with positive unit variances")
+    counts = np.diff(offsets)
+    starts = offsets[:-1][counts > 0]
+    last = states[counts > 0, _T_LAST]
+    fresh = states[counts > 0, _FIXES] == 0
+    if np.any(np.diff(t) < 0) and np.any((np.diff(t) < 0) & ~np.isin(np.arange(1, N), starts)):
+        raise ParameterError("t: expected each track's new fixes in time order")
+    if np.any(~fresh & (t[starts] < last)):
+        b = int(np.flatnonzero(counts > 0)[np.flatnonzero(~fresh & (t[starts] < last))[0]])
+        raise ParameterError(f"t: track {b}'s first new fix (t = {t[offsets[b]]!r}) is before its last fix "
+                             f"(t = {states[b, _T_LAST]!r}); a late fix cannot enter the filter's past")
+    c, q = (_array(k, v, np.float64, 1) for k, v in (("c", c), ("q", q)))
+    if c.shape != (B,) or q.shape != (B,):
+        raise ShapeError(f"c, q: expected shape ({B},), got {c.shape} and {q.shape}")
+    prior = _array("prior", prior, np.float64, 1)
+    if prior.shape != (order,):
+        raise ShapeError(f"prior: expected shape ({order},), got {prior.shape}")
+    if not order + 1 <= int(max_rej) <= STREAK_CAP:
+        raise ParameterError(f"max_rej: expected {order + 1} to {STREAK_CAP} rejections, got {max_rej!r}")
+    for name, a, shape in (("X", X, (N, 2, order)), ("P", P, (N, order, order)), ("nis", nis, (N,)),
+                           ("flag", flag, (N,)), ("stats", stats, (B, 6))):
+        if a.shape != shape:
+            raise ShapeError(f"{name}: expected shape {shape}, got {a.shape}")
+    if flag.dtype != np.int8:
+        raise DTypeError(f"flag: expected int8, got {flag.dtype}")
+    rev = _no_revisions(B, order) if revisions is None else (revisions.n, revisions.flag, revisions.nis,
+                                                             revisions.X, revisions.P)
+    _kernel(order)(states, offsets, t, ze, zn, w, c, q, prior, float(gate), int(max_rej), bool(store), False,
+                   X, P, nis, flag, stats, *rev)
 
 
-@nb.njit(**_SEQ)
-def _track_moments(t, ze, zn, w, mask, guess):
-    """Method-of-moments start for (c, q): second divided differences D of the positions over
-    consecutive accepted fixes have variance c (w2/h2^2 + w1 (1/h1 + 1/h2)^2 + w0/h1^2) +
-    q (h1 + h2)/3 for a cv chain (integrated Brownian velocity); fitted by iteratively
-    reweighted least squares with large residuals down-weighted.  guess <- (c, q, count)."""
-    n = t.shape[0]
-    idx = np.empty(n, dtype=np.int64)
-    m = 0
-    for k in range(n):
-        if mask[k] != SKIP:
-            idx[m] = k
-            m += 1
-    K = max(m - 2, 0)
-    d2 = np.empty(2 * K)
-    al = np.empty(2 * K)
-    be = np.empty(2 * K)
-    cnt = 0
-    for j in range(1, m - 1):
-        k0, k1, k2 = idx[j - 1], idx[j], idx[j + 1]
-        if mask[k1] == RESTART or mask[k2] == RESTART:
-            continue
-        h1 = t[k1] - t[k0]
-        h2 = t[k2] - t[k1]
-        if not (h1 > 0.0 and h2 > 0.0):
-            continue
-        coef_c = w[k2] / (h2 * h2) + w[k1] * (1.0 / h1 + 1.0 / h2) ** 2 + w[k0] / (h1 * h1)
-        coef_q = (h1 + h2) / 3.0
-        for ax in range(2):
-            z = ze if ax == 0 else zn
-            d = (z[k2] - z[k1]) / h2 - (z[k1] - z[k0]) / h1
-            d2[cnt] = d * d
-            al[cnt] = coef_c
-            be[cnt] = coef_q
-            cnt += 1
-    guess[2] = cnt
-    if cnt < 2:
-        guess[0] = np.nan
-        guess[1] = np.nan
-        return
-    ra = np.empty(cnt)
-    for i in range(cnt):
-        ra[i] = d2[i] / al[i]
-    c = 0.5 * np.median(ra) / 0.455
-    for i in range(cnt):
-        ra[i] = d2[i] / be[i]
-    q = 0.5 * np.median(ra) / 0.455
-    if not (c > 0.0 and q > 0.0 and np.isfinite(c) and np.isfinite(q)):
-        guess[0] = np.nan   # fixes on one point or one exact line: no start (the search's default)
-        guess[1] = np.nan
-        return
-    for _ in range(8):
-        s_aa = s_ab = s_bb = s_ay = s_by = 0.0
-        for i in range(cnt):
-            v = c * al[i] + q * be[i]
-            u = d2[i] / v
-            wt = 1.0 / (v * v) * (1.0 if u < 9.0 else 9.0 / u)
-            s_aa += wt * al[i] * al[i]
-            s_ab += wt * al[i] * be[i]
-            s_bb += wt * be[i] * be[i]
-            s_ay += wt * al[i] * d2[i]
-            s_by += wt * be[i] * d2[i]
-        det = s_aa * s_bb - s_ab * s_ab
-        if not det > 0.0:
-            break
-        cn = (s_bb * s_ay - s_ab * s_by) / det
-        qn = (s_aa * s_by - s_ab * s_ay) / det
-        # a negative component means the data do not resolve it: keep it small, not zero
-        if cn <= 0.0:
-            cn = 1e-3 * c
-            qn = s_by / s_bb
-        if qn <= 0.0:
-            qn = 1e-3 * q
-            cn = s_ay / s_aa
-        if not (cn > 0.0 and qn > 0.0 and np.isfinite(cn) and np.isfinite(qn)):
-            break
-        c, q = cn, qn
-    guess[0] = c
-    guess[1] = q
+def _check_order(order) -> int:
+    if order not in (2, 3):
+        raise ParameterError(f"order: the engine runs integrator chains of order 2 or 3, got {order!r}")
+    return int(order)
 
 
-@nb.njit(**_PAR)
-def moment_guess(offsets, t, ze, zn, w, mask, out):
-    """out (B, 3) <- :func:`_track_moments` of every track."""
-    B = offsets.shape[0] - 1
-    for b in nb.prange(B):
-        a0 = offsets[b]
-        b0 = offsets[b + 1]
-        _track_moments(t[a0:b0], ze[a0:b0], zn[a0:b0], w[a0:b0], mask[a0:b0], out[b])
+def _array(name: str, a, dtype, ndim: int) -> np.ndarray:
+    if not isinstance(a, np.ndarray) or a.dtype != dtype or a.ndim != ndim or not a.flags.c_contiguous:
+        raise DTypeError(f"{name}: expected a C-contiguous {ndim}-D {np.dtype(dtype).name} array, got "
+                         f"{type(a).__name__}" + (f" {a.dtype} of shape {a.shape}" if isinstance(a, np.ndarray) else ""))
+    return a
+
+
+# ---- one track's state as bytes ------------------------------------------------------------------------
+
+_MAGIC = b"MPTS"
+_HEAD = struct.Struct("<4sHBBI")   # magic, layout version, order, streak cap, number of float64
+
+
+def state_to_bytes(state, order: int) -> bytes:
+    """One track's state row as bytes (a header with the layout version, then little-endian float64)."""
+    order = _check_order(order)
+    row = np.asarray(state, dtype=np.float64)
+    if row.shape != (state_size(order),):
+        raise ShapeError(f"state: expected one state row of {state_size(order)} values for order {order}, "
+                         f"got shape {row.shape}")
+    return _HEAD.pack(_MAGIC, STATE_VERSION, order, STREAK_CAP, row.size) + row.astype("<f8").tobytes()
+
+
+def state_from_bytes(data: bytes) -> tuple[np.ndarray, int]:
+    """(state row, order) from :func:`state_to_bytes`; a ParameterError names what does not match."""
+    if not isinstance(data, (bytes, bytearray, memoryview)):
+        raise DTypeError(f"data: expected bytes, got {type(data).__name__}")
+    data = bytes(data)
+    if len(data) < _HEAD.size:
+        raise ParameterError(f"data: {len(data)} bytes is too short for a track state")
+    magic, version, order, cap, n = _HEAD.unpack_from(data)
+    if magic != _MAGIC:
+        raise ParameterError("data: not a track state (its first bytes are not the state's magic)")
+    if version != STATE_VERSION or cap != STREAK_CAP:
+        raise ParameterError(f"data: a track state of layout version {version} (streak {cap}); this mptrack reads "
+                             f"version {STATE_VERSION} (streak {STREAK_CAP}): restart the track from its fixes")
+    if order not in (2, 3) or n != state_size(order) or len(data) != _HEAD.size + 8 * n:
+        raise ParameterError(f"data: a track state of order {order} with {n} values in {len(data)} bytes does not "
+                             "match its layout")
+    return np.frombuffer(data, dtype="<f8", offset=_HEAD.size).astype(np.float64), int(order)

@@ -104,10 +104,8 @@ def _after_reset(last, x, P, F, Q, H, R, z, gates, rej, xs, Ps, flag, ws):
             if j < 1 or flag[j] != 1:
                 break
             inside_run = False
-        while k > j:              # predict back from k to k - 1
-            Fi = np.linalg.inv(F[k])
-            xb = Fi @ xb
-            Pb = Fi @ (Pb + Q[k]) @ Fi.T
+        while k > j:              # predict back from k to k - 1: F^-1 (x, P + Q) by the core's predict
+            xb, Pb = _predicted(np.linalg.inv(F[k]), np.zeros_like(Q[k]), xb, Pb + Q[k], ws)
             k -= 1
         if not inside_run:
             idx, _nu, _S, e = _innovation(xb, Pb, H, R[j], z, j, ws)
@@ -116,6 +114,15 @@ def _after_reset(last, x, P, F, Q, H, R, z, gates, rej, xs, Ps, flag, ws):
         flag[j] = 3
         xs[j] = xb
         Ps[j] = 0.5 * (Pb + Pb.T)
+
+
+@njit(cache=True)
+def _predicted(F, Q, x, P, ws):
+    """(F x, F P F^T + Q) as new arrays, by :func:`mptrack._kalman_core.predict`."""
+    xp = x.copy()
+    Pp = P.copy()
+    predict(F, Q, xp, Pp, ws)
+    return xp, Pp
 
 
 @njit(cache=True)
@@ -185,8 +192,7 @@ def gated_loop(t, F, Q, H, R, z, x, P, gates, use_gate, max_rej, factor, start, 
     cand_S = np.empty((0, 0))     # its components and nominal innovation covariance
     loglik = 0.0
     for k in range(T):
-        x_pred = F[k] @ x
-        P_pred = F[k] @ P @ F[k].T + Q[k]
+        x_pred, P_pred = _predicted(F[k], Q[k], x, P, ws)
         xp[k] = x_pred
         Pp[k] = P_pred
         idx, nu, S, e = _innovation(x_pred, P_pred, H, R[k], z, k, ws)
@@ -206,8 +212,7 @@ def gated_loop(t, F, Q, H, R, z, x, P, gates, use_gate, max_rej, factor, start, 
                     _after_reset(k - 1, x, P, F, Q, H, R, z, gates, rej, xs, Ps, flag, ws)
                 xs[k - 1] = x
                 Ps[k - 1] = P
-                x_pred = F[k] @ x
-                P_pred = F[k] @ P @ F[k].T + Q[k]
+                x_pred, P_pred = _predicted(F[k], Q[k], x, P, ws)
                 xp[k] = x_pred
                 Pp[k] = P_pred
                 idx, nu, S, e = _innovation(x_pred, P_pred, H, R[k], z, k, ws)

@@ -7,7 +7,7 @@ motion is the model's integrator chain with white-noise density q_b.
 
 Likelihood.  The Gaussian log-likelihood of the innovations of the accepted
 fixes, conditional on the first ``order`` fixes of each stretch (a diffuse
-start: :func:`._engine.loglik_tracks`), so it depends on the data and (c, q)
+start: :func:`._likelihood.loglik_tracks`), so it depends on the data and (c, q)
 only, not on a prior.  R and Q are both proportional to c at a fixed ratio
 lambda = q/c, so for fixed lambda the maximising c is E/N (NIS sum over its
 count, at c = 1) and the scale is concentrated out (Harvey 1989, sec. 3.4):
@@ -15,7 +15,7 @@ the search is one-dimensional, over ln lambda.  With ``sigma_m`` or ``q``
 given, the other parameter is searched alone on the full likelihood.
 
 Search.  A grid of decades (+-4) around a method-of-moments start
-(:func:`._engine.moment_guess`), widened while the best point is at its edge,
+(:func:`._likelihood.moment_guess`), widened while the best point is at its edge,
 then golden-section search to 0.01 in ln lambda; all groups in lockstep, each
 step one compiled pass over the tracks.  Later rounds start from the last
 estimate (+-half a decade).
@@ -48,7 +48,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from ._columns import FixTable, median_by
-from ._engine import MANOEUVRE, OUTLIER, RESET, RESTART, SKIP, USE, filter_tracks, loglik_tracks, moment_guess
+from ._engine import MANOEUVRE, OUTLIER, RESET, filter_tracks
+from ._likelihood import RESTART, SKIP, USE, loglik_tracks, moment_guess
 from ._registry import DEFAULT_SIGMA_M
 
 __all__ = ["NoiseSpec", "NoiseEstimate", "SOURCES", "fix_weights", "estimate_noise", "MIN_FIXES", "SIGMA_FLOOR_M"]
