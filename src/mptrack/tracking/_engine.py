@@ -41,7 +41,7 @@ import math
 import numba as nb
 import numpy as np
 
-from .. import _jit_cache  # noqa: F401 - compiled kernels cache in the user's cache directory
+from .._core import jit_cache  # noqa: F401 - compiled kernels cache in the user's cache directory
 
 __all__ = ["FLAGS", "INIT", "UPDATE", "OUTLIER", "PREDICTED", "RESET", "MANOEUVRE", "MANOEUVRE_FACTOR",
            "MAX_ORDER", "filter_tracks",
@@ -139,7 +139,7 @@ def _predict(order, F, Qu, q, x, P, xp, Pp, T):
 def _update(order, xp, Pp, r, ze, zn, x, P):
     """Kalman update of both axes with the fix (ze, zn) of variance r; returns (NIS, S).
 
-    The rank-one form of :func:`mptrack._kalman_core.update` for H = [1, 0, ...] and one covariance
+    The rank-one form of :func:`mptrack._core.kalman.update` for H = [1, 0, ...] and one covariance
     shared by the two axes (S = P_00 + r, K = P[:, 0] / S), written out because it is inlined in the
     per-fix loop: a documented exception to the one compiled update, tested against it
     (tests/test_kalman_core.py)."""
