@@ -15,7 +15,7 @@ import platform
 from pathlib import Path
 
 from mptrack import __version__
-from mptrack._io import write_json
+from mptrack._core.files import write_json
 from mptrack.bench import run_suites
 
 

@@ -18,7 +18,7 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
-from mptrack._io import atomic_path  # noqa: E402
+from mptrack._core.files import atomic_path  # noqa: E402
 from mptrack.bench import run_suites  # noqa: E402
 
 

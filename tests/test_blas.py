@@ -1,13 +1,12 @@
-"""mptrack._blas: small Riccati solves run on one BLAS thread (OpenBLAS's spinning workers would take the
+"""mptrack.riccati._blas: small Riccati solves run on one BLAS thread (OpenBLAS's spinning workers would take the
 cores of the numba kernel that follows)."""
 
 import numpy as np
 import scipy.linalg  # noqa: F401 - its OpenBLAS is one of the libraries limited
 from threadpoolctl import threadpool_info
 
-from mptrack import _blas
 from mptrack.models import assimakis_model_b
-from mptrack.riccati import steady_state
+from mptrack.riccati import _blas, steady_state
 
 
 def _blas_threads():

@@ -380,7 +380,7 @@ def test_memory_limit_respects_the_address_space_limit(monkeypatch):
     the address-space limit, so it is refused first, by name."""
     import resource
 
-    from mptrack._validation import memory_limit
+    from mptrack._core.validation import memory_limit
     monkeypatch.delenv("MPTRACK_MAX_BYTES", raising=False)
     monkeypatch.setattr(resource, "getrlimit", lambda what: (6 * 2**30, resource.RLIM_INFINITY))
     assert memory_limit() <= 3 * 2**30

@@ -1,11 +1,11 @@
-"""The one compiled Kalman predict/update (mptrack._kalman_core) against the readable NumPy reference
+"""The one compiled Kalman predict/update (mptrack._core.kalman) against the readable NumPy reference
 :func:`mptrack.linear.kalman_step`, and the documented exceptions (the n = 2, m = 1 time blocks of the
 batch engine, the tracking engine's rank-one update) against the core, on random models with NaN gaps."""
 
 import numpy as np
 import pytest
 
-from mptrack import _kalman_core as core
+from mptrack._core import kalman as core
 from mptrack.batch import kalman_filter as batch_kalman_filter
 from mptrack.batch import steady_state_filter as batch_steady_state_filter
 from mptrack.linear import kalman_step

@@ -59,10 +59,10 @@ def test_the_from_import_statement_warns_and_unknown_names_still_fail():
 
 @pytest.mark.parametrize("module", ["mptrack.nonlinear", "mptrack.continuous", "mptrack.cellular",
                                     "mptrack.continuous._model", "mptrack.continuous._kernels",
-                                    "mptrack._filter_inputs", "mptrack.batch"])
+                                    "mptrack._core.filter_inputs", "mptrack.batch"])
 def test_each_package_imports_first_in_a_new_process(module):
     """continuous depends on nonlinear (and registers its model with nonlinear's filters through
-    mptrack._model_families); importing any of them first must work."""
+    mptrack._core.model_families); importing any of them first must work."""
     done = subprocess.run([sys.executable, "-W", "error::DeprecationWarning", "-c", f"import {module}"],
                           capture_output=True, text=True, timeout=120)
     assert done.returncode == 0, done.stderr

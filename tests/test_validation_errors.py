@@ -416,7 +416,7 @@ def test_unknown_name_is_also_a_value_error():
 
 # --------------------------------------------------------------------------- shared helpers
 
-from mptrack._validation import as_array, broadcast_shape  # noqa: E402
+from mptrack._core.validation import as_array, broadcast_shape  # noqa: E402
 
 
 @settings(max_examples=300, deadline=None)

@@ -33,7 +33,7 @@ def simulate(scenario: str = "gps", tracks: int = 10, *, seed: int = 0, **option
     :func:`mptrack.tracking.simulate` (duration_s, along, interval, q, sigma_m, outlier_rate, ...)."""
     import numpy as np
 
-    from ._validation import check_int
+    from ._core.validation import check_int
     from .tracking import simulate as _simulate
 
     log, cells = _simulate(scenario, tracks, np.random.default_rng(check_int("seed", seed, minimum=0)), **options)

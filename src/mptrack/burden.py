@@ -16,7 +16,7 @@ import math
 from fractions import Fraction
 from typing import Callable, Literal
 
-from ._validation import check_int, check_positive
+from ._core.validation import check_int, check_positive
 from .errors import ParameterError, UnknownNameError
 
 __all__ = [

@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._validation import (as_array, as_matrix, broadcast_shape, check_allocation, check_covariance, check_int,
+from ._core.validation import (as_array, as_matrix, broadcast_shape, check_allocation, check_covariance, check_int,
                           finite_result, renamed)
 from .errors import ParameterError, ShapeError, SingularMatrixError
 

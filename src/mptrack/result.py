@@ -68,7 +68,7 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 
-from ._validation import as_array, finite_result
+from ._core.validation import as_array, finite_result
 from .errors import ParameterError, ShapeError, SingularMatrixError
 
 __all__ = ["FilterResult", "BatchFilterResult", "normalised_innovation"]

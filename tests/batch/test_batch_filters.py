@@ -410,7 +410,7 @@ def test_interleaved_groups_with_mixed_lengths_and_gaps(axes):
 
 def test_parallel_launch_equals_single_thread_bitwise(monkeypatch):
     """Large batches run on all threads, small ones on one: the numbers must not depend on it."""
-    from mptrack import _threads
+    from mptrack._core import threads as _threads
 
     model = assimakis_model_b()
     z = np.random.default_rng(9).standard_normal((401, 200, 1))

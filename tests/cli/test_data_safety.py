@@ -17,8 +17,8 @@ import pandas as pd
 import pytest
 from typer.testing import CliRunner
 
-import mptrack._io as mio
-from mptrack._io import atomic_path, output_lock, stale_temp_files
+import mptrack._core.files as mio
+from mptrack._core.files import atomic_path, output_lock, stale_temp_files
 from mptrack.errors import OutputError
 from mptrack.tracking import TrackOptions, track_file
 from mptrack.cli import app

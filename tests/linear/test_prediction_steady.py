@@ -177,7 +177,7 @@ def test_the_steady_state_is_solved_once_per_model_and_shared_read_only():
     it, as the batch and single-track filters do) and get it read-only; another model, or the other
     form, gets its own, equal to a fresh solve."""
     from mptrack import batch
-    from mptrack._steady_input import steady_argument
+    from mptrack._core.steady_input import steady_argument
 
     one, two = constant_velocity(1.0, 0.01, 1, sigma_r2=0.1), constant_velocity(1.0, 0.01, 1, sigma_r2=0.1)
     ss = steady_argument(one, None)

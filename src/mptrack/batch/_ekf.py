@@ -19,8 +19,8 @@ from dataclasses import dataclass, field
 import numba as nb
 import numpy as np
 
-from .._kalman_core import OK, predict, update, workspace
-from .._validation import (
+from .._core.kalman import OK, predict, update, workspace
+from .._core.validation import (
     _overflow,
     as_matrix,
     check_covariance,
@@ -114,7 +114,7 @@ _TINY_RANGE = 1e-12   # metres; the floor of the single-track ekf_ranges
 
 @nb.njit(**_OPTS)
 def ekf_kernel(z, out, F, Q, R, stations, pos, x0, P0, lengths):
-    """The range EKF of every track: the predict and update of :mod:`mptrack._kalman_core` with the
+    """The range EKF of every track: the predict and update of :mod:`mptrack._core.kalman` with the
     ranges h(x(k/k-1)) and their Jacobian H (standard form); NaN ranges are skipped."""
     nb_, T = z.shape[0], z.shape[1]
     n = F.shape[0]

@@ -17,9 +17,9 @@ from typing import Callable
 
 import numpy as np
 
-from .._fir import coefficients_unchecked
-from .._steady_input import steady_argument
-from .._validation import (
+from .._core.fir import coefficients_unchecked
+from .._core.steady_input import steady_argument
+from .._core.validation import (
     _to_array,
     check_allocation,
     check_covariance,

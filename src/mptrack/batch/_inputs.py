@@ -6,9 +6,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._float_scan import any_nonfinite
-from .._threads import launch
-from .._validation import (
+from .._core.float_scan import any_nonfinite
+from .._core.threads import launch
+from .._core.validation import (
     _overflow,
     _to_array,
     as_array,

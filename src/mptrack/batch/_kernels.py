@@ -14,7 +14,7 @@ the plain joint model.  The n = 2, m = 1 block kernels also run the axes of a bl
 model (model A) this way, each with its own blocks of the model's matrices.
 
 A track with its own covariance (the KF after its first gap) runs the one compiled
-predict/update of :mod:`mptrack._kalman_core` (:func:`own_step`).  The shared-gain paths are the
+predict/update of :mod:`mptrack._core.kalman` (:func:`own_step`).  The shared-gain paths are the
 documented exception: complete steps run x = A(k) x + K(k) z with the shared gains -- in the generic
 kernels four tracks side by side in small arrays (:func:`_lane_steps`); tests/test_kalman_core.py
 checks them against the core.  Rows of k axes of n = 2, m = 1 (model B on z (B, T, 1), per axis, the
@@ -46,8 +46,8 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
-from .. import _jit_cache  # noqa: F401 - compiled kernels cache in the user's cache directory
-from .._kalman_core import OK, linear_update, predict, workspace
+from .._core import jit_cache  # noqa: F401 - compiled kernels cache in the user's cache directory
+from .._core.kalman import OK, linear_update, predict, workspace
 from ._vectors import (fma, source, stack_buffer, vadd, vbcast, vfma, vlane, vload, vmul, vsplat,
                        vstore2, vstore_axes, vstore_pairs, vsum)
 
@@ -249,7 +249,7 @@ def _ss21_steps(z, out, b, a, t0, t1, p, v, A, Bm, F, out_scale, joint):
 @nb.njit(cache=True, nogil=True)
 def own_step(F, H, Q, R, x, P, zb, t, ws, hx, periods):
     """One Kalman step (Assimakis & Adam 2014, eq. 4) with this track's own covariance P, in place: the
-    predict and update of :mod:`mptrack._kalman_core` with row t of zb (this track's (T, m) columns),
+    predict and update of :mod:`mptrack._core.kalman` with row t of zb (this track's (T, m) columns),
     ws, hx (m,), periods (m,) of zeros: its work arrays.  NaN components are skipped; a fully missing
     row only predicts; an innovation covariance without a Cholesky factor makes x, P NaN."""
     predict(F, Q, x, P, ws)

@@ -29,8 +29,8 @@ from typing import Any, Callable, Iterable, Literal
 import numpy as np
 import pandas as pd
 
-from .._io import atomic_path, write_json
-from .._validation import (
+from .._core.files import atomic_path, write_json
+from .._core.validation import (
     _to_array,
     check_allocation,
     check_covariance,

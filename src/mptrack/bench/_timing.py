@@ -6,7 +6,7 @@ import timeit
 
 import numba as nb
 
-from .. import _jit_cache  # noqa: F401 - compiled kernels cache in the user's cache directory
+from .._core import jit_cache  # noqa: F401 - compiled kernels cache in the user's cache directory
 
 __all__ = ["best_time", "copy_kernel"]
 

@@ -17,7 +17,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.optimize import least_squares
 
-from .._validation import (as_array, as_real, check_allocation, check_covariance, check_int, check_positive,
+from .._core.validation import (as_array, as_real, check_allocation, check_covariance, check_int, check_positive,
                            finite_result)
 from ..errors import ParameterError, ShapeError, SingularMatrixError
 from ..models import LinearGaussianModel, NonlinearModel, nonlinear_model, ranges

@@ -45,7 +45,7 @@ def bench(
     json_out: bool = JSON,
 ) -> None:
     """Benchmark mptrack against a memory-copy baseline and the Python peers, in one run."""
-    from .._io import write_json
+    from .._core.files import write_json
     from ..bench import run_suites, suites
 
     if list_:

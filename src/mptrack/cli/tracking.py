@@ -192,8 +192,8 @@ def track(
     if on_error != "skip":
         reject_given(ctx, ["max_skip"], "applies to --on-error skip")
     out = out or _default_out(input)
-    from .._io import output_lock
-    from .._validation import check_positive
+    from .._core.files import output_lock
+    from .._core.validation import check_positive
     from ..tracking import TrackOptions, track_file
 
     kept, summary, points = "", None, []
@@ -360,7 +360,7 @@ def simulate(
     import numpy as np
     import pandas as pd
 
-    from .._io import output_lock
+    from .._core.files import output_lock
     from ..io import ReadReport, write_table
     from ..tracking import simulate_chunks
 
@@ -436,7 +436,7 @@ def evaluate(
     """RMSE, NEES/NIS consistency and the error CDF of a track table against truth."""
     if truth is None:
         reject_given(ctx, ["tolerance_s"], "applies with --truth")
-    from .._io import output_lock
+    from .._core.files import output_lock
     from ..errors import DataError
     from ..io import ReadReport
     from ..tracking import evaluate_tracks, read_output

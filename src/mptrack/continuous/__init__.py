@@ -10,7 +10,7 @@ Kalman filter and the particle filter of :mod:`mptrack.nonlinear` take these mod
 (:func:`pf_substeps`: the particle filter's default sub-steps on them).
 """
 
-from .._model_families import ModelFamily, register_family
+from .._core.model_families import ModelFamily, register_family
 from ._fem import SCHEMES as FEM_SCHEMES
 from ._fem_profile import fem_profile
 from ._fem import FEMGrid, FEMStep, GridDensity, GridMixture, fem_filter, fem_steps, fem_substeps, shape_functions

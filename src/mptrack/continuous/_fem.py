@@ -77,7 +77,7 @@ import scipy.linalg.lapack
 import scipy.sparse
 import scipy.sparse.linalg
 
-from .._validation import (
+from .._core.validation import (
     as_array,
     broadcast_shape,
     check_allocation,
@@ -88,9 +88,9 @@ from .._validation import (
 )
 from ..errors import ConvergenceError, NotPositiveDefiniteError, ParameterError, ShapeError
 from ..result import FilterResult
-from .._filter_inputs import prepare_nonlinear
-from .._unscented import sigma_points
-from .._unscented import weights as _sigma_weights
+from .._core.filter_inputs import prepare_nonlinear
+from .._core.unscented import sigma_points
+from .._core.unscented import weights as _sigma_weights
 from ._fem_kernels import (
     band_cn,
     band_sdirk2,

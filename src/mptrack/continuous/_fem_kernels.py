@@ -20,7 +20,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from .. import _jit_cache  # noqa: F401 - compiled kernels cache in the user's cache directory
+from .._core import jit_cache  # noqa: F401 - compiled kernels cache in the user's cache directory
 from ._kernels import _BLOCK, _as_kernel, _flow
 
 __all__ = ["band_solve", "band_sdirk2", "band_cn", "deposit", "interpolate", "flow_points", "cholesky_solve",

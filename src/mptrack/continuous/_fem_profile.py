@@ -9,7 +9,7 @@ from unittest import mock
 
 import numpy as np
 
-from .._validation import check_int
+from .._core.validation import check_int
 from . import _fem, _fem_kernels
 from ._fem import fem_filter
 from ._model import ContinuousDiscreteModel

@@ -48,9 +48,9 @@ from numba.core import cgutils
 from numba.experimental.function_type import _get_jit_address, _get_wrapper_address
 from numba.extending import intrinsic, is_jitted
 
-from .. import _jit_cache  # noqa: F401 - compiled kernels cache in the user's cache directory
+from .._core import jit_cache  # noqa: F401 - compiled kernels cache in the user's cache directory
 from ..errors import ParameterError
-from .._kalman_core import DIVERGED, NOT_PD, OK, cholesky, finite, store, symmetrise, unscented_update
+from .._core.kalman import DIVERGED, NOT_PD, OK, cholesky, finite, store, symmetrise, unscented_update
 
 __all__ = ["BlockKernels", "CompiledModel", "compiled_model", "SCHEMES"]
 

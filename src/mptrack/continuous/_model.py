@@ -20,11 +20,11 @@ from typing import Callable
 
 import numpy as np
 
-from .._validation import (as_matrix, as_vector, check_allocation, check_covariance, check_int, check_positive,
+from .._core.validation import (as_matrix, as_vector, check_allocation, check_covariance, check_int, check_positive,
                            check_rng, finite_result, frozen)
 from ..errors import ParameterError, ShapeError
 from ..models import LinearGaussianModel, van_loan
-from .._gaussian import gauss_logpdf, wrap_periods
+from .._core.gaussian import gauss_logpdf, wrap_periods
 from . import _kernels as kern
 from ._kernels import SCHEMES, BlockKernels
 

@@ -1,7 +1,7 @@
 """The bootstrap particle filter on a continuous-discrete model: particles follow the SDE in sub-steps
 (:meth:`ContinuousDiscreteModel.sample_transition`, or the model's compiled kernels) and are weighted by
 its measurement density.  :func:`mptrack.nonlinear.particle_filter` runs it (registered with
-mptrack._model_families by this package's ``__init__``); :func:`pf_substeps` is its default of sub-steps.
+mptrack._core.model_families by this package's ``__init__``); :func:`pf_substeps` is its default of sub-steps.
 """
 
 from __future__ import annotations

@@ -14,10 +14,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._validation import check_allocation, check_int, finite_result
+from .._core.validation import check_allocation, check_int, finite_result
 from ..errors import ParameterError
 from ..result import FilterResult
-from .._filter_inputs import prepare_nonlinear
+from .._core.filter_inputs import prepare_nonlinear
 from ..nonlinear import particle_filter
 from ._model import ContinuousDiscreteModel
 from ._pf import pf_substeps

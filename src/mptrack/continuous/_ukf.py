@@ -13,8 +13,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._gaussian import LOG2PI
-from .._unscented import sigma_points, sigma_points_unchecked, weights
+from .._core.gaussian import LOG2PI
+from .._core.unscented import sigma_points, sigma_points_unchecked, weights
 from ..errors import ConvergenceError, ParameterError
 from ..result import FilterResult, innovation_arrays
 from . import _kernels as kern

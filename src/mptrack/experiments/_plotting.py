@@ -9,7 +9,7 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
-from .._io import atomic_path  # noqa: E402
+from .._core.files import atomic_path  # noqa: E402
 
 __all__ = ["plt", "save_figure"]
 

@@ -11,7 +11,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Iterable, Iterator
 
-from .._io import read_pickle, write_pickle
+from .._core.files import read_pickle, write_pickle
 from ..errors import UnknownNameError
 from ._results import Reproduction
 

@@ -8,7 +8,7 @@ from pathlib import Path
 from typing import Any
 
 from .. import __version__
-from .._io import write_json
+from .._core.files import write_json
 
 __all__ = ["Table", "Reproduction", "differences", "COUNT_KEYS"]
 

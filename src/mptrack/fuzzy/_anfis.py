@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import lsq_linear
 
-from .._validation import as_array, check_int, check_positive
+from .._core.validation import as_array, check_int, check_positive
 from ..errors import ParameterError, ShapeError
 from ._membership import MembershipFunction
 from ._ts import TakagiSugeno

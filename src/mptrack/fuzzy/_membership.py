@@ -6,7 +6,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._validation import (
+from .._core.validation import (
     as_array,
     as_real,
     check_allocation,

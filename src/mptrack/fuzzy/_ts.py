@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._validation import as_array, as_vector
+from .._core.validation import as_array, as_vector
 from ..errors import ParameterError, ShapeError
 from ._membership import MembershipFunction
 

@@ -8,15 +8,14 @@ with ``on_error="skip"`` bad rows are dropped and counted in a :class:`ReadRepor
 """
 
 from ._geodesy import LocalFrame, enu_to_geodetic, geodetic_to_enu
-from ._gpx_out import NAMESPACE as GPX_EXTENSION_NAMESPACE
+from ._gpx import NAMESPACE as GPX_EXTENSION_NAMESPACE
 from ._formats import FORMATS, input_format
 from ._interpret import ReadOptions
 from ._readers import (InputNotSorted, input_columns, iter_track_chunks, iter_tracks, read_cells, read_chunks,
                        read_table)
 from ._schema import CELLS, FIXES, MEASUREMENTS, ON_ERROR, Column, ReadReport, Schema, cell_key
 from ._parts import PartStore
-from ._outputs import read_output
-from ._writers import OUTPUT_FORMATS, output_format, write_table
+from ._outputs import OUTPUT_FORMATS, output_format, read_output, write_table
 
 __all__ = [
     "Column",

@@ -33,7 +33,7 @@ from typing import Callable, Iterator
 
 import pandas as pd
 
-from .._validation import check_path
+from .._core.validation import check_path
 from ..errors import DataError
 
 __all__ = ["FORMATS", "FORMAT_NAMES", "Skipped", "input_format", "raw_chunks"]
@@ -50,8 +50,8 @@ FORMAT_NAMES = {"csv": "CSV", "parquet": "Parquet", "gpx": "GPX", "nmea": "NMEA 
                 "geojson": "GeoJSON"}
 
 #: formats decoded by a module of their own (imported on first use): format -> module
-_DECODERS = {"gpx": "._gpx_reader", "nmea": "._nmea_reader", "fit": "._fit_reader", "tcx": "._tcx_reader",
-             "geojson": "._geojson_reader"}
+_DECODERS = {"gpx": "._gpx", "nmea": "._nmea_reader", "fit": "._fit_reader", "tcx": "._tcx_reader",
+             "geojson": "._geojson"}
 
 _SNIFF_BYTES = 64 * 1024
 _DELIMITERS = ",;\t|"

@@ -29,8 +29,8 @@ from dataclasses import dataclass
 import numba as nb
 import numpy as np
 
-from .. import _jit_cache  # noqa: F401 - compiled kernels cache in the user's cache directory
-from .._validation import LATITUDE, LONGITUDE, as_array, broadcast_shape
+from .._core import jit_cache  # noqa: F401 - compiled kernels cache in the user's cache directory
+from .._core.validation import LATITUDE, LONGITUDE, as_array, broadcast_shape
 from ..errors import ParameterError
 
 __all__ = ["LocalFrame", "geodetic_to_enu", "enu_to_geodetic"]
@@ -44,7 +44,7 @@ _EP2 = _E2 / (1.0 - _E2)
 _RAD = math.pi / 180.0           # radians per degree
 _DEG = 180.0 / math.pi           # degrees per radian
 
-# Valid ranges, as keyword arguments of mptrack._validation.as_array (and LATITUDE, LONGITUDE from there).
+# Valid ranges, as keyword arguments of mptrack._core.validation.as_array (and LATITUDE, LONGITUDE from there).
 _METRES = dict(unit="m")
 #: east/north of enu_to_geodetic: their squares must stay finite (points that far miss the ellipsoid anyway)
 _PLANE = dict(low=-1e150, high=1e150, unit="m")

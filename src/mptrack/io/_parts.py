@@ -2,7 +2,7 @@
 output is streamed from them, one part in memory at a time.
 
 The part store of ``out`` belongs to the run holding the lock of ``out``
-(:func:`mptrack._io.output_lock`): only that run creates, resumes, cleans or discards it."""
+(:func:`mptrack._core.files.output_lock`): only that run creates, resumes, cleans or discards it."""
 
 from __future__ import annotations
 
@@ -12,13 +12,13 @@ from pathlib import Path
 
 import pandas as pd
 
-from .._validation import check_path, renamed
+from .._core.validation import check_path, renamed
 from ..errors import DataError, OutputError
-from ._writers import output_format, write_table
+from ._outputs import output_format, write_table
 
 __all__ = ["PartStore"]
 
-#: The temporary files of :func:`mptrack._io.atomic_path` for a part (``<name>-NNNNNN.arrow`` or
+#: The temporary files of :func:`mptrack._core.files.atomic_path` for a part (``<name>-NNNNNN.arrow`` or
 #: ``.parquet``) or the manifest: ``.<file>.XXXXXXXX.tmp<suffix>``.
 _TEMP = re.compile("|".join(rf"\.{name}\.[a-z0-9_]{{8}}\.tmp\.{ext}" for name, ext in
                             ((r"[a-z_]+-\d{6}\.arrow", "arrow"), (r"[a-z_]+-\d{6}\.parquet", "parquet"),

@@ -12,8 +12,8 @@ from typing import Iterator
 import numpy as np
 import pandas as pd
 
-from .._tracks import track_offsets
-from .._validation import check_int, check_on_error, source_label
+from .._core.tracks import track_offsets
+from .._core.validation import check_int, check_on_error, source_label
 from ..errors import DataError, ParameterError
 from ._formats import raw_chunks
 from ._interpret import ReadOptions, interpret

@@ -1,4 +1,5 @@
-"""Columns as text, vectorised (Arrow compute): the values of the GeoJSON and GPX writers.
+"""Columns as text and back, vectorised (Arrow compute): the values of the GeoJSON and GPX writers, and
+the columns their readers restore (:func:`restore`).
 
 A column's *kind* (:func:`column_kind`) is what the readers restore it to:
 "float", "int", "bool", "string" or "time".  :func:`column_text` turns a whole
@@ -19,10 +20,16 @@ import pandas as pd
 import pyarrow as pa
 import pyarrow.compute as pc
 
+from ..errors import DataError
+
 __all__ = ["KINDS", "column_kind", "column_text", "per_run", "is_degrees", "text", "join", "wrap", "iso_utc",
-           "write_texts"]
+           "write_texts", "restore", "ISO_Z"]
 
 KINDS = ("float", "int", "bool", "string", "time")
+#: The Arrow type each kind but "time" is restored to.
+_TYPES = {"float": pa.float64(), "int": pa.int64(), "bool": pa.bool_(), "string": pa.large_string()}
+#: An ISO 8601 time in UTC with ``Z``, as :func:`iso_utc` writes it.
+ISO_Z = r"\d{4}-\d\d-\d\dT\d\d:\d\d:\d\d(\.\d+)?Z"
 
 #: Columns in degrees (positions): written to 1e-7 degrees (about 1 cm) in GeoJSON and GPX.
 _DEGREES = re.compile(r"(^|_)(lat|lon)$|_deg$")
@@ -127,3 +134,23 @@ def write_texts(fh, values) -> None:
         return
     offsets = np.frombuffer(values.buffers()[1], np.int64)[values.offset:values.offset + len(values) + 1]
     fh.write(memoryview(values.buffers()[2])[int(offsets[0]):int(offsets[-1])])
+
+
+def restore(data: dict[str, list], kinds: dict[str, str | None], file=None) -> pd.DataFrame:
+    """A DataFrame of column value lists (JSON values or XML text; None for missing), each column
+    converted to its kind (float/int/bool/string/time; None: as pandas infers)."""
+    columns = {}
+    for name, values in data.items():
+        kind = kinds.get(name)
+        try:
+            if kind == "time":
+                columns[name] = pd.to_datetime(pd.Series(values, dtype=object), format="ISO8601",
+                                               utc=True).dt.as_unit("ns")
+            elif kind in _TYPES:
+                columns[name] = pa.array(values).cast(_TYPES[kind]).to_pandas()
+            else:
+                columns[name] = pd.Series(values)
+        except (ValueError, TypeError, pa.ArrowException) as exc:
+            raise DataError(f"values are not of the kind {kind!r} the file declares: {exc}", file=file,
+                            column=name) from None
+    return pd.DataFrame(columns)

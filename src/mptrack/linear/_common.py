@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._validation import as_sequence, as_vector, check_covariance
+from .._core.validation import as_sequence, as_vector, check_covariance
 from ..models import require_model
 
 __all__ = ["prepare_inputs"]

@@ -5,8 +5,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._rts import rts_backward_linear
-from .._validation import (
+from .._core.rts import rts_backward_linear
+from .._core.validation import (
     as_array,
     as_sequence,
     as_vector,
@@ -15,7 +15,7 @@ from .._validation import (
     finite_result,
     renamed,
 )
-from .._van_loan import intervals_unchecked
+from .._core.van_loan import intervals_unchecked
 from ..errors import ParameterError, ShapeError
 from ..models import ContinuousLinearModel, require_model
 from ..result import FilterResult, innovation_arrays

@@ -6,7 +6,7 @@ from typing import Callable
 
 import numpy as np
 
-from .._validation import (
+from .._core.validation import (
     _to_array,
     as_sequence,
     as_vector,

@@ -3,7 +3,7 @@
 The equations are those of the readable single-step functions
 :func:`kalman_step` and :func:`lainiotis_step` (the tests check that both give
 the same numbers); the KF loop runs the one compiled predict/update of
-:mod:`mptrack._kalman_core`; compiling the loop removes the per-call overhead of NumPy on
+:mod:`mptrack._core.kalman`; compiling the loop removes the per-call overhead of NumPy on
 small matrices, which otherwise dominates (tens of microseconds per step).
 Kernels are compiled on first use and cached on disk (``cache=True``).
 """
@@ -13,8 +13,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from .. import _jit_cache  # noqa: F401 - compiled kernels cache in the user's cache directory
-from .._kalman_core import OK, linear_update, predict, record_update, store, workspace
+from .._core import jit_cache  # noqa: F401 - compiled kernels cache in the user's cache directory
+from .._core.kalman import OK, linear_update, predict, record_update, store, workspace
 
 __all__ = ["kf_loop", "lf_loop", "ss_loop"]
 
@@ -22,7 +22,7 @@ __all__ = ["kf_loop", "lf_loop", "ss_loop"]
 def kf_loop(F, H, Q, R, z, x0, P0, joseph, xs, Ps, xps, Pps, nus, Ss, nis):  # pragma: no cover - compiled
     """KF over all steps; NaN components of z are skipped. Returns the log-likelihood.
 
-    Predict and update are those of :mod:`mptrack._kalman_core` (standard form, or Joseph form when
+    Predict and update are those of :mod:`mptrack._core.kalman` (standard form, or Joseph form when
     ``joseph``).  Writes the innovation, its covariance S and the NIS of the components used into nus
     (T, m), Ss (T, m, m) and nis (T,), which the caller fills with NaN (left there for missing
     components).  An innovation covariance without a Cholesky factor makes the rest of the run NaN

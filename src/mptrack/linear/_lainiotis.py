@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._validation import as_array, as_matrix, as_vector, finite_result
+from .._core.validation import as_array, as_matrix, as_vector, finite_result
 from ..errors import ParameterError
 from ..models import LinearGaussianModel
 from ..result import FilterResult

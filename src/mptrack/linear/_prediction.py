@@ -19,9 +19,9 @@ from typing import Literal
 
 import numpy as np
 
-from .._lyapunov import power_sum_unchecked
-from .._steady_input import steady_argument
-from .._validation import as_array, check_int, check_record, finite_result
+from .._core.lyapunov import power_sum_unchecked
+from .._core.steady_input import steady_argument
+from .._core.validation import as_array, check_int, check_record, finite_result
 from ..errors import ParameterError, ShapeError, SingularMatrixError
 from ..models import LinearGaussianModel, require_model
 from ..result import FilterResult

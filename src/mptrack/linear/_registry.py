@@ -7,7 +7,7 @@ from typing import Callable
 
 import numpy as np
 
-from .._validation import lookup
+from .._core.validation import lookup
 from ..errors import UnknownNameError
 from ..models import LinearGaussianModel, assimakis_model_a, assimakis_model_b
 from ..result import FilterResult, mask_missing

@@ -6,9 +6,9 @@ from typing import Literal
 
 import numpy as np
 
-from .._fir import coefficients_unchecked
-from .._steady_input import steady_argument
-from .._validation import (
+from .._core.fir import coefficients_unchecked
+from .._core.steady_input import steady_argument
+from .._core.validation import (
     as_matrix,
     check_allocation,
     check_int,

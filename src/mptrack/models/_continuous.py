@@ -28,7 +28,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.linalg
 
-from .._validation import (
+from .._core.validation import (
     as_matrix,
     as_vector,
     check_allocation,
@@ -40,7 +40,7 @@ from .._validation import (
     frozen,
     renamed,
 )
-from .._van_loan import intervals_unchecked, van_loan_unchecked
+from .._core.van_loan import intervals_unchecked, van_loan_unchecked
 from ..errors import ParameterError, ShapeError
 from ._linear import LinearGaussianModel, require_model, stack_axes
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import Literal
 
-from .._validation import check_int, check_positive, derived_from
+from .._core.validation import check_int, check_positive, derived_from
 from ..errors import ParameterError
 from ._linear import LinearGaussianModel, stack_axes
 

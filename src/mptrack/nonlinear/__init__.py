@@ -9,7 +9,7 @@ and :mod:`mptrack.continuous` (SDE models and the FEM grid filter of Zhao et al.
 still import from here for one release, with a DeprecationWarning.
 """
 
-from .._moved import moved_names
+from .._core.moved import moved_names
 from ..result import BatchFilterResult
 from ._extended import ekf_filter, ekf_filter_batch, ekf_smoother, ekf_step
 from ._imm import IMMResult, cv_ca_models, imm_filter

@@ -17,9 +17,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._filter_inputs import check_prior, prepare_nonlinear
-from .._rts import rts_backward
-from .._validation import (
+from .._core.filter_inputs import check_prior, prepare_nonlinear
+from .._core.rts import rts_backward
+from .._core.validation import (
     as_array,
     as_vector,
     check_covariance,

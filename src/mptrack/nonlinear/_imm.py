@@ -16,8 +16,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._filter_inputs import check_prior, prepare_nonlinear
-from .._validation import as_matrix, as_real, as_vector, check_positive, finite_result, require_finite
+from .._core.filter_inputs import check_prior, prepare_nonlinear
+from .._core.validation import as_matrix, as_real, as_vector, check_positive, finite_result, require_finite
 from ..errors import ParameterError, ShapeError
 from ..result import FilterResult
 from ..models import LinearGaussianModel, MeasurementModel, NonlinearModel, constant_acceleration

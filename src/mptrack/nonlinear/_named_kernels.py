@@ -7,7 +7,7 @@ indices of the position, -1 padded).  :func:`ekf_filter`, :func:`ukf_filter` and
 :func:`ekf_filter_batch` then validate once and run one compiled loop over the T steps (and the B
 tracks) with the arithmetic of the generic path: Joseph-form EKF, unscented transform through f and h
 with the circular mean of the angles, innovations wrapped into [-π, π), NaN components skipped, the
-same log-likelihood: the compiled Kalman update of :mod:`mptrack._kalman_core`, which the generic
+same log-likelihood: the compiled Kalman update of :mod:`mptrack._core.kalman`, which the generic
 path also calls (through :mod:`mptrack.nonlinear._step_kernels`).  The tests pin the two paths to
 1e-10 on identical inputs.
 
@@ -22,8 +22,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from .. import _jit_cache  # noqa: F401 - compiled kernels cache in the user's cache directory
-from .._kalman_core import (
+from .._core import jit_cache  # noqa: F401 - compiled kernels cache in the user's cache directory
+from .._core.kalman import (
     DIVERGED,
     NOT_PD,
     OK,

@@ -4,11 +4,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._validation import as_array, check_allocation, check_int, check_positive, check_rng, finite_result
+from .._core.validation import as_array, check_allocation, check_int, check_positive, check_rng, finite_result
 from ..errors import ParameterError
 from ..result import FilterResult
-from .._filter_inputs import check_prior, prepare_nonlinear
-from .._model_families import model_family
+from .._core.filter_inputs import check_prior, prepare_nonlinear
+from .._core.model_families import model_family
 from ..models import NonlinearModel
 from . import _pf_kernels as kern
 

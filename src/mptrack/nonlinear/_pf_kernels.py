@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from .. import _jit_cache  # noqa: F401 - compiled kernels cache in the user's cache directory
+from .._core import jit_cache  # noqa: F401 - compiled kernels cache in the user's cache directory
 
 __all__ = ["reweight", "weighted_moments", "systematic_indices", "resample"]
 

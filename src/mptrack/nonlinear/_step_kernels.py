@@ -15,7 +15,7 @@ do the same arithmetic:
           circle and innovations wrapped into [-π, π) (any period: the continuous-discrete UKF too)
 
 The update itself (innovation, Cholesky factor, gain, Joseph or standard form, log-likelihood) is the
-one compiled Kalman update of :mod:`mptrack._kalman_core`; this module adds the sigma points, the
+one compiled Kalman update of :mod:`mptrack._core.kalman`; this module adds the sigma points, the
 unscented moments and the ``*_into`` entry points with their finiteness checks.  NaN components of z
 are skipped.  A core reports a problem by a status code instead of raising: NOT_PD (an innovation
 covariance without a Cholesky factor), DIVERGED (a non-finite input or result).
@@ -26,8 +26,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from .. import _jit_cache  # noqa: F401 - compiled kernels cache in the user's cache directory
-from .._kalman_core import (
+from .._core import jit_cache  # noqa: F401 - compiled kernels cache in the user's cache directory
+from .._core.kalman import (
     DIVERGED,
     NOT_PD,
     OK,
@@ -117,7 +117,7 @@ def unscented_moments_into(Y, Wm, Wc, Q, x_out, P_out):
 
 @njit(cache=True, nogil=True)
 def ukf_update_into(x, P, X, Zf, Wm, Wc, R, z, k, periods, x_out, P_out, nus, Ss, nis, row):
-    """:func:`mptrack._kalman_core.unscented_update` into x_out, P_out (and row ``row`` of nus, Ss, nis)
+    """:func:`mptrack._core.kalman.unscented_update` into x_out, P_out (and row ``row`` of nus, Ss, nis)
     with the finiteness checks: (status, loglik)."""
     x_out[:] = x
     P_out[:, :] = P

@@ -6,7 +6,7 @@ their weighted covariance plus Q; the update draws new sigma points of the
 prediction (as Stone Soup and Särkkä 2013 alg. 5.14 do).
 
 Continuous-discrete models (:class:`mptrack.continuous.ContinuousDiscreteModel`; the code is in
-mptrack/continuous/_ukf.py, registered with mptrack._model_families when mptrack.continuous is imported):
+mptrack/continuous/_ukf.py, registered with mptrack._core.model_families when mptrack.continuous is imported):
 
 Prediction integrates the moment equations of the SDE with unscented
 expectations (Särkkä 2007, IEEE TAC 52(10)):
@@ -34,10 +34,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._filter_inputs import check_prior, prepare_nonlinear
-from .._model_families import model_family
-from .._unscented import check_unscented, covariance_sqrt, sigma_points, weights
-from .._validation import finite_result
+from .._core.filter_inputs import check_prior, prepare_nonlinear
+from .._core.model_families import model_family
+from .._core.unscented import check_unscented, covariance_sqrt, sigma_points, weights
+from .._core.validation import finite_result
 from ..errors import ParameterError
 from ..result import FilterResult, innovation_arrays
 from ..models import NonlinearModel

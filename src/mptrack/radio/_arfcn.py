@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._validation import as_array
+from .._core.validation import as_array
 from ..errors import DTypeError, ParameterError, UnknownNameError
 
 __all__ = ["GsmBand", "GSM_BANDS", "arfcn_to_frequency", "frequency_to_arfcn"]

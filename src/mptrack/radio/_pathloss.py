@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._validation import as_array, as_real, broadcast_shape, finite_result
+from .._core.validation import as_array, as_real, broadcast_shape, finite_result
 from ..errors import ParameterError
 from ._validity import check_policy, check_range
 

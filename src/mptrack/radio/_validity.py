@@ -5,7 +5,7 @@ from __future__ import annotations
 import warnings
 
 
-from .._validation import as_array
+from .._core.validation import as_array
 from ..errors import ParameterError
 
 __all__ = ["ValidityWarning", "check_range", "check_policy", "POLICIES"]

@@ -9,7 +9,7 @@ import math
 from importlib import resources
 from pathlib import Path
 
-from .._io import atomic_path
+from .._core.files import atomic_path
 
 __all__ = ["asset", "page", "write_page", "json_script", "esc", "clean"]
 

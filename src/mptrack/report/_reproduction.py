@@ -8,7 +8,7 @@ import base64
 import re
 from pathlib import Path
 
-from .._validation import check_path
+from .._core.validation import check_path
 from ..errors import ParameterError
 from ._page import esc, page, write_page
 

@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from .._validation import check_frame, check_int, check_path, point_numbers
+from .._core.validation import check_frame, check_int, check_path, point_numbers
 from ..errors import DataError, ParameterError, ShapeError
 from ._decimate import DEFAULT_BUDGET
 from ._page import esc, json_script, page, write_page

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._validation import as_matrix
+from .._core.validation import as_matrix
 from ..errors import ConvergenceError, NotDetectableError, NotStabilisableError, ShapeError
 
 __all__ = ["unstable_modes_unobservable", "undriven_modes", "check_detectable", "check_stabilisable"]

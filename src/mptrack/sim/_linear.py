@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._validation import (
+from .._core.validation import (
     as_vector,
     check_allocation,
     check_int,

@@ -18,7 +18,7 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from .._validation import LATITUDE, LONGITUDE, as_real, check_frame, check_on_error, lookup
+from .._core.validation import LATITUDE, LONGITUDE, as_real, check_frame, check_on_error, lookup
 from ..errors import DataError, ParameterError
 from ..io import LocalFrame, ReadReport
 from ..models import constant_velocity_continuous

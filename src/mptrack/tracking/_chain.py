@@ -25,7 +25,7 @@ import math
 import numba as nb
 import numpy as np
 
-from .. import _jit_cache  # noqa: F401 - compiled kernels cache in the user's cache directory
+from .._core import jit_cache  # noqa: F401 - compiled kernels cache in the user's cache directory
 
 MAX_ORDER = 3
 LOG2PI = math.log(2.0 * math.pi)

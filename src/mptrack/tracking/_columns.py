@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
-from .._tracks import track_offsets
+from .._core.tracks import track_offsets
 from ..io import geodetic_to_enu
 
 __all__ = ["FixTable", "median_by", "time_values"]

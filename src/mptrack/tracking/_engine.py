@@ -415,7 +415,7 @@ def _smooth_track(t, q, order, flag, X, P, wk):
     """RTS backward pass over one track's X, P (filtered -> smoothed, in place), separately on
     each stretch that starts at the track's first fix or at a reset.
 
-    The backward recursion of :mod:`mptrack._rts` written out for the engine's shared covariance of
+    The backward recursion of :mod:`mptrack._core.rts` written out for the engine's shared covariance of
     two axes (one smoother gain C for both): a documented exception to the one RTS pass, tested
     against it through :func:`._gated.smooth_gated` (tests/tracking/test_tracking_engine.py)."""
     mats, st, _, W, _ = wk

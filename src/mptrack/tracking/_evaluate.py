@@ -20,7 +20,7 @@ import numpy as np
 import pandas as pd
 import scipy.stats
 
-from .._validation import check_bool, check_frame, check_path, check_positive, point_numbers
+from .._core.validation import check_bool, check_frame, check_path, check_positive, point_numbers
 from ..errors import DataError, ParameterError
 from ..io import FIXES, LocalFrame, ReadOptions, ReadReport, input_columns, read_table
 from ._advice import evaluation_nis
@@ -65,7 +65,7 @@ def _one_track_ids(truth: pd.DataFrame, tracks: pd.DataFrame, file) -> pd.DataFr
 
 
 def _check_points(name: str, tracks, columns=()) -> None:
-    """A point table with ``columns``, its numbers checked (:func:`mptrack._validation.point_numbers`)."""
+    """A point table with ``columns``, its numbers checked (:func:`mptrack._core.validation.point_numbers`)."""
     check_frame(name, tracks, columns, point_numbers(tracks, POINT_COLUMNS + _ADDED))
 
 

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
-from .._validation import LATITUDE, LONGITUDE, as_real, as_vector, check_frame, check_positive, renamed
+from .._core.validation import LATITUDE, LONGITUDE, as_real, as_vector, check_frame, check_positive, renamed
 from ..errors import ParameterError
 from ..linear import get_filter
 from ..result import FilterResult

@@ -40,11 +40,11 @@ from dataclasses import dataclass, fields
 import numpy as np
 import scipy.stats
 
-from .._validation import (_overflow, as_array, as_real, as_sequence, as_vector, check_covariance, check_int,
+from .._core.validation import (_overflow, as_array, as_real, as_sequence, as_vector, check_covariance, check_int,
                            check_positive, check_record, finite_result, renamed, require_finite)
 from ..errors import ParameterError, ShapeError
-from .._rts import rts_backward_linear
-from .._van_loan import intervals_unchecked
+from .._core.rts import rts_backward_linear
+from .._core.van_loan import intervals_unchecked
 from ..models import ContinuousLinearModel, require_model
 from ..result import FilterResult, innovation_arrays
 from ._engine import FLAGS, INIT, MANOEUVRE_FACTOR

@@ -1,7 +1,7 @@
 """The gated irregular-time Kalman loop of :func:`kalman_filter_gated`, compiled (numba).
 
 Same equations as :func:`mptrack.linear.kalman_step` per step, run by the one
-compiled predict/update of :mod:`mptrack._kalman_core` (tests check the result
+compiled predict/update of :mod:`mptrack._core.kalman` (tests check the result
 against :func:`mptrack.linear.kalman_filter_irregular`), plus the
 two-level NIS gate and the restart of the module doc of ``_gated``, on the
 general (n, m) matrices of a continuous model.  This is the readable reference
@@ -14,8 +14,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from .. import _jit_cache  # noqa: F401 - compiled kernels cache in the user's cache directory
-from .._kalman_core import LOG2PI, OK, apply_gain, innovation, predict, update, whiten, workspace
+from .._core import jit_cache  # noqa: F401 - compiled kernels cache in the user's cache directory
+from .._core.kalman import LOG2PI, OK, apply_gain, innovation, predict, update, whiten, workspace
 
 
 @njit(cache=True)
@@ -128,7 +128,7 @@ def _predicted(F, Q, x, P, ws):
 @njit(cache=True)
 def _innovation(x_pred, P_pred, H, R, z, k, ws):
     """(observed component indices, innovation, its covariance S, NIS) of row k of z (copies out of the
-    workspace ws of :func:`mptrack._kalman_core.innovation`); NIS inf when S is not positive definite."""
+    workspace ws of :func:`mptrack._core.kalman.innovation`); NIS inf when S is not positive definite."""
     q = innovation(P_pred, H, H @ x_pred, R, z, k, np.zeros(H.shape[0]), ws)
     e = 0.0
     if q > 0:
@@ -150,7 +150,7 @@ def _record(k, idx, nu, S, nus, Ss):
 
 @njit(cache=True)
 def _kalman_update(x_pred, P_pred, H, R, z, k, ws):
-    """x(k/k), P(k/k) from the prediction and row k of z (:func:`mptrack._kalman_core.update`, standard
+    """x(k/k), P(k/k) from the prediction and row k of z (:func:`mptrack._core.kalman.update`, standard
     form); NaN when the innovation covariance is not positive definite."""
     x = x_pred.copy()
     P = P_pred.copy()

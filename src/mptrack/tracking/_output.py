@@ -13,7 +13,7 @@ import numpy as np
 import pyarrow as pa
 import scipy.stats
 
-from .._validation import as_array, as_vector, check_positive
+from .._core.validation import as_array, as_vector, check_positive
 from ..errors import ParameterError, ShapeError
 from ..io import enu_to_geodetic
 from ._engine import FLAGS

@@ -26,9 +26,9 @@ import numpy as np
 import pandas as pd
 import pyarrow as pa
 
-from .._io import output_lock
-from .._tracks import track_offsets
-from .._validation import check_int, check_outputs, check_path, source_label
+from .._core.files import output_lock
+from .._core.tracks import track_offsets
+from .._core.validation import check_int, check_outputs, check_path, source_label
 from ..batch import Chunk, read_part, run_stream
 from ..errors import MptrackError, ParameterError
 from ..io import (FIXES, MEASUREMENTS, InputNotSorted, PartStore, ReadOptions, ReadReport, iter_track_chunks,
@@ -238,7 +238,7 @@ def track_file(input, out, *, cells=None, options: TrackOptions = TrackOptions()
     by the input.  Returns a summary dict (JSON-safe).
 
     Data safety: an output that is an input (or inside an input directory) is refused; ``out`` and
-    ``track_summary`` are locked for the whole run (:func:`mptrack._io.output_lock`; another run
+    ``track_summary`` are locked for the whole run (:func:`mptrack._core.files.output_lock`; another run
     writing them -> OutputError at once) and their stale temporary files removed.  A run stopped
     by bad input or options leaves nothing (a resumed run keeps the parts it came to resume); one
     stopped by Ctrl-C (KeyboardInterrupt), an OS failure (OutputError/OSError: disk full, ...) or

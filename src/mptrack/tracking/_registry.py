@@ -6,7 +6,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Callable
 
-from .._validation import lookup
+from .._core.validation import lookup
 from ..linear import FILTERS as LINEAR_FILTERS
 from ..models import ContinuousLinearModel, constant_acceleration_continuous, constant_velocity_continuous
 from ..cellular import ekf_ranges, fcs_ranges, fekf_ranges

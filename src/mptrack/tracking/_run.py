@@ -14,8 +14,8 @@ import numpy as np
 import pandas as pd
 import pyarrow as pa
 
-from .._validation import derived_from, require_finite
-from .._tracks import track_offsets
+from .._core.validation import derived_from, require_finite
+from .._core.tracks import track_offsets
 from ._columns import FixTable
 from ._engine import filter_tracks
 from ._fixes import TrackOptions, track_fixes

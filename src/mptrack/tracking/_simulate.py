@@ -37,7 +37,7 @@ from typing import Callable, Iterator
 import numpy as np
 import pandas as pd
 
-from .._validation import (
+from .._core.validation import (
     as_real,
     check_allocation,
     check_bool,

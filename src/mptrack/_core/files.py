@@ -47,7 +47,7 @@ import tempfile
 from pathlib import Path
 from typing import Any, Iterator
 
-from .errors import MptrackError, OutputError
+from ..errors import MptrackError, OutputError
 
 try:
     import fcntl

@@ -26,7 +26,8 @@ from numba.core import caching, config
 
 __all__ = ["cache_root"]
 
-PACKAGE = Path(__file__).resolve().parent
+#: mptrack's own directory (this module is in its _core package)
+PACKAGE = Path(__file__).resolve().parents[1]
 
 
 def cache_root() -> Path:

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import (
+from ..errors import (
     DTypeError,
     MptrackError,
     NonFiniteError,
@@ -102,7 +102,7 @@ def check_values(name: str, arr: np.ndarray, *, finite: bool = True, allow_nan: 
     not copied to float64 to be checked)."""
     bounded = low > -math.inf or high < math.inf
     if finite and not bounded and _scannable(arr):   # large float data: one parallel pass
-        from ._float_scan import any_infinite, any_nonfinite
+        from .float_scan import any_infinite, any_nonfinite
         if (any_infinite if allow_nan else any_nonfinite)(arr):
             _check_values(name, arr, finite, allow_nan, low, high, unit)
     elif (finite or bounded) and arr.size and not _extremes_ok(_finite_data(arr), low, high, finite):
@@ -110,7 +110,7 @@ def check_values(name: str, arr: np.ndarray, *, finite: bool = True, allow_nan: 
 
 
 def _scannable(arr: np.ndarray) -> bool:
-    """Large enough for the compiled scan of :mod:`mptrack._float_scan` to pay (and laid out for it)."""
+    """Large enough for the compiled scan of :mod:`mptrack._core.float_scan` to pay (and laid out for it)."""
     return arr.size >= (1 << 20) and arr.dtype in (np.float64, np.float32) and arr.flags.c_contiguous
 
 

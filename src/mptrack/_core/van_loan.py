@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.linalg
 
-from .errors import ParameterError
+from ..errors import ParameterError
 
 __all__ = ["van_loan_unchecked", "intervals_unchecked"]
 

@@ -9,8 +9,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from . import _jit_cache  # noqa: F401 - compiled kernels cache in the user's cache directory
-from .result import FilterResult
+from . import jit_cache  # noqa: F401 - compiled kernels cache in the user's cache directory
+from ..result import FilterResult
 
 __all__ = ["rts_backward", "rts_backward_linear", "smoother_gains"]
 

@@ -14,8 +14,8 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from . import _jit_cache  # noqa: F401 - compiled kernels cache in the user's cache directory
-from ._threads import launch
+from . import jit_cache  # noqa: F401 - compiled kernels cache in the user's cache directory
+from .threads import launch
 
 __all__ = ["any_nonfinite", "any_infinite"]
 

@@ -5,9 +5,9 @@ from __future__ import annotations
 
 import dataclasses
 
-from ._validation import frozen
-from .errors import ParameterError
-from .riccati import SteadyState, steady_state
+from .validation import frozen
+from ..errors import ParameterError
+from ..riccati import SteadyState, steady_state
 
 __all__ = ["steady_argument"]
 

@@ -1,15 +1,15 @@
 """Argument handling shared by the filters for nonlinear models: the generic filters of mptrack.nonlinear
-(any :class:`mptrack.models.NonlinearModel`, and the model types registered in mptrack._model_families)
+(any :class:`mptrack.models.NonlinearModel`, and the model types registered in mptrack._core.model_families)
 and the filters of mptrack.continuous (FEM grid filter, reference filter)."""
 
 from __future__ import annotations
 
 import numpy as np
 
-from ._model_families import family_kinds
-from ._validation import as_sequence, as_vector, check_covariance, check_int
-from .errors import ParameterError
-from .models import NonlinearModel
+from .model_families import family_kinds
+from .validation import as_sequence, as_vector, check_covariance, check_int
+from ..errors import ParameterError
+from ..models import NonlinearModel
 
 __all__ = ["prepare_nonlinear", "check_prior", "PRIORS"]
 
