@@ -114,7 +114,7 @@ def predict(order, F, Qu, q, x, P, xp, Pp, T):
 def update(order, xp, Pp, r, ze, zn, x, P):
     """Kalman update of both axes with the fix (ze, zn) of variance r; returns (NIS, S).
 
-    The rank-one form of :func:`mptrack._kalman_core.update` for H = [1, 0, ...] and one covariance
+    The rank-one form of :func:`mptrack._core.kalman.update` for H = [1, 0, ...] and one covariance
     shared by the two axes (S = P_00 + r, K = P[:, 0] / S), written out because it is inlined in the
     per-fix loop: a documented exception to the one compiled update, tested against it
     (tests/test_kalman_core.py)."""
