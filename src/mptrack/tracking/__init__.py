@@ -4,8 +4,7 @@ with truth, and evaluation against truth.  ``mptrack track/simulate/evaluate`` a
 
 from ._cellular import TA_STEP_M, band_of_arfcn, check_cell_ids, ranges_km, track_cells
 from ._evaluate import TRUTH_COLUMNS, attach_truth, evaluate_tracks
-from ._engine import (FLAGS, STATE_VERSION, Revisions, advance_tracks, empty_states, state_from_bytes, state_size,
-                      state_to_bytes)
+from ._engine import FLAGS
 from ._fixes import TrackOptions, track_fixes
 from ._gated import GatedResult, kalman_filter_gated, nis_threshold, smooth_gated, track_gated
 from ._noise import SOURCES as NOISE_SOURCES
@@ -51,13 +50,6 @@ __all__ = [
     "nis_threshold",
     "GatedResult",
     "FLAGS",
-    "advance_tracks",
-    "empty_states",
-    "state_size",
-    "state_to_bytes",
-    "state_from_bytes",
-    "STATE_VERSION",
-    "Revisions",
     "MODELS",
     "MotionModel",
     "get_model",
