@@ -1,0 +1,294 @@
+"""Group commit of accepted fixes through the live filter into the store.
+
+Requests hand their parsed fixes to :meth:`Ingest.submit` and wait.  One task gathers everything
+submitted meanwhile into a batch and, on one writer thread: sorts it by (device, time), tells each
+fix apart as new (later than every fix of its device: it goes through the live filter), late (stored
+with history, not filtered) or an exact duplicate (acknowledged, not stored again); advances the
+live filter of every device in the batch in one call of the compiled engine
+(:class:`mptrack.tracking.LiveTracks`); writes fixes and estimates in one durable transaction; and
+only then wakes the requests, which answer 200.  If the write fails, the filters of the batch's
+devices are put back as they were and every request of the batch fails (503): nothing half-done
+is acknowledged.  While a batch commits, the next one gathers.
+
+Every few seconds (:attr:`Ingest.checkpoint_s`) the writer re-estimates the noise of devices with
+enough new fixes and checkpoints the live states of the devices that changed; after a crash the
+fixes stored since the last checkpoint are replayed through the same filter (:meth:`Ingest.recover`),
+which gives the states the filter had, so the live estimates resume exactly.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import threading
+import time
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..tracking import ESTIMATE_FIELDS, FLAGS, LiveTracks, ellipse
+from ._fix import iso_time
+from ._store import Store
+
+__all__ = ["Ingest", "Counters", "FLAG_NAMES", "LATE", "ESTIMATES"]
+
+#: Names of the stored ``flag`` values: the tracking engine's flags, then "late" (stored, not filtered).
+FLAG_NAMES = tuple(FLAGS) + ("late",)
+LATE = len(FLAGS)
+#: What :meth:`mptrack.tracking.LiveTracks.advance` returns for each fix, in the order stored (ESTIMATE_COLUMNS).
+ESTIMATES = ESTIMATE_FIELDS
+
+
+@dataclass
+class Counters:
+    """What ingest has done since the server started."""
+
+    accepted: int = 0        # fixes answered 200
+    filtered: int = 0        # ... that went through the live filter
+    late: int = 0            # ... stored with history only (older than their device's last fix)
+    duplicates: int = 0      # ... exact repeats of a stored fix, not stored again
+    batches: int = 0         # group commits
+    refused: dict = field(default_factory=dict)   # refused requests by reason (code)
+
+    def refuse(self, code: str) -> None:
+        self.refused[code] = self.refused.get(code, 0) + 1
+
+
+class Ingest:
+    """The group-commit writer (see the module doc)."""
+
+    def __init__(self, store: Store, live: LiveTracks, *, checkpoint_s: float = 10.0,
+                 calibrate_after: int = 30, history_fixes: int = 2000):
+        self.store = store
+        self.live = live
+        self.checkpoint_s = checkpoint_s
+        self.calibrate_after = calibrate_after
+        self.history_fixes = history_fixes
+        self.counters = Counters()
+        self.keys: dict[str, int] = {}           # device id -> key (the live filter's track index)
+        self.ids: list[str] = []
+        self.lock = threading.Lock()             # the live state: the writer while it steps, readers
+        self._writer = ThreadPoolExecutor(1, thread_name_prefix="mptrack-writer")
+        self._pending: list = []                 # (fixes, future) waiting for the next batch
+        self._wake: asyncio.Event | None = None
+        self._task: asyncio.Task | None = None
+        self._closing = False
+        self._dirty: set[int] = set()            # devices changed since the last checkpoint
+        self._since_calibration = np.zeros(0, dtype=np.int64)
+        self._last_checkpoint = time.monotonic()
+        self.listeners: set[asyncio.Queue] = set()
+
+    # ---- start, recovery, stop --------------------------------------------------------------------
+    def recover(self) -> None:
+        """Load the device keys, the last checkpoint and replay the fixes stored after it."""
+        for dev, device in self.store.device_keys():
+            if dev != len(self.ids):
+                raise RuntimeError(f"device keys are not contiguous at {dev}")  # pragma: no cover
+            self.ids.append(device)
+            self.keys[device] = dev
+        self._grow(len(self.ids))
+        states, upto = self.store.load_checkpoint()
+        for device, blob in states:
+            dev = self.keys.get(device)
+            if dev is not None:
+                self.live.load_state(dev, blob)
+        for rows in self.store.replay(upto):
+            use = rows["flag"] != LATE
+            dev, t = rows["dev"][use], rows["t"][use]
+            order = np.lexsort((t, dev))
+            dev, t = dev[order], t[order]
+            lat, lon, acc = rows["lat"][use][order], rows["lon"][use][order], rows["accuracy_m"][use][order]
+            self.live.advance(dev, t, lat, lon, acc)
+            self._dirty.update(np.unique(dev).tolist())
+
+    def start(self) -> None:
+        self._wake = asyncio.Event()
+        self._task = asyncio.get_running_loop().create_task(self._run())
+
+    async def close(self) -> None:
+        """Commit what is pending, checkpoint, stop the writer."""
+        self._closing = True
+        if self._wake is not None:
+            self._wake.set()
+        if self._task is not None:
+            await self._task
+        await asyncio.get_running_loop().run_in_executor(self._writer, self._checkpoint, True)
+        self._writer.shutdown(wait=True)
+
+    # ---- the request side ------------------------------------------------------------------------
+    async def submit(self, fixes: list[tuple]) -> None:
+        """Wait until ``fixes`` are committed (raises what the commit raised)."""
+        if self._closing:
+            raise ConnectionAbortedError("the server is stopping")
+        fut = asyncio.get_running_loop().create_future()
+        self._pending.append((fixes, fut))
+        self._wake.set()
+        await fut
+
+    async def _run(self) -> None:
+        loop = asyncio.get_running_loop()
+        while True:
+            await self._wake.wait()
+            self._wake.clear()
+            if not self._pending:
+                if self._closing:
+                    return
+                continue
+            batch, self._pending = self._pending, []
+            fixes = [f for fs, _ in batch for f in fs]
+            try:
+                published = await loop.run_in_executor(self._writer, self._commit, fixes)
+            except Exception as exc:  # every request of the batch fails; nothing was acknowledged
+                for _, fut in batch:
+                    if not fut.done():
+                        fut.set_exception(exc)
+                continue
+            for fs, fut in batch:
+                if not fut.done():
+                    fut.set_result(None)
+            if published is not None and self.listeners:
+                for q in list(self.listeners):
+                    if q.qsize() < 1000:
+                        q.put_nowait(published)
+            if self._pending:
+                self._wake.set()
+
+    # ---- the writer thread ---------------------------------------------------------------------
+    def _grow(self, n: int) -> None:
+        if n > len(self._since_calibration):
+            size = max(n, 2 * len(self._since_calibration), 1024)
+            self._since_calibration = np.r_[self._since_calibration,
+                                            np.zeros(size - len(self._since_calibration), np.int64)]
+        if n > self.live.n:
+            self.live.add(n - self.live.n)
+
+    def _commit(self, fixes: list[tuple]):
+        now = time.time()
+        new_devices = []
+        keys = self.keys
+        dev = np.empty(len(fixes), dtype=np.int64)
+        for i, f in enumerate(fixes):
+            k = keys.get(f[0])
+            if k is None:
+                k = keys[f[0]] = len(self.ids)
+                self.ids.append(f[0])
+                new_devices.append((k, f[0]))
+            dev[i] = k
+        try:
+            self._grow(len(self.ids))
+            cols = list(zip(*fixes))
+            t = np.array(cols[1], dtype=float)
+            lat = np.array(cols[2], dtype=float)
+            lon = np.array(cols[3], dtype=float)
+            acc = np.array([np.nan if a is None else a for a in cols[4]], dtype=float)
+            order = np.lexsort((t, dev))
+            d, ts, la, lo = dev[order], t[order], lat[order], lon[order]
+            first = np.r_[True, d[1:] != d[:-1]]
+            prev_t = np.where(first, np.nan, np.r_[np.nan, ts[:-1]])
+            prev_same = ~first & (ts == prev_t) & (la == np.r_[np.nan, la[:-1]]) & (lo == np.r_[np.nan, lo[:-1]])
+            last = self.live.last_fixes(d)
+            dup_last = (ts == last[:, 0]) & (la == last[:, 1]) & (lo == last[:, 2])
+            duplicate = prev_same | dup_last
+            new = ~duplicate & ~(ts <= last[:, 0]) & ~(ts == prev_t)  # NaN last: a first fix is new
+            late = ~duplicate & ~new
+            sel = order[new]
+            with self.lock:
+                saved = self.live.save_states(np.unique(dev[sel]))
+                est = self.live.advance(dev[sel], t[sel], lat[sel], lon[sel], acc[sel])
+            rows = _rows(fixes, dev, sel, est, now)
+            late_rows = _rows(fixes, dev, order[late], None, now)
+            try:
+                stored_late = self.store.write(rows, late_rows, new_devices)
+            except BaseException:
+                with self.lock:
+                    self.live.restore_states(saved)
+                raise
+        except BaseException:
+            for k, device in new_devices:  # not stored: forget the keys given in this batch
+                del keys[device]
+            del self.ids[len(self.ids) - len(new_devices):]
+            raise
+        touched = dev[sel]
+        np.add.at(self._since_calibration, touched, 1)
+        self._dirty.update(np.unique(touched).tolist())
+        c = self.counters
+        c.accepted += len(fixes)
+        c.filtered += len(sel)
+        c.late += stored_late
+        c.duplicates += len(fixes) - len(sel) - stored_late
+        c.batches += 1
+        if time.monotonic() - self._last_checkpoint >= self.checkpoint_s:
+            self._checkpoint()
+        return (sel, fixes, est, dev) if self.listeners else None
+
+    def _checkpoint(self, final: bool = False) -> None:
+        """Re-estimate the noise of devices with enough new fixes, then store the changed states."""
+        due = np.flatnonzero(self._since_calibration >= self.calibrate_after)
+        if len(due):
+            history = [(int(d), self.store.fixes(int(d), limit=None)) for d in due]
+            with self.lock:
+                self.live.calibrate([d for d, _ in history], [_recent(rows, self.history_fixes) for _, rows in history])
+            self._since_calibration[due] = 0
+            self._dirty.update(due.tolist())
+        if self._dirty:
+            upto = self.store.last_row()
+            with self.lock:
+                states = [(self.ids[d], self.live.state_bytes(d)) for d in sorted(self._dirty)]
+            self.store.checkpoint(states, upto)
+            self._dirty.clear()
+        self._last_checkpoint = time.monotonic()
+
+    # ---- the stream --------------------------------------------------------------------------------
+    def events(self, published, device: str | None = None) -> list[str]:
+        """The Server-Sent Events ``data:`` payloads of one committed batch (one JSON per fix; only
+        ``device``'s when given)."""
+        sel, fixes, est, dev = published
+        major, minor, az = ellipse(est["var_e"], est["cov_en"], est["var_n"])
+        out = []
+        for j, i in enumerate(sel.tolist()):
+            f = fixes[i]
+            if device is not None and f[0] != device:
+                continue
+            e = {k: _num(v[j]) for k, v in est.items()}
+            e.update(device=f[0], time=iso_time(f[1]), raw_lat=f[2], raw_lon=f[3], accuracy_m=f[4],
+                     flag=FLAG_NAMES[int(est["flag"][j])], ell_major_m=_num(major[j]), ell_minor_m=_num(minor[j]),
+                     ell_azimuth_deg=_num(az[j]))
+            out.append(json.dumps(e, separators=(",", ":")))
+        return out
+
+
+def _recent(rows, n: int):
+    """The last ``n`` filtered (not late) fixes of a device's stored rows."""
+    use = np.flatnonzero(rows["flag"] != LATE)[-n:]
+    return {k: rows[k][use] for k in ("t", "lat", "lon", "accuracy_m")}
+
+
+def _rows(fixes: list[tuple], dev: np.ndarray, sel: np.ndarray, est: dict | None, now: float) -> list[tuple]:
+    """The stored rows (FIX_COLUMNS + ESTIMATE_COLUMNS) of ``fixes[sel]`` with their estimates."""
+    out = []
+    keys = dev.tolist()
+    if est is None:
+        empty = (None,) * 8 + (LATE,)
+        for i in sel.tolist():
+            f = fixes[i]
+            out.append((keys[i],) + f[1:8] + (_attrs(f[8]), now) + empty)
+        return out
+    cols = [est[k].tolist() for k in ESTIMATES]
+    for j, i in enumerate(sel.tolist()):
+        f = fixes[i]
+        out.append((keys[i],) + f[1:8] + (_attrs(f[8]), now) + tuple(_nan_none(c[j]) for c in cols))
+    return out
+
+
+def _attrs(attrs) -> str | None:
+    return None if not attrs else json.dumps(attrs, separators=(",", ":"), allow_nan=False, default=str)
+
+
+def _nan_none(v):
+    return None if v != v else v
+
+
+def _num(v):
+    v = v.item() if isinstance(v, np.generic) else v
+    return None if isinstance(v, float) and v != v else v
