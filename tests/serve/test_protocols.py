@@ -189,7 +189,7 @@ def test_bulk_csv_and_ndjson_in_the_columns_mptrack_track_reads():
         ["car-1", "car-1", "car-2"]
     by = {(r["device"], r["t"]): r for r in rows}
     assert by[("car-2", 1767268801.0)]["accuracy_m"] is None and by[("car-1", 1767268800.0)]["accuracy_m"] == 5
-    nd = b"\n".join(json.dumps({"track_id": "t1", "time": 1767268800 + i, "lat": 1 + i * 1e-4, "lon": 2}).encode()
+    nd = b"\n".join(json.dumps({"track_id": "t1", "time": 1767268800 + i, "lat": 52.5 + i * 1e-4, "lon": 13.4}).encode()
                     for i in range(3))
     rows = [_fix(f) for f in parse_bulk(nd, "ndjson", {}, NOW)]
     assert [r["t"] for r in rows] == [1767268800.0, 1767268801.0, 1767268802.0]
@@ -198,15 +198,17 @@ def test_bulk_csv_and_ndjson_in_the_columns_mptrack_track_reads():
 @pytest.mark.parametrize("body, kind, field", [
     (b"", "csv", None),
     (b"track_id,time,x,y\na,2026-01-01T00:00:00Z,1,2\n", "csv", "lat"),
-    (b"track_id,time,lat,lon\na,5,1,2\na,6,1,2.1\n", "csv", "time"),
+    (b"track_id,time,lat,lon\na,5,52.5,13.4\na,6,52.5,13.41\n", "csv", "time"),
     (b"track_id,time,lat,lon\na,2026-01-01T00:00:00Z,95,2\n", "csv", "lat"),
     (b"track_id,time,lat,lon\na;b,2026-01-01T00:00:00Z,5,2\n", "csv", "track_id"),
+    (b"track_id,time,lat,lon\na,2026-01-01T00:00:00Z,0.5,0.2\na,2026-01-01T00:00:01Z,0.5,0.21\n", "csv", "lat"),
     (b'{"track_id": "a", "time": 1767268800, "lat": 1}\n{', "ndjson", None),
 ])
 def test_bulk_bad_input(body, kind, field):
     with pytest.raises(RequestError) as e:
         parse_bulk(body, kind, {}, NOW)
     assert e.value.field == field and 400 <= e.value.status < 500, str(e.value)
+    assert "--" not in str(e.value)  # the server's parameters, not the command line's options
 
 
 # ---- properties -------------------------------------------------------------------------------------------

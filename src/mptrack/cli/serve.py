@@ -4,6 +4,7 @@ for the query API and the map)."""
 
 from __future__ import annotations
 
+import contextlib
 import ipaddress
 from pathlib import Path
 from typing import Optional
@@ -78,6 +79,8 @@ def serve(
 
     import uvicorn
 
+    _Server = _server_class()
+
     from ..serve import ServeConfig, create_app
     from ..tracking import get_model
 
@@ -94,8 +97,24 @@ def serve(
         where = "localhost" if _loopback(host) else host
         note(f"listening on http://{where}:{port}/ (live map there; OsmAnd/Traccar Client: server URL "
              f"http://{where}:{port}; OwnTracks: http://{where}:{port}/pub), database {config.db}", "serve")
-    uvicorn.run(app, host=host, port=port, log_level="warning" if quiet else "info", access_log=False,
-                lifespan="on", timeout_graceful_shutdown=10)
+    _Server(uvicorn.Config(app, host=host, port=port, log_level="warning" if quiet else "info", access_log=False,
+                           lifespan="on", timeout_graceful_shutdown=10)).run()
+
+
+def _server_class():
+    import uvicorn
+
+    class Server(uvicorn.Server):
+        """uvicorn's server, except that stopping by SIGTERM/SIGINT (after the graceful shutdown that
+        commits every acknowledged fix) exits 0 instead of re-raising the signal."""
+
+        @contextlib.contextmanager
+        def capture_signals(self):
+            with super().capture_signals():
+                yield
+                self._captured_signals.clear()
+
+    return Server
 
 
 def _db_url(db: str) -> str:

@@ -185,14 +185,17 @@ class Server:
         headers = dict(scope["headers"])
         params = dict(parse_qsl(scope["query_string"].decode("latin-1")))
         secret, user = credentials(headers, params.get(_osmand.TOKEN_PARAMETER))
-        u = params.get("u") or _header(headers, b"x-limit-u") or user
+        owner = self.registry.device(secret) if self.config.auth else None
+        u = params.get("u") or _header(headers, b"x-limit-u")
         d = params.get("d") or _header(headers, b"x-limit-d")
-        if user and "/" in user and not params.get("u") and not _header(headers, b"x-limit-u"):
-            u, d = user.split("/", 1)
-        device = _owntracks.device_of(u, d)
+        if not u and user:  # HTTP Basic's user is USER/DEVICE (or USER)
+            u, _, d = user.partition("/")
+        device = _owntracks.device_of(u, d) if u or owner is None else owner
         body = await _body(receive, headers, self.config.max_body)
         fixes = _owntracks.parse_body(body, device)
-        await self._accept(fixes, headers, secret, device=device, resolved=True)
+        if owner is not None:
+            check_device(device, owner)
+        await self._accept(fixes, headers, None, device=device, checked=True)
         return 200, b"[]", b"application/json"
 
     async def _bulk(self, scope, receive):
@@ -212,11 +215,10 @@ class Server:
         return 200, json.dumps({"accepted": len(fixes)}).encode(), b"application/json"
 
     async def _accept(self, fixes: list[tuple], headers: dict, key: str | None, *, device: str | None = None,
-                      resolved: bool = False) -> None:
-        """Check the device's token (``key`` is the secret itself when ``resolved``) and its rate, then
-        wait for the commit."""
-        if self.config.auth:
-            owner = self.registry.device(key if resolved else credentials(headers, key)[0])
+                      checked: bool = False) -> None:
+        """Check the device's token (unless ``checked``) and its rate, then wait for the commit."""
+        if self.config.auth and not checked:
+            owner = self.registry.device(credentials(headers, key)[0])
             for claimed in {device} if device else {f[0] for f in fixes}:
                 check_device(claimed, owner)
         if not fixes:
@@ -233,9 +235,12 @@ def create_app(config: ServeConfig = ServeConfig()) -> Server:
 
 
 # ---- small ASGI helpers --------------------------------------------------------------------------------
+_OSMAND = (b"id=", b"deviceid=", b"lat=", b"lon=", b"location=")
+
+
 def _is_osmand(query: bytes) -> bool:
-    """A GET / with a device id is an OsmAnd fix (without one it is the map page)."""
-    return query.startswith((b"id=", b"deviceid=")) or b"&id=" in query or b"&deviceid=" in query
+    """A GET / with a device id or a position is an OsmAnd fix (without any it is the map page)."""
+    return query.startswith(_OSMAND) or any(b"&" + p in query for p in _OSMAND)
 
 
 def _one(parsed) -> tuple[list[tuple], str | None]:

@@ -40,9 +40,9 @@ def parse_body(body: bytes, kind: str, params: dict, now: float | None = None) -
         rows = read_table(raw, FIXES, read=read)
     except DataError as exc:
         where = f"row {exc.row}: " if exc.row is not None else ""
-        raise RequestError(f"{where}{exc.reason}", status=422, field=exc.column) from None
+        raise RequestError(f"{where}{_parameters(exc.reason)}", status=422, field=exc.column) from None
     except MptrackError as exc:
-        raise RequestError(str(exc), status=422) from None
+        raise RequestError(_parameters(str(exc)), status=422) from None
     if "lat" not in rows.columns:
         raise RequestError("the server needs geographic positions (lat/lon columns), not local x/y metres",
                            status=422, field="lat")
@@ -74,13 +74,21 @@ def parse_body(body: bytes, kind: str, params: dict, now: float | None = None) -
     return list(zip(*cols))
 
 
+def _parameters(message: str) -> str:
+    """A reader's message with its command-line options named as this route's query parameters."""
+    for name in READ_PARAMETERS:
+        message = message.replace(f"--{name.replace('_', '-')} ", f"?{name}=").replace(f"--{name.replace('_', '-')}",
+                                                                                       f"?{name}")
+    return message
+
+
 def _frame(body: bytes, kind: str) -> pd.DataFrame:
     if not body.strip():
         raise RequestError("the body is empty", code="missing_field")
     try:
         if kind == "csv":
             return pd.read_csv(_stdio.BytesIO(body))
-        return pd.read_json(_stdio.BytesIO(body), lines=True, dtype=False, convert_dates=False)
+        return pd.read_json(_stdio.BytesIO(body), lines=True, dtype=False)
     except (ValueError, UnicodeDecodeError, pd.errors.ParserError) as exc:
         what = "CSV" if kind == "csv" else "NDJSON (one JSON object per line)"
         raise RequestError(f"the body is not valid {what}: {str(exc).splitlines()[0][:200]}",

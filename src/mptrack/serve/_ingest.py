@@ -10,8 +10,8 @@ only then wakes the requests, which answer 200.  If the write fails, the filters
 devices are put back as they were and every request of the batch fails (503): nothing half-done
 is acknowledged.  While a batch commits, the next one gathers.
 
-Every few seconds (:attr:`Ingest.checkpoint_s`) the writer re-estimates the noise of devices with
-enough new fixes and checkpoints the live states of the devices that changed; after a crash the
+Every few seconds (:attr:`Ingest.checkpoint_s`) the writer applies the noise re-estimated (on another
+thread) for devices with enough new fixes and checkpoints the live states of the devices that changed; after a crash the
 fixes stored since the last checkpoint are replayed through the same filter (:meth:`Ingest.recover`),
 which gives the states the filter had, so the live estimates resume exactly.
 """
@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import asyncio
 import json
+import logging
 import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
@@ -33,6 +34,9 @@ from ._store import Store
 
 __all__ = ["Ingest", "Counters", "FLAG_NAMES", "LATE", "ESTIMATES"]
 
+log = logging.getLogger("mptrack.serve")
+#: The most devices whose noise one round re-estimates.
+MAX_ESTIMATED = 2000
 #: Names of the stored ``flag`` values: the tracking engine's flags, then "late" (stored, not filtered).
 FLAG_NAMES = tuple(FLAGS) + ("late",)
 LATE = len(FLAGS)
@@ -70,6 +74,8 @@ class Ingest:
         self.ids: list[str] = []
         self.lock = threading.Lock()             # the live state: the writer while it steps, readers
         self._writer = ThreadPoolExecutor(1, thread_name_prefix="mptrack-writer")
+        self._estimator = ThreadPoolExecutor(1, thread_name_prefix="mptrack-noise")
+        self._estimating = None                  # the noise estimate under way (a Future)
         self._pending: list = []                 # (fixes, future) waiting for the next batch
         self._wake: asyncio.Event | None = None
         self._task: asyncio.Task | None = None
@@ -115,6 +121,7 @@ class Ingest:
             await self._task
         await asyncio.get_running_loop().run_in_executor(self._writer, self._checkpoint, True)
         self._writer.shutdown(wait=True)
+        self._estimator.shutdown(wait=True)
 
     # ---- the request side ------------------------------------------------------------------------
     async def submit(self, fixes: list[tuple]) -> None:
@@ -223,14 +230,25 @@ class Ingest:
         return (sel, fixes, est, dev) if self.listeners else None
 
     def _checkpoint(self, final: bool = False) -> None:
-        """Re-estimate the noise of devices with enough new fixes, then store the changed states."""
-        due = np.flatnonzero(self._since_calibration >= self.calibrate_after)
-        if len(due):
-            history = [(int(d), self.store.fixes(int(d), limit=None)) for d in due]
-            with self.lock:
-                self.live.calibrate([d for d, _ in history], [_recent(rows, self.history_fixes) for _, rows in history])
-            self._since_calibration[due] = 0
-            self._dirty.update(due.tolist())
+        """Apply the noise estimates that are ready and start the next (devices with enough new fixes,
+        estimated beside the filter on another thread), then store the changed states.  Noise changes
+        only here, right before the states are stored, so a replay from this checkpoint is exact."""
+        fut = self._estimating
+        if fut is not None and (fut.done() or final):
+            self._estimating = None
+            try:
+                due, noise = fut.result()
+            except Exception as exc:  # an estimate that fails leaves the devices' noise as it was
+                log.warning("noise estimation failed: %s", exc)
+            else:
+                with self.lock:
+                    self.live.set_noise(due, noise)
+                self._dirty.update(due.tolist())
+        if self._estimating is None and not final:
+            due = np.flatnonzero(self._since_calibration[:len(self.ids)] >= self.calibrate_after)[:MAX_ESTIMATED]
+            if len(due):
+                self._since_calibration[due] = 0
+                self._estimating = self._estimator.submit(self._estimate, due)
         if self._dirty:
             upto = self.store.last_row()
             with self.lock:
@@ -238,6 +256,15 @@ class Ingest:
             self.store.checkpoint(states, upto)
             self._dirty.clear()
         self._last_checkpoint = time.monotonic()
+
+    def _estimate(self, due: np.ndarray) -> tuple[np.ndarray, dict]:
+        """(due, noise) from the devices' recent stored fixes (on the estimator thread)."""
+        histories = []
+        for d in due.tolist():
+            rows = self.store.recent(d, self.history_fixes)
+            use = rows["flag"] != LATE
+            histories.append({k: rows[k][use] for k in ("t", "lat", "lon", "accuracy_m")})
+        return due, self.live.estimate_noise(histories)
 
     # ---- the stream --------------------------------------------------------------------------------
     def events(self, published, device: str | None = None) -> list[str]:
@@ -256,12 +283,6 @@ class Ingest:
                      ell_azimuth_deg=_num(az[j]))
             out.append(json.dumps(e, separators=(",", ":")))
         return out
-
-
-def _recent(rows, n: int):
-    """The last ``n`` filtered (not late) fixes of a device's stored rows."""
-    use = np.flatnonzero(rows["flag"] != LATE)[-n:]
-    return {k: rows[k][use] for k in ("t", "lat", "lon", "accuracy_m")}
 
 
 def _rows(fixes: list[tuple], dev: np.ndarray, sel: np.ndarray, est: dict | None, now: float) -> list[tuple]:

@@ -172,6 +172,10 @@ class SqliteStore:
             args += (int(limit),)
         return _columns(self._reader().execute(sql, args).fetchall())
 
+    def recent(self, dev: int, n: int) -> StoredRows:
+        rows = self._reader().execute(f"{_SELECT} WHERE dev = ? ORDER BY t DESC LIMIT ?", (int(dev), int(n))).fetchall()
+        return _columns(rows[::-1])
+
     def device_keys(self) -> list[tuple[int, str]]:
         return self._reader().execute("SELECT dev, device_id FROM device_keys ORDER BY dev").fetchall()
 

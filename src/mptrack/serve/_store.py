@@ -78,6 +78,9 @@ class Store(Protocol):
               limit: int | None = None) -> StoredRows:
         """A device's stored fixes with t0 <= t <= t1, in time order."""
 
+    def recent(self, dev: int, n: int) -> StoredRows:
+        """A device's last ``n`` stored fixes (by time), in time order."""
+
     def device_keys(self) -> list[tuple[int, str]]:
         """(key, device id) of every device that has sent a fix."""
 

@@ -68,7 +68,7 @@ def track_body(device: str, rows: StoredRows, smooth: bool, fmt: str) -> tuple[b
         frame = live_frame(device, rows)
     media, suffix = FORMATS[fmt]
     if suffix is None:
-        return frame.to_json(orient="records", date_format="iso", date_unit="ms").encode(), media
+        return frame.to_json(orient="records", date_format="iso", date_unit="ms", double_precision=15).encode(), media
     with tempfile.TemporaryDirectory(prefix="mptrack-track-") as tmp:
         path = Path(tmp) / f"track{suffix}"
         write_table(frame, path)

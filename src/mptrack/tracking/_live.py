@@ -10,9 +10,8 @@ fixes ends.
 Noise.  A new track starts from what its first fix says: with an accuracy, fix variance
 c * accuracy^2 with c the population's current accuracy scale (1 until tracks are calibrated);
 without one, c = the population's current sigma^2 (``mptrack track``'s default, 5 m, until
-then).  :meth:`LiveTracks.calibrate` re-estimates c and q of some tracks from their recent fixes by
-the maximum likelihood of ``mptrack track`` (:mod:`._noise`), and the population values follow the
-medians of the calibrated tracks.
+then).  The noise of tracks is re-estimated from their recent fixes by the maximum likelihood of
+``mptrack track`` (:mod:`._noise`), and the population values follow the medians of the calibrated tracks.
 """
 
 from __future__ import annotations
@@ -29,9 +28,10 @@ from ._columns import FixTable
 from ._engine import advance_tracks, empty_states, state_from_bytes, state_to_bytes
 from ._engine import _layout  # the state row's layout: where x and P of the last fix are
 from ._fixes import TrackOptions
-from ._noise import estimate_noise, fix_weights
+from ._noise import estimate_noise as _estimate
+from ._noise import fix_weights
 from ._output import ellipse
-from ._pipeline import noise_spec
+from ._run import noise_spec
 from ._registry import DEFAULT_SIGMA_M, get_model
 
 __all__ = ["LiveTracks", "ESTIMATE_FIELDS"]
@@ -209,38 +209,48 @@ class LiveTracks:
         return float(row[_LAT0]), float(row[_LON0])
 
     # ---- noise -------------------------------------------------------------------------------------
-    def calibrate(self, tracks, histories: list[dict]) -> None:
-        """Re-estimate the fix noise and process noise of ``tracks`` from their recent fixes
-        (``histories``: one dict of arrays t, lat, lon, accuracy_m per track, in time order), by the
-        maximum likelihood of ``mptrack track``; tracks with too few fixes take the pooled value."""
-        tracks = self._check(tracks)
-        if len(tracks) != len(histories):
-            raise ParameterError("histories: expected one history per track")
+    def estimate_noise(self, histories: list[dict]) -> dict:
+        """The fix noise and process noise of tracks from their recent fixes (``histories``: one dict of
+        arrays t, lat, lon, accuracy_m per track, in time order) by the maximum likelihood of
+        ``mptrack track`` (tracks with few fixes take the pooled value): a dict of arrays c, q, mode
+        and w_fill for :meth:`set_noise` (NaN rows: fewer than two fixes, nothing estimated).  Reads no
+        track state, so it may run beside :meth:`advance`."""
+        K = len(histories)
+        out = {"c": np.full(K, np.nan), "q": np.full(K, np.nan), "mode": np.full(K, np.nan),
+               "w_fill": np.full(K, np.nan)}
         keep = [j for j, h in enumerate(histories) if len(h["t"]) >= 2]
         if not keep:
-            return
+            return out
         frame = pd.concat([pd.DataFrame({"track_id": str(j), "time": h["t"], "t": h["t"], "lat": h["lat"],
                                          "lon": h["lon"], "accuracy_m": h["accuracy_m"]})
                            for j in keep for h in (histories[j],)], ignore_index=True)
         frame["row"] = np.arange(1, len(frame) + 1)
         table = FixTable.from_frame(frame)
         w, has_acc = fix_weights(table, self.options.sigma_m)
-        noise = estimate_noise(table, w, has_acc, self.spec)
-        idx = tracks[keep]
+        noise = _estimate(table, w, has_acc, self.spec)
+        out["c"][keep], out["q"][keep] = noise.c, noise.q
+        out["mode"][keep] = np.where(has_acc, ACCURACY, SIGMA)
+        out["w_fill"][keep] = np.where(has_acc, table.per_track_median(w), 1.0)
+        return out
+
+    def set_noise(self, tracks, noise: dict) -> None:
+        """Tracks' noise <- :meth:`estimate_noise`'s (rows with NaN are left alone); the population
+        values follow the medians over every track."""
+        tracks = self._check(tracks)
+        ok = np.isfinite(noise["c"])
+        idx = tracks[ok]
         tr = self._track
         if self.options.sigma_m is None:
-            tr[idx, _C] = noise.c
-            tr[idx, _MODE] = np.where(has_acc, ACCURACY, SIGMA)
-            tr[idx, _W_FILL] = np.where(has_acc, table.per_track_median(w), 1.0)
+            tr[idx, _C], tr[idx, _MODE], tr[idx, _W_FILL] = noise["c"][ok], noise["mode"][ok], noise["w_fill"][ok]
         if self.options.q is None:
-            tr[idx, _Q] = noise.q
+            tr[idx, _Q] = noise["q"][ok]
         cal = tr[:self.n]
         for key, mode in (("c_accuracy", ACCURACY), ("c_sigma", SIGMA)):
             sel = (cal[:, _MODE] == mode) & np.isfinite(cal[:, _C])
             if sel.any() and self.options.sigma_m is None:
                 self.population[key] = float(np.median(cal[sel, _C]))
-        if self.options.q is None:
-            self.population["q"] = float(np.median(noise.q))
+        if self.options.q is None and np.isfinite(cal[:, _Q]).any():
+            self.population["q"] = float(np.nanmedian(cal[:, _Q]))
 
     def noise(self, i: int) -> dict:
         """Track i's noise: fix variance factor c, process-noise density q, and whether c scales the
@@ -289,4 +299,6 @@ class LiveTracks:
         probe.advance(np.zeros(n, np.int64), 1.7e9 + np.arange(n), 50.0 + 1e-5 * np.arange(n), np.full(n, 8.0),
                       np.full(n, 5.0))
         probe.position(0, 1.7e9 + n)
+        probe.estimate_noise([{"t": 1.7e9 + np.arange(40.0), "lat": 50.0 + 1e-5 * np.arange(40), "lon": np.full(40, 8.0),
+                               "accuracy_m": np.full(40, 5.0)}])
 
