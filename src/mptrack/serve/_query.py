@@ -18,6 +18,7 @@ from typing import Literal, Optional
 
 from fastapi import Depends, FastAPI, Query, Request
 from fastapi.exceptions import RequestValidationError
+from fastapi.openapi.utils import get_openapi
 from fastapi.responses import HTMLResponse, JSONResponse, Response, StreamingResponse
 from pydantic import BaseModel, Field
 from starlette.exceptions import HTTPException as StarletteHTTPException
@@ -27,6 +28,7 @@ from ..errors import RequestError
 from ._auth import credentials
 from ._fix import iso_time, timestamp
 from ._ingest import FLAG_NAMES
+from ._openapi import ingest_paths
 from ._tracks import FORMATS, track_body
 
 __all__ = ["query_app"]
@@ -230,6 +232,16 @@ def query_app(server) -> FastAPI:
 
         return HTMLResponse(live_map_page(key=key))
 
+    def openapi() -> dict:
+        """The query API's description with the ingest routes merged in (GET / is both)."""
+        if app.openapi_schema is None:
+            schema = get_openapi(title=app.title, version=app.version, description=app.description,
+                                 routes=app.routes)
+            schema["paths"].update(ingest_paths())
+            app.openapi_schema = schema
+        return app.openapi_schema
+
+    app.openapi = openapi
     return app
 
 
