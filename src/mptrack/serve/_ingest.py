@@ -95,10 +95,9 @@ class Ingest:
             self.keys[device] = dev
         self._grow(len(self.ids))
         states, upto = self.store.load_checkpoint()
-        for device, blob in states:
-            dev = self.keys.get(device)
-            if dev is not None:
-                self.live.load_state(dev, blob)
+        known = [(self.keys[device], blob) for device, blob in states if device in self.keys]
+        if known:
+            self.live.load_states([d for d, _ in known], [b for _, b in known])
         for rows in self.store.replay(upto):
             use = rows["flag"] != LATE
             dev, t = rows["dev"][use], rows["t"][use]

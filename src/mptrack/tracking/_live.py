@@ -275,21 +275,32 @@ class LiveTracks:
         return (_BLOB.pack(_MAGIC, _VERSION, len(_TRACK_FIELDS)) + self._track[i].astype("<f8").tobytes()
                 + state_to_bytes(self._states[i], self.order))
 
-    def load_state(self, i: int, data: bytes) -> None:
-        """Track i <- :meth:`state_bytes`; a ParameterError says what does not match."""
-        i = int(self._check([i])[0])
-        data = bytes(data)
-        if len(data) < _BLOB.size:
-            raise ParameterError("data: too short for a live track state")
-        magic, version, k = _BLOB.unpack_from(data)
-        if magic != _MAGIC or version != _VERSION or k != len(_TRACK_FIELDS):
-            raise ParameterError(f"data: not a live track state of this mptrack (layout {version}, {k} fields)")
+    def load_states(self, tracks, blobs: list[bytes]) -> None:
+        """Tracks <- their :meth:`state_bytes`, all at once (a restart with 10^6 devices reads them in
+        one pass); a ParameterError says what does not match this mptrack's layout or model."""
+        tracks = self._check(tracks)
+        if len(tracks) != len(blobs):
+            raise ParameterError("blobs: expected one state per track")
+        if not len(tracks):
+            return
+        first = bytes(blobs[0])
+        size = len(first)
+        if any(len(b) != size for b in blobs):
+            raise ParameterError("blobs: states of different layouts (written by different versions of mptrack)")
+        k = len(_TRACK_FIELDS)
         end = _BLOB.size + 8 * k
-        track = np.frombuffer(data[_BLOB.size:end], dtype="<f8")
-        state, order = state_from_bytes(data[end:])
+        magic, version, fields = _BLOB.unpack_from(first)
+        if magic != _MAGIC or version != _VERSION or fields != k:
+            raise ParameterError(f"blobs: not live track states of this mptrack (layout {version}, {fields} fields)")
+        state, order = state_from_bytes(first[end:])   # checks the engine's layout once
         if order != self.order:
-            raise ParameterError(f"data: a state of a model of order {order}, not {self.order}")
-        self._track[i], self._states[i] = track, state
+            raise ParameterError(f"blobs: states of a model of order {order}, not {self.order}")
+        head = size - 8 * state.size   # the engine's header ends, its float64 begin
+        raw = np.frombuffer(b"".join(blobs), dtype=np.uint8).reshape(len(blobs), size)
+        if not ((raw[:, :_BLOB.size] == raw[0, :_BLOB.size]).all() and (raw[:, end:head] == raw[0, end:head]).all()):
+            raise ParameterError("blobs: states of different layouts (written by different versions of mptrack)")
+        self._track[tracks] = raw[:, _BLOB.size:end].copy().view("<f8")
+        self._states[tracks] = raw[:, head:].copy().view("<f8")
 
     def warm_up(self) -> None:
         """Compile the kernels (a few seconds the first time, cached on disk), so the first fixes are fast."""
