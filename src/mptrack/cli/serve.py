@@ -50,6 +50,9 @@ def serve(
     db: str = typer.Option("sqlite:///mptrack.db", "--db", help=_DB_HELP),
     auth: bool = typer.Option(False, "--auth", help="Devices need their token (mptrack devices add) and the query "
                                                     "API and map an API key (mptrack keys add)."),
+    fsync: bool = typer.Option(False, "--fsync", help="Flush every commit to disk before answering, so that a power "
+                                                      "loss too loses nothing acknowledged (a crash or kill -9 of the "
+                                                      "server never does); costs one disk flush per group commit."),
     retain: Optional[str] = typer.Option(None, "--retain", help="Delete fixes older than this (e.g. 30d, 12h); "
                                                                 "default: keep everything."),
     cells: Optional[Path] = typer.Option(None, "--cells", help="Cell table (OpenCelliD layout) for cell "
@@ -87,7 +90,7 @@ def serve(
     try:
         get_model(model)
         config = ServeConfig(db=_db_url(db), auth=auth, max_body=max_body, rate=rate, burst=burst,
-                             retain_s=_duration(retain, "--retain"), model=model,
+                             retain_s=_duration(retain, "--retain"), model=model, fsync=fsync,
                              cells=None if cells is None else str(cells))
         app = create_app(config)
     except MptrackError as exc:

@@ -43,6 +43,8 @@ class ServeConfig:
     rate, burst   per-device rate limit: fixes per second on average, and bursts (0: none)
     retain_s      fixes older than this are deleted (seconds; None keeps everything)
     checkpoint_s  how often live states are checkpointed (and noise re-estimated)
+    fsync         flush every group commit to disk (a power loss loses nothing acknowledged), not
+                  only to the database file (a crash or kill -9 of the server loses nothing)
     model         the motion model of the live filter (as ``mptrack track --model``)
     cells         an OpenCelliD cell table (for cell geolocation), or None
     """
@@ -54,6 +56,7 @@ class ServeConfig:
     burst: float = 200.0
     retain_s: float | None = None
     checkpoint_s: float = 10.0
+    fsync: bool = False
     model: str = "cv"
     cells: str | None = None
 
@@ -83,7 +86,7 @@ class Server:
     # ---- life ------------------------------------------------------------------------------------
     async def startup(self) -> None:
         loop = asyncio.get_running_loop()
-        self.store = await loop.run_in_executor(None, open_store, self.config.db)
+        self.store = await loop.run_in_executor(None, open_store, self.config.db, self.config.fsync)
         live = LiveTracks(TrackOptions(model=self.config.model))
         await loop.run_in_executor(None, live.warm_up)
         self.ingest = Ingest(self.store, live, checkpoint_s=self.config.checkpoint_s)
