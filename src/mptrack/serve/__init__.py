@@ -13,7 +13,8 @@ Run it with ``mptrack serve``, or in Python with uvicorn::
 
 from ._app import ServeConfig, create_app
 from ._auth import digest, new_secret
-from ._store import DEFAULT_DB, open_store
+from ._database import open_store
+from ._store import DEFAULT_DB
 
 __all__ = ["ServeConfig", "create_app", "add_device", "add_api_key", "DEFAULT_DB"]
 

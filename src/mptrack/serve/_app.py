@@ -24,7 +24,8 @@ from ..tracking import LiveTracks, TrackOptions
 from . import _bulk, _osmand, _owntracks, _traccar_json
 from ._auth import RateLimit, Registry, check_device, credentials
 from ._ingest import Ingest
-from ._store import DEFAULT_DB, open_store
+from ._database import open_store
+from ._store import DEFAULT_DB
 
 __all__ = ["ServeConfig", "create_app"]
 

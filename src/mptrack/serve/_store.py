@@ -25,9 +25,8 @@ from typing import Iterator, Protocol
 
 import numpy as np
 
-from ..errors import ParameterError
 
-__all__ = ["Store", "StoredRows", "FIX_COLUMNS", "ESTIMATE_COLUMNS", "open_store", "DEFAULT_DB"]
+__all__ = ["Store", "StoredRows", "FIX_COLUMNS", "ESTIMATE_COLUMNS", "DEFAULT_DB"]
 
 DEFAULT_DB = "sqlite:///mptrack.db"
 #: Columns of a stored fix as the device sent it (the :data:`._fix.FIELDS` minus attrs, plus received).
@@ -100,18 +99,3 @@ class Store(Protocol):
     def count(self) -> int: ...
 
     def close(self) -> None: ...
-
-
-def open_store(url: str, fsync: bool = False) -> Store:
-    """The store at ``url``: ``sqlite:///PATH`` (a file, created with its schema) or
-    ``postgresql://...`` (not in this release).  ``fsync``: every commit is flushed to disk before it
-    returns (also a power loss loses nothing acknowledged), not only written to the database file."""
-    if not isinstance(url, str):
-        raise ParameterError(f"db: expected a database URL such as {DEFAULT_DB}, got {type(url).__name__}")
-    if url.startswith("sqlite:///"):
-        from ._sqlite import SqliteStore
-
-        return SqliteStore(url, fsync)
-    if url.startswith(("postgresql://", "postgres://")):
-        raise ParameterError("db: PostgreSQL storage is not available in this release; use sqlite:///PATH")
-    raise ParameterError(f"db: expected sqlite:///PATH or postgresql://..., got {url!r}")
