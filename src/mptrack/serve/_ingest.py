@@ -94,10 +94,11 @@ class Ingest:
             self.ids.append(device)
             self.keys[device] = dev
         self._grow(len(self.ids))
-        states, upto = self.store.load_checkpoint()
-        known = [(self.keys[device], blob) for device, blob in states if device in self.keys]
-        if known:
-            self.live.load_states([d for d, _ in known], [b for _, b in known])
+        upto, chunks = self.store.load_checkpoint()
+        for states in chunks:
+            known = [(self.keys[device], blob) for device, blob in states if device in self.keys]
+            if known:
+                self.live.load_states([d for d, _ in known], [b for _, b in known])
         for rows in self.store.replay(upto):
             use = rows["flag"] != LATE
             dev, t = rows["dev"][use], rows["t"][use]

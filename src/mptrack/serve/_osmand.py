@@ -17,7 +17,7 @@ an attribute.  The answer is 200 with an empty body.
 from __future__ import annotations
 
 import time
-from urllib.parse import parse_qsl
+from urllib.parse import unquote_plus
 
 from ..errors import RequestError
 from ._fix import KNOT_MPS, device_id, fix, optional_number, position, timestamp
@@ -29,17 +29,29 @@ _KNOWN = {"id", "deviceid", "timestamp", "lat", "lon", "location", "speed", "bea
           "accuracy", "cell", "wifi", TOKEN_PARAMETER}
 
 
+MAX_FIELDS = 200
+
+
 def parse_query(query: bytes | str, now: float | None = None) -> tuple[tuple, str | None]:
     """(fix, token) of one OsmAnd query string or form body (see the module doc)."""
-    if isinstance(query, bytes):
-        try:
-            query = query.decode("utf-8")
-        except UnicodeDecodeError:
-            raise RequestError("the parameters are not UTF-8 text", code="malformed_body") from None
+    if isinstance(query, str):
+        query = query.encode("utf-8")
+    parts = query.split(b"&")
+    if len(parts) > MAX_FIELDS:
+        raise RequestError(f"more than {MAX_FIELDS} parameters", code="malformed_body")
+    pairs = []
     try:
-        pairs = parse_qsl(query, keep_blank_values=True, strict_parsing=False, max_num_fields=200)
-    except ValueError as exc:
-        raise RequestError(f"the parameters cannot be read: {exc}", code="malformed_body") from None
+        for part in parts:
+            if not part:
+                continue
+            name, _, value = part.partition(b"=")
+            if b"%" in part or b"+" in part:   # the rare encoded parameter; plain ones skip unquoting
+                pairs.append((unquote_plus(name.decode("utf-8"), errors="strict"),
+                              unquote_plus(value.decode("utf-8"), errors="strict")))
+            else:
+                pairs.append((name.decode("utf-8"), value.decode("utf-8")))
+    except UnicodeDecodeError:
+        raise RequestError("the parameters are not UTF-8 text", code="malformed_body") from None
     return parse_pairs(pairs, now)
 
 

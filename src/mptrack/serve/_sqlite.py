@@ -144,15 +144,20 @@ class SqliteStore:
                 return total
 
     # ---- reading ---------------------------------------------------------------------------------
-    def load_checkpoint(self) -> tuple[list[tuple[str, bytes]], int]:
+    def load_checkpoint(self, batch: int = 50_000) -> tuple[int, Iterator[list[tuple[str, bytes]]]]:
         con = self._reader()
-        con.execute("BEGIN")
-        try:
-            upto = int(con.execute("SELECT value FROM meta WHERE key = 'checkpoint'").fetchone()[0])
-            states = con.execute("SELECT device_id, state FROM device_state").fetchall()
-        finally:
-            con.execute("COMMIT")
-        return states, upto
+        con.execute("BEGIN")   # the position and the states of one checkpoint: one snapshot
+        upto = int(con.execute("SELECT value FROM meta WHERE key = 'checkpoint'").fetchone()[0])
+
+        def chunks():
+            try:
+                cur = con.execute("SELECT device_id, state FROM device_state")
+                while rows := cur.fetchmany(batch):
+                    yield rows
+            finally:
+                con.execute("COMMIT")
+
+        return upto, chunks()
 
     def replay(self, after: int, batch: int = 50_000) -> Iterator[StoredRows]:
         con = self._reader()

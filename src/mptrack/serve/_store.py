@@ -64,8 +64,9 @@ class Store(Protocol):
     def checkpoint(self, states: list[tuple[str, bytes]], upto: int) -> None:
         """Store device states (id, blob) and that they cover the fix rows up to row ``upto``."""
 
-    def load_checkpoint(self) -> tuple[list[tuple[str, bytes]], int]:
-        """(states, upto) of the last checkpoint."""
+    def load_checkpoint(self, batch: int = 50_000) -> tuple[int, Iterator[list[tuple[str, bytes]]]]:
+        """(upto, the device states (id, blob) in chunks of ``batch``) of the last checkpoint, read from one
+        snapshot (consume the chunks before writing)."""
 
     def replay(self, after: int, batch: int = 50_000) -> Iterator[StoredRows]:
         """The stored fixes after row ``after`` in insertion order, in batches."""
