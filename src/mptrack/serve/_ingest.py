@@ -10,10 +10,14 @@ only then wakes the requests, which answer 200.  If the write fails, the filters
 devices are put back as they were and every request of the batch fails (503): nothing half-done
 is acknowledged.  While a batch commits, the next one gathers.
 
-Every few seconds (:attr:`Ingest.checkpoint_s`) the writer applies the noise re-estimated (on another
-thread) for devices with enough new fixes and checkpoints the live states of the devices that changed; after a crash the
-fixes stored since the last checkpoint are replayed through the same filter (:meth:`Ingest.recover`),
-which gives the states the filter had, so the live estimates resume exactly.
+The fixes are the log and the device states checkpoints of it.  A device's state is stored
+:attr:`Ingest.checkpoint_s` seconds after it changed (at most :data:`CHECKPOINT_ROWS` devices a batch,
+so a large fleet's checkpoints never stall ingest), with the last fix row it covers; the watermark is
+the row up to which every device's stored state covers its fixes.  After a crash, the fixes after the
+watermark that a device's state does not cover are replayed through the same filter
+(:meth:`Ingest.recover`), which gives the states the filter had, so the live estimates resume exactly.
+Noise is re-estimated on another thread for devices with enough new fixes and applied between
+batches, the devices' states stored at once, so that a replay sees the noise the live filter saw.
 """
 
 from __future__ import annotations
@@ -37,6 +41,8 @@ __all__ = ["Ingest", "Counters", "FLAG_NAMES", "LATE", "ESTIMATES"]
 log = logging.getLogger("mptrack.serve")
 #: The most devices whose noise one round re-estimates.
 MAX_ESTIMATED = 2000
+#: The most device states one batch checkpoints.
+CHECKPOINT_ROWS = 2000
 #: Names of the stored ``flag`` values: the tracking engine's flags, then "late" (stored, not filtered).
 FLAG_NAMES = tuple(FLAGS) + ("late",)
 LATE = len(FLAGS)
@@ -80,9 +86,11 @@ class Ingest:
         self._wake: asyncio.Event | None = None
         self._task: asyncio.Task | None = None
         self._closing = False
-        self._dirty: set[int] = set()            # devices changed since the last checkpoint
+        # devices changed since their last checkpoint, oldest first: key -> (the last fix row before
+        # the change, when it changed)
+        self._dirty: dict[int, tuple[int, float]] = {}
+        self._seq = 0                            # the last fix row stored
         self._since_calibration = np.zeros(0, dtype=np.int64)
-        self._last_checkpoint = time.monotonic()
         self.listeners: set[asyncio.Queue] = set()
 
     # ---- start, recovery, stop --------------------------------------------------------------------
@@ -94,19 +102,25 @@ class Ingest:
             self.ids.append(device)
             self.keys[device] = dev
         self._grow(len(self.ids))
-        upto, chunks = self.store.load_checkpoint()
+        watermark, chunks = self.store.load_checkpoint()
+        covered = np.zeros(len(self.ids), np.int64)      # each device's fixes up to this row are in its state
         for states in chunks:
-            known = [(self.keys[device], blob) for device, blob in states if device in self.keys]
+            known = [(self.keys[device], blob, upto) for device, blob, upto in states if device in self.keys]
             if known:
-                self.live.load_states([d for d, _ in known], [b for _, b in known])
-        for rows in self.store.replay(upto):
-            use = rows["flag"] != LATE
+                idx = [d for d, _, _ in known]
+                self.live.load_states(idx, [b for _, b, _ in known])
+                covered[idx] = [u for _, _, u in known]
+        self._seq = self.store.last_row()
+        now = time.monotonic()
+        for rows in self.store.replay(watermark):
+            use = (rows["flag"] != LATE) & (rows["seq"] > covered[rows["dev"]])
             dev, t = rows["dev"][use], rows["t"][use]
             order = np.lexsort((t, dev))
             dev, t = dev[order], t[order]
             lat, lon, acc = rows["lat"][use][order], rows["lon"][use][order], rows["accuracy_m"][use][order]
             self.live.advance(dev, t, lat, lon, acc)
-            self._dirty.update(np.unique(dev).tolist())
+            for d in np.unique(dev).tolist():
+                self._dirty.setdefault(d, (watermark, now))
 
     def start(self) -> None:
         self._wake = asyncio.Event()
@@ -155,9 +169,10 @@ class Ingest:
                 if not fut.done():
                     fut.set_result(None)
             if published is not None and self.listeners:
+                events = self._events(published)   # once per batch, whatever the number of listeners
                 for q in list(self.listeners):
-                    if q.qsize() < 1000:
-                        q.put_nowait(published)
+                    if q.qsize() < 1000:           # a listener that does not read loses events, not memory
+                        q.put_nowait(events)
             if self._pending:
                 self._wake.set()
 
@@ -207,6 +222,7 @@ class Ingest:
             late_rows = _rows(fixes, dev, order[late], None, now)
             try:
                 stored_late = self.store.write(rows, late_rows, new_devices)
+                before, self._seq = self._seq, self.store.last_row()
             except BaseException:
                 with self.lock:
                     self.live.restore_states(saved)
@@ -218,21 +234,22 @@ class Ingest:
             raise
         touched = dev[sel]
         np.add.at(self._since_calibration, touched, 1)
-        self._dirty.update(np.unique(touched).tolist())
+        changed = time.monotonic()
+        for d in np.unique(touched).tolist():
+            self._dirty.setdefault(d, (before, changed))
         c = self.counters
         c.accepted += len(fixes)
         c.filtered += len(sel)
         c.late += stored_late
         c.duplicates += len(fixes) - len(sel) - stored_late
         c.batches += 1
-        if time.monotonic() - self._last_checkpoint >= self.checkpoint_s:
-            self._checkpoint()
+        self._checkpoint()
         return (sel, fixes, est, dev) if self.listeners else None
 
     def _checkpoint(self, final: bool = False) -> None:
-        """Apply the noise estimates that are ready and start the next (devices with enough new fixes,
-        estimated beside the filter on another thread), then store the changed states.  Noise changes
-        only here, right before the states are stored, so a replay from this checkpoint is exact."""
+        """Apply the noise estimates that are ready (their devices' states stored at once) and start the
+        next; store the states of the devices that changed more than ``checkpoint_s`` ago (at most
+        CHECKPOINT_ROWS; all of them when ``final``) and the watermark."""
         fut = self._estimating
         if fut is not None and (fut.done() or final):
             self._estimating = None
@@ -243,19 +260,34 @@ class Ingest:
             else:
                 with self.lock:
                     self.live.set_noise(due, noise)
-                self._dirty.update(due.tolist())
+                self._store_states(due.tolist())
         if self._estimating is None and not final:
             due = np.flatnonzero(self._since_calibration[:len(self.ids)] >= self.calibrate_after)[:MAX_ESTIMATED]
             if len(due):
                 self._since_calibration[due] = 0
                 self._estimating = self._estimator.submit(self._estimate, due)
-        if self._dirty:
-            upto = self.store.last_row()
-            with self.lock:
-                states = [(self.ids[d], self.live.state_bytes(d)) for d in sorted(self._dirty)]
-            self.store.checkpoint(states, upto)
-            self._dirty.clear()
-        self._last_checkpoint = time.monotonic()
+        if final:
+            self._store_states(list(self._dirty))
+            return
+        old = time.monotonic() - self.checkpoint_s
+        ready = []
+        for d, (_, changed) in self._dirty.items():   # oldest first
+            if changed > old or len(ready) == CHECKPOINT_ROWS:
+                break
+            ready.append(d)
+        if ready:
+            self._store_states(ready)
+
+    def _store_states(self, devices: list[int]) -> None:
+        """Store these devices' states (they cover every fix stored so far) and the new watermark."""
+        if not devices and self._dirty:
+            return
+        with self.lock:
+            states = [(self.ids[d], self.live.state_bytes(d)) for d in devices]
+        for d in devices:
+            self._dirty.pop(d, None)
+        watermark = min((row for row, _ in self._dirty.values()), default=self._seq)
+        self.store.checkpoint(states, self._seq, watermark)
 
     def _estimate(self, due: np.ndarray) -> tuple[np.ndarray, dict]:
         """(due, noise) from the devices' recent stored fixes (on the estimator thread)."""
@@ -267,21 +299,19 @@ class Ingest:
         return due, self.live.estimate_noise(histories)
 
     # ---- the stream --------------------------------------------------------------------------------
-    def events(self, published, device: str | None = None) -> list[str]:
-        """The Server-Sent Events ``data:`` payloads of one committed batch (one JSON per fix; only
-        ``device``'s when given)."""
+    @staticmethod
+    def _events(published) -> list[tuple[str, str]]:
+        """(device, JSON) of every fix of one committed batch: the stream's ``data:`` payloads."""
         sel, fixes, est, dev = published
         major, minor, az = ellipse(est["var_e"], est["cov_en"], est["var_n"])
         out = []
         for j, i in enumerate(sel.tolist()):
             f = fixes[i]
-            if device is not None and f[0] != device:
-                continue
             e = {k: _num(v[j]) for k, v in est.items()}
             e.update(device=f[0], time=iso_time(f[1]), raw_lat=f[2], raw_lon=f[3], accuracy_m=f[4],
                      flag=FLAG_NAMES[int(est["flag"][j])], ell_major_m=_num(major[j]), ell_minor_m=_num(minor[j]),
                      ell_azimuth_deg=_num(az[j]))
-            out.append(json.dumps(e, separators=(",", ":")))
+            out.append((f[0], json.dumps(e, separators=(",", ":"))))
         return out
 
 

@@ -204,13 +204,14 @@ def query_app(server) -> FastAPI:
                 yield ": connected\n\n"
                 while True:
                     try:
-                        published = await asyncio.wait_for(queue.get(), 15.0)
+                        events = await asyncio.wait_for(queue.get(), 15.0)
                     except asyncio.TimeoutError:
                         yield ": keep-alive\n\n"
                         continue
-                    lines = ing.events(published, device_id)
-                    if lines:
-                        yield "".join(f"event: fix\ndata: {line}\n\n" for line in lines)
+                    text = "".join(f"event: fix\ndata: {line}\n\n" for dev, line in events
+                                   if device_id is None or dev == device_id)
+                    if text:
+                        yield text
             finally:
                 ing.listeners.discard(queue)
 

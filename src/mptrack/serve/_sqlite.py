@@ -36,13 +36,14 @@ CREATE TABLE IF NOT EXISTS fixes (seq INTEGER PRIMARY KEY AUTOINCREMENT,
     est_lat REAL, est_lon REAL, var_e REAL, cov_en REAL, var_n REAL, vel_e REAL, vel_n REAL, nis REAL,
     flag INTEGER NOT NULL);
 CREATE INDEX IF NOT EXISTS fixes_device_time ON fixes (dev, t);
-CREATE TABLE IF NOT EXISTS device_state (device_id TEXT PRIMARY KEY, state BLOB NOT NULL) WITHOUT ROWID;
+CREATE TABLE IF NOT EXISTS device_state (device_id TEXT PRIMARY KEY, state BLOB NOT NULL, upto INTEGER NOT NULL)
+    WITHOUT ROWID;
 CREATE TABLE IF NOT EXISTS devices (device_id TEXT PRIMARY KEY, token_sha256 TEXT NOT NULL UNIQUE,
     created REAL NOT NULL) WITHOUT ROWID;
 CREATE TABLE IF NOT EXISTS api_keys (name TEXT PRIMARY KEY, key_sha256 TEXT NOT NULL UNIQUE,
     created REAL NOT NULL) WITHOUT ROWID;
 INSERT OR IGNORE INTO meta VALUES ('schema_version', {SCHEMA_VERSION});
-INSERT OR IGNORE INTO meta VALUES ('checkpoint', 0);
+INSERT OR IGNORE INTO meta VALUES ('watermark', 0);
 """
 _INSERT = f"INSERT INTO fixes ({', '.join(_ALL)}) VALUES ({', '.join('?' * len(_ALL))})"
 # a late fix is stored unless the same fix (device, time, position) is: the (dev, t) index finds it
@@ -108,13 +109,14 @@ class SqliteStore:
                 raise
         return stored
 
-    def checkpoint(self, states: list[tuple[str, bytes]], upto: int) -> None:
+    def checkpoint(self, states: list[tuple[str, bytes]], upto: int, watermark: int) -> None:
         with self._lock:
             w = self._w
             w.execute("BEGIN IMMEDIATE")
             try:
-                w.executemany("INSERT OR REPLACE INTO device_state VALUES (?, ?)", states)
-                w.execute("UPDATE meta SET value = ? WHERE key = 'checkpoint'", (int(upto),))
+                w.executemany("INSERT OR REPLACE INTO device_state VALUES (?, ?, ?)",
+                              [(d, b, int(upto)) for d, b in states])
+                w.execute("UPDATE meta SET value = ? WHERE key = 'watermark'", (int(watermark),))
                 w.execute("COMMIT")
             except BaseException:
                 w.execute("ROLLBACK")
@@ -144,20 +146,20 @@ class SqliteStore:
                 return total
 
     # ---- reading ---------------------------------------------------------------------------------
-    def load_checkpoint(self, batch: int = 50_000) -> tuple[int, Iterator[list[tuple[str, bytes]]]]:
+    def load_checkpoint(self, batch: int = 50_000) -> tuple[int, Iterator[list[tuple[str, bytes, int]]]]:
         con = self._reader()
-        con.execute("BEGIN")   # the position and the states of one checkpoint: one snapshot
-        upto = int(con.execute("SELECT value FROM meta WHERE key = 'checkpoint'").fetchone()[0])
+        con.execute("BEGIN")   # the watermark and the states: one snapshot
+        watermark = int(con.execute("SELECT value FROM meta WHERE key = 'watermark'").fetchone()[0])
 
         def chunks():
             try:
-                cur = con.execute("SELECT device_id, state FROM device_state")
+                cur = con.execute("SELECT device_id, state, upto FROM device_state")
                 while rows := cur.fetchmany(batch):
                     yield rows
             finally:
                 con.execute("COMMIT")
 
-        return upto, chunks()
+        return watermark, chunks()
 
     def replay(self, after: int, batch: int = 50_000) -> Iterator[StoredRows]:
         con = self._reader()

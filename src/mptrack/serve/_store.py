@@ -7,14 +7,16 @@ What is stored, every table keyed by device first:
                   arrived (NULL for a late fix), by device key and time; an exact duplicate
                   (device, time, lat, lon) is stored once
     device_keys   the device ids and their integer keys (the fixes' ``dev``)
-    device_state  each device's live filter state as of a checkpoint (an opaque blob of the
-                  online filter) and the last fix row it covers
+    device_state  each device's live filter state as of its last checkpoint (an opaque blob of
+                  the online filter) and the last fix row it covers
     devices       registered devices and the SHA-256 of their tokens (``mptrack devices add``)
     api_keys      keys of the query API and the map (``mptrack keys add``)
-    meta          the schema version and the checkpoint position
+    meta          the schema version and the checkpoint watermark: every device's fixes up to that
+                  row are in its stored state
 
 One writer commits a batch of fixes in one transaction (:meth:`Store.write`); readers run
-concurrently.  Replaying the fixes after the last checkpoint through the same filter restores the
+concurrently.  Replaying the fixes after the watermark that each device's state does not cover yet
+through the same filter restores the
 live state exactly after a crash (:meth:`Store.replay`).
 """
 
@@ -61,11 +63,12 @@ class Store(Protocol):
         device, which cannot be duplicates -- and the rows ``late`` that are not exact duplicates of a
         stored fix (device, t, lat, lon).  Returns how many of ``late`` were stored."""
 
-    def checkpoint(self, states: list[tuple[str, bytes]], upto: int) -> None:
-        """Store device states (id, blob) and that they cover the fix rows up to row ``upto``."""
+    def checkpoint(self, states: list[tuple[str, bytes]], upto: int, watermark: int) -> None:
+        """In one transaction: store device states (id, blob), which cover their fixes up to row
+        ``upto``, and the new ``watermark``."""
 
-    def load_checkpoint(self, batch: int = 50_000) -> tuple[int, Iterator[list[tuple[str, bytes]]]]:
-        """(upto, the device states (id, blob) in chunks of ``batch``) of the last checkpoint, read from one
+    def load_checkpoint(self, batch: int = 50_000) -> tuple[int, Iterator[list[tuple[str, bytes, int]]]]:
+        """(watermark, the device states (id, blob, upto) in chunks of ``batch``), read from one
         snapshot (consume the chunks before writing)."""
 
     def replay(self, after: int, batch: int = 50_000) -> Iterator[StoredRows]:
