@@ -19,8 +19,9 @@ import time
 from dataclasses import dataclass
 from urllib.parse import parse_qsl
 
-from ..errors import MptrackError, RequestError
-from ..tracking import LiveTracks, TrackOptions
+from .._core.validation import as_real, check_bool, check_int, check_path, check_positive, lookup
+from ..errors import MptrackError, ParameterError, RequestError
+from ..tracking import MODELS, LiveTracks, TrackOptions
 from . import _bulk, _osmand, _owntracks, _traccar_json
 from ._auth import RateLimit, Registry, check_device, credentials
 from ._ingest import Ingest
@@ -60,6 +61,21 @@ class ServeConfig:
     fsync: bool = False
     model: str = "cv"
     cells: str | None = None
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.db, str) or "://" not in self.db:
+            raise ParameterError(f"db: expected a database URL such as {DEFAULT_DB}, got {self.db!r}"[:200])
+        for name in ("auth", "fsync"):
+            check_bool(name, getattr(self, name))
+        check_int("max_body", self.max_body, minimum=1)
+        as_real("rate", self.rate, low=0.0)
+        as_real("burst", self.burst, low=1.0)
+        check_positive("checkpoint_s", self.checkpoint_s)
+        if self.retain_s is not None:
+            check_positive("retain_s", self.retain_s)
+        lookup("model", self.model, MODELS, what="motion model")
+        if self.cells is not None:
+            check_path("cells", self.cells)
 
 
 def _error_body(exc: RequestError) -> bytes:
@@ -234,7 +250,7 @@ class Server:
 def create_app(config: ServeConfig = ServeConfig()) -> Server:
     """The ASGI application of ``mptrack serve`` with ``config`` (run it with uvicorn)."""
     if not isinstance(config, ServeConfig):
-        raise TypeError(f"config: expected a ServeConfig, got {type(config).__name__}")
+        raise ParameterError(f"config: expected a ServeConfig, got {type(config).__name__}")
     return Server(config)
 
 
