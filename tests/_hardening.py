@@ -818,6 +818,24 @@ target("io.read_output", path=paths(POINTS_CSV), nan_result=True, inf_result=Tru
 target("io.PartStore", lambda out: mio.PartStore(out), out=out_paths())
 
 
+target("tracking.ellipse", var_e=arg((3,), valid=[4.0, 1.0, 9.0]), cov_en=arg((3,), valid=[0.0, 0.5, -1.0]),
+       var_n=arg((3,), valid=[4.0, 2.0, 1.0]))
+target("tracking.LiveTracks", options=st.one_of(st.just(tracking.TrackOptions()),
+                                                st.sampled_from([None, "cv", 3, tracking.TrackOptions(model="ca")])))
+
+# --- serve ------------------------------------------------------------------------------------------------
+_DB = f"sqlite:///{WORKDIR / 'serve.db'}"
+_DBS = st.one_of(st.just(_DB), st.sampled_from([None, 3, "mptrack.db", "postgresql://nobody@127.0.0.1:9/x",
+                                               f"sqlite:///{WORKDIR}", "sqlite:///"]))
+_NAMES = st.one_of(st.sampled_from(["car-7", "jane/phone"]), st.text(max_size=70), st.sampled_from([None, 3, b"x"]))
+target("serve.ServeConfig", db=_DBS, auth=flags(), max_body=count(1, 1 << 20), rate=scalar(0, 100),
+       burst=scalar(0, 1000), retain_s=maybe(scalar(0, 1e6)), checkpoint_s=scalar(0, 60), fsync=flags(),
+       model=names("cv", "ca"), cells=maybe(st.sampled_from([str(LOG_CSV), "", 3])))
+target("serve.create_app", config=st.one_of(st.just(__import__("mptrack.serve").serve.ServeConfig(db=_DB)),
+                                            st.sampled_from([None, "sqlite:///x.db", {}])))
+target("serve.add_device", db=_DBS, name=_NAMES)
+target("serve.add_api_key", db=_DBS, name=_NAMES)
+
 # --- report -----------------------------------------------------------------------------------------------
 SUMMARY, EVALUATED = tracking.evaluate_tracks(POINTS, LOG)
 ARROW = WORKDIR / "points.arrow"
@@ -838,6 +856,8 @@ target("report.report_points", sources=st.one_of(
                      [ARROW, __import__("pyarrow").table({"track_id": ["1"]})]])), nan_result=True)
 for _name in ("explained_cells", "uncounted_columns"):
     target(f"report.{_name}", table=st.one_of(st.just(_TABLE), st.just(_TABLE), st.sampled_from(_BAD_TABLES)))
+target("report.live_map_page", key=maybe(st.one_of(st.text(max_size=50), st.sampled_from([3, b"k"]))),
+       title=st.one_of(st.text(max_size=50), st.sampled_from([None, 3])))
 target("report.write_reproduction_report", lambda results, path, counts, title: report.write_reproduction_report(
     results, path, counts=counts, title=title),
     results=st.one_of(st.just({"key": "k", "tables": {"Table 1": _TABLE}}), st.sampled_from(

@@ -24,6 +24,7 @@ __all__ = [
     "DataError",
     "OutputError",
     "ResourceError",
+    "RequestError",
 ]
 
 
@@ -118,3 +119,18 @@ class ResourceError(MptrackError, ValueError):
     """An argument asks for more memory (or time) than the run may use: the message names the
     argument, the bytes needed and the limit (``MPTRACK_MAX_BYTES``, default half the machine's
     physical memory)."""
+
+
+class RequestError(MptrackError, ValueError):
+    """A request to the live server (``mptrack serve``) cannot be accepted: a field of a fix is missing
+    or out of range, the body is not what its content type says, it is too large, the device is not
+    known or is sending too fast.
+
+    ``status`` is the HTTP status the server answers with (400, 401, 404, 413, 415, 422, 429),
+    ``code`` a short machine-readable reason ("invalid_field", "missing_field", ...) and ``field``
+    the name of the offending field as the client sent it (None when the request as a whole is
+    refused)."""
+
+    def __init__(self, message: str, *, status: int = 400, code: str = "invalid_field", field: str | None = None):
+        super().__init__(f"{field}: {message}" if field else message)
+        self.status, self.code, self.field, self.reason = status, code, field, message

@@ -1,5 +1,5 @@
 """The ``mptrack`` command line: the only layer that imports typer and rich.  One module per command
-group (tracking, reproduce, bench, filters); each imports the library inside its commands, so
+group (tracking, reproduce, bench, filters, serve); each imports the library inside its commands, so
 ``mptrack --help`` loads no numerical library.
 
 Exit status: 0 success, 1 internal error, 2 usage or data error, 130 interrupted (Ctrl-C).
@@ -24,6 +24,7 @@ from ._common import EXIT_CODES  # noqa: E402
 from .bench import bench  # noqa: E402
 from .filters import filters  # noqa: E402
 from .reproduce import reproduce  # noqa: E402
+from .serve import devices, keys, serve  # noqa: E402
 from .tracking import evaluate, simulate, track  # noqa: E402
 
 __all__ = ["app", "main"]
@@ -52,8 +53,10 @@ def _root(version: bool = typer.Option(False, "--version", "-V", callback=_versi
     """mptrack: mobile-terminal position tracking and paper reproductions."""
 
 
-for _command in (track, simulate, evaluate, reproduce, bench, filters):
+for _command in (track, simulate, evaluate, reproduce, bench, filters, serve):
     app.command(epilog=EXIT_CODES)(_command)
+app.add_typer(devices, name="devices")
+app.add_typer(keys, name="keys")
 
 
 def main() -> None:  # pragma: no cover

@@ -6,9 +6,10 @@ from ._cellular import TA_STEP_M, band_of_arfcn, check_cell_ids, ranges_km, trac
 from ._evaluate import TRUTH_COLUMNS, attach_truth, evaluate_tracks
 from ._engine import FLAGS
 from ._fixes import TrackOptions, track_fixes
+from ._live import ESTIMATE_FIELDS, LiveTracks
 from ._gated import GatedResult, kalman_filter_gated, nis_threshold, smooth_gated, track_gated
 from ._noise import SOURCES as NOISE_SOURCES
-from ._output import POINT_COLUMNS, point_table
+from ._output import POINT_COLUMNS, ellipse, point_table
 from ._pipeline import read_output, track, track_file
 from ._run import TRACK_COLUMNS
 from ._simulate import SCENARIOS, Intervals, simulate, simulate_chunks
@@ -24,6 +25,9 @@ from ._registry import (
 
 __all__ = [
     "TrackOptions",
+    "LiveTracks",
+    "ESTIMATE_FIELDS",
+    "ellipse",
     "simulate",
     "simulate_chunks",
     "Intervals",

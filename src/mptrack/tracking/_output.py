@@ -9,6 +9,7 @@ cellular filters) builds its points through :func:`point_table`.
 
 from __future__ import annotations
 
+
 import numpy as np
 import pyarrow as pa
 import scipy.stats
@@ -27,18 +28,45 @@ POINT_COLUMNS = ("track_id", "time", "t", "lat", "lon", "east_m", "north_m", "ve
 _FLAG_NAMES = pa.array(FLAGS, type=pa.string())
 
 
-def ellipse(var_e: np.ndarray, cov_en: np.ndarray, var_n: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """1-sigma ellipse of east/north covariances: semi-axes (m) and azimuth of the major axis
-    (degrees clockwise from north, in [0, 180)); a circle has azimuth 0."""
-    half_tr = 0.5 * (var_e + var_n)
-    rad = np.hypot(0.5 * (var_e - var_n), cov_en)
-    major = np.sqrt(np.clip(half_tr + rad, 0.0, None))
-    minor = np.sqrt(np.clip(half_tr - rad, 0.0, None))
+def ellipse(var_e, cov_en, var_n) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """1-sigma error ellipse of east/north covariances.
+
+    Parameters
+    ----------
+    var_e, cov_en, var_n : array_like
+        East variance, east-north covariance and north variance (m^2), of one shape; NaN where
+        unknown (the ellipse is NaN there).
+
+    Returns
+    -------
+    major, minor, azimuth : ndarray
+        Semi-axes (m) and the azimuth of the major axis (degrees clockwise from north, in [0, 180);
+        a circle has azimuth 0).
+
+    Raises
+    ------
+    ShapeError, DTypeError, ParameterError
+        Arrays of different shapes, not real numbers, or infinite.  (A variance below zero, which
+        rounding can make of a zero one, counts as zero.)
+    """
+    var_e, cov_en, var_n = (as_array(k, v, allow_nan=True) for k, v in (("var_e", var_e), ("cov_en", cov_en),
+                                                                       ("var_n", var_n)))
+    if not var_e.shape == cov_en.shape == var_n.shape:
+        raise ShapeError(f"var_e, cov_en, var_n: expected one shape, got {var_e.shape}, {cov_en.shape}, {var_n.shape}")
+    # scaled to the largest entry, so that no sum or square overflows
+    scale = np.maximum(np.maximum(np.abs(var_e), np.abs(var_n)), np.abs(cov_en))
+    unit = np.where(scale > 0, scale, 1.0)
+    e, c, n = var_e / unit, cov_en / unit, var_n / unit
+    half_tr = 0.5 * (e + n)
+    rad = np.hypot(0.5 * (e - n), c)
+    root = np.sqrt(unit)
+    major = np.sqrt(np.clip(half_tr + rad, 0.0, None)) * root
+    minor = np.sqrt(np.clip(half_tr - rad, 0.0, None)) * root
     lam = half_tr + rad
     # eigenvector of the larger eigenvalue, from the better-conditioned row of (P - lam I)
-    east_dominant = var_e >= var_n
-    ve = np.where(east_dominant, lam - var_n, cov_en)
-    vn = np.where(east_dominant, cov_en, lam - var_e)
+    east_dominant = e >= n
+    ve = np.where(east_dominant, lam - n, c)
+    vn = np.where(east_dominant, c, lam - e)
     az = np.degrees(np.arctan2(ve, vn)) % 180.0
     return major, minor, az
 

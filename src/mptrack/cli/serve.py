@@ -1,0 +1,158 @@
+"""``mptrack serve`` (the live tracking server, docs/serve.md) and the commands that manage who may use
+it: ``mptrack devices add NAME`` (a device token for ingest) and ``mptrack keys add NAME`` (an API key
+for the query API and the map)."""
+
+from __future__ import annotations
+
+import contextlib
+import ipaddress
+from pathlib import Path
+from typing import Optional
+
+import typer
+
+from ..errors import MptrackError
+from ._common import QUIET, echo, err, fail, note
+
+__all__ = ["serve", "devices", "keys"]
+
+_DB_HELP = "Database: sqlite:///PATH (default sqlite:///mptrack.db in the working directory)."
+
+
+def _duration(text: str | None, option: str) -> float | None:
+    """Seconds of a duration such as 30d, 12h, 90m, 3600s or 3600."""
+    if text is None:
+        return None
+    units = {"s": 1.0, "m": 60.0, "h": 3600.0, "d": 86400.0, "w": 604800.0}
+    body, unit = (text[:-1], text[-1]) if text and text[-1] in units else (text, "s")
+    try:
+        value = float(body) * units[unit]
+    except ValueError:
+        fail(f"{option}: expected a duration such as 30d, 12h or 3600s, got {text!r}")
+    if not value > 0 or value != value or value == float("inf"):
+        fail(f"{option}: expected a positive duration, got {text!r}")
+    return value
+
+
+def _loopback(host: str) -> bool:
+    if host == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return False
+
+
+def serve(
+    host: str = typer.Option("127.0.0.1", "--host", help="Address to listen on (loopback by default; any other "
+                                                         "address needs --auth)."),
+    port: int = typer.Option(5055, "--port", help="TCP port (5055: Traccar's OsmAnd port, so apps' defaults work)."),
+    db: str = typer.Option("sqlite:///mptrack.db", "--db", help=_DB_HELP),
+    auth: bool = typer.Option(False, "--auth", help="Devices need their token (mptrack devices add) and the query "
+                                                    "API and map an API key (mptrack keys add)."),
+    fsync: bool = typer.Option(False, "--fsync", help="Flush every commit to disk before answering, so that a power "
+                                                      "loss too loses nothing acknowledged (a crash or kill -9 of the "
+                                                      "server never does); costs one disk flush per group commit."),
+    retain: Optional[str] = typer.Option(None, "--retain", help="Delete fixes older than this (e.g. 30d, 12h); "
+                                                                "default: keep everything."),
+    cells: Optional[Path] = typer.Option(None, "--cells", help="Cell table (OpenCelliD layout) for cell "
+                                                               "geolocation."),
+    model: str = typer.Option("cv", "--model", help="Motion model of the live filter: cv or ca."),
+    max_body: int = typer.Option(1 << 20, "--max-body", help="Largest request body accepted (bytes)."),
+    rate: float = typer.Option(20.0, "--rate", help="Per-device rate limit: fixes per second on average "
+                                                    "(0: none)."),
+    burst: float = typer.Option(200.0, "--burst", help="Per-device rate limit: fixes in a burst."),
+    quiet: bool = QUIET,
+) -> None:
+    """Run the live tracking server: phones and trackers report fixes (OsmAnd/Traccar Client, OwnTracks,
+    bulk files), every device gets a filtered track, a prediction and a live map at http://HOST:PORT/.
+
+    Stops on Ctrl-C or SIGTERM after committing every acknowledged fix (exit 0)."""
+    if not _loopback(host) and not auth:
+        fail(f"--host {host} is not a loopback address: the server would be open to anyone who can reach it; "
+             "add --auth (and give each device a token with mptrack devices add NAME)")
+    if cells is not None and not cells.is_file():
+        fail(f"--cells: {cells} is not a file")
+    for name, value in (("--port", port), ("--max-body", max_body)):
+        if value < 1 or (name == "--port" and value > 65535):
+            fail(f"{name}: expected a positive number{' up to 65535' if name == '--port' else ''}, got {value}")
+    if rate < 0 or burst < 1:
+        fail("--rate must be >= 0 and --burst >= 1")
+    import logging
+
+    import uvicorn
+
+    _Server = _server_class()
+
+    from ..serve import ServeConfig, create_app
+    from ..tracking import get_model
+
+    try:
+        get_model(model)
+        config = ServeConfig(db=_db_url(db), auth=auth, max_body=max_body, rate=rate, burst=burst,
+                             retain_s=_duration(retain, "--retain"), model=model, fsync=fsync,
+                             cells=None if cells is None else str(cells))
+        app = create_app(config)
+    except MptrackError as exc:
+        fail(exc)
+    logging.basicConfig(level=logging.WARNING if quiet else logging.INFO, format="%(asctime)s %(message)s")
+    if not quiet:
+        where = "localhost" if _loopback(host) else host
+        note(f"listening on http://{where}:{port}/ (live map there; OsmAnd/Traccar Client: server URL "
+             f"http://{where}:{port}; OwnTracks: http://{where}:{port}/pub), database {config.db}", "serve")
+    _Server(uvicorn.Config(app, host=host, port=port, log_level="warning" if quiet else "info", access_log=False,
+                           lifespan="on", timeout_graceful_shutdown=10)).run()
+
+
+def _server_class():
+    import uvicorn
+
+    class Server(uvicorn.Server):
+        """uvicorn's server, except that stopping by SIGTERM/SIGINT (after the graceful shutdown that
+        commits every acknowledged fix) exits 0 instead of re-raising the signal."""
+
+        @contextlib.contextmanager
+        def capture_signals(self):
+            with super().capture_signals():
+                yield
+                self._captured_signals.clear()
+
+    return Server
+
+
+def _db_url(db: str) -> str:
+    """sqlite:///PATH as given, or a bare path as sqlite:///PATH."""
+    return db if "://" in db else f"sqlite:///{db}"
+
+
+devices = typer.Typer(help="Devices allowed to report to mptrack serve --auth.", no_args_is_help=True)
+keys = typer.Typer(help="API keys of the query API and the map of mptrack serve --auth.", no_args_is_help=True)
+
+
+@devices.command("add")
+def add_device(name: str = typer.Argument(..., help="The device id the device reports with (OsmAnd id, "
+                                                    "Traccar Client device identifier, OwnTracks USER/DEVICE)."),
+               db: str = typer.Option("sqlite:///mptrack.db", "--db", help=_DB_HELP)) -> None:
+    """Register a device and print its token (shown once: only its digest is stored)."""
+    from ..serve import add_device as _add
+
+    try:
+        token = _add(_db_url(db), name)
+    except MptrackError as exc:
+        fail(exc)
+    echo(token)
+    err.print(f"device {name}: give the app the server URL with ?key={token[:6]}… (OsmAnd/Traccar Client), "
+              "or the token as password (OwnTracks, HTTP Basic) or Bearer token", soft_wrap=True, highlight=False)
+
+
+@keys.command("add")
+def add_key(name: str = typer.Argument(..., help="A name for the key (who uses it)."),
+            db: str = typer.Option("sqlite:///mptrack.db", "--db", help=_DB_HELP)) -> None:
+    """Create an API key for the query API and the map, and print it (shown once)."""
+    from ..serve import add_api_key
+
+    try:
+        key = add_api_key(_db_url(db), name)
+    except MptrackError as exc:
+        fail(exc)
+    echo(key)

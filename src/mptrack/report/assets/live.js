@@ -1,0 +1,102 @@
+/* mptrack live map: devices from /api/devices, then every accepted fix from /api/stream (Server-Sent
+   Events).  Each device shows its estimate (a marker with its 1-sigma ellipse) and its last raw fix;
+   clicking it draws its last hour (/api/devices/ID/track).  Works offline: the background tiles load
+   only when the browser is online.  The page reports its state on <body>: data-devices (markers on
+   the map), data-events (fixes received), data-ready. */
+(function () {
+  "use strict";
+  var CFG = JSON.parse(document.getElementById("mptrack-live").textContent);
+  function url(path, params) {
+    var q = Object.assign({}, params || {});
+    if (CFG.key) q.key = CFG.key;
+    var s = Object.keys(q).map(function (k) { return encodeURIComponent(k) + "=" + encodeURIComponent(q[k]); }).join("&");
+    return path + (s ? "?" + s : "");
+  }
+  var map = L.map("map", {preferCanvas: true, zoomSnap: 0.25, worldCopyJump: true});
+  if (navigator.onLine !== false) {
+    L.tileLayer("https://tile.openstreetmap.org/{z}/{x}/{y}.png", {
+      maxZoom: 19, attribution: "&copy; OpenStreetMap contributors"}).addTo(map);
+  }
+  L.control.scale({imperial: false}).addTo(map);
+  map.setView([20, 0], 2);
+  var devices = {};   // id -> {marker, raw, ellipse, item, track}
+  var events = 0, fitted = false;
+  var list = document.getElementById("device-list");
+
+  function ellipsePoints(lat, lon, major, minor, azDeg) {
+    // the 1-sigma ellipse as a polygon (metres -> degrees on a local tangent plane)
+    var pts = [], az = azDeg * Math.PI / 180, mLat = 111320, mLon = 111320 * Math.cos(lat * Math.PI / 180);
+    for (var i = 0; i < 36; i++) {
+      var a = 2 * Math.PI * i / 36, x = major * Math.cos(a), y = minor * Math.sin(a);
+      var e = x * Math.sin(az) + y * Math.cos(az), n = x * Math.cos(az) - y * Math.sin(az);
+      pts.push([lat + n / mLat, lon + e / Math.max(mLon, 1e-6)]);
+    }
+    return pts;
+  }
+  function text(d) {
+    return d.id + (d.time ? " · " + d.time.replace("T", " ").replace(".000Z", "Z") : "") +
+      (d.flag ? " · " + d.flag : "") + (d.ell_major_m != null ? " · ±" + d.ell_major_m.toPrecision(2) + " m" : "");
+  }
+  function update(d) {
+    if (d.lat == null || d.lon == null) return;
+    var dev = devices[d.id];
+    if (!dev) {
+      dev = devices[d.id] = {
+        marker: L.circleMarker([d.lat, d.lon], {radius: 6, color: "#1f77b4", fillOpacity: 0.9, weight: 2}).addTo(map),
+        raw: L.circleMarker([d.lat, d.lon], {radius: 3, color: "#777", fillOpacity: 0.6, weight: 1}).addTo(map),
+        ellipse: L.polygon([[d.lat, d.lon]], {color: "#1f77b4", weight: 1, fillOpacity: 0.08}).addTo(map),
+        item: document.createElement("li")
+      };
+      dev.marker.on("click", function () { showTrack(d.id); });
+      dev.item.addEventListener("click", function () { showTrack(d.id); map.panTo(dev.marker.getLatLng()); });
+      list.appendChild(dev.item);
+      document.getElementById("device-count").textContent = Object.keys(devices).length;
+      document.body.setAttribute("data-devices", String(Object.keys(devices).length));
+    }
+    dev.marker.setLatLng([d.lat, d.lon]);
+    if (d.raw_lat != null) dev.raw.setLatLng([d.raw_lat, d.raw_lon]);
+    if (d.ell_major_m != null) dev.ellipse.setLatLngs(ellipsePoints(d.lat, d.lon, d.ell_major_m, d.ell_minor_m, d.ell_azimuth_deg || 0));
+    dev.marker.bindTooltip(text(d));
+    dev.item.textContent = text(d);
+  }
+  function showTrack(id) {
+    var from = new Date(Date.now() - 3600e3).toISOString();
+    fetch(url("/api/devices/" + encodeURIComponent(id) + "/track", {from: from, format: "json"}))
+      .then(function (r) { return r.json(); })
+      .then(function (rows) {
+        var dev = devices[id];
+        if (!dev) return;
+        if (dev.track) dev.track.remove();
+        var est = rows.filter(function (r) { return r.lat != null; }).map(function (r) { return [r.lat, r.lon]; });
+        var raw = rows.map(function (r) { return [r.meas_lat, r.meas_lon]; });
+        dev.track = L.layerGroup([
+          L.polyline(est, {color: "#1f77b4", weight: 3}),
+          L.layerGroup(raw.map(function (p) { return L.circleMarker(p, {radius: 2, color: "#777", weight: 1}); }))
+        ]).addTo(map);
+        document.body.setAttribute("data-track-points", String(rows.length));
+      });
+  }
+  document.getElementById("device-filter").addEventListener("input", function (e) {
+    var f = e.target.value.toLowerCase();
+    Object.keys(devices).forEach(function (id) {
+      devices[id].item.style.display = id.toLowerCase().indexOf(f) >= 0 ? "" : "none";
+    });
+  });
+  fetch(url("/api/devices")).then(function (r) { return r.json(); }).then(function (rows) {
+    rows.forEach(function (d) { d.time = d.last_fix_time; update(d); });
+    var pts = rows.filter(function (d) { return d.lat != null; }).map(function (d) { return [d.lat, d.lon]; });
+    if (pts.length) { map.fitBounds(L.latLngBounds(pts).pad(0.2), {maxZoom: 16}); fitted = true; }
+    document.body.setAttribute("data-ready", "1");
+  });
+  var source = new EventSource(url("/api/stream"));
+  source.onopen = function () { document.getElementById("status").textContent = "live"; };
+  source.onerror = function () { document.getElementById("status").textContent = "reconnecting…"; };
+  source.addEventListener("fix", function (e) {
+    var d = JSON.parse(e.data);
+    update({id: d.device, time: d.time, lat: d.lat, lon: d.lon, raw_lat: d.raw_lat, raw_lon: d.raw_lon,
+            ell_major_m: d.ell_major_m, ell_minor_m: d.ell_minor_m, ell_azimuth_deg: d.ell_azimuth_deg, flag: d.flag});
+    events += 1;
+    document.body.setAttribute("data-events", String(events));
+    if (!fitted) { map.setView([d.lat, d.lon], 15); fitted = true; }
+  });
+})();

@@ -1,0 +1,48 @@
+"""The live tracking server (``mptrack serve``, docs/serve.md): phones and trackers report fixes in
+the formats their apps already speak (OsmAnd / Traccar Client, OwnTracks, bulk NDJSON/CSV); every
+device's fixes go through the tracking engine's gated filter as they arrive, are committed durably
+with their estimates, and can be queried (current estimate, prediction, stored or smoothed track),
+streamed (Server-Sent Events) and watched on a live map.
+
+Run it with ``mptrack serve``, or in Python with uvicorn::
+
+    import uvicorn
+    from mptrack.serve import ServeConfig, create_app
+    uvicorn.run(create_app(ServeConfig(db="sqlite:///fleet.db")), port=5055)
+"""
+
+from ._app import ServeConfig, create_app
+from ._auth import digest, new_secret
+from ._database import open_store
+from ._store import DEFAULT_DB
+
+__all__ = ["ServeConfig", "create_app", "add_device", "add_api_key", "DEFAULT_DB"]
+
+
+def add_device(db: str, name: str) -> str:
+    """Register device ``name`` in the server database ``db`` and return its new token (only the
+    token's SHA-256 is stored)."""
+    from ._fix import device_id
+
+    token = new_secret()
+    store = open_store(db)
+    try:
+        store.add_device(device_id(name, "name"), digest(token))
+    finally:
+        store.close()
+    return token
+
+
+def add_api_key(db: str, name: str) -> str:
+    """Create an API key named ``name`` in the server database ``db`` and return it."""
+    if not isinstance(name, str) or not name.strip():
+        from ..errors import ParameterError
+
+        raise ParameterError(f"name: expected a non-empty name, got {name!r}")
+    key = new_secret()
+    store = open_store(db)
+    try:
+        store.add_api_key(name.strip(), digest(key))
+    finally:
+        store.close()
+    return key

@@ -1,0 +1,316 @@
+"""The server: one ASGI application.
+
+The ingest routes (``/`` with OsmAnd parameters or Traccar Client JSON, ``/pub`` for OwnTracks,
+``/api/fixes`` for bulk files) are plain ASGI: they read the request, parse it with their protocol
+module into fix records, wait for the group commit (:class:`._ingest.Ingest`) and answer in the
+client's format.  Everything else -- the query API, its OpenAPI description, the stream and the
+map -- is a FastAPI application (:mod:`._query`).
+
+Errors are JSON, ``{"error": {"code": ..., "message": ..., "field": ...}}``, with a 4xx status; a
+request that cannot be committed gets 503 and nothing of it is stored.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import logging
+import time
+from dataclasses import dataclass
+from urllib.parse import parse_qsl
+
+from .._core.validation import as_real, check_bool, check_int, check_path, check_positive, lookup
+from ..errors import MptrackError, ParameterError, RequestError
+from ..tracking import MODELS, LiveTracks, TrackOptions
+from . import _bulk, _osmand, _owntracks, _traccar_json
+from ._auth import RateLimit, Registry, check_device, credentials
+from ._ingest import Ingest
+from ._database import open_store
+from ._store import DEFAULT_DB
+
+__all__ = ["ServeConfig", "create_app"]
+
+log = logging.getLogger("mptrack.serve")
+
+MIB = 1 << 20
+
+
+@dataclass(frozen=True)
+class ServeConfig:
+    """What ``mptrack serve`` runs with (its options).
+
+    db            database URL (``sqlite:///PATH``)
+    auth          ingest needs a device token, queries and the map an API key
+    max_body      largest request body accepted (bytes; 413 beyond)
+    rate, burst   per-device rate limit: fixes per second on average, and bursts (0: none)
+    retain_s      fixes older than this are deleted (seconds; None keeps everything)
+    checkpoint_s  how often live states are checkpointed (and noise re-estimated)
+    fsync         flush every group commit to disk (a power loss loses nothing acknowledged), not
+                  only to the database file (a crash or kill -9 of the server loses nothing)
+    model         the motion model of the live filter (as ``mptrack track --model``)
+    cells         an OpenCelliD cell table (for cell geolocation), or None
+    """
+
+    db: str = DEFAULT_DB
+    auth: bool = False
+    max_body: int = MIB
+    rate: float = 20.0
+    burst: float = 200.0
+    retain_s: float | None = None
+    checkpoint_s: float = 10.0
+    fsync: bool = False
+    model: str = "cv"
+    cells: str | None = None
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.db, str) or "://" not in self.db:
+            raise ParameterError(f"db: expected a database URL such as {DEFAULT_DB}, got {self.db!r}"[:200])
+        for name in ("auth", "fsync"):
+            check_bool(name, getattr(self, name))
+        check_int("max_body", self.max_body, minimum=1)
+        as_real("rate", self.rate, low=0.0)
+        as_real("burst", self.burst, low=1.0)
+        check_positive("checkpoint_s", self.checkpoint_s)
+        if self.retain_s is not None:
+            check_positive("retain_s", self.retain_s)
+        lookup("model", self.model, MODELS, what="motion model")
+        if self.cells is not None:
+            check_path("cells", self.cells)
+
+
+def _error_body(exc: RequestError) -> bytes:
+    err = {"code": exc.code, "message": str(exc)}
+    if exc.field is not None:
+        err["field"] = exc.field
+    return json.dumps({"error": err}).encode()
+
+
+class Server:
+    """The ASGI application (see the module doc); ``create_app`` builds it."""
+
+    def __init__(self, config: ServeConfig):
+        from ._query import query_app
+
+        self.config = config
+        self.store = None
+        self.ingest: Ingest | None = None
+        self.registry: Registry | None = None
+        self.limits = RateLimit(config.rate, config.burst)
+        self.started = time.time()
+        self.query = query_app(self)
+        self._tasks: list[asyncio.Task] = []
+
+    # ---- life ------------------------------------------------------------------------------------
+    async def startup(self) -> None:
+        loop = asyncio.get_running_loop()
+        self.store = await loop.run_in_executor(None, open_store, self.config.db, self.config.fsync)
+        live = LiveTracks(TrackOptions(model=self.config.model))
+        await loop.run_in_executor(None, live.warm_up)
+        self.ingest = Ingest(self.store, live, checkpoint_s=self.config.checkpoint_s)
+        await loop.run_in_executor(None, self.ingest.recover)
+        self.registry = Registry(self.store)
+        self.ingest.start()
+        if self.config.retain_s is not None:
+            self._tasks.append(loop.create_task(self._retention()))
+        log.info("mptrack serve ready: %d devices, %s", len(self.ingest.ids), self.config.db)
+
+    async def shutdown(self) -> None:
+        for task in self._tasks:
+            task.cancel()
+        if self.ingest is not None:
+            await self.ingest.close()
+        if self.store is not None:
+            self.store.close()
+
+    async def _retention(self) -> None:
+        loop = asyncio.get_running_loop()
+        while True:
+            cutoff = time.time() - self.config.retain_s
+            n = await loop.run_in_executor(None, self.store.delete_before, cutoff)
+            if n:
+                log.info("retention: deleted %d fixes older than %s", n, time.strftime("%Y-%m-%d %H:%M:%S",
+                                                                                      time.gmtime(cutoff)))
+            await asyncio.sleep(min(3600.0, max(1.0, self.config.retain_s / 100.0)))
+
+    # ---- ASGI --------------------------------------------------------------------------------------
+    async def __call__(self, scope, receive, send):
+        kind = scope["type"]
+        if kind == "http":
+            path, method = scope["path"], scope["method"]
+            if path == "/":
+                if method == "POST" or (method == "GET" and _is_osmand(scope["query_string"])):
+                    return await self._ingest_root(scope, receive, send)
+            elif path == "/pub" and method == "POST":
+                return await self._guard(self._owntracks, scope, receive, send)
+            elif path == "/api/fixes" and method == "POST":
+                return await self._guard(self._bulk, scope, receive, send)
+            elif path == "/healthz" and method in ("GET", "HEAD"):
+                return await _respond(send, 200, b'{"status":"ok"}')
+        elif kind == "lifespan":
+            return await self._lifespan(receive, send)
+        await self.query(scope, receive, send)
+
+    async def _lifespan(self, receive, send):
+        while True:
+            message = await receive()
+            if message["type"] == "lifespan.startup":
+                try:
+                    await self.startup()
+                except Exception as exc:  # the server cannot start: say why in one line
+                    await send({"type": "lifespan.startup.failed", "message": str(exc)})
+                    return
+                await send({"type": "lifespan.startup.complete"})
+            elif message["type"] == "lifespan.shutdown":
+                await self.shutdown()
+                await send({"type": "lifespan.shutdown.complete"})
+                return
+
+    async def _guard(self, handler, scope, receive, send):
+        """Run an ingest handler: RequestError -> its 4xx JSON; a failed commit -> 503."""
+        try:
+            status, body, ctype = await handler(scope, receive)
+        except RequestError as exc:
+            self.ingest.counters.refuse(exc.code)
+            return await _respond(send, exc.status, _error_body(exc))
+        except (ConnectionAbortedError, MptrackError, OSError, RuntimeError) as exc:
+            self.ingest.counters.refuse("not_committed")
+            log.warning("not committed: %s", exc)
+            body = json.dumps({"error": {"code": "not_committed", "message": f"not stored: {exc}"}}).encode()
+            return await _respond(send, 503, body)
+        await _respond(send, status, body, ctype)
+
+    async def _ingest_root(self, scope, receive, send):
+        return await self._guard(self._root, scope, receive, send)
+
+    async def _root(self, scope, receive):
+        headers = dict(scope["headers"])
+        if scope["method"] == "GET":
+            fixes, key = _one(_osmand.parse_query(scope["query_string"]))
+        else:
+            ctype = _content_type(headers)
+            body = await _body(receive, headers, self.config.max_body)
+            if ctype == "application/json":
+                fixes = _traccar_json.parse_body(body)
+                key = _query_key(scope)
+            elif ctype == "application/x-www-form-urlencoded" or (not ctype and not body):
+                fixes, key = _one(_osmand.parse_query(body or scope["query_string"]))
+            else:
+                raise RequestError(f"expected application/x-www-form-urlencoded (OsmAnd) or application/json "
+                                   f"(Traccar Client), got {ctype or 'no content type'}", status=415,
+                                   code="unsupported_media_type", field="Content-Type")
+        await self._accept(fixes, headers, key)
+        return 200, b"", b"text/plain"
+
+    async def _owntracks(self, scope, receive):
+        headers = dict(scope["headers"])
+        params = dict(parse_qsl(scope["query_string"].decode("latin-1")))
+        secret, user = credentials(headers, params.get(_osmand.TOKEN_PARAMETER))
+        owner = self.registry.device(secret) if self.config.auth else None
+        u = params.get("u") or _header(headers, b"x-limit-u")
+        d = params.get("d") or _header(headers, b"x-limit-d")
+        if not u and user:  # HTTP Basic's user is USER/DEVICE (or USER)
+            u, _, d = user.partition("/")
+        device = _owntracks.device_of(u, d) if u or owner is None else owner
+        body = await _body(receive, headers, self.config.max_body)
+        fixes = _owntracks.parse_body(body, device)
+        if owner is not None:
+            check_device(device, owner)
+        await self._accept(fixes, headers, None, device=device, checked=True)
+        return 200, b"[]", b"application/json"
+
+    async def _bulk(self, scope, receive):
+        headers = dict(scope["headers"])
+        params = dict(parse_qsl(scope["query_string"].decode("latin-1")))
+        if self.config.auth:
+            self.registry.check_key(credentials(headers, params.get(_osmand.TOKEN_PARAMETER))[0])
+        ctype = _content_type(headers)
+        kind = _bulk.CONTENT_TYPES.get(ctype)
+        if kind is None:
+            raise RequestError(f"expected one of {', '.join(_bulk.CONTENT_TYPES)}, got {ctype or 'no content type'}",
+                               status=415, code="unsupported_media_type", field="Content-Type")
+        body = await _body(receive, headers, self.config.max_body)
+        loop = asyncio.get_running_loop()
+        fixes = await loop.run_in_executor(None, _bulk.parse_body, body, kind, params)
+        await self.ingest.submit(fixes)
+        return 200, json.dumps({"accepted": len(fixes)}).encode(), b"application/json"
+
+    async def _accept(self, fixes: list[tuple], headers: dict, key: str | None, *, device: str | None = None,
+                      checked: bool = False) -> None:
+        """Check the device's token (unless ``checked``) and its rate, then wait for the commit."""
+        if self.config.auth and not checked:
+            owner = self.registry.device(credentials(headers, key)[0])
+            for claimed in {device} if device else {f[0] for f in fixes}:
+                check_device(claimed, owner)
+        if not fixes:
+            return
+        self.limits.take(fixes[0][0], len(fixes))
+        await self.ingest.submit(fixes)
+
+
+def create_app(config: ServeConfig = ServeConfig()) -> Server:
+    """The ASGI application of ``mptrack serve`` with ``config`` (run it with uvicorn)."""
+    if not isinstance(config, ServeConfig):
+        raise ParameterError(f"config: expected a ServeConfig, got {type(config).__name__}")
+    return Server(config)
+
+
+# ---- small ASGI helpers --------------------------------------------------------------------------------
+_OSMAND = (b"id=", b"deviceid=", b"lat=", b"lon=", b"location=")
+
+
+def _is_osmand(query: bytes) -> bool:
+    """A GET / with a device id or a position is an OsmAnd fix (without any it is the map page)."""
+    return query.startswith(_OSMAND) or any(b"&" + p in query for p in _OSMAND)
+
+
+def _one(parsed) -> tuple[list[tuple], str | None]:
+    fix, key = parsed
+    return [fix], key
+
+
+def _query_key(scope) -> str | None:
+    q = scope["query_string"]
+    if not q:
+        return None
+    return dict(parse_qsl(q.decode("latin-1"))).get(_osmand.TOKEN_PARAMETER)
+
+
+def _header(headers: dict, name: bytes) -> str | None:
+    v = headers.get(name)
+    return v.decode("latin-1").strip() if v else None
+
+
+def _content_type(headers: dict) -> str:
+    return headers.get(b"content-type", b"").decode("latin-1").split(";")[0].strip().lower()
+
+
+async def _body(receive, headers: dict, limit: int) -> bytes:
+    """The request body, refused with 413 as soon as it exceeds ``limit`` bytes."""
+    declared = headers.get(b"content-length")
+    if declared is not None:
+        try:
+            n = int(declared)
+        except ValueError:
+            raise RequestError("Content-Length is not a number", field="Content-Length") from None
+        if n > limit:
+            raise RequestError(f"the body has {n} bytes; this server takes at most {limit}", status=413,
+                               code="body_too_large")
+    chunks, size = [], 0
+    while True:
+        message = await receive()
+        if message["type"] == "http.disconnect":
+            raise RequestError("the client went away before sending the whole body", code="incomplete_body")
+        chunk = message.get("body", b"")
+        size += len(chunk)
+        if size > limit:
+            raise RequestError(f"the body has more than {limit} bytes, the most this server takes", status=413,
+                               code="body_too_large")
+        chunks.append(chunk)
+        if not message.get("more_body", False):
+            return b"".join(chunks)
+
+
+async def _respond(send, status: int, body: bytes, ctype: bytes = b"application/json") -> None:
+    await send({"type": "http.response.start", "status": status,
+                "headers": [(b"content-type", ctype), (b"content-length", str(len(body)).encode())]})
+    await send({"type": "http.response.body", "body": body})

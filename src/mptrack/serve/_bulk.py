@@ -1,0 +1,118 @@
+"""Bulk ingest for gateways and replays: ``POST /api/fixes`` with NDJSON (one JSON object per line,
+``Content-Type: application/x-ndjson``) or CSV (``text/csv``) in the columns ``mptrack track``
+reads: the same names and unit detection (:class:`mptrack.io.ReadOptions`; ``columns``,
+``time_unit``, ``time_format`` and ``coord_unit`` may be given as query parameters), any number of
+devices (the track id column is the device id).  Times must be absolute (epoch or ISO 8601) and
+positions geographic (lat/lon): the server keeps fixes on the globe.
+"""
+
+from __future__ import annotations
+
+import io as _stdio
+import time
+
+import numpy as np
+import pandas as pd
+
+from ..errors import DataError, MptrackError, RequestError
+from ..io import FIXES, ReadOptions, read_table
+from ._fix import DEVICE_ID, EARLIEST, MAX_FUTURE_S
+
+__all__ = ["parse_body", "CONTENT_TYPES", "READ_PARAMETERS"]
+
+CONTENT_TYPES = {"application/x-ndjson": "ndjson", "application/ndjson": "ndjson", "application/jsonl": "ndjson",
+                 "application/json-lines": "ndjson", "text/csv": "csv"}
+#: Query parameters of ``POST /api/fixes`` passed to :class:`mptrack.io.ReadOptions`.
+READ_PARAMETERS = ("columns", "time_unit", "time_format", "coord_unit")
+_PASSED = ("speed_mps", "heading_deg", "altitude_m")
+
+
+def parse_body(body: bytes, kind: str, params: dict, now: float | None = None) -> list[tuple]:
+    """The fixes of one bulk body (``kind`` "ndjson" or "csv"), in the order of the body."""
+    now = time.time() if now is None else now
+    raw = _frame(body, kind)
+    try:
+        read = ReadOptions(**{k: params[k] for k in READ_PARAMETERS if k in params})
+    except MptrackError as exc:
+        raise RequestError(str(exc), field=next((k for k in READ_PARAMETERS if str(exc).startswith(k)), None)) \
+            from None
+    try:
+        rows = read_table(raw, FIXES, read=read)
+    except DataError as exc:
+        where = f"row {exc.row}: " if exc.row is not None else ""
+        raise RequestError(f"{where}{_parameters(exc.reason)}", status=422, field=exc.column) from None
+    except MptrackError as exc:
+        raise RequestError(_parameters(str(exc)), status=422) from None
+    if "lat" not in rows.columns:
+        raise RequestError("the server needs geographic positions (lat/lon columns), not local x/y metres",
+                           status=422, field="lat")
+    if not pd.api.types.is_datetime64_any_dtype(rows["time"]):
+        raise RequestError("the server needs absolute times (epoch seconds or milliseconds, or ISO 8601), "
+                           "not seconds from an arbitrary start", status=422, field="time")
+    t = rows["t"].to_numpy(dtype=float)
+    bad = ~((t >= EARLIEST) & (t <= now + MAX_FUTURE_S))
+    if bad.any():
+        i = int(np.flatnonzero(bad)[0])
+        raise RequestError(f"row {int(rows['row'].iloc[i])}: the time {rows['time'].iloc[i]} is before 2000 or more "
+                           "than a day after the server's clock", status=422, field="time")
+    ids = rows["track_id"].to_numpy(dtype=object)
+    for dev in pd.unique(ids):
+        if not DEVICE_ID.fullmatch(str(dev)):
+            i = int(np.flatnonzero(ids == dev)[0])
+            raise RequestError(f"row {int(rows['row'].iloc[i])}: a device id is 1 to 64 letters, digits and "
+                               f". _ : @ / + - (got {str(dev)[:40]!r})", status=422, field="track_id")
+    lat, lon = rows["lat"].to_numpy(dtype=float), rows["lon"].to_numpy(dtype=float)
+    null = (lat == 0.0) & (lon == 0.0)
+    if null.any():
+        i = int(np.flatnonzero(null)[0])
+        raise RequestError(f"row {int(rows['row'].iloc[i])}: (0, 0) is what a device without a position fix sends",
+                           status=422, field="lat, lon")
+    n = len(rows)
+    cols = [[str(d) for d in ids], t.tolist(), lat.tolist(), lon.tolist(), _optional(rows, "accuracy_m", n)]
+    cols += [_optional(rows, name, n) for name in _PASSED]
+    cols.append(_attrs(rows, n))
+    return list(zip(*cols))
+
+
+def _parameters(message: str) -> str:
+    """A reader's message with its command-line options named as this route's query parameters."""
+    for name in READ_PARAMETERS:
+        message = message.replace(f"--{name.replace('_', '-')} ", f"?{name}=").replace(f"--{name.replace('_', '-')}",
+                                                                                       f"?{name}")
+    return message
+
+
+def _frame(body: bytes, kind: str) -> pd.DataFrame:
+    if not body.strip():
+        raise RequestError("the body is empty", code="missing_field")
+    try:
+        if kind == "csv":
+            return pd.read_csv(_stdio.BytesIO(body))
+        return pd.read_json(_stdio.BytesIO(body), lines=True, dtype=False)
+    except (ValueError, UnicodeDecodeError, pd.errors.ParserError) as exc:
+        what = "CSV" if kind == "csv" else "NDJSON (one JSON object per line)"
+        raise RequestError(f"the body is not valid {what}: {str(exc).splitlines()[0][:200]}",
+                           code="malformed_body") from None
+
+
+def _optional(rows: pd.DataFrame, name: str, n: int) -> list:
+    if name not in rows.columns:
+        return [None] * n
+    values = pd.to_numeric(rows[name], errors="coerce").to_numpy(dtype=float)
+    if name == "accuracy_m":
+        values = np.where(values > 0.0, values, np.nan)
+    return [None if v != v else v for v in values.tolist()]
+
+
+def _attrs(rows: pd.DataFrame, n: int) -> list:
+    extra = [c for c in rows.columns if c not in ("track_id", "time", "t", "row", "lat", "lon", "accuracy_m")
+             and c not in _PASSED]
+    if not extra:
+        return [None] * n
+    records = rows[extra].to_dict("records")
+    return [{k: _plain(v) for k, v in r.items() if not (isinstance(v, float) and v != v) and v is not None} or None
+            for r in records]
+
+
+def _plain(v):
+    return v.item() if isinstance(v, np.generic) else v if isinstance(v, (int, float, str, bool)) else str(v)

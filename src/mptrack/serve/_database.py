@@ -1,0 +1,22 @@
+"""Which store a database URL names (the one place that knows every backend)."""
+
+from __future__ import annotations
+
+from ..errors import ParameterError
+from ._sqlite import SqliteStore
+from ._store import DEFAULT_DB, Store
+
+__all__ = ["open_store"]
+
+
+def open_store(url: str, fsync: bool = False) -> Store:
+    """The store at ``url``: ``sqlite:///PATH`` (a file, created with its schema) or
+    ``postgresql://...`` (not in this release).  ``fsync``: every commit is flushed to disk before it
+    returns (also a power loss loses nothing acknowledged), not only written to the database file."""
+    if not isinstance(url, str):
+        raise ParameterError(f"db: expected a database URL such as {DEFAULT_DB}, got {type(url).__name__}")
+    if url.startswith("sqlite:///"):
+        return SqliteStore(url, fsync)
+    if url.startswith(("postgresql://", "postgres://")):
+        raise ParameterError("db: PostgreSQL storage is not available in this release; use sqlite:///PATH")
+    raise ParameterError(f"db: expected sqlite:///PATH or postgresql://..., got {url!r}")

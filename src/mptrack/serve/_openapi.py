@@ -1,0 +1,85 @@
+"""The OpenAPI description of the ingest routes (plain ASGI, so FastAPI does not see them), merged into
+the query API's own at ``/openapi.json`` so that clients and fuzzers see the whole server."""
+
+from __future__ import annotations
+
+__all__ = ["ingest_paths"]
+
+_ERROR = {"$ref": "#/components/schemas/Error"}
+_ERRORS = {str(code): {"description": why, "content": {"application/json": {"schema": _ERROR}}}
+           for code, why in ((400, "a field is missing or out of range (the error names it)"),
+                             (401, "no or unknown device token (--auth)"), (403, "the token belongs to another device"),
+                             (413, "the body is larger than the server takes"),
+                             (415, "the content type is not one the route reads"),
+                             (422, "a row of a bulk file cannot be accepted"),
+                             (429, "the device sends faster than its rate limit"))}
+_ERRORS["503"] = {"description": "the fixes could not be committed; nothing of the request is stored",
+                  "content": {"application/json": {"schema": _ERROR}}}
+
+
+def _q(name: str, description: str, kind: str = "string", **extra) -> dict:
+    return {"name": name, "in": "query", "required": False, "description": description,
+            "schema": {"type": kind, **extra}}
+
+
+_OSMAND = [
+    _q("id", "device id (or deviceid)"), _q("deviceid", "device id"),
+    _q("lat", "latitude (degrees)", "number"), _q("lon", "longitude (degrees)", "number"),
+    _q("location", "lat,lon (instead of lat and lon)"),
+    _q("timestamp", "fix time: epoch seconds, epoch milliseconds or ISO 8601 (the server's clock if absent)"),
+    _q("speed", "speed (knots)", "number"), _q("bearing", "course (degrees)", "number"),
+    _q("heading", "course (degrees)", "number"), _q("altitude", "altitude (m)", "number"),
+    _q("accuracy", "horizontal accuracy (m)", "number"), _q("hdop", "HDOP", "number"),
+    _q("batt", "battery level (%)", "number"), _q("cell", "mcc,mnc,lac,cid[,rssi] (repeatable)"),
+    _q("wifi", "mac,rssi (repeatable)"), _q("key", "the device's token (--auth)"),
+]
+_FORM = {"type": "object", "properties": {p["name"]: p["schema"] for p in _OSMAND}}
+_COORDS = {"type": "object", "required": ["latitude", "longitude"], "properties": {
+    k: {"type": "number"} for k in ("latitude", "longitude", "accuracy", "speed", "heading", "altitude")}}
+_LOCATION = {"type": "object", "required": ["timestamp", "coords"],
+             "properties": {"timestamp": {"type": "string"}, "coords": _COORDS}}
+_TRACCAR = {"type": "object", "required": ["device_id", "location"], "properties": {
+    "device_id": {"type": "string"},
+    "location": {"oneOf": [_LOCATION, {"type": "array", "items": _LOCATION}]}}}
+_OWNTRACKS = {"type": "object", "required": ["_type"], "properties": {
+    "_type": {"type": "string"}, "lat": {"type": "number"}, "lon": {"type": "number"}, "tst": {"type": "integer"},
+    "acc": {"type": "number"}, "alt": {"type": "number"}, "vel": {"type": "number"}, "cog": {"type": "number"},
+    "tid": {"type": "string"}}}
+
+
+def ingest_paths() -> dict:
+    """The OpenAPI ``paths`` of the ingest routes."""
+    ok = {"description": "committed: every fix of the request is stored with its estimate"}
+    return {
+        "/": {
+            "get": {"summary": "OsmAnd / Traccar Client fix (with a device id or a position), or the live map "
+                               "(without)", "operationId": "osmand_get", "tags": ["ingest"], "parameters": _OSMAND,
+                    "responses": {"200": {"description": "committed (empty body), or the map page (HTML)"},
+                                  **_ERRORS}},
+            "post": {"summary": "OsmAnd fix as a form body, or Traccar Client JSON", "operationId": "osmand_post",
+                     "tags": ["ingest"], "parameters": [_q("key", "the device's token (--auth)")],
+                     "requestBody": {"required": True, "content": {
+                         "application/x-www-form-urlencoded": {"schema": _FORM},
+                         "application/json": {"schema": _TRACCAR}}},
+                     "responses": {"200": ok, **_ERRORS}},
+        },
+        "/pub": {"post": {
+            "summary": "OwnTracks HTTP mode (user and device from ?u=&d= or X-Limit-U / X-Limit-D)",
+            "operationId": "owntracks", "tags": ["ingest"],
+            "parameters": [_q("u", "OwnTracks user"), _q("d", "OwnTracks device")],
+            "requestBody": {"required": True, "content": {"application/json": {"schema": _OWNTRACKS}}},
+            "responses": {"200": {"description": "accepted; the body is [] (OwnTracks' answer)",
+                                  "content": {"application/json": {"schema": {"type": "array"}}}}, **_ERRORS}}},
+        "/api/fixes": {"post": {
+            "summary": "Bulk fixes of any number of devices: NDJSON or CSV in the columns mptrack track reads",
+            "operationId": "bulk", "tags": ["ingest"],
+            "parameters": [_q("columns", "which column is which, e.g. time=ts,lat=Latitude"),
+                           _q("time_unit", "auto, s, ms, us or ns"), _q("time_format", "strftime layout of text times"),
+                           _q("coord_unit", "auto, deg, deg-e7, deg-e6 or rad"), _q("key", "API key (--auth)")],
+            "requestBody": {"required": True, "content": {"application/x-ndjson": {"schema": {"type": "string"}},
+                                                          "text/csv": {"schema": {"type": "string"}}}},
+            "responses": {"200": {"description": "committed", "content": {"application/json": {"schema": {
+                "type": "object", "properties": {"accepted": {"type": "integer"}}}}}}, **_ERRORS}}},
+        "/healthz": {"get": {"summary": "200 when the server is ready", "operationId": "healthz", "tags": ["operations"],
+                             "responses": {"200": {"description": "ready"}}}},
+    }

@@ -1,0 +1,226 @@
+"""The embedded store: one SQLite file in WAL mode (see :mod:`._store` for what it holds).
+
+A commit is in the database file (its write-ahead log) when it returns, so a fix answered 200
+survives a crash or a kill -9 of the server.  SQLite's ``synchronous=NORMAL``, its recommended
+setting for WAL, leaves the log's flush to disk to the next checkpoint, so a power loss or an OS
+crash may lose the last commits; ``fsync=True`` (``mptrack serve --fsync``) flushes every commit
+(``synchronous=FULL``): one fsync per group commit, ~4 ms on this project's machines.
+
+One connection writes (under a lock); each reading thread has its own connection, and WAL lets them
+read while the writer writes.
+"""
+
+from __future__ import annotations
+
+import sqlite3
+import threading
+import time
+from pathlib import Path
+from typing import Iterator
+
+import numpy as np
+
+from ..errors import OutputError, ParameterError
+from ._store import ESTIMATE_COLUMNS, FIX_COLUMNS, StoredRows
+
+__all__ = ["SqliteStore", "SCHEMA_VERSION"]
+
+SCHEMA_VERSION = 1
+_ALL = FIX_COLUMNS + ESTIMATE_COLUMNS
+_SCHEMA = f"""
+CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value) WITHOUT ROWID;
+CREATE TABLE IF NOT EXISTS device_keys (dev INTEGER PRIMARY KEY, device_id TEXT NOT NULL UNIQUE);
+CREATE TABLE IF NOT EXISTS fixes (seq INTEGER PRIMARY KEY AUTOINCREMENT,
+    dev INTEGER NOT NULL, t REAL NOT NULL, lat REAL NOT NULL, lon REAL NOT NULL, accuracy_m REAL,
+    speed_mps REAL, heading_deg REAL, altitude_m REAL, attrs TEXT, received REAL NOT NULL,
+    est_lat REAL, est_lon REAL, var_e REAL, cov_en REAL, var_n REAL, vel_e REAL, vel_n REAL, nis REAL,
+    flag INTEGER NOT NULL);
+CREATE INDEX IF NOT EXISTS fixes_device_time ON fixes (dev, t);
+CREATE TABLE IF NOT EXISTS device_state (device_id TEXT PRIMARY KEY, state BLOB NOT NULL, upto INTEGER NOT NULL)
+    WITHOUT ROWID;
+CREATE TABLE IF NOT EXISTS devices (device_id TEXT PRIMARY KEY, token_sha256 TEXT NOT NULL UNIQUE,
+    created REAL NOT NULL) WITHOUT ROWID;
+CREATE TABLE IF NOT EXISTS api_keys (name TEXT PRIMARY KEY, key_sha256 TEXT NOT NULL UNIQUE,
+    created REAL NOT NULL) WITHOUT ROWID;
+INSERT OR IGNORE INTO meta VALUES ('schema_version', {SCHEMA_VERSION});
+INSERT OR IGNORE INTO meta VALUES ('watermark', 0);
+"""
+_INSERT = f"INSERT INTO fixes ({', '.join(_ALL)}) VALUES ({', '.join('?' * len(_ALL))})"
+# a late fix is stored unless the same fix (device, time, position) is: the (dev, t) index finds it
+_INSERT_NEW = (f"INSERT INTO fixes ({', '.join(_ALL)}) SELECT {', '.join('?' * len(_ALL))} WHERE NOT EXISTS "
+               "(SELECT 1 FROM fixes WHERE dev = ?1 AND t = ?2 AND lat = ?3 AND lon = ?4)")
+_SELECT = f"SELECT seq, {', '.join(_ALL)} FROM fixes"
+_TEXT = {"attrs"}
+
+
+class SqliteStore:
+    """The SQLite store at ``sqlite:///PATH`` (created with its schema if absent)."""
+
+    def __init__(self, url: str, fsync: bool = False):
+        self.url = url
+        self.fsync = bool(fsync)
+        self.path = Path(url[len("sqlite:///"):])
+        if not str(self.path):
+            raise ParameterError(f"db: expected sqlite:///PATH, got {url!r}")
+        if self.path.is_dir():
+            raise ParameterError(f"db: {self.path} is a directory; give a file, e.g. sqlite:///{self.path}/mptrack.db")
+        try:
+            self._w = self._connect()
+            self._w.executescript(_SCHEMA)
+        except sqlite3.DatabaseError as exc:
+            raise OutputError(f"db: cannot open {self.path} as an mptrack database: {exc}", path=self.path) from None
+        version = self._w.execute("SELECT value FROM meta WHERE key = 'schema_version'").fetchone()[0]
+        if int(version) > SCHEMA_VERSION:
+            raise OutputError(f"db: {self.path} has schema version {version}, newer than this mptrack's "
+                              f"{SCHEMA_VERSION}; upgrade mptrack", path=self.path)
+        self._lock = threading.Lock()
+        self._local = threading.local()
+
+    def _connect(self) -> sqlite3.Connection:
+        con = sqlite3.connect(self.path, timeout=30.0, isolation_level=None, check_same_thread=False)
+        con.execute("PRAGMA journal_mode=WAL")
+        con.execute(f"PRAGMA synchronous={'FULL' if self.fsync else 'NORMAL'}")
+        con.execute("PRAGMA busy_timeout=30000")
+        con.execute("PRAGMA cache_size=-65536")  # 64 MiB: the (device, time) index of the hot devices
+        return con
+
+    def _reader(self) -> sqlite3.Connection:
+        con = getattr(self._local, "con", None)
+        if con is None:
+            con = self._local.con = self._connect()
+        return con
+
+    # ---- writing (one writer) --------------------------------------------------------------------
+    def write(self, rows: list[tuple], late: list[tuple] = (), new_devices: list[tuple[int, str]] = ()) -> int:
+        with self._lock:
+            w = self._w
+            w.execute("BEGIN IMMEDIATE")
+            try:
+                if new_devices:
+                    w.executemany("INSERT INTO device_keys VALUES (?, ?)", new_devices)
+                w.executemany(_INSERT, rows)
+                before = w.total_changes
+                if late:
+                    w.executemany(_INSERT_NEW, late)
+                stored = w.total_changes - before
+                w.execute("COMMIT")
+            except BaseException:
+                w.execute("ROLLBACK")
+                raise
+        return stored
+
+    def checkpoint(self, states: list[tuple[str, bytes]], upto: int, watermark: int) -> None:
+        with self._lock:
+            w = self._w
+            w.execute("BEGIN IMMEDIATE")
+            try:
+                w.executemany("INSERT OR REPLACE INTO device_state VALUES (?, ?, ?)",
+                              [(d, b, int(upto)) for d, b in states])
+                w.execute("UPDATE meta SET value = ? WHERE key = 'watermark'", (int(watermark),))
+                w.execute("COMMIT")
+            except BaseException:
+                w.execute("ROLLBACK")
+                raise
+
+    def add_device(self, device: str, token_sha256: str) -> None:
+        self._insert("INSERT INTO devices VALUES (?, ?, ?)", (device, token_sha256, time.time()), "device", device)
+
+    def add_api_key(self, name: str, key_sha256: str) -> None:
+        self._insert("INSERT INTO api_keys VALUES (?, ?, ?)", (name, key_sha256, time.time()), "API key", name)
+
+    def _insert(self, sql: str, values: tuple, what: str, name: str) -> None:
+        with self._lock:
+            try:
+                self._w.execute(sql, values)
+            except sqlite3.IntegrityError:
+                raise ParameterError(f"name: a {what} named {name!r} exists already") from None
+
+    def delete_before(self, t: float, batch: int = 10_000) -> int:
+        total = 0
+        while True:
+            with self._lock:  # short transactions: ingest goes on between the batches
+                n = self._w.execute("DELETE FROM fixes WHERE seq IN (SELECT seq FROM fixes WHERE t < ? LIMIT ?)",
+                                    (t, batch)).rowcount
+            total += n
+            if n < batch:
+                return total
+
+    # ---- reading ---------------------------------------------------------------------------------
+    def load_checkpoint(self, batch: int = 50_000) -> tuple[int, Iterator[list[tuple[str, bytes, int]]]]:
+        con = self._reader()
+        con.execute("BEGIN")   # the watermark and the states: one snapshot
+        watermark = int(con.execute("SELECT value FROM meta WHERE key = 'watermark'").fetchone()[0])
+
+        def chunks():
+            try:
+                cur = con.execute("SELECT device_id, state, upto FROM device_state")
+                while rows := cur.fetchmany(batch):
+                    yield rows
+            finally:
+                con.execute("COMMIT")
+
+        return watermark, chunks()
+
+    def replay(self, after: int, batch: int = 50_000) -> Iterator[StoredRows]:
+        con = self._reader()
+        while True:
+            rows = con.execute(f"{_SELECT} WHERE seq > ? ORDER BY seq LIMIT ?", (after, batch)).fetchall()
+            if not rows:
+                return
+            out = _columns(rows)
+            after = int(out["seq"][-1])
+            yield out
+
+    def last_row(self) -> int:
+        return int(self._reader().execute("SELECT COALESCE(MAX(seq), 0) FROM fixes").fetchone()[0])
+
+    def fixes(self, dev: int, t0: float | None = None, t1: float | None = None,
+              limit: int | None = None) -> StoredRows:
+        lo = -np.inf if t0 is None else t0
+        hi = np.inf if t1 is None else t1
+        sql = f"{_SELECT} WHERE dev = ? AND t >= ? AND t <= ? ORDER BY t, lat, lon"
+        args: tuple = (int(dev), lo, hi)
+        if limit is not None:
+            sql += " LIMIT ?"
+            args += (int(limit),)
+        return _columns(self._reader().execute(sql, args).fetchall())
+
+    def recent(self, dev: int, n: int) -> StoredRows:
+        rows = self._reader().execute(f"{_SELECT} WHERE dev = ? ORDER BY t DESC LIMIT ?", (int(dev), int(n))).fetchall()
+        return _columns(rows[::-1])
+
+    def device_keys(self) -> list[tuple[int, str]]:
+        return self._reader().execute("SELECT dev, device_id FROM device_keys ORDER BY dev").fetchall()
+
+    def devices(self) -> list[tuple[str, str]]:
+        return self._reader().execute("SELECT device_id, token_sha256 FROM devices").fetchall()
+
+    def api_keys(self) -> list[str]:
+        return [r[0] for r in self._reader().execute("SELECT key_sha256 FROM api_keys")]
+
+    def count(self) -> int:
+        return int(self._reader().execute("SELECT COUNT(*) FROM fixes").fetchone()[0])
+
+    def close(self) -> None:
+        with self._lock:
+            self._w.close()
+        con = getattr(self._local, "con", None)
+        if con is not None:
+            con.close()
+            self._local.con = None
+
+
+def _columns(rows: list[tuple]) -> StoredRows:
+    names = ("seq",) + _ALL
+    if not rows:
+        return StoredRows({n: np.empty(0, dtype=object if n in _TEXT else float) for n in names})
+    cols = list(zip(*rows))
+    out = {}
+    for n, values in zip(names, cols):
+        if n in _TEXT:
+            out[n] = np.array(values, dtype=object)
+        elif n in ("seq", "flag", "dev"):
+            out[n] = np.array(values, dtype=np.int64)
+        else:
+            out[n] = np.array([np.nan if v is None else v for v in values], dtype=float)
+    return StoredRows(out)

@@ -1,0 +1,315 @@
+"""The tracking engine advanced fix by fix for many devices at once: the filter of ``mptrack serve``.
+
+:class:`LiveTracks` keeps one row per track (a device) in flat arrays -- the engine's filter state
+(:func:`._engine.advance_tracks`), the track's local frame (its first fix), its noise parameters and
+its last fix and estimate -- and advances any subset of tracks with their new fixes in one call of
+the compiled kernel.  It is the gated filter of ``mptrack track`` (same model, gating, manoeuvre,
+outlier and restart logic, flags): a track advanced piece by piece ends where one run over all its
+fixes ends.
+
+Noise.  A new track starts from what its first fix says: with an accuracy, fix variance
+c * accuracy^2 with c the population's current accuracy scale (1 until tracks are calibrated);
+without one, c = the population's current sigma^2 (``mptrack track``'s default, 5 m, until
+then).  The noise of tracks is re-estimated from their recent fixes by the maximum likelihood of
+``mptrack track`` (:mod:`._noise`), and the population values follow the medians of the calibrated tracks.
+"""
+
+from __future__ import annotations
+
+import struct
+
+import numpy as np
+import pandas as pd
+
+from ..errors import ParameterError
+from ..io import enu_to_geodetic, geodetic_to_enu
+from ._chain import chain_transition
+from ._columns import FixTable
+from ._engine import advance_tracks, empty_states, state_from_bytes, state_to_bytes
+from ._engine import _layout  # the state row's layout: where x and P of the last fix are
+from ._fixes import TrackOptions
+from ._noise import estimate_noise as _estimate
+from ._noise import fix_weights
+from ._output import ellipse
+from ._run import noise_spec
+from ._registry import DEFAULT_SIGMA_M, get_model
+
+__all__ = ["LiveTracks", "ESTIMATE_FIELDS"]
+
+#: The per-fix estimate :meth:`LiveTracks.advance` returns (and each track's last, :meth:`LiveTracks.summaries`):
+#: position (degrees), east/north covariance (m^2), east/north velocity (m/s), NIS and flag (index into FLAGS).
+ESTIMATE_FIELDS = ("lat", "lon", "var_e", "cov_en", "var_n", "vel_e", "vel_n", "nis", "flag")
+# per-track scalars besides the engine state, in the order they are stored
+_TRACK_FIELDS = ("lat0", "lon0", "c", "q", "mode", "w_fill", "t_last", "raw_lat", "raw_lon") + ESTIMATE_FIELDS
+_LAT0, _LON0, _C, _Q, _MODE, _W_FILL, _T, _RAW_LAT, _RAW_LON = range(9)
+_EST = 9
+UNSET, ACCURACY, SIGMA = 0, 1, 2   # a track's fix-noise mode: not started, c scales accuracy^2, c = sigma^2
+_BLOB = struct.Struct("<4sHH")     # magic, layout version, number of track scalars
+_MAGIC, _VERSION = b"MPLT", 1
+
+
+class LiveTracks:
+    """Filter states of many tracks, advanced fix by fix (see the module doc).
+
+    options   the settings of ``mptrack track`` that apply (model, q, sigma_m, gate_probability)
+    """
+
+    def __init__(self, options: TrackOptions = TrackOptions()):
+        if not isinstance(options, TrackOptions):
+            raise ParameterError(f"options: expected TrackOptions, got {type(options).__name__}")
+        self.options = options
+        self.spec = noise_spec(options)
+        self.order = self.spec.order
+        self.model = get_model(options.model)
+        self._states = empty_states(0, self.order)
+        self._track = np.zeros((0, len(_TRACK_FIELDS)))
+        self.n = 0
+        # the population's current noise: accuracy scale, sigma^2 (tracks without accuracy), q
+        self.population = {"c_accuracy": 1.0, "c_sigma": (options.sigma_m or DEFAULT_SIGMA_M) ** 2,
+                           "q": options.q if options.q is not None else self.model.default_q}
+
+    # ---- tracks -----------------------------------------------------------------------------------
+    def add(self, count: int = 1) -> np.ndarray:
+        """Add ``count`` empty tracks; returns their indices."""
+        first = self.n
+        need = first + int(count)
+        if need > len(self._states):
+            size = max(need, 2 * len(self._states), 1024)
+            states = empty_states(size, self.order)
+            states[:first] = self._states[:first]
+            track = np.full((size, len(_TRACK_FIELDS)), np.nan)
+            track[:first] = self._track[:first]
+            self._states, self._track = states, track
+        self._track[first:need] = np.nan
+        self._track[first:need, _MODE] = UNSET
+        self._states[first:need] = 0.0
+        self.n = need
+        return np.arange(first, need)
+
+    def _check(self, tracks) -> np.ndarray:
+        idx = np.asarray(tracks, dtype=np.int64)
+        if idx.size and (idx.min() < 0 or idx.max() >= self.n):
+            raise ParameterError(f"tracks: expected indices in 0..{self.n - 1}")
+        return idx
+
+    # ---- advancing ---------------------------------------------------------------------------------
+    def advance(self, tracks, t, lat, lon, accuracy) -> dict:
+        """Advance tracks with new fixes: rows sorted by track, each track's in time order and after
+        its last fix; ``accuracy`` (m, 1-sigma) NaN where the fix has none.  Returns the estimate at
+        each fix (:data:`ESTIMATE_FIELDS`, arrays of the rows)."""
+        tracks = self._check(tracks)
+        t, lat, lon, acc = (np.ascontiguousarray(a, dtype=float) for a in (t, lat, lon, accuracy))
+        N = len(t)
+        if N == 0:
+            return {k: np.empty(0) for k in ESTIMATE_FIELDS}
+        if np.any(np.diff(tracks) < 0):
+            raise ParameterError("tracks: expected the rows sorted by track")
+        uniq, starts = np.unique(tracks, return_index=True)
+        offsets = np.r_[starts, N].astype(np.int64)
+        tr = self._track
+        new = tr[uniq, _MODE] == UNSET
+        if new.any():
+            first = starts[new]
+            tr[uniq[new], _LAT0], tr[uniq[new], _LON0] = lat[first], lon[first]
+            has = np.isfinite(acc[first]) & (acc[first] > 0)
+            tr[uniq[new], _MODE] = np.where(has, ACCURACY, SIGMA)
+            tr[uniq[new], _W_FILL] = np.where(has, acc[first] ** 2, 1.0)
+            tr[uniq[new], _C] = np.where(has, self.population["c_accuracy"], self.population["c_sigma"])
+            tr[uniq[new], _Q] = self.population["q"]
+        if self.options.sigma_m is not None:
+            tr[uniq, _C] = 1.0
+        if self.options.q is not None:
+            tr[uniq, _Q] = self.options.q
+        east, north = geodetic_to_enu(lat, lon, tr[tracks, _LAT0], tr[tracks, _LON0])
+        good = np.isfinite(acc) & (acc > 0)
+        sigma_mode = tr[tracks, _MODE] == SIGMA
+        if self.options.sigma_m is not None:
+            w = np.where(good, acc * acc, self.options.sigma_m ** 2)
+        else:
+            w = np.where(sigma_mode, 1.0, np.where(good, acc * acc, tr[tracks, _W_FILL]))
+        order = self.order
+        states = self._states[uniq]
+        X = np.empty((N, 2, order))
+        P = np.empty((N, order, order))
+        nis = np.empty(N)
+        flag = np.empty(N, dtype=np.int8)
+        stats = np.empty((len(uniq), 6))
+        advance_tracks(states, offsets, t, np.ascontiguousarray(east), np.ascontiguousarray(north),
+                       np.ascontiguousarray(w), np.ascontiguousarray(tr[uniq, _C]), np.ascontiguousarray(tr[uniq, _Q]),
+                       order, self.spec.prior, self.spec.gate, self.spec.max_rej, X, P, nis, flag, stats)
+        self._states[uniq] = states
+        est = self._estimates(tracks, X, P, nis, flag)
+        last = offsets[1:] - 1
+        tr[uniq, _T], tr[uniq, _RAW_LAT], tr[uniq, _RAW_LON] = t[last], lat[last], lon[last]
+        for j, k in enumerate(ESTIMATE_FIELDS):
+            tr[uniq, _EST + j] = est[k][last]
+        return est
+
+    def _estimates(self, tracks, X, P, nis, flag) -> dict:
+        tr = self._track
+        lat, lon = enu_to_geodetic(X[:, 0, 0], X[:, 1, 0], tr[tracks, _LAT0], tr[tracks, _LON0])
+        var = P[:, 0, 0].copy()
+        return {"lat": lat, "lon": lon, "var_e": var, "cov_en": np.zeros(len(var)), "var_n": var.copy(),
+                "vel_e": X[:, 0, 1].copy(), "vel_n": X[:, 1, 1].copy(), "nis": nis, "flag": flag.astype(np.int64)}
+
+    # ---- what a track knows now --------------------------------------------------------------------
+    def last_fix(self, i: int) -> tuple[float, float, float]:
+        """(t, lat, lon) of track i's last filtered fix (NaN for a track without one)."""
+        row = self._track[self._check([i])[0]]
+        return float(row[_T]), float(row[_RAW_LAT]), float(row[_RAW_LON])
+
+    def last_fixes(self, tracks) -> np.ndarray:
+        """(K, 3): t, lat, lon of each track's last filtered fix (NaN where none)."""
+        return self._track[self._check(tracks)][:, [_T, _RAW_LAT, _RAW_LON]]
+
+    def summaries(self) -> list[dict]:
+        """Each track's last fix and estimate: time, raw_lat, raw_lon, the ESTIMATE_FIELDS and the
+        1-sigma ellipse (ell_major_m, ell_minor_m, ell_azimuth_deg)."""
+        tr = self._track[:self.n]
+        major, minor, az = ellipse(tr[:, _EST + 2], tr[:, _EST + 3], tr[:, _EST + 4])
+        cols = {"time": tr[:, _T], "raw_lat": tr[:, _RAW_LAT], "raw_lon": tr[:, _RAW_LON],
+                **{k: tr[:, _EST + j] for j, k in enumerate(ESTIMATE_FIELDS)},
+                "ell_major_m": major, "ell_minor_m": minor, "ell_azimuth_deg": az}
+        names = list(cols)
+        return [dict(zip(names, row)) for row in zip(*(c.tolist() for c in cols.values()))]
+
+    def position(self, i: int, t: float) -> dict:
+        """Track i's estimate predicted to time ``t`` (at or after its last fix): lat, lon, vel_e,
+        vel_n, the east/north covariance and its 1-sigma ellipse, and the flag of its last fix.  The
+        prediction is x(t) = F(t - t_k) x(k/k), P(t) = F P F' + q Q(t - t_k) -- for regular fixes and a
+        filter in steady state, the N-step steady-state prediction of Assimakis et al. 2016."""
+        i = int(self._check([i])[0])
+        tr = self._track[i]
+        dt = float(t) - tr[_T]
+        if not dt >= 0.0:
+            raise ParameterError(f"t: expected a time at or after the track's last fix ({tr[_T]!r}), got {t!r}")
+        x, P = self._estimate(i)
+        order = self.order
+        F, Qu = np.empty((order, order)), np.empty((order, order))
+        chain_transition.py_func(order, dt, F, Qu)
+        x = x @ F.T
+        P = F @ P @ F.T + tr[_Q] * Qu
+        lat, lon = enu_to_geodetic(x[0:1, 0], x[1:2, 0], tr[_LAT0:_LAT0 + 1], tr[_LON0:_LON0 + 1])
+        var = np.array([P[0, 0]])
+        major, minor, az = ellipse(var, np.zeros(1), var)
+        return {"lat": float(lat[0]), "lon": float(lon[0]), "vel_e": float(x[0, 1]), "vel_n": float(x[1, 1]),
+                "var_e": float(P[0, 0]), "cov_en": 0.0, "var_n": float(P[0, 0]), "ell_major_m": float(major[0]),
+                "ell_minor_m": float(minor[0]), "ell_azimuth_deg": float(az[0]), "flag": int(tr[_EST + 8])}
+
+    def _estimate(self, i: int) -> tuple[np.ndarray, np.ndarray]:
+        """(x (2, order), P (order, order)) of track i after its last fix."""
+        x0, p0 = _layout.py_func(self.order)[:2]
+        row = self._states[i]
+        order = self.order
+        return row[x0:x0 + 2 * order].reshape(2, order).copy(), row[p0:p0 + order * order].reshape(order, order).copy()
+
+    def origin(self, i: int) -> tuple[float, float]:
+        """(lat0, lon0) of track i's local frame (its first fix)."""
+        row = self._track[self._check([i])[0]]
+        return float(row[_LAT0]), float(row[_LON0])
+
+    # ---- noise -------------------------------------------------------------------------------------
+    def estimate_noise(self, histories: list[dict]) -> dict:
+        """The fix noise and process noise of tracks from their recent fixes (``histories``: one dict of
+        arrays t, lat, lon, accuracy_m per track, in time order) by the maximum likelihood of
+        ``mptrack track`` (tracks with few fixes take the pooled value): a dict of arrays c, q, mode
+        and w_fill for :meth:`set_noise` (NaN rows: fewer than two fixes, nothing estimated).  Reads no
+        track state, so it may run beside :meth:`advance`."""
+        K = len(histories)
+        out = {"c": np.full(K, np.nan), "q": np.full(K, np.nan), "mode": np.full(K, np.nan),
+               "w_fill": np.full(K, np.nan)}
+        keep = [j for j, h in enumerate(histories) if len(h["t"]) >= 2]
+        if not keep:
+            return out
+        frame = pd.concat([pd.DataFrame({"track_id": str(j), "time": h["t"], "t": h["t"], "lat": h["lat"],
+                                         "lon": h["lon"], "accuracy_m": h["accuracy_m"]})
+                           for j in keep for h in (histories[j],)], ignore_index=True)
+        frame["row"] = np.arange(1, len(frame) + 1)
+        table = FixTable.from_frame(frame)
+        w, has_acc = fix_weights(table, self.options.sigma_m)
+        noise = _estimate(table, w, has_acc, self.spec)
+        out["c"][keep], out["q"][keep] = noise.c, noise.q
+        out["mode"][keep] = np.where(has_acc, ACCURACY, SIGMA)
+        out["w_fill"][keep] = np.where(has_acc, table.per_track_median(w), 1.0)
+        return out
+
+    def set_noise(self, tracks, noise: dict) -> None:
+        """Tracks' noise <- :meth:`estimate_noise`'s (rows with NaN are left alone); the population
+        values follow the medians over every track."""
+        tracks = self._check(tracks)
+        ok = np.isfinite(noise["c"])
+        idx = tracks[ok]
+        tr = self._track
+        if self.options.sigma_m is None:
+            tr[idx, _C], tr[idx, _MODE], tr[idx, _W_FILL] = noise["c"][ok], noise["mode"][ok], noise["w_fill"][ok]
+        if self.options.q is None:
+            tr[idx, _Q] = noise["q"][ok]
+        cal = tr[:self.n]
+        for key, mode in (("c_accuracy", ACCURACY), ("c_sigma", SIGMA)):
+            sel = (cal[:, _MODE] == mode) & np.isfinite(cal[:, _C])
+            if sel.any() and self.options.sigma_m is None:
+                self.population[key] = float(np.median(cal[sel, _C]))
+        if self.options.q is None and np.isfinite(cal[:, _Q]).any():
+            self.population["q"] = float(np.nanmedian(cal[:, _Q]))
+
+    def noise(self, i: int) -> dict:
+        """Track i's noise: fix variance factor c, process-noise density q, and whether c scales the
+        fixes' accuracy^2 (else c is sigma^2)."""
+        row = self._track[self._check([i])[0]]
+        return {"c": float(row[_C]), "q": float(row[_Q]), "accuracy": row[_MODE] == ACCURACY}
+
+    # ---- saving and restoring ---------------------------------------------------------------------
+    def save_states(self, tracks) -> tuple:
+        """A copy of ``tracks``' rows (for :meth:`restore_states`)."""
+        idx = self._check(tracks)
+        return idx, self._states[idx].copy(), self._track[idx].copy(), dict(self.population)
+
+    def restore_states(self, saved: tuple) -> None:
+        idx, states, track, population = saved
+        self._states[idx], self._track[idx] = states, track
+        self.population = population
+
+    def state_bytes(self, i: int) -> bytes:
+        """Track i's whole state (engine state, frame, noise, last fix and estimate) as bytes."""
+        i = int(self._check([i])[0])
+        return (_BLOB.pack(_MAGIC, _VERSION, len(_TRACK_FIELDS)) + self._track[i].astype("<f8").tobytes()
+                + state_to_bytes(self._states[i], self.order))
+
+    def load_states(self, tracks, blobs: list[bytes]) -> None:
+        """Tracks <- their :meth:`state_bytes`, all at once (a restart with 10^6 devices reads them in
+        one pass); a ParameterError says what does not match this mptrack's layout or model."""
+        tracks = self._check(tracks)
+        if len(tracks) != len(blobs):
+            raise ParameterError("blobs: expected one state per track")
+        if not len(tracks):
+            return
+        first = bytes(blobs[0])
+        size = len(first)
+        if any(len(b) != size for b in blobs):
+            raise ParameterError("blobs: states of different layouts (written by different versions of mptrack)")
+        k = len(_TRACK_FIELDS)
+        end = _BLOB.size + 8 * k
+        magic, version, fields = _BLOB.unpack_from(first)
+        if magic != _MAGIC or version != _VERSION or fields != k:
+            raise ParameterError(f"blobs: not live track states of this mptrack (layout {version}, {fields} fields)")
+        state, order = state_from_bytes(first[end:])   # checks the engine's layout once
+        if order != self.order:
+            raise ParameterError(f"blobs: states of a model of order {order}, not {self.order}")
+        head = size - 8 * state.size   # the engine's header ends, its float64 begin
+        raw = np.frombuffer(b"".join(blobs), dtype=np.uint8).reshape(len(blobs), size)
+        if not ((raw[:, :_BLOB.size] == raw[0, :_BLOB.size]).all() and (raw[:, end:head] == raw[0, end:head]).all()):
+            raise ParameterError("blobs: states of different layouts (written by different versions of mptrack)")
+        self._track[tracks] = raw[:, _BLOB.size:end].copy().view("<f8")
+        self._states[tracks] = raw[:, head:].copy().view("<f8")
+
+    def warm_up(self) -> None:
+        """Compile the kernels (a few seconds the first time, cached on disk), so the first fixes are fast."""
+        probe = LiveTracks(self.options)
+        probe.add(1)
+        n = 6
+        probe.advance(np.zeros(n, np.int64), 1.7e9 + np.arange(n), 50.0 + 1e-5 * np.arange(n), np.full(n, 8.0),
+                      np.full(n, 5.0))
+        probe.position(0, 1.7e9 + n)
+        probe.estimate_noise([{"t": 1.7e9 + np.arange(40.0), "lat": 50.0 + 1e-5 * np.arange(40), "lon": np.full(40, 8.0),
+                               "accuracy_m": np.full(40, 5.0)}])
+

@@ -1,0 +1,51 @@
+"""The live map of mptrack serve in headless Chromium: one marker per device, devices that move and
+appear as fixes arrive (Server-Sent Events), a device's last hour on click, no script errors, offline."""
+
+from __future__ import annotations
+
+import time
+
+import pytest
+from _browser import Browser, needs_chromium
+from _server import Server
+
+
+@pytest.fixture
+def served(tmp_path):
+    srv = Server(tmp_path).start()
+    yield srv
+    assert srv.stop() == 0, srv.output()
+
+
+def _send(srv, device: str, k: int, t0: int, lat0: float) -> None:
+    r = srv.get(f"/?id={device}&lat={lat0 + 2e-4 * k!r}&lon=13.4&timestamp={t0 + 5 * k}&accuracy=6")
+    assert r.status_code == 200, r.text
+
+
+@needs_chromium
+def test_live_map_shows_every_device_and_follows_new_fixes(served, tmp_path, tmp_path_factory):
+    t0 = int(time.time()) - 600
+    for i, dev in enumerate(("bus-1", "bus-2", "bus-3")):
+        for k in range(5):
+            _send(served, dev, k, t0, 52.50 + 0.01 * i)
+    browser = Browser(served.url + "/", tmp_path / "profile")
+    try:
+        browser.wait_for("document.body.dataset.ready === '1'")
+        assert browser.eval("document.body.dataset.devices") == "3"
+        assert browser.eval("document.documentElement.dataset.jsErrors || ''") == ""
+        assert browser.eval("document.querySelectorAll('#device-list li').length") == 3
+        browser.wait_for("document.getElementById('status').textContent === 'live'")
+        # a new device and a moving one: the page follows the stream
+        for k in range(3):
+            _send(served, "bus-4", k, t0 + 100, 52.53)
+        _send(served, "bus-1", 5, t0, 52.50)
+        browser.wait_for("document.body.dataset.devices === '4'")
+        assert int(browser.wait_for("Number(document.body.dataset.events) >= 4 && document.body.dataset.events"))
+        # a click on a device draws its track (its stored fixes of the last hour)
+        browser.eval("document.querySelector('#device-list li').click()")
+        assert browser.wait_for("document.body.dataset.trackPoints") == "6"
+        shot = browser.screenshot(tmp_path_factory.getbasetemp() / "live-map.png")
+        print(f"screenshot: {shot}")
+        assert browser.eval("document.documentElement.dataset.jsErrors || ''") == ""
+    finally:
+        browser.close()

@@ -1,0 +1,338 @@
+"""mptrack serve as a real process over real sockets: every client format, real traces fed fix by fix
+and queried (position, prediction, stored and smoothed track against ``mptrack track --smooth``),
+late and duplicate fixes, every bad input, auth, retention, restart."""
+
+from __future__ import annotations
+
+import base64
+import io
+import json
+import math
+import sqlite3
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+from _data import REAL_TRACES, shared_data
+from _server import SRC, Server, error_of
+
+from mptrack.io import geodetic_to_enu, read_output, read_table
+
+NOW = time.time()
+
+
+@pytest.fixture(scope="module")
+def server(tmp_path_factory):
+    srv = Server(tmp_path_factory.mktemp("serve")).start()
+    yield srv
+    assert srv.stop() == 0, srv.output()
+
+
+def _stored(db: Path, device: str | None = None) -> pd.DataFrame:
+    con = sqlite3.connect(db)
+    try:
+        q = "SELECT k.device_id, f.* FROM fixes f JOIN device_keys k ON k.dev = f.dev"
+        return pd.read_sql_query(q + (" WHERE k.device_id = ?" if device else ""), con,
+                                 params=(device,) if device else None)
+    finally:
+        con.close()
+
+
+def _stats(srv) -> dict:
+    return srv.json("/api/stats")
+
+
+# ---- each client format, as the apps send it ---------------------------------------------------------
+def test_osmand_get_and_form_post(server):
+    t = int(NOW) - 600
+    r = server.get(f"/?id=osm-1&timestamp={t}&lat=52.5&lon=13.4&speed=10&bearing=90&altitude=40&accuracy=8&batt=87")
+    assert r.status_code == 200 and r.text == ""
+    r = server.post("/", content=f"id=osm-1&timestamp={t + 5}&lat=52.50001&lon=13.4001&accuracy=8",
+                    headers={"Content-Type": "application/x-www-form-urlencoded"})
+    assert r.status_code == 200 and r.text == ""
+    rows = _stored(server.db, "osm-1")
+    assert len(rows) == 2 and rows["speed_mps"].iloc[0] == pytest.approx(10 * 1852 / 3600)
+    assert json.loads(rows["attrs"].iloc[0]) == {"batt": 87}
+
+
+def test_traccar_client_json(server):
+    loc = {"timestamp": "2026-06-15T13:45:12.862Z", "coords": {"latitude": 37.4219983, "longitude": -122.084,
+           "accuracy": 5, "speed": 3.1, "heading": 90, "altitude": 5}, "is_moving": True, "odometer": 12,
+           "event": "motionchange", "battery": {"level": 0.87, "is_charging": False}, "activity": {"type": "walking"},
+           "extras": {}}
+    r = server.post("/", json={"device_id": "tc-1", "location": loc})
+    assert r.status_code == 200
+    later = dict(loc, timestamp="2026-06-15T13:45:22.862Z", coords=dict(loc["coords"], latitude=37.42205))
+    r = server.post("/", json={"device_id": "tc-1", "location": [later, dict(later, timestamp="2026-06-15T13:45:32Z")]})
+    assert r.status_code == 200
+    rows = _stored(server.db, "tc-1")
+    assert len(rows) == 3 and set(rows["speed_mps"]) == {3.1}
+
+
+def test_owntracks_http_mode(server):
+    msg = {"_type": "location", "tst": int(NOW) - 300, "acc": 10, "alt": 262, "lon": 13.602798, "vac": 6, "vel": 18,
+           "lat": 51.062634, "cog": 82, "tid": "NE", "batt": 99}
+    r = server.post("/pub?u=jane&d=phone", json=msg)
+    assert r.status_code == 200 and r.json() == []
+    r = server.post("/pub", json=dict(msg, tst=msg["tst"] + 30), headers={"X-Limit-U": "jane", "X-Limit-D": "phone"})
+    assert r.status_code == 200 and r.json() == []
+    r = server.post("/pub?u=jane&d=phone", json={"_type": "waypoint", "desc": "home", "lat": 51, "lon": 13})
+    assert r.status_code == 200 and r.json() == []
+    rows = _stored(server.db, "jane/phone")
+    assert len(rows) == 2 and rows["speed_mps"].iloc[0] == pytest.approx(5.0)
+    assert server.json("/api/devices/jane/phone/position")["id"] == "jane/phone"
+
+
+def test_bulk_ndjson_and_csv(server):
+    lines = [json.dumps({"device": f"gw-{i % 3}", "time": int(NOW) - 1000 + i, "latitude": 48.1 + 1e-5 * i,
+                         "longitude": 11.6, "accuracy": 5}) for i in range(30)]
+    r = server.post("/api/fixes", content="\n".join(lines), headers={"Content-Type": "application/x-ndjson"})
+    assert r.status_code == 200 and r.json() == {"accepted": 30}
+    csv = "track_id,time,lat,lon\n" + "".join(f"gw-csv,{int(NOW) - 500 + i},48.2,{11.6 + 1e-5 * i}\n" for i in range(10))
+    r = server.post("/api/fixes", content=csv, headers={"Content-Type": "text/csv"})
+    assert r.status_code == 200 and r.json() == {"accepted": 10}
+    assert len(_stored(server.db, "gw-1")) == 10 and len(_stored(server.db, "gw-csv")) == 10
+
+
+# ---- late and duplicate fixes --------------------------------------------------------------------------
+def test_late_fixes_are_stored_and_duplicates_are_not(server):
+    t0 = int(NOW) - 3000
+    before = _stats(server)
+    for dt, lat in ((0, 50.0), (10, 50.0001), (20, 50.0002)):
+        assert server.get(f"/?id=late-1&timestamp={t0 + dt}&lat={lat}&lon=8.0&accuracy=5").status_code == 200
+    assert server.get(f"/?id=late-1&timestamp={t0 + 15}&lat=50.00015&lon=8.0&accuracy=5").status_code == 200  # late
+    assert server.get(f"/?id=late-1&timestamp={t0 + 15}&lat=50.00015&lon=8.0&accuracy=5").status_code == 200  # again
+    assert server.get(f"/?id=late-1&timestamp={t0 + 20}&lat=50.0002&lon=8.0&accuracy=5").status_code == 200  # repeat
+    rows = _stored(server.db, "late-1").sort_values("t")
+    assert list(rows["t"] - t0) == [0, 10, 15, 20]
+    assert rows.loc[rows["t"] == t0 + 15, "est_lat"].isna().all()   # late: no live estimate
+    after = _stats(server)
+    assert after["late"] - before["late"] == 1 and after["duplicates"] - before["duplicates"] == 2
+    assert server.json("/api/devices/late-1/position")["last_fix_time"].startswith(
+        time.strftime("%Y-%m-%dT%H:%M:%S", time.gmtime(t0 + 20)))
+
+
+# ---- real traces fed fix by fix, then every query ----------------------------------------------------
+def _traces() -> dict[str, pd.DataFrame]:
+    car = read_table(REAL_TRACES["car"])
+    hike = read_table(REAL_TRACES["hike"])
+    bus = read_table(shared_data("receivers", "bus-304-to-UL.gpx")).iloc[:400]
+    return {"car": car, "hike": hike[hike["track_id"] == "ACTIVE LOG"], "bus": bus}
+
+
+@pytest.fixture(scope="module")
+def fed(server, tmp_path_factory):
+    """Three devices fed real GPX traces fix by fix as OsmAnd GETs (each trace also as a CSV file)."""
+    tmp = tmp_path_factory.mktemp("traces")
+    files = {}
+    for name, df in _traces().items():
+        dev = f"gpx-{name}"
+        t = df["t"].to_numpy()
+        lat, lon = df["lat"].to_numpy(), df["lon"].to_numpy()
+        for k, (tk, la, lo) in enumerate(zip(t.tolist(), lat.tolist(), lon.tolist())):
+            r = server.get(f"/?id={dev}&timestamp={int(round(tk * 1000))}&lat={la!r}&lon={lo!r}")
+            assert r.status_code == 200, r.text
+        path = tmp / f"{dev}.csv"
+        pd.DataFrame({"track_id": dev, "time": pd.to_datetime(np.round(t * 1000).astype("int64"), unit="ms", utc=True),
+                      "lat": lat, "lon": lon}).to_csv(path, index=False)
+        files[dev] = path
+    return files
+
+
+def test_position_and_prediction_of_fed_devices(server, fed):
+    for dev in fed:
+        live = pd.read_json(io.StringIO(server.get(f"/api/devices/{dev}/track").text))
+        pos = server.json(f"/api/devices/{dev}/position")
+        last = live.iloc[-1]
+        assert pos["lat"] == pytest.approx(last["lat"], abs=1e-12) and pos["lon"] == pytest.approx(last["lon"], abs=1e-12)
+        assert pos["ell_major_m"] == pytest.approx(last["ell_major_m"], rel=1e-12)
+        t_last = pd.Timestamp(pos["last_fix_time"]).timestamp()
+        ahead = server.json(f"/api/devices/{dev}/position", params={"at": t_last + 30})
+        assert ahead["flag"] == "predicted" and ahead["ell_major_m"] > pos["ell_major_m"]
+        # the prediction moves on at the estimated velocity
+        e, n = geodetic_to_enu(np.array([ahead["lat"]]), np.array([ahead["lon"]]), np.array([pos["lat"]]),
+                               np.array([pos["lon"]]))
+        ve, vn = last["vel_east_mps"], last["vel_north_mps"]
+        assert math.hypot(e[0] - 30 * ve, n[0] - 30 * vn) < 1e-3 * max(1.0, 30 * math.hypot(ve, vn))
+        past = server.get(f"/api/devices/{dev}/position", params={"at": t_last - 60})
+        assert error_of(past)["field"] == "at"
+
+
+def test_smoothed_track_equals_mptrack_track_smooth(server, fed, tmp_path):
+    """track?smooth=true and ``mptrack track FILE --smooth`` on the same fixes agree to 1e-6 m."""
+    for dev, path in fed.items():
+        body = server.get(f"/api/devices/{dev}/track", params={"smooth": "true", "format": "parquet"}).content
+        got = pd.read_parquet(io.BytesIO(body))
+        out = tmp_path / f"{dev}.parquet"
+        proc = subprocess.run([sys.executable, "-m", "mptrack", "track", str(path), "--smooth", "-o", str(out), "-q"],
+                              capture_output=True, text=True, env={"PYTHONPATH": str(SRC), "PATH": "/usr/bin:/bin"})
+        assert proc.returncode == 0, proc.stderr
+        want = read_output(out)
+        assert len(got) == len(want) == len(pd.read_csv(path))
+        e, n = geodetic_to_enu(got["lat"].to_numpy(), got["lon"].to_numpy(), want["lat"].to_numpy(),
+                               want["lon"].to_numpy())
+        assert np.max(np.hypot(e, n)) <= 1e-6, (dev, np.max(np.hypot(e, n)))
+        np.testing.assert_array_equal(got["flag"].to_numpy(), want["flag"].to_numpy())
+
+
+@pytest.mark.parametrize("fmt", ["json", "geojson", "gpx", "csv", "parquet"])
+def test_track_formats(server, fed, fmt, tmp_path):
+    dev = "gpx-car"
+    r = server.get(f"/api/devices/{dev}/track", params={"format": fmt})
+    assert r.status_code == 200
+    if fmt == "json":
+        rows = r.json()
+        assert len(rows) == 104 and {"lat", "lon", "meas_lat", "meas_lon", "flag", "ell_major_m"} <= set(rows[0])
+        return
+    path = tmp_path / f"t.{fmt}"
+    path.write_bytes(r.content)
+    back = read_output(path)
+    assert len(back) == 104 and np.isfinite(back["lat"]).all()
+
+
+def test_track_time_window(server, fed):
+    rows = server.json("/api/devices/gpx-car/track")
+    t = [pd.Timestamp(r["time"]).timestamp() for r in rows]
+    some = server.json("/api/devices/gpx-car/track", params={"from": t[10], "to": t[20]})
+    assert len(some) == 11
+    r = server.get("/api/devices/gpx-car/track", params={"from": t[20], "to": t[10]})
+    assert error_of(r)["field"] == "to"
+
+
+def test_devices_list(server, fed):
+    devices = {d["id"]: d for d in server.json("/api/devices")}
+    assert set(fed) <= set(devices)
+    assert all(np.isfinite(devices[d]["lat"]) and devices[d]["flag"] for d in fed)
+
+
+# ---- bad input: a JSON 4xx naming the field, nothing stored, the server keeps serving -----------------
+BAD = [
+    ("GET", f"/?lat=52&lon=13&timestamp={int(NOW)}", None, None, "id"),
+    ("GET", f"/?id=b&lat=91&lon=13&timestamp={int(NOW)}", None, None, "lat"),
+    ("GET", f"/?id=b&lat=52&lon=181&timestamp={int(NOW)}", None, None, "lon"),
+    ("GET", f"/?id=b&lat=NaN&lon=13&timestamp={int(NOW)}", None, None, "lat"),
+    ("GET", f"/?id=b&lat=52&lon=Infinity&timestamp={int(NOW)}", None, None, "lon"),
+    ("GET", "/?id=b&lat=52&lon=13&timestamp=4070908800", None, None, "timestamp"),   # 2099
+    ("GET", "/?id=b&lat=52&lon=13&timestamp=0", None, None, "timestamp"),            # 1970
+    ("POST", "/", b'{"device_id": "b", "location": {', "application/json", None),
+    ("GET", f"/?id=%27%3B%20DROP%20TABLE%20fixes%3B%20--&lat=52&lon=13&timestamp={int(NOW)}", None, None, "id"),
+    ("POST", "/", f"id=b&lat=52&lon=13&timestamp={int(NOW)}".encode(), "text/plain", "Content-Type"),
+    ("POST", "/pub?u=jane&d=phone", b'{"_type": "location", "lat": 52, "lon": 13, "tst": "soon"}', "application/json",
+     "tst"),
+    ("POST", "/api/fixes", b"track_id,time,lat,lon\nb,2026-01-01T00:00:00Z,95,13\n", "text/csv", "lat"),
+    ("POST", "/api/fixes", b"a,b\n1,2\n", "application/pdf", "Content-Type"),
+]
+
+
+@pytest.mark.parametrize("method, path, body, ctype, field", BAD, ids=[b[1][:40] for b in BAD])
+def test_bad_input_is_refused_by_name_and_nothing_is_stored(server, method, path, body, ctype, field):
+    before = len(_stored(server.db))
+    headers = {"Content-Type": ctype} if ctype else {}
+    r = server.post(path, content=body, headers=headers) if method == "POST" else server.get(path)
+    err = error_of(r)
+    assert err.get("field") == field, err
+    assert len(_stored(server.db)) == before
+    assert server.get("/healthz").status_code == 200
+    names = {r[0] for r in sqlite3.connect(server.db).execute("SELECT name FROM sqlite_master WHERE type='table'")}
+    assert "fixes" in names
+
+
+def test_a_10_mb_body_is_refused_with_413(server):
+    before = len(_stored(server.db))
+    r = server.post("/api/fixes", content=b"x" * (10 << 20), headers={"Content-Type": "text/csv"})
+    assert r.status_code == 413 and error_of(r)["code"] == "body_too_large"
+    assert len(_stored(server.db)) == before and server.get("/healthz").status_code == 200
+
+
+def test_unknown_device_and_route(server):
+    assert error_of(server.get("/api/devices/nobody/position"))["code"] == "not_found"
+    assert error_of(server.get("/api/nothing"))["code"] == "not_found"
+
+
+# ---- auth -----------------------------------------------------------------------------------------------
+def _cli(*args, cwd=None) -> str:
+    proc = subprocess.run([sys.executable, "-m", "mptrack", *args], capture_output=True, text=True, cwd=cwd,
+                          env={"PYTHONPATH": str(SRC), "PATH": "/usr/bin:/bin"})
+    assert proc.returncode == 0, proc.stderr
+    return proc.stdout.strip()
+
+
+def test_auth(tmp_path):
+    db = tmp_path / "auth.db"
+    token = _cli("devices", "add", "car-7", "--db", f"sqlite:///{db}")
+    other = _cli("devices", "add", "jane/phone", "--db", f"sqlite:///{db}")
+    key = _cli("keys", "add", "dashboard", "--db", f"sqlite:///{db}")
+    srv = Server(tmp_path, "--auth", db=db).start()
+    try:
+        t = int(NOW)
+        q = f"/?id=car-7&lat=52.5&lon=13.4&timestamp={t}"
+        assert error_of(srv.get(q))["code"] == "unauthorized"
+        assert error_of(srv.get(q + "&key=wrong"))["code"] == "unauthorized"
+        assert error_of(srv.get(q + f"&key={other}"))["code"] == "forbidden"  # another device's token
+        assert srv.get(q + f"&key={token}").status_code == 200
+        r = srv.post("/", json={"device_id": "car-7", "location": {"timestamp": t + 1, "coords": {
+            "latitude": 52.5, "longitude": 13.40001}}}, headers={"Authorization": f"Bearer {token}"})
+        assert r.status_code == 200
+        basic = base64.b64encode(f"jane/phone:{other}".encode()).decode()
+        msg = {"_type": "location", "lat": 51.0, "lon": 13.0, "tst": t}
+        assert error_of(srv.post("/pub", json=msg))["code"] == "unauthorized"
+        assert srv.post("/pub", json=msg, headers={"Authorization": f"Basic {basic}"}).status_code == 200
+        assert len(_stored(db)) == 3
+        assert error_of(srv.get("/api/devices"))["code"] == "unauthorized"
+        assert error_of(srv.get("/"))["code"] == "unauthorized"
+        assert srv.get("/api/devices", params={"key": key}).status_code == 200
+        assert srv.get("/api/devices", headers={"Authorization": f"Bearer {key}"}).status_code == 200
+        assert srv.get("/", params={"key": key}).status_code == 200
+        assert error_of(srv.post("/api/fixes", content=b"track_id,time,lat,lon\n", headers={
+            "Content-Type": "text/csv"}))["code"] == "unauthorized"
+    finally:
+        assert srv.stop() == 0
+
+
+def test_a_public_address_needs_auth(tmp_path):
+    proc = subprocess.run([sys.executable, "-m", "mptrack", "serve", "--host", "0.0.0.0", "--db",
+                           f"sqlite:///{tmp_path / 'x.db'}"], capture_output=True, text=True, timeout=60,
+                          env={"PYTHONPATH": str(SRC), "PATH": "/usr/bin:/bin"})
+    assert proc.returncode == 2 and "--auth" in proc.stderr
+
+
+def test_rate_limit(tmp_path):
+    srv = Server(tmp_path, "--rate", "1", "--burst", "3").start()
+    try:
+        t = int(NOW) - 100
+        codes = [srv.get(f"/?id=fast&lat=52.5&lon={13.4 + k * 1e-5}&timestamp={t + k}").status_code for k in range(6)]
+        assert codes[:3] == [200] * 3 and 429 in codes[3:]
+        assert error_of(srv.get(f"/?id=fast&lat=52.5&lon=13.5&timestamp={t + 50}"))["code"] == "rate_limited"
+    finally:
+        assert srv.stop() == 0
+
+
+# ---- retention and restart ------------------------------------------------------------------------------
+def test_retention_and_state_across_a_restart(tmp_path):
+    srv = Server(tmp_path, "--retain", "1h").start()
+    t = int(time.time())
+    try:
+        for k in range(5):
+            assert srv.get(f"/?id=old&lat=52.5&lon={13.4 + k * 1e-4}&timestamp={t - 7200 + 10 * k}").status_code == 200
+        for k in range(40):
+            assert srv.get(f"/?id=new&lat=52.5&lon={13.4 + k * 1e-4}&timestamp={t - 400 + 10 * k}").status_code == 200
+        before = srv.json("/api/devices/new/position")
+    finally:
+        assert srv.stop() == 0
+    srv = Server(tmp_path, "--retain", "1h", db=srv.db)
+    srv.port = srv.port
+    srv.start()
+    try:
+        deadline = time.time() + 30
+        while len(_stored(srv.db, "old")) and time.time() < deadline:
+            time.sleep(0.2)
+        assert len(_stored(srv.db, "old")) == 0 and len(_stored(srv.db, "new")) == 40
+        after = srv.json("/api/devices/new/position")
+        assert after["lat"] == before["lat"] and after["lon"] == before["lon"]
+        assert after["ell_major_m"] == before["ell_major_m"]
+    finally:
+        assert srv.stop() == 0

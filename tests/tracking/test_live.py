@@ -1,0 +1,112 @@
+"""LiveTracks, the engine advanced fix by fix: the same estimates as ``mptrack track`` on the same fixes
+and noise, whatever the batches; states that survive bytes; predictions by the exact discretisation."""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+import pytest
+from _data import REAL_TRACES
+
+import mptrack
+from mptrack.errors import ParameterError
+from mptrack.io import geodetic_to_enu, read_table
+from mptrack.models import constant_velocity_continuous
+from mptrack.tracking import ESTIMATE_FIELDS, FLAGS, LiveTracks, TrackOptions
+
+
+def _traces() -> pd.DataFrame:
+    car = read_table(REAL_TRACES["car"])
+    hike = read_table(REAL_TRACES["hike"])
+    return pd.concat([car, hike], ignore_index=True)
+
+
+def _feed(live: LiveTracks, df: pd.DataFrame, ids: dict, batches: np.ndarray) -> dict:
+    """Advance ``live`` with the fixes of ``df`` in arrival order, cut into batches at ``batches``
+    (row positions of the time-ordered interleaving of every track); returns the estimates by row."""
+    order = np.argsort(df["t"].to_numpy(), kind="stable")
+    out = {k: np.full(len(df), np.nan) for k in ESTIMATE_FIELDS}
+    for rows in np.split(order, batches):
+        dev = np.array([ids[i] for i in df["track_id"].to_numpy()[rows]], dtype=np.int64)
+        srt = np.lexsort((df["t"].to_numpy()[rows], dev))
+        rows, dev = rows[srt], dev[srt]
+        est = live.advance(dev, df["t"].to_numpy()[rows], df["lat"].to_numpy()[rows], df["lon"].to_numpy()[rows],
+                           np.full(len(rows), np.nan))
+        for k in ESTIMATE_FIELDS:
+            out[k][rows] = est[k]
+    return out
+
+
+@pytest.mark.parametrize("cuts", ["one", "every fix", "random"])
+def test_batches_of_any_size_give_the_estimates_of_mptrack_track(cuts):
+    df = _traces()
+    sigma, q = 4.0, 0.5
+    want = mptrack.track(df, sigma_m=sigma, q=q)
+    live = LiveTracks(TrackOptions(sigma_m=sigma, q=q))
+    ids = {t: int(i) for i, t in enumerate(pd.unique(df["track_id"]))}
+    live.add(len(ids))
+    n = len(df)
+    batches = {"one": np.array([], int), "every fix": np.arange(1, n),
+               "random": np.sort(np.random.default_rng(3).choice(np.arange(1, n), 60, replace=False))}[cuts]
+    got = _feed(live, df, ids, batches)
+    e, nn = geodetic_to_enu(got["lat"], got["lon"], want["lat"].to_numpy(), want["lon"].to_numpy())
+    assert np.max(np.hypot(e, nn)) < 1e-6
+    np.testing.assert_allclose(got["var_e"], want["var_east_m2"], rtol=1e-9)
+    assert list(np.array(FLAGS)[got["flag"].astype(int)]) == list(want["flag"])
+
+
+def test_a_state_survives_bytes_and_a_failed_batch_can_be_undone():
+    df = read_table(REAL_TRACES["car"])
+    t, lat, lon = df["t"].to_numpy(), df["lat"].to_numpy(), df["lon"].to_numpy()
+    acc = np.full(len(df), 6.0)
+    a, b = LiveTracks(), LiveTracks()
+    a.add(2)
+    b.add(2)
+    a.advance(np.zeros(50, np.int64), t[:50], lat[:50], lon[:50], acc[:50])
+    b.load_states([1], [a.state_bytes(0)])
+    saved = a.save_states([0])
+    ra = a.advance(np.zeros(54, np.int64), t[50:], lat[50:], lon[50:], acc[50:])
+    rb = b.advance(np.ones(54, np.int64), t[50:], lat[50:], lon[50:], acc[50:])
+    for k in ESTIMATE_FIELDS:
+        np.testing.assert_array_equal(ra[k], rb[k])
+    a.restore_states(saved)
+    again = a.advance(np.zeros(54, np.int64), t[50:], lat[50:], lon[50:], acc[50:])
+    np.testing.assert_array_equal(again["lat"], ra["lat"])
+    with pytest.raises(ParameterError, match="layout|order"):
+        ca = LiveTracks(TrackOptions(model="ca"))
+        ca.add(1)
+        ca.load_states([0], [a.state_bytes(0)])
+
+
+def test_the_prediction_is_the_exact_discretisation_of_the_model():
+    """position(t) = F x, F P F' + Q with F, Q of the model discretised by Van Loan's method (an
+    independent route to the engine's closed form)."""
+    df = read_table(REAL_TRACES["car"])
+    live = LiveTracks(TrackOptions(sigma_m=3.0, q=0.8))
+    live.add(1)
+    live.advance(np.zeros(len(df), np.int64), df["t"].to_numpy(), df["lat"].to_numpy(), df["lon"].to_numpy(),
+                 np.full(len(df), np.nan))
+    t_last = live.last_fix(0)[0]
+    x, P = live._estimate(0)                       # the filter's state after the last fix, one axis each
+    disc = constant_velocity_continuous(0.8, axes=1, sigma_r2=9.0).discretize(25.0)
+    now, ahead = live.position(0, t_last), live.position(0, t_last + 25.0)
+    np.testing.assert_allclose(ahead["var_e"], (disc.F @ P @ disc.F.T + disc.Q)[0, 0], rtol=1e-12)
+    lat0, lon0 = live.origin(0)                    # the track's frame: positions move on by 25 s x velocity
+    e, n = geodetic_to_enu(np.array([now["lat"], ahead["lat"]]), np.array([now["lon"], ahead["lon"]]),
+                           np.full(2, lat0), np.full(2, lon0))
+    np.testing.assert_allclose([e[1] - e[0], n[1] - n[0]], [25.0 * x[0, 1], 25.0 * x[1, 1]], atol=1e-6)
+    with pytest.raises(ParameterError, match="after the track's last fix"):
+        live.position(0, t_last - 1.0)
+
+
+def test_bad_calls_are_refused_by_name():
+    live = LiveTracks()
+    live.add(2)
+    with pytest.raises(ParameterError, match="tracks"):
+        live.advance(np.array([1, 0]), np.array([1.7e9, 1.7e9]), np.array([50.0, 50.0]), np.array([8.0, 8.0]),
+                     np.full(2, np.nan))
+    with pytest.raises(ParameterError, match="tracks"):
+        live.advance(np.array([5]), np.array([1.7e9]), np.array([50.0]), np.array([8.0]), np.full(1, np.nan))
+    live.advance(np.array([0]), np.array([1.7e9]), np.array([50.0]), np.array([8.0]), np.full(1, np.nan))
+    with pytest.raises(ParameterError, match="before its last fix"):
+        live.advance(np.array([0]), np.array([1.7e9 - 5]), np.array([50.0]), np.array([8.0]), np.full(1, np.nan))
