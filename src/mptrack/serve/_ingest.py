@@ -133,7 +133,7 @@ class Ingest:
             self._wake.set()
         if self._task is not None:
             await self._task
-        await asyncio.get_running_loop().run_in_executor(self._writer, self._checkpoint, True)
+        await asyncio.get_running_loop().run_in_executor(self._writer, self._checkpoint)
         self._writer.shutdown(wait=True)
         self._estimator.shutdown(wait=True)
 
@@ -220,9 +220,17 @@ class Ingest:
                 est = self.live.advance(dev[sel], t[sel], lat[sel], lon[sel], acc[sel])
             rows = _rows(fixes, dev, sel, est, now)
             late_rows = _rows(fixes, dev, order[late], None, now)
+            touched = np.unique(dev[sel]).tolist()
+            ready = self._due_states()          # their states after this batch go in with its fixes
+            due = set(ready)
+            rest = [row for d, (row, _) in self._dirty.items() if d not in due]
+            if any(d not in self._dirty for d in touched):   # newly changed: not covered after this batch's rows
+                rest.append(self._seq)
+            watermark = min(rest, default=None)
+            with self.lock:
+                states = [(self.ids[d], self.live.state_bytes(d)) for d in ready]
             try:
-                stored_late = self.store.write(rows, late_rows, new_devices)
-                before, self._seq = self._seq, self.store.last_row()
+                stored_late, last = self.store.write(rows, late_rows, new_devices, states, watermark)
             except BaseException:
                 with self.lock:
                     self.live.restore_states(saved)
@@ -232,10 +240,12 @@ class Ingest:
                 del keys[device]
             del self.ids[len(self.ids) - len(new_devices):]
             raise
-        touched = dev[sel]
-        np.add.at(self._since_calibration, touched, 1)
+        before, self._seq = self._seq, last
+        np.add.at(self._since_calibration, dev[sel], 1)
+        for d in ready:
+            del self._dirty[d]
         changed = time.monotonic()
-        for d in np.unique(touched).tolist():
+        for d in touched:
             self._dirty.setdefault(d, (before, changed))
         c = self.counters
         c.accepted += len(fixes)
@@ -243,13 +253,24 @@ class Ingest:
         c.late += stored_late
         c.duplicates += len(fixes) - len(sel) - stored_late
         c.batches += 1
-        self._checkpoint()
+        self._noise()
         return (sel, fixes, est, dev) if self.listeners else None
 
-    def _checkpoint(self, final: bool = False) -> None:
-        """Apply the noise estimates that are ready (their devices' states stored at once) and start the
-        next; store the states of the devices that changed more than ``checkpoint_s`` ago (at most
-        CHECKPOINT_ROWS; all of them when ``final``) and the watermark."""
+    def _due_states(self) -> list[int]:
+        """The devices whose state changed more than ``checkpoint_s`` ago (oldest first, at most
+        CHECKPOINT_ROWS): stored with the next batch."""
+        old = time.monotonic() - self.checkpoint_s
+        ready = []
+        for d, (_, changed) in self._dirty.items():   # oldest first
+            if changed > old or len(ready) == CHECKPOINT_ROWS:
+                break
+            ready.append(d)
+        return ready
+
+    def _noise(self, final: bool = False) -> None:
+        """Apply the noise estimates that are ready, the devices' states stored at once (a replay must see
+        the noise the filter saw from here on), and start the next round (devices with enough new fixes,
+        estimated on another thread)."""
         fut = self._estimating
         if fut is not None and (fut.done() or final):
             self._estimating = None
@@ -266,28 +287,21 @@ class Ingest:
             if len(due):
                 self._since_calibration[due] = 0
                 self._estimating = self._estimator.submit(self._estimate, due)
-        if final:
-            self._store_states(list(self._dirty))
-            return
-        old = time.monotonic() - self.checkpoint_s
-        ready = []
-        for d, (_, changed) in self._dirty.items():   # oldest first
-            if changed > old or len(ready) == CHECKPOINT_ROWS:
-                break
-            ready.append(d)
-        if ready:
-            self._store_states(ready)
+
+    def _checkpoint(self) -> None:
+        """At shutdown: the noise estimate under way applied, every changed state stored."""
+        self._noise(final=True)
+        self._store_states(list(self._dirty))
 
     def _store_states(self, devices: list[int]) -> None:
         """Store these devices' states (they cover every fix stored so far) and the new watermark."""
-        if not devices and self._dirty:
-            return
         with self.lock:
             states = [(self.ids[d], self.live.state_bytes(d)) for d in devices]
+        stored = set(devices)
+        rest = [row for d, (row, _) in self._dirty.items() if d not in stored]
+        self.store.write(states=states, watermark=min(rest, default=None))
         for d in devices:
             self._dirty.pop(d, None)
-        watermark = min((row for row, _ in self._dirty.values()), default=self._seq)
-        self.store.checkpoint(states, self._seq, watermark)
 
     def _estimate(self, due: np.ndarray) -> tuple[np.ndarray, dict]:
         """(due, noise) from the devices' recent stored fixes (on the estimator thread)."""

@@ -91,36 +91,32 @@ class SqliteStore:
         return con
 
     # ---- writing (one writer) --------------------------------------------------------------------
-    def write(self, rows: list[tuple], late: list[tuple] = (), new_devices: list[tuple[int, str]] = ()) -> int:
+    def write(self, rows: list[tuple] = (), late: list[tuple] = (), new_devices: list[tuple[int, str]] = (),
+              states: list[tuple[str, bytes]] = (), watermark: int | None = None) -> tuple[int, int]:
         with self._lock:
             w = self._w
             w.execute("BEGIN IMMEDIATE")
             try:
                 if new_devices:
                     w.executemany("INSERT INTO device_keys VALUES (?, ?)", new_devices)
-                w.executemany(_INSERT, rows)
+                if rows:
+                    w.executemany(_INSERT, rows)
                 before = w.total_changes
                 if late:
                     w.executemany(_INSERT_NEW, late)
                 stored = w.total_changes - before
+                last = w.execute("SELECT COALESCE(MAX(seq), 0) FROM fixes").fetchone()[0]
+                if states:
+                    w.executemany("INSERT OR REPLACE INTO device_state VALUES (?, ?, ?)",
+                                  [(d, b, last) for d, b in states])
+                if states or watermark is not None:
+                    w.execute("UPDATE meta SET value = ? WHERE key = 'watermark'",
+                              (last if watermark is None else int(watermark),))
                 w.execute("COMMIT")
             except BaseException:
                 w.execute("ROLLBACK")
                 raise
-        return stored
-
-    def checkpoint(self, states: list[tuple[str, bytes]], upto: int, watermark: int) -> None:
-        with self._lock:
-            w = self._w
-            w.execute("BEGIN IMMEDIATE")
-            try:
-                w.executemany("INSERT OR REPLACE INTO device_state VALUES (?, ?, ?)",
-                              [(d, b, int(upto)) for d, b in states])
-                w.execute("UPDATE meta SET value = ? WHERE key = 'watermark'", (int(watermark),))
-                w.execute("COMMIT")
-            except BaseException:
-                w.execute("ROLLBACK")
-                raise
+        return stored, last
 
     def add_device(self, device: str, token_sha256: str) -> None:
         self._insert("INSERT INTO devices VALUES (?, ?, ?)", (device, token_sha256, time.time()), "device", device)

@@ -57,15 +57,15 @@ class Store(Protocol):
 
     url: str
 
-    def write(self, rows: list[tuple], late: list[tuple] = (), new_devices: list[tuple[int, str]] = ()) -> int:
-        """In one durable transaction: register ``new_devices`` (key, id), insert the fix rows
+    def write(self, rows: list[tuple] = (), late: list[tuple] = (), new_devices: list[tuple[int, str]] = (),
+              states: list[tuple[str, bytes]] = (), watermark: int | None = None) -> tuple[int, int]:
+        """In one durable transaction: register ``new_devices`` (key, id); insert the fix rows
         (FIX_COLUMNS + ESTIMATE_COLUMNS values) ``rows`` -- fixes later than every stored fix of their
         device, which cannot be duplicates -- and the rows ``late`` that are not exact duplicates of a
-        stored fix (device, t, lat, lon).  Returns how many of ``late`` were stored."""
-
-    def checkpoint(self, states: list[tuple[str, bytes]], upto: int, watermark: int) -> None:
-        """In one transaction: store device states (id, blob), which cover their fixes up to row
-        ``upto``, and the new ``watermark``."""
+        stored fix (device, t, lat, lon); store device ``states`` (id, blob) that cover every fix of
+        their device stored so far, this transaction's included; set the watermark (None: the last
+        row) when states or a watermark are given.  Returns (how many of ``late`` were stored, the
+        last fix row)."""
 
     def load_checkpoint(self, batch: int = 50_000) -> tuple[int, Iterator[list[tuple[str, bytes, int]]]]:
         """(watermark, the device states (id, blob, upto) in chunks of ``batch``), read from one

@@ -39,6 +39,7 @@ from dataclasses import dataclass
 import numba as nb
 import numpy as np
 
+from .._core.threads import launch
 from ..errors import DTypeError, ParameterError, ShapeError
 from ._chain import (BLOCKS, INLINE, LOG2PI, M_C, M_D, M_F, M_P, M_PC, M_PI, M_PP, M_QU, M_RF, M_RP, M_RPP, M_RQU,
                      M_RT, M_T, MAX_ORDER, PAR, S_DX, S_RX, S_RXP, S_X, S_XC, S_XP, SEQ, chain_transition,
@@ -584,8 +585,9 @@ def advance_tracks(states, offsets, t, ze, zn, w, c, q, order, prior, gate, max_
         raise DTypeError(f"flag: expected int8, got {flag.dtype}")
     rev = _no_revisions(B, order) if revisions is None else (revisions.n, revisions.flag, revisions.nis,
                                                              revisions.X, revisions.P)
-    _kernel(order)(states, offsets, t, ze, zn, w, c, q, prior, float(gate), int(max_rej), bool(store), False,
-                   X, P, nis, flag, stats, *rev)
+    # a live server's batches are small: on the calling thread, not waking the others (_core.threads)
+    launch(_kernel(order), N, states, offsets, t, ze, zn, w, c, q, prior, float(gate), int(max_rej), bool(store),
+           False, X, P, nis, flag, stats, *rev)
 
 
 def _check_order(order) -> int:
