@@ -19,7 +19,7 @@ from rich.markup import escape
 from rich.table import Table as RichTable
 
 from ..errors import MptrackError
-from ._common import JSON, QUIET, VERBOSE, check_outputs, command_line, echo, err, fail, flags_named, fmt, \
+from ._common import JSON, QUIET, VERBOSE, check_outputs, command_line, echo, err, fail, flags_named, \
     interrupted, note, out, print_json, progress, reject_given
 
 __all__ = ["track", "simulate", "evaluate"]
@@ -91,7 +91,9 @@ def _skipped(read: dict, verbose: bool) -> None:
             err.print(escape(f"  e.g. {example}"), highlight=False, soft_wrap=True)
 
 
-_TERMINAL_COLUMNS = ("points", "outliers", "rmse_m", "cdf95_m", "mean_nees", "nees_in_95", "mean_nis", "nis_in_95")
+#: The columns of ``evaluate``'s table, numbers to 4 significant digits (``--json`` has every digit).
+_TERMINAL_COLUMNS = ("points", "outliers", "restarts", "rmse_m", "cdf95_m", "mean_nees", "nees_in_95", "mean_nis",
+                     "nis_in_95")
 
 
 def _summary_table(summary: dict, title: str, rows_max: int | None) -> RichTable:
@@ -105,7 +107,7 @@ def _summary_table(summary: dict, title: str, rows_max: int | None) -> RichTable
     for c in cols:
         rt.add_column(c, justify="right")
     for k, r in rows.items():
-        rt.add_row(k, *[fmt(r[c]) if isinstance(r.get(c), float) else str(r.get(c, "")) for c in cols])
+        rt.add_row(k, *[f"{r[c]:.4g}" if isinstance(r.get(c), float) else str(r.get(c, "")) for c in cols])
     return rt
 
 
@@ -231,15 +233,32 @@ def track(
     if json_out:
         print_json(summary)
         return
+    if quiet:
+        return
     _skipped(summary["read"], verbose)
+    restarts = summary.get("restarts", 0)
     echo(f"{summary['tracks']} tracks ({summary['tracks_resumed']} resumed), {summary['points_written']} "
-         f"points, {summary['outliers_rejected']} outliers rejected → {out}"
+         f"points, {summary['outliers_rejected']} outliers rejected"
+         + (f", {restarts} restart{'s' if restarts != 1 else ''}" if cells is None else "") + f" → {out}"
          + (f"; report {report}" if report else "") + (f"; tracks {track_summary}" if track_summary else ""))
-    if not quiet and 1 < len(summary.get("track_noise", ())) <= (30 if verbose else 10):
+    if 1 < len(summary.get("track_noise", ())) <= (30 if verbose else 10):
         out_print(_noise_table(summary["track_noise"]))
     for line in _noise_lines(summary, track_summary):
         echo(line)
+    _nis_line(summary.get("nis") or {})
     _advise(summary)
+
+
+def _nis_line(nis: dict) -> None:
+    """The mean NIS of a run or an evaluation (:func:`mptrack.tracking.nis_sentence`: the words of the
+    report and of the other command), with how many tracks lie outside their own band."""
+    from ..tracking import nis_sentence
+
+    if not nis.get("nis_fixes"):
+        return
+    outside, judged = nis.get("tracks_outside_band"), nis.get("tracks_judged")
+    echo(nis_sentence(nis) + (f"; {outside} of {judged} tracks outside their own band"
+                              if outside is not None and judged and judged > 1 else ""))
 
 
 def out_print(renderable) -> None:
@@ -284,7 +303,7 @@ def _noise_table(rows: list[dict]) -> RichTable:
 
     for r in rows:
         src = r["sigma_source"] if r["sigma_source"] == r["q_source"] else f"{r['sigma_source']}/{r['q_source']}"
-        nis = "" if r["mean_nis"] is None else f"{r['mean_nis']:.2f}"
+        nis = "" if r["mean_nis"] is None else f"{r['mean_nis']:.4g}"
         rt.add_row(str(r["track_id"]), str(r["fixes"]), pm(r["sigma_m"], r["sigma_se_m"]), pm(r["q"], r["q_se"]),
                    src, nis)
     return rt
@@ -405,7 +424,7 @@ def simulate(
         written["read"] = read_report.to_dict()
     if json_out:
         print_json(written)
-    else:
+    elif not quiet:
         if along is not None:
             _skipped(written["read"], verbose)
         echo(f"{written['tracks']} tracks, {written['rows']} rows → {out}"
@@ -473,14 +492,15 @@ def evaluate(
     if json_out:
         print_json(summary)
         return
+    if quiet:
+        return
     if truth is not None:
         _skipped(summary["truth_read"], verbose)
     o = summary["overall"]
-    if not quiet:
-        out_print(_summary_table(summary, f"Evaluation of {tracks.name}", None if verbose else 30))
+    out_print(_summary_table(summary, f"Evaluation of {tracks.name}", None if verbose else 30))
     line = f"{len(summary['tracks'])} tracks, {o['points']} points"
     if "rmse_m" in o:
-        line += f", RMSE {o['rmse_m']:.2f} m, 95 % error {o['cdf95_m']:.2f} m, mean NEES {o['mean_nees']:.2f}"
-    line += f", mean NIS {o['mean_nis']:.2f} (dof {o['mean_nis_dof']:.2f})"
+        line += f", RMSE {o['rmse_m']:.2f} m, 95 % error {o['cdf95_m']:.2f} m, mean NEES {o['mean_nees']:.3g}"
     echo(line)
+    _nis_line(summary["nis"])
     _advise({"nis": summary["nis"]})

@@ -14,6 +14,7 @@ import pandas as pd
 
 from .._core.validation import check_frame, check_int, check_path, point_numbers
 from ..errors import DataError, ParameterError, ShapeError
+from ..tracking import far_from_band, nis_sentence
 from ._decimate import DEFAULT_BUDGET
 from ._page import esc, json_script, page, write_page
 from ._payload import track_payload
@@ -207,34 +208,33 @@ def _quality(tracks: pd.DataFrame, summary: dict, run: dict | None) -> str:
             notes = [n for n in notes if n not in details]
             items.append("records left out (they are not fixes):" + _count_table(left_out, "records")
                          + ("<ul>" + "".join(f"<li>{esc(d)}</li>" for d in details) + "</ul>" if details else ""))
-        if read.get("duplicates_dropped"):
-            items.append(f"{_count(read['duplicates_dropped'])} duplicate fixes dropped")
-        if read.get("rows_reordered"):
-            items.append(f"{_count(read['rows_reordered'])} rows out of time order were sorted")
-        for note in notes:
+        for note in notes:  # rows sorted, duplicates dropped, units: each said once, by its note
             items.append(f"note: {esc(note)}")
     elif run is None:
         items.append("rows skipped while reading are not known to this report (it was written from a track "
                      "table; mptrack track --report lists them)")
-    flags = tracks["flag"]
-    counts = {f: int((flags == f).sum()) for f in ("outlier", "reset", "predicted")}
-    gaps = int(tracks["gap"].sum()) if "gap" in tracks.columns else 0
-    items.append(f"{_count(counts['outlier'])} fixes rejected by the NIS gate, {_count(counts['reset'])} filter "
-                 f"resets, {_count(gaps)} gaps, {_count(counts['predicted'])} points predicted without a fix")
     o = summary["overall"]
-    mean, dof = o.get("mean_nis"), o.get("mean_nis_dof")
-    if mean is not None and dof and np.isfinite(mean) and np.isfinite(dof):
-        ratio = mean / dof
-        verdict = ("inside the expected range" if 0.5 <= ratio <= 2 else
-                   "far below its expected value: the filter assumes more noise than the data show"
-                   if ratio < 0.5 else "far above its expected value: the data are noisier or the motion "
-                   "more agile than the filter assumes")
+    gaps = int(tracks["gap"].sum()) if "gap" in tracks.columns else 0
+    predicted = int((tracks["flag"] == "predicted").sum())
+    restarts, resets = o.get("restarts", 0), o.get("resets", 0)
+    items.append(f"{_count(o.get('outliers', 0))} fixes rejected by the NIS gate, {_count(restarts)} "
+                 f"restart{'s' if restarts != 1 else ''} of the filter ({_count(resets)} fix"
+                 f"{'es' if resets != 1 else ''} flagged reset), {_count(gaps)} gaps, {_count(predicted)} points "
+                 "predicted without a fix")
+    if o.get("nis_fixes"):
+        low, high = far_from_band([o["mean_nis"]], [o["nis_dof"]], [o["nis_fixes"]])
+        why = ("; far below: the filter assumes more noise than the data show" if low[0] else
+               "; far above: the data are noisier or the motion more agile than the filter assumes" if high[0]
+               else "")
+        judged = [r for r in summary["tracks"].values() if r.get("nis_fixes")]
+        outside = sum(not r.get("nis_consistent") for r in judged)
         inside = o.get("nis_in_95")
-        items.append(f"mean NIS {mean:.3g} against an expected {dof:.3g} ({verdict})"
-                     + (f"; {100 * inside:.1f} % of the fixes inside the 95 % χ² band" if inside is not None
-                        and np.isfinite(inside) else ""))
-    for advice in ((run or {}).get("nis") or {}).get("advice") or []:
-        items.append(f"<strong>advice:</strong> {esc(advice)}")
+        items.append(esc(nis_sentence(o)) + why
+                     + (f"; {outside} of {len(judged)} tracks outside their own band" if len(judged) > 1 else "")
+                     + (f"; {100 * inside:.1f} % of these fixes inside their own 95 % χ² interval"
+                        if inside is not None and np.isfinite(inside) else ""))
+    for text in ((run or {}).get("nis") or summary.get("nis") or {}).get("advice") or []:
+        items.append(f"<strong>advice:</strong> {esc(text)}")
     return "<ul class='quality'>" + "".join(f"<li>{i}</li>" for i in items) + "</ul>"
 
 
@@ -246,11 +246,14 @@ def _count_table(counts: dict, what: str) -> str:
             f"<tbody>{rows}</tbody></table>")
 
 
+#: The columns of the table of every track, in order (those the evaluation has).
+TABLE_COLUMNS = ("points", "matched_points", "outliers", "restarts", "rmse_m", "mean_error_m", "cdf50_m", "cdf67_m",
+                 "cdf95_m", "mean_nees", "nees_in_95", "mean_nis", "nis_consistent", "nis_in_95")
+
+
 def _summary_rows(summary: dict) -> dict:
     per = summary["tracks"]
-    cols: list[str] = []
-    for r in [summary["overall"], *per.values()]:
-        cols += [c for c in r if c not in cols]
+    cols = [c for c in TABLE_COLUMNS if any(c in r for r in [summary["overall"], *per.values()])]
     return {"columns": ["track", *cols],
             "overall": ["all", *[summary["overall"].get(c) for c in cols]],
             "rows": [[str(k), *[r.get(c) for c in cols]] for k, r in per.items()]}

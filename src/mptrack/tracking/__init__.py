@@ -2,6 +2,9 @@
 cellular measurements through the EKF/FEKF/FCS range filters, simulation of synthetic logs
 with truth, and evaluation against truth.  ``mptrack track/simulate/evaluate`` are in :mod:`mptrack.cli.tracking`."""
 
+from ._advice import far_from_band
+from ._consistency import USED_FLAGS as NIS_FLAGS
+from ._consistency import nis_sentence, nis_stats
 from ._cellular import TA_STEP_M, band_of_arfcn, check_cell_ids, ranges_km, track_cells
 from ._evaluate import TRUTH_COLUMNS, attach_truth, evaluate_tracks
 from ._engine import FLAGS
@@ -33,6 +36,10 @@ __all__ = [
     "Intervals",
     "SCENARIOS",
     "evaluate_tracks",
+    "nis_stats",
+    "nis_sentence",
+    "NIS_FLAGS",
+    "far_from_band",
     "attach_truth",
     "TRUTH_COLUMNS",
     "track_file",

@@ -33,11 +33,12 @@ from ..batch import Chunk, read_part, run_stream
 from ..errors import MptrackError, ParameterError
 from ..io import (FIXES, MEASUREMENTS, InputNotSorted, PartStore, ReadOptions, ReadReport, iter_track_chunks,
                   output_format, read_cells, read_chunks)
-from ._advice import MIN_ADVISED_FIXES, nis_advice
+from ._advice import far_from_band, nis_advice
 from ._cellular import check_cell_ids, track_cells
 from ._columns import FixTable
 from ._fixes import TrackOptions
-from ._output import nis_band, point_table
+from ._consistency import flag_counts, nis_stats, pooled_nis
+from ._output import point_table
 from ._noise import SIGMA_FLOOR_M
 from ._run import TRACK_COLUMNS, track_table
 
@@ -107,15 +108,13 @@ def _cell_tracks(points: pa.Table | None) -> pa.Table:
     if points is None or points.num_rows == 0:
         return pa.table({"track_id": pa.array([], pa.string()), "fixes": pa.array([], pa.int64())})
     df = points.select(["track_id", "flag", "nis", "nis_dof"]).to_pandas()
-    g = df.assign(upd=df["flag"].eq("update"), nis=df["nis"].where(df["flag"].eq("update"))) \
-        .groupby("track_id", sort=False)
-    out = pd.DataFrame({"fixes": g.size(), "updates": g["upd"].sum(), "mean_nis": g["nis"].mean(),
-                        "nis_dof": g["nis_dof"].mean()}).reset_index()
-    # the band of the mean of scans with (about) nis_dof ranges each
-    dof = out["nis_dof"].to_numpy()
-    lo, hi = nis_band(out["updates"].to_numpy() * dof, 1)
-    out["nis_lo"], out["nis_hi"] = lo * dof, hi * dof
-    out["nis_consistent"] = (out["mean_nis"] >= out["nis_lo"]) & (out["mean_nis"] <= out["nis_hi"])
+    ids, flag = df["track_id"].to_numpy(dtype=object), df["flag"].to_numpy(dtype=object)
+    nis, dof = df["nis"].to_numpy(float), df["nis_dof"].to_numpy(float)
+    bounds = track_offsets(ids)
+    stats = pd.DataFrame([nis_stats(nis[a:b], dof[a:b], flag[a:b]) for a, b in zip(bounds[:-1], bounds[1:])])
+    out = pd.DataFrame({"track_id": [str(i) for i in ids[bounds[:-1]]], "fixes": np.diff(bounds),
+                        "updates": flag_counts(flag, bounds)["updates"]})
+    out = pd.concat([out, stats.drop(columns="nis_fixes")], axis=1)
     return pa.Table.from_pandas(out, preserve_index=False)
 
 
@@ -325,7 +324,8 @@ def _summary(tracks: pd.DataFrame, report: ReadReport, options: TrackOptions, ch
     n = len(tracks)
     total = (lambda col: int(tracks[col].sum()) if col in tracks and n else 0)  # noqa: E731
     out = {"tracks": n, "chunks": chunks, "fixes": total("fixes"), "outliers_rejected": total("outliers"),
-           "manoeuvres": total("manoeuvres"), "resets": total("resets"), "read": report.to_dict(),
+           "manoeuvres": total("manoeuvres"), "resets": total("resets"), "restarts": total("restarts"),
+           "read": report.to_dict(),
            "options": asdict(options)}
     if n and "sigma_m" in tracks:
         if n <= MAX_LISTED_TRACKS:
@@ -341,14 +341,13 @@ def _summary(tracks: pd.DataFrame, report: ReadReport, options: TrackOptions, ch
         out["noise"] = noise
     if n and "nis_consistent" in tracks:
         used = tracks["updates"] + tracks.get("manoeuvres", 0)
-        ratio = tracks["mean_nis"] / tracks["nis_dof"]
         outside = ~tracks["nis_consistent"].astype(bool) & (used > 0)
-        # advice only where the mean says something: a handful of fixes is far out by chance
-        far = outside & ((ratio < 0.5) | (ratio > 2.0)) & (used >= MIN_ADVISED_FIXES)
-        low = far & (tracks["mean_nis"] < tracks["nis_lo"])
-        out["nis"] = {"tracks_outside_band": int(outside.sum()), "far_low": int(low.sum()),
-                      "far_high": int((far & ~low).sum()),
-                      "advice": nis_advice(int(low.sum()), int((far & ~low).sum()), options, cellular=cellular)}
+        low, high = far_from_band(tracks["mean_nis"], tracks["nis_dof"], used)
+        out["nis"] = {**pooled_nis(tracks["mean_nis"], tracks["nis_dof"], used),
+                      "tracks_outside_band": int(outside.sum()), "tracks_judged": int((used > 0).sum()),
+                      "far_low": int(low.sum()),
+                      "far_high": int(high.sum()),
+                      "advice": nis_advice(int(low.sum()), int(high.sum()), options, cellular=cellular)}
     return out
 
 
