@@ -111,10 +111,6 @@ def _summary_table(summary: dict, title: str, rows_max: int | None) -> RichTable
     return rt
 
 
-#: Settings (TrackOptions fields) of ``track`` that apply to position fixes only / to cellular measurements
-#: (--cells) only.
-_FIX_ONLY = ("model", "filter", "smooth", "q", "sigma_m", "noise", "gate_probability")
-_CELL_ONLY = ("method", "motion", "path_loss", "q_km2", "r_km2", "scan_interval_s")
 
 
 def _default_out(input: Path) -> Path:
@@ -138,6 +134,9 @@ def track(
                                                     "fcs."),
     motion: Optional[str] = typer.Option(None, help="With --cells: the motion model, random-walk (default) or "
                                                     "cv."),
+    path_loss: Optional[str] = typer.Option(None, "--path-loss", help="With --cells: the path-loss model that turns "
+                                            "RSS into ranges: cost231-wi-nlos (default), cost231-wi-los, "
+                                            "cost231-hata, okumura-hata or free-space."),
     range_sigma: Optional[float] = typer.Option(None, "--range-sigma", help="With --cells: the range noise "
                                                 "(1-sigma, m). Default 471 m (Bouzera et al. 2017's "
                                                 "R0 = 0.222 km^2)."),
@@ -184,9 +183,11 @@ def track(
     """Track position fixes or cellular measurements; write estimates, covariances, NIS and flags.
 
     With no --sigma/--q the fix noise and the process noise are estimated from each track."""
+    from ..tracking import CELL_ONLY, FIX_ONLY
+
     given = {"model": model, "filter": filter, "smooth": smooth or None, "q": q, "sigma_m": sigma, "noise": noise,
-             "gate_probability": gate, "method": method, "motion": motion}
-    reject_given(ctx, _FIX_ONLY if cells is not None else _CELL_ONLY,
+             "gate_probability": gate, "method": method, "motion": motion, "path_loss": path_loss}
+    reject_given(ctx, FIX_ONLY if cells is not None else CELL_ONLY,
                  "applies to position fixes, not to cellular measurements (--cells)" if cells is not None
                  else "applies to cellular measurements only: give the cell table with --cells")
     if executor == "serial":
@@ -196,6 +197,7 @@ def track(
     out = out or _default_out(input)
     from .._core.files import output_lock
     from .._core.validation import check_positive
+    from ..report import write_track_report
     from ..tracking import TrackOptions, track_file
 
     kept, summary, points = "", None, []
@@ -218,7 +220,7 @@ def track(
                                          on_points=None if report is None else _keep_points(points))
                     if report is not None:
                         with bar.task("report"):
-                            _write_report(points.pop(), report, summary, f"mptrack track {input.name}")
+                            write_track_report(points.pop(), report, run=summary, title=f"mptrack track {input.name}")
                         summary["report"] = str(report)
             except (OSError, KeyboardInterrupt):
                 kept = _kept(out)  # under the lock: the parts are this run's
@@ -228,7 +230,7 @@ def track(
                     else kept.removeprefix("; ") or "nothing was kept")
     except (MptrackError, OSError) as exc:
         fail(exc, kept)
-    drop = _CELL_ONLY if cells is None else _FIX_ONLY
+    drop = CELL_ONLY if cells is None else FIX_ONLY
     summary["options"] = {k: v for k, v in summary.get("options", {}).items() if k not in drop}
     if json_out:
         print_json(summary)
@@ -278,18 +280,6 @@ def _keep_points(kept: list):
         pa.default_memory_pool().release_unused()
         kept.append(report_points(tables))
     return keep
-
-
-def _write_report(table, report: Path, run: dict, title: str) -> None:
-    """The report of a run's points (:func:`_keep_points`), evaluated against the truth columns a
-    simulated log passes through (true_lat/true_lon or true_x/true_y) when it has them, drawn with
-    the run's summary (rows skipped, NIS advice)."""
-    from ..report import write_report
-    from ..tracking import TRUTH_COLUMNS, evaluate_tracks
-
-    own = any(a in table.columns and b in table.columns for a, b, _ in TRUTH_COLUMNS)
-    summary, table = evaluate_tracks(table, truth_columns=own)
-    write_report(table, report, summary=summary, run=run, title=title)
 
 
 def _noise_table(rows: list[dict]) -> RichTable:

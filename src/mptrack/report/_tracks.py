@@ -19,7 +19,7 @@ from ._decimate import DEFAULT_BUDGET
 from ._page import esc, json_script, page, write_page
 from ._payload import track_payload
 
-__all__ = ["write_report", "report_points", "REPORT_COLUMNS", "PALETTE", "RAW_ON_BELOW"]
+__all__ = ["write_report", "write_track_report", "report_points", "REPORT_COLUMNS", "PALETTE", "RAW_ON_BELOW"]
 
 #: The tracks' colours, in order (repeated beyond 16 tracks); the same list as in report.js.
 PALETTE = ("#1f77b4", "#d62728", "#2ca02c", "#9467bd", "#8c564b", "#e377c2", "#17becf", "#bcbd22",
@@ -299,3 +299,16 @@ def write_report(tracks: pd.DataFrame, path, *, summary: dict, run: dict | None 
     body.append(json_script("mptrack-data", {"payload": payload, "kinds": kinds, "summary": _summary_rows(summary)}))
     return write_page(path, page(title, "".join(body), scripts=("leaflet.js", "report.js"),
                                  styles=("leaflet.css",)))
+
+
+def write_track_report(points: pd.DataFrame, path, *, run: dict | None = None, title: str = "mptrack track",
+                       budget: int = DEFAULT_BUDGET) -> Path:
+    """Write the report of a tracking run, as ``mptrack track --report`` and ``mptrack.track(report=...)``
+    do: ``points`` (the run's point table, or the columns of it :func:`report_points` keeps) evaluated
+    against the truth columns a simulated log passes through (true_lat/true_lon or true_x/true_y) when
+    it has them, drawn with ``run``, the run's summary (rows skipped, NIS advice)."""
+    from ..tracking import TRUTH_COLUMNS, evaluate_tracks
+
+    own = any(a in points.columns and b in points.columns for a, b, _ in TRUTH_COLUMNS)
+    summary, table = evaluate_tracks(points, truth_columns=own)
+    return write_report(table, path, summary=summary, run=run, title=title, budget=budget)

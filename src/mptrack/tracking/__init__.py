@@ -8,7 +8,7 @@ from ._consistency import nis_sentence, nis_stats
 from ._cellular import TA_STEP_M, band_of_arfcn, check_cell_ids, ranges_km, track_cells
 from ._evaluate import TRUTH_COLUMNS, attach_truth, evaluate_tracks
 from ._engine import FLAGS
-from ._fixes import TrackOptions, track_fixes
+from ._fixes import CELL_ONLY, FIX_ONLY, TrackOptions, track_fixes
 from ._live import ESTIMATE_FIELDS, LiveTracks
 from ._gated import GatedResult, kalman_filter_gated, nis_threshold, smooth_gated, track_gated
 from ._noise import SOURCES as NOISE_SOURCES
@@ -31,6 +31,8 @@ __all__ = [
     "LiveTracks",
     "ESTIMATE_FIELDS",
     "ellipse",
+    "FIX_ONLY",
+    "CELL_ONLY",
     "simulate",
     "simulate_chunks",
     "Intervals",
