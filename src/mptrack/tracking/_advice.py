@@ -33,11 +33,13 @@ def far_from_band(mean, dof, used) -> tuple[np.ndarray, np.ndarray]:
     return judged & (ratio < FAR_LOW), judged & (ratio > FAR_HIGH)
 
 
-def nis_advice(low: int, high: int, options: TrackOptions, *, cellular: bool = False) -> list[str]:
+def nis_advice(low: int, high: int, options: TrackOptions | None, *, cellular: bool = False) -> list[str]:
     """What a mean NIS far below (``low`` tracks) or above (``high``) its band usually means, and
-    the option to change (``cellular``: the tracks come from ranges to cells, not from fixes)."""
+    the option to change (``cellular``: the tracks come from ranges to cells, not from fixes);
+    ``options`` None: the run's options are not known (an evaluation of a track table)."""
     if cellular:
         return _cellular_nis_advice(low, high, options)
+    options = options or TrackOptions()
     given = [f for f, v in (("--sigma", options.sigma_m), ("--q", options.q)) if v is not None]
     notes = []
     if low:
@@ -55,26 +57,30 @@ def nis_advice(low: int, high: int, options: TrackOptions, *, cellular: bool = F
     return notes
 
 
-def _cellular_nis_advice(low: int, high: int, options: TrackOptions) -> list[str]:
+def _cellular_nis_advice(low: int, high: int, options: TrackOptions | None) -> list[str]:
+    """The cellular advice; with ``options`` None (not known) it names the options without values."""
     notes = []
-    sigma = 1e3 * options.r_km2 ** 0.5
-    r = f"the range noise ({sigma:.0f} m, 1-sigma)"
+    sigma = None if options is None else 1e3 * options.r_km2 ** 0.5
+    r = "the range noise the run assumed" if sigma is None else f"the range noise ({sigma:.0f} m, 1-sigma)"
     if low:
         notes.append(f"{low} track(s) have a mean NIS far below its band: the ranges are more accurate than "
-                     f"{r}; a smaller one follows them more closely (try --range-sigma {sigma / 2:.0f})")
+                     f"{r}; a smaller one follows them more closely ("
+                     + ("a smaller --range-sigma" if sigma is None else f"try --range-sigma {sigma / 2:.0f}") + ")")
     if high:
-        other = _OTHER_PATH_LOSS.get(options.path_loss, "cost231-wi-nlos")
-        notes.append(f"{high} track(s) have a mean NIS far above its band: the ranges are noisier than {r} "
-                     f"(try --range-sigma {2 * sigma:.0f}), or, where they come from the signal strength, the "
-                     f"path-loss model ({options.path_loss}) does not fit the area (try --path-loss {other})")
+        model = "the path-loss model" if options is None else f"the path-loss model ({options.path_loss})"
+        other = "another --path-loss" if options is None else \
+            f"try --path-loss {_OTHER_PATH_LOSS.get(options.path_loss, 'cost231-wi-nlos')}"
+        notes.append(f"{high} track(s) have a mean NIS far above its band: the ranges are noisier than {r} ("
+                     + ("a larger --range-sigma" if sigma is None else f"try --range-sigma {2 * sigma:.0f}")
+                     + f"), or, where they come from the signal strength, {model} does not fit the area ({other})")
     return notes
 
 
 def evaluation_nis(tracks: dict, overall: dict, *, cellular: bool = False) -> dict:
     """The "nis" part of an evaluation's summary, shaped as a tracking run's: the mean NIS of all tracks
     (``overall``, :func:`._consistency.nis_stats`), how many tracks lie outside their own band, the
-    tracks far from it (:func:`far_from_band`) and what that usually means with the default options
-    (``cellular``: tracks of a cellular run).  ``tracks``: {id: per-track statistics}."""
+    tracks far from it (:func:`far_from_band`) and what that usually means (the run's options are not
+    known; ``cellular``: tracks of a cellular run).  ``tracks``: {id: per-track statistics}."""
     rows = [r for r in tracks.values() if r.get("nis_fixes")]
     low, high = far_from_band([r["mean_nis"] for r in rows], [r["nis_dof"] for r in rows],
                               [r["nis_fixes"] for r in rows])
@@ -82,4 +88,4 @@ def evaluation_nis(tracks: dict, overall: dict, *, cellular: bool = False) -> di
     keys = ("mean_nis", "nis_dof", "nis_fixes", "nis_lo", "nis_hi", "nis_consistent")
     return {**{k: overall.get(k) for k in keys}, "tracks_outside_band": sum(not r["nis_consistent"] for r in rows),
             "tracks_judged": len(rows), "far_low": low, "far_high": high,
-            "advice": nis_advice(low, high, TrackOptions(), cellular=cellular)}
+            "advice": nis_advice(low, high, None, cellular=cellular)}
