@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import contextlib
 from pathlib import Path
-from typing import NamedTuple, Optional
+from typing import List, NamedTuple, Optional
 
 import typer
 from rich.markup import escape
@@ -113,17 +113,25 @@ def _summary_table(summary: dict, title: str, rows_max: int | None) -> RichTable
 
 
 
-def _default_out(input: Path) -> Path:
-    """``--out`` when not given: INPUT's name with ``.tracks.parquet`` beside it."""
+def _default_out(input) -> Path:
+    """``--out`` when not given: INPUT's name with ``.tracks.parquet`` beside it (a directory's name beside
+    the directory); several files: their common directory's, beside it (not inside, where a later run on
+    the directory would read it)."""
+    import os
+
+    if isinstance(input, list):
+        input = Path(os.path.commonpath([os.path.abspath(p.parent) for p in input]))
     name = input.name.split(".")[0] if not input.is_dir() else input.name
     return input.parent / f"{name}.tracks.parquet"
 
 
 def track(
     ctx: typer.Context,
-    input: Path = typer.Argument(..., help="Position fixes: CSV (any delimiter), Parquet (a file or a directory), "
-                                           "GPX, TCX, FIT, NMEA 0183 or GeoJSON; or, with --cells, a cellular "
-                                           "measurement log (CSV/Parquet)."),
+    inputs: List[Path] = typer.Argument(..., metavar="INPUT...", help="Position fixes: CSV (any delimiter), "
+                                        "Parquet (a file or a directory), GPX, TCX, FIT, NMEA 0183 or GeoJSON; or, "
+                                        "with --cells, a cellular measurement log (CSV/Parquet). Several files, a "
+                                        "glob ('rides/*.gpx') or a directory of such files are one input, each "
+                                        "file's tracks kept apart (ids FILE/TRACK)."),
     out: Optional[Path] = typer.Option(None, "--out", "-o", help="Result: .parquet, .csv, .geojson, .gpx or "
                                                                  ".geoparquet (written atomically; the input's "
                                                                  "other columns pass through). Default: "
@@ -194,6 +202,12 @@ def track(
         reject_given(ctx, ["max_workers"], "applies to --executor processes or dask")
     if on_error != "skip":
         reject_given(ctx, ["max_skip"], "applies to --on-error skip")
+    from ..io import input_name, resolve_input
+
+    try:
+        input = resolve_input(inputs, "INPUT")
+    except MptrackError as exc:
+        fail(exc)
     out = out or _default_out(input)
     from .._core.files import output_lock
     from .._core.validation import check_positive
@@ -202,7 +216,8 @@ def track(
 
     kept, summary, points = "", None, []
     try:
-        check_outputs(input, cells, out=out, track_summary=track_summary, report=report)
+        check_outputs(*(input if isinstance(input, list) else [input]), cells, out=out, track_summary=track_summary,
+                      report=report)
         values = {k: v for k, v in given.items() if v is not None}
         if "gate_probability" in values and values["gate_probability"] >= 1:
             values["gate_probability"] = None
@@ -220,7 +235,7 @@ def track(
                                          on_points=None if report is None else _keep_points(points))
                     if report is not None:
                         with bar.task("report"):
-                            write_track_report(points.pop(), report, run=summary, title=f"mptrack track {input.name}")
+                            write_track_report(points.pop(), report, run=summary, title=f"mptrack track {input_name(input)}")
                         summary["report"] = str(report)
             except (OSError, KeyboardInterrupt):
                 kept = _kept(out)  # under the lock: the parts are this run's

@@ -25,7 +25,7 @@ import scipy.stats
 from .._core.validation import check_bool, check_frame, check_path, check_positive, point_numbers
 from ..errors import DataError, ParameterError
 from ..io import FIXES, LocalFrame, ReadOptions, ReadReport, input_columns, read_table
-from .._tracks import track_offsets
+from .._core.tracks import track_offsets
 from ._advice import evaluation_nis
 from ._consistency import USED_FLAGS, flag_counts, is_flag, nis_stats
 from ._registry import CELL_METHODS

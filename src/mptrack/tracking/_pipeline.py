@@ -28,10 +28,11 @@ import pyarrow as pa
 
 from .._core.files import output_lock
 from .._core.tracks import track_offsets
-from .._core.validation import check_bool, check_int, check_outputs, check_path, source_label
+from .._core.validation import check_bool, check_int, check_outputs, check_path
 from ..batch import Chunk, read_part, run_stream
 from ..errors import MptrackError, ParameterError
-from ..io import (FIXES, MEASUREMENTS, InputNotSorted, PartStore, ReadOptions, ReadReport, iter_track_chunks,
+from ..io import (FIXES, MEASUREMENTS, InputNotSorted, PartStore, ReadOptions, ReadReport, input_label,
+                  input_name, iter_track_chunks, resolve_input,
                   output_format, read_cells, read_chunks)
 from ._advice import far_from_band, nis_advice
 from ._cellular import check_cell_ids, track_cells
@@ -122,7 +123,7 @@ def _source_chunks(source, schema, on_error: str, chunk_rows: int, report: ReadR
                    sort: bool | None, cells=None):
     """Chunks of whole tracks of a path or a DataFrame, numbered; with a cell table, rows of unknown
     cells raise or are dropped and counted (a track left without rows is dropped)."""
-    label = source_label(source)
+    label = input_label(source)
     for i, rows in enumerate(iter_track_chunks(source, schema, on_error=on_error, chunk_rows=chunk_rows,
                                                report=report, read=read, sort=sort)):
         if cells is not None:
@@ -133,8 +134,11 @@ def _source_chunks(source, schema, on_error: str, chunk_rows: int, report: ReadR
 def _manifest(input, options: TrackOptions, cells, chunk_rows: int, read: ReadOptions) -> dict:
     """What a resumed run must share with the interrupted one: the input file(s) as they were, the
     options and the chunking."""
-    path = Path(input)
-    files = sorted(p for p in path.rglob("*") if p.is_file()) if path.is_dir() else [path]
+    if isinstance(input, list):
+        files = input
+    else:
+        path = Path(input)
+        files = sorted(p for p in path.rglob("*") if p.is_file()) if path.is_dir() else [path]
     stamp = [[str(p), p.stat().st_size, p.stat().st_mtime_ns] for p in files]
     return {"input": stamp, "cells": None if cells is None else str(cells), "chunk_rows": chunk_rows,
             "options": {k: v for k, v in asdict(options).items()}, "read": json.loads(json.dumps(asdict(read)))}
@@ -245,10 +249,10 @@ def track_file(input, out, *, cells=None, options: TrackOptions = TrackOptions()
     nothing is left).
     """
     start = time.perf_counter()
-    input, out = check_path("input", input), check_path("out", out)
+    input, out = resolve_input(input, "input"), check_path("out", out)
     if not isinstance(options, TrackOptions):
         raise ParameterError(f"options: expected TrackOptions, got {type(options).__name__}")
-    check_outputs(input, cells, out=out, track_summary=track_summary)
+    check_outputs(*(input if isinstance(input, list) else [input]), cells, out=out, track_summary=track_summary)
     chunk_rows = check_int("chunk_rows", chunk_rows, minimum=1)
     store = PartStore(out)
     if track_summary is not None:
@@ -264,7 +268,7 @@ def track_file(input, out, *, cells=None, options: TrackOptions = TrackOptions()
         progress = progress or _NullProgress()
         resumed = store.parts("tracks")
         try:
-            with progress.task(f"tracking the tracks of {input.name}", total=None) as advance:
+            with progress.task(f"tracking the tracks of {input_name(input)}", total=None) as advance:
                 results = _run(input, options, cells_table=cell_table, on_error=on_error, chunk_rows=chunk_rows,
                                executor=executor, max_workers=max_workers, client=client, store=store,
                                manifest=_manifest(input, options, cells, chunk_rows, read), progress=advance,
@@ -288,7 +292,7 @@ def track_file(input, out, *, cells=None, options: TrackOptions = TrackOptions()
                 store.discard()  # bad input, or no chunk finished: nothing to resume, nothing left behind
             raise
     summary = _summary(tracks, report, options, len(results), cellular=cells is not None)
-    summary.update(input=str(input), output=str(out), points_written=points, chunks_resumed=len(resumed),
+    summary.update(input=str(input_label(input)), output=str(out), points_written=points, chunks_resumed=len(resumed),
                    tracks_resumed=tracks_resumed, elapsed_s=time.perf_counter() - start)
     if track_summary is not None:
         summary["track_summary"] = str(track_summary)
@@ -472,14 +476,13 @@ def track(data, *, cells=None, model: str | None = None, filter: str | None = No
             raise ParameterError(f"{name}: {why}")
     if given.get("gate_probability") == 1:
         given["gate_probability"] = None  # 1 disables gating, as --gate 1
-    if not isinstance(data, pd.DataFrame):
-        check_path("data", data)
+    data = resolve_input(data, "data")
     opts = TrackOptions(**given)
     read = ReadOptions(columns=columns or (), time_unit=time_unit, time_format=time_format, coord_unit=coord_unit,
                        **({} if max_skip is None else {"max_skip": max_skip}))
     chunk_rows = check_int("chunk_rows", chunk_rows, minimum=1)
     if report is not None:
-        check_outputs(*([] if isinstance(data, pd.DataFrame) else [data]),
+        check_outputs(*(data if isinstance(data, list) else [] if isinstance(data, pd.DataFrame) else [data]),
                       *([] if cells is None or isinstance(cells, pd.DataFrame) else [cells]), report=report)
     with nullcontext() if report is None else output_lock(report):
         report_of_reading = ReadReport()
