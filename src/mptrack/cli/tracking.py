@@ -202,7 +202,7 @@ def track(
         reject_given(ctx, ["max_workers"], "applies to --executor processes or dask")
     if on_error != "skip":
         reject_given(ctx, ["max_skip"], "applies to --on-error skip")
-    from ..io import input_name, resolve_input
+    from ..io import input_name, input_paths, resolve_input
 
     try:
         input = resolve_input(inputs, "INPUT")
@@ -216,8 +216,7 @@ def track(
 
     kept, summary, points = "", None, []
     try:
-        check_outputs(*(input if isinstance(input, list) else [input]), cells, out=out, track_summary=track_summary,
-                      report=report)
+        check_outputs(*input_paths(input), cells, out=out, track_summary=track_summary, report=report)
         values = {k: v for k, v in given.items() if v is not None}
         if "gate_probability" in values and values["gate_probability"] >= 1:
             values["gate_probability"] = None

@@ -18,20 +18,28 @@ from .._core.validation import FRAME_LABEL, check_path
 from ..errors import DataError, ParameterError
 from ._formats import FORMATS, Skipped
 
-__all__ = ["InputFiles", "resolve_input", "input_files", "input_label", "input_name", "file_labels", "PARQUET_SUFFIXES"]
+__all__ = ["InputFiles", "resolve_input", "input_paths", "input_files", "input_label", "input_name", "file_labels", "PARQUET_SUFFIXES"]
 
 PARQUET_SUFFIXES = (".parquet", ".pq")
 _GLOB = re.compile(r"[*?[]")
 
 
 class InputFiles(list):
-    """Several files read as one input: a list of their Paths, with ``left_out``, the records of the files
-    of a directory that are of no input format (:class:`mptrack.io._formats.Skipped`, reported by the
-    readers)."""
+    """Several files read as one input: a list of their Paths, with ``root``, the directory they were
+    found in (None for a list or a glob), and ``left_out``, the records of that directory's files of no
+    input format (:class:`mptrack.io._formats.Skipped`, reported by the readers)."""
 
-    def __init__(self, files, left_out=()):
+    def __init__(self, files, left_out=(), root: Path | None = None):
         super().__init__(files)
-        self.left_out = tuple(left_out)
+        self.left_out, self.root = tuple(left_out), root
+
+
+def input_paths(source) -> list:
+    """The paths of a resolved input that an output must not be, nor lie inside (the files, and the
+    directory they come from); none for a table in memory."""
+    if isinstance(source, InputFiles):
+        return [*source, *([source.root] if source.root is not None else [])]
+    return [] if isinstance(source, pd.DataFrame) else [source]
 
 
 def _hidden(path: Path, root: Path) -> bool:
@@ -52,7 +60,7 @@ def _directory(path: Path):
         names = ", ".join(str(p.relative_to(path)) for p in other[:5]) + (", ..." if len(other) > 5 else "")
         left_out.append(Skipped("file of no input format", len(other),
                                 f"{path}: {names}: not an input format ({', '.join(sorted(FORMATS))}), left out"))
-    return InputFiles(known, left_out)
+    return InputFiles(known, left_out, root=path)
 
 
 def resolve_input(source, name: str = "input"):

@@ -464,8 +464,8 @@ def _xy_in_degrees(df: pd.DataFrame, plan: Interpretation, file) -> bool:
     if as_degrees > MAX_PLAUSIBLE_SPEED:
         return False
     as_metres = _speeds(y, x, secs, same, degrees=False, moving=True)
-    for source, canonical in ((xc, "lon"), (yc, "lat")):
-        plan.rename[next(k for k in plan.rename if str(k) == source)] = canonical
+    for axis, canonical in (("x", "lon"), ("y", "lat")):
+        plan.rename[next((k for k, v in plan.rename.items() if v == axis), axis)] = canonical
     plan.notes.append(f"x/y: columns {xc!r}/{yc!r} (values around {mx:.6g}/{my:.6g}) move at {as_degrees:.3g} m/s "
                       f"read as longitude/latitude in degrees, {as_metres:.2g} m/s as metres: read as lon/lat "
                       f"(--columns x={xc},y={yc} to read them as metres)")

@@ -32,7 +32,7 @@ from .._core.validation import check_bool, check_int, check_outputs, check_path
 from ..batch import Chunk, read_part, run_stream
 from ..errors import MptrackError, ParameterError
 from ..io import (FIXES, MEASUREMENTS, InputNotSorted, PartStore, ReadOptions, ReadReport, input_label,
-                  input_name, iter_track_chunks, resolve_input,
+                  input_name, input_paths, iter_track_chunks, resolve_input,
                   output_format, read_cells, read_chunks)
 from ._advice import far_from_band, nis_advice
 from ._cellular import check_cell_ids, track_cells
@@ -252,7 +252,7 @@ def track_file(input, out, *, cells=None, options: TrackOptions = TrackOptions()
     input, out = resolve_input(input, "input"), check_path("out", out)
     if not isinstance(options, TrackOptions):
         raise ParameterError(f"options: expected TrackOptions, got {type(options).__name__}")
-    check_outputs(*(input if isinstance(input, list) else [input]), cells, out=out, track_summary=track_summary)
+    check_outputs(*input_paths(input), cells, out=out, track_summary=track_summary)
     chunk_rows = check_int("chunk_rows", chunk_rows, minimum=1)
     store = PartStore(out)
     if track_summary is not None:
@@ -482,7 +482,7 @@ def track(data, *, cells=None, model: str | None = None, filter: str | None = No
                        **({} if max_skip is None else {"max_skip": max_skip}))
     chunk_rows = check_int("chunk_rows", chunk_rows, minimum=1)
     if report is not None:
-        check_outputs(*(data if isinstance(data, list) else [] if isinstance(data, pd.DataFrame) else [data]),
+        check_outputs(*input_paths(data),
                       *([] if cells is None or isinstance(cells, pd.DataFrame) else [cells]), report=report)
     with nullcontext() if report is None else output_lock(report):
         report_of_reading = ReadReport()
