@@ -19,7 +19,8 @@ from ._decimate import DEFAULT_BUDGET
 from ._page import esc, json_script, page, write_page
 from ._payload import track_payload
 
-__all__ = ["write_report", "write_track_report", "report_points", "REPORT_COLUMNS", "PALETTE", "RAW_ON_BELOW"]
+__all__ = ["write_report", "write_track_report", "report_points", "REPORT_COLUMNS", "PALETTE", "RAW_ON_BELOW",
+           "LAYERS"]
 
 #: The tracks' colours, in order (repeated beyond 16 tracks); the same list as in report.js.
 PALETTE = ("#1f77b4", "#d62728", "#2ca02c", "#9467bd", "#8c564b", "#e377c2", "#17becf", "#bcbd22",
@@ -118,15 +119,38 @@ def _check_report_inputs(tracks, path, summary, run, title, notes, budget) -> tu
     return path, notes, check_int("budget", budget, minimum=1)
 
 
-_KIND_TEXT = {"raw": "raw fixes (grey dots)", "rejected": "fixes rejected by the NIS gate (orange rings)",
-              "resets": "filter resets (purple rings)", "gaps": "the first estimate after a gap (white dots)",
-              "truth": "truth (dashed black line)",
-              "ellipses": "the 1-σ uncertainty ellipses of the selected track (blue)"}
+#: The map's layers besides the tracks' lines: what the legend calls each, its look in words (the caption)
+#: and how it is drawn (Leaflet's marker or path options); the map, the legend's swatch and the caption
+#: all take them from here, so they cannot disagree.
+LAYERS = {
+    "raw": {"label": "raw fixes", "look": "grey dots",
+            "marker": {"radius": 2, "color": "#777777", "weight": 0, "fillColor": "#777777", "fillOpacity": 0.8}},
+    "rejected": {"label": "fixes rejected by the NIS gate", "look": "orange rings",
+                 "marker": {"radius": 4, "color": "#ff7f0e", "weight": 2, "fill": False}},
+    "resets": {"label": "fixes that restarted the filter", "look": "purple rings",
+               "marker": {"radius": 6, "color": "#6a3d9a", "weight": 2, "fill": False}},
+    "gaps": {"label": "the first estimate after a gap", "look": "white dots ringed in black",
+             "marker": {"radius": 5, "color": "#000000", "weight": 2, "fillColor": "#ffffff", "fillOpacity": 1}},
+    "truth": {"label": "truth", "look": "dashed black line",
+              "line": {"color": "#000000", "weight": 1.5, "dashArray": "5 5"}},
+    "ellipses": {"label": "1-σ uncertainty ellipses", "look": "blue outlines",
+                 "shape": "ellipse", "line": {"color": "#1f77b4", "weight": 1, "fillOpacity": 0.08}},
+}
+
+
+def _layer_text(kind: str) -> str:
+    return f"{LAYERS[kind]['label']} ({LAYERS[kind]['look']})"
+
 
 
 def _count(n: int) -> str:
     """A count with its thousands apart: 150 600 (a narrow no-break space)."""
     return f"{n:,}".replace(",", "\u202f")
+
+
+def _plural(n: int, one: str, many: str | None = None) -> str:
+    """"1 gap", "2 gaps", "1 fix", "12 fixes"."""
+    return f"{_count(n)} {one if n == 1 else many or one + 's'}"
 
 
 def _kinds(payload: dict) -> dict:
@@ -164,9 +188,8 @@ def _map_caption(payload: dict, kinds: dict, budget: int) -> str:
                                                                   "as a line in its own colour")
             + (f" (the {len(PALETTE)} colours repeat)" if n > len(PALETTE) else "")
             + ("; a line breaks at a reset or a gap" if {"resets", "gaps"} & set(kinds) else "") + ".")
-    on = [f"{_KIND_TEXT[k]} ({kinds[k]['text']})" for k in kinds if kinds[k]["on"] and k not in ("truth", "ellipses")]
-    on += [_KIND_TEXT[k] for k in ("truth", "ellipses") if k in kinds]
-    off = [f"{_KIND_TEXT[k]} ({kinds[k]['text']})" for k in kinds if not kinds[k]["on"]]
+    on = [f"{_layer_text(k)}: {kinds[k]['text']}" for k in kinds if kinds[k]["on"]]
+    off = [f"{_layer_text(k)}: {kinds[k]['text']}" for k in kinds if not kinds[k]["on"]]
     if on:
         text += " Also drawn: " + ", ".join(on) + "."
     if off:
@@ -181,8 +204,10 @@ def _map_caption(payload: dict, kinds: dict, budget: int) -> str:
         if whole:
             text += f"; every {' and every '.join(whole)} is drawn"
         text += "."
-    text += (" Background: OpenStreetMap tiles when the browser is online, otherwise a plain background."
-             if payload["geo"] else " Axes: local east/north metres (the input had no latitude/longitude).")
+    text += (" Background: OpenStreetMap tiles when the browser is online, otherwise a plain background; the scale "
+             "bar (bottom left) is in metres." if payload["geo"] else
+             " Axes: local east/north metres (the input had no latitude/longitude); the scale bar (bottom left) is "
+             "in the same metres.")
     return text + " Click a track (on the map, in the list or in the table) to plot it over time."
 
 
@@ -217,10 +242,10 @@ def _quality(tracks: pd.DataFrame, summary: dict, run: dict | None) -> str:
     gaps = int(tracks["gap"].sum()) if "gap" in tracks.columns else 0
     predicted = int((tracks["flag"] == "predicted").sum())
     restarts, resets = o.get("restarts", 0), o.get("resets", 0)
-    items.append(f"{_count(o.get('outliers', 0))} fixes rejected by the NIS gate, {_count(restarts)} "
-                 f"restart{'s' if restarts != 1 else ''} of the filter ({_count(resets)} fix"
-                 f"{'es' if resets != 1 else ''} flagged reset), {_count(gaps)} gaps, {_count(predicted)} points "
-                 "predicted without a fix")
+    outliers = o.get("outliers", 0)
+    items.append(f"{_plural(outliers, 'fix', 'fixes')} rejected by the NIS gate, {_plural(restarts, 'restart')} of "
+                 f"the filter ({_plural(resets, 'fix', 'fixes')} flagged reset), {_plural(gaps, 'gap')}, "
+                 f"{_plural(predicted, 'point')} predicted without a fix")
     if o.get("nis_fixes"):
         low, high = far_from_band([o["mean_nis"]], [o["nis_dof"]], [o["nis_fixes"]])
         why = ("; far below: the filter assumes more noise than the data show" if low[0] else
@@ -296,7 +321,8 @@ def write_report(tracks: pd.DataFrame, path, *, summary: dict, run: dict | None 
                 "<input id='table-filter' type='search' placeholder='filter tracks'><div class='pager'>"
                 "<button id='prev-page' type='button'>◀</button> <span id='page-info'></span> "
                 "<button id='next-page' type='button'>▶</button></div><table id='summary'></table></section>")
-    body.append(json_script("mptrack-data", {"payload": payload, "kinds": kinds, "summary": _summary_rows(summary)}))
+    body.append(json_script("mptrack-data", {"payload": payload, "kinds": kinds, "layers": LAYERS,
+                                             "summary": _summary_rows(summary)}))
     return write_page(path, page(title, "".join(body), scripts=("leaflet.js", "report.js"),
                                  styles=("leaflet.css",)))
 
