@@ -206,3 +206,13 @@ def test_resolve_input():
     both = resolve_input([REAL_TRACES["bike"], REAL_TRACES["car"]])
     assert isinstance(both, list) and both == [REAL_TRACES["bike"], REAL_TRACES["car"]]
     assert resolve_input(str(REAL_TRACES["car"].parent / "*-car.gpx")) == REAL_TRACES["car"]
+
+
+def test_an_earlier_output_in_the_folder_is_left_out(rides, tmp_path):
+    """A folder of logs that also holds an earlier run's output: the output is not tracked again."""
+    code, _ = track(rides / "around-visnjan-with-car.gpx", "--out", rides / "car.tracks.parquet")
+    assert code == 0
+    code, summary = track(rides, "--out", tmp_path / "all.parquet")
+    assert code == 0, summary
+    assert summary["tracks"] == 3 and summary["read"]["left_out"]["output of mptrack track"] == 1
+    assert not any(t.startswith("car.tracks.parquet") for t in pd.read_parquet(tmp_path / "all.parquet")["track_id"])

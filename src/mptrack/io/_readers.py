@@ -16,7 +16,7 @@ from .._core.tracks import track_offsets
 from .._core.validation import check_int, check_on_error, source_label
 from ._inputs import InputFiles, file_labels, input_label, resolve_input
 from ..errors import DataError, ParameterError
-from ._formats import raw_chunks
+from ._formats import Skipped, input_format, raw_chunks
 from ._interpret import ReadOptions, interpret
 from ._schema import CELLS, FIXES, ReadReport, Schema, cell_key, validate_chunk
 
@@ -80,13 +80,22 @@ def read_chunks(path, schema: Schema = FIXES, *, on_error: str = "raise", chunk_
     report.leave_out(skipped)
 
 
+#: Columns that make a file an output of ``mptrack track`` (the point table's).
+_OUTPUT_COLUMNS = ("east_m", "north_m", "var_east_m2", "nis", "flag", "method")
+
+
 def _read_files(files: list, schema: Schema, on_error: str, chunk_rows: int, report: ReadReport,
                 read: ReadOptions) -> Iterator[pd.DataFrame]:
     """The validated chunks of several files, one after the other, each read on its own (its own column
     names and units, its own row numbers) and its track ids prefixed with its name (the tracks of two
     files never merge); what each file's reading noted is counted in ``report``, its notes prefixed
-    with the file's name."""
+    with the file's name.  A Parquet or CSV file that is an output of ``mptrack track`` (it has the point
+    table's columns) is left out and counted: a folder of logs often holds an earlier run's output too."""
     for path, name in zip(files, file_labels(files)):
+        if input_format(path) in ("parquet", "csv") and set(_OUTPUT_COLUMNS) <= set(input_columns(path)):
+            report.leave_out([Skipped("output of mptrack track", 1, f"{path}: an output of mptrack track (it has "
+                                      f"the columns {', '.join(_OUTPUT_COLUMNS)}), not fixes; left out")])
+            continue
         own = ReadReport()
         for chunk in read_chunks(path, schema, on_error=on_error, chunk_rows=chunk_rows, report=own, read=read):
             if "track_id" in chunk.columns:
