@@ -193,7 +193,11 @@ def test_several_files_and_a_glob(rides, tmp_path):
     # several files default to an output beside their common folder
     code, summary = track(*files)
     assert code == 0 and summary["output"] == str(rides.parent / "rides.tracks.parquet")
+    notes = tmp_path / "notes"
+    notes.mkdir()
+    (notes / "README.md").write_text("x")
     for bad, words in (([rides / "nothing-*.gpx"], "no file matches this pattern"),
+                       ([notes], "no input files in the directory: README.md of no input format"),
                        ([files[0], files[0]], "a file is given twice"),
                        ([files[0], rides], "is a directory")):
         code, message = track(*bad, "--out", tmp_path / "x.parquet")

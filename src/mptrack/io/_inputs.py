@@ -52,15 +52,22 @@ def _directory(path: Path):
     else its files of an input format, sorted, as :class:`InputFiles` (the others left out)."""
     files = sorted(p for p in path.rglob("*") if p.is_file() and not _hidden(p, path))
     known = [p for p in files if p.suffix.lower() in FORMATS]
-    if all(p.suffix.lower() in PARQUET_SUFFIXES or p not in known for p in files):
-        return path  # a Parquet dataset, hive-partitioned or not (files without a suffix included)
     other = [p for p in files if p not in known]
+    if other and not known:
+        raise DataError(f"no input files in the directory: {_names(other, path)} of no input format "
+                        f"({', '.join(sorted(FORMATS))})", file=path)
+    if all(p.suffix.lower() in PARQUET_SUFFIXES for p in known):
+        return path  # a Parquet dataset, hive-partitioned or not (or empty: the dataset reader says so)
     left_out = []
     if other:
-        names = ", ".join(str(p.relative_to(path)) for p in other[:5]) + (", ..." if len(other) > 5 else "")
         left_out.append(Skipped("file of no input format", len(other),
-                                f"{path}: {names}: not an input format ({', '.join(sorted(FORMATS))}), left out"))
+                                f"{path}: {_names(other, path)}: not an input format ({', '.join(sorted(FORMATS))}), "
+                                "left out"))
     return InputFiles(known, left_out, root=path)
+
+
+def _names(files: list[Path], root: Path) -> str:
+    return ", ".join(str(p.relative_to(root)) for p in files[:5]) + (", ..." if len(files) > 5 else "")
 
 
 def resolve_input(source, name: str = "input"):
