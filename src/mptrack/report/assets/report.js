@@ -361,7 +361,7 @@
                             colour: tr.colour, log: true, dots: true, band: band, mark: rejected, floor: floor, xr: xr}));
       shown.push("NIS of every fix" + (band ? " against the 95 % χ² band of " + tr.dof + " degrees of freedom (green)" : "")
                  + (rejected.some(Boolean) ? ", fixes rejected by the gate as orange rings" : "")
-                 + (low ? "; values below " + fmt(floor) + " are drawn on the axis" : ""));
+                 + (low ? "; values below " + tickLabel(floor) + " are drawn on the axis" : ""));
     }
     if (tr.err) { box.appendChild(plot({title: "error against truth (m)", x: tr.time, y: tr.err, colour: "#d62728", log: true, xr: xr})); shown.push("error against truth"); }
     var cap = "Track " + id + ": " + shown.join("; ") + ". " + tr.drawn + " of " + tr.n + " points drawn"
