@@ -211,8 +211,7 @@ def track(
     out = out or _default_out(input)
     from .._core.files import output_lock
     from .._core.validation import check_positive
-    from ..report import write_track_report
-    from ..tracking import TrackOptions, track_file
+    from ..tracking import TrackOptions, track_file, write_track_report
 
     kept, summary, points = "", None, []
     try:
@@ -234,7 +233,8 @@ def track(
                                          on_points=None if report is None else _keep_points(points))
                     if report is not None:
                         with bar.task("report"):
-                            write_track_report(points.pop(), report, run=summary, title=f"mptrack track {input_name(input)}")
+                            write_track_report(points.pop(), report, run=summary,
+                                               title=f"mptrack track {input_name(input)}")
                         summary["report"] = str(report)
             except (OSError, KeyboardInterrupt):
                 kept = _kept(out)  # under the lock: the parts are this run's
@@ -266,15 +266,13 @@ def track(
 
 
 def _nis_line(nis: dict) -> None:
-    """The mean NIS of a run or an evaluation (:func:`mptrack.tracking.nis_sentence`: the words of the
-    report and of the other command), with how many tracks lie outside their own band."""
-    from ..tracking import nis_sentence
-
+    """The mean NIS of a run or an evaluation (its summary's sentence, :func:`mptrack.tracking.nis_sentence`:
+    the words of the report and of the other command), with how many tracks lie outside their own band."""
     if not nis.get("nis_fixes"):
         return
     outside, judged = nis.get("tracks_outside_band"), nis.get("tracks_judged")
-    echo(nis_sentence(nis) + (f"; {outside} of {judged} tracks outside their own band"
-                              if outside is not None and judged and judged > 1 else ""))
+    echo(nis["sentence"] + (f"; {outside} of {judged} tracks outside their own band"
+                            if outside is not None and judged and judged > 1 else ""))
 
 
 def out_print(renderable) -> None:

@@ -14,12 +14,11 @@ import pandas as pd
 
 from .._core.validation import check_frame, check_int, check_path, point_numbers
 from ..errors import DataError, ParameterError, ShapeError
-from ..tracking import far_from_band, nis_sentence
 from ._decimate import DEFAULT_BUDGET
 from ._page import esc, json_script, page, write_page
 from ._payload import track_payload
 
-__all__ = ["write_report", "write_track_report", "report_points", "REPORT_COLUMNS", "PALETTE", "RAW_ON_BELOW",
+__all__ = ["write_report", "report_points", "REPORT_COLUMNS", "PALETTE", "RAW_ON_BELOW",
            "LAYERS"]
 
 #: The tracks' colours, in order (repeated beyond 16 tracks); the same list as in report.js.
@@ -246,16 +245,14 @@ def _quality(tracks: pd.DataFrame, summary: dict, run: dict | None) -> str:
     items.append(f"{_plural(outliers, 'fix', 'fixes')} rejected by the NIS gate, {_plural(restarts, 'restart')} of "
                  f"the filter ({_plural(resets, 'fix', 'fixes')} flagged reset), {_plural(gaps, 'gap')}, "
                  f"{_plural(predicted, 'point')} predicted without a fix")
-    if o.get("nis_fixes"):
-        low, high = far_from_band([o["mean_nis"]], [o["nis_dof"]], [o["nis_fixes"]])
-        why = ("; far below: the filter assumes more noise than the data show" if low[0] else
-               "; far above: the data are noisier or the motion more agile than the filter assumes" if high[0]
-               else "")
-        judged = [r for r in summary["tracks"].values() if r.get("nis_fixes")]
-        outside = sum(not r.get("nis_consistent") for r in judged)
+    nis = summary.get("nis") or {}
+    if nis.get("sentence") and o.get("nis_fixes"):
+        why = {"below": "; far below: the filter assumes more noise than the data show",
+               "above": "; far above: the data are noisier or the motion more agile than the filter assumes"}
+        outside, judged = nis.get("tracks_outside_band"), nis.get("tracks_judged") or 0
         inside = o.get("nis_in_95")
-        items.append(esc(nis_sentence(o)) + why
-                     + (f"; {outside} of {len(judged)} tracks outside their own band" if len(judged) > 1 else "")
+        items.append(esc(nis["sentence"]) + why.get(nis.get("far"), "")
+                     + (f"; {outside} of {judged} tracks outside their own band" if judged > 1 else "")
                      + (f"; {100 * inside:.1f} % of these fixes inside their own 95 % χ² interval"
                         if inside is not None and np.isfinite(inside) else ""))
     for text in ((run or {}).get("nis") or summary.get("nis") or {}).get("advice") or []:
@@ -292,7 +289,8 @@ def write_report(tracks: pd.DataFrame, path, *, summary: dict, run: dict | None 
     tracks   the point table of ``mptrack track`` (:func:`mptrack.tracking.read_output`), with the
              error and truth columns of :func:`mptrack.tracking.evaluate_tracks` when evaluated
     summary  the evaluation of ``tracks`` (the first value :func:`mptrack.tracking.evaluate_tracks`
-             returns): one row per track and an overall row; every track is in the page's table
+             returns): one row per track and an overall row; every track is in the page's table; its
+             "nis" part gives the mean NIS sentence, the verdict and the advice the page prints
     run      the summary :func:`mptrack.tracking.track_file` returns, for the data-quality section
              (rows skipped by reason, records left out, the reader's notes, NIS advice)
     budget   about how many points the map and plots draw in all (larger tables are decimated)
@@ -325,16 +323,3 @@ def write_report(tracks: pd.DataFrame, path, *, summary: dict, run: dict | None 
                                              "summary": _summary_rows(summary)}))
     return write_page(path, page(title, "".join(body), scripts=("leaflet.js", "report.js"),
                                  styles=("leaflet.css",)))
-
-
-def write_track_report(points: pd.DataFrame, path, *, run: dict | None = None, title: str = "mptrack track",
-                       budget: int = DEFAULT_BUDGET) -> Path:
-    """Write the report of a tracking run, as ``mptrack track --report`` and ``mptrack.track(report=...)``
-    do: ``points`` (the run's point table, or the columns of it :func:`report_points` keeps) evaluated
-    against the truth columns a simulated log passes through (true_lat/true_lon or true_x/true_y) when
-    it has them, drawn with ``run``, the run's summary (rows skipped, NIS advice)."""
-    from ..tracking import TRUTH_COLUMNS, evaluate_tracks
-
-    own = any(a in points.columns and b in points.columns for a, b, _ in TRUTH_COLUMNS)
-    summary, table = evaluate_tracks(points, truth_columns=own)
-    return write_report(table, path, summary=summary, run=run, title=title, budget=budget)

@@ -13,7 +13,7 @@ from ._live import ESTIMATE_FIELDS, LiveTracks
 from ._gated import GatedResult, kalman_filter_gated, nis_threshold, smooth_gated, track_gated
 from ._noise import SOURCES as NOISE_SOURCES
 from ._output import POINT_COLUMNS, ellipse, point_table
-from ._pipeline import read_output, track, track_file
+from ._pipeline import read_output, track, track_file, write_track_report
 from ._run import TRACK_COLUMNS
 from ._simulate import SCENARIOS, Intervals, simulate, simulate_chunks
 from ._registry import (
@@ -45,6 +45,7 @@ __all__ = [
     "attach_truth",
     "TRUTH_COLUMNS",
     "track_file",
+    "write_track_report",
     "track",
     "track_gated",
     "POINT_COLUMNS",

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ._consistency import nis_sentence
 from ._fixes import TrackOptions
 
 __all__ = ["MIN_ADVISED_FIXES", "far_from_band", "nis_advice", "evaluation_nis"]
@@ -78,7 +79,8 @@ def _cellular_nis_advice(low: int, high: int, options: TrackOptions | None) -> l
 
 def evaluation_nis(tracks: dict, overall: dict, *, cellular: bool = False) -> dict:
     """The "nis" part of an evaluation's summary, shaped as a tracking run's: the mean NIS of all tracks
-    (``overall``, :func:`._consistency.nis_stats`), how many tracks lie outside their own band, the
+    (``overall``, :func:`._consistency.nis_stats`) and its sentence (:func:`._consistency.nis_sentence`;
+    "far": "below" or "above" when it is far from its band, else ""), how many tracks lie outside their own band, the
     tracks far from it (:func:`far_from_band`) and what that usually means (the run's options are not
     known; ``cellular``: tracks of a cellular run).  ``tracks``: {id: per-track statistics}."""
     rows = [r for r in tracks.values() if r.get("nis_fixes")]
@@ -86,6 +88,10 @@ def evaluation_nis(tracks: dict, overall: dict, *, cellular: bool = False) -> di
                               [r["nis_fixes"] for r in rows])
     low, high = int(low.sum()), int(high.sum())
     keys = ("mean_nis", "nis_dof", "nis_fixes", "nis_lo", "nis_hi", "nis_consistent")
-    return {**{k: overall.get(k) for k in keys}, "tracks_outside_band": sum(not r["nis_consistent"] for r in rows),
+    below, above = far_from_band([overall.get("mean_nis", np.nan)], [overall.get("nis_dof", np.nan)],
+                                 [overall.get("nis_fixes", 0)])
+    return {**{k: overall.get(k) for k in keys}, "sentence": nis_sentence(overall),
+            "far": "below" if below[0] else "above" if above[0] else "",
+            "tracks_outside_band": sum(not r["nis_consistent"] for r in rows),
             "tracks_judged": len(rows), "far_low": low, "far_high": high,
             "advice": nis_advice(low, high, None, cellular=cellular)}

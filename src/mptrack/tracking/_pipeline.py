@@ -38,12 +38,13 @@ from ._advice import far_from_band, nis_advice
 from ._cellular import check_cell_ids, track_cells
 from ._columns import FixTable
 from ._fixes import CELL_ONLY, FIX_ONLY, TrackOptions
-from ._consistency import flag_counts, nis_stats, pooled_nis
+from ._consistency import flag_counts, nis_sentence, nis_stats, pooled_nis
+from ._evaluate import TRUTH_COLUMNS, evaluate_tracks
 from ._output import point_table
 from ._noise import SIGMA_FLOOR_M
 from ._run import TRACK_COLUMNS, track_table
 
-__all__ = ["track_file", "track", "read_output", "TrackTask", "DEFAULT_CHUNK_ROWS"]
+__all__ = ["track_file", "track", "write_track_report", "read_output", "TrackTask", "DEFAULT_CHUNK_ROWS"]
 
 #: Rows of whole tracks per unit of work (memory per chunk ~0.5 KB a row in flight).
 DEFAULT_CHUNK_ROWS = 200_000
@@ -347,7 +348,8 @@ def _summary(tracks: pd.DataFrame, report: ReadReport, options: TrackOptions, ch
         used = tracks["updates"] + tracks.get("manoeuvres", 0)
         outside = ~tracks["nis_consistent"].astype(bool) & (used > 0)
         low, high = far_from_band(tracks["mean_nis"], tracks["nis_dof"], used)
-        out["nis"] = {**pooled_nis(tracks["mean_nis"], tracks["nis_dof"], used),
+        pooled = pooled_nis(tracks["mean_nis"], tracks["nis_dof"], used)
+        out["nis"] = {**pooled, "sentence": nis_sentence(pooled),
                       "tracks_outside_band": int(outside.sum()), "tracks_judged": int((used > 0).sum()),
                       "far_low": int(low.sum()),
                       "far_high": int(high.sum()),
@@ -496,8 +498,6 @@ def track(data, *, cells=None, model: str | None = None, filter: str | None = No
         df.attrs["tracks"] = tracks
         df.attrs["summary"] = _summary(tracks, report_of_reading, opts, len(results), cellular=cells is not None)
         if report is not None:
-            from ..report import write_track_report
-
             write_track_report(df, report, run=df.attrs["summary"], title="mptrack.track")
             df.attrs["summary"]["report"] = str(report)
     return df
@@ -513,6 +513,21 @@ def _unknown_option(name: str) -> str:
         {"sigma": "sigma_m", "gate": "gate_probability", "range_sigma": "r_km2"}.get(name, ""), known, n=1)
     return (f"{name}: not an option of mptrack.track" + (f"; did you mean {near[0]}?" if near else "")
             + f" (the options are: {', '.join(known)})")
+
+
+def write_track_report(points: pd.DataFrame, path, *, run: dict | None = None, title: str = "mptrack track",
+                       budget: int | None = None):
+    """Write the HTML report of a tracking run, as ``mptrack track --report`` and ``track(report=...)``
+    do: ``points`` (the run's point table, or the columns of it :func:`mptrack.report.report_points`
+    keeps) evaluated against the truth columns a simulated log passes through (true_lat/true_lon or
+    true_x/true_y) when it has them, drawn by :func:`mptrack.report.write_report` with ``run``, the
+    run's summary (rows skipped, NIS advice).  Returns the path."""
+    from ..report import write_report
+
+    own = any(a in points.columns and b in points.columns for a, b, _ in TRUTH_COLUMNS)
+    summary, table = evaluate_tracks(points, truth_columns=own)
+    return write_report(table, path, summary=summary, run=run, title=title,
+                        **({} if budget is None else {"budget": budget}))
 
 
 def read_output(path) -> pd.DataFrame:
