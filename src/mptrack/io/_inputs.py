@@ -18,7 +18,8 @@ from .._core.validation import FRAME_LABEL, check_path
 from ..errors import DataError, ParameterError
 from ._formats import FORMATS, Skipped
 
-__all__ = ["InputFiles", "resolve_input", "input_paths", "input_files", "input_label", "input_name", "file_labels", "PARQUET_SUFFIXES"]
+__all__ = ["InputFiles", "resolve_input", "input_paths", "input_files", "input_label", "input_name", "file_labels",
+           "PARQUET_SUFFIXES"]
 
 PARQUET_SUFFIXES = (".parquet", ".pq")
 _GLOB = re.compile(r"[*?[]")

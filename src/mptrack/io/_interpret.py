@@ -246,8 +246,9 @@ def _mapping(columns: list, schema, explicit: dict, file, notes: list) -> dict:
                 # another kind of id passed over (a trajectory's user; not a bare "id", often a row number)
                 passed = [c for later in groups[rank + 1:-1] for c in free if _norm(c) in later]
                 if passed and canonical == "track_id":
-                    notes.append(f"track id: column {str(hits[0])!r} (also found {', '.join(map(repr, map(str, passed)))}; "
-                                 f"--columns track_id=NAME to take another)")
+                    others = ", ".join(repr(str(c)) for c in passed)
+                    notes.append(f"track id: column {str(hits[0])!r} (also found {others}; --columns track_id=NAME to "
+                                 "take another)")
                 break
     return {k: v for k, v in rename.items() if str(k) != v}
 

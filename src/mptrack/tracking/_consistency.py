@@ -24,7 +24,8 @@ import scipy.stats
 
 from ._engine import FLAGS
 
-__all__ = ["USED_FLAGS", "nis_band", "nis_stats", "pooled_nis", "nis_sentence", "restart_mask", "flag_counts", "is_flag"]
+__all__ = ["USED_FLAGS", "nis_band", "nis_stats", "pooled_nis", "nis_sentence", "restart_mask", "flag_counts",
+           "is_flag"]
 
 #: The flags of the fixes the mean NIS is taken over.
 USED_FLAGS = ("update", "manoeuvre")

@@ -19,7 +19,7 @@ import json
 import time
 from collections import deque
 from contextlib import nullcontext
-from dataclasses import asdict, dataclass, fields
+from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
