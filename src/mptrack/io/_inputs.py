@@ -36,11 +36,11 @@ class InputFiles(list):
 
 
 def input_paths(source) -> list:
-    """The paths of a resolved input that an output must not be, nor lie inside (the files, and the
-    directory they come from); none for a table in memory."""
+    """The paths of a resolved input (:func:`resolve_input`) that an output must not be, nor lie inside
+    (the files, and the directory they come from); none for a table in memory."""
     if isinstance(source, InputFiles):
         return [*source, *([source.root] if source.root is not None else [])]
-    return [] if isinstance(source, pd.DataFrame) else [source]
+    return [] if isinstance(source, pd.DataFrame) else [check_path("source", source)]
 
 
 def _hidden(path: Path, root: Path) -> bool:
@@ -71,7 +71,7 @@ def _names(files: list[Path], root: Path) -> str:
     return ", ".join(str(p.relative_to(root)) for p in files[:5]) + (", ..." if len(files) > 5 else "")
 
 
-def resolve_input(source, name: str = "input"):
+def resolve_input(source, name: str = "source"):
     """``source`` as the readers take it: a DataFrame as is; one path as a Path (a file, or a directory
     that is a Parquet dataset); several files as a sorted list of Paths -- a list or tuple of paths
     (one path: that path), a glob pattern (``rides/*.gpx``; one match: that file), or a directory
@@ -108,22 +108,24 @@ def input_files(source) -> list[Path] | None:
     return resolved if isinstance(resolved, InputFiles) else None
 
 
-def input_label(source):
+def input_label(source, name: str = "path"):
     """What errors and summaries name as the input: a path, :data:`FRAME_LABEL`, or for several files
-    "N files in DIR" (their common directory)."""
+    "N files in DIR" (their common directory); ``name`` is the argument an error names."""
     if isinstance(source, pd.DataFrame):
         return FRAME_LABEL
     if isinstance(source, (list, tuple)) and len(source) != 1:
-        paths = [check_path("input", p) for p in source]
+        if not source:
+            raise ParameterError(f"{name}: expected a file path or a list of them, got an empty list")
+        paths = [check_path(name, p) for p in source]
         return f"{len(paths)} files in {_common(paths)}"
-    return check_path("input", source[0] if isinstance(source, (list, tuple)) else source)
+    return check_path(name, source[0] if isinstance(source, (list, tuple)) else source)
 
 
 def input_name(source) -> str:
     """A short name of a resolved input for progress and titles: the file's name, or "N files"."""
-    if isinstance(source, list):
+    if isinstance(source, InputFiles):
         return f"{len(source)} files"
-    return FRAME_LABEL if isinstance(source, pd.DataFrame) else Path(source).name
+    return FRAME_LABEL if isinstance(source, pd.DataFrame) else check_path("source", source).name
 
 
 def _common(paths: list[Path]) -> Path:

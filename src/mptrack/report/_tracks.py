@@ -186,7 +186,7 @@ def _map_caption(payload: dict, kinds: dict, budget: int) -> str:
     text = (("The estimate of the track as a line" if n == 1 else f"The estimate of each of the {_count(n)} tracks "
                                                                   "as a line in its own colour")
             + (f" (the {len(PALETTE)} colours repeat)" if n > len(PALETTE) else "")
-            + ("; a line breaks at a reset or a gap" if {"resets", "gaps"} & set(kinds) else "") + ".")
+            + ("; a line breaks at a restart or a gap" if {"resets", "gaps"} & set(kinds) else "") + ".")
     on = [f"{_layer_text(k)}: {kinds[k]['text']}" for k in kinds if kinds[k]["on"]]
     off = [f"{_layer_text(k)}: {kinds[k]['text']}" for k in kinds if not kinds[k]["on"]]
     if on:

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .._core.validation import as_array
 from ._consistency import nis_sentence
 from ._fixes import TrackOptions
 
@@ -27,7 +28,9 @@ def far_from_band(mean, dof, used) -> tuple[np.ndarray, np.ndarray]:
     """(far below, far above) per track: a mean NIS below half or above twice its degrees of freedom
     over at least :data:`MIN_ADVISED_FIXES` used fixes (a handful of fixes is far out by chance).
     From 10 fixes on, either lies outside the track's 95 % band too."""
-    mean, dof, used = (np.asarray(v, dtype=float) for v in (mean, dof, used))
+    mean = as_array("mean", mean, ndim=1, finite=False, allow_nan=True)
+    dof, used = (as_array(k, v, shape=mean.shape, finite=False, allow_nan=True) for k, v in (("dof", dof),
+                                                                                           ("used", used)))
     with np.errstate(invalid="ignore", divide="ignore"):
         ratio = mean / dof
     judged = (used >= MIN_ADVISED_FIXES) & np.isfinite(ratio)

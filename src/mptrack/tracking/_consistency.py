@@ -19,9 +19,13 @@ command line, ``mptrack evaluate`` and the HTML report all print (docs/tracking.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+
 import numpy as np
 import scipy.stats
 
+from .._core.validation import _to_array, as_array, as_real
+from ..errors import DTypeError, MptrackError, ParameterError, ShapeError
 from ._engine import FLAGS
 
 __all__ = ["USED_FLAGS", "nis_band", "nis_stats", "pooled_nis", "nis_sentence", "restart_mask", "flag_counts",
@@ -47,16 +51,28 @@ def nis_stats(nis, dof, flags) -> dict:
     track or of several (the NIS, its degrees of freedom and the flag of each row): the mean over the
     used fixes (:data:`USED_FLAGS`, a finite NIS), their mean degrees of freedom, how many, the 95 %
     band of the mean and whether it lies inside (NaN and False without such fixes)."""
-    nis = np.asarray(nis, dtype=float)
-    used = is_flag(np.asarray(flags), *USED_FLAGS) & np.isfinite(nis)
+    nis = as_array("nis", nis, ndim=1, finite=False, allow_nan=True)
+    dof = as_array("dof", dof, shape=(len(nis),), low=0)
+    flags = _flags(flags, len(nis))
+    used = is_flag(flags, *USED_FLAGS) & np.isfinite(nis)
     n = int(used.sum())
     if not n:
         return {"mean_nis": float("nan"), "nis_dof": float("nan"), "nis_fixes": 0, "nis_lo": float("nan"),
                 "nis_hi": float("nan"), "nis_consistent": False}
-    mean, d = float(nis[used].mean()), float(np.asarray(dof, dtype=float)[used].mean())
+    mean, d = float(nis[used].mean()), float(dof[used].mean())
     lo, hi = (float(v) for v in nis_band(n, d))
     return {"mean_nis": mean, "nis_dof": d, "nis_fixes": n, "nis_lo": lo, "nis_hi": hi,
             "nis_consistent": bool(lo <= mean <= hi)}
+
+
+def _flags(flags, n: int) -> np.ndarray:
+    """``flags`` as a 1-D array of ``n`` flag names or codes into :data:`FLAGS` (else an error naming it)."""
+    arr = _to_array("flags", flags)
+    if arr.shape != (n,):
+        raise ShapeError(f"flags: expected shape ({n},) (one flag per NIS), got shape {arr.shape}")
+    if arr.dtype.kind not in "iuUO":
+        raise DTypeError(f"flags: expected flag names or codes into FLAGS, got dtype {arr.dtype}")
+    return arr
 
 
 def pooled_nis(mean, dof, n) -> dict:
@@ -77,10 +93,18 @@ def nis_sentence(stats: dict) -> str:
     """The mean NIS of :func:`nis_stats` (or a track table's row) in words, the same everywhere it is
     printed, to 4 significant digits as every table shows it: "mean NIS 1.849 over 2123 fixes (expected 2, 95 %
     band 1.916-2.086): below its band"."""
-    mean, n = stats.get("mean_nis"), stats.get("nis_fixes")
-    if mean is None or not np.isfinite(mean) or not n:
+    if not isinstance(stats, Mapping):
+        raise ParameterError(f"stats: expected the dict of nis_stats, got {type(stats).__name__}")
+    n = stats.get("nis_fixes")
+    if not n or stats.get("mean_nis") is None or stats["mean_nis"] != stats["mean_nis"]:
         return "mean NIS: no fix was updated from a prediction"
-    lo, hi, d = stats["nis_lo"], stats["nis_hi"], stats["nis_dof"]
+    try:
+        mean, lo, hi, d = (as_real(k, stats[k], infinite=k == "mean_nis")
+                           for k in ("mean_nis", "nis_lo", "nis_hi", "nis_dof"))
+    except KeyError as exc:
+        raise ParameterError(f"stats: expected the dict of nis_stats, without {exc}") from None
+    except MptrackError as exc:  # a value of the dict: named as the argument's entry
+        raise type(exc)(f"stats: {exc}") from None
     where = "inside its band" if lo <= mean <= hi else "below its band" if mean < lo else "above its band"
     return (f"mean NIS {mean:.4g} over {n} fix{'es' if n != 1 else ''} (expected {d:.4g}, 95 % band "
             f"{lo:.4g}-{hi:.4g}): {where}")

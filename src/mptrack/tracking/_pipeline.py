@@ -446,6 +446,12 @@ def track(data, *, cells=None, model: str | None = None, filter: str | None = No
     mptrack.errors.OutputError
         The report cannot be written (another run holds it, the disk is full, ...).
 
+    References
+    ----------
+    .. [1] N. Bouzera, M. Oussalah, N. Mezhoud and A. Khireddine, "Fuzzy extended Kalman filter for dynamic
+           mobile localization in urban area using wireless network", Applied Soft Computing, vol. 57, pp.
+           452–467, 2017. doi:10.1016/j.asoc.2017.04.007
+
     Examples
     --------
     >>> import mptrack
