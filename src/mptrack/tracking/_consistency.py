@@ -22,7 +22,7 @@ from __future__ import annotations
 from collections.abc import Mapping
 
 import numpy as np
-import scipy.stats
+import scipy.special
 
 from .._core.validation import _to_array, as_array, as_real
 from ..errors import DTypeError, MptrackError, ParameterError, ShapeError
@@ -40,9 +40,9 @@ def nis_band(n, dof=2.0, probability: float = 0.95) -> tuple[np.ndarray, np.ndar
     each on average (chi-square with n * dof degrees of freedom, divided by n); NaN where n is 0."""
     n = np.asarray(n, dtype=float)
     k = n * np.asarray(dof, dtype=float)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        lo = scipy.stats.chi2.ppf((1 - probability) / 2, k) / n
-        hi = scipy.stats.chi2.ppf((1 + probability) / 2, k) / n
+    with np.errstate(invalid="ignore", divide="ignore"):  # chdtri(k, p): the chi-square quantile 1 - p
+        lo = scipy.special.chdtri(k, (1 + probability) / 2) / n
+        hi = scipy.special.chdtri(k, (1 - probability) / 2) / n
     return np.where(n > 0, lo, np.nan), np.where(n > 0, hi, np.nan)
 
 
@@ -123,7 +123,7 @@ def is_flag(flags: np.ndarray, *names: str) -> np.ndarray:
     """Where ``flags`` (names, or codes into :data:`FLAGS`) is one of ``names``."""
     if flags.dtype.kind in "iu":
         return np.isin(flags, [FLAGS.index(n) for n in names])
-    return np.isin(flags.astype(str), names)
+    return np.isin(flags, list(names))
 
 
 def flag_counts(flags, starts) -> dict:
