@@ -57,12 +57,16 @@ def nis_stats(nis, dof, flags) -> dict:
     used = is_flag(flags, *USED_FLAGS) & np.isfinite(nis)
     n = int(used.sum())
     if not n:
-        return {"mean_nis": float("nan"), "nis_dof": float("nan"), "nis_fixes": 0, "nis_lo": float("nan"),
-                "nis_hi": float("nan"), "nis_consistent": False}
+        return _no_fixes()
     mean, d = float(nis[used].mean()), float(dof[used].mean())
     lo, hi = (float(v) for v in nis_band(n, d))
     return {"mean_nis": mean, "nis_dof": d, "nis_fixes": n, "nis_lo": lo, "nis_hi": hi,
             "nis_consistent": bool(lo <= mean <= hi)}
+
+
+def _no_fixes() -> dict:
+    nan = float("nan")
+    return {"mean_nis": nan, "nis_dof": nan, "nis_fixes": 0, "nis_lo": nan, "nis_hi": nan, "nis_consistent": False}
 
 
 def _flags(flags, n: int) -> np.ndarray:
@@ -82,7 +86,7 @@ def pooled_nis(mean, dof, n) -> dict:
     ok = (n > 0) & np.isfinite(mean)
     total = float(n[ok].sum())
     if not total:
-        return nis_stats([], [], [])
+        return _no_fixes()
     m, d = float((mean[ok] * n[ok]).sum() / total), float((dof[ok] * n[ok]).sum() / total)
     lo, hi = (float(v) for v in nis_band(total, d))
     return {"mean_nis": m, "nis_dof": d, "nis_fixes": int(total), "nis_lo": lo, "nis_hi": hi,
