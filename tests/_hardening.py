@@ -818,6 +818,27 @@ target("io.read_output", path=paths(POINTS_CSV), nan_result=True, inf_result=Tru
 target("io.PartStore", lambda out: mio.PartStore(out), out=out_paths())
 
 
+target("io.resolve_input", source=st.one_of(paths(LOG_CSV), st.just([LOG_CSV, POINTS_CSV]),
+                                            st.just(str(WORKDIR / "*.csv")), st.sampled_from([[], [None], (3,)])))
+for _name in ("input_label", "input_name", "input_paths"):
+    target(f"io.{_name}", (lambda fn: lambda source: fn(mio.resolve_input(source)))(getattr(mio, _name)),
+           source=st.one_of(paths(LOG_CSV), st.just([LOG_CSV, POINTS_CSV]), st.just(LOG)))
+target("tracking.nis_stats", nis=arg((3,), valid=[1.0, 2.0, 3.0]), dof=arg((3,), valid=[2.0, 2.0, 2.0]),
+       flags=st.one_of(st.just(np.array(["init", "update", "manoeuvre"])), st.just(np.array([4, 0, 5])),
+                       st.sampled_from([None, "update", np.array(["update"]), np.ones(3), [[1, 2, 3]]])),
+       nan_result=True)
+target("tracking.nis_sentence", stats=st.one_of(
+    st.just(tracking.nis_stats([np.nan, 1.0, 3.0], [0, 2, 2], ["init", "update", "update"])),
+    st.fixed_dictionaries({"mean_nis": scalar(0, 10), "nis_fixes": count(1, 100), "nis_lo": scalar(0, 10),
+                           "nis_hi": scalar(0, 10), "nis_dof": scalar(0, 10)}),
+    st.sampled_from([None, {}, {"nis_fixes": 3, "mean_nis": 1.0}, [1.0], "mean"])))
+target("tracking.far_from_band", mean=arg((3,), valid=[0.5, 2.0, 9.0]), dof=arg((3,), valid=[2.0, 2.0, 2.0]),
+       used=arg((3,), valid=[5.0, 50.0, 500.0]))
+target("tracking.write_track_report", lambda points, path, budget: tracking.write_track_report(
+    points, path, budget=budget), points=frames(POINTS, ["t", "lat", "east_m", "flag", "nis", "var_east_m2"]),
+    path=out_paths(".html"), budget=st.one_of(st.just(5000), count(1, 10**4)), nan_result=True)
+
+
 target("tracking.ellipse", var_e=arg((3,), valid=[4.0, 1.0, 9.0]), cov_en=arg((3,), valid=[0.0, 0.5, -1.0]),
        var_n=arg((3,), valid=[4.0, 2.0, 1.0]))
 target("tracking.LiveTracks", options=st.one_of(st.just(tracking.TrackOptions()),

@@ -198,8 +198,9 @@ def _cli_help() -> list[tuple[str, str]]:
 
 
 def _section(doc: str) -> list[str] | None:
-    """The entries of the numpydoc References section of ``doc`` (whitespace collapsed), or None."""
-    m = re.search(r"^References\n-{10}\n(.*)", doc, flags=re.S | re.M)
+    """The entries of the numpydoc References section of ``doc`` (whitespace collapsed), or None; the
+    section ends at the next one (numpydoc puts Examples after References) or at the end."""
+    m = re.search(r"^References\n-{10}\n(.*?)(?=^\w[\w ]*\n-+\n|\Z)", doc, flags=re.S | re.M)
     if m is None:
         return None
     entries = re.split(r"^\.\. \[(\d+)\] ", m.group(1), flags=re.M)

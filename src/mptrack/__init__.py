@@ -7,8 +7,10 @@ For a notebook, two functions need no files::
     points = mptrack.track(log)                          # the tracks, noise estimated per track
     points.attrs["tracks"]                               # one row per track: sigma, q, NIS, ...
 
-Both take the options of ``mptrack track`` / ``mptrack simulate``; everything
-else is in the subpackages (imported on first use, so ``import mptrack`` is light).
+``mptrack.track`` is :func:`mptrack.tracking.track` (keyword options, documented in
+``help(mptrack.track)``; ``report=PATH`` writes the HTML report); ``mptrack.simulate`` takes the
+options of ``mptrack simulate``.  Everything else is in the subpackages (imported on first use, so
+``import mptrack`` is light).
 """
 
 from __future__ import annotations
@@ -17,14 +19,14 @@ __version__ = "0.1.0"
 __all__ = ["__version__", "track", "simulate"]
 
 
-def track(data, **options):
-    """Track a log (DataFrame or path): the point table as a DataFrame; ``attrs["tracks"]`` holds the
-    per-track table (noise estimates with standard errors, counts, NIS) and ``attrs["summary"]`` the
-    run summary.  Options as :func:`mptrack.tracking.track` (model, smooth, sigma_m, q, noise, cells,
-    on_error, executor, ...)."""
-    from .tracking import track as _track
+def __getattr__(name: str):
+    """``mptrack.track`` is :func:`mptrack.tracking.track` itself (its signature and docstring in
+    ``help``), imported on first use so that ``import mptrack`` stays light."""
+    if name == "track":
+        from .tracking import track
 
-    return _track(data, **options)
+        return track
+    raise AttributeError(f"module 'mptrack' has no attribute {name!r}")
 
 
 def simulate(scenario: str = "gps", tracks: int = 10, *, seed: int = 0, **options):

@@ -246,9 +246,11 @@ def test_disk_full_while_writing_the_output_keeps_the_parts(tmp_path, logs, refe
         assert sorted(p.name for p in (full / ".t.geojson.parts").iterdir()) == [
             "manifest.json", "points-000000.arrow", "tracks-000000.arrow"]
         subprocess.run(["mount", "-o", "remount,size=4m", str(full)], check=True)
-        again = subprocess.run(shlex.split(cmd), cwd=tmp_path, env=ENV, capture_output=True, text=True, timeout=600)
+        again = subprocess.run(shlex.split(cmd) + ["--json"], cwd=tmp_path, env=ENV, capture_output=True, text=True,
+                               timeout=600)  # the command as printed (-q: silent), its summary as JSON
         assert again.returncode == 0, again.stderr
-        assert "3 tracks (3 resumed), 478 points" in again.stdout
+        done = json.loads(again.stdout)
+        assert (done["tracks"], done["tracks_resumed"], done["points_written"]) == (3, 3, 478)
         from mptrack.io import read_output
 
         got = read_output(out)  # the GeoJSON's points equal the reference's
@@ -457,9 +459,11 @@ def test_ctrl_c_keeps_the_finished_chunks_and_says_how_to_resume(tmp_path, logs,
     assert not (tmp_path / ".t.parquet.lock").exists()
     resumed = sum(pd.read_feather(p).shape[0] for p in parts.glob("tracks-*.arrow"))  # a row per track
     assert resumed > 0
-    again = subprocess.run(shlex.split(cmd), cwd=tmp_path, env=ENV, capture_output=True, text=True, timeout=600)
+    again = subprocess.run(shlex.split(cmd) + ["--json"], cwd=tmp_path, env=ENV, capture_output=True, text=True,
+                           timeout=600)  # the command as printed (-q: silent), its summary as JSON
     assert again.returncode == 0, again.stderr
-    assert f"400 tracks ({resumed} resumed), 60373 points" in again.stdout
+    done = json.loads(again.stdout)
+    assert (done["tracks"], done["tracks_resumed"], done["points_written"]) == (400, resumed, 60373)
     pd.testing.assert_frame_equal(pd.read_parquet(out), reference["big"])
     assert sorted(p.name for p in tmp_path.iterdir()) == ["t.parquet"]
 

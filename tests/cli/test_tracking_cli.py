@@ -347,3 +347,28 @@ def test_an_empty_file_is_a_clear_error(tmp_path):
     (tmp_path / "empty.csv").write_text("")
     res = run("track", tmp_path / "empty.csv", "--out", tmp_path / "o.parquet")
     assert res.exit_code == 2 and "empty.csv" in res.stderr and "cannot be read as csv" in res.stderr.lower()
+
+
+def test_quiet_prints_nothing_but_errors(tmp_path):
+    """-q: a run that prints a summary, the noise, notes and advice prints nothing at all; an error still
+    prints its one line (exit 2).  A static receiver's NMEA log (../shared/data/receivers)."""
+    from _data import shared_data
+
+    log = shared_data("receivers", "gpsd-sirfstarv-nmea.log")
+
+    def cli(*args):
+        return subprocess.run([sys.executable, "-m", "mptrack", *map(str, args)], capture_output=True, text=True,
+                              timeout=600)
+
+    loud = cli("track", log, "--out", tmp_path / "a.parquet", "--report", tmp_path / "a.html")
+    assert loud.returncode == 0 and "noise:" in loud.stdout and "note:" in loud.stderr, loud.stderr
+    for args in (("track", log, "--out", tmp_path / "a.parquet", "--report", tmp_path / "a.html", "-q"),
+                 ("evaluate", tmp_path / "a.parquet", "--report", tmp_path / "e.html", "-q"),
+                 ("simulate", "--tracks", 1, "--duration", 20, "--out", tmp_path / "s.csv", "-q")):
+        quiet = cli(*args)
+        assert (quiet.returncode, quiet.stdout, quiet.stderr) == (0, "", ""), args
+    bad = cli("track", log, "--out", tmp_path / "a.parquet", "--sigma", "-1", "-q")
+    assert bad.returncode == 2 and bad.stdout == "" and bad.stderr.startswith("error: --sigma")
+    # --json asked for: the JSON, nothing else
+    js = cli("track", log, "--out", tmp_path / "a.parquet", "--json", "-q")
+    assert js.returncode == 0 and json.loads(js.stdout)["tracks"] == 1 and js.stderr == ""

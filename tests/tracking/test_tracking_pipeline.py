@@ -102,7 +102,7 @@ def test_python_api_errors_name_the_argument_and_row():
         mptrack.track(bad.drop(columns="time"))
     with pytest.raises(ValueError, match="noise"):
         mptrack.track(bad, noise="per-device")
-    with pytest.raises(ValueError, match="sigma: not an option of track; .* sigma_m"):
+    with pytest.raises(ValueError, match="sigma: not an option of mptrack.track; did you mean sigma_m"):
         mptrack.track(bad, sigma=5.0)
     with pytest.raises(ValueError, match="chunk_rows"):
         mptrack.track(bad, chunk_rows=0)

@@ -9,6 +9,7 @@ by axis like every model in mptrack.
 """
 
 from ._ekf import (
+    MOTIONS,
     check_stations,
     ekf_ranges,
     ekf_ranges_batch,
@@ -31,6 +32,7 @@ from ._fekf import (
 )
 
 __all__ = [
+    "MOTIONS",
     "range_measurement",
     "motion_matrix",
     "motion_position",

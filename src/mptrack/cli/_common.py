@@ -55,7 +55,8 @@ class _LazyConsole:
 out = _LazyConsole("stdout")
 err = _LazyConsole("stderr")
 
-QUIET = typer.Option(False, "--quiet", "-q", help="No progress and no tables: only the summary line.")
+QUIET = typer.Option(False, "--quiet", "-q", help="Quiet: print nothing but errors (a list command: the names "
+                                                   "only; with --json: the JSON only).")
 VERBOSE = typer.Option(False, "--verbose", "-v", help="More detail: notes, examples, every table row.")
 JSON = typer.Option(False, "--json", help="Print the result as JSON on stdout (full precision; nothing else "
                                            "on stdout).")

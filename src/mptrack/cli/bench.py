@@ -72,10 +72,9 @@ def bench(
     if json_out:
         print_json({"reports": reports})
         return
+    if quiet:
+        return
     for rep in reports:
-        if quiet:
-            echo(f"{rep['suite']}: {len(rep['rows'])} rows")
-            continue
         rt = RichTable(title=paper_names(f"{rep['suite']}: {rep['title']}"), title_justify="left")
         for i, col in enumerate(rep["columns"]):
             rt.add_column(col, justify="left" if i == 0 else "right")

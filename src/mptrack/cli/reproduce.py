@@ -168,8 +168,9 @@ def reproduce(
             done[k] = results
             if json_out:
                 continue
-            if not quiet:
-                _print_tables(results, verbose)
+            if quiet:
+                continue
+            _print_tables(results, verbose)
             echo(summary_line(k, results, path) + (f"; report {results['report']}" if report else ""))
     except KeyboardInterrupt:
         interrupted(f"finished: {', '.join(done) or 'none'} (finished parts are cached for --resume)")
@@ -179,7 +180,7 @@ def reproduce(
         print_json({k: {**r, "counts": cell_counts(r)} for k, r in done.items()})
         return
     unexplained = [k for k, r in done.items() if cell_counts(r)["unexplained"]]
-    if len(done) > 1 or unexplained:
+    if not quiet and (len(done) > 1 or unexplained):
         err.print(f"differences without a documented reason in: {', '.join(unexplained)} (see the tables and "
                   f"{ERRATA})" if unexplained else f"every difference from the papers is documented in {ERRATA}",
                   highlight=False, markup=False, soft_wrap=True)

@@ -12,14 +12,14 @@ from __future__ import annotations
 
 import contextlib
 from pathlib import Path
-from typing import NamedTuple, Optional
+from typing import List, NamedTuple, Optional
 
 import typer
 from rich.markup import escape
 from rich.table import Table as RichTable
 
 from ..errors import MptrackError
-from ._common import JSON, QUIET, VERBOSE, check_outputs, command_line, echo, err, fail, flags_named, fmt, \
+from ._common import JSON, QUIET, VERBOSE, check_outputs, command_line, echo, err, fail, flags_named, \
     interrupted, note, out, print_json, progress, reject_given
 
 __all__ = ["track", "simulate", "evaluate"]
@@ -91,7 +91,9 @@ def _skipped(read: dict, verbose: bool) -> None:
             err.print(escape(f"  e.g. {example}"), highlight=False, soft_wrap=True)
 
 
-_TERMINAL_COLUMNS = ("points", "outliers", "rmse_m", "cdf95_m", "mean_nees", "nees_in_95", "mean_nis", "nis_in_95")
+#: The columns of ``evaluate``'s table, numbers to 4 significant digits (``--json`` has every digit).
+_TERMINAL_COLUMNS = ("points", "outliers", "restarts", "rmse_m", "cdf95_m", "mean_nees", "nees_in_95", "mean_nis",
+                     "nis_in_95")
 
 
 def _summary_table(summary: dict, title: str, rows_max: int | None) -> RichTable:
@@ -105,27 +107,31 @@ def _summary_table(summary: dict, title: str, rows_max: int | None) -> RichTable
     for c in cols:
         rt.add_column(c, justify="right")
     for k, r in rows.items():
-        rt.add_row(k, *[fmt(r[c]) if isinstance(r.get(c), float) else str(r.get(c, "")) for c in cols])
+        rt.add_row(k, *[f"{r[c]:.4g}" if isinstance(r.get(c), float) else str(r.get(c, "")) for c in cols])
     return rt
 
 
-#: Settings (TrackOptions fields) of ``track`` that apply to position fixes only / to cellular measurements
-#: (--cells) only.
-_FIX_ONLY = ("model", "filter", "smooth", "q", "sigma_m", "noise", "gate_probability")
-_CELL_ONLY = ("method", "motion", "path_loss", "q_km2", "r_km2", "scan_interval_s")
 
 
-def _default_out(input: Path) -> Path:
-    """``--out`` when not given: INPUT's name with ``.tracks.parquet`` beside it."""
+def _default_out(input) -> Path:
+    """``--out`` when not given: INPUT's name with ``.tracks.parquet`` beside it (a directory's name beside
+    the directory); several files: their common directory's, beside it (not inside, where a later run on
+    the directory would read it)."""
+    import os
+
+    if isinstance(input, list):
+        input = Path(os.path.commonpath([os.path.abspath(p.parent) for p in input]))
     name = input.name.split(".")[0] if not input.is_dir() else input.name
     return input.parent / f"{name}.tracks.parquet"
 
 
 def track(
     ctx: typer.Context,
-    input: Path = typer.Argument(..., help="Position fixes: CSV (any delimiter), Parquet (a file or a directory), "
-                                           "GPX, TCX, FIT, NMEA 0183 or GeoJSON; or, with --cells, a cellular "
-                                           "measurement log (CSV/Parquet)."),
+    inputs: List[Path] = typer.Argument(..., metavar="INPUT...", help="Position fixes: CSV (any delimiter), "
+                                        "Parquet (a file or a directory), GPX, TCX, FIT, NMEA 0183 or GeoJSON; or, "
+                                        "with --cells, a cellular measurement log (CSV/Parquet). Several files, a "
+                                        "glob ('rides/*.gpx') or a directory of such files are one input, each "
+                                        "file's tracks kept apart (ids FILE/TRACK)."),
     out: Optional[Path] = typer.Option(None, "--out", "-o", help="Result: .parquet, .csv, .geojson, .gpx or "
                                                                  ".geoparquet (written atomically; the input's "
                                                                  "other columns pass through). Default: "
@@ -136,6 +142,9 @@ def track(
                                                     "fcs."),
     motion: Optional[str] = typer.Option(None, help="With --cells: the motion model, random-walk (default) or "
                                                     "cv."),
+    path_loss: Optional[str] = typer.Option(None, "--path-loss", help="With --cells: the path-loss model that turns "
+                                            "RSS into ranges: cost231-wi-nlos (default), cost231-wi-los, "
+                                            "cost231-hata, okumura-hata or free-space."),
     range_sigma: Optional[float] = typer.Option(None, "--range-sigma", help="With --cells: the range noise "
                                                 "(1-sigma, m). Default 471 m (Bouzera et al. 2017's "
                                                 "R0 = 0.222 km^2)."),
@@ -182,23 +191,31 @@ def track(
     """Track position fixes or cellular measurements; write estimates, covariances, NIS and flags.
 
     With no --sigma/--q the fix noise and the process noise are estimated from each track."""
+    from ..tracking import CELL_ONLY, FIX_ONLY
+
     given = {"model": model, "filter": filter, "smooth": smooth or None, "q": q, "sigma_m": sigma, "noise": noise,
-             "gate_probability": gate, "method": method, "motion": motion}
-    reject_given(ctx, _FIX_ONLY if cells is not None else _CELL_ONLY,
+             "gate_probability": gate, "method": method, "motion": motion, "path_loss": path_loss}
+    reject_given(ctx, FIX_ONLY if cells is not None else CELL_ONLY,
                  "applies to position fixes, not to cellular measurements (--cells)" if cells is not None
                  else "applies to cellular measurements only: give the cell table with --cells")
     if executor == "serial":
         reject_given(ctx, ["max_workers"], "applies to --executor processes or dask")
     if on_error != "skip":
         reject_given(ctx, ["max_skip"], "applies to --on-error skip")
+    from ..io import input_name, input_paths, resolve_input
+
+    try:
+        input = resolve_input(inputs, "INPUT")
+    except MptrackError as exc:
+        fail(exc)
     out = out or _default_out(input)
     from .._core.files import output_lock
     from .._core.validation import check_positive
-    from ..tracking import TrackOptions, track_file
+    from ..tracking import TrackOptions, track_file, write_track_report
 
     kept, summary, points = "", None, []
     try:
-        check_outputs(input, cells, out=out, track_summary=track_summary, report=report)
+        check_outputs(*input_paths(input), cells, out=out, track_summary=track_summary, report=report)
         values = {k: v for k, v in given.items() if v is not None}
         if "gate_probability" in values and values["gate_probability"] >= 1:
             values["gate_probability"] = None
@@ -216,7 +233,8 @@ def track(
                                          on_points=None if report is None else _keep_points(points))
                     if report is not None:
                         with bar.task("report"):
-                            _write_report(points.pop(), report, summary, f"mptrack track {input.name}")
+                            write_track_report(points.pop(), report, run=summary,
+                                               title=f"mptrack track {input_name(input)}")
                         summary["report"] = str(report)
             except (OSError, KeyboardInterrupt):
                 kept = _kept(out)  # under the lock: the parts are this run's
@@ -226,20 +244,35 @@ def track(
                     else kept.removeprefix("; ") or "nothing was kept")
     except (MptrackError, OSError) as exc:
         fail(exc, kept)
-    drop = _CELL_ONLY if cells is None else _FIX_ONLY
+    drop = CELL_ONLY if cells is None else FIX_ONLY
     summary["options"] = {k: v for k, v in summary.get("options", {}).items() if k not in drop}
     if json_out:
         print_json(summary)
         return
+    if quiet:
+        return
     _skipped(summary["read"], verbose)
+    restarts = summary.get("restarts", 0)
     echo(f"{summary['tracks']} tracks ({summary['tracks_resumed']} resumed), {summary['points_written']} "
-         f"points, {summary['outliers_rejected']} outliers rejected → {out}"
+         f"points, {summary['outliers_rejected']} outliers rejected"
+         + (f", {restarts} restart{'s' if restarts != 1 else ''}" if cells is None else "") + f" → {out}"
          + (f"; report {report}" if report else "") + (f"; tracks {track_summary}" if track_summary else ""))
-    if not quiet and 1 < len(summary.get("track_noise", ())) <= (30 if verbose else 10):
+    if 1 < len(summary.get("track_noise", ())) <= (30 if verbose else 10):
         out_print(_noise_table(summary["track_noise"]))
     for line in _noise_lines(summary, track_summary):
         echo(line)
+    _nis_line(summary.get("nis") or {})
     _advise(summary)
+
+
+def _nis_line(nis: dict) -> None:
+    """The mean NIS of a run or an evaluation (its summary's sentence, :func:`mptrack.tracking.nis_sentence`:
+    the words of the report and of the other command), with how many tracks lie outside their own band."""
+    if not nis.get("nis_fixes"):
+        return
+    outside, judged = nis.get("tracks_outside_band"), nis.get("tracks_judged")
+    echo(nis["sentence"] + (f"; {outside} of {judged} tracks outside their own band"
+                            if outside is not None and judged and judged > 1 else ""))
 
 
 def out_print(renderable) -> None:
@@ -261,18 +294,6 @@ def _keep_points(kept: list):
     return keep
 
 
-def _write_report(table, report: Path, run: dict, title: str) -> None:
-    """The report of a run's points (:func:`_keep_points`), evaluated against the truth columns a
-    simulated log passes through (true_lat/true_lon or true_x/true_y) when it has them, drawn with
-    the run's summary (rows skipped, NIS advice)."""
-    from ..report import write_report
-    from ..tracking import TRUTH_COLUMNS, evaluate_tracks
-
-    own = any(a in table.columns and b in table.columns for a, b, _ in TRUTH_COLUMNS)
-    summary, table = evaluate_tracks(table, truth_columns=own)
-    write_report(table, report, summary=summary, run=run, title=title)
-
-
 def _noise_table(rows: list[dict]) -> RichTable:
     """The noise of each track (a few tracks): estimate ± standard error and where it came from."""
     rt = RichTable(title="noise per track", title_justify="left")
@@ -284,7 +305,7 @@ def _noise_table(rows: list[dict]) -> RichTable:
 
     for r in rows:
         src = r["sigma_source"] if r["sigma_source"] == r["q_source"] else f"{r['sigma_source']}/{r['q_source']}"
-        nis = "" if r["mean_nis"] is None else f"{r['mean_nis']:.2f}"
+        nis = "" if r["mean_nis"] is None else f"{r['mean_nis']:.4g}"
         rt.add_row(str(r["track_id"]), str(r["fixes"]), pm(r["sigma_m"], r["sigma_se_m"]), pm(r["q"], r["q_se"]),
                    src, nis)
     return rt
@@ -405,7 +426,7 @@ def simulate(
         written["read"] = read_report.to_dict()
     if json_out:
         print_json(written)
-    else:
+    elif not quiet:
         if along is not None:
             _skipped(written["read"], verbose)
         echo(f"{written['tracks']} tracks, {written['rows']} rows → {out}"
@@ -473,14 +494,15 @@ def evaluate(
     if json_out:
         print_json(summary)
         return
+    if quiet:
+        return
     if truth is not None:
         _skipped(summary["truth_read"], verbose)
     o = summary["overall"]
-    if not quiet:
-        out_print(_summary_table(summary, f"Evaluation of {tracks.name}", None if verbose else 30))
+    out_print(_summary_table(summary, f"Evaluation of {tracks.name}", None if verbose else 30))
     line = f"{len(summary['tracks'])} tracks, {o['points']} points"
     if "rmse_m" in o:
-        line += f", RMSE {o['rmse_m']:.2f} m, 95 % error {o['cdf95_m']:.2f} m, mean NEES {o['mean_nees']:.2f}"
-    line += f", mean NIS {o['mean_nis']:.2f} (dof {o['mean_nis_dof']:.2f})"
+        line += f", RMSE {o['rmse_m']:.2f} m, 95 % error {o['cdf95_m']:.2f} m, mean NEES {o['mean_nees']:.3g}"
     echo(line)
+    _nis_line(summary["nis"])
     _advise({"nis": summary["nis"]})

@@ -11,6 +11,7 @@ from ._geodesy import LocalFrame, enu_to_geodetic, geodetic_to_enu
 from ._gpx import NAMESPACE as GPX_EXTENSION_NAMESPACE
 from ._formats import FORMATS, input_format
 from ._interpret import ReadOptions
+from ._inputs import input_label, input_name, input_paths, resolve_input
 from ._readers import (InputNotSorted, input_columns, iter_track_chunks, iter_tracks, read_cells, read_chunks,
                        read_table)
 from ._schema import CELLS, FIXES, MEASUREMENTS, ON_ERROR, Column, ReadReport, Schema, cell_key
@@ -30,6 +31,10 @@ __all__ = [
     "cell_key",
     "FORMATS",
     "input_format",
+    "resolve_input",
+    "input_label",
+    "input_name",
+    "input_paths",
     "read_chunks",
     "read_table",
     "input_columns",

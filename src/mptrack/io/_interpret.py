@@ -53,11 +53,16 @@ MAX_SECONDS = 1e10
 #: Median speeds above this (m/s, faster than sound) are reported as implausible.
 MAX_PLAUSIBLE_SPEED = 340.0
 
-#: Synonyms of each canonical column (compared lower-case with punctuation removed).
+#: Synonyms of each canonical column (compared lower-case with punctuation removed).  A tuple of tuples
+#: ranks them: a column of an earlier group wins over one of a later group (a trajectory over the user who
+#: made it, any named id over a bare "id"); two columns of one group are an error naming both.
 SYNONYMS = {
-    "track_id": ("track", "trackid", "id", "device", "deviceid", "vehicle", "vehicleid", "trip", "tripid",
-                 "user", "userid", "terminal", "terminalid", "imei"),
-    "time": ("time", "timestamp", "datetime", "datetimeutc", "timeutc", "utc", "ts", "gpstime", "timestamputc"),
+    "track_id": (("track", "trackid", "trajectory", "trajectoryid", "traj", "trajid", "trip", "tripid"),
+                 ("device", "deviceid", "vehicle", "vehicleid", "terminal", "terminalid", "imei", "mmsi"),
+                 ("user", "userid"),
+                 ("id",)),
+    "time": (("time", "timestamp", "datetime", "datetimeutc", "timeutc", "utc", "ts", "gpstime", "timestamputc"),
+             ("t",)),
     "lat": ("lat", "latitude", "latdeg", "latitudedeg", "latitudedegrees"),
     "lon": ("lon", "lng", "long", "longitude", "londeg", "longitudedeg", "longitudedegrees"),
     "x": ("x", "xm", "east", "eastm", "easting"),
@@ -177,7 +182,7 @@ class Interpretation:
 def interpret(raw: pd.DataFrame, schema, options: ReadOptions, *, file) -> Interpretation:
     """Decide the column mapping and units of a file from its first raw chunk."""
     plan = Interpretation(time_format=options.time_format)
-    plan.rename = _mapping(list(raw.columns), schema, options.column_map, file)
+    plan.rename = _mapping(list(raw.columns), schema, options.column_map, file, plan.notes)
     _row_ids(raw, plan, options)
     names = {c.name for c in schema.columns}
     if "accuracy_m" in names and "accuracy_m" not in plan.rename.values():
@@ -189,16 +194,21 @@ def interpret(raw: pd.DataFrame, schema, options: ReadOptions, *, file) -> Inter
     df = raw.rename(columns=plan.rename)
     if "time" in df.columns and "time" in names:
         _time_unit(df["time"], options.time_unit, plan, file)
-    if "lat" in df.columns and "lon" in df.columns and schema.name == "position fixes":
-        _coordinates(df, options.coord_unit, plan, file)
+    fixes = schema.name == "position fixes"
+    if fixes and {"x", "y"} <= set(df.columns) and not {"lat", "lon"} & set(df.columns) \
+            and not {"x", "y"} & set(options.column_map) and _xy_in_degrees(df, plan, file):
+        df = raw.rename(columns=plan.rename)
+    if "lat" in df.columns and "lon" in df.columns and fixes:
+        _coordinates(df, options.coord_unit, plan, file, explicit={"lat", "lon"} & set(options.column_map))
         read = plan.apply(raw)
         _speed_check(read, plan)
         _zone_check(read, plan)
     return plan
 
 
-def _mapping(columns: list, schema, explicit: dict, file) -> dict:
-    """{file column: canonical name} for the schema's columns found in ``columns``."""
+def _mapping(columns: list, schema, explicit: dict, file, notes: list) -> dict:
+    """{file column: canonical name} for the schema's columns found in ``columns`` (a choice between
+    synonyms of different ranks is a note in ``notes``)."""
     names = [c.name for c in schema.columns]
     present = {str(c): c for c in columns}
     rename = {}
@@ -222,13 +232,24 @@ def _mapping(columns: list, schema, explicit: dict, file) -> dict:
             continue
         if canonical in present and present[canonical] not in rename:
             continue  # already its own name
-        wanted = {_norm(canonical), *SYNONYMS.get(canonical, ())}
-        hits = [c for c in columns if c not in rename and _norm(c) in wanted and str(c) not in names]
-        if len(hits) > 1:
-            raise DataError(f"columns {', '.join(repr(str(h)) for h in hits)} all look like {canonical}; say "
-                            f"which with --columns {canonical}=NAME", file=file, column=canonical)
-        if hits:
-            rename[hits[0]] = canonical
+        groups = SYNONYMS.get(canonical, ())
+        groups = groups if groups and isinstance(groups[0], tuple) else (groups,)
+        free = [c for c in columns if c not in rename and str(c) not in names]
+        for rank, group in enumerate(groups):
+            wanted = set(group) | ({_norm(canonical)} if rank == 0 else set())
+            hits = [c for c in free if _norm(c) in wanted]
+            if len(hits) > 1:
+                raise DataError(f"columns {', '.join(repr(str(h)) for h in hits)} all look like {canonical}; say "
+                                f"which with --columns {canonical}=NAME", file=file, column=canonical)
+            if hits:
+                rename[hits[0]] = canonical
+                # another kind of id passed over (a trajectory's user; not a bare "id", often a row number)
+                passed = [c for later in groups[rank + 1:-1] for c in free if _norm(c) in later]
+                if passed and canonical == "track_id":
+                    others = ", ".join(repr(str(c)) for c in passed)
+                    notes.append(f"track id: column {str(hits[0])!r} (also found {others}; --columns track_id=NAME to "
+                                 "take another)")
+                break
     return {k: v for k, v in rename.items() if str(k) != v}
 
 
@@ -319,9 +340,10 @@ def _integral(x: np.ndarray) -> bool:
     return bool(np.all(x == np.round(x)))
 
 
-def _coordinates(df: pd.DataFrame, unit: str, plan: Interpretation, file) -> None:
+def _coordinates(df: pd.DataFrame, unit: str, plan: Interpretation, file, explicit=()) -> None:
     """Decide the unit of lat/lon (and a swap) from the bulk of the first chunk; single bad rows
-    are left to the row checks."""
+    are left to the row checks.  Columns the user named (``explicit``: "lat", "lon" given with
+    --columns) are never swapped: a latitude column beyond 90 is then an error naming the option."""
     lat = pd.to_numeric(df["lat"], errors="coerce").to_numpy(dtype=float)
     lon = pd.to_numeric(df["lon"], errors="coerce").to_numpy(dtype=float)
     ok = np.isfinite(lat) & np.isfinite(lon)
@@ -339,7 +361,14 @@ def _coordinates(df: pd.DataFrame, unit: str, plan: Interpretation, file) -> Non
                             file=file, column="lat")
         return
     readings = []
-    if mlat <= 180 and mlon <= 90 and np.all(np.abs(lat) <= 180) and np.all(np.abs(lon) <= 90):
+    swapped = mlat <= 180 and mlon <= 90 and np.all(np.abs(lat) <= 180) and np.all(np.abs(lon) <= 90)
+    if swapped and explicit:
+        names = {v: str(k) for k, v in plan.rename.items()}
+        raise DataError(f"--columns lat={names.get('lat', 'lat')}: that column holds values around {mlat:.4g}, beyond "
+                        f"90: not latitudes; the longitude column {names.get('lon', 'lon')!r} ({mlon:.4g}) would "
+                        f"fit: --columns lat={names.get('lon', 'lon')},lon={names.get('lat', 'lat')}",
+                        file=file, column="lat")
+    if swapped:
         readings.append("swap")
     if _integral(lat) and _integral(lon):
         for name, scale in (("deg-e7", 1e-7), ("deg-e6", 1e-6)):
@@ -365,18 +394,9 @@ def _speed_check(df: pd.DataFrame, plan: Interpretation) -> None:
     unit, or swapped columns)."""
     if "time" not in df.columns:
         return
-    t = pd.to_numeric(df["time"], errors="coerce") if plan.time_scale != 1.0 or \
-        pd.api.types.is_numeric_dtype(df["time"]) else None
-    if t is not None:
-        secs = t.to_numpy(dtype=float) / plan.time_scale
-    else:
-        ts = pd.to_datetime(df["time"], errors="coerce", utc=True, format=plan.time_format or "ISO8601")
-        secs = ts.to_numpy(dtype="datetime64[ns]").astype("int64") / 1e9
-        secs[ts.isna().to_numpy()] = np.nan
+    secs, same = _seconds(df, plan)
     lat = pd.to_numeric(df["lat"], errors="coerce").to_numpy(dtype=float)
     lon = pd.to_numeric(df["lon"], errors="coerce").to_numpy(dtype=float)
-    ids = df["track_id"].astype(str).to_numpy() if "track_id" in df.columns else np.zeros(len(df))
-    same = ids[1:] == ids[:-1]
     speed = _speeds(lat, lon, secs, same)
     if speed is None or speed <= MAX_PLAUSIBLE_SPEED:
         return
@@ -387,16 +407,70 @@ def _speed_check(df: pd.DataFrame, plan: Interpretation) -> None:
                       f"check the time unit (--time-unit) and the coordinate unit (--coord-unit){hint}")
 
 
-def _speeds(lat, lon, secs, same) -> float | None:
-    """The median speed (m/s) between consecutive fixes of a track (equirectangular distances)."""
+def _seconds(df: pd.DataFrame, plan: Interpretation) -> tuple[np.ndarray, np.ndarray]:
+    """(the first chunk's times in seconds, NaN where unreadable; whether each row continues the track
+    of the row before it)."""
+    t = pd.to_numeric(df["time"], errors="coerce") if plan.time_scale != 1.0 or \
+        pd.api.types.is_numeric_dtype(df["time"]) else None
+    if t is not None:
+        secs = t.to_numpy(dtype=float) / plan.time_scale
+    else:
+        ts = pd.to_datetime(df["time"], errors="coerce", utc=True, format=plan.time_format or "ISO8601")
+        secs = ts.to_numpy(dtype="datetime64[ns]").astype("int64") / 1e9
+        secs[ts.isna().to_numpy()] = np.nan
+    ids = df["track_id"].astype(str).to_numpy() if "track_id" in df.columns else np.zeros(len(df))
+    return secs, ids[1:] == ids[:-1]
+
+
+def _speeds(lat, lon, secs, same, degrees: bool = True, moving: bool = False) -> float | None:
+    """The median speed (m/s) between consecutive fixes of a track (equirectangular distances; with
+    ``degrees`` False, lat/lon are north/east metres); ``moving``: over the steps that move only."""
     dt = np.diff(secs)
     with np.errstate(invalid="ignore"):
-        dy = np.radians(np.diff(lat)) * 6371e3
-        dx = np.radians(np.diff(lon)) * 6371e3 * np.cos(np.radians(lat[1:]))
+        if degrees:
+            dy = np.radians(np.diff(lat)) * 6371e3
+            dx = np.radians(np.diff(lon)) * 6371e3 * np.cos(np.radians(lat[1:]))
+        else:
+            dy, dx = np.diff(lat), np.diff(lon)
         ok = same & (dt > 0) & np.isfinite(dx) & np.isfinite(dy)
+        if moving:
+            ok &= (dx != 0) | (dy != 0)
     if ok.sum() < 3:
         return None
     return float(np.median(np.hypot(dx[ok], dy[ok]) / dt[ok]))
+
+
+def _xy_in_degrees(df: pd.DataFrame, plan: Interpretation, file) -> bool:
+    """Whether columns found as x/y (local metres: ``X``/``Y``, ``easting``/``northing``) hold longitude/
+    latitude in degrees: every value within +-180/+-90 and the fixes moving at a speed no vehicle
+    exceeds as degrees (:data:`MAX_PLAUSIBLE_SPEED`), which as metres is below 3 mm/s.  Then they are
+    read as lon/lat, with a note; values that could be either but do not move enough to tell (and
+    lie more than a degree from 0, 0) are an error naming the two ways to say which; else metres."""
+    x = pd.to_numeric(df["x"], errors="coerce").to_numpy(dtype=float)
+    y = pd.to_numeric(df["y"], errors="coerce").to_numpy(dtype=float)
+    ok = np.isfinite(x) & np.isfinite(y)
+    if not ok.any() or np.any(np.abs(x[ok]) > 180) or np.any(np.abs(y[ok]) > 90):
+        return False
+    names = {v: str(k) for k, v in plan.rename.items()}
+    xc, yc = names.get("x", "x"), names.get("y", "y")
+    mx, my = float(np.median(x[ok])), float(np.median(y[ok]))
+    secs, same = _seconds(df, plan) if "time" in df.columns else (np.full(len(df), np.nan), np.zeros(0, bool))
+    as_degrees = _speeds(y, x, secs, same, moving=True)
+    if as_degrees is None:
+        if (abs(mx) >= 1 or abs(my) >= 1) and not (_integral(x[ok]) and _integral(y[ok])):
+            raise DataError(f"columns {xc!r}/{yc!r} hold values around {mx:.6g}/{my:.6g}: longitude/latitude in "
+                            "degrees or local metres? Too few fixes move to tell; say which: --columns "
+                            f"lon={xc},lat={yc} (degrees) or --columns x={xc},y={yc} (metres)", file=file, column="x")
+        return False
+    if as_degrees > MAX_PLAUSIBLE_SPEED:
+        return False
+    as_metres = _speeds(y, x, secs, same, degrees=False, moving=True)
+    for axis, canonical in (("x", "lon"), ("y", "lat")):
+        plan.rename[next((k for k, v in plan.rename.items() if v == axis), axis)] = canonical
+    plan.notes.append(f"x/y: columns {xc!r}/{yc!r} (values around {mx:.6g}/{my:.6g}) move at {as_degrees:.3g} m/s "
+                      f"read as longitude/latitude in degrees, {as_metres:.2g} m/s as metres: read as lon/lat "
+                      f"(--columns x={xc},y={yc} to read them as metres)")
+    return True
 
 
 #: Degrees of longitude that a legal time may lie from 15 deg x its UTC offset, besides an hour of

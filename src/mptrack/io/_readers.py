@@ -14,8 +14,9 @@ import pandas as pd
 
 from .._core.tracks import track_offsets
 from .._core.validation import check_int, check_on_error, source_label
+from ._inputs import InputFiles, file_labels, input_label, resolve_input
 from ..errors import DataError, ParameterError
-from ._formats import raw_chunks
+from ._formats import Skipped, input_format, raw_chunks
 from ._interpret import ReadOptions, interpret
 from ._schema import CELLS, FIXES, ReadReport, Schema, cell_key, validate_chunk
 
@@ -31,15 +32,16 @@ def input_columns(path) -> list[str]:
 
     Reads only the first record.  A file that cannot be read raises DataError naming it.
     """
-    source_label(path)
-    first = next(raw_chunks(path, 1), None)
+    source = resolve_input(path, "path")
+    first = next(raw_chunks(source[0] if isinstance(source, list) else source, 1), None)
     return [] if first is None else [str(c) for c in first.columns]
 
 
 def read_chunks(path, schema: Schema = FIXES, *, on_error: str = "raise", chunk_rows: int = DEFAULT_CHUNK_ROWS,
                 report: ReadReport | None = None, read: ReadOptions = ReadOptions()) -> Iterator[pd.DataFrame]:
-    """Validated chunks of ``path`` (a file in any of :data:`FORMATS`, a directory of Parquet files, or
-    a DataFrame) against ``schema``.
+    """Validated chunks of ``path`` (a file in any of :data:`FORMATS`, a directory of Parquet files, a
+    DataFrame, or several files: a list, a glob or a directory of other files, see
+    :func:`mptrack.io._inputs.resolve_input`) against ``schema``.
 
     Column names and units are decided from the first chunk (:func:`interpret`, with what ``read``
     says; each decision is a note in ``report``).  Each chunk has the schema's columns, ``t``
@@ -48,7 +50,8 @@ def read_chunks(path, schema: Schema = FIXES, *, on_error: str = "raise", chunk_
     and counted in ``report``.
     """
     check_on_error(on_error)
-    label = source_label(path)
+    path = resolve_input(path, "path")
+    label = input_label(path)
     chunk_rows = check_int("chunk_rows", chunk_rows, minimum=1)
     if not isinstance(schema, Schema):
         raise ParameterError(f"schema: expected a Schema (FIXES, MEASUREMENTS, CELLS), got {type(schema).__name__}")
@@ -56,6 +59,10 @@ def read_chunks(path, schema: Schema = FIXES, *, on_error: str = "raise", chunk_
         raise ParameterError(f"read: expected ReadOptions, got {type(read).__name__}")
     report = report if report is not None else ReadReport()
     report.file = str(label)
+    if isinstance(path, InputFiles):
+        report.leave_out(list(path.left_out))
+        yield from _read_files(path, schema, on_error, chunk_rows, report, read)
+        return
     first = 1
     plan = None
     skipped: list = []
@@ -71,6 +78,31 @@ def read_chunks(path, schema: Schema = FIXES, *, on_error: str = "raise", chunk_
                              time_epoch=plan.time_epoch, file_columns=list(raw.columns))
         first += n
     report.leave_out(skipped)
+
+
+#: Columns that make a file an output of ``mptrack track`` (the point table's).
+_OUTPUT_COLUMNS = ("east_m", "north_m", "var_east_m2", "nis", "flag", "method")
+
+
+def _read_files(files: list, schema: Schema, on_error: str, chunk_rows: int, report: ReadReport,
+                read: ReadOptions) -> Iterator[pd.DataFrame]:
+    """The validated chunks of several files, one after the other, each read on its own (its own column
+    names and units, its own row numbers) and its track ids prefixed with its name (the tracks of two
+    files never merge); what each file's reading noted is counted in ``report``, its notes prefixed
+    with the file's name.  A Parquet or CSV file that is an output of ``mptrack track`` (it has the point
+    table's columns) is left out and counted: a folder of logs often holds an earlier run's output too."""
+    for path, name in zip(files, file_labels(files)):
+        if input_format(path) in ("parquet", "csv") and set(_OUTPUT_COLUMNS) <= set(input_columns(path)):
+            report.leave_out([Skipped("output of mptrack track", 1, f"{path}: an output of mptrack track (it has "
+                                      f"the columns {', '.join(_OUTPUT_COLUMNS)}), not fixes; left out")])
+            continue
+        own = ReadReport()
+        for chunk in read_chunks(path, schema, on_error=on_error, chunk_rows=chunk_rows, report=own, read=read):
+            if "track_id" in chunk.columns:
+                ids = chunk["track_id"]
+                chunk = chunk.assign(track_id=(name + "/" + ids.astype(str)).astype(ids.dtype))
+            yield chunk
+        report.merge(own, prefix=name)
 
 
 def read_table(path, schema: Schema = FIXES, *, on_error: str = "raise", report: ReadReport | None = None,
@@ -106,7 +138,7 @@ def iter_track_chunks(path, schema: Schema = FIXES, *, on_error: str = "raise",
     """
     strict = (schema is FIXES) if strict is None else strict
     report = report if report is not None else ReadReport()
-    label = source_label(path)
+    label = input_label(path)
     chunks = read_chunks(path, schema, on_error=on_error, chunk_rows=chunk_rows, report=report, read=read)
     if sort:
         chunks = _sorted(chunks, chunk_rows, report)

@@ -194,6 +194,21 @@ class ReadReport:
         fresh = ReadReport(file=self.file)
         self.__dict__.update(fresh.__dict__)
 
+    def merge(self, other: "ReadReport", prefix: str) -> None:
+        """Add the counts of ``other`` (the report of one file of several), its notes prefixed with
+        ``prefix`` (the file's name) unless they name the file already."""
+        self.rows_read += other.rows_read
+        self.rows_skipped += other.rows_skipped
+        self.reasons.update(other.reasons)
+        for reason, example in other.first_example.items():
+            self.first_example.setdefault(reason, example)
+        self.examples.extend(other.examples[:max(0, _MAX_EXAMPLES - len(self.examples))])
+        for text in other.notes:
+            self.note(text if other.file and other.file in text else f"{prefix}: {text}")
+        self.duplicates_dropped += other.duplicates_dropped
+        self.left_out.update(other.left_out)
+        self.rows_reordered += other.rows_reordered
+
     def note(self, text: str) -> None:
         if text not in self.notes:
             self.notes.append(text)

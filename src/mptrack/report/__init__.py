@@ -4,7 +4,7 @@ numbers."""
 
 from ._live import live_map_page
 from ._reproduction import explained_cells, uncounted_columns, write_reproduction_report
-from ._tracks import PALETTE, REPORT_COLUMNS, report_points, write_report
+from ._tracks import LAYERS, PALETTE, REPORT_COLUMNS, report_points, write_report
 
-__all__ = ["write_report", "live_map_page", "report_points", "write_reproduction_report", "explained_cells", "uncounted_columns",
-           "PALETTE", "REPORT_COLUMNS"]
+__all__ = ["write_report", "live_map_page", "report_points", "write_reproduction_report", "explained_cells",
+           "uncounted_columns", "PALETTE", "REPORT_COLUMNS", "LAYERS"]

@@ -18,7 +18,8 @@ from ._decimate import DEFAULT_BUDGET
 from ._page import esc, json_script, page, write_page
 from ._payload import track_payload
 
-__all__ = ["write_report", "report_points", "REPORT_COLUMNS", "PALETTE", "RAW_ON_BELOW"]
+__all__ = ["write_report", "report_points", "REPORT_COLUMNS", "PALETTE", "RAW_ON_BELOW",
+           "LAYERS"]
 
 #: The tracks' colours, in order (repeated beyond 16 tracks); the same list as in report.js.
 PALETTE = ("#1f77b4", "#d62728", "#2ca02c", "#9467bd", "#8c564b", "#e377c2", "#17becf", "#bcbd22",
@@ -117,15 +118,38 @@ def _check_report_inputs(tracks, path, summary, run, title, notes, budget) -> tu
     return path, notes, check_int("budget", budget, minimum=1)
 
 
-_KIND_TEXT = {"raw": "raw fixes (grey dots)", "rejected": "fixes rejected by the NIS gate (orange rings)",
-              "resets": "filter resets (purple rings)", "gaps": "the first estimate after a gap (white dots)",
-              "truth": "truth (dashed black line)",
-              "ellipses": "the 1-σ uncertainty ellipses of the selected track (blue)"}
+#: The map's layers besides the tracks' lines: what the legend calls each, its look in words (the caption)
+#: and how it is drawn (Leaflet's marker or path options); the map, the legend's swatch and the caption
+#: all take them from here, so they cannot disagree.
+LAYERS = {
+    "raw": {"label": "raw fixes", "look": "grey dots",
+            "marker": {"radius": 2, "color": "#777777", "weight": 0, "fillColor": "#777777", "fillOpacity": 0.8}},
+    "rejected": {"label": "fixes rejected by the NIS gate", "look": "orange rings",
+                 "marker": {"radius": 4, "color": "#ff7f0e", "weight": 2, "fill": False}},
+    "resets": {"label": "fixes that restarted the filter", "look": "purple rings",
+               "marker": {"radius": 6, "color": "#6a3d9a", "weight": 2, "fill": False}},
+    "gaps": {"label": "the first estimate after a gap", "look": "white dots ringed in black",
+             "marker": {"radius": 5, "color": "#000000", "weight": 2, "fillColor": "#ffffff", "fillOpacity": 1}},
+    "truth": {"label": "truth", "look": "dashed black line",
+              "line": {"color": "#000000", "weight": 1.5, "dashArray": "5 5"}},
+    "ellipses": {"label": "1-σ uncertainty ellipses", "look": "blue outlines",
+                 "shape": "ellipse", "line": {"color": "#1f77b4", "weight": 1, "fillOpacity": 0.08}},
+}
+
+
+def _layer_text(kind: str) -> str:
+    return f"{LAYERS[kind]['label']} ({LAYERS[kind]['look']})"
+
 
 
 def _count(n: int) -> str:
     """A count with its thousands apart: 150 600 (a narrow no-break space)."""
     return f"{n:,}".replace(",", "\u202f")
+
+
+def _plural(n: int, one: str, many: str | None = None) -> str:
+    """"1 gap", "2 gaps", "1 fix", "12 fixes"."""
+    return f"{_count(n)} {one if n == 1 else many or one + 's'}"
 
 
 def _kinds(payload: dict) -> dict:
@@ -162,10 +186,9 @@ def _map_caption(payload: dict, kinds: dict, budget: int) -> str:
     text = (("The estimate of the track as a line" if n == 1 else f"The estimate of each of the {_count(n)} tracks "
                                                                   "as a line in its own colour")
             + (f" (the {len(PALETTE)} colours repeat)" if n > len(PALETTE) else "")
-            + ("; a line breaks at a reset or a gap" if {"resets", "gaps"} & set(kinds) else "") + ".")
-    on = [f"{_KIND_TEXT[k]} ({kinds[k]['text']})" for k in kinds if kinds[k]["on"] and k not in ("truth", "ellipses")]
-    on += [_KIND_TEXT[k] for k in ("truth", "ellipses") if k in kinds]
-    off = [f"{_KIND_TEXT[k]} ({kinds[k]['text']})" for k in kinds if not kinds[k]["on"]]
+            + ("; a line breaks at a restart or a gap" if {"resets", "gaps"} & set(kinds) else "") + ".")
+    on = [f"{_layer_text(k)}: {kinds[k]['text']}" for k in kinds if kinds[k]["on"]]
+    off = [f"{_layer_text(k)}: {kinds[k]['text']}" for k in kinds if not kinds[k]["on"]]
     if on:
         text += " Also drawn: " + ", ".join(on) + "."
     if off:
@@ -180,8 +203,10 @@ def _map_caption(payload: dict, kinds: dict, budget: int) -> str:
         if whole:
             text += f"; every {' and every '.join(whole)} is drawn"
         text += "."
-    text += (" Background: OpenStreetMap tiles when the browser is online, otherwise a plain background."
-             if payload["geo"] else " Axes: local east/north metres (the input had no latitude/longitude).")
+    text += (" Background: OpenStreetMap tiles when the browser is online, otherwise a plain background; the scale "
+             "bar (bottom left) is in metres." if payload["geo"] else
+             " Axes: local east/north metres (the input had no latitude/longitude); the scale bar (bottom left) is "
+             "in the same metres.")
     return text + " Click a track (on the map, in the list or in the table) to plot it over time."
 
 
@@ -207,34 +232,31 @@ def _quality(tracks: pd.DataFrame, summary: dict, run: dict | None) -> str:
             notes = [n for n in notes if n not in details]
             items.append("records left out (they are not fixes):" + _count_table(left_out, "records")
                          + ("<ul>" + "".join(f"<li>{esc(d)}</li>" for d in details) + "</ul>" if details else ""))
-        if read.get("duplicates_dropped"):
-            items.append(f"{_count(read['duplicates_dropped'])} duplicate fixes dropped")
-        if read.get("rows_reordered"):
-            items.append(f"{_count(read['rows_reordered'])} rows out of time order were sorted")
-        for note in notes:
+        for note in notes:  # rows sorted, duplicates dropped, units: each said once, by its note
             items.append(f"note: {esc(note)}")
     elif run is None:
         items.append("rows skipped while reading are not known to this report (it was written from a track "
                      "table; mptrack track --report lists them)")
-    flags = tracks["flag"]
-    counts = {f: int((flags == f).sum()) for f in ("outlier", "reset", "predicted")}
-    gaps = int(tracks["gap"].sum()) if "gap" in tracks.columns else 0
-    items.append(f"{_count(counts['outlier'])} fixes rejected by the NIS gate, {_count(counts['reset'])} filter "
-                 f"resets, {_count(gaps)} gaps, {_count(counts['predicted'])} points predicted without a fix")
     o = summary["overall"]
-    mean, dof = o.get("mean_nis"), o.get("mean_nis_dof")
-    if mean is not None and dof and np.isfinite(mean) and np.isfinite(dof):
-        ratio = mean / dof
-        verdict = ("inside the expected range" if 0.5 <= ratio <= 2 else
-                   "far below its expected value: the filter assumes more noise than the data show"
-                   if ratio < 0.5 else "far above its expected value: the data are noisier or the motion "
-                   "more agile than the filter assumes")
+    gaps = int(tracks["gap"].sum()) if "gap" in tracks.columns else 0
+    predicted = int((tracks["flag"] == "predicted").sum())
+    restarts, resets = o.get("restarts", 0), o.get("resets", 0)
+    outliers = o.get("outliers", 0)
+    items.append(f"{_plural(outliers, 'fix', 'fixes')} rejected by the NIS gate, {_plural(restarts, 'restart')} of "
+                 f"the filter ({_plural(resets, 'fix', 'fixes')} flagged reset), {_plural(gaps, 'gap')}, "
+                 f"{_plural(predicted, 'point')} predicted without a fix")
+    nis = summary.get("nis") or {}
+    if nis.get("sentence") and o.get("nis_fixes"):
+        why = {"below": "; far below: the filter assumes more noise than the data show",
+               "above": "; far above: the data are noisier or the motion more agile than the filter assumes"}
+        outside, judged = nis.get("tracks_outside_band"), nis.get("tracks_judged") or 0
         inside = o.get("nis_in_95")
-        items.append(f"mean NIS {mean:.3g} against an expected {dof:.3g} ({verdict})"
-                     + (f"; {100 * inside:.1f} % of the fixes inside the 95 % χ² band" if inside is not None
-                        and np.isfinite(inside) else ""))
-    for advice in ((run or {}).get("nis") or {}).get("advice") or []:
-        items.append(f"<strong>advice:</strong> {esc(advice)}")
+        items.append(esc(nis["sentence"]) + why.get(nis.get("far"), "")
+                     + (f"; {outside} of {judged} tracks outside their own band" if judged > 1 else "")
+                     + (f"; {100 * inside:.1f} % of these fixes inside their own 95 % χ² interval"
+                        if inside is not None and np.isfinite(inside) else ""))
+    for text in ((run or {}).get("nis") or summary.get("nis") or {}).get("advice") or []:
+        items.append(f"<strong>advice:</strong> {esc(text)}")
     return "<ul class='quality'>" + "".join(f"<li>{i}</li>" for i in items) + "</ul>"
 
 
@@ -246,11 +268,14 @@ def _count_table(counts: dict, what: str) -> str:
             f"<tbody>{rows}</tbody></table>")
 
 
+#: The columns of the table of every track, in order (those the evaluation has).
+TABLE_COLUMNS = ("points", "matched_points", "outliers", "restarts", "rmse_m", "mean_error_m", "cdf50_m", "cdf67_m",
+                 "cdf95_m", "mean_nees", "nees_in_95", "mean_nis", "nis_consistent", "nis_in_95")
+
+
 def _summary_rows(summary: dict) -> dict:
     per = summary["tracks"]
-    cols: list[str] = []
-    for r in [summary["overall"], *per.values()]:
-        cols += [c for c in r if c not in cols]
+    cols = [c for c in TABLE_COLUMNS if any(c in r for r in [summary["overall"], *per.values()])]
     return {"columns": ["track", *cols],
             "overall": ["all", *[summary["overall"].get(c) for c in cols]],
             "rows": [[str(k), *[r.get(c) for c in cols]] for k, r in per.items()]}
@@ -264,7 +289,8 @@ def write_report(tracks: pd.DataFrame, path, *, summary: dict, run: dict | None 
     tracks   the point table of ``mptrack track`` (:func:`mptrack.tracking.read_output`), with the
              error and truth columns of :func:`mptrack.tracking.evaluate_tracks` when evaluated
     summary  the evaluation of ``tracks`` (the first value :func:`mptrack.tracking.evaluate_tracks`
-             returns): one row per track and an overall row; every track is in the page's table
+             returns): one row per track and an overall row; every track is in the page's table; its
+             "nis" part gives the mean NIS sentence, the verdict and the advice the page prints
     run      the summary :func:`mptrack.tracking.track_file` returns, for the data-quality section
              (rows skipped by reason, records left out, the reader's notes, NIS advice)
     budget   about how many points the map and plots draw in all (larger tables are decimated)
@@ -293,6 +319,7 @@ def write_report(tracks: pd.DataFrame, path, *, summary: dict, run: dict | None 
                 "<input id='table-filter' type='search' placeholder='filter tracks'><div class='pager'>"
                 "<button id='prev-page' type='button'>◀</button> <span id='page-info'></span> "
                 "<button id='next-page' type='button'>▶</button></div><table id='summary'></table></section>")
-    body.append(json_script("mptrack-data", {"payload": payload, "kinds": kinds, "summary": _summary_rows(summary)}))
+    body.append(json_script("mptrack-data", {"payload": payload, "kinds": kinds, "layers": LAYERS,
+                                             "summary": _summary_rows(summary)}))
     return write_page(path, page(title, "".join(body), scripts=("leaflet.js", "report.js"),
                                  styles=("leaflet.css",)))

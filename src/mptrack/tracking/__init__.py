@@ -2,15 +2,18 @@
 cellular measurements through the EKF/FEKF/FCS range filters, simulation of synthetic logs
 with truth, and evaluation against truth.  ``mptrack track/simulate/evaluate`` are in :mod:`mptrack.cli.tracking`."""
 
+from ._advice import far_from_band
+from ._consistency import USED_FLAGS as NIS_FLAGS
+from ._consistency import nis_sentence, nis_stats
 from ._cellular import TA_STEP_M, band_of_arfcn, check_cell_ids, ranges_km, track_cells
 from ._evaluate import TRUTH_COLUMNS, attach_truth, evaluate_tracks
 from ._engine import FLAGS
-from ._fixes import TrackOptions, track_fixes
+from ._fixes import CELL_ONLY, FIX_ONLY, TrackOptions, track_fixes
 from ._live import ESTIMATE_FIELDS, LiveTracks
 from ._gated import GatedResult, kalman_filter_gated, nis_threshold, smooth_gated, track_gated
 from ._noise import SOURCES as NOISE_SOURCES
 from ._output import POINT_COLUMNS, ellipse, point_table
-from ._pipeline import read_output, track, track_file
+from ._pipeline import read_output, track, track_file, write_track_report
 from ._run import TRACK_COLUMNS
 from ._simulate import SCENARIOS, Intervals, simulate, simulate_chunks
 from ._registry import (
@@ -28,14 +31,21 @@ __all__ = [
     "LiveTracks",
     "ESTIMATE_FIELDS",
     "ellipse",
+    "FIX_ONLY",
+    "CELL_ONLY",
     "simulate",
     "simulate_chunks",
     "Intervals",
     "SCENARIOS",
     "evaluate_tracks",
+    "nis_stats",
+    "nis_sentence",
+    "NIS_FLAGS",
+    "far_from_band",
     "attach_truth",
     "TRUTH_COLUMNS",
     "track_file",
+    "write_track_report",
     "track",
     "track_gated",
     "POINT_COLUMNS",

@@ -5,11 +5,13 @@ For each estimate the truth at the same time (nearest time stamp within
 
     error  = ||p_hat - p|| (m),                      RMSE = sqrt(mean error^2)
     NEES   = (p_hat - p)^T P^{-1} (p_hat - p)         chi-square, 2 dof, for a consistent filter
-    NIS    as written by the filter, of the measurements it accepted (not the gated outliers)
+    NIS    as written by the filter, of the fixes it updated from its prediction (flags update and
+           manoeuvre: the one definition of :mod:`._consistency`, as the track table has it)
 
-(Bar-Shalom, Li & Kirubarajan 2001, sec. 5.4).  Reported are the mean NEES and
-NIS, the fraction inside their two-sided 95 % chi-square interval, and the
-50/67/95 % points of the error CDF.
+(Bar-Shalom, Li & Kirubarajan 2001, sec. 5.4).  Reported are the counts of the
+flags, the mean NEES and NIS, the fraction inside their two-sided 95 %
+chi-square interval, the mean NIS's own 95 % band, and the 50/67/95 % points of
+the error CDF.
 """
 
 from __future__ import annotations
@@ -18,12 +20,15 @@ from dataclasses import replace
 
 import numpy as np
 import pandas as pd
-import scipy.stats
+import scipy.special
 
 from .._core.validation import check_bool, check_frame, check_path, check_positive, point_numbers
 from ..errors import DataError, ParameterError
 from ..io import FIXES, LocalFrame, ReadOptions, ReadReport, input_columns, read_table
+from .._core.tracks import track_offsets
 from ._advice import evaluation_nis
+from ._consistency import USED_FLAGS, flag_counts, is_flag, nis_stats
+from ._registry import CELL_METHODS
 from ._output import POINT_COLUMNS
 
 __all__ = ["attach_truth", "evaluate_tracks"]
@@ -153,29 +158,39 @@ def _inside(values: np.ndarray, dof: np.ndarray) -> float:
     ok = np.isfinite(values) & (dof > 0)
     if not ok.any():
         return float("nan")
-    lo = scipy.stats.chi2.ppf(0.025, dof[ok])
-    hi = scipy.stats.chi2.ppf(0.975, dof[ok])
+    lo = scipy.special.chdtri(dof[ok], 0.975)  # the chi-square quantiles 0.025 and 0.975
+    hi = scipy.special.chdtri(dof[ok], 0.025)
     return float(np.mean((values[ok] >= lo) & (values[ok] <= hi)))
 
 
 def _stats(g: pd.DataFrame) -> dict:
+    """The statistics of one track's rows, or of every row of the table (the overall row): counts of
+    the flags, error against the truth, and the mean NIS of :mod:`._consistency` (the one definition)
+    with the fraction of those fixes inside their own 95 % interval."""
     err = g["error_m"].to_numpy(float) if "error_m" in g else np.array([])
     err = err[np.isfinite(err)]
-    accepted = (g["flag"] != "outlier").to_numpy()  # NIS of the measurements the filter used
-    nis = g["nis"].to_numpy(float)[accepted]
-    dof = g["nis_dof"].to_numpy()[accepted]
-    row = {"points": int(len(g)), "outliers": int((g["flag"] == "outlier").sum())}
+    flag = g["flag"].to_numpy(dtype=object)
+    ids = g["track_id"].to_numpy(dtype=object)
+    counts = flag_counts(flag, track_offsets(ids))
+    row = {"points": int(len(g)), **{k: int(v.sum()) for k, v in counts.items()}}
     if err.size:
         nees = g["nees"].to_numpy(float)
         row.update(rmse_m=float(np.sqrt(np.mean(err ** 2))), mean_error_m=float(err.mean()),
                    cdf50_m=float(np.percentile(err, 50)), cdf67_m=float(np.percentile(err, 67)),
                    cdf95_m=float(np.percentile(err, 95)), mean_nees=float(np.nanmean(nees)),
                    nees_in_95=_inside(nees, np.full(len(nees), 2)))
-    fin = np.isfinite(nis)
-    row.update(mean_nis=float(nis[fin].mean()) if fin.any() else float("nan"),
-               mean_nis_dof=float(dof[fin].mean()) if fin.any() else float("nan"),
-               nis_in_95=_inside(nis, dof))
+    nis, dof = g["nis"].to_numpy(float), g["nis_dof"].to_numpy()
+    row.update(nis_stats(nis, dof, flag))
+    used = is_flag(flag, *USED_FLAGS)
+    row["nis_in_95"] = _inside(nis[used], dof[used])
     return row
+
+
+def _cellular(tracks: pd.DataFrame) -> bool:
+    """Whether a point table holds cellular tracks (its ``method``: EKF-..., FEKF-..., FCS-...)."""
+    if "method" not in tracks.columns or not len(tracks):
+        return False
+    return str(tracks["method"].iloc[0]).split("-")[0].lower() in CELL_METHODS
 
 
 def evaluate_tracks(tracks: pd.DataFrame, truth=None, *, tolerance_s: float = 0.5, truth_file="truth",
@@ -210,7 +225,7 @@ def evaluate_tracks(tracks: pd.DataFrame, truth=None, *, tolerance_s: float = 0.
         tracks = _own_truth(tracks)
     per = {str(tid): _stats(g) for tid, g in tracks.groupby("track_id", sort=False)}
     summary = {"overall": _stats(tracks), "tracks": per}
-    summary["nis"] = evaluation_nis(per)
+    summary["nis"] = evaluation_nis(per, summary["overall"], cellular=_cellular(tracks))
     if evaluated:
         summary["overall"]["matched_points"] = int(np.isfinite(tracks["error_m"]).sum())
     return summary, tracks

@@ -14,7 +14,9 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
-from .._core.validation import LATITUDE, LONGITUDE, as_real, as_vector, check_frame, check_positive, renamed
+from .._core.validation import LATITUDE, LONGITUDE, as_real, as_vector, check_frame, check_positive, lookup, renamed
+from ..cellular import MOTIONS
+from ..radio import PATH_LOSS_MODELS
 from ..errors import ParameterError
 from ..linear import get_filter
 from ..result import FilterResult
@@ -22,9 +24,14 @@ from ._columns import FixTable
 from ._gated import first_fix_prior, measured_states, nis_threshold, smooth_gated, track_gated
 from ._noise import SCOPES
 from ._output import point_table
-from ._registry import DEFAULT_SIGMA_M, get_fix_filter, get_model
+from ._registry import DEFAULT_SIGMA_M, get_cell_method, get_fix_filter, get_model
 
-__all__ = ["TrackOptions", "track_fixes", "fix_variances", "grid_filter_track"]
+__all__ = ["TrackOptions", "FIX_ONLY", "CELL_ONLY", "track_fixes", "fix_variances", "grid_filter_track"]
+
+#: The settings of :class:`TrackOptions` that apply to position fixes only, and to cellular measurements
+#: only (a cell table given): the one list the command line and :func:`mptrack.track` refuse by.
+FIX_ONLY = ("model", "filter", "smooth", "q", "sigma_m", "noise", "gate_probability")
+CELL_ONLY = ("method", "motion", "path_loss", "q_km2", "r_km2", "scan_interval_s")
 
 
 # Cellular process noise defaults.  The random walk's is Bouzera et al. (2017)'s Q0 (km^2 per scan).
@@ -80,6 +87,10 @@ class TrackOptions:
             get_model(self.model)
         with renamed(name="filter"):
             object.__setattr__(self, "filter", get_fix_filter(self.filter))
+        with renamed(name="method"):
+            get_cell_method(self.method)
+        lookup("motion", self.motion, dict.fromkeys(MOTIONS), what="cellular motion model", fold=str)
+        lookup("path_loss", self.path_loss, PATH_LOSS_MODELS, what="path-loss model", fold=str)
         if self.noise not in SCOPES:
             raise ParameterError(f"noise: expected one of {', '.join(SCOPES)}, got {self.noise!r}")
         for name, allow_zero in (("q", True), ("sigma_m", False), ("gap_s", False), ("q_km2", True),

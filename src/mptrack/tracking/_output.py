@@ -12,14 +12,13 @@ from __future__ import annotations
 
 import numpy as np
 import pyarrow as pa
-import scipy.stats
 
 from .._core.validation import as_array, as_vector, check_positive
 from ..errors import ParameterError, ShapeError
 from ..io import enu_to_geodetic
 from ._engine import FLAGS
 
-__all__ = ["point_table", "ellipse", "nis_band", "POINT_COLUMNS"]
+__all__ = ["point_table", "ellipse", "POINT_COLUMNS"]
 
 #: Columns of the point table, in order (extra per-method columns follow).
 POINT_COLUMNS = ("track_id", "time", "t", "lat", "lon", "east_m", "north_m", "vel_east_mps", "vel_north_mps",
@@ -147,14 +146,3 @@ def point_table(ids, offsets: np.ndarray, time: np.ndarray, t: np.ndarray, east:
     }
     cols.update(extra or {})
     return pa.table({k: v if isinstance(v, pa.Array) else pa.array(np.ascontiguousarray(v)) for k, v in cols.items()})
-
-
-def nis_band(updates: np.ndarray, dof: int = 2, probability: float = 0.95) -> tuple[np.ndarray, np.ndarray]:
-    """Two-sided ``probability`` interval of the mean NIS over ``updates`` fixes of ``dof`` each
-    (chi-square with dof * updates degrees of freedom, divided by updates); NaN without updates."""
-    n = np.asarray(updates, dtype=float)
-    k = dof * n
-    with np.errstate(invalid="ignore", divide="ignore"):
-        lo = scipy.stats.chi2.ppf((1 - probability) / 2, k) / n
-        hi = scipy.stats.chi2.ppf((1 + probability) / 2, k) / n
-    return np.where(n > 0, lo, np.nan), np.where(n > 0, hi, np.nan)

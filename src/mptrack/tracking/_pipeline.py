@@ -19,7 +19,7 @@ import json
 import time
 from collections import deque
 from contextlib import nullcontext
-from dataclasses import asdict, dataclass, fields
+from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
@@ -28,20 +28,23 @@ import pyarrow as pa
 
 from .._core.files import output_lock
 from .._core.tracks import track_offsets
-from .._core.validation import check_int, check_outputs, check_path, source_label
+from .._core.validation import check_bool, check_int, check_outputs, check_path
 from ..batch import Chunk, read_part, run_stream
 from ..errors import MptrackError, ParameterError
-from ..io import (FIXES, MEASUREMENTS, InputNotSorted, PartStore, ReadOptions, ReadReport, iter_track_chunks,
+from ..io import (FIXES, MEASUREMENTS, InputNotSorted, PartStore, ReadOptions, ReadReport, input_label,
+                  input_name, input_paths, iter_track_chunks, resolve_input,
                   output_format, read_cells, read_chunks)
-from ._advice import MIN_ADVISED_FIXES, nis_advice
+from ._advice import far_from_band, nis_advice
 from ._cellular import check_cell_ids, track_cells
 from ._columns import FixTable
-from ._fixes import TrackOptions
-from ._output import nis_band, point_table
+from ._fixes import CELL_ONLY, FIX_ONLY, TrackOptions
+from ._consistency import flag_counts, nis_sentence, nis_stats, pooled_nis
+from ._evaluate import TRUTH_COLUMNS, evaluate_tracks
+from ._output import point_table
 from ._noise import SIGMA_FLOOR_M
 from ._run import TRACK_COLUMNS, track_table
 
-__all__ = ["track_file", "track", "read_output", "TrackTask", "DEFAULT_CHUNK_ROWS"]
+__all__ = ["track_file", "track", "write_track_report", "read_output", "TrackTask", "DEFAULT_CHUNK_ROWS"]
 
 #: Rows of whole tracks per unit of work (memory per chunk ~0.5 KB a row in flight).
 DEFAULT_CHUNK_ROWS = 200_000
@@ -107,15 +110,13 @@ def _cell_tracks(points: pa.Table | None) -> pa.Table:
     if points is None or points.num_rows == 0:
         return pa.table({"track_id": pa.array([], pa.string()), "fixes": pa.array([], pa.int64())})
     df = points.select(["track_id", "flag", "nis", "nis_dof"]).to_pandas()
-    g = df.assign(upd=df["flag"].eq("update"), nis=df["nis"].where(df["flag"].eq("update"))) \
-        .groupby("track_id", sort=False)
-    out = pd.DataFrame({"fixes": g.size(), "updates": g["upd"].sum(), "mean_nis": g["nis"].mean(),
-                        "nis_dof": g["nis_dof"].mean()}).reset_index()
-    # the band of the mean of scans with (about) nis_dof ranges each
-    dof = out["nis_dof"].to_numpy()
-    lo, hi = nis_band(out["updates"].to_numpy() * dof, 1)
-    out["nis_lo"], out["nis_hi"] = lo * dof, hi * dof
-    out["nis_consistent"] = (out["mean_nis"] >= out["nis_lo"]) & (out["mean_nis"] <= out["nis_hi"])
+    ids, flag = df["track_id"].to_numpy(dtype=object), df["flag"].to_numpy(dtype=object)
+    nis, dof = df["nis"].to_numpy(float), df["nis_dof"].to_numpy(float)
+    bounds = track_offsets(ids)
+    stats = pd.DataFrame([nis_stats(nis[a:b], dof[a:b], flag[a:b]) for a, b in zip(bounds[:-1], bounds[1:])])
+    out = pd.DataFrame({"track_id": [str(i) for i in ids[bounds[:-1]]], "fixes": np.diff(bounds),
+                        "updates": flag_counts(flag, bounds)["updates"]})
+    out = pd.concat([out, stats.drop(columns="nis_fixes")], axis=1)
     return pa.Table.from_pandas(out, preserve_index=False)
 
 
@@ -123,7 +124,7 @@ def _source_chunks(source, schema, on_error: str, chunk_rows: int, report: ReadR
                    sort: bool | None, cells=None):
     """Chunks of whole tracks of a path or a DataFrame, numbered; with a cell table, rows of unknown
     cells raise or are dropped and counted (a track left without rows is dropped)."""
-    label = source_label(source)
+    label = input_label(source)
     for i, rows in enumerate(iter_track_chunks(source, schema, on_error=on_error, chunk_rows=chunk_rows,
                                                report=report, read=read, sort=sort)):
         if cells is not None:
@@ -134,8 +135,11 @@ def _source_chunks(source, schema, on_error: str, chunk_rows: int, report: ReadR
 def _manifest(input, options: TrackOptions, cells, chunk_rows: int, read: ReadOptions) -> dict:
     """What a resumed run must share with the interrupted one: the input file(s) as they were, the
     options and the chunking."""
-    path = Path(input)
-    files = sorted(p for p in path.rglob("*") if p.is_file()) if path.is_dir() else [path]
+    if isinstance(input, list):
+        files = input
+    else:
+        path = Path(input)
+        files = sorted(p for p in path.rglob("*") if p.is_file()) if path.is_dir() else [path]
     stamp = [[str(p), p.stat().st_size, p.stat().st_mtime_ns] for p in files]
     return {"input": stamp, "cells": None if cells is None else str(cells), "chunk_rows": chunk_rows,
             "options": {k: v for k, v in asdict(options).items()}, "read": json.loads(json.dumps(asdict(read)))}
@@ -246,10 +250,10 @@ def track_file(input, out, *, cells=None, options: TrackOptions = TrackOptions()
     nothing is left).
     """
     start = time.perf_counter()
-    input, out = check_path("input", input), check_path("out", out)
+    input, out = resolve_input(input, "input"), check_path("out", out)
     if not isinstance(options, TrackOptions):
         raise ParameterError(f"options: expected TrackOptions, got {type(options).__name__}")
-    check_outputs(input, cells, out=out, track_summary=track_summary)
+    check_outputs(*input_paths(input), cells, out=out, track_summary=track_summary)
     chunk_rows = check_int("chunk_rows", chunk_rows, minimum=1)
     store = PartStore(out)
     if track_summary is not None:
@@ -265,7 +269,7 @@ def track_file(input, out, *, cells=None, options: TrackOptions = TrackOptions()
         progress = progress or _NullProgress()
         resumed = store.parts("tracks")
         try:
-            with progress.task(f"tracking the tracks of {input.name}", total=None) as advance:
+            with progress.task(f"tracking the tracks of {input_name(input)}", total=None) as advance:
                 results = _run(input, options, cells_table=cell_table, on_error=on_error, chunk_rows=chunk_rows,
                                executor=executor, max_workers=max_workers, client=client, store=store,
                                manifest=_manifest(input, options, cells, chunk_rows, read), progress=advance,
@@ -289,7 +293,7 @@ def track_file(input, out, *, cells=None, options: TrackOptions = TrackOptions()
                 store.discard()  # bad input, or no chunk finished: nothing to resume, nothing left behind
             raise
     summary = _summary(tracks, report, options, len(results), cellular=cells is not None)
-    summary.update(input=str(input), output=str(out), points_written=points, chunks_resumed=len(resumed),
+    summary.update(input=str(input_label(input)), output=str(out), points_written=points, chunks_resumed=len(resumed),
                    tracks_resumed=tracks_resumed, elapsed_s=time.perf_counter() - start)
     if track_summary is not None:
         summary["track_summary"] = str(track_summary)
@@ -325,7 +329,8 @@ def _summary(tracks: pd.DataFrame, report: ReadReport, options: TrackOptions, ch
     n = len(tracks)
     total = (lambda col: int(tracks[col].sum()) if col in tracks and n else 0)  # noqa: E731
     out = {"tracks": n, "chunks": chunks, "fixes": total("fixes"), "outliers_rejected": total("outliers"),
-           "manoeuvres": total("manoeuvres"), "resets": total("resets"), "read": report.to_dict(),
+           "manoeuvres": total("manoeuvres"), "resets": total("resets"), "restarts": total("restarts"),
+           "read": report.to_dict(),
            "options": asdict(options)}
     if n and "sigma_m" in tracks:
         if n <= MAX_LISTED_TRACKS:
@@ -341,14 +346,14 @@ def _summary(tracks: pd.DataFrame, report: ReadReport, options: TrackOptions, ch
         out["noise"] = noise
     if n and "nis_consistent" in tracks:
         used = tracks["updates"] + tracks.get("manoeuvres", 0)
-        ratio = tracks["mean_nis"] / tracks["nis_dof"]
         outside = ~tracks["nis_consistent"].astype(bool) & (used > 0)
-        # advice only where the mean says something: a handful of fixes is far out by chance
-        far = outside & ((ratio < 0.5) | (ratio > 2.0)) & (used >= MIN_ADVISED_FIXES)
-        low = far & (tracks["mean_nis"] < tracks["nis_lo"])
-        out["nis"] = {"tracks_outside_band": int(outside.sum()), "far_low": int(low.sum()),
-                      "far_high": int((far & ~low).sum()),
-                      "advice": nis_advice(int(low.sum()), int((far & ~low).sum()), options, cellular=cellular)}
+        low, high = far_from_band(tracks["mean_nis"], tracks["nis_dof"], used)
+        pooled = pooled_nis(tracks["mean_nis"], tracks["nis_dof"], used)
+        out["nis"] = {**pooled, "sentence": nis_sentence(pooled),
+                      "tracks_outside_band": int(outside.sum()), "tracks_judged": int((used > 0).sum()),
+                      "far_low": int(low.sum()),
+                      "far_high": int(high.sum()),
+                      "advice": nis_advice(int(low.sum()), int(high.sum()), options, cellular=cellular)}
     return out
 
 
@@ -359,43 +364,176 @@ def _distribution(x: np.ndarray) -> dict:
     return {"median": float(np.median(x)), "p5": float(np.percentile(x, 5)), "p95": float(np.percentile(x, 95))}
 
 
-def track(data, *, cells=None, on_error: str = "raise", chunk_rows: int = DEFAULT_CHUNK_ROWS,
-          executor: str = "serial", max_workers: int | None = None, client=None, **options) -> pd.DataFrame:
-    """Track a log in memory: the point table as a pandas DataFrame (no files written).
+def track(data, *, cells=None, model: str | None = None, filter: str | None = None, smooth: bool = False,
+          sigma_m: float | None = None, q: float | None = None, noise: str | None = None,
+          gate_probability: float | None = None, method: str | None = None, motion: str | None = None,
+          path_loss: str | None = None, q_km2: float | None = None, r_km2: float | None = None,
+          scan_interval_s: float | None = None, gap_s: float | None = None, columns=None, time_unit: str = "auto",
+          time_format: str | None = None, coord_unit: str = "auto", on_error: str = "raise",
+          max_skip: str | None = None, chunk_rows: int = DEFAULT_CHUNK_ROWS, executor: str = "serial",
+          max_workers: int | None = None, client=None, report=None, **unknown) -> pd.DataFrame:
+    """Track a log in memory, as ``mptrack track`` does: the point table as a pandas DataFrame.
 
-    data     a DataFrame of position fixes (columns as in a file: track_id, time, lat/lon or x/y,
-             accuracy_m) or cellular measurements, or the path of a file / Parquet dataset
-    cells    with cellular measurements: the cell table (a DataFrame in the OpenCelliD layout, or a path)
-    options  the fields of :class:`TrackOptions` (model, filter, q, sigma_m, noise, smooth, ...) and of
-             :class:`mptrack.io.ReadOptions` (columns, time_unit, time_format, coord_unit, max_skip)
+    Every option is ``mptrack track``'s under its library name (``sigma_m`` is ``--sigma``,
+    ``gate_probability`` ``--gate``, ``r_km2`` the square of ``--range-sigma`` in km); an option left
+    at None takes its default.  Options for position fixes and options for cellular measurements
+    (``cells`` given) exclude each other, as on the command line.
 
-    The DataFrame's ``attrs["tracks"]`` holds the track table (one row per track: the noise
-    estimates with their standard errors, counts, NIS consistency) and ``attrs["summary"]`` the
-    run summary (as :func:`track_file` returns).
+    Parameters
+    ----------
+    data : DataFrame, path, list of paths or glob
+        Position fixes (columns as in a file: ``track_id``, ``time``, ``lat``/``lon`` or ``x``/``y``,
+        ``accuracy_m``; other names and units are recognised as ``mptrack track`` does) or, with
+        ``cells``, cellular measurements; or a file in any input format, a directory, several files
+        or a glob (each file's tracks kept apart).
+    cells : DataFrame or path, optional
+        The cell table (OpenCelliD layout): track cellular measurements instead of position fixes.
+    model : {"cv", "ca"}, optional
+        Position fixes: the motion model (default "cv").
+    filter : str, optional
+        Position fixes: "kf" (default: gated, at the fixes' own times) or a linear filter on a
+        regular grid ("lf", "sskf", ...; :data:`mptrack.tracking.FIX_FILTERS`).
+    smooth : bool
+        Position fixes: add a Rauch-Tung-Striebel smoothing pass.
+    sigma_m, q : float, optional
+        Position fixes: the fix noise (1-sigma per axis, m; where a fix has no ``accuracy_m``) and the
+        process-noise density (m^2/s^3 for cv, m^2/s^5 for ca).  Default: estimated from each track.
+    noise : {"track", "file"}, optional
+        Position fixes: one noise estimate per track (default) or one for the whole input.
+    gate_probability : float, optional
+        Position fixes: the NIS gate's chi-square probability (default 0.999); 1 disables gating.
+    method : {"ekf", "fekf", "fcs"}, optional
+        Cellular: the range filter (default "ekf"; Bouzera et al. 2017).
+    motion : {"random-walk", "cv"}, optional
+        Cellular: the motion model (default "random-walk").
+    path_loss : str, optional
+        Cellular: the path-loss model that turns RSS into ranges (default "cost231-wi-nlos";
+        :data:`mptrack.radio.PATH_LOSS_MODELS`).
+    q_km2, r_km2, scan_interval_s : float, optional
+        Cellular: process noise, range-noise variance (km^2; default 0.222) and scan grid step (s).
+    gap_s : float, optional
+        An interval longer than this (s, default 30) flags the point after it as following a gap.
+    columns, time_unit, time_format, coord_unit : optional
+        How the input is read where its names or units are not recognised
+        (:class:`mptrack.io.ReadOptions`), e.g. ``columns="time=ts,lat=Latitude"``.
+    on_error : {"raise", "skip"}
+        "raise": the first bad row is an error; "skip": bad rows are dropped and counted.
+    max_skip : str, optional
+        With ``on_error="skip"``: the most rows that may be dropped ("1%" of the rows read by
+        default, or a count such as "50").
+    chunk_rows, executor, max_workers, client
+        Rows of whole tracks per chunk, and who runs the chunks ("serial", "processes" or "dask";
+        ``max_workers`` with processes or Dask, ``client`` a Dask client).  The result is the same.
+    report : path, optional
+        Also write the HTML report of the run there (the page ``mptrack track --report`` writes).
+
+    Returns
+    -------
+    DataFrame
+        One row per estimate (columns in docs/tracking.md).  ``attrs["tracks"]`` holds the track
+        table (one row per track: the noise estimates with their standard errors, counts, the mean
+        NIS and its band) and ``attrs["summary"]`` the run summary (as :func:`track_file` returns).
+
+    Raises
+    ------
+    mptrack.errors.ParameterError
+        An unknown option, an option that does not apply (``method`` without ``cells``, ``model``
+        with them, ``max_workers`` with the serial executor, ``max_skip`` without
+        ``on_error="skip"``) or a bad value; :class:`~mptrack.errors.UnknownNameError` for an unknown
+        model, filter or method.
+    mptrack.errors.DataError
+        Bad input, naming file, row and column.
+    mptrack.errors.OutputError
+        The report cannot be written (another run holds it, the disk is full, ...).
+
+    References
+    ----------
+    .. [1] N. Bouzera, M. Oussalah, N. Mezhoud and A. Khireddine, "Fuzzy extended Kalman filter for dynamic
+           mobile localization in urban area using wireless network", Applied Soft Computing, vol. 57, pp.
+           452–467, 2017. doi:10.1016/j.asoc.2017.04.007
+
+    Examples
+    --------
+    >>> import mptrack
+    >>> log = mptrack.simulate("gps", tracks=2, seed=0, duration_s=60.0)
+    >>> points = mptrack.track(log, smooth=True)
+    >>> sorted(points["track_id"].unique())
+    ['sim0001', 'sim0002']
+    >>> mptrack.track(log, method="ukf")
+    Traceback (most recent call last):
+    ...
+    mptrack.errors.ParameterError: method: applies to cellular measurements only: give the cell table with cells=...
     """
-    if not isinstance(data, pd.DataFrame):
-        check_path("data", data)
-    known = {f.name for f in fields(TrackOptions)}
-    reading = {f.name for f in fields(ReadOptions)}
-    unknown = sorted(set(options) - known - reading)
     if unknown:
-        raise ParameterError(f"{unknown[0]}: not an option of track; the options are data, cells, on_error, "
-                             f"chunk_rows, executor, max_workers, client, {', '.join(sorted(reading))} and "
-                             f"{', '.join(sorted(known))}")
-    opts = TrackOptions(**{k: v for k, v in options.items() if k in known})
-    read = ReadOptions(**{k: v for k, v in options.items() if k in reading})
+        raise ParameterError(_unknown_option(sorted(unknown)[0]))
+    given = {"model": model, "filter": filter, "smooth": check_bool("smooth", smooth) or None, "q": q,
+             "sigma_m": sigma_m, "noise": noise, "gate_probability": gate_probability, "method": method,
+             "motion": motion, "path_loss": path_loss, "q_km2": q_km2, "r_km2": r_km2,
+             "scan_interval_s": scan_interval_s, "gap_s": gap_s}
+    given = {k: v for k, v in given.items() if v is not None}
+    wrong = [k for k in (FIX_ONLY if cells is not None else CELL_ONLY) if k in given]
+    if wrong:
+        raise ParameterError(f"{wrong[0]}: applies to position fixes, not to cellular measurements (cells=...)"
+                             if cells is not None else
+                             f"{wrong[0]}: applies to cellular measurements only: give the cell table with cells=...")
+    for name, value, why in (("max_workers", max_workers if executor == "serial" else None,
+                              "applies to executor='processes' or 'dask'"),
+                             ("client", client if executor != "dask" else None, "applies to executor='dask'"),
+                             ("max_skip", max_skip if on_error != "skip" else None, "applies to on_error='skip'")):
+        if value is not None:
+            raise ParameterError(f"{name}: {why}")
+    if given.get("gate_probability") == 1:
+        given["gate_probability"] = None  # 1 disables gating, as --gate 1
+    data = resolve_input(data, "data")
+    opts = TrackOptions(**given)
+    read = ReadOptions(columns=columns or (), time_unit=time_unit, time_format=time_format, coord_unit=coord_unit,
+                       **({} if max_skip is None else {"max_skip": max_skip}))
     chunk_rows = check_int("chunk_rows", chunk_rows, minimum=1)
-    report = ReadReport()
-    cell_table = None if cells is None else _cell_table(data, cells, on_error, chunk_rows, read)[0]
-    results = _run(data, opts, cells_table=cell_table, on_error=on_error, chunk_rows=chunk_rows,
-                   executor=executor, max_workers=max_workers, client=client, store=None, manifest=None,
-                   progress=None, report=report, read=read)
-    points = pa.concat_tables([r["points"] for r in results]) if results else _empty_points()
-    tracks = _tracks_frame([r["tracks"] for r in results])
-    df = points.to_pandas()
-    df.attrs["tracks"] = tracks
-    df.attrs["summary"] = _summary(tracks, report, opts, len(results), cellular=cells is not None)
+    if report is not None:
+        check_outputs(*input_paths(data),
+                      *([] if cells is None or isinstance(cells, pd.DataFrame) else [cells]), report=report)
+    with nullcontext() if report is None else output_lock(report):
+        report_of_reading = ReadReport()
+        cell_table = None if cells is None else _cell_table(data, cells, on_error, chunk_rows, read)[0]
+        results = _run(data, opts, cells_table=cell_table, on_error=on_error, chunk_rows=chunk_rows,
+                       executor=executor, max_workers=max_workers, client=client, store=None, manifest=None,
+                       progress=None, report=report_of_reading, read=read)
+        points = pa.concat_tables([r["points"] for r in results]) if results else _empty_points()
+        tracks = _tracks_frame([r["tracks"] for r in results])
+        df = points.to_pandas()
+        df.attrs["tracks"] = tracks
+        df.attrs["summary"] = _summary(tracks, report_of_reading, opts, len(results), cellular=cells is not None)
+        if report is not None:
+            write_track_report(df, report, run=df.attrs["summary"], title="mptrack.track")
+            df.attrs["summary"]["report"] = str(report)
     return df
+
+
+def _unknown_option(name: str) -> str:
+    """The message for an option :func:`track` does not have, with the nearest one it has."""
+    import difflib
+    import inspect
+
+    known = [p for p in inspect.signature(track).parameters if p not in ("data", "unknown")]
+    near = difflib.get_close_matches(name, known, n=1) + difflib.get_close_matches(
+        {"sigma": "sigma_m", "gate": "gate_probability", "range_sigma": "r_km2"}.get(name, ""), known, n=1)
+    return (f"{name}: not an option of mptrack.track" + (f"; did you mean {near[0]}?" if near else "")
+            + f" (the options are: {', '.join(known)})")
+
+
+def write_track_report(points: pd.DataFrame, path, *, run: dict | None = None, title: str = "mptrack track",
+                       budget: int | None = None):
+    """Write the HTML report of a tracking run, as ``mptrack track --report`` and ``track(report=...)``
+    do: ``points`` (the run's point table, or the columns of it :func:`mptrack.report.report_points`
+    keeps) evaluated against the truth columns a simulated log passes through (true_lat/true_lon or
+    true_x/true_y) when it has them, drawn by :func:`mptrack.report.write_report` with ``run``, the
+    run's summary (rows skipped, NIS advice).  Returns the path."""
+    from ..report import write_report
+
+    own = any(a in points.columns and b in points.columns for a, b, _ in TRUTH_COLUMNS)
+    summary, table = evaluate_tracks(points, truth_columns=own)
+    return write_report(table, path, summary=summary, run=run, title=title,
+                        **({} if budget is None else {"budget": budget}))
 
 
 def read_output(path) -> pd.DataFrame:

@@ -20,13 +20,15 @@ from ._columns import FixTable
 from ._engine import filter_tracks
 from ._fixes import TrackOptions, track_fixes
 from ._noise import SOURCES, NoiseEstimate, NoiseSpec, estimate_noise, fix_weights
-from ._output import nis_band, point_table
+from ._consistency import USED_FLAGS, flag_counts, is_flag, nis_band
+from ._output import point_table
 from ._registry import get_model
 
 __all__ = ["noise_spec", "track_table", "TRACK_COLUMNS"]
 
 #: Columns of the track table, in order.
-TRACK_COLUMNS = ("track_id", "fixes", "duration_s", "updates", "manoeuvres", "outliers", "resets", "sigma_m",
+TRACK_COLUMNS = ("track_id", "fixes", "duration_s", "updates", "manoeuvres", "outliers", "resets", "restarts",
+                 "sigma_m",
                  "sigma_se_m",
                  "accuracy_scale", "accuracy_scale_se", "q", "q_se", "sigma_source", "q_source", "mean_nis",
                  "nis_dof", "nis_lo", "nis_hi", "nis_consistent", "loglik")
@@ -99,25 +101,24 @@ def _per_track(table: FixTable, options: TrackOptions, noise: NoiseEstimate, r: 
 
 def _tracks(table: FixTable, noise: NoiseEstimate, w: np.ndarray, has_acc: np.ndarray, stats: np.ndarray,
             points: pa.Table, flag: np.ndarray | None) -> pa.Table:
-    """The track table (one row per track)."""
+    """The track table (one row per track): counts and the mean NIS from the flags
+    (:mod:`._consistency`, the one definition every summary prints)."""
     B = table.B
-    if flag is None:  # per-track path: counts from the point table (its rows are grid slots)
-        names = points.column("flag").to_numpy(zero_copy_only=False)
-        nis = points.column("nis").to_numpy()
-        starts = track_offsets(points.column("track_id").to_numpy(zero_copy_only=False))[:-1]
-        used = (names == "update") | (names == "manoeuvre")
-        count = lambda m: np.add.reduceat(m.astype(np.int64), starts)  # noqa: E731
-        updates, outliers, resets = count(names == "update"), count(names == "outlier"), count(names == "reset")
-        manoeuvres = count(names == "manoeuvre")
-        nis_sum = np.add.reduceat(np.where(used & np.isfinite(nis), nis, 0.0), starts)
+    nis = points.column("nis").to_numpy()
+    if flag is None:  # per-track path: its rows are grid slots
+        flag = points.column("flag").to_numpy(zero_copy_only=False)
+        bounds = track_offsets(points.column("track_id").to_numpy(zero_copy_only=False))
         loglik = np.full(B, np.nan)
     else:
-        updates, outliers, resets, manoeuvres = (stats[:, i].astype(np.int64) for i in (1, 2, 3, 5))
-        nis_sum, loglik = stats[:, 4], stats[:, 0]
+        bounds, loglik = table.offsets, stats[:, 0]
+    counts = flag_counts(flag, bounds)
+    used_rows = is_flag(flag, *USED_FLAGS) & np.isfinite(nis)
+    by = np.repeat(np.arange(len(bounds) - 1), np.diff(bounds))
+    nis_sum = np.bincount(by, weights=np.where(used_rows, nis, 0.0), minlength=B)
+    used = np.bincount(by, weights=used_rows, minlength=B).astype(np.int64)
     starts, ends = table.offsets[:-1], table.offsets[1:] - 1
     sigma = np.sqrt(noise.c * table.per_track_median(w))
     scale = np.where(has_acc, np.sqrt(noise.c), np.nan)
-    used = updates + manoeuvres
     with np.errstate(invalid="ignore", divide="ignore"):
         mean_nis = nis_sum / used
     lo, hi = nis_band(used)
@@ -125,7 +126,7 @@ def _tracks(table: FixTable, noise: NoiseEstimate, w: np.ndarray, has_acc: np.nd
     cols = {
         "track_id": pa.array([str(i) for i in table.ids], type=pa.string()),
         "fixes": table.counts, "duration_s": table.t[ends] - table.t[starts] if B else np.zeros(0),
-        "updates": updates, "manoeuvres": manoeuvres, "outliers": outliers, "resets": resets,
+        **counts,
         "sigma_m": sigma, "sigma_se_m": sigma * noise.se_log_c / 2.0,
         "accuracy_scale": scale, "accuracy_scale_se": scale * noise.se_log_c / 2.0,
         "q": noise.q, "q_se": noise.q * noise.se_log_q,

@@ -7,14 +7,7 @@
   var P = D.payload;
   var PALETTE = ["#1f77b4", "#d62728", "#2ca02c", "#9467bd", "#8c564b", "#e377c2", "#17becf", "#bcbd22",
                  "#ff7f0e", "#393b79", "#637939", "#8c6d31", "#843c39", "#7b4173", "#3182bd", "#31a354"];
-  var KIND_STYLE = {
-    raw: {color: "#777", label: "raw fixes"},
-    rejected: {color: "#ff7f0e", label: "rejected fixes (NIS gate)"},
-    resets: {color: "#6a3d9a", label: "filter resets"},
-    gaps: {color: "#000", label: "gaps (no fixes for a while)"},
-    truth: {color: "#000", label: "truth"},
-    ellipses: {color: "#1f77b4", label: "1-σ uncertainty ellipses"}
-  };
+  var KIND_STYLE = D.layers;  // kind -> {label, look, marker | line}: the legend, the map and the caption alike
   function colour(i) { return PALETTE[i % PALETTE.length]; }
   function el(tag, attrs, text) {
     var e = document.createElement(tag);
@@ -22,6 +15,8 @@
     if (text !== undefined) e.textContent = text;
     return e;
   }
+  var SVGNS = "http://www.w3.org/2000/svg";
+  function svg(tag, attrs) { var e = document.createElementNS(SVGNS, tag); for (var k in attrs) e.setAttribute(k, attrs[k]); return e; }
   function fmt(v) {
     if (v === null || v === undefined) return "—";
     if (typeof v !== "number") return String(v);
@@ -36,7 +31,7 @@
     if (tr.pts) return tr;
     var y = cumsum(tr.y || []), x = cumsum(tr.x || []), sc = P.scale;
     tr.pts = y.map(function (v, i) { return [v / sc, x[i] / sc]; });
-    tr.time = cumsum(tr.t || []).map(function (v) { return v / 10; });
+    tr.time = cumsum(tr.t || []).map(function (v) { return v / 1000; });  // milliseconds -> s
     function rel(dy, dx) {
       if (!dy) return null;
       return dy.map(function (v, i) { return v === null || dx[i] === null ? null : [(y[i] + v) / sc, (x[i] + dx[i]) / sc]; });
@@ -80,31 +75,26 @@
   }
   function buildKind(tr, kind) {
     decode(tr);
-    var i, pts = [];
+    var i, pts = [], st = KIND_STYLE[kind];
     if (kind === "raw" && tr.meas) {
       for (i = 0; i < tr.meas.length; i++) if (tr.meas[i] && tr.f[i] !== "o") pts.push(tr.meas[i]);
-      return dots(pts, {radius: 1.5, color: "#888", weight: 0, fillOpacity: 0.7});
-    }
-    if (kind === "rejected" && tr.meas) {
+    } else if (kind === "rejected" && tr.meas) {
       for (i = 0; i < tr.meas.length; i++) if (tr.meas[i] && tr.f[i] === "o") pts.push(tr.meas[i]);
-      return dots(pts, {radius: 4, color: "#ff7f0e", weight: 2, fill: false});
-    }
-    if (kind === "resets") {
+    } else if (kind === "resets") {
       for (i = 0; i < tr.pts.length; i++) if (tr.f[i] === "r") pts.push(tr.pts[i]);
-      return dots(pts, {radius: 6, color: "#6a3d9a", weight: 2, fill: false});
-    }
-    if (kind === "gaps") {
+    } else if (kind === "gaps") {
       (tr.gap || []).forEach(function (j) { pts.push(tr.pts[j]); });
-      return dots(pts, {radius: 5, color: "#000", weight: 2, fillColor: "#fff", fillOpacity: 1});
-    }
-    if (kind === "truth" && tr.truth) {
+    } else if (kind === "truth" && tr.truth) {
       var segs = [], cur = [];
       tr.truth.forEach(function (p) { if (p) cur.push(p); else if (cur.length) { segs.push(cur); cur = []; } });
       if (cur.length) segs.push(cur);
-      return L.polyline(segs, {renderer: renderer, color: "#000", weight: 1.5, dashArray: "5 5", interactive: false});
+      return L.polyline(segs, L.extend({renderer: renderer, interactive: false}, st.line));
+    } else if (kind === "ellipses" && tr.ell) {
+      return ellipses(tr);
+    } else {
+      return null;
     }
-    if (kind === "ellipses" && tr.ell) return ellipses(tr);
-    return null;
+    return dots(pts, st.marker);
   }
   function ellipses(tr) {
     var g = L.layerGroup(), n = tr.pts.length, step = Math.max(1, Math.ceil(n / 400));
@@ -118,7 +108,7 @@
         ring.push(P.geo ? [c[0] + nn / 111320, c[1] + e / (111320 * Math.cos(c[0] * Math.PI / 180))]
                         : [c[0] + nn, c[1] + e]);
       }
-      g.addLayer(L.polygon(ring, {renderer: renderer, color: "#1f77b4", weight: 1, fillOpacity: 0.08, interactive: false}));
+      g.addLayer(L.polygon(ring, L.extend({renderer: renderer, interactive: false}, KIND_STYLE.ellipses.line)));
     }
     return g;
   }
@@ -157,8 +147,25 @@
   }
   tracks.forEach(function (tr) { showTrack(tr.id, true); });
   if (bounds.isValid()) map.fitBounds(bounds, {padding: [20, 20]}); else map.setView([0, 0], 2);
+  L.control.scale({imperial: false, maxWidth: 150}).addTo(map);  // metres (local x/y: the same units)
 
-  /* ---- layer switches ---- */
+  /* ---- layer switches: each with a swatch drawn from the layer's own style (as on the map) ---- */
+  function swatch(st) {
+    var box = svg("svg", {width: 16, height: 16, viewBox: "0 0 16 16", "class": "swatch-svg", "aria-hidden": "true"});
+    if (st.marker) {
+      var m = st.marker;
+      box.appendChild(svg("circle", {cx: 8, cy: 8, r: Math.min(Math.max(m.radius, 3), 6), stroke: m.color, "stroke-width": m.weight || 0,
+                                     fill: m.fill === false ? "none" : (m.fillColor || m.color),
+                                     "fill-opacity": m.fill === false ? 0 : (m.fillOpacity === undefined ? 0.2 : m.fillOpacity)}));
+    } else if (st.shape === "ellipse") {
+      box.appendChild(svg("ellipse", {cx: 8, cy: 8, rx: 7, ry: 4, stroke: st.line.color, "stroke-width": st.line.weight,
+                                      fill: st.line.color, "fill-opacity": st.line.fillOpacity}));
+    } else {
+      box.appendChild(svg("line", {x1: 1, y1: 8, x2: 15, y2: 8, stroke: st.line.color, "stroke-width": st.line.weight,
+                                   "stroke-dasharray": st.line.dashArray || ""}));
+    }
+    return box;
+  }
   var panel = document.getElementById("layers");
   Object.keys(KIND_STYLE).forEach(function (kind) {
     var info = D.kinds[kind];
@@ -175,7 +182,7 @@
       });
     });
     lab.appendChild(box);
-    lab.appendChild(el("span", {"class": "swatch " + kind}));
+    lab.appendChild(swatch(KIND_STYLE[kind]));
     lab.appendChild(document.createTextNode(" " + KIND_STYLE[kind].label + " (" + info.text + ")"));
     panel.appendChild(lab);
   });
@@ -211,9 +218,8 @@
   document.getElementById("hide-all").addEventListener("click", function () { setAll(false); });
 
   /* ---- time plots of the selected track ---- */
-  var SVGNS = "http://www.w3.org/2000/svg";
-  function svg(tag, attrs) { var e = document.createElementNS(SVGNS, tag); for (var k in attrs) e.setAttribute(k, attrs[k]); return e; }
-  function ticks(lo, hi, log) {
+  var MAX_INTERVALS = 6;  // a log axis has at most this many intervals between labels (decades thinned)
+  function ticks(lo, hi, log, every) {
     var out = [];
     if (log) {
       for (var p = Math.floor(Math.log10(lo)); p <= Math.ceil(Math.log10(hi)); p++) {
@@ -222,8 +228,12 @@
           if (m * v >= lo * 0.999 && m * v <= hi * 1.001) out.push(m * v);
         });
       }
-      // the bounds are labels (see logBounds): decades over two decades or more, else every 1-2-5 value
-      var decades = out.filter(function (v) { return Math.abs(Math.log10(v) - Math.round(Math.log10(v))) < 1e-9; });
+      // the bounds are labels (see logBounds): every `every`-th decade over two decades or more, else 1-2-5
+      var first = Math.round(Math.log10(lo));
+      var decades = out.filter(function (v) {
+        var e = Math.log10(v);
+        return Math.abs(e - Math.round(e)) < 1e-9 && (Math.round(e) - first) % (every || 1) === 0;
+      });
       return Math.log10(hi / lo) >= 2 - 1e-9 && decades.length >= 2 ? decades : out.length >= 2 ? out : ticks(lo, hi, false);
     }
     var span = hi - lo || 1, step = linearStep(lo, hi);
@@ -242,11 +252,23 @@
     for (var j = m.length - 1; j >= 0; j--) if (m[j] * p <= v * (1 + 1e-9)) return m[j] * p;
     return v;
   }
-  function logBounds(lo, hi) {  // a log axis from a label to a label, so every value lies between two labels
+  function logBounds(lo, hi) {  // [low, high, decades per label]: from a label to a label, every value between two
     var a = nice125(lo, false), b = nice125(hi, true);
-    if (Math.log10(b / a) < 2) return [a, b];  // labels at 1, 2 and 5 times powers of ten
-    return [Math.pow(10, Math.floor(Math.log10(lo) + 1e-9)), Math.pow(10, Math.ceil(Math.log10(hi) - 1e-9))];  // decades
+    if (Math.log10(b / a) < 2) return [a, b, 0];  // labels at 1, 2 and 5 times powers of ten
+    var p = Math.floor(Math.log10(lo) + 1e-9), q = Math.ceil(Math.log10(hi) - 1e-9);
+    var every = Math.max(1, Math.ceil((q - p) / MAX_INTERVALS));
+    return [Math.pow(10, p), Math.pow(10, p + every * Math.ceil((q - p) / every)), every];  // decades
   }
+  var SUPER = {"-": "\u207b", "0": "\u2070", "1": "\u00b9", "2": "\u00b2", "3": "\u00b3", "4": "\u2074",
+               "5": "\u2075", "6": "\u2076", "7": "\u2077", "8": "\u2078", "9": "\u2079"};
+  function tickLabel(v) {  // short at any magnitude: 0.01, 500, 10⁶, 2×10⁻⁵
+    if (v === 0 || !isFinite(v)) return fmt(v);
+    var e = Math.floor(Math.log10(Math.abs(v)) + 1e-9);
+    if (e >= -3 && e <= 4) return fmt(v);
+    var m = Number((v / Math.pow(10, e)).toPrecision(3));
+    return (m === 1 ? "" : m === -1 ? "-" : fmt(m) + "\u00d7") + "10" + String(e).split("").map(function (c) { return SUPER[c]; }).join("");
+  }
+  var TIME_UNITS = [[7200, 3600, "h"], [120, 60, "min"], [0, 1, "s"]];  // [from a span of, seconds per unit, name]
   function plot(spec) {
     var W = 560, H = 190, L0 = 58, R0 = 10, T0 = 22, B0 = 34;
     var s = svg("svg", {viewBox: "0 0 " + W + " " + H, "class": "plot", role: "img", "aria-label": spec.title});
@@ -260,15 +282,18 @@
     if (spec.floor !== undefined) ymin = Math.max(ymin, spec.floor);
     if (!isFinite(xmin)) { s.appendChild(svg("text", {x: W / 2, y: H / 2, "text-anchor": "middle"})).textContent = "no values"; return s; }
     if (spec.xr) { xmin = spec.xr[0]; xmax = spec.xr[1]; }  // every plot of a track on the same time axis
+    var xs0 = spec.xr ? spec.xr[0] : xmin;  // the track's first point: time 0 of the axis
     if (!spec.log) { ymin = Math.min(0, ymin); }
     if (ymax <= ymin) {  // a constant series: in the middle of the plot, between two labels
       if (spec.log) { ymin = ymin / 2; ymax = ymax * 2; } else { ymin = ymin - 1; ymax = ymax + 1; }
     }
-    if (spec.log) { var lb = logBounds(ymin, ymax); ymin = lb[0]; ymax = lb[1]; } else {
+    var every = 0;
+    if (spec.log) { var lb = logBounds(ymin, ymax); ymin = lb[0]; ymax = lb[1]; every = lb[2]; } else {
       var st = linearStep(ymin, ymax);  // from a label to a label
       ymin = Math.floor(ymin / st + 1e-9) * st; ymax = Math.ceil(ymax / st - 1e-9) * st;
     }
     if (xmax <= xmin) xmax = xmin + 1;
+    var unit = TIME_UNITS.filter(function (u) { return xmax - xmin >= u[0]; })[0];
     var ly = spec.log ? Math.log10 : function (v) { return v; };
     var a = ly(ymin), b = ly(ymax);
     function X(v) { return L0 + (v - xmin) / (xmax - xmin) * (W - L0 - R0); }
@@ -278,15 +303,17 @@
       s.appendChild(svg("rect", {x: L0, y: Y(spec.band[1]), width: W - L0 - R0, height: Y(spec.band[0]) - Y(spec.band[1]),
                                  fill: "#2ca02c", "fill-opacity": 0.12, "class": "band"}));
     }
-    ticks(ymin, ymax, spec.log).forEach(function (t) {
+    ticks(ymin, ymax, spec.log, every).forEach(function (t) {
       s.appendChild(svg("line", {x1: L0 - 3, x2: L0, y1: Y(t), y2: Y(t), stroke: "#444"}));
-      s.appendChild(svg("text", {x: L0 - 5, y: Y(t) + 4, "text-anchor": "end", "class": "tick"})).textContent = fmt(t);
+      s.appendChild(svg("text", {x: L0 - 5, y: Y(t) + 4, "text-anchor": "end", "class": "tick"})).textContent = tickLabel(t);
     });
-    ticks(xmin, xmax, false).forEach(function (t) {
-      s.appendChild(svg("line", {x1: X(t), x2: X(t), y1: H - B0, y2: H - B0 + 3, stroke: "#444"}));
-      s.appendChild(svg("text", {x: X(t), y: H - B0 + 15, "text-anchor": "middle", "class": "tick"})).textContent = fmt(t);
+    ticks((xmin - xs0) / unit[1], (xmax - xs0) / unit[1], false).forEach(function (t) {
+      var x = X(xs0 + t * unit[1]);
+      s.appendChild(svg("line", {x1: x, x2: x, y1: H - B0, y2: H - B0 + 3, stroke: "#444"}));
+      s.appendChild(svg("text", {x: x, y: H - B0 + 15, "text-anchor": "middle", "class": "tick xtick"})).textContent = tickLabel(t);
     });
-    s.appendChild(svg("text", {x: (L0 + W - R0) / 2, y: H - 4, "text-anchor": "middle", "class": "axis"})).textContent = "time since the track's first point (s)";
+    s.appendChild(svg("text", {x: (L0 + W - R0) / 2, y: H - 4, "text-anchor": "middle", "class": "axis"})).textContent =
+      "time since the track's first point (" + unit[2] + ")";
     s.appendChild(svg("text", {x: L0, y: 14, "class": "title"})).textContent = spec.title;
     if (spec.dots) {
       for (i = 0; i < xs.length; i++) {
@@ -334,7 +361,7 @@
                             colour: tr.colour, log: true, dots: true, band: band, mark: rejected, floor: floor, xr: xr}));
       shown.push("NIS of every fix" + (band ? " against the 95 % χ² band of " + tr.dof + " degrees of freedom (green)" : "")
                  + (rejected.some(Boolean) ? ", fixes rejected by the gate as orange rings" : "")
-                 + (low ? "; values below " + fmt(floor) + " are drawn on the axis" : ""));
+                 + (low ? "; values below " + tickLabel(floor) + " are drawn on the axis" : ""));
     }
     if (tr.err) { box.appendChild(plot({title: "error against truth (m)", x: tr.time, y: tr.err, colour: "#d62728", log: true, xr: xr})); shown.push("error against truth"); }
     var cap = "Track " + id + ": " + shown.join("; ") + ". " + tr.drawn + " of " + tr.n + " points drawn"
