@@ -245,13 +245,12 @@ def test_ml_of_a_parameter_of_any_sign():
         assert isinstance(fit, FitResult) and fit.model.F[0, 0] == fit.params["phi"]
 
 
-def test_ml_reports_an_undetermined_parameter_with_infinite_standard_error():
-    """A parameter the likelihood does not depend on: its standard error is inf, the others finite."""
+def test_ml_refuses_a_parameter_the_data_do_not_determine():
+    """A parameter the likelihood does not depend on has no standard error: refused, naming it."""
     make = lambda q, sigma, unused: _cv(q, sigma)  # noqa: E731
     _, z = simulate_linear(_cv(0.5, 3.0), 200, np.random.default_rng(1))
-    fit = fit_ml(make, z, {"q": 1.0, "sigma": 1.0, "unused": 1.0}, P0=np.eye(2))
-    assert fit.stderr["unused"] == np.inf and fit.params["unused"] == 1.0
-    assert np.isfinite(fit.stderr["q"]) and np.isfinite(fit.stderr["sigma"])
+    with pytest.raises(ParameterError, match="^params: the data do not determine unused:"):
+        fit_ml(make, z, {"q": 1.0, "sigma": 1.0, "unused": 1.0}, P0=np.eye(2))
 
 
 # ---------------------------------------------------------------- bad input
@@ -305,3 +304,18 @@ def test_ml_errors_name_the_argument():
             fit_ml(args["model"], z, args["params"], P0=P0, positive=args["positive"], iterations=args["iterations"])
     with pytest.raises(ParameterError, match="^P0:"):
         fit_ml(_cv, z, {"q": 1.0, "sigma": 1.0}, P0=None)
+
+
+@pytest.mark.parametrize("scale", [1e-150, 1e-100, 1e100, 1e150])
+def test_fits_do_not_depend_on_the_units(scale):
+    """Measurements and noise at the edges of the float range (metres -> 1e150 m): the same fit as in
+    metres, the log-likelihood shifted by T ln(scale) (the density's units)."""
+    z = simulate_linear(_cv(0.5, 3.0), 60, np.random.default_rng(4))[1]
+    fits = []
+    for s in (1.0, scale):
+        em = fit_em(_cv(s**2, s), z * s, P0=s**2 * np.eye(2), iterations=5)
+        ml = fit_ml(lambda q, sigma: _cv(q * s**2, sigma * s), z * s, {"q": 1.0, "sigma": 1.0}, P0=s**2 * np.eye(2))
+        fits.append((em.model.Q / s**2, em.model.R / s**2, em.loglik + 60 * np.log(s), ml.params["q"],
+                     ml.params["sigma"], ml.loglik[-1] + 60 * np.log(s)))
+    for a, b in zip(*fits):
+        np.testing.assert_allclose(b, a, rtol=1e-5)

@@ -30,7 +30,7 @@ import scipy.optimize
 
 from .._blas import one_blas_thread
 from .._rts import rts_backward
-from .._validation import as_real, check_int
+from .._validation import as_real, check_int, finite_result
 from ..errors import ConvergenceError, MptrackError, NotPositiveDefiniteError, ParameterError
 from ..models import LinearGaussianModel, require_model
 from ._common import prepare_inputs
@@ -55,7 +55,7 @@ class FitResult:
     method      "EM" or "ML"
     params      (fit_ml) the fitted parameters {name: value}
     stderr      (fit_ml) their standard errors from the observed information (the inverse Hessian of
-                the log-likelihood); inf for a parameter the data do not determine
+                the log-likelihood)
     cov         (fit_ml) the covariance matrix of the parameters, in the order of ``params``
     """
 
@@ -73,6 +73,7 @@ class FitResult:
 
 # ================================================================ EM
 
+@finite_result("the EM fit")
 def fit_em(model: LinearGaussianModel, z, *, x0=None, P0, estimate=("Q", "R", "x0", "P0"),
            iterations: int = 100, tol: float = 1e-8, prior: str = "initial", B=None, u=None) -> FitResult:
     """Fit the matrices of a linear-Gaussian model to measurements by expectation-maximisation.
@@ -317,6 +318,7 @@ def _sym(M: np.ndarray) -> np.ndarray:
 
 # ================================================================ direct maximisation
 
+@finite_result("the likelihood fit")
 def fit_ml(model: Callable[..., LinearGaussianModel], z, params: Mapping[str, float], *, x0=None, P0,
            positive=None, iterations: int = 200, tol: float = 1e-10, prior: str = "initial", B=None,
            u=None) -> FitResult:
@@ -344,7 +346,7 @@ def fit_ml(model: Callable[..., LinearGaussianModel], z, params: Mapping[str, fl
         The parameters that must be > 0 (fitted on the log scale); default: all of them, as noise
         parameters are.  Give ``()`` for parameters of any sign.
     iterations : int
-        The most quasi-Newton iterations.
+        The most quasi-Newton iterations (>= 1).
     tol : float
         Stop when an iteration raises the log-likelihood by less than ``tol`` times its magnitude.
     prior : {"initial", "first-measurement"}
@@ -364,9 +366,12 @@ def fit_ml(model: Callable[..., LinearGaussianModel], z, params: Mapping[str, fl
         ``model`` is not callable or does not return a LinearGaussianModel; ``params`` is empty, holds
         a value that is not a finite real number, or a non-positive value of a ``positive`` parameter;
         ``positive`` names a parameter that ``params`` does not have; the model cannot be built or
-        filtered at the starting values.
+        filtered at the starting values; the data do not determine a parameter (the log-likelihood is
+        flat along it at the maximum: a parameter the model ignores, or a variance whose estimate
+        goes to 0).
     ConvergenceError
-        The likelihood cannot be evaluated at a point the search reaches (the message gives it).
+        The likelihood cannot be evaluated at a point the search reaches (the message gives it), or
+        the iterations ran out before a maximum (no standard errors there).
     ShapeError, NonFiniteError
         As :func:`kalman_filter`, for z, x0, P0, B and u.
 
@@ -399,7 +404,7 @@ def fit_ml(model: Callable[..., LinearGaussianModel], z, params: Mapping[str, fl
         if on_log and not value > 0:
             raise ParameterError(f"params: {name} must be > 0 (it is fitted on the log scale; list the parameters "
                                  f"of any sign in positive=), got {value!r}")
-    iterations = check_int("iterations", iterations, minimum=0)
+    iterations = check_int("iterations", iterations, minimum=1)
     tol = as_real("tol", tol, low=0.0)
     if prior not in PRIORS:
         raise ParameterError(f"prior: expected one of {PRIORS}, got {prior!r}")
@@ -450,14 +455,20 @@ def fit_ml(model: Callable[..., LinearGaussianModel], z, params: Mapping[str, fl
     def record(intermediate_result):
         trace.append(-float(intermediate_result.fun))
 
-    theta, converged = theta0, False
     with one_blas_thread(first.n):      # few-by-few matrices: BLAS's threads would only spin
-        if iterations:
-            opt = scipy.optimize.minimize(lambda t: -loglik(t), theta0, jac=lambda t: -gradient(t),
-                                          method="L-BFGS-B", callback=record,
-                                          options=dict(maxiter=iterations, ftol=tol, gtol=0.0))
-            theta, converged = opt.x, bool(opt.success and opt.nit < iterations)
-        cov_theta = _inverse_information(loglik, theta)
+        opt = scipy.optimize.minimize(lambda t: -loglik(t), theta0, jac=lambda t: -gradient(t), method="L-BFGS-B",
+                                      callback=record, options=dict(maxiter=iterations, ftol=tol, gtol=0.0))
+        theta, converged = opt.x, bool(opt.success)
+        cov_theta, lost = _inverse_information(loglik, theta, names)
+    if lost and not converged:
+        raise ConvergenceError(f"iterations: the search stopped after {iterations} iterations short of a maximum (at "
+                               f"{_show(natural(theta))} the log-likelihood is not concave along {', '.join(lost)}); "
+                               "allow more iterations or start closer")
+    if lost:
+        raise ParameterError(f"params: the data do not determine {', '.join(lost)}: the log-likelihood is flat along "
+                             f"{'it' if len(lost) == 1 else 'them'} at the maximum ({_show(natural(theta))}); leave "
+                             "such a parameter out of params (fix it in the model function), e.g. a parameter the "
+                             "model ignores or a variance whose estimate goes to 0")
     fitted = build(theta)
     scale = np.where(log, np.exp(np.where(log, theta, 0.0)), 1.0)     # d natural / d theta
     cov = cov_theta * np.outer(scale, scale)
@@ -496,9 +507,10 @@ def _positive_mask(positive, names) -> np.ndarray:
     return np.array([name in chosen for name in names])
 
 
-def _inverse_information(loglik, theta) -> np.ndarray:
-    """The inverse of the observed information -d2 l / d theta2 at theta (central differences, step
-    1e-3 of each coordinate's scale); inf in the directions where it is not positive definite."""
+def _inverse_information(loglik, theta, names) -> tuple[np.ndarray | None, list]:
+    """(the inverse of the observed information -d2 l / d theta2 at theta, []) (central differences,
+    step 1e-3 of each coordinate's scale), or (None, the names of the parameters along which it is not
+    positive definite)."""
     k = theta.size
     h = 1e-3 * np.maximum(1.0, np.abs(theta))
     l0 = loglik(theta)
@@ -513,12 +525,10 @@ def _inverse_information(loglik, theta) -> np.ndarray:
             Hs[i, j] = Hs[j, i] = (loglik(theta + ei + ej) - loglik(theta + ei - ej) - loglik(theta - ei + ej)
                                    + loglik(theta - ei - ej)) / (4.0 * h[i] * h[j])
     w, U = np.linalg.eigh(-0.5 * (Hs + Hs.T))
-    good = w > 1e-9 * max(np.abs(w).max(), np.finfo(float).tiny)
-    cov = (U[:, good] / w[good]) @ U[:, good].T
-    lost = (U[:, ~good] ** 2).sum(axis=1) > 1e-12          # a coordinate along a flat or curved-up direction
-    cov[lost, :] = np.inf
-    cov[:, lost] = np.inf
-    return cov
+    flat = w <= 1e-9 * max(np.abs(w).max(), np.finfo(float).tiny)
+    if flat.any():
+        return None, [name for name, weight in zip(names, (U[:, flat] ** 2).sum(axis=1)) if weight > 1e-3]
+    return (U / w) @ U.T, []
 
 
 def _show(values: dict) -> str:
