@@ -1294,6 +1294,22 @@ CORPUS = [
         np.eye(4)), ("model", "sigma_r2", "P0")),
     ("a5", "ekf_ranges_batch R 1e-30", lambda: cellular.ekf_ranges_batch(
         np.full((1, 3, 3), 500.0), STATIONS, [[1.0, 1.0]], np.eye(2), np.eye(2), 1e-30), ("R", "P0")),
+    # issue 35: the last fuzz findings (each was unclean, non-finite or accepted before)
+    ("i35", "range_fix stations 1e-200", lambda: cellular.range_fix([1.0, 2.0, 3.0], STATIONS * 1e-200),
+     ("stations", "ranges")),
+    ("i35", "gated z 1e300", lambda: tracking.kalman_filter_gated(
+        CV2, [0.0, 1.0, 2.0], np.array([[0.0, 0.0], [1e300, 1.0], [2.0, -1e300]]), np.zeros(4), np.eye(4) * 100.0),
+     ("z",)),
+    ("i35", "gated z 1e300 ungated", lambda: tracking.kalman_filter_gated(
+        CV2, [0.0, 1.0, 2.0], np.array([[0.0, 0.0], [1e300, 1.0], [2.0, 1.0]]), np.zeros(4), np.eye(4) * 100.0,
+        gate_probability=None), ("z",)),
+    ("i35", "riccati_residual entries beyond 1e154", lambda: riccati.riccati_residual(
+        _lgm(np.diag([1.0, 1e100]), [[1.0, 0.0]], np.eye(2), [[1.0]]), np.eye(2) * 1e100), ("model", "P_pred")),
+    ("i35", "fir_filter eps inf with M", lambda: linear.fir_filter(B, np.ones((3, 1)), eps=np.inf, M=3), ("eps",)),
+    ("i35", "batch.fir_filter eps inf with M", lambda: batch.fir_filter(B, np.ones((2, 3, 1)), eps=np.inf, M=3),
+     ("eps",)),
+    ("i35", "fir_filter norm 7 with M", lambda: linear.fir_filter(B, np.ones((3, 1)), norm=7, M=3), ("norm",)),
+    ("i35", "fir_order eps inf", lambda: linear.fir_order(0.5 * np.eye(2), np.inf), ("eps",)),
 ]
 
 
