@@ -28,9 +28,9 @@ from collections.abc import Callable, Mapping
 import numpy as np
 import scipy.optimize
 
-from .._blas import one_blas_thread
-from .._rts import rts_backward
-from .._validation import as_real, check_int, finite_result
+from .._core.blas import one_blas_thread
+from .._core.rts import rts_backward
+from .._core.validation import as_real, check_int, finite_result
 from ..errors import ConvergenceError, MptrackError, NotPositiveDefiniteError, ParameterError
 from ..models import LinearGaussianModel, require_model
 from ._common import prepare_inputs

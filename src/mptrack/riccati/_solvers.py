@@ -19,7 +19,7 @@ from typing import Literal
 import numpy as np
 import scipy.linalg
 
-from ._blas import one_blas_thread
+from .._core.blas import one_blas_thread
 from .._core.validation import _overflow, check_covariance, check_int, check_positive, renamed, require_finite
 from ..errors import ConvergenceError, MptrackError, ParameterError
 from ..models import LinearGaussianModel, require_model
