@@ -128,7 +128,7 @@ def fit_em(model: LinearGaussianModel, z, *, x0=None, P0, estimate=("Q", "R", "x
     .. [2] Z. Ghahramani and G. E. Hinton, "Parameter estimation for linear dynamical systems", Technical
            Report CRG-TR-96-2, University of Toronto, 1996.
     .. [3] R. H. Shumway and D. S. Stoffer, Time Series Analysis and Its Applications, 4th ed., Springer,
-           2017, sections 6.3-6.4. doi:10.1007/978-3-319-52452-8
+           2017. doi:10.1007/978-3-319-52452-8
 
     Examples
     --------
@@ -380,7 +380,7 @@ def fit_ml(model: Callable[..., LinearGaussianModel], z, params: Mapping[str, fl
     .. [1] F. C. Schweppe, "Evaluation of likelihood functions for Gaussian signals", IEEE Transactions on
            Information Theory, vol. 11, no. 1, pp. 61–70, 1965. doi:10.1109/TIT.1965.1053737
     .. [2] R. H. Shumway and D. S. Stoffer, Time Series Analysis and Its Applications, 4th ed., Springer,
-           2017, section 6.3. doi:10.1007/978-3-319-52452-8
+           2017. doi:10.1007/978-3-319-52452-8
 
     Examples
     --------
