@@ -259,50 +259,52 @@ class _EMState:
     def _measurement(self, wanted: frozenset):
         """(H, R) of the M-step from the expected moments of each measurement row with its state."""
         m = self.model
-        z = self.z
-        seen = ~np.isnan(z)
+        seen = ~np.isnan(self.z)
         used = seen.any(axis=1)
         mu, V = self.mu[self.rows[used]], self.V[self.rows[used]]
-        z, seen = z[used], seen[used]
+        z, seen = self.z[used], seen[used]
         # each row as z = a + E x + e with x ~ N(mu, V) and e ~ N(0, Se) independent of x: the observed
-        # components as they are (E = 0, e = 0), the missing ones from their distribution given them
-        a, E, Se = _conditional_rows(z, seen, m.H, m.R)
-        Ez = a + np.einsum("tij,tj->ti", E, mu)
+        # components as they are, the missing ones of a partly observed row from their law given the
+        # observed ones (E and e are zero on complete rows, so only partly observed rows carry them)
+        a, part, E, Se = _conditional_rows(z, seen, m.H, m.R)
+        EV = E @ V[part]                                         # (rows with a missing component, m, n)
+        Ez = a.copy()
+        Ez[part] += np.einsum("tij,tj->ti", E, mu[part])
         H = m.H
         if "H" in wanted:
             Sxx = V.sum(axis=0) + mu.T @ mu
-            Szx = Ez.T @ mu + np.einsum("tij,tjk->ik", E, V)
+            Szx = Ez.T @ mu + EV.sum(axis=0)
             H = np.linalg.lstsq(Sxx, Szx.T, rcond=None)[0].T
         if "R" not in wanted:
             return H, m.R
-        D = E - H                                           # z - H x = a + (E - H) x + e
+        # sum of Cov(z - H x) = (E - H) V (E - H)^T + Se over the rows, E zero on the complete ones
         r = Ez - mu @ H.T
-        R = (r.T @ r + np.einsum("tij,tjk,tlk->il", D, V, D) + Se.sum(axis=0)) / z.shape[0]
-        return H, _sym(R)
+        EVH = EV.sum(axis=0) @ H.T
+        cov = H @ V.sum(axis=0) @ H.T + np.einsum("tij,tkj->ik", EV, E) - EVH - EVH.T + Se
+        return H, _sym((r.T @ r + cov) / z.shape[0])
 
 
 def _conditional_rows(z, seen, H, R):
-    """Rows (q, m) of measurements with some components missing, as z = a + E x + e: a = the observed
-    values and, for a missing component u, R_uo R_oo^-1 z_o; E = 0 on observed components and
-    H_u - R_uo R_oo^-1 H_o on missing ones; Se = the missing components' covariance given the observed
-    ones.  Complete rows: a = z, E = 0, Se = 0."""
+    """Measurement rows (q, m) as z = a + E x + e (module docstring): a = the observed values and, for a
+    missing component u of a partly observed row, R_uo R_oo^-1 z_o; E = H_u - R_uo R_oo^-1 H_o on the
+    missing components (zero elsewhere); e ~ N(0, R_uu - R_uo R_oo^-1 R_ou) there.  Returns (a (q, m),
+    the indices (p,) of the partly observed rows, their E (p, m, n), the sum of their covariances of e)."""
     q, mdim = z.shape
     a = np.where(seen, z, 0.0)
-    E = np.zeros((q, mdim, H.shape[1]))
-    Se = np.zeros((q, mdim, mdim))
-    partial = ~seen.all(axis=1)
-    if not partial.any():
-        return a, E, Se
-    codes = seen[partial] @ (1 << np.arange(mdim))
+    part = np.flatnonzero(~seen.all(axis=1))
+    E = np.zeros((part.size, mdim, H.shape[1]))
+    Se = np.zeros((mdim, mdim))
+    codes = seen[part] @ (1 << np.arange(mdim))
     for code in np.unique(codes):
-        rows = np.flatnonzero(partial)[codes == code]
+        at = np.flatnonzero(codes == code)
+        rows = part[at]
         o = seen[rows[0]]
         u = ~o
         W = np.linalg.solve(R[np.ix_(o, o)], R[np.ix_(o, u)]).T        # R_uo R_oo^-1
         a[np.ix_(rows, u)] = z[np.ix_(rows, o)] @ W.T
-        E[np.ix_(rows, u)] = H[u] - W @ H[o]
-        Se[np.ix_(rows, u, u)] = R[np.ix_(u, u)] - W @ R[np.ix_(o, u)]
-    return a, E, Se
+        E[np.ix_(at, u)] = H[u] - W @ H[o]
+        Se[np.ix_(u, u)] += rows.size * (R[np.ix_(u, u)] - W @ R[np.ix_(o, u)])
+    return a, part, E, Se
 
 
 def _prepare(model, z, x0, P0):
