@@ -317,7 +317,7 @@ def _public(package: str, attr: str):
 #: Result records: built by mptrack and returned, not built from user input; their array fields are
 #: checked where a record is passed back in (``check_record``).  Warning and exception classes too.
 RECORDS = {
-    "linear.FilterResult", "linear.FilterSpec", "linear.Implementation", "batch.GainSequence", "batch.Chunk",
+    "linear.FilterResult", "linear.FitResult", "linear.FilterSpec", "linear.Implementation", "batch.GainSequence", "batch.Chunk",
     "riccati.SteadyState", "riccati.LainiotisParameters", "nonlinear.BatchFilterResult", "continuous.BlockKernels",
     "continuous.GridDensity", "continuous.GridMixture", "continuous.FEMStep", "nonlinear.IMMResult", "radio.GsmBand", "radio.ValidityWarning",
     "fuzzy.AnfisResult", "tracking.GatedResult", "tracking.MotionModel", "io.ReadReport", "io.InputNotSorted",
@@ -399,6 +399,31 @@ target("linear.rts_smoother_irregular", lambda times, x: linear.rts_smoother_irr
     CV, times, dataclasses.replace(KFI, x=x)), times=arg((3,), valid=[1.0, 2.0, 3.0]), x=arg((3, 2), valid=KFI.x),
     passed=("result",))
 target("linear.sampling_intervals", times=arg((3,), valid=[1.0, 2.0, 3.0]), t0=scalar())
+Z_B = sim.simulate_linear(B, 6, np.random.default_rng(0))[1]
+target("linear.fit_em", lambda model, z, x0, P0, estimate, iterations, tol, prior: linear.fit_em(
+    _model(model), z, x0=x0, P0=P0, estimate=estimate, iterations=iterations, tol=tol, prior=prior),
+    passed=MODEL_PASSED, model=MODEL, z=arg((6, 1), valid=Z_B), x0=maybe(arg((2,))), P0=covariance(2),
+    estimate=st.one_of(st.sampled_from([("Q", "R"), ("F", "H", "Q", "R", "x0", "P0"), "R", ("x0", "P0")]),
+                       st.sampled_from([("Q", "R", "x0"), ("Q", "K"), (), 3, None])),
+    iterations=st.one_of(st.integers(0, 8), count(0, 5, big=50)), tol=st.one_of(st.floats(0.0, 1e-3), scalar(0, 1)),
+    prior=names("initial", "first-measurement"))
+
+
+Z_B40 = sim.simulate_linear(B, 40, np.random.default_rng(0))[1]    # enough to determine q and sigma
+
+
+def _cv_b(q, sigma):
+    """Model B with its process noise scaled by q and measurement sd sigma: fit_ml's model function."""
+    return LinearGaussianModel(B.F, B.H, q * B.Q, [[sigma * sigma]])
+
+
+target("linear.fit_ml", lambda q, sigma, z, x0, P0, positive, iterations: linear.fit_ml(
+    _cv_b, z, {"q": q, "sigma": sigma}, x0=x0, P0=P0, positive=positive, iterations=iterations),
+    q=st.one_of(st.floats(0.01, 10.0), st.floats(0.01, 10.0), scalar(0, 10)),
+    sigma=st.one_of(st.floats(0.1, 10.0), st.floats(0.1, 10.0), scalar(0, 10)), z=arg((40, 1), valid=Z_B40),
+    x0=maybe(arg((2,))), P0=covariance(2),
+    positive=st.one_of(st.none(), st.none(), st.just(("q",)), st.sampled_from([("x",), 3, ()])),
+    iterations=st.one_of(st.integers(1, 20), count(1, 5, big=50)), passed=("params", "model"))
 
 # --- batch ------------------------------------------------------------------------------------------------
 for _name in ("steady_state_filter", "kalman_filter"):
@@ -1269,6 +1294,22 @@ CORPUS = [
         np.eye(4)), ("model", "sigma_r2", "P0")),
     ("a5", "ekf_ranges_batch R 1e-30", lambda: cellular.ekf_ranges_batch(
         np.full((1, 3, 3), 500.0), STATIONS, [[1.0, 1.0]], np.eye(2), np.eye(2), 1e-30), ("R", "P0")),
+    # issue 35: the last fuzz findings (each was unclean, non-finite or accepted before)
+    ("i35", "range_fix stations 1e-200", lambda: cellular.range_fix([1.0, 2.0, 3.0], STATIONS * 1e-200),
+     ("stations", "ranges")),
+    ("i35", "gated z 1e300", lambda: tracking.kalman_filter_gated(
+        CV2, [0.0, 1.0, 2.0], np.array([[0.0, 0.0], [1e300, 1.0], [2.0, -1e300]]), np.zeros(4), np.eye(4) * 100.0),
+     ("z",)),
+    ("i35", "gated z 1e300 ungated", lambda: tracking.kalman_filter_gated(
+        CV2, [0.0, 1.0, 2.0], np.array([[0.0, 0.0], [1e300, 1.0], [2.0, 1.0]]), np.zeros(4), np.eye(4) * 100.0,
+        gate_probability=None), ("z",)),
+    ("i35", "riccati_residual entries beyond 1e154", lambda: riccati.riccati_residual(
+        _lgm(np.diag([1.0, 1e100]), [[1.0, 0.0]], np.eye(2), [[1.0]]), np.eye(2) * 1e100), ("model", "P_pred")),
+    ("i35", "fir_filter eps inf with M", lambda: linear.fir_filter(B, np.ones((3, 1)), eps=np.inf, M=3), ("eps",)),
+    ("i35", "batch.fir_filter eps inf with M", lambda: batch.fir_filter(B, np.ones((2, 3, 1)), eps=np.inf, M=3),
+     ("eps",)),
+    ("i35", "fir_filter norm 7 with M", lambda: linear.fir_filter(B, np.ones((3, 1)), norm=7, M=3), ("norm",)),
+    ("i35", "fir_order eps inf", lambda: linear.fir_order(0.5 * np.eye(2), np.inf), ("eps",)),
 ]
 
 

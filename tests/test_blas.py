@@ -1,12 +1,13 @@
-"""mptrack.riccati._blas: small Riccati solves run on one BLAS thread (OpenBLAS's spinning workers would take the
+"""mptrack._core.blas: small Riccati solves run on one BLAS thread (OpenBLAS's spinning workers would take the
 cores of the numba kernel that follows)."""
 
 import numpy as np
 import scipy.linalg  # noqa: F401 - its OpenBLAS is one of the libraries limited
 from threadpoolctl import threadpool_info
 
+from mptrack._core import blas as _blas
 from mptrack.models import assimakis_model_b
-from mptrack.riccati import _blas, steady_state
+from mptrack.riccati import steady_state
 
 
 def _blas_threads():

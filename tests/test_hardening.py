@@ -22,9 +22,10 @@ import scipy.linalg
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from mptrack import batch, linear, riccati
+from mptrack import batch, linear, riccati, tracking
 from mptrack.errors import (
     ConvergenceError,
+    MptrackError,
     NonFiniteError,
     NotPositiveDefiniteError,
     ParameterError,
@@ -538,3 +539,106 @@ def test_duplicate_stations_are_found_by_sorting():
     assert check_stations(many).shape == (20_000, 2)
     with pytest.raises(ParameterError, match=r"^stations: stations 0 and 2 are at the same position"):
         check_stations([[0.0, 0.0], [1.0, 0.0], [-0.0, 0.0]])
+
+
+# --- issue 35: the last fuzz findings' siblings ------------------------------------------------------
+# Each finding was a computation that worked in the units of the tests (metres, variances near 1) and
+# broke at other scales: an absolute floor, a rank tolerance or a norm that squares.  The siblings are
+# checked as properties over 600 orders of magnitude: the same answer in any units, or a clear error.
+
+_SCALES = st.integers(-200, 140).map(lambda e: 10.0 ** e)
+
+
+@settings(max_examples=40, deadline=None)
+@given(scale=_SCALES, offset=st.sampled_from([0.0, 1e6]), seed=st.integers(0, 2**32 - 1))
+def test_range_fix_does_not_depend_on_the_units(scale, offset, seed):
+    """Stations and handset in any unit (1e-200 .. 1e140 m) and far from the origin: the same fix."""
+    from mptrack import cellular
+    rng = np.random.default_rng(seed)
+    stations = rng.uniform(0.0, 1000.0, size=(4, 2)) + offset
+    truth = rng.uniform(0.0, 1000.0, size=2) + offset
+    ranges = np.linalg.norm(truth - stations, axis=1) + rng.normal(0.0, 1.0, 4)
+    base = cellular.range_fix(np.abs(ranges), stations)
+    scaled = cellular.range_fix(np.abs(ranges) * scale, stations * scale)
+    np.testing.assert_allclose(scaled / scale, base, rtol=0, atol=1e-9 * (1000.0 + offset))
+
+
+def test_range_fix_refuses_stations_that_are_one_point_at_the_scale_of_the_ranges():
+    from mptrack import cellular
+    with pytest.raises(SingularMatrixError, match="^stations: .*negligible against ranges up to 3"):
+        cellular.range_fix([1.0, 2.0, 3.0], H.STATIONS * 1e-200)
+
+
+@settings(max_examples=30, deadline=None)
+@given(scale=st.integers(-300, 300).map(lambda e: 10.0 ** e), method=st.sampled_from(riccati.METHODS))
+def test_steady_state_does_not_depend_on_the_noise_units(scale, method):
+    """(Q, R) in any unit: P scales with them.  The existence checks read a Q of 1e50 or 1e-100 against F
+    of 1 as 'not stabilisable', and the iterations stopped after one step once P's squares overflowed."""
+    model = LinearGaussianModel(B.F, B.H, B.Q * scale, B.R * scale)
+    ss, ref = riccati.steady_state(model, method), riccati.steady_state(B, method)
+    np.testing.assert_allclose(ss.P_pred / scale, ref.P_pred, rtol=1e-9)
+    np.testing.assert_allclose(ss.K, ref.K, rtol=1e-9, atol=1e-12)
+
+
+@pytest.mark.parametrize("h", [1e-100, 1e100])
+def test_steady_state_does_not_depend_on_the_measurement_units(h):
+    model = LinearGaussianModel(B.F, B.H * h, B.Q, B.R * h * h)
+    np.testing.assert_allclose(riccati.steady_state(model).P_pred, riccati.steady_state(B).P_pred, rtol=1e-9)
+
+
+def test_riccati_residual_of_entries_beyond_1e154():
+    """The residual's norms square the entries: formed in units of the largest it is the documented
+    ||REKF(Pp) - Pp|| / max(1, ||Pp||) (here the step multiplies P[1, 1] by 1e200; the residual was inf)."""
+    model = LinearGaussianModel(np.diag([1.0, 1e100]), [[1.0, 0.0]], np.eye(2), [[1.0]])
+    # ||diag(1 - 1e100, 1e300 - 1e100)|| / ||1e100 I|| = 1e300 / (sqrt(2) 1e100); it was inf
+    assert riccati.riccati_residual(model, np.eye(2) * 1e100) == pytest.approx(1e200 / np.sqrt(2.0), rel=1e-12)
+
+
+@settings(max_examples=25, deadline=None)
+@given(scale=st.integers(-150, 150).map(lambda e: 10.0 ** e), seed=st.integers(0, 2**32 - 1))
+def test_range_ekf_does_not_depend_on_the_units(scale, seed):
+    """The range Jacobian divided by max(range, 1e-12 m): below ~1e-10 m the floor was the range."""
+    from mptrack import cellular
+    rng = np.random.default_rng(seed)
+    path = np.array([300.0, 400.0]) + np.cumsum(rng.normal(0.0, 10.0, (5, 2)), axis=0)
+    z = np.linalg.norm(path[:, None] - H.STATIONS, axis=-1) + rng.normal(0.0, 5.0, (5, 3))
+    args = lambda s: (np.abs(z) * s, H.STATIONS * s, path[0] * s, np.eye(2) * (100.0 * s) ** 2,  # noqa: E731
+                      np.eye(2) * (10.0 * s) ** 2, (5.0 * s) ** 2)
+    base = cellular.ekf_ranges(*args(1.0))
+    scaled = cellular.ekf_ranges(*args(scale))
+    np.testing.assert_allclose(scaled.x / scale, base.x, rtol=1e-8, atol=1e-8)
+
+
+@settings(max_examples=40, deadline=None)
+@given(data=st.data())
+def test_gated_filter_outputs_are_finite_or_the_measurements_are_named(data):
+    """Every output of the gated filter (estimates, predictions, innovations, NIS, log-likelihood), not
+    only x and P: fixes of any magnitude give finite outputs (NaN = not used) or a NonFiniteError on z."""
+    z = data.draw(H.real_arrays((4, 2), nonfinite=False).filter(lambda a: a.dtype.kind == "f"))
+    gate = data.draw(st.sampled_from([0.999, None]))
+    try:
+        r = tracking.kalman_filter_gated(H.CV2, [0.0, 1.0, 2.0, 3.0], z, np.zeros(4), np.eye(4) * 100.0,
+                                         gate_probability=gate)
+    except NonFiniteError as exc:
+        assert str(exc).startswith("z: "), exc
+        return
+    for field in ("x", "P", "x_pred", "P_pred", "innovation", "S", "nis", "loglik"):
+        value = np.asarray(getattr(r, field), dtype=float)
+        assert not np.isinf(value).any(), field
+        assert field not in ("x", "P", "x_pred", "P_pred", "loglik") or np.isfinite(value).all(), field
+
+
+@pytest.mark.parametrize("call, name", [
+    (lambda v: linear.fir_filter(B, np.ones((3, 1)), eps=v, M=3), "eps"),
+    (lambda v: batch.fir_filter(B, np.ones((2, 3, 1)), eps=v, M=3), "eps"),
+    (lambda v: linear.fir_order(0.5 * np.eye(2), v), "eps"),
+    (lambda v: riccati.steady_state(B, "per-step", tol=v), "tol"),
+    (lambda v: linear.fit_em(B, np.ones((4, 1)), P0=np.eye(2), tol=v), "tol"),
+    (lambda v: linear.fit_ml(lambda q: LinearGaussianModel(B.F, B.H, q * B.Q, B.R), np.ones((4, 1)), {"q": 1.0},
+                             P0=np.eye(2), tol=v), "tol"),
+], ids=["fir_filter", "batch.fir_filter", "fir_order", "steady_state", "fit_em", "fit_ml"])
+@pytest.mark.parametrize("value", [np.inf, np.nan, -1.0, "1e-3"])
+def test_tolerances_are_checked_even_where_unused(call, name, value):
+    """A tolerance is validated whether or not it is read (fir_filter with M given took eps=inf)."""
+    with pytest.raises(MptrackError, match=f"^{name}: "):
+        call(value)

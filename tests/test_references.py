@@ -130,6 +130,8 @@ CITES = {
     "mptrack.radio.cost231_hata": (COST,),
     "mptrack.radio.okumura_hata": (HATA,),
     "mptrack.radio.hata_mobile_correction": (HATA,),
+    "mptrack.linear.fit_em": ("Shumway & Stoffer 1982", "Ghahramani & Hinton 1996", "Shumway & Stoffer 2017"),
+    "mptrack.linear.fit_ml": ("Schweppe 1965", "Shumway & Stoffer 2017"),
     "mptrack.tracking.kalman_filter_gated": (BS,),
     "mptrack.tracking.nis_threshold": (BS,),
 }

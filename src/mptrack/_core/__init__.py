@@ -25,4 +25,5 @@ Shared infrastructure:
 * :mod:`.model_families`, :mod:`.filter_inputs`  the model types the nonlinear filters run and
   their argument handling
 * :mod:`.steady_input`  the ``steady=`` argument of the steady-state filters (solved once per model)
+* :mod:`.blas`        small dense linear algebra on one BLAS thread (Riccati solves, model fits)
 """

@@ -50,17 +50,19 @@ def rts_backward_linear(result: FilterResult, F: np.ndarray, Q: np.ndarray) -> F
     return FilterResult(x=xs, P=Ps, method="RTS")
 
 
-def rts_backward(x_filt, P_filt, x_pred, P_pred, cross):
+def rts_backward(x_filt, P_filt, x_pred, P_pred, cross, *, gains: bool = False):
     """The RTS backward pass from filtered x(k/k), P(k/k) (K, n), (K, n, n), the predictions
     x(k+1/k), P(k+1/k) and the cross-covariances cross[k] = Cov(x(k), x(k+1) | k) (K-1 each):
-    C(k) = cross[k] P(k+1/k)^-1 (P(k/k) F^T for a linear model).  Returns (x(k/K), P(k/K))."""
+    C(k) = cross[k] P(k+1/k)^-1 (P(k/k) F^T for a linear model).  Returns (x(k/K), P(k/K)), and the
+    gains C (K-1, n, n) with ``gains=True`` (the lag-one smoothed covariances are
+    Cov(x(k+1), x(k) | K) = P(k+1/K) C(k)^T, which EM needs)."""
     c = np.ascontiguousarray
     P_pred = np.asarray(P_pred, dtype=float)
     P_pred = 0.5 * (P_pred + np.swapaxes(P_pred, -1, -2))
     C = smoother_gains(np.asarray(cross, dtype=float), P_pred)
     xs, Ps = np.empty_like(x_filt, dtype=float), np.empty_like(P_filt, dtype=float)
     _rts_loop(c(x_filt, dtype=float), c(P_filt, dtype=float), c(x_pred, dtype=float), c(P_pred), c(C), xs, Ps)
-    return xs, Ps
+    return (xs, Ps, C) if gains else (xs, Ps)
 
 
 @njit(cache=True)

@@ -109,7 +109,7 @@ class RangeModel:
 #: The range of a range variance that the covariance checks can analyse (normal floats, with room).
 _MIN_VAR, _MAX_VAR = float(np.finfo(float).tiny), 1e300
 
-_TINY_RANGE = 1e-12   # metres; the floor of the single-track ekf_ranges
+_TINY_RANGE = float(np.finfo(float).tiny)   # the floor of the single-track ekf_ranges
 
 
 @nb.njit(**_OPTS)

@@ -17,14 +17,13 @@ from typing import Callable
 
 import numpy as np
 
-from .._core.fir import coefficients_unchecked
+from .._core.fir import check_order_rule, coefficients_unchecked
 from .._core.steady_input import steady_argument
 from .._core.validation import (
     _to_array,
     check_allocation,
     check_covariance,
     check_int,
-    check_positive,
     require_finite,
 )
 from ..errors import NonFiniteError, ParameterError, ShapeError
@@ -373,7 +372,7 @@ def kalman_filter(model: LinearGaussianModel, z, x0=None, P0=None, out=None, *, 
 def _fir_filter(model, z, out=None, *, lengths=None, eps=1e-3, norm=2, M=None, steady=None, axes=1):
     bi = prepare_batch(model, z, None, out, lengths, axes=axes)
     ss = steady_argument(model, steady)
-    eps = check_positive("eps", eps)
+    check_order_rule(eps, norm)
     M = fir_order(ss.A, eps, norm) if M is None else check_int("M", M, minimum=1)
     M = min(M, bi.z.shape[1])         # the window never reaches further back than the T steps
     C = np.ascontiguousarray(coefficients_unchecked(ss.A, ss.B, M))

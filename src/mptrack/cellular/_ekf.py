@@ -18,7 +18,7 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from .._core.validation import (as_array, as_real, check_allocation, check_covariance, check_int, check_positive,
-                           finite_result)
+                                finite_result, require_finite)
 from ..errors import ParameterError, ShapeError, SingularMatrixError
 from ..models import LinearGaussianModel, NonlinearModel, nonlinear_model, ranges
 from ..nonlinear import ekf_filter, ekf_filter_batch
@@ -35,7 +35,9 @@ __all__ = [
 ]
 
 MOTIONS = ("random-walk", "cv")
-_TINY_RANGE = 1e-12
+#: the floor of a range divided by at a station (the smallest normal float: it never acts on a range of
+#: any scale; 1e-12 m made the Jacobian wrong for positions below ~1e-10 m)
+_TINY_RANGE = float(np.finfo(float).tiny)
 
 
 @finite_result("the ranges")
@@ -46,7 +48,7 @@ def range_measurement(x, stations, position=None):
     stations  (m, d) station positions, d = 2 or 3
     Returns (ranges (..., m), H (..., m, n)) with H[..., i, position] = (p - B_i)/||p - B_i||
     and zeros for non-position states.  At a station (range 0) the gradient is
-    undefined; the range is floored at 1e-12 there so H stays finite.
+    undefined; H is 0 there (the range is floored at the smallest normal float).
 
     References
     ----------
@@ -234,10 +236,21 @@ def range_fix(ranges, stations, *, height=None) -> np.ndarray:
     k = st.shape[1]
     if st.shape[0] < k + 1:
         raise ParameterError(f"stations: a {k}-D fix needs at least {k + 1} stations, got {st.shape[0]}")
-    A = 2.0 * (st[1:] - st[0])
-    if np.linalg.matrix_rank(A) < k:
-        raise SingularMatrixError(f"stations: the stations are collinear/coplanar; a {k}-D fix is not determined")
-    b = r[0] ** 2 - r[1:] ** 2 + np.sum(st[1:] ** 2, axis=1) - np.sum(st[0] ** 2)
+    # solved in units of the problem's own size, from the middle of the stations: station coordinates
+    # of 1e-200 or 1e300 metres (or 1e6 m from the origin with 1 m between them) are then numbers near 1,
+    # whose squares neither underflow, overflow nor cancel
+    centre = 0.5 * st.min(axis=0) + 0.5 * st.max(axis=0)
+    rel = st - centre
+    size = max(float(np.abs(rel).max()), float(r.max()))
+    rel, r = rel / size, r / size
+    A = 2.0 * (rel[1:] - rel[0])
+    # rank against the problem's size: stations 1e-200 m apart are one point for ranges of metres
+    if np.linalg.matrix_rank(A, tol=max(A.shape) * np.finfo(float).eps * 4.0) < k:
+        raise SingularMatrixError(f"stations: the stations are collinear/coplanar (or their spread, "
+                                  f"{float(np.ptp(st, axis=0).max()):.3g}, is negligible against ranges up to "
+                                  f"{size:.3g}); a {k}-D fix is not determined")
+    b = r[0] ** 2 - r[1:] ** 2 + np.sum(rel[1:] ** 2, axis=1) - np.sum(rel[0] ** 2)
     guess = np.linalg.lstsq(A, b, rcond=None)[0]
-    sol = least_squares(lambda p: np.linalg.norm(p - st, axis=1) - r, guess, method="lm").x
+    sol = centre + size * least_squares(lambda p: np.linalg.norm(p - rel, axis=1) - r, guess, method="lm").x
+    require_finite("the fix", sol, ranges=ranges, stations=stations)
     return sol if fixed is None else np.append(sol, fixed)

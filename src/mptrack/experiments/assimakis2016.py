@@ -11,9 +11,11 @@ The paper does not say how many steps it ran nor define its "percent absolute
 average error".  The reading that fits is the literal one: 100 x the mean
 relative position error (:func:`percent_absolute_average_error`) over a long
 run, T = 10^4 steps; the sum of relative errors is set by the first steps, so
-the value scales like 1/T and the fraction at T = 100 looks alike.  The
-reproduction shows both readings with their worst-cell errors, the run-to-run
-spread of every cell, and the dependence on T (docs/errata.md).
+the value scales like 1/T and the fraction at T = 100 looks alike.  The paper's
+table is one run: :func:`as_one_run` measures how well its twelve numbers pass for
+one of our runs under each reading (READINGS), and only this set-up passes.  The
+reproduction shows the readings, the run-to-run spread of every cell, and the
+dependence on T (docs/errata.md).
 """
 
 from __future__ import annotations
@@ -30,8 +32,8 @@ from ..riccati import steady_state
 from ._registry import RunContext, register
 from ._results import Reproduction, Table
 
-__all__ = ["percent_absolute_average_error", "motion_truth", "axis_model", "monte_carlo_errors",
-           "load_published", "run"]
+__all__ = ["percent_absolute_average_error", "motion_truth", "noisy_truth", "axis_model", "monte_carlo_errors",
+           "as_one_run", "load_published", "run"]
 
 KEY = "assimakis2016"
 PAPER = ("Assimakis, Tziallas, Adam, Polyzos & Papanastasiou (2016), Mobile position estimation and "
@@ -72,15 +74,36 @@ def percent_absolute_average_error(truth, estimate) -> float:
     return float(100.0 * np.mean(np.abs(e - s) / np.abs(s)))
 
 
-def motion_truth(kind: str, motion, dt: float, steps: int) -> np.ndarray:
+def motion_truth(kind: str, motion, dt: float, steps: int, velocity=None) -> np.ndarray:
     """True positions s(k dt), k = 1..steps, shape (steps, axes), metres.
 
     CV: s = v t from the origin (motion = velocities, m/s);
-    CA: s = a t^2 / 2 from rest at the origin (motion = accelerations, m/s^2).
+    CA: s = v0 t + a t^2 / 2 from the origin (motion = accelerations, m/s^2), from rest unless the
+    initial ``velocity`` v0 (m/s) is given.
     """
     t = dt * np.arange(1, steps + 1)[:, None]
     motion = np.asarray(motion, dtype=float)[None, :]
-    return motion * t if kind == "CV" else 0.5 * motion * t * t
+    if kind == "CV":
+        return motion * t
+    v0 = 0.0 if velocity is None else np.asarray(velocity, dtype=float)[None, :]
+    return v0 * t + 0.5 * motion * t * t
+
+
+def noisy_truth(kind: str, motion, dt: float, sigma_q2: float, steps: int, runs: int,
+                rng: np.random.Generator) -> np.ndarray:
+    """True positions (runs, axes, steps) of the model's own random motion: x(k+1) = F x(k) + w(k),
+    w ~ N(0, Q), from the origin at the velocity (CV) or at rest with the acceleration (CA) ``motion``
+    (a reading of Table 1 that the paper's set-up does not fit; docs/errata.md)."""
+    model = axis_model(kind, dt, sigma_q2, 1.0)
+    motion = np.asarray(motion, dtype=float)
+    x = np.zeros((runs, motion.size, model.n))
+    x[..., model.n - 1] = motion                          # the velocity (CV) or acceleration (CA) state
+    L = model.noise_factor()
+    out = np.empty((runs, motion.size, steps))
+    for k in range(steps):
+        x = x @ model.F.T + rng.standard_normal(x.shape[:-1] + (L.shape[1],)) @ L.T
+        out[..., k] = x[..., 0]
+    return out
 
 
 def axis_model(kind: str, dt: float, sigma_q2: float, sigma_r2: float) -> LinearGaussianModel:
@@ -109,9 +132,12 @@ def _batch_steady_filter(A: np.ndarray, B: np.ndarray, z: np.ndarray) -> np.ndar
 
 def monte_carlo_errors(kind: str, motion, *, dt: float, sigma_q2: float, sigma_r2: float, steps: int,
                        runs: int, rng: np.random.Generator, n_max: int = N_MAX,
-                       settle: int | None = None) -> dict:
+                       settle: int | None = None, truth: str = "motion", velocity=None) -> dict:
     """Monte-Carlo position errors of estimation (N = 0) and N-step prediction (N = 1..n_max).
 
+    truth     "motion": the noise-free motion of :func:`motion_truth` (with the CA initial
+              ``velocity``), the same in every run; "process-noise": each run's own
+              :func:`noisy_truth`.
     Returns {"paae": (runs, n_max+1) per-run PAAE (percent), "rmse": (n_max+1,) steady-state
     RMS position error (metres, steps after ``settle``, default SETTLE_S seconds,
     all runs and axes)}.  Predictions use x(k+N/k) = F^N x(k/k), proven equal to
@@ -120,10 +146,13 @@ def monte_carlo_errors(kind: str, motion, *, dt: float, sigma_q2: float, sigma_r
     settle = int(np.ceil(SETTLE_S / dt)) if settle is None else settle
     model = axis_model(kind, dt, sigma_q2, sigma_r2)
     ss = steady_state(model)
-    truth = motion_truth(kind, motion, dt, steps + n_max)            # (steps+n_max, axes)
-    axes = truth.shape[1]
+    if truth == "motion":
+        s_true = motion_truth(kind, motion, dt, steps + n_max, velocity).T[None]   # (1, axes, steps+n_max)
+    else:
+        s_true = noisy_truth(kind, motion, dt, sigma_q2, steps + n_max, runs, rng)
+    axes = s_true.shape[1]
     noise = rng.standard_normal((runs, axes, steps)) * np.sqrt(sigma_r2)
-    z = truth[:steps].T[None] + noise                                 # (runs, axes, steps)
+    z = s_true[..., :steps] + noise                                   # (runs, axes, steps)
     x = _batch_steady_filter(ss.A, ss.B, z.reshape(runs * axes, steps)).reshape(runs, axes, steps, -1)
     paae = np.empty((runs, n_max + 1))
     rmse = np.empty(n_max + 1)
@@ -131,7 +160,7 @@ def monte_carlo_errors(kind: str, motion, *, dt: float, sigma_q2: float, sigma_r
     row[0] = 1.0                                                     # position of F^N x
     for N in range(n_max + 1):
         pos = x @ (row @ np.linalg.matrix_power(model.F, N))         # (runs, axes, steps)
-        s = truth[N:N + steps].T[None]
+        s = s_true[..., N:N + steps]
         rel = np.abs(pos - s) / np.abs(s)
         paae[:, N] = 100.0 * rel.mean(axis=(1, 2))
         rmse[N] = np.sqrt(np.mean((pos - s)[..., settle:] ** 2))
@@ -139,11 +168,11 @@ def monte_carlo_errors(kind: str, motion, *, dt: float, sigma_q2: float, sigma_r
 
 
 def paae_runs(kind: str, motion, *, steps: int, runs: int, rng: np.random.Generator,
-              chunk: int = CHUNK_RUNS) -> np.ndarray:
+              chunk: int = CHUNK_RUNS, **truth) -> np.ndarray:
     """Per-run PAAE (runs, N_MAX+1), percent, at the paper's defaults; ``chunk`` runs at a time
-    so that memory stays bounded at T = 10^4."""
+    so that memory stays bounded at T = 10^4; ``truth``: the truth arguments of monte_carlo_errors."""
     parts = [monte_carlo_errors(kind, motion, **DEFAULTS, steps=steps, runs=min(chunk, runs - start), rng=rng,
-                                settle=0)["paae"] for start in range(0, runs, chunk)]
+                                settle=0, **truth)["paae"] for start in range(0, runs, chunk)]
     return np.concatenate(parts)
 
 
@@ -352,16 +381,67 @@ def _conclude_n(data: dict) -> str:
 # ---------------------------------------------------------------- Table 1: the readings
 
 ERRATA = {
-    "assimakis2016-table1-single-run": "'Percent absolute average error' (Table 1): the paper "
-                                       "shows one run; the cell differs from our Monte-Carlo mean by less than "
-                                       "the run-to-run standard deviation of a single run",
+    "assimakis2016-table1-single-run": "'Percent absolute average error' (Table 1): the paper shows one run; "
+                                       "its twelve numbers are a typical single run of this set-up, and the cell "
+                                       "lies inside the central 95 % of single runs",
 }
 HORIZONS = (100, 1000, 3000, TABLE1_STEPS)
+#: the central range of single runs inside which a paper's cell counts as one run of our set-up
+ONE_RUN_RANGE = (0.025, 0.975)
+#: the readings of Table 1 tried against all twelve cells (docs/errata.md); the first is the reproduction
+READINGS = {
+    "one run of the noise-free motion, T = 10^4 (ours)": {},
+    "fraction (no x100), T = 100 (our former reading)": {},
+    "CA starting at the CV example's velocity (20, 30) m/s": {"CA": dict(velocity=True)},
+    "truth with the model's own process noise": {"CV": dict(truth="process-noise"), "CA": dict(truth="process-noise")},
+}
 
 
 def _worst(mean: np.ndarray, paper: np.ndarray) -> np.ndarray:
     """Worst relative cell error |ours/paper - 1| per column."""
     return np.max(np.abs(mean / paper - 1.0), axis=0)
+
+
+def as_one_run(single: np.ndarray, paper: np.ndarray) -> dict:
+    """How well the paper's table (6, 2) passes for one run among ``single`` (runs, 6, 2):
+    {"d2": its squared Mahalanobis distance from the runs (their mean and covariance, plus the variance
+    of the paper's rounding to 4 decimals), "p": the chi-square (12 dof) probability of a larger one,
+    "within": the fraction of runs within TABLE1_RTOL of the paper in all twelve cells, "quantile": (6, 2)
+    the fraction of runs below each paper cell}."""
+    from scipy.stats import chi2
+
+    flat, target = single.reshape(len(single), -1), paper.reshape(-1)
+    cov = np.cov(flat, rowvar=False) + np.diag(np.full(target.size, 0.00005 ** 2 / 3.0))
+    dev = target - flat.mean(axis=0)
+    d2 = float(dev @ np.linalg.solve(cov, dev))
+    return {"d2": d2, "p": float(chi2.sf(d2, target.size)),
+            "within": float(np.mean(np.abs(single / paper - 1.0).max(axis=(1, 2)) <= TABLE1_RTOL)),
+            "quantile": (flat < target).mean(axis=0).reshape(paper.shape)}
+
+
+def _reading_runs(ctx: RunContext, motions: dict, runs: int, runs_by_T: dict) -> dict:
+    """{reading: (runs, 6, 2) single-run PAAE} of each of READINGS."""
+    out = {}
+    with ctx.progress.task("Table 1: readings", total=2 * len(READINGS) - 2) as advance:
+        for r, (name, spec) in enumerate(READINGS.items()):
+            if r < 2:          # the runs over horizons already hold these two
+                T, scale = (TABLE1_STEPS, 1.0) if r == 0 else (STEPS, 0.01)
+                out[name] = np.stack([runs_by_T[T, k] for k in KINDS], axis=2) * scale
+                continue
+            per_kind = []
+            for i, kind in enumerate(KINDS):
+                truth = dict(spec.get(kind, {}))
+                if not truth:
+                    per_kind.append(runs_by_T[TABLE1_STEPS, kind])
+                    continue
+                if truth.get("velocity"):
+                    truth["velocity"] = motions["CV"]
+                per_kind.append(ctx.cached(f"paae-{kind}-reading{r}", lambda: paae_runs(
+                    kind, motions[kind], steps=TABLE1_STEPS, runs=runs, rng=_rng(ctx.seed, 5, r, i), **truth),
+                    runs=runs))
+                advance()
+            out[name] = np.stack(per_kind, axis=2)
+    return out
 
 
 def _table1_tables(ctx: RunContext, motions: dict, published: dict, runs: int, labels: list) -> dict:
@@ -376,42 +456,50 @@ def _table1_tables(ctx: RunContext, motions: dict, published: dict, runs: int, l
     mean = {T: np.stack([runs_by_T[T, k].mean(axis=0) for k in KINDS], axis=1) for T in HORIZONS}
     sd = {T: np.stack([runs_by_T[T, k].std(axis=0, ddof=1) for k in KINDS], axis=1) for T in HORIZONS}
     m, s = mean[TABLE1_STEPS], sd[TABLE1_STEPS]
-    fraction = mean[STEPS] / 100.0                                        # the former reading
+    readings = _reading_runs(ctx, motions, runs, runs_by_T)
+    fits = {name: as_one_run(single, paper) for name, single in readings.items()}
+    ours = fits[next(iter(READINGS))]
+    lo, hi = ONE_RUN_RANGE
     note = (f"PAAE = 100 x mean over k = 1..T and both axes of |s_hat(k) - s(k)| / |s(k)| (percent, the "
             f"paper's literal unit), T = {TABLE1_STEPS} steps (not given in the paper), mean of {runs} "
-            "Monte-Carlo runs; predictions x(k+N/k) compared with s(k+N). The sum of relative errors is set "
-            "by the transient of the first steps, so PAAE scales like 1/T: the fraction (no x100) at T = 100 "
-            f"gives nearly the same numbers (worst cell {100 * _worst(fraction, paper).max():.1f} % off, against "
-            f"{100 * _worst(m, paper).max():.1f} % here; table 'Table 1 readings'). A cell counts as reproduced "
-            f"within {100 * TABLE1_RTOL:g} %; the CA estimation cell varies most between runs "
-            f"(sd {100 * s[0, 1] / m[0, 1]:.0f} % of its mean, table 'Table 1 (run-to-run spread)').")
+            "Monte-Carlo runs; predictions x(k+N/k) compared with s(k+N). The paper shows one run: its twelve "
+            f"numbers are a typical single run of this set-up (squared Mahalanobis distance {ours['d2']:.1f} from "
+            f"our runs, chi-square p = {ours['p']:.2f} with 12 dof; {100 * ours['within']:.0f} % of single runs are "
+            f"within {100 * TABLE1_RTOL:g} % of all twelve cells), and no other reading is (table 'Table 1 "
+            f"readings'). A cell counts as reproduced within {100 * TABLE1_RTOL:g} % of our mean, or as one run when "
+            f"the paper's number lies inside the central {100 * (hi - lo):g} % of single runs (the CA estimation "
+            f"cell, sd {100 * s[0, 1] / m[0, 1]:.0f} % of its mean: table 'Table 1 (run-to-run spread)').")
     t1 = Table(title=f"Percent absolute average error of position estimation and prediction "
                      f"(mean of {runs} runs, T = {TABLE1_STEPS})",
                columns=published["columns"], rows=[[lab, _fmt(m[j, 0]), _fmt(m[j, 1])] for j, lab in enumerate(labels)],
                paper=[list(r) for r in published["rows"]], rtol=TABLE1_RTOL, notes=note)
-    # a differing cell within one single-run standard deviation of the paper: the paper shows one run
-    t1.explain([(i, j) for i, j in t1.mismatches() if abs(m[i, j - 1] - paper[i, j - 1]) <= s[i, j - 1]],
-               "assimakis2016-table1-single-run")
+    q = ours["quantile"]
+    t1.explain([(i, j) for i, j in t1.mismatches() if lo <= q[i, j - 1] <= hi], "assimakis2016-table1-single-run")
     spread = Table(
         title=f"Table 1 run-to-run spread (T = {TABLE1_STEPS}, {runs} runs; sd of one run)",
-        columns=["", "CV mean (%)", "CV sd", "CV sd/mean", "CV ours/paper - 1", "CA mean (%)", "CA sd",
-                 "CA sd/mean", "CA ours/paper - 1"],
-        rows=[[lab] + [v for k in range(2) for v in (_sig(m[j, k]), _sig(s[j, k]), _sig(s[j, k] / m[j, k]),
-                                                       _sig(m[j, k] / paper[j, k] - 1))]
+        columns=["", "CV mean (%)", "CV sd", "CV ours/paper - 1", "CV runs below paper", "CA mean (%)", "CA sd",
+                 "CA ours/paper - 1", "CA runs below paper"],
+        rows=[[lab] + [v for k in range(2) for v in (_sig(m[j, k]), _sig(s[j, k]), _sig(m[j, k] / paper[j, k] - 1),
+                                                       _sig(q[j, k]))]
               for j, lab in enumerate(labels)],
-        notes=f"The standard error of each mean is sd / sqrt({runs}).")
-    readings = {f"percent (x100), T = {TABLE1_STEPS} (ours)": m,
-                f"fraction, T = {STEPS} (our former reading)": fraction}
+        notes=f"The standard error of each mean is sd / sqrt({runs}); it is the yardstick of our mean, not of the "
+              "paper's single run, whose spread is sd. 'Runs below paper': the fraction of our single runs below "
+              f"the paper's number (inside [{lo:g}, {hi:g}]: the paper's cell is an ordinary single run).")
     rows = []
-    for name, val in readings.items():
-        w = _worst(val, paper)
-        within = int(np.sum(np.abs(val / paper - 1.0) <= TABLE1_RTOL))
-        rows.append([name, _fmt(w[0]), _fmt(w[1]), within])
-    read = Table(title="Table 1: the two readings of 'percent absolute average error' (Monte-Carlo means)",
-                 columns=["reading", "worst CV cell |ours/paper - 1|", "worst CA cell |ours/paper - 1|",
-                          f"cells within {100 * TABLE1_RTOL:g} % (of 12)"], rows=rows,
-                 notes="Other readings, far off: Sum|e| / Sum|s| is ~20 times too small; the Euclidean-distance "
-                       "ratio is within 1 % of the per-axis mean.")
+    for name, single in readings.items():
+        w = _worst(single.mean(axis=0), paper)
+        within = int(np.sum(np.abs(single.mean(axis=0) / paper - 1.0) <= TABLE1_RTOL))
+        fit = fits[name]
+        rows.append([name, _fmt(w[0]), _fmt(w[1]), within, _sig(fit["d2"]), _sig(fit["p"]), _sig(fit["within"])])
+    read = Table(title="Table 1: the readings of the paper's set-up, against all twelve cells",
+                 columns=["reading", "worst CV cell |mean/paper - 1|", "worst CA cell |mean/paper - 1|",
+                          f"cells of the mean within {100 * TABLE1_RTOL:g} % (of 12)",
+                          "paper as one run: Mahalanobis d^2", "p (chi-square, 12 dof)",
+                          f"single runs within {100 * TABLE1_RTOL:g} % in all 12 cells"], rows=rows,
+                 notes="The paper's table is one run: each reading is judged by how well the paper's twelve numbers "
+                       "pass for one of its runs (d^2 from the runs' mean and covariance; p, the chance of a larger "
+                       "d^2). Only the first reading passes. Other readings, far off: Sum|e| / Sum|s| is ~20 "
+                       "times too small; the Euclidean-distance ratio is within 1 % of the per-axis mean.")
     hor = Table(
         title="Monte-Carlo mean PAAE (percent) for run lengths T (the paper does not give T)",
         columns=["steps T", "CV estimation", "CV N=1", f"CV N={N_MAX}", "CA estimation", "CA N=1",

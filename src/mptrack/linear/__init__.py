@@ -46,6 +46,7 @@ from ._prediction import (
     steady_state_predictor,
 )
 from ._smoother import rts_smoother, steady_state_smoother
+from ._fit import FitResult, fit_em, fit_ml
 
 __all__ += [
     "steady_state_predictor",
@@ -57,4 +58,7 @@ __all__ += [
     "kalman_filter_irregular",
     "rts_smoother_irregular",
     "sampling_intervals",
+    "fit_em",
+    "fit_ml",
+    "FitResult",
 ]

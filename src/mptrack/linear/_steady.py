@@ -6,13 +6,12 @@ from typing import Literal
 
 import numpy as np
 
-from .._core.fir import coefficients_unchecked
+from .._core.fir import check_order_rule, coefficients_unchecked
 from .._core.steady_input import steady_argument
 from .._core.validation import (
     as_matrix,
     check_allocation,
     check_int,
-    check_positive,
     finite_result,
 )
 from ..errors import ConvergenceError, NonFiniteError, ParameterError, ShapeError
@@ -69,9 +68,6 @@ def steady_state_filter(model: LinearGaussianModel, z, x0=None, P0=None, *,
     return FilterResult(x=xs, P=Ps, method=name)
 
 
-_NORMS = (2, -2, 1, -1, np.inf, -np.inf, "fro", "nuc")
-
-
 def _matrix_norm(M: np.ndarray, norm) -> float:
     return float(np.linalg.norm(M, norm))
 
@@ -92,9 +88,7 @@ def fir_order(A, eps: float = 1e-3, norm=2, max_order: int = 100_000) -> int:
     A = as_matrix("A", A)
     if A.shape[0] != A.shape[1]:
         raise ShapeError(f"A: expected a square matrix, got shape {A.shape}")
-    if norm not in _NORMS:
-        raise ParameterError(f"norm: expected one of {_NORMS}, got {norm!r}")
-    eps = check_positive("eps", eps)
+    eps = check_order_rule(eps, norm)
     max_order = check_int("max_order", max_order, minimum=1)
     rho = max(abs(np.linalg.eigvals(A)))
     if rho >= 1.0:
@@ -163,6 +157,7 @@ def fir_filter(model: LinearGaussianModel, z, x0=None, P0=None, *, eps: float = 
     if warmup not in ("truncate", "steady-state"):
         raise ParameterError(f"warmup: expected 'truncate' or 'steady-state', got {warmup!r}")
     ss = steady_argument(model, steady)
+    check_order_rule(eps, norm)
     M = fir_order(ss.A, eps, norm) if M is None else check_int("M", M, minimum=1)
     T = z.shape[0]
     C = coefficients_unchecked(ss.A, ss.B, min(M, T))   # the window never reaches further back than T

@@ -49,7 +49,10 @@ __all__ = [
     "stack_measurements",
 ]
 
-_TINY = 1e-12
+#: the floor of a range (or squared range) divided by at a station, where the gradient is undefined: the
+#: smallest normal float, so that it never acts on a range of any scale (1e-12 m made the Jacobian wrong
+#: for coordinates below ~1e-10)
+_TINY = float(np.finfo(float).tiny)
 
 
 def wrap_angles(nu: np.ndarray, periods: tuple) -> np.ndarray:
@@ -362,7 +365,7 @@ def ranges(stations, R, *, position=(0, 2)) -> MeasurementModel:
 
     stations  (d,) one sensor or (k, d) stations, d = len(position) = 2 or 3
     R         variance (m²) common to all ranges, a vector of variances, a (k, k) matrix or R(x, k)
-    Jacobian rows (p - s_i)/||p - s_i|| (range floored at 1e-12 at a station).
+    Jacobian rows (p - s_i)/||p - s_i|| (0 at a station).
     """
     s = _points("stations", stations)
     pos = _indices("position", position, s.shape[1], "stations")

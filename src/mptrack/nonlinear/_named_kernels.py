@@ -40,7 +40,7 @@ from ._step_kernels import _sigma, unscented_moments
 
 __all__ = ["ekf_named", "ekf_named_batch", "ukf_named", "OK", "NOT_PD", "DIVERGED"]
 
-_TINY = 1e-12
+_TINY = float(np.finfo(float).tiny)   # the models' range floor (mptrack.models._nonlinear)
 
 
 @njit(cache=True, nogil=True)

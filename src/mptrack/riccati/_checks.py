@@ -43,11 +43,19 @@ def _unstable_eigenvalues(F: np.ndarray) -> np.ndarray:
     return eig[np.abs(eig) >= 1.0 - 1e-10]
 
 
+def _unit(block: np.ndarray) -> np.ndarray:
+    """``block`` divided by its largest |entry| (a zero block as it is): scaling a block's rows does not
+    change the rank of the stacked matrix, and with both blocks near 1 the rank tolerance means the
+    same for each (H or Q^{1/2} of 1e25 or 1e-50 against F of 1 was read as rank-deficient)."""
+    big = np.abs(block).max(initial=0.0)
+    return block / big if big > 0 else block
+
+
 def unstable_modes_unobservable(F: np.ndarray, H: np.ndarray) -> list[complex]:
     """Eigenvalues |lambda| >= 1 of F that fail the PBH rank test with H."""
     n = F.shape[0]
-    return [lam for lam in _unstable_eigenvalues(F)
-            if _rank(np.vstack([lam * np.eye(n) - F, H.astype(complex)])) < n]
+    Hu = _unit(H.astype(complex))
+    return [lam for lam in _unstable_eigenvalues(F) if _rank(np.vstack([_unit(lam * np.eye(n) - F), Hu])) < n]
 
 
 def undriven_modes(F: np.ndarray, Q_factor: np.ndarray) -> tuple[list[complex], list[complex]]:

@@ -19,7 +19,7 @@ from typing import Literal
 import numpy as np
 import scipy.linalg
 
-from ._blas import one_blas_thread
+from .._core.blas import one_blas_thread
 from .._core.validation import _overflow, check_covariance, check_int, check_positive, renamed, require_finite
 from ..errors import ConvergenceError, MptrackError, ParameterError
 from ..models import LinearGaussianModel, require_model
@@ -115,16 +115,30 @@ def _riccati_step(model: LinearGaussianModel, P_pred: np.ndarray) -> np.ndarray:
 def riccati_residual(model: LinearGaussianModel, P_pred: np.ndarray) -> float:
     """||REKF(Pp) - Pp||_F / max(1, ||Pp||_F)."""
     P_next = riccati_step(model, P_pred)
-    return _residual(model, P_pred, P_next)
+    value = _residual(model, P_pred, P_next)
+    require_finite("the Riccati residual", value, model=model, P_pred=P_pred)
+    return value
 
 
 def _residual(model, P_pred, P_next=None) -> float:
+    """||P_next - P_pred||_F / max(1, ||P_pred||_F), formed in units of the larger entry of the two, so
+    that matrices with entries beyond 1e154 (whose squares overflow) have a residual too; inf only when
+    the residual itself is beyond the float64 range."""
     if P_next is None:
         P_next = _riccati_step(model, P_pred)
-    with np.errstate(all="ignore"):
-        diff = P_next - P_pred
-        value = float(np.linalg.norm(diff) / max(1.0, np.linalg.norm(P_pred)))
-    return value if np.isfinite(value) else float(np.linalg.norm(diff / max(1.0, np.abs(P_pred).max())))
+    unit = max(float(np.abs(P_next).max()), float(np.abs(P_pred).max()), np.finfo(float).tiny)
+    size, scale = _fro(P_next / unit - P_pred / unit), _fro(P_pred / unit)
+    with np.errstate(over="ignore"):
+        return float(size / scale if unit * scale >= 1.0 else unit * size)
+
+
+def _fro(M: np.ndarray) -> float:
+    """||M||_F in units of its largest entry: numpy squares the entries, which overflow beyond 1e154 and
+    vanish below 1e-154."""
+    big = float(np.abs(M).max(initial=0.0))
+    if not big > 0.0 or not np.isfinite(big):
+        return big
+    return big * float(np.linalg.norm(M / big))
 
 
 def _check_exists(model: LinearGaussianModel) -> None:
@@ -161,10 +175,9 @@ def _iterate(step, P, tol, max_iter, what):
     last, stalled, worst, checked = np.inf, 0, 0.0, None
     for k in range(1, max_iter + 1):
         P_next = step(P)
-        size = np.linalg.norm(P_next - P)
-        scale = max(np.linalg.norm(P_next), np.finfo(float).tiny)
+        size, scale = _step_norms(P_next, P)
         if not np.isfinite(size):
-            return P_next, k, ss_time   # reported as an overflow by the caller
+            return np.full_like(P_next, np.inf), k, ss_time   # reported as an overflow by the caller
         if k % _PROGRESS_EVERY > _PROGRESS_EVERY - 100:   # the last 100 steps before each check
             worst = max(worst, size / scale)
         if k % _PROGRESS_EVERY == 0:   # a recursion lost in rounding never settles: stop early
@@ -189,6 +202,14 @@ def _iterate(step, P, tol, max_iter, what):
     raise ConvergenceError(
         f"max_iter: {what} did not converge to tol={tol if tol is not None else 'rounding level'} "
         f"in {max_iter} iterations")
+
+
+def _step_norms(new: np.ndarray, old: np.ndarray) -> tuple[float, float]:
+    """(||new - old||_F, ||new||_F), formed in units of the largest entry: entries beyond 1e154, whose
+    squares overflow, still have norms (the step used to read as infinite there, and the iterations
+    stopped after one step with an unconverged P).  inf only for norms beyond the float64 range."""
+    with np.errstate(over="ignore", invalid="ignore"):       # halves: the difference cannot overflow
+        return 2.0 * _fro(new / 2.0 - old / 2.0), max(_fro(new), np.finfo(float).tiny)
 
 
 def _check_rate(before: float | None, now: float, k: int, tol, max_iter: int, what: str) -> None:
@@ -249,11 +270,10 @@ def _doubling(model, tol, max_iter, X0=None):
         Gk = _sym(Gk + Ak @ WG @ Ak.T)
         Ak = Ak @ WA
         Y_next = Hk if X0 is None else _sym(Hk + Ak.T @ X0 @ np.linalg.solve(eye + Gk @ X0, Ak))
-        size = np.linalg.norm(Y_next - Yk)
-        scale = max(np.linalg.norm(Y_next), np.finfo(float).tiny)
+        size, scale = _step_norms(Y_next, Yk)
         Yk = Y_next
         if not np.isfinite(size):
-            return Yk, k
+            return np.full_like(Yk, np.inf), k      # reported as an overflow by the caller
         if tol is not None:
             if size <= tol * scale:
                 return Yk, k

@@ -153,7 +153,10 @@ def kalman_filter_gated(model: ContinuousLinearModel, times, z, x0, P0, *, t0: f
                             xs, Ps, xp, Pp, nu, S, nis, flag)
     except (np.linalg.LinAlgError, ZeroDivisionError, SystemError) as exc:   # a breakdown inside numba
         raise _overflow("the gated Kalman filter", inputs, exc) from exc
-    require_finite("the gated Kalman filter", (xs, Ps), **inputs)
+    # every output, not only the estimates: the NIS and log-likelihood of fixes of 1e300 m overflow
+    # (NaN marks a component or a fix that was not used, as z's NaN does)
+    used = [np.where(np.isnan(a), 0.0, a) for a in (nu, S, nis)]
+    require_finite("the gated Kalman filter", (xs, Ps, xp, Pp, loglik, *used), **inputs)
     return GatedResult(x=xs, P=Ps, x_pred=xp, P_pred=Pp, loglik=float(loglik), method="KF-gated", innovation=nu,
                        S=S, nis=nis, flag=flag, F=Fs, Q=Qs)
 
