@@ -228,7 +228,7 @@ BAD = [
 ]
 
 
-@pytest.mark.parametrize("method, path, body, ctype, field", BAD, ids=[b[1][:40] for b in BAD])
+@pytest.mark.parametrize("method, path, body, ctype, field", BAD, ids=[f"{i}-{b[4]}" for i, b in enumerate(BAD)])
 def test_bad_input_is_refused_by_name_and_nothing_is_stored(server, method, path, body, ctype, field):
     before = len(_stored(server.db))
     headers = {"Content-Type": ctype} if ctype else {}
