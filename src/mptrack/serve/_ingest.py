@@ -222,11 +222,9 @@ class Ingest:
             late_rows = _rows(fixes, dev, order[late], None, now)
             touched = np.unique(dev[sel]).tolist()
             ready = self._due_states()          # their states after this batch go in with its fixes
-            due = set(ready)
-            rest = [row for d, (row, _) in self._dirty.items() if d not in due]
+            watermark = self._oldest_row(set(ready))
             if any(d not in self._dirty for d in touched):   # newly changed: not covered after this batch's rows
-                rest.append(self._seq)
-            watermark = min(rest, default=None)
+                watermark = self._seq if watermark is None else min(watermark, self._seq)
             with self.lock:
                 states = [(self.ids[d], self.live.state_bytes(d)) for d in ready]
             try:
@@ -267,6 +265,17 @@ class Ingest:
             ready.append(d)
         return ready
 
+    def _oldest_row(self, stored: set) -> int | None:
+        """The watermark once the states of ``stored`` are stored: the row before the oldest change not
+        among them (None: none left).  ``_dirty`` keeps its changes oldest first with non-decreasing rows
+        (a device enters at its end, with the last row then stored), so this reads only as far as the
+        first device not in ``stored`` -- a batch's checkpoints are the oldest changes, so this is
+        O(checkpoints), not O(devices changed)."""
+        for d, (row, _) in self._dirty.items():
+            if d not in stored:
+                return row
+        return None
+
     def _noise(self, final: bool = False) -> None:
         """Apply the noise estimates that are ready, the devices' states stored at once (a replay must see
         the noise the filter saw from here on), and start the next round (devices with enough new fixes,
@@ -297,9 +306,7 @@ class Ingest:
         """Store these devices' states (they cover every fix stored so far) and the new watermark."""
         with self.lock:
             states = [(self.ids[d], self.live.state_bytes(d)) for d in devices]
-        stored = set(devices)
-        rest = [row for d, (row, _) in self._dirty.items() if d not in stored]
-        self.store.write(states=states, watermark=min(rest, default=None))
+        self.store.write(states=states, watermark=self._oldest_row(set(devices)))
         for d in devices:
             self._dirty.pop(d, None)
 

@@ -7,7 +7,10 @@ crash may lose the last commits; ``fsync=True`` (``mptrack serve --fsync``) flus
 (``synchronous=FULL``): one fsync per group commit, ~4 ms on this project's machines.
 
 One connection writes (under a lock); each reading thread has its own connection, and WAL lets them
-read while the writer writes.
+read while the writer writes.  The writer never checkpoints the log into the database file itself
+(SQLite's automatic checkpoint would run inside a group commit, every ~1000 pages, copying and syncing
+them while the requests of the batch wait): a thread of its own does, with its own connection, every
+:data:`CHECKPOINT_S` seconds (a passive checkpoint, which never blocks the writer or the readers).
 """
 
 from __future__ import annotations
@@ -26,6 +29,8 @@ from ._store import ESTIMATE_COLUMNS, FIX_COLUMNS, StoredRows
 __all__ = ["SqliteStore", "SCHEMA_VERSION"]
 
 SCHEMA_VERSION = 1
+#: How often the checkpointer moves the write-ahead log into the database file (s).
+CHECKPOINT_S = 1.0
 _ALL = FIX_COLUMNS + ESTIMATE_COLUMNS
 _SCHEMA = f"""
 CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value) WITHOUT ROWID;
@@ -73,8 +78,25 @@ class SqliteStore:
         if int(version) > SCHEMA_VERSION:
             raise OutputError(f"db: {self.path} has schema version {version}, newer than this mptrack's "
                               f"{SCHEMA_VERSION}; upgrade mptrack", path=self.path)
+        self._w.execute("PRAGMA wal_autocheckpoint=0")   # the checkpointer's job, off the commit path
         self._lock = threading.Lock()
         self._local = threading.local()
+        self._closed = threading.Event()
+        self._checkpointer = threading.Thread(target=self._checkpoints, name="mptrack-sqlite-checkpoint",
+                                              daemon=True)
+        self._checkpointer.start()
+
+    def _checkpoints(self) -> None:
+        """The checkpointer thread: a passive checkpoint every CHECKPOINT_S seconds until close."""
+        con = self._connect()
+        try:
+            while not self._closed.wait(CHECKPOINT_S):
+                try:
+                    con.execute("PRAGMA wal_checkpoint(PASSIVE)")
+                except sqlite3.OperationalError:   # busy or locked: the next round does it
+                    pass
+        finally:
+            con.close()
 
     def _connect(self) -> sqlite3.Connection:
         con = sqlite3.connect(self.path, timeout=30.0, isolation_level=None, check_same_thread=False)
@@ -198,8 +220,10 @@ class SqliteStore:
         return int(self._reader().execute("SELECT COUNT(*) FROM fixes").fetchone()[0])
 
     def close(self) -> None:
+        self._closed.set()
+        self._checkpointer.join()
         with self._lock:
-            self._w.close()
+            self._w.close()   # SQLite checkpoints the log as its last connection closes
         con = getattr(self._local, "con", None)
         if con is not None:
             con.close()
