@@ -10,6 +10,8 @@ estimates.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pandas as pd
 import pyarrow as pa
@@ -18,6 +20,7 @@ from .._core.validation import derived_from, require_finite
 from .._core.tracks import track_offsets
 from ._columns import FixTable
 from ._engine import filter_tracks
+from ._fix_error import SLOW_TAU_S, slow_error_variance
 from ._fixes import TrackOptions, track_fixes
 from ._noise import SOURCES, NoiseEstimate, NoiseSpec, estimate_noise, fix_weights
 from ._consistency import USED_FLAGS, flag_counts, is_flag, nis_band
@@ -38,7 +41,8 @@ def noise_spec(options: TrackOptions) -> NoiseSpec:
     """What :func:`estimate_noise` does for ``options``."""
     spec = get_model(options.model)
     return NoiseSpec(order=spec.order, prior=spec.prior_variances, sigma_m=options.sigma_m, q=options.q,
-                     scope=options.noise, gate=options.gate, max_rej=spec.order + 1, default_q=spec.default_q)
+                     scope=options.noise, gate=options.gate, max_rej=spec.order + 1, default_q=spec.default_q,
+                     max_gap_s=math.inf if options.max_gap_s is None else options.max_gap_s)
 
 
 def track_table(table: FixTable, options: TrackOptions, fixed: dict | None = None) -> tuple[pa.Table, pa.Table]:
@@ -63,14 +67,16 @@ def _track_table(table: FixTable, options: TrackOptions, fixed: dict | None) -> 
         extra["meas_lat"], extra["meas_lon"] = table.lat, table.lon
     origin = table.origin if table.geographic else None
     stats = np.full((table.B, 6), np.nan)
+    sb2 = slow_error_variance(noise.c, table.per_track_median(w), has_acc)
     if options.filter == "kf":
         N, order = table.N, spec.order
-        X = np.empty((N, 2, order))
-        P = np.empty((N, order, order))
+        X = np.empty((N, 2, order + 1))
+        P = np.empty((N, order + 1, order + 1))
         nis = np.empty(N)
         flag = np.empty(N, dtype=np.int8)
-        filter_tracks(table.offsets, table.t, table.east, table.north, w, noise.c, noise.q, order, spec.prior,
-                      spec.gate, spec.max_rej, True, options.smooth, X, P, nis, flag, stats)
+        filter_tracks(table.offsets, table.t, table.east, table.north, w, noise.c, noise.q, sb2,
+                      np.full(table.B, SLOW_TAU_S), order, spec.prior, spec.gate, spec.max_rej, spec.max_gap_s, True,
+                      options.smooth, X, P, nis, flag, stats)
         require_finite("the gated Kalman filter", (X, P), sigma_m=options.sigma_m, q=options.q,
                        east=table.east, north=table.north)
         method = "KF-gated" + ("+RTS" if options.smooth else "")
