@@ -447,9 +447,11 @@ def _advance_track(st, t, ze, zn, w, c, q, sb2, tau, order, prior, gate, max_rej
 
 
 @nb.njit(**SEQ)
-def _smooth_track(t, q, sb2, tau, order, flag, X, P, wk):
+def _smooth_track(t, ze, zn, w, c, q, sb2, tau, order, gate, flag, X, P, wk):
     """RTS backward pass over one track's X, P (filtered -> smoothed, in place), separately on
-    each stretch that starts at a track's or segment's first fix (INIT) or at a reset.
+    each stretch that starts at a track's or segment's first fix (INIT) or at a reset.  The step to
+    a manoeuvre takes the manoeuvre's process noise, as the filter did (its level found again: the
+    first of MANOEUVRE_FACTOR q, MANOEUVRE_FACTOR^2 q whose gate the fix passes from X[k], P[k]).
 
     The backward recursion of :mod:`mptrack._core.rts` written out for the engine's shared covariance of
     two axes (one smoother gain C for both): a documented exception to the one RTS pass, tested
@@ -462,7 +464,13 @@ def _smooth_track(t, q, sb2, tau, order, flag, X, P, wk):
         if flag[k + 1] == RESET or flag[k + 1] == INIT:
             continue  # k ends a stretch: its filtered state is its smoothed state
         qb = sb2 * transition(order, n, t[k + 1] - t[k], tau, F, Qu)
-        predict(n, F, Qu, q, qb, X[k], P[k], xp, Pp, T)
+        qk = q
+        if flag[k + 1] == MANOEUVRE:
+            qk = MANOEUVRE_FACTOR * q
+            predict(n, F, Qu, qk, qb, X[k], P[k], xp, Pp, T)
+            if innovation(n, order if n > order else -1, xp, Pp, c * w[k + 1], ze[k + 1], zn[k + 1])[0] > gate:
+                qk = MANOEUVRE_FACTOR * qk
+        predict(n, F, Qu, qk, qb, X[k], P[k], xp, Pp, T)
         if not inverse(n, Pp, Pi, W):
             continue  # cannot happen for q > 0 or r > 0; keep the filtered state
         product(n, T, Pi, C, True, False)   # C = P F^T Pp^-1; T holds F P, so P F^T = T^T
@@ -501,7 +509,8 @@ def _make_kernel(order: int):
                                prior, gate, max_rej, max_gap, store, X[a0:b0], P[a0:b0], nis[a0:b0], flag[a0:b0],
                                stats[b], rev_n[b:b + 1], rev_flag[b], rev_nis[b], rev_X[b], rev_P[b], wk)
                 if smooth and store and b0 > a0:
-                    _smooth_track(t[a0:b0], q[b], sb2[b], tau[b], order, flag[a0:b0], X[a0:b0], P[a0:b0], wk)
+                    _smooth_track(t[a0:b0], ze[a0:b0], zn[a0:b0], w[a0:b0], c[b], q[b], sb2[b], tau[b], order, gate,
+                                  flag[a0:b0], X[a0:b0], P[a0:b0], wk)
 
     return advance_kernel
 

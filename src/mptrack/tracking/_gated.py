@@ -80,7 +80,8 @@ class GatedResult(FilterResult):
     nis   (T,) the NIS the gate decided on, from innovation and S
     flag  (T,) index into FLAGS: 0 update, 1 outlier (rejected), 2 predicted (no measurement), 3 reset,
           4 init (the first fix of a track, :func:`track_gated`), 5 manoeuvre
-    F, Q  (T, n, n) the transition used to reach step k from step k-1 (for smoothing)
+    F, Q  (T, n, n) the transition used to reach step k from step k-1 (for smoothing): Q is the manoeuvre's
+          process noise at a manoeuvre
     """
 
     flag: np.ndarray | None = None
@@ -159,6 +160,7 @@ def kalman_filter_gated(model: ContinuousLinearModel, times, z, x0, P0, *, t0: f
     xp, Pp = np.empty((T, n)), np.empty((T, n, n))
     nu, S, nis = innovation_arrays((T,), m)
     flag = np.zeros(T, dtype=np.int8)
+    level = np.zeros(T, dtype=np.int8)
     with renamed(dt="times"):
         Fs, Qs = intervals_unchecked(model, dts)
         Qm, Qsharp = (intervals_unchecked(level, dts)[1] for level in levels)
@@ -167,15 +169,17 @@ def kalman_filter_gated(model: ContinuousLinearModel, times, z, x0, P0, *, t0: f
     try:
         loglik = gated_loop(t, Fs, Qs, Qm, Qsharp, H, np.ascontiguousarray(Rs), z, x.copy(), P.copy(),
                             np.ascontiguousarray(Y0), gates, gate_probability is not None, max_rejections, start,
-                            xs, Ps, xp, Pp, nu, S, nis, flag)
+                            xs, Ps, xp, Pp, nu, S, nis, flag, level)
     except (np.linalg.LinAlgError, ZeroDivisionError, SystemError) as exc:   # a breakdown inside numba
         raise _overflow("the gated Kalman filter", inputs, exc) from exc
     # every output, not only the estimates: the NIS and log-likelihood of fixes of 1e300 m overflow
     # (NaN marks a component or a fix that was not used, as z's NaN does)
     used = [np.where(np.isnan(a), 0.0, a) for a in (nu, S, nis)]
     require_finite("the gated Kalman filter", (xs, Ps, xp, Pp, loglik, *used), **inputs)
+    # the process noise each step used: a manoeuvre's where the filter took one (for the smoother)
+    Q_used = np.where((level == 1)[:, None, None], Qm, np.where((level == 2)[:, None, None], Qsharp, Qs))
     return GatedResult(x=xs, P=Ps, x_pred=xp, P_pred=Pp, loglik=float(loglik), method="KF-gated", innovation=nu,
-                       S=S, nis=nis, flag=flag, F=Fs, Q=Qs)
+                       S=S, nis=nis, flag=flag, F=Fs, Q=Q_used)
 
 
 @finite_result("the RTS smoother")

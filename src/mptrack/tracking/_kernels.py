@@ -165,10 +165,10 @@ def _kalman_update(x_pred, P_pred, H, R, z, k, ws):
 
 @njit(cache=True)
 def gated_loop(t, F, Q, Qm, Qs, H, R, z, x, P, Y0, gates, use_gate, max_rej, start, xs, Ps, xp, Pp, nus, Ss, nis,
-               flag):
-    """Run the gated filter; fills xs, Ps, xp, Pp, nus, Ss, nis, flag in place (nus, Ss, nis NaN-filled by
-    the caller: the innovation, its covariance and the NIS the gate decided on, where a measurement was
-    there); returns the log-likelihood.
+               flag, level):
+    """Run the gated filter; fills xs, Ps, xp, Pp, nus, Ss, nis, flag, level in place (nus, Ss, nis NaN-filled
+    by the caller: the innovation, its covariance and the NIS the gate decided on, where a measurement was
+    there; level 0 where the step used Q, 1 Qm, 2 Qs -- a manoeuvre's); returns the log-likelihood.
 
     gates[d] is the NIS threshold for d measured components.  A measurement above it that passes
     against the prediction with the manoeuvre's process noise Qm[k] (or else the sharp manoeuvre's,
@@ -211,6 +211,7 @@ def gated_loop(t, F, Q, Qm, Qs, H, R, z, x, P, Y0, gates, use_gate, max_rej, sta
                 f1, x, P = _reject(k - 1, t, z, R, F, Qm, H, Y0, rej, count, start, gates[m],
                                    x_coast, P_coast, x_new, P_new, ws)
                 flag[k - 1] = f1
+                level[k - 1] = 0
                 if f1 == 3:
                     _after_reset(k - 1, x, P, F, Q, H, R, z, gates, rej, xs, Ps, flag, ws)
                 xs[k - 1] = x
@@ -237,12 +238,15 @@ def gated_loop(t, F, Q, Qm, Qs, H, R, z, x, P, Y0, gates, use_gate, max_rej, sta
             P_coast[:, :] = P_pred
             P_m = P_pred + (Qm[k] - Q[k])
             idx, nu, S_m, em = _innovation(x_pred, P_m, H, R[k], z, k, ws)
+            lev = 1
             if em > gates[mk]:                 # the sharp manoeuvre
                 P_m = P_pred + (Qs[k] - Q[k])
                 idx, nu, S_m, em = _innovation(x_pred, P_m, H, R[k], z, k, ws)
+                lev = 2
             if em <= gates[mk]:
                 x, P = _kalman_update(x_pred, P_m, H, R[k], z, k, ws)
                 flag[k] = 5
+                level[k] = lev
                 nis[k] = em
                 _record(k, idx, nu, S_m, nus, Ss)
                 cand_idx, cand_S = idx, S
