@@ -592,6 +592,12 @@ def advance_tracks(states, offsets, t, ze, zn, w, c, q, sb2, tau, order, prior, 
     ShapeError, DTypeError, ParameterError
         An array of the wrong shape or dtype, offsets that do not delimit the rows, a fix before
         its track's last fix or out of time order, a non-finite fix, noise parameters out of range.
+
+    References
+    ----------
+    .. [1] Y. Bar-Shalom, X. R. Li and T. Kirubarajan, Estimation with Applications to Tracking and Navigation,
+           Wiley, 2001. doi:10.1002/0471221279
+    .. [2] A. Gelb (ed.), Applied Optimal Estimation, MIT Press, 1974.
     """
     order = _check_order(order)
     n = order + 1

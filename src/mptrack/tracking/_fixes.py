@@ -172,6 +172,12 @@ def track_fixes(track_id: str, rows: pd.DataFrame, options: TrackOptions = Track
     :func:`fix_variances` and ``options.q`` or the model's default; no estimation here);
     ``slow_var`` (m^2) and ``slow_tau_s`` the fix error's slow part (default: what the total error
     leaves, :func:`._fix_error.slow_error_variance`; the gated KF only).
+
+    References
+    ----------
+    .. [1] Y. Bar-Shalom, X. R. Li and T. Kirubarajan, Estimation with Applications to Tracking and Navigation,
+           Wiley, 2001. doi:10.1002/0471221279
+    .. [2] A. Gelb (ed.), Applied Optimal Estimation, MIT Press, 1974.
     """
     check_fix_rows("rows", rows)
     if not isinstance(options, TrackOptions):

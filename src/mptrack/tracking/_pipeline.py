@@ -334,11 +334,12 @@ def _summary(tracks: pd.DataFrame, report: ReadReport, options: TrackOptions, ch
            "options": asdict(options)}
     if n and "sigma_m" in tracks:
         if n <= MAX_LISTED_TRACKS:
-            cols = ["track_id", "fixes", "sigma_m", "sigma_se_m", "accuracy_scale", "q", "q_se", "sigma_source",
-                    "q_source", "mean_nis", "nis_consistent"]
+            cols = ["track_id", "fixes", "sigma_m", "sigma_se_m", "sigma_slow_m", "accuracy_scale", "q", "q_se",
+                    "sigma_source", "q_source", "mean_nis", "nis_consistent"]
             out["track_noise"] = [{k: (None if isinstance(v, float) and not np.isfinite(v) else v)
                                    for k, v in row.items()} for row in tracks[cols].to_dict("records")]
-        noise = {name: _distribution(tracks[name].to_numpy(float)) for name in ("sigma_m", "q")}
+        noise = {name: _distribution(tracks[name].to_numpy(float)) for name in ("sigma_m", "sigma_slow_m", "q")
+                 if name in tracks}
         for name in ("sigma_source", "q_source"):
             noise[name] = {str(k): int(v) for k, v in tracks[name].value_counts().items()}
         noise["sigma_at_floor"] = int(((tracks["sigma_source"] != "given")

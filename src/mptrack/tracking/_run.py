@@ -32,7 +32,7 @@ __all__ = ["noise_spec", "track_table", "TRACK_COLUMNS"]
 #: Columns of the track table, in order.
 TRACK_COLUMNS = ("track_id", "fixes", "duration_s", "updates", "manoeuvres", "outliers", "resets", "restarts",
                  "sigma_m",
-                 "sigma_se_m",
+                 "sigma_se_m", "sigma_slow_m",
                  "accuracy_scale", "accuracy_scale_se", "q", "q_se", "sigma_source", "q_source", "mean_nis",
                  "nis_dof", "nis_lo", "nis_hi", "nis_consistent", "loglik")
 
@@ -87,7 +87,8 @@ def _track_table(table: FixTable, options: TrackOptions, fixed: dict | None) -> 
     else:
         points = _per_track(table, options, noise, r)
         flag = None
-    return points, _tracks(table, noise, w, has_acc, stats, points, flag)
+        sb2 = np.full(table.B, np.nan)   # the grid filters model a white fix error only
+    return points, _tracks(table, noise, w, has_acc, sb2, stats, points, flag)
 
 
 def _per_track(table: FixTable, options: TrackOptions, noise: NoiseEstimate, r: np.ndarray) -> pa.Table:
@@ -105,10 +106,11 @@ def _per_track(table: FixTable, options: TrackOptions, noise: NoiseEstimate, r: 
     return pa.Table.from_pandas(pd.concat(frames, ignore_index=True), preserve_index=False)
 
 
-def _tracks(table: FixTable, noise: NoiseEstimate, w: np.ndarray, has_acc: np.ndarray, stats: np.ndarray,
-            points: pa.Table, flag: np.ndarray | None) -> pa.Table:
+def _tracks(table: FixTable, noise: NoiseEstimate, w: np.ndarray, has_acc: np.ndarray, sb2: np.ndarray,
+            stats: np.ndarray, points: pa.Table, flag: np.ndarray | None) -> pa.Table:
     """The track table (one row per track): counts and the mean NIS from the flags
-    (:mod:`._consistency`, the one definition every summary prints)."""
+    (:mod:`._consistency`, the one definition every summary prints); ``sb2`` the variance of the fix
+    error's slow part."""
     B = table.B
     nis = points.column("nis").to_numpy()
     if flag is None:  # per-track path: its rows are grid slots
@@ -133,7 +135,7 @@ def _tracks(table: FixTable, noise: NoiseEstimate, w: np.ndarray, has_acc: np.nd
         "track_id": pa.array([str(i) for i in table.ids], type=pa.string()),
         "fixes": table.counts, "duration_s": table.t[ends] - table.t[starts] if B else np.zeros(0),
         **counts,
-        "sigma_m": sigma, "sigma_se_m": sigma * noise.se_log_c / 2.0,
+        "sigma_m": sigma, "sigma_se_m": sigma * noise.se_log_c / 2.0, "sigma_slow_m": np.sqrt(sb2),
         "accuracy_scale": scale, "accuracy_scale_se": scale * noise.se_log_c / 2.0,
         "q": noise.q, "q_se": noise.q * noise.se_log_q,
         "sigma_source": pa.array(src[noise.source_c].tolist(), type=pa.string()),
