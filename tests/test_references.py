@@ -135,7 +135,6 @@ CITES = {
     "mptrack.tracking.kalman_filter_gated": (BS,),
     "mptrack.tracking.nis_threshold": (BS,),
     "mptrack.tracking.track_fixes": (BS, "Gelb 1974"),
-    "mptrack.tracking.advance_tracks": (BS, "Gelb 1974"),
 }
 
 
