@@ -247,7 +247,8 @@ def fix_error_model(spec, q: float, slow_var: float, tau_s: float):
     qb = 2.0 * slow_var / tau_s
     model = ContinuousLinearModel(two(Phi1), two(L1), two(np.diag([q, qb])), two(H1), np.eye(2),
                                   name=f"{spec.name} with a slow fix error")
-    levels = tuple(two(np.diag([m * q, qb])) for m in (f, f * f))
+    with np.errstate(over="ignore"):   # beyond the float range: the filter's discretisation check names q
+        levels = tuple(two(np.diag([m * q, qb])) for m in (f, f * f))
     info = two(np.diag(np.r_[np.zeros(r), 1.0 / slow_var]))
     prior = np.tile(np.r_[spec.prior_variances, slow_var], 2)
     return model, levels, info, prior

@@ -137,12 +137,8 @@ def kalman_filter_gated(model: ContinuousLinearModel, times, z, x0, P0, *, t0: f
     max_rejections = check_int("max_rejections", start + 1 if max_rejections is None else max_rejections,
                                minimum=start + 1)
     manoeuvre_factor = check_positive("manoeuvre_factor", manoeuvre_factor)
-    if manoeuvre_noise is None:
-        manoeuvre_noise = (manoeuvre_factor * model.Qc, manoeuvre_factor ** 2 * model.Qc)
-    if len(manoeuvre_noise) != 2:
+    if manoeuvre_noise is not None and len(manoeuvre_noise) != 2:
         raise ParameterError("manoeuvre_noise: expected the spectral densities of the two manoeuvre hypotheses")
-    levels = [ContinuousLinearModel(model.Phi, model.L, check_covariance("manoeuvre_noise", Qc, model.Qc.shape[0]),
-                                    model.H, model.R) for Qc in manoeuvre_noise]
     t0 = float(t[0]) if t0 is None else float(t0)
     dts = np.diff(np.r_[t0, t])
     if np.any(dts < 0):
@@ -163,8 +159,15 @@ def kalman_filter_gated(model: ContinuousLinearModel, times, z, x0, P0, *, t0: f
     level = np.zeros(T, dtype=np.int8)
     with renamed(dt="times"):
         Fs, Qs = intervals_unchecked(model, dts)
+    require_finite("the discretisation e^(Phi dt), Q of the intervals", (Fs, Qs), times=t, model=model)
+    if manoeuvre_noise is None:
+        with np.errstate(over="ignore"):   # beyond the float range: the check below names it
+            manoeuvre_noise = (manoeuvre_factor * model.Qc, manoeuvre_factor ** 2 * model.Qc)
+    levels = [ContinuousLinearModel(model.Phi, model.L, check_covariance("manoeuvre_noise", Qc, model.Qc.shape[0]),
+                                    model.H, model.R) for Qc in manoeuvre_noise]
+    with renamed(dt="times"):
         Qm, Qsharp = (intervals_unchecked(level, dts)[1] for level in levels)
-    require_finite("the discretisation e^(Phi dt), Q of the intervals", (Fs, Qs, Qm, Qsharp), times=t, model=model)
+    require_finite("the discretisation of the manoeuvre hypotheses", (Qm, Qsharp), times=t, model=model)
     inputs = dict(times=t, z=z, x0=x, P0=P, model=model) | ({} if R is None else {"R": Rs})
     try:
         loglik = gated_loop(t, Fs, Qs, Qm, Qsharp, H, np.ascontiguousarray(Rs), z, x.copy(), P.copy(),
