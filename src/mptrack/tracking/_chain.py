@@ -211,17 +211,19 @@ def copy_state(n, xs, Ps, xd, Pd):
 # I*: info_start / info_predict, U*: update's scratch); ints hold row indices (a restart's window, a
 # diffuse start's rows).
 (M_F, M_QU, M_T, M_P, M_PP, M_PC, M_PI, M_C, M_D, M_RF, M_RQU, M_RT, M_RPP, M_RP, M_IF, M_IQU, M_IA, M_IM, M_IMI, M_IT,
- M_IY, M_UA, M_UT) = range(23)
-(S_X, S_XP, S_XC, S_DX, S_RX, S_RXP) = range(6)
+ M_IY, M_UA, M_UT, M_RUN) = range(24)
+(S_X, S_XP, S_XC, S_DX, S_RX, S_RXP, S_RUN) = range(7)
+# M_RUN, S_RUN: the first of n_run slots (a restart test's state at each fix of its run)
 (V_IYE, V_IYN, V_IV, V_UK) = range(4)
 #: The largest state per axis: a chain of order 3 and the fix error's slow part.
 MAX_N = MAX_ORDER + 1
 
 
 @nb.njit(**SEQ)
-def work(n, n_ints):
-    """The workspace of one block for states of n per axis: (mats, states, vectors, W, ints (n_ints,))."""
-    return (np.zeros((23, n, n)), np.zeros((6, 2, n)), np.zeros((4, n)),
+def work(n, n_ints, n_run=0):
+    """The workspace of one block for states of n per axis: (mats, states, vectors, W, ints (n_ints,)), with
+    ``n_run`` more slots of mats and states from M_RUN, S_RUN on."""
+    return (np.zeros((M_RUN + n_run, n, n)), np.zeros((S_RUN + n_run, 2, n)), np.zeros((4, n)),
             np.zeros((MAX_N, 2 * MAX_N)), np.zeros(max(n_ints, 1), dtype=np.int64))
 
 

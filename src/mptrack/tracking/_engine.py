@@ -21,10 +21,10 @@ equal to that per-track reference to rounding (tests).
 Rows decided again later.  Two rules revise the decision on an earlier fix:
 the fix after a manoeuvre candidate decides whether it was a manoeuvre or an
 outlier (one fix back), and a restart relabels the rejected fixes of its run,
-and those just before it that lie inside the gate of the restart state
-predicted back to them, as the start of the new stretch (flag reset, the
-back-predicted state; at most :data:`STREAK_CAP` fixes back, the rejected
-fixes the state keeps).  Rows of the same call are rewritten in place; rows
+and those just before it that lie inside the gate of the new stretch's state
+predicted back to them, as the start of the new stretch (flag reset, the new
+stretch's state; at most :data:`STREAK_CAP` fixes back, the rejected fixes the
+state keeps).  Rows of the same call are rewritten in place; rows
 of an earlier call are reported in a :class:`Revisions` record (what each of
 them is now), so that a track advanced piece by piece ends with the same
 rows, NIS and counters as one run over all its fixes, bit for bit.
@@ -42,8 +42,9 @@ import numpy as np
 from .._core.threads import launch
 from ..errors import DTypeError, ParameterError, ShapeError
 from ._chain import (BLOCKS, INLINE, LOG2PI, M_C, M_D, M_F, M_P, M_PC, M_PI, M_PP, M_QU, M_RF, M_RP, M_RPP, M_RQU,
-                     M_RT, M_T, M_UA, M_UT, MAX_ORDER, PAR, S_DX, S_RX, S_RXP, S_X, S_XC, S_XP, SEQ, V_UK, congruence,
-                     copy_state, info_start, innovation, inverse, predict, product, transition, update, work)
+                     M_RT, M_RUN, M_T, M_UA, M_UT, MAX_ORDER, PAR, S_DX, S_RUN, S_RX, S_RXP, S_X, S_XC, S_XP, SEQ, V_UK,
+                     congruence, copy_state, info_start, innovation, inverse, predict, product, transition, update,
+                     work)
 
 __all__ = ["FLAGS", "INIT", "UPDATE", "OUTLIER", "PREDICTED", "RESET", "MANOEUVRE", "MANOEUVRE_FACTOR",
            "MAX_ORDER", "STREAK_CAP", "STATE_VERSION", "STATE_FIELDS", "state_size", "empty_states",
@@ -183,7 +184,8 @@ def _restart(bt, bze, bzn, bw, L, c, qm, sb2, tau, order, nrej, gate, x, P, wk):
     a diffuse start on the first ``order`` of them under the manoeuvre density ``qm`` (the slow fix
     error from its own prior), then each further one must pass the NIS gate against the prediction
     from those before it.  If all do, x, P <- the state at the last one and True (the track restarts
-    there)."""
+    there); the state at each fix of the run from the ``order``-th on is left in the workspace's run
+    slots (M_RUN + j, S_RUN + j for the run's fix j), for :func:`_after_reset`."""
     n = order + 1
     mats, st, vec, _, rows = wk
     for j in range(nrej):
@@ -198,6 +200,7 @@ def _restart(bt, bze, bzn, bw, L, c, qm, sb2, tau, order, nrej, gate, x, P, wk):
             Ps[i, order] = 0.0
         xs[0, order] = 0.0
         xs[1, order] = 0.0
+    copy_state(n, xs, Ps, st[S_RUN + order - 1], mats[M_RUN + order - 1])
     F, Qu, T, xp, Pp = mats[M_RF], mats[M_RQU], mats[M_RT], st[S_RXP], mats[M_RPP]
     for j in range(order, nrej):
         k = rows[j]
@@ -207,27 +210,35 @@ def _restart(bt, bze, bzn, bw, L, c, qm, sb2, tau, order, nrej, gate, x, P, wk):
         if e > gate:
             return False
         update(n, order, xp, Pp, c * bw[k], bze[k], bzn[k], xs, Ps, mats[M_UA], mats[M_UT], vec[V_UK])
+        copy_state(n, xs, Ps, st[S_RUN + j], mats[M_RUN + j])
     copy_state(n, xs, Ps, x, P)
     return True
 
 
 @nb.njit(**SEQ)
-def _after_reset(k, L, streak, nrej, bt, bze, bzn, bw, c, q, sb2, tau, gate, order, store, x, P, X, Pout, flag,
+def _after_reset(k, L, streak, nrej, bt, bze, bzn, bw, c, q, sb2, tau, gate, order, store, X, Pout, flag,
                  nis, rev_n, rev_flag, rev_nis, rev_X, rev_P, wk):
     """A restart at row k, the last of the streak's L kept entries: the run's earlier fixes were not
     outliers but the start of the new stretch, and so are the rejected fixes just before the run
-    that lie inside the gate of the restart state predicted back to them (walking back, up to the
-    first that does not, or the first the state keeps).  They are flagged RESET and, with ``store``,
-    get that back-predicted state instead of the coasting state of the old stretch; the prediction
-    goes back one fix at a time, x_(k-1) = F(-d) x_k, P_(k-1) = F(-d) (P_k + Q(d)) F(-d)^T,
-    d = t_k - t_(k-1).  Returns (rows relabelled, whether they reach back to the fix before the
-    run of rejections)."""
+    that lie inside the gate of the new stretch's state predicted back to them (walking back, up to
+    the first that does not, or the first the state keeps).  They are flagged RESET and, with
+    ``store``, get the new stretch's state instead of the coasting state of the old one: at the run's
+    fixes from the ``order``-th on, the restart test's state there (the filter started at the run's
+    first fix, :func:`_restart`); before it, that state predicted back one fix at a time,
+    x_(k-1) = F(-d) x_k, P_(k-1) = F(-d) (P_k + Q(d)) F(-d)^T, d = t_k - t_(k-1), and updated with the
+    fix there when it is one before the run (the new stretch taken back to it, a backward filter).
+    Returns (rows relabelled, whether they reach back to the fix before the run of rejections)."""
     n = order + 1
-    mats, st, _, _, _ = wk
+    mats, st, vec, _, _ = wk
     F, Qu, T, Pb, Pp, xb, xp = mats[M_RF], mats[M_RQU], mats[M_RT], mats[M_RP], mats[M_RPP], st[S_RX], st[S_RXP]
-    copy_state(n, x, P, xb, Pb)
     relabelled = 0
-    i = L - 1
+    w0 = L - nrej                 # the run's first fix
+    for i in range(L - 2, w0 + order - 2, -1):   # the run's fixes with a state of the new stretch's filter
+        _put_state(n, k - (L - 1 - i), RESET, np.nan, st[S_RUN + i - w0], mats[M_RUN + i - w0], store, X, Pout,
+                   flag, nis, rev_n, rev_flag, rev_nis, rev_X, rev_P)
+        relabelled += 1
+    copy_state(n, st[S_RUN + order - 1], mats[M_RUN + order - 1], xb, Pb)
+    i = w0 + order - 1
     while i > 0:
         d = bt[i] - bt[i - 1]
         qb = sb2 * transition(order, n, d, tau, F, Qu)
@@ -239,10 +250,12 @@ def _after_reset(k, L, streak, nrej, bt, bze, bzn, bw, c, q, sb2, tau, gate, ord
         predict(n, F, Qu, 0.0, 0.0, xb, Pb, xp, Pp, T)
         copy_state(n, xp, Pp, xb, Pb)
         i -= 1
-        if i < L - nrej:          # before the run: inside the gate of the back prediction?
+        if i < L - nrej:          # before the run: inside the gate of the back prediction? then its fix joins
             e, _ = innovation(n, order, xb, Pb, c * bw[i], bze[i], bzn[i])
             if e > gate:
                 return relabelled, False
+            update(n, order, xb, Pb, c * bw[i], bze[i], bzn[i], xp, Pp, mats[M_UA], mats[M_UT], vec[V_UK])
+            copy_state(n, xp, Pp, xb, Pb)
         _put_state(n, k - (L - 1 - i), RESET, np.nan, xb, Pb, store, X, Pout, flag, nis,
                    rev_n, rev_flag, rev_nis, rev_X, rev_P)
         relabelled += 1
@@ -282,7 +295,7 @@ def _reject(k, tk, zek, znk, wk_, st, streak0, c, q, sb2, tau, order, max_rej, g
     if window == max_rej and _restart(bt, bze, bzn, bw, L, c, MANOEUVRE_FACTOR * q, sb2, tau, order, max_rej, gate,
                                       x, P, wk):
         relabelled, whole = _after_reset(k, L, streak, max_rej, bt, bze, bzn, bw, c, q, sb2, tau, gate, order, store,
-                                         x, P, X, Pout, flag, nis, rev_n, rev_flag, rev_nis, rev_X, rev_P, wk)
+                                         X, Pout, flag, nis, rev_n, rev_flag, rev_nis, rev_X, rev_P, wk)
         st[_OUTLIERS] -= 1.0 + relabelled
         if not (whole and st[_BEFORE] == RESET):   # a restart run is one reset (it may join one before it)
             st[_RESETS] += 1.0
@@ -501,7 +514,7 @@ def _make_kernel(order: int):
         B = offsets.shape[0] - 1
         nblk = min(B, BLOCKS)
         for blk in nb.prange(nblk):
-            wk = work(order + 1, STREAK_CAP)
+            wk = work(order + 1, STREAK_CAP, STREAK_CAP)
             for b in range(blk * B // nblk, (blk + 1) * B // nblk):
                 a0 = offsets[b]
                 b0 = offsets[b + 1]

@@ -16,15 +16,20 @@ from numba import njit
 
 from .._core import jit_cache  # noqa: F401 - compiled kernels cache in the user's cache directory
 from .._core.kalman import LOG2PI, OK, apply_gain, innovation, predict, update, whiten, workspace
+from ._engine import STREAK_CAP
+
+#: A restart relabels at most this many fixes before it (the engine's state keeps the last STREAK_CAP rejected fixes).
+RELABEL_CAP = STREAK_CAP - 1
 
 
 @njit(cache=True)
-def _restart(t, z, R, Fs, Qs, H, Y0, rej, nrej, start, gate, x_out, P_out, ws):
+def _restart(t, z, R, Fs, Qs, H, Y0, rej, nrej, start, gate, x_out, P_out, xr, Pr, ws):
     """The rejected fixes ``rej`` (consecutive rows) agree with each other under the manoeuvre
     process noise Qs: a diffuse start (information form, from the information Y0 of the states that
     have a prior of their own, zero for the others) on the first ``start`` of them, then every
     further one passes the NIS gate against the prediction from those before it.  If so, x_out,
-    P_out <- the state at the last one and True."""
+    P_out <- the state at the last one and True; xr[m], Pr[m] <- the state at the run's fix m, for
+    m >= start - 1 (the filter started at the run's first fix)."""
     n = H.shape[1]
     for j in range(nrej):
         if np.isnan(z[rej[j]]).any():
@@ -56,6 +61,8 @@ def _restart(t, z, R, Fs, Qs, H, Y0, rej, nrej, start, gate, x_out, P_out, ws):
     P = np.linalg.inv(Y)
     P = 0.5 * (P + P.T)
     x = P @ y
+    xr[start - 1] = x
+    Pr[start - 1] = P
     periods = np.zeros(H.shape[0])
     for j in range(start, nrej):
         k = rej[j]
@@ -65,13 +72,15 @@ def _restart(t, z, R, Fs, Qs, H, Y0, rej, nrej, start, gate, x_out, P_out, ws):
         if not ok or e > gate:
             return False
         apply_gain(x, P, ws, q, True)
+        xr[j] = x
+        Pr[j] = P
     x_out[:] = x
     P_out[:, :] = P
     return True
 
 
 @njit(cache=True)
-def _reject(k, t, z, R, F, Qm, H, Y0, rej, count, start, gate, x_coast, P_coast, x_new, P_new, ws):
+def _reject(k, t, z, R, F, Qm, H, Y0, rej, count, start, gate, x_coast, P_coast, x_new, P_new, xr, Pr, ws):
     """Measurement k is rejected: add it to the run ``rej`` (count[0] long); returns (flag, x, P):
     3 and the restart state if the full run agrees (:func:`_restart`), else 1 and the coasting state."""
     max_rej = rej.shape[0]
@@ -80,22 +89,34 @@ def _reject(k, t, z, R, F, Qm, H, Y0, rej, count, start, gate, x_coast, P_coast,
         count[0] -= 1
     rej[count[0]] = k
     count[0] += 1
-    if count[0] == max_rej and _restart(t, z, R, F, Qm, H, Y0, rej, max_rej, start, gate, x_new, P_new, ws):
+    if count[0] == max_rej and _restart(t, z, R, F, Qm, H, Y0, rej, max_rej, start, gate, x_new, P_new, xr, Pr,
+                                        ws):
         count[0] = 0
         return 3, x_new.copy(), P_new.copy()
     return 1, x_coast.copy(), P_coast.copy()
 
 
 @njit(cache=True)
-def _after_reset(last, x, P, F, Q, H, R, z, gates, rej, xs, Ps, flag, ws):
-    """A restart at ``last`` (the end of the rejection run ``rej``): the run's earlier fixes, and the
-    rejected ones just before it that lie inside the gate of the restart state predicted back to
-    them (walking back, up to the first that does not), are flagged 3 (reset) and get that state:
-    x_(k-1) = F[k]^-1 x_k, P_(k-1) = F[k]^-1 (P_k + Q[k]) F[k]^-T, step by step back from ``last``."""
-    xb, Pb = x.copy(), P.copy()
-    k = last
-    m = rej.shape[0] - 1
-    while True:
+def _after_reset(F, Q, H, R, z, gates, rej, start, xr, Pr, cap, xs, Ps, flag, ws):
+    """A restart at the end of the rejection run ``rej``: the run's earlier fixes, and the rejected ones just
+    before it that lie inside the gate of the new stretch's state predicted back to them (walking back, up
+    to the first that does not; at most ``cap`` fixes in all), are flagged 3 (reset) and get the new
+    stretch's state: at the run's fixes from the ``start``-th on, the restart test's (xr, Pr: the filter
+    started at the run's first fix); before it, that state predicted back step by step,
+    x_(k-1) = F[k]^-1 x_k, P_(k-1) = F[k]^-1 (P_k + Q[k]) F[k]^-T, and updated with the fix there when it
+    is one before the run (the new stretch taken back to it, a backward filter)."""
+    nrej = rej.shape[0]
+    relabelled = 0
+    for m in range(nrej - 2, start - 2, -1):
+        j = rej[m]
+        flag[j] = 3
+        xs[j] = xr[m]
+        Ps[j] = Pr[m]
+        relabelled += 1
+    xb, Pb = xr[start - 1].copy(), Pr[start - 1].copy()
+    k = rej[start - 1]
+    m = start - 1
+    while relabelled < cap:
         if m > 0:
             m -= 1
             j = rej[m]
@@ -108,13 +129,15 @@ def _after_reset(last, x, P, F, Q, H, R, z, gates, rej, xs, Ps, flag, ws):
         while k > j:              # predict back from k to k - 1: F^-1 (x, P + Q) by the core's predict
             xb, Pb = _predicted(np.linalg.inv(F[k]), np.zeros_like(Q[k]), xb, Pb + Q[k], ws)
             k -= 1
-        if not inside_run:
+        if not inside_run:          # inside the gate of the back prediction: its fix joins the new stretch
             idx, _nu, _S, e = _innovation(xb, Pb, H, R[j], z, j, ws)
             if e > gates[idx.shape[0]]:
                 break
+            xb, Pb = _kalman_update(xb, Pb, H, R[j], z, j, ws)
         flag[j] = 3
         xs[j] = xb
         Ps[j] = 0.5 * (Pb + Pb.T)
+        relabelled += 1
 
 
 @njit(cache=True)
@@ -178,7 +201,7 @@ def gated_loop(t, F, Q, Qm, Qs, H, R, z, x, P, Y0, gates, use_gate, max_rej, sta
     measurements above the gate are rejected (flag 1); ``max_rej`` rejections in a row restart the
     filter from them (flag 3) if they agree under Qm (:func:`_restart`, diffuse start on ``start`` of
     them, the states with a prior of their own starting from its information Y0), and the run's fixes
-    before the last take the restart state (:func:`_after_reset`).
+    before the last take the new stretch's state (:func:`_after_reset`).
     """
     T, m = z.shape
     n = x.shape[0]
@@ -186,6 +209,8 @@ def gated_loop(t, F, Q, Qm, Qs, H, R, z, x, P, Y0, gates, use_gate, max_rej, sta
     count = np.zeros(1, dtype=np.int64)
     x_new = np.empty(n)
     P_new = np.empty((n, n))
+    xr = np.empty((max_rej, n))          # a restart test's state at each fix of its run
+    Pr = np.empty((max_rej, n, n))
     x_coast = np.empty(n)
     P_coast = np.empty((n, n))
     ws = workspace(n, m)
@@ -209,11 +234,11 @@ def gated_loop(t, F, Q, Qm, Qs, H, R, z, x, P, Y0, gates, use_gate, max_rej, sta
                 nis[k - 1] = cand_e
                 _record(k - 1, cand_idx, nus[k - 1][cand_idx], cand_S, nus, Ss)
                 f1, x, P = _reject(k - 1, t, z, R, F, Qm, H, Y0, rej, count, start, gates[m],
-                                   x_coast, P_coast, x_new, P_new, ws)
+                                   x_coast, P_coast, x_new, P_new, xr, Pr, ws)
                 flag[k - 1] = f1
                 level[k - 1] = 0
                 if f1 == 3:
-                    _after_reset(k - 1, x, P, F, Q, H, R, z, gates, rej, xs, Ps, flag, ws)
+                    _after_reset(F, Q, H, R, z, gates, rej, start, xr, Pr, RELABEL_CAP, xs, Ps, flag, ws)
                 xs[k - 1] = x
                 Ps[k - 1] = P
                 x_pred, P_pred = _predicted(F[k], Q[k], x, P, ws)
@@ -254,10 +279,10 @@ def gated_loop(t, F, Q, Qm, Qs, H, R, z, x, P, Y0, gates, use_gate, max_rej, sta
                 cand_e, cand_ll = e, -0.5 * (em + np.log(np.linalg.det(S_m)) + mk * LOG2PI)
             else:
                 f1, x, P = _reject(k, t, z, R, F, Qm, H, Y0, rej, count, start, gates[m],
-                                   x_coast, P_coast, x_new, P_new, ws)
+                                   x_coast, P_coast, x_new, P_new, xr, Pr, ws)
                 flag[k] = f1
                 if f1 == 3:
-                    _after_reset(k, x, P, F, Q, H, R, z, gates, rej, xs, Ps, flag, ws)
+                    _after_reset(F, Q, H, R, z, gates, rej, start, xr, Pr, RELABEL_CAP, xs, Ps, flag, ws)
         xs[k] = x
         Ps[k] = P
     if pending:                                # a candidate at the last step is a manoeuvre
