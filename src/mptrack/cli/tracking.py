@@ -224,8 +224,6 @@ def track(
         values = {k: v for k, v in given.items() if v is not None}
         if "gate_probability" in values and values["gate_probability"] >= 1:
             values["gate_probability"] = None
-        if values.get("max_gap_s") == float("inf"):
-            values["max_gap_s"] = None
         with flags_named(ctx):
             if range_sigma is not None:  # the option is a standard deviation in m, the setting a variance in km^2
                 values["r_km2"] = (check_positive("range_sigma", range_sigma) / 1e3) ** 2

@@ -97,6 +97,8 @@ class TrackOptions:
             get_model(self.model)
         with renamed(name="filter"):
             object.__setattr__(self, "filter", get_fix_filter(self.filter))
+        if self.max_gap_s == float("inf"):   # inf bridges every gap, as None does
+            object.__setattr__(self, "max_gap_s", None)
         with renamed(name="method"):
             get_cell_method(self.method)
         lookup("motion", self.motion, dict.fromkeys(MOTIONS), what="cellular motion model", fold=str)
