@@ -516,8 +516,10 @@ def _object_column(frame, column, row, value):
      NonFiniteError, r"^times: the discretisation"),
     (lambda: __import__("mptrack.tracking").tracking.track_fixes(H.TRACK_ID, H.ROWS, q=1e308), NonFiniteError,
      r"^q: the discretisation"),
+    # a 1e300 s gap starts a new segment by default (nothing to discretise); bridged, its discretisation overflows
     (lambda: __import__("mptrack.tracking").tracking.track_fixes(
-        H.TRACK_ID, _object_column(H.ROWS, "t", 0, -1e300)), NonFiniteError, r"^rows: the discretisation"),
+        H.TRACK_ID, _object_column(H.ROWS, "t", 0, -1e300), __import__("mptrack.tracking").tracking.TrackOptions(
+            max_gap_s=None)), NonFiniteError, r"^rows: the discretisation"),
 ])
 def test_large_run_findings_are_named_errors(call, error, message):
     """Each raised a NumPy/numba error, named a derived quantity (R, lon, model, times), or accepted

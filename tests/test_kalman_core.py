@@ -154,26 +154,60 @@ def test_block_ss_kernel_equals_the_core_from_the_steady_state():
 
 
 @pytest.mark.parametrize("order", [2, 3])
-def test_tracking_engine_update_equals_the_core(order):
-    """The tracking engine's rank-one update of two axes sharing one covariance (position fix of variance r)
-    against the core on each axis with H = [1, 0, ...]."""
+@pytest.mark.parametrize("slow", [False, True])
+def test_tracking_engine_update_equals_the_core(order, slow):
+    """The tracking engine's rank-one Joseph-form update of two axes sharing one covariance (a position fix of
+    variance r, measuring the position plus the fix error's slow part when there is one) against the core's
+    Joseph form on each axis."""
     from mptrack.tracking._chain import update as _update
 
-    rng = np.random.default_rng(order)
-    Pp = _spd(rng, order)
-    xp = rng.normal(size=(2, order))
+    rng = np.random.default_rng(order + 10 * slow)
+    n = order + slow
+    Pp = _spd(rng, n)
+    xp = rng.normal(size=(2, n))
     r, ze, zn = 0.7, 1.3, -0.4
-    x, P = np.empty((2, order)), np.empty((order, order))
-    e, S = _update(order, xp, Pp, r, ze, zn, x, P)
-    H = np.eye(1, order)
+    x, P, A, T, k = np.empty((2, n)), np.empty((n, n)), np.empty((n, n)), np.empty((n, n)), np.empty(n)
+    e, S = _update(n, order if slow else -1, xp, Pp, r, ze, zn, x, P, A, T, k)
+    H = np.zeros((1, n))
+    H[0, 0] = 1.0
+    H[0, n - 1] += float(slow)
     nis = 0.0
     for a, za in enumerate((ze, zn)):
         xa, Pa = xp[a].copy(), Pp.copy()
-        ws = core.workspace(order, 1)
-        status, _ = core.update(xa, Pa, H, H @ xa, np.array([[r]]), np.array([[za]]), 0, np.zeros(1), False, ws)
+        ws = core.workspace(n, 1)
+        status, _ = core.update(xa, Pa, H, H @ xa, np.array([[r]]), np.array([[za]]), 0, np.zeros(1), True, ws)
         assert status == core.OK
-        nis += (za - xp[a, 0]) ** 2 / (Pp[0, 0] + r)
+        nis += (za - H[0] @ xp[a]) ** 2 / (H[0] @ Pp @ H[0] + r)
         np.testing.assert_allclose(x[a], xa, rtol=1e-12, atol=1e-12)
         np.testing.assert_allclose(P, Pa, rtol=1e-12, atol=1e-12)
     np.testing.assert_allclose(e, nis, rtol=1e-12)
-    np.testing.assert_allclose(S, Pp[0, 0] + r, rtol=1e-14)
+    np.testing.assert_allclose(S, H[0] @ Pp @ H[0] + r, rtol=1e-14)
+
+
+@pytest.mark.parametrize("gap_s", [3600.0, 86400.0, 30 * 86400.0])
+def test_tracking_engine_update_keeps_the_fix_variance_after_a_long_gap(gap_s):
+    """After a gap the predicted position variance is huge next to the fix's (q dt^3 / 3: 1e10 to 1e19 m^2
+    against 1e-6 m^2): the update must leave the fix's variance plus the slow error's, where the standard
+    form P - K H P cancels to 0 (the first fix after a 3-day gap had var_east_m2 = 0).  Against exact
+    rational arithmetic of the same update."""
+    from fractions import Fraction
+
+    from mptrack.tracking._chain import transition
+    from mptrack.tracking._chain import update as _update
+
+    q, r, sb2, tau = 1.5, 1e-6, 4.0, 3600.0
+    F, Qu = np.zeros((3, 3)), np.zeros((3, 3))
+    qb = sb2 * transition(2, 3, gap_s, tau, F, Qu)
+    P0 = np.array([[1.0, 0.1, -0.5], [0.1, 0.3, 0.0], [-0.5, 0.0, 2.0]])
+    Pp = F @ P0 @ F.T + q * Qu
+    Pp[2, 2] += qb
+    x, P, A, T, k = np.empty((2, 3)), np.empty((3, 3)), np.empty((3, 3)), np.empty((3, 3)), np.empty(3)
+    _update(3, 2, np.zeros((2, 3)), Pp, r, 1.0, 2.0, x, P, A, T, k)
+    h = [1, 0, 1]
+    Pf = [[Fraction(v) for v in row] for row in Pp]
+    c = [sum(Pf[i][j] * h[j] for j in range(3)) for i in range(3)]
+    S = sum(h[i] * c[i] for i in range(3)) + Fraction(r)
+    exact = np.array([[float(Pf[i][j] - c[i] * c[j] / S) for j in range(3)] for i in range(3)])
+    scale = np.sqrt(np.outer(np.diag(exact), np.diag(exact)))
+    np.testing.assert_array_less(np.abs(P - exact) / scale, 1e-9)
+    assert P[0, 0] > r and np.all(np.linalg.eigvalsh(P) > 0)

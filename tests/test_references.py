@@ -134,6 +134,7 @@ CITES = {
     "mptrack.linear.fit_ml": ("Schweppe 1965", "Shumway & Stoffer 2017"),
     "mptrack.tracking.kalman_filter_gated": (BS,),
     "mptrack.tracking.nis_threshold": (BS,),
+    "mptrack.tracking.track_fixes": (BS, "Gelb 1974"),
 }
 
 

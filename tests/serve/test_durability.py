@@ -70,11 +70,13 @@ def test_kill_9_under_load_loses_nothing_acknowledged(tmp_path, seed):
             pos = srv2.json(f"/api/devices/{dev}/position")
             assert (pos["lat"], pos["lon"]) == (est_lat, est_lon), (dev, pos, est_lat, est_lon)
             # the filter goes on from there: a fix where it predicts the device is an update of the same
-            # track (a filter that lost its state would start again: flag init)
+            # track (a filter that lost its state would start again: flag init); its NIS is not exactly 0, as
+            # the filter predicts the fix at the position plus the fix error's slow part (its estimate here is
+            # millimetres: NIS ~1e-5), where a state that was not the one stored would be metres off
             ahead = srv2.json(f"/api/devices/{dev}/position", params={"at": int(t) + 1})
             r = srv2.get(f"/?id={dev}&timestamp={int(t) + 1}&lat={ahead['lat']!r}&lon={ahead['lon']!r}&accuracy=5")
             assert r.status_code == 200
             track = srv2.json(f"/api/devices/{dev}/track", params={"from": int(t) + 1})
-            assert track[-1]["flag"] == "update" and track[-1]["nis"] < 1e-6, track[-1]
+            assert track[-1]["flag"] == "update" and track[-1]["nis"] < 1e-3, track[-1]
     finally:
         assert srv2.stop() == 0, srv2.output()

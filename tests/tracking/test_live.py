@@ -11,8 +11,9 @@ from _data import REAL_TRACES
 import mptrack
 from mptrack.errors import ParameterError
 from mptrack.io import geodetic_to_enu, read_table
-from mptrack.models import constant_velocity_continuous
-from mptrack.tracking import ESTIMATE_FIELDS, FLAGS, LiveTracks, TrackOptions
+from mptrack.tracking import ESTIMATE_FIELDS, FLAGS, LiveTracks, TrackOptions, get_model
+from mptrack.tracking._fix_error import SLOW_TAU_S
+from mptrack.tracking._fixes import fix_error_model
 
 
 def _traces() -> pd.DataFrame:
@@ -88,9 +89,12 @@ def test_the_prediction_is_the_exact_discretisation_of_the_model():
                  np.full(len(df), np.nan))
     t_last = live.last_fix(0)[0]
     x, P = live._estimate(0)                       # the filter's state after the last fix, one axis each
-    disc = constant_velocity_continuous(0.8, axes=1, sigma_r2=9.0).discretize(25.0)
+    # the motion and the fix error's slow part (5 m total, 3 m white: 4 m slow, time constant 1 h), one axis
+    model = fix_error_model(get_model("cv"), 0.8, 25.0 - 9.0, SLOW_TAU_S)[0]
+    disc = model.discretize(25.0)
+    F, Q = disc.F[:3, :3], disc.Q[:3, :3]
     now, ahead = live.position(0, t_last), live.position(0, t_last + 25.0)
-    np.testing.assert_allclose(ahead["var_e"], (disc.F @ P @ disc.F.T + disc.Q)[0, 0], rtol=1e-12)
+    np.testing.assert_allclose(ahead["var_e"], (F @ P @ F.T + Q)[0, 0], rtol=1e-12)
     lat0, lon0 = live.origin(0)                    # the track's frame: positions move on by 25 s x velocity
     e, n = geodetic_to_enu(np.array([now["lat"], ahead["lat"]]), np.array([now["lon"], ahead["lon"]]),
                            np.full(2, lat0), np.full(2, lon0))

@@ -94,8 +94,9 @@ def test_gate_rejects_an_outlier_exactly_like_a_missing_measurement():
 @pytest.mark.parametrize("case", ["manoeuvre", "candidate turned outlier"])
 def test_gated_result_records_the_innovation_its_gate_decided_on(case):
     """A GatedResult is a FilterResult; innovation and S are those of each fix's NIS: the nominal
-    prediction's, and at a manoeuvre (flag 5) the manoeuvre hypothesis's (process noise x factor); a
-    manoeuvre candidate that the next fix turns into an outlier gets its nominal values back."""
+    prediction's, and at a manoeuvre (flag 5) the manoeuvre hypothesis's (process noise x factor, or x factor^2
+    for a sharp one), whose Q the result records; a manoeuvre candidate that the next fix turns into an
+    outlier gets its nominal values back."""
     rng = np.random.default_rng(3)
     model = constant_velocity_continuous(0.3, axes=2, sigma_r2=4.0)
     t = 10.0 + np.arange(1.0, 41.0)
@@ -114,11 +115,16 @@ def test_gated_result_records_the_innovation_its_gate_decided_on(case):
     with pytest.warns(DeprecationWarning, match="GatedResult.result"):
         assert g.result is g
     H, R = model.H, model.R
-    S_m = H @ (g.P_pred[row] + (factor - 1.0) * g.Q[row]) @ H.T + R
+    # the process noise each step used: the model's, at a manoeuvre the manoeuvre's (factor or factor^2 times)
+    Q = discretize_intervals(model, np.diff(np.r_[t[0], t]))[1]
+    for k in range(len(t)):
+        levels = [g.Q[k] / f for f in ((factor, factor ** 2) if g.flag[k] == 5 else (1.0,))]
+        assert any(np.allclose(lev, Q[k], rtol=1e-12, atol=0) for lev in levels), k
+    S_m = H @ (g.P_pred[row] + (g.Q[row] - Q[row] if flag == 5 else (factor - 1.0) * Q[row])) @ H.T + R
     nu = g.innovation[row]
     assert nu @ np.linalg.solve(S_m, nu) <= nis_threshold(0.999, 2)   # it was a manoeuvre candidate
     for k in range(len(t)):
-        inflate = (factor - 1.0) * g.Q[k] if g.flag[k] == 5 else 0.0
+        inflate = g.Q[k] - Q[k]
         np.testing.assert_allclose(g.innovation[k], z[k] - H @ g.x_pred[k], rtol=1e-12, atol=1e-12)
         np.testing.assert_allclose(g.S[k], H @ (g.P_pred[k] + inflate) @ H.T + R, rtol=1e-12)
         nu = g.innovation[k]

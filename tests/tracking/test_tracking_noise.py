@@ -151,3 +151,14 @@ def test_advice_names_the_option_and_ignores_tracks_of_a_few_fixes():
     tiny = pd.DataFrame({"track_id": ["a", "a", "b", "b", "c", "c"], "time": [0.0, 1.0] * 3,
                          "x": [0.0, 10.0, 0.0, 10.0, 0.0, 10.0], "y": [0.0, 0.0, 5.0, 5.0, 9.0, 9.0]})
     assert track(tiny, sigma_m=50.0).attrs["summary"]["nis"]["advice"] == []
+
+
+@pytest.mark.parametrize("accuracy", [False, True])
+@pytest.mark.parametrize("sigma", [3.0, 20.0, 60.0])
+def test_white_noise_fixes_are_tracked_as_well_as_before_the_slow_error(sigma, accuracy):
+    """Simulated fixes with white noise only (the truth has no slow error), no flags: the estimates stay well
+    below the fixes' error (RMSE <= 0.85 x the raw fixes'), with or without an accuracy column; a 3 m noise
+    without accuracies leaves a slow part of the 5 m default, which must not cost accuracy."""
+    log = sim(int(sigma) + 7 * accuracy, 10, 1200.0, sigma=sigma, accuracy=accuracy)
+    est, raw = rmse_vs_truth(track(log), log)
+    assert est <= 0.85 * raw, (est, raw)

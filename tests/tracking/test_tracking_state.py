@@ -16,20 +16,23 @@ from mptrack.tracking import FLAGS, get_model
 from mptrack.tracking._engine import (STATE_VERSION, STREAK_CAP, Revisions, advance_tracks, empty_states,
                                       state_from_bytes, state_size, state_to_bytes)
 
-from test_tracking_engine import GATE, random_tracks, run_engine
+from test_tracking_engine import GATE, random_tracks, run_engine, slow_error
 
 
 def _prior(order):
     return get_model({2: "cv", 3: "ca"}[order]).prior_variances
 
 
-def run_pieces(order, offsets, t, ze, zn, w, c, q, cuts, through_bytes=False):
+def run_pieces(order, offsets, t, ze, zn, w, c, q, cuts, through_bytes=False, sb2=None, tau=None, max_gap=np.inf):
     """The tracks advanced in rounds: in round i, track b takes its rows cuts[b][i]:cuts[b][i+1] (relative
     to the track); the outputs go to their rows of the whole table and the revisions reported for rows of
     earlier rounds are applied there.  Returns the outputs and the flags of the revised rows, as revised
     (one entry per revision of a row of an earlier round)."""
     B, N = len(offsets) - 1, len(t)
-    X, P = np.full((N, 2, order), np.nan), np.full((N, order, order), np.nan)
+    n = order + 1
+    sb2 = np.zeros(B) if sb2 is None else sb2
+    tau = np.full(B, 3600.0) if tau is None else tau
+    X, P = np.full((N, 2, n), np.nan), np.full((N, n, n), np.nan)
     nis, flag = np.full(N, -1.0), np.full(N, -1, np.int8)
     states = empty_states(B, order)
     stats = np.zeros((B, 6))
@@ -40,9 +43,8 @@ def run_pieces(order, offsets, t, ze, zn, w, c, q, cuts, through_bytes=False):
         hi = [offsets[b] + (cuts[b][i + 1] if i < len(cuts[b]) - 1 else cuts[b][-1]) for b in range(B)]
         rows = np.concatenate([np.arange(a, b) for a, b in zip(lo, hi)]).astype(np.int64)
         off = np.r_[0, np.cumsum(np.subtract(hi, lo))].astype(np.int64)
-        n = len(rows)
-        Xi, Pi = np.empty((n, 2, order)), np.empty((n, order, order))
-        nisi, flagi = np.empty(n), np.empty(n, np.int8)
+        Xi, Pi = np.empty((len(rows), 2, n)), np.empty((len(rows), n, n))
+        nisi, flagi = np.empty(len(rows)), np.empty(len(rows), np.int8)
         rev = Revisions.empty(B, order)
         if through_bytes:
             rebuilt = []
@@ -51,8 +53,8 @@ def run_pieces(order, offsets, t, ze, zn, w, c, q, cuts, through_bytes=False):
                 assert o == order
                 rebuilt.append(row)
             states = np.array(rebuilt)
-        advance_tracks(states, off, t[rows], ze[rows], zn[rows], w[rows], c, q, order, _prior(order), GATE,
-                       order + 1, Xi, Pi, nisi, flagi, stats, rev)
+        advance_tracks(states, off, t[rows], ze[rows], zn[rows], w[rows], c, q, sb2, tau, order, _prior(order), GATE,
+                       order + 1, max_gap, Xi, Pi, nisi, flagi, stats, rev)
         X[rows], P[rows], nis[rows], flag[rows] = Xi, Pi, nisi, flagi
         for b in range(B):
             for d in range(rev.n[b]):
@@ -83,14 +85,17 @@ def assert_same(one, pieces):
 
 
 @settings(max_examples=40, deadline=None)
-@given(seed=st.integers(0, 2 ** 32 - 1), order=st.sampled_from([2, 3]), max_pieces=st.sampled_from([2, 5, 40]))
-def test_any_split_into_pieces_equals_one_run(seed, order, max_pieces):
+@given(seed=st.integers(0, 2 ** 32 - 1), order=st.sampled_from([2, 3]), max_pieces=st.sampled_from([2, 5, 40]),
+       slow=st.booleans(), max_gap=st.sampled_from([np.inf, 200.0]))
+def test_any_split_into_pieces_equals_one_run(seed, order, max_pieces, slow, max_gap):
+    """With or without the fix error's slow part, with or without new segments at gaps."""
     rng = np.random.default_rng(seed)
     offsets, t, ze, zn, w, c, q = random_tracks(rng, 5, max_len=60)
     q = q if order == 2 else q / 100.0
-    one = run_engine(order, offsets, t, ze, zn, w, c, q, smooth=False)
+    sb2, tau = slow_error(rng, 5, slow)
+    one = run_engine(order, offsets, t, ze, zn, w, c, q, smooth=False, sb2=sb2, tau=tau, max_gap=max_gap)
     pieces, _ = run_pieces(order, offsets, t, ze, zn, w, c, q, random_cuts(rng, offsets, max_pieces),
-                           through_bytes=bool(seed % 2))
+                           through_bytes=bool(seed % 2), sb2=sb2, tau=tau, max_gap=max_gap)
     assert_same(one, pieces)
 
 
@@ -101,9 +106,10 @@ def test_fix_by_fix_equals_one_run_where_every_rule_fires(order):
     rng = np.random.default_rng(40 + order)
     offsets, t, ze, zn, w, c, q = random_tracks(rng, 40)
     q = q if order == 2 else q / 100.0
-    one = run_engine(order, offsets, t, ze, zn, w, c, q, smooth=False)
+    sb2, tau = slow_error(rng, 40, True)
+    one = run_engine(order, offsets, t, ze, zn, w, c, q, smooth=False, sb2=sb2, tau=tau, max_gap=200.0)
     cuts = [list(range(int(offsets[b + 1] - offsets[b]) + 1)) for b in range(40)]
-    pieces, revised = run_pieces(order, offsets, t, ze, zn, w, c, q, cuts)
+    pieces, revised = run_pieces(order, offsets, t, ze, zn, w, c, q, cuts, sb2=sb2, tau=tau, max_gap=200.0)
     assert_same(one, pieces)
     # both rules revised fixes of earlier calls: candidates found to be outliers, restarts' relabelled runs
     assert revised.count("outlier") >= 3 and revised.count("reset") >= 10
@@ -150,8 +156,9 @@ def test_a_state_round_trips_through_bytes_and_refuses_what_is_not_one():
     states = empty_states(1, 2)
     t = np.arange(5.0)
     ze, zn = 3.0 * t, -t
-    args = (np.array([0, 5], np.int64), t, ze, zn, np.ones(5), np.ones(1), np.ones(1), 2, _prior(2), GATE, 3,
-            np.empty((5, 2, 2)), np.empty((5, 2, 2)), np.empty(5), np.empty(5, np.int8), np.zeros((1, 6)))
+    args = (np.array([0, 5], np.int64), t, ze, zn, np.ones(5), np.ones(1), np.ones(1), np.full(1, 4.0),
+            np.full(1, 60.0), 2, _prior(2), GATE, 3, np.inf, np.empty((5, 2, 3)), np.empty((5, 3, 3)), np.empty(5),
+            np.empty(5, np.int8), np.zeros((1, 6)))
     advance_tracks(states, *args)
     data = state_to_bytes(states[0], 2)
     assert len(data) == 12 + 8 * state_size(2)
@@ -170,9 +177,9 @@ def test_a_state_round_trips_through_bytes_and_refuses_what_is_not_one():
 def test_advance_refuses_a_fix_before_the_last_and_bad_arrays():
     states = empty_states(1, 2)
     t = np.array([10.0, 11.0])
-    out = lambda n: (np.empty((n, 2, 2)), np.empty((n, 2, 2)), np.empty(n), np.empty(n, np.int8),  # noqa: E731
+    out = lambda n: (np.empty((n, 2, 3)), np.empty((n, 3, 3)), np.empty(n), np.empty(n, np.int8),  # noqa: E731
                      np.zeros((1, 6)))
-    common = (np.ones(1), np.ones(1), 2, _prior(2), GATE, 3)
+    common = (np.ones(1), np.ones(1), np.full(1, 4.0), np.full(1, 60.0), 2, _prior(2), GATE, 3, np.inf)
     advance_tracks(states, np.array([0, 2], np.int64), t, t, t, np.ones(2), *common, *out(2))
     with pytest.raises(ParameterError, match="before its last fix"):
         advance_tracks(states, np.array([0, 1], np.int64), np.array([5.0]), t[:1], t[:1], np.ones(1), *common,
@@ -183,5 +190,8 @@ def test_advance_refuses_a_fix_before_the_last_and_bad_arrays():
     with pytest.raises(DTypeError, match="offsets"):
         advance_tracks(states, [0, 2], t + 5, t, t, np.ones(2), *common, *out(2))
     with pytest.raises(ParameterError, match="max_rej"):
-        advance_tracks(states, np.array([0, 2], np.int64), t + 5, t, t, np.ones(2), *common[:5], STREAK_CAP + 1,
-                       *out(2))
+        advance_tracks(states, np.array([0, 2], np.int64), t + 5, t, t, np.ones(2), *common[:7], STREAK_CAP + 1,
+                       np.inf, *out(2))
+    with pytest.raises(ParameterError, match="sb2"):
+        advance_tracks(states, np.array([0, 2], np.int64), t + 5, t, t, np.ones(2), np.ones(1), np.ones(1),
+                       np.full(1, -1.0), *common[3:], *out(2))

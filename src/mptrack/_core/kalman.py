@@ -29,10 +29,11 @@ The documented exceptions (their own arithmetic, each tested against this core):
   in ``kf_kernel``); they fall back to this core at a track's first gap;
 * the tracking engine (:mod:`mptrack.tracking._chain` and ``_engine``; ``_likelihood`` runs the same steps):
   integrator chains with a position fix of variance r on two axes sharing one covariance, so one
-  covariance and two means -- its predict (closed-form F, Q of the chain), its update (a rank-one
-  correction S = P_00 + r, K = P[:, 0] / S; tests/test_kalman_core.py), its RTS backward pass (one
+  covariance and two means, per axis the chain and the fix error's slow part -- its predict
+  (closed-form F, Q), its update (rank one, h = e_0 or e_0 + e_b, in Joseph form as ``update(...,
+  joseph=True)``; tests/test_kalman_core.py), its RTS backward pass (one
   smoother gain for both axes; against :func:`mptrack.tracking.smooth_gated`, which runs
-  :mod:`mptrack._rts`) and its back prediction at a restart, all inlined in the per-fix loops for speed;
+  :mod:`mptrack._core.rts`) and its back prediction at a restart, all inlined in the per-fix loops for speed;
   the engine as a whole is tested against the per-track reference :func:`mptrack.tracking.track_gated`,
   which runs this core;
 * the diffuse (information-form) start of a restart test (``tracking._kernels``, ``tracking._chain``) and

@@ -96,7 +96,7 @@ def reject(option: str, why: str) -> None:
 #: option ``--n`` with dashes): the one place that maps what an error names to what the user typed.
 FLAGS = {"sigma_m": "--sigma", "gate_probability": "--gate", "r_km2": "--range-sigma", "duration_s": "--duration",
          "speed_mps": "--speed", "outlier_rate": "--outliers", "accuracy_column": "--accuracy/--no-accuracy",
-         "tolerance_s": "--tolerance", "max_workers": "--workers"}
+         "tolerance_s": "--tolerance", "max_workers": "--workers", "max_gap_s": "--max-gap"}
 
 
 def flag(name: str) -> str:

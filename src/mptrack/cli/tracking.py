@@ -163,6 +163,10 @@ def track(
                                                    "whole input."),
     gate: Optional[float] = typer.Option(None, help="Position fixes: NIS gate probability (chi-square; default "
                                                     "0.999); 1 disables gating."),
+    max_gap: Optional[float] = typer.Option(None, "--max-gap", help="Position fixes: a gap longer than this many "
+                                                                    "seconds starts a new segment (the filter "
+                                                                    "starts again at the fix after it). Default "
+                                                                    "600; inf: never."),
     report: Optional[Path] = typer.Option(None, "--report", help="Also write a self-contained HTML report (an "
                                                                  "interactive map, time plots, data quality and "
                                                                  "a table of every track)."),
@@ -194,7 +198,8 @@ def track(
     from ..tracking import CELL_ONLY, FIX_ONLY
 
     given = {"model": model, "filter": filter, "smooth": smooth or None, "q": q, "sigma_m": sigma, "noise": noise,
-             "gate_probability": gate, "method": method, "motion": motion, "path_loss": path_loss}
+             "gate_probability": gate, "max_gap_s": max_gap, "method": method, "motion": motion,
+             "path_loss": path_loss}
     reject_given(ctx, FIX_ONLY if cells is not None else CELL_ONLY,
                  "applies to position fixes, not to cellular measurements (--cells)" if cells is not None
                  else "applies to cellular measurements only: give the cell table with --cells")
@@ -317,14 +322,17 @@ def _noise_lines(summary: dict, track_summary) -> list[str]:
     lines = []
     if noise:
         src = ", ".join(f"{n} {k}" for k, n in noise["sigma_source"].items())
-        s, q = noise["sigma_m"], noise["q"]
+        s, q, slow = noise["sigma_m"], noise["q"], noise.get("sigma_slow_m") or {}
         if summary["tracks"] == 1:
-            lines.append(f"noise: fixes {s['median']:.3g} m (1-sigma per axis, {src}), process noise "
-                         f"q = {q['median']:.3g} ({', '.join(noise['q_source'])})")
+            lines.append(f"noise: fixes {s['median']:.3g} m" + (f" white and {slow['median']:.3g} m slow" if slow
+                                                                else "")
+                         + f" (1-sigma per axis, {src}), process noise q = {q['median']:.3g} "
+                         f"({', '.join(noise['q_source'])})")
         else:
             lines.append(f"noise over {summary['tracks']} tracks ({src}): fixes {s['median']:.3g} m median "
-                         f"(5-95 %: {s['p5']:.3g}-{s['p95']:.3g}), q {q['median']:.3g} median "
-                         f"({q['p5']:.3g}-{q['p95']:.3g})"
+                         f"(5-95 %: {s['p5']:.3g}-{s['p95']:.3g})"
+                         + (f", slow error {slow['median']:.3g} m median" if slow else "")
+                         + f", q {q['median']:.3g} median ({q['p5']:.3g}-{q['p95']:.3g})"
                          + ("" if track_summary else "; --track-summary FILE writes every track's estimate"))
     return lines
 
@@ -334,8 +342,9 @@ def _advise(summary: dict) -> None:
     floor = (summary.get("noise") or {}).get("sigma_at_floor")
     if floor:
         note(f"{floor} track(s) show no independent fix noise (sigma at its 1 mm floor): the receiver already "
-             "smooths its fixes, the estimate follows them, and its covariance covers the noise between fixes, "
-             "not the receiver's own error (metres)")
+             "smooths its fixes and the estimate follows them; their error against the truth, which the fixes "
+             "cannot show, is in the covariance as a slow error of the fixes' stated accuracy (5 m per axis "
+             "where they state none)")
     for advice in (summary.get("nis") or {}).get("advice", []):
         note(advice, "advice")
 

@@ -49,8 +49,8 @@ def nis_advice(low: int, high: int, options: TrackOptions | None, *, cellular: b
     if low:
         cause = (f"the filter assumes more noise than the fixes show ({' and '.join(given)} too large); leave "
                  f"{' and '.join(given)} out to estimate {'it' if len(given) == 1 else 'them'} from the data"
-                 if given else "the fixes' errors are correlated in time (a receiver that smooths its output), "
-                 "which the filter cannot tell from motion")
+                 if given else "the fixes vary less from one to the next than the model allows (a receiver that "
+                 "smooths its output, often a static one); their error against the truth is in the covariance")
         notes.append(f"{low} track(s) have a mean NIS far below its band: {cause}")
     if high:
         cause = (f"the fixes are noisier or the motion more agile than {' and '.join(given)} say; leave "

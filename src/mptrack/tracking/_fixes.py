@@ -21,16 +21,20 @@ from ..errors import ParameterError
 from ..linear import get_filter
 from ..result import FilterResult
 from ._columns import FixTable
+from ..models import ContinuousLinearModel
+from ._engine import MANOEUVRE_FACTOR
+from ._fix_error import SLOW_TAU_S, slow_error_variance
 from ._gated import first_fix_prior, measured_states, nis_threshold, smooth_gated, track_gated
 from ._noise import SCOPES
 from ._output import point_table
 from ._registry import DEFAULT_SIGMA_M, get_cell_method, get_fix_filter, get_model
 
-__all__ = ["TrackOptions", "FIX_ONLY", "CELL_ONLY", "track_fixes", "fix_variances", "grid_filter_track"]
+__all__ = ["TrackOptions", "FIX_ONLY", "CELL_ONLY", "track_fixes", "fix_variances", "fix_error_model",
+           "grid_filter_track"]
 
 #: The settings of :class:`TrackOptions` that apply to position fixes only, and to cellular measurements
 #: only (a cell table given): the one list the command line and :func:`mptrack.track` refuse by.
-FIX_ONLY = ("model", "filter", "smooth", "q", "sigma_m", "noise", "gate_probability")
+FIX_ONLY = ("model", "filter", "smooth", "q", "sigma_m", "noise", "gate_probability", "max_gap_s")
 CELL_ONLY = ("method", "motion", "path_loss", "q_km2", "r_km2", "scan_interval_s")
 
 
@@ -42,6 +46,9 @@ CELL_Q_KM2_RANDOM_WALK = 0.02
 #: The largest fix noise (m) the engine's arithmetic handles (TrackOptions.__post_init__).
 SIGMA_M_MAX = 1e70
 CELL_Q_KM2_CV = 1e-6
+#: A gap longer than this (s) starts a new segment of a track (TrackOptions.max_gap_s): ten minutes without
+#: a fix leave the motion before them no use for the motion after them.
+MAX_GAP_S = 600.0
 
 
 @dataclass(frozen=True)
@@ -58,6 +65,8 @@ class TrackOptions:
     gate_probability  chi-square probability of the NIS gate (None: no gating); 0.999 -> 13.82 for 2-D fixes
     smooth            add an RTS smoothing pass (fixed interval, whole track)
     gap_s             an interval longer than this flags the point after it as following a gap (s)
+    max_gap_s         a gap longer than this starts a new segment: the fix after it initialises the filter
+                      again (s; None: never)
     method            cellular filter (CELL_METHODS): "ekf", "fekf" or "fcs"
     motion            cellular motion model: "random-walk" (the paper's) or "cv"
     path_loss         path-loss model for RSS -> range (mptrack.radio.PATH_LOSS_MODELS)
@@ -75,6 +84,7 @@ class TrackOptions:
     gate_probability: float | None = 0.999
     smooth: bool = False
     gap_s: float = 30.0
+    max_gap_s: float | None = MAX_GAP_S
     method: str = "ekf"
     motion: str = "random-walk"
     path_loss: str = "cost231-wi-nlos"
@@ -87,14 +97,16 @@ class TrackOptions:
             get_model(self.model)
         with renamed(name="filter"):
             object.__setattr__(self, "filter", get_fix_filter(self.filter))
+        if self.max_gap_s == float("inf"):   # inf bridges every gap, as None does
+            object.__setattr__(self, "max_gap_s", None)
         with renamed(name="method"):
             get_cell_method(self.method)
         lookup("motion", self.motion, dict.fromkeys(MOTIONS), what="cellular motion model", fold=str)
         lookup("path_loss", self.path_loss, PATH_LOSS_MODELS, what="path-loss model", fold=str)
         if self.noise not in SCOPES:
             raise ParameterError(f"noise: expected one of {', '.join(SCOPES)}, got {self.noise!r}")
-        for name, allow_zero in (("q", True), ("sigma_m", False), ("gap_s", False), ("q_km2", True),
-                                 ("r_km2", False)):
+        for name, allow_zero in (("q", True), ("sigma_m", False), ("gap_s", False), ("max_gap_s", False),
+                                 ("q_km2", True), ("r_km2", False)):
             if getattr(self, name) is not None:
                 check_positive(name, getattr(self, name), allow_zero=allow_zero)
         # the filters square sigma_m and integrate q over dt^3: keep both where that stays a normal float;
@@ -152,13 +164,22 @@ def _enu(rows: pd.DataFrame) -> tuple[FixTable, np.ndarray]:
 
 
 def track_fixes(track_id: str, rows: pd.DataFrame, options: TrackOptions = TrackOptions(), *,
-                fix_var=None, q: float | None = None) -> pd.DataFrame:
+                fix_var=None, q: float | None = None, slow_var: float | None = None,
+                slow_tau_s: float = SLOW_TAU_S) -> pd.DataFrame:
     """Filter (and optionally smooth) one track of validated position fixes; returns its point table.
 
     rows: a track from :func:`mptrack.io.iter_tracks` (columns t, time, row, lat/lon or x/y,
     accuracy_m?).  Positions are east/north metres in the track's local frame (origin at the
     first fix).  ``fix_var`` (T,) m^2 and ``q`` are the noise to use (default:
-    :func:`fix_variances` and ``options.q`` or the model's default; no estimation here).
+    :func:`fix_variances` and ``options.q`` or the model's default; no estimation here);
+    ``slow_var`` (m^2) and ``slow_tau_s`` the fix error's slow part (default: what the total error
+    leaves, :func:`._fix_error.slow_error_variance`; the gated KF only).
+
+    References
+    ----------
+    .. [1] Y. Bar-Shalom, X. R. Li and T. Kirubarajan, Estimation with Applications to Tracking and Navigation,
+           Wiley, 2001. doi:10.1002/0471221279
+    .. [2] A. Gelb (ed.), Applied Optimal Estimation, MIT Press, 1974.
     """
     check_fix_rows("rows", rows)
     if not isinstance(options, TrackOptions):
@@ -168,7 +189,12 @@ def track_fixes(track_id: str, rows: pd.DataFrame, options: TrackOptions = Track
     t = table.t
     r = fix_variances(rows, options) if fix_var is None else as_vector("fix_var", fix_var, len(rows), low=0.0)
     q = (spec.default_q if options.q is None else options.q) if q is None else check_positive("q", q, allow_zero=True)
-    model = spec.build(q, 1.0)
+    if slow_var is None:
+        has_acc = "accuracy_m" in rows.columns and bool(np.any(np.isfinite(rows["accuracy_m"].to_numpy(float))))
+        median = float(np.median(r))
+        slow_var = float(slow_error_variance(np.ones(1), np.array([median]), np.array([has_acc]))[0])
+    slow_var = check_positive("slow_var", slow_var, allow_zero=True)
+    model, levels, info, prior = fix_error_model(spec, q, slow_var, check_positive("slow_tau_s", slow_tau_s))
     pos = measured_states(model.H)
     extra = {"meas_east_m": z[:, 0], "meas_north_m": z[:, 1], "fix_sigma_m": np.sqrt(r)}
     if table.geographic:
@@ -177,13 +203,15 @@ def track_fixes(track_id: str, rows: pd.DataFrame, options: TrackOptions = Track
     # (times 1e300 s apart, q = 1e308 overflow the discretisation)
     with renamed(times="rows", z="rows", R="rows", gated="rows", model="q"):
         if options.filter == "kf":
-            gated = track_gated(model, t, z, r[:, None, None] * np.eye(2), np.tile(spec.prior_variances, 2),
-                                gate_probability=options.gate_probability)
+            gated = track_gated(model, t, z, r[:, None, None] * np.eye(2), prior,
+                                gate_probability=options.gate_probability, manoeuvre_noise=levels,
+                                prior_information=info, max_gap_s=options.max_gap_s)
             res = smooth_gated(gated) if options.smooth else gated
             flags, nis, times, t_out = gated.flag, gated.nis, table.time, t
             method = "KF-gated" + ("+RTS" if options.smooth else "")
         else:
             res, flags, nis, t_out, extra = grid_filter_track(spec, q, options, t, z, r)
+            pos = measured_states(spec.build(q, 1.0).H)
             times = _time_like(t_out, table.time)
             method = options.filter.upper() + ("+RTS" if options.smooth else "")
     vel = res.x[:, [p + 1 for p in pos]]
@@ -193,6 +221,39 @@ def track_fixes(track_id: str, rows: pd.DataFrame, options: TrackOptions = Track
     return point_table([track_id], offsets, times, t_out, res.x[:, pos[0]], res.x[:, pos[1]], vel,
                        P[:, pos[0], pos[0]], P[:, pos[0], pos[1]], P[:, pos[1], pos[1]], nis, dof, flags,
                        options.gap_s, table.origin if table.geographic else None, method, extra).to_pandas()
+
+
+def fix_error_model(spec, q: float, slow_var: float, tau_s: float):
+    """The continuous model of ``spec`` (density q) with the fix error's slow part (:mod:`._fix_error`) as one
+    more state per axis after the chain's -- per axis [position, velocity, (acceleration,) b], b a
+    first-order Gauss-Markov process of stationary variance ``slow_var`` and time constant ``tau_s`` (inf: a
+    constant), measured with the position (H = [1, 0, ..., 1]); without a slow part (slow_var 0) the
+    model of ``spec`` itself.  Returns (model, the two manoeuvre hypotheses' spectral densities (the
+    motion's scaled, b's not), the information a restart starts from (b's prior), the first fix's prior
+    variances)."""
+    base = spec.build(q, 1.0)
+    f = MANOEUVRE_FACTOR
+    if slow_var == 0.0:
+        return base, None, None, np.tile(spec.prior_variances, 2)
+    r = spec.order
+    chain = np.eye(r, k=1)
+    Phi1 = np.zeros((r + 1, r + 1))
+    Phi1[:r, :r] = chain
+    Phi1[r, r] = -1.0 / tau_s
+    L1 = np.zeros((r + 1, 2))
+    L1[r - 1, 0] = 1.0
+    L1[r, 1] = 1.0
+    H1 = np.zeros((1, r + 1))
+    H1[0, 0] = H1[0, r] = 1.0
+    two = lambda a: np.kron(np.eye(2), a)  # noqa: E731 - both axes, block-diagonal
+    qb = 2.0 * slow_var / tau_s
+    model = ContinuousLinearModel(two(Phi1), two(L1), two(np.diag([q, qb])), two(H1), np.eye(2),
+                                  name=f"{spec.name} with a slow fix error")
+    with np.errstate(over="ignore"):   # beyond the float range: the filter's discretisation check names q
+        levels = tuple(two(np.diag([m * q, qb])) for m in (f, f * f))
+    info = two(np.diag(np.r_[np.zeros(r), 1.0 / slow_var]))
+    prior = np.tile(np.r_[spec.prior_variances, slow_var], 2)
+    return model, levels, info, prior
 
 
 def _time_like(t_grid: np.ndarray, times: np.ndarray) -> np.ndarray:

@@ -14,7 +14,8 @@ which for a consistent filter is chi-square with m = dim z degrees of freedom
 (the same book, sec. 11.2): a measurement whose NIS exceeds the chi-square
 quantile ``gate_probability`` (default 0.999: 13.82 for a 2-D fix) is tested
 again against the prediction with ``manoeuvre_factor`` times the process noise
-(default 10); if it passes there it updates the filter from that prediction
+(default 10), and failing that with its square (100: a sharp turn); if it
+passes there it updates the filter from that prediction
 as a candidate, and the next measurement decides: inside the gate of the
 track it leads to, the candidate is a manoeuvre (flag "manoeuvre"); otherwise
 it was an outlier and the filter coasts through it.  A measurement outside
@@ -79,7 +80,8 @@ class GatedResult(FilterResult):
     nis   (T,) the NIS the gate decided on, from innovation and S
     flag  (T,) index into FLAGS: 0 update, 1 outlier (rejected), 2 predicted (no measurement), 3 reset,
           4 init (the first fix of a track, :func:`track_gated`), 5 manoeuvre
-    F, Q  (T, n, n) the transition used to reach step k from step k-1 (for smoothing)
+    F, Q  (T, n, n) the transition used to reach step k from step k-1 (for smoothing): Q is the manoeuvre's
+          process noise at a manoeuvre
     """
 
     flag: np.ndarray | None = None
@@ -96,7 +98,8 @@ class GatedResult(FilterResult):
 
 def kalman_filter_gated(model: ContinuousLinearModel, times, z, x0, P0, *, t0: float | None = None, R=None,
                         gate_probability: float | None = 0.999, max_rejections: int | None = None,
-                        manoeuvre_factor: float = MANOEUVRE_FACTOR) -> GatedResult:
+                        manoeuvre_factor: float = MANOEUVRE_FACTOR, manoeuvre_noise=None,
+                        prior_information=None) -> GatedResult:
     """Kalman filter at irregular times with two-level NIS gating (see the module doc).
 
     model    ContinuousLinearModel (e.g. constant_velocity_continuous(q, axes=2, sigma_r2=...))
@@ -106,8 +109,14 @@ def kalman_filter_gated(model: ContinuousLinearModel, times, z, x0, P0, *, t0: f
     R        None (model.R), or (T, m, m) per-measurement noise covariances (e.g. from GPS accuracy)
     gate_probability  chi-square probability of the NIS gate; None disables gating
     max_rejections    rejections in a row that may restart the filter (default and minimum: the
-                      fixes a diffuse start needs, n / m, plus one)
-    manoeuvre_factor  process noise of the manoeuvre hypothesis, as a multiple of the model's
+                      fixes a diffuse start needs, (n - states with a prior information) / m, plus one)
+    manoeuvre_factor  process noise of the manoeuvre hypothesis, as a multiple of the model's (the sharp
+                      manoeuvre: its square)
+    manoeuvre_noise   None, or the spectral densities (Qc of the model) of the two manoeuvre hypotheses,
+                      e.g. to scale only the motion's noise and not that of an error state
+    prior_information None, or (n, n) the information (inverse covariance) a restart starts from: the
+                      states it covers have a prior of their own (e.g. a fix error's slow part), the others
+                      start diffuse
 
     References
     ----------
@@ -122,10 +131,14 @@ def kalman_filter_gated(model: ContinuousLinearModel, times, z, x0, P0, *, t0: f
     n, m, T = model.n, model.m, t.shape[0]
     x = as_vector("x0", x0, n)
     P = check_covariance("P0", P0, n)
-    start = n // m
+    Y0 = np.zeros((n, n)) if prior_information is None else check_covariance("prior_information",
+                                                                             prior_information, n)
+    start = (n - int(np.count_nonzero(np.diag(Y0)))) // m
     max_rejections = check_int("max_rejections", start + 1 if max_rejections is None else max_rejections,
                                minimum=start + 1)
     manoeuvre_factor = check_positive("manoeuvre_factor", manoeuvre_factor)
+    if manoeuvre_noise is not None and len(manoeuvre_noise) != 2:
+        raise ParameterError("manoeuvre_noise: expected the spectral densities of the two manoeuvre hypotheses")
     t0 = float(t[0]) if t0 is None else float(t0)
     dts = np.diff(np.r_[t0, t])
     if np.any(dts < 0):
@@ -143,30 +156,42 @@ def kalman_filter_gated(model: ContinuousLinearModel, times, z, x0, P0, *, t0: f
     xp, Pp = np.empty((T, n)), np.empty((T, n, n))
     nu, S, nis = innovation_arrays((T,), m)
     flag = np.zeros(T, dtype=np.int8)
+    level = np.zeros(T, dtype=np.int8)
     with renamed(dt="times"):
         Fs, Qs = intervals_unchecked(model, dts)
     require_finite("the discretisation e^(Phi dt), Q of the intervals", (Fs, Qs), times=t, model=model)
+    if manoeuvre_noise is None:
+        with np.errstate(over="ignore"):   # beyond the float range: the check below names it
+            manoeuvre_noise = (manoeuvre_factor * model.Qc, manoeuvre_factor ** 2 * model.Qc)
+    levels = [ContinuousLinearModel(model.Phi, model.L, check_covariance("manoeuvre_noise", Qc, model.Qc.shape[0]),
+                                    model.H, model.R) for Qc in manoeuvre_noise]
+    with renamed(dt="times"):
+        Qm, Qsharp = (intervals_unchecked(level, dts)[1] for level in levels)
+    require_finite("the discretisation of the manoeuvre hypotheses", (Qm, Qsharp), times=t, model=model)
     inputs = dict(times=t, z=z, x0=x, P0=P, model=model) | ({} if R is None else {"R": Rs})
     try:
-        loglik = gated_loop(t, Fs, Qs, H, np.ascontiguousarray(Rs), z, x.copy(), P.copy(), gates,
-                            gate_probability is not None, max_rejections, float(manoeuvre_factor), start,
-                            xs, Ps, xp, Pp, nu, S, nis, flag)
+        loglik = gated_loop(t, Fs, Qs, Qm, Qsharp, H, np.ascontiguousarray(Rs), z, x.copy(), P.copy(),
+                            np.ascontiguousarray(Y0), gates, gate_probability is not None, max_rejections, start,
+                            xs, Ps, xp, Pp, nu, S, nis, flag, level)
     except (np.linalg.LinAlgError, ZeroDivisionError, SystemError) as exc:   # a breakdown inside numba
         raise _overflow("the gated Kalman filter", inputs, exc) from exc
     # every output, not only the estimates: the NIS and log-likelihood of fixes of 1e300 m overflow
     # (NaN marks a component or a fix that was not used, as z's NaN does)
     used = [np.where(np.isnan(a), 0.0, a) for a in (nu, S, nis)]
     require_finite("the gated Kalman filter", (xs, Ps, xp, Pp, loglik, *used), **inputs)
+    # the process noise each step used: a manoeuvre's where the filter took one (for the smoother)
+    Q_used = np.where((level == 1)[:, None, None], Qm, np.where((level == 2)[:, None, None], Qsharp, Qs))
     return GatedResult(x=xs, P=Ps, x_pred=xp, P_pred=Pp, loglik=float(loglik), method="KF-gated", innovation=nu,
-                       S=S, nis=nis, flag=flag, F=Fs, Q=Qs)
+                       S=S, nis=nis, flag=flag, F=Fs, Q=Q_used)
 
 
 @finite_result("the RTS smoother")
 def smooth_gated(gated: GatedResult) -> FilterResult:
     """RTS smoothing of a gated run: the backward pass of :func:`mptrack.linear.rts_smoother`
     with the per-step (F, Q) the filter used, run separately on each stretch between
-    filter resets (a reset breaks the chain of predictions).  Rejected and missing
-    measurements are prediction-only steps and need no special case.
+    filter resets and segment starts (flag init after a gap: either breaks the chain of
+    predictions).  Rejected and missing measurements are prediction-only steps and need no
+    special case.
     """
     if not isinstance(gated, GatedResult):
         raise ParameterError(f"gated: expected a GatedResult (from kalman_filter_gated), got {type(gated).__name__}")
@@ -177,7 +202,7 @@ def smooth_gated(gated: GatedResult) -> FilterResult:
     as_array("gated.flag", gated.flag, shape=(T,))
     r = gated
     xs, Ps = np.empty_like(r.x), np.empty_like(r.P)
-    starts = np.flatnonzero(gated.flag == FLAGS.index("reset"))
+    starts = np.flatnonzero((gated.flag == FLAGS.index("reset")) | (gated.flag == INIT))
     bounds = np.unique(np.r_[0, starts, r.T])
     for a, b in zip(bounds[:-1], bounds[1:]):
         part = FilterResult(x=r.x[a:b], P=r.P[a:b])
@@ -192,27 +217,41 @@ def measured_states(H) -> list[int]:
 
 
 def first_fix_prior(H, z0, R0, prior_variances) -> tuple[np.ndarray, np.ndarray]:
-    """(x0, P0) at a track's first fix: the measured states (:func:`measured_states`) are the fix z0
-    with covariance R0, every other state i is 0 with variance ``prior_variances[i]``."""
+    """(x0, P0) at a track's first fix: the measured states (:func:`measured_states`) have a flat prior
+    and every other state i is 0 with variance ``prior_variances[i]``; the fix z0 = H x + v (v of
+    covariance R0) then gives the measured states z0 - H_o x_o (H_o: H without the measured columns),
+    of covariance H_o D H_o^T + R0 and covariance -H_o D with the others (D = diag(prior_variances)):
+    the fix with its variance when it measures its states alone."""
     picks = measured_states(H)
+    D = np.diag(np.asarray(prior_variances, dtype=float))
+    Ho = np.array(H, dtype=float)
+    Ho[:, picks] = 0.0
     x0 = np.zeros(len(prior_variances))
     x0[picks] = z0
-    P0 = np.diag(np.asarray(prior_variances, dtype=float))
-    P0[np.ix_(picks, picks)] = R0
+    P0 = D.copy()
+    P0[np.ix_(picks, picks)] = Ho @ D @ Ho.T + R0
+    cross = -Ho @ D
+    others = [i for i in range(len(x0)) if i not in picks]
+    P0[np.ix_(picks, others)] = cross[:, others]
+    P0[np.ix_(others, picks)] = cross[:, others].T
     return x0, P0
 
 
 def track_gated(model: ContinuousLinearModel, times, z, R, prior_variances, *,
                 gate_probability: float | None = 0.999, max_rejections: int | None = None,
-                manoeuvre_factor: float = MANOEUVRE_FACTOR) -> GatedResult:
+                manoeuvre_factor: float = MANOEUVRE_FACTOR, manoeuvre_noise=None, prior_information=None,
+                max_gap_s: float | None = None) -> GatedResult:
     """One track from its first fix: the per-track reference of the tracking engine.
 
     The first fix initialises the state (flag "init", no NIS): the measured
-    entries are the fix with covariance R[0], every other state is 0 with the
-    variance ``prior_variances[i]`` (state order of ``model``; the entries of
-    the measured states are not used).  The other fixes go through
-    :func:`kalman_filter_gated` from that prior.  The result covers all T
-    fixes; ``F[0]`` = I and ``Q[0]`` = 0.
+    entries are the fix with covariance R[0] (:func:`first_fix_prior`), every
+    other state is 0 with the variance ``prior_variances[i]`` (state order of
+    ``model``; the entries of the measured states are not used).  The other
+    fixes go through :func:`kalman_filter_gated` from that prior (its
+    ``manoeuvre_factor``, ``manoeuvre_noise``, ``prior_information``).  A fix
+    more than ``max_gap_s`` seconds after the one before starts a new segment:
+    the track is run again from it as from a first fix (None: never).  The
+    result covers all T fixes; ``F``, ``Q`` at a segment's first fix are I and 0.
     """
     require_model(model, kind=ContinuousLinearModel)
     t = as_array("times", times, ndim=1)
@@ -221,16 +260,24 @@ def track_gated(model: ContinuousLinearModel, times, z, R, prior_variances, *,
         raise ShapeError(f"z: expected {t.shape[0]} rows (one per time stamp, at least one), got shape {z.shape}")
     n, T = model.n, t.shape[0]
     Rs = as_array("R", R, shape=(T, model.m, model.m))
-    x0, P0 = first_fix_prior(model.H, z[0], Rs[0], as_vector("prior_variances", prior_variances, n, low=0.0))
-    flag0 = np.array([INIT], dtype=np.int8)
-    init = GatedResult(x=x0[None], P=P0[None], x_pred=x0[None], P_pred=P0[None], loglik=0.0, method="KF-gated",
-                       innovation=np.full((1, model.m), np.nan), S=np.full((1, model.m, model.m), np.nan),
-                       nis=np.full(1, np.nan), flag=flag0, F=np.eye(n)[None], Q=np.zeros((1, n, n)))
-    if T == 1:
-        return init
-    g = kalman_filter_gated(model, t[1:], z[1:], x0, P0, t0=float(t[0]), R=Rs[1:],
-                            gate_probability=gate_probability, max_rejections=max_rejections,
-                            manoeuvre_factor=manoeuvre_factor)
-    rows = {f.name: np.concatenate([getattr(init, f.name), getattr(g, f.name)])
-            for f in fields(GatedResult) if isinstance(getattr(g, f.name), np.ndarray)}
-    return GatedResult(**rows, loglik=g.loglik, method="KF-gated")
+    prior = as_vector("prior_variances", prior_variances, n, low=0.0)
+    gap = np.inf if max_gap_s is None else check_positive("max_gap_s", max_gap_s)
+    bounds = np.r_[0, np.flatnonzero(np.diff(t) > gap) + 1, T]
+    parts = []
+    for a, b in zip(bounds[:-1], bounds[1:]):
+        x0, P0 = first_fix_prior(model.H, z[a], Rs[a], prior)
+        init = GatedResult(x=x0[None], P=P0[None], x_pred=x0[None], P_pred=P0[None], loglik=0.0, method="KF-gated",
+                           innovation=np.full((1, model.m), np.nan), S=np.full((1, model.m, model.m), np.nan),
+                           nis=np.full(1, np.nan), flag=np.array([INIT], dtype=np.int8), F=np.eye(n)[None],
+                           Q=np.zeros((1, n, n)))
+        parts.append(init)
+        if b - a > 1:
+            parts.append(kalman_filter_gated(model, t[a + 1:b], z[a + 1:b], x0, P0, t0=float(t[a]), R=Rs[a + 1:b],
+                                             gate_probability=gate_probability, max_rejections=max_rejections,
+                                             manoeuvre_factor=manoeuvre_factor, manoeuvre_noise=manoeuvre_noise,
+                                             prior_information=prior_information))
+    if len(parts) == 1:
+        return parts[0]
+    rows = {f.name: np.concatenate([getattr(g, f.name) for g in parts])
+            for f in fields(GatedResult) if isinstance(getattr(parts[-1], f.name), np.ndarray)}
+    return GatedResult(**rows, loglik=float(sum(g.loglik for g in parts)), method="KF-gated")

@@ -18,8 +18,8 @@ import math
 import numba as nb
 import numpy as np
 
-from ._chain import (BLOCKS, INLINE, M_F, M_P, M_PC, M_PP, M_QU, M_T, PAR, S_X, S_XC, S_XP, SEQ, chain_transition,
-                     copy_state, info_start, predict, update, work)
+from ._chain import (BLOCKS, INLINE, M_F, M_P, M_PC, M_PP, M_QU, M_T, M_UA, M_UT, PAR, S_X, S_XC, S_XP, SEQ, V_UK,
+                     chain_transition, copy_state, info_start, predict, update, work)
 
 __all__ = ["USE", "SKIP", "RESTART", "loglik_tracks", "moment_guess"]
 
@@ -43,7 +43,7 @@ def _diffuse_start(k, t, ze, zn, w, mask, c, q, order, x, P, wk):
             rows[count] = k
             count += 1
             if count == order:
-                if info_start(t, ze, zn, w, c, rows, order, q, order, x, P, wk):
+                if info_start(t, ze, zn, w, c, rows, order, q, order, order, 1.0, 1.0, x, P, wk):
                     return k + 1
                 for j in range(order - 1):  # singular (equal times): slide the window on
                     rows[j] = rows[j + 1]
@@ -57,8 +57,9 @@ def _track_loglik(t, ze, zn, w, mask, c, q, order, out, wk):
     """out <- (E, L, N): sum of NIS, sum of log det S and number of scalar innovations of the fixes
     ``mask`` accepts, conditional on the first ``order`` accepted fixes of each stretch (a stretch
     starts at row 0 and at each RESTART)."""
-    mats, st, _, _, _ = wk
+    mats, st, vec, _, _ = wk
     F, Qu, tmp, P, Ps, Pp = mats[M_F], mats[M_QU], mats[M_T], mats[M_P], mats[M_PC], mats[M_PP]
+    UA, UT, uk = mats[M_UA], mats[M_UT], vec[V_UK]
     x, xs, xp = st[S_X], st[S_XC], st[S_XP]
     E = 0.0
     L = 0.0
@@ -77,8 +78,8 @@ def _track_loglik(t, ze, zn, w, mask, c, q, order, out, wk):
                 break
             if code != SKIP:
                 chain_transition(order, t[k] - t_last, F, Qu)
-                predict(order, F, Qu, q, x, P, xp, Pp, tmp)
-                e, S = update(order, xp, Pp, c * w[k], ze[k], zn[k], x, P)
+                predict(order, F, Qu, q, 0.0, x, P, xp, Pp, tmp)
+                e, S = update(order, -1, xp, Pp, c * w[k], ze[k], zn[k], x, P, UA, UT, uk)
                 E += e
                 L += 2.0 * math.log(S)
                 N += 2.0

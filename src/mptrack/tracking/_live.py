@@ -23,10 +23,11 @@ import pandas as pd
 
 from ..errors import ParameterError
 from ..io import enu_to_geodetic, geodetic_to_enu
-from ._chain import chain_transition
+from ._chain import transition
 from ._columns import FixTable
 from ._engine import advance_tracks, empty_states, state_from_bytes, state_to_bytes
 from ._engine import _layout  # the state row's layout: where x and P of the last fix are
+from ._fix_error import SLOW_TAU_S, slow_error_variance
 from ._fixes import TrackOptions
 from ._noise import estimate_noise as _estimate
 from ._noise import fix_weights
@@ -127,16 +128,17 @@ class LiveTracks:
             w = np.where(good, acc * acc, self.options.sigma_m ** 2)
         else:
             w = np.where(sigma_mode, 1.0, np.where(good, acc * acc, tr[tracks, _W_FILL]))
-        order = self.order
+        order, n = self.order, self.order + 1
         states = self._states[uniq]
-        X = np.empty((N, 2, order))
-        P = np.empty((N, order, order))
+        X = np.empty((N, 2, n))
+        P = np.empty((N, n, n))
         nis = np.empty(N)
         flag = np.empty(N, dtype=np.int8)
         stats = np.empty((len(uniq), 6))
         advance_tracks(states, offsets, t, np.ascontiguousarray(east), np.ascontiguousarray(north),
                        np.ascontiguousarray(w), np.ascontiguousarray(tr[uniq, _C]), np.ascontiguousarray(tr[uniq, _Q]),
-                       order, self.spec.prior, self.spec.gate, self.spec.max_rej, X, P, nis, flag, stats)
+                       self._slow_var(uniq), np.full(len(uniq), SLOW_TAU_S), order, self.spec.prior, self.spec.gate,
+                       self.spec.max_rej, self.spec.max_gap_s, X, P, nis, flag, stats)
         self._states[uniq] = states
         est = self._estimates(tracks, X, P, nis, flag)
         last = offsets[1:] - 1
@@ -144,6 +146,15 @@ class LiveTracks:
         for j, k in enumerate(ESTIMATE_FIELDS):
             tr[uniq, _EST + j] = est[k][last]
         return est
+
+    def _slow_var(self, tracks) -> np.ndarray:
+        """The variance of the fix error's slow part of ``tracks`` (:func:`._fix_error.slow_error_variance`):
+        what the total error (the fixes' accuracy, else 5 m) leaves after the white part, as ``mptrack
+        track`` takes it."""
+        tr = self._track
+        accuracy = tr[tracks, _MODE] == ACCURACY
+        other = 1.0 if self.options.sigma_m is None else self.options.sigma_m ** 2
+        return slow_error_variance(tr[tracks, _C], np.where(accuracy, tr[tracks, _W_FILL], other), accuracy)
 
     def _estimates(self, tracks, X, P, nis, flag) -> dict:
         tr = self._track
@@ -176,19 +187,21 @@ class LiveTracks:
     def position(self, i: int, t: float) -> dict:
         """Track i's estimate predicted to time ``t`` (at or after its last fix): lat, lon, vel_e,
         vel_n, the east/north covariance and its 1-sigma ellipse, and the flag of its last fix.  The
-        prediction is x(t) = F(t - t_k) x(k/k), P(t) = F P F' + q Q(t - t_k) -- for regular fixes and a
-        filter in steady state, the N-step steady-state prediction of Assimakis et al. 2016."""
+        prediction is x(t) = F(t - t_k) x(k/k), P(t) = F P F' + Q(t - t_k) of the motion and the fix
+        error's slow part -- for regular fixes and a filter in steady state, the N-step steady-state
+        prediction of Assimakis et al. 2016."""
         i = int(self._check([i])[0])
         tr = self._track[i]
         dt = float(t) - tr[_T]
         if not dt >= 0.0:
             raise ParameterError(f"t: expected a time at or after the track's last fix ({tr[_T]!r}), got {t!r}")
         x, P = self._estimate(i)
-        order = self.order
-        F, Qu = np.empty((order, order)), np.empty((order, order))
-        chain_transition.py_func(order, dt, F, Qu)
+        order, n = self.order, self.order + 1
+        F, Qu = np.empty((n, n)), np.empty((n, n))
+        slow = transition.py_func(order, n, dt, SLOW_TAU_S, F, Qu) * self._slow_var(np.array([i]))[0]
         x = x @ F.T
         P = F @ P @ F.T + tr[_Q] * Qu
+        P[order, order] += slow
         lat, lon = enu_to_geodetic(x[0:1, 0], x[1:2, 0], tr[_LAT0:_LAT0 + 1], tr[_LON0:_LON0 + 1])
         var = np.array([P[0, 0]])
         major, minor, az = ellipse(var, np.zeros(1), var)
@@ -197,11 +210,12 @@ class LiveTracks:
                 "ell_minor_m": float(minor[0]), "ell_azimuth_deg": float(az[0]), "flag": int(tr[_EST + 8])}
 
     def _estimate(self, i: int) -> tuple[np.ndarray, np.ndarray]:
-        """(x (2, order), P (order, order)) of track i after its last fix."""
-        x0, p0 = _layout.py_func(self.order)[:2]
+        """(x (2, n), P (n, n)) of track i after its last fix: per axis the chain and the fix error's slow
+        part (n = order + 1)."""
+        n = self.order + 1
+        x0, p0 = _layout.py_func(n)[:2]
         row = self._states[i]
-        order = self.order
-        return row[x0:x0 + 2 * order].reshape(2, order).copy(), row[p0:p0 + order * order].reshape(order, order).copy()
+        return row[x0:x0 + 2 * n].reshape(2, n).copy(), row[p0:p0 + n * n].reshape(n, n).copy()
 
     def origin(self, i: int) -> tuple[float, float]:
         """(lat0, lon0) of track i's local frame (its first fix)."""

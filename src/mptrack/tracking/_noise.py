@@ -48,7 +48,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ._columns import FixTable, median_by
-from ._engine import MANOEUVRE, OUTLIER, RESET, filter_tracks
+from ._engine import INIT, MANOEUVRE, OUTLIER, RESET, filter_tracks
 from ._likelihood import RESTART, SKIP, USE, loglik_tracks, moment_guess
 from ._registry import DEFAULT_SIGMA_M
 
@@ -86,6 +86,7 @@ class NoiseSpec:
     scope       "track": one estimate per track (short tracks pooled); "file": one for all tracks
                 (one of SCOPES; checked where the user gives it, TrackOptions)
     gate        NIS gate of the outlier rounds (inf: none); max_rej as in the filter
+    max_gap_s   a gap longer than this starts a new stretch of the likelihood (a new segment of the track)
     default_sigma_m, default_q   the fallbacks for tracks that cannot be calibrated
     """
 
@@ -96,6 +97,7 @@ class NoiseSpec:
     scope: str = "track"
     gate: float = math.inf
     max_rej: int = 3
+    max_gap_s: float = math.inf
     default_sigma_m: float = DEFAULT_SIGMA_M
     default_q: float = 2.0
 
@@ -373,7 +375,7 @@ def estimate_noise(table: FixTable, w: np.ndarray, has_acc: np.ndarray, spec: No
     pool_group = np.where(usable, np.searchsorted(kinds, has_acc), -1) if kinds else np.full(B, -1)
     mine = _Problem(table, w, spec, own_group, int(own.sum()))
     pool = _Problem(table, w, spec, pool_group, len(kinds))
-    mine.mask = pool.mask = _spike_mask(table, w)
+    mine.mask = pool.mask = np.where(_gap_starts(table, spec.max_gap_s), RESTART, _spike_mask(table, w)).astype(np.int8)
     guess = np.zeros((B, 3))
     moment_guess(table.offsets, table.t, table.east, table.north, w, mine.mask, guess)
     th_own, th_pool = _start(mine, np.arange(mine.G), guess), _start(pool, np.arange(pool.G), guess)
@@ -474,6 +476,20 @@ def _spike_mask(table: FixTable, w: np.ndarray) -> np.ndarray:
     return mask
 
 
+def _gap_starts(table: FixTable, max_gap_s: float) -> np.ndarray:
+    """(N,) the fixes that start a new segment: more than ``max_gap_s`` after the fix before in their track."""
+    gap = np.zeros(table.N, dtype=bool)
+    if table.N > 1:
+        gap[1:] = np.diff(table.t) > max_gap_s
+        gap[table.offsets[:-1][table.counts > 0]] = False
+    return gap
+
+
+def _white(table: FixTable, spec: NoiseSpec) -> tuple:
+    """The filter's arguments after (c, q) for the white fix error the likelihood fits (no slow part)."""
+    return np.zeros(table.B), np.full(table.B, math.inf), spec.order, spec.prior
+
+
 def _robust_scale(table: FixTable, w, c, q, how, spec: NoiseSpec) -> tuple[np.ndarray, np.ndarray]:
     """(c, q) of the tracks with their own estimate (``how`` ESTIMATED) scaled down by the track's
     median NIS over 2 ln 2 (never up).
@@ -486,10 +502,10 @@ def _robust_scale(table: FixTable, w, c, q, how, spec: NoiseSpec) -> tuple[np.nd
         return c, q
     nis = np.empty(table.N)
     flag = np.empty(table.N, dtype=np.int8)
-    X = np.empty((1, 2, spec.order))
-    P = np.empty((1, spec.order, spec.order))
-    filter_tracks(table.offsets, table.t, table.east, table.north, w, c, q, spec.order, spec.prior,
-                  math.inf, spec.max_rej, False, False, X, P, nis, flag, np.zeros((table.B, 6)))
+    X = np.empty((1, 2, spec.order + 1))
+    P = np.empty((1, spec.order + 1, spec.order + 1))
+    filter_tracks(table.offsets, table.t, table.east, table.north, w, c, q, *_white(table, spec), math.inf,
+                  spec.max_rej, spec.max_gap_s, False, False, X, P, nis, flag, np.zeros((table.B, 6)))
     ok = np.isfinite(nis)
     med = median_by(np.repeat(np.arange(table.B), table.counts), nis, np.arange(table.B), ok)
     factor = np.where(np.isfinite(med) & (med > 0) & (how == ESTIMATED), np.minimum(1.0, med / _MEDIAN_NIS), 1.0)
@@ -502,11 +518,11 @@ def _gated_mask(table: FixTable, w, c, q, spec: NoiseSpec) -> np.ndarray:
     flag = np.empty(table.N, dtype=np.int8)
     nis = np.empty(table.N)
     stats = np.zeros((table.B, 6))
-    X = np.empty((1, 2, spec.order))
-    P = np.empty((1, spec.order, spec.order))
-    filter_tracks(table.offsets, table.t, table.east, table.north, w, c, q, spec.order, spec.prior,
-                  spec.gate, spec.max_rej, False, False, X, P, nis, flag, stats)
+    X = np.empty((1, 2, spec.order + 1))
+    P = np.empty((1, spec.order + 1, spec.order + 1))
+    filter_tracks(table.offsets, table.t, table.east, table.north, w, c, q, *_white(table, spec), spec.gate,
+                  spec.max_rej, spec.max_gap_s, False, False, X, P, nis, flag, stats)
     return np.where((flag == OUTLIER) | (flag == MANOEUVRE), SKIP,
-                    np.where(flag == RESET, RESTART, USE)).astype(np.int8)
+                    np.where((flag == RESET) | (flag == INIT), RESTART, USE)).astype(np.int8)
 
 

@@ -334,11 +334,12 @@ def _summary(tracks: pd.DataFrame, report: ReadReport, options: TrackOptions, ch
            "options": asdict(options)}
     if n and "sigma_m" in tracks:
         if n <= MAX_LISTED_TRACKS:
-            cols = ["track_id", "fixes", "sigma_m", "sigma_se_m", "accuracy_scale", "q", "q_se", "sigma_source",
-                    "q_source", "mean_nis", "nis_consistent"]
+            cols = ["track_id", "fixes", "sigma_m", "sigma_se_m", "sigma_slow_m", "accuracy_scale", "q", "q_se",
+                    "sigma_source", "q_source", "mean_nis", "nis_consistent"]
             out["track_noise"] = [{k: (None if isinstance(v, float) and not np.isfinite(v) else v)
                                    for k, v in row.items()} for row in tracks[cols].to_dict("records")]
-        noise = {name: _distribution(tracks[name].to_numpy(float)) for name in ("sigma_m", "q")}
+        noise = {name: _distribution(tracks[name].to_numpy(float)) for name in ("sigma_m", "sigma_slow_m", "q")
+                 if name in tracks}
         for name in ("sigma_source", "q_source"):
             noise[name] = {str(k): int(v) for k, v in tracks[name].value_counts().items()}
         noise["sigma_at_floor"] = int(((tracks["sigma_source"] != "given")
@@ -366,8 +367,8 @@ def _distribution(x: np.ndarray) -> dict:
 
 def track(data, *, cells=None, model: str | None = None, filter: str | None = None, smooth: bool = False,
           sigma_m: float | None = None, q: float | None = None, noise: str | None = None,
-          gate_probability: float | None = None, method: str | None = None, motion: str | None = None,
-          path_loss: str | None = None, q_km2: float | None = None, r_km2: float | None = None,
+          gate_probability: float | None = None, max_gap_s: float | None = None, method: str | None = None,
+          motion: str | None = None, path_loss: str | None = None, q_km2: float | None = None, r_km2: float | None = None,
           scan_interval_s: float | None = None, gap_s: float | None = None, columns=None, time_unit: str = "auto",
           time_format: str | None = None, coord_unit: str = "auto", on_error: str = "raise",
           max_skip: str | None = None, chunk_rows: int = DEFAULT_CHUNK_ROWS, executor: str = "serial",
@@ -402,6 +403,9 @@ def track(data, *, cells=None, model: str | None = None, filter: str | None = No
         Position fixes: one noise estimate per track (default) or one for the whole input.
     gate_probability : float, optional
         Position fixes: the NIS gate's chi-square probability (default 0.999); 1 disables gating.
+    max_gap_s : float, optional
+        Position fixes: a gap longer than this (s, default 600) starts a new segment of the track (its
+        next fix starts the filter again); ``math.inf`` bridges every gap.
     method : {"ekf", "fekf", "fcs"}, optional
         Cellular: the range filter (default "ekf"; Bouzera et al. 2017).
     motion : {"random-walk", "cv"}, optional
@@ -467,7 +471,7 @@ def track(data, *, cells=None, model: str | None = None, filter: str | None = No
     if unknown:
         raise ParameterError(_unknown_option(sorted(unknown)[0]))
     given = {"model": model, "filter": filter, "smooth": check_bool("smooth", smooth) or None, "q": q,
-             "sigma_m": sigma_m, "noise": noise, "gate_probability": gate_probability, "method": method,
+             "sigma_m": sigma_m, "noise": noise, "gate_probability": gate_probability, "max_gap_s": max_gap_s, "method": method,
              "motion": motion, "path_loss": path_loss, "q_km2": q_km2, "r_km2": r_km2,
              "scan_interval_s": scan_interval_s, "gap_s": gap_s}
     given = {k: v for k, v in given.items() if v is not None}

@@ -10,6 +10,8 @@ estimates.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pandas as pd
 import pyarrow as pa
@@ -18,6 +20,7 @@ from .._core.validation import derived_from, require_finite
 from .._core.tracks import track_offsets
 from ._columns import FixTable
 from ._engine import filter_tracks
+from ._fix_error import SLOW_TAU_S, slow_error_variance
 from ._fixes import TrackOptions, track_fixes
 from ._noise import SOURCES, NoiseEstimate, NoiseSpec, estimate_noise, fix_weights
 from ._consistency import USED_FLAGS, flag_counts, is_flag, nis_band
@@ -29,7 +32,7 @@ __all__ = ["noise_spec", "track_table", "TRACK_COLUMNS"]
 #: Columns of the track table, in order.
 TRACK_COLUMNS = ("track_id", "fixes", "duration_s", "updates", "manoeuvres", "outliers", "resets", "restarts",
                  "sigma_m",
-                 "sigma_se_m",
+                 "sigma_se_m", "sigma_slow_m",
                  "accuracy_scale", "accuracy_scale_se", "q", "q_se", "sigma_source", "q_source", "mean_nis",
                  "nis_dof", "nis_lo", "nis_hi", "nis_consistent", "loglik")
 
@@ -38,7 +41,8 @@ def noise_spec(options: TrackOptions) -> NoiseSpec:
     """What :func:`estimate_noise` does for ``options``."""
     spec = get_model(options.model)
     return NoiseSpec(order=spec.order, prior=spec.prior_variances, sigma_m=options.sigma_m, q=options.q,
-                     scope=options.noise, gate=options.gate, max_rej=spec.order + 1, default_q=spec.default_q)
+                     scope=options.noise, gate=options.gate, max_rej=spec.order + 1, default_q=spec.default_q,
+                     max_gap_s=math.inf if options.max_gap_s is None else options.max_gap_s)
 
 
 def track_table(table: FixTable, options: TrackOptions, fixed: dict | None = None) -> tuple[pa.Table, pa.Table]:
@@ -63,14 +67,16 @@ def _track_table(table: FixTable, options: TrackOptions, fixed: dict | None) -> 
         extra["meas_lat"], extra["meas_lon"] = table.lat, table.lon
     origin = table.origin if table.geographic else None
     stats = np.full((table.B, 6), np.nan)
+    sb2 = slow_error_variance(noise.c, table.per_track_median(w), has_acc)
     if options.filter == "kf":
         N, order = table.N, spec.order
-        X = np.empty((N, 2, order))
-        P = np.empty((N, order, order))
+        X = np.empty((N, 2, order + 1))
+        P = np.empty((N, order + 1, order + 1))
         nis = np.empty(N)
         flag = np.empty(N, dtype=np.int8)
-        filter_tracks(table.offsets, table.t, table.east, table.north, w, noise.c, noise.q, order, spec.prior,
-                      spec.gate, spec.max_rej, True, options.smooth, X, P, nis, flag, stats)
+        filter_tracks(table.offsets, table.t, table.east, table.north, w, noise.c, noise.q, sb2,
+                      np.full(table.B, SLOW_TAU_S), order, spec.prior, spec.gate, spec.max_rej, spec.max_gap_s, True,
+                      options.smooth, X, P, nis, flag, stats)
         require_finite("the gated Kalman filter", (X, P), sigma_m=options.sigma_m, q=options.q,
                        east=table.east, north=table.north)
         method = "KF-gated" + ("+RTS" if options.smooth else "")
@@ -81,7 +87,8 @@ def _track_table(table: FixTable, options: TrackOptions, fixed: dict | None) -> 
     else:
         points = _per_track(table, options, noise, r)
         flag = None
-    return points, _tracks(table, noise, w, has_acc, stats, points, flag)
+        sb2 = np.full(table.B, np.nan)   # the grid filters model a white fix error only
+    return points, _tracks(table, noise, w, has_acc, sb2, stats, points, flag)
 
 
 def _per_track(table: FixTable, options: TrackOptions, noise: NoiseEstimate, r: np.ndarray) -> pa.Table:
@@ -99,10 +106,11 @@ def _per_track(table: FixTable, options: TrackOptions, noise: NoiseEstimate, r: 
     return pa.Table.from_pandas(pd.concat(frames, ignore_index=True), preserve_index=False)
 
 
-def _tracks(table: FixTable, noise: NoiseEstimate, w: np.ndarray, has_acc: np.ndarray, stats: np.ndarray,
-            points: pa.Table, flag: np.ndarray | None) -> pa.Table:
+def _tracks(table: FixTable, noise: NoiseEstimate, w: np.ndarray, has_acc: np.ndarray, sb2: np.ndarray,
+            stats: np.ndarray, points: pa.Table, flag: np.ndarray | None) -> pa.Table:
     """The track table (one row per track): counts and the mean NIS from the flags
-    (:mod:`._consistency`, the one definition every summary prints)."""
+    (:mod:`._consistency`, the one definition every summary prints); ``sb2`` the variance of the fix
+    error's slow part."""
     B = table.B
     nis = points.column("nis").to_numpy()
     if flag is None:  # per-track path: its rows are grid slots
@@ -127,7 +135,7 @@ def _tracks(table: FixTable, noise: NoiseEstimate, w: np.ndarray, has_acc: np.nd
         "track_id": pa.array([str(i) for i in table.ids], type=pa.string()),
         "fixes": table.counts, "duration_s": table.t[ends] - table.t[starts] if B else np.zeros(0),
         **counts,
-        "sigma_m": sigma, "sigma_se_m": sigma * noise.se_log_c / 2.0,
+        "sigma_m": sigma, "sigma_se_m": sigma * noise.se_log_c / 2.0, "sigma_slow_m": np.sqrt(sb2),
         "accuracy_scale": scale, "accuracy_scale_se": scale * noise.se_log_c / 2.0,
         "q": noise.q, "q_se": noise.q * noise.se_log_q,
         "sigma_source": pa.array(src[noise.source_c].tolist(), type=pa.string()),
