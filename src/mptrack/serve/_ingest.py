@@ -338,27 +338,22 @@ class Ingest:
 
 def _rows(fixes: list[tuple], dev: np.ndarray, sel: np.ndarray, est: dict | None, now: float) -> list[tuple]:
     """The stored rows (FIX_COLUMNS + ESTIMATE_COLUMNS) of ``fixes[sel]`` with their estimates."""
-    out = []
-    keys = dev.tolist()
+    head = [(k,) + f[1:8] + (_attrs(f[8]), now) for k, f in zip(dev[sel].tolist(), (fixes[i] for i in sel.tolist()))]
     if est is None:
-        empty = (None,) * 8 + (LATE,)
-        for i in sel.tolist():
-            f = fixes[i]
-            out.append((keys[i],) + f[1:8] + (_attrs(f[8]), now) + empty)
-        return out
-    cols = [est[k].tolist() for k in ESTIMATES]
-    for j, i in enumerate(sel.tolist()):
-        f = fixes[i]
-        out.append((keys[i],) + f[1:8] + (_attrs(f[8]), now) + tuple(_nan_none(c[j]) for c in cols))
+        tail = (None,) * 8 + (LATE,)
+        return [h + tail for h in head]
+    return [h + e for h, e in zip(head, zip(*(_nullable(est[k]) for k in ESTIMATES)))]
+
+
+def _nullable(values: np.ndarray) -> np.ndarray:
+    """``values`` as Python numbers, NaN as None (stored as NULL)."""
+    out = values.astype(object)
+    out[values != values] = None
     return out
 
 
 def _attrs(attrs) -> str | None:
     return None if not attrs else json.dumps(attrs, separators=(",", ":"), allow_nan=False, default=str)
-
-
-def _nan_none(v):
-    return None if v != v else v
 
 
 def _num(v):

@@ -27,6 +27,7 @@ __all__ = ["parse_pairs", "parse_query", "TOKEN_PARAMETER"]
 TOKEN_PARAMETER = "key"
 _KNOWN = {"id", "deviceid", "timestamp", "lat", "lon", "location", "speed", "bearing", "heading", "altitude",
           "accuracy", "cell", "wifi", TOKEN_PARAMETER}
+_SCALARS = _KNOWN - {"cell", "wifi"}   # the parameters a fix has at most once
 
 
 MAX_FIELDS = 200
@@ -34,40 +35,40 @@ MAX_FIELDS = 200
 
 def parse_query(query: bytes | str, now: float | None = None) -> tuple[tuple, str | None]:
     """(fix, token) of one OsmAnd query string or form body (see the module doc)."""
-    if isinstance(query, str):
-        query = query.encode("utf-8")
-    parts = query.split(b"&")
+    if isinstance(query, bytes):
+        try:
+            query = query.decode("utf-8")
+        except UnicodeDecodeError:
+            raise RequestError("the parameters are not UTF-8 text", code="malformed_body") from None
+    parts = query.split("&")
     if len(parts) > MAX_FIELDS:
         raise RequestError(f"more than {MAX_FIELDS} parameters", code="malformed_body")
-    pairs = []
-    try:
-        for part in parts:
-            if not part:
-                continue
-            name, _, value = part.partition(b"=")
-            if b"%" in part or b"+" in part:   # the rare encoded parameter; plain ones skip unquoting
-                pairs.append((unquote_plus(name.decode("utf-8"), errors="strict"),
-                              unquote_plus(value.decode("utf-8"), errors="strict")))
-            else:
-                pairs.append((name.decode("utf-8"), value.decode("utf-8")))
-    except UnicodeDecodeError:
-        raise RequestError("the parameters are not UTF-8 text", code="malformed_body") from None
+    if "%" in query or "+" in query:   # the rare encoded query; plain ones skip unquoting
+        try:
+            pairs = [(unquote_plus(name, errors="strict"), unquote_plus(value, errors="strict"))
+                     for name, _, value in (part.partition("=") for part in parts if part)]
+        except UnicodeDecodeError:
+            raise RequestError("the parameters are not UTF-8 text", code="malformed_body") from None
+    else:
+        pairs = [part.partition("=")[::2] for part in parts if part]
     return parse_pairs(pairs, now)
 
 
 def parse_pairs(pairs, now: float | None = None) -> tuple[tuple, str | None]:
     """(fix, token) of the (name, value) pairs of one OsmAnd request."""
-    p: dict[str, str] = {}
+    p = dict(pairs)
     cells, wifi, attrs = [], [], {}
-    for name, value in pairs:
-        if name == "cell":
-            cells.append(_cell(value))
-        elif name == "wifi":
-            wifi.append(_wifi(value))
-        elif name in _KNOWN:
-            p[name] = value
-        else:
-            attrs[name] = _attribute(value)
+    if not p.keys() <= _SCALARS:   # cells, Wi-Fi (repeatable) or attributes: sort them out
+        p = {}
+        for name, value in pairs:
+            if name == "cell":
+                cells.append(_cell(value))
+            elif name == "wifi":
+                wifi.append(_wifi(value))
+            elif name in _KNOWN:
+                p[name] = value
+            else:
+                attrs[name] = _attribute(value)
     dev_field = "id" if "id" in p else "deviceid"
     device = device_id(p.get(dev_field), "id")
     if "location" in p and "lat" not in p:
