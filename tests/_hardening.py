@@ -52,6 +52,7 @@ import mptrack.nonlinear as nonlinear
 import mptrack.radio as radio
 import mptrack.report as report
 import mptrack.riccati as riccati
+import mptrack.runs as runs
 import mptrack.sim as sim
 import mptrack.tracking as tracking
 from mptrack.errors import DataError, MptrackError, OutputError
@@ -317,7 +318,7 @@ def _public(package: str, attr: str):
 #: Result records: built by mptrack and returned, not built from user input; their array fields are
 #: checked where a record is passed back in (``check_record``).  Warning and exception classes too.
 RECORDS = {
-    "linear.FilterResult", "linear.FitResult", "linear.FilterSpec", "linear.Implementation", "batch.GainSequence", "batch.Chunk",
+    "linear.FilterResult", "linear.FitResult", "linear.FilterSpec", "linear.Implementation", "batch.GainSequence", "runs.Chunk", "runs.Chunks",
     "riccati.SteadyState", "riccati.LainiotisParameters", "nonlinear.BatchFilterResult", "continuous.BlockKernels",
     "continuous.GridDensity", "continuous.GridMixture", "continuous.FEMStep", "nonlinear.IMMResult", "radio.GsmBand", "radio.ValidityWarning",
     "fuzzy.AnfisResult", "tracking.GatedResult", "tracking.MotionModel", "io.ReadReport", "io.InputNotSorted",
@@ -438,19 +439,11 @@ target("batch.per_axis", lambda z, x0: batch.per_axis(batch.kalman_filter, B, z,
        z=arg((2, 4, 2), valid=np.ones((2, 4, 2))), x0=maybe(arg((4,))), passed=("axis_model", "run"))
 target("batch.gain_sequence", lambda model, steps, P0: batch.gain_sequence(_model(model), steps, P0),
        passed=MODEL_PASSED, model=MODEL, steps=count(1, 20), P0=maybe(covariance(2)))
-target("batch.run_chunks", lambda n_items, chunk_size: batch.run_chunks(_chunk_table, n_items, chunk_size=chunk_size),
-       n_items=count(0, 20), chunk_size=count(1, 10), passed=("task",))
-target("batch.run_stream", lambda chunks, part_format: batch.run_stream(_chunk_table, chunks, part_format=part_format),
-       chunks=st.one_of(count(1, 5).map(lambda n: batch.make_chunks(n, 2) if type(n) is int and 1 <= n < 10
-                                        else n)), part_format=names("parquet", "arrow"), passed=("task",))
-target("batch.part_path", out_dir=just(WORKDIR), name=names("chunk", "x"), index=count(0, 5), fmt=names("parquet"))
-target("batch.read_part", path=paths(WORKDIR / "missing.parquet"))
-target("batch.make_chunks", n_items=count(0, 50), chunk_size=count(), seed=maybe(count(0, 10)))
 target("batch.monte_carlo", lambda model, steps, runs, chunk_size: batch.monte_carlo(
     _model(model), steps, runs, seed=1, chunk_size=chunk_size), passed=MODEL_PASSED + ("seed",), model=MODEL,
     steps=count(1, 20), runs=count(1, 20), chunk_size=count(1, 10))
 target("batch.MonteCarloTask", lambda model, steps, P0: batch.MonteCarloTask(_model(model), steps, P0=P0)(
-    batch.make_chunks(2, 2, seed=1)[0]), passed=MODEL_PASSED, model=MODEL, steps=count(1, 20), P0=maybe(covariance(2)))
+    runs.make_chunks(2, 2, seed=1)[0]), passed=MODEL_PASSED, model=MODEL, steps=count(1, 20), P0=maybe(covariance(2)))
 target("batch.filter_chunked", lambda z, chunk_size: batch.filter_chunked(batch.steady_state_filter, B, z,
                                                                            chunk_size=chunk_size),
        z=arg((3, 4, 1), valid=np.ones((3, 4, 1))), chunk_size=count(1, 5), passed=("run", "model"))
@@ -840,7 +833,29 @@ target("io.enu_to_geodetic", east=arg((3,), valid=[0.0, 10.0, -5.0]), north=arg(
 # a table may hold +-Inf: GeoJSON writes it as null (tests/io/test_io_outputs.py), CSV/Parquet as is
 target("io.write_table", df=frames(POINTS.iloc[:5], ["east_m", "lat"]), path=out_paths(), inf_args=("df",))
 target("io.read_output", path=paths(POINTS_CSV), nan_result=True, inf_result=True)
-target("io.PartStore", lambda out: mio.PartStore(out), out=out_paths())
+
+
+# --- runs -------------------------------------------------------------------------------------------------
+target("runs.run_chunks", lambda n_items, chunk_size: runs.run_chunks(_chunk_table, n_items, chunk_size=chunk_size),
+       n_items=count(0, 20), chunk_size=count(1, 10), passed=("task",))
+target("runs.run_stream", lambda chunks, part_format: runs.run_stream(_chunk_table, chunks, part_format=part_format),
+       chunks=st.one_of(count(1, 5).map(lambda n: runs.make_chunks(n, 2) if type(n) is int and 1 <= n < 10
+                                        else n)), part_format=names("parquet", "arrow"), passed=("task",))
+target("runs.part_path", out_dir=just(WORKDIR), name=names("chunk", "x"), index=count(0, 5), fmt=names("parquet"))
+target("runs.read_part", path=paths(WORKDIR / "missing.parquet"))
+target("runs.make_chunks", n_items=count(0, 50), chunk_size=count(), seed=maybe(count(0, 10)))
+target("runs.PartStore", lambda out: runs.PartStore(out), out=out_paths())
+
+
+def _locked(lock, paths):
+    with lock(*paths):
+        pass
+
+
+target("runs.output_lock", lambda out: _locked(runs.output_lock, [out]), out=out_paths())
+target("runs.lock_path", path=out_paths())
+target("runs.resumable_outputs", lambda out: _locked(lambda *p: runs.resumable_outputs(*p, last_part="tracks"), [out]),
+       out=out_paths(), passed=("last_part",))
 
 
 target("io.resolve_input", source=st.one_of(paths(LOG_CSV), st.just([LOG_CSV, POINTS_CSV]),
@@ -1220,7 +1235,7 @@ CORPUS = [
     (8, "prediction_covariance N 1e12", lambda: linear.prediction_covariance(B, np.eye(2), 10**12), ("N",)),
     (8, "steady_state_predictor N 1e12", lambda: linear.steady_state_predictor(B, np.ones((3, 1)), 10**12),
      ("N", "model")),
-    (8, "make_chunks 1e12", lambda: len(batch.make_chunks(10**12, 3)), ("n_items",)),
+    (8, "make_chunks 1e12", lambda: len(runs.make_chunks(10**12, 3)), ("n_items",)),
     (8, "monte_carlo runs 1e12", lambda: batch.monte_carlo(B, 5, 10**12, seed=1), ("runs",)),
     (8, "gain_sequence steps 1e12", lambda: batch.gain_sequence(B, 10**12), ("steps",)),
     (8, "simulate_linear steps 1e12", lambda: sim.simulate_linear(B, 10**12, np.random.default_rng(0)), ("steps",)),

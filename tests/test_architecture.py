@@ -245,6 +245,18 @@ def test_the_circle_finder_finds_a_circle(tmp_path):
                                                        "mptrack.io"]]
 
 
+#: What mptrack.io (formats, schemas, geodesy) must not import: the packages that use it.
+IO_MUST_NOT_IMPORT = ("batch", "tracking", "runs", "report", "cli", "experiments", "bench")
+
+
+def test_io_imports_nothing_of_the_packages_that_use_it():
+    found = [f"{path.relative_to(SRC.parent)}:{line}: {'.'.join(module)}"
+             for path in sorted((SRC / "mptrack" / "io").rglob("*.py"))
+             for line, module in imported_modules(SRC, path)
+             if module[0] == "mptrack" and len(module) > 1 and module[1] in IO_MUST_NOT_IMPORT]
+    assert not found, "mptrack.io imports a package that uses it:\n" + "\n".join(found)
+
+
 #: The only private entries of src/mptrack: the shared private layer (and Python's own dunder modules).
 ROOT_PRIVATE = {"_core"}
 

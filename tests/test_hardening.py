@@ -22,7 +22,7 @@ import scipy.linalg
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from mptrack import batch, linear, riccati, tracking
+from mptrack import batch, linear, riccati, runs, tracking
 from mptrack.errors import (
     ConvergenceError,
     MptrackError,
@@ -242,12 +242,12 @@ def test_prediction_of_an_unstable_model_far_ahead_overflows_cleanly():
 
 
 def test_make_chunks_is_lazy():
-    chunks = batch.make_chunks(10**12, 3, seed=1)
+    chunks = runs.make_chunks(10**12, 3, seed=1)
     assert len(chunks) == (10**12 + 2) // 3
     last = chunks[-1]
     assert (last.start, last.stop, last.index) == (10**12 - 1, 10**12, len(chunks) - 1)
-    assert [(c.index, c.start, c.stop) for c in batch.make_chunks(7, 3)] == [(0, 0, 3), (1, 3, 6), (2, 6, 7)]
-    assert [c.stop for c in batch.make_chunks(7, 3)[1:]] == [6, 7]
+    assert [(c.index, c.start, c.stop) for c in runs.make_chunks(7, 3)] == [(0, 0, 3), (1, 3, 6), (2, 6, 7)]
+    assert [c.stop for c in runs.make_chunks(7, 3)[1:]] == [6, 7]
 
 
 @pytest.mark.parametrize("call, name", [

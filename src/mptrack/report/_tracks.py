@@ -12,8 +12,9 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from .._core.validation import check_frame, check_int, check_path, point_numbers
-from ..errors import DataError, ParameterError, ShapeError
+from .._core.validation import check_frame, check_int, check_path, point_numbers, renamed
+from ..errors import ParameterError, ShapeError
+from ..runs import read_part
 from ._decimate import DEFAULT_BUDGET
 from ._page import esc, json_script, page, write_page
 from ._payload import track_payload
@@ -37,15 +38,16 @@ REPORT_COLUMNS = ("track_id", "t", "method", "flag", "gap", "lat", "lon", "origi
 
 def report_points(sources) -> pd.DataFrame:
     """The point table a report needs from a run's point tables: :data:`REPORT_COLUMNS` only, in one
-    frame.  ``sources`` are pyarrow Tables or Arrow IPC files (the chunks' parts that
-    :func:`mptrack.tracking.track_file` hands to ``on_points``).  Files are memory-mapped and copied
+    frame.  ``sources`` are pyarrow Tables or part files (the chunks' parts that
+    :func:`mptrack.tracking.track_file` hands to ``on_points``, read by :func:`mptrack.runs.read_part`).  Files are memory-mapped and copied
     one at a time into the frame's columns (each unmapped once copied), text as one Python object per
     distinct value, so the peak is about the frame itself: 0.23 GB for 10^6 points."""
     import pyarrow as pa
 
     if isinstance(sources, (str, bytes, pd.DataFrame)) or not np.iterable(sources):
         raise ParameterError(f"sources: expected a list of pyarrow Tables or Arrow IPC files, got {sources!r:.80}")
-    tables = [src if isinstance(src, pa.Table) else _read_arrow(src) for src in sources]
+    with renamed(path="sources"):
+        tables = [src if isinstance(src, pa.Table) else read_part(src) for src in sources]
     if not tables:
         return pd.DataFrame({c: [] for c in ("track_id", "t", "flag")})
     names = [c for c in REPORT_COLUMNS if c in tables[0].column_names]
@@ -76,18 +78,6 @@ def report_points(sources) -> pd.DataFrame:
                 columns[name][start:stop] = col.to_numpy()
         start = stop
     return pd.DataFrame(columns, copy=False)
-
-
-def _read_arrow(path):
-    """An Arrow IPC file memory-mapped as a pyarrow Table; a file that is not one is a DataError."""
-    import pyarrow as pa
-    import pyarrow.feather as feather
-
-    path = check_path("sources", path)
-    try:
-        return feather.read_table(path, memory_map=True)
-    except (OSError, pa.ArrowException) as exc:
-        raise DataError(f"cannot be read as an Arrow IPC file ({exc})", file=path) from None
 
 
 #: The columns a report needs: a track, its times and flags, the 1-sigma of the position and the position

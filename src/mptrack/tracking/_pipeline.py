@@ -6,7 +6,7 @@ or a DataFrame) is read in chunks of whole tracks
 (:func:`mptrack.io.iter_track_chunks`); each chunk is one unit of work
 (:class:`TrackTask`): position fixes go through the columnar engine
 (:func:`._run.track_table`), cellular measurements through the range filters
-track by track.  :func:`mptrack.batch.run_stream` runs the chunks serially, in
+track by track.  :func:`mptrack.runs.run_stream` runs the chunks serially, in
 local processes or on Dask, each writing its point and track tables as parts
 in ``.<out>.parts/``; the output is then streamed from the parts.  Every
 chunk is computed by the same function from the same rows, so the output does
@@ -26,14 +26,12 @@ import numpy as np
 import pandas as pd
 import pyarrow as pa
 
-from .._core.files import output_lock
 from .._core.tracks import track_offsets
 from .._core.validation import check_bool, check_int, check_outputs, check_path
-from ..batch import Chunk, read_part, run_stream
-from ..errors import MptrackError, ParameterError
-from ..io import (FIXES, MEASUREMENTS, InputNotSorted, PartStore, ReadOptions, ReadReport, input_label,
-                  input_name, input_paths, iter_track_chunks, resolve_input,
-                  output_format, read_cells, read_chunks)
+from ..errors import ParameterError
+from ..io import (FIXES, MEASUREMENTS, InputNotSorted, ReadOptions, ReadReport, input_label, input_name, input_paths,
+                  iter_track_chunks, output_format, read_cells, read_chunks, resolve_input)
+from ..runs import Chunk, PartStore, output_lock, read_part, resumable_outputs, run_stream
 from ._advice import far_from_band, nis_advice
 from ._cellular import check_cell_ids, track_cells
 from ._columns import FixTable
@@ -218,7 +216,7 @@ def _counting_tracks(chunks, progress):
 def track_file(input, out, *, cells=None, options: TrackOptions = TrackOptions(), on_error: str = "raise",
                read: ReadOptions = ReadOptions(), resume: bool = False, chunk_rows: int = DEFAULT_CHUNK_ROWS, executor: str = "serial",
                max_workers: int | None = None, client=None, track_summary=None, progress=None,
-               on_points=None) -> dict:
+               on_points=None, note: str = "") -> dict:
     """Track every track of ``input`` and write the point table to ``out`` (.parquet, .csv or .geojson).
 
     input          position fixes (CSV/Parquet/GPX, or a directory of Parquet files, hive-partitioned
@@ -230,19 +228,20 @@ def track_file(input, out, *, cells=None, options: TrackOptions = TrackOptions()
                    written); "skip": bad rows are dropped, counted and reported in the returned summary,
                    and more than ``read.max_skip`` dropped rows stop the run (nothing written)
     read           the input's column names and units where they are not recognised (:class:`ReadOptions`)
-    executor       "serial", "processes" or "dask" (see :func:`mptrack.batch.run_stream`); the output
+    executor       "serial", "processes" or "dask" (see :func:`mptrack.runs.run_stream`); the output
                    is the same whichever runs it
     track_summary  optional path: the track table (one row per track: noise estimates, counts, NIS)
     on_points      optional: called once, after ``out`` is written, with the paths of the chunks' point
                    tables (Arrow IPC files, ``pyarrow.feather.read_table`` reads them; in output row
                    order), to read the run's points again without reading ``out`` back (the HTML
                    report); the files are removed after the call
+    note           shown to another run refused these outputs (the CLI passes its command line)
 
     Memory is bounded by ``chunk_rows`` (rows of whole tracks per chunk) and the largest track, not
     by the input.  Returns a summary dict (JSON-safe).
 
     Data safety: an output that is an input (or inside an input directory) is refused; ``out`` and
-    ``track_summary`` are locked for the whole run (:func:`mptrack._core.files.output_lock`; another run
+    ``track_summary`` are locked for the whole run (:func:`mptrack.runs.resumable_outputs`; another run
     writing them -> OutputError at once) and their stale temporary files removed.  A run stopped
     by bad input or options leaves nothing (a resumed run keeps the parts it came to resume); one
     stopped by Ctrl-C (KeyboardInterrupt), an OS failure (OutputError/OSError: disk full, ...) or
@@ -255,43 +254,30 @@ def track_file(input, out, *, cells=None, options: TrackOptions = TrackOptions()
         raise ParameterError(f"options: expected TrackOptions, got {type(options).__name__}")
     check_outputs(*input_paths(input), cells, out=out, track_summary=track_summary)
     chunk_rows = check_int("chunk_rows", chunk_rows, minimum=1)
-    store = PartStore(out)
     if track_summary is not None:
         output_format(track_summary)
-    with output_lock(out, track_summary):
-        if resume:
-            store.clean()
-        else:
-            store.discard()
+    with resumable_outputs(out, track_summary, resume=resume, note=note, last_part=_PARTS[-1]) as store:
         report = ReadReport()
         cell_table, cell_report = (None, None) if cells is None else _cell_table(input, cells, on_error,
                                                                                  chunk_rows, read)
         progress = progress or _NullProgress()
-        resumed = store.parts("tracks")
-        try:
-            with progress.task(f"tracking the tracks of {input_name(input)}", total=None) as advance:
-                results = _run(input, options, cells_table=cell_table, on_error=on_error, chunk_rows=chunk_rows,
-                               executor=executor, max_workers=max_workers, client=client, store=store,
-                               manifest=_manifest(input, options, cells, chunk_rows, read), progress=advance,
-                               report=report, read=read)
-            resumed = [p for p in resumed if p.exists()]  # an unsorted input starts again from scratch
-            files = store.check(results)  # every chunk's parts, or an OutputError if some vanished
-            points = sum(_rows(p) for p in files.get("points", ()))
-            tracks_resumed = sum(_rows(p) for p in resumed)
-            store.finish(files.get("points", []), empty=_empty_points())
-            if on_points is not None:
-                on_points(files.get("points", []))
-            tracks = _tracks_frame([read_part(p) for p in files.get("tracks", ())])
-            if track_summary is not None:
-                store.finish(files.get("tracks", []), to=track_summary,
-                             empty=pa.Table.from_pandas(tracks, preserve_index=False))
-            store.discard()
-        except BaseException as exc:
-            if (_resumable(exc) or resumed) and store.parts(_PARTS[-1]):
-                store.clean()  # a part a worker was writing when Ctrl-C reached it too
-            else:
-                store.discard()  # bad input, or no chunk finished: nothing to resume, nothing left behind
-            raise
+        with progress.task(f"tracking the tracks of {input_name(input)}", total=None) as advance:
+            results = _run(input, options, cells_table=cell_table, on_error=on_error, chunk_rows=chunk_rows,
+                           executor=executor, max_workers=max_workers, client=client, store=store,
+                           manifest=_manifest(input, options, cells, chunk_rows, read), progress=advance,
+                           report=report, read=read)
+        resumed = [p for p in store.resumed if p.exists()]  # an unsorted input starts again from scratch
+        files = store.check(results)  # every chunk's parts, or an OutputError if some vanished
+        points = sum(_rows(p) for p in files.get("points", ()))
+        tracks_resumed = sum(_rows(p) for p in resumed)
+        store.finish(files.get("points", []), empty=_empty_points())
+        if on_points is not None:
+            on_points(files.get("points", []))
+        tracks = _tracks_frame([read_part(p) for p in files.get("tracks", ())])
+        if track_summary is not None:
+            store.finish(files.get("tracks", []), to=track_summary,
+                         empty=pa.Table.from_pandas(tracks, preserve_index=False))
+        store.discard()
     summary = _summary(tracks, report, options, len(results), cellular=cells is not None)
     summary.update(input=str(input_label(input)), output=str(out), points_written=points, chunks_resumed=len(resumed),
                    tracks_resumed=tracks_resumed, elapsed_s=time.perf_counter() - start)
@@ -300,12 +286,6 @@ def track_file(input, out, *, cells=None, options: TrackOptions = TrackOptions()
     if cell_table is not None:
         summary["cells"] = {"file": str(cells), "cells_used": int(len(cell_table)), "read": cell_report.to_dict()}
     return summary
-
-
-def _resumable(exc: BaseException) -> bool:
-    """Whether the finished chunks of a run stopped by ``exc`` are worth keeping: yes after Ctrl-C, an
-    OS failure (disk full, ...) or a crash; no after bad input or options (a rerun must change them)."""
-    return not isinstance(exc, MptrackError) or isinstance(exc, OSError)
 
 
 def _rows(path) -> int:
