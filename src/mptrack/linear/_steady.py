@@ -56,6 +56,8 @@ def steady_state_filter(model: LinearGaussianModel, z, x0=None, P0=None, *,
     if covariance == "steady":
         Ps = np.broadcast_to(ss.P_filt, (T, model.n, model.n))
     else:
+        # the error covariance of a fixed-gain filter (not a Kalman update): an exception listed in
+        # mptrack._core.kalman's docstring
         Ps = np.empty((T, model.n, model.n))
         IKH = np.eye(model.n) - ss.K @ model.H
         KRK = ss.K @ model.R @ ss.K.T

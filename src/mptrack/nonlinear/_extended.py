@@ -37,12 +37,9 @@ from ..errors import (
 from ..models import NonlinearModel, require_model
 from . import _named_kernels
 from . import _step_kernels as steps
-from ..result import BatchFilterResult, FilterResult, innovation_arrays, mask_missing
+from ..result import BatchFilterResult, FilterResult, innovation_arrays
 
 __all__ = ["ekf_filter", "ekf_filter_batch", "ekf_smoother", "ekf_step"]
-
-_LOG2PI = np.log(2.0 * np.pi)
-
 
 def user_array(value, shape: tuple, name: str, k: int) -> np.ndarray:
     """A user function's value (f, h, a Jacobian) as a fresh float array of the expected shape, as the
@@ -235,8 +232,8 @@ def ekf_smoother(model: NonlinearModel, result: FilterResult) -> FilterResult:
 @finite_result("the EKF")
 def ekf_filter_batch(model: NonlinearModel, z, x0, P0) -> BatchFilterResult:
     """:func:`ekf_filter` on B independent tracks at once (prior at time 0): z (B, T, m) with NaN = missing,
-    x0 (n,) or (B, n), P0 (n, n) or (B, n, n).  Vectorised over tracks (NumPy batched linear algebra), for
-    constant Q and R; Jacobians from jac_f / jac_h called on all B states at once (the named measurement
+    x0 (n,) or (B, n), P0 (n, n) or (B, n, n).  The model's functions are called on all B states at once
+    and the algebra runs in the compiled Kalman core, track by track, for constant Q and R; Jacobians from jac_f / jac_h called on all B states at once (the named measurement
     models and :func:`mptrack.models.nonlinear_model` broadcast) or by finite differences.  A linear motion
     with named measurement models (ranges, bearings, range_bearing, position) runs compiled
     (:mod:`mptrack.nonlinear._named_kernels`, same numbers).
@@ -274,8 +271,8 @@ def ekf_filter_batch(model: NonlinearModel, z, x0, P0) -> BatchFilterResult:
         if status == _named_kernels.OK:
             return BatchFilterResult(x=xs, P=Ps, x_pred=xp, P_pred=Pp, loglik=ll, method="EKF", innovation=nu, S=S,
                                      nis=nis)
-    xs, Ps, xp, Pp, ll, nu, S = _ekf_batch_core(model, z, x0, P0)
-    return BatchFilterResult(x=xs, P=Ps, x_pred=xp, P_pred=Pp, loglik=ll, method="EKF", innovation=nu, S=S)
+    xs, Ps, xp, Pp, ll, nu, S, nis = _ekf_batch_core(model, z, x0, P0)
+    return BatchFilterResult(x=xs, P=Ps, x_pred=xp, P_pred=Pp, loglik=ll, method="EKF", innovation=nu, S=S, nis=nis)
 
 
 def _jacobians(model, X, which):
@@ -289,37 +286,29 @@ def _jacobians(model, X, which):
 
 
 def _ekf_batch_core(model, z, x, P):
-    """The batched EKF recursion (Joseph form); missing components get zero H rows and unit noise, which
-    is the same update as skipping them."""
+    """The batched EKF recursion (Joseph form; NaN components skipped): the model's functions evaluated on
+    all B states at once in NumPy, the algebra track by track in the compiled Kalman core
+    (``_step_kernels.ekf_predict_tracks`` / ``ekf_update_tracks``).  Returns (x, P, x_pred, P_pred, loglik,
+    innovation, S, nis)."""
     B, T, m = z.shape
     n = model.n
-    Q, R = model.Q, model.R
+    Q, R = np.asarray(model.Q, dtype=float), np.asarray(model.R, dtype=float)
     xs, xp = np.empty((B, T, n)), np.empty((B, T, n))
     Ps, Pp = np.empty((B, T, n, n)), np.empty((B, T, n, n))
     loglik = np.zeros(B)
-    nus, Ss, _ = innovation_arrays((B, T), m)
-    eye = np.eye(n)
+    nus, Ss, nis = innovation_arrays((B, T), m)
+    P = np.ascontiguousarray(P, dtype=float)
     for k in range(T):
-        F = _jacobians(model, x, "f")
-        x = np.asarray(model.f(x), dtype=float)
-        P = F @ P @ F.transpose(0, 2, 1) + Q
-        xp[:, k], Pp[:, k] = x, P
-        dk = z[:, k]
-        ok = ~np.isnan(dk)                                                          # (B, m)
-        H = _jacobians(model, x, "h") * ok[..., None]
-        Rk = np.where(ok[:, :, None] & ok[:, None, :], R, 0.0) + np.eye(m) * (~ok)[:, None, :]
-        innov = np.where(ok, model.innovation(np.where(ok, dk, 0.0), model.h(x)), 0.0)
-        PHt = P @ H.transpose(0, 2, 1)
-        S = H @ PHt + Rk
-        nus[:, k] = np.where(ok, innov, np.nan)
-        Ss[:, k] = mask_missing(nus[:, k], S.copy())
-        K = np.linalg.solve(S, PHt.transpose(0, 2, 1)).transpose(0, 2, 1)
-        x = x + np.einsum("bnm,bm->bn", K, innov)
-        IKH = eye - K @ H
-        P = IKH @ P @ IKH.transpose(0, 2, 1) + K @ Rk @ K.transpose(0, 2, 1)
-        P = 0.5 * (P + P.transpose(0, 2, 1))
-        xs[:, k], Ps[:, k] = x, P
-        _, logdet = np.linalg.slogdet(S)
-        quad = np.einsum("bm,bm->b", innov, np.linalg.solve(S, innov[..., None])[..., 0])
-        loglik -= 0.5 * (quad + logdet + ok.sum(axis=1) * _LOG2PI)
-    return xs, Ps, xp, Pp, loglik, nus, Ss
+        F = np.ascontiguousarray(_jacobians(model, x, "f"), dtype=float)
+        x = np.array(model.f(x), dtype=float)
+        steps.ekf_predict_tracks(F, P, Q, Pp[:, k])
+        xp[:, k] = x
+        H = np.ascontiguousarray(_jacobians(model, x, "h"), dtype=float)
+        hx = np.array(model.h(x), dtype=float)
+        status, b = steps.ekf_update_tracks(x, P, H, hx, R, z, k, model.period_array, xs, Ps, nus, Ss, nis, loglik)
+        if status == steps.NOT_PD:   # a singular S: the public function names the input of smallest scale
+            raise np.linalg.LinAlgError(f"the innovation covariance of track {b} at measurement {k} is singular")
+        if status != steps.OK:
+            check_step(status, "EKF", k, xp[b, k], Pp[b, k], {"jac_h": H[b], "h": hx[b]},
+                       {"z": z, "model": model.Q})
+    return xs, Ps, xp, Pp, loglik, nus, Ss, nis
