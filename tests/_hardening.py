@@ -4,7 +4,7 @@ what happens.
 Outcomes (``classify``):
   ok            finite result (or NaN only where the input had NaN = missing)
   clean         an ``mptrack.errors`` exception whose message STARTS with an argument the caller passed
-                (docs/design.md, "Finite answers or clear errors"); a DataError (OutputError) names the
+                (docs/design.md, Contracts; docs/decisions/2026-11-25-finite-answers.md); a DataError (OutputError) names the
                 file the caller gave instead
   misnamed      an ``mptrack.errors`` exception whose message does not start with such a name
   unclean       any other exception (numpy/numba/scipy/pandas from deep inside)
@@ -557,7 +557,7 @@ target("continuous.simulate_sde", lambda steps, rng, x0: continuous.simulate_sde
        steps=count(1, 5, big=100), rng=rngs(), x0=arg((2,), valid=continuous.ZHAO2013_X0), passed=("model",))
 target("continuous.FEMGrid", lo=arg((2,), valid=[-1.0, -1.0]), hi=arg((2,), valid=[1.0, 1.0]), n1=count(1, 6),
        n2=count(1, 6))
-_FEM_SCHEMES = names(*continuous._fem.SCHEMES)
+_FEM_SCHEMES = names(*continuous.FEM_SCHEMES)
 target("continuous.fem_filter", lambda z, x0, P0, grid, scheme, width, substeps, splits, box: continuous.fem_filter(
     ZHAO, z, x0, P0, grid=grid, scheme=scheme, width=width, substeps=substeps, splits=splits, box=box),
     z=arg((2, 2), valid=ZZ[:2]), x0=arg((2,), valid=continuous.ZHAO2013_X0), P0=covariance(2),
@@ -1028,7 +1028,7 @@ _FIRST_WORD = re.compile(r"\s*([A-Za-z_][A-Za-z0-9_]*)")
 
 
 def starts_with_argument(message: str, params) -> bool:
-    """Whether ``message`` starts with one of the argument names ``params`` (docs/design.md:
+    """Whether ``message`` starts with one of the argument names ``params`` (docs/decisions/2026-11-25-finite-answers.md:
     "a message that starts with the name of an argument the caller passed")."""
     first = _FIRST_WORD.match(message)
     return bool(first) and first.group(1) in params

@@ -182,8 +182,8 @@ _CELL = {"z": Z_RANGES[:, :1], "gapped": Z_RANGES[:, :1], "x0": RANGE_X0, "P0": 
          "F": np.eye(2)}
 
 #: registry entries and public filter functions -> their case.  Tolerances: exact algebra 1e-9; the
-#: FIR its eps; the continuous-discrete UKF its RK4 error (docs/design.md); Monte-Carlo and grid
-#: filters their sampling and discretisation errors at the settings used here.
+#: FIR its eps; the continuous-discrete UKF its RK4 error (docs/decisions/2026-12-01-warm-compiled-code.md);
+#: Monte-Carlo and grid filters their sampling and discretisation errors at the settings used here.
 CASES: dict[str, Case] = {
     **{f"linear.FILTERS[{name}]": Case(_registered(name), 1e-9, forms=GAUSSIAN if name == "KF" else
                                        ("x_pred", "P_pred", "innovation", "S", "nis"),

@@ -17,8 +17,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._core.validation import (as_array, as_matrix, broadcast_shape, check_allocation, check_covariance, check_int,
-                          finite_result, renamed)
+from ._core.finiteness import finite_result, renamed
+from ._core.validation import as_array, as_matrix, broadcast_shape, check_allocation, check_covariance, check_int
 from .errors import ParameterError, ShapeError, SingularMatrixError
 
 __all__ = ["position_error", "rmse", "nees", "pcrb", "pcrb_tichavsky", "range_fisher_information", "pcrb_ranges"]

@@ -68,7 +68,8 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 
-from ._core.validation import as_array, finite_result
+from ._core.finiteness import finite_result
+from ._core.validation import as_array
 from .errors import ParameterError, ShapeError, SingularMatrixError
 
 __all__ = ["FilterResult", "BatchFilterResult", "normalised_innovation"]

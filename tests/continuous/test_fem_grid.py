@@ -6,7 +6,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from mptrack.continuous import FEMGrid, fem_filter, fem_steps, linear_sde_model, shape_functions, simulate_sde
-from mptrack.continuous._fem import _nodal_derivatives
+from mptrack.continuous._fem_grid import _nodal_derivatives
 from mptrack.errors import NotPositiveDefiniteError, ParameterError, ShapeError
 from mptrack.linear import kalman_filter
 
@@ -137,7 +137,7 @@ def test_nodal_differences_are_exact_on_quadratics_and_the_laplacian_is_dissipat
 
 def test_paper_scheme_takes_enough_rk4_steps_to_be_stable(linear_case):
     """Explicit RK4: dt·rho(L)/substeps stays inside the stability half-disc (radius 2.5 < 2.6)."""
-    from mptrack.continuous._fem import _NodalRK4
+    from mptrack.continuous._fem_schemes import _NodalRK4
 
     model, _, _ = linear_case
     g = FEMGrid([-4.0, -4.0], [4.0, 4.0], 32, 32)
@@ -279,7 +279,7 @@ def test_a_moving_grid_refactorises_only_when_it_moves(linear_case, scheme):
 
 
 def test_default_substeps_follow_the_grid():
-    from mptrack.continuous._fem import default_substeps
+    from mptrack.continuous._fem_schemes import default_substeps
 
     assert default_substeps((20, 20)) == 16
     assert default_substeps((40, 10)) == 32
@@ -311,7 +311,7 @@ def test_deposit_is_the_transpose_of_interpolation():
 
 def test_compiled_flow_equals_the_numpy_rk4_flow():
     from mptrack.continuous import zhao2013_model
-    from mptrack.continuous._fem import _compiled
+    from mptrack.continuous._fem_schemes import _compiled
     from mptrack.continuous._model import rk4_flow
 
     model = zhao2013_model(variant="vdp", diffusion_scale=1.0)  # max_increment = 1: some steps are capped
@@ -327,7 +327,7 @@ def test_transport_keeps_mass_mean_and_covariance_of_a_density_contracted_below_
     0.25 high, which sampling the density at the nodes misses (the FE failures at Q x 1)."""
     import scipy.linalg
 
-    from mptrack.continuous._fem import _push
+    from mptrack.continuous._fem_schemes import _push
 
     A_stiff = np.array([[0.0, 1.0], [20.0, -20.0]])       # x2 relaxes onto the line x2 = x1 at rate 20
     model = linear_sde_model(A_stiff, np.diag([0.5, 0.2]), np.eye(2), np.eye(2), 1.0)

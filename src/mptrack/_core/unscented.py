@@ -7,7 +7,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .validation import as_real, as_vector, check_covariance, check_positive, finite_result
+from .finiteness import finite_result
+from .validation import as_real, as_vector, check_covariance, check_positive
 from ..errors import NotPositiveDefiniteError, ParameterError
 
 __all__ = ["weights", "covariance_sqrt", "check_unscented", "sigma_points", "sigma_points_unchecked"]

@@ -19,16 +19,9 @@ from dataclasses import dataclass, field
 import numba as nb
 import numpy as np
 
+from .._core.finiteness import _overflow, require_finite
 from .._core.kalman import OK, predict, update, workspace
-from .._core.validation import (
-    _overflow,
-    as_matrix,
-    check_covariance,
-    check_int,
-    check_positive,
-    frozen,
-    require_finite,
-)
+from .._core.validation import as_matrix, check_covariance, check_int, check_positive, frozen
 from ..errors import ParameterError, ShapeError
 from ..result import BatchFilterResult
 from ._inputs import check_finite_out, launch, prepare_batch

@@ -6,7 +6,7 @@ in :mod:`mptrack.linear` and is tested against it track by track.  They return a
 (``out`` when given) and whose other fields cost nothing to make: the shared
 covariance of the steady-state and FIR filters as a read-only broadcast view,
 the shared steady state or gain sequence in ``inputs``, None for what the
-kernels do not form (docs/design.md, "Batch engine").
+kernels do not form (docs/decisions/2026-11-23-batch-engine.md).
 """
 
 from __future__ import annotations
@@ -17,15 +17,10 @@ from typing import Callable
 
 import numpy as np
 
+from .._core.finiteness import require_finite
 from .._core.fir import check_order_rule, coefficients_unchecked
 from .._core.steady_input import steady_argument
-from .._core.validation import (
-    _to_array,
-    check_allocation,
-    check_covariance,
-    check_int,
-    require_finite,
-)
+from .._core.validation import check_allocation, check_covariance, check_int, _to_array
 from ..errors import NonFiniteError, ParameterError, ShapeError
 from ..linear import fir_order
 from ..models import LinearGaussianModel, require_model

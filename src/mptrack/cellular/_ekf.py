@@ -17,8 +17,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.optimize import least_squares
 
-from .._core.validation import (as_array, as_real, check_allocation, check_covariance, check_int, check_positive,
-                                finite_result, require_finite)
+from .._core.finiteness import finite_result, require_finite
+from .._core.validation import as_array, as_real, check_allocation, check_covariance, check_int, check_positive
 from ..errors import ParameterError, ShapeError, SingularMatrixError
 from ..models import LinearGaussianModel, NonlinearModel, nonlinear_model, ranges
 from ..nonlinear import ekf_filter, ekf_filter_batch

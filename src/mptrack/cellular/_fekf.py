@@ -27,7 +27,8 @@ from typing import Callable
 
 import numpy as np
 
-from .._core.validation import as_array, as_vector, derived_from, finite_result, renamed
+from .._core.finiteness import derived_from, finite_result, renamed
+from .._core.validation import as_array, as_vector
 from ..errors import NotPositiveDefiniteError, ParameterError, ShapeError
 from ..fuzzy import TakagiSugeno, uniform_partition
 from ..result import BatchFilterResult, FilterResult, innovation_arrays, mask_missing

@@ -10,7 +10,7 @@ from unittest import mock
 import numpy as np
 
 from .._core.validation import check_int
-from . import _fem, _fem_kernels
+from . import _fem_kernels, _fem_schemes
 from ._fem import fem_filter
 from ._model import ContinuousDiscreteModel
 
@@ -51,7 +51,7 @@ def fem_profile(model: ContinuousDiscreteModel, z, x0, P0, *, grid: tuple[int, i
     best = None
     for _ in range(repeats):
         updates, predictions, inputs = [], [], []
-        with mock.patch.object(_fem._Characteristics, "predict", timed(_fem._Characteristics.predict, predictions,
+        with mock.patch.object(_fem_schemes._Characteristics, "predict", timed(_fem_schemes._Characteristics.predict, predictions,
                                                                         inputs)), \
                 mock.patch.object(_fem, "_update", timed(_fem._update, updates)):
             t = time.perf_counter()

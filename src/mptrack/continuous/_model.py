@@ -20,8 +20,17 @@ from typing import Callable
 
 import numpy as np
 
-from .._core.validation import (as_matrix, as_vector, check_allocation, check_covariance, check_int, check_positive,
-                           check_rng, finite_result, frozen)
+from .._core.finiteness import finite_result
+from .._core.validation import (
+    as_matrix,
+    as_vector,
+    check_allocation,
+    check_covariance,
+    check_int,
+    check_positive,
+    check_rng,
+    frozen,
+)
 from ..errors import ParameterError, ShapeError
 from ..models import LinearGaussianModel, van_loan
 from .._core.gaussian import gauss_logpdf, wrap_periods

@@ -14,7 +14,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._core.validation import check_allocation, check_int, finite_result
+from .._core.finiteness import finite_result
+from .._core.validation import check_allocation, check_int
 from ..errors import ParameterError
 from ..result import FilterResult
 from .._core.filter_inputs import prepare_nonlinear

@@ -15,7 +15,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._core.validation import as_array, as_vector, check_covariance, finite_result
+from .._core.finiteness import finite_result
+from .._core.validation import as_array, as_vector, check_covariance
 from ..errors import ParameterError, ShapeError, SingularMatrixError
 
 __all__ = ["fused_covariance_prop3", "fused_covariance_trace", "probabilistic_fusion"]

@@ -6,14 +6,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._core.validation import (
-    as_array,
-    as_real,
-    check_allocation,
-    check_int,
-    check_positive,
-    renamed,
-)
+from .._core.finiteness import renamed
+from .._core.validation import as_array, as_real, check_allocation, check_int, check_positive
 from ..errors import ParameterError
 
 __all__ = ["MembershipFunction", "triangular", "trapezoidal", "gaussian", "uniform_partition"]

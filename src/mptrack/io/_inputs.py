@@ -14,7 +14,8 @@ from pathlib import Path
 
 import pandas as pd
 
-from .._core.validation import FRAME_LABEL, check_path
+from .._core.data_checks import FRAME_LABEL
+from .._core.validation import check_path
 from ..errors import DataError, ParameterError
 from ._formats import FORMATS, Skipped
 

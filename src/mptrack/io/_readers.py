@@ -12,8 +12,9 @@ from typing import Iterator
 import numpy as np
 import pandas as pd
 
+from .._core.data_checks import check_on_error, source_label
 from .._core.tracks import track_offsets
-from .._core.validation import check_int, check_on_error, source_label
+from .._core.validation import check_int
 from ._inputs import InputFiles, file_labels, input_label, resolve_input
 from ..errors import DataError, ParameterError
 from ._formats import Skipped, input_format, raw_chunks

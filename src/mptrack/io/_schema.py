@@ -21,7 +21,8 @@ from dataclasses import dataclass, field
 import numpy as np
 import pandas as pd
 
-from .._core.validation import ON_ERROR, _to_array
+from .._core.data_checks import ON_ERROR
+from .._core.validation import _to_array
 from ..errors import DataError, DTypeError, ParameterError, ShapeError
 from ._interpret import MAX_SECONDS
 

@@ -5,16 +5,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from .._core.finiteness import finite_result, renamed
 from .._core.rts import rts_backward_linear
-from .._core.validation import (
-    as_array,
-    as_sequence,
-    as_vector,
-    check_covariance,
-    check_record,
-    finite_result,
-    renamed,
-)
+from .._core.validation import as_array, as_sequence, as_vector, check_covariance, check_record
 from .._core.van_loan import intervals_unchecked
 from ..errors import ParameterError, ShapeError
 from ..models import ContinuousLinearModel, require_model

@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._core.validation import as_array, as_matrix, as_vector, finite_result
+from .._core.finiteness import finite_result
+from .._core.validation import as_array, as_matrix, as_vector
 from ..errors import ParameterError, ShapeError
 from ..models import LinearGaussianModel
 from ..result import FilterResult, innovation_arrays

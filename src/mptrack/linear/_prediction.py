@@ -19,9 +19,10 @@ from typing import Literal
 
 import numpy as np
 
+from .._core.finiteness import finite_result
 from .._core.lyapunov import power_sum_unchecked
 from .._core.steady_input import steady_argument
-from .._core.validation import as_array, check_int, check_record, finite_result
+from .._core.validation import as_array, check_int, check_record
 from ..errors import ParameterError, ShapeError, SingularMatrixError
 from ..models import LinearGaussianModel, require_model
 from ..result import FilterResult

@@ -15,9 +15,10 @@ from __future__ import annotations
 import numpy as np
 import scipy.linalg
 
+from .._core.finiteness import finite_result
 from .._core.rts import rts_backward, rts_backward_linear, smoother_gains
 from .._core.steady_input import steady_argument
-from .._core.validation import check_record, finite_result
+from .._core.validation import check_record
 from ..errors import ParameterError, ShapeError
 from ..models import LinearGaussianModel, require_model
 from ..result import FilterResult

@@ -6,14 +6,10 @@ from typing import Literal
 
 import numpy as np
 
+from .._core.finiteness import finite_result
 from .._core.fir import check_order_rule, coefficients_unchecked
 from .._core.steady_input import steady_argument
-from .._core.validation import (
-    as_matrix,
-    check_allocation,
-    check_int,
-    finite_result,
-)
+from .._core.validation import as_matrix, check_allocation, check_int
 from ..errors import ConvergenceError, NonFiniteError, ParameterError, ShapeError
 from ..models import LinearGaussianModel
 from ..result import FilterResult

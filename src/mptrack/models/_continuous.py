@@ -28,6 +28,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.linalg
 
+from .._core.finiteness import derived_from, finite_result, renamed
 from .._core.validation import (
     as_matrix,
     as_vector,
@@ -35,10 +36,7 @@ from .._core.validation import (
     check_covariance,
     check_int,
     check_positive,
-    derived_from,
-    finite_result,
     frozen,
-    renamed,
 )
 from .._core.van_loan import intervals_unchecked, van_loan_unchecked
 from ..errors import ParameterError, ShapeError

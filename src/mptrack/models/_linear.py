@@ -11,7 +11,8 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.linalg
 
-from .._core.validation import as_matrix, check_allocation, check_covariance, check_int, check_positive, frozen, require_finite
+from .._core.finiteness import require_finite
+from .._core.validation import as_matrix, check_allocation, check_covariance, check_int, check_positive, frozen
 from ..errors import ParameterError, ShapeError
 
 __all__ = ["LinearGaussianModel", "stack_axes", "require_model"]

@@ -29,9 +29,9 @@ from typing import Callable
 
 import numpy as np
 
-from .._core.validation import (as_array, as_matrix, as_vector, check_covariance, check_int, check_positive,
-                           frozen, renamed)
+from .._core.finiteness import renamed
 from .._core.gaussian import gauss_logpdf, wrap_periods
+from .._core.validation import as_array, as_matrix, as_vector, check_covariance, check_int, check_positive, frozen
 from ..errors import NonFiniteError, ParameterError, ShapeError
 from ._linear import LinearGaussianModel
 

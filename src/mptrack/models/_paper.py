@@ -4,7 +4,8 @@ from __future__ import annotations
 
 from typing import Literal
 
-from .._core.validation import check_int, check_positive, derived_from
+from .._core.finiteness import derived_from
+from .._core.validation import check_int, check_positive
 from ..errors import ParameterError
 from ._linear import LinearGaussianModel, stack_axes
 

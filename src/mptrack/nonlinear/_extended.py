@@ -18,16 +18,9 @@ from __future__ import annotations
 import numpy as np
 
 from .._core.filter_inputs import check_prior, prepare_nonlinear
+from .._core.finiteness import finite_result, require_finite
 from .._core.rts import rts_backward
-from .._core.validation import (
-    as_array,
-    as_vector,
-    check_covariance,
-    check_int,
-    check_record,
-    finite_result,
-    require_finite,
-)
+from .._core.validation import as_array, as_vector, check_covariance, check_int, check_record
 from ..errors import (
     NonFiniteError,
     NotPositiveDefiniteError,

@@ -17,7 +17,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from .._core.filter_inputs import check_prior, prepare_nonlinear
-from .._core.validation import as_matrix, as_real, as_vector, check_positive, finite_result, require_finite
+from .._core.finiteness import finite_result, require_finite
+from .._core.validation import as_matrix, as_real, as_vector, check_positive
 from ..errors import ParameterError, ShapeError
 from ..result import FilterResult
 from ..models import LinearGaussianModel, MeasurementModel, NonlinearModel, constant_acceleration

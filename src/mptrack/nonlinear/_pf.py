@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._core.validation import as_array, check_allocation, check_int, check_positive, check_rng, finite_result
+from .._core.finiteness import finite_result
+from .._core.validation import as_array, check_allocation, check_int, check_positive, check_rng
 from ..errors import ParameterError
 from ..result import FilterResult
 from .._core.filter_inputs import check_prior, prepare_nonlinear

@@ -35,9 +35,9 @@ from __future__ import annotations
 import numpy as np
 
 from .._core.filter_inputs import check_prior, prepare_nonlinear
+from .._core.finiteness import finite_result
 from .._core.model_families import model_family
 from .._core.unscented import check_unscented, covariance_sqrt, sigma_points, weights
-from .._core.validation import finite_result
 from ..errors import ParameterError
 from ..result import FilterResult, innovation_arrays
 from ..models import NonlinearModel

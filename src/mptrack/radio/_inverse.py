@@ -17,7 +17,8 @@ from typing import Callable
 
 import numpy as np
 
-from .._core.validation import as_array, broadcast_shape, lookup, require_finite
+from .._core.finiteness import require_finite
+from .._core.validation import as_array, broadcast_shape, lookup
 from ..errors import ParameterError
 from . import _pathloss as pl
 from ._validity import check_policy, check_range

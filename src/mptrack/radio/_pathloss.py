@@ -18,7 +18,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._core.validation import as_array, as_real, broadcast_shape, finite_result
+from .._core.finiteness import finite_result
+from .._core.validation import as_array, as_real, broadcast_shape
 from ..errors import ParameterError
 from ._validity import check_policy, check_range
 

@@ -12,7 +12,9 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from .._core.validation import check_frame, check_int, check_path, point_numbers, renamed
+from .._core.data_checks import check_frame, point_numbers
+from .._core.finiteness import renamed
+from .._core.validation import check_int, check_path
 from ..errors import ParameterError, ShapeError
 from ..runs import read_part
 from ._decimate import DEFAULT_BUDGET

@@ -4,8 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._core.validation import as_matrix, check_covariance, check_int, finite_result
+from .._core.finiteness import finite_result
 from .._core.lyapunov import power_sum_unchecked
+from .._core.validation import as_matrix, check_covariance, check_int
 from ..errors import ShapeError
 
 __all__ = ["power_sum"]

@@ -20,7 +20,8 @@ import numpy as np
 import scipy.linalg
 
 from .._core.blas import one_blas_thread
-from .._core.validation import _overflow, check_covariance, check_int, check_positive, renamed, require_finite
+from .._core.finiteness import _overflow, renamed, require_finite
+from .._core.validation import check_covariance, check_int, check_positive
 from ..errors import ConvergenceError, MptrackError, ParameterError
 from ..models import LinearGaussianModel, require_model
 from ._checks import check_detectable, check_stabilisable, undriven_modes

@@ -16,7 +16,8 @@ from typing import Iterator
 
 import pandas as pd
 
-from .._core.validation import check_path, renamed
+from .._core.finiteness import renamed
+from .._core.validation import check_path
 from ..errors import DataError, MptrackError, OutputError
 from ..io import output_format, write_table
 from ._lock import output_lock

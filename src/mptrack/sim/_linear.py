@@ -4,13 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._core.validation import (
-    as_vector,
-    check_allocation,
-    check_int,
-    check_rng,
-    finite_result,
-)
+from .._core.finiteness import finite_result
+from .._core.validation import as_vector, check_allocation, check_int, check_rng
 from ..models import LinearGaussianModel, require_model
 
 __all__ = ["simulate_linear"]

@@ -18,7 +18,8 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from .._core.validation import LATITUDE, LONGITUDE, as_real, check_frame, check_on_error, lookup
+from .._core.data_checks import check_frame, check_on_error
+from .._core.validation import LATITUDE, LONGITUDE, as_real, lookup
 from ..errors import DataError, ParameterError
 from ..io import LocalFrame, ReadReport
 from ..models import constant_velocity_continuous

@@ -22,7 +22,8 @@ import numpy as np
 import pandas as pd
 import scipy.special
 
-from .._core.validation import check_bool, check_frame, check_path, check_positive, point_numbers
+from .._core.data_checks import check_frame, point_numbers
+from .._core.validation import check_bool, check_path, check_positive
 from ..errors import DataError, ParameterError
 from ..io import FIXES, LocalFrame, ReadOptions, ReadReport, input_columns, read_table
 from .._core.tracks import track_offsets
@@ -70,7 +71,7 @@ def _one_track_ids(truth: pd.DataFrame, tracks: pd.DataFrame, file) -> pd.DataFr
 
 
 def _check_points(name: str, tracks, columns=()) -> None:
-    """A point table with ``columns``, its numbers checked (:func:`mptrack._core.validation.point_numbers`)."""
+    """A point table with ``columns``, its numbers checked (:func:`mptrack._core.data_checks.point_numbers`)."""
     check_frame(name, tracks, columns, point_numbers(tracks, POINT_COLUMNS + _ADDED))
 
 

@@ -14,7 +14,9 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
-from .._core.validation import LATITUDE, LONGITUDE, as_real, as_vector, check_frame, check_positive, lookup, renamed
+from .._core.data_checks import check_frame
+from .._core.finiteness import renamed
+from .._core.validation import LATITUDE, LONGITUDE, as_real, as_vector, check_positive, lookup
 from ..cellular import MOTIONS
 from ..radio import PATH_LOSS_MODELS
 from ..errors import ParameterError

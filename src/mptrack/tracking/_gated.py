@@ -41,8 +41,17 @@ from dataclasses import dataclass, fields
 import numpy as np
 import scipy.stats
 
-from .._core.validation import (_overflow, as_array, as_real, as_sequence, as_vector, check_covariance, check_int,
-                           check_positive, check_record, finite_result, renamed, require_finite)
+from .._core.finiteness import finite_result, _overflow, renamed, require_finite
+from .._core.validation import (
+    as_array,
+    as_real,
+    as_sequence,
+    as_vector,
+    check_covariance,
+    check_int,
+    check_positive,
+    check_record,
+)
 from ..errors import ParameterError, ShapeError
 from .._core.rts import rts_backward_linear
 from .._core.van_loan import intervals_unchecked

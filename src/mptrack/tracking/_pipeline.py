@@ -26,8 +26,9 @@ import numpy as np
 import pandas as pd
 import pyarrow as pa
 
+from .._core.data_checks import check_outputs
 from .._core.tracks import track_offsets
-from .._core.validation import check_bool, check_int, check_outputs, check_path
+from .._core.validation import check_bool, check_int, check_path
 from ..errors import ParameterError
 from ..io import (FIXES, MEASUREMENTS, InputNotSorted, ReadOptions, ReadReport, input_label, input_name, input_paths,
                   iter_track_chunks, output_format, read_cells, read_chunks, resolve_input)

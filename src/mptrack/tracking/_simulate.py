@@ -37,15 +37,8 @@ from typing import Callable, Iterator
 import numpy as np
 import pandas as pd
 
-from .._core.validation import (
-    as_real,
-    check_allocation,
-    check_bool,
-    check_int,
-    check_positive,
-    check_rng,
-    derived_from,
-)
+from .._core.finiteness import derived_from
+from .._core.validation import as_real, check_allocation, check_bool, check_int, check_positive, check_rng
 from ..errors import DataError, ParameterError, UnknownNameError
 from ..io import FIXES, ReadOptions, ReadReport, cell_key, iter_track_chunks
 from ..io import enu_to_geodetic
