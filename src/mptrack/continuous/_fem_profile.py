@@ -10,7 +10,7 @@ from unittest import mock
 import numpy as np
 
 from .._core.validation import check_int
-from . import _fem_kernels, _fem_schemes
+from . import _fem, _fem_grid, _fem_kernels, _fem_schemes
 from ._fem import fem_filter
 from ._model import ContinuousDiscreteModel
 
@@ -51,8 +51,8 @@ def fem_profile(model: ContinuousDiscreteModel, z, x0, P0, *, grid: tuple[int, i
     best = None
     for _ in range(repeats):
         updates, predictions, inputs = [], [], []
-        with mock.patch.object(_fem_schemes._Characteristics, "predict", timed(_fem_schemes._Characteristics.predict, predictions,
-                                                                        inputs)), \
+        with mock.patch.object(_fem_schemes._Characteristics, "predict",
+                               timed(_fem_schemes._Characteristics.predict, predictions, inputs)), \
                 mock.patch.object(_fem, "_update", timed(_fem._update, updates)):
             t = time.perf_counter()
             fem_filter(model, z, x0, P0, grid=grid)
@@ -62,8 +62,8 @@ def fem_profile(model: ContinuousDiscreteModel, z, x0, P0, *, grid: tuple[int, i
     total, predict, update, inputs = best
     scheme = inputs[0][0]
     transports, diffusions = [], []
-    with mock.patch.object(_fem, "transport_split", timed(_fem.transport_split, [], transports)), \
-            mock.patch.object(_fem, "diffuse_kept", timed(_fem.diffuse_kept, [], diffusions)):
+    with mock.patch.object(_fem_schemes, "transport_split", timed(_fem_schemes.transport_split, [], transports)), \
+            mock.patch.object(_fem_schemes, "diffuse_kept", timed(_fem_schemes.diffuse_kept, [], diffusions)):
         for s, g, p in inputs:
             s.predict_steps(g, p)
     placed = [_fem_kernels.place_grid(p, lo, hi, d, grid_, place, flow) for p, lo, hi, _, d, grid_, place, flow, _ in
@@ -72,9 +72,10 @@ def fem_profile(model: ContinuousDiscreteModel, z, x0, P0, *, grid: tuple[int, i
         "placement": sum(_best_time(lambda a=a: _fem_kernels.place_grid(a[0], a[1], a[2], *a[4:8]), repeats) for a in transports),
         "carry": sum(_best_time(lambda a=a, new=new: _fem_kernels.carry(*a[:3], new[1], new[2], a[4], a[5], *a[7:]), repeats)
                      for a, new in zip(transports, placed)),
-        "diffusion": sum(_best_time(lambda a=a: _fem.diffuse_kept(*a), repeats) for a in diffusions),
+        "diffusion": sum(_best_time(lambda a=a: _fem_schemes.diffuse_kept(*a), repeats) for a in diffusions),
         "factorisations": scheme.factorisations * _best_time(
-            lambda: _fem._band_cholesky(_fem._topology(*grid), _fem._topology(*grid)["Me"], np.float32), repeats)}
+            lambda: _fem_schemes._band_cholesky(_fem_grid._topology(*grid), _fem_grid._topology(*grid)["Me"], np.float32),
+            repeats)}
     share = predict / sum(pieces.values())
     steps = z.shape[0]
     parts = {"grid placement (moments, sigma points, box)": pieces["placement"] * share,
