@@ -51,6 +51,7 @@ import mptrack.models as models
 import mptrack.nonlinear as nonlinear
 import mptrack.radio as radio
 import mptrack.report as report
+import mptrack.result
 import mptrack.riccati as riccati
 import mptrack.runs as runs
 import mptrack.sim as sim
@@ -318,8 +319,8 @@ def _public(package: str, attr: str):
 #: Result records: built by mptrack and returned, not built from user input; their array fields are
 #: checked where a record is passed back in (``check_record``).  Warning and exception classes too.
 RECORDS = {
-    "linear.FilterResult", "linear.FitResult", "linear.FilterSpec", "linear.Implementation", "batch.GainSequence", "runs.Chunk", "runs.Chunks",
-    "riccati.SteadyState", "riccati.LainiotisParameters", "nonlinear.BatchFilterResult", "continuous.BlockKernels",
+    "linear.FitResult", "linear.FilterSpec", "linear.Implementation", "batch.GainSequence", "runs.Chunk", "runs.Chunks",
+    "riccati.SteadyState", "riccati.LainiotisParameters", "continuous.BlockKernels",
     "continuous.GridDensity", "continuous.GridMixture", "continuous.FEMStep", "nonlinear.IMMResult", "radio.GsmBand", "radio.ValidityWarning",
     "fuzzy.AnfisResult", "tracking.GatedResult", "tracking.MotionModel", "io.ReadReport", "io.InputNotSorted",
     "io.Column", "io.Schema", "result.FilterResult", "result.BatchFilterResult",
@@ -358,7 +359,7 @@ MODEL_PASSED = ("F", "H", "Q", "R")
 
 
 def _result(x, P):
-    return linear.FilterResult(x=x, P=P, method="test")
+    return mptrack.result.FilterResult(x=x, P=P, method="test")
 
 
 # --- linear -----------------------------------------------------------------------------------------------
@@ -452,7 +453,7 @@ target("batch.RangeModel", lambda F, Q, stations, R: batch.RangeModel(F, Q, stat
 target("batch.RangeModel.constant_velocity", lambda dt, sigma_a2, sigma_r2, stations:
        batch.RangeModel.constant_velocity(dt, sigma_a2, stations, sigma_r2), dt=scalar(0, 10), sigma_a2=scalar(0, 10),
        sigma_r2=scalar(0, 100), stations=arg((3, 2), valid=STATIONS))
-target("batch.range_ekf", lambda z, x0, P0: batch.range_ekf(RANGE_MODEL, z, x0, P0),
+target("batch.ekf_ranges", lambda z, x0, P0: batch.ekf_ranges(RANGE_MODEL, z, x0, P0),
        z=arg((2, 3, 3), valid=np.full((2, 3, 3), 500.0)), x0=arg((4,), valid=[300.0, 0.0, 400.0, 0.0]),
        P0=covariance(4), passed=("model",))
 
@@ -766,7 +767,6 @@ target("tracking.track_gated", lambda times, z, R, prior_variances: tracking.tra
     z=arg((3, 2), valid=[[0.0, 0.0], [1.0, 1.0], [2.0, 2.0]]), R=arg((3, 2, 2), valid=np.array([np.eye(2)] * 3)),
     prior_variances=arg((4,), valid=[1.0, 100.0, 1.0, 100.0]), passed=("model",))
 # read_output returns what the file holds: write_table writes +-Inf as is (CSV, Parquet), so may the file
-target("tracking.read_output", path=paths(POINTS_CSV), nan_result=True, inf_result=True)
 target("tracking.track_fixes", lambda rows, q: tracking.track_fixes(TRACK_ID, rows, q=q),
        rows=frames(ROWS, ["t", "lat", "lon", "accuracy_m"]), q=maybe(scalar(0, 10)), passed=("track_id",),
        nan_result=True)
@@ -786,12 +786,12 @@ target("tracking.check_cell_ids", lambda rows, cells, on_error: tracking.check_c
     passed=("file", "report"))
 target("tracking.ranges_km", rows=frames(CELL_ROWS, ["cell_id", "rss_dbm"]), cells=frames(CELLS, ["lat", "height_m"]),
        path_loss=names("cost231-wi-nlos", "free-space"), nan_result=True)
-target("tracking.band_of_arfcn", arfcn=st.one_of(count(0, 1023), scalar()))
+target("radio.band_of_arfcn", arfcn=st.one_of(count(0, 1023), scalar()))
 target("tracking.kalman_filter_gated", lambda times, z, x0, P0, gate_probability: tracking.kalman_filter_gated(
     CV2, times, z, x0, P0, gate_probability=gate_probability), times=arg((3,), valid=[0.0, 1.0, 2.0]),
     z=arg((3, 2), valid=[[0.0, 0.0], [1.0, 1.0], [2.0, 2.0]]), x0=arg((4,), valid=np.zeros(4)), P0=covariance(4),
     gate_probability=maybe(scalar(0, 1)), passed=("model",))
-target("tracking.smooth_gated", lambda x, P: tracking.smooth_gated(dataclasses.replace(GATED, x=x, P=P)),
+target("tracking.rts_smoother_gated", lambda x, P: tracking.rts_smoother_gated(dataclasses.replace(GATED, x=x, P=P)),
        x=arg((3, 4), valid=GATED.x), P=arg((3, 4, 4), valid=GATED.P), passed=("gated",))
 target("result.normalised_innovation", innovation=arg((3, 2), valid=[[1.0, 2.0], [np.nan, 1.0], [np.nan, np.nan]]),
        S=arg((3, 2, 2), valid=np.broadcast_to([[2.0, 0.5], [0.5, 1.0]], (3, 2, 2))))
@@ -1098,7 +1098,7 @@ def _kf(model, z, **kw):
 
 
 def _range_ekf(z, x0):
-    return batch.range_ekf(RANGE_MODEL, z, x0, np.eye(4) * 100.0)
+    return batch.ekf_ranges(RANGE_MODEL, z, x0, np.eye(4) * 100.0)
 
 
 def _ekf_ranges(z, x0, R):
@@ -1171,14 +1171,14 @@ CORPUS = [
     (1, "batch.per_axis inf z", lambda: batch.per_axis(batch.steady_state_filter, B,
                                                         np.array([[[np.inf, 1.0]]])), ("z",)),
     (1, "batch.predict inf x", lambda: batch.predict(B, np.array([[[np.inf, 1.0]]])), ("x",)),
-    (1, "batch.range_ekf inf z", lambda: _range_ekf(np.array([[[np.inf, 1.0, 1.0]]]), [1.0, 0, 1.0, 0]), ("z",)),
+    (1, "batch.ekf_ranges inf z", lambda: _range_ekf(np.array([[[np.inf, 1.0, 1.0]]]), [1.0, 0, 1.0, 0]), ("z",)),
     (2, "kf x0 1e308", lambda: _kf(B, np.zeros((3, 1)), x0=[1e308, 1e308]), ("x0",)),
     (2, "gain_sequence 1e200", lambda: batch.gain_sequence(_lgm([[1e200]], [[1.]], [[1.]], [[1.]]), 3, [[1.]]),
      ("model", "F")),
     (2, "LGM G 1e200", lambda: _lgm(np.eye(2), np.eye(2), None, np.eye(2), G=[[1e200, 0], [0, 1]], Qw=np.eye(2)),
      ("G", "Qw")),
     (3, "range_ekf prior on station", lambda: _range_ekf(np.full((1, 3, 3), 500.0), [0.0, 0, 0.0, 0]), ("x0",)),
-    (3, "RangeModel sigma_r2 1e-30", lambda: batch.range_ekf(
+    (3, "RangeModel sigma_r2 1e-30", lambda: batch.ekf_ranges(
         batch.RangeModel.constant_velocity(1.0, 1.0, STATIONS, 1e-30), np.full((1, 3, 3), 500.0),
         [1.0, 0, 1.0, 0], np.eye(4)), ("sigma_r2", "model", "z", "x0", "P0")),
     (3, "kf F 1e200", lambda: _kf(_lgm([[1e200]], [[1.]], [[1.]], [[1.]]), np.ones((3, 1))),
@@ -1224,7 +1224,7 @@ CORPUS = [
     (6, "nis_threshold inf", lambda: _nis(0.999, np.inf), ("dof",)),
     (6, "predict_ahead inf", lambda: linear.predict_ahead(B, _result([[np.inf, 0.]], [np.eye(2)]), 1),
      ("result",)),
-    (6, "rts inf", lambda: linear.rts_smoother(B, linear.FilterResult(
+    (6, "rts inf", lambda: linear.rts_smoother(B, mptrack.result.FilterResult(
         x=np.array([[np.inf, 0.]]), P=np.eye(2)[None], x_pred=np.zeros((1, 2)), P_pred=np.eye(2)[None],
         method="t")), ("result",)),
     (7, "ukf alpha 0", lambda: nonlinear.sigma_points(np.zeros(2), np.eye(2), alpha=0.0), ("alpha",)),
@@ -1303,7 +1303,7 @@ CORPUS = [
      ("model", "z", "x0", "P0")),
     ("a5", "ukf kappa str", lambda: nonlinear.ukf_filter(ZHAO_VDP, ZZ, continuous.ZHAO2013_X0, np.eye(2),
                                                           kappa="abc"), ("kappa",)),
-    ("a5", "range_ekf exact data sigma_r2 1e-30", lambda: batch.range_ekf(
+    ("a5", "range_ekf exact data sigma_r2 1e-30", lambda: batch.ekf_ranges(
         batch.RangeModel.constant_velocity(1.0, 1.0, STATIONS, 1e-30),
         np.linalg.norm(np.array([[300.0, 400.0]] * 3)[:, None] - STATIONS, axis=-1)[None], [300.0, 0, 400.0, 0],
         np.eye(4)), ("model", "sigma_r2", "P0")),
@@ -1381,7 +1381,7 @@ def warm_up() -> None:
     tracking.track_cells("1", CELL_ROWS, CELLS)
     tracking.track_fixes(TRACK_ID, ROWS)
     tracking.track(LOG, smooth=True)
-    tracking.smooth_gated(GATED)
+    tracking.rts_smoother_gated(GATED)
 
 
 # ================================================================ a run outside pytest

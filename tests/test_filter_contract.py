@@ -59,7 +59,7 @@ NOT_FILTERS = {
     "per_axis": "runs a filter per axis (model B of the Table 1 implementations)",
     "filter_chunked": "runs a batch filter chunk by chunk (equal to it: tests/batch/test_batch_runner.py)",
     "rts_smoother": "smoother", "steady_state_smoother": "smoother", "rts_smoother_irregular": "smoother",
-    "ekf_smoother": "smoother", "ukf_smoother": "smoother", "smooth_gated": "smoother",
+    "ekf_smoother": "smoother", "ukf_smoother": "smoother", "rts_smoother_gated": "smoother",
     "predict_ahead": "N-step predictor of a filter result", "steady_state_predictor": "N-step predictor",
 }
 
@@ -223,7 +223,7 @@ CASES: dict[str, Case] = {
                              twin="fir_filter", arguments=("z",), **FIR),
     "batch.kalman_filter": Case(lambda z, x0, P0: batch.kalman_filter(MODEL, z, x0, P0), 1e-9, forms=(),
                                 batch=True, covariance=False, twin="kalman_filter"),
-    "batch.range_ekf": Case(lambda z, x0, P0: batch.range_ekf(batch.RangeModel(
+    "batch.ekf_ranges": Case(lambda z, x0, P0: batch.ekf_ranges(batch.RangeModel(
         np.eye(2), RANGE_Q, STATIONS[:1], [[0.222]], position=(0, 1)), z, x0, P0), 1e-9, forms=(), batch=True,
         covariance=False, twin="ekf_ranges", **_CELL),
 }

@@ -27,7 +27,7 @@ from ..result import BatchFilterResult
 from ._inputs import check_finite_out, launch, prepare_batch
 from ._kernels import _OPTS
 
-__all__ = ["RangeModel", "range_ekf"]
+__all__ = ["RangeModel", "ekf_ranges"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -143,7 +143,7 @@ def ekf_kernel(z, out, F, Q, R, stations, pos, x0, P0, lengths):
                 out[b, t, r] = np.nan
 
 
-def range_ekf(model: RangeModel, z, x0, P0, out=None, *, lengths=None) -> BatchFilterResult:
+def ekf_ranges(model: RangeModel, z, x0, P0, out=None, *, lengths=None) -> BatchFilterResult:
     """Extended Kalman filter of a batch of range tracks (one covariance per track).
 
     z        (B, T, S) ranges (metres) to the model's S stations; NaN = that range missing

@@ -469,9 +469,9 @@ def evaluate(
     if truth is None:
         reject_given(ctx, ["tolerance_s"], "applies with --truth")
     from ..errors import DataError
-    from ..io import ReadReport
+    from ..io import ReadReport, read_output
     from ..runs import output_lock
-    from ..tracking import evaluate_tracks, read_output
+    from ..tracking import evaluate_tracks
 
     held = contextlib.ExitStack()  # the report's lock, from the start to the end of the command
     truth_report = ReadReport()

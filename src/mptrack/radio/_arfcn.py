@@ -14,10 +14,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._core.validation import as_array
+from .._core.validation import as_array, as_real
 from ..errors import DTypeError, ParameterError, UnknownNameError
 
-__all__ = ["GsmBand", "GSM_BANDS", "arfcn_to_frequency", "frequency_to_arfcn"]
+__all__ = ["GsmBand", "GSM_BANDS", "arfcn_to_frequency", "frequency_to_arfcn", "band_of_arfcn", "TA_STEP_M"]
 
 
 @dataclass(frozen=True)
@@ -42,6 +42,10 @@ GSM_BANDS: dict[str, GsmBand] = {
     "PCS1900": GsmBand("PCS 1900", ((512, 810, 512, 1850.2),), 80.0),
     "GSM850": GsmBand("GSM 850", ((128, 251, 128, 824.2),), 45.0),
 }
+
+#: The distance of one step of the GSM timing advance (m): one bit period, 48/13 µs, of the round trip
+#: (3GPP TS 45.010), so c * 48/13 µs / 2.
+TA_STEP_M = 553.5
 
 _LINKS = ("downlink", "uplink")
 
@@ -109,3 +113,16 @@ def frequency_to_arfcn(frequency_mhz, band: str, link: str = "downlink"):
         bad = f[out < 0].flat[0]
         raise ParameterError(f"frequency_mhz: {bad} MHz is not a {spec.name} {link} carrier")
     return out[()] if out.ndim == 0 else out
+
+
+def band_of_arfcn(arfcn: int) -> str:
+    """The GSM band of a channel number: 0-124 and 975-1023 E-GSM, 128-251 GSM850, 512-885 DCS1800
+    (PCS1900 reuses 512-810; give ``range_m`` or a frequency-consistent table for PCS networks)."""
+    a = as_real("arfcn", arfcn, low=0, high=1023)
+    if a != int(a):
+        raise ParameterError(f"arfcn: expected an integer channel number, got {arfcn!r}")
+    if a <= 124 or 975 <= a <= 1023:
+        return "E-GSM"
+    if 128 <= a <= 251:
+        return "GSM850"
+    return "DCS1800"

@@ -278,7 +278,7 @@ def write_report(tracks: pd.DataFrame, path, *, summary: dict, run: dict | None 
                  budget: int = DEFAULT_BUDGET) -> Path:
     """Write the HTML report of ``tracks`` to ``path`` atomically (one file, works offline).
 
-    tracks   the point table of ``mptrack track`` (:func:`mptrack.tracking.read_output`), with the
+    tracks   the point table of ``mptrack track`` (:func:`mptrack.io.read_output`), with the
              error and truth columns of :func:`mptrack.tracking.evaluate_tracks` when evaluated
     summary  the evaluation of ``tracks`` (the first value :func:`mptrack.tracking.evaluate_tracks`
              returns): one row per track and an overall row; every track is in the page's table; its

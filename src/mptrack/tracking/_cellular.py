@@ -24,29 +24,15 @@ from ..errors import DataError, ParameterError
 from ..io import LocalFrame, ReadReport
 from ..models import constant_velocity_continuous
 from ..cellular import motion_position
-from ..radio import PATH_LOSS_MODELS, arfcn_to_frequency, distance_from_rss
+from ..radio import PATH_LOSS_MODELS, TA_STEP_M, arfcn_to_frequency, band_of_arfcn, distance_from_rss
 from ._columns import time_values
 from ._fixes import TrackOptions, _time_like
 from ._output import point_table
 from ._registry import get_cell_method
 
-__all__ = ["track_cells", "check_cell_ids", "ranges_km", "TA_STEP_M", "band_of_arfcn"]
+__all__ = ["track_cells", "check_cell_ids", "ranges_km"]
 
-TA_STEP_M = 553.5
 DEFAULT_FREQUENCY_MHZ = 1800.0
-
-
-def band_of_arfcn(arfcn: int) -> str:
-    """The GSM band of a channel number: 0-124 and 975-1023 E-GSM, 128-251 GSM850, 512-885 DCS1800
-    (PCS1900 reuses 512-810; give ``range_m`` or a frequency-consistent table for PCS networks)."""
-    a = as_real("arfcn", arfcn, low=0, high=1023)
-    if a != int(a):
-        raise ParameterError(f"arfcn: expected an integer channel number, got {arfcn!r}")
-    if a <= 124 or 975 <= a <= 1023:
-        return "E-GSM"
-    if 128 <= a <= 251:
-        return "GSM850"
-    return "DCS1800"
 
 
 def check_cell_rows(name: str, rows, columns=("t", "row", "cell_id")) -> pd.DataFrame:

@@ -43,7 +43,7 @@ from ._output import point_table
 from ._noise import SIGMA_FLOOR_M
 from ._run import TRACK_COLUMNS, track_table
 
-__all__ = ["track_file", "track", "write_track_report", "read_output", "TrackTask", "DEFAULT_CHUNK_ROWS"]
+__all__ = ["track_file", "track", "write_track_report", "TrackTask", "DEFAULT_CHUNK_ROWS"]
 
 #: Rows of whole tracks per unit of work (memory per chunk ~0.5 KB a row in flight).
 DEFAULT_CHUNK_ROWS = 200_000
@@ -520,9 +520,3 @@ def write_track_report(points: pd.DataFrame, path, *, run: dict | None = None, t
     return write_report(table, path, summary=summary, run=run, title=title,
                         **({} if budget is None else {"budget": budget}))
 
-
-def read_output(path) -> pd.DataFrame:
-    """A point table written by :func:`track_file`, in any output format (see :func:`mptrack.io.read_output`)."""
-    from ..io import read_output as read
-
-    return read(path)
