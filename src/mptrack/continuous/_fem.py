@@ -80,34 +80,49 @@ def _gaussian_on(grid: FEMGrid, m, P):
 def fem_steps(model: ContinuousDiscreteModel, z, x0, P0, *, grid: tuple[int, int] = (20, 20),
               width: float = 4.0, substeps: int | None = None, scheme: str = "characteristics",
               stabilise: bool = False, box: tuple | None = None, splits: int = 4) -> Iterator[FEMStep]:
-    """Run the grid filter step by step, yielding a FEMStep (densities included) per measurement.
+    """Run the FEM grid filter (Zhao et al. 2013) step by step.
 
-    grid      (n1, n2) elements per axis (Zhao et al. 2013: 20 × 20)
-    width     half-width of the box in posterior standard deviations (section 3.1)
-    substeps  time steps per dt; default 0.8·max(n1, n2), at least 8: a fixed Courant
-              number, 16 on the paper's 20 × 20 grid, where 32 are no more accurate on
-              eq. 42 and 8 are measurably less (docs/decisions/2026-12-01-continuous-discrete.md)
-    scheme    "characteristics" (default): Strang splitting — half a dt of diffusion by SDIRK2,
-              the density carried by the drift's flow (mass-conserving projection) onto a
-              grid placed around the predicted density, half a dt of diffusion there;
-              separate posterior modes get their own grids (``step.posterior.parts``);
-              "sdirk2" (L-stable) or "cn" (Crank–Nicolson): the Galerkin drift–diffusion
-              operator, accurate while the density moves less than its own width per element
-              (docs/nonlinear.md: at low diffusion it loses the state);
-              "paper": the paper's own scheme (eqs. 17–21) — the strong form
-              F(p) = Δ₁p + Δ₂·∇p + ½Δ₃:∇²p at the nodes (central differences), stepped by
-              classical RK4 with eq. 21's stages corrected; explicit, so ``substeps`` is raised
-              to its stability limit; p = 0 on the boundary (the mass that leaves is counted in
-              ``lost``).  Needs elements narrower than the density relative to the drift
-              (docs/nonlinear.md, "The paper's scheme")
-    splits    Strang steps per dt of the "characteristics" scheme (its splitting error falls
-              like (dt/splits)²); each places its own grid around the density it predicts
-    stabilise add streamline diffusion (see FEMGrid.element_matrices); off by default: on the
-              eq. 42 example its O(h) smearing costs more accuracy than the clipped
-              Galerkin wiggles do (docs/nonlinear.md)
-    box       ((lo1, lo2), (hi1, hi2)): a fixed rectangle instead of the moving grid;
-              it must cover the prior mean ± 3σ, and as its boundary is zero-flux no
-              mass can leave it: choose it to contain the whole track
+    Parameters
+    ----------
+    model : ContinuousDiscreteModel
+        The SDE model observed at discrete times.
+        (2-D state.)
+    z : array_like, shape (T, m)
+        Measurements; NaN components are skipped.
+    x0 : array_like, shape (n,)
+        The prior mean at time 0.
+    P0 : array_like, shape (n, n)
+        The prior covariance at time 0.
+    grid : tuple of int, optional
+        (n1, n2) elements per axis (Zhao et al. 2013: 20 x 20).
+    width : float, optional
+        Half-width of the box in posterior standard deviations (section 3.1).
+    substeps : int, optional
+        Time steps per dt (default :func:`fem_substeps`: 0.8 max(n1, n2), at least 8).
+    scheme : {"characteristics", "sdirk2", "cn", "paper"}, optional
+        ``"characteristics"``: Strang splitting of diffusion (SDIRK2) and transport along the drift's flow
+        onto a grid placed around the predicted density, one grid per posterior mode; ``"sdirk2"``,
+        ``"cn"``: the Galerkin drift-diffusion operator (it loses the state at low diffusion);
+        ``"paper"``: the paper's scheme (eqs. 17-21, RK4 stages corrected; explicit, p = 0 on the
+        boundary).  See docs/nonlinear.md.
+    stabilise : bool, optional
+        Add streamline diffusion (its O(h) smearing costs more accuracy on eq. 42 than it saves).
+    box : tuple, optional
+        ((lo1, lo2), (hi1, hi2)): a fixed rectangle instead of the moving grid; it must cover the prior
+        mean +- 3 sigma, and its zero-flux boundary keeps all mass in: choose it to contain the track.
+    splits : int, optional
+        Strang steps per dt of the characteristics scheme.
+
+    Yields
+    ------
+    FEMStep
+        One per measurement: estimates, the prior and posterior densities (GridMixture), clipped and lost
+        mass, regridding.
+
+    Raises
+    ------
+    ConvergenceError
+        A measurement's likelihood falls between the nodes, or the grid lost the density.
 
     References
     ----------
@@ -351,7 +366,31 @@ def _update(parts: list, model, zk, k: int, width: float, fixed: bool):
 
 @finite_result("the FEM filter")
 def fem_filter(model: ContinuousDiscreteModel, z, x0, P0, **options) -> FilterResult:
-    """The FEM grid filter (Zhao et al. 2013) as a FilterResult; options as for :func:`fem_steps`.
+    """The FEM (Fokker-Planck) grid filter of Zhao et al. 2013 as a FilterResult.
+
+    Parameters
+    ----------
+    model : ContinuousDiscreteModel
+        The SDE model observed at discrete times.
+        (2-D state.)
+    z : array_like, shape (T, m)
+        Measurements; NaN components are skipped.
+    x0 : array_like, shape (n,)
+        The prior mean at time 0.
+    P0 : array_like, shape (n, n)
+        The prior covariance at time 0.
+    **options
+        As for :func:`fem_steps` (grid, width, substeps, scheme, stabilise, box, splits).
+
+    Returns
+    -------
+    FilterResult
+        Means, covariances, predictions and the log-likelihood (method "FEM").
+
+    Raises
+    ------
+    ConvergenceError
+        As :func:`fem_steps`.
 
     References
     ----------

@@ -40,9 +40,19 @@ _GAUSS3 = (np.array([-np.sqrt(0.6), 0.0, np.sqrt(0.6)]), np.array([5.0, 8.0, 5.0
 
 @finite_result("the shape functions")
 def shape_functions(xi, eta):
-    """Serendipity shape functions N (…, 8) and derivatives dN/dξ, dN/dη (Zhao et al. 2013, eqs. 11–12).
+    """The 8-node serendipity shape functions and their derivatives (Zhao et al. 2013, eqs. 11-12).
 
-    Corners: N = ¼(1+ξξᵢ)(1+ηηᵢ)(ξξᵢ+ηηᵢ−1); mid-sides: ½(1−ξ²)(1+ηηᵢ) or ½(1+ξξᵢ)(1−η²).
+    Corners: N = (1 + xi xi_i)(1 + eta eta_i)(xi xi_i + eta eta_i - 1)/4; mid-sides:
+    (1 - xi^2)(1 + eta eta_i)/2 or (1 + xi xi_i)(1 - eta^2)/2.
+
+    Parameters
+    ----------
+    xi, eta : array_like
+        Coordinates on the reference element [-1, 1]^2 (broadcast together).
+
+    Returns
+    -------
+    N, dN_dxi, dN_deta : ndarray, shape (..., 8)
 
     References
     ----------

@@ -26,16 +26,33 @@ def _best_time(fn, repeats: int) -> float:
 
 def fem_profile(model: ContinuousDiscreteModel, z, x0, P0, *, grid: tuple[int, int] = (20, 20),
                 repeats: int = 1) -> dict:
-    """Where the time of the default FEM grid filter (:func:`fem_filter` on ``grid``) goes: {part: seconds
-    per measurement step} for the grid placement, the transport, the diffusion, its factorisations, the
-    update and the rest (``mptrack bench --suite nonlinear`` reports it); ``repeats`` (1 to 100) runs.
+    """Where the time of the default FEM grid filter goes, per measurement step.
 
-    The run with the smallest total of ``repeats`` gives the total, the time in the predictions (``_Characteristics.predict``: one compiled
-    call per dt) and in the updates.  The prediction's time is split in proportion to the cost of its
-    pieces, each timed alone on the run's own inputs (best of ``repeats``): the predictions replayed
-    piece by piece (``predict_steps``) for the inputs of every grid placement (``place_grid``), carrying
-    of the density (``carry``) and diffusion (``diffuse_kept`` on kept factorisations), and the run's
-    count of factorisations times one's cost.  The rest is the total minus predictions and updates."""
+    The run with the smallest total of ``repeats`` gives the total and the time in the predictions and the
+    updates; the prediction's time is split in proportion to the cost of its pieces (grid placement,
+    carrying the density, diffusion, factorisations), each timed alone on the run's own inputs.
+    ``mptrack bench --suite nonlinear`` reports it.
+
+    Parameters
+    ----------
+    model : ContinuousDiscreteModel
+        The SDE model observed at discrete times.
+    z : array_like, shape (T, m)
+        Measurements; NaN components are skipped.
+    x0 : array_like, shape (n,)
+        The prior mean at time 0.
+    P0 : array_like, shape (n, n)
+        The prior covariance at time 0.
+    grid : tuple of int, optional
+        (n1, n2) elements per axis.
+    repeats : int, optional
+        Runs, 1 to 100.
+
+    Returns
+    -------
+    dict
+        {part: seconds per measurement step}.
+    """
     repeats = check_int("repeats", repeats, minimum=1, maximum=MAX_REPEATS)
 
     def timed(fn, log, record=None):

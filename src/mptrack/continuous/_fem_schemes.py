@@ -213,9 +213,19 @@ def _grid_shape(grid) -> tuple[int, int]:
 
 
 def fem_substeps(grid: tuple[int, int]) -> int:
-    """Time steps per dt that :func:`fem_filter` takes on a ``grid`` of (n1, n2) elements when its
-    ``substeps`` is None: 0.8·max(n1, n2), at least 8 (a fixed Courant number; 16 on
-    20 × 20)."""
+    """Time steps per dt that :func:`fem_filter` takes on a grid when ``substeps`` is None.
+
+    0.8 max(n1, n2), at least 8: a fixed Courant number (16 on 20 x 20).
+
+    Parameters
+    ----------
+    grid : tuple of int
+        (n1, n2) elements per axis.
+
+    Returns
+    -------
+    int
+    """
     return default_substeps(_grid_shape(grid))
 
 
