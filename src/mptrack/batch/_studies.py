@@ -91,10 +91,40 @@ def monte_carlo(model: LinearGaussianModel, steps: int, runs: int, *, seed: int,
                 method: Literal["steady-state", "kalman"] = "steady-state", P0=None,
                 chunk_size: int = 1000, executor: str = "serial", out_dir=None,
                 max_workers: int | None = None, client=None, progress=None) -> pd.DataFrame:
-    """A Monte-Carlo study of ``runs`` simulated tracks of ``steps`` steps, chunked.
+    """A Monte-Carlo study of simulated tracks, filtered with the batch engine in chunks.
 
-    Returns one row per run (``run``, ``rmse_x0`` ..): see :class:`MonteCarloTask`.
-    The numbers depend on ``seed`` only (not on chunking or executor).
+    Run i draws its process and measurement noise from its own stream, exactly as
+    :func:`mptrack.sim.simulate_linear`, so the numbers depend on ``seed`` only.
+
+    Parameters
+    ----------
+    model : LinearGaussianModel
+    steps : int
+        Steps per run.
+    runs : int
+        Number of runs.
+    seed : int
+        The study's root entropy.
+    method : {"steady-state", "kalman"}, optional
+    P0 : array_like, shape (n, n), optional
+        The Kalman filter's prior covariance.
+    chunk_size : int, optional
+        Runs per chunk.
+    executor : {"serial", "processes", "dask"}, optional
+        Who runs the chunks: this process, a spawn-context ProcessPoolExecutor, or a Dask cluster
+        (``client``, or a LocalCluster started for the call; install ``mptrack[dask]``).
+    max_workers : int, optional
+        Processes or Dask workers (default: the cores).
+    client : dask.distributed.Client, optional
+    out_dir : str or path-like, optional
+        Resumable Parquet output (:func:`mptrack.runs.run_chunks`).
+    progress : callable, optional
+        ``progress(k)`` each time k more chunks are done (skipped ones included).
+
+    Returns
+    -------
+    pandas.DataFrame
+        One row per run: ``run`` and the RMSE over time of each state component (``rmse_x0``, ...).
     """
     if method not in ("steady-state", "kalman"):
         raise ParameterError(f"method: expected 'steady-state' or 'kalman', got {method!r}")
@@ -138,13 +168,36 @@ class _FilterTask:
 def filter_chunked(run: Callable[..., BatchFilterResult], model: LinearGaussianModel, z, *, chunk_size: int,
                    executor: str = "serial", out_dir=None, max_workers: int | None = None,
                    client=None, progress=None, **kwargs) -> BatchFilterResult:
-    """Filter a large batch ``z`` (B, T, m) in chunks of tracks with ``run`` (a batch filter).
+    """Filter a batch larger than memory in chunks of tracks with a batch filter.
 
-    Each chunk's states go to a long table (track, t, x0 ..), Parquet in ``out_dir``
-    when given.  Returns ``run``'s result for the whole batch, equal to ``run(model, z)``:
-    x the (B, T, n) states in z's dtype, read back from the chunks; the fields every track
-    shares (P of the steady-state and FIR filters, inputs, method) from ``run`` on the
-    first track; a field that differs from track to track is None.
+    Each chunk's states go to a long table (track, t, x0 ..), Parquet in ``out_dir`` when given.
+
+    Parameters
+    ----------
+    run : callable
+        A batch filter (e.g. :func:`steady_state_filter`).
+    model : LinearGaussianModel
+    z : array_like, shape (B, T, m)
+    chunk_size : int
+        Tracks per chunk.
+    executor : {"serial", "processes", "dask"}, optional
+        Who runs the chunks: this process, a spawn-context ProcessPoolExecutor, or a Dask cluster
+        (``client``, or a LocalCluster started for the call; install ``mptrack[dask]``).
+    max_workers : int, optional
+        Processes or Dask workers (default: the cores).
+    client : dask.distributed.Client, optional
+    out_dir : str or path-like, optional
+        Resumable output; another study's directory is refused.
+    progress : callable, optional
+        ``progress(k)`` each time k more chunks are done (skipped ones included).
+    **kwargs
+        Passed to ``run``.
+
+    Returns
+    -------
+    BatchFilterResult
+        Equal to ``run(model, z)``: x read back from the chunks; the fields every track shares (P of the
+        steady-state and FIR filters, inputs, method) from ``run`` on the first track; others None.
     """
     require_model(model)
     z = _to_array("z", z)

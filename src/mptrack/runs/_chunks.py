@@ -75,9 +75,28 @@ class Chunks(Sequence):
 
 
 def make_chunks(n_items: int, chunk_size: int, seed: int | None = None) -> Chunks:
-    """Split ``range(n_items)`` into consecutive chunks of ``chunk_size`` (the last may be shorter).
+    """Split ``range(n_items)`` into consecutive chunks (the last may be shorter), made lazily.
 
-    The chunks are made lazily (:class:`Chunks`), so a huge ``n_items`` costs no memory."""
+    Parameters
+    ----------
+    n_items : int
+        >= 1; a huge count costs no memory.
+    chunk_size : int
+        Items per chunk, >= 1.
+    seed : int, optional
+        The run's root entropy: item i draws from ``SeedSequence(seed, spawn_key=(i,))``.
+
+    Returns
+    -------
+    Chunks
+        A read-only sequence of :class:`Chunk` (len, indexing, slicing, iteration).
+
+    Examples
+    --------
+    >>> from mptrack.runs import make_chunks
+    >>> [(c.start, c.stop) for c in make_chunks(7, 3)]
+    [(0, 3), (3, 6), (6, 7)]
+    """
     n_items = check_int("n_items", n_items, minimum=1)
     chunk_size = check_int("chunk_size", chunk_size, minimum=1)
     if seed is not None:

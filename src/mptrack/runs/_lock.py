@@ -54,21 +54,46 @@ _HELD: dict[Path, list] = {}
 
 
 def lock_path(path: str | os.PathLike) -> Path:
-    """The lock file of output ``path``: ``.<name>.lock`` beside it (its directory's links resolved,
-    so two spellings of one directory share one lock)."""
+    """The lock file of an output: ``.<name>.lock`` beside it (its directory's links resolved, so two
+    spellings of one directory share one lock).
+
+    Parameters
+    ----------
+    path : str or path-like
+
+    Returns
+    -------
+    pathlib.Path
+    """
     path = check_path("path", path)
     return Path(os.path.realpath(path.parent)) / f".{path.name}.lock"
 
 
 @contextlib.contextmanager
 def output_lock(*paths, note: str = "") -> Iterator[None]:
-    """Hold the exclusive lock of every output in ``paths`` (None is skipped) for the block, and
-    remove their stale temporary files (:func:`stale_temp_files`) once locked.
+    """Hold the exclusive lock of every output for the block, and remove their stale temporary files
+    once locked.
 
-    ``note`` (e.g. the command line) is stored with the holder's pid and shown to a process that is
-    refused.  Raises OutputError when another process holds a lock, when an output is a directory,
-    or when a lock file cannot be created (read-only directory, ...).  Locks are taken in the order
-    given and never waited for, so two runs cannot deadlock."""
+    Locks are taken in the order given and never waited for, so two runs cannot deadlock; they are
+    reentrant within a process.
+
+    Parameters
+    ----------
+    *paths : str or path-like
+        The outputs (None is skipped).
+    note : str, optional
+        Stored with the holder's pid and shown to a process that is refused (e.g. the command line).
+
+    Yields
+    ------
+    None
+
+    Raises
+    ------
+    OutputError
+        Another process holds a lock (naming its pid and note), an output is a directory, or a lock file
+        cannot be created.
+    """
     outs = [check_path("paths", p) for p in paths if p is not None]
     wanted = {lock_path(p): p for p in outs}
     with contextlib.ExitStack() as stack:

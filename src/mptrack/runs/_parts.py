@@ -19,7 +19,21 @@ PART_FORMATS = {"parquet": ".parquet", "arrow": ".arrow"}
 
 
 def part_path(out_dir: Path, name: str, index: int, fmt: str = "parquet") -> Path:
-    """The file of part ``name`` of chunk ``index`` in a run directory."""
+    """The file of one part of a chunk in a run directory: ``<name>-NNNNNN<suffix>``.
+
+    Parameters
+    ----------
+    out_dir : str or path-like
+    name : str
+        The part's name (no "/").
+    index : int
+        The chunk's index, >= 0.
+    fmt : {"parquet", "arrow"}, optional
+
+    Returns
+    -------
+    pathlib.Path
+    """
     out_dir = check_path("out_dir", out_dir)
     if not isinstance(name, str) or not name or "/" in name:
         raise ParameterError(f"name: expected a part name (a non-empty str without '/'), got {name!r}")
@@ -29,8 +43,21 @@ def part_path(out_dir: Path, name: str, index: int, fmt: str = "parquet") -> Pat
 
 
 def read_part(path):
-    """A part written by :func:`run_stream`, as a pyarrow Table (an Arrow IPC part memory-mapped); a file
-    that is not one is a DataError naming it."""
+    """A part written by :func:`run_stream`, as a pyarrow Table (an Arrow IPC part memory-mapped).
+
+    Parameters
+    ----------
+    path : str or path-like
+
+    Returns
+    -------
+    pyarrow.Table
+
+    Raises
+    ------
+    DataError
+        A file that is missing or not a part (naming it).
+    """
     import pyarrow as pa
     import pyarrow.feather as feather
     import pyarrow.parquet as pq

@@ -117,16 +117,37 @@ class PartStore:
 
 @contextlib.contextmanager
 def resumable_outputs(out, *also, resume: bool = False, note: str = "", last_part: str) -> Iterator[PartStore]:
-    """Hold the lock of ``out`` and of the other outputs ``also`` (None is skipped) for the block, and
-    yield the part store of ``out``: emptied for a fresh run, or, with ``resume``, kept with the
-    temporary files of its killed writers removed (its parts of kind ``last_part`` at the start are
-    ``store.resumed``).
+    """Hold the outputs of a resumable run: their locks, taken once, and the part store of the main one.
 
-    When the block raises, the finished chunks (parts of kind ``last_part``) are kept for a resumed run
-    after Ctrl-C (KeyboardInterrupt), an OS failure (disk full, ...) or a crash, and whenever this run
-    was itself a resume; after bad input or options (an mptrack error: a rerun must change them) or
-    with no chunk finished, the store is removed, so nothing is left behind.  ``note`` (e.g. the
-    command line) is shown to another process refused the lock."""
+    The store is emptied for a fresh run or, with ``resume``, kept with its killed writers' temporary
+    files removed.  When the block raises, the finished chunks are kept for a resumed run after Ctrl-C,
+    an OS failure (disk full, ...) or a crash, and whenever this run was itself a resume; after bad input
+    or options (an mptrack error: a rerun must change them), or with no chunk finished, the store is
+    removed, so nothing is left behind.
+
+    Parameters
+    ----------
+    out : str or path-like
+        The main output, whose parts go to ``.<out>.parts/``.
+    *also : str or path-like
+        Other outputs of the run, locked too (None is skipped).
+    resume : bool, optional
+        Keep the parts of an interrupted run.
+    note : str, optional
+        Shown to another process refused the lock (e.g. the command line).
+    last_part : str
+        The kind of part written last by each chunk (its presence means the chunk is done).
+
+    Yields
+    ------
+    PartStore
+        With ``resumed``, the finished chunks found at the start.
+
+    Raises
+    ------
+    OutputError
+        Another run holds a lock, or an output cannot be locked.
+    """
     store = PartStore(out)
     also = [check_path("also", p) for p in also if p is not None]
     with output_lock(out, *also, note=note):

@@ -57,20 +57,52 @@ def run_chunks(task: Callable[[Chunk], pd.DataFrame], n_items: int, *, chunk_siz
                seed: int | None = None, data=None, out_dir=None, executor: Executor = "serial",
                max_workers: int | None = None, client=None, manifest: dict | None = None,
                progress: Callable[[int], None] | None = None) -> pd.DataFrame:
-    """Run ``task(chunk) -> DataFrame`` on every chunk of ``range(n_items)``; concatenate in order.
+    """Run ``task(chunk) -> DataFrame`` on every chunk of ``range(n_items)`` and concatenate in order.
 
-    task        a picklable callable (a module-level function or a dataclass instance)
-    chunk_size  items per chunk; ``seed`` the study's root entropy (see :class:`Chunk`)
-    data        optional array with ``n_items`` leading rows: chunk i gets its slice as ``chunk.data``
-    out_dir     optional directory: finished chunks are written there atomically as Parquet
-                and skipped when the call is repeated (resume after an interruption)
-    executor    "serial", "processes" (a spawn-context ProcessPoolExecutor of ``max_workers``)
-                or "dask" (``client``, a dask.distributed.Client; without one a LocalCluster
-                of ``max_workers`` single-threaded workers is started for the call)
-    manifest    extra JSON-able description of the study stored with the chunks; a
-                later call on the same ``out_dir`` must describe the same study
-    progress    ``progress(k)`` each time k more chunks are done (skipped ones included),
-                e.g. the ``advance`` of ``RunContext.progress.task``
+    With ``out_dir`` the result is read back from the files, so a resumed run returns exactly what an
+    uninterrupted one does.
+
+    Parameters
+    ----------
+    task : callable
+        Picklable (a module-level function or a dataclass instance).
+    n_items : int
+    chunk_size : int
+        Items per chunk.
+    seed : int, optional
+        The run's root entropy (see :class:`Chunk`).
+    data : array_like, optional
+        ``n_items`` leading rows: chunk i gets its slice as ``chunk.data``.
+    out_dir : str or path-like, optional
+        Finished chunks are written there atomically as Parquet and skipped when the call is repeated.
+    executor : {"serial", "processes", "dask"}, optional
+        Who runs the chunks: this process, a spawn-context ProcessPoolExecutor, or a Dask cluster
+        (``client``, or a LocalCluster started for the call; install ``mptrack[dask]``).
+    max_workers : int, optional
+        Processes or Dask workers (default: the cores).
+    client : dask.distributed.Client, optional
+    manifest : dict, optional
+        A JSON-able description of the run stored as ``out_dir/manifest.json``; a later call on the same
+        directory must describe the same run.
+        (extra description; the chunking and seed are added).
+    progress : callable, optional
+        ``progress(k)`` each time k more chunks are done (skipped ones included).
+
+    Returns
+    -------
+    pandas.DataFrame
+
+    Examples
+    --------
+    >>> import pandas as pd
+    >>> from mptrack.runs import run_chunks
+    >>> def draws(chunk):
+    ...     return pd.DataFrame({"item": range(chunk.start, chunk.stop),
+    ...                          "u": [g.random() for g in chunk.generators()]})
+    >>> a = run_chunks(draws, 10, chunk_size=3, seed=1)
+    >>> b = run_chunks(draws, 10, chunk_size=5, seed=1)
+    >>> a.equals(b)
+    True
     """
     chunks = make_chunks(n_items, chunk_size, seed)
     # the results of all chunks are held before they are concatenated: at least a table (~1 KiB) each
@@ -90,21 +122,47 @@ def run_stream(task: Callable[[Chunk], Any], chunks: Iterable[Chunk], *, parts: 
                out_dir=None, part_format: str = "parquet", executor: Executor = "serial",
                max_workers: int | None = None, client=None, manifest: dict | None = None,
                progress: Callable[[int], None] | None = None, max_pending: int | None = None) -> list:
-    """Run ``task`` on chunks as an iterable produces them (so a reader can stream a file larger
-    than memory); returns the results in chunk order.
+    """Run a task on chunks as an iterable produces them (so a reader can stream a file larger than
+    memory), keeping a bounded number in flight.
 
-    task      ``task(chunk)`` returns a table (``parts`` = ("chunk",)) or a dict of tables named by
-              ``parts`` (pandas DataFrames or pyarrow Tables)
-    out_dir   each chunk's tables are written there by the worker, atomically, as
-              ``<part>-NNNNNN.parquet`` (or ``.arrow``, ``part_format``), and the result is their
-              path (one part) or a dict of paths; a chunk whose parts all exist is skipped (resume),
-              the chunk itself never computed
-    manifest  a JSON-able description stored as ``out_dir/manifest.json``; a later run on the
-              same directory must describe the same run (else ParameterError)
-    executor  as for :func:`run_chunks`; at most ``max_pending`` chunks (default twice the
-              workers) are in flight, so memory stays bounded by the chunk size
-    The results do not depend on the executor: every chunk is computed by the same function
-    from the same data.
+    The results do not depend on the executor: every chunk is computed by the same function from the same
+    data.
+
+    Parameters
+    ----------
+    task : callable
+        ``task(chunk)`` returns a table (``parts == ("chunk",)``) or a dict of tables named by ``parts``
+        (pandas DataFrames or pyarrow Tables); picklable for processes and Dask.
+    chunks : iterable of Chunk
+    parts : tuple of str, optional
+        The names of a chunk's tables.
+    out_dir : str or path-like, optional
+        Each chunk's tables are written there by the worker, atomically, as ``<part>-NNNNNN.parquet`` (or
+        ``.arrow``), and the result is their path(s); a chunk whose parts all exist is skipped (resume).
+    part_format : {"parquet", "arrow"}, optional
+    executor : {"serial", "processes", "dask"}, optional
+        Who runs the chunks: this process, a spawn-context ProcessPoolExecutor, or a Dask cluster
+        (``client``, or a LocalCluster started for the call; install ``mptrack[dask]``).
+    max_workers : int, optional
+        Processes or Dask workers (default: the cores).
+    client : dask.distributed.Client, optional
+    manifest : dict, optional
+        A JSON-able description of the run stored as ``out_dir/manifest.json``; a later call on the same
+        directory must describe the same run.
+    progress : callable, optional
+        ``progress(k)`` each time k more chunks are done (skipped ones included).
+    max_pending : int, optional
+        Chunks in flight at most (default twice the workers), so memory follows the chunk size.
+
+    Returns
+    -------
+    list
+        Each chunk's result (tables, or their paths with ``out_dir``), in chunk order.
+
+    Raises
+    ------
+    ParameterError
+        Another run's manifest in ``out_dir``, or an invalid argument.
     """
     if executor not in EXECUTORS:
         raise ParameterError(f"executor: expected one of {EXECUTORS}, got {executor!r}")

@@ -61,8 +61,29 @@ def _check_known(rows, cells, columns=("t", "row", "cell_id"), cell_columns=("la
 
 def check_cell_ids(rows: pd.DataFrame, cells: pd.DataFrame, *, file, on_error: str,
                    report: ReadReport) -> pd.DataFrame:
-    """Rows whose cell_id is in the cell table; an unknown id raises DataError (file, row, "cell_id")
-    or is skipped and counted."""
+    """The rows whose cell_id is in the cell table.
+
+    Parameters
+    ----------
+    rows : pandas.DataFrame
+        Cellular measurements.
+    cells : pandas.DataFrame
+        The cell table.
+    file : str or path-like
+        The measurements' name in messages.
+    on_error : {"raise", "skip"}
+    report : ReadReport
+        Receives the count of skipped rows.
+
+    Returns
+    -------
+    pandas.DataFrame
+
+    Raises
+    ------
+    DataError
+        An unknown cell id (naming file, row and "cell_id"), with ``on_error="raise"``.
+    """
     check_cell_rows("rows", rows, ("row", "cell_id"))
     check_cells("cells", cells, ())
     check_on_error(on_error)
@@ -82,8 +103,22 @@ def check_cell_ids(rows: pd.DataFrame, cells: pd.DataFrame, *, file, on_error: s
 
 
 def ranges_km(rows: pd.DataFrame, cells: pd.DataFrame, path_loss: str = "cost231-wi-nlos") -> np.ndarray:
-    """Range (km) of every row: range_m, else timing advance, else RSS through ``path_loss``; NaN (missing)
-    where a row has none of them."""
+    """The range (km) of every measurement row: range_m, else the timing advance, else the RSS through a
+    path-loss model; NaN where a row has none of them.
+
+    Parameters
+    ----------
+    rows : pandas.DataFrame
+        Cellular measurements.
+    cells : pandas.DataFrame
+        The cell table (power, height, ARFCN of each cell).
+    path_loss : str, optional
+        A key of :data:`mptrack.radio.PATH_LOSS_MODELS`.
+
+    Returns
+    -------
+    ndarray, shape (N,)
+    """
     _check_known(rows, cells, ("cell_id",), ("height_m", "power_dbm", "arfcn"))
     lookup("path_loss", path_loss, PATH_LOSS_MODELS, what="path-loss model", fold=str)
     r = np.full(len(rows), np.nan)
@@ -110,7 +145,24 @@ def ranges_km(rows: pd.DataFrame, cells: pd.DataFrame, path_loss: str = "cost231
 
 def track_cells(track_id: str, rows: pd.DataFrame, cells: pd.DataFrame,
                 options: TrackOptions = TrackOptions()) -> pd.DataFrame:
-    """Filter one track of cellular measurements (rows with known cell ids); returns its point table."""
+    """Filter one track of cellular measurements (rows with known cell ids) with the method of the
+    options (EKF, FEKF or FCS of Bouzera et al. 2017).
+
+    Parameters
+    ----------
+    track_id : str
+    rows : pandas.DataFrame
+        The track's measurements (schema MEASUREMENTS).
+    cells : pandas.DataFrame
+        The cell table (:func:`mptrack.io.read_cells`).
+    options : TrackOptions, optional
+        The settings of ``mptrack track``.
+
+    Returns
+    -------
+    pandas.DataFrame
+        The track's point table.
+    """
     if not isinstance(options, TrackOptions):
         raise ParameterError(f"options: expected TrackOptions, got {type(options).__name__}")
     _check_known(rows, cells)

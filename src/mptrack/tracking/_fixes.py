@@ -168,14 +168,33 @@ def _enu(rows: pd.DataFrame) -> tuple[FixTable, np.ndarray]:
 def track_fixes(track_id: str, rows: pd.DataFrame, options: TrackOptions = TrackOptions(), *,
                 fix_var=None, q: float | None = None, slow_var: float | None = None,
                 slow_tau_s: float = SLOW_TAU_S) -> pd.DataFrame:
-    """Filter (and optionally smooth) one track of validated position fixes; returns its point table.
+    """Filter (and optionally smooth) one track of validated position fixes: the per-track reference the
+    columnar engine is tested against.
 
-    rows: a track from :func:`mptrack.io.iter_tracks` (columns t, time, row, lat/lon or x/y,
-    accuracy_m?).  Positions are east/north metres in the track's local frame (origin at the
-    first fix).  ``fix_var`` (T,) m^2 and ``q`` are the noise to use (default:
-    :func:`fix_variances` and ``options.q`` or the model's default; no estimation here);
-    ``slow_var`` (m^2) and ``slow_tau_s`` the fix error's slow part (default: what the total error
-    leaves, :func:`._fix_error.slow_error_variance`; the gated KF only).
+    Positions are east/north metres in the track's local frame (origin at the first fix); no noise is
+    estimated here.
+
+    Parameters
+    ----------
+    track_id : str
+    rows : pandas.DataFrame
+        A track from :func:`mptrack.io.iter_tracks` (columns t, time, row, lat/lon or x/y, accuracy_m).
+    options : TrackOptions, optional
+        The settings of ``mptrack track``.
+    fix_var : array_like, shape (T,), optional
+        Fix variances (m^2) (default :func:`fix_variances`).
+    q : float, optional
+        Process-noise density (default ``options.q`` or the model's).
+    slow_var : float, optional
+        Stationary variance (m^2 per axis) of the fix error's slow part (default: what the total error
+        leaves, :func:`._fix_error.slow_error_variance`; the gated KF only).
+    slow_tau_s : float, optional
+        Time constant (s) of the slow part.
+
+    Returns
+    -------
+    pandas.DataFrame
+        The track's point table.
 
     References
     ----------
