@@ -18,3 +18,38 @@ def test_code_blocks_run(page, tmp_path, monkeypatch):
     namespace: dict = {}
     for block in blocks:
         exec(compile(block, str(page), "exec"), namespace)  # noqa: S102 - our own docs
+
+
+def _docstring_examples():
+    """(name, docstring) of every public object of mptrack whose docstring has doctest examples."""
+    import importlib
+    import inspect
+    import pkgutil
+
+    import mptrack
+
+    found = []
+    for info in pkgutil.iter_modules(mptrack.__path__):
+        if info.name.startswith("_") or info.name == "cli":
+            continue
+        module = importlib.import_module(f"mptrack.{info.name}")
+        for name in getattr(module, "__all__", ()):
+            value = getattr(module, name)
+            doc = inspect.getdoc(value) if inspect.isfunction(value) or inspect.isclass(value) else None
+            if doc and ">>>" in doc:
+                found.append((f"mptrack.{info.name}.{name}", doc))
+    return found
+
+
+@pytest.mark.parametrize("name, doc", _docstring_examples(), ids=lambda v: v if isinstance(v, str) and
+                         v.startswith("mptrack.") else "")
+def test_docstring_examples_run(name, doc, tmp_path, monkeypatch):
+    """The Examples sections of the public docstrings run and print what they say (doctest)."""
+    import doctest
+
+    monkeypatch.chdir(tmp_path)
+    test = doctest.DocTestParser().get_doctest(doc, {}, name, None, 0)
+    runner = doctest.DocTestRunner(optionflags=doctest.NORMALIZE_WHITESPACE | doctest.ELLIPSIS)
+    report: list[str] = []
+    runner.run(test, out=report.append)
+    assert runner.failures == 0, "".join(report)
