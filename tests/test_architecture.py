@@ -273,23 +273,16 @@ def test_the_root_holds_only_public_modules_and_core():
 
 
 def _public_functions() -> dict:
-    """{"mptrack.package.name": function} of every function with parameters in a public package's
-    __all__ (and mptrack.track, mptrack.simulate); the command line's functions are its help texts."""
-    import importlib
+    """{"mptrack.package.name": function} of every public function with parameters (and mptrack.track,
+    mptrack.simulate)."""
     import inspect
-    import pkgutil
 
     import mptrack
+    from _public import public_objects
 
     found = {f"mptrack.{name}": getattr(mptrack, name) for name in ("track", "simulate")}
-    for info in pkgutil.iter_modules(mptrack.__path__):
-        if info.name.startswith("_") or info.name == "cli":
-            continue
-        module = importlib.import_module(f"mptrack.{info.name}")
-        for name in getattr(module, "__all__", ()):
-            value = getattr(module, name)
-            if inspect.isfunction(value) and inspect.signature(value).parameters:
-                found[f"mptrack.{info.name}.{name}"] = value
+    found.update({name: value for name, value in public_objects().items()
+                  if inspect.isfunction(value) and inspect.signature(value).parameters})
     return found
 
 

@@ -22,23 +22,13 @@ def test_code_blocks_run(page, tmp_path, monkeypatch):
 
 def _docstring_examples():
     """(name, docstring) of every public object of mptrack whose docstring has doctest examples."""
-    import importlib
     import inspect
-    import pkgutil
 
-    import mptrack
+    from _public import public_objects
 
-    found = []
-    for info in pkgutil.iter_modules(mptrack.__path__):
-        if info.name.startswith("_") or info.name == "cli":
-            continue
-        module = importlib.import_module(f"mptrack.{info.name}")
-        for name in getattr(module, "__all__", ()):
-            value = getattr(module, name)
-            doc = inspect.getdoc(value) if inspect.isfunction(value) or inspect.isclass(value) else None
-            if doc and ">>>" in doc:
-                found.append((f"mptrack.{info.name}.{name}", doc))
-    return found
+    docs = {name: inspect.getdoc(value) for name, value in public_objects().items()
+            if inspect.isfunction(value) or inspect.isclass(value)}
+    return [(name, doc) for name, doc in docs.items() if doc and ">>>" in doc]
 
 
 @pytest.mark.parametrize("name, doc", _docstring_examples(), ids=lambda v: v if isinstance(v, str) and

@@ -101,19 +101,12 @@ def test_names_moved_or_renamed_by_the_naming_rule_still_import_with_a_warning(o
 def test_every_public_name_has_one_home():
     """A name is exported by one public package only (docs/design.md, Naming rule): the same object
     under the same name in two packages' __all__ is refused (a constant's value may repeat)."""
-    import importlib
-    import pkgutil
-
-    import mptrack
+    from _public import public_objects
 
     homes: dict = {}
-    for info in pkgutil.iter_modules(mptrack.__path__):
-        if info.name.startswith("_") or info.name in ("cli", "bench"):
-            continue
-        module = importlib.import_module(f"mptrack.{info.name}")
-        for name in getattr(module, "__all__", ()):
-            value = getattr(module, name)
-            if callable(value):
-                homes.setdefault((name, id(value)), []).append(info.name)
+    for qualified, value in public_objects(skip=("cli", "bench")).items():
+        package, name = qualified.rsplit(".", 1)
+        if callable(value):
+            homes.setdefault((name, id(value)), []).append(package)
     shared = {name: where for (name, _), where in homes.items() if len(where) > 1}
     assert not shared, shared
