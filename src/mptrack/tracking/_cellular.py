@@ -162,6 +162,12 @@ def track_cells(track_id: str, rows: pd.DataFrame, cells: pd.DataFrame,
     -------
     pandas.DataFrame
         The track's point table.
+
+    References
+    ----------
+    .. [1] N. Bouzera, M. Oussalah, N. Mezhoud and A. Khireddine, "Fuzzy extended Kalman filter for dynamic
+           mobile localization in urban area using wireless network", Applied Soft Computing, vol. 57, pp.
+           452–467, 2017. doi:10.1016/j.asoc.2017.04.007
     """
     if not isinstance(options, TrackOptions):
         raise ParameterError(f"options: expected TrackOptions, got {type(options).__name__}")
