@@ -298,14 +298,11 @@ NUMPYDOC_PENDING = {
     "mptrack.report.write_reproduction_report": "report/, issue 30",
     "mptrack.report.explained_cells": "report/, issue 30",
     "mptrack.report.uncounted_columns": "report/, issue 30",
+    "mptrack.report.live_map_page": "report/, issue 30",
     "mptrack.tracking.track_gated": "tracking/_gated.py, the tracking engine's split",
     "mptrack.tracking.kalman_filter_gated": "tracking/_gated.py, the tracking engine's split",
     "mptrack.tracking.rts_smoother_gated": "tracking/_gated.py, the tracking engine's split",
     "mptrack.tracking.nis_threshold": "tracking/_gated.py, the tracking engine's split",
-    "mptrack.tracking.empty_states": "tracking/_engine.py, the tracking engine's split",
-    "mptrack.tracking.state_size": "tracking/_engine.py, the tracking engine's split",
-    "mptrack.tracking.state_to_bytes": "tracking/_engine.py, the tracking engine's split",
-    "mptrack.tracking.state_from_bytes": "tracking/_engine.py, the tracking engine's split",
 }
 
 
