@@ -35,7 +35,7 @@ tested as stated):
   covariance and two means, per axis the chain and the fix error's slow part -- its predict
   (closed-form F, Q), its update (rank one, h = e_0 or e_0 + e_b, in Joseph form as ``update(...,
   joseph=True)``; tests/test_kalman_core.py), its RTS backward pass (one
-  smoother gain for both axes; against :func:`mptrack.tracking.smooth_gated`, which runs
+  smoother gain for both axes; against :func:`mptrack.tracking.rts_smoother_gated`, which runs
   :mod:`mptrack._core.rts`) and its back prediction at a restart, all inlined in the per-fix loops for speed;
   the engine as a whole is tested against the per-track reference :func:`mptrack.tracking.track_gated`,
   which runs this core;
