@@ -287,18 +287,8 @@ def _public_functions() -> dict:
 
 
 #: Public functions whose numpydoc sections come with the parallel change that owns their module (issue 34,
-#: item 7): the Python API and the report of issue 30, the tracking engine's split.  The list only shrinks.
+#: item 7): the tracking engine's split.  The list only shrinks.
 NUMPYDOC_PENDING = {
-    "mptrack.track": "the Python API of issue 30 (explicit keyword parameters)",
-    "mptrack.simulate": "the Python API of issue 30",
-    "mptrack.tracking.track": "tracking/_pipeline.py, issue 30",
-    "mptrack.tracking.track_file": "tracking/_pipeline.py, issue 30",
-    "mptrack.report.write_report": "report/, issue 30",
-    "mptrack.report.report_points": "report/, issue 30",
-    "mptrack.report.write_reproduction_report": "report/, issue 30",
-    "mptrack.report.explained_cells": "report/, issue 30",
-    "mptrack.report.uncounted_columns": "report/, issue 30",
-    "mptrack.report.live_map_page": "report/, issue 30",
     "mptrack.tracking.track_gated": "tracking/_gated.py, the tracking engine's split",
     "mptrack.tracking.kalman_filter_gated": "tracking/_gated.py, the tracking engine's split",
     "mptrack.tracking.rts_smoother_gated": "tracking/_gated.py, the tracking engine's split",

@@ -26,7 +26,11 @@ def _docstring_examples():
 
     from _public import public_objects
 
-    docs = {name: inspect.getdoc(value) for name, value in public_objects().items()
+    import mptrack
+
+    objects = {**{f"mptrack.{name}": getattr(mptrack, name) for name in mptrack.__all__ if name != "__version__"},
+               **public_objects()}
+    docs = {name: inspect.getdoc(value) for name, value in objects.items()
             if inspect.isfunction(value) or inspect.isclass(value)}
     return [(name, doc) for name, doc in docs.items() if doc and ">>>" in doc]
 

@@ -40,10 +40,28 @@ REPORT_COLUMNS = ("track_id", "t", "method", "flag", "gap", "lat", "lon", "origi
 
 def report_points(sources) -> pd.DataFrame:
     """The point table a report needs from a run's point tables: :data:`REPORT_COLUMNS` only, in one
-    frame.  ``sources`` are pyarrow Tables or part files (the chunks' parts that
-    :func:`mptrack.tracking.track_file` hands to ``on_points``, read by :func:`mptrack.runs.read_part`).  Files are memory-mapped and copied
-    one at a time into the frame's columns (each unmapped once copied), text as one Python object per
-    distinct value, so the peak is about the frame itself: 0.23 GB for 10^6 points."""
+    frame.
+
+    Files are memory-mapped and copied one at a time into the frame's columns, text as one Python object
+    per distinct value, so the peak is about the frame itself.
+
+    Parameters
+    ----------
+    sources : sequence of pyarrow.Table or path
+        Tables, or part files (the chunks' parts :func:`mptrack.tracking.track_file` hands to
+        ``on_points``, read by :func:`mptrack.runs.read_part`).
+
+    Returns
+    -------
+    pandas.DataFrame
+
+    Raises
+    ------
+    ShapeError
+        The tables have different columns.
+    DataError
+        A file that is not a part.
+    """
     import pyarrow as pa
 
     if isinstance(sources, (str, bytes, pd.DataFrame)) or not np.iterable(sources):
@@ -276,16 +294,31 @@ def _summary_rows(summary: dict) -> dict:
 def write_report(tracks: pd.DataFrame, path, *, summary: dict, run: dict | None = None,
                  title: str = "mptrack report", notes: list[str] | tuple[str, ...] = (),
                  budget: int = DEFAULT_BUDGET) -> Path:
-    """Write the HTML report of ``tracks`` to ``path`` atomically (one file, works offline).
+    """Write the HTML report of a tracking run atomically (one file, works offline).
 
-    tracks   the point table of ``mptrack track`` (:func:`mptrack.io.read_output`), with the
-             error and truth columns of :func:`mptrack.tracking.evaluate_tracks` when evaluated
-    summary  the evaluation of ``tracks`` (the first value :func:`mptrack.tracking.evaluate_tracks`
-             returns): one row per track and an overall row; every track is in the page's table; its
-             "nis" part gives the mean NIS sentence, the verdict and the advice the page prints
-    run      the summary :func:`mptrack.tracking.track_file` returns, for the data-quality section
-             (rows skipped by reason, records left out, the reader's notes, NIS advice)
-    budget   about how many points the map and plots draw in all (larger tables are decimated)
+    Parameters
+    ----------
+    tracks : pandas.DataFrame
+        The point table of ``mptrack track`` (:func:`mptrack.io.read_output`), with the error and truth
+        columns of :func:`mptrack.tracking.evaluate_tracks` when evaluated.
+    path : str or path-like
+        The HTML file.
+    summary : dict
+        The evaluation of ``tracks`` (the first value :func:`mptrack.tracking.evaluate_tracks` returns):
+        every track is in the page's table; its "nis" part gives the mean NIS sentence, verdict and advice.
+    run : dict, optional
+        The summary :func:`mptrack.tracking.track_file` returns, for the data-quality section (rows
+        skipped by reason, records left out, the reader's notes, NIS advice).
+    title : str, optional
+    notes : sequence of str, optional
+        Further notes printed on the page.
+    budget : int, optional
+        About how many points the map and plots draw in all (larger tables are decimated, every event
+        kept).
+
+    Returns
+    -------
+    pathlib.Path
     """
     path, notes, budget = _check_report_inputs(tracks, path, summary, run, title, notes, budget)
     payload = track_payload(tracks, budget=budget)

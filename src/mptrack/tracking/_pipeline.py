@@ -218,36 +218,60 @@ def track_file(input, out, *, cells=None, options: TrackOptions = TrackOptions()
                read: ReadOptions = ReadOptions(), resume: bool = False, chunk_rows: int = DEFAULT_CHUNK_ROWS, executor: str = "serial",
                max_workers: int | None = None, client=None, track_summary=None, progress=None,
                on_points=None, note: str = "") -> dict:
-    """Track every track of ``input`` and write the point table to ``out`` (.parquet, .csv or .geojson).
+    """Track every track of an input file and write the point table, with bounded memory, on any
+    executor, resumable.
 
-    input          position fixes (CSV/Parquet/GPX, or a directory of Parquet files, hive-partitioned
-                   or not) or, with ``cells``, a cellular measurement log (CSV/Parquet)
-    cells          cell table in the OpenCelliD layout (CSV/Parquet) -> cellular tracking (options.method)
-    resume         keep the chunks finished by an interrupted run of the same input and options (parts
-                   in ``.<out>.parts/``) and compute only the rest
-    on_error       "raise": the first bad row stops the run (DataError naming file/row/column, nothing
-                   written); "skip": bad rows are dropped, counted and reported in the returned summary,
-                   and more than ``read.max_skip`` dropped rows stop the run (nothing written)
-    read           the input's column names and units where they are not recognised (:class:`ReadOptions`)
-    executor       "serial", "processes" or "dask" (see :func:`mptrack.runs.run_stream`); the output
-                   is the same whichever runs it
-    track_summary  optional path: the track table (one row per track: noise estimates, counts, NIS)
-    on_points      optional: called once, after ``out`` is written, with the paths of the chunks' point
-                   tables (Arrow IPC files, ``pyarrow.feather.read_table`` reads them; in output row
-                   order), to read the run's points again without reading ``out`` back (the HTML
-                   report); the files are removed after the call
-    note           shown to another run refused these outputs (the CLI passes its command line)
+    Memory is bounded by ``chunk_rows`` and the largest track, not by the input.  An output that is an
+    input (or inside an input directory) is refused; ``out`` and ``track_summary`` are locked for the whole
+    run (:func:`mptrack.runs.resumable_outputs`), their stale temporary files removed.  A run stopped by bad
+    input or options leaves nothing (a resumed run keeps the parts it came to resume); one stopped by
+    Ctrl-C, an OS failure or a crash keeps its finished chunks in ``.<out>.parts/`` for ``resume=True``.
 
-    Memory is bounded by ``chunk_rows`` (rows of whole tracks per chunk) and the largest track, not
-    by the input.  Returns a summary dict (JSON-safe).
+    Parameters
+    ----------
+    input : str, path-like or list
+        Position fixes (CSV, Parquet, GPX, TCX, FIT, NMEA, GeoJSON; a directory, a list or a glob of files)
+        or, with ``cells``, a cellular measurement log (CSV/Parquet).
+    out : str or path-like
+        The point table: .parquet, .csv, .geojson, .gpx or .geoparquet (written atomically).
+    cells : str or path-like, optional
+        A cell table in the OpenCelliD layout: cellular tracking (``options.method``).
+    options : TrackOptions, optional
+    on_error : {"raise", "skip"}, optional
+        The first bad row stops the run (DataError naming file, row and column; nothing written), or bad
+        rows are dropped, counted and reported, and more than ``read.max_skip`` stop the run.
+    read : ReadOptions, optional
+        The input's column names and units where they are not recognised.
+    resume : bool, optional
+        Keep the chunks finished by an interrupted run of the same input and options.
+    chunk_rows : int, optional
+        Rows of whole tracks per chunk (memory).
+    executor : {"serial", "processes", "dask"}, optional
+        Who runs the chunks (:func:`mptrack.runs.run_stream`); the output is the same.
+    max_workers : int, optional
+    client : dask.distributed.Client, optional
+    track_summary : str or path-like, optional
+        Also write the track table (one row per track: noise estimates, counts, NIS).
+    progress : optional
+        A progress reporter (the CLI's).
+    on_points : callable, optional
+        Called once, after ``out`` is written, with the paths of the chunks' point tables (Arrow IPC
+        files, in output row order), to read the run's points again without reading ``out`` back; the
+        files are removed after the call.
+    note : str, optional
+        Shown to another run refused these outputs (the CLI passes its command line).
 
-    Data safety: an output that is an input (or inside an input directory) is refused; ``out`` and
-    ``track_summary`` are locked for the whole run (:func:`mptrack.runs.resumable_outputs`; another run
-    writing them -> OutputError at once) and their stale temporary files removed.  A run stopped
-    by bad input or options leaves nothing (a resumed run keeps the parts it came to resume); one
-    stopped by Ctrl-C (KeyboardInterrupt), an OS failure (OutputError/OSError: disk full, ...) or
-    a crash keeps its finished chunks in ``.<out>.parts/`` for ``resume=True`` (none finished:
-    nothing is left).
+    Returns
+    -------
+    dict
+        The run summary (JSON-safe): counts, the noise estimates' distribution, the mean NIS and advice.
+
+    Raises
+    ------
+    DataError
+        Bad input (naming file, row and column).
+    OutputError
+        An output that cannot be written or that another run holds.
     """
     start = time.perf_counter()
     input, out = resolve_input(input, "input"), check_path("out", out)
@@ -508,11 +532,27 @@ def _unknown_option(name: str) -> str:
 
 def write_track_report(points: pd.DataFrame, path, *, run: dict | None = None, title: str = "mptrack track",
                        budget: int | None = None):
-    """Write the HTML report of a tracking run, as ``mptrack track --report`` and ``track(report=...)``
-    do: ``points`` (the run's point table, or the columns of it :func:`mptrack.report.report_points`
-    keeps) evaluated against the truth columns a simulated log passes through (true_lat/true_lon or
-    true_x/true_y) when it has them, drawn by :func:`mptrack.report.write_report` with ``run``, the
-    run's summary (rows skipped, NIS advice).  Returns the path."""
+    """Write the HTML report of a tracking run, as ``mptrack track --report`` and ``track(report=...)`` do.
+
+    The points are evaluated against the truth columns a simulated log passes through (true_lat/true_lon
+    or true_x/true_y) when they have them, then drawn by :func:`mptrack.report.write_report`.
+
+    Parameters
+    ----------
+    points : pandas.DataFrame
+        The run's point table, or the columns of it :func:`mptrack.report.report_points` keeps.
+    path : str or path-like
+        The HTML file.
+    run : dict, optional
+        The run's summary (rows skipped, NIS advice).
+    title : str, optional
+    budget : int, optional
+        Points drawn at most (decimation keeps every event).
+
+    Returns
+    -------
+    pathlib.Path
+    """
     from ..report import write_report
 
     own = any(a in points.columns and b in points.columns for a, b, _ in TRUTH_COLUMNS)
