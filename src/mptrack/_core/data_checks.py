@@ -4,7 +4,6 @@ outputs that must not overwrite an input (or each other).
 
 from __future__ import annotations
 
-import numbers
 import os
 from pathlib import Path
 

@@ -19,7 +19,7 @@ import numpy as np
 import pandas as pd
 
 from .._core.data_checks import check_frame, check_on_error
-from .._core.validation import LATITUDE, LONGITUDE, as_real, lookup
+from .._core.validation import LATITUDE, LONGITUDE, lookup
 from ..errors import DataError, ParameterError
 from ..io import LocalFrame, ReadReport
 from ..models import constant_velocity_continuous
