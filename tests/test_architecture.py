@@ -286,16 +286,6 @@ def _public_functions() -> dict:
     return found
 
 
-#: Public functions whose numpydoc sections come with the parallel change that owns their module (issue 34,
-#: item 7): the tracking engine's split.  The list only shrinks.
-NUMPYDOC_PENDING = {
-    "mptrack.tracking.track_gated": "tracking/_gated.py, the tracking engine's split",
-    "mptrack.tracking.kalman_filter_gated": "tracking/_gated.py, the tracking engine's split",
-    "mptrack.tracking.rts_smoother_gated": "tracking/_gated.py, the tracking engine's split",
-    "mptrack.tracking.nis_threshold": "tracking/_gated.py, the tracking engine's split",
-}
-
-
 def _has_parameters(function) -> bool:
     import inspect
 
@@ -305,12 +295,5 @@ def _has_parameters(function) -> bool:
 def test_every_public_function_has_a_numpydoc_parameters_section():
     """The public docstrings are numpydoc (issue 34, item 7): at least a Parameters section (the
     Returns, Raises, References and Examples sections follow the same form)."""
-    missing = sorted(name for name, fn in _public_functions().items()
-                     if not _has_parameters(fn) and name not in NUMPYDOC_PENDING)
+    missing = sorted(name for name, fn in _public_functions().items() if not _has_parameters(fn))
     assert not missing, "public functions without a numpydoc Parameters section:\n" + "\n".join(missing)
-
-
-def test_pending_numpydoc_entries_are_still_pending():
-    functions = _public_functions()
-    done = sorted(name for name in NUMPYDOC_PENDING if name not in functions or _has_parameters(functions[name]))
-    assert not done, f"remove from NUMPYDOC_PENDING: {done}"

@@ -134,6 +134,8 @@ CITES = {
     "mptrack.linear.fit_ml": ("Schweppe 1965", "Shumway & Stoffer 2017"),
     "mptrack.tracking.kalman_filter_gated": (BS,),
     "mptrack.tracking.nis_threshold": (BS,),
+    "mptrack.tracking.rts_smoother_gated": (RTS,),
+    "mptrack.tracking.track_gated": (BS,),
     "mptrack.tracking.track_fixes": (BS, "Gelb 1974"),
 }
 

@@ -30,7 +30,7 @@ tested as stated):
   A(k) = (I - K(k) H) F, which is x = F x + K (z - H F x), eight steps at a time (four tracks at a time
   in ``kf_kernel``); they fall back to this core at a track's first gap (tested track by track against
   :func:`mptrack.linear.kalman_filter`);
-* the tracking engine (:mod:`mptrack.tracking._chain` and ``_engine``; ``_likelihood`` runs the same steps):
+* the tracking engine (:mod:`mptrack.tracking._chain` and ``_track_filter``; ``_likelihood`` runs the same steps):
   integrator chains with a position fix of variance r on two axes sharing one covariance, so one
   covariance and two means, per axis the chain and the fix error's slow part -- its predict
   (closed-form F, Q), its update (rank one, h = e_0 or e_0 + e_b, in Joseph form as ``update(...,

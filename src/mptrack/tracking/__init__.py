@@ -8,16 +8,15 @@ from ._consistency import USED_FLAGS as NIS_FLAGS
 from ._consistency import nis_sentence, nis_stats
 from ._cellular import check_cell_ids, ranges_km, track_cells
 from ._evaluate import TRUTH_COLUMNS, attach_truth, evaluate_tracks
-from ._engine import FLAGS
 from ._fixes import CELL_ONLY, FIX_ONLY, TrackOptions, track_fixes
 from ._live import ESTIMATE_FIELDS, LiveTracks
-from ._gated import GatedResult, kalman_filter_gated, nis_threshold, track_gated
-from ._gated import smooth_gated as rts_smoother_gated
+from ._gated import GatedResult, kalman_filter_gated, nis_threshold, rts_smoother_gated, track_gated
 from ._noise import SOURCES as NOISE_SOURCES
 from ._output import POINT_COLUMNS, ellipse, point_table
 from ._pipeline import track, track_file, write_track_report
 from ._run import TRACK_COLUMNS
 from ._simulate import SCENARIOS, Intervals, simulate, simulate_chunks
+from ._track_filter import FLAGS
 from ._registry import (
     CELL_METHODS,
     FIX_FILTERS,

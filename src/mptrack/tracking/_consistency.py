@@ -26,7 +26,7 @@ import scipy.special
 
 from .._core.validation import _to_array, as_array, as_real
 from ..errors import DTypeError, MptrackError, ParameterError, ShapeError
-from ._engine import FLAGS
+from ._track_filter import FLAGS
 
 __all__ = ["USED_FLAGS", "nis_band", "nis_stats", "pooled_nis", "nis_sentence", "restart_mask", "flag_counts",
            "is_flag"]

@@ -24,9 +24,9 @@ from ..linear import get_filter
 from ..result import FilterResult
 from ._columns import FixTable
 from ..models import ContinuousLinearModel
-from ._engine import MANOEUVRE_FACTOR
+from ._track_filter import MANOEUVRE_FACTOR
 from ._fix_error import SLOW_TAU_S, slow_error_variance
-from ._gated import first_fix_prior, measured_states, nis_threshold, smooth_gated, track_gated
+from ._gated import first_fix_prior, measured_states, nis_threshold, rts_smoother_gated, track_gated
 from ._noise import SCOPES
 from ._output import point_table
 from ._registry import DEFAULT_SIGMA_M, get_cell_method, get_fix_filter, get_model
@@ -227,7 +227,7 @@ def track_fixes(track_id: str, rows: pd.DataFrame, options: TrackOptions = Track
             gated = track_gated(model, t, z, r[:, None, None] * np.eye(2), prior,
                                 gate_probability=options.gate_probability, manoeuvre_noise=levels,
                                 prior_information=info, max_gap_s=options.max_gap_s)
-            res = smooth_gated(gated) if options.smooth else gated
+            res = rts_smoother_gated(gated) if options.smooth else gated
             flags, nis, times, t_out = gated.flag, gated.nis, table.time, t
             method = "KF-gated" + ("+RTS" if options.smooth else "")
         else:

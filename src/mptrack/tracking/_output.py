@@ -16,7 +16,7 @@ import pyarrow as pa
 from .._core.validation import as_array, as_vector, check_positive
 from ..errors import ParameterError, ShapeError
 from ..io import enu_to_geodetic
-from ._engine import FLAGS
+from ._track_filter import FLAGS
 
 __all__ = ["point_table", "ellipse", "POINT_COLUMNS"]
 
