@@ -4,7 +4,7 @@ what happens.
 Outcomes (``classify``):
   ok            finite result (or NaN only where the input had NaN = missing)
   clean         an ``mptrack.errors`` exception whose message STARTS with an argument the caller passed
-                (docs/design.md, "Finite answers or clear errors"); a DataError (OutputError) names the
+                (docs/design.md, Contracts; docs/decisions/2026-11-25-finite-answers.md); a DataError (OutputError) names the
                 file the caller gave instead
   misnamed      an ``mptrack.errors`` exception whose message does not start with such a name
   unclean       any other exception (numpy/numba/scipy/pandas from deep inside)
@@ -51,7 +51,9 @@ import mptrack.models as models
 import mptrack.nonlinear as nonlinear
 import mptrack.radio as radio
 import mptrack.report as report
+import mptrack.result
 import mptrack.riccati as riccati
+import mptrack.runs as runs
 import mptrack.sim as sim
 import mptrack.tracking as tracking
 from mptrack.errors import DataError, MptrackError, OutputError
@@ -317,8 +319,8 @@ def _public(package: str, attr: str):
 #: Result records: built by mptrack and returned, not built from user input; their array fields are
 #: checked where a record is passed back in (``check_record``).  Warning and exception classes too.
 RECORDS = {
-    "linear.FilterResult", "linear.FitResult", "linear.FilterSpec", "linear.Implementation", "batch.GainSequence", "batch.Chunk",
-    "riccati.SteadyState", "riccati.LainiotisParameters", "nonlinear.BatchFilterResult", "continuous.BlockKernels",
+    "linear.FitResult", "linear.FilterSpec", "linear.Implementation", "batch.GainSequence", "runs.Chunk", "runs.Chunks",
+    "riccati.SteadyState", "riccati.LainiotisParameters", "continuous.BlockKernels",
     "continuous.GridDensity", "continuous.GridMixture", "continuous.FEMStep", "nonlinear.IMMResult", "radio.GsmBand", "radio.ValidityWarning",
     "fuzzy.AnfisResult", "tracking.GatedResult", "tracking.MotionModel", "io.ReadReport", "io.InputNotSorted",
     "io.Column", "io.Schema", "result.FilterResult", "result.BatchFilterResult",
@@ -357,7 +359,7 @@ MODEL_PASSED = ("F", "H", "Q", "R")
 
 
 def _result(x, P):
-    return linear.FilterResult(x=x, P=P, method="test")
+    return mptrack.result.FilterResult(x=x, P=P, method="test")
 
 
 # --- linear -----------------------------------------------------------------------------------------------
@@ -438,19 +440,11 @@ target("batch.per_axis", lambda z, x0: batch.per_axis(batch.kalman_filter, B, z,
        z=arg((2, 4, 2), valid=np.ones((2, 4, 2))), x0=maybe(arg((4,))), passed=("axis_model", "run"))
 target("batch.gain_sequence", lambda model, steps, P0: batch.gain_sequence(_model(model), steps, P0),
        passed=MODEL_PASSED, model=MODEL, steps=count(1, 20), P0=maybe(covariance(2)))
-target("batch.run_chunks", lambda n_items, chunk_size: batch.run_chunks(_chunk_table, n_items, chunk_size=chunk_size),
-       n_items=count(0, 20), chunk_size=count(1, 10), passed=("task",))
-target("batch.run_stream", lambda chunks, part_format: batch.run_stream(_chunk_table, chunks, part_format=part_format),
-       chunks=st.one_of(count(1, 5).map(lambda n: batch.make_chunks(n, 2) if type(n) is int and 1 <= n < 10
-                                        else n)), part_format=names("parquet", "arrow"), passed=("task",))
-target("batch.part_path", out_dir=just(WORKDIR), name=names("chunk", "x"), index=count(0, 5), fmt=names("parquet"))
-target("batch.read_part", path=paths(WORKDIR / "missing.parquet"))
-target("batch.make_chunks", n_items=count(0, 50), chunk_size=count(), seed=maybe(count(0, 10)))
 target("batch.monte_carlo", lambda model, steps, runs, chunk_size: batch.monte_carlo(
     _model(model), steps, runs, seed=1, chunk_size=chunk_size), passed=MODEL_PASSED + ("seed",), model=MODEL,
     steps=count(1, 20), runs=count(1, 20), chunk_size=count(1, 10))
 target("batch.MonteCarloTask", lambda model, steps, P0: batch.MonteCarloTask(_model(model), steps, P0=P0)(
-    batch.make_chunks(2, 2, seed=1)[0]), passed=MODEL_PASSED, model=MODEL, steps=count(1, 20), P0=maybe(covariance(2)))
+    runs.make_chunks(2, 2, seed=1)[0]), passed=MODEL_PASSED, model=MODEL, steps=count(1, 20), P0=maybe(covariance(2)))
 target("batch.filter_chunked", lambda z, chunk_size: batch.filter_chunked(batch.steady_state_filter, B, z,
                                                                            chunk_size=chunk_size),
        z=arg((3, 4, 1), valid=np.ones((3, 4, 1))), chunk_size=count(1, 5), passed=("run", "model"))
@@ -459,7 +453,7 @@ target("batch.RangeModel", lambda F, Q, stations, R: batch.RangeModel(F, Q, stat
 target("batch.RangeModel.constant_velocity", lambda dt, sigma_a2, sigma_r2, stations:
        batch.RangeModel.constant_velocity(dt, sigma_a2, stations, sigma_r2), dt=scalar(0, 10), sigma_a2=scalar(0, 10),
        sigma_r2=scalar(0, 100), stations=arg((3, 2), valid=STATIONS))
-target("batch.range_ekf", lambda z, x0, P0: batch.range_ekf(RANGE_MODEL, z, x0, P0),
+target("batch.ekf_ranges", lambda z, x0, P0: batch.ekf_ranges(RANGE_MODEL, z, x0, P0),
        z=arg((2, 3, 3), valid=np.full((2, 3, 3), 500.0)), x0=arg((4,), valid=[300.0, 0.0, 400.0, 0.0]),
        P0=covariance(4), passed=("model",))
 
@@ -564,7 +558,7 @@ target("continuous.simulate_sde", lambda steps, rng, x0: continuous.simulate_sde
        steps=count(1, 5, big=100), rng=rngs(), x0=arg((2,), valid=continuous.ZHAO2013_X0), passed=("model",))
 target("continuous.FEMGrid", lo=arg((2,), valid=[-1.0, -1.0]), hi=arg((2,), valid=[1.0, 1.0]), n1=count(1, 6),
        n2=count(1, 6))
-_FEM_SCHEMES = names(*continuous._fem.SCHEMES)
+_FEM_SCHEMES = names(*continuous.FEM_SCHEMES)
 target("continuous.fem_filter", lambda z, x0, P0, grid, scheme, width, substeps, splits, box: continuous.fem_filter(
     ZHAO, z, x0, P0, grid=grid, scheme=scheme, width=width, substeps=substeps, splits=splits, box=box),
     z=arg((2, 2), valid=ZZ[:2]), x0=arg((2,), valid=continuous.ZHAO2013_X0), P0=covariance(2),
@@ -773,7 +767,6 @@ target("tracking.track_gated", lambda times, z, R, prior_variances: tracking.tra
     z=arg((3, 2), valid=[[0.0, 0.0], [1.0, 1.0], [2.0, 2.0]]), R=arg((3, 2, 2), valid=np.array([np.eye(2)] * 3)),
     prior_variances=arg((4,), valid=[1.0, 100.0, 1.0, 100.0]), passed=("model",))
 # read_output returns what the file holds: write_table writes +-Inf as is (CSV, Parquet), so may the file
-target("tracking.read_output", path=paths(POINTS_CSV), nan_result=True, inf_result=True)
 target("tracking.track_fixes", lambda rows, q: tracking.track_fixes(TRACK_ID, rows, q=q),
        rows=frames(ROWS, ["t", "lat", "lon", "accuracy_m"]), q=maybe(scalar(0, 10)), passed=("track_id",),
        nan_result=True)
@@ -793,12 +786,12 @@ target("tracking.check_cell_ids", lambda rows, cells, on_error: tracking.check_c
     passed=("file", "report"))
 target("tracking.ranges_km", rows=frames(CELL_ROWS, ["cell_id", "rss_dbm"]), cells=frames(CELLS, ["lat", "height_m"]),
        path_loss=names("cost231-wi-nlos", "free-space"), nan_result=True)
-target("tracking.band_of_arfcn", arfcn=st.one_of(count(0, 1023), scalar()))
+target("radio.band_of_arfcn", arfcn=st.one_of(count(0, 1023), scalar()))
 target("tracking.kalman_filter_gated", lambda times, z, x0, P0, gate_probability: tracking.kalman_filter_gated(
     CV2, times, z, x0, P0, gate_probability=gate_probability), times=arg((3,), valid=[0.0, 1.0, 2.0]),
     z=arg((3, 2), valid=[[0.0, 0.0], [1.0, 1.0], [2.0, 2.0]]), x0=arg((4,), valid=np.zeros(4)), P0=covariance(4),
     gate_probability=maybe(scalar(0, 1)), passed=("model",))
-target("tracking.smooth_gated", lambda x, P: tracking.smooth_gated(dataclasses.replace(GATED, x=x, P=P)),
+target("tracking.rts_smoother_gated", lambda x, P: tracking.rts_smoother_gated(dataclasses.replace(GATED, x=x, P=P)),
        x=arg((3, 4), valid=GATED.x), P=arg((3, 4, 4), valid=GATED.P), passed=("gated",))
 target("result.normalised_innovation", innovation=arg((3, 2), valid=[[1.0, 2.0], [np.nan, 1.0], [np.nan, np.nan]]),
        S=arg((3, 2, 2), valid=np.broadcast_to([[2.0, 0.5], [0.5, 1.0]], (3, 2, 2))))
@@ -840,7 +833,29 @@ target("io.enu_to_geodetic", east=arg((3,), valid=[0.0, 10.0, -5.0]), north=arg(
 # a table may hold +-Inf: GeoJSON writes it as null (tests/io/test_io_outputs.py), CSV/Parquet as is
 target("io.write_table", df=frames(POINTS.iloc[:5], ["east_m", "lat"]), path=out_paths(), inf_args=("df",))
 target("io.read_output", path=paths(POINTS_CSV), nan_result=True, inf_result=True)
-target("io.PartStore", lambda out: mio.PartStore(out), out=out_paths())
+
+
+# --- runs -------------------------------------------------------------------------------------------------
+target("runs.run_chunks", lambda n_items, chunk_size: runs.run_chunks(_chunk_table, n_items, chunk_size=chunk_size),
+       n_items=count(0, 20), chunk_size=count(1, 10), passed=("task",))
+target("runs.run_stream", lambda chunks, part_format: runs.run_stream(_chunk_table, chunks, part_format=part_format),
+       chunks=st.one_of(count(1, 5).map(lambda n: runs.make_chunks(n, 2) if type(n) is int and 1 <= n < 10
+                                        else n)), part_format=names("parquet", "arrow"), passed=("task",))
+target("runs.part_path", out_dir=just(WORKDIR), name=names("chunk", "x"), index=count(0, 5), fmt=names("parquet"))
+target("runs.read_part", path=paths(WORKDIR / "missing.parquet"))
+target("runs.make_chunks", n_items=count(0, 50), chunk_size=count(), seed=maybe(count(0, 10)))
+target("runs.PartStore", lambda out: runs.PartStore(out), out=out_paths())
+
+
+def _locked(lock, paths):
+    with lock(*paths):
+        pass
+
+
+target("runs.output_lock", lambda out: _locked(runs.output_lock, [out]), out=out_paths())
+target("runs.lock_path", path=out_paths())
+target("runs.resumable_outputs", lambda out: _locked(lambda *p: runs.resumable_outputs(*p, last_part="tracks"), [out]),
+       out=out_paths(), passed=("last_part",))
 
 
 target("io.resolve_input", source=st.one_of(paths(LOG_CSV), st.just([LOG_CSV, POINTS_CSV]),
@@ -1013,7 +1028,7 @@ _FIRST_WORD = re.compile(r"\s*([A-Za-z_][A-Za-z0-9_]*)")
 
 
 def starts_with_argument(message: str, params) -> bool:
-    """Whether ``message`` starts with one of the argument names ``params`` (docs/design.md:
+    """Whether ``message`` starts with one of the argument names ``params`` (docs/decisions/2026-11-25-finite-answers.md:
     "a message that starts with the name of an argument the caller passed")."""
     first = _FIRST_WORD.match(message)
     return bool(first) and first.group(1) in params
@@ -1083,7 +1098,7 @@ def _kf(model, z, **kw):
 
 
 def _range_ekf(z, x0):
-    return batch.range_ekf(RANGE_MODEL, z, x0, np.eye(4) * 100.0)
+    return batch.ekf_ranges(RANGE_MODEL, z, x0, np.eye(4) * 100.0)
 
 
 def _ekf_ranges(z, x0, R):
@@ -1156,14 +1171,14 @@ CORPUS = [
     (1, "batch.per_axis inf z", lambda: batch.per_axis(batch.steady_state_filter, B,
                                                         np.array([[[np.inf, 1.0]]])), ("z",)),
     (1, "batch.predict inf x", lambda: batch.predict(B, np.array([[[np.inf, 1.0]]])), ("x",)),
-    (1, "batch.range_ekf inf z", lambda: _range_ekf(np.array([[[np.inf, 1.0, 1.0]]]), [1.0, 0, 1.0, 0]), ("z",)),
+    (1, "batch.ekf_ranges inf z", lambda: _range_ekf(np.array([[[np.inf, 1.0, 1.0]]]), [1.0, 0, 1.0, 0]), ("z",)),
     (2, "kf x0 1e308", lambda: _kf(B, np.zeros((3, 1)), x0=[1e308, 1e308]), ("x0",)),
     (2, "gain_sequence 1e200", lambda: batch.gain_sequence(_lgm([[1e200]], [[1.]], [[1.]], [[1.]]), 3, [[1.]]),
      ("model", "F")),
     (2, "LGM G 1e200", lambda: _lgm(np.eye(2), np.eye(2), None, np.eye(2), G=[[1e200, 0], [0, 1]], Qw=np.eye(2)),
      ("G", "Qw")),
     (3, "range_ekf prior on station", lambda: _range_ekf(np.full((1, 3, 3), 500.0), [0.0, 0, 0.0, 0]), ("x0",)),
-    (3, "RangeModel sigma_r2 1e-30", lambda: batch.range_ekf(
+    (3, "RangeModel sigma_r2 1e-30", lambda: batch.ekf_ranges(
         batch.RangeModel.constant_velocity(1.0, 1.0, STATIONS, 1e-30), np.full((1, 3, 3), 500.0),
         [1.0, 0, 1.0, 0], np.eye(4)), ("sigma_r2", "model", "z", "x0", "P0")),
     (3, "kf F 1e200", lambda: _kf(_lgm([[1e200]], [[1.]], [[1.]], [[1.]]), np.ones((3, 1))),
@@ -1209,7 +1224,7 @@ CORPUS = [
     (6, "nis_threshold inf", lambda: _nis(0.999, np.inf), ("dof",)),
     (6, "predict_ahead inf", lambda: linear.predict_ahead(B, _result([[np.inf, 0.]], [np.eye(2)]), 1),
      ("result",)),
-    (6, "rts inf", lambda: linear.rts_smoother(B, linear.FilterResult(
+    (6, "rts inf", lambda: linear.rts_smoother(B, mptrack.result.FilterResult(
         x=np.array([[np.inf, 0.]]), P=np.eye(2)[None], x_pred=np.zeros((1, 2)), P_pred=np.eye(2)[None],
         method="t")), ("result",)),
     (7, "ukf alpha 0", lambda: nonlinear.sigma_points(np.zeros(2), np.eye(2), alpha=0.0), ("alpha",)),
@@ -1220,7 +1235,7 @@ CORPUS = [
     (8, "prediction_covariance N 1e12", lambda: linear.prediction_covariance(B, np.eye(2), 10**12), ("N",)),
     (8, "steady_state_predictor N 1e12", lambda: linear.steady_state_predictor(B, np.ones((3, 1)), 10**12),
      ("N", "model")),
-    (8, "make_chunks 1e12", lambda: len(batch.make_chunks(10**12, 3)), ("n_items",)),
+    (8, "make_chunks 1e12", lambda: len(runs.make_chunks(10**12, 3)), ("n_items",)),
     (8, "monte_carlo runs 1e12", lambda: batch.monte_carlo(B, 5, 10**12, seed=1), ("runs",)),
     (8, "gain_sequence steps 1e12", lambda: batch.gain_sequence(B, 10**12), ("steps",)),
     (8, "simulate_linear steps 1e12", lambda: sim.simulate_linear(B, 10**12, np.random.default_rng(0)), ("steps",)),
@@ -1288,7 +1303,7 @@ CORPUS = [
      ("model", "z", "x0", "P0")),
     ("a5", "ukf kappa str", lambda: nonlinear.ukf_filter(ZHAO_VDP, ZZ, continuous.ZHAO2013_X0, np.eye(2),
                                                           kappa="abc"), ("kappa",)),
-    ("a5", "range_ekf exact data sigma_r2 1e-30", lambda: batch.range_ekf(
+    ("a5", "range_ekf exact data sigma_r2 1e-30", lambda: batch.ekf_ranges(
         batch.RangeModel.constant_velocity(1.0, 1.0, STATIONS, 1e-30),
         np.linalg.norm(np.array([[300.0, 400.0]] * 3)[:, None] - STATIONS, axis=-1)[None], [300.0, 0, 400.0, 0],
         np.eye(4)), ("model", "sigma_r2", "P0")),
@@ -1366,7 +1381,7 @@ def warm_up() -> None:
     tracking.track_cells("1", CELL_ROWS, CELLS)
     tracking.track_fixes(TRACK_ID, ROWS)
     tracking.track(LOG, smooth=True)
-    tracking.smooth_gated(GATED)
+    tracking.rts_smoother_gated(GATED)
 
 
 # ================================================================ a run outside pytest

@@ -245,6 +245,18 @@ def test_the_circle_finder_finds_a_circle(tmp_path):
                                                        "mptrack.io"]]
 
 
+#: What mptrack.io (formats, schemas, geodesy) must not import: the packages that use it.
+IO_MUST_NOT_IMPORT = ("batch", "tracking", "runs", "report", "cli", "experiments", "bench")
+
+
+def test_io_imports_nothing_of_the_packages_that_use_it():
+    found = [f"{path.relative_to(SRC.parent)}:{line}: {'.'.join(module)}"
+             for path in sorted((SRC / "mptrack" / "io").rglob("*.py"))
+             for line, module in imported_modules(SRC, path)
+             if module[0] == "mptrack" and len(module) > 1 and module[1] in IO_MUST_NOT_IMPORT]
+    assert not found, "mptrack.io imports a package that uses it:\n" + "\n".join(found)
+
+
 #: The only private entries of src/mptrack: the shared private layer (and Python's own dunder modules).
 ROOT_PRIVATE = {"_core"}
 
@@ -258,3 +270,30 @@ def test_the_root_holds_only_public_modules_and_core():
     assert not private, (f"private modules at the root of mptrack: {private}; a numerical core or shared "
                          "infrastructure goes into mptrack/_core/, a module with one user package into it")
     assert (root / "_core" / "__init__.py").is_file()
+
+
+def _public_functions() -> dict:
+    """{"mptrack.package.name": function} of every public function with parameters (and mptrack.track,
+    mptrack.simulate)."""
+    import inspect
+
+    import mptrack
+    from _public import public_objects
+
+    found = {f"mptrack.{name}": getattr(mptrack, name) for name in ("track", "simulate")}
+    found.update({name: value for name, value in public_objects().items()
+                  if inspect.isfunction(value) and inspect.signature(value).parameters})
+    return found
+
+
+def _has_parameters(function) -> bool:
+    import inspect
+
+    return "\nParameters\n----------\n" in "\n" + (inspect.getdoc(function) or "")
+
+
+def test_every_public_function_has_a_numpydoc_parameters_section():
+    """The public docstrings are numpydoc (issue 34, item 7): at least a Parameters section (the
+    Returns, Raises, References and Examples sections follow the same form)."""
+    missing = sorted(name for name, fn in _public_functions().items() if not _has_parameters(fn))
+    assert not missing, "public functions without a numpydoc Parameters section:\n" + "\n".join(missing)

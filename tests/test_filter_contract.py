@@ -59,7 +59,7 @@ NOT_FILTERS = {
     "per_axis": "runs a filter per axis (model B of the Table 1 implementations)",
     "filter_chunked": "runs a batch filter chunk by chunk (equal to it: tests/batch/test_batch_runner.py)",
     "rts_smoother": "smoother", "steady_state_smoother": "smoother", "rts_smoother_irregular": "smoother",
-    "ekf_smoother": "smoother", "ukf_smoother": "smoother", "smooth_gated": "smoother",
+    "ekf_smoother": "smoother", "ukf_smoother": "smoother", "rts_smoother_gated": "smoother",
     "predict_ahead": "N-step predictor of a filter result", "steady_state_predictor": "N-step predictor",
 }
 
@@ -182,8 +182,8 @@ _CELL = {"z": Z_RANGES[:, :1], "gapped": Z_RANGES[:, :1], "x0": RANGE_X0, "P0": 
          "F": np.eye(2)}
 
 #: registry entries and public filter functions -> their case.  Tolerances: exact algebra 1e-9; the
-#: FIR its eps; the continuous-discrete UKF its RK4 error (docs/design.md); Monte-Carlo and grid
-#: filters their sampling and discretisation errors at the settings used here.
+#: FIR its eps; the continuous-discrete UKF its RK4 error (docs/decisions/2026-12-01-warm-compiled-code.md);
+#: Monte-Carlo and grid filters their sampling and discretisation errors at the settings used here.
 CASES: dict[str, Case] = {
     **{f"linear.FILTERS[{name}]": Case(_registered(name), 1e-9, forms=GAUSSIAN if name == "KF" else
                                        ("x_pred", "P_pred", "innovation", "S", "nis"),
@@ -223,7 +223,7 @@ CASES: dict[str, Case] = {
                              twin="fir_filter", arguments=("z",), **FIR),
     "batch.kalman_filter": Case(lambda z, x0, P0: batch.kalman_filter(MODEL, z, x0, P0), 1e-9, forms=(),
                                 batch=True, covariance=False, twin="kalman_filter"),
-    "batch.range_ekf": Case(lambda z, x0, P0: batch.range_ekf(batch.RangeModel(
+    "batch.ekf_ranges": Case(lambda z, x0, P0: batch.ekf_ranges(batch.RangeModel(
         np.eye(2), RANGE_Q, STATIONS[:1], [[0.222]], position=(0, 1)), z, x0, P0), 1e-9, forms=(), batch=True,
         covariance=False, twin="ekf_ranges", **_CELL),
 }

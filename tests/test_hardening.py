@@ -22,7 +22,7 @@ import scipy.linalg
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from mptrack import batch, linear, riccati, tracking
+from mptrack import batch, linear, riccati, runs, tracking
 from mptrack.errors import (
     ConvergenceError,
     MptrackError,
@@ -165,7 +165,7 @@ def test_batch_engine_refuses_infinity_but_keeps_nan_as_missing():
 def test_range_ekf_prior_on_a_station_is_finite():
     """The Jacobian at a station is undefined; the range is floored as in ekf_ranges."""
     z = np.full((1, 3, 3), 500.0)
-    x = batch.range_ekf(H.RANGE_MODEL, z, [0.0, 0.0, 0.0, 0.0], np.eye(4) * 100.0).x
+    x = batch.ekf_ranges(H.RANGE_MODEL, z, [0.0, 0.0, 0.0, 0.0], np.eye(4) * 100.0).x
     assert np.isfinite(x).all()
 
 
@@ -242,12 +242,12 @@ def test_prediction_of_an_unstable_model_far_ahead_overflows_cleanly():
 
 
 def test_make_chunks_is_lazy():
-    chunks = batch.make_chunks(10**12, 3, seed=1)
+    chunks = runs.make_chunks(10**12, 3, seed=1)
     assert len(chunks) == (10**12 + 2) // 3
     last = chunks[-1]
     assert (last.start, last.stop, last.index) == (10**12 - 1, 10**12, len(chunks) - 1)
-    assert [(c.index, c.start, c.stop) for c in batch.make_chunks(7, 3)] == [(0, 0, 3), (1, 3, 6), (2, 6, 7)]
-    assert [c.stop for c in batch.make_chunks(7, 3)[1:]] == [6, 7]
+    assert [(c.index, c.start, c.stop) for c in runs.make_chunks(7, 3)] == [(0, 0, 3), (1, 3, 6), (2, 6, 7)]
+    assert [c.stop for c in runs.make_chunks(7, 3)[1:]] == [6, 7]
 
 
 @pytest.mark.parametrize("call, name", [
@@ -406,7 +406,7 @@ def test_an_unpassed_parameter_is_a_name_of_the_call():
 
 
 @pytest.mark.parametrize("call, name", [
-    (lambda: batch.range_ekf(batch.RangeModel.constant_velocity(1.0, 1.0, H.STATIONS, 1e-300),
+    (lambda: batch.ekf_ranges(batch.RangeModel.constant_velocity(1.0, 1.0, H.STATIONS, 1e-300),
                              np.full((1, 3, 3), 500.0), [1.0, 0.0, 1.0, 0.0], np.eye(4)), "model"),
     (lambda: __import__("mptrack.metrics").metrics.nees(np.ones((2, 2)), np.array([np.eye(2) * 1e-320] * 2),
                                                          np.zeros((2, 2))), "P"),
@@ -424,7 +424,7 @@ def test_exact_ranges_with_a_negligible_noise_give_the_position():
     with a Cholesky factor, which holds here, and returns the exact position."""
     truth = np.array([300.0, 400.0])
     z = np.linalg.norm(np.array([truth] * 3)[:, None] - H.STATIONS, axis=-1)[None]
-    res = batch.range_ekf(batch.RangeModel.constant_velocity(1.0, 1.0, H.STATIONS, 1e-30), z,
+    res = batch.ekf_ranges(batch.RangeModel.constant_velocity(1.0, 1.0, H.STATIONS, 1e-30), z,
                           [300.0, 0.0, 400.0, 0.0], np.eye(4))
     np.testing.assert_allclose(res.x[0][:, [0, 2]], np.tile(truth, (3, 1)), rtol=0, atol=1e-9)
 

@@ -1,6 +1,7 @@
-"""The package layout by model family (issue 19): every package imports first in a new process, and the
-names that moved out of mptrack.nonlinear still import from there for one release: the same object,
-with exactly one DeprecationWarning that names the new place."""
+"""The package layout by model family (issue 19) and the naming rule (issue 34): every package imports
+first in a new process, and the names that moved out of mptrack.nonlinear, or were moved or renamed by
+the naming rule, still import from their old place for one release: the same object, with exactly one
+DeprecationWarning that names the new place."""
 
 import subprocess
 import sys
@@ -11,6 +12,7 @@ import pytest
 import mptrack.cellular as cellular
 import mptrack.continuous as continuous
 import mptrack.nonlinear as nonlinear
+import mptrack.result as result
 
 #: mptrack.nonlinear's public names before the split (release 0.1.0)
 NONLINEAR_0_1 = (
@@ -22,7 +24,8 @@ NONLINEAR_0_1 = (
     "ekf_filter", "ekf_smoother", "ekf_step", "ekf_filter_batch", "imm_filter", "IMMResult", "cv_ca_models",
     "sigma_points", "particle_filter", "pf_substeps", "systematic_resample", "reference_filter", "pf_substep_study",
 )
-HOMES = {"mptrack.nonlinear": nonlinear, "mptrack.cellular": cellular, "mptrack.continuous": continuous}
+HOMES = {"mptrack.nonlinear": nonlinear, "mptrack.cellular": cellular, "mptrack.continuous": continuous,
+         "mptrack.result": result}
 
 
 def _get(module, name: str):
@@ -66,3 +69,44 @@ def test_each_package_imports_first_in_a_new_process(module):
     done = subprocess.run([sys.executable, "-W", "error::DeprecationWarning", "-c", f"import {module}"],
                           capture_output=True, text=True, timeout=120)
     assert done.returncode == 0, done.stderr
+
+
+#: (old package, old name, new package, new name) of the names moved or renamed by the naming rule (issue 34;
+#: docs/design.md, Naming rule)
+RENAMED = [
+    ("mptrack.batch", "range_ekf", "mptrack.batch", "ekf_ranges"),
+    ("mptrack.tracking", "smooth_gated", "mptrack.tracking", "rts_smoother_gated"),
+    ("mptrack.tracking", "read_output", "mptrack.io", "read_output"),
+    ("mptrack.tracking", "band_of_arfcn", "mptrack.radio", "band_of_arfcn"),
+    ("mptrack.tracking", "TA_STEP_M", "mptrack.radio", "TA_STEP_M"),
+    ("mptrack.linear", "FilterResult", "mptrack.result", "FilterResult"),
+    ("mptrack.nonlinear", "BatchFilterResult", "mptrack.result", "BatchFilterResult"),
+]
+
+
+@pytest.mark.parametrize("old, name, new, new_name", RENAMED)
+def test_names_moved_or_renamed_by_the_naming_rule_still_import_with_a_warning(old, name, new, new_name):
+    import importlib
+
+    old_module, new_module = importlib.import_module(old), importlib.import_module(new)
+    assert name not in old_module.__all__ and new_name in new_module.__all__
+    value, caught = _get(old_module, name)
+    assert value is getattr(new_module, new_name)
+    assert [w.category for w in caught] == [DeprecationWarning]
+    verb = "moved to" if name == new_name else "is now"
+    assert f"{old}.{name} {verb} {new}.{new_name}" in str(caught[0].message)
+    assert caught[0].filename == __file__
+
+
+def test_every_public_name_has_one_home():
+    """A name is exported by one public package only (docs/design.md, Naming rule): the same object
+    under the same name in two packages' __all__ is refused (a constant's value may repeat)."""
+    from _public import public_objects
+
+    homes: dict = {}
+    for qualified, value in public_objects(skip=("cli", "bench")).items():
+        package, name = qualified.rsplit(".", 1)
+        if callable(value):
+            homes.setdefault((name, id(value)), []).append(package)
+    shared = {name: where for (name, _), where in homes.items() if len(where) > 1}
+    assert not shared, shared

@@ -52,7 +52,7 @@ CITES = {
     "mptrack.batch.fir_filter": (A14,),
     "mptrack.batch.per_axis": (A14,),
     "mptrack.batch.gain_sequence": (A14, KAL),
-    "mptrack.batch.range_ekf": (B17,),
+    "mptrack.batch.ekf_ranges": (B17,),
     "mptrack.burden.filter_burden": (A14, A15),
     "mptrack.burden.join_burden": (A14, A15),
     "mptrack.burden.implementation_burden": (A14, A15),
@@ -134,6 +134,8 @@ CITES = {
     "mptrack.linear.fit_ml": ("Schweppe 1965", "Shumway & Stoffer 2017"),
     "mptrack.tracking.kalman_filter_gated": (BS,),
     "mptrack.tracking.nis_threshold": (BS,),
+    "mptrack.tracking.rts_smoother_gated": (RTS,),
+    "mptrack.tracking.track_gated": (BS,),
     "mptrack.tracking.track_fixes": (BS, "Gelb 1974"),
 }
 

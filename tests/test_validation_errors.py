@@ -27,7 +27,6 @@ from mptrack.errors import (
 )
 from mptrack.linear import (
     FILTERS,
-    FilterResult,
     fir_filter,
     fir_order,
     get_filter,
@@ -38,6 +37,7 @@ from mptrack.linear import (
     steady_state_filter,
 )
 from mptrack.models import LinearGaussianModel, assimakis_model_a, assimakis_model_b, stack_axes
+from mptrack.result import FilterResult
 from mptrack.riccati import steady_state
 from mptrack.sim import simulate_linear
 

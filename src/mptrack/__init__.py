@@ -30,9 +30,31 @@ def __getattr__(name: str):
 
 
 def simulate(scenario: str = "gps", tracks: int = 10, *, seed: int = 0, **options):
-    """A simulated log with truth columns (DataFrame); for a cellular scenario the cell table is in
-    ``attrs["cells"]``.  ``seed`` seeds the one random generator; other options as
-    :func:`mptrack.tracking.simulate` (duration_s, along, interval, q, sigma_m, outlier_rate, ...)."""
+    """A simulated log with truth columns, in memory.
+
+    Parameters
+    ----------
+    scenario : str, optional
+        "gps" (fixes at irregular times) or "urban-3bts" (RSS from three base stations).
+    tracks : int, optional
+        Number of tracks.
+    seed : int, optional
+        Seeds the one random generator.
+    **options
+        As for :func:`mptrack.tracking.simulate` (duration_s, along, interval, q, sigma_m, outlier_rate, ...).
+
+    Returns
+    -------
+    pandas.DataFrame
+        The log; for a cellular scenario the cell table is in ``attrs["cells"]``.
+
+    Examples
+    --------
+    >>> import mptrack
+    >>> log = mptrack.simulate("gps", tracks=2, seed=1, duration_s=60)
+    >>> {"true_lat", "true_lon"} <= set(log.columns)
+    True
+    """
     import numpy as np
 
     from ._core.validation import check_int

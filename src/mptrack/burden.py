@@ -67,7 +67,17 @@ def _dims(n, m):
 
 
 def join_burden(name: str, n: int) -> int:
-    """Burden of the join procedure of JKLF (n^2 + 3n) or JSSKLF (2n).
+    """Burden of the join procedure: n^2 + 3n (JKLF) or 2n (JSSKLF).
+
+    Parameters
+    ----------
+    name : str
+        "JKLF" or "JSSKLF".
+    n : int
+
+    Returns
+    -------
+    int
 
     References
     ----------
@@ -83,9 +93,22 @@ def join_burden(name: str, n: int) -> int:
 
 
 def filter_burden(name: str, n: int, m: int) -> int | float:
-    """Per-iteration burden of one filter on an (n, m) model (Table 2).
+    """Per-iteration calculation burden of one filter (Assimakis & Adam 2014, Table 2), in exact arithmetic.
 
     For JKLF/JSSKLF this is both filters plus the join.
+
+    Parameters
+    ----------
+    name : str
+        KF, LF, SSKF, SSLF, JKLF, JSSKLF, FIR (case-insensitive).
+    n : int
+        State dimension.
+    m : int
+        Measurement dimension.
+
+    Returns
+    -------
+    int or float
 
     References
     ----------
@@ -108,8 +131,18 @@ def implementation_burden(filter_name: str, model: Literal["A", "B"], axes: int 
                           join: Literal["once", "per-axis"] = "once") -> int | float:
     """Burden of a Table 1 implementation for the papers' models (2 states, 1 measurement per axis).
 
-    model A: one filter with n = 2*axes, m = axes.  model B: ``axes`` filters
-    with n = 2, m = 1; the join of JKLF/JSSKLF counted once (the papers) or per axis.
+    Parameters
+    ----------
+    filter_name : str
+    model : {"A", "B"}
+        A: one filter with n = 2 axes, m = axes; B: ``axes`` filters with n = 2, m = 1.
+    axes : int, optional
+    join : {"once", "per-axis"}, optional
+        The join of JKLF/JSSKLF with model B counted once (the papers) or per axis.
+
+    Returns
+    -------
+    int or float
 
     References
     ----------
@@ -118,6 +151,12 @@ def implementation_burden(filter_name: str, model: Literal["A", "B"], axes: int 
            doi:10.1155/2014/130512
     .. [2] N. Assimakis and M. Adam, "Mobile position tracking in three dimensions using Kalman and Lainiotis
            filters", The Open Mathematics Journal, vol. 8, pp. 1–6, 2015 (Bentham Open).
+
+    Examples
+    --------
+    >>> from mptrack.burden import implementation_burden
+    >>> implementation_burden("KF", "A")
+    509
     """
     axes = check_int("axes", axes, minimum=1)
     if not isinstance(filter_name, str) or filter_name not in FORMULAS:
@@ -135,7 +174,20 @@ def implementation_burden(filter_name: str, model: Literal["A", "B"], axes: int 
 
 
 def fir_burden(n: int, m: int, M: int) -> int:
-    """Burden of one FIR steady-state output, 2n^2 + 2nm - n + (M - 1) n (Table 5).
+    """Burden of one FIR steady-state output, 2n^2 + 2nm - n + (M - 1) n (Assimakis & Adam 2014, Table 5).
+
+    Parameters
+    ----------
+    n : int
+        State dimension.
+    m : int
+        Measurement dimension.
+    M : int
+        FIR order.
+
+    Returns
+    -------
+    int
 
     References
     ----------
@@ -149,8 +201,18 @@ def fir_burden(n: int, m: int, M: int) -> int:
 
 
 def fir_break_even(fir: float, steady: float) -> int:
-    """mu: the nearest integer >= fir / steady (Assimakis & Adam 2014, section 7): the FIR filter is
-    cheaper than the recursive one when outputs are needed every mu or more steps.
+    """The break-even mu: the nearest integer >= fir / steady (Assimakis & Adam 2014, section 7).
+
+    The FIR filter is cheaper than the recursive one when outputs are needed every mu or more steps.
+
+    Parameters
+    ----------
+    fir, steady : float
+        The burdens of one FIR output and of one steady-state step.
+
+    Returns
+    -------
+    int
 
     References
     ----------
@@ -164,6 +226,15 @@ def fir_break_even(fir: float, steady: float) -> int:
 
 def speedup(slow: float, fast: float) -> float:
     """The papers' speedup of ``fast`` over ``slow``: burden(slow) / burden(fast).
+
+    Parameters
+    ----------
+    slow, fast : float
+        Burdens, > 0.
+
+    Returns
+    -------
+    float
 
     References
     ----------

@@ -17,8 +17,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._core.validation import (as_array, as_matrix, broadcast_shape, check_allocation, check_covariance, check_int,
-                          finite_result, renamed)
+from ._core.finiteness import finite_result, renamed
+from ._core.validation import as_array, as_matrix, broadcast_shape, check_allocation, check_covariance, check_int
 from .errors import ParameterError, ShapeError, SingularMatrixError
 
 __all__ = ["position_error", "rmse", "nees", "pcrb", "pcrb_tichavsky", "range_fisher_information", "pcrb_ranges"]
@@ -26,9 +26,18 @@ __all__ = ["position_error", "rmse", "nees", "pcrb", "pcrb_tichavsky", "range_fi
 
 @finite_result("the position error")
 def position_error(x_est, truth, dims: int | None = None) -> np.ndarray:
-    """Euclidean position error ||x̂ - x|| per time step (Bouzera et al. 2017, eq. 25): (..., T).
+    """Euclidean position error ||x_est - x|| per time step (Bouzera et al. 2017, eq. 25).
 
-    ``dims`` = number of leading state components that are the position (default: all of truth's).
+    Parameters
+    ----------
+    x_est, truth : array_like, shape (..., T, n)
+        Estimates and true states.
+    dims : int, optional
+        Number of leading state components that are the position (default: all of truth's).
+
+    Returns
+    -------
+    ndarray, shape (..., T)
 
     References
     ----------
@@ -59,7 +68,21 @@ def _pair(x_est, truth) -> tuple[np.ndarray, np.ndarray]:
 
 @finite_result("the RMSE")
 def rmse(x_est, truth, dims: int | None = None, axis: int = 0) -> np.ndarray:
-    """Root-mean-square position error over Monte-Carlo runs (``axis``) of a batch (B, T, n): (T,)."""
+    """Root-mean-square position error over Monte-Carlo runs.
+
+    Parameters
+    ----------
+    x_est, truth : array_like, shape (B, T, n)
+        Estimates and true states of B runs.
+    dims : int, optional
+        Number of leading state components that are the position.
+    axis : int, optional
+        The axis of the runs.
+
+    Returns
+    -------
+    ndarray, shape (T,)
+    """
     e = position_error(x_est, truth, dims)
     if e.ndim == 0:
         raise ShapeError(f"x_est: expected positions of shape (..., n), one row per step, got shape "
@@ -73,10 +96,21 @@ def rmse(x_est, truth, dims: int | None = None, axis: int = 0) -> np.ndarray:
 
 @finite_result("the NEES")
 def nees(x_est, P, truth) -> np.ndarray:
-    """Normalised estimation error squared (x̂ - x)^T P^{-1} (x̂ - x) per step: (..., T).
+    """Normalised estimation error squared (x_est - x)^T P^-1 (x_est - x) per step.
 
-    For a consistent filter its mean over runs is the state dimension n
-    (chi-square with n degrees of freedom per run; Bar-Shalom et al. 2001, §5.4).
+    For a consistent filter its mean over runs is the state dimension n (chi-square with n degrees of
+    freedom per run; Bar-Shalom et al. 2001, sec. 5.4).
+
+    Parameters
+    ----------
+    x_est : array_like, shape (..., T, n)
+    P : array_like, shape (..., T, n, n)
+        The reported covariances.
+    truth : array_like, shape (..., T, n)
+
+    Returns
+    -------
+    ndarray, shape (..., T)
 
     References
     ----------
@@ -100,10 +134,21 @@ def nees(x_est, P, truth) -> np.ndarray:
 
 @finite_result("the PCRB")
 def pcrb(F, Q, P0, info) -> np.ndarray:
-    """PCRB covariances J(k)^{-1}, k = 1..T, for linear-Gaussian dynamics (covariance form).
+    """Posterior Cramér-Rao bound J(k)^-1, k = 1..T, for linear-Gaussian dynamics (the Kalman recursion
+    in information form: Q may be singular).
 
-    F, Q (n, n); P0 (n, n) prior covariance (positive definite); info (T, n, n)
-    the measurement Fisher information I_z(k).  Returns (T, n, n).
+    Parameters
+    ----------
+    F, Q : array_like, shape (n, n)
+        Transition matrix and process noise.
+    P0 : array_like, shape (n, n)
+        Prior covariance, positive definite.
+    info : array_like, shape (T, n, n)
+        The measurement Fisher information I_z(k).
+
+    Returns
+    -------
+    ndarray, shape (T, n, n)
 
     References
     ----------
@@ -140,7 +185,20 @@ def _pcrb_inputs(F, Q, P0, info, *, definite_Q: bool):
 
 @finite_result("the PCRB")
 def pcrb_tichavsky(F, Q, P0, info) -> np.ndarray:
-    """The same bound by Tichavský's D11/D12/D22 recursion (needs Q invertible); a cross-check of :func:`pcrb`.
+    """The same bound by Tichavský's D11/D12/D22 recursion (Q invertible); a cross-check of :func:`pcrb`.
+
+    Parameters
+    ----------
+    F, Q : array_like, shape (n, n)
+        Transition matrix and process noise.
+    P0 : array_like, shape (n, n)
+        Prior covariance, positive definite.
+    info : array_like, shape (T, n, n)
+        The measurement Fisher information I_z(k).
+
+    Returns
+    -------
+    ndarray, shape (T, n, n)
 
     References
     ----------
@@ -167,10 +225,21 @@ def pcrb_tichavsky(F, Q, P0, info) -> np.ndarray:
 
 @finite_result("the range Fisher information")
 def range_fisher_information(positions, stations, R, n: int | None = None) -> np.ndarray:
-    """Fisher information of ranges at the true positions: sum_i H_i^T H_i / R_ii, (T, n, n).
+    """Fisher information of ranges at the true positions: sum_i H_i^T H_i / R_ii.
 
-    positions (T, d) or a batch (B, T, d) (the expectation is then the mean over runs);
-    stations (m, d); R scalar or (m,) range variances (> 0); n state size (position first, default d).
+    Parameters
+    ----------
+    positions : array_like, shape (T, d) or (B, T, d)
+        True positions (a batch: the expectation is the mean over runs).
+    stations : array_like, shape (m, d)
+    R : float or array_like, shape (m,)
+        Range variances, > 0.
+    n : int, optional
+        State size (the position first; default d).
+
+    Returns
+    -------
+    ndarray, shape (T, n, n)
 
     References
     ----------
@@ -207,9 +276,22 @@ def range_fisher_information(positions, stations, R, n: int | None = None) -> np
 
 @finite_result("the PCRB")
 def pcrb_ranges(truth, stations, P0, Q, R, F=None) -> np.ndarray:
-    """PCRB of the position RMSE, sqrt(trace of the position block of J^{-1}), per time step: (T,).
+    """PCRB of the position RMSE from ranges: sqrt(trace of the position block of J^-1) per step.
 
-    truth (T, d) or (B, T, d) true positions; F defaults to the identity (random walk, Bouzera et al. 2017, eq. 1).
+    Parameters
+    ----------
+    truth : array_like, shape (T, d) or (B, T, d)
+        True positions.
+    stations : array_like, shape (m, d)
+    P0, Q : array_like, shape (n, n)
+    R : float or array_like, shape (m,)
+        Range variances.
+    F : array_like, shape (n, n), optional
+        Transition matrix (default the identity: the random walk of Bouzera et al. 2017, eq. 1).
+
+    Returns
+    -------
+    ndarray, shape (T,)
 
     References
     ----------

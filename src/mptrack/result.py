@@ -68,7 +68,8 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 
-from ._core.validation import as_array, finite_result
+from ._core.finiteness import finite_result
+from ._core.validation import as_array
 from .errors import ParameterError, ShapeError, SingularMatrixError
 
 __all__ = ["FilterResult", "BatchFilterResult", "normalised_innovation"]
@@ -76,9 +77,21 @@ __all__ = ["FilterResult", "BatchFilterResult", "normalised_innovation"]
 
 @finite_result("the normalised innovation")
 def normalised_innovation(innovation, S) -> np.ndarray:
-    """innovation^T S^-1 innovation over the non-NaN components of each row (any leading axes);
-    NaN for a row without any.  innovation (..., m), S (..., m, m) with finite entries where the
-    innovation is observed (a NaN innovation component marks it missing)."""
+    """The normalised innovation squared, innovation^T S^-1 innovation, over the observed components of
+    each row.
+
+    Parameters
+    ----------
+    innovation : array_like, shape (..., m)
+        NaN marks a missing component.
+    S : array_like, shape (..., m, m)
+        Finite where the innovation is observed.
+
+    Returns
+    -------
+    ndarray, shape (...)
+        NaN for a row without an observed component.
+    """
     nu = as_array("innovation", innovation, allow_nan=True)
     if nu.ndim == 0 or nu.shape[-1] == 0:
         raise ShapeError(f"innovation: expected shape (..., m) with m >= 1, got {nu.shape}")

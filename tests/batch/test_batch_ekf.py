@@ -53,7 +53,7 @@ def test_batched_range_ekf_matches_numpy_reference_with_gaps_and_ragged_lengths(
     z[2, 20, 1] = np.nan
     lengths = np.array([60, 60, 60, 5, 0, 60, 33, 60, 60])
     P0 = np.diag([100.0, 4.0, 100.0, 4.0])
-    res = batch.range_ekf(MODEL, z, x0, P0, lengths=lengths)
+    res = batch.ekf_ranges(MODEL, z, x0, P0, lengths=lengths)
     assert res.method == "EKF" and res.P is None and res.loglik is None    # states only
     got = res.x
     for b, L in enumerate(lengths):
@@ -70,11 +70,11 @@ def test_range_model_validation():
     with pytest.raises(ShapeError, match="position: expected 2 distinct state indices"):
         batch.RangeModel(np.eye(4), np.eye(4), STATIONS, np.eye(3), position=(0, 0))
     with pytest.raises(ParameterError, match="x0: the EKF needs a prior"):
-        batch.range_ekf(MODEL, np.zeros((1, 3, 3)), None, np.eye(4))
+        batch.ekf_ranges(MODEL, np.zeros((1, 3, 3)), None, np.eye(4))
     with pytest.raises(ParameterError, match="model: expected a RangeModel"):
-        batch.range_ekf("model", np.zeros((1, 3, 3)), np.ones(4), np.eye(4))
+        batch.ekf_ranges("model", np.zeros((1, 3, 3)), np.ones(4), np.eye(4))
     with pytest.raises(ShapeError, match=r"z: expected shape \(B, T, 3\)"):
-        batch.range_ekf(MODEL, np.zeros((1, 3, 2)), np.ones(4), np.eye(4))
+        batch.ekf_ranges(MODEL, np.zeros((1, 3, 2)), np.ones(4), np.eye(4))
 
 
 def test_range_ekf_agrees_with_the_numpy_batch_ekf_of_mptrack_nonlinear():
@@ -89,6 +89,6 @@ def test_range_ekf_agrees_with_the_numpy_batch_ekf_of_mptrack_nonlinear():
     x0 = np.array([300.0, 4.0, 450.0, -2.0]) + rng.normal(0, 10, (6, 4))
     _, z = simulate(model, 6, 40, rng, x0[0])
     P0 = np.diag([100.0, 4.0, 100.0, 4.0])
-    ours = batch.range_ekf(model, z, x0, P0).x
+    ours = batch.ekf_ranges(model, z, x0, P0).x
     theirs = ekf_ranges_batch(z, STATIONS, x0, P0, Q, R, motion="cv", dt=1.0).x
     np.testing.assert_allclose(ours, theirs, rtol=1e-10, atol=1e-8)

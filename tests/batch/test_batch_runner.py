@@ -1,13 +1,12 @@
-"""The chunked runner: executors agree bitwise, output resumes without loss or duplication."""
-
-from pathlib import Path
+"""Studies with the batch filters run in chunks (mptrack.runs): executors agree bitwise, chunking does not
+change the numbers, output resumes and refuses another study."""
 
 import numpy as np
 import pandas as pd
 import pytest
 
 from mptrack import batch, linear
-from mptrack.errors import DTypeError, ParameterError
+from mptrack.errors import ParameterError
 from mptrack.models import assimakis_model_b
 from mptrack.sim import simulate_linear
 
@@ -47,56 +46,13 @@ def test_dask_and_process_executors_equal_serial_bitwise():
     pd.testing.assert_frame_equal(serial, in_processes, check_exact=True)
 
 
-class FlakyTask:
-    """Counts its calls in files (works across processes); fails on chunk ``fail_at`` if asked."""
-
-    def __init__(self, log_dir, fail_at=None):
-        self.log_dir, self.fail_at = str(log_dir), fail_at
-
-    def __call__(self, chunk):
-        if chunk.index == self.fail_at:
-            raise RuntimeError("interrupted")
-        Path(self.log_dir, f"call-{chunk.index}-{len(list(Path(self.log_dir).iterdir()))}").touch()
-        rng = chunk.generators()
-        return pd.DataFrame({"item": np.arange(chunk.start, chunk.stop),
-                             "value": [g.standard_normal() for g in rng]})
-
-
-def test_resume_after_interruption_loses_and_duplicates_nothing(tmp_path):
-    log = tmp_path / "log"
-    log.mkdir()
-    out = tmp_path / "out"
-    with pytest.raises(RuntimeError, match="interrupted"):
-        batch.run_chunks(FlakyTask(log, fail_at=2), 10, chunk_size=2, seed=5, out_dir=out)
-    assert sorted(p.name for p in out.glob("*.parquet")) == ["chunk-000000.parquet", "chunk-000001.parquet"]
-    assert not list(out.glob(".*"))        # no temporary left behind
-    result = batch.run_chunks(FlakyTask(log), 10, chunk_size=2, seed=5, out_dir=out)
-    calls = sorted(p.name.split("-")[1] for p in log.iterdir())
-    assert calls == ["0", "1", "2", "3", "4"]          # each chunk computed exactly once
-    assert list(result["item"]) == list(range(10))    # nothing lost, nothing twice
-    fresh = batch.run_chunks(FlakyTask(tmp_path), 10, chunk_size=2, seed=5)
-    pd.testing.assert_frame_equal(result, fresh, check_exact=True)
-    again = batch.run_chunks(FlakyTask(log, fail_at=0), 10, chunk_size=2, seed=5, out_dir=out)
-    pd.testing.assert_frame_equal(result, again, check_exact=True)   # all skipped: nothing recomputed
-
-
 def test_a_different_study_in_the_same_directory_is_refused(tmp_path):
     batch.monte_carlo(MODEL, 10, 4, seed=1, chunk_size=2, out_dir=tmp_path)
     with pytest.raises(ParameterError, match="out_dir: .* different study"):
         batch.monte_carlo(MODEL, 10, 4, seed=2, chunk_size=2, out_dir=tmp_path)
 
 
-def test_runner_argument_errors():
-    with pytest.raises(ParameterError, match="executor: expected one of"):
-        batch.run_chunks(FlakyTask("."), 4, chunk_size=2, executor="threads")
-    with pytest.raises(ParameterError, match="chunk_size: expected an integer >= 1"):
-        batch.run_chunks(FlakyTask("."), 4, chunk_size=0)
-    with pytest.raises(ParameterError, match="data: expected 4 leading rows"):
-        batch.run_chunks(FlakyTask("."), 4, chunk_size=2, data=np.zeros(3))
-    with pytest.raises(DTypeError, match="task: expected a pandas.DataFrame"):
-        batch.run_chunks(lambda c: c.size, 4, chunk_size=2)
-    with pytest.raises(ParameterError, match="seed: this study was started without a seed"):
-        batch.make_chunks(4, 2)[0].generators()
+def test_study_argument_errors():
     with pytest.raises(ParameterError, match="method: expected"):
         batch.monte_carlo(MODEL, 10, 4, seed=1, method="fir")
 

@@ -17,8 +17,9 @@ import pandas as pd
 import pytest
 from typer.testing import CliRunner
 
-import mptrack._core.files as mio
-from mptrack._core.files import atomic_path, output_lock, stale_temp_files
+import mptrack.runs._lock as lock_module
+from mptrack._core.files import atomic_path, stale_temp_files
+from mptrack.runs import output_lock
 from mptrack.errors import OutputError
 from mptrack.tracking import TrackOptions, track_file
 from mptrack.cli import app
@@ -151,7 +152,7 @@ def test_lock_protocol_survives_the_unlink_race(tmp_path, monkeypatch):
     must notice (the path names another file) and take the lock anew."""
     out = tmp_path / "t.csv"
     lock = tmp_path / ".t.csv.lock"
-    real_open = mio._open_lock
+    real_open = lock_module._open_lock
     calls = []
 
     def stale_then_real(path, target):
@@ -162,7 +163,7 @@ def test_lock_protocol_survives_the_unlink_race(tmp_path, monkeypatch):
             return fd
         return real_open(path, target)
 
-    monkeypatch.setattr(mio, "_open_lock", stale_then_real)
+    monkeypatch.setattr(lock_module, "_open_lock", stale_then_real)
     with output_lock(out, note="me"):
         assert len(calls) == 2 and lock.read_text() == f"{os.getpid()}\nme\n"
     assert not lock.exists()
@@ -172,7 +173,7 @@ def test_a_held_lock_is_refused_and_a_released_one_taken(tmp_path):
     """Another holder (its own open file, as another process would have) refuses us; once it unlinks
     the file (releasing), we take a new one although it still holds its flock on the old one."""
     out = tmp_path / "t.csv"
-    lock = mio.lock_path(out)
+    lock = lock_module.lock_path(out)
     other = os.open(lock, os.O_RDWR | os.O_CREAT)
     try:
         fcntl.flock(other, fcntl.LOCK_EX | fcntl.LOCK_NB)
@@ -189,7 +190,7 @@ def test_a_held_lock_is_refused_and_a_released_one_taken(tmp_path):
 
 def test_without_fcntl_an_exclusive_lock_file(tmp_path, monkeypatch):
     """The non-POSIX fallback: O_EXCL; a lock file left behind names its process and how to clear it."""
-    monkeypatch.setattr(mio, "fcntl", None)
+    monkeypatch.setattr(lock_module, "fcntl", None)
     out = tmp_path / "t.parquet"
     with output_lock(out, note="first"):
         assert (tmp_path / ".t.parquet.lock").read_text() == f"{os.getpid()}\nfirst\n"
@@ -489,7 +490,7 @@ def test_parts_that_vanish_during_the_run_fail_the_run(tmp_path, logs, monkeypat
     2331 of 3000 tracks, exit 0, before), nothing left behind."""
     import shutil
 
-    import mptrack.io._parts as parts_module
+    import mptrack.runs._store as parts_module
     import mptrack.tracking._pipeline as pipeline
 
     out = tmp_path / "t.parquet"

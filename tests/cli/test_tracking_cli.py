@@ -13,7 +13,8 @@ from typer.testing import CliRunner
 
 import mptrack.tracking._pipeline as pipeline
 from mptrack.errors import ParameterError
-from mptrack.io import PartStore, iter_tracks
+from mptrack.io import iter_tracks
+from mptrack.runs import PartStore
 from mptrack.tracking import TrackOptions, track, track_file, track_fixes
 from mptrack.cli import app
 

@@ -6,7 +6,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from mptrack.continuous import FEMGrid, fem_filter, fem_steps, linear_sde_model, shape_functions, simulate_sde
-from mptrack.continuous._fem import _nodal_derivatives
+from mptrack.continuous._fem_grid import _nodal_derivatives
 from mptrack.errors import NotPositiveDefiniteError, ParameterError, ShapeError
 from mptrack.linear import kalman_filter
 
@@ -137,7 +137,7 @@ def test_nodal_differences_are_exact_on_quadratics_and_the_laplacian_is_dissipat
 
 def test_paper_scheme_takes_enough_rk4_steps_to_be_stable(linear_case):
     """Explicit RK4: dt·rho(L)/substeps stays inside the stability half-disc (radius 2.5 < 2.6)."""
-    from mptrack.continuous._fem import _NodalRK4
+    from mptrack.continuous._fem_schemes import _NodalRK4
 
     model, _, _ = linear_case
     g = FEMGrid([-4.0, -4.0], [4.0, 4.0], 32, 32)
@@ -194,7 +194,7 @@ def test_band_and_sparse_factorisations_solve_the_assembled_system(n, monkeypatc
     """The band LU (small grids) and SuperLU (large grids) both solve (M − γτA) x = b."""
     import scipy.sparse.linalg
 
-    from mptrack.continuous import _fem
+    from mptrack.continuous import _fem_schemes
 
     model = linear_sde_model(A, Q, np.eye(2), np.eye(2), 1.0)
     g = FEMGrid([-4.0, -3.0], [4.0, 5.0], n, n)
@@ -203,10 +203,10 @@ def test_band_and_sparse_factorisations_solve_the_assembled_system(n, monkeypatc
     b = np.random.default_rng(n).standard_normal(g.size)
     expected = scipy.sparse.linalg.spsolve(g.assemble(Be), b)
     for dtype, tol in ((np.float64, 1e-10), (np.float32, 1e-5)):
-        monkeypatch.setattr(_fem, "_SOLVE_DTYPE", dtype)
+        monkeypatch.setattr(_fem_schemes, "_SOLVE_DTYPE", dtype)
         for limit in (0, 2**40):  # force SuperLU, then the band LU
-            monkeypatch.setattr(_fem, "_BAND_BYTES", limit)
-            x = _fem._factorise(g, Be)[0](b.copy())
+            monkeypatch.setattr(_fem_schemes, "_BAND_BYTES", limit)
+            x = _fem_schemes._factorise(g, Be)[0](b.copy())
             assert x.dtype == np.float64
             np.testing.assert_allclose(x, expected, rtol=0, atol=tol * np.abs(expected).max())
 
@@ -214,16 +214,16 @@ def test_band_and_sparse_factorisations_solve_the_assembled_system(n, monkeypatc
 @pytest.mark.parametrize("scheme", ["sdirk2", "cn"])
 def test_compiled_band_steps_equal_the_sparse_loop(scheme, monkeypatch):
     """The compiled sub-steps on the band LU and the Python loop on SuperLU give the same prediction."""
-    from mptrack.continuous import _fem
+    from mptrack.continuous import _fem_schemes
 
-    monkeypatch.setattr(_fem, "_SOLVE_DTYPE", np.float64)
+    monkeypatch.setattr(_fem_schemes, "_SOLVE_DTYPE", np.float64)
     model = linear_sde_model(A, Q, np.eye(2), np.eye(2), 1.0)
     g = FEMGrid([-4.0, -3.0], [4.0, 5.0], 10, 12)
     p = np.exp(-0.5 * np.sum((g.nodes - [0.5, 1.0]) ** 2, axis=1))
-    band = _fem._Propagator(g, model, 6, scheme, False)
+    band = _fem_schemes._Propagator(g, model, 6, scheme, False)
     assert band.band is not None
-    monkeypatch.setattr(_fem, "_BAND_BYTES", 0)
-    sparse = _fem._Propagator(g, model, 6, scheme, False)
+    monkeypatch.setattr(_fem_schemes, "_BAND_BYTES", 0)
+    sparse = _fem_schemes._Propagator(g, model, 6, scheme, False)
     assert sparse.band is None
     np.testing.assert_allclose(band(p), sparse(p), rtol=0, atol=1e-12 * p.max())
     assert g.W0 @ band(p) == pytest.approx(g.W0 @ p, rel=1e-12)
@@ -231,11 +231,11 @@ def test_compiled_band_steps_equal_the_sparse_loop(scheme, monkeypatch):
 
 def test_single_precision_solves_change_the_filter_by_far_less_than_its_discretisation_error(linear_case,
                                                                                              monkeypatch):
-    from mptrack.continuous import _fem
+    from mptrack.continuous import _fem_schemes
 
     model, z, kf = linear_case
     single = fem_filter(model, z, X0, P0, grid=(24, 24))
-    monkeypatch.setattr(_fem, "_SOLVE_DTYPE", np.float64)
+    monkeypatch.setattr(_fem_schemes, "_SOLVE_DTYPE", np.float64)
     double = fem_filter(model, z, X0, P0, grid=(24, 24))
     rounding = np.abs(single.x - double.x).max()
     discretisation = np.abs(double.x - kf.x).max()
@@ -279,7 +279,7 @@ def test_a_moving_grid_refactorises_only_when_it_moves(linear_case, scheme):
 
 
 def test_default_substeps_follow_the_grid():
-    from mptrack.continuous._fem import default_substeps
+    from mptrack.continuous._fem_schemes import default_substeps
 
     assert default_substeps((20, 20)) == 16
     assert default_substeps((40, 10)) == 32
@@ -311,7 +311,7 @@ def test_deposit_is_the_transpose_of_interpolation():
 
 def test_compiled_flow_equals_the_numpy_rk4_flow():
     from mptrack.continuous import zhao2013_model
-    from mptrack.continuous._fem import _compiled
+    from mptrack.continuous._fem_schemes import _compiled
     from mptrack.continuous._model import rk4_flow
 
     model = zhao2013_model(variant="vdp", diffusion_scale=1.0)  # max_increment = 1: some steps are capped
@@ -327,7 +327,7 @@ def test_transport_keeps_mass_mean_and_covariance_of_a_density_contracted_below_
     0.25 high, which sampling the density at the nodes misses (the FE failures at Q x 1)."""
     import scipy.linalg
 
-    from mptrack.continuous._fem import _push
+    from mptrack.continuous._fem_schemes import _push
 
     A_stiff = np.array([[0.0, 1.0], [20.0, -20.0]])       # x2 relaxes onto the line x2 = x1 at rate 20
     model = linear_sde_model(A_stiff, np.diag([0.5, 0.2]), np.eye(2), np.eye(2), 1.0)

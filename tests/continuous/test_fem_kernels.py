@@ -10,7 +10,9 @@ import scipy.sparse.linalg
 from mptrack.continuous import (
     FEMGrid,
     _fem,
+    _fem_grid,
     _fem_kernels,
+    _fem_schemes,
     linear_sde_model,
     zhao2013_model,
 )
@@ -37,7 +39,7 @@ def test_transport_deposit_equals_the_numpy_quadrature(shape):
     returned for an exact flow instead."""
     g = FEMGrid([-1.0, 0.5], [2.0, 1.7], *shape)
     p = _density(g, np.array([0.4, 1.1]), np.diag([0.05, 0.02]))
-    loc, phi, wq, bounds, _ = rules = _fem._push_rules(((3, 1, 0.03), (2, 1, 1e-3)))   # three rules
+    loc, phi, wq, bounds, _ = rules = _fem_schemes._push_rules(((3, 1, 0.03), (2, 1, 1e-3)))   # three rules
     fine, mid, coarse = ((loc[a:b], phi[a:b], wq[a:b]) for a, b in itertools.pairwise(bounds))
     sites = flow_sites(g.lo, g._h, g._top["lattice"], *shape)
     N = g.size
@@ -46,7 +48,7 @@ def test_transport_deposit_equals_the_numpy_quadrature(shape):
     # (a smooth map outside the serendipity space: its interpolant misses the centres by different amounts)
     new = FEMGrid([-0.2, 0.8], [2.6, 2.3], shape[0] + 1, shape[1] + 2)  # some images fall outside it
     # NumPy: element by element, the interpolant's miss at the centres first
-    miss = [np.max(np.abs(Z[N + e] - _fem.shape_functions(0.0, 0.0)[0] @ Z[nodes]) / new._h)
+    miss = [np.max(np.abs(Z[N + e] - _fem_grid.shape_functions(0.0, 0.0)[0] @ Z[nodes]) / new._h)
             for e, nodes in enumerate(g.conn)]
     tol = float(np.median(miss))
     b = np.zeros(new.size)
@@ -80,9 +82,9 @@ def test_compiled_flow_takes_the_numpy_step_count_and_path(variant, scale, sprea
     model = zhao2013_model(variant=variant, diffusion_scale=scale)
     X = np.random.default_rng(7).uniform(-spread, spread, (1000, 2))  # 4 blocks, a short last one
     for duration in (0.25, 1.0):
-        steps = _fem._flow_steps(model, X, duration)
+        steps = _fem_schemes._flow_steps(model, X, duration)
         Y = X.copy()
-        cm = _fem._compiled(model)
+        cm = _fem_schemes._compiled(model)
         got = flow_points(Y, *cm.drift_at, model.kernels.drift_params, duration, model.dt, model.max_increment)
         assert got == steps
         np.testing.assert_allclose(Y, rk4_flow(model, X, duration, steps), rtol=1e-12, atol=1e-12)
@@ -91,9 +93,9 @@ def test_compiled_flow_takes_the_numpy_step_count_and_path(variant, scale, sprea
 def test_compiled_flow_of_a_linear_model():
     model = linear_sde_model([[0.0, 1.0], [20.0, -20.0]], np.eye(2), np.eye(2), np.eye(2), 1.0)
     X = np.random.default_rng(8).normal(size=(300, 2))
-    steps = _fem._flow_steps(model, X, 0.25)
+    steps = _fem_schemes._flow_steps(model, X, 0.25)
     assert steps > 1
-    np.testing.assert_allclose(_fem._drift_flow(model, X, 0.25), rk4_flow(model, X, 0.25, steps), rtol=1e-12,
+    np.testing.assert_allclose(_fem_schemes._drift_flow(model, X, 0.25), rk4_flow(model, X, 0.25, steps), rtol=1e-12,
                                atol=1e-12)
 
 
@@ -102,7 +104,7 @@ def test_band_cholesky_of_the_mass_matrix_solves_the_assembled_system(shape):
     g = FEMGrid([0.0, 0.0], [float(shape[0]), float(shape[1])], *shape)
     M = g.assemble(g._top["Me"])
     b = np.random.default_rng(9).standard_normal(g.size)
-    C, kd = _fem._unit_mass_factor(*shape)
+    C, kd = _fem_schemes._unit_mass_factor(*shape)
     got = cholesky_solve(C, kd, b.copy())
     np.testing.assert_allclose(got, scipy.sparse.linalg.spsolve(M.tocsc(), b), rtol=1e-12, atol=1e-12)
     dense = M.toarray()
@@ -127,8 +129,8 @@ def test_compiled_transport_equals_the_numpy_flow_path(scale, moving):
     plain = dataclasses.replace(model, kernels=None)
     g = FEMGrid([-1.5, 0.5], [2.5, 3.5], 20, 20)
     p = _density(g, np.array([0.4, 2.0]), np.array([[0.3, 0.1], [0.1, 0.2]]))
-    got = _fem._Characteristics(model, None, 4.0, 4, False, (20, 20)).transport(g, p, moving, 0.25)
-    want = _fem._Characteristics(plain, None, 4.0, 4, False, (20, 20)).transport(g, p, moving, 0.25)
+    got = _fem_schemes._Characteristics(model, None, 4.0, 4, False, (20, 20)).transport(g, p, moving, 0.25)
+    want = _fem_schemes._Characteristics(plain, None, 4.0, 4, False, (20, 20)).transport(g, p, moving, 0.25)
     assert (got[0] is g) == (not moving) and (want[0] is g) == (not moving)
     np.testing.assert_allclose(got[0].lo, want[0].lo, rtol=1e-12)
     np.testing.assert_allclose(got[0].hi, want[0].hi, rtol=1e-12)
@@ -144,7 +146,7 @@ def test_diffusion_reuses_a_nearby_factorisation_and_keeps_mean_and_covariance_g
     density differs from an exact one's by far less than the diffusion changes it."""
     model = linear_sde_model(np.zeros((2, 2)), np.array([[0.02, 0.005], [0.005, 0.01]]), np.eye(2), np.eye(2), 1.0)
     m, P = np.array([0.3, -0.2]), np.array([[0.04, 0.01], [0.01, 0.03]])
-    scheme = _fem._Characteristics(model, None, 4.0, 4, False, (20, 20))
+    scheme = _fem_schemes._Characteristics(model, None, 4.0, 4, False, (20, 20))
     g0 = FEMGrid(m - 1.0, m + 1.0, 20, 20)
     scheme.diffuse(g0, _density(g0, m, P), 0.125)
     assert scheme.factorisations == 1
@@ -157,7 +159,7 @@ def test_diffusion_reuses_a_nearby_factorisation_and_keeps_mean_and_covariance_g
         assert clipped < 1e-6 and mass == pytest.approx(1.0)
         np.testing.assert_allclose(mean, g.moments(p)[1], atol=1e-6)      # single-precision solves
         np.testing.assert_allclose(cov, g.moments(p)[2] + 0.125 * model.Q, atol=1e-6)
-        exact = _fem._Characteristics(model, None, 4.0, 4, False, (20, 20)).diffuse(g, p, 0.125)[0]
+        exact = _fem_schemes._Characteristics(model, None, 4.0, 4, False, (20, 20)).diffuse(g, p, 0.125)[0]
         change = np.abs(exact - p).max()
         assert np.abs(q - exact).max() < (0.02 if factorisations == 1 else 1e-6) * change
 
@@ -193,7 +195,7 @@ def test_compiled_dt_equals_its_steps(scale, fixed):
     model = zhao2013_model(variant="vdp", diffusion_scale=scale)
     g = FEMGrid([-1.5, 0.5], [2.5, 3.5], 20, 20)
     p = _density(g, np.array([0.4, 2.0]), np.array([[0.3, 0.1], [0.1, 0.2]]))
-    whole, steps = (_fem._Characteristics(model, None, 4.0, 4, fixed, (20, 20)) for _ in range(2))
+    whole, steps = (_fem_schemes._Characteristics(model, None, 4.0, 4, fixed, (20, 20)) for _ in range(2))
     for _ in range(3):                                    # the kept factorisations carry over between dts
         got, want = whole.predict(g, p), steps.predict_steps(g, p)
         assert (got[0] is g) == fixed and got[2:4] == want[2:4]

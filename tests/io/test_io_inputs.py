@@ -8,13 +8,12 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from mptrack.errors import DataError, OutputError, ParameterError
+from mptrack.errors import DataError, ParameterError
 from mptrack.io import (
     ReadOptions,
     CELLS,
     FIXES,
     MEASUREMENTS,
-    PartStore,
     ReadReport,
     input_columns,
     iter_tracks,
@@ -285,36 +284,6 @@ def test_write_is_atomic(tmp_path):
         write_table(frames(), out)
     assert list(tmp_path.iterdir()) == []
 
-
-def test_part_store_streams_its_parts_in_order_and_cleans_up(tmp_path):
-    import pyarrow as pa
-    import pyarrow.feather as feather
-
-    from mptrack.batch import part_path
-
-    store = PartStore(tmp_path / "o.parquet")
-    store.dir.mkdir()
-    for i, part in ((1, _table().iloc[2:]), (0, _table().iloc[:2])):  # written out of order
-        feather.write_feather(pa.Table.from_pandas(part, preserve_index=False),
-                              part_path(store.dir, "points", i, "arrow"))
-    assert [p.name for p in store.parts("points")] == ["points-000000.arrow", "points-000001.arrow"]
-    (store.dir / "manifest.json").write_text("{}")
-    results = [{"points": part_path(store.dir, "points", i, "arrow")} for i in (0, 1)]
-    files = store.check(results)
-    assert files == {"points": store.parts("points")}
-    store.finish(files["points"])
-    assert pd.read_parquet(tmp_path / "o.parquet")["track_id"].tolist() == ["a", "a", "b"]
-    store.discard()
-    assert not store.dir.exists()
-    with pytest.raises(ParameterError, match="unknown output format"):
-        PartStore(tmp_path / "o.xlsx")
-    store.dir.mkdir()
-    (store.dir / "manifest.json").write_text("{}")
-    feather.write_feather(pa.Table.from_pandas(_table(), preserve_index=False), results[1]["points"])
-    with pytest.raises(OutputError, match=r"o.parquet: 1 of the 2 part files of this run vanished .*\(first: "
-                                          r"points-000000\.arrow"):
-        store.check(results)
-    assert not store.dir.exists()  # a store that lost parts is not kept for a resume
 
 def test_user_guide_shows_the_current_schemas():
     guide = (Path(__file__).parents[2] / "docs" / "tracking.md").read_text()

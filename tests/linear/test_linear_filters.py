@@ -13,7 +13,6 @@ from mptrack.errors import NonFiniteError, UnknownNameError
 from mptrack.linear import (
     FILTERS,
     IMPLEMENTATIONS,
-    FilterResult,
     fir_coefficients,
     fir_filter,
     fir_order,
@@ -25,6 +24,7 @@ from mptrack.linear import (
     steady_state_filter,
 )
 from mptrack.models import LinearGaussianModel, assimakis_model_a, assimakis_model_b
+from mptrack.result import FilterResult
 from mptrack.riccati import steady_state
 from mptrack.sim import simulate_linear
 

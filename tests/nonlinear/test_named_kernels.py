@@ -112,9 +112,10 @@ def test_batch_kernel_equals_numpy_batch_and_single_runs(name):
     x0 = np.stack([r[1] for r in runs])
     P0 = runs[0][2]
     fast = ekf_filter_batch(model, z, x0, P0)
-    xs, Ps, xp, Pp, ll, nu, S = _ekf_batch_core(model, z, x0.copy(), np.broadcast_to(P0, (5,) + P0.shape).copy())
+    xs, Ps, xp, Pp, ll, nu, S, nis = _ekf_batch_core(model, z, x0.copy(),
+                                                     np.broadcast_to(P0, (5,) + P0.shape).copy())
     for got, want in ((fast.x, xs), (fast.P, Ps), (fast.x_pred, xp), (fast.P_pred, Pp), (fast.loglik, ll),
-                      (fast.innovation, nu), (fast.S, S)):
+                      (fast.innovation, nu), (fast.S, S), (fast.nis, nis)):
         assert np.array_equal(np.isnan(got), np.isnan(want))
         assert np.nanmax(np.abs(got - want) / (1.0 + np.abs(want))) < 1e-10
     for b in (0, 3):

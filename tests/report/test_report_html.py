@@ -24,7 +24,8 @@ from mptrack.report import PALETTE, write_report
 from mptrack.report._page import asset
 from mptrack.report._decimate import BREAK, MIN_PER_TRACK, ORDINARY, REJECTED, keep_mask, point_budget
 from mptrack.report._payload import track_payload
-from mptrack.tracking import evaluate_tracks, read_output, simulate, track_file
+from mptrack.io import read_output
+from mptrack.tracking import evaluate_tracks, simulate, track_file
 
 from _data import REAL_TRACES
 

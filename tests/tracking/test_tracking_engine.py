@@ -2,7 +2,7 @@
 
 The engine (:mod:`mptrack.tracking._engine`) runs the gated filter of every
 track in one compiled pass with closed-form per-axis transitions; the
-reference (:func:`mptrack.tracking.track_gated`, :func:`smooth_gated`) runs the
+reference (:func:`mptrack.tracking.track_gated`, :func:`rts_smoother_gated`) runs the
 library's general 4 x 4 / 6 x 6 filter with Van Loan discretisation, track by
 track.  They must agree to rounding on tracks with gaps, outliers, manoeuvres,
 jumps (resets), single fixes and repeated time stamps.
@@ -16,7 +16,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from mptrack.models import constant_acceleration_continuous, constant_velocity_continuous, discretize_intervals
-from mptrack.tracking import FLAGS, get_model, nis_threshold, smooth_gated, track_gated
+from mptrack.tracking import FLAGS, get_model, nis_threshold, rts_smoother_gated, track_gated
 from mptrack.tracking._fixes import fix_error_model
 from mptrack.tracking._chain import chain_transition
 from mptrack.tracking._engine import filter_tracks
@@ -101,7 +101,7 @@ def run_reference(spec, b, offsets, t, ze, zn, w, c, q, smooth, sb2=None, tau=No
     model, levels, info, prior = fix_error_model(spec, q[b], slow, 3600.0 if tau is None else float(tau[b]))
     g = track_gated(model, t[s], np.column_stack([ze[s], zn[s]]), (c[b] * w[s])[:, None, None] * np.eye(2), prior,
                     gate_probability=0.999, manoeuvre_noise=levels, prior_information=info, max_gap_s=max_gap)
-    return s, g, smooth_gated(g) if smooth else g
+    return s, g, rts_smoother_gated(g) if smooth else g
 
 
 def slow_error(rng, B, slow):

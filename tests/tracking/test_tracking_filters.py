@@ -20,8 +20,9 @@ from mptrack.models import (
     van_loan,
 )
 from mptrack.radio import arfcn_to_frequency, path_loss
-from mptrack.tracking import (TA_STEP_M, TrackOptions, band_of_arfcn, get_cell_method, get_model, kalman_filter_gated,
-                              nis_threshold, ranges_km, smooth_gated, simulate, track_cells, track_fixes)
+from mptrack.radio import TA_STEP_M, band_of_arfcn
+from mptrack.tracking import (TrackOptions, get_cell_method, get_model, kalman_filter_gated, nis_threshold, ranges_km,
+                              rts_smoother_gated, simulate, track_cells, track_fixes)
 
 GPX = Path(__file__).parents[1] / "data" / "around-visnjan-with-car.gpx"
 
@@ -60,7 +61,7 @@ def test_ungated_regular_equals_the_reference_kalman_filter():
     np.testing.assert_allclose(g.x, ref.x, rtol=1e-10, atol=1e-9)
     np.testing.assert_allclose(g.P, ref.P, rtol=1e-10, atol=1e-10)
     assert g.loglik == pytest.approx(ref.loglik, rel=1e-10)
-    sm = smooth_gated(g)
+    sm = rts_smoother_gated(g)
     ref_sm = rts_smoother(model.discretize(1.0), ref)
     np.testing.assert_allclose(sm.x, ref_sm.x, rtol=1e-9, atol=1e-8)
     np.testing.assert_allclose(sm.P, ref_sm.P, rtol=1e-8, atol=1e-9)
@@ -74,7 +75,7 @@ def test_ungated_irregular_equals_kalman_filter_irregular():
     np.testing.assert_allclose(g.x, ref.x, rtol=1e-10, atol=1e-9)
     np.testing.assert_allclose(g.P, ref.P, rtol=1e-10, atol=1e-10)
     assert g.flag[5] == 2 and np.isnan(g.nis[5])
-    sm = smooth_gated(g)
+    sm = rts_smoother_gated(g)
     assert np.all(np.linalg.eigvalsh(g.P - sm.P) > -1e-9)  # smoothing never adds uncertainty
 
 

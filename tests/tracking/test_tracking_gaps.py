@@ -26,9 +26,9 @@ def gap_track(gap_s: float, sigma: float = 1.0) -> pd.DataFrame:
 @pytest.mark.parametrize("gap", sorted(GAPS))
 def test_the_first_fix_after_a_gap_keeps_its_error(gap, bridge):
     """Default: the fix after the gap starts a new segment (flag init) with the variance of its error, white
-    and slow; bridged (max_gap_s=None), the filter predicts over the gap and the update leaves that same
+    and slow; bridged (max_gap_s=inf), the filter predicts over the gap and the update leaves that same
     variance (the slow error has decorrelated), not 0."""
-    points = track(gap_track(GAPS[gap]), **({"max_gap_s": None} if bridge else {}))
+    points = track(gap_track(GAPS[gap]), **({"max_gap_s": np.inf} if bridge else {}))
     tr = points.attrs["tracks"].iloc[0]
     after = points.iloc[60]
     assert after["flag"] == ("update" if bridge else "init") and points["gap"].iloc[60]

@@ -118,7 +118,8 @@ def test_evaluation_summary_has_the_nis_advice_of_a_run(tmp_path):
     as a tracking run's summary does (the CLI prints it; it used to compute it itself)."""
     from _data import REAL_TRACES
 
-    from mptrack.tracking import TrackOptions, evaluate_tracks, read_output
+    from mptrack.io import read_output
+    from mptrack.tracking import TrackOptions, evaluate_tracks
 
     run = track_file(REAL_TRACES["car"], tmp_path / "b.parquet", options=TrackOptions(sigma_m=50.0))
     summary, _ = evaluate_tracks(read_output(tmp_path / "b.parquet"))

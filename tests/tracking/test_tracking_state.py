@@ -13,8 +13,9 @@ from hypothesis import strategies as st
 
 from mptrack.errors import DTypeError, ParameterError, ShapeError
 from mptrack.tracking import FLAGS, get_model
-from mptrack.tracking._engine import (STATE_VERSION, STREAK_CAP, Revisions, advance_tracks, empty_states,
-                                      state_from_bytes, state_size, state_to_bytes)
+from mptrack.tracking._engine import Revisions, advance_tracks
+from mptrack.tracking._state import (STATE_VERSION, STREAK_CAP, empty_states, state_from_bytes, state_size,
+                                     state_to_bytes)
 
 from test_tracking_engine import GATE, random_tracks, run_engine, slow_error
 

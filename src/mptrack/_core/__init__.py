@@ -16,7 +16,9 @@ Numerical cores (compiled or NumPy; each tested against a readable reference):
 
 Shared infrastructure:
 
-* :mod:`.validation`  boundary checks that raise :mod:`mptrack.errors` naming the argument
+* :mod:`.validation`  argument checks that raise :mod:`mptrack.errors` naming the argument
+* :mod:`.data_checks`  data files and tables as arguments; outputs that must not overwrite an input
+* :mod:`.finiteness`  finite results or clear errors; errors relabelled with the caller's names
 * :mod:`.float_scan`, :mod:`.threads`  compiled finiteness scans and their thread launch
 * :mod:`.files`       atomic files (complete on disk or absent)
 * :mod:`.jit_cache`   where numba caches compiled kernels

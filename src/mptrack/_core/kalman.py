@@ -16,29 +16,41 @@ KF's and EKF's C = P H^T (for the UKF P - K C^T = P - K S K^T).
 Who calls it: the linear KF loop (:func:`mptrack.linear.kalman_filter`, ``kalman_filter_irregular``),
 the gated tracking loop (:mod:`mptrack.tracking._kernels`), the batch KF's own-covariance fallback and
 the batch range EKF (:mod:`mptrack.batch._kernels`, :mod:`mptrack.batch._ekf`), the EKF and UKF step
-kernels and the named-model loops (:mod:`mptrack.nonlinear`), the continuous-discrete UKF
-(:mod:`mptrack.continuous._kernels`).  :func:`mptrack.linear.kalman_step` stays the readable NumPy
-reference; tests/test_kalman_core.py checks this module against it.
+kernels, the named-model loops and the batched EKF of any model (:mod:`mptrack.nonlinear`), the
+continuous-discrete UKF, compiled and NumPy (:mod:`mptrack.continuous`).
 
-The documented exceptions (their own arithmetic, each tested against this core):
+Every other place that writes Kalman algebra is one of these exceptions (this is the one list; each is
+tested as stated):
 
+* the readable NumPy reference :func:`mptrack.linear.kalman_step`, which tests/test_kalman_core.py
+  checks this module against (random models, NaN-gapped measurements, both forms, the UKF gain step);
 * the batch engine's shared-gain paths in :mod:`mptrack.batch._kernels`, above all the n = 2, m = 1
   time blocks (``kf_kernel_blocks``, ``ss_kernel_blocks``; also the complete-track branch of
   ``kf_kernel``): a shared, precomputed gain sequence and no covariance -- x = A(k) x + K(k) z with
   A(k) = (I - K(k) H) F, which is x = F x + K (z - H F x), eight steps at a time (four tracks at a time
-  in ``kf_kernel``); they fall back to this core at a track's first gap;
-* the tracking engine (:mod:`mptrack.tracking._chain` and ``_engine``; ``_likelihood`` runs the same steps):
+  in ``kf_kernel``); they fall back to this core at a track's first gap (tested track by track against
+  :func:`mptrack.linear.kalman_filter`);
+* the tracking engine (:mod:`mptrack.tracking._chain` and ``_track_filter``; ``_likelihood`` runs the same steps):
   integrator chains with a position fix of variance r on two axes sharing one covariance, so one
   covariance and two means, per axis the chain and the fix error's slow part -- its predict
   (closed-form F, Q), its update (rank one, h = e_0 or e_0 + e_b, in Joseph form as ``update(...,
   joseph=True)``; tests/test_kalman_core.py), its RTS backward pass (one
-  smoother gain for both axes; against :func:`mptrack.tracking.smooth_gated`, which runs
+  smoother gain for both axes; against :func:`mptrack.tracking.rts_smoother_gated`, which runs
   :mod:`mptrack._core.rts`) and its back prediction at a restart, all inlined in the per-fix loops for speed;
   the engine as a whole is tested against the per-track reference :func:`mptrack.tracking.track_gated`,
   which runs this core;
 * the diffuse (information-form) start of a restart test (``tracking._kernels``, ``tracking._chain``) and
   of the tracking likelihood: information-filter algebra from zero information, which the covariance
-  form cannot start from; tested against dense Gaussian algebra (tests/tracking/test_tracking_engine.py).
+  form cannot start from; tested against dense Gaussian algebra (tests/tracking/test_tracking_engine.py);
+* covariance-only recursions that are the papers' equations, not a filter's update: the Riccati map of
+  :mod:`mptrack.riccati` (``riccati_step`` and the steady gain; tested per-step = doubling = DARE), the
+  error covariance of a fixed-gain filter (``steady_state_filter(covariance="exact")``, the Joseph form
+  with the steady gain; tested never below the KF's and constant from the steady state), the N-step
+  predictor's coefficients (:mod:`mptrack.linear._prediction`; tested eq. 19 = F^N x(k/k)) and the PCRB's
+  information form (:func:`mptrack.metrics.pcrb`; tested equal to the KF covariance on a linear model);
+* the fuzzy fusion filters of Bouzera et al. 2017 (:mod:`mptrack.cellular._fekf`): one-station scalar
+  updates and their weighted fusion (eqs. 4, 11-16), batched over Monte-Carlo runs in NumPy as the
+  paper writes them (tested: one station equals the EKF).
 
 All work arrays are carved once from one buffer (:func:`workspace`), so a whole-run loop allocates
 nothing per step; NaN components of z are skipped.  A function reports a problem by a status code,

@@ -7,7 +7,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .validation import as_real, as_vector, check_covariance, check_positive, finite_result
+from .finiteness import finite_result
+from .validation import as_real, as_vector, check_covariance, check_positive
 from ..errors import NotPositiveDefiniteError, ParameterError
 
 __all__ = ["weights", "covariance_sqrt", "check_unscented", "sigma_points", "sigma_points_unchecked"]
@@ -48,11 +49,24 @@ def check_unscented(n: int, alpha, beta, kappa) -> dict:
 
 @finite_result("the sigma points")
 def sigma_points(m: np.ndarray, P: np.ndarray, *, alpha: float = 1.0, beta: float = 2.0, kappa: float = 0.0):
-    """The 2n+1 scaled sigma points of N(m, P) and their mean/covariance weights.
+    """The 2n+1 scaled sigma points of N(m, P) and their weights.
 
-    Returns (X (2n+1, n), Wm (2n+1,), Wc (2n+1,)).  The defaults (α = 1, β = 2,
-    κ = 0) keep every weight non-negative for every n, which keeps the
-    propagated covariance PSD.
+    Parameters
+    ----------
+    m : array_like, shape (n,)
+        The mean.
+    P : array_like, shape (n, n)
+        The covariance, positive semi-definite.
+    alpha, beta, kappa : float, optional
+        Scaled unscented transform parameters; the defaults (1, 2, 0) keep every weight non-negative for
+        every n, so the propagated covariance stays positive semi-definite.
+
+    Returns
+    -------
+    X : ndarray, shape (2n+1, n)
+        The points.
+    Wm, Wc : ndarray, shape (2n+1,)
+        Mean and covariance weights.
 
     References
     ----------

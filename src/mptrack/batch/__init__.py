@@ -4,12 +4,15 @@ Functions take measurements ``z`` of shape (B, T, m) (float64 or float32) and
 return a :class:`mptrack.result.BatchFilterResult` whose ``x`` holds the filtered
 states (B, T, n), written in place into ``out`` when given (``result.x is out``).
 Each one equals its reference in :mod:`mptrack.linear` track by track.
-:func:`run_chunks` and friends split large batches and Monte-Carlo studies into
-chunks run serially, in local processes or on a Dask cluster, with resumable
-Parquet output.
+:func:`monte_carlo` and :func:`filter_chunked` run Monte-Carlo studies and batches
+larger than memory in chunks (:mod:`mptrack.runs`: serially, in local processes or
+on a Dask cluster, with resumable Parquet output).  The chunk runner itself moved
+to :mod:`mptrack.runs`; its names still import from here for one release, with a
+DeprecationWarning.
 """
 
-from ._ekf import RangeModel, range_ekf
+from .._core.moved import moved_names
+from ._ekf import RangeModel, ekf_ranges
 from ._filters import (
     GainSequence,
     fir_filter,
@@ -19,18 +22,7 @@ from ._filters import (
     predict,
     steady_state_filter,
 )
-from ._runner import (
-    EXECUTORS,
-    Chunk,
-    MonteCarloTask,
-    filter_chunked,
-    make_chunks,
-    monte_carlo,
-    part_path,
-    read_part,
-    run_chunks,
-    run_stream,
-)
+from ._studies import MonteCarloTask, filter_chunked, monte_carlo
 
 __all__ = [
     "steady_state_filter",
@@ -40,16 +32,16 @@ __all__ = [
     "per_axis",
     "gain_sequence",
     "GainSequence",
-    "run_chunks",
-    "run_stream",
-    "part_path",
-    "read_part",
-    "make_chunks",
-    "Chunk",
     "monte_carlo",
     "MonteCarloTask",
     "filter_chunked",
-    "EXECUTORS",
     "RangeModel",
-    "range_ekf",
+    "ekf_ranges",
 ]
+
+#: names that moved to mptrack.runs, the one home of chunked runs, or were renamed by the naming rule
+#: (docs/design.md; issue 34)
+MOVED = {**dict.fromkeys(("Chunk", "make_chunks", "run_chunks", "run_stream", "part_path", "read_part", "EXECUTORS"),
+                         "mptrack.runs"),
+         "range_ekf": ("mptrack.batch", "ekf_ranges")}
+__getattr__ = moved_names(__name__, MOVED)

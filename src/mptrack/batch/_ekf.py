@@ -19,22 +19,15 @@ from dataclasses import dataclass, field
 import numba as nb
 import numpy as np
 
+from .._core.finiteness import _overflow, require_finite
 from .._core.kalman import OK, predict, update, workspace
-from .._core.validation import (
-    _overflow,
-    as_matrix,
-    check_covariance,
-    check_int,
-    check_positive,
-    frozen,
-    require_finite,
-)
+from .._core.validation import as_matrix, check_covariance, check_int, check_positive, frozen
 from ..errors import ParameterError, ShapeError
 from ..result import BatchFilterResult
 from ._inputs import check_finite_out, launch, prepare_batch
 from ._kernels import _OPTS
 
-__all__ = ["RangeModel", "range_ekf"]
+__all__ = ["RangeModel", "ekf_ranges"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -150,17 +143,31 @@ def ekf_kernel(z, out, F, Q, R, stations, pos, x0, P0, lengths):
                 out[b, t, r] = np.nan
 
 
-def range_ekf(model: RangeModel, z, x0, P0, out=None, *, lengths=None) -> BatchFilterResult:
-    """Extended Kalman filter of a batch of range tracks (one covariance per track).
+def ekf_ranges(model: RangeModel, z, x0, P0, out=None, *, lengths=None) -> BatchFilterResult:
+    """Extended Kalman filter of a batch of range tracks, compiled, one covariance per track.
 
-    z        (B, T, S) ranges (metres) to the model's S stations; NaN = that range missing
-    x0       the prior x(0/0), (n,) for all tracks or (B, n); it must not sit on a station
-    P0       (n, n) prior covariance, shared
-    out, lengths  as in :func:`mptrack.batch.steady_state_filter`
-    Returns a :class:`mptrack.result.BatchFilterResult` with x the (B, T, n) filtered
-    states x(k/k) (the ``out`` array itself when given) and method "EKF"; the other
-    fields are None: each track's covariances, innovations and likelihood are formed
-    and discarded by the kernel (``mptrack.cellular.ekf_ranges_batch`` returns them all).
+    The states-only twin of :func:`mptrack.cellular.ekf_ranges_batch` for Monte-Carlo studies.
+
+    Parameters
+    ----------
+    model : RangeModel
+        F, Q, the S stations, R and the position's indices.
+    z : array_like, shape (B, T, S)
+        Ranges (m); NaN = that range missing.
+    x0 : array_like, shape (n,) or (B, n)
+        The prior x(0/0); it must not sit on a station.
+    P0 : array_like, shape (n, n)
+        The shared prior covariance.
+    out : ndarray, optional
+        As in :func:`steady_state_filter`.
+    lengths : array_like of int, optional
+        As in :func:`steady_state_filter`.
+
+    Returns
+    -------
+    BatchFilterResult
+        x the (B, T, n) filtered states, method "EKF"; the other fields None (formed and discarded per
+        track: :func:`mptrack.cellular.ekf_ranges_batch` returns them all).
 
     References
     ----------

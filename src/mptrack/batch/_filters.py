@@ -6,7 +6,7 @@ in :mod:`mptrack.linear` and is tested against it track by track.  They return a
 (``out`` when given) and whose other fields cost nothing to make: the shared
 covariance of the steady-state and FIR filters as a read-only broadcast view,
 the shared steady state or gain sequence in ``inputs``, None for what the
-kernels do not form (docs/design.md, "Batch engine").
+kernels do not form (docs/decisions/2026-11-23-batch-engine.md).
 """
 
 from __future__ import annotations
@@ -17,15 +17,10 @@ from typing import Callable
 
 import numpy as np
 
+from .._core.finiteness import require_finite
 from .._core.fir import check_order_rule, coefficients_unchecked
 from .._core.steady_input import steady_argument
-from .._core.validation import (
-    _to_array,
-    check_allocation,
-    check_covariance,
-    check_int,
-    require_finite,
-)
+from .._core.validation import check_allocation, check_covariance, check_int, _to_array
 from ..errors import NonFiniteError, ParameterError, ShapeError
 from ..linear import fir_order
 from ..models import LinearGaussianModel, require_model
@@ -180,37 +175,53 @@ def _steady_state_filter(model, z, x0=None, out=None, *, lengths=None, steady=No
 
 def steady_state_filter(model: LinearGaussianModel, z, x0=None, out=None, *, lengths=None,
                         steady: SteadyState | None = None) -> BatchFilterResult:
-    """Steady-state filter x(k/k) = A x(k-1/k-1) + B z(k) on a batch
-    (Assimakis & Adam 2014, eqs. 9-10).
+    """Steady-state filter x(k/k) = A x(k-1/k-1) + B z(k) on a batch of tracks (Assimakis & Adam 2014,
+    eqs. 9-10).
 
-    model    the LinearGaussianModel shared by all tracks
-    z        (B, T, m) measurements z(1..T) of B tracks, float64 or float32
-             (other real dtypes are converted to float64); a row with NaN only
-             predicts, x(k/k) = F x(k-1/k-1)
-    x0       prior x(0/0): None (zeros), (n,) for all tracks, or (B, n)
-    out      optional C-contiguous (B, T, n) array of z's dtype, written in place
-    lengths  optional (B,) track lengths; out[b, lengths[b]:] is NaN
-    steady   a precomputed :func:`mptrack.riccati.steady_state` (default: DARE)
+    Track b equals ``mptrack.linear.steady_state_filter(model, z[b], x0[b])`` (x, P, method); the state is
+    carried in float64 whatever the storage dtype.
 
-    Returns a :class:`mptrack.result.BatchFilterResult`:
+    Parameters
+    ----------
+    model : LinearGaussianModel
+        The model shared by all tracks.
+    z : array_like, shape (B, T, m)
+        Measurements z(1..T) of B tracks, float64 or float32; NaN = missing.
+    x0 : array_like, shape (n,) or (B, n), optional
+        The prior x(0/0) (default zeros).
+    out : ndarray, shape (B, T, n), optional
+        C-contiguous, of z's dtype: written in place (``result.x is out``).
+    lengths : array_like of int, shape (B,), optional
+        Track lengths; ``x[b, lengths[b]:]`` is NaN.
+    steady : SteadyState, optional
+        A precomputed :func:`mptrack.riccati.steady_state` (default: solved once per model).
 
-    x        the (B, T, n) filtered states x(k/k), in z's dtype: the ``out`` array
-             itself when given
-    P        the steady-state covariance Pe = ``steady.P_filt`` at every track and
-             step, a read-only (B, T, n, n) broadcast view (no memory of that size);
-             this is what the reference reports, gaps included
-    inputs   {"steady": the SteadyState used}
-    method   "SSKF" ("SSLF" for a Lainiotis-form ``steady``)
-    x_pred, P_pred, innovation, S, nis, loglik are None (the algebra has none).
+    Returns
+    -------
+    BatchFilterResult
+        x the (B, T, n) states in z's dtype; P the steady-state Pe at every track and step (a read-only
+        stride-0 view); inputs {"steady": the SteadyState}; method "SSKF" (or "SSLF"); the fields the
+        algebra does not form are None.
 
-    Track b equals ``mptrack.linear.steady_state_filter(model, z[b], x0[b])`` (x, P,
-    method).  The state is carried in float64; float32 input halves the memory traffic.
+    Raises
+    ------
+    NonFiniteError
+        An infinite z, or a track that overflowed (the message names it).
 
     References
     ----------
     .. [1] N. Assimakis and M. Adam, "Global systems for mobile position tracking using Kalman and Lainiotis
            filters", The Scientific World Journal, vol. 2014, Article ID 130512, 8 pp., 2014.
            doi:10.1155/2014/130512
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from mptrack import batch
+    >>> from mptrack.models import assimakis_model_b
+    >>> z = np.random.default_rng(0).standard_normal((1000, 50, 1))
+    >>> batch.steady_state_filter(assimakis_model_b(), z).x.shape
+    (1000, 50, 2)
     """
     return _steady_state_filter(model, z, x0, out, lengths=lengths, steady=steady)
 
@@ -281,11 +292,27 @@ def _gain_blocks(gains: GainSequence, q: int) -> tuple[np.ndarray, int]:
 def gain_sequence(model: LinearGaussianModel, steps: int, P0=None) -> GainSequence:
     """The Kalman gains K(1..steps) and covariances from P(0/0) = P0 (Assimakis & Adam 2014, eq. 4).
 
-    They do not depend on the measurements, so one sequence serves every track
-    that shares the model and the prior covariance.  Computed by the compiled
-    Kalman predict/update that the single-track Kalman filter runs (a Cholesky
-    solve with S), so a shared-gain track equals :func:`mptrack.linear.kalman_filter`
-    to rounding.
+    They do not depend on the measurements, so one sequence serves every track that shares the model and
+    the prior covariance; computed by the compiled Kalman core, so a shared-gain track equals
+    :func:`mptrack.linear.kalman_filter` to rounding.
+
+    Parameters
+    ----------
+    model : LinearGaussianModel
+    steps : int
+        >= 1.
+    P0 : array_like, shape (n, n), optional
+        Default 0.
+
+    Returns
+    -------
+    GainSequence
+        K, P_filt, P_pred, and A(k) = (I - K(k) H) F.
+
+    Raises
+    ------
+    ResourceError
+        The sequence would exceed the memory limit.
 
     References
     ----------
@@ -338,25 +365,35 @@ def _kalman_filter(model, z, x0=None, P0=None, out=None, *, lengths=None, gains=
 
 def kalman_filter(model: LinearGaussianModel, z, x0=None, P0=None, out=None, *, lengths=None,
                   gains: GainSequence | None = None) -> BatchFilterResult:
-    """Time-varying Kalman filter on a batch with one shared gain sequence
-    (Assimakis & Adam 2014, eq. 4).
+    """Kalman filter on a batch of tracks with one shared gain sequence (Assimakis & Adam 2014, eq. 4).
 
-    All tracks share the model and the prior covariance P0 (default 0), so the
-    gains K(k) are computed once (:func:`gain_sequence`, or pass ``gains``) and
-    applied to every track: x(k/k) = F x + K(k) [z(k) - H F x].  A track whose
-    measurement has a NaN component leaves the shared sequence there and runs
-    its own covariance recursion from that step on (NaN components skipped, a
-    full NaN row only predicts), exactly as :func:`mptrack.linear.kalman_filter`.
+    All tracks share the model and P0, so the gains K(k) are computed once (:func:`gain_sequence`) and
+    applied to every track; a track whose measurement has a NaN component leaves the shared sequence
+    there and runs its own covariance recursion (NaN components skipped), exactly as
+    :func:`mptrack.linear.kalman_filter`.
 
-    z, x0, out, lengths as in :func:`steady_state_filter`.  Returns a
-    :class:`mptrack.result.BatchFilterResult`:
+    Parameters
+    ----------
+    model : LinearGaussianModel
+        The model shared by all tracks.
+    z : array_like, shape (B, T, m)
+        Measurements z(1..T) of B tracks, float64 or float32; NaN = missing.
+    x0 : array_like, shape (n,) or (B, n), optional
+        The prior x(0/0) (default zeros).
+    P0 : array_like, shape (n, n), optional
+        The shared prior covariance (default 0).
+    out : ndarray, shape (B, T, n), optional
+        C-contiguous, of z's dtype: written in place (``result.x is out``).
+    lengths : array_like of int, shape (B,), optional
+        Track lengths; ``x[b, lengths[b]:]`` is NaN.
+    gains : GainSequence, optional
+        A precomputed :func:`gain_sequence`.
 
-    x        the (B, T, n) filtered states (the ``out`` array itself when given)
-    P        None: a track with a missing component has its own covariances, which
-             the kernel forms and discards ((B, T, n, n) would be many times the data)
-    inputs   {"gains": the GainSequence used}; the covariances of a track without
-             missing components are ``inputs["gains"].P_filt[:T]`` (and ``.P_pred``)
-    method   "KF"; x_pred, P_pred, innovation, S, nis, loglik are None.
+    Returns
+    -------
+    BatchFilterResult
+        x the (B, T, n) states; P None (a track with a missing component has its own covariances; the
+        shared sequence, the covariance of every complete track, is in ``inputs["gains"]``); method "KF".
 
     References
     ----------
@@ -388,16 +425,39 @@ def _fir_filter(model, z, out=None, *, lengths=None, eps=1e-3, norm=2, M=None, s
 
 def fir_filter(model: LinearGaussianModel, z, out=None, *, lengths=None, eps: float = 1e-3, norm=2,
                M: int | None = None, steady: SteadyState | None = None) -> BatchFilterResult:
-    """FIR steady-state filter x(k/k) = sum_{j<M} A^j B z(k-j) on a batch
-    (Assimakis & Adam 2014, eq. 22).
+    """FIR steady-state filter x(k/k) = sum_{j<M} A^j B z(k-j) on a batch (Assimakis & Adam 2014,
+    eq. 22).
 
-    The warm-up k < M uses the measurements available so far (the reference's
-    ``warmup="truncate"``, which equals the steady-state filter from x0 = 0).
-    M defaults to the smallest order with ||A^M|| < eps in the matrix ``norm``.
-    NaN inside a track's length is an error (NonFiniteError).
-    Returns a :class:`mptrack.result.BatchFilterResult` with x, P, inputs as in
-    :func:`steady_state_filter` and method "FIR"; track b equals
-    ``mptrack.linear.fir_filter(model, z[b], M=M)`` (x, P, method).
+    The warm-up k < M uses the measurements available so far (the reference's ``warmup="truncate"``);
+    track b equals ``mptrack.linear.fir_filter(model, z[b], M=M)``.
+
+    Parameters
+    ----------
+    model : LinearGaussianModel
+        The model shared by all tracks.
+    z : array_like, shape (B, T, m)
+        Measurements, complete inside each track's length.
+    out : ndarray, shape (B, T, n), optional
+        C-contiguous, of z's dtype: written in place (``result.x is out``).
+    lengths : array_like of int, shape (B,), optional
+        Track lengths; ``x[b, lengths[b]:]`` is NaN.
+    eps : float, optional
+    norm : optional
+        The order rule: the smallest M with ||A^M|| < eps in the matrix ``norm``.
+    M : int, optional
+        The order.
+    steady : SteadyState, optional
+        A precomputed :func:`mptrack.riccati.steady_state` (default: solved once per model).
+
+    Returns
+    -------
+    BatchFilterResult
+        As :func:`steady_state_filter`, method "FIR".
+
+    Raises
+    ------
+    NonFiniteError
+        NaN inside a track's length.
 
     References
     ----------
@@ -411,11 +471,20 @@ def fir_filter(model: LinearGaussianModel, z, out=None, *, lengths=None, eps: fl
 def predict(model: LinearGaussianModel, x, steps: int = 1, out=None) -> np.ndarray:
     """N-step prediction x(k+N/k) = F^N x(k/k) of a batch of filtered states.
 
-    x      (B, T, n) filtered states, the ``x`` of a batch filter's result (or
-           (B, T, axes * n) from :func:`per_axis` with an axis model: each axis
-           block is predicted with F^N)
-    steps  the horizon N >= 1 (time steps of model.dt)
-    out    optional C-contiguous output of x's shape and dtype (may be x itself)
+    Parameters
+    ----------
+    model : LinearGaussianModel
+    x : array_like, shape (B, T, n)
+        Filtered states (a batch filter's ``result.x``), or (B, T, axes n) from :func:`per_axis` with an
+        axis model (each axis block predicted with F^N).
+    steps : int, optional
+        The horizon N >= 1 (steps of model.dt).
+    out : ndarray, optional
+        C-contiguous output of x's shape and dtype (may be x itself).
+
+    Returns
+    -------
+    ndarray
     """
     require_model(model)
     steps = check_int("steps", steps, minimum=1)
@@ -445,17 +514,26 @@ _PER_AXIS: dict[Callable, Callable[..., BatchFilterResult]] = {
 
 def per_axis(run: Callable[..., BatchFilterResult], axis_model: LinearGaussianModel, z, *args,
              **kwargs) -> BatchFilterResult:
-    """Run a batch filter per axis with an axis model (model B;
-    Assimakis & Adam 2014, eqs. 17-18).
+    """Run a batch filter per axis with an axis model (model B; Assimakis & Adam 2014, eqs. 17-18).
 
-    run         :func:`steady_state_filter`, :func:`kalman_filter` or :func:`fir_filter`
-    axis_model  the one-axis model (n_a, m_a), e.g. ``assimakis_model_b()``
-    z           (B, T, axes * m_a), columns axis by axis [z_x, z_y, ...]
-    The axes are run as extra tracks of the same kernel, without copying z;
-    the result is ``run``'s with x (B, T, axes * n_a), state axis by axis (P, when
-    ``run`` gives it, block-diagonal; ``inputs`` those of the axis model), and
-    equals ``mptrack.linear.per_axis(reference, axis_model, z[b], ...)`` track by
-    track.  Other arguments are those of ``run`` (x0 of width axes * n_a).
+    The axes run as extra tracks of the same kernel, without copying z; the result equals
+    ``mptrack.linear.per_axis(reference, axis_model, z[b], ...)`` track by track.
+
+    Parameters
+    ----------
+    run : callable
+        :func:`steady_state_filter`, :func:`kalman_filter` or :func:`fir_filter`.
+    axis_model : LinearGaussianModel
+        The one-axis model (n_a, m_a), e.g. ``assimakis_model_b()``.
+    z : array_like, shape (B, T, axes m_a)
+        Columns axis by axis [z_x, z_y, ...].
+    *args, **kwargs
+        The other arguments of ``run`` (x0 of width axes n_a).
+
+    Returns
+    -------
+    BatchFilterResult
+        x (B, T, axes n_a), axis by axis (P, when ``run`` gives it, block-diagonal).
 
     References
     ----------

@@ -6,16 +6,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .._core.finiteness import _overflow
 from .._core.float_scan import any_nonfinite
 from .._core.threads import launch
-from .._core.validation import (
-    _overflow,
-    _to_array,
-    as_array,
-    as_vector,
-    check_allocation,
-    check_values,
-)
+from .._core.validation import as_array, as_vector, check_allocation, check_values, _to_array
 from ..errors import DTypeError, ParameterError, ShapeError
 from ..models import LinearGaussianModel
 

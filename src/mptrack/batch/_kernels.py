@@ -19,14 +19,14 @@ documented exception: complete steps run x = A(k) x + K(k) z with the shared gai
 kernels four tracks side by side in small arrays (:func:`_lane_steps`); tests/test_kalman_core.py
 checks them against the core.  Rows of k axes of n = 2, m = 1 (model B on z (B, T, 1), per axis, the
 axes of a block-diagonal model such as model A) run in *time blocks*: each axis eight steps at a time
-as vectors (``ss_kernel_blocks``, ``kf_kernel_blocks``, docs/design.md "Time blocks"), with scalar
+as vectors (``ss_kernel_blocks``, ``kf_kernel_blocks``, docs/decisions/2026-11-23-batch-engine.md "Time blocks"), with scalar
 steps (:func:`_ss21_steps`, :func:`_kf21_track`) for blocks with a gap and a row's last steps.
 
 The state is carried in float64 whatever the storage dtype; float32 only
 halves the bytes streamed.  Steps ``t >= lengths[b]`` are written as NaN.
 
 The filters' kernels also do the finiteness checks of their data while they stream it (a separate
-pass over z and one over the output cost as much as the filter, docs/design.md "Checks fused into
+pass over z and one over the output cost as much as the filter, docs/decisions/2026-11-23-batch-engine.md "Checks fused into
 the kernels"): each returns the number of tracks *flagged* -- an infinite measurement anywhere
 in the track's row of z (padding included), or a non-finite state written inside its length.  A
 track's flag is a float accumulating ``(out_scale * x) * 0.0`` over the states it stores: 0.0 when

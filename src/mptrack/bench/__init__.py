@@ -20,6 +20,17 @@ _SUITES: dict[str, Callable[[bool], dict]] = {}
 
 
 def register_suite(name: str):
+    """Decorator registering a benchmark suite ``fn(quick) -> dict`` for ``mptrack bench``.
+
+    Parameters
+    ----------
+    name : str
+
+    Returns
+    -------
+    callable
+        The decorator.
+    """
     def deco(fn: Callable[[bool], dict]):
         _SUITES[name] = fn
         return fn
@@ -34,6 +45,24 @@ def suites() -> dict[str, Callable[[bool], dict]]:
 
 
 def run_suites(names, quick: bool = False) -> list[dict]:
+    """Run benchmark suites by name.
+
+    Parameters
+    ----------
+    names : sequence of str
+    quick : bool, optional
+        Small sizes (smoke tests).
+
+    Returns
+    -------
+    list of dict
+        Each suite's {"suite", "title", "columns", "rows", "notes"}.
+
+    Raises
+    ------
+    UnknownNameError
+        An unknown suite.
+    """
     reg = suites()
     unknown = [n for n in names if n not in reg]
     if unknown:

@@ -17,8 +17,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.optimize import least_squares
 
-from .._core.validation import (as_array, as_real, check_allocation, check_covariance, check_int, check_positive,
-                                finite_result, require_finite)
+from .._core.finiteness import finite_result, require_finite
+from .._core.validation import as_array, as_real, check_allocation, check_covariance, check_int, check_positive
 from ..errors import ParameterError, ShapeError, SingularMatrixError
 from ..models import LinearGaussianModel, NonlinearModel, nonlinear_model, ranges
 from ..nonlinear import ekf_filter, ekf_filter_batch
@@ -42,13 +42,26 @@ _TINY_RANGE = float(np.finfo(float).tiny)
 
 @finite_result("the ranges")
 def range_measurement(x, stations, position=None):
-    """Ranges from the position part of states ``x`` to ``stations`` and their Jacobian (eqs. 7–10).
+    """Ranges from the position part of states to stations, and their Jacobian (Bouzera et al. 2017,
+    eqs. 7-10).
 
-    x         (..., n) states; the position is x[..., position] (default: the first d entries)
-    stations  (m, d) station positions, d = 2 or 3
-    Returns (ranges (..., m), H (..., m, n)) with H[..., i, position] = (p - B_i)/||p - B_i||
-    and zeros for non-position states.  At a station (range 0) the gradient is
-    undefined; H is 0 there (the range is floored at the smallest normal float).
+    At a station (range 0) the gradient is undefined; H is 0 there (the range is floored at the
+    smallest normal float).
+
+    Parameters
+    ----------
+    x : array_like, shape (..., n)
+        States; the position is x[..., position].
+    stations : array_like, shape (m, d)
+        Station positions, d = 2 or 3.
+    position : tuple of int, optional
+        Indices of the position in the state (default the first d entries).
+
+    Returns
+    -------
+    ranges : ndarray, shape (..., m)
+    H : ndarray, shape (..., m, n)
+        (p - B_i) / ||p - B_i|| in the position columns, zeros elsewhere.
 
     References
     ----------
@@ -90,8 +103,19 @@ def _state_indices(name: str, idx, count: int, n: int) -> tuple:
 
 
 def motion_position(motion: str, dim: int) -> tuple:
-    """Indices of the position in the state of ``motion``: (0, .., d-1) for the random walk,
-    (0, 2, 4)[:d] for constant velocity ([x, vx, y, vy, z, vz])."""
+    """Indices of the position in the state of a cellular motion model.
+
+    Parameters
+    ----------
+    motion : {"random-walk", "cv"}
+    dim : int
+        Spatial dimensions, 2 or 3.
+
+    Returns
+    -------
+    tuple of int
+        (0, .., d-1) for the random walk, (0, 2, 4)[:d] for constant velocity.
+    """
     if motion not in MOTIONS:
         raise ParameterError(f"motion: expected one of {MOTIONS}, got {motion!r}")
     dim = check_int("dim", dim, minimum=1, maximum=3)
@@ -99,8 +123,20 @@ def motion_position(motion: str, dim: int) -> tuple:
 
 
 def motion_matrix(motion: str, dim: int, dt: float = 1.0) -> np.ndarray:
-    """Transition matrix F: identity (random walk, eq. 2) or constant velocity, axis by axis
-    (state [x, vx, y, vy(, z, vz)]: F = block-diag([[1, dt], [0, 1]]) per axis).
+    """The transition matrix of a cellular motion model, axis by axis.
+
+    Parameters
+    ----------
+    motion : {"random-walk", "cv"}
+        Identity (the paper's eq. 2) or constant velocity (block-diag [[1, dt], [0, 1]] per axis).
+    dim : int
+        Spatial dimensions, 2 or 3.
+    dt : float, optional
+        Step (s).
+
+    Returns
+    -------
+    ndarray, shape (n, n)
 
     References
     ----------
@@ -118,7 +154,24 @@ def motion_matrix(motion: str, dim: int, dt: float = 1.0) -> np.ndarray:
 
 
 def check_stations(stations, *, min_count: int = 1) -> np.ndarray:
-    """Validate station positions (m, d): d in {2, 3}, finite, at least ``min_count``, no duplicates."""
+    """Validate station positions.
+
+    Parameters
+    ----------
+    stations : array_like, shape (m, d)
+        d in {2, 3}, finite, no duplicates.
+    min_count : int, optional
+        Least number of stations.
+
+    Returns
+    -------
+    ndarray, shape (m, d)
+
+    Raises
+    ------
+    ParameterError, ShapeError
+        The message starts with ``stations``.
+    """
     min_count = check_int("min_count", min_count, minimum=1)
     s = as_array("stations", stations, ndim=2)
     if s.shape[1] not in (2, 3):
@@ -159,25 +212,49 @@ def _prepare(z, stations, x0, P0, Q, R, motion, dt, *, batch: bool):
 
 @finite_result("the range EKF")
 def ekf_ranges(z, stations, x0, P0, Q, R, *, motion: str = "random-walk", dt: float = 1.0) -> FilterResult:
-    """EKF from ranges to base stations (paper eqs. 2–10), joint update of all ranges.
+    """EKF from ranges to base stations (Bouzera et al. 2017, eqs. 2-10), all ranges updated jointly.
 
-    z         (T, m) measured ranges d_i(k), k = 1..T; NaN = range missing (skipped; an all-NaN row predicts)
-    stations  (m, d) base-station positions (d = 2 or 3), distinct
-    x0, P0    prior X(0/0) (n,) and P(0/0) (n, n); n = d (random walk, X = p) or 2d
-              (cv, X = [x, vx, y, vy(, z, vz)])
-    Q         (n, n) process-noise covariance (paper: Q0 = diag(0.02, 0.02, 0.002) km^2)
-    R         range-noise variance (scalar, paper R0 = 0.222 km^2) or (m, m) covariance
-    motion    "random-walk" (the paper's X(k+1) = X(k) + w) or "cv" (constant velocity, step dt)
+    Any number of stations is accepted: with fewer than d + 1 the position is not observable from one scan
+    and the prior and motion carry the unobserved directions (the covariance shows it).
 
-    Any number of stations is accepted: with fewer than d + 1 the position is
-    not observable from one scan and the prior and motion model carry the
-    unobserved directions (the covariance shows it).
+    Parameters
+    ----------
+    z : array_like, shape (T, m)
+        Measured ranges; NaN = missing (skipped; an all-NaN row predicts).
+    stations : array_like, shape (m, d)
+        Base-station positions, d = 2 or 3, distinct.
+    x0 : array_like, shape (n,)
+        The prior X(0/0); n = d (random walk) or 2d (constant velocity, [x, vx, y, vy(, z, vz)]).
+    P0 : array_like, shape (n, n)
+        The prior covariance.
+    Q : array_like, shape (n, n)
+        Process-noise covariance (the paper's Q0 = diag(0.02, 0.02, 0.002) km^2).
+    R : float or array_like
+        Range-noise variance (the paper's R0 = 0.222 km^2) or an (m, m) covariance.
+    motion : {"random-walk", "cv"}, optional
+        The paper's X(k+1) = X(k) + w, or constant velocity with step dt.
+    dt : float, optional
+        The step of the constant-velocity motion (s).
+
+    Returns
+    -------
+    FilterResult
 
     References
     ----------
     .. [1] N. Bouzera, M. Oussalah, N. Mezhoud and A. Khireddine, "Fuzzy extended Kalman filter for dynamic
            mobile localization in urban area using wireless network", Applied Soft Computing, vol. 57, pp.
            452–467, 2017. doi:10.1016/j.asoc.2017.04.007
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from mptrack.cellular import ekf_ranges
+    >>> stations = np.array([[0.0, 0.0], [2.0, 0.0], [0.0, 2.0]])          # km
+    >>> z = np.array([[1.41, 1.42, 1.40], [1.45, 1.38, 1.44]])
+    >>> res = ekf_ranges(z, stations, [0.9, 0.9], np.eye(2), np.diag([0.02, 0.02]), 0.222)
+    >>> res.x.shape
+    (2, 2)
     """
     z, stations, x0, P0, F, Q, R, pos = _prepare(z, stations, x0, P0, Q, R, motion, dt, batch=False)
     return ekf_filter(_ranges_model(stations, F, Q, R, pos, motion), z[0], x0[0], P0)
@@ -193,7 +270,22 @@ def _ranges_model(stations, F, Q, R, pos, motion) -> NonlinearModel:
 @finite_result("the range EKF")
 def ekf_ranges_batch(z, stations, x0, P0, Q, R, *, motion: str = "random-walk",
                      dt: float = 1.0) -> BatchFilterResult:
-    """:func:`ekf_ranges` on B independent tracks at once: z (B, T, m), x0 (B, n).
+    """:func:`ekf_ranges` on B independent tracks at once.
+
+    Parameters
+    ----------
+    z : array_like, shape (B, T, m)
+        Measured ranges of B tracks.
+    stations : array_like, shape (m, d)
+        Base-station positions, d = 2 or 3, distinct.
+    x0 : array_like, shape (n,) or (B, n)
+        The prior mean(s).
+    P0, Q, R, motion, dt
+        As for :func:`ekf_ranges`.
+
+    Returns
+    -------
+    BatchFilterResult
 
     References
     ----------
@@ -211,15 +303,29 @@ def _ekf(z, stations, x0, P0, Q, R, motion, dt, *, batch: bool) -> BatchFilterRe
 
 @finite_result("the range fix")
 def range_fix(ranges, stations, *, height=None) -> np.ndarray:
-    """Snapshot position from one scan of ranges (nonlinear least squares, scipy.optimize.least_squares).
+    """Snapshot position from one scan of ranges (nonlinear least squares).
 
-    ranges    (m,) measured ranges to ``stations`` (m, d)
-    height    for 3-D stations, the handset's known height: the fix is then 2-D (x, y) with z = height,
-              which is how a ground handset is fixed from masts of similar height
-    A fix needs at least (unknowns + 1) stations (3 for a 2-D fix, 4 for 3-D) not all on one line
-    (or plane): otherwise ParameterError / SingularMatrixError.  The linearised
-    solution (differences of squared ranges) starts the Gauss–Newton iterations.
-    Useful to initialise :func:`ekf_ranges`.
+    The linearised solution (differences of squared ranges) starts the Gauss-Newton iterations
+    (scipy.optimize.least_squares).  Useful to initialise :func:`ekf_ranges`.
+
+    Parameters
+    ----------
+    ranges : array_like, shape (m,)
+        Measured ranges.
+    stations : array_like, shape (m, d)
+        Station positions, d = 2 or 3.
+    height : float, optional
+        With 3-D stations, the handset's known height: the fix is then 2-D (x, y) with z = height (a
+        ground handset fixed from masts of similar height).
+
+    Returns
+    -------
+    ndarray, shape (d,) or (2,)
+
+    Raises
+    ------
+    ParameterError, SingularMatrixError
+        Fewer than (unknowns + 1) stations (3 for a 2-D fix, 4 for 3-D), or all on one line (plane).
     """
     st = check_stations(stations)
     # the linearised start squares the ranges: bound them well inside the float64 range

@@ -27,7 +27,8 @@ from typing import Callable
 
 import numpy as np
 
-from .._core.validation import as_array, as_vector, derived_from, finite_result, renamed
+from .._core.finiteness import derived_from, finite_result, renamed
+from .._core.validation import as_array, as_vector
 from ..errors import NotPositiveDefiniteError, ParameterError, ShapeError
 from ..fuzzy import TakagiSugeno, uniform_partition
 from ..result import BatchFilterResult, FilterResult, innovation_arrays, mask_missing
@@ -57,11 +58,24 @@ _FIVE = ("very small", "small", "neutral", "large", "very large")
 
 
 def bouzera_fekf_fis(inn_universe_km=(0.0, 1.5), s_universe_km2=(0.22, 0.32), consequents=TABLE_I) -> TakagiSugeno:
-    """FIS1 of the FEKF (paper Table I, Figs. 5–6): inputs |innovation| (km) and its variance S (km^2).
+    """FIS1 of the FEKF (Bouzera et al. 2017, Table I, Figs. 5-6): inputs |innovation| (km) and its
+    variance S (km^2).
 
-    The universes are the ranges the paper reports (section 3.4: |Inn| in [0, 1.5] km,
-    S in [0.22, 0.32]); the printed membership figures are not legible, so
-    the sets are uniform triangular partitions (5 for |Inn|, 2 for S) over them.
+    The printed membership figures are not legible, so the sets are uniform triangular partitions (5 for
+    |Inn|, 2 for S) over the universes the paper reports (section 3.4).
+
+    Parameters
+    ----------
+    inn_universe_km : tuple of float, optional
+        The universe of |Inn| (km).
+    s_universe_km2 : tuple of float, optional
+        The universe of S (km^2).
+    consequents : sequence, optional
+        The rule table (5 x 2): the weight of each (|Inn| set, S set).
+
+    Returns
+    -------
+    TakagiSugeno
 
     References
     ----------
@@ -89,7 +103,19 @@ def _universe(name: str, value) -> tuple[float, float]:
 
 
 def bouzera_fcs_fis(distance_universe_km=(0.0, 1.5), consequents=TABLE_III) -> TakagiSugeno:
-    """FIS2 of the FCS (paper Table III, Fig. 7): input the measured range (km), 5 uniform triangular sets.
+    """FIS2 of the FCS (Bouzera et al. 2017, Table III, Fig. 7): input the measured range (km), five
+    uniform triangular sets.
+
+    Parameters
+    ----------
+    distance_universe_km : tuple of float, optional
+        The universe of the range (km).
+    consequents : sequence of float, optional
+        The weight of each set.
+
+    Returns
+    -------
+    TakagiSugeno
 
     References
     ----------
@@ -105,11 +131,32 @@ def bouzera_fcs_fis(distance_universe_km=(0.0, 1.5), consequents=TABLE_III) -> T
 
 
 def local_solutions(x_pred, P_pred, z, stations, R_diag, position=None):
-    """One-station EKF updates from a common prediction (eqs. 4, 11, 12, 14), batched over a leading axis.
+    """One-station EKF updates from a common prediction (Bouzera et al. 2017, eqs. 4, 11, 12, 14),
+    batched over a leading axis.
 
-    x_pred (B, n), P_pred (B, n, n), z (B, m) ranges (NaN = missing), stations (m, d), R_diag (m,),
-    position: indices of the position in the state (default the first d entries).
-    Returns (x_local (B, m, n), K (B, m, n), H (B, m, n), innov (B, m) (0 where missing), S (B, m)).
+    Parameters
+    ----------
+    x_pred : array_like, shape (B, n)
+    P_pred : array_like, shape (B, n, n)
+    z : array_like, shape (B, m)
+        Ranges (NaN = missing).
+    stations : array_like, shape (m, d)
+    R_diag : array_like, shape (m,)
+        Range variances.
+    position : tuple of int, optional
+        Indices of the position in the state (default the first d entries).
+
+    Returns
+    -------
+    x_local, K, H : ndarray, shape (B, m, n)
+        Each station's updated state, gain and Jacobian row.
+    innov, S : ndarray, shape (B, m)
+        Innovations (0 where missing) and their variances.
+
+    Raises
+    ------
+    NotPositiveDefiniteError
+        An innovation variance H P H^T + R <= 0 (an indefinite prediction).
 
     References
     ----------
@@ -145,11 +192,27 @@ def _local_solutions(x_pred, P_pred, z, stations, R_diag, pos):
 
 
 def fuse_local_solutions(x_pred, P_pred, K, H, innov, S, R_diag, y, *, covariance: str = "exact"):
-    """Fuse local single-station solutions with weights y (eqs. 15–16), batched.
+    """Fuse one-station solutions with weights (Bouzera et al. 2017, eqs. 15-16), batched.
 
-    x_pred (B, n), P_pred (B, n, n), K (B, m, n) local gains, H (B, m, n), innov (B, m), S (B, m),
-    R_diag (m,), y (B, m) >= 0.  Rows with sum(y) = 0 return the prediction.
-    Returns (x_est (B, n), P_est (B, n, n)).
+    Rows whose weights sum to 0 return the prediction.
+
+    Parameters
+    ----------
+    x_pred : array_like, shape (B, n)
+    P_pred : array_like, shape (B, n, n)
+    K, H : array_like, shape (B, m, n)
+        Local gains and Jacobian rows (:func:`local_solutions`).
+    innov, S : array_like, shape (B, m)
+    R_diag : array_like, shape (m,)
+    y : array_like, shape (B, m)
+        Weights, >= 0.
+    covariance : {"exact", "paper"}, optional
+        Eq. 16 with the cross-station terms (positive semi-definite), or as printed.
+
+    Returns
+    -------
+    x_est : ndarray, shape (B, n)
+    P_est : ndarray, shape (B, n, n)
 
     References
     ----------
@@ -243,11 +306,37 @@ def _run(kind, z, stations, x0, P0, Q, R, fis, motion, dt, covariance, batch):
 @finite_result("the FEKF")
 def fekf_ranges(z, stations, x0, P0, Q, R, *, fis: TakagiSugeno | None = None, motion: str = "random-walk",
                 dt: float = 1.0, covariance: str = "exact") -> FilterResult:
-    """Fuzzy EKF (paper Table II): local per-station EKF updates fused with weights FIS1(|Inn_i|, S_i).
+    """Fuzzy EKF (Bouzera et al. 2017, Table II): one-station EKF updates fused with the weights
+    FIS1(|Inn_i|, S_i).
 
-    Arguments as :func:`mptrack.cellular.ekf_ranges` (R scalar or diagonal); any number of stations.
-    fis         the two-input TS system (default :func:`bouzera_fekf_fis`, Table I)
-    covariance  "exact" (eq. 16 with the cross-station terms, always PSD) or "paper" (eq. 16 as printed)
+    Parameters
+    ----------
+    z : array_like, shape (T, m)
+        Measured ranges; NaN = missing (skipped; an all-NaN row predicts).
+    stations : array_like, shape (m, d)
+        Base-station positions, d = 2 or 3, distinct.
+    x0 : array_like, shape (n,)
+        The prior X(0/0); n = d (random walk) or 2d (constant velocity, [x, vx, y, vy(, z, vz)]).
+    P0 : array_like, shape (n, n)
+        The prior covariance.
+    Q : array_like, shape (n, n)
+        Process-noise covariance (the paper's Q0 = diag(0.02, 0.02, 0.002) km^2).
+    R : float or array_like
+        Range-noise variance (the paper's R0 = 0.222 km^2) or an (m, m) covariance.
+        Scalar or diagonal here (one range per local filter).
+    fis : TakagiSugeno, optional
+        The fuzzy weight system (default :func:`bouzera_fekf_fis`, Table I).
+    motion : {"random-walk", "cv"}, optional
+        The paper's X(k+1) = X(k) + w, or constant velocity with step dt.
+    dt : float, optional
+        The step of the constant-velocity motion (s).
+    covariance : {"exact", "paper"}, optional
+        The fused covariance: eq. 16 with the cross-station terms (always positive semi-definite), or
+        eq. 16 as printed (which can go indefinite).
+
+    Returns
+    -------
+    FilterResult
 
     References
     ----------
@@ -261,7 +350,22 @@ def fekf_ranges(z, stations, x0, P0, Q, R, *, fis: TakagiSugeno | None = None, m
 @finite_result("the FEKF")
 def fekf_ranges_batch(z, stations, x0, P0, Q, R, *, fis=None, motion="random-walk", dt=1.0,
                       covariance="exact") -> BatchFilterResult:
-    """:func:`fekf_ranges` on B tracks at once: z (B, T, m), x0 (B, n).
+    """:func:`fekf_ranges` on B independent tracks at once.
+
+    Parameters
+    ----------
+    z : array_like, shape (B, T, m)
+        Measured ranges of B tracks.
+    stations : array_like, shape (m, d)
+        Base-station positions, d = 2 or 3, distinct.
+    x0 : array_like, shape (n,) or (B, n)
+        The prior mean(s).
+    P0, Q, R, fis, motion, dt, covariance
+        As for :func:`fekf_ranges`.
+
+    Returns
+    -------
+    BatchFilterResult
 
     References
     ----------
@@ -275,7 +379,37 @@ def fekf_ranges_batch(z, stations, x0, P0, Q, R, *, fis=None, motion="random-wal
 @finite_result("the FCS filter")
 def fcs_ranges(z, stations, x0, P0, Q, R, *, fis: TakagiSugeno | None = None, motion: str = "random-walk",
                dt: float = 1.0, covariance: str = "exact") -> FilterResult:
-    """Fuzzy controller system (paper Table IV): as the FEKF but with weights FIS2(d_i) of the measured range.
+    """Fuzzy controller system (Bouzera et al. 2017, Table IV): as the FEKF, with the weights FIS2(d_i)
+    of the measured ranges.
+
+    Parameters
+    ----------
+    z : array_like, shape (T, m)
+        Measured ranges; NaN = missing (skipped; an all-NaN row predicts).
+    stations : array_like, shape (m, d)
+        Base-station positions, d = 2 or 3, distinct.
+    x0 : array_like, shape (n,)
+        The prior X(0/0); n = d (random walk) or 2d (constant velocity, [x, vx, y, vy(, z, vz)]).
+    P0 : array_like, shape (n, n)
+        The prior covariance.
+    Q : array_like, shape (n, n)
+        Process-noise covariance (the paper's Q0 = diag(0.02, 0.02, 0.002) km^2).
+    R : float or array_like
+        Range-noise variance (the paper's R0 = 0.222 km^2) or an (m, m) covariance.
+        Scalar or diagonal here (one range per local filter).
+    fis : TakagiSugeno, optional
+        The fuzzy weight system (default :func:`bouzera_fcs_fis`, Table III).
+    motion : {"random-walk", "cv"}, optional
+        The paper's X(k+1) = X(k) + w, or constant velocity with step dt.
+    dt : float, optional
+        The step of the constant-velocity motion (s).
+    covariance : {"exact", "paper"}, optional
+        The fused covariance: eq. 16 with the cross-station terms (always positive semi-definite), or
+        eq. 16 as printed (which can go indefinite).
+
+    Returns
+    -------
+    FilterResult
 
     References
     ----------
@@ -289,7 +423,22 @@ def fcs_ranges(z, stations, x0, P0, Q, R, *, fis: TakagiSugeno | None = None, mo
 @finite_result("the FCS filter")
 def fcs_ranges_batch(z, stations, x0, P0, Q, R, *, fis=None, motion="random-walk", dt=1.0,
                      covariance="exact") -> BatchFilterResult:
-    """:func:`fcs_ranges` on B tracks at once: z (B, T, m), x0 (B, n).
+    """:func:`fcs_ranges` on B independent tracks at once.
+
+    Parameters
+    ----------
+    z : array_like, shape (B, T, m)
+        Measured ranges of B tracks.
+    stations : array_like, shape (m, d)
+        Base-station positions, d = 2 or 3, distinct.
+    x0 : array_like, shape (n,) or (B, n)
+        The prior mean(s).
+    P0, Q, R, fis, motion, dt, covariance
+        As for :func:`fcs_ranges`.
+
+    Returns
+    -------
+    BatchFilterResult
 
     References
     ----------

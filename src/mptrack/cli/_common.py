@@ -105,9 +105,9 @@ def flag(name: str) -> str:
 
 
 def check_outputs(*inputs, **outputs) -> None:
-    """:func:`mptrack._core.validation.check_outputs` with the outputs named by their options, so a clash
+    """:func:`mptrack._core.data_checks.check_outputs` with the outputs named by their options, so a clash
     reads "--report: r.html is also given as --out"."""
-    from .._core.validation import check_outputs as check
+    from .._core.data_checks import check_outputs as check
 
     check(*inputs, **{flag(name): path for name, path in outputs.items()})
 

@@ -27,7 +27,7 @@ __all__ = ["track", "simulate", "evaluate"]
 
 def _kept(out: Path) -> str:
     """What a stopped ``track`` run kept for ``--resume`` ("" when nothing)."""
-    from ..io import PartStore
+    from ..runs import PartStore
 
     try:
         store = PartStore(out)
@@ -214,8 +214,8 @@ def track(
     except MptrackError as exc:
         fail(exc)
     out = out or _default_out(input)
-    from .._core.files import output_lock
     from .._core.validation import check_positive
+    from ..runs import output_lock
     from ..tracking import TrackOptions, track_file, write_track_report
 
     kept, summary, points = "", None, []
@@ -229,20 +229,22 @@ def track(
                 values["r_km2"] = (check_positive("range_sigma", range_sigma) / 1e3) ** 2
             options = TrackOptions(**values)
         read = _read_options(ctx, columns, time_unit, time_format, coord_unit, max_skip=max_skip)
-        with output_lock(out, track_summary, report, note=command_line()):
+        # track_file locks out and track_summary for its run; the report, written here, is locked here
+        with output_lock(report, note=command_line()):
             try:
                 with progress(quiet or json_out) as bar, flags_named(ctx):
                     summary = track_file(input, out, cells=cells, options=options, on_error=on_error,
                                          read=read, resume=resume, executor=executor, max_workers=workers,
                                          chunk_rows=chunk_rows, track_summary=track_summary, progress=bar,
-                                         on_points=None if report is None else _keep_points(points))
+                                         on_points=None if report is None else _keep_points(points),
+                                         note=command_line())
                     if report is not None:
                         with bar.task("report"):
                             write_track_report(points.pop(), report, run=summary,
                                                title=f"mptrack track {input_name(input)}")
                         summary["report"] = str(report)
             except (OSError, KeyboardInterrupt):
-                kept = _kept(out)  # under the lock: the parts are this run's
+                kept = _kept(out)  # the parts the stopped run kept (it released the lock of out)
                 raise
     except KeyboardInterrupt:
         interrupted(f"{out} is complete, the report was not written" if summary is not None
@@ -390,8 +392,8 @@ def simulate(
     import numpy as np
     import pandas as pd
 
-    from .._core.files import output_lock
     from ..io import ReadReport, write_table
+    from ..runs import output_lock
     from ..tracking import simulate_chunks
 
     n_tracks = 10 if tracks is None else tracks
@@ -466,10 +468,10 @@ def evaluate(
     """RMSE, NEES/NIS consistency and the error CDF of a track table against truth."""
     if truth is None:
         reject_given(ctx, ["tolerance_s"], "applies with --truth")
-    from .._core.files import output_lock
     from ..errors import DataError
-    from ..io import ReadReport
-    from ..tracking import evaluate_tracks, read_output
+    from ..io import ReadReport, read_output
+    from ..runs import output_lock
+    from ..tracking import evaluate_tracks
 
     held = contextlib.ExitStack()  # the report's lock, from the start to the end of the command
     truth_report = ReadReport()

@@ -11,9 +11,12 @@ Kalman filter and the particle filter of :mod:`mptrack.nonlinear` take these mod
 """
 
 from .._core.model_families import ModelFamily, register_family
-from ._fem import SCHEMES as FEM_SCHEMES
+from ._fem import fem_filter, fem_steps
+from ._fem_density import FEMStep, GridDensity, GridMixture
+from ._fem_grid import FEMGrid, shape_functions
 from ._fem_profile import fem_profile
-from ._fem import FEMGrid, FEMStep, GridDensity, GridMixture, fem_filter, fem_steps, fem_substeps, shape_functions
+from ._fem_schemes import SCHEMES as FEM_SCHEMES
+from ._fem_schemes import fem_substeps
 from ._model import (
     ZHAO2013_X0,
     BlockKernels,

@@ -1,10 +1,10 @@
 """Compiled steps of the grid filter (``_fem``).
 
-Galerkin schemes: time steps on a LAPACK band LU (see ``_fem._factorise``).  The factors are
+Galerkin schemes: time steps on a LAPACK band LU (see ``_fem_schemes._factorise``).  The factors are
 those of ``?gbtrf`` with kl = ku, stored transposed so that each column of the band is a
 contiguous row: ``F[j, r] = ab[r, j]`` with ``ab`` LAPACK's (3·kl + 1, n) band array, and ``piv``
 the 0-based row interchanges scipy returns.  Solves run in the factors' precision (single, see
-``_fem._SOLVE_DTYPE``); the density and the element matrix-vector products stay double.
+``_fem_schemes._SOLVE_DTYPE``); the density and the element matrix-vector products stay double.
 
 The characteristics scheme: band Cholesky factorisations and solves, the diffusion's SDIRK2
 steps (``diffuse``), and the transport compiled end to end (``transport_split``: grid placement,
@@ -259,7 +259,7 @@ def interpolate(Y, lo, h, n1, n2, conn, p, out):
 @njit(cache=True)
 def _stiffness(X, drift, params):
     """max over the points X (P, 2) of the Frobenius norm of the drift's Jacobian by central
-    differences with step d = 1e-5·max(1, max |X|) (``_fem._flow_steps``'s NumPy arithmetic)."""
+    differences with step d = 1e-5·max(1, max |X|) (``_fem_schemes._flow_steps``'s NumPy arithmetic)."""
     P = X.shape[0]
     big = 1.0
     for i in range(P):
@@ -292,7 +292,7 @@ def _stiffness(X, drift, params):
 @njit(cache=True)
 def flow_points(X, drift_c, drift_jit, params, duration, dt, cap):
     """Carry the points X (P, 2) in place by the noise-free drift flow over ``duration``: as many
-    capped RK4 steps as the drift's stiffness at the points needs (``_fem._flow_steps``), the
+    capped RK4 steps as the drift's stiffness at the points needs (``_fem_schemes._flow_steps``), the
     drift given by its addresses; returns the number of steps."""
     drift = _as_kernel(drift_c, drift_jit)
     stiff = _stiffness(X, drift, params)
@@ -600,7 +600,7 @@ def carry(p, lo, hi, new_lo, new_hi, duration, grid, flow, rules):
 
 @njit(cache=True)
 def transport_split(p, lo, hi, moving, duration, grid, place, flow, rules):
-    """One transport of the characteristics scheme, compiled end to end (``_fem._Characteristics``;
+    """One transport of the characteristics scheme, compiled end to end (``_fem_schemes._Characteristics``;
     a model without kernels runs the same steps with the NumPy flow in between): on a moving grid the
     next grid (``place_grid``), then the density carried onto it (``carry``).
 
@@ -641,7 +641,7 @@ def stiffness_unit(G, s00, s01, s11):
 
 @njit(cache=True)
 def diffuse_kept(kept, p, h, duration, grid, diff):
-    """The diffusion over ``duration`` of nodal values p on a grid with element sides h (``_fem._Characteristics``
+    """The diffusion over ``duration`` of nodal values p on a grid with element sides h (``_fem_schemes._Characteristics``
     describes the scheme): SDIRK2 in n steps of τ_s (n = ⌈substeps·duration/dt⌉, or with substeps = 0
     ⌈duration·ρ/step⌉, ρ the largest eigenvalue of S = H⁻¹QH⁻¹) on the band Cholesky factorisation of
     M̂ + γ·Â(C) kept for the C' = τ_s·S nearest in time of use with reuse_lo·C ⪯ C' ⪯ reuse_hi·C, or
@@ -695,7 +695,7 @@ def _no_mass(mass):
 
 @njit(cache=True)
 def predict_dt(p, lo, hi, moving, splits, kept, grid, place, flow, rules, diff):
-    """One dt of the characteristics scheme, compiled (``_fem._Characteristics.predict``): a diffusion
+    """One dt of the characteristics scheme, compiled (``_fem_schemes._Characteristics.predict``): a diffusion
     over τ/2 (``diffuse_kept``), then ``splits`` times a transport over τ = dt/splits
     (``transport_split``) and a diffusion over τ (τ/2 after the last).  Returns (status, lo, hi, p, lost,
     clipped): status 1 as for ``transport_split``, 2 when the density has no positive mass left after

@@ -10,7 +10,7 @@ from unittest import mock
 import numpy as np
 
 from .._core.validation import check_int
-from . import _fem, _fem_kernels
+from . import _fem, _fem_grid, _fem_kernels, _fem_schemes
 from ._fem import fem_filter
 from ._model import ContinuousDiscreteModel
 
@@ -26,16 +26,33 @@ def _best_time(fn, repeats: int) -> float:
 
 def fem_profile(model: ContinuousDiscreteModel, z, x0, P0, *, grid: tuple[int, int] = (20, 20),
                 repeats: int = 1) -> dict:
-    """Where the time of the default FEM grid filter (:func:`fem_filter` on ``grid``) goes: {part: seconds
-    per measurement step} for the grid placement, the transport, the diffusion, its factorisations, the
-    update and the rest (``mptrack bench --suite nonlinear`` reports it); ``repeats`` (1 to 100) runs.
+    """Where the time of the default FEM grid filter goes, per measurement step.
 
-    The run with the smallest total of ``repeats`` gives the total, the time in the predictions (``_Characteristics.predict``: one compiled
-    call per dt) and in the updates.  The prediction's time is split in proportion to the cost of its
-    pieces, each timed alone on the run's own inputs (best of ``repeats``): the predictions replayed
-    piece by piece (``predict_steps``) for the inputs of every grid placement (``place_grid``), carrying
-    of the density (``carry``) and diffusion (``diffuse_kept`` on kept factorisations), and the run's
-    count of factorisations times one's cost.  The rest is the total minus predictions and updates."""
+    The run with the smallest total of ``repeats`` gives the total and the time in the predictions and the
+    updates; the prediction's time is split in proportion to the cost of its pieces (grid placement,
+    carrying the density, diffusion, factorisations), each timed alone on the run's own inputs.
+    ``mptrack bench --suite nonlinear`` reports it.
+
+    Parameters
+    ----------
+    model : ContinuousDiscreteModel
+        The SDE model observed at discrete times.
+    z : array_like, shape (T, m)
+        Measurements; NaN components are skipped.
+    x0 : array_like, shape (n,)
+        The prior mean at time 0.
+    P0 : array_like, shape (n, n)
+        The prior covariance at time 0.
+    grid : tuple of int, optional
+        (n1, n2) elements per axis.
+    repeats : int, optional
+        Runs, 1 to 100.
+
+    Returns
+    -------
+    dict
+        {part: seconds per measurement step}.
+    """
     repeats = check_int("repeats", repeats, minimum=1, maximum=MAX_REPEATS)
 
     def timed(fn, log, record=None):
@@ -51,8 +68,8 @@ def fem_profile(model: ContinuousDiscreteModel, z, x0, P0, *, grid: tuple[int, i
     best = None
     for _ in range(repeats):
         updates, predictions, inputs = [], [], []
-        with mock.patch.object(_fem._Characteristics, "predict", timed(_fem._Characteristics.predict, predictions,
-                                                                        inputs)), \
+        with mock.patch.object(_fem_schemes._Characteristics, "predict",
+                               timed(_fem_schemes._Characteristics.predict, predictions, inputs)), \
                 mock.patch.object(_fem, "_update", timed(_fem._update, updates)):
             t = time.perf_counter()
             fem_filter(model, z, x0, P0, grid=grid)
@@ -62,8 +79,8 @@ def fem_profile(model: ContinuousDiscreteModel, z, x0, P0, *, grid: tuple[int, i
     total, predict, update, inputs = best
     scheme = inputs[0][0]
     transports, diffusions = [], []
-    with mock.patch.object(_fem, "transport_split", timed(_fem.transport_split, [], transports)), \
-            mock.patch.object(_fem, "diffuse_kept", timed(_fem.diffuse_kept, [], diffusions)):
+    with mock.patch.object(_fem_schemes, "transport_split", timed(_fem_schemes.transport_split, [], transports)), \
+            mock.patch.object(_fem_schemes, "diffuse_kept", timed(_fem_schemes.diffuse_kept, [], diffusions)):
         for s, g, p in inputs:
             s.predict_steps(g, p)
     placed = [_fem_kernels.place_grid(p, lo, hi, d, grid_, place, flow) for p, lo, hi, _, d, grid_, place, flow, _ in
@@ -72,9 +89,10 @@ def fem_profile(model: ContinuousDiscreteModel, z, x0, P0, *, grid: tuple[int, i
         "placement": sum(_best_time(lambda a=a: _fem_kernels.place_grid(a[0], a[1], a[2], *a[4:8]), repeats) for a in transports),
         "carry": sum(_best_time(lambda a=a, new=new: _fem_kernels.carry(*a[:3], new[1], new[2], a[4], a[5], *a[7:]), repeats)
                      for a, new in zip(transports, placed)),
-        "diffusion": sum(_best_time(lambda a=a: _fem.diffuse_kept(*a), repeats) for a in diffusions),
+        "diffusion": sum(_best_time(lambda a=a: _fem_schemes.diffuse_kept(*a), repeats) for a in diffusions),
         "factorisations": scheme.factorisations * _best_time(
-            lambda: _fem._band_cholesky(_fem._topology(*grid), _fem._topology(*grid)["Me"], np.float32), repeats)}
+            lambda: _fem_schemes._band_cholesky(_fem_grid._topology(*grid), _fem_grid._topology(*grid)["Me"], np.float32),
+            repeats)}
     share = predict / sum(pieces.values())
     steps = z.shape[0]
     parts = {"grid placement (moments, sigma points, box)": pieces["placement"] * share,

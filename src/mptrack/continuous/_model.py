@@ -20,8 +20,17 @@ from typing import Callable
 
 import numpy as np
 
-from .._core.validation import (as_matrix, as_vector, check_allocation, check_covariance, check_int, check_positive,
-                           check_rng, finite_result, frozen)
+from .._core.finiteness import finite_result
+from .._core.validation import (
+    as_matrix,
+    as_vector,
+    check_allocation,
+    check_covariance,
+    check_int,
+    check_positive,
+    check_rng,
+    frozen,
+)
 from ..errors import ParameterError, ShapeError
 from ..models import LinearGaussianModel, van_loan
 from .._core.gaussian import gauss_logpdf, wrap_periods
@@ -238,16 +247,29 @@ def zhao2013_model(*, variant: str = "printed", diffusion_scale: float = 1.0, be
                    dt: float = 1.0, substeps: int = 20) -> ContinuousDiscreteModel:
     """The example of Zhao et al. 2013, eq. 42: a Van der Pol-type drift observed by range and bearing.
 
-    variant "printed"  f(x) = [-x2, 0.2(x1² - 1)x2 + x1] as printed: a time-reversed
-                       Van der Pol oscillator (stable origin inside an *unstable*
-                       limit cycle); with Q = diag(10, 0.1) almost every path diverges.
-            "vdp"      the standard orientation of the cited source (Beard et al. 1999):
-                       f(x) = [x2, -x1 + 0.2(1 - x1²)x2] (stable limit cycle).
-    diffusion_scale    Q = diffusion_scale · diag(10, 0.1) per second (1 = as printed)
-    bearing "atan2"    h2 = arctan2(x1, x2), wrapped modulo 2π (quadrant-correct; our default)
-            "atan"     h2 = arctan(x1/x2) as printed, ambiguous modulo π (wrapped modulo π):
-                       x and -x give the same measurement, the source of the paper's bimodality
-    R = diag(0.1, 1) (range in state units, bearing in rad), dt = 1 s, x0 = ZHAO2013_X0.
+    R = diag(0.1, 1) (range in state units, bearing in rad), x0 = ZHAO2013_X0.
+
+    Parameters
+    ----------
+    variant : {"printed", "vdp"}, optional
+        ``"printed"``: f(x) = [-x2, 0.2 (x1^2 - 1) x2 + x1] as printed, a time-reversed Van der Pol
+        oscillator (stable origin inside an unstable limit cycle; with Q = diag(10, 0.1) almost every path
+        diverges); ``"vdp"``: the standard orientation of the cited source (Beard et al. 1999),
+        f(x) = [x2, -x1 + 0.2 (1 - x1^2) x2] (stable limit cycle).
+    diffusion_scale : float, optional
+        Q = diffusion_scale diag(10, 0.1) per second (1 = as printed).
+    bearing : {"atan2", "atan"}, optional
+        h2 = arctan2(x1, x2) wrapped modulo 2 pi (quadrant-correct; our default), or arctan(x1/x2) as
+        printed, ambiguous modulo pi (x and -x give the same measurement: the paper's bimodality).
+    dt : float, optional
+        Time between measurements (s).
+    substeps : int, optional
+        Sub-steps per dt of the model's own integrations (simulation, RK4 flows).
+
+    Returns
+    -------
+    ContinuousDiscreteModel
+        With compiled kernels (BlockKernels).
 
     References
     ----------
@@ -256,6 +278,15 @@ def zhao2013_model(*, variant: str = "printed", diffusion_scale: float = 1.0, be
            doi:10.1155/2013/175425
     .. [2] R. Beard, J. Gunther, J. Lawton and W. Stirling, "Nonlinear projection filter based on Galerkin
            approximation", Journal of Guidance, Control, and Dynamics, vol. 22, no. 2, pp. 258–266, 1999.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from mptrack.continuous import ZHAO2013_X0, simulate_sde, zhao2013_model
+    >>> model = zhao2013_model(variant="vdp", diffusion_scale=0.01)
+    >>> truth, z = simulate_sde(model, 5, np.random.default_rng(0), ZHAO2013_X0)
+    >>> truth.shape, z.shape
+    ((5, 2), (5, 2))
     """
     if variant == "printed":
         drift_kernel = kern.printed_drift
@@ -298,7 +329,32 @@ def zhao2013_model(*, variant: str = "printed", diffusion_scale: float = 1.0, be
 
 
 def linear_sde_model(A, Q, H, R, dt: float, *, substeps: int = 20, name: str = "") -> ContinuousDiscreteModel:
-    """dx = A x dt + dβ (E dβ dβ^T = Q dt), z = H x + e: the linear-Gaussian test case of the grid filters."""
+    """A linear SDE observed linearly: dx = A x dt + dbeta (E dbeta dbeta^T = Q dt), z = H x + e.
+
+    The linear-Gaussian test case of the grid filters: ``to_linear_gaussian()`` gives its exact (Van Loan)
+    discretisation, whose Kalman filter is the exact answer.
+
+    Parameters
+    ----------
+    A : array_like, shape (n, n)
+        Drift matrix.
+    Q : array_like, shape (n, n)
+        Diffusion, symmetric positive semi-definite (per second).
+    H : array_like, shape (m, n)
+        Measurement matrix.
+    R : array_like, shape (m, m)
+        Measurement-noise covariance.
+    dt : float
+        Time between measurements (s).
+    substeps : int, optional
+        Sub-steps per dt of the model's own integrations.
+    name : str, optional
+
+    Returns
+    -------
+    ContinuousDiscreteModel
+        With compiled kernels.
+    """
     A = as_matrix("A", A)
     if A.shape[0] != A.shape[1]:
         raise ShapeError(f"A: expected a square matrix, got shape {A.shape}")
@@ -312,13 +368,29 @@ def linear_sde_model(A, Q, H, R, dt: float, *, substeps: int = 20, name: str = "
 @finite_result("the simulated path")
 def simulate_sde(model: ContinuousDiscreteModel, steps: int, rng: np.random.Generator, x0,
                  *, substeps: int | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """Sample the truth x(t_k) and measurements z(k), k = 1..steps, from x(0) = x0.
+    """Sample the truth x(t_k) and the measurements z(k), k = 1..steps, from x(0) = x0.
 
-    The path is integrated with ``model.sample_transition`` in its default scheme, the
-    stochastic Heun predictor–corrector (weak order 2 for additive noise), with ``substeps``
-    sub-steps per dt (default 5 × model.substeps); drift increments are capped ("tamed") only
-    when the model sets ``max_increment``, as :func:`zhao2013_model` does.  Returns
-    (truth (steps, n), z (steps, m)); row k-1 is time k, as for the linear filters.
+    The path is integrated by ``model.sample_transition`` in its default scheme, the stochastic Heun
+    predictor-corrector (weak order 2 for additive noise); drift increments are capped only when the
+    model sets ``max_increment`` (as :func:`zhao2013_model` does).  Row k-1 is time k, as for the linear
+    filters.
+
+    Parameters
+    ----------
+    model : ContinuousDiscreteModel
+        The SDE model observed at discrete times.
+    steps : int
+        Number of measurement times, >= 1.
+    rng : numpy.random.Generator
+    x0 : array_like, shape (n,)
+        The initial state.
+    substeps : int, optional
+        Sub-steps per dt (default 5 model.substeps).
+
+    Returns
+    -------
+    truth : ndarray, shape (steps, n)
+    z : ndarray, shape (steps, m)
     """
     if not isinstance(model, ContinuousDiscreteModel):
         raise ParameterError(f"model: expected a ContinuousDiscreteModel, got {type(model).__name__}")

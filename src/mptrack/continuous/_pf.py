@@ -24,10 +24,21 @@ NOISE_STEP = 0.5
 
 
 def pf_substeps(model: ContinuousDiscreteModel, scheme: str = "rk4-split") -> int:
-    """The particle filter's default sub-steps per dt on a continuous-discrete ``model``
-    (:func:`mptrack.nonlinear.particle_filter`): model.substeps for "heun"; for "rk4-split"
-    max(ceil(model.substeps / SPLIT_RATIO), ceil(tr(Q)·dt / NOISE_STEP²)) (2 for eq. 42 with
-    Q x 0.01, 5 with Q x 0.1, 41 with Q x 1)."""
+    """The particle filter's default sub-steps per dt on a continuous-discrete model.
+
+    ``model.substeps`` for "heun"; for "rk4-split" max(ceil(model.substeps / 10), ceil(tr(Q) dt /
+    0.5^2)): 2 for eq. 42 with Q x 0.01, 5 with Q x 0.1, 41 with Q x 1.
+
+    Parameters
+    ----------
+    model : ContinuousDiscreteModel
+        The SDE model observed at discrete times.
+    scheme : {"rk4-split", "heun"}, optional
+
+    Returns
+    -------
+    int
+    """
     if scheme not in SCHEMES:
         raise ParameterError(f"scheme: expected one of {SCHEMES}, got {scheme!r}")
     if scheme == "heun":

@@ -14,7 +14,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._core.validation import check_allocation, check_int, finite_result
+from .._core.finiteness import finite_result
+from .._core.validation import check_allocation, check_int
 from ..errors import ParameterError
 from ..result import FilterResult
 from .._core.filter_inputs import prepare_nonlinear
@@ -29,8 +30,31 @@ __all__ = ["reference_filter", "pf_substep_study"]
 def reference_filter(model: ContinuousDiscreteModel, z, x0, P0, rng: np.random.Generator, *,
                      particles: int = 100_000, substeps: int | None = None,
                      scheme: str = "rk4-split") -> FilterResult:
-    """Posterior means/covariances from a bootstrap PF with ``particles`` particles (method "reference")
-    and ``substeps`` sub-steps of ``scheme`` (default 4× the particle filter's default).
+    """A high-accuracy reference: the posterior means and covariances of a many-particle bootstrap PF.
+
+    It shares no code path with the grid filter beyond the model, so FEM = reference is an independent
+    check; its Monte-Carlo error is about sigma / sqrt(particles).
+
+    Parameters
+    ----------
+    model : ContinuousDiscreteModel
+        The SDE model observed at discrete times.
+    z : array_like, shape (T, m)
+        Measurements; NaN components are skipped.
+    x0 : array_like, shape (n,)
+        The prior mean at time 0.
+    P0 : array_like, shape (n, n)
+        The prior covariance at time 0.
+    rng : numpy.random.Generator
+    particles : int, optional
+    substeps : int, optional
+        Sub-steps per dt (default 4 times the particle filter's default).
+    scheme : {"rk4-split", "heun"}, optional
+
+    Returns
+    -------
+    FilterResult
+        Method "reference".
 
     References
     ----------
@@ -48,17 +72,37 @@ def reference_filter(model: ContinuousDiscreteModel, z, x0, P0, rng: np.random.G
 def pf_substep_study(model: ContinuousDiscreteModel, z, x0, P0, seed: int = 0, *, particles: int = 10_000,
                      runs: int = 12, substeps=(1, 2, 4, 5, 10, 20, 40), schemes=("heun", "rk4-split"),
                      ref_particles: int = 200_000, ref_runs: int = 2, ref_substeps: int = 40) -> dict:
-    """Time-discretisation bias of the PF posterior mean against sub-steps per dt (docs/nonlinear.md).
+    """Time-discretisation bias of the PF posterior mean against the sub-steps per dt (docs/nonlinear.md).
 
-    The reference is the mean of ``ref_runs`` PFs with ``ref_particles`` particles and
-    ``ref_substeps`` Heun sub-steps.  For each scheme and sub-step count, ``runs`` PFs with
-    ``particles`` particles give
-      noise  RMS over time and components of (one PF − reference): the error of one filter,
-             dominated by Monte-Carlo noise when the bias is small;
-      bias   RMS of (mean of the runs − reference): the bias, plus Monte-Carlo noise of
-             about noise/√runs (reported as ``resolution``) and the reference's own noise.
-    Returns {"rows": [[scheme, substeps, noise, bias, resolution], ...], "reference_spread": RMS
-    difference of the first two references (their noise; None with one reference), "reference": mean (T, n)}.
+    The reference is the mean of ``ref_runs`` PFs with ``ref_particles`` particles and ``ref_substeps``
+    Heun sub-steps.  For each scheme and sub-step count, ``runs`` PFs give the noise (RMS of one PF minus
+    the reference) and the bias (RMS of the runs' mean minus the reference, with a Monte-Carlo resolution
+    of about noise / sqrt(runs)).
+
+    Parameters
+    ----------
+    model : ContinuousDiscreteModel
+        The SDE model observed at discrete times.
+    z : array_like, shape (T, m)
+        Measurements; NaN components are skipped.
+    x0 : array_like, shape (n,)
+        The prior mean at time 0.
+    P0 : array_like, shape (n, n)
+        The prior covariance at time 0.
+    seed : int, optional
+        Root of the runs' random streams.
+    particles, runs : int, optional
+        Particles per PF and PFs per setting.
+    substeps : sequence of int, optional
+    schemes : sequence of str, optional
+    ref_particles, ref_runs, ref_substeps : int, optional
+        The reference's settings.
+
+    Returns
+    -------
+    dict
+        "rows": [[scheme, substeps, noise, bias, resolution], ...]; "reference_spread": the RMS difference
+        of the first two references (None with one); "reference": the reference means (T, n).
     """
     z, x0, P0, _ = prepare_nonlinear(model, z, x0, P0, kinds=(ContinuousDiscreteModel,))
     seed = check_int("seed", seed, minimum=0)

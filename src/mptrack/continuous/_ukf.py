@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._core.gaussian import LOG2PI
+from .._core.kalman import OK, unscented_update
 from .._core.unscented import sigma_points, sigma_points_unchecked, weights
 from ..errors import ConvergenceError, ParameterError
 from ..result import FilterResult, innovation_arrays
@@ -21,15 +21,6 @@ from . import _kernels as kern
 from ._model import ContinuousDiscreteModel
 
 __all__ = ["cd_ukf", "drift_substeps", "ukf_predict", "ukf_update"]
-
-
-def _circular_mean(model, Z: np.ndarray, Wm: np.ndarray) -> np.ndarray:
-    zbar = Wm @ Z
-    for i, period in enumerate(model.periods):
-        if period is not None:
-            ang = Z[:, i] * (2.0 * np.pi / period)
-            zbar[i] = np.arctan2(Wm @ np.sin(ang), Wm @ np.cos(ang)) * (period / (2.0 * np.pi))
-    return zbar
 
 
 def _moment_rate(model, m, P, ut):
@@ -78,31 +69,19 @@ def ukf_predict(model: ContinuousDiscreteModel, m, P, *, substeps: int | None, u
 
 
 def ukf_update(model: ContinuousDiscreteModel, m, P, z, *, ut: dict):
-    """Unscented measurement update; NaN components of z are skipped.  Returns (m, P, loglik, innovation
-    (m,), S (m, m)), the innovation and S NaN for the components not used."""
-    ok = ~np.isnan(z)
-    nu_full, S_full = np.full(z.shape[0], np.nan), np.full((z.shape[0], z.shape[0]), np.nan)
-    if not ok.any():
-        return m, P, 0.0, nu_full, S_full
+    """Unscented measurement update (the compiled Kalman core's :func:`unscented_update`, bearings averaged
+    on the circle); NaN components of z are skipped.  Returns (m, P, loglik, innovation (m,), S (m, m)),
+    the innovation and S NaN for the components not used; an S without a Cholesky factor raises
+    LinAlgError."""
+    nu, S, nis = innovation_arrays((1,), z.shape[0])
     X, Wm, Wc = sigma_points_unchecked(m, P, **ut)
-    Z, R = model.measurement(X), model.R
-    zbar = _circular_mean(model, Z, Wm)
-    dZ = model.innovation(Z, zbar)[:, ok]
-    D = X - m
-    R = R[np.ix_(ok, ok)]
-    S = (Wc[:, None] * dZ).T @ dZ + R
-    C = (Wc[:, None] * D).T @ dZ
-    nu = model.innovation(z, zbar)[ok]
-    L = np.linalg.cholesky(S)
-    K = np.linalg.solve(S, C.T).T
-    m = m + K @ nu
-    P = P - K @ S @ K.T
-    P = 0.5 * (P + P.T)
-    w = np.linalg.solve(L, nu)
-    ll = -0.5 * (w @ w + 2.0 * np.log(np.diag(L)).sum() + ok.sum() * LOG2PI)
-    nu_full[ok] = nu
-    S_full[np.ix_(ok, ok)] = S
-    return m, P, float(ll), nu_full, S_full
+    Z = np.array(model.measurement(X), dtype=float)
+    periods = np.array([0.0 if p is None else p for p in model.periods])
+    status, m, P, ll = unscented_update(np.array(m, dtype=float), np.array(P, dtype=float), X, Z, Wm, Wc,
+                                        np.asarray(model.R, dtype=float), z[None], 0, periods, nu, S, nis, 0)
+    if status != OK:
+        raise np.linalg.LinAlgError("the innovation covariance is not positive definite")
+    return m, P, float(ll), nu[0], S[0]
 
 
 def _cd_ukf_compiled(model: ContinuousDiscreteModel, z, x0, P0, substeps, ut):

@@ -73,7 +73,23 @@ _REGISTRY: dict[str, Experiment] = {}
 
 
 def register(key: str, *, paper: str, description: str, seed: int = 12345):
-    """Decorator registering ``run(ctx) -> Reproduction`` as reproduction ``key``."""
+    """Decorator registering ``run(ctx) -> Reproduction`` as a reproduction.
+
+    Parameters
+    ----------
+    key : str
+        The reproduction's key (``mptrack reproduce KEY``).
+    paper : str
+        The paper, by authors and year.
+    description : str
+    seed : int, optional
+        The default seed.
+
+    Returns
+    -------
+    callable
+        The decorator.
+    """
 
     def deco(fn: Callable[[RunContext], Reproduction]):
         if key in _REGISTRY and _REGISTRY[key].run is not fn:
@@ -99,6 +115,21 @@ def experiments() -> dict[str, Experiment]:
 
 
 def get_experiment(key: str) -> Experiment:
+    """A registered reproduction by key (:func:`experiments`).
+
+    Parameters
+    ----------
+    key : str
+
+    Returns
+    -------
+    Experiment
+
+    Raises
+    ------
+    UnknownNameError
+        The name is not registered; the message lists the known names.
+    """
     reg = experiments()
     if key not in reg:
         raise UnknownNameError(f"reproduction: unknown key {key!r}; known: {', '.join(reg) or 'none'}")
@@ -107,7 +138,25 @@ def get_experiment(key: str) -> Experiment:
 
 def run_experiment(key: str, out_root: Path, *, seed: int | None = None, quick: bool = False,
                    resume: bool = True, progress: Any = None) -> Reproduction:
-    """Run reproduction ``key`` into ``out_root/key`` and write its results.json."""
+    """Run a reproduction into ``out_root/key`` and write its results.json (atomically).
+
+    Parameters
+    ----------
+    key : str
+    out_root : str or path-like
+    seed : int, optional
+        Overrides the reproduction's default seed.
+    quick : bool, optional
+        Reduced Monte-Carlo sizes (smoke tests).
+    resume : bool, optional
+        Reuse the finished parts cached under ``out_root/key/.cache``.
+    progress : optional
+        A progress reporter (the CLI's).
+
+    Returns
+    -------
+    Reproduction
+    """
     import time
 
     exp = get_experiment(key)

@@ -178,7 +178,19 @@ def _clean_dict(d: dict) -> dict:
 
 
 def differences(rep: Reproduction, *, unexplained: bool = False) -> dict[str, list[tuple[int, int]]]:
-    """Tables with cells that differ from the paper (only those without an erratum if ``unexplained``)."""
+    """The cells of a reproduction's tables that differ from the paper.
+
+    Parameters
+    ----------
+    rep : Reproduction
+    unexplained : bool, optional
+        Only those without an erratum.
+
+    Returns
+    -------
+    dict
+        {table: [(row, column), ...]}.
+    """
     out = {}
     for k, t in rep.tables.items():
         cells = [c for c in t.mismatches() if not (unexplained and c in t.explained)]

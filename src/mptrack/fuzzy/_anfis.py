@@ -139,18 +139,36 @@ def _valid(p, kind):
 def anfis_train(inputs, target, *, sets_per_input, universes, epochs: int = 40, learning_rate: float = 0.01,
                 ridge: float = 1e-6, bounds: tuple[float, float] | None = None, names=None,
                 membership: str = "gaussian") -> AnfisResult:
-    """Train a zero-order TS system on (inputs (N, p), target (N,)) by ANFIS hybrid learning.
+    """Train a zero-order Takagi-Sugeno system by ANFIS hybrid learning (Jang 1993).
 
-    sets_per_input  number of fuzzy sets per input, e.g. (5, 2) for the paper's Table I
-    universes       per input (lo, hi): inputs are clipped to it (as the TS system does at run time)
-                    and the initial sets are an even partition of it
-    ridge           Tikhonov weight on the rule constants (keeps rules no sample fires near 0)
-    learning_rate   Jang's initial step size kappa: the length of the first premise step, in units of the
-                    universes (scaled to [0, 1])
-    bounds          (lo, hi) box for the rule constants, solved by bounded least squares
-                    (scipy.optimize.lsq_linear); e.g. (0, 1) for weights as in the paper (c_j in [0, 1])
-    membership      "gaussian" or "triangular" (the shape of every set)
     Deterministic: the same data give the same system.
+
+    Parameters
+    ----------
+    inputs : array_like, shape (N, p)
+    target : array_like, shape (N,)
+    sets_per_input : sequence of int
+        Fuzzy sets per input, e.g. (5, 2) for the paper's Table I.
+    universes : sequence of (float, float)
+        Per input (lo, hi): inputs are clipped to it, and the initial sets partition it evenly.
+    epochs : int, optional
+    learning_rate : float, optional
+        Jang's initial step size kappa, the length of the first premise step in units of the universes
+        (scaled to [0, 1]).
+    ridge : float, optional
+        Tikhonov weight on the rule constants (keeps rules no sample fires near 0).
+    bounds : tuple of float, optional
+        (lo, hi) box for the rule constants, solved by bounded least squares; (0, 1) for weights as in
+        the paper.
+    names : sequence of str, optional
+        The inputs' names.
+    membership : {"gaussian", "triangular"}, optional
+        The shape of every set.
+
+    Returns
+    -------
+    AnfisResult
+        The trained system and its training error per epoch.
 
     References
     ----------

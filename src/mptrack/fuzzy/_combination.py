@@ -15,7 +15,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._core.validation import as_array, as_vector, check_covariance, finite_result
+from .._core.finiteness import finite_result
+from .._core.validation import as_array, as_vector, check_covariance
 from ..errors import ParameterError, ShapeError, SingularMatrixError
 
 __all__ = ["fused_covariance_prop3", "fused_covariance_trace", "probabilistic_fusion"]
@@ -49,10 +50,26 @@ def _local_terms(P_pred, P_local, H, S, y):
 
 @finite_result("the fused covariance")
 def fused_covariance_prop3(P_pred, P_local, H, S, y) -> np.ndarray:
-    """Eq. 29 (Proposition 3 with a symmetric P^-): P_est from the local covariances.
+    """The fused covariance by eq. 29 of Bouzera et al. 2017 (Proposition 3, with a symmetric P^-).
 
-    P_pred (n, n), P_local (N, n, n), H (N, m, n) local measurement Jacobians, S (N, m, m) local
-    innovation covariances, y (N,) weights.  Equals eq. 16 (tested).
+    Equals eq. 16 (tested).
+
+    Parameters
+    ----------
+    P_pred : array_like, shape (n, n)
+        The predicted covariance P^-.
+    P_local : array_like, shape (N, n, n)
+        The local (one-station) covariances.
+    H : array_like, shape (N, m, n)
+        Local measurement Jacobians.
+    S : array_like, shape (N, m, m)
+        Local innovation covariances.
+    y : array_like, shape (N,)
+        Weights.
+
+    Returns
+    -------
+    ndarray, shape (n, n)
 
     References
     ----------
@@ -67,8 +84,25 @@ def fused_covariance_prop3(P_pred, P_local, H, S, y) -> np.ndarray:
 
 @finite_result("the fused covariance's trace")
 def fused_covariance_trace(P_pred, P_local, H, S, y) -> float:
-    """The first eq. 30 (Proposition 4): trace(P_est) = 2 sum_i w_i trace(P_i)
-    + trace(P^- (sum_i w_i^2 H_i^T S_i^-1 H_i) P^-) - trace(P^-).
+    """trace(P_est) by the first eq. 30 of Bouzera et al. 2017 (Proposition 4):
+    2 sum_i w_i trace(P_i) + trace(P^- (sum_i w_i^2 H_i^T S_i^-1 H_i) P^-) - trace(P^-).
+
+    Parameters
+    ----------
+    P_pred : array_like, shape (n, n)
+        The predicted covariance P^-.
+    P_local : array_like, shape (N, n, n)
+        The local (one-station) covariances.
+    H : array_like, shape (N, m, n)
+        Local measurement Jacobians.
+    S : array_like, shape (N, m, m)
+        Local innovation covariances.
+    y : array_like, shape (N,)
+        Weights.
+
+    Returns
+    -------
+    float
 
     References
     ----------
@@ -83,8 +117,20 @@ def fused_covariance_trace(P_pred, P_local, H, S, y) -> float:
 
 @finite_result("the probabilistic fusion")
 def probabilistic_fusion(X, P):
-    """The second eq. 30: X = P sum_i P_i^-1 X_i, P = (sum_i P_i^-1)^-1, for X (N, n), P (N, n, n)
-    positive definite.  Returns (x (n,), P (n, n)).
+    """Probabilistic fusion (the second eq. 30 of Bouzera et al. 2017): P = (sum_i P_i^-1)^-1,
+    x = P sum_i P_i^-1 x_i.
+
+    Parameters
+    ----------
+    X : array_like, shape (N, n)
+        The estimates.
+    P : array_like, shape (N, n, n)
+        Their covariances, positive definite.
+
+    Returns
+    -------
+    x : ndarray, shape (n,)
+    P : ndarray, shape (n, n)
 
     References
     ----------

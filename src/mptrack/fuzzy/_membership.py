@@ -6,14 +6,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._core.validation import (
-    as_array,
-    as_real,
-    check_allocation,
-    check_int,
-    check_positive,
-    renamed,
-)
+from .._core.finiteness import renamed
+from .._core.validation import as_array, as_real, check_allocation, check_int, check_positive
 from ..errors import ParameterError
 
 __all__ = ["MembershipFunction", "triangular", "trapezoidal", "gaussian", "uniform_partition"]
@@ -29,9 +23,22 @@ def _ramp(x, lo, hi, rising: bool):
 
 
 def trapezoidal(x, a: float, b: float, c: float, d: float):
-    """Trapezoid: 0 below a, rising to 1 on [a, b], 1 on [b, c], falling to 0 on [c, d], 0 above d.
+    """Trapezoidal membership: 0 below a, rising to 1 on [a, b], 1 on [b, c], falling to 0 on [c, d].
 
-    a = b (or c = d) gives a vertical edge; a = b = -inf (c = d = +inf) a left (right) shoulder.
+    a = b (or c = d) gives a vertical edge; a = b = -inf (c = d = +inf) a left (right) shoulder, the one
+    documented infinity.
+
+    Parameters
+    ----------
+    x : array_like
+        Points of the universe (NaN passes through).
+    a, b, c, d : float
+        a <= b <= c <= d.
+
+    Returns
+    -------
+    ndarray
+        Memberships in [0, 1], of x's shape.
     """
     x = as_array("x", x, allow_nan=True)
     a, b, c, d = (as_real(k, v, infinite=True) for k, v in (("a", a), ("b", b), ("c", c), ("d", d)))
@@ -48,7 +55,20 @@ def trapezoidal(x, a: float, b: float, c: float, d: float):
 
 
 def triangular(x, a: float, b: float, c: float):
-    """Triangle with feet a, c and peak b (a <= b <= c); a = b or b = c gives a right-angled shoulder."""
+    """Triangular membership with feet a, c and peak b; a = b or b = c gives a right-angled shoulder.
+
+    Parameters
+    ----------
+    x : array_like
+        Points of the universe (NaN passes through).
+    a, b, c : float
+        a <= b <= c.
+
+    Returns
+    -------
+    ndarray
+        Memberships in [0, 1], of x's shape.
+    """
     b = as_real("b", b, infinite=True)
     if not as_real("a", a, infinite=True) <= b <= as_real("c", c, infinite=True):
         raise ParameterError(f"a, b, c: expected a <= b <= c, got {a!r}, {b!r}, {c!r}")
@@ -57,7 +77,21 @@ def triangular(x, a: float, b: float, c: float):
 
 
 def gaussian(x, mean: float, sigma: float):
-    """exp(-(x - mean)^2 / (2 sigma^2))."""
+    """Gaussian membership exp(-(x - mean)^2 / (2 sigma^2)).
+
+    Parameters
+    ----------
+    x : array_like
+        Points of the universe (NaN passes through).
+    mean : float
+    sigma : float
+        > 0.
+
+    Returns
+    -------
+    ndarray
+        Memberships in [0, 1], of x's shape.
+    """
     x = as_array("x", x, allow_nan=True)
     mean, sigma = as_real("mean", mean), check_positive("sigma", sigma)
     with np.errstate(over="ignore", under="ignore"):  # (x - mean) / sigma = inf gives exp(-inf) = 0
@@ -95,11 +129,31 @@ class MembershipFunction:
 
 
 def uniform_partition(lo: float, hi: float, count: int, *, labels=None, kind: str = "triangular"):
-    """``count`` fuzzy sets evenly covering [lo, hi] (a Ruspini partition: memberships sum to 1).
+    """Fuzzy sets evenly covering [lo, hi] (a Ruspini partition: memberships sum to 1).
 
-    Triangular: peaks at lo + i (hi - lo)/(count - 1), feet at the neighbouring peaks;
-    the first and last sets are shoulders (1 outside the universe).  Gaussian:
-    same centres, sigma = spacing / 2 (memberships then only approximately sum to 1).
+    Triangular: peaks at lo + i (hi - lo)/(count - 1), feet at the neighbouring peaks, the first and last
+    sets shoulders (1 outside the universe).  Gaussian: the same centres, sigma = spacing / 2
+    (memberships then sum to 1 only approximately).
+
+    Parameters
+    ----------
+    lo, hi : float
+        The universe, lo < hi.
+    count : int
+        Number of sets, >= 2.
+    labels : sequence of str, optional
+    kind : {"triangular", "gaussian"}, optional
+
+    Returns
+    -------
+    list of MembershipFunction
+
+    Examples
+    --------
+    >>> from mptrack.fuzzy import uniform_partition
+    >>> sets = uniform_partition(0.0, 1.5, 5)
+    >>> [round(float(s(0.375)), 2) for s in sets]
+    [0.0, 1.0, 0.0, 0.0, 0.0]
     """
     lo, hi = as_real("lo", lo), as_real("hi", hi)
     count = check_int("count", count, minimum=2)

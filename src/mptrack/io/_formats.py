@@ -72,10 +72,23 @@ class Skipped:
 
 
 def input_format(path) -> str:
-    """The input format of ``path`` from its name: one of the values of :data:`FORMATS`.
+    """The input format of a file from its name: one of the values of :data:`FORMATS`.
 
-    ".txt" and ".log" files are NMEA 0183 when their first line (after ``#`` comments)
-    is an NMEA sentence, CSV otherwise.
+    ".txt" and ".log" files are NMEA 0183 when their first line (after ``#`` comments) is an NMEA
+    sentence, CSV otherwise.
+
+    Parameters
+    ----------
+    path : str or path-like
+
+    Returns
+    -------
+    str
+
+    Raises
+    ------
+    ParameterError
+        An unknown suffix.
     """
     path = check_path("path", path)
     suffix = path.suffix.lower()

@@ -268,35 +268,34 @@ def geodetic_to_enu(lat, lon, lat0, lon0, h=0.0, h0=0.0):
 
 
 def enu_to_geodetic(east, north, lat0, lon0, h0=0.0):
-    """Latitude, longitude (degrees) of the points ON the WGS-84 ellipsoid (h = 0) whose local
-    east/north coordinates (m) in the frames at (lat0, lon0) are ``east``, ``north``.
+    """Latitude and longitude of the points on the WGS-84 ellipsoid (h = 0) whose local east/north
+    coordinates are given.
 
-    The exact inverse of :func:`geodetic_to_enu` with ``h = 0``: a point of the
-    tangent plane lies above the ellipsoid (~31 m at 20 km, ~785 m at 100 km), and
-    the point returned is the one below it along the origin's up axis.  ``h0``
-    (metres) does not change the result (see :func:`geodetic_to_enu`) and is
-    accepted for the argument order of ``pymap3d.enu2geodetic``.  Arguments
-    broadcast and are validated as in :func:`geodetic_to_enu`; a point so far away
-    (thousands of km) that the vertical misses the ellipsoid raises
-    :class:`~mptrack.errors.ParameterError`.
+    The exact inverse of :func:`geodetic_to_enu` with ``h = 0``: a point of the tangent plane lies above
+    the ellipsoid (about 31 m at 20 km), and the point returned is the one below it along the origin's
+    up axis.  Closed form, no iteration: the line-ellipsoid intersection in the origin's meridian plane,
+    then the exact latitude on the ellipsoid, with the Earth-sized terms cancelled analytically.
 
-    Method (closed form, no iteration).  In the origin's meridian plane the point is
-    ``Q + u U`` with ``Q = S0 + east E + north N`` (S0 the origin on the ellipsoid,
-    E, N, U its unit vectors).  Putting it into the ellipsoid equation
-    ``(x^2 + y^2)/a^2 + z^2/b^2 = 1`` and using ``S0``'s own equation leaves the
-    quadratic ``w u^2 + 2 beta u + C = 0`` with, ``ep2 = e2 / (1 - e2)``,
-    ``w = 1 + ep2 sin^2(lat0)``, ``beta = N0 + ep2 sin(lat0) cos(lat0) north`` and
-    ``C = east^2 + north^2 (1 + ep2 cos^2(lat0))``, whose root near 0 is taken in
-    the cancellation-free form ``u = -C / (beta + sqrt(beta^2 - w C))`` (the
-    line-ellipsoid intersection).  On the ellipsoid the latitude is exact:
-    ``tan(lat) = z / ((1 - e2) p)`` with ``p`` the distance from the polar axis
-    (from ``p = N cos(lat)``, ``z = N (1 - e2) sin(lat)``); it is evaluated as
-    ``lat0 + atan2(...)`` of that normal rotated by -lat0, whose numerator
-    ``north (1 - e2 sin^2 lat0) + e2 sin(lat0) cos(lat0) u - (1 - e2) sin(lat0) (p - x)``
-    has its Earth-sized terms cancelled analytically; the longitude is
-    ``lon0 + atan2(east, x)`` with ``x`` the coordinate along the origin's meridian.
-    The previous implementation (three fixed-point passes of pymap3d on "up") is
-    the independent oracle of the tests.
+    Parameters
+    ----------
+    east, north : array_like
+        Local coordinates (m).
+    lat0, lon0 : float or array_like
+        The frames' origins (degrees), one per point or one for all (broadcast).
+    h0 : float or array_like, optional
+        The origins' heights (m); they do not change the result and are accepted for the argument order
+        of ``pymap3d.enu2geodetic``.
+
+    Returns
+    -------
+    lat, lon : ndarray
+        Degrees.
+
+    Raises
+    ------
+    ParameterError
+        A point so far away (thousands of km) that the vertical misses the ellipsoid, or coordinates out
+        of range.
     """
     shape, columns = _columns(east=(east, _PLANE), north=(north, _PLANE), lat0=(lat0, LATITUDE),
                               lon0=(lon0, LONGITUDE), h0=(h0, _METRES))

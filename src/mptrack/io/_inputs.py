@@ -14,7 +14,8 @@ from pathlib import Path
 
 import pandas as pd
 
-from .._core.validation import FRAME_LABEL, check_path
+from .._core.data_checks import FRAME_LABEL
+from .._core.validation import check_path
 from ..errors import DataError, ParameterError
 from ._formats import FORMATS, Skipped
 
@@ -36,8 +37,18 @@ class InputFiles(list):
 
 
 def input_paths(source) -> list:
-    """The paths of a resolved input (:func:`resolve_input`) that an output must not be, nor lie inside
-    (the files, and the directory they come from); none for a table in memory."""
+    """The paths of a resolved input that an output must not be, nor lie inside.
+
+    Parameters
+    ----------
+    source : pandas.DataFrame, pathlib.Path or list of Path
+        A resolved input (:func:`resolve_input`).
+
+    Returns
+    -------
+    list of pathlib.Path
+        The files and the directory they come from; none for a table in memory.
+    """
     if isinstance(source, InputFiles):
         return [*source, *([source.root] if source.root is not None else [])]
     return [] if isinstance(source, pd.DataFrame) else [check_path("source", source)]
@@ -72,11 +83,29 @@ def _names(files: list[Path], root: Path) -> str:
 
 
 def resolve_input(source, name: str = "source"):
-    """``source`` as the readers take it: a DataFrame as is; one path as a Path (a file, or a directory
-    that is a Parquet dataset); several files as a sorted list of Paths -- a list or tuple of paths
-    (one path: that path), a glob pattern (``rides/*.gpx``; one match: that file), or a directory
-    holding files of other formats than Parquet (:class:`InputFiles`).  Bad arguments are a
-    ParameterError naming ``name``; a glob that matches nothing is a DataError."""
+    """An input as the readers take it.
+
+    Parameters
+    ----------
+    source : pandas.DataFrame, str, path-like, list or tuple
+        A DataFrame (kept as is); one path (a file, or a directory that is a Parquet dataset); or several
+        files: a list or tuple of paths (one path: that path), a glob pattern (``rides/*.gpx``; one match:
+        that file), or a directory holding files of other formats than Parquet.
+    name : str, optional
+        The argument an error names.
+
+    Returns
+    -------
+    pandas.DataFrame, pathlib.Path or InputFiles
+        Several files as a sorted list of paths (:class:`InputFiles`).
+
+    Raises
+    ------
+    ParameterError
+        A bad argument (the message starts with ``name``).
+    DataError
+        A glob that matches nothing.
+    """
     if isinstance(source, (pd.DataFrame, InputFiles)):
         return source
     if isinstance(source, (list, tuple)):
@@ -109,8 +138,20 @@ def input_files(source) -> list[Path] | None:
 
 
 def input_label(source, name: str = "path"):
-    """What errors and summaries name as the input: a path, :data:`FRAME_LABEL`, or for several files
-    "N files in DIR" (their common directory); ``name`` is the argument an error names."""
+    """What errors and summaries name as an input.
+
+    Parameters
+    ----------
+    source : pandas.DataFrame, pathlib.Path or list of Path
+        A resolved input (:func:`resolve_input`).
+    name : str, optional
+        The argument an error names.
+
+    Returns
+    -------
+    str or pathlib.Path
+        The path, :data:`FRAME_LABEL` for a table in memory, or "N files in DIR" (their common directory).
+    """
     if isinstance(source, pd.DataFrame):
         return FRAME_LABEL
     if isinstance(source, (list, tuple)) and len(source) != 1:
@@ -122,7 +163,18 @@ def input_label(source, name: str = "path"):
 
 
 def input_name(source) -> str:
-    """A short name of a resolved input for progress and titles: the file's name, or "N files"."""
+    """A short name of a resolved input for progress lines and titles.
+
+    Parameters
+    ----------
+    source : pandas.DataFrame, pathlib.Path or list of Path
+        A resolved input (:func:`resolve_input`).
+
+    Returns
+    -------
+    str
+        The file's name, or "N files".
+    """
     if isinstance(source, InputFiles):
         return f"{len(source)} files"
     return FRAME_LABEL if isinstance(source, pd.DataFrame) else check_path("source", source).name

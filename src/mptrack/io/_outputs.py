@@ -47,6 +47,22 @@ OUTPUT_FORMATS = {".parquet": "parquet", ".pq": "parquet", ".csv": "csv", ".geoj
 
 
 def output_format(path) -> str:
+    """The output format of a file from its suffix (:data:`OUTPUT_FORMATS`).
+
+    Parameters
+    ----------
+    path : str or path-like
+
+    Returns
+    -------
+    str
+        "parquet", "csv", "geojson", "gpx" or "geoparquet".
+
+    Raises
+    ------
+    ParameterError
+        An unknown suffix; the message lists the known ones.
+    """
     suffix = check_path("path", path).suffix.lower()
     if suffix not in OUTPUT_FORMATS:
         raise ParameterError(f"path: unknown output format {suffix!r}; expected one of "
@@ -154,9 +170,34 @@ _WRITERS = {"parquet": _write_parquet, "csv": _write_csv, "geojson": _write_geoj
 
 
 def write_table(df, path) -> Path:
-    """Write a table (pandas DataFrame or pyarrow Table), or an iterable of tables with the same
-    columns (the rows of a track in one of them), atomically as Parquet, CSV, GeoJSON, GPX or
-    GeoParquet, chosen by the file suffix."""
+    """Write a table atomically as Parquet, CSV, GeoJSON, GPX or GeoParquet, chosen by the suffix.
+
+    The file is complete on disk or absent: written to a temporary file beside it and renamed.
+
+    Parameters
+    ----------
+    df : pandas.DataFrame, pyarrow.Table or iterable of them
+        One table, or tables with the same columns (the rows of a track in one of them), streamed.
+    path : str or path-like
+
+    Returns
+    -------
+    pathlib.Path
+
+    Raises
+    ------
+    OutputError
+        The file cannot be written (the message names it and the cause).
+
+    Examples
+    --------
+    >>> import pandas as pd
+    >>> from mptrack.io import read_output, write_table
+    >>> table = pd.DataFrame({"track_id": ["a", "a"], "lat": [45.0, 45.001], "lon": [13.0, 13.001]})
+    >>> path = write_table(table, "points.geojson")
+    >>> read_output(path)["lat"].tolist()
+    [45.0, 45.001]
+    """
     path = check_path("path", path)
     if not (isinstance(df, pd.DataFrame) or hasattr(df, "schema")) and (
             isinstance(df, (str, bytes)) or not hasattr(df, "__iter__")):
@@ -187,8 +228,25 @@ def _read_geoparquet(path) -> pd.DataFrame:
 
 
 def read_output(path) -> pd.DataFrame:
-    """The table in an output file (by its suffix, as :func:`mptrack.io.output_format`): Parquet, CSV,
-    GeoJSON, GPX or GeoParquet (without its derived ``geometry`` column)."""
+    """The table in an output file (by its suffix, as :func:`output_format`).
+
+    Each format returns the table as the Parquet output holds it (the same columns in the same order, the
+    same kinds): GeoJSON and GPX positions to 1e-7 degrees, GeoJSON's other floats to its rounding, times
+    to the precision written; GeoParquet without its derived ``geometry`` column.
+
+    Parameters
+    ----------
+    path : str or path-like
+
+    Returns
+    -------
+    pandas.DataFrame
+
+    Raises
+    ------
+    DataError
+        A missing, empty or unreadable file.
+    """
     fmt = output_format(check_path("path", path))
     if not Path(path).is_file():
         raise DataError("file not found", file=path)

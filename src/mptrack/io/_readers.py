@@ -12,8 +12,9 @@ from typing import Iterator
 import numpy as np
 import pandas as pd
 
+from .._core.data_checks import check_on_error, source_label
 from .._core.tracks import track_offsets
-from .._core.validation import check_int, check_on_error, source_label
+from .._core.validation import check_int
 from ._inputs import InputFiles, file_labels, input_label, resolve_input
 from ..errors import DataError, ParameterError
 from ._formats import Skipped, input_format, raw_chunks
@@ -26,11 +27,26 @@ __all__ = ["read_chunks", "iter_track_chunks", "iter_tracks", "read_table", "rea
 DEFAULT_CHUNK_ROWS = 50_000
 
 def input_columns(path) -> list[str]:
-    """The column names of ``path`` (a file in any of :data:`FORMATS`, a directory of Parquet files, or a
-    DataFrame) as the file has them, before names and units are recognised (:func:`read_chunks` does
-    that): e.g. to see whether a log has ``true_lat``/``true_lon`` beside ``lat``/``lon``.
+    """The column names of an input as the file has them, before names and units are recognised.
 
-    Reads only the first record.  A file that cannot be read raises DataError naming it.
+    Reads only the first record: e.g. to see whether a log has ``true_lat``/``true_lon`` beside
+    ``lat``/``lon``.
+
+    Parameters
+    ----------
+    path : str, path-like, list or pandas.DataFrame
+        A file in any of :data:`FORMATS`, a directory of Parquet files, a DataFrame read like a file, or
+        several files (a list, a glob or a directory of other files: :func:`resolve_input`), each read on its
+        own with its track ids prefixed by its name.
+
+    Returns
+    -------
+    list of str
+
+    Raises
+    ------
+    DataError
+        The file cannot be read.
     """
     source = resolve_input(path, "path")
     first = next(raw_chunks(source[0] if isinstance(source, list) else source, 1), None)
@@ -39,15 +55,38 @@ def input_columns(path) -> list[str]:
 
 def read_chunks(path, schema: Schema = FIXES, *, on_error: str = "raise", chunk_rows: int = DEFAULT_CHUNK_ROWS,
                 report: ReadReport | None = None, read: ReadOptions = ReadOptions()) -> Iterator[pd.DataFrame]:
-    """Validated chunks of ``path`` (a file in any of :data:`FORMATS`, a directory of Parquet files, a
-    DataFrame, or several files: a list, a glob or a directory of other files, see
-    :func:`mptrack.io._inputs.resolve_input`) against ``schema``.
+    """Validated chunks of an input against a schema.
 
-    Column names and units are decided from the first chunk (:func:`interpret`, with what ``read``
-    says; each decision is a note in ``report``).  Each chunk has the schema's columns, ``t``
-    (seconds, float), ``row`` (the 1-based record number in the file) and the file's other columns.
-    Bad rows raise DataError naming file, row and column, or with ``on_error="skip"`` are dropped
-    and counted in ``report``.
+    Column names and units are decided from the first chunk (each decision a note in ``report``).  Each
+    chunk has the schema's columns, ``t`` (seconds, float), ``row`` (the 1-based record number in the
+    file) and the file's other columns.
+
+    Parameters
+    ----------
+    path : str, path-like, list or pandas.DataFrame
+        A file in any of :data:`FORMATS`, a directory of Parquet files, a DataFrame read like a file, or
+        several files (a list, a glob or a directory of other files: :func:`resolve_input`), each read on its
+        own with its track ids prefixed by its name.
+    schema : Schema, optional
+        :data:`FIXES` (position fixes, the default), :data:`MEASUREMENTS` or :data:`CELLS`.
+    on_error : {"raise", "skip"}, optional
+        Raise a DataError naming file, row and column at the first bad row, or drop bad rows and count
+        them by reason in ``report``.
+    chunk_rows : int, optional
+        Rows per chunk (memory).
+    report : ReadReport, optional
+        Receives the counts of dropped rows and the notes of how the input was read.
+    read : ReadOptions, optional
+        The input's column names and units where they are not recognised.
+
+    Yields
+    ------
+    pandas.DataFrame
+
+    Raises
+    ------
+    DataError
+        A bad row (``on_error="raise"``), an unreadable file, or more dropped rows than ``read.max_skip``.
     """
     check_on_error(on_error)
     path = resolve_input(path, "path")
@@ -107,7 +146,38 @@ def _read_files(files: list, schema: Schema, on_error: str, chunk_rows: int, rep
 
 def read_table(path, schema: Schema = FIXES, *, on_error: str = "raise", report: ReadReport | None = None,
                chunk_rows: int = DEFAULT_CHUNK_ROWS, read: ReadOptions = ReadOptions()) -> pd.DataFrame:
-    """The whole validated file as one DataFrame (see :func:`read_chunks`); for small inputs."""
+    """The whole validated input as one DataFrame (:func:`read_chunks`); for small inputs.
+
+    Parameters
+    ----------
+    path : str, path-like, list or pandas.DataFrame
+        A file in any of :data:`FORMATS`, a directory of Parquet files, a DataFrame read like a file, or
+        several files (a list, a glob or a directory of other files: :func:`resolve_input`), each read on its
+        own with its track ids prefixed by its name.
+    schema : Schema, optional
+        :data:`FIXES` (position fixes, the default), :data:`MEASUREMENTS` or :data:`CELLS`.
+    on_error : {"raise", "skip"}, optional
+        Raise a DataError naming file, row and column at the first bad row, or drop bad rows and count
+        them by reason in ``report``.
+    report : ReadReport, optional
+        Receives the counts of dropped rows and the notes of how the input was read.
+    chunk_rows : int, optional
+        Rows per chunk (memory).
+    read : ReadOptions, optional
+        The input's column names and units where they are not recognised.
+
+    Returns
+    -------
+    pandas.DataFrame
+
+    Examples
+    --------
+    >>> import pandas as pd
+    >>> from mptrack.io import read_table
+    >>> log = pd.DataFrame({"time": [0, 1, 2], "lat": [45.0, 45.0001, 45.0002], "lon": [13.0, 13.0, 13.0001]})
+    >>> read_table(log)[["t", "lat", "lon"]].shape
+    (3, 3)
+    """
     parts = list(read_chunks(path, schema, on_error=on_error, report=report, chunk_rows=chunk_rows, read=read))
     return pd.concat(parts, ignore_index=True) if parts else pd.DataFrame()
 
@@ -121,20 +191,49 @@ def iter_track_chunks(path, schema: Schema = FIXES, *, on_error: str = "raise",
                       chunk_rows: int = DEFAULT_CHUNK_ROWS, report: ReadReport | None = None,
                       strict: bool | None = None, read: ReadOptions = ReadOptions(),
                       sort: bool | None = False) -> Iterator[pd.DataFrame]:
-    """Validated rows of ``path`` in chunks of whole tracks in time order: each chunk holds at least
-    ``chunk_rows`` rows (the last one may hold fewer) and never cuts a track, so memory is bounded by
-    ``chunk_rows`` plus the largest track.
+    """Validated rows of an input in chunks of whole tracks in time order.
 
-    sort   False: the rows of a track must be contiguous and in time order (a violation raises
-           DataError naming the row, or is skipped and counted with ``on_error="skip"``);
-           None: stream while the rows are in order, raise :class:`InputNotSorted` at the first
-           that is not; True: read the whole input and sort it by (track in order of first
-           appearance, time), stable, counting the rows that moved in ``report.rows_reordered``.
-    Times must increase strictly within a track for position fixes (``strict``; measurement logs
-    have one row per cell of a scan and may repeat a time).  A row that repeats the previous row of
-    its track exactly is dropped and counted (``report.duplicates_dropped``); a repeated time with
-    other values is an error (or skipped).  An input without rows is an error, and with
-    ``on_error="skip"`` so is dropping more than ``read.max_skip`` rows.
+    Each chunk holds at least ``chunk_rows`` rows (the last may hold fewer) and never cuts a track, so
+    memory is bounded by ``chunk_rows`` plus the largest track.  A row that repeats the previous row of
+    its track exactly is dropped and counted (``report.duplicates_dropped``); a repeated time with other
+    values is an error (or skipped).
+
+    Parameters
+    ----------
+    path : str, path-like, list or pandas.DataFrame
+        A file in any of :data:`FORMATS`, a directory of Parquet files, a DataFrame read like a file, or
+        several files (a list, a glob or a directory of other files: :func:`resolve_input`), each read on its
+        own with its track ids prefixed by its name.
+    schema : Schema, optional
+        :data:`FIXES` (position fixes, the default), :data:`MEASUREMENTS` or :data:`CELLS`.
+    on_error : {"raise", "skip"}, optional
+        Raise a DataError naming file, row and column at the first bad row, or drop bad rows and count
+        them by reason in ``report``.
+    chunk_rows : int, optional
+        Rows per chunk (memory).
+    report : ReadReport, optional
+        Receives the counts of dropped rows and the notes of how the input was read.
+    strict : bool, optional
+        Times must increase strictly within a track (default: for position fixes; measurement logs have
+        one row per cell of a scan and may repeat a time).
+    read : ReadOptions, optional
+        The input's column names and units where they are not recognised.
+    sort : bool, optional
+        False: the rows of a track must be contiguous and in time order (else DataError, or skipped);
+        None: stream while the rows are in order and raise :class:`InputNotSorted` at the first that is
+        not; True: read the whole input and sort it by (track in order of first appearance, time), counting
+        the rows that moved in ``report.rows_reordered``.
+
+    Yields
+    ------
+    pandas.DataFrame
+
+    Raises
+    ------
+    DataError
+        An input without rows, a bad row, or more dropped rows than ``read.max_skip``.
+    InputNotSorted
+        With ``sort=None``, at the first row out of order.
     """
     strict = (schema is FIXES) if strict is None else strict
     report = report if report is not None else ReadReport()
@@ -247,7 +346,34 @@ def _cut(rows: pd.DataFrame, chunk_rows: int) -> tuple[pd.DataFrame, list]:
 def iter_tracks(path, schema: Schema = FIXES, *, on_error: str = "raise", chunk_rows: int = DEFAULT_CHUNK_ROWS,
                 report: ReadReport | None = None, strict: bool | None = None, read: ReadOptions = ReadOptions(),
                 sort: bool | None = False) -> Iterator[tuple[str, pd.DataFrame]]:
-    """Yield (track_id, rows) one track at a time (see :func:`iter_track_chunks` for the checks)."""
+    """Validated tracks of an input, one at a time (the checks of :func:`iter_track_chunks`).
+
+    Parameters
+    ----------
+    path : str, path-like, list or pandas.DataFrame
+        A file in any of :data:`FORMATS`, a directory of Parquet files, a DataFrame read like a file, or
+        several files (a list, a glob or a directory of other files: :func:`resolve_input`), each read on its
+        own with its track ids prefixed by its name.
+    schema : Schema, optional
+        :data:`FIXES` (position fixes, the default), :data:`MEASUREMENTS` or :data:`CELLS`.
+    on_error : {"raise", "skip"}, optional
+        Raise a DataError naming file, row and column at the first bad row, or drop bad rows and count
+        them by reason in ``report``.
+    chunk_rows : int, optional
+        Rows per chunk (memory).
+    report : ReadReport, optional
+        Receives the counts of dropped rows and the notes of how the input was read.
+    strict : bool, optional
+    read : ReadOptions, optional
+        The input's column names and units where they are not recognised.
+    sort : bool, optional
+        As for :func:`iter_track_chunks`.
+
+    Yields
+    ------
+    track_id : str
+    rows : pandas.DataFrame
+    """
     for chunk in iter_track_chunks(path, schema, on_error=on_error, chunk_rows=chunk_rows, report=report,
                                    strict=strict, read=read, sort=sort):
         ids = chunk["track_id"].to_numpy(dtype=object)
@@ -348,11 +474,31 @@ def read_cells(path, *, wanted=None, on_error: str = "raise", report: ReadReport
                chunk_rows: int = DEFAULT_CHUNK_ROWS) -> pd.DataFrame:
     """A cell table in the OpenCelliD CSV layout, indexed by ``cell_id`` = "mcc-net-area-cell".
 
-    ``wanted``: keep only these cell ids (so a country-sized table is streamed,
-    not held).  Missing optional columns get their documented defaults:
-    height_m 30 m, power_dbm 43 dBm, arfcn empty (1800 MHz carrier).
-    A cell id listed twice raises DataError naming the second row; a table without rows (a header
-    only) raises DataError saying it is empty.
+    Missing optional columns get their documented defaults: height_m 30 m, power_dbm 43 dBm, arfcn empty
+    (1800 MHz carrier).
+
+    Parameters
+    ----------
+    path : str, path-like or pandas.DataFrame
+        The table (CSV or Parquet).
+    wanted : iterable of str, optional
+        Keep only these cell ids (a country-sized table is then streamed, not held).
+    on_error : {"raise", "skip"}, optional
+        Raise a DataError naming file, row and column at the first bad row, or drop bad rows and count
+        them by reason in ``report``.
+    report : ReadReport, optional
+        Receives the counts of dropped rows and the notes of how the input was read.
+    chunk_rows : int, optional
+        Rows per chunk (memory).
+
+    Returns
+    -------
+    pandas.DataFrame
+
+    Raises
+    ------
+    DataError
+        A cell id listed twice (naming the second row), or a table without rows.
     """
     wanted = None if wanted is None else set(wanted)
     report = report if report is not None else ReadReport()

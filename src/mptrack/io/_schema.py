@@ -21,7 +21,8 @@ from dataclasses import dataclass, field
 import numpy as np
 import pandas as pd
 
-from .._core.validation import ON_ERROR, _to_array
+from .._core.data_checks import ON_ERROR
+from .._core.validation import _to_array
 from ..errors import DataError, DTypeError, ParameterError, ShapeError
 from ._interpret import MAX_SECONDS
 
@@ -78,9 +79,17 @@ class Schema:
 
 
 def cell_key(mcc, net, area, cell) -> pd.Series:
-    """The cell identifier used to join measurement logs and cell tables: "mcc-net-area-cell".
+    """The cell identifier that joins measurement logs and cell tables: "mcc-net-area-cell".
 
-    Each part is a non-negative integer or a 1-D sequence of them (all of one length)."""
+    Parameters
+    ----------
+    mcc, net, area, cell : int or array_like of int
+        Non-negative integers, or 1-D sequences of them of one length.
+
+    Returns
+    -------
+    pandas.Series of str
+    """
     parts = [_id_part(name, v) for name, v in (("mcc", mcc), ("net", net), ("area", area), ("cell", cell))]
     sizes = {len(p) for p in parts} - {1}
     if len(sizes) > 1:

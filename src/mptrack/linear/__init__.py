@@ -1,7 +1,9 @@
 """Linear filters: Kalman (KF), Lainiotis (LF), their join (JKLF), steady-state (SSKF,
-SSLF, JSSKLF), FIR steady-state, and per-axis running of model B."""
+SSLF, JSSKLF), FIR steady-state, and per-axis running of model B.  They return
+:class:`mptrack.result.FilterResult` (exported from :mod:`mptrack.result`, its one home; the name
+still imports from here for one release, with a DeprecationWarning)."""
 
-from ..result import FilterResult
+from .._core.moved import moved_names
 from ._joint import join_results, per_axis
 from ._kalman import kalman_filter, kalman_step
 from ._lainiotis import lainiotis_filter, lainiotis_step
@@ -16,7 +18,6 @@ from ._registry import (
 from ._steady import fir_coefficients, fir_filter, fir_order, steady_state_filter
 
 __all__ = [
-    "FilterResult",
     "kalman_filter",
     "kalman_step",
     "lainiotis_filter",
@@ -62,3 +63,6 @@ __all__ += [
     "fit_ml",
     "FitResult",
 ]
+
+#: names whose one home is elsewhere (issue 34)
+__getattr__ = moved_names(__name__, {"FilterResult": "mptrack.result"})

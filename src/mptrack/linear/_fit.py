@@ -29,8 +29,9 @@ import numpy as np
 import scipy.optimize
 
 from .._core.blas import one_blas_thread
+from .._core.finiteness import finite_result
 from .._core.rts import rts_backward
-from .._core.validation import as_real, check_int, finite_result
+from .._core.validation import as_real, check_int
 from ..errors import ConvergenceError, MptrackError, NotPositiveDefiniteError, ParameterError
 from ..models import LinearGaussianModel, require_model
 from ._common import prepare_inputs

@@ -5,16 +5,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from .._core.finiteness import finite_result, renamed
 from .._core.rts import rts_backward_linear
-from .._core.validation import (
-    as_array,
-    as_sequence,
-    as_vector,
-    check_covariance,
-    check_record,
-    finite_result,
-    renamed,
-)
+from .._core.validation import as_array, as_sequence, as_vector, check_covariance, check_record
 from .._core.van_loan import intervals_unchecked
 from ..errors import ParameterError, ShapeError
 from ..models import ContinuousLinearModel, require_model
@@ -25,9 +18,24 @@ __all__ = ["kalman_filter_irregular", "rts_smoother_irregular", "sampling_interv
 
 
 def sampling_intervals(times, t0: float = 0.0) -> np.ndarray:
-    """The intervals dt(k) = t(k) - t(k-1) > 0 (seconds) of time stamps t(1..T) after t(0) = t0.
+    """The intervals dt(k) = t(k) - t(k-1) of time stamps after t(0) = t0.
 
-    Raises ParameterError naming the first time stamp that does not increase.
+    Parameters
+    ----------
+    times : array_like, shape (T,)
+        Time stamps (s).
+    t0 : float, optional
+        The time before the first stamp (s).
+
+    Returns
+    -------
+    ndarray, shape (T,)
+        The intervals, all > 0.
+
+    Raises
+    ------
+    ParameterError
+        A time stamp that does not increase (the message names the first).
     """
     t = as_array("times", times, ndim=1)
     if t.shape[0] == 0:
@@ -54,16 +62,35 @@ def kalman_filter_irregular(model: ContinuousLinearModel, times, z, x0=None, P0=
                             t0: float = 0.0, joseph: bool = False) -> FilterResult:
     """Kalman filter for measurements at arbitrary increasing time stamps.
 
-    model   a ContinuousLinearModel (dx = Phi x dt + L dbeta, z = H x + v)
-    times   (T,) time stamps t(1..T) of z(1..T), seconds, strictly increasing and > t0
-    z       (T, m) measurements; NaN components are skipped, a NaN row only predicts
-    x0, P0  the prior x(0/0), P(0/0) at time t0 (default zeros)
+    Each step uses F = e^(Phi dt(k)) and its exact Q (Assimakis et al. 2016, sec. 2; Van Loan's method,
+    :func:`mptrack.models.discretize_intervals`); runs of equal intervals go through the compiled loop of
+    :func:`kalman_filter` in one call, so equal intervals give :func:`kalman_filter` exactly.
 
-    Each step uses F = e^{Phi dt(k)}, Q = int_0^dt(k) e^{Phi s} L Qc L^T e^{Phi^T s} ds
-    (Assimakis et al. 2016, sec. 2; Van Loan's method; :func:`mptrack.models.discretize_intervals`); each run
-    of equal intervals goes through the compiled KF loop of :func:`kalman_filter`
-    in one call.  With equal intervals dt this is :func:`kalman_filter` on
-    ``model.discretize(dt)``.
+    Parameters
+    ----------
+    model : ContinuousLinearModel
+        dx = Phi x dt + L dbeta, z = H x + v.
+    times : array_like, shape (T,)
+        Time stamps t(1..T) of the measurements (s), strictly increasing and > t0.
+    z : array_like, shape (T, m)
+        Measurements z(1..T); NaN components are missing (a NaN row only predicts).
+    x0 : array_like, shape (n,), optional
+        The prior x(0/0) at time t0 (default zeros).
+    P0 : array_like, shape (n, n)
+        The prior covariance at t0, required.
+    t0 : float, optional
+        The prior's time (s).
+    joseph : bool, optional
+        Joseph form of the covariance update.
+
+    Returns
+    -------
+    FilterResult
+
+    Raises
+    ------
+    ParameterError
+        A time stamp that does not increase (the message names its index).
 
     References
     ----------
@@ -101,11 +128,23 @@ def kalman_filter_irregular(model: ContinuousLinearModel, times, z, x0=None, P0=
 @finite_result("the irregular-time RTS smoother")
 def rts_smoother_irregular(model: ContinuousLinearModel, times, result: FilterResult, *,
                            t0: float = 0.0) -> FilterResult:
-    """Fixed-interval RTS smoother for a filter run at irregular time stamps
-    (e.g. :func:`kalman_filter_irregular`): the backward pass of
+    """Fixed-interval RTS smoother for a filter run at irregular time stamps: the backward pass of
     :func:`rts_smoother` with F, Q rediscretised for every interval.
 
-    ``times`` and ``t0`` are those the filter ran with.
+    Parameters
+    ----------
+    model : ContinuousLinearModel
+        The model the filter ran with.
+    times : array_like, shape (T,)
+        The time stamps the filter ran with (s).
+    result : FilterResult
+        The filter's result (e.g. :func:`kalman_filter_irregular`).
+    t0 : float, optional
+        The prior's time the filter ran with (s).
+
+    Returns
+    -------
+    FilterResult
 
     References
     ----------

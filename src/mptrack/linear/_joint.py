@@ -22,7 +22,18 @@ __all__ = ["join_results", "per_axis"]
 
 
 def join_results(a: FilterResult, b: FilterResult, method: str) -> FilterResult:
-    """The papers' join: x = (x_a + x_b)/2, P = (P_a + P_b)/2 (weight 50 % each).
+    """The papers' join of two filters' estimates: x = (x_a + x_b)/2, P = (P_a + P_b)/2.
+
+    Parameters
+    ----------
+    a, b : FilterResult
+        Two filters' results on the same measurements.
+    method : str
+        The joined result's method name (e.g. "JKLF").
+
+    Returns
+    -------
+    FilterResult
 
     References
     ----------
@@ -43,13 +54,29 @@ def join_results(a: FilterResult, b: FilterResult, method: str) -> FilterResult:
 
 def per_axis(run: Callable[..., FilterResult], axis_model: LinearGaussianModel, z, x0=None, P0=None,
              **kwargs) -> FilterResult:
-    """Run ``run(axis_model, z_axis, x0_axis, P0_axis)`` on each axis and join the states.
+    """Run a filter on each axis of an axis-by-axis model and join the states (Assimakis & Adam 2014,
+    eqs. 17-18).
 
-    z   (T, axes * m_axis) measurements, axis by axis (columns [z_x, z_y, ...])
-    x0  (axes * n_axis,) prior, axis by axis;  P0 block-diagonal (off-diagonal
-        blocks must be zero to rounding, 1e-12 relative: the axes are independent)
-    The joint state is [x_axis0, x_axis1, ...] with a block-diagonal covariance
-    (Assimakis & Adam 2014, eqs. 17-18).
+    Parameters
+    ----------
+    run : callable
+        ``run(axis_model, z_axis, x0_axis, P0_axis, **kwargs) -> FilterResult``.
+    axis_model : LinearGaussianModel
+        The model of one axis.
+    z : array_like, shape (T, axes * m_axis)
+        Measurements axis by axis (columns [z_x, z_y, ...]).
+    x0 : array_like, shape (axes * n_axis,), optional
+        The prior, axis by axis.
+    P0 : array_like, optional
+        The prior covariance, block-diagonal (off-diagonal blocks zero to 1e-12 relative: the axes are
+        independent).
+    **kwargs
+        Passed to ``run``.
+
+    Returns
+    -------
+    FilterResult
+        The joint state [x_axis0, x_axis1, ...] with a block-diagonal covariance.
 
     References
     ----------

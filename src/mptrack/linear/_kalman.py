@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._core.validation import as_array, as_matrix, as_vector, finite_result
+from .._core.finiteness import finite_result
+from .._core.validation import as_array, as_matrix, as_vector
 from ..errors import ParameterError, ShapeError
 from ..models import LinearGaussianModel
 from ..result import FilterResult, innovation_arrays
@@ -19,17 +20,37 @@ _LOG2PI = np.log(2.0 * np.pi)
 @finite_result("the Kalman step")
 def kalman_step(F, H, Q, R, x, P, z, joseph: bool = False, Bu=None, predict: bool = True, *,
                 innovation: bool = False):
-    """One KF iteration: from x(k/k), P(k/k) and z(k+1) to the next filtered pair.
+    """One Kalman filter iteration in readable NumPy: from x(k/k), P(k/k) and z(k+1) to the next pair.
 
-    Bu is the control term added to the prediction (x(k+1/k) = F x + B u); predict=False
-    updates x, P with z directly (the prior is at this measurement).
+    :func:`kalman_filter` runs the same equations compiled (tests check that the two agree).  NaN
+    components of z are not used; a fully missing z only predicts.
 
-    The readable NumPy form of the equations; :func:`kalman_filter` runs the
-    same equations in a compiled loop (tests check that the two agree).
+    Parameters
+    ----------
+    F, H, Q, R : array_like
+        The model's matrices, (n, n), (m, n), (n, n), (m, m).
+    x : array_like, shape (n,)
+        x(k/k).
+    P : array_like, shape (n, n)
+        P(k/k).
+    z : array_like, shape (m,)
+        z(k+1).
+    joseph : bool, optional
+        Joseph form of the covariance update.
+    Bu : array_like, shape (n,), optional
+        Control term added to the prediction, x(k+1/k) = F x + B u.
+    predict : bool, optional
+        False: update x, P with z directly (the prior is at this measurement).
+    innovation : bool, optional
+        Also return the innovation and its covariance.
 
-    Returns (x_filt, P_filt, x_pred, P_pred, loglik_increment) and, with innovation=True, also the
-    innovation (m,) and its covariance S (m, m), NaN for the components not used.  Components of
-    z that are NaN are not used; a fully missing z only predicts.
+    Returns
+    -------
+    x_filt, P_filt, x_pred, P_pred : ndarray
+    loglik : float
+        The log-likelihood increment.
+    nu, S : ndarray, shapes (m,) and (m, m)
+        With ``innovation=True`` only: NaN for the components not used.
 
     References
     ----------
@@ -122,24 +143,43 @@ def kalman_filter(model: LinearGaussianModel, z, x0=None, P0=None, *, joseph: bo
                   Q=None, R=None, B=None, u=None, prior: str = "initial") -> FilterResult:
     """Kalman filter with the per-step Riccati recursion (Assimakis & Adam 2014, eq. 4).
 
-    model       a LinearGaussianModel
-    z           (T, m) measurements z(1..T); rows with NaN are treated as missing
-                (NaN components are skipped, a full NaN row only predicts)
-    x0, P0      the prior x(0/0) (default zeros) and P(0/0) (required: there is no safe default;
-                pass ``np.zeros((n, n))`` for a known initial state, as in the papers' example)
-    joseph      use the Joseph form (I-KH) P (I-KH)^T + K R K^T for P(k/k)
-    F, H, Q, R  time-varying model: stacks (T, ., .) replacing the model's matrices, row k used
-                for measurement k (:func:`step_matrices`); FilterPy's ``batch_filter`` convention
-    B, u        control input: x(k/k-1) = F x(k-1/k-1) + B u(k), u (T, p), B (n, p) or (T, n, p)
-    prior       "initial" (x0, P0 at time 0) or "first-measurement" (x0, P0 are the prior at the
-                first measurement: no prediction before it, as pykalman and simdkalman)
-
-    Returns a FilterResult with filtered and predicted means/covariances, the innovations, their
-    covariances S and NIS, the measurement log-likelihood, the prior as x0, P0 and, for a
-    time-varying or controlled run, the
-    per-step F, Q and B u as ``inputs`` (both for :func:`rts_smoother`).  The
-    time-invariant loop is compiled (numba); the time-varying, controlled and
+    The time-invariant loop is compiled (the one Kalman core); the time-varying, controlled and
     first-measurement forms run :func:`kalman_step` per step.
+
+    Parameters
+    ----------
+    model : LinearGaussianModel
+        The model (F, H, Q, R).
+    z : array_like, shape (T, m)
+        Measurements z(1..T); NaN components are missing (a NaN row only predicts).
+    x0 : array_like, shape (n,), optional
+        The prior x(0/0) (default zeros).
+    P0 : array_like, shape (n, n)
+        The prior covariance P(0/0), required (zeros for a known initial state, as in the papers).
+    joseph : bool, optional
+        Use the Joseph form (I - K H) P (I - K H)^T + K R K^T for P(k/k).
+    F, H, Q, R : array_like, shape (T, ., .), optional
+        A time-varying model: stacks replacing the model's matrices, row k used for measurement k
+        (FilterPy's ``batch_filter`` convention).
+    B, u : array_like, optional
+        A control input, x(k/k-1) = F x(k-1/k-1) + B u(k): u (T, p), B (n, p) or (T, n, p).
+    prior : {"initial", "first-measurement"}, optional
+        ``"initial"``: x0, P0 at time 0 (every step predicts first); ``"first-measurement"``: x0, P0 are
+        the prior at the first measurement (as pykalman and simdkalman).
+
+    Returns
+    -------
+    FilterResult
+        Filtered and predicted means and covariances, innovations, S, NIS, log-likelihood, the prior as
+        x0, P0 and, for a time-varying or controlled run, the per-step F, Q and B u as ``inputs`` (for
+        :func:`rts_smoother`).
+
+    Raises
+    ------
+    ParameterError
+        P0 missing, or arguments of the wrong shape or type (the message names the argument).
+    NonFiniteError
+        The filter overflowed float64 (the message names the input of largest magnitude).
 
     References
     ----------
@@ -148,6 +188,18 @@ def kalman_filter(model: LinearGaussianModel, z, x0=None, P0=None, *, joseph: bo
            doi:10.1155/2014/130512
     .. [2] R. E. Kalman, "A new approach to linear filtering and prediction problems", Journal of Basic
            Engineering, vol. 82, no. 1, pp. 35–45, 1960. doi:10.1115/1.3662552
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from mptrack.linear import kalman_filter
+    >>> from mptrack.models import assimakis_model_b
+    >>> from mptrack.sim import simulate_linear
+    >>> model = assimakis_model_b()
+    >>> truth, z = simulate_linear(model, 100, np.random.default_rng(1))
+    >>> result = kalman_filter(model, z, P0=np.zeros((2, 2)))
+    >>> result.x.shape, result.method
+    ((100, 2), 'KF')
     """
     z, x, P, _ = prepare_inputs(model, z, x0, P0)
     if P0 is None:

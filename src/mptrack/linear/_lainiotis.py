@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._core.validation import as_array, as_matrix, as_vector, finite_result
+from .._core.finiteness import finite_result
+from .._core.validation import as_array, as_matrix, as_vector
 from ..errors import ParameterError
 from ..models import LinearGaussianModel
 from ..result import FilterResult
@@ -17,15 +18,30 @@ __all__ = ["lainiotis_filter", "lainiotis_step"]
 
 @finite_result("the Lainiotis step")
 def lainiotis_step(lp: LainiotisParameters, F, Q, x, P, z, eye):
-    """One LF iteration (eqs. 5-6); a missing (NaN) measurement only predicts.
+    """One Lainiotis filter iteration in readable NumPy (Assimakis & Adam 2014, eqs. 5-6).
 
-    The readable NumPy form; :func:`lainiotis_filter` runs it compiled.
+    x(k+1/k+1) = Kn z + Fn [I + P On]^-1 [P Km z + x],  P(k+1/k+1) = Pn + Fn [I + P On]^-1 P Fn^T;
+    a missing (NaN) measurement only predicts.  :func:`lainiotis_filter` runs it compiled.
 
-    x(k+1/k+1) = Kn z + Fn [I + P On]^{-1} [P Km z + x]
-    P(k+1/k+1) = Pn + Fn [I + P On]^{-1} P Fn^T
+    Parameters
+    ----------
+    lp : LainiotisParameters
+        From :func:`mptrack.riccati.lainiotis_parameters`.
+    F, Q : array_like, shape (n, n)
+        Transition matrix and process noise (for a missing measurement's prediction).
+    x : array_like, shape (n,)
+        x(k/k).
+    P : array_like, shape (n, n)
+        P(k/k).
+    z : array_like, shape (m,)
+        z(k+1).
+    eye : ndarray, shape (n, n)
+        The identity (passed in so that a loop allocates it once).
 
-    lp from :func:`mptrack.riccati.lainiotis_parameters`; F, Q (n, n); x (n,); P (n, n); z (m,); eye the
-    (n, n) identity.
+    Returns
+    -------
+    x, P : ndarray
+        x(k+1/k+1), P(k+1/k+1).
 
     References
     ----------
@@ -53,11 +69,27 @@ def lainiotis_step(lp: LainiotisParameters, F, Q, x, P, z, eye):
 @finite_result("the Lainiotis filter")
 def lainiotis_filter(model: LinearGaussianModel, z, x0=None, P0=None, *,
                      params: LainiotisParameters | None = None) -> FilterResult:
-    """Lainiotis filter (Assimakis & Adam 2014, eqs. 5-7): same estimates as the KF, other algebra.
+    """Lainiotis filter (Assimakis & Adam 2014, eqs. 5-7): the KF's estimates by another algebra.
 
-    ``params`` are the off-line Lainiotis parameters; computed from ``model``
-    when not given.  Measurements with any NaN component only predict (the LF
-    has no partial update).  Returns filtered means and covariances.
+    Measurements with any NaN component only predict (the LF has no partial update).
+
+    Parameters
+    ----------
+    model : LinearGaussianModel
+        The model (F, H, Q, R).
+    z : array_like, shape (T, m)
+        Measurements z(1..T); NaN components are missing (a NaN row only predicts).
+    x0 : array_like, shape (n,), optional
+        The prior x(0/0) (default zeros).
+    P0 : array_like, shape (n, n)
+        The prior covariance P(0/0), required.
+    params : LainiotisParameters, optional
+        The off-line parameters (:func:`mptrack.riccati.lainiotis_parameters`), computed when not given.
+
+    Returns
+    -------
+    FilterResult
+        Filtered means and covariances (no prediction or innovation fields: the algebra has none).
 
     References
     ----------

@@ -19,9 +19,10 @@ from typing import Literal
 
 import numpy as np
 
+from .._core.finiteness import finite_result
 from .._core.lyapunov import power_sum_unchecked
 from .._core.steady_input import steady_argument
-from .._core.validation import as_array, check_int, check_record, finite_result
+from .._core.validation import as_array, check_int, check_record
 from ..errors import ParameterError, ShapeError, SingularMatrixError
 from ..models import LinearGaussianModel, require_model
 from ..result import FilterResult
@@ -42,14 +43,29 @@ def prediction_matrices(model: LinearGaussianModel, N: int, *,
                         steady: SteadyState | None = None) -> tuple[np.ndarray, np.ndarray]:
     """(A_N, B_N) of the steady-state N-step predictor (Assimakis et al. 2016, eq. 20).
 
-    A_N = F^N (I - K H) F^{-(N-1)} and B_N = F^N K, with K the steady-state
-    Kalman gain (``steady`` or solved here with the DARE).  N = 1 gives
-    A_1 = F (I - KH), B_1 = F K (eq. 16).
+    A_N = F^N (I - K H) F^-(N-1) and B_N = F^N K with K the steady-state gain; N = 1 gives
+    A_1 = F (I - K H), B_1 = F K (eq. 16).
 
-    Raises SingularMatrixError when F is singular and N >= 2: the recursion
-    carries x(k+N-1/k-1) = F^{N-1} x(k/k-1), from which x(k/k-1) can only be
-    recovered through F^{-(N-1)}.  Use :func:`steady_state_predictor` with
-    ``method="inverse-free"`` then.
+    Parameters
+    ----------
+    model : LinearGaussianModel
+        The model (F, H, Q, R).
+    N : int
+        Steps ahead, >= 1.
+    steady : SteadyState, optional
+        A precomputed :func:`mptrack.riccati.steady_state` (the off-line part); solved once per model
+        when not given.
+
+    Returns
+    -------
+    A_N : ndarray, shape (n, n)
+    B_N : ndarray, shape (n, m)
+
+    Raises
+    ------
+    SingularMatrixError
+        F is singular and N >= 2 (x(k/k-1) can only be recovered through F^-(N-1)); use
+        :func:`steady_state_predictor` with ``method="inverse-free"``.
 
     References
     ----------
@@ -79,11 +95,24 @@ def prediction_matrices(model: LinearGaussianModel, N: int, *,
 
 @finite_result("the N-step prediction covariance")
 def prediction_covariance(model: LinearGaussianModel, P_filt, N: int) -> np.ndarray:
-    """P(k+N/k) = F^N P(k/k) F^{N T} + sum_{j<N} F^j Q F^{j T} for a single (n, n) P_filt
-    or a sequence (T, n, n).
+    """The N-step prediction covariance P(k+N/k) = F^N P(k/k) F^NT + sum_{j<N} F^j Q F^jT.
 
-    F^N and the sum come from repeated squaring, (F^{2j}, S_{2j}) = (F^j F^j, S_j + F^j S_j F^{j T}),
-    so the cost grows with log N (N = 10^12 takes 40 squarings, not 10^12 steps)."""
+    F^N and the sum come from repeated squaring, so the cost grows with log N.
+
+    Parameters
+    ----------
+    model : LinearGaussianModel
+        The model (F, H, Q, R).
+    P_filt : array_like, shape (n, n) or (T, n, n)
+        One filtered covariance or a sequence.
+    N : int
+        Steps ahead, >= 1.
+
+    Returns
+    -------
+    ndarray
+        Of ``P_filt``'s shape.
+    """
     require_model(model)
     N = check_int("N", N, minimum=1)
     P = as_array("P_filt", P_filt)
@@ -101,17 +130,32 @@ def steady_state_predictor(model: LinearGaussianModel, z, N: int = 1, x0=None, *
                            method: Literal["recursive", "inverse-free"] = "recursive") -> FilterResult:
     """Steady-state N-step prediction x(k+N/k), k = 1..T (Assimakis et al. 2016, eqs. 15-20).
 
-    model   a LinearGaussianModel (the steady state must exist)
-    z       (T, m) measurements z(1..T); a NaN row only predicts
-    N       steps ahead, N >= 1
-    x0      the prior x(0/0) (default 0, as in the paper)
-    method  "recursive": the paper's x(k+N/k) = A_N x(k+N-1/k-1) + B_N z(k)
-            from x(N/0) = F^N x0 (needs F invertible for N >= 2);
-            "inverse-free": x(k+N/k) = F^N x(k/k) from the steady-state filter.
-            Both give the same numbers (to rounding).
+    Parameters
+    ----------
+    model : LinearGaussianModel
+        The model (F, H, Q, R).
+    z : array_like, shape (T, m)
+        Measurements z(1..T); NaN components are missing (a NaN row only predicts).
+    N : int, optional
+        Steps ahead, >= 1.
+    x0 : array_like, shape (n,), optional
+        The prior x(0/0) (default 0, as in the paper).
+    steady : SteadyState, optional
+        A precomputed :func:`mptrack.riccati.steady_state` (the off-line part); solved once per model
+        when not given.
+    method : {"recursive", "inverse-free"}, optional
+        The paper's x(k+N/k) = A_N x(k+N-1/k-1) + B_N z(k) from x(N/0) = F^N x0 (needs F invertible for
+        N >= 2), or x(k+N/k) = F^N x(k/k) from the steady-state filter; both give the same numbers.
 
-    Returns a FilterResult whose row k-1 holds x(k+N/k) and the steady-state
-    N-step prediction covariance F^N Pe F^{N T} + sum_{j<N} F^j Q F^{j T}.
+    Returns
+    -------
+    FilterResult
+        Row k-1 holds x(k+N/k), with the N-step covariance F^N Pe F^NT + sum_{j<N} F^j Q F^jT.
+
+    Raises
+    ------
+    SingularMatrixError
+        ``method="recursive"`` with N >= 2 and an ill-conditioned F.
 
     References
     ----------
@@ -141,12 +185,25 @@ def steady_state_predictor(model: LinearGaussianModel, z, N: int = 1, x0=None, *
 
 @finite_result("the N-step prediction")
 def predict_ahead(model: LinearGaussianModel, result: FilterResult, N: int) -> FilterResult:
-    """N-step predictions from any filter's estimates, x(k+N/k) = F^N x(k/k)
-    (Assimakis et al. 2016, eq. 14) and P(k+N/k) = F^N P(k/k) F^{N T} + sum_{j<N} F^j Q F^{j T}.
+    """N-step predictions from any filter's estimates (Assimakis et al. 2016, eq. 14).
 
-    With a :func:`kalman_filter` result this is the time-varying Kalman
-    N-step predictor; with :func:`steady_state_filter` it is the inverse-free
-    steady-state predictor.  Row k-1 holds x(k+N/k).
+    x(k+N/k) = F^N x(k/k) and P(k+N/k) = F^N P(k/k) F^NT + sum_{j<N} F^j Q F^jT.  With a
+    :func:`kalman_filter` result this is the time-varying Kalman N-step predictor; with
+    :func:`steady_state_filter` the inverse-free steady-state predictor.
+
+    Parameters
+    ----------
+    model : LinearGaussianModel
+        The model (F, H, Q, R).
+    result : FilterResult
+        A filter's result.
+    N : int
+        Steps ahead, >= 1.
+
+    Returns
+    -------
+    FilterResult
+        Row k-1 holds x(k+N/k): compare with the truth shifted by N.
 
     References
     ----------

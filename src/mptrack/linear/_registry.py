@@ -113,6 +113,21 @@ FILTERS: dict[str, FilterSpec] = {spec.name: spec for spec in (
 
 
 def get_filter(name: str) -> FilterSpec:
+    """A registered filter by name (case-insensitive): KF, LF, SSKF, SSLF, FIR, ... (:data:`FILTERS`).
+
+    Parameters
+    ----------
+    name : str
+
+    Returns
+    -------
+    FilterSpec
+
+    Raises
+    ------
+    UnknownNameError
+        The name is not registered; the message lists the known names.
+    """
     return lookup("name", name, FILTERS, what="filter", fold=str.upper)
 
 
@@ -160,7 +175,21 @@ IMPLEMENTATIONS: tuple[Implementation, ...] = tuple(
 
 
 def get_implementation(key: int | str) -> Implementation:
-    """An implementation by its Table 1 number (1-12) or name ("KF-A", "jssklf-b", ...).
+    """One of the 12 implementations of Table 1 of Assimakis & Adam 2014.
+
+    Parameters
+    ----------
+    key : int or str
+        Its number (1-12) or name ("KF-A", "jssklf-b", ...; case-insensitive).
+
+    Returns
+    -------
+    Implementation
+
+    Raises
+    ------
+    UnknownNameError
+        No such implementation.
 
     References
     ----------

@@ -15,9 +15,10 @@ from __future__ import annotations
 import numpy as np
 import scipy.linalg
 
+from .._core.finiteness import finite_result
 from .._core.rts import rts_backward, rts_backward_linear, smoother_gains
 from .._core.steady_input import steady_argument
-from .._core.validation import check_record, finite_result
+from .._core.validation import check_record
 from ..errors import ParameterError, ShapeError
 from ..models import LinearGaussianModel, require_model
 from ..result import FilterResult
@@ -39,24 +40,23 @@ def _check(model, result) -> None:
 @finite_result("the RTS smoother")
 def rts_smoother(model: LinearGaussianModel, result: FilterResult, *, F=None, Q=None, B=None,
                  u=None) -> FilterResult:
-    """Fixed-interval RTS smoother on a filter result (x(k/k), P(k/k), k = 1..T).
+    """Fixed-interval Rauch-Tung-Striebel smoother on any filter's result.
 
-    model   the LinearGaussianModel the filter ran with (F, Q)
-    result  a FilterResult with filtered means and covariances, e.g. from
-            :func:`kalman_filter` (any filter returning the exact P(k/k) works;
-            the steady-state filters' constant Pe gives the steady-state smoother)
-    F, Q, B, u  the time-varying matrices / control input the filter ran with
-            (:func:`kalman_filter`'s convention: row k predicts into measurement k).  A
-            time-varying or controlled :func:`kalman_filter` run records them in
-            ``result.inputs`` and the smoother uses those: omit them (given again, they
-            must equal the run's, else a ParameterError naming them).  Give them for a
-            result that does not record them.
+    Parameters
+    ----------
+    model : LinearGaussianModel
+        The model the filter ran with.
+    result : FilterResult
+        Filtered means and covariances x(k/k), P(k/k), k = 1..T (a KF, LF or steady-state filter).
+    F, Q, B, u : array_like, optional
+        The time-varying matrices and control input the filter ran with (default: those recorded in
+        ``result.inputs``; values given again must equal them).
 
-    Returns a FilterResult with the smoothed x(k/T), P(k/T) (method "RTS") and, when
-    the result carries its prior at time 0 (``result.x0``, as :func:`kalman_filter`
-    with prior="initial" records it), the smoothed x(0/T), P(0/T) as x0, P0.
-    P(k/T) <= P(k/k) in the positive semi-definite order.  For irregular time
-    stamps use :func:`rts_smoother_irregular`.
+    Returns
+    -------
+    FilterResult
+        x(k/T), P(k/T) (method "RTS"), P(k/T) <= P(k/k); with the filter's prior at time 0 in the result,
+        x(0/T), P(0/T) as x0, P0.  For irregular time stamps use :func:`rts_smoother_irregular`.
 
     References
     ----------
@@ -117,13 +117,24 @@ def _with_time_zero(result: FilterResult, smoothed: FilterResult, F0, Q0, Bu0) -
 @finite_result("the steady-state smoother")
 def steady_state_smoother(model: LinearGaussianModel, result: FilterResult, *,
                           steady: SteadyState | None = None) -> FilterResult:
-    """Steady-state RTS smoother: constant gain C = Pe F^T Pp^{-1} on the
-    steady-state filter's estimates, x(k/T) = x(k/k) + C [x(k+1/T) - F x(k/k)].
+    """Steady-state RTS smoother: constant gain C = Pe F^T Pp^-1 on a steady-state filter's estimates,
+    x(k/T) = x(k/k) + C [x(k+1/T) - F x(k/k)].
 
-    The covariance reported is the steady-state smoothed covariance Ps, the
-    solution of the Lyapunov equation Ps = C Ps C^T + Pe - C Pp C^T (the
-    fixed point of the RTS covariance recursion, valid away from both ends).
-    ``result`` is typically :func:`steady_state_filter`'s output.
+    Parameters
+    ----------
+    model : LinearGaussianModel
+        The model (F, H, Q, R).
+    result : FilterResult
+        Typically :func:`steady_state_filter`'s output.
+    steady : SteadyState, optional
+        A precomputed :func:`mptrack.riccati.steady_state` (the off-line part); solved once per model
+        when not given.
+
+    Returns
+    -------
+    FilterResult
+        With the steady-state smoothed covariance Ps, the fixed point of the RTS covariance recursion
+        (valid away from both ends).
 
     References
     ----------

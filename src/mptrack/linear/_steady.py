@@ -6,14 +6,10 @@ from typing import Literal
 
 import numpy as np
 
+from .._core.finiteness import finite_result
 from .._core.fir import check_order_rule, coefficients_unchecked
 from .._core.steady_input import steady_argument
-from .._core.validation import (
-    as_matrix,
-    check_allocation,
-    check_int,
-    finite_result,
-)
+from .._core.validation import as_matrix, check_allocation, check_int
 from ..errors import ConvergenceError, NonFiniteError, ParameterError, ShapeError
 from ..models import LinearGaussianModel
 from ..result import FilterResult
@@ -29,15 +25,33 @@ def steady_state_filter(model: LinearGaussianModel, z, x0=None, P0=None, *,
                         form: Literal["kalman", "lainiotis"] = "kalman",
                         steady: SteadyState | None = None,
                         covariance: Literal["steady", "exact"] = "steady") -> FilterResult:
-    """Steady-state filter x(k+1/k+1) = A x(k/k) + B z(k+1) (SSKF eq. 9-10, SSLF eq. 12-13).
+    """Steady-state filter x(k+1/k+1) = A x(k/k) + B z(k+1) (SSKF eqs. 9-10, SSLF eqs. 12-13 of
+    Assimakis & Adam 2014).
 
-    form        "kalman" (A, B from the REKF/DARE solution) or "lainiotis"
-                (A, B from the RELF solution, eq. 13); they are equal (eq. 15).
-    steady      a precomputed :func:`mptrack.riccati.steady_state` result (off-line part)
-    covariance  "steady": P(k/k) is the steady-state Pe at every step (the papers');
-                "exact": the actual error covariance of this constant-gain filter
-                started from P0, P <- (I-KH)(F P F^T + Q)(I-KH)^T + K R K^T.
-    A NaN measurement row only predicts (x <- F x; with "exact" the covariance too).
+    A NaN measurement row only predicts (x <- F x; with ``covariance="exact"`` the covariance too).
+
+    Parameters
+    ----------
+    model : LinearGaussianModel
+        The model (F, H, Q, R).
+    z : array_like, shape (T, m)
+        Measurements z(1..T); NaN components are missing (a NaN row only predicts).
+    x0 : array_like, shape (n,), optional
+        The prior x(0/0) (default zeros).
+    P0 : array_like, shape (n, n), optional
+        The prior covariance, used by ``covariance="exact"``.
+    form : {"kalman", "lainiotis"}, optional
+        A, B from the REKF/DARE solution or from the RELF solution (eq. 13); they are equal (eq. 15).
+    steady : SteadyState, optional
+        A precomputed :func:`mptrack.riccati.steady_state` (the off-line part); solved once per model
+        when not given.
+    covariance : {"steady", "exact"}, optional
+        ``"steady"``: P(k/k) is the steady-state Pe at every step (the papers'; a read-only broadcast
+        view); ``"exact"``: the true error covariance of this constant-gain filter started from P0.
+
+    Returns
+    -------
+    FilterResult
 
     References
     ----------
@@ -56,6 +70,8 @@ def steady_state_filter(model: LinearGaussianModel, z, x0=None, P0=None, *,
     if covariance == "steady":
         Ps = np.broadcast_to(ss.P_filt, (T, model.n, model.n))
     else:
+        # the error covariance of a fixed-gain filter (not a Kalman update): an exception listed in
+        # mptrack._core.kalman's docstring
         Ps = np.empty((T, model.n, model.n))
         IKH = np.eye(model.n) - ss.K @ model.H
         KRK = ss.K @ model.R @ ss.K.T
@@ -73,17 +89,41 @@ def _matrix_norm(M: np.ndarray, norm) -> float:
 
 
 def fir_order(A, eps: float = 1e-3, norm=2, max_order: int = 100_000) -> int:
-    """FIR order M: the smallest M >= 1 with ||A^M|| < eps (so ||A^{M-1}|| >= eps),
-    Assimakis & Adam 2014, eq. 22.
+    """FIR order: the smallest M >= 1 with ||A^M|| < eps (Assimakis & Adam 2014, eq. 22).
 
-    ``norm`` is any ``numpy.linalg.norm`` matrix order (2, 'fro', 1, inf, ...).
-    The papers' example (eps = 1e-3, spectral norm) gives M = 17.
+    Parameters
+    ----------
+    A : array_like, shape (n, n)
+        The steady-state filter's A, stable.
+    eps : float, optional
+        The tolerance (the papers' 1e-3 gives M = 17 with the spectral norm).
+    norm : optional
+        Any ``numpy.linalg.norm`` matrix order (2, "fro", 1, inf, ...).
+    max_order : int, optional
+        Largest order searched.
+
+    Returns
+    -------
+    int
+
+    Raises
+    ------
+    ConvergenceError
+        No order up to ``max_order`` meets the rule.
 
     References
     ----------
     .. [1] N. Assimakis and M. Adam, "Global systems for mobile position tracking using Kalman and Lainiotis
            filters", The Scientific World Journal, vol. 2014, Article ID 130512, 8 pp., 2014.
            doi:10.1155/2014/130512
+
+    Examples
+    --------
+    >>> from mptrack.linear import fir_order
+    >>> from mptrack.models import assimakis_model_b
+    >>> from mptrack.riccati import steady_state
+    >>> fir_order(steady_state(assimakis_model_b()).A)
+    17
     """
     A = as_matrix("A", A)
     if A.shape[0] != A.shape[1]:
@@ -111,9 +151,23 @@ def fir_order(A, eps: float = 1e-3, norm=2, max_order: int = 100_000) -> int:
 
 @finite_result("the FIR coefficients")
 def fir_coefficients(A, B, M: int) -> np.ndarray:
-    """The FIR impulse response C_j = A^j B, j = 0..M-1, as an (M, n, m) array.
+    """The FIR impulse response C_j = A^j B, j = 0..M-1.
 
-    A (n, n), B (n, m), M >= 1 (the result's size is checked against the memory limit first).
+    Parameters
+    ----------
+    A : array_like, shape (n, n)
+    B : array_like, shape (n, m)
+    M : int
+        The order, >= 1.
+
+    Returns
+    -------
+    ndarray, shape (M, n, m)
+
+    Raises
+    ------
+    ResourceError
+        The result would exceed the memory limit.
 
     References
     ----------
@@ -136,12 +190,35 @@ def fir_filter(model: LinearGaussianModel, z, x0=None, P0=None, *, eps: float = 
                warmup: Literal["truncate", "steady-state"] = "truncate") -> FilterResult:
     """FIR steady-state filter x(k/k) = sum_{j<M} A^j B z(k-j) (Assimakis & Adam 2014, eq. 22).
 
-    M       filter order; by default from ||A^M|| < eps in the given matrix ``norm``
-    warmup  for k < M, "truncate" uses the measurements available so far
-            (with x0 = 0 this equals the steady-state filter exactly) and
-            "steady-state" runs the recursive steady-state filter from x0 there.
-    The FIR form needs a complete measurement window: NaN is an error.
-    The covariance reported is the steady-state Pe.
+    The FIR form needs a complete measurement window (NaN is an error); the covariance reported is the
+    steady-state Pe.
+
+    Parameters
+    ----------
+    model : LinearGaussianModel
+        The model (F, H, Q, R).
+    z : array_like, shape (T, m)
+        Measurements z(1..T), complete.
+    x0 : array_like, shape (n,), optional
+        The prior x(0/0) (default zeros).
+    P0 : array_like, shape (n, n), optional
+        The prior covariance (kept in the result).
+    eps : float, optional
+        The order rule's tolerance: M is the smallest with ||A^M|| < eps.
+    norm : optional
+        The matrix norm of the order rule (any ``numpy.linalg.norm`` order).
+    M : int, optional
+        The filter order (default from ``eps`` and ``norm``).
+    steady : SteadyState, optional
+        A precomputed :func:`mptrack.riccati.steady_state` (the off-line part); solved once per model
+        when not given.
+    warmup : {"truncate", "steady-state"}, optional
+        For k < M: the measurements available so far (with x0 = 0 exactly the steady-state filter), or the
+        recursive steady-state filter from x0.
+
+    Returns
+    -------
+    FilterResult
 
     References
     ----------

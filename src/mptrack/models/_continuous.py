@@ -28,6 +28,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.linalg
 
+from .._core.finiteness import derived_from, finite_result, renamed
 from .._core.validation import (
     as_matrix,
     as_vector,
@@ -35,10 +36,7 @@ from .._core.validation import (
     check_covariance,
     check_int,
     check_positive,
-    derived_from,
-    finite_result,
     frozen,
-    renamed,
 )
 from .._core.van_loan import intervals_unchecked, van_loan_unchecked
 from ..errors import ParameterError, ShapeError
@@ -117,12 +115,33 @@ class ContinuousLinearModel:
 
 
 def van_loan(Phi, L, Qc, dt: float) -> tuple[np.ndarray, np.ndarray]:
-    """Exact discretisation (F, Q) of dx = Phi x dt + L dbeta over ``dt`` seconds.
+    """Exact discretisation (F, Q) of dx = Phi x dt + L dbeta over an interval (Van Loan's method).
 
-    Van Loan's method: with M = [[-Phi, L Qc L^T], [0, Phi^T]] dt and
-    E = e^M = [[., E12], [0, E22]],  F = E22^T = e^{Phi dt} and
+    With M = [[-Phi, L Qc L^T], [0, Phi^T]] dt and e^M = [[., E12], [0, E22]]: F = E22^T = e^{Phi dt} and
     Q = F E12 = int_0^dt e^{Phi s} L Qc L^T e^{Phi^T s} ds.
-    ``dt = 0`` gives F = I, Q = 0.
+
+    Parameters
+    ----------
+    Phi : array_like, shape (n, n)
+        Drift matrix of the continuous model.
+    L : array_like, shape (n, p)
+        Noise gain.
+    Qc : array_like, shape (p, p)
+        Spectral density of the white noise beta, symmetric positive semi-definite.
+    dt : float
+        The interval (s), >= 0; ``dt = 0`` gives F = I, Q = 0.
+
+    Returns
+    -------
+    F, Q : ndarray, shape (n, n)
+        Transition matrix and process-noise covariance over ``dt``.
+
+    Raises
+    ------
+    ShapeError
+        The matrices' sizes disagree.
+    NonFiniteError
+        The exponential overflows (an interval too long for the model).
 
     References
     ----------
@@ -141,14 +160,28 @@ def van_loan(Phi, L, Qc, dt: float) -> tuple[np.ndarray, np.ndarray]:
 
 @finite_result("the discretisation e^(Phi dt), Q")
 def discretize_intervals(model: ContinuousLinearModel, dts) -> tuple[np.ndarray, np.ndarray]:
-    """(F (T, n, n), Q (T, n, n)) of ``model`` over each interval ``dts[k] >= 0`` seconds (Van Loan).
+    """F and Q of a continuous model over each of many intervals, exactly (Van Loan).
 
-    For the integrator chains of the CV/CA models Phi is nilpotent, and so is
-    Van Loan's block matrix M = [[-Phi, L Qc L^T], [0, Phi^T]]; e^{M dt} is
-    then the finite sum of (M dt)^j / j!, j < 2n, evaluated for all intervals
-    at once (exact, and ~1000x faster than one expm per interval).  Other
-    models take one :func:`van_loan` exponential per distinct interval.
-    An interval too long for float64 is an error naming ``dts``.
+    For the integrator chains of the CV/CA models Van Loan's block matrix is nilpotent, so e^{M dt} is its
+    finite power series, evaluated for all intervals at once; other models take one :func:`van_loan`
+    exponential per distinct interval.
+
+    Parameters
+    ----------
+    model : ContinuousLinearModel
+        The continuous model.
+    dts : array_like, shape (T,)
+        The intervals (s), each >= 0.
+
+    Returns
+    -------
+    F, Q : ndarray, shape (T, n, n)
+        Transition matrix and process-noise covariance of each interval.
+
+    Raises
+    ------
+    NonFiniteError
+        An interval too long for float64 (the error names ``dts``).
 
     References
     ----------
@@ -163,10 +196,21 @@ def discretize_intervals(model: ContinuousLinearModel, dts) -> tuple[np.ndarray,
 
 
 def discretize(model: ContinuousLinearModel, dt: float) -> LinearGaussianModel:
-    """The exact discrete-time model of ``model`` sampled every ``dt`` > 0 seconds.
+    """The exact discrete-time model of a continuous model sampled every ``dt`` seconds.
 
-    F = e^{Phi dt} and Q = int_0^dt e^{Phi s} L Qc L^T e^{Phi^T s} ds (Assimakis et al. 2016,
-    sec. 2.1-2.2, computed by :func:`van_loan`); H and R are kept.
+    F = e^{Phi dt} and Q = int_0^dt e^{Phi s} L Qc L^T e^{Phi^T s} ds (Assimakis et al. 2016, sec. 2.1-2.2,
+    computed by :func:`van_loan`); H and R are kept.
+
+    Parameters
+    ----------
+    model : ContinuousLinearModel
+        The continuous model.
+    dt : float
+        Sampling interval (s), > 0.
+
+    Returns
+    -------
+    LinearGaussianModel
 
     References
     ----------
@@ -204,10 +248,20 @@ def _integrator_chain(order: int, q: float, sigma_r2: float, axes: int, name: st
 def constant_velocity_continuous(q: float, axes: int = 1, *, sigma_r2: float = 1.0) -> ContinuousLinearModel:
     """Continuous constant-velocity (white-noise acceleration) model (Assimakis et al. 2016, sec. 2.1).
 
-    Per axis, state [s, v] (metres, m/s): Phi = [[0, 1], [0, 0]], L = [0, 1]^T,
-    white acceleration noise of spectral density ``q`` (m^2/s^3; the paper's
-    sigma_q^2); position measured with variance ``sigma_r2`` (m^2).
-    ``axes`` = 1, 2 or 3, block-diagonal.
+    Per axis, state [s, v] (m, m/s): Phi = [[0, 1], [0, 0]], L = [0, 1]^T, position measured.
+
+    Parameters
+    ----------
+    q : float
+        Spectral density of the white acceleration noise (m^2/s^3), >= 0.
+    axes : int, optional
+        Number of independent axes (1, 2 or 3), stacked block-diagonally.
+    sigma_r2 : float, optional
+        Variance of the position measurement (m^2), > 0.
+
+    Returns
+    -------
+    ContinuousLinearModel
 
     References
     ----------
@@ -225,9 +279,21 @@ def constant_acceleration_continuous(q: float, axes: int = 1, *,
                                      sigma_r2: float = 1.0) -> ContinuousLinearModel:
     """Continuous constant-acceleration (white-noise jerk) model (Assimakis et al. 2016, sec. 2.2).
 
-    Per axis, state [s, v, a] (m, m/s, m/s^2): Phi = [[0,1,0],[0,0,1],[0,0,0]],
-    L = [0, 0, 1]^T, white jerk noise of spectral density ``q`` (m^2/s^5; the
-    paper's sigma_q^2); position measured with variance ``sigma_r2`` (m^2).
+    Per axis, state [s, v, a] (m, m/s, m/s^2): Phi = [[0, 1, 0], [0, 0, 1], [0, 0, 0]], L = [0, 0, 1]^T,
+    position measured.
+
+    Parameters
+    ----------
+    q : float
+        Spectral density of the white jerk noise (m^2/s^5), >= 0.
+    axes : int, optional
+        Number of independent axes (1, 2 or 3), stacked block-diagonally.
+    sigma_r2 : float, optional
+        Variance of the position measurement (m^2), > 0.
+
+    Returns
+    -------
+    ContinuousLinearModel
 
     References
     ----------
@@ -242,14 +308,27 @@ def constant_acceleration_continuous(q: float, axes: int = 1, *,
 
 
 def constant_velocity(dt: float, q: float, axes: int = 1, *, sigma_r2: float = 1.0) -> LinearGaussianModel:
-    """Exactly discretised constant-velocity model (Assimakis et al. 2016, eq. 5), per axis
+    """Exactly discretised constant-velocity model (Assimakis et al. 2016, eq. 5).
 
-    F = [[1, dt], [0, 1]],  Q = q [[dt^3/3, dt^2/2], [dt^2/2, dt]],  H = [1, 0],  R = sigma_r2.
+    Per axis F = [[1, dt], [0, 1]], Q = q [[dt^3/3, dt^2/2], [dt^2/2, dt]], H = [1, 0], R = sigma_r2, computed
+    from :func:`constant_velocity_continuous` by Van Loan's method (not typed in).  For Q = q G G^T with
+    G = [dt^2/2, dt]^T use :func:`cv_discrete_white_noise`.
 
-    dt in seconds, q the continuous acceleration-noise density (m^2/s^3),
-    sigma_r2 the position-measurement variance (m^2).  Obtained from
-    :func:`constant_velocity_continuous` by Van Loan's method, not typed in.
-    For Q = q G G^T with G = [dt^2/2, dt]^T use :func:`cv_discrete_white_noise`.
+    Parameters
+    ----------
+    dt : float
+        Sampling interval (s), > 0.
+    q : float
+        Spectral density of the white acceleration noise (m^2/s^3), >= 0.
+    axes : int, optional
+        Number of independent axes (1, 2 or 3), stacked block-diagonally.
+    sigma_r2 : float, optional
+        Variance of the position measurement (m^2), > 0.
+
+    Returns
+    -------
+    LinearGaussianModel
+        The discrete-time model, states ordered axis by axis.
 
     References
     ----------
@@ -258,20 +337,42 @@ def constant_velocity(dt: float, q: float, axes: int = 1, *, sigma_r2: float = 1
            Information Technology Research, vol. 4, no. 3, pp. 261–272, 2016.
     .. [2] C. F. Van Loan, "Computing integrals involving the matrix exponential", IEEE Transactions on
            Automatic Control, vol. 23, no. 3, pp. 395–404, 1978. doi:10.1109/TAC.1978.1101743
+
+    Examples
+    --------
+    >>> from mptrack.models import constant_velocity
+    >>> constant_velocity(1.0, 0.5, axes=2, sigma_r2=25.0).F
+    array([[1., 1., 0., 0.],
+           [0., 1., 0., 0.],
+           [0., 0., 1., 1.],
+           [0., 0., 0., 1.]])
     """
     return discretize(constant_velocity_continuous(q, axes, sigma_r2=sigma_r2), dt)
 
 
 def constant_acceleration(dt: float, q: float, axes: int = 1, *, sigma_r2: float = 1.0) -> LinearGaussianModel:
-    """Exactly discretised constant-acceleration model (Assimakis et al. 2016, eq. 6, with
-    the (1,3) entry corrected to dt^3/6, see docs/errata.md), per axis
+    """Exactly discretised constant-acceleration model (Assimakis et al. 2016, eq. 6, its (1, 3) entry
+    corrected to dt^3/6: docs/errata.md).
 
-    F = [[1, dt, dt^2/2], [0, 1, dt], [0, 0, 1]],
-    Q = q [[dt^5/20, dt^4/8, dt^3/6], [dt^4/8, dt^3/3, dt^2/2], [dt^3/6, dt^2/2, dt]],
-    H = [1, 0, 0],  R = sigma_r2.
+    Per axis F = [[1, dt, dt^2/2], [0, 1, dt], [0, 0, 1]],
+    Q = q [[dt^5/20, dt^4/8, dt^3/6], [dt^4/8, dt^3/3, dt^2/2], [dt^3/6, dt^2/2, dt]], H = [1, 0, 0],
+    R = sigma_r2.  For Q = q G G^T with G = [dt^2/2, dt, 1]^T use :func:`ca_discrete_white_noise`.
 
-    q is the continuous jerk-noise density (m^2/s^5).  For Q = q G G^T with
-    G = [dt^2/2, dt, 1]^T use :func:`ca_discrete_white_noise`.
+    Parameters
+    ----------
+    dt : float
+        Sampling interval (s), > 0.
+    q : float
+        Spectral density of the white jerk noise (m^2/s^5), >= 0.
+    axes : int, optional
+        Number of independent axes (1, 2 or 3), stacked block-diagonally.
+    sigma_r2 : float, optional
+        Variance of the position measurement (m^2), > 0.
+
+    Returns
+    -------
+    LinearGaussianModel
+        The discrete-time model, states ordered axis by axis.
 
     References
     ----------
@@ -293,14 +394,27 @@ def _discrete_white_noise(F1, G1, q, sigma_r2, axes, name) -> LinearGaussianMode
 
 
 def cv_discrete_white_noise(dt: float, q: float, axes: int = 1, *, sigma_r2: float = 1.0) -> LinearGaussianModel:
-    """Constant velocity with *discrete* white-noise acceleration (piecewise-constant
-    acceleration over each sample; Bar-Shalom et al. 2001, sec. 6.3.2), per axis
+    """Constant velocity with discrete white-noise acceleration (Bar-Shalom et al. 2001, sec. 6.3.2).
 
-    F = [[1, dt], [0, 1]],  G = [dt^2/2, dt]^T,  Q = q G G^T,  H = [1, 0],  R = sigma_r2.
+    The acceleration is constant over each sample: per axis F = [[1, dt], [0, 1]], G = [dt^2/2, dt]^T,
+    Q = q G G^T (rank 1), H = [1, 0], R = sigma_r2.  At dt = 1 this is the Q of Assimakis & Adam 2014 and
+    2015, who print G = [dt/2, 1]^T (:func:`assimakis_model_b` keeps their form).
 
-    q is the acceleration variance (m^2/s^4).  Q has rank 1 per axis.  At dt = 1
-    this is the Q of Assimakis & Adam 2014 and 2015 (they print G = [dt/2, 1]^T, which agrees
-    only at dt = 1; :func:`assimakis_model_b` keeps their printed form).
+    Parameters
+    ----------
+    dt : float
+        Sampling interval (s), > 0.
+    q : float
+        Variance of the acceleration (m^2/s^4), >= 0.
+    axes : int, optional
+        Number of independent axes (1, 2 or 3), stacked block-diagonally.
+    sigma_r2 : float, optional
+        Variance of the position measurement (m^2), > 0.
+
+    Returns
+    -------
+    LinearGaussianModel
+        The discrete-time model, states ordered axis by axis.
 
     References
     ----------
@@ -320,13 +434,27 @@ def cv_discrete_white_noise(dt: float, q: float, axes: int = 1, *, sigma_r2: flo
 
 
 def ca_discrete_white_noise(dt: float, q: float, axes: int = 1, *, sigma_r2: float = 1.0) -> LinearGaussianModel:
-    """Constant acceleration with *discrete* white-noise acceleration increments
-    (Bar-Shalom et al. 2001, sec. 6.3.3, the "Wiener-process acceleration"), per axis
+    """Constant acceleration with discrete white-noise acceleration increments (Bar-Shalom et al. 2001,
+    sec. 6.3.3, the "Wiener-process acceleration").
 
-    F = [[1, dt, dt^2/2], [0, 1, dt], [0, 0, 1]],  G = [dt^2/2, dt, 1]^T,  Q = q G G^T,
-    H = [1, 0, 0],  R = sigma_r2.
+    Per axis F = [[1, dt, dt^2/2], [0, 1, dt], [0, 0, 1]], G = [dt^2/2, dt, 1]^T, Q = q G G^T,
+    H = [1, 0, 0], R = sigma_r2.
 
-    q is the variance of the acceleration increment per sample (m^2/s^4).
+    Parameters
+    ----------
+    dt : float
+        Sampling interval (s), > 0.
+    q : float
+        Variance of the acceleration increment per sample (m^2/s^4), >= 0.
+    axes : int, optional
+        Number of independent axes (1, 2 or 3), stacked block-diagonally.
+    sigma_r2 : float, optional
+        Variance of the position measurement (m^2), > 0.
+
+    Returns
+    -------
+    LinearGaussianModel
+        The discrete-time model, states ordered axis by axis.
 
     References
     ----------

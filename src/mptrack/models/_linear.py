@@ -11,7 +11,8 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.linalg
 
-from .._core.validation import as_matrix, check_allocation, check_covariance, check_int, check_positive, frozen, require_finite
+from .._core.finiteness import require_finite
+from .._core.validation import as_matrix, check_allocation, check_covariance, check_int, check_positive, frozen
 from ..errors import ParameterError, ShapeError
 
 __all__ = ["LinearGaussianModel", "stack_axes", "require_model"]
@@ -100,16 +101,43 @@ class LinearGaussianModel:
 
 
 def stack_axes(axis_model: LinearGaussianModel, axes: int, *, name: str = "") -> LinearGaussianModel:
-    """The joint model of ``axes`` independent copies of ``axis_model`` (block-diagonal).
+    """The joint model of independent copies of one axis model (block-diagonal).
 
-    The state is ordered axis by axis: ``[x_axis0, x_axis1, ...]``; this is how
-    the papers' model A arises from model B (Assimakis & Adam 2014, eqs. 17-18).
+    The state is ordered axis by axis, ``[x_axis0, x_axis1, ...]``: this is how the papers' model A arises
+    from model B (Assimakis & Adam 2014, eqs. 17-18).
+
+    Parameters
+    ----------
+    axis_model : LinearGaussianModel
+        The model of one axis.
+    axes : int
+        Number of copies, >= 1.
+    name : str, optional
+        Name of the joint model (default: derived from ``axis_model``'s).
+
+    Returns
+    -------
+    LinearGaussianModel
+        F, H, Q, R block-diagonal with one block per axis.
+
+    Raises
+    ------
+    ParameterError
+        ``axis_model`` is not a LinearGaussianModel.
+    ResourceError
+        The joint matrices would exceed the memory limit.
 
     References
     ----------
     .. [1] N. Assimakis and M. Adam, "Global systems for mobile position tracking using Kalman and Lainiotis
            filters", The Scientific World Journal, vol. 2014, Article ID 130512, 8 pp., 2014.
            doi:10.1155/2014/130512
+
+    Examples
+    --------
+    >>> from mptrack.models import assimakis_model_b, stack_axes
+    >>> stack_axes(assimakis_model_b(), 2).F.shape
+    (4, 4)
     """
     axis_model = require_model(axis_model, "axis_model")
     axes = check_int("axes", axes, minimum=1)
@@ -126,8 +154,27 @@ def stack_axes(axis_model: LinearGaussianModel, axes: int, *, name: str = "") ->
 
 
 def require_model(model, name: str = "model", kind: type = LinearGaussianModel):
-    """``model`` itself if it is a ``kind`` (a LinearGaussianModel by default), else a
-    ParameterError naming ``name``."""
+    """Check that an argument is a model of the expected type.
+
+    Parameters
+    ----------
+    model : object
+        The argument to check.
+    name : str, optional
+        The argument's name, used in the error message.
+    kind : type, optional
+        The expected model class (default :class:`LinearGaussianModel`).
+
+    Returns
+    -------
+    object
+        ``model`` itself.
+
+    Raises
+    ------
+    ParameterError
+        ``model`` is not a ``kind``; the message starts with ``name``.
+    """
     if not isinstance(name, str) or not name.isidentifier():
         raise ParameterError(f"name: expected the argument's name (an identifier), got {name!r}")
     if not isinstance(kind, type):

@@ -29,9 +29,9 @@ from typing import Callable
 
 import numpy as np
 
-from .._core.validation import (as_array, as_matrix, as_vector, check_covariance, check_int, check_positive,
-                           frozen, renamed)
+from .._core.finiteness import renamed
 from .._core.gaussian import gauss_logpdf, wrap_periods
+from .._core.validation import as_array, as_matrix, as_vector, check_covariance, check_int, check_positive, frozen
 from ..errors import NonFiniteError, ParameterError, ShapeError
 from ._linear import LinearGaussianModel
 
@@ -56,9 +56,25 @@ _TINY = float(np.finfo(float).tiny)
 
 
 def wrap_angles(nu: np.ndarray, periods: tuple) -> np.ndarray:
-    """nu (..., m) with components of non-None period wrapped into [-period/2, period/2) (a copy).
+    """Angle components of innovations wrapped into [-period/2, period/2).
 
-    periods: m entries, each None (not an angle) or a finite period > 0; NaN in nu (missing) stays NaN.
+    Parameters
+    ----------
+    nu : array_like, shape (..., m)
+        Innovations (NaN = missing, kept).
+    periods : tuple of m (float or None)
+        The period of each component (e.g. 2 pi for an angle in radians), or None for a component that is
+        not an angle.
+
+    Returns
+    -------
+    ndarray, shape (..., m)
+        A wrapped copy of ``nu``.
+
+    Raises
+    ------
+    ParameterError
+        ``periods`` has the wrong length or a period <= 0.
     """
     nu = as_array("nu", nu, allow_nan=True)
     if nu.ndim == 0 or nu.shape[-1] == 0:
@@ -281,9 +297,37 @@ def _join_specs(specs) -> tuple | None:
 @renamed(h="measurement", jac_h="measurement", R="measurement", angle_components="measurement", f="motion",
          jac_f="motion", Q="motion", dt="motion")      # the model's parts are the caller's motion and measurement
 def nonlinear_model(motion: LinearGaussianModel, measurement: MeasurementModel, *, name: str = "") -> NonlinearModel:
-    """A linear-Gaussian motion model (F, Q; e.g. :func:`constant_velocity`) observed by a nonlinear
-    ``measurement`` (one of :func:`ranges`, :func:`bearings`, ...): the NonlinearModel with the exact
-    Jacobians F and measurement.jac_h."""
+    """A linear-Gaussian motion model observed by a nonlinear measurement.
+
+    Parameters
+    ----------
+    motion : LinearGaussianModel
+        The motion (its F and Q; e.g. :func:`constant_velocity`).
+    measurement : MeasurementModel
+        The measurement (:func:`ranges`, :func:`bearings`, :func:`range_bearing`, ...).
+    name : str, optional
+        The model's name (default: derived from both).
+
+    Returns
+    -------
+    NonlinearModel
+        With the exact Jacobians F and ``measurement.jac_h``; a named measurement runs the compiled
+        filters.
+
+    Raises
+    ------
+    ParameterError
+        ``motion`` or ``measurement`` is of the wrong type, or their state sizes disagree.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from mptrack.models import constant_velocity, nonlinear_model, ranges
+    >>> stations = np.array([[0.0, 0.0], [1000.0, 0.0], [0.0, 1000.0]])
+    >>> model = nonlinear_model(constant_velocity(1.0, 0.5, axes=2), ranges(stations, 25.0))
+    >>> model.n, model.m
+    (4, 3)
+    """
     if not isinstance(motion, LinearGaussianModel):
         raise ParameterError(f"motion: expected a LinearGaussianModel, got {type(motion).__name__}")
     if not isinstance(measurement, MeasurementModel):
@@ -361,11 +405,23 @@ def _jac_from(pos: tuple, rows_fn):
 
 
 def ranges(stations, R, *, position=(0, 2)) -> MeasurementModel:
-    """Ranges ||p - s_i|| (metres) from the position p = x[position] to each station s_i (TOA × c).
+    """Ranges (m) from the position to each station (TOA times c).
 
-    stations  (d,) one sensor or (k, d) stations, d = len(position) = 2 or 3
-    R         variance (m²) common to all ranges, a vector of variances, a (k, k) matrix or R(x, k)
-    Jacobian rows (p - s_i)/||p - s_i|| (0 at a station).
+    h_i(x) = ||p - s_i|| with p = x[position]; the Jacobian rows are (p - s_i) / ||p - s_i|| (0 at a
+    station).
+
+    Parameters
+    ----------
+    stations : array_like, shape (d,) or (k, d)
+        One sensor or k stations, d = len(position) = 2 or 3 (m).
+    R : float, array_like or callable
+        Variance (m^2) common to all ranges, a vector of k variances, a (k, k) matrix, or R(x, k).
+    position : tuple of int, optional
+        Indices of the position in the state (default (0, 2): x and y of ``[x, vx, y, vy]``).
+
+    Returns
+    -------
+    MeasurementModel
     """
     s = _points("stations", stations)
     pos = _indices("position", position, s.shape[1], "stations")
@@ -383,8 +439,24 @@ def ranges(stations, R, *, position=(0, 2)) -> MeasurementModel:
 
 
 def bearings(stations, R, *, position=(0, 2)) -> MeasurementModel:
-    """Bearings (AOA, radians) atan2(y - s_y, x - s_x) from each station to the 2-D position x[position]
-    (counter-clockwise from the x axis, as Stone Soup's CartesianToBearingRange); angle components."""
+    """Bearings (AOA, rad) from each station to the 2-D position.
+
+    h_i(x) = atan2(y - s_y, x - s_x), counter-clockwise from the x axis (as Stone Soup's
+    CartesianToBearingRange); the components are angles (period 2 pi).
+
+    Parameters
+    ----------
+    stations : array_like, shape (2,) or (k, 2)
+        One sensor or k stations (m).
+    R : float, array_like or callable
+        Variance (rad^2), a vector of k variances, a (k, k) matrix, or R(x, k).
+    position : tuple of int, optional
+        Indices of the position in the state (default (0, 2): x and y of ``[x, vx, y, vy]``).
+
+    Returns
+    -------
+    MeasurementModel
+    """
     s = _points("stations", stations)
     if s.shape[1] != 2:
         raise ShapeError(f"stations: bearings need 2-D stations (k, 2), got {s.shape}")
@@ -408,8 +480,21 @@ def bearings(stations, R, *, position=(0, 2)) -> MeasurementModel:
 
 
 def range_bearing(sensor, R, *, position=(0, 2)) -> MeasurementModel:
-    """[bearing (rad), range (m)] of the 2-D position x[position] from ``sensor`` (2,): the order of
-    Stone Soup's CartesianToBearingRange.  R: (2, 2), a vector of 2 variances, or R(x, k)."""
+    """[bearing (rad), range (m)] of the 2-D position from one sensor (Stone Soup's order).
+
+    Parameters
+    ----------
+    sensor : array_like, shape (2,)
+        The sensor's position (m).
+    R : array_like or callable
+        A (2, 2) covariance, a vector of the 2 variances, or R(x, k).
+    position : tuple of int, optional
+        Indices of the position in the state (default (0, 2): x and y of ``[x, vx, y, vy]``).
+
+    Returns
+    -------
+    MeasurementModel
+    """
     with renamed(stations="sensor"):
         b, r = bearings(sensor, 1.0, position=position), ranges(sensor, 1.0, position=position)
     return MeasurementModel(lambda X: np.concatenate([b.h(X), r.h(X)], axis=-1),
@@ -418,8 +503,25 @@ def range_bearing(sensor, R, *, position=(0, 2)) -> MeasurementModel:
 
 
 def range_rate(sensor, R, *, position=(0, 2), velocity=(1, 3)) -> MeasurementModel:
-    """Range rate (m/s) d||p - s||/dt = (p - s)·v / ||p - s|| of a target (position x[position], velocity
-    x[velocity]) seen from a static ``sensor`` (d,) (Doppler).  R: the variance ((m/s)²) or R(x, k)."""
+    """Range rate (m/s) of a target seen from a static sensor (Doppler).
+
+    h(x) = (p - s) . v / ||p - s|| with p = x[position], v = x[velocity].
+
+    Parameters
+    ----------
+    sensor : array_like, shape (d,)
+        The sensor's position (m).
+    R : float or callable
+        Variance ((m/s)^2), or R(x, k).
+    position : tuple of int, optional
+        Indices of the position in the state (default (0, 2): x and y of ``[x, vx, y, vy]``).
+    velocity : tuple of int, optional
+        Indices of the velocity in the state (default (1, 3)).
+
+    Returns
+    -------
+    MeasurementModel
+    """
     s = _points("sensor", sensor)
     if s.shape[0] != 1:
         raise ShapeError(f"sensor: expected one position (d,), got {s.shape}")
@@ -447,10 +549,24 @@ def range_rate(sensor, R, *, position=(0, 2), velocity=(1, 3)) -> MeasurementMod
 
 
 def tdoa(stations, R, *, position=(0, 2), reference: int = 0) -> MeasurementModel:
-    """Range differences (TDOA × c, metres) ||p - s_i|| - ||p - s_ref|| for every station i ≠ reference.
+    """Range differences (TDOA times c, m) ||p - s_i|| - ||p - s_ref|| for every station i other than
+    the reference.
 
-    R  the variance σ² of one station's range (TOA) error: the differences then have the
-       correlated covariance σ²(I + 1 1ᵀ); or a full (k-1, k-1) matrix, or R(x, k).
+    Parameters
+    ----------
+    stations : array_like, shape (k, d)
+        The stations (m), k >= 2.
+    R : float, array_like or callable
+        The variance sigma^2 of one station's range (TOA) error, so that the differences have the correlated
+        covariance sigma^2 (I + 1 1^T); or a full (k - 1, k - 1) matrix, or R(x, k).
+    position : tuple of int, optional
+        Indices of the position in the state (default (0, 2): x and y of ``[x, vx, y, vy]``).
+    reference : int, optional
+        Index of the reference station.
+
+    Returns
+    -------
+    MeasurementModel
     """
     toa = ranges(stations, 1.0, position=position)
     k = toa.R.shape[0]
@@ -477,7 +593,19 @@ def tdoa(stations, R, *, position=(0, 2), reference: int = 0) -> MeasurementMode
 
 
 def position(R, *, position=(0, 2)) -> MeasurementModel:
-    """The position x[position] itself (GPS fix; linear, included so a hybrid model can stack it)."""
+    """The position itself (a GPS fix; linear, so that a hybrid model can stack it).
+
+    Parameters
+    ----------
+    R : float, array_like or callable
+        Variance (m^2), a vector of variances, a (d, d) matrix, or R(x, k).
+    position : tuple of int, optional
+        Indices of the position in the state (default (0, 2): x and y of ``[x, vx, y, vy]``).
+
+    Returns
+    -------
+    MeasurementModel
+    """
     pos = _indices("position", position)
     sel = _selector(pos)
 
@@ -491,8 +619,23 @@ def position(R, *, position=(0, 2)) -> MeasurementModel:
 
 
 def stack_measurements(*measurements: MeasurementModel) -> MeasurementModel:
-    """Several measurement models of one state observed together (hybrid positioning, e.g. TOA + AOA):
-    components concatenated in the given order, R block-diagonal (independent errors; constant R only)."""
+    """Several measurement models of one state observed together (hybrid positioning, e.g. TOA + AOA).
+
+    Parameters
+    ----------
+    *measurements : MeasurementModel
+        The models, at least one; their components are concatenated in this order, with independent errors
+        (R block-diagonal; constant R only).
+
+    Returns
+    -------
+    MeasurementModel
+
+    Raises
+    ------
+    ParameterError
+        No model, a model that is not a MeasurementModel, or a callable R.
+    """
     if not measurements or not all(isinstance(mm, MeasurementModel) for mm in measurements):
         raise ParameterError("measurements: expected one or more MeasurementModel")
     if any(callable(mm.R) for mm in measurements):

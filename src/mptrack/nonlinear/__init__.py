@@ -10,14 +10,12 @@ still import from here for one release, with a DeprecationWarning.
 """
 
 from .._core.moved import moved_names
-from ..result import BatchFilterResult
 from ._extended import ekf_filter, ekf_filter_batch, ekf_smoother, ekf_step
 from ._imm import IMMResult, cv_ca_models, imm_filter
 from ._pf import particle_filter, systematic_resample
 from ._ukf import sigma_points, ukf_filter, ukf_smoother
 
 __all__ = [
-    "BatchFilterResult",
     "ekf_filter",
     "ekf_smoother",
     "ekf_step",
@@ -32,8 +30,9 @@ __all__ = [
     "cv_ca_models",
 ]
 
-#: names that moved to their model family's package (issue 19)
+#: names that moved to their model family's package (issue 19) or to their one home (issue 34)
 MOVED = {
+    "BatchFilterResult": "mptrack.result",
     **dict.fromkeys(("check_stations", "ekf_ranges", "ekf_ranges_batch", "motion_matrix", "motion_position",
                      "range_fix", "range_measurement", "bouzera_fekf_fis", "bouzera_fcs_fis", "fekf_ranges",
                      "fekf_ranges_batch", "fcs_ranges", "fcs_ranges_batch", "fuse_local_solutions",

@@ -18,16 +18,9 @@ from __future__ import annotations
 import numpy as np
 
 from .._core.filter_inputs import check_prior, prepare_nonlinear
+from .._core.finiteness import finite_result, require_finite
 from .._core.rts import rts_backward
-from .._core.validation import (
-    as_array,
-    as_vector,
-    check_covariance,
-    check_int,
-    check_record,
-    finite_result,
-    require_finite,
-)
+from .._core.validation import as_array, as_vector, check_covariance, check_int, check_record
 from ..errors import (
     NonFiniteError,
     NotPositiveDefiniteError,
@@ -37,12 +30,9 @@ from ..errors import (
 from ..models import NonlinearModel, require_model
 from . import _named_kernels
 from . import _step_kernels as steps
-from ..result import BatchFilterResult, FilterResult, innovation_arrays, mask_missing
+from ..result import BatchFilterResult, FilterResult, innovation_arrays
 
 __all__ = ["ekf_filter", "ekf_filter_batch", "ekf_smoother", "ekf_step"]
-
-_LOG2PI = np.log(2.0 * np.pi)
-
 
 def user_array(value, shape: tuple, name: str, k: int) -> np.ndarray:
     """A user function's value (f, h, a Jacobian) as a fresh float array of the expected shape, as the
@@ -101,8 +91,26 @@ def ekf_predict(model: NonlinearModel, x, P, k: int, x_out, P_out) -> None:
 
 @finite_result("the EKF step")
 def ekf_step(model: NonlinearModel, x, P, z, k: int = 0):
-    """One EKF iteration from x(k-1/k-1), P(k-1/k-1) with the measurement z (row k):
-    (x_filt, P_filt, x_pred, P_pred, loglik increment).
+    """One EKF iteration from x(k-1/k-1), P(k-1/k-1) with one measurement.
+
+    Parameters
+    ----------
+    model : NonlinearModel
+        The model (f, h, Q, R and their Jacobians).
+    x : array_like, shape (n,)
+        x(k-1/k-1).
+    P : array_like, shape (n, n)
+        P(k-1/k-1).
+    z : array_like, shape (m,)
+        The measurement (NaN components skipped).
+    k : int, optional
+        The measurement's index (for Q(x, k), R(x, k)).
+
+    Returns
+    -------
+    x_filt, P_filt, x_pred, P_pred : ndarray
+    loglik : float
+        The log-likelihood increment.
 
     References
     ----------
@@ -152,19 +160,52 @@ def _run(model, z, x0, P0, prior, predict, update, method, inputs=None):
 
 @finite_result("the EKF")
 def ekf_filter(model: NonlinearModel, z, x0, P0, *, prior: str = "initial") -> FilterResult:
-    """Extended Kalman filter over measurements z (T, m) (module docstring).
+    """Extended Kalman filter.
 
-    x0, P0  the prior (required); at time 0 (prior="initial": predicted to the first measurement)
-            or at the first measurement (prior="first-measurement": updated with it directly)
-    NaN components of z are skipped; a NaN row only predicts.  Q(x, k) is evaluated at x(k-1/k-1),
-    R(x, k) at x(k/k-1).  Returns a FilterResult with x0, P0 = the prior at time 0 (for the smoother).
-    A :func:`~mptrack.models.nonlinear_model` of a linear motion and named measurement models (ranges,
+    Q(x, k) is evaluated at x(k-1/k-1) and R(x, k) at x(k/k-1).  A
+    :func:`~mptrack.models.nonlinear_model` of a linear motion and named measurement models (ranges,
     bearings, range_bearing, position, stacks of them; constant R) runs compiled with the same numbers.
+
+    Parameters
+    ----------
+    model : NonlinearModel
+        The model (f, h, Q, R and their Jacobians).
+    z : array_like, shape (T, m)
+        Measurements; NaN components are skipped, a NaN row only predicts.
+    x0 : array_like, shape (n,)
+        The prior mean, required.
+    P0 : array_like, shape (n, n)
+        The prior covariance, required.
+    prior : {"initial", "first-measurement"}, optional
+        x0, P0 at time 0 (predicted to the first measurement), or the prior at the first measurement.
+
+    Returns
+    -------
+    FilterResult
+        With x0, P0 the prior at time 0 (for :func:`ekf_smoother`).
+
+    Raises
+    ------
+    NotPositiveDefiniteError
+        An innovation covariance is not positive definite.
+    NonFiniteError
+        A model function returned a non-finite value, or the filter overflowed.
 
     References
     ----------
     .. [1] S. Särkkä, Bayesian Filtering and Smoothing, Cambridge University Press, 2013.
            doi:10.1017/CBO9781139344203
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from mptrack.models import constant_velocity, nonlinear_model, range_bearing
+    >>> from mptrack.nonlinear import ekf_filter
+    >>> model = nonlinear_model(constant_velocity(1.0, 0.5, axes=2), range_bearing([0.0, 0.0], [1e-4, 4.0]))
+    >>> z = np.array([[0.1, 100.0], [0.11, 101.0], [np.nan, 102.0]])
+    >>> result = ekf_filter(model, z, x0=[99.0, 1.0, 10.0, 0.0], P0=np.eye(4) * 25.0)
+    >>> result.x.shape
+    (3, 4)
     """
     z, x0, P0, _ = prepare_nonlinear(model, z, x0, P0, kinds=(NonlinearModel,))
     if model.named is not None:
@@ -221,8 +262,19 @@ def smooth_with(model, result, cross, method):
 
 @finite_result("the extended RTS smoother")
 def ekf_smoother(model: NonlinearModel, result: FilterResult) -> FilterResult:
-    """Extended RTS smoother on :func:`ekf_filter`'s result: x(k/T), P(k/T), and x(0/T), P(0/T) as
-    x0, P0 when the filter's prior was at time 0 (method "ERTS").
+    """Extended RTS smoother on :func:`ekf_filter`'s result.
+
+    Parameters
+    ----------
+    model : NonlinearModel
+        The model (f, h, Q, R and their Jacobians).
+    result : FilterResult
+        The EKF's result (its predictions are reused; only the Jacobian of f is evaluated).
+
+    Returns
+    -------
+    FilterResult
+        x(k/T), P(k/T) (method "ERTS"), and x(0/T), P(0/T) as x0, P0 when the filter's prior was at time 0.
 
     References
     ----------
@@ -234,13 +286,34 @@ def ekf_smoother(model: NonlinearModel, result: FilterResult) -> FilterResult:
 
 @finite_result("the EKF")
 def ekf_filter_batch(model: NonlinearModel, z, x0, P0) -> BatchFilterResult:
-    """:func:`ekf_filter` on B independent tracks at once (prior at time 0): z (B, T, m) with NaN = missing,
-    x0 (n,) or (B, n), P0 (n, n) or (B, n, n).  Vectorised over tracks (NumPy batched linear algebra), for
-    constant Q and R; Jacobians from jac_f / jac_h called on all B states at once (the named measurement
-    models and :func:`mptrack.models.nonlinear_model` broadcast) or by finite differences.  A linear motion
-    with named measurement models (ranges, bearings, range_bearing, position) runs compiled
-    (:mod:`mptrack.nonlinear._named_kernels`, same numbers).
-    Returns a BatchFilterResult (x, P, x_pred, P_pred, innovation, S, nis, loglik (B,)).
+    """:func:`ekf_filter` on B independent tracks at once (prior at time 0).
+
+    The model's functions are called on all B states at once and the algebra runs in the compiled Kalman
+    core, track by track (constant Q and R); Jacobians from jac_f / jac_h on all states at once, or by
+    finite differences.  A linear motion with named measurement models runs whole compiled (same numbers).
+
+    Parameters
+    ----------
+    model : NonlinearModel
+        The model (f, h, Q, R and their Jacobians).
+    z : array_like, shape (B, T, m)
+        Measurements; NaN = missing.
+    x0 : array_like, shape (n,) or (B, n)
+        The prior mean(s).
+    P0 : array_like, shape (n, n) or (B, n, n)
+        The prior covariance(s).
+
+    Returns
+    -------
+    BatchFilterResult
+        x, P, x_pred, P_pred, innovation, S, nis and loglik (B,).
+
+    Raises
+    ------
+    ParameterError
+        A callable Q or R (use :func:`ekf_filter` per track).
+    SingularMatrixError
+        An innovation covariance became singular (the message names the input of smallest scale).
 
     References
     ----------
@@ -274,8 +347,8 @@ def ekf_filter_batch(model: NonlinearModel, z, x0, P0) -> BatchFilterResult:
         if status == _named_kernels.OK:
             return BatchFilterResult(x=xs, P=Ps, x_pred=xp, P_pred=Pp, loglik=ll, method="EKF", innovation=nu, S=S,
                                      nis=nis)
-    xs, Ps, xp, Pp, ll, nu, S = _ekf_batch_core(model, z, x0, P0)
-    return BatchFilterResult(x=xs, P=Ps, x_pred=xp, P_pred=Pp, loglik=ll, method="EKF", innovation=nu, S=S)
+    xs, Ps, xp, Pp, ll, nu, S, nis = _ekf_batch_core(model, z, x0, P0)
+    return BatchFilterResult(x=xs, P=Ps, x_pred=xp, P_pred=Pp, loglik=ll, method="EKF", innovation=nu, S=S, nis=nis)
 
 
 def _jacobians(model, X, which):
@@ -289,37 +362,29 @@ def _jacobians(model, X, which):
 
 
 def _ekf_batch_core(model, z, x, P):
-    """The batched EKF recursion (Joseph form); missing components get zero H rows and unit noise, which
-    is the same update as skipping them."""
+    """The batched EKF recursion (Joseph form; NaN components skipped): the model's functions evaluated on
+    all B states at once in NumPy, the algebra track by track in the compiled Kalman core
+    (``_step_kernels.ekf_predict_tracks`` / ``ekf_update_tracks``).  Returns (x, P, x_pred, P_pred, loglik,
+    innovation, S, nis)."""
     B, T, m = z.shape
     n = model.n
-    Q, R = model.Q, model.R
+    Q, R = np.asarray(model.Q, dtype=float), np.asarray(model.R, dtype=float)
     xs, xp = np.empty((B, T, n)), np.empty((B, T, n))
     Ps, Pp = np.empty((B, T, n, n)), np.empty((B, T, n, n))
     loglik = np.zeros(B)
-    nus, Ss, _ = innovation_arrays((B, T), m)
-    eye = np.eye(n)
+    nus, Ss, nis = innovation_arrays((B, T), m)
+    P = np.ascontiguousarray(P, dtype=float)
     for k in range(T):
-        F = _jacobians(model, x, "f")
-        x = np.asarray(model.f(x), dtype=float)
-        P = F @ P @ F.transpose(0, 2, 1) + Q
-        xp[:, k], Pp[:, k] = x, P
-        dk = z[:, k]
-        ok = ~np.isnan(dk)                                                          # (B, m)
-        H = _jacobians(model, x, "h") * ok[..., None]
-        Rk = np.where(ok[:, :, None] & ok[:, None, :], R, 0.0) + np.eye(m) * (~ok)[:, None, :]
-        innov = np.where(ok, model.innovation(np.where(ok, dk, 0.0), model.h(x)), 0.0)
-        PHt = P @ H.transpose(0, 2, 1)
-        S = H @ PHt + Rk
-        nus[:, k] = np.where(ok, innov, np.nan)
-        Ss[:, k] = mask_missing(nus[:, k], S.copy())
-        K = np.linalg.solve(S, PHt.transpose(0, 2, 1)).transpose(0, 2, 1)
-        x = x + np.einsum("bnm,bm->bn", K, innov)
-        IKH = eye - K @ H
-        P = IKH @ P @ IKH.transpose(0, 2, 1) + K @ Rk @ K.transpose(0, 2, 1)
-        P = 0.5 * (P + P.transpose(0, 2, 1))
-        xs[:, k], Ps[:, k] = x, P
-        _, logdet = np.linalg.slogdet(S)
-        quad = np.einsum("bm,bm->b", innov, np.linalg.solve(S, innov[..., None])[..., 0])
-        loglik -= 0.5 * (quad + logdet + ok.sum(axis=1) * _LOG2PI)
-    return xs, Ps, xp, Pp, loglik, nus, Ss
+        F = np.ascontiguousarray(_jacobians(model, x, "f"), dtype=float)
+        x = np.array(model.f(x), dtype=float)
+        steps.ekf_predict_tracks(F, P, Q, Pp[:, k])
+        xp[:, k] = x
+        H = np.ascontiguousarray(_jacobians(model, x, "h"), dtype=float)
+        hx = np.array(model.h(x), dtype=float)
+        status, b = steps.ekf_update_tracks(x, P, H, hx, R, z, k, model.period_array, xs, Ps, nus, Ss, nis, loglik)
+        if status == steps.NOT_PD:   # a singular S: the public function names the input of smallest scale
+            raise np.linalg.LinAlgError(f"the innovation covariance of track {b} at measurement {k} is singular")
+        if status != steps.OK:
+            check_step(status, "EKF", k, xp[b, k], Pp[b, k], {"jac_h": H[b], "h": hx[b]},
+                       {"z": z, "model": model.Q})
+    return xs, Ps, xp, Pp, loglik, nus, Ss, nis

@@ -17,7 +17,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from .._core.filter_inputs import check_prior, prepare_nonlinear
-from .._core.validation import as_matrix, as_real, as_vector, check_positive, finite_result, require_finite
+from .._core.finiteness import finite_result, require_finite
+from .._core.validation import as_matrix, as_real, as_vector, check_positive
 from ..errors import ParameterError, ShapeError
 from ..result import FilterResult
 from ..models import LinearGaussianModel, MeasurementModel, NonlinearModel, constant_acceleration
@@ -55,12 +56,29 @@ def _transition(transition, r: int) -> np.ndarray:
 
 @finite_result("the IMM")
 def imm_filter(models, z, x0, P0, transition, *, mu0=None, prior: str = "initial") -> IMMResult:
-    """IMM filter over ``models`` (a sequence of NonlinearModel / LinearGaussianModel of the same state and
-    measurement), measurements z (T, m), the common prior x0, P0, the Markov ``transition`` matrix (r, r)
-    and the initial mode probabilities ``mu0`` (default uniform).
-    prior  "initial" (x0, P0, mu0 at time 0) or "first-measurement" (x0, P0, mu0 are the prior at the
-           first measurement: no prediction and no mode transition before it), as the other filters.
-    With one model it is the EKF (KF for a linear model).  Returns an :class:`IMMResult` (method "IMM").
+    """Interacting multiple model (IMM) filter; with one model it is the EKF (the KF for a linear model).
+
+    Parameters
+    ----------
+    models : sequence of NonlinearModel or LinearGaussianModel
+        The modes, with the same state and measurement.
+    z : array_like, shape (T, m)
+        Measurements; NaN components are skipped, a NaN row only predicts.
+    x0 : array_like, shape (n,)
+        The prior mean, required.
+    P0 : array_like, shape (n, n)
+        The prior covariance, required.
+    transition : array_like, shape (r, r)
+        The Markov transition matrix of the modes (rows sum to 1).
+    mu0 : array_like, shape (r,), optional
+        Initial mode probabilities (default uniform).
+    prior : {"initial", "first-measurement"}, optional
+        x0, P0, mu0 at time 0, or at the first measurement (no prediction and no mode transition before it).
+
+    Returns
+    -------
+    IMMResult
+        The combined estimates (method "IMM"), mode probabilities ``mu`` and per-mode means ``x_modes``.
 
     References
     ----------
@@ -129,11 +147,31 @@ def imm_filter(models, z, x0, P0, transition, *, mu0=None, prior: str = "initial
 @finite_result("the CV/CA models")
 def cv_ca_models(dt: float, q_cv: float, q_ca: float, measurement: MeasurementModel, *, axes: int = 2,
                  p_stay: float = 0.95):
-    """The two-model CV/CA manoeuvre tracker on the CA state [x, vx, ax, y, vy, ay(, z, vz, az)]:
-    mode 0 constant velocity (acceleration held at 0: its row of F is zero; q_cv the white-acceleration
-    density), mode 1 constant acceleration (white-jerk density q_ca), both observed by ``measurement``
-    (built with position=(0, 3[, 6]) and, for range rate, velocity=(1, 4[, 7])).
-    Returns (models, transition) for :func:`imm_filter`; transition = [[p, 1-p], [1-p, p]], p = p_stay.
+    """The two-model CV/CA manoeuvre tracker for :func:`imm_filter`, on the CA state
+    [x, vx, ax, y, vy, ay(, z, vz, az)].
+
+    Mode 0 is constant velocity (the acceleration held at 0), mode 1 constant acceleration.
+
+    Parameters
+    ----------
+    dt : float
+        Sampling interval (s).
+    q_cv : float
+        White-acceleration density of mode 0 (m^2/s^3).
+    q_ca : float
+        White-jerk density of mode 1 (m^2/s^5).
+    measurement : MeasurementModel
+        Built with position=(0, 3[, 6]) and, for range rate, velocity=(1, 4[, 7]).
+    axes : int, optional
+        2 or 3.
+    p_stay : float, optional
+        Probability of staying in a mode.
+
+    Returns
+    -------
+    models : list of NonlinearModel
+    transition : ndarray, shape (2, 2)
+        [[p, 1 - p], [1 - p, p]] with p = p_stay.
 
     References
     ----------

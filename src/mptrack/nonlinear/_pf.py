@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._core.validation import as_array, check_allocation, check_int, check_positive, check_rng, finite_result
+from .._core.finiteness import finite_result
+from .._core.validation import as_array, check_allocation, check_int, check_positive, check_rng
 from ..errors import ParameterError
 from ..result import FilterResult
 from .._core.filter_inputs import check_prior, prepare_nonlinear
@@ -19,9 +20,17 @@ _DEFAULT_SCHEME = "rk4-split"
 
 
 def systematic_resample(weights: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-    """Indices of N draws by systematic resampling (one uniform u, the N points (u + i)/N).
+    """Indices of N draws by systematic resampling: one uniform u, the N points (u + i)/N.
 
-    weights: (N,) finite, >= 0, not all 0; they are normalised (divided by their sum) first.
+    Parameters
+    ----------
+    weights : array_like, shape (N,)
+        Finite, >= 0, not all 0 (normalised first).
+    rng : numpy.random.Generator
+
+    Returns
+    -------
+    ndarray of int, shape (N,)
 
     References
     ----------
@@ -43,28 +52,46 @@ def particle_filter(model, z, x0, P0, rng: np.random.Generator, *,
                     particles: int = 200, ess_threshold: float = 0.5, regularise: bool = False,
                     substeps: int | None = None, scheme: str = "rk4-split", compiled: bool | None = None,
                     prior: str = "initial", method: str = "PF") -> FilterResult:
-    """Bootstrap particle filter: propagate by the model, weight by p(z|x), resample when ESS is low.
+    """Bootstrap particle filter: propagate by the model, weight by p(z|x), resample when the effective
+    sample size is low.
 
-    model          a :class:`ContinuousDiscreteModel` (particles follow the SDE in sub-steps) or a
-                   discrete-time :class:`mptrack.models.NonlinearModel` (x = f(x) + w, w ~ N(0, Q);
-                   a callable Q(x, k) or R(x, k) is evaluated per particle, which is slow)
-    prior          "initial" (x0, P0 at time 0) or "first-measurement" (no propagation before it)
+    Estimates are the weighted mean and covariance after the update, before resampling.
 
-    particles      number of particles N
-    ess_threshold  resample (systematically) when the effective sample size
-                   1/Σw² falls below ess_threshold·N (1 = every step, 0 = never)
-    regularise     after resampling, jitter the particles with a Gaussian kernel
-                   whose covariance is h²·(weighted covariance), h the Silverman
-                   bandwidth (N(n+2)/4)^(-1/(n+4)) (regularised PF, Musso et al. 2001)
-    scheme         SDE sub-step scheme of :meth:`ContinuousDiscreteModel.sample_transition`:
-                   "rk4-split" (default; RK4 drift flows around the noise) or "heun";
-                   continuous-discrete models only (a NonlinearModel takes the default only)
-    substeps       sub-steps per dt (default :func:`mptrack.continuous.pf_substeps`: 2 for eq. 42
-                   with Q x 0.01, more when the diffusion is large); continuous-discrete models only
-    compiled       None: use the model's compiled kernels when it has them (zhao2013_model,
-                   linear_sde_model), else NumPy; False: NumPy; True: require the kernels.
-                   Both paths draw the same numbers and give the same result up to rounding.
-    Estimates are the weighted mean/covariance after the update, before resampling.
+    Parameters
+    ----------
+    model : ContinuousDiscreteModel or NonlinearModel
+        An SDE (particles follow it in sub-steps) or a discrete-time model (x = f(x) + w, w ~ N(0, Q); a
+        callable Q(x, k) or R(x, k) is evaluated per particle, which is slow).
+    z : array_like, shape (T, m)
+        Measurements; NaN components are skipped, a NaN row only predicts.
+    x0 : array_like, shape (n,)
+        The prior mean, required.
+    P0 : array_like, shape (n, n)
+        The prior covariance, required.
+    rng : numpy.random.Generator
+        The random generator.
+    particles : int, optional
+        Number of particles N.
+    ess_threshold : float, optional
+        Resample (systematically) when 1/sum(w^2) falls below ess_threshold N (1: every step, 0: never).
+    regularise : bool, optional
+        After resampling, jitter the particles with a Gaussian kernel of covariance h^2 (weighted
+        covariance), h the Silverman bandwidth (Musso et al. 2001).
+    substeps : int, optional
+        Continuous-discrete models: sub-steps per dt (default :func:`mptrack.continuous.pf_substeps`).
+    scheme : {"rk4-split", "heun"}, optional
+        Continuous-discrete models: the SDE sub-step scheme.
+    compiled : bool, optional
+        None: the model's compiled kernels when it has them, else NumPy; False: NumPy; True: require the
+        kernels.  Both paths draw the same numbers.
+    prior : {"initial", "first-measurement"}, optional
+        x0, P0 at time 0 (predicted to the first measurement), or the prior at the first measurement.
+    method : str, optional
+        The result's method name.
+
+    Returns
+    -------
+    FilterResult
 
     References
     ----------

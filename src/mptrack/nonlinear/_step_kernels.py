@@ -41,8 +41,8 @@ from .._core.kalman import (
     workspace,
 )
 
-__all__ = ["ekf_predict_into", "ekf_update_into", "sigma_into", "unscented_moments_into", "ukf_update_into",
-           "OK", "NOT_PD", "DIVERGED"]
+__all__ = ["ekf_predict_into", "ekf_update_into", "ekf_predict_tracks", "ekf_update_tracks", "sigma_into",
+           "unscented_moments_into", "ukf_update_into", "OK", "NOT_PD", "DIVERGED"]
 
 
 # ---------------------------------------------------------------- EKF
@@ -70,6 +70,38 @@ def ekf_update_into(x, P, H, hx, R, z, k, periods, x_out, P_out, nus, Ss, nis, r
     if status == OK:
         record_update(ws, z, k, nus, Ss, nis, row)
     return status, ll
+
+
+@njit(cache=True, nogil=True)
+def ekf_predict_tracks(F, P, Q, Pp):
+    """P(k/k-1) = F P F^T + Q of every track b (F (B, n, n), P (B, n, n)) into Pp (B, n, n) and P."""
+    n = P.shape[1]
+    A = np.empty((n, n))
+    for b in range(P.shape[0]):
+        cov_predict(F[b], Q, P[b], A)
+        Pp[b] = P[b]
+
+
+@njit(cache=True, nogil=True)
+def ekf_update_tracks(x, P, H, hx, R, z, k, periods, xs, Ps, nus, Ss, nis, loglik):
+    """The EKF update (Joseph form) of every track b with row k of z[b] (H (B, m, n), hx (B, m) at the
+    prediction x, P, updated in place and copied into xs[b, k], Ps[b, k]); innovation, S and NIS into
+    row k of nus[b], Ss[b], nis[b], the log-likelihood added to loglik[b].  Returns (status, b): the
+    first track whose update failed (NOT_PD, DIVERGED), or (OK, -1)."""
+    ws = workspace(x.shape[1], z.shape[2])
+    for b in range(x.shape[0]):
+        if not (finite(x[b], P[b]) and np.isfinite(H[b].sum() + hx[b].sum())):
+            return DIVERGED, b
+        status, ll = update(x[b], P[b], H[b], hx[b], R, z[b], k, periods, True, ws)
+        if status == OK and not finite(x[b], P[b]):
+            status = DIVERGED
+        if status != OK:
+            return status, b
+        record_update(ws, z[b], k, nus[b], Ss[b], nis[b], k)
+        xs[b, k] = x[b]
+        Ps[b, k] = P[b]
+        loglik[b] += ll
+    return OK, -1
 
 
 # ---------------------------------------------------------------- UKF

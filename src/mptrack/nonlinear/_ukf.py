@@ -35,9 +35,9 @@ from __future__ import annotations
 import numpy as np
 
 from .._core.filter_inputs import check_prior, prepare_nonlinear
+from .._core.finiteness import finite_result
 from .._core.model_families import model_family
 from .._core.unscented import check_unscented, covariance_sqrt, sigma_points, weights
-from .._core.validation import finite_result
 from ..errors import ParameterError
 from ..result import FilterResult, innovation_arrays
 from ..models import NonlinearModel
@@ -92,24 +92,46 @@ def _unscented_update(model: NonlinearModel, x, P, z, k: int, sp: tuple, method:
 @finite_result("the UKF")
 def ukf_filter(model, z, x0, P0, *, alpha: float = 1.0, beta: float = 2.0, kappa: float = 0.0,
                substeps: int | None = None, prior: str = "initial", compiled: bool | None = None) -> FilterResult:
-    """UKF over measurements z (T, m) from the prior N(x0, P0), for a discrete-time
-    :class:`~mptrack.models.NonlinearModel` or a :class:`~mptrack.continuous.ContinuousDiscreteModel` (module
-    docstring).
+    """Unscented Kalman filter for a discrete-time NonlinearModel or a continuous-discrete model.
 
-    alpha, beta, kappa   scaled unscented transform parameters (α > 0, β >= 0, n + κ > 0); the
-                         defaults α = 1, β = 2, κ = 0 keep every weight non-negative.  FilterPy's
-                         MerweScaledSigmaPoints(n, alpha, beta, kappa) and Stone Soup's
-                         UnscentedKalmanPredictor(alpha=.., beta=.., kappa=..) use the same points.
-    substeps             continuous-discrete models: RK4 sub-steps of the moment equations per dt;
-                         None (default): chosen at each step by the drift's rate (module docstring)
-    prior                "initial" (x0, P0 at time 0) or "first-measurement" (NonlinearModel only)
-    compiled             continuous-discrete models with compiled kernels: None/True run compiled,
-                         False the NumPy path (same numbers)
     NaN measurement components are skipped; a NaN row only predicts.  A
-    :func:`~mptrack.models.nonlinear_model` of a linear motion and named measurement models runs
-    compiled with the same numbers.
-    Raises ConvergenceError when the moment equations blow up (stiff drift,
-    far from the sigma points) and NotPositiveDefiniteError when P loses PSD.
+    :func:`~mptrack.models.nonlinear_model` of a linear motion and named measurement models runs compiled
+    with the same numbers.
+
+    Parameters
+    ----------
+    model : NonlinearModel or ContinuousDiscreteModel
+        The model (the filter dispatches on its type).
+    z : array_like, shape (T, m)
+        Measurements; NaN components are skipped, a NaN row only predicts.
+    x0 : array_like, shape (n,)
+        The prior mean, required.
+    P0 : array_like, shape (n, n)
+        The prior covariance, required.
+    alpha, beta, kappa : float, optional
+        Scaled unscented transform parameters (alpha > 0, beta >= 0, n + kappa > 0); the defaults keep every
+        weight non-negative.  FilterPy's MerweScaledSigmaPoints and Stone Soup's UnscentedKalmanPredictor
+        use the same points.
+    substeps : int, optional
+        Continuous-discrete models: RK4 sub-steps of the moment equations per dt (default: by the drift's
+        rate at each step).
+    prior : {"initial", "first-measurement"}, optional
+        x0, P0 at time 0 (predicted to the first measurement), or the prior at the first measurement.
+        (NonlinearModel only for "first-measurement").
+    compiled : bool, optional
+        Continuous-discrete models with compiled kernels: None or True run compiled, False the NumPy path
+        (same numbers).
+
+    Returns
+    -------
+    FilterResult
+
+    Raises
+    ------
+    ConvergenceError
+        The moment equations blow up (stiff drift, far from the sigma points).
+    NotPositiveDefiniteError
+        P loses positive semi-definiteness.
 
     References
     ----------
@@ -148,14 +170,24 @@ def ukf_filter(model, z, x0, P0, *, alpha: float = 1.0, beta: float = 2.0, kappa
 @finite_result("the unscented RTS smoother")
 def ukf_smoother(model: NonlinearModel, result: FilterResult, *, alpha: float | None = None,
                  beta: float | None = None, kappa: float | None = None) -> FilterResult:
-    """Unscented RTS smoother (Särkkä 2008, IEEE TAC 53(3)) on :func:`ukf_filter`'s result for a
-    NonlinearModel: C(k) = D(k) P(k+1/k)^-1 with D the unscented cross-covariance of x(k) and x(k+1).
-    x(0/T), P(0/T) are x0, P0 (method "URTS").
+    """Unscented RTS smoother (Särkkä 2008) on :func:`ukf_filter`'s result for a NonlinearModel.
 
-    The sigma points must be the filter's (D is paired with the filter's P(k+1/k)): they are read from
-    the result (``result.inputs``); alpha, beta, kappa may be omitted, and values other than the
-    filter's raise a ParameterError.  For a result that does not record them (not from ukf_filter)
-    they default to α = 1, β = 2, κ = 0.
+    C(k) = D(k) P(k+1/k)^-1 with D the unscented cross-covariance of x(k) and x(k+1).
+
+    Parameters
+    ----------
+    model : NonlinearModel
+        The model (f, h, Q, R and their Jacobians).
+    result : FilterResult
+        The UKF's result; its sigma-point parameters are read from ``result.inputs``.
+    alpha, beta, kappa : float, optional
+        May be omitted; values other than the filter's raise ParameterError (D must pair with the
+        filter's P(k+1/k)).  For a result that does not record them: 1, 2, 0.
+
+    Returns
+    -------
+    FilterResult
+        x(k/T), P(k/T), and x(0/T), P(0/T) as x0, P0 (method "URTS").
 
     References
     ----------

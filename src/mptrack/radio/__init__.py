@@ -1,7 +1,7 @@
-"""Radio propagation for cellular localisation: path-loss models, their inverses (RSS -> range)
-and GSM channel plans (ARFCN <-> frequency)."""
+"""Radio propagation for cellular localisation: path-loss models, their inverses (RSS -> range),
+GSM channel plans (ARFCN <-> frequency, the band of a channel) and the timing-advance step."""
 
-from ._arfcn import GSM_BANDS, GsmBand, arfcn_to_frequency, frequency_to_arfcn
+from ._arfcn import GSM_BANDS, TA_STEP_M, GsmBand, arfcn_to_frequency, band_of_arfcn, frequency_to_arfcn
 from ._inverse import (
     PATH_LOSS_MODELS,
     distance_from_path_loss,
@@ -28,6 +28,8 @@ __all__ = [
     "GsmBand",
     "arfcn_to_frequency",
     "frequency_to_arfcn",
+    "band_of_arfcn",
+    "TA_STEP_M",
     "PATH_LOSS_MODELS",
     "path_loss",
     "path_loss_from_rss",

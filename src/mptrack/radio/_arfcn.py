@@ -14,10 +14,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._core.validation import as_array
+from .._core.validation import as_array, as_real
 from ..errors import DTypeError, ParameterError, UnknownNameError
 
-__all__ = ["GsmBand", "GSM_BANDS", "arfcn_to_frequency", "frequency_to_arfcn"]
+__all__ = ["GsmBand", "GSM_BANDS", "arfcn_to_frequency", "frequency_to_arfcn", "band_of_arfcn", "TA_STEP_M"]
 
 
 @dataclass(frozen=True)
@@ -43,6 +43,10 @@ GSM_BANDS: dict[str, GsmBand] = {
     "GSM850": GsmBand("GSM 850", ((128, 251, 128, 824.2),), 45.0),
 }
 
+#: The distance of one step of the GSM timing advance (m): one bit period, 48/13 µs, of the round trip
+#: (3GPP TS 45.010), so c * 48/13 µs / 2.
+TA_STEP_M = 553.5
+
 _LINKS = ("downlink", "uplink")
 
 
@@ -59,11 +63,29 @@ def _link(link: str) -> str:
 
 
 def arfcn_to_frequency(arfcn, band: str, link: str = "downlink"):
-    """Carrier frequency in MHz of ``arfcn`` (int or integer array) in ``band`` (3GPP TS 45.005 §2).
+    """Carrier frequency of a GSM channel (3GPP TS 45.005, sec. 2).
 
-    band  one of GSM_BANDS: "P-GSM", "E-GSM", "R-GSM", "DCS1800", "PCS1900", "GSM850"
-    link  "downlink" (base station transmit, what a handset measures) or "uplink"
-    Raises UnknownNameError for an unknown band, ParameterError for a channel outside it.
+    Parameters
+    ----------
+    arfcn : int or array_like of int
+        Absolute radio-frequency channel number(s).
+    band : str
+        One of GSM_BANDS: "P-GSM", "E-GSM", "R-GSM", "DCS1800", "PCS1900", "GSM850" (ranges overlap, so the
+        band is always given).
+    link : {"downlink", "uplink"}, optional
+        Base-station transmit (what a handset measures) or mobile transmit.
+
+    Returns
+    -------
+    float or ndarray
+        MHz.
+
+    Raises
+    ------
+    UnknownNameError
+        An unknown band.
+    ParameterError
+        A channel outside the band.
 
     References
     ----------
@@ -72,6 +94,12 @@ def arfcn_to_frequency(arfcn, band: str, link: str = "downlink"):
     .. [2] N. Bouzera, M. Oussalah, N. Mezhoud and A. Khireddine, "Fuzzy extended Kalman filter for dynamic
            mobile localization in urban area using wireless network", Applied Soft Computing, vol. 57, pp.
            452–467, 2017. doi:10.1016/j.asoc.2017.04.007
+
+    Examples
+    --------
+    >>> from mptrack.radio import arfcn_to_frequency
+    >>> round(float(arfcn_to_frequency(764, "DCS1800")), 1)
+    1855.6
     """
     spec, link = _band(band), _link(link)
     n = as_array("arfcn", arfcn)
@@ -93,9 +121,23 @@ def arfcn_to_frequency(arfcn, band: str, link: str = "downlink"):
 
 
 def frequency_to_arfcn(frequency_mhz, band: str, link: str = "downlink"):
-    """ARFCN of a carrier ``frequency_mhz`` in ``band`` (inverse of :func:`arfcn_to_frequency`).
+    """The GSM channel of a carrier frequency (inverse of :func:`arfcn_to_frequency`).
 
-    Raises ParameterError when the frequency is not on the band's 200 kHz raster.
+    Parameters
+    ----------
+    frequency_mhz : float or array_like
+    band : str
+        One of GSM_BANDS.
+    link : {"downlink", "uplink"}, optional
+
+    Returns
+    -------
+    int or ndarray of int
+
+    Raises
+    ------
+    ParameterError
+        The frequency is not on the band's 200 kHz raster.
     """
     spec, link = _band(band), _link(link)
     f = as_array("frequency_mhz", frequency_mhz)
@@ -109,3 +151,28 @@ def frequency_to_arfcn(frequency_mhz, band: str, link: str = "downlink"):
         bad = f[out < 0].flat[0]
         raise ParameterError(f"frequency_mhz: {bad} MHz is not a {spec.name} {link} carrier")
     return out[()] if out.ndim == 0 else out
+
+
+def band_of_arfcn(arfcn: int) -> str:
+    """The GSM band of a channel number: 0-124 and 975-1023 E-GSM, 128-251 GSM850, 512-885 DCS1800.
+
+    PCS1900 reuses 512-810: give ranges, or a frequency-consistent cell table, for PCS networks.
+
+    Parameters
+    ----------
+    arfcn : int
+        0 to 1023.
+
+    Returns
+    -------
+    str
+        A key of GSM_BANDS.
+    """
+    a = as_real("arfcn", arfcn, low=0, high=1023)
+    if a != int(a):
+        raise ParameterError(f"arfcn: expected an integer channel number, got {arfcn!r}")
+    if a <= 124 or 975 <= a <= 1023:
+        return "E-GSM"
+    if 128 <= a <= 251:
+        return "GSM850"
+    return "DCS1800"

@@ -17,7 +17,8 @@ from typing import Callable
 
 import numpy as np
 
-from .._core.validation import as_array, broadcast_shape, lookup, require_finite
+from .._core.finiteness import require_finite
+from .._core.validation import as_array, broadcast_shape, lookup
 from ..errors import ParameterError
 from . import _pathloss as pl
 from ._validity import check_policy, check_range
@@ -55,12 +56,49 @@ def _model(model: str, params: dict) -> _Model:
 
 
 def path_loss(distance_km, model: str = "cost231-wi-nlos", **params):
-    """Path loss in dB of the named model (see PATH_LOSS_MODELS) at ``distance_km``."""
+    """Path loss of a named model (PATH_LOSS_MODELS).
+
+    Parameters
+    ----------
+    distance_km : float or array_like
+        Distance(s) (km), > 0.
+    model : str, optional
+        A key of PATH_LOSS_MODELS.
+    **params
+        The model's own parameters (h_base_m, frequency_mhz, ...).
+
+    Returns
+    -------
+    float or ndarray
+        dB.
+
+    Raises
+    ------
+    UnknownNameError
+        An unknown model.
+    """
     return _model(model, params).fn(distance_km, **params)
 
 
 def path_loss_from_rss(rss_dbm, tx_power_dbm, *, tx_gain_dbi=0.0, rx_gain_dbi=0.0, losses_db=0.0):
-    """Link budget: L = P_tx + G_tx + G_rx - losses - RSS, in dB (paper Appendix: Loss = Tx - Rx).
+    """Path loss from a link budget: L = P_tx + G_tx + G_rx - losses - RSS (Bouzera et al. 2017,
+    Appendix: Loss = Tx - Rx).
+
+    Parameters
+    ----------
+    rss_dbm : float or array_like
+        Received signal strength (dBm).
+    tx_power_dbm : float or array_like
+        Transmit power (dBm).
+    tx_gain_dbi, rx_gain_dbi : float, optional
+        Antenna gains (dBi).
+    losses_db : float, optional
+        Other losses (dB).
+
+    Returns
+    -------
+    float or ndarray
+        dB.
 
     References
     ----------
@@ -79,14 +117,33 @@ def path_loss_from_rss(rss_dbm, tx_power_dbm, *, tx_gain_dbi=0.0, rx_gain_dbi=0.
 
 
 def distance_from_path_loss(loss_db, model: str = "cost231-wi-nlos", *, on_invalid: str = "raise", **params):
-    """The distance in km at which ``model`` (with ``params``) predicts the loss ``loss_db``.
+    """The distance at which a path-loss model predicts a given loss.
 
-    Every path-loss model here is strictly increasing in distance, so the
-    inverse is unique.  With ``on_invalid="raise"`` a loss that no distance in
-    the model's valid range explains raises ParameterError (saying which range
-    of losses the model covers); "warn"/"ignore" extrapolate outside the range
-    (log-linear models exactly; WI NLOS within 1 m .. 100 km).  Model parameters
-    other than the loss must be scalars for WI NLOS (root finding per value).
+    Every model here is strictly increasing in distance, so the inverse is unique; log-linear models are
+    inverted in closed form, WI NLOS by root finding (its parameters other than the loss must then be
+    scalars).
+
+    Parameters
+    ----------
+    loss_db : float or array_like
+    model : str, optional
+        A key of PATH_LOSS_MODELS.
+    on_invalid : {"raise", "warn", "ignore"}, optional
+        Outside the model's validity range: raise ParameterError, warn (ValidityWarning) or ignore.
+        ``"warn"``/``"ignore"`` extrapolate (log-linear models exactly, WI NLOS within 1 m .. 100 km).
+    **params
+        The model's parameters.
+
+    Returns
+    -------
+    float or ndarray
+        km.
+
+    Raises
+    ------
+    ParameterError
+        With ``on_invalid="raise"``, a loss that no distance in the valid range explains (the message says
+        which losses the model covers).
     """
     return _invert(as_array("loss_db", loss_db), model, on_invalid, "loss_db", params)
 
@@ -149,17 +206,46 @@ def _bisect_log10(fn: Callable, loss: np.ndarray, lo: float, hi: float) -> np.nd
 
 def distance_from_rss(rss_dbm, tx_power_dbm, model: str = "cost231-wi-nlos", *, tx_gain_dbi=0.0,
                       rx_gain_dbi=0.0, losses_db=0.0, on_invalid: str = "raise", **params):
-    """Distance in km from a received signal strength (dBm) and the transmit power (dBm).
+    """Distance from a received signal strength and the transmit power.
 
-    Path loss L = P_tx + G_tx + G_rx - losses - RSS (:func:`path_loss_from_rss`), inverted with
-    :func:`distance_from_path_loss`.  Example (paper Table VIII, DCS 1800 channel 764):
-    ``distance_from_rss(-69, 43, h_base_m=52, frequency_mhz=arfcn_to_frequency(764, "DCS1800"))``.
+    The path loss of the link budget (:func:`path_loss_from_rss`) inverted by
+    :func:`distance_from_path_loss`.
+
+    Parameters
+    ----------
+    rss_dbm : float or array_like
+        Received signal strength (dBm).
+    tx_power_dbm : float or array_like
+        Transmit power (dBm).
+    model : str, optional
+        A key of PATH_LOSS_MODELS.
+    tx_gain_dbi, rx_gain_dbi, losses_db : float, optional
+        The link budget's gains and losses.
+    on_invalid : {"raise", "warn", "ignore"}, optional
+        Outside the model's validity range: raise ParameterError, warn (ValidityWarning) or ignore.
+    **params
+        The model's parameters.
+
+    Returns
+    -------
+    float or ndarray
+        km.
 
     References
     ----------
     .. [1] N. Bouzera, M. Oussalah, N. Mezhoud and A. Khireddine, "Fuzzy extended Kalman filter for dynamic
            mobile localization in urban area using wireless network", Applied Soft Computing, vol. 57, pp.
            452–467, 2017. doi:10.1016/j.asoc.2017.04.007
+
+    Examples
+    --------
+    The link of Table VIII of Bouzera et al. 2017 (DCS 1800 channel 764):
+
+    >>> from mptrack.radio import arfcn_to_frequency, distance_from_rss
+    >>> d = distance_from_rss(-69, 43, h_base_m=52, frequency_mhz=arfcn_to_frequency(764, "DCS1800"),
+    ...                       on_invalid="ignore")
+    >>> 0.1 < float(d) < 5.0
+    True
     """
     loss = path_loss_from_rss(rss_dbm, tx_power_dbm, tx_gain_dbi=tx_gain_dbi, rx_gain_dbi=rx_gain_dbi,
                               losses_db=losses_db)

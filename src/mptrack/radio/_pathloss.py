@@ -18,7 +18,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._core.validation import as_array, as_real, broadcast_shape, finite_result
+from .._core.finiteness import finite_result
+from .._core.validation import as_array, as_real, broadcast_shape
 from ..errors import ParameterError
 from ._validity import check_policy, check_range
 
@@ -71,9 +72,19 @@ def _check(model: str, limits: dict, on_invalid: str, **values) -> None:
 
 @finite_result("the path loss")
 def free_space_loss(distance_km, frequency_mhz):
-    """Free-space basic transmission loss 20 log10(4 pi d f / c) in dB (Friis).
+    """Free-space basic transmission loss 20 log10(4 pi d f / c) (Friis): 32.45 + 20 log d + 20 log f.
 
-    Equals 32.45 + 20 log10(d/km) + 20 log10(f/MHz); valid for any d, f > 0.
+    Parameters
+    ----------
+    distance_km : float or array_like
+        Distance(s) (km), > 0.
+    frequency_mhz : float or array_like
+        Carrier frequency (MHz), > 0.
+
+    Returns
+    -------
+    float or ndarray
+        dB.
     """
     d = _positive("distance_km", distance_km)
     f = _positive("frequency_mhz", frequency_mhz)
@@ -83,10 +94,23 @@ def free_space_loss(distance_km, frequency_mhz):
 
 @finite_result("the path loss")
 def wi_free_space_loss(distance_km, frequency_mhz, *, constant_db: float = 32.4):
-    """COST-231 WI free-space term L0 = 32.4 + 20 log d + 20 log f (COST 231 eq. 4.4.2).
+    """The COST-231 Walfisch-Ikegami free-space term L0 = 32.4 + 20 log d + 20 log f (COST 231 eq. 4.4.2).
 
-    COST 231 (and 3GPP TR 25.996) use 32.4; the exact Friis constant is 32.45,
-    which is what reproduces the paper's Table VIII (its appendix prints 32.44).
+    COST 231 (and 3GPP TR 25.996) use 32.4; the exact Friis constant 32.45 reproduces the paper's Table VIII
+    (its appendix prints 32.44).
+
+    Parameters
+    ----------
+    distance_km : float or array_like
+        Distance(s) (km), > 0.
+    frequency_mhz : float or array_like
+        Carrier frequency (MHz), > 0.
+    constant_db : float, optional
+
+    Returns
+    -------
+    float or ndarray
+        dB.
 
     References
     ----------
@@ -106,13 +130,21 @@ def wi_free_space_loss(distance_km, frequency_mhz, *, constant_db: float = 32.4)
 
 
 def wi_orientation_loss(street_angle_deg):
-    """Street-orientation correction L_ori(phi) in dB, 0 <= phi <= 90 degrees (COST 231 eq. 4.4.5).
+    """Street-orientation correction L_ori(phi) (COST 231 eq. 4.4.5).
 
-    -10 + 0.354 phi (phi < 35), 2.5 + 0.075 (phi - 35) (35 <= phi < 55),
-    4.0 - 0.114 (phi - 55) (55 <= phi <= 90).  As in COST 231 the first piece
-    ends at 2.39 dB, 0.11 dB below the second (a step at 35 degrees).  The paper
-    prints 0.3574 (which would close that step) and 0.1004; its own Table VIII
-    is reproduced with 0.354 (docs/errata.md).
+    -10 + 0.354 phi (phi < 35), 2.5 + 0.075 (phi - 35) (35 <= phi < 55), 4.0 - 0.114 (phi - 55)
+    (55 <= phi <= 90); as in COST 231 the first piece ends 0.11 dB below the second.  The paper prints
+    0.3574 and 0.1004; its own Table VIII is reproduced with 0.354 (docs/errata.md).
+
+    Parameters
+    ----------
+    street_angle_deg : float or array_like
+        The angle between the street and the incident wave, 0 to 90 degrees.
+
+    Returns
+    -------
+    float or ndarray
+        dB.
 
     References
     ----------
@@ -132,9 +164,22 @@ def wi_orientation_loss(street_angle_deg):
 
 @finite_result("the path loss")
 def wi_rooftop_to_street_loss(frequency_mhz, *, street_width_m, h_roof_m, h_mobile_m, street_angle_deg):
-    """Roof-top-to-street diffraction and scatter loss L_rts in dB (COST 231 eq. 4.4.4).
+    """Roof-top-to-street diffraction and scatter loss L_rts = -16.9 - 10 log w + 10 log f
+    + 20 log(h_roof - h_mobile) + L_ori(phi) (COST 231 eq. 4.4.4).
 
-    L_rts = -16.9 - 10 log w + 10 log f + 20 log(h_roof - h_mobile) + L_ori(phi).
+    Parameters
+    ----------
+    frequency_mhz : float or array_like
+        Carrier frequency (MHz), > 0.
+    street_width_m : float
+    h_roof_m, h_mobile_m : float
+        Heights (m), h_roof > h_mobile.
+    street_angle_deg : float
+
+    Returns
+    -------
+    float or ndarray
+        dB.
 
     References
     ----------
@@ -157,14 +202,29 @@ def wi_rooftop_to_street_loss(frequency_mhz, *, street_width_m, h_roof_m, h_mobi
 @finite_result("the path loss")
 def wi_multiscreen_loss(distance_km, frequency_mhz, *, h_base_m, h_roof_m, building_sep_m,
                         city: str = "medium"):
-    """Multi-screen diffraction loss L_msd in dB (COST 231 eqs. 4.4.6–4.4.10).
+    """Multi-screen diffraction loss L_msd = L_bsh + k_a + k_d log d + k_f log f - 9 log b (COST 231
+    eqs. 4.4.6-4.4.10).
 
-    L_msd = L_bsh + k_a + k_d log d + k_f log f - 9 log b, with dh_b = h_base - h_roof:
-      L_bsh = -18 log(1 + dh_b) if dh_b > 0 else 0
-      k_a   = 54 (dh_b > 0); 54 - 0.8 dh_b (dh_b <= 0, d >= 0.5 km); 54 - 0.8 dh_b d/0.5 (dh_b <= 0, d < 0.5 km)
-      k_d   = 18 (dh_b > 0); 18 - 15 dh_b / h_roof (dh_b <= 0)
-      k_f   = -4 + 0.7 (f/925 - 1) (city="medium": medium-sized city, suburban)
-              -4 + 1.5 (f/925 - 1) (city="metropolitan")
+    With dh_b = h_base - h_roof: L_bsh = -18 log(1 + dh_b) if dh_b > 0 else 0; k_a = 54 (dh_b > 0),
+    54 - 0.8 dh_b (d >= 0.5 km) or 54 - 0.8 dh_b d / 0.5 (d < 0.5 km); k_d = 18 (dh_b > 0) or
+    18 - 15 dh_b / h_roof; k_f = -4 + 0.7 (f/925 - 1) (medium-sized city, suburban).
+
+    Parameters
+    ----------
+    distance_km : float or array_like
+        Distance(s) (km), > 0.
+    frequency_mhz : float or array_like
+        Carrier frequency (MHz), > 0.
+    h_base_m, h_roof_m : float
+        Heights (m).
+    building_sep_m : float
+        Building separation b (m).
+    city : {"medium"}, optional
+
+    Returns
+    -------
+    float or ndarray
+        dB.
 
     References
     ----------
@@ -193,13 +253,33 @@ def wi_multiscreen_loss(distance_km, frequency_mhz, *, h_base_m, h_roof_m, build
 def cost231_wi_nlos(distance_km, frequency_mhz, *, h_base_m, h_mobile_m=1.5, h_roof_m=15.0,
                     street_width_m=25.0, building_sep_m=50.0, street_angle_deg=30.0,
                     city: str = "medium", free_space_constant_db: float = 32.4, on_invalid: str = "warn"):
-    """COST-231 Walfisch–Ikegami non-line-of-sight loss in dB (COST 231 eq. 4.4.1; paper Appendix).
+    """COST-231 Walfisch-Ikegami non-line-of-sight loss (COST 231 eq. 4.4.1; Bouzera et al. 2017,
+    Appendix).
 
-    L = L0 + L_rts + L_msd if L_rts + L_msd > 0, else L0 (see the sub-term functions).
-    Valid for 800 <= f <= 2000 MHz, 4 <= h_base <= 50 m, 1 <= h_mobile <= 3 m,
-    0.02 <= d <= 5 km.  The defaults b = 50 m, w = b/2, phi = 30 deg, h_roof = 15 m
-    are those of the paper's drive test.  ``free_space_constant_db`` is the
-    constant of L0 (32.4 in COST 231; 32.45 reproduces the paper's Table VIII).
+    L = L0 + L_rts + L_msd if L_rts + L_msd > 0, else L0.  Valid for 800 <= f <= 2000 MHz,
+    4 <= h_base <= 50 m, 1 <= h_mobile <= 3 m, 0.02 <= d <= 5 km.  The defaults are the paper's drive
+    test (b = 50 m, w = b/2, phi = 30 degrees, h_roof = 15 m).
+
+    Parameters
+    ----------
+    distance_km : float or array_like
+        Distance(s) (km), > 0.
+    frequency_mhz : float or array_like
+        Carrier frequency (MHz), > 0.
+    h_base_m : float
+    h_mobile_m, h_roof_m : float, optional
+    street_width_m, building_sep_m : float, optional
+    street_angle_deg : float, optional
+    city : {"medium"}, optional
+    free_space_constant_db : float, optional
+        The constant of L0 (32.4 in COST 231; 32.45 reproduces the paper's Table VIII).
+    on_invalid : {"raise", "warn", "ignore"}, optional
+        Outside the model's validity range: raise ParameterError, warn (ValidityWarning) or ignore.
+
+    Returns
+    -------
+    float or ndarray
+        dB.
 
     References
     ----------
@@ -229,9 +309,24 @@ def cost231_wi_nlos(distance_km, frequency_mhz, *, h_base_m, h_mobile_m=1.5, h_r
 
 @finite_result("the path loss")
 def cost231_wi_los(distance_km, frequency_mhz, *, on_invalid: str = "warn"):
-    """COST-231 Walfisch–Ikegami line-of-sight (street canyon) loss 42.6 + 26 log d + 20 log f in dB.
+    """COST-231 Walfisch-Ikegami line-of-sight (street canyon) loss 42.6 + 26 log d + 20 log f
+    (COST 231 eq. 4.4.13; the paper prints 42.64).
 
-    COST 231 eq. 4.4.13, valid for d >= 0.02 km (800–2000 MHz); the paper prints 42.64.
+    Valid for d >= 0.02 km, 800-2000 MHz.
+
+    Parameters
+    ----------
+    distance_km : float or array_like
+        Distance(s) (km), > 0.
+    frequency_mhz : float or array_like
+        Carrier frequency (MHz), > 0.
+    on_invalid : {"raise", "warn", "ignore"}, optional
+        Outside the model's validity range: raise ParameterError, warn (ValidityWarning) or ignore.
+
+    Returns
+    -------
+    float or ndarray
+        dB.
 
     References
     ----------
@@ -253,10 +348,22 @@ def cost231_wi_los(distance_km, frequency_mhz, *, on_invalid: str = "warn"):
 
 @finite_result("the path loss")
 def hata_mobile_correction(frequency_mhz, h_mobile_m, *, large_city: bool = False):
-    """Hata's mobile-antenna correction a(h_m) in dB (Hata 1980, eqs. 4a–4b).
+    """Hata's mobile-antenna correction a(h_m) (Hata 1980, eqs. 4a-4b).
 
-    Small/medium city: (1.1 log f - 0.7) h_m - (1.56 log f - 0.8).
-    Large city: 8.29 (log 1.54 h_m)^2 - 1.1 for f <= 300 MHz, 3.2 (log 11.75 h_m)^2 - 4.97 above.
+    Small/medium city: (1.1 log f - 0.7) h_m - (1.56 log f - 0.8); large city: 8.29 (log 1.54 h_m)^2 - 1.1
+    for f <= 300 MHz, 3.2 (log 11.75 h_m)^2 - 4.97 above.
+
+    Parameters
+    ----------
+    frequency_mhz : float or array_like
+        Carrier frequency (MHz), > 0.
+    h_mobile_m : float or array_like
+    large_city : bool, optional
+
+    Returns
+    -------
+    float or ndarray
+        dB.
 
     References
     ----------
@@ -287,13 +394,29 @@ def _hata_loss(model, freq_limits, on_invalid, distance_km, frequency_mhz, h_bas
 @finite_result("the path loss")
 def okumura_hata(distance_km, frequency_mhz, *, h_base_m, h_mobile_m=1.5, environment: str = "urban",
                  on_invalid: str = "warn"):
-    """Okumura–Hata loss in dB (Hata 1980, eqs. 3–6).
+    """Okumura-Hata loss (Hata 1980, eqs. 3-6).
 
-    L_u = 69.55 + 26.16 log f - 13.82 log h_b - a(h_m) + (44.9 - 6.55 log h_b) log d;
-    environment "urban" (small/medium city a(h_m)), "urban-large" (large-city a(h_m)),
-    "suburban" (L_u - 2 (log(f/28))^2 - 5.4) or "rural" (open area,
-    L_u - 4.78 (log f)^2 + 18.33 log f - 40.94).
-    Valid for 150 <= f <= 1500 MHz, 30 <= h_b <= 200 m, 1 <= h_m <= 10 m, 1 <= d <= 20 km.
+    L_u = 69.55 + 26.16 log f - 13.82 log h_b - a(h_m) + (44.9 - 6.55 log h_b) log d.  Valid for
+    150 <= f <= 1500 MHz, 30 <= h_b <= 200 m, 1 <= h_m <= 10 m, 1 <= d <= 20 km.
+
+    Parameters
+    ----------
+    distance_km : float or array_like
+        Distance(s) (km), > 0.
+    frequency_mhz : float or array_like
+        Carrier frequency (MHz), > 0.
+    h_base_m : float
+    h_mobile_m : float, optional
+    environment : {"urban", "urban-large", "suburban", "rural"}, optional
+        Small/medium city a(h_m), large-city a(h_m), L_u - 2 (log(f/28))^2 - 5.4, or open area
+        L_u - 4.78 (log f)^2 + 18.33 log f - 40.94.
+    on_invalid : {"raise", "warn", "ignore"}, optional
+        Outside the model's validity range: raise ParameterError, warn (ValidityWarning) or ignore.
+
+    Returns
+    -------
+    float or ndarray
+        dB.
 
     References
     ----------
@@ -316,12 +439,27 @@ def okumura_hata(distance_km, frequency_mhz, *, h_base_m, h_mobile_m=1.5, enviro
 @finite_result("the path loss")
 def cost231_hata(distance_km, frequency_mhz, *, h_base_m, h_mobile_m=1.5, city: str = "medium",
                  on_invalid: str = "warn"):
-    """COST-231 Hata loss in dB (COST 231 final report eq. 4.4.1 of §4.4.1).
+    """COST-231 Hata loss L = 46.3 + 33.9 log f - 13.82 log h_b - a(h_m) + (44.9 - 6.55 log h_b) log d + C_m.
 
-    L = 46.3 + 33.9 log f - 13.82 log h_b - a(h_m) + (44.9 - 6.55 log h_b) log d + C_m,
-    a(h_m) of the small/medium city, C_m = 0 dB (city="medium": medium city, suburban)
-    or 3 dB (city="metropolitan").  Valid for 1500 <= f <= 2000 MHz, 30 <= h_b <= 200 m,
-    1 <= h_m <= 10 m, 1 <= d <= 20 km.
+    Valid for 1500 <= f <= 2000 MHz, 30 <= h_b <= 200 m, 1 <= h_m <= 10 m, 1 <= d <= 20 km.
+
+    Parameters
+    ----------
+    distance_km : float or array_like
+        Distance(s) (km), > 0.
+    frequency_mhz : float or array_like
+        Carrier frequency (MHz), > 0.
+    h_base_m : float
+    h_mobile_m : float, optional
+    city : {"medium", "metropolitan"}, optional
+        C_m = 0 dB (medium city, suburban) or 3 dB.
+    on_invalid : {"raise", "warn", "ignore"}, optional
+        Outside the model's validity range: raise ParameterError, warn (ValidityWarning) or ignore.
+
+    Returns
+    -------
+    float or ndarray
+        dB.
 
     References
     ----------

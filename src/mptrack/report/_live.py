@@ -10,9 +10,21 @@ __all__ = ["live_map_page"]
 
 
 def live_map_page(*, key: str | None = None, title: str = "mptrack live map") -> str:
-    """The HTML of the live map: every device's estimate (with its 1-sigma ellipse) beside its last raw
-    fix, moving as fixes arrive (Server-Sent Events from ``/api/stream``); a click on a device draws its
-    last hour's track.  ``key``: the API key the page passes on to the API (``mptrack serve --auth``)."""
+    """The HTML of the live map of ``mptrack serve``.
+
+    Every device's estimate (with its 1-sigma ellipse) beside its last raw fix, moving as fixes arrive
+    (Server-Sent Events from ``/api/stream``); a click on a device draws its last hour's track.
+
+    Parameters
+    ----------
+    key : str, optional
+        The API key the page passes on to the API (``mptrack serve --auth``).
+    title : str, optional
+
+    Returns
+    -------
+    str
+    """
     if key is not None and not isinstance(key, str):
         raise ParameterError(f"key: expected the API key as text or None, got {type(key).__name__}")
     if not isinstance(title, str):

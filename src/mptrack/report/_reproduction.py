@@ -48,7 +48,18 @@ def _check_table(table, name: str = "table", whole: bool = False) -> dict:
 
 
 def explained_cells(table: dict) -> dict[tuple[int, int], str]:
-    """{(row, column): erratum key} of a results.json table (its ``explained_by``: [[row, col, key], ...])."""
+    """The explained cells of a results.json table.
+
+    Parameters
+    ----------
+    table : dict
+        A table of results.json (its ``explained_by``: [[row, col, key], ...]).
+
+    Returns
+    -------
+    dict
+        {(row, column): erratum key}.
+    """
     table = _check_table(table)
     return {(int(e[0]), int(e[1])): str(e[2]) for e in table.get("explained_by") or ()}
 
@@ -57,7 +68,18 @@ _UNCOUNTED = "shown beside the paper, not counted: an input or label it printed,
 
 
 def uncounted_columns(table: dict) -> set[int]:
-    """Column indices a results.json table shows but does not count (its "uncounted" column names)."""
+    """The columns a results.json table shows but does not count (its "uncounted" column names).
+
+    Parameters
+    ----------
+    table : dict
+        A table of results.json.
+
+    Returns
+    -------
+    set of int
+        Column indices.
+    """
     table = _check_table(table)
     names = set(map(str, table.get("uncounted") or ()))
     return {j for j, c in enumerate(table["columns"]) if c in names}
@@ -126,12 +148,27 @@ def _table_html(label: str, table: dict, described: dict, errata: Path | None) -
 
 def write_reproduction_report(results: dict, path, *, figures_dir=None, errata=None,
                               counts: dict | None = None, title: str | None = None) -> Path:
-    """Write the HTML page of a reproduction from its results.json content (docs: RESULTS.md).
+    """Write the HTML page of a reproduction from its results.json content: each table beside the
+    paper's, differences highlighted and linked to their erratum.
 
-    figures_dir  where the figures named in ``results["figures"]`` are (embedded as PNG when found)
-    errata       the path of docs/errata.md, the target of the links of explained differences
-    counts       {"published", "matched", "explained", "unexplained"} for the heading line
-    title        the page's title (default: the reproduction's key)
+    Parameters
+    ----------
+    results : dict
+        The reproduction's results.json content.
+    path : str or path-like
+        The HTML file.
+    figures_dir : str or path-like, optional
+        Where the figures named in ``results["figures"]`` are (embedded as PNG when found).
+    errata : str or path-like, optional
+        The path of docs/errata.md, the target of the links of explained differences.
+    counts : dict, optional
+        {"published", "matched", "explained", "unexplained"} for the heading line.
+    title : str, optional
+        The page's title (default: the reproduction's key).
+
+    Returns
+    -------
+    pathlib.Path
     """
     if not isinstance(results, dict) or not isinstance(results.get("tables", {}), dict):
         raise ParameterError(f"results: expected the content of a results.json (a dict of tables ...), "

@@ -12,8 +12,11 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from .._core.validation import check_frame, check_int, check_path, point_numbers
-from ..errors import DataError, ParameterError, ShapeError
+from .._core.data_checks import check_frame, point_numbers
+from .._core.finiteness import renamed
+from .._core.validation import check_int, check_path
+from ..errors import ParameterError, ShapeError
+from ..runs import read_part
 from ._decimate import DEFAULT_BUDGET
 from ._page import esc, json_script, page, write_page
 from ._payload import track_payload
@@ -37,15 +40,34 @@ REPORT_COLUMNS = ("track_id", "t", "method", "flag", "gap", "lat", "lon", "origi
 
 def report_points(sources) -> pd.DataFrame:
     """The point table a report needs from a run's point tables: :data:`REPORT_COLUMNS` only, in one
-    frame.  ``sources`` are pyarrow Tables or Arrow IPC files (the chunks' parts that
-    :func:`mptrack.tracking.track_file` hands to ``on_points``).  Files are memory-mapped and copied
-    one at a time into the frame's columns (each unmapped once copied), text as one Python object per
-    distinct value, so the peak is about the frame itself: 0.23 GB for 10^6 points."""
+    frame.
+
+    Files are memory-mapped and copied one at a time into the frame's columns, text as one Python object
+    per distinct value, so the peak is about the frame itself.
+
+    Parameters
+    ----------
+    sources : sequence of pyarrow.Table or path
+        Tables, or part files (the chunks' parts :func:`mptrack.tracking.track_file` hands to
+        ``on_points``, read by :func:`mptrack.runs.read_part`).
+
+    Returns
+    -------
+    pandas.DataFrame
+
+    Raises
+    ------
+    ShapeError
+        The tables have different columns.
+    DataError
+        A file that is not a part.
+    """
     import pyarrow as pa
 
     if isinstance(sources, (str, bytes, pd.DataFrame)) or not np.iterable(sources):
         raise ParameterError(f"sources: expected a list of pyarrow Tables or Arrow IPC files, got {sources!r:.80}")
-    tables = [src if isinstance(src, pa.Table) else _read_arrow(src) for src in sources]
+    with renamed(path="sources"):
+        tables = [src if isinstance(src, pa.Table) else read_part(src) for src in sources]
     if not tables:
         return pd.DataFrame({c: [] for c in ("track_id", "t", "flag")})
     names = [c for c in REPORT_COLUMNS if c in tables[0].column_names]
@@ -76,18 +98,6 @@ def report_points(sources) -> pd.DataFrame:
                 columns[name][start:stop] = col.to_numpy()
         start = stop
     return pd.DataFrame(columns, copy=False)
-
-
-def _read_arrow(path):
-    """An Arrow IPC file memory-mapped as a pyarrow Table; a file that is not one is a DataError."""
-    import pyarrow as pa
-    import pyarrow.feather as feather
-
-    path = check_path("sources", path)
-    try:
-        return feather.read_table(path, memory_map=True)
-    except (OSError, pa.ArrowException) as exc:
-        raise DataError(f"cannot be read as an Arrow IPC file ({exc})", file=path) from None
 
 
 #: The columns a report needs: a track, its times and flags, the 1-sigma of the position and the position
@@ -284,16 +294,31 @@ def _summary_rows(summary: dict) -> dict:
 def write_report(tracks: pd.DataFrame, path, *, summary: dict, run: dict | None = None,
                  title: str = "mptrack report", notes: list[str] | tuple[str, ...] = (),
                  budget: int = DEFAULT_BUDGET) -> Path:
-    """Write the HTML report of ``tracks`` to ``path`` atomically (one file, works offline).
+    """Write the HTML report of a tracking run atomically (one file, works offline).
 
-    tracks   the point table of ``mptrack track`` (:func:`mptrack.tracking.read_output`), with the
-             error and truth columns of :func:`mptrack.tracking.evaluate_tracks` when evaluated
-    summary  the evaluation of ``tracks`` (the first value :func:`mptrack.tracking.evaluate_tracks`
-             returns): one row per track and an overall row; every track is in the page's table; its
-             "nis" part gives the mean NIS sentence, the verdict and the advice the page prints
-    run      the summary :func:`mptrack.tracking.track_file` returns, for the data-quality section
-             (rows skipped by reason, records left out, the reader's notes, NIS advice)
-    budget   about how many points the map and plots draw in all (larger tables are decimated)
+    Parameters
+    ----------
+    tracks : pandas.DataFrame
+        The point table of ``mptrack track`` (:func:`mptrack.io.read_output`), with the error and truth
+        columns of :func:`mptrack.tracking.evaluate_tracks` when evaluated.
+    path : str or path-like
+        The HTML file.
+    summary : dict
+        The evaluation of ``tracks`` (the first value :func:`mptrack.tracking.evaluate_tracks` returns):
+        every track is in the page's table; its "nis" part gives the mean NIS sentence, verdict and advice.
+    run : dict, optional
+        The summary :func:`mptrack.tracking.track_file` returns, for the data-quality section (rows
+        skipped by reason, records left out, the reader's notes, NIS advice).
+    title : str, optional
+    notes : sequence of str, optional
+        Further notes printed on the page.
+    budget : int, optional
+        About how many points the map and plots draw in all (larger tables are decimated, every event
+        kept).
+
+    Returns
+    -------
+    pathlib.Path
     """
     path, notes, budget = _check_report_inputs(tracks, path, summary, run, title, notes, budget)
     payload = track_payload(tracks, budget=budget)

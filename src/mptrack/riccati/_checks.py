@@ -67,7 +67,20 @@ def undriven_modes(F: np.ndarray, Q_factor: np.ndarray) -> tuple[list[complex], 
 
 
 def check_detectable(F: np.ndarray, H: np.ndarray) -> None:
-    """Raise NotDetectableError when an unstable mode of F is invisible in H."""
+    """Check that (F, H) is detectable (the PBH rank test).
+
+    Parameters
+    ----------
+    F : array_like, shape (n, n)
+        Transition matrix.
+    H : array_like, shape (m, n)
+        Measurement matrix.
+
+    Raises
+    ------
+    NotDetectableError
+        An unstable mode of F is invisible in H; the message names its eigenvalue.
+    """
     F, H = _pair("F", F, "H", H, rows=True)
     bad = _analysed(unstable_modes_unobservable, F, H, names=("F", "H"))
     if bad:
@@ -78,11 +91,24 @@ def check_detectable(F: np.ndarray, H: np.ndarray) -> None:
 
 
 def check_stabilisable(F: np.ndarray, Q_factor: np.ndarray) -> None:
-    """Raise NotStabilisableError when a mode of F *on the unit circle* receives no process noise.
+    """Check that no mode of F on the unit circle is left without process noise (the PBH rank test).
 
-    Only those modes prevent a stabilising solution of the filter DARE (with (F, H) detectable):
-    an undriven mode outside the unit circle (F = 2, Q = 0) is estimated from the measurements,
-    and the stabilising solution exists (P = 3 for F = 2, H = 1, Q = 0, R = 1, as scipy finds)."""
+    Only those modes prevent a stabilising solution of the filter DARE (with (F, H) detectable): an
+    undriven mode outside the unit circle (F = 2, Q = 0) is estimated from the measurements (P = 3 for
+    F = 2, H = 1, Q = 0, R = 1, as scipy finds).
+
+    Parameters
+    ----------
+    F : array_like, shape (n, n)
+        Transition matrix.
+    Q_factor : array_like, shape (n, p)
+        A factor G of the process noise, Q = G G^T.
+
+    Raises
+    ------
+    NotStabilisableError
+        A mode on the unit circle receives no process noise; the message names its eigenvalue.
+    """
     F, Q_factor = _pair("F", F, "Q_factor", Q_factor, rows=False)
     bad, _ = _analysed(undriven_modes, F, Q_factor, names=("F", "Q_factor"))
     if bad:

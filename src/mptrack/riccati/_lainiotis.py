@@ -38,7 +38,22 @@ class LainiotisParameters:
 
 
 def lainiotis_parameters(model: LinearGaussianModel) -> LainiotisParameters:
-    """The off-line :class:`LainiotisParameters` of ``model`` (Assimakis & Adam 2014, eq. 7).
+    """The off-line parameters of the Lainiotis filter (Assimakis & Adam 2014, eq. 7).
+
+    Parameters
+    ----------
+    model : LinearGaussianModel
+        The model (F, H, Q, R).
+
+    Returns
+    -------
+    LainiotisParameters
+        Pn, Kn, Km, Fn, On of the model.
+
+    Raises
+    ------
+    SingularMatrixError
+        A matrix the parameters invert is singular.
 
     References
     ----------

@@ -4,8 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._core.validation import as_matrix, check_covariance, check_int, finite_result
+from .._core.finiteness import finite_result
 from .._core.lyapunov import power_sum_unchecked
+from .._core.validation import as_matrix, check_covariance, check_int
 from ..errors import ShapeError
 
 __all__ = ["power_sum"]
@@ -13,11 +14,28 @@ __all__ = ["power_sum"]
 
 @finite_result("F^N and its Lyapunov sum")
 def power_sum(F, Q, N: int) -> tuple[np.ndarray, np.ndarray]:
-    """(F^N, S_N) with S_N = sum_{j<N} F^j Q F^{j T}, in O(log N) matrix products.
+    """F^N and S_N = sum_{j<N} F^j Q F^jT in O(log N) matrix products.
 
-    F (n, n), Q (n, n) a covariance, N >= 0.  Doubling: (F^{2j}, S_{2j}) = (F^j F^j, S_j + F^j S_j F^{j T});
-    one step more: (F^{j+1}, S_{j+1}) = (F F^j, Q + F S_j F^T).  A stable F gives S_N -> the Lyapunov
-    solution; an overflow is a NonFiniteError naming the input of largest magnitude.
+    Doubling: (F^2j, S_2j) = (F^j F^j, S_j + F^j S_j F^jT); one step more:
+    (F^(j+1), S_(j+1)) = (F F^j, Q + F S_j F^T).  A stable F gives S_N -> the Lyapunov solution.
+
+    Parameters
+    ----------
+    F : array_like, shape (n, n)
+        Transition matrix.
+    Q : array_like, shape (n, n)
+        A covariance.
+    N : int
+        The power, >= 0.
+
+    Returns
+    -------
+    F_N, S_N : ndarray, shape (n, n)
+
+    Raises
+    ------
+    NonFiniteError
+        An overflow; the message names the input of largest magnitude.
     """
     F = as_matrix("F", F)
     if F.shape[0] != F.shape[1]:

@@ -20,7 +20,8 @@ import numpy as np
 import scipy.linalg
 
 from .._core.blas import one_blas_thread
-from .._core.validation import _overflow, check_covariance, check_int, check_positive, renamed, require_finite
+from .._core.finiteness import _overflow, renamed, require_finite
+from .._core.validation import check_covariance, check_int, check_positive
 from ..errors import ConvergenceError, MptrackError, ParameterError
 from ..models import LinearGaussianModel, require_model
 from ._checks import check_detectable, check_stabilisable, undriven_modes
@@ -87,7 +88,19 @@ def _gain(model: LinearGaussianModel, P_pred: np.ndarray) -> tuple[np.ndarray, n
 
 
 def riccati_step(model: LinearGaussianModel, P_pred: np.ndarray) -> np.ndarray:
-    """One step of the REKF recursion: P(k+1/k) from P(k/k-1) (a symmetric PSD (n, n) matrix).
+    """One step of the Kalman filter's Riccati recursion (REKF): P(k+1/k) from P(k/k-1).
+
+    Parameters
+    ----------
+    model : LinearGaussianModel
+        The model (F, H, Q, R).
+    P_pred : array_like, shape (n, n)
+        P(k/k-1), symmetric positive semi-definite.
+
+    Returns
+    -------
+    ndarray, shape (n, n)
+        P(k+1/k).
 
     References
     ----------
@@ -113,7 +126,19 @@ def _riccati_step(model: LinearGaussianModel, P_pred: np.ndarray) -> np.ndarray:
 
 
 def riccati_residual(model: LinearGaussianModel, P_pred: np.ndarray) -> float:
-    """||REKF(Pp) - Pp||_F / max(1, ||Pp||_F)."""
+    """Relative residual of a Riccati solution: ||REKF(P) - P||_F / max(1, ||P||_F).
+
+    Parameters
+    ----------
+    model : LinearGaussianModel
+        The model (F, H, Q, R).
+    P_pred : array_like, shape (n, n)
+        A candidate steady-state P(k+1/k).
+
+    Returns
+    -------
+    float
+    """
     P_next = riccati_step(model, P_pred)
     value = _residual(model, P_pred, P_next)
     require_finite("the Riccati residual", value, model=model, P_pred=P_pred)
@@ -318,31 +343,59 @@ def _relf(model, P0, tol, max_iter):
 def steady_state(model: LinearGaussianModel, method: Method = "dare", *,
                  form: Literal["kalman", "lainiotis"] = "kalman", P0=None,
                  tol: float | None = None, max_iter: int = 100_000) -> SteadyState:
-    """Steady-state gain, covariances and filter matrices of ``model``.
+    """Steady-state gain, covariances and filter matrices of a model.
 
-    method  "dare" (scipy's algebraic solver), "doubling" (SDA) or "per-step"
-            (iterate the Riccati recursion from P(0/0) = P0, default 0).
-    form    "kalman": A = (I - KH) F, B = K from the REKF solution (eq. 10-11);
-            "lainiotis": Pe from the RELF recursion (eq. 14) and
-            A, B from eq. 13 (only with method "per-step", the paper's choice).
-    tol     stopping rule of the iterative methods: None (default) iterates to the rounding
-            level, which meets scipy's DARE residual bar; a number stops at the first relative
-            step ||dP|| <= tol ||P||.  ``steady_state_time`` is the first k with a relative
-            step <= 1e-13 (STEADY_TOL) either way.
+    Existence is checked first (detectable (F, H), no mode on the unit circle left undriven by Q).  When F
+    has modes outside the unit circle that Q does not drive (F = 2, Q = 0) the stabilising solution still
+    exists; the iterations then start from P0 = I (the default P0 only), since from 0 they stay on the
+    non-stabilising solution.
 
-    When F has modes outside the unit circle that Q does not drive (F = 2, Q = 0), the
-    stabilising solution still exists; the iterations then start from P0 = I (default P0 only),
-    since from P0 = 0 they stay on the non-stabilising solution 0 of those modes.
+    Parameters
+    ----------
+    model : LinearGaussianModel
+        The model.
+    method : {"dare", "doubling", "per-step"}, optional
+        scipy's algebraic Riccati solver (on the problem scaled to R of unit size), the structure-preserving
+        doubling algorithm, or the Riccati recursion step by step from P(0/0) = P0.
+    form : {"kalman", "lainiotis"}, optional
+        ``"kalman"``: A = (I - K H) F, B = K from the REKF solution (Assimakis & Adam 2014, eqs. 10-11);
+        ``"lainiotis"``: Pe from the RELF recursion (eq. 14), A, B from eq. 13 (method "per-step" only).
+    P0 : array_like, shape (n, n), optional
+        Start of the iterative methods (default 0, or I as above).
+    tol : float, optional
+        Stopping rule of the iterative methods: None iterates to the rounding level; a number stops at the
+        first relative step ||dP|| <= tol ||P||.  ``steady_state_time`` is the first step within 1e-13
+        either way.
+    max_iter : int, optional
+        Largest number of iterations.
 
-    Raises NotDetectableError / NotStabilisableError when no stabilising
-    steady state exists, ConvergenceError when an iteration does not converge,
-    NonFiniteError when the model's magnitudes overflow the solver.
+    Returns
+    -------
+    SteadyState
+        P_pred, P_filt, K, A, B, the method, form and steady-state time.
+
+    Raises
+    ------
+    NotDetectableError, NotStabilisableError
+        No stabilising steady state exists (the message names the offending eigenvalues).
+    ConvergenceError
+        An iteration does not converge within ``max_iter``.
+    NonFiniteError
+        The model's magnitudes overflow the solver.
 
     References
     ----------
     .. [1] N. Assimakis and M. Adam, "Global systems for mobile position tracking using Kalman and Lainiotis
            filters", The Scientific World Journal, vol. 2014, Article ID 130512, 8 pp., 2014.
            doi:10.1155/2014/130512
+
+    Examples
+    --------
+    >>> from mptrack.models import assimakis_model_b
+    >>> from mptrack.riccati import steady_state
+    >>> ss = steady_state(assimakis_model_b())
+    >>> ss.K.shape
+    (2, 1)
     """
     require_model(model)
     if method not in METHODS:

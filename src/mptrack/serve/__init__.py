@@ -20,8 +20,20 @@ __all__ = ["ServeConfig", "create_app", "add_device", "add_api_key", "DEFAULT_DB
 
 
 def add_device(db: str, name: str) -> str:
-    """Register device ``name`` in the server database ``db`` and return its new token (only the
-    token's SHA-256 is stored)."""
+    """Register a device in the server database and return its new token.
+
+    Parameters
+    ----------
+    db : str
+        The database URL.
+    name : str
+        The device's name.
+
+    Returns
+    -------
+    str
+        The token (only its SHA-256 is stored).
+    """
     from ._fix import device_id
 
     token = new_secret()
@@ -34,7 +46,20 @@ def add_device(db: str, name: str) -> str:
 
 
 def add_api_key(db: str, name: str) -> str:
-    """Create an API key named ``name`` in the server database ``db`` and return it."""
+    """Create an API key in the server database and return it.
+
+    Parameters
+    ----------
+    db : str
+        The database URL (``sqlite:///path`` or ``postgresql://...``).
+    name : str
+        A name for the key.
+
+    Returns
+    -------
+    str
+        The key (only its SHA-256 is stored).
+    """
     if not isinstance(name, str) or not name.strip():
         from ..errors import ParameterError
 

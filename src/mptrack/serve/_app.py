@@ -248,7 +248,18 @@ class Server:
 
 
 def create_app(config: ServeConfig = ServeConfig()) -> Server:
-    """The ASGI application of ``mptrack serve`` with ``config`` (run it with uvicorn)."""
+    """The ASGI application of ``mptrack serve`` (run it with uvicorn).
+
+    Parameters
+    ----------
+    config : ServeConfig, optional
+        The database, authentication, limits, retention, checkpoints and motion model.
+
+    Returns
+    -------
+    Server
+        The ASGI application.
+    """
     if not isinstance(config, ServeConfig):
         raise ParameterError(f"config: expected a ServeConfig, got {type(config).__name__}")
     return Server(config)

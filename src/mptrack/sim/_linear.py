@@ -4,13 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._core.validation import (
-    as_vector,
-    check_allocation,
-    check_int,
-    check_rng,
-    finite_result,
-)
+from .._core.finiteness import finite_result
+from .._core.validation import as_vector, check_allocation, check_int, check_rng
 from ..models import LinearGaussianModel, require_model
 
 __all__ = ["simulate_linear"]
@@ -19,11 +14,30 @@ __all__ = ["simulate_linear"]
 @finite_result("the simulation")
 def simulate_linear(model: LinearGaussianModel, steps: int, rng: np.random.Generator,
                     x0=None) -> tuple[np.ndarray, np.ndarray]:
-    """Sample x(k+1) = F x(k) + w(k), z(k) = H x(k) + v(k) for k = 1..steps.
+    """Sample a linear-Gaussian model: x(k+1) = F x(k) + w(k), z(k) = H x(k) + v(k), k = 1..steps.
 
-    x0 is the initial state x(0) (default 0).  Returns (truth (steps, n),
-    measurements (steps, m)); row k-1 holds time k, matching the filters'
-    convention that the prior is x(0/0) and z[0] = z(1).
+    Row k-1 holds time k, the filters' convention (the prior is x(0/0), z[0] = z(1)).
+
+    Parameters
+    ----------
+    model : LinearGaussianModel
+        The model (F, H, Q, R).
+    steps : int
+        Number of steps, >= 1.
+    rng : numpy.random.Generator
+        The random generator (the process noise is drawn first, then the measurement noise).
+    x0 : array_like, shape (n,), optional
+        The initial state x(0) (default 0).
+
+    Returns
+    -------
+    truth : ndarray, shape (steps, n)
+    z : ndarray, shape (steps, m)
+
+    Raises
+    ------
+    ResourceError
+        The samples would exceed the memory limit.
     """
     require_model(model)
     check_rng(rng)

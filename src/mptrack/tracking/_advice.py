@@ -25,9 +25,24 @@ _OTHER_PATH_LOSS = {"cost231-wi-nlos": "cost231-hata"}
 
 
 def far_from_band(mean, dof, used) -> tuple[np.ndarray, np.ndarray]:
-    """(far below, far above) per track: a mean NIS below half or above twice its degrees of freedom
-    over at least :data:`MIN_ADVISED_FIXES` used fixes (a handful of fixes is far out by chance).
-    From 10 fixes on, either lies outside the track's 95 % band too."""
+    """Which tracks' mean NIS is far from its band: below half or above twice its degrees of freedom over
+    at least :data:`MIN_ADVISED_FIXES` used fixes (a handful of fixes is far out by chance).
+
+    From 10 fixes on, either lies outside the track's 95 % band too.
+
+    Parameters
+    ----------
+    mean : array_like
+        Mean NIS per track.
+    dof : array_like
+        Its degrees of freedom per track.
+    used : array_like of int
+        Fixes the mean is over, per track.
+
+    Returns
+    -------
+    below, above : ndarray of bool
+    """
     mean = as_array("mean", mean, ndim=1, finite=False, allow_nan=True)
     dof, used = (as_array(k, v, shape=mean.shape, finite=False, allow_nan=True) for k, v in (("dof", dof),
                                                                                            ("used", used)))

@@ -18,34 +18,21 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from .._core.validation import LATITUDE, LONGITUDE, as_real, check_frame, check_on_error, lookup
+from .._core.data_checks import check_frame, check_on_error
+from .._core.validation import LATITUDE, LONGITUDE, lookup
 from ..errors import DataError, ParameterError
 from ..io import LocalFrame, ReadReport
 from ..models import constant_velocity_continuous
 from ..cellular import motion_position
-from ..radio import PATH_LOSS_MODELS, arfcn_to_frequency, distance_from_rss
+from ..radio import PATH_LOSS_MODELS, TA_STEP_M, arfcn_to_frequency, band_of_arfcn, distance_from_rss
 from ._columns import time_values
 from ._fixes import TrackOptions, _time_like
 from ._output import point_table
 from ._registry import get_cell_method
 
-__all__ = ["track_cells", "check_cell_ids", "ranges_km", "TA_STEP_M", "band_of_arfcn"]
+__all__ = ["track_cells", "check_cell_ids", "ranges_km"]
 
-TA_STEP_M = 553.5
 DEFAULT_FREQUENCY_MHZ = 1800.0
-
-
-def band_of_arfcn(arfcn: int) -> str:
-    """The GSM band of a channel number: 0-124 and 975-1023 E-GSM, 128-251 GSM850, 512-885 DCS1800
-    (PCS1900 reuses 512-810; give ``range_m`` or a frequency-consistent table for PCS networks)."""
-    a = as_real("arfcn", arfcn, low=0, high=1023)
-    if a != int(a):
-        raise ParameterError(f"arfcn: expected an integer channel number, got {arfcn!r}")
-    if a <= 124 or 975 <= a <= 1023:
-        return "E-GSM"
-    if 128 <= a <= 251:
-        return "GSM850"
-    return "DCS1800"
 
 
 def check_cell_rows(name: str, rows, columns=("t", "row", "cell_id")) -> pd.DataFrame:
@@ -74,8 +61,29 @@ def _check_known(rows, cells, columns=("t", "row", "cell_id"), cell_columns=("la
 
 def check_cell_ids(rows: pd.DataFrame, cells: pd.DataFrame, *, file, on_error: str,
                    report: ReadReport) -> pd.DataFrame:
-    """Rows whose cell_id is in the cell table; an unknown id raises DataError (file, row, "cell_id")
-    or is skipped and counted."""
+    """The rows whose cell_id is in the cell table.
+
+    Parameters
+    ----------
+    rows : pandas.DataFrame
+        Cellular measurements.
+    cells : pandas.DataFrame
+        The cell table.
+    file : str or path-like
+        The measurements' name in messages.
+    on_error : {"raise", "skip"}
+    report : ReadReport
+        Receives the count of skipped rows.
+
+    Returns
+    -------
+    pandas.DataFrame
+
+    Raises
+    ------
+    DataError
+        An unknown cell id (naming file, row and "cell_id"), with ``on_error="raise"``.
+    """
     check_cell_rows("rows", rows, ("row", "cell_id"))
     check_cells("cells", cells, ())
     check_on_error(on_error)
@@ -95,8 +103,22 @@ def check_cell_ids(rows: pd.DataFrame, cells: pd.DataFrame, *, file, on_error: s
 
 
 def ranges_km(rows: pd.DataFrame, cells: pd.DataFrame, path_loss: str = "cost231-wi-nlos") -> np.ndarray:
-    """Range (km) of every row: range_m, else timing advance, else RSS through ``path_loss``; NaN (missing)
-    where a row has none of them."""
+    """The range (km) of every measurement row: range_m, else the timing advance, else the RSS through a
+    path-loss model; NaN where a row has none of them.
+
+    Parameters
+    ----------
+    rows : pandas.DataFrame
+        Cellular measurements.
+    cells : pandas.DataFrame
+        The cell table (power, height, ARFCN of each cell).
+    path_loss : str, optional
+        A key of :data:`mptrack.radio.PATH_LOSS_MODELS`.
+
+    Returns
+    -------
+    ndarray, shape (N,)
+    """
     _check_known(rows, cells, ("cell_id",), ("height_m", "power_dbm", "arfcn"))
     lookup("path_loss", path_loss, PATH_LOSS_MODELS, what="path-loss model", fold=str)
     r = np.full(len(rows), np.nan)
@@ -123,7 +145,30 @@ def ranges_km(rows: pd.DataFrame, cells: pd.DataFrame, path_loss: str = "cost231
 
 def track_cells(track_id: str, rows: pd.DataFrame, cells: pd.DataFrame,
                 options: TrackOptions = TrackOptions()) -> pd.DataFrame:
-    """Filter one track of cellular measurements (rows with known cell ids); returns its point table."""
+    """Filter one track of cellular measurements (rows with known cell ids) with the method of the
+    options (EKF, FEKF or FCS of Bouzera et al. 2017).
+
+    Parameters
+    ----------
+    track_id : str
+    rows : pandas.DataFrame
+        The track's measurements (schema MEASUREMENTS).
+    cells : pandas.DataFrame
+        The cell table (:func:`mptrack.io.read_cells`).
+    options : TrackOptions, optional
+        The settings of ``mptrack track``.
+
+    Returns
+    -------
+    pandas.DataFrame
+        The track's point table.
+
+    References
+    ----------
+    .. [1] N. Bouzera, M. Oussalah, N. Mezhoud and A. Khireddine, "Fuzzy extended Kalman filter for dynamic
+           mobile localization in urban area using wireless network", Applied Soft Computing, vol. 57, pp.
+           452–467, 2017. doi:10.1016/j.asoc.2017.04.007
+    """
     if not isinstance(options, TrackOptions):
         raise ParameterError(f"options: expected TrackOptions, got {type(options).__name__}")
     _check_known(rows, cells)

@@ -19,7 +19,7 @@ the error model of :mod:`._fix_error`).  The functions take ``n``, the state
 per axis, and treat state n - 1 as b when n > order.
 
 Everything here is compiled (numba) and called from the per-track loops of
-:mod:`._engine` (the gated filter) and :mod:`._likelihood` (the likelihood
+:mod:`._track_filter` (the gated filter) and :mod:`._likelihood` (the likelihood
 that noise estimation maximises); they allocate one workspace (:func:`work`)
 per block of tracks and nothing per track or per fix.
 """

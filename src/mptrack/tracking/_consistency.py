@@ -26,7 +26,7 @@ import scipy.special
 
 from .._core.validation import _to_array, as_array, as_real
 from ..errors import DTypeError, MptrackError, ParameterError, ShapeError
-from ._engine import FLAGS
+from ._track_filter import FLAGS
 
 __all__ = ["USED_FLAGS", "nis_band", "nis_stats", "pooled_nis", "nis_sentence", "restart_mask", "flag_counts",
            "is_flag"]
@@ -47,10 +47,26 @@ def nis_band(n, dof=2.0, probability: float = 0.95) -> tuple[np.ndarray, np.ndar
 
 
 def nis_stats(nis, dof, flags) -> dict:
-    """{"mean_nis", "nis_dof", "nis_fixes", "nis_lo", "nis_hi", "nis_consistent"} of the fixes of one
-    track or of several (the NIS, its degrees of freedom and the flag of each row): the mean over the
-    used fixes (:data:`USED_FLAGS`, a finite NIS), their mean degrees of freedom, how many, the 95 %
-    band of the mean and whether it lies inside (NaN and False without such fixes)."""
+    """The one mean NIS of the fixes of one track or of several, with its band.
+
+    The mean is over the used fixes (:data:`USED_FLAGS`, a finite NIS); the band is the 95 % band of the
+    mean.
+
+    Parameters
+    ----------
+    nis : array_like
+        The NIS of each row.
+    dof : array_like
+        Its degrees of freedom.
+    flags : array_like of str
+        The flag of each row.
+
+    Returns
+    -------
+    dict
+        "mean_nis", "nis_dof" (the mean degrees of freedom), "nis_fixes", "nis_lo", "nis_hi",
+        "nis_consistent" (NaN and False without used fixes).
+    """
     nis = as_array("nis", nis, ndim=1, finite=False, allow_nan=True)
     dof = as_array("dof", dof, shape=(len(nis),), low=0)
     flags = _flags(flags, len(nis))
@@ -94,9 +110,19 @@ def pooled_nis(mean, dof, n) -> dict:
 
 
 def nis_sentence(stats: dict) -> str:
-    """The mean NIS of :func:`nis_stats` (or a track table's row) in words, the same everywhere it is
-    printed, to 4 significant digits as every table shows it: "mean NIS 1.849 over 2123 fixes (expected 2, 95 %
-    band 1.916-2.086): below its band"."""
+    """The mean NIS in words, the same everywhere it is printed (4 significant digits).
+
+    For example "mean NIS 1.849 over 2123 fixes (expected 2, 95 % band 1.916-2.086): below its band".
+
+    Parameters
+    ----------
+    stats : dict
+        :func:`nis_stats`, or a track table's row.
+
+    Returns
+    -------
+    str
+    """
     if not isinstance(stats, Mapping):
         raise ParameterError(f"stats: expected the dict of nis_stats, got {type(stats).__name__}")
     n = stats.get("nis_fixes")

@@ -22,7 +22,8 @@ import numpy as np
 import pandas as pd
 import scipy.special
 
-from .._core.validation import check_bool, check_frame, check_path, check_positive, point_numbers
+from .._core.data_checks import check_frame, point_numbers
+from .._core.validation import check_bool, check_path, check_positive
 from ..errors import DataError, ParameterError
 from ..io import FIXES, LocalFrame, ReadOptions, ReadReport, input_columns, read_table
 from .._core.tracks import track_offsets
@@ -70,7 +71,7 @@ def _one_track_ids(truth: pd.DataFrame, tracks: pd.DataFrame, file) -> pd.DataFr
 
 
 def _check_points(name: str, tracks, columns=()) -> None:
-    """A point table with ``columns``, its numbers checked (:func:`mptrack._core.validation.point_numbers`)."""
+    """A point table with ``columns``, its numbers checked (:func:`mptrack._core.data_checks.point_numbers`)."""
     check_frame(name, tracks, columns, point_numbers(tracks, POINT_COLUMNS + _ADDED))
 
 
@@ -80,12 +81,26 @@ _ADDED = ("true_lat", "true_lon", "true_x", "true_y", "true_east_m", "true_north
 
 def attach_truth(tracks: pd.DataFrame, truth, *, tolerance_s: float = 0.5, file="truth",
                  read: ReadOptions = ReadOptions(), report: ReadReport | None = None) -> pd.DataFrame:
-    """``tracks`` with error_m, nees and true east/north columns from the nearest truth sample.
+    """A track table with error_m, nees and true east/north columns from the nearest truth sample.
 
-    Truth in lat/lon is projected into each track's local frame; truth in x/y (metres) is
-    compared directly with tracks that were computed in x/y (no geographic origin).  Only the
-    keys (track, time) are matched, so the table is not copied.  ``read``: the truth file's column
-    names and units where they are not recognised; ``report`` receives how it was read (notes).
+    Truth in lat/lon is projected into each track's local frame; truth in x/y (metres) is compared with
+    tracks computed in x/y.  Only the keys (track, time) are matched, so the table is not copied.
+
+    Parameters
+    ----------
+    tracks : pandas.DataFrame
+        A point table of ``mptrack track`` (:func:`mptrack.io.read_output`).
+    truth : str, path-like or pandas.DataFrame
+    tolerance_s : float, optional
+        Largest time difference of a match (s).
+    file : str, optional
+        The truth's name in messages.
+    read : ReadOptions, optional
+    report : ReadReport, optional
+
+    Returns
+    -------
+    pandas.DataFrame
     """
     _check_points("tracks", tracks, ("track_id", "t", "origin_lat"))
     tolerance_s = check_positive("tolerance_s", tolerance_s, allow_zero=True)
@@ -196,15 +211,33 @@ def _cellular(tracks: pd.DataFrame) -> bool:
 def evaluate_tracks(tracks: pd.DataFrame, truth=None, *, tolerance_s: float = 0.5, truth_file="truth",
                     truth_columns: bool = False, read: ReadOptions = ReadOptions(),
                     report: ReadReport | None = None) -> tuple[dict, pd.DataFrame]:
-    """(summary {"overall": {...}, "tracks": {id: {...}}, "nis": {"far_low", "far_high", "advice"}}, tracks
-    with error columns if truth given); "nis" counts the tracks whose mean NIS is far outside its band
-    and says what that usually means, as a tracking run's summary does.
+    """Evaluate a track table against truth: RMSE, NEES/NIS consistency and the error distribution.
 
-    truth          a file in any input format or a DataFrame, matched by track and nearest time
-                   (within ``tolerance_s``), see :func:`attach_truth`
-    truth_columns  instead: the truth columns of the table's own rows (true_lat/true_lon or
-                   true_x/true_y: a simulated log's truth passed through ``mptrack track``), no matching
-    read, report   how the truth is read, and what its reading noted (:func:`attach_truth`)
+    Parameters
+    ----------
+    tracks : pandas.DataFrame
+        A point table of ``mptrack track`` (:func:`mptrack.io.read_output`).
+    truth : str, path-like or pandas.DataFrame, optional
+        Truth in any input format, matched by track and nearest time (:func:`attach_truth`).
+    tolerance_s : float, optional
+        Largest time difference of a match (s).
+    truth_file : str, optional
+        The truth's name in messages.
+    truth_columns : bool, optional
+        Instead of ``truth``: the table's own truth columns (true_lat/true_lon or true_x/true_y, a
+        simulated log's passed through ``mptrack track``).
+    read : ReadOptions, optional
+        How the truth file is read.
+    report : ReadReport, optional
+        Receives how the truth was read.
+
+    Returns
+    -------
+    summary : dict
+        {"overall": {...}, "tracks": {id: {...}}, "nis": {"far_low", "far_high", "advice"}}; "nis"
+        counts the tracks whose mean NIS is far outside its band and says what that usually means.
+    tracks : pandas.DataFrame
+        With error columns when truth is given.
     """
     _check_points("tracks", tracks)
     truth_columns = check_bool("truth_columns", truth_columns)

@@ -14,7 +14,9 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
-from .._core.validation import LATITUDE, LONGITUDE, as_real, as_vector, check_frame, check_positive, lookup, renamed
+from .._core.data_checks import check_frame
+from .._core.finiteness import renamed
+from .._core.validation import LATITUDE, LONGITUDE, as_real, as_vector, check_positive, lookup
 from ..cellular import MOTIONS
 from ..radio import PATH_LOSS_MODELS
 from ..errors import ParameterError
@@ -22,9 +24,9 @@ from ..linear import get_filter
 from ..result import FilterResult
 from ._columns import FixTable
 from ..models import ContinuousLinearModel
-from ._engine import MANOEUVRE_FACTOR
+from ._track_filter import MANOEUVRE_FACTOR
 from ._fix_error import SLOW_TAU_S, slow_error_variance
-from ._gated import first_fix_prior, measured_states, nis_threshold, smooth_gated, track_gated
+from ._gated import first_fix_prior, measured_states, nis_threshold, rts_smoother_gated, track_gated
 from ._noise import SCOPES
 from ._output import point_table
 from ._registry import DEFAULT_SIGMA_M, get_cell_method, get_fix_filter, get_model
@@ -166,14 +168,33 @@ def _enu(rows: pd.DataFrame) -> tuple[FixTable, np.ndarray]:
 def track_fixes(track_id: str, rows: pd.DataFrame, options: TrackOptions = TrackOptions(), *,
                 fix_var=None, q: float | None = None, slow_var: float | None = None,
                 slow_tau_s: float = SLOW_TAU_S) -> pd.DataFrame:
-    """Filter (and optionally smooth) one track of validated position fixes; returns its point table.
+    """Filter (and optionally smooth) one track of validated position fixes: the per-track reference the
+    columnar engine is tested against.
 
-    rows: a track from :func:`mptrack.io.iter_tracks` (columns t, time, row, lat/lon or x/y,
-    accuracy_m?).  Positions are east/north metres in the track's local frame (origin at the
-    first fix).  ``fix_var`` (T,) m^2 and ``q`` are the noise to use (default:
-    :func:`fix_variances` and ``options.q`` or the model's default; no estimation here);
-    ``slow_var`` (m^2) and ``slow_tau_s`` the fix error's slow part (default: what the total error
-    leaves, :func:`._fix_error.slow_error_variance`; the gated KF only).
+    Positions are east/north metres in the track's local frame (origin at the first fix); no noise is
+    estimated here.
+
+    Parameters
+    ----------
+    track_id : str
+    rows : pandas.DataFrame
+        A track from :func:`mptrack.io.iter_tracks` (columns t, time, row, lat/lon or x/y, accuracy_m).
+    options : TrackOptions, optional
+        The settings of ``mptrack track``.
+    fix_var : array_like, shape (T,), optional
+        Fix variances (m^2) (default :func:`fix_variances`).
+    q : float, optional
+        Process-noise density (default ``options.q`` or the model's).
+    slow_var : float, optional
+        Stationary variance (m^2 per axis) of the fix error's slow part (default: what the total error
+        leaves, :func:`._fix_error.slow_error_variance`; the gated KF only).
+    slow_tau_s : float, optional
+        Time constant (s) of the slow part.
+
+    Returns
+    -------
+    pandas.DataFrame
+        The track's point table.
 
     References
     ----------
@@ -206,7 +227,7 @@ def track_fixes(track_id: str, rows: pd.DataFrame, options: TrackOptions = Track
             gated = track_gated(model, t, z, r[:, None, None] * np.eye(2), prior,
                                 gate_probability=options.gate_probability, manoeuvre_noise=levels,
                                 prior_information=info, max_gap_s=options.max_gap_s)
-            res = smooth_gated(gated) if options.smooth else gated
+            res = rts_smoother_gated(gated) if options.smooth else gated
             flags, nis, times, t_out = gated.flag, gated.nis, table.time, t
             method = "KF-gated" + ("+RTS" if options.smooth else "")
         else:

@@ -41,22 +41,44 @@ from dataclasses import dataclass, fields
 import numpy as np
 import scipy.stats
 
-from .._core.validation import (_overflow, as_array, as_real, as_sequence, as_vector, check_covariance, check_int,
-                           check_positive, check_record, finite_result, renamed, require_finite)
+from .._core.finiteness import finite_result, _overflow, renamed, require_finite
+from .._core.validation import (
+    as_array,
+    as_real,
+    as_sequence,
+    as_vector,
+    check_covariance,
+    check_int,
+    check_positive,
+    check_record,
+)
 from ..errors import ParameterError, ShapeError
 from .._core.rts import rts_backward_linear
 from .._core.van_loan import intervals_unchecked
 from ..models import ContinuousLinearModel, require_model
 from ..result import FilterResult, innovation_arrays
-from ._engine import FLAGS, INIT, MANOEUVRE_FACTOR
 from ._kernels import gated_loop
+from ._track_filter import FLAGS, INIT, MANOEUVRE_FACTOR
 
-__all__ = ["GatedResult", "kalman_filter_gated", "smooth_gated", "track_gated", "first_fix_prior", "measured_states",
-           "nis_threshold", "FLAGS"]
+__all__ = ["GatedResult", "kalman_filter_gated", "rts_smoother_gated", "track_gated", "first_fix_prior",
+           "measured_states", "nis_threshold"]
 
 
 def nis_threshold(probability: float, dof: int) -> float:
     """Chi-square quantile: the NIS gate that a consistent filter passes with ``probability``.
+
+    Parameters
+    ----------
+    probability : float
+        Probability in (0, 1) that a consistent filter's NIS lies inside the gate (0.999: 13.82 for
+        ``dof`` = 2).
+    dof : int
+        Degrees of freedom: the dimension of the measurement.
+
+    Returns
+    -------
+    float
+        The NIS threshold.
 
     References
     ----------
@@ -102,21 +124,42 @@ def kalman_filter_gated(model: ContinuousLinearModel, times, z, x0, P0, *, t0: f
                         prior_information=None) -> GatedResult:
     """Kalman filter at irregular times with two-level NIS gating (see the module doc).
 
-    model    ContinuousLinearModel (e.g. constant_velocity_continuous(q, axes=2, sigma_r2=...))
-    times    (T,) seconds, non-decreasing, >= t0 (fixes at one time are sequential updates)
-    z        (T, m) measurements; NaN components skipped, a NaN row only predicts
-    x0, P0   prior x(t0), P(t0); t0 defaults to times[0] (first step then has dt = 0)
-    R        None (model.R), or (T, m, m) per-measurement noise covariances (e.g. from GPS accuracy)
-    gate_probability  chi-square probability of the NIS gate; None disables gating
-    max_rejections    rejections in a row that may restart the filter (default and minimum: the
-                      fixes a diffuse start needs, (n - states with a prior information) / m, plus one)
-    manoeuvre_factor  process noise of the manoeuvre hypothesis, as a multiple of the model's (the sharp
-                      manoeuvre: its square)
-    manoeuvre_noise   None, or the spectral densities (Qc of the model) of the two manoeuvre hypotheses,
-                      e.g. to scale only the motion's noise and not that of an error state
-    prior_information None, or (n, n) the information (inverse covariance) a restart starts from: the
-                      states it covers have a prior of their own (e.g. a fix error's slow part), the others
-                      start diffuse
+    Parameters
+    ----------
+    model : ContinuousLinearModel
+        E.g. ``constant_velocity_continuous(q, axes=2, sigma_r2=...)``.
+    times : array_like, shape (T,)
+        Time stamps (s), non-decreasing, >= t0 (fixes at one time are sequential updates).
+    z : array_like, shape (T, m)
+        Measurements; NaN components are skipped, a NaN row only predicts.
+    x0 : array_like, shape (n,)
+        Prior mean x(t0).
+    P0 : array_like, shape (n, n)
+        Prior covariance P(t0).
+    t0 : float, optional
+        The prior's time (s); default ``times[0]`` (the first step then has dt = 0).
+    R : array_like, shape (T, m, m), optional
+        Per-measurement noise covariances (e.g. from GPS accuracy); default ``model.R``.
+    gate_probability : float or None, optional
+        Chi-square probability of the NIS gate; None disables gating.
+    max_rejections : int, optional
+        Rejections in a row that may restart the filter (default and minimum: the fixes a diffuse
+        start needs, (n - states with a prior information) / m, plus one).
+    manoeuvre_factor : float, optional
+        Process noise of the manoeuvre hypothesis, as a multiple of the model's (the sharp
+        manoeuvre: its square).
+    manoeuvre_noise : pair of array_like, optional
+        The spectral densities (Qc of the model) of the two manoeuvre hypotheses, e.g. to scale only
+        the motion's noise and not that of an error state; default from ``manoeuvre_factor``.
+    prior_information : array_like, shape (n, n), optional
+        The information (inverse covariance) a restart starts from: the states it covers have a
+        prior of their own (e.g. a fix error's slow part), the others start diffuse; default none.
+
+    Returns
+    -------
+    GatedResult
+        The filtered states, the nominal predictions, every measurement's innovation, S and NIS, the
+        flag of each step and the (F, Q) each step used.
 
     References
     ----------
@@ -186,12 +229,27 @@ def kalman_filter_gated(model: ContinuousLinearModel, times, z, x0, P0, *, t0: f
 
 
 @finite_result("the RTS smoother")
-def smooth_gated(gated: GatedResult) -> FilterResult:
+def rts_smoother_gated(gated: GatedResult) -> FilterResult:
     """RTS smoothing of a gated run: the backward pass of :func:`mptrack.linear.rts_smoother`
     with the per-step (F, Q) the filter used, run separately on each stretch between
     filter resets and segment starts (flag init after a gap: either breaks the chain of
     predictions).  Rejected and missing measurements are prediction-only steps and need no
     special case.
+
+    Parameters
+    ----------
+    gated : GatedResult
+        A run of :func:`kalman_filter_gated` or :func:`track_gated`.
+
+    Returns
+    -------
+    FilterResult
+        The smoothed states x and covariances P (method "RTS-gated").
+
+    References
+    ----------
+    .. [1] H. E. Rauch, F. Tung and C. T. Striebel, "Maximum likelihood estimates of linear dynamic systems",
+           AIAA Journal, vol. 3, no. 8, pp. 1445–1450, 1965. doi:10.2514/3.3166
     """
     if not isinstance(gated, GatedResult):
         raise ParameterError(f"gated: expected a GatedResult (from kalman_filter_gated), got {type(gated).__name__}")
@@ -250,8 +308,34 @@ def track_gated(model: ContinuousLinearModel, times, z, R, prior_variances, *,
     fixes go through :func:`kalman_filter_gated` from that prior (its
     ``manoeuvre_factor``, ``manoeuvre_noise``, ``prior_information``).  A fix
     more than ``max_gap_s`` seconds after the one before starts a new segment:
-    the track is run again from it as from a first fix (None: never).  The
-    result covers all T fixes; ``F``, ``Q`` at a segment's first fix are I and 0.
+    the track is run again from it as from a first fix (None: never).
+
+    Parameters
+    ----------
+    model : ContinuousLinearModel
+        The motion and measurement model.
+    times : array_like, shape (T,)
+        Time stamps of the fixes (s), non-decreasing.
+    z : array_like, shape (T, m)
+        The fixes.
+    R : array_like, shape (T, m, m)
+        Their noise covariances.
+    prior_variances : array_like, shape (n,)
+        Variances of the states a fix does not measure at a track's (or segment's) first fix.
+    gate_probability, max_rejections, manoeuvre_factor, manoeuvre_noise, prior_information
+        As in :func:`kalman_filter_gated`.
+    max_gap_s : float, optional
+        A fix more than this many seconds after the one before starts a new segment (None: never).
+
+    Returns
+    -------
+    GatedResult
+        All T fixes; ``F``, ``Q`` at a segment's first fix are I and 0.
+
+    References
+    ----------
+    .. [1] Y. Bar-Shalom, X. R. Li and T. Kirubarajan, Estimation with Applications to Tracking and Navigation,
+           Wiley, 2001. doi:10.1002/0471221279
     """
     require_model(model, kind=ContinuousLinearModel)
     t = as_array("times", times, ndim=1)

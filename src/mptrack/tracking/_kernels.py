@@ -16,7 +16,7 @@ from numba import njit
 
 from .._core import jit_cache  # noqa: F401 - compiled kernels cache in the user's cache directory
 from .._core.kalman import LOG2PI, OK, apply_gain, innovation, predict, update, whiten, workspace
-from ._engine import STREAK_CAP
+from ._state import STREAK_CAP
 
 #: A restart relabels at most this many fixes before it (the engine's state keeps the last STREAK_CAP rejected fixes).
 RELABEL_CAP = STREAK_CAP - 1

@@ -25,8 +25,8 @@ from ..errors import ParameterError
 from ..io import enu_to_geodetic, geodetic_to_enu
 from ._chain import transition
 from ._columns import FixTable
-from ._engine import advance_tracks, empty_states, state_from_bytes, state_to_bytes
-from ._engine import _layout  # the state row's layout: where x and P of the last fix are
+from ._engine import advance_tracks
+from ._state import empty_states, state_from_bytes, state_layout, state_to_bytes
 from ._fix_error import SLOW_TAU_S, slow_error_variance
 from ._fixes import TrackOptions
 from ._noise import estimate_noise as _estimate
@@ -213,7 +213,7 @@ class LiveTracks:
         """(x (2, n), P (n, n)) of track i after its last fix: per axis the chain and the fix error's slow
         part (n = order + 1)."""
         n = self.order + 1
-        x0, p0 = _layout.py_func(n)[:2]
+        x0, p0 = state_layout.py_func(n)[:2]
         row = self._states[i]
         return row[x0:x0 + 2 * n].reshape(2, n).copy(), row[p0:p0 + n * n].reshape(n, n).copy()
 

@@ -48,7 +48,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from ._columns import FixTable, median_by
-from ._engine import INIT, MANOEUVRE, OUTLIER, RESET, filter_tracks
+from ._engine import filter_tracks
+from ._track_filter import INIT, MANOEUVRE, OUTLIER, RESET
 from ._likelihood import RESTART, SKIP, USE, loglik_tracks, moment_guess
 from ._registry import DEFAULT_SIGMA_M
 

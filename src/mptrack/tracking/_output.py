@@ -16,7 +16,7 @@ import pyarrow as pa
 from .._core.validation import as_array, as_vector, check_positive
 from ..errors import ParameterError, ShapeError
 from ..io import enu_to_geodetic
-from ._engine import FLAGS
+from ._track_filter import FLAGS
 
 __all__ = ["point_table", "ellipse", "POINT_COLUMNS"]
 
@@ -87,13 +87,36 @@ def point_table(ids, offsets: np.ndarray, time: np.ndarray, t: np.ndarray, east:
                 vel: np.ndarray | None, var_e: np.ndarray, cov_en: np.ndarray, var_n: np.ndarray, nis: np.ndarray,
                 nis_dof: np.ndarray, flag: np.ndarray, gap_s: float, origin: tuple | None, method,
                 extra: dict | None = None) -> pa.Table:
-    """The point table of B tracks (rows offsets[b]:offsets[b+1] of the flat columns).
+    """The point table of B tracks, built once from flat columns (rows offsets[b]:offsets[b+1]).
 
-    vel      (N, 2) east/north velocity (m/s) or None (written as NaN)
-    flag     (N,) index into FLAGS
-    origin   (lat0 (B,), lon0 (B,)) of each track's frame, or None for x/y tracks (lat/lon NaN)
-    method   one name for all tracks, or (B,) names
-    extra    further columns (name -> (N,) array), appended in order
+    Parameters
+    ----------
+    ids : sequence of str
+        The B track ids.
+    offsets : ndarray of int, shape (B + 1,)
+    time, t : ndarray, shape (N,)
+        Time stamps and seconds.
+    east, north : ndarray, shape (N,)
+        Positions in each track's frame (m).
+    vel : ndarray, shape (N, 2) or None
+        East/north velocity (m/s) (None: written as NaN).
+    var_e, cov_en, var_n : ndarray, shape (N,)
+        Position covariance (m^2).
+    nis, nis_dof : ndarray, shape (N,)
+    flag : ndarray, shape (N,)
+        Indices into FLAGS.
+    gap_s : float
+        An interval longer than this flags the point after it as following a gap.
+    origin : tuple of ndarray or None
+        (lat0 (B,), lon0 (B,)) of each track's frame, or None for x/y tracks.
+    method : str or sequence of str
+        One name for all tracks, or one per track.
+    extra : dict, optional
+        Further columns (name -> (N,) array), appended in order.
+
+    Returns
+    -------
+    pyarrow.Table
     """
     t = as_array("t", t, ndim=1)
     N = len(t)

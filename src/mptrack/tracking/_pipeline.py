@@ -6,7 +6,7 @@ or a DataFrame) is read in chunks of whole tracks
 (:func:`mptrack.io.iter_track_chunks`); each chunk is one unit of work
 (:class:`TrackTask`): position fixes go through the columnar engine
 (:func:`._run.track_table`), cellular measurements through the range filters
-track by track.  :func:`mptrack.batch.run_stream` runs the chunks serially, in
+track by track.  :func:`mptrack.runs.run_stream` runs the chunks serially, in
 local processes or on Dask, each writing its point and track tables as parts
 in ``.<out>.parts/``; the output is then streamed from the parts.  Every
 chunk is computed by the same function from the same rows, so the output does
@@ -26,14 +26,13 @@ import numpy as np
 import pandas as pd
 import pyarrow as pa
 
-from .._core.files import output_lock
+from .._core.data_checks import check_outputs
 from .._core.tracks import track_offsets
-from .._core.validation import check_bool, check_int, check_outputs, check_path
-from ..batch import Chunk, read_part, run_stream
-from ..errors import MptrackError, ParameterError
-from ..io import (FIXES, MEASUREMENTS, InputNotSorted, PartStore, ReadOptions, ReadReport, input_label,
-                  input_name, input_paths, iter_track_chunks, resolve_input,
-                  output_format, read_cells, read_chunks)
+from .._core.validation import check_bool, check_int, check_path
+from ..errors import ParameterError
+from ..io import (FIXES, MEASUREMENTS, InputNotSorted, ReadOptions, ReadReport, input_label, input_name, input_paths,
+                  iter_track_chunks, output_format, read_cells, read_chunks, resolve_input)
+from ..runs import Chunk, PartStore, output_lock, read_part, resumable_outputs, run_stream
 from ._advice import far_from_band, nis_advice
 from ._cellular import check_cell_ids, track_cells
 from ._columns import FixTable
@@ -44,7 +43,7 @@ from ._output import point_table
 from ._noise import SIGMA_FLOOR_M
 from ._run import TRACK_COLUMNS, track_table
 
-__all__ = ["track_file", "track", "write_track_report", "read_output", "TrackTask", "DEFAULT_CHUNK_ROWS"]
+__all__ = ["track_file", "track", "write_track_report", "TrackTask", "DEFAULT_CHUNK_ROWS"]
 
 #: Rows of whole tracks per unit of work (memory per chunk ~0.5 KB a row in flight).
 DEFAULT_CHUNK_ROWS = 200_000
@@ -218,36 +217,61 @@ def _counting_tracks(chunks, progress):
 def track_file(input, out, *, cells=None, options: TrackOptions = TrackOptions(), on_error: str = "raise",
                read: ReadOptions = ReadOptions(), resume: bool = False, chunk_rows: int = DEFAULT_CHUNK_ROWS, executor: str = "serial",
                max_workers: int | None = None, client=None, track_summary=None, progress=None,
-               on_points=None) -> dict:
-    """Track every track of ``input`` and write the point table to ``out`` (.parquet, .csv or .geojson).
+               on_points=None, note: str = "") -> dict:
+    """Track every track of an input file and write the point table, with bounded memory, on any
+    executor, resumable.
 
-    input          position fixes (CSV/Parquet/GPX, or a directory of Parquet files, hive-partitioned
-                   or not) or, with ``cells``, a cellular measurement log (CSV/Parquet)
-    cells          cell table in the OpenCelliD layout (CSV/Parquet) -> cellular tracking (options.method)
-    resume         keep the chunks finished by an interrupted run of the same input and options (parts
-                   in ``.<out>.parts/``) and compute only the rest
-    on_error       "raise": the first bad row stops the run (DataError naming file/row/column, nothing
-                   written); "skip": bad rows are dropped, counted and reported in the returned summary,
-                   and more than ``read.max_skip`` dropped rows stop the run (nothing written)
-    read           the input's column names and units where they are not recognised (:class:`ReadOptions`)
-    executor       "serial", "processes" or "dask" (see :func:`mptrack.batch.run_stream`); the output
-                   is the same whichever runs it
-    track_summary  optional path: the track table (one row per track: noise estimates, counts, NIS)
-    on_points      optional: called once, after ``out`` is written, with the paths of the chunks' point
-                   tables (Arrow IPC files, ``pyarrow.feather.read_table`` reads them; in output row
-                   order), to read the run's points again without reading ``out`` back (the HTML
-                   report); the files are removed after the call
+    Memory is bounded by ``chunk_rows`` and the largest track, not by the input.  An output that is an
+    input (or inside an input directory) is refused; ``out`` and ``track_summary`` are locked for the whole
+    run (:func:`mptrack.runs.resumable_outputs`), their stale temporary files removed.  A run stopped by bad
+    input or options leaves nothing (a resumed run keeps the parts it came to resume); one stopped by
+    Ctrl-C, an OS failure or a crash keeps its finished chunks in ``.<out>.parts/`` for ``resume=True``.
 
-    Memory is bounded by ``chunk_rows`` (rows of whole tracks per chunk) and the largest track, not
-    by the input.  Returns a summary dict (JSON-safe).
+    Parameters
+    ----------
+    input : str, path-like or list
+        Position fixes (CSV, Parquet, GPX, TCX, FIT, NMEA, GeoJSON; a directory, a list or a glob of files)
+        or, with ``cells``, a cellular measurement log (CSV/Parquet).
+    out : str or path-like
+        The point table: .parquet, .csv, .geojson, .gpx or .geoparquet (written atomically).
+    cells : str or path-like, optional
+        A cell table in the OpenCelliD layout: cellular tracking (``options.method``).
+    options : TrackOptions, optional
+    on_error : {"raise", "skip"}, optional
+        The first bad row stops the run (DataError naming file, row and column; nothing written), or bad
+        rows are dropped, counted and reported, and more than ``read.max_skip`` stop the run.
+    read : ReadOptions, optional
+        The input's column names and units where they are not recognised.
+    resume : bool, optional
+        Keep the chunks finished by an interrupted run of the same input and options.
+    chunk_rows : int, optional
+        Rows of whole tracks per chunk (memory).
+    executor : {"serial", "processes", "dask"}, optional
+        Who runs the chunks (:func:`mptrack.runs.run_stream`); the output is the same.
+    max_workers : int, optional
+    client : dask.distributed.Client, optional
+    track_summary : str or path-like, optional
+        Also write the track table (one row per track: noise estimates, counts, NIS).
+    progress : optional
+        A progress reporter (the CLI's).
+    on_points : callable, optional
+        Called once, after ``out`` is written, with the paths of the chunks' point tables (Arrow IPC
+        files, in output row order), to read the run's points again without reading ``out`` back; the
+        files are removed after the call.
+    note : str, optional
+        Shown to another run refused these outputs (the CLI passes its command line).
 
-    Data safety: an output that is an input (or inside an input directory) is refused; ``out`` and
-    ``track_summary`` are locked for the whole run (:func:`mptrack._core.files.output_lock`; another run
-    writing them -> OutputError at once) and their stale temporary files removed.  A run stopped
-    by bad input or options leaves nothing (a resumed run keeps the parts it came to resume); one
-    stopped by Ctrl-C (KeyboardInterrupt), an OS failure (OutputError/OSError: disk full, ...) or
-    a crash keeps its finished chunks in ``.<out>.parts/`` for ``resume=True`` (none finished:
-    nothing is left).
+    Returns
+    -------
+    dict
+        The run summary (JSON-safe): counts, the noise estimates' distribution, the mean NIS and advice.
+
+    Raises
+    ------
+    DataError
+        Bad input (naming file, row and column).
+    OutputError
+        An output that cannot be written or that another run holds.
     """
     start = time.perf_counter()
     input, out = resolve_input(input, "input"), check_path("out", out)
@@ -255,43 +279,30 @@ def track_file(input, out, *, cells=None, options: TrackOptions = TrackOptions()
         raise ParameterError(f"options: expected TrackOptions, got {type(options).__name__}")
     check_outputs(*input_paths(input), cells, out=out, track_summary=track_summary)
     chunk_rows = check_int("chunk_rows", chunk_rows, minimum=1)
-    store = PartStore(out)
     if track_summary is not None:
         output_format(track_summary)
-    with output_lock(out, track_summary):
-        if resume:
-            store.clean()
-        else:
-            store.discard()
+    with resumable_outputs(out, track_summary, resume=resume, note=note, last_part=_PARTS[-1]) as store:
         report = ReadReport()
         cell_table, cell_report = (None, None) if cells is None else _cell_table(input, cells, on_error,
                                                                                  chunk_rows, read)
         progress = progress or _NullProgress()
-        resumed = store.parts("tracks")
-        try:
-            with progress.task(f"tracking the tracks of {input_name(input)}", total=None) as advance:
-                results = _run(input, options, cells_table=cell_table, on_error=on_error, chunk_rows=chunk_rows,
-                               executor=executor, max_workers=max_workers, client=client, store=store,
-                               manifest=_manifest(input, options, cells, chunk_rows, read), progress=advance,
-                               report=report, read=read)
-            resumed = [p for p in resumed if p.exists()]  # an unsorted input starts again from scratch
-            files = store.check(results)  # every chunk's parts, or an OutputError if some vanished
-            points = sum(_rows(p) for p in files.get("points", ()))
-            tracks_resumed = sum(_rows(p) for p in resumed)
-            store.finish(files.get("points", []), empty=_empty_points())
-            if on_points is not None:
-                on_points(files.get("points", []))
-            tracks = _tracks_frame([read_part(p) for p in files.get("tracks", ())])
-            if track_summary is not None:
-                store.finish(files.get("tracks", []), to=track_summary,
-                             empty=pa.Table.from_pandas(tracks, preserve_index=False))
-            store.discard()
-        except BaseException as exc:
-            if (_resumable(exc) or resumed) and store.parts(_PARTS[-1]):
-                store.clean()  # a part a worker was writing when Ctrl-C reached it too
-            else:
-                store.discard()  # bad input, or no chunk finished: nothing to resume, nothing left behind
-            raise
+        with progress.task(f"tracking the tracks of {input_name(input)}", total=None) as advance:
+            results = _run(input, options, cells_table=cell_table, on_error=on_error, chunk_rows=chunk_rows,
+                           executor=executor, max_workers=max_workers, client=client, store=store,
+                           manifest=_manifest(input, options, cells, chunk_rows, read), progress=advance,
+                           report=report, read=read)
+        resumed = [p for p in store.resumed if p.exists()]  # an unsorted input starts again from scratch
+        files = store.check(results)  # every chunk's parts, or an OutputError if some vanished
+        points = sum(_rows(p) for p in files.get("points", ()))
+        tracks_resumed = sum(_rows(p) for p in resumed)
+        store.finish(files.get("points", []), empty=_empty_points())
+        if on_points is not None:
+            on_points(files.get("points", []))
+        tracks = _tracks_frame([read_part(p) for p in files.get("tracks", ())])
+        if track_summary is not None:
+            store.finish(files.get("tracks", []), to=track_summary,
+                         empty=pa.Table.from_pandas(tracks, preserve_index=False))
+        store.discard()
     summary = _summary(tracks, report, options, len(results), cellular=cells is not None)
     summary.update(input=str(input_label(input)), output=str(out), points_written=points, chunks_resumed=len(resumed),
                    tracks_resumed=tracks_resumed, elapsed_s=time.perf_counter() - start)
@@ -300,12 +311,6 @@ def track_file(input, out, *, cells=None, options: TrackOptions = TrackOptions()
     if cell_table is not None:
         summary["cells"] = {"file": str(cells), "cells_used": int(len(cell_table)), "read": cell_report.to_dict()}
     return summary
-
-
-def _resumable(exc: BaseException) -> bool:
-    """Whether the finished chunks of a run stopped by ``exc`` are worth keeping: yes after Ctrl-C, an
-    OS failure (disk full, ...) or a crash; no after bad input or options (a rerun must change them)."""
-    return not isinstance(exc, MptrackError) or isinstance(exc, OSError)
 
 
 def _rows(path) -> int:
@@ -527,11 +532,27 @@ def _unknown_option(name: str) -> str:
 
 def write_track_report(points: pd.DataFrame, path, *, run: dict | None = None, title: str = "mptrack track",
                        budget: int | None = None):
-    """Write the HTML report of a tracking run, as ``mptrack track --report`` and ``track(report=...)``
-    do: ``points`` (the run's point table, or the columns of it :func:`mptrack.report.report_points`
-    keeps) evaluated against the truth columns a simulated log passes through (true_lat/true_lon or
-    true_x/true_y) when it has them, drawn by :func:`mptrack.report.write_report` with ``run``, the
-    run's summary (rows skipped, NIS advice).  Returns the path."""
+    """Write the HTML report of a tracking run, as ``mptrack track --report`` and ``track(report=...)`` do.
+
+    The points are evaluated against the truth columns a simulated log passes through (true_lat/true_lon
+    or true_x/true_y) when they have them, then drawn by :func:`mptrack.report.write_report`.
+
+    Parameters
+    ----------
+    points : pandas.DataFrame
+        The run's point table, or the columns of it :func:`mptrack.report.report_points` keeps.
+    path : str or path-like
+        The HTML file.
+    run : dict, optional
+        The run's summary (rows skipped, NIS advice).
+    title : str, optional
+    budget : int, optional
+        Points drawn at most (decimation keeps every event).
+
+    Returns
+    -------
+    pathlib.Path
+    """
     from ..report import write_report
 
     own = any(a in points.columns and b in points.columns for a, b, _ in TRUTH_COLUMNS)
@@ -539,9 +560,3 @@ def write_track_report(points: pd.DataFrame, path, *, run: dict | None = None, t
     return write_report(table, path, summary=summary, run=run, title=title,
                         **({} if budget is None else {"budget": budget}))
 
-
-def read_output(path) -> pd.DataFrame:
-    """A point table written by :func:`track_file`, in any output format (see :func:`mptrack.io.read_output`)."""
-    from ..io import read_output as read
-
-    return read(path)

@@ -62,14 +62,58 @@ CELL_METHODS: dict[str, Callable] = {"ekf": ekf_ranges, "fekf": fekf_ranges, "fc
 
 
 def get_model(name: str) -> MotionModel:
+    """A motion model of ``mptrack track`` by name (:data:`MODELS`: cv, ca).
+
+    Parameters
+    ----------
+    name : str
+
+    Returns
+    -------
+    MotionModel
+
+    Raises
+    ------
+    UnknownNameError
+        The name is not registered; the message lists the known names.
+    """
     return lookup("name", name, MODELS, what="motion model")
 
 
 def get_fix_filter(name: str) -> str:
-    """The canonical name of a position-fix filter (validated)."""
+    """The canonical name of a position-fix filter (:data:`FIX_FILTERS`: kf, or a linear filter).
+
+    Parameters
+    ----------
+    name : str
+
+    Returns
+    -------
+    str
+
+    Raises
+    ------
+    UnknownNameError
+        The name is not registered; the message lists the known names.
+    """
     lookup("name", name, FIX_FILTERS, what="position-fix filter")
     return name.lower()
 
 
 def get_cell_method(name: str) -> Callable:
+    """A cellular tracking method by name (:data:`CELL_METHODS`: ekf, fekf, fcs).
+
+    Parameters
+    ----------
+    name : str
+
+    Returns
+    -------
+    callable
+
+    Raises
+    ------
+    UnknownNameError
+        The name is not registered; the message lists the known names.
+    """
     return lookup("name", name, CELL_METHODS, what="cellular method")

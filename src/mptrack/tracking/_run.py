@@ -16,7 +16,7 @@ import numpy as np
 import pandas as pd
 import pyarrow as pa
 
-from .._core.validation import derived_from, require_finite
+from .._core.finiteness import derived_from, require_finite
 from .._core.tracks import track_offsets
 from ._columns import FixTable
 from ._engine import filter_tracks

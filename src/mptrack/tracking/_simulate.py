@@ -37,15 +37,8 @@ from typing import Callable, Iterator
 import numpy as np
 import pandas as pd
 
-from .._core.validation import (
-    as_real,
-    check_allocation,
-    check_bool,
-    check_int,
-    check_positive,
-    check_rng,
-    derived_from,
-)
+from .._core.finiteness import derived_from
+from .._core.validation import as_real, check_allocation, check_bool, check_int, check_positive, check_rng
 from ..errors import DataError, ParameterError, UnknownNameError
 from ..io import FIXES, ReadOptions, ReadReport, cell_key, iter_track_chunks
 from ..io import enu_to_geodetic
@@ -338,15 +331,40 @@ def simulate_chunks(scenario: str, tracks: int, rng: np.random.Generator, *, dur
                     sigma_m: float | None = None, outlier_rate: float | None = None,
                     accuracy_column: bool | None = None, read: ReadOptions = ReadOptions(),
                     report: ReadReport | None = None) -> Iterator[tuple[pd.DataFrame, pd.DataFrame | None]]:
-    """(log with truth columns, cell table or None) of ``scenario`` for chunks of whole tracks (see the module
-    doc); the arguments are checked here, before the first chunk.
+    """A simulated log in chunks of whole tracks (memory bounded by the chunk); the arguments are checked
+    before the first chunk.
 
-    tracks, duration_s, interval, q (m^2/s^3), speed_mps: the simulated truth (ignored with ``along``, a
-    position-fix file whose tracks are the truth, read like ``track``'s input: ``read`` says what its
-    column names and units are where they are not recognised, ``report`` receives how it was read).
-    interval: an :class:`Intervals`, its text form, or None for the scenario's default.  sigma_m (m),
-    outlier_rate (fraction), accuracy_column: options of the ``gps`` scenario (None: its default); giving
-    one to a scenario without it is a ParameterError.
+    Parameters
+    ----------
+    scenario : str
+        A key of :data:`SCENARIOS`: "gps" (fixes at irregular times) or "urban-3bts" (RSS from three base
+        stations).
+    tracks : int
+        Number of tracks.
+    rng : numpy.random.Generator
+    duration_s : float, optional
+        Length of each track (s).
+    along : str or path-like, optional
+        A position-fix file whose tracks are the truth (read like ``track``'s input); ignores the
+        simulated-truth options.
+    interval : Intervals or str, optional
+        The times between fixes (an :class:`Intervals` or its text form; default the scenario's).
+    q : float, optional
+        Process-noise density of the simulated truth (m^2/s^3).
+    speed_mps : float, optional
+        Mean speed of the simulated truth (m/s).
+    sigma_m, outlier_rate, accuracy_column : optional
+        Options of the "gps" scenario (fix noise (m), outlier fraction, whether to write accuracy_m;
+        None: its default); giving one to another scenario is a ParameterError.
+    read : ReadOptions, optional
+        How ``along`` is read.
+    report : ReadReport, optional
+        Receives how ``along`` was read.
+
+    Yields
+    ------
+    log : pandas.DataFrame
+    cells : pandas.DataFrame or None
     """
     return _chunks(scenario, tracks, rng, duration_s=duration_s, along=along, interval=interval, q=q,
                    speed_mps=speed_mps, sigma_m=sigma_m, outlier_rate=outlier_rate, accuracy_column=accuracy_column,
@@ -404,8 +422,55 @@ def simulate(scenario: str, tracks: int, rng: np.random.Generator, *, duration_s
              sigma_m: float | None = None, outlier_rate: float | None = None,
              accuracy_column: bool | None = None, read: ReadOptions = ReadOptions(),
              report: ReadReport | None = None) -> tuple[pd.DataFrame, pd.DataFrame | None]:
-    """(log with truth columns, cell table or None) of ``scenario``: all chunks of :func:`simulate_chunks`
-    (same arguments) in one table."""
+    """A simulated log with truth columns, in one table.
+
+    Parameters
+    ----------
+    scenario : str
+        A key of :data:`SCENARIOS`: "gps" (fixes at irregular times) or "urban-3bts" (RSS from three base
+        stations).
+    tracks : int
+        Number of tracks.
+    rng : numpy.random.Generator
+    duration_s : float, optional
+        Length of each track (s).
+    along : str or path-like, optional
+        A position-fix file whose tracks are the truth (read like ``track``'s input); ignores the
+        simulated-truth options.
+    interval : Intervals or str, optional
+        The times between fixes (an :class:`Intervals` or its text form; default the scenario's).
+    q : float, optional
+        Process-noise density of the simulated truth (m^2/s^3).
+    speed_mps : float, optional
+        Mean speed of the simulated truth (m/s).
+    sigma_m, outlier_rate, accuracy_column : optional
+        Options of the "gps" scenario (fix noise (m), outlier fraction, whether to write accuracy_m;
+        None: its default); giving one to another scenario is a ParameterError.
+    read : ReadOptions, optional
+        How ``along`` is read.
+    report : ReadReport, optional
+        Receives how ``along`` was read.
+
+    Returns
+    -------
+    log : pandas.DataFrame
+        The measurements with ``true_*`` columns.
+    cells : pandas.DataFrame or None
+        The cell table of a cellular scenario.
+
+    Raises
+    ------
+    ResourceError
+        The log would exceed the memory limit (use :func:`simulate_chunks`).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from mptrack.tracking import simulate
+    >>> log, cells = simulate("gps", 2, np.random.default_rng(0), duration_s=60)
+    >>> sorted(log["track_id"].unique()), cells is None
+    (['sim0001', 'sim0002'], True)
+    """
     chunks = _chunks(scenario, tracks, rng, duration_s=duration_s, along=along, interval=interval, q=q,
                      speed_mps=speed_mps, sigma_m=sigma_m, outlier_rate=outlier_rate,
                      accuracy_column=accuracy_column, read=read, report=report, whole=True)

@@ -1,22 +1,30 @@
-"""The resumable parts of a long run: each finished chunk kept in ``.<out>.parts/`` until the
-output is streamed from them, one part in memory at a time.
+"""The outputs of a resumable run: their locks, taken once for the whole run, and the part store of
+the main output (``.<out>.parts/``, where the finished chunks wait until the output is streamed from
+them).
 
-The part store of ``out`` belongs to the run holding the lock of ``out``
-(:func:`mptrack._core.files.output_lock`): only that run creates, resumes, cleans or discards it."""
+The part store of ``out`` belongs to the run holding the lock of ``out`` (:func:`output_lock`): only
+that run creates, resumes, cleans or discards it.
+"""
 
 from __future__ import annotations
 
+import contextlib
 import re
 import shutil
 from pathlib import Path
+from typing import Iterator
 
 import pandas as pd
 
-from .._core.validation import check_path, renamed
-from ..errors import DataError, OutputError
-from ._outputs import output_format, write_table
+from .._core.finiteness import renamed
+from .._core.validation import check_path
+from ..errors import DataError, MptrackError, OutputError
+from ..io import output_format, write_table
+from ._lock import output_lock
+from ._parts import read_part
 
-__all__ = ["PartStore"]
+__all__ = ["PartStore", "resumable_outputs"]
+
 
 #: The temporary files of :func:`mptrack._core.files.atomic_path` for a part (``<name>-NNNNNN.arrow`` or
 #: ``.parquet``) or the manifest: ``.<file>.XXXXXXXX.tmp<suffix>``.
@@ -29,7 +37,7 @@ class PartStore:
     """The resumable parts of one run writing ``out``: the directory ``.<out>.parts/`` beside it.
 
     A run's chunks write their tables there (Arrow IPC files ``<name>-NNNNNN.arrow``,
-    by :func:`mptrack.batch.run_stream`, each atomically) with a ``manifest.json``
+    by :func:`run_stream`, each atomically) with a ``manifest.json``
     describing the run; a resumed run skips the chunks found there.
     :meth:`check` finds every part the run's chunks wrote (or refuses: a part
     or the manifest vanished); :meth:`finish` streams one kind of part, in
@@ -44,6 +52,8 @@ class PartStore:
         with renamed(path="out"):
             output_format(self.out)
         self.dir = self.out.parent / f".{self.out.name}.parts"
+        #: the finished chunks' parts found when the run started (:func:`resumable_outputs`)
+        self.resumed: list[Path] = []
 
     def parts(self, name: str) -> list[Path]:
         """The part files of kind ``name``, in chunk order."""
@@ -59,7 +69,7 @@ class PartStore:
 
     def check(self, results: list[dict]) -> dict[str, list[Path]]:
         """The part files of a finished run by kind, in chunk order, from ``results`` (what
-        :func:`mptrack.batch.run_stream` returned: each chunk's {kind: path}).
+        :func:`run_stream` returned: each chunk's {kind: path}).
 
         Every one of them and the manifest must still be there: a store removed or emptied during
         the run (by hand, a clean-up job) would otherwise give an output missing those chunks.
@@ -88,8 +98,6 @@ class PartStore:
         """Write the parts ``files`` (one kind, in chunk order: :meth:`check`) into ``to`` (default:
         the output); ``empty`` is the (schema-only) table to write when there are none.  A part
         removed meanwhile is the OutputError of :meth:`check` (the output is not written)."""
-        from ..batch import read_part
-
         def tables():
             for path in files:
                 try:
@@ -105,3 +113,60 @@ class PartStore:
 
     def discard(self) -> None:
         shutil.rmtree(self.dir, ignore_errors=True)
+
+
+@contextlib.contextmanager
+def resumable_outputs(out, *also, resume: bool = False, note: str = "", last_part: str) -> Iterator[PartStore]:
+    """Hold the outputs of a resumable run: their locks, taken once, and the part store of the main one.
+
+    The store is emptied for a fresh run or, with ``resume``, kept with its killed writers' temporary
+    files removed.  When the block raises, the finished chunks are kept for a resumed run after Ctrl-C,
+    an OS failure (disk full, ...) or a crash, and whenever this run was itself a resume; after bad input
+    or options (an mptrack error: a rerun must change them), or with no chunk finished, the store is
+    removed, so nothing is left behind.
+
+    Parameters
+    ----------
+    out : str or path-like
+        The main output, whose parts go to ``.<out>.parts/``.
+    *also : str or path-like
+        Other outputs of the run, locked too (None is skipped).
+    resume : bool, optional
+        Keep the parts of an interrupted run.
+    note : str, optional
+        Shown to another process refused the lock (e.g. the command line).
+    last_part : str
+        The kind of part written last by each chunk (its presence means the chunk is done).
+
+    Yields
+    ------
+    PartStore
+        With ``resumed``, the finished chunks found at the start.
+
+    Raises
+    ------
+    OutputError
+        Another run holds a lock, or an output cannot be locked.
+    """
+    store = PartStore(out)
+    also = [check_path("also", p) for p in also if p is not None]
+    with output_lock(out, *also, note=note):
+        if resume:
+            store.clean()
+        else:
+            store.discard()
+        store.resumed = store.parts(last_part)
+        try:
+            yield store
+        except BaseException as exc:
+            if (_resumable(exc) or store.resumed) and store.parts(last_part):
+                store.clean()  # a part a worker was writing when Ctrl-C reached it too
+            else:
+                store.discard()
+            raise
+
+
+def _resumable(exc: BaseException) -> bool:
+    """Whether the finished chunks of a run stopped by ``exc`` are worth keeping: yes after Ctrl-C, an
+    OS failure (disk full, ...) or a crash; no after bad input or options (a rerun must change them)."""
+    return not isinstance(exc, MptrackError) or isinstance(exc, OSError)
