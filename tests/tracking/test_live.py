@@ -114,3 +114,25 @@ def test_bad_calls_are_refused_by_name():
     live.advance(np.array([0]), np.array([1.7e9]), np.array([50.0]), np.array([8.0]), np.full(1, np.nan))
     with pytest.raises(ParameterError, match="before its last fix"):
         live.advance(np.array([0]), np.array([1.7e9 - 5]), np.array([50.0]), np.array([8.0]), np.full(1, np.nan))
+
+
+def test_a_smoothing_receiver_keeps_metres_of_uncertainty_after_its_noise_is_estimated():
+    """The bike ride's receiver smooths its fixes: a live track starts with the population's white
+    noise, and when its own estimate moves the error into the slow part, the position's variance
+    becomes the total error's, as ``mptrack track`` reports from the start (25 m^2: 5 m per axis where
+    the fixes state no accuracy); without moving the averaged-down part it fell to 0.4 m^2."""
+    df = read_table(REAL_TRACES["bike"]).iloc[:400]
+    want = mptrack.track(df)
+    live = LiveTracks(TrackOptions())
+    live.add(1)
+    t, lat, lon = df["t"].to_numpy(), df["lat"].to_numpy(), df["lon"].to_numpy()
+    nan = np.full(len(df), np.nan)
+    first = 40
+    est = live.advance(np.zeros(first, np.int64), t[:first], lat[:first], lon[:first], nan[:first])
+    assert est["var_e"][-1] > 1.0                     # the population's 5 m white noise, averaged down
+    noise = live.estimate_noise([{"t": t[:first], "lat": lat[:first], "lon": lon[:first], "accuracy_m": nan[:first]}])
+    assert noise["c"][0] < 0.01                        # the receiver's fixes show millimetres between them
+    live.set_noise([0], noise)
+    est = live.advance(np.zeros(len(df) - first, np.int64), t[first:], lat[first:], lon[first:], nan[first:])
+    np.testing.assert_allclose(est["var_e"][-100:], want["var_east_m2"].to_numpy()[-100:], rtol=0.05)
+    assert np.all(est["var_e"] >= 20.0)
