@@ -112,7 +112,7 @@ class Server:
         self.ingest.start()
         if self.config.retain_s is not None:
             self._tasks.append(loop.create_task(self._retention()))
-        log.info("mptrack serve ready: %d devices, %s", len(self.ingest.ids), self.config.db)
+        log.info("mptrack serve ready: %d devices, %s", len(self.ingest.keys), self.config.db)
 
     async def shutdown(self) -> None:
         for task in self._tasks:
