@@ -13,10 +13,11 @@ Run it with ``mptrack serve``, or in Python with uvicorn::
 
 from ._app import ServeConfig, create_app
 from ._auth import digest, new_secret
+from ._copy import copy_database
 from ._database import open_store
 from ._store import DEFAULT_DB
 
-__all__ = ["ServeConfig", "create_app", "add_device", "add_api_key", "DEFAULT_DB"]
+__all__ = ["ServeConfig", "create_app", "add_device", "add_api_key", "copy_database", "open_store", "DEFAULT_DB"]
 
 
 def add_device(db: str, name: str) -> str:

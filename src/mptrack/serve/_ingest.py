@@ -28,15 +28,15 @@ import logging
 import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass, field
 
 import numpy as np
 
 from ..tracking import ESTIMATE_FIELDS, FLAGS, LiveTracks, ellipse
 from ._fix import iso_time
+from ._metrics import Metrics
 from ._store import Store
 
-__all__ = ["Ingest", "Counters", "FLAG_NAMES", "LATE", "ESTIMATES"]
+__all__ = ["Ingest", "FLAG_NAMES", "LATE", "ESTIMATES"]
 
 log = logging.getLogger("mptrack.serve")
 #: The most devices whose noise one round re-estimates.
@@ -50,33 +50,18 @@ LATE = len(FLAGS)
 ESTIMATES = ESTIMATE_FIELDS
 
 
-@dataclass
-class Counters:
-    """What ingest has done since the server started."""
-
-    accepted: int = 0        # fixes answered 200
-    filtered: int = 0        # ... that went through the live filter
-    late: int = 0            # ... stored with history only (older than their device's last fix)
-    duplicates: int = 0      # ... exact repeats of a stored fix, not stored again
-    batches: int = 0         # group commits
-    refused: dict = field(default_factory=dict)   # refused requests by reason (code)
-
-    def refuse(self, code: str) -> None:
-        self.refused[code] = self.refused.get(code, 0) + 1
-
-
 class Ingest:
     """The group-commit writer (see the module doc)."""
 
     def __init__(self, store: Store, live: LiveTracks, *, checkpoint_s: float = 10.0,
-                 calibrate_after: int = 30, history_fixes: int = 2000):
+                 calibrate_after: int = 30, history_fixes: int = 2000, metrics: Metrics | None = None):
         self.store = store
         self.shared = bool(store.shared)
         self.live = live
         self.checkpoint_s = checkpoint_s
         self.calibrate_after = calibrate_after
         self.history_fixes = history_fixes
-        self.counters = Counters()
+        self.metrics = metrics if metrics is not None else Metrics.local()
         self.keys: dict[str, int] = {}           # device id -> key (the live filter's track index)
         self.ids: list[str | None] = []          # key -> device id (None: a key this process has not seen)
         self.lock = threading.Lock()             # the live state and the keys: the writer while it steps, readers
@@ -165,6 +150,7 @@ class Ingest:
             try:
                 events = await loop.run_in_executor(self._writer, self._commit, fixes)
             except Exception as exc:  # every request of the batch fails; nothing was acknowledged
+                self.metrics.add("commit_failures")
                 for _, fut in batch:
                     if not fut.done():
                         fut.set_exception(exc)
@@ -195,6 +181,16 @@ class Ingest:
         for q in list(self.listeners):
             if q.qsize() < 1000:           # a listener that does not read loses events, not memory
                 q.put_nowait(events)
+
+    def device_counts(self, window_s: float) -> tuple[int, int]:
+        """(devices that have sent a fix, those whose last fix is at most ``window_s`` old), over every
+        process of a shared store."""
+        since = time.time() - window_s
+        if self.shared:
+            return len(self.store.device_keys()), self.store.live_devices(since)
+        with self.lock:
+            t = self.live.last_fixes(np.arange(self.live.n))[:, 0]
+        return len(self.keys), int(np.count_nonzero(t >= since))
 
     # ---- keys and states (a shared store: written by other processes too) ------------------------------
     def _add_keys(self, pairs) -> None:
@@ -301,12 +297,13 @@ class Ingest:
             changed = time.monotonic()
             for k in np.unique(touched).tolist():
                 self._dirty.setdefault(k, (before, changed))
-        c = self.counters
-        c.accepted += len(fixes)
-        c.filtered += len(sel)
-        c.late += stored_late
-        c.duplicates += len(fixes) - len(sel) - stored_late
-        c.batches += 1
+        m = self.metrics
+        m.add("accepted", len(fixes))
+        m.add("filtered", len(sel))
+        m.add("late", stored_late)
+        m.add("duplicates", len(fixes) - len(sel) - stored_late)
+        m.add("batches")
+        m.observe("batch", len(fixes))
         self._checkpoint()
         return events
 

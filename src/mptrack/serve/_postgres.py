@@ -35,7 +35,7 @@ import numpy as np
 from ..errors import OutputError, ParameterError
 from ._store import ESTIMATE_COLUMNS, FIX_COLUMNS, StoredRows, stored_rows
 
-__all__ = ["PostgresStore", "SCHEMA_VERSION", "CHANNEL"]
+__all__ = ["PostgresStore", "SCHEMA_VERSION", "CHANNEL", "shown_url"]
 
 log = logging.getLogger("mptrack.serve")
 
@@ -89,10 +89,10 @@ _WRITE_STATES = ("UPDATE device_state s SET version = s.version + 1, state = c.s
 
 
 def _fail(exc: Exception, url: str) -> OutputError:
-    return OutputError(f"db: cannot use the PostgreSQL database {_shown(url)}: {str(exc).strip().splitlines()[0]}")
+    return OutputError(f"db: cannot use the PostgreSQL database {shown_url(url)}: {str(exc).strip().splitlines()[0]}")
 
 
-def _shown(url: str) -> str:
+def shown_url(url: str) -> str:
     """The URL without its password."""
     head, sep, tail = url.partition("@")
     if not sep or ":" not in head.split("//", 1)[-1]:

@@ -64,7 +64,7 @@ class Position(BaseModel):
 
 
 class Stats(BaseModel):
-    devices: int
+    devices: int = Field(description="devices that have sent a fix")
     accepted: int
     filtered: int
     late: int
@@ -222,11 +222,11 @@ def query_app(server) -> FastAPI:
                                  headers={"Cache-Control": "no-cache", "X-Accel-Buffering": "no"})
 
     @app.get("/api/stats", response_model=Stats, dependencies=[Depends(api_key)], responses=_ERRORS,
-             summary="What ingest accepted and refused since the server started")
+             summary="What ingest accepted and refused since the server started (all its worker processes)")
     def stats():
-        c = server.ingest.counters
-        return {"devices": len(server.ingest.keys), "accepted": c.accepted, "filtered": c.filtered, "late": c.late,
-                "duplicates": c.duplicates, "batches": c.batches, "refused": dict(c.refused),
+        c = server.metrics.totals()
+        return {"devices": server.ingest.device_counts(300.0)[0], "accepted": c["accepted"], "filtered": c["filtered"],
+                "late": c["late"], "duplicates": c["duplicates"], "batches": c["batches"], "refused": c["refused"],
                 "uptime_s": time.time() - server.started}
 
     @app.get("/", response_class=HTMLResponse, dependencies=[Depends(api_key)], responses=_ERRORS,

@@ -77,6 +77,7 @@ class SqliteStore:
         except sqlite3.DatabaseError as exc:
             raise OutputError(f"db: cannot open {self.path} as an mptrack database: {exc}", path=self.path) from None
         version = self._w.execute("SELECT value FROM meta WHERE key = 'schema_version'").fetchone()[0]
+        self.schema_version = int(version)
         if int(version) > SCHEMA_VERSION:
             raise OutputError(f"db: {self.path} has schema version {version}, newer than this mptrack's "
                               f"{SCHEMA_VERSION}; upgrade mptrack", path=self.path)

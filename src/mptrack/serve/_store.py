@@ -106,6 +106,8 @@ class Store(Protocol):
     url: str
     #: several processes write (PostgreSQL): states travel with every batch, see the module doc
     shared: bool
+    #: the version of the database's schema
+    schema_version: int
 
     def register(self, devices: list[str]) -> list[tuple[int, str]]:
         """(key, id) of these device ids, registering (and committing) the new ones."""
@@ -174,5 +176,8 @@ class Store(Protocol):
         """Delete fixes older than ``t`` (seconds since 1970), in batches; returns how many."""
 
     def count(self) -> int: ...
+
+    def live_devices(self, since: float) -> int:
+        """A shared store: how many devices have a fix at or after ``since`` (s since 1970)."""
 
     def close(self) -> None: ...
