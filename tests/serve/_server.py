@@ -105,7 +105,8 @@ def query(db: str, sql: str, params: tuple = ()) -> list[tuple]:
     import psycopg
 
     with psycopg.connect(db, autocommit=True) as con:
-        return con.execute(sql.replace("?", "%s"), params).fetchall()
+        cur = con.execute(sql.replace("?", "%s"), params)
+        return cur.fetchall() if cur.description else []
 
 
 def stored(db: str, device: str | None = None) -> pd.DataFrame:
