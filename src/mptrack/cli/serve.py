@@ -129,20 +129,17 @@ def _run_workers(config, workers: int, options: dict) -> None:
     import uvicorn
     from uvicorn.supervisors import Multiprocess
 
-    from ..serve._app import config_environment
-    from ..serve._metrics import METRICS_ENV, create_metrics_file
+    from ..serve import WORKER_APP, worker_environment
 
     with tempfile.TemporaryDirectory(prefix="mptrack-serve-") as tmp:
-        metrics = os.path.join(tmp, "metrics")
-        create_metrics_file(metrics, 2 * workers)
-        os.environ.update(config_environment(config), **{METRICS_ENV: metrics})
-        ucfg = uvicorn.Config("mptrack.serve._app:app_from_environment", factory=True, workers=workers, **options)
+        os.environ.update(worker_environment(config, tmp, workers))
+        ucfg = uvicorn.Config(WORKER_APP, factory=True, workers=workers, **options)
         Multiprocess(ucfg, sockets=[ucfg.bind_socket()]).run()
 
 
 def _shown(url: str) -> str:
     """A database URL without its password."""
-    from ..serve._postgres import shown_url
+    from ..serve import shown_url
 
     return shown_url(url)
 
