@@ -125,8 +125,10 @@ class PostgresStore:
                 self.schema_version = _schema(con, upgrade)
         except psycopg.Error as exc:
             raise _fail(exc, url) from None
-        self.pool = ConnectionPool(url, min_size=1, max_size=pool_size, kwargs=options, timeout=5.0,
-                                   check=ConnectionPool.check_connection, open=True, name="mptrack")
+        # no check before each use (a round trip a batch): a connection that broke fails its batch (503, the
+        # clients send again) and the pool replaces it
+        self.pool = ConnectionPool(url, min_size=1, max_size=pool_size, kwargs=options, timeout=5.0, open=True,
+                                   name="mptrack")
         self._streaming = (0.0, False)   # (checked at, some process has stream clients)
         self._listener: threading.Thread | None = None
         self._closing = threading.Event()
@@ -344,14 +346,16 @@ class _Batch:
                     for r in rows:
                         cp.write_row(r)
             stored = 0
+            with self.con.pipeline():   # the rest in one round trip
+                if late:
+                    cur.executemany(_INSERT_LATE, [r + r[:4] for r in late])
+                if states:
+                    self.con.execute(_WRITE_STATES, ([d for d, _, _ in states], [b for _, b, _ in states],
+                                                     [t for _, _, t in states]))
+                if events:
+                    self.con.cursor().executemany("SELECT pg_notify(%s, %s)", [(CHANNEL, p) for p in _payloads(events)])
             if late:
-                cur.executemany(_INSERT_LATE, [r + r[:4] for r in late])
                 stored = max(cur.rowcount, 0)
-            if states:
-                cur.execute(_WRITE_STATES, ([d for d, _, _ in states], [b for _, b, _ in states],
-                                            [t for _, _, t in states]))
-            if events:
-                cur.executemany("SELECT pg_notify(%s, %s)", [(CHANNEL, p) for p in _payloads(events)])
         return stored
 
 
