@@ -245,6 +245,42 @@ def test_unknown_device_and_route(server):
     assert error_of(server.get("/api/nothing"))["code"] == "not_found"
 
 
+# ---- operations -------------------------------------------------------------------------------------
+def _metrics(srv) -> dict[str, float]:
+    r = srv.get("/metrics")
+    assert r.status_code == 200 and r.headers["content-type"].startswith("text/plain; version=0.0.4")
+    out = {}
+    for line in r.text.splitlines():
+        if line.startswith("#"):
+            assert line.startswith(("# HELP mptrack_", "# TYPE mptrack_")), line
+            continue
+        name, value = line.rsplit(" ", 1)
+        out[name] = float(value)
+    return out
+
+
+def test_metrics_in_prometheus_format(server):
+    t = int(time.time()) - 10
+    before = _metrics(server)
+    assert server.get(f"/?id=metrics-1&timestamp={t}&lat=52.5&lon=13.4&accuracy=5").status_code == 200
+    assert server.get(f"/?id=metrics-1&timestamp={t}&lat=52.5&lon=13.4&accuracy=5").status_code == 200   # repeat
+    assert server.get(f"/?id=metrics-1&timestamp={t + 1}&lat=95&lon=13.4").status_code == 400
+    after = _metrics(server)
+
+    def delta(name):
+        return after[name] - before.get(name, 0.0)
+
+    assert delta("mptrack_fixes_accepted_total") == 2
+    assert delta('mptrack_fixes_total{kind="filtered"}') == 1 and delta('mptrack_fixes_total{kind="duplicate"}') == 1
+    assert delta('mptrack_requests_refused_total{reason="invalid_field"}') == 1
+    assert delta("mptrack_ingest_request_seconds_count") == 3 and delta("mptrack_commits_total") == 2
+    buckets = [v for k, v in after.items() if k.startswith("mptrack_ingest_request_seconds_bucket")]
+    assert buckets == sorted(buckets) and buckets[-1] == after["mptrack_ingest_request_seconds_count"]
+    assert after["mptrack_devices"] >= 1 and after["mptrack_devices_live"] >= 1
+    stats = server.json("/api/stats")
+    assert stats["accepted"] == after["mptrack_fixes_accepted_total"]
+
+
 # ---- auth -----------------------------------------------------------------------------------------------
 def _cli(*args, cwd=None) -> str:
     proc = subprocess.run([sys.executable, "-m", "mptrack", *args], capture_output=True, text=True, cwd=cwd,

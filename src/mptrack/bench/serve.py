@@ -187,6 +187,23 @@ def _cpu_s(pid: int) -> float:
     return total
 
 
+def _postgres_cpu_s() -> float:
+    """CPU-seconds of every PostgreSQL server process on this machine (a local database's share)."""
+    tick = os.sysconf("SC_CLK_TCK")
+    total = 0.0
+    for d in Path("/proc").iterdir():
+        if not d.name.isdigit():
+            continue
+        try:
+            head, tail = (d / "stat").read_text().rsplit(")", 1)
+        except OSError:
+            continue
+        if head.endswith("(postgres"):
+            stat = tail.split()
+            total += (int(stat[11]) + int(stat[12])) / tick
+    return total
+
+
 def _schemas(url: str, n: int) -> tuple[list[str], callable]:
     """URLs of ``n`` new schemas of the database at ``url`` (the search path set in each), and a function
     that drops them."""
@@ -244,9 +261,9 @@ def _postgres_suite(db: str, quick: bool, load: float) -> dict:
                     try:
                         time.sleep(3.0 * workers)            # every worker ready (each compiles or loads its kernels)
                         _wrk(server.url, 2, tmp, seed=2)
-                        cpu0 = _cpu_s(server.proc.pid)
+                        cpu0, pg0 = _cpu_s(server.proc.pid), _postgres_cpu_s()
                         full = _wrk(server.url, seconds, tmp, seed=3)
-                        cpu = _cpu_s(server.proc.pid) - cpu0
+                        cpu, pg = _cpu_s(server.proc.pid) - cpu0, _postgres_cpu_s() - pg0
                         half = None
                         if workers == 2:
                             delay = max(0.0, 1000.0 * 64 / (full["rps"] / 2.0) - full["p50"])
@@ -254,6 +271,8 @@ def _postgres_suite(db: str, quick: bool, load: float) -> dict:
                     finally:
                         server.stop()
                     by_workers[workers] = (full, cpu / (full["rps"] * seconds), half)
+                    notes.append(f"--workers {workers}: PostgreSQL's processes on this machine used "
+                                 f"{1e6 * pg / (full['rps'] * seconds):.0f} CPU-microseconds per acknowledged fix")
                     rows.append([f"OsmAnd GET on PostgreSQL, --workers {workers}", full["rps"], full["p50"], full["p99"],
                                  1e6 * cpu / (full["rps"] * seconds)])
                     if half is not None:

@@ -283,7 +283,8 @@ class Ingest:
                 late_rows = _rows(fixes, dev, order[late], None, now)
                 stream = self.store.streaming() if self.shared else bool(self.listeners)
                 events = self._events(sel, fixes, est) if stream and len(sel) else None
-                stored_late = tx.write(rows, late_rows, states, [f"{k}\t{e}" for k, e in events or ()])
+                tx.write(rows, late_rows, states, [f"{k}\t{e}" for k, e in events or ()])
+            stored_late = tx.stored_late
             if not self.shared:
                 before, self._seq = self._seq, self.store.last_row()
         except BaseException:

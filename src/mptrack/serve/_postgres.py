@@ -78,6 +78,11 @@ SCHEMA_VERSION = max(_MIGRATIONS)
 _SELECT = f"SELECT seq, {', '.join(_ALL)} FROM fixes"
 _COPY = f"COPY fixes ({', '.join(_ALL)}) FROM STDIN"
 _COPY_SEQ = f"COPY fixes ({', '.join(_ALL)}, seq) FROM STDIN"
+#: From this many rows a batch's fixes go in by COPY (fewer: one INSERT of arrays, sent with COMMIT).
+_COPY_ROWS = 500
+_TYPES = {"dev": "bigint", "attrs": "text", "flag": "smallint"}
+_INSERT_ARRAYS = (f"INSERT INTO fixes ({', '.join(_ALL)}) SELECT * FROM unnest("
+                  + ", ".join(f"%s::{_TYPES.get(c, 'float8')}[]" for c in _ALL) + ")")
 _INSERT_LATE = (f"INSERT INTO fixes ({', '.join(_ALL)}) SELECT {', '.join(['%s'] * len(_ALL))} WHERE NOT EXISTS "
                 "(SELECT 1 FROM fixes WHERE dev = %s AND t = %s AND lat = %s AND lon = %s)")
 # the batch's devices locked in sorted order; the state of each whose version is not the one this process has
@@ -147,11 +152,23 @@ class PostgresStore:
 
     @contextlib.contextmanager
     def batch(self, devs: np.ndarray, versions: np.ndarray) -> Iterator["_Batch"]:
-        with self.pool.connection() as con, con.transaction():
-            locked = con.execute(_LOCK, (np.asarray(devs).tolist(), np.asarray(versions).tolist())).fetchall()
-            if len(locked) != len(devs):
-                raise RuntimeError("some devices of the batch have no state row")  # pragma: no cover
-            yield _Batch(con, [(d, v, s) for d, v, stale, s in locked if stale])
+        # round trips are what a batch waits for: BEGIN and the locks in one, the writes and COMMIT in one
+        with self.pool.connection() as con:
+            try:
+                with con.pipeline():
+                    con.execute("BEGIN")
+                    cur = con.execute(_LOCK, (np.asarray(devs).tolist(), np.asarray(versions).tolist()))
+                locked = cur.fetchall()
+                if len(locked) != len(devs):
+                    raise RuntimeError("some devices of the batch have no state row")  # pragma: no cover
+                batch = _Batch(con, [(d, v, s) for d, v, stale, s in locked if stale])
+                yield batch
+                batch.commit()
+            except BaseException:
+                if not con.closed:
+                    with contextlib.suppress(self._psycopg.Error):
+                        con.execute("ROLLBACK")
+                raise
 
     def checkpoint(self, states: list[tuple[str, bytes]], upto: int, watermark: int) -> None:
         """Store these device states (id, blob) as their current ones."""
@@ -332,31 +349,44 @@ class PostgresStore:
 
 
 class _Batch:
-    """One batch's transaction: the states other processes changed, and the write."""
+    """One batch's transaction: the states other processes changed; the writes, sent with COMMIT."""
 
     def __init__(self, con, stale: list[tuple[int, int, bytes | None]]):
         self.con = con
         self.stale = stale
+        self._late: list[tuple] = []
+        self._states: list[tuple[int, bytes, float]] = []
+        self._events: list[str] = []
+        self._cur = con.cursor()
+        self._rows: list[tuple] = []
+        self.stored_late = 0
 
     def write(self, rows: list[tuple], late: list[tuple] = (), states: list[tuple[int, bytes, float]] = (),
-              events: list[str] = ()) -> int:
-        with self.con.cursor() as cur:
-            if rows:
-                with cur.copy(_COPY) as cp:
-                    for r in rows:
-                        cp.write_row(r)
-            stored = 0
-            with self.con.pipeline():   # the rest in one round trip
-                if late:
-                    cur.executemany(_INSERT_LATE, [r + r[:4] for r in late])
-                if states:
-                    self.con.execute(_WRITE_STATES, ([d for d, _, _ in states], [b for _, b, _ in states],
-                                                     [t for _, _, t in states]))
-                if events:
-                    self.con.cursor().executemany("SELECT pg_notify(%s, %s)", [(CHANNEL, p) for p in _payloads(events)])
-            if late:
-                stored = max(cur.rowcount, 0)
-        return stored
+              events: list[str] = ()) -> None:
+        """A bulk batch's ``rows`` go in now by COPY; everything else is sent with COMMIT (one INSERT of
+        arrays for the rows of a small batch: a round trip less than COPY)."""
+        if len(rows) >= _COPY_ROWS:
+            with self._cur.copy(_COPY) as cp:
+                for r in rows:
+                    cp.write_row(r)
+        elif rows:
+            self._rows = rows
+        self._late, self._states, self._events = list(late), list(states), list(events)
+
+    def commit(self) -> None:
+        con = self.con
+        with con.pipeline():
+            if self._rows:
+                con.execute(_INSERT_ARRAYS, [list(c) for c in zip(*self._rows)])
+            if self._late:
+                self._cur.executemany(_INSERT_LATE, [r + r[:4] for r in self._late])
+            if self._states:
+                con.execute(_WRITE_STATES, ([d for d, _, _ in self._states], [b for _, b, _ in self._states],
+                                            [t for _, _, t in self._states]))
+            if self._events:
+                con.cursor().executemany("SELECT pg_notify(%s, %s)", [(CHANNEL, p) for p in _payloads(self._events)])
+            con.execute("COMMIT")
+        self.stored_late = max(self._cur.rowcount, 0) if self._late else 0
 
 
 def _payloads(events: list[str]) -> list[str]:

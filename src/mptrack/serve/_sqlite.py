@@ -269,11 +269,12 @@ class _Batch:
 
     def __init__(self, con: sqlite3.Connection):
         self.con = con
+        self.stored_late = 0
 
-    def write(self, rows: list[tuple], late: list[tuple] = (), states=(), events=()) -> int:
+    def write(self, rows: list[tuple], late: list[tuple] = (), states=(), events=()) -> None:
         w = self.con
         w.executemany(_INSERT, rows)
         before = w.total_changes
         if late:
             w.executemany(_INSERT_NEW, late)
-        return w.total_changes - before
+        self.stored_late = w.total_changes - before

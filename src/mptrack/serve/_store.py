@@ -91,13 +91,16 @@ class Batch(Protocol):
     #: this process has (a shared store; empty otherwise)
     stale: list[tuple[int, int, bytes | None]]
 
+    #: how many of the ``late`` rows were stored (not duplicates), once the transaction committed
+    stored_late: int
+
     def write(self, rows: list[tuple], late: list[tuple] = (), states: list[tuple[int, bytes, float]] = (),
-              events: list[str] = ()) -> int:
+              events: list[str] = ()) -> None:
         """Insert the fix rows (FIX_COLUMNS + ESTIMATE_COLUMNS values) ``rows`` -- fixes later than every
         stored fix of their device, which cannot be duplicates -- and the rows ``late`` that are not exact
         duplicates of a stored fix (device, t, lat, lon); a shared store also stores ``states`` (dev, blob,
         time of the last fix) as the devices' current ones and sends ``events`` to the stream when the
-        transaction commits.  Returns how many of ``late`` were stored."""
+        transaction commits."""
 
 
 class Store(Protocol):
