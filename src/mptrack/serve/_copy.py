@@ -56,10 +56,14 @@ def _copy(src: Store, dst: Store, model: str | None) -> dict:
         for rows in src.replay(0):
             dst.load_fixes(rows)
             last = max(last, int(rows["seq"].max()))
-        started = np.flatnonzero(np.isfinite(live.last_fixes(np.arange(live.n))[:, 0]))
-        states = [(ingest.ids[k], live.state_bytes(k)) for k in started.tolist() if ingest.ids[k] is not None]
-        for i in range(0, len(states), 10_000):
-            dst.checkpoint(states[i:i + 10_000], last, last)
+        t_last = live.last_fixes(np.arange(live.n))[:, 0]
+        started = [k for k in np.flatnonzero(np.isfinite(t_last)).tolist() if ingest.ids[k] is not None]
+        states = [(k, ingest.ids[k], live.state_bytes(k), float(t_last[k])) for k in started]
+        for i in range(0, len(states), 10_000):   # each covers every fix copied
+            part = states[i:i + 10_000]
+            keys = np.array([k for k, _, _, _ in part], dtype=np.int64)
+            with dst.batch(keys, np.zeros(len(keys), np.int64)) as tx:
+                tx.write(states=part, watermark=last)
     except Exception as exc:
         raise OutputError(f"target: the copy into {dst.url} stopped ({exc}); it is incomplete: empty it (or drop "
                           "and create the database) and copy again") from exc

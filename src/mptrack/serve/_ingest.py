@@ -10,14 +10,20 @@ only then wakes the requests, which answer 200.  If the write fails, the filters
 devices are put back as they were and every request of the batch fails (503): nothing half-done
 is acknowledged.  While a batch commits, the next one gathers.
 
-The fixes are the log and the device states checkpoints of it.  A device's state is stored
-:attr:`Ingest.checkpoint_s` seconds after it changed (at most :data:`CHECKPOINT_ROWS` devices a batch,
-so a large fleet's checkpoints never stall ingest), with the last fix row it covers; the watermark is
+The fixes are the log and the device states checkpoints of it.  With a store of one writer (SQLite)
+a device's state is stored :attr:`Ingest.checkpoint_s` seconds after it changed, in the transaction
+of the next batch (at most :data:`CHECKPOINT_ROWS` devices a batch, so a large fleet's checkpoints
+never stall ingest), with the last fix row it covers; the watermark is
 the row up to which every device's stored state covers its fixes.  After a crash, the fixes after the
 watermark that a device's state does not cover are replayed through the same filter
 (:meth:`Ingest.recover`), which gives the states the filter had, so the live estimates resume exactly.
 Noise is re-estimated on another thread for devices with enough new fixes and applied between
 batches, the devices' states stored at once, so that a replay sees the noise the live filter saw.
+
+With a shared store (PostgreSQL, several processes) a batch locks its devices' states first, loads
+those another process changed, and stores the new state of every device it stepped with its fixes:
+the stored states are always current and whichever process gets a device's next fix goes on from
+there.
 """
 
 from __future__ import annotations
@@ -122,7 +128,7 @@ class Ingest:
             self._wake.set()
         if self._task is not None:
             await self._task
-        await asyncio.get_running_loop().run_in_executor(self._writer, self._checkpoint, True)
+        await asyncio.get_running_loop().run_in_executor(self._writer, self._checkpoint)
         self._writer.shutdown(wait=True)
         self._estimator.shutdown(wait=True)
 
@@ -278,25 +284,35 @@ class Ingest:
                     late = ~duplicate & ~new
                     sel = order[new]
                     est = self.live.advance(dev[sel], t[sel], lat[sel], lon[sel], acc[sel])
-                    states = self._states_of(np.unique(dev[sel])) if self.shared else ()
+                    touched = np.unique(dev[sel])
+                    if self.shared:   # every state goes in with its fixes
+                        states, ready, watermark = self._states_of(touched), [], None
+                    else:             # the states that changed checkpoint_s ago go in with this batch
+                        ready = self._due_states()
+                        due = set(ready)
+                        rest = [row for d, (row, _) in self._dirty.items() if d not in due]
+                        if any(d not in self._dirty for d in touched.tolist()):   # newly changed: not covered
+                            rest.append(self._seq)
+                        watermark = min(rest, default=None)
+                        states = [(d, self.ids[d], self.live.state_bytes(d), np.nan) for d in ready]
                 rows = _rows(fixes, dev, sel, est, now)
                 late_rows = _rows(fixes, dev, order[late], None, now)
                 stream = self.store.streaming() if self.shared else bool(self.listeners)
                 events = self._events(sel, fixes, est) if stream and len(sel) else None
-                tx.write(rows, late_rows, states, [f"{k}\t{e}" for k, e in events or ()])
-            stored_late = tx.stored_late
-            if not self.shared:
-                before, self._seq = self._seq, self.store.last_row()
+                tx.write(rows, late_rows, states, [f"{k}\t{e}" for k, e in events or ()], watermark)
         except BaseException:
             with self.lock:
                 self.live.restore_states(saved)
                 self._version[devs] = saved_version
             raise
-        touched = dev[sel]
-        np.add.at(self._since_calibration, touched, 1)
+        stored_late = tx.stored_late
+        np.add.at(self._since_calibration, dev[sel], 1)
         if not self.shared:
+            before, self._seq = self._seq, tx.last_row
+            for d in ready:
+                del self._dirty[d]
             changed = time.monotonic()
-            for k in np.unique(touched).tolist():
+            for k in touched.tolist():
                 self._dirty.setdefault(k, (before, changed))
         m = self.metrics
         m.add("accepted", len(fixes))
@@ -305,19 +321,30 @@ class Ingest:
         m.add("duplicates", len(fixes) - len(sel) - stored_late)
         m.add("batches")
         m.observe("batch", len(fixes))
-        self._checkpoint()
+        self._noise()
         return events
 
-    def _states_of(self, devs: np.ndarray) -> list[tuple[int, bytes, float]]:
-        """A shared store: (dev, blob, last fix time) of these devices, their versions raised (lock held)."""
+    def _states_of(self, devs: np.ndarray) -> list[tuple[int, str, bytes, float]]:
+        """A shared store: (key, id, blob, last fix time) of these devices, their versions raised (lock held)."""
         self._version[devs] += 1
         t_last = self.live.last_fixes(devs)[:, 0].tolist()
-        return [(k, self.live.state_bytes(k), tk) for k, tk in zip(devs.tolist(), t_last)]
+        return [(k, self.ids[k], self.live.state_bytes(k), tk) for k, tk in zip(devs.tolist(), t_last)]
 
-    def _checkpoint(self, final: bool = False) -> None:
-        """Apply the noise estimates that are ready (their devices' states stored at once) and start the
-        next; with a store of one writer, store the states of the devices that changed more than
-        ``checkpoint_s`` ago (at most CHECKPOINT_ROWS; all of them when ``final``) and the watermark."""
+    def _due_states(self) -> list[int]:
+        """The devices whose state changed more than ``checkpoint_s`` ago (oldest first, at most
+        CHECKPOINT_ROWS): stored with the next batch (a store with one writer)."""
+        old = time.monotonic() - self.checkpoint_s
+        ready = []
+        for d, (_, changed) in self._dirty.items():   # oldest first
+            if changed > old or len(ready) == CHECKPOINT_ROWS:
+                break
+            ready.append(d)
+        return ready
+
+    def _noise(self, final: bool = False) -> None:
+        """Apply the noise estimates that are ready, the devices' states stored at once (a replay, or
+        another process, must see the noise the filter saw from here on), and start the next round
+        (devices with enough new fixes, estimated on another thread)."""
         fut = self._estimating
         if fut is not None and (fut.done() or final):
             self._estimating = None
@@ -331,19 +358,12 @@ class Ingest:
             if len(due):
                 self._since_calibration[due] = 0
                 self._estimating = self._estimator.submit(self._estimate, due)
-        if self.shared:
-            return   # states are stored with every batch
-        if final:
+
+    def _checkpoint(self) -> None:
+        """At shutdown: the noise estimate under way applied, every changed state stored."""
+        self._noise(final=True)
+        if not self.shared:
             self._store_states(list(self._dirty))
-            return
-        old = time.monotonic() - self.checkpoint_s
-        ready = []
-        for d, (_, changed) in self._dirty.items():   # oldest first
-            if changed > old or len(ready) == CHECKPOINT_ROWS:
-                break
-            ready.append(d)
-        if ready:
-            self._store_states(ready)
 
     def _set_noise(self, due: np.ndarray, noise: dict) -> None:
         """Apply a noise estimate and store the devices' states at once (so that a replay, or another
@@ -370,15 +390,17 @@ class Ingest:
             raise
 
     def _store_states(self, devices: list[int]) -> None:
-        """Store these devices' states (they cover every fix stored so far) and the new watermark."""
-        if not devices and self._dirty:
-            return
+        """Store these devices' states (they cover every fix stored so far) and the new watermark (a store
+        with one writer)."""
         with self.lock:
-            states = [(self.ids[d], self.live.state_bytes(d)) for d in devices]
+            states = [(d, self.ids[d], self.live.state_bytes(d), np.nan) for d in devices]
+        stored = set(devices)
+        rest = [row for d, (row, _) in self._dirty.items() if d not in stored]
+        keys = np.array(sorted(stored), dtype=np.int64)
+        with self.store.batch(keys, self._version[keys]) as tx:
+            tx.write(states=states, watermark=min(rest, default=None))
         for d in devices:
             self._dirty.pop(d, None)
-        watermark = min((row for row, _ in self._dirty.values()), default=self._seq)
-        self.store.checkpoint(states, self._seq, watermark)
 
     def _estimate(self, due: np.ndarray) -> tuple[np.ndarray, dict]:
         """(due, noise) from the devices' recent stored fixes (on the estimator thread)."""

@@ -170,14 +170,6 @@ class PostgresStore:
                         con.execute("ROLLBACK")
                 raise
 
-    def checkpoint(self, states: list[tuple[str, bytes]], upto: int, watermark: int) -> None:
-        """Store these device states (id, blob) as their current ones."""
-        with self.pool.connection() as con, con.transaction():
-            con.execute("INSERT INTO device_state (dev, version, state) SELECT k.dev, 1, c.state FROM "
-                        "unnest(%s::text[], %s::bytea[]) AS c(id, state) JOIN device_keys k ON k.device_id = c.id "
-                        "ON CONFLICT (dev) DO UPDATE SET version = device_state.version + 1, state = excluded.state",
-                        ([d for d, _ in states], [b for _, b in states]))
-
     def add_device(self, device: str, token_sha256: str) -> None:
         self._insert("INSERT INTO devices VALUES (%s, %s, %s)", (device, token_sha256, time.time()), "device", device)
 
@@ -355,16 +347,18 @@ class _Batch:
         self.con = con
         self.stale = stale
         self._late: list[tuple] = []
-        self._states: list[tuple[int, bytes, float]] = []
+        self._states: list[tuple[int, str, bytes, float]] = []
         self._events: list[str] = []
         self._cur = con.cursor()
         self._rows: list[tuple] = []
         self.stored_late = 0
+        self.last_row = 0   # (a shared store has no watermark: not counted)
 
-    def write(self, rows: list[tuple], late: list[tuple] = (), states: list[tuple[int, bytes, float]] = (),
-              events: list[str] = ()) -> None:
-        """A bulk batch's ``rows`` go in now by COPY; everything else is sent with COMMIT (one INSERT of
-        arrays for the rows of a small batch: a round trip less than COPY)."""
+    def write(self, rows: list[tuple] = (), late: list[tuple] = (), states: list[tuple[int, str, bytes, float]] = (),
+              events: list[str] = (), watermark: int | None = None) -> None:
+        """(see :class:`._store.Batch`) A bulk batch's ``rows`` go in now by COPY; everything else is sent
+        with COMMIT (one INSERT of arrays for the rows of a small batch: a round trip less than COPY);
+        ``watermark`` is ignored (every state written is current)."""
         if len(rows) >= _COPY_ROWS:
             with self._cur.copy(_COPY) as cp:
                 for r in rows:
@@ -381,8 +375,8 @@ class _Batch:
             if self._late:
                 self._cur.executemany(_INSERT_LATE, [r + r[:4] for r in self._late])
             if self._states:
-                con.execute(_WRITE_STATES, ([d for d, _, _ in self._states], [b for _, b, _ in self._states],
-                                            [t for _, _, t in self._states]))
+                con.execute(_WRITE_STATES, ([d for d, _, _, _ in self._states], [b for _, _, b, _ in self._states],
+                                            [t for _, _, _, t in self._states]))
             if self._events:
                 con.cursor().executemany("SELECT pg_notify(%s, %s)", [(CHANNEL, p) for p in _payloads(self._events)])
             con.execute("COMMIT")

@@ -140,11 +140,6 @@ class SqliteStore:
         with self._transaction() as w:
             yield _Batch(w)
 
-    def checkpoint(self, states: list[tuple[str, bytes]], upto: int, watermark: int) -> None:
-        with self._transaction() as w:
-            w.executemany("INSERT OR REPLACE INTO device_state VALUES (?, ?, ?)", [(d, b, int(upto)) for d, b in states])
-            w.execute("UPDATE meta SET value = ? WHERE key = 'watermark'", (int(watermark),))
-
     def add_device(self, device: str, token_sha256: str) -> None:
         self._insert("INSERT INTO devices VALUES (?, ?, ?)", (device, token_sha256, time.time()), "device", device)
 
@@ -270,11 +265,20 @@ class _Batch:
     def __init__(self, con: sqlite3.Connection):
         self.con = con
         self.stored_late = 0
+        self.last_row = 0
 
-    def write(self, rows: list[tuple], late: list[tuple] = (), states=(), events=()) -> None:
+    def write(self, rows: list[tuple] = (), late: list[tuple] = (), states=(), events=(),
+              watermark: int | None = None) -> None:
+        """(see :class:`._store.Batch`; the states are checkpoints in the batch's own transaction)"""
         w = self.con
-        w.executemany(_INSERT, rows)
+        if rows:
+            w.executemany(_INSERT, rows)
         before = w.total_changes
         if late:
             w.executemany(_INSERT_NEW, late)
         self.stored_late = w.total_changes - before
+        last = self.last_row = w.execute("SELECT COALESCE(MAX(seq), 0) FROM fixes").fetchone()[0]
+        if states:
+            w.executemany("INSERT OR REPLACE INTO device_state VALUES (?, ?, ?)", [(d, b, last) for _, d, b, _ in states])
+        if states or watermark is not None:
+            w.execute("UPDATE meta SET value = ? WHERE key = 'watermark'", (last if watermark is None else int(watermark),))

@@ -15,11 +15,15 @@ What is stored, every table keyed by device first:
     meta          the schema version (SQLite: and the checkpoint watermark: every device's fixes up
                   to that row are in its stored state)
 
-A batch of fixes is committed in one transaction (:meth:`Store.batch`).  A store that is not
-``shared`` has one writer, which checkpoints states now and then; replaying the fixes after the
-watermark that each device's state does not cover restores the live state exactly after a crash
-(:meth:`Store.replay`).  A ``shared`` store has writers in many processes: a batch locks its devices'
-state rows, gets the states another process wrote since, and writes the new states with the fixes.
+A batch of fixes is committed in one transaction (:meth:`Store.batch`, :meth:`Batch.write`), with
+the device states it stores: so a 200 means the fixes and those states are committed together.  A
+store that is not ``shared`` has one writer, which stores a device's state some seconds after it
+changed (incremental checkpoints, a few with each batch) and the watermark; replaying the fixes
+after the watermark that each device's state does not cover restores the live state exactly after a
+crash (:meth:`Store.replay`).  A ``shared`` store has writers in many processes: a batch locks its
+devices' state rows (in sorted order), gets the states another process wrote since, and writes the
+new states of every device it stepped with the fixes; its states are always current, there is
+nothing to replay.
 """
 
 from __future__ import annotations
@@ -93,14 +97,18 @@ class Batch(Protocol):
 
     #: how many of the ``late`` rows were stored (not duplicates), once the transaction committed
     stored_late: int
+    #: a store with one writer: the last fix row, this transaction's included
+    last_row: int
 
-    def write(self, rows: list[tuple], late: list[tuple] = (), states: list[tuple[int, bytes, float]] = (),
-              events: list[str] = ()) -> None:
-        """Insert the fix rows (FIX_COLUMNS + ESTIMATE_COLUMNS values) ``rows`` -- fixes later than every
+    def write(self, rows: list[tuple] = (), late: list[tuple] = (), states: list[tuple[int, str, bytes, float]] = (),
+              events: list[str] = (), watermark: int | None = None) -> None:
+        """(Once per batch.) Insert the fix rows (FIX_COLUMNS + ESTIMATE_COLUMNS values) ``rows`` -- fixes later than every
         stored fix of their device, which cannot be duplicates -- and the rows ``late`` that are not exact
-        duplicates of a stored fix (device, t, lat, lon); a shared store also stores ``states`` (dev, blob,
-        time of the last fix) as the devices' current ones and sends ``events`` to the stream when the
-        transaction commits."""
+        duplicates of a stored fix (device, t, lat, lon); store device ``states`` (key, id, blob, time of
+        the last fix) that cover every fix of their device stored so far, this transaction's included
+        (a shared store: as the devices' current states).  A store with one writer also sets the
+        watermark (None: the last row) when states or a watermark are given; a shared store sends
+        ``events`` to the stream when the transaction commits."""
 
 
 class Store(Protocol):
@@ -119,10 +127,6 @@ class Store(Protocol):
         """A durable transaction for a batch of the devices ``devs`` (sorted keys), committed when the
         context exits without an exception, rolled back otherwise.  A shared store locks the devices'
         rows first (in sorted order) and reports the states whose version is not in ``versions``."""
-
-    def checkpoint(self, states: list[tuple[str, bytes]], upto: int, watermark: int) -> None:
-        """In one transaction: store device states (id, blob), which cover their fixes up to row
-        ``upto``, and the new ``watermark`` (a shared store: as the devices' current states)."""
 
     def load_checkpoint(self, batch: int = 50_000) -> tuple[int, Iterator[list[tuple[str, bytes, int, int]]]]:
         """(watermark, the device states (id, blob, upto, version) in chunks of ``batch``), read from
