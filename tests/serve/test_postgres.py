@@ -329,3 +329,50 @@ def test_schema_is_versioned(postgres):
         open_store(db)
     proc = _cli("db", "upgrade", "--db", db)
     assert proc.returncode == 2 and "newer than this mptrack" in proc.stderr
+
+
+def test_retention_does_not_block_ingest_and_runs_in_one_process(postgres):
+    """A batch of --retain's deletes held open (uncommitted) on a device's old fixes: a batch of new
+    fixes of that device still commits at once; a second process's retention meanwhile deletes
+    nothing and returns (one process deletes at a time); then everything old goes, the new stays."""
+    from mptrack.serve import _postgres
+    from mptrack.serve._database import open_store
+
+    db = postgres.create_database("retention")
+    a, b = open_store(db), open_store(db)
+    try:
+        (dev, _), = a.register(["old-and-new"])
+
+        def row(t):
+            return (dev, t, 52.5, 13.4, 5.0, None, None, None, None, t, 52.5, 13.4, 1.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0)
+
+        with a.batch(np.array([dev]), np.array([0])) as tx:
+            tx.write([row(float(t)) for t in range(1000, 1600)])
+        held = a.pool.getconn()
+        try:
+            held.execute("SELECT pg_advisory_lock(%s, %s)", _postgres._RETENTION_LOCK)
+            with held.transaction():
+                assert held.execute(_postgres._DELETE_OLD, (1300.0, 10_000)).rowcount == 300   # not committed yet
+                done = threading.Event()
+
+                def ingest():
+                    with b.batch(np.array([dev]), np.array([0])) as tx:
+                        tx.write([row(2000.0 + k) for k in range(10)])
+                    done.set()
+
+                th = threading.Thread(target=ingest, daemon=True)
+                th.start()
+                assert done.wait(10), "ingest waited for the retention's open delete"
+                got: list = []                          # the other process is deleting: this one does not
+                other = threading.Thread(target=lambda: got.append(b.delete_before(1500.0)), daemon=True)
+                other.start()
+                other.join(10)
+                assert got == [0], "a second process's retention deleted (or waited) while another was deleting"
+            held.execute("SELECT pg_advisory_unlock(%s, %s)", _postgres._RETENTION_LOCK)
+        finally:
+            a.pool.putconn(held)
+        assert b.delete_before(1500.0) == 200
+        assert query(db, "SELECT min(t), count(*) FROM fixes") == [(1500.0, 110)]
+    finally:
+        a.close()
+        b.close()

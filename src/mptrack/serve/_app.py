@@ -28,6 +28,7 @@ from ._auth import RateLimit, Registry, check_device, credentials
 from ._ingest import Ingest
 from ._metrics import Metrics
 from ._database import open_store
+from ._postgres import shown_url
 from ._store import DEFAULT_DB
 
 __all__ = ["ServeConfig", "create_app", "app_from_environment", "config_environment", "CONFIG_ENV"]
@@ -117,7 +118,8 @@ class Server:
         self.ingest.start()
         if self.config.retain_s is not None:
             self._tasks.append(loop.create_task(self._retention()))
-        log.info("mptrack serve ready: %d devices, %s", len(self.ingest.keys), self.config.db)
+        log.info("mptrack serve ready: %d devices, %s", len(self.ingest.keys), shown_url(self.config.db),
+                 extra={"event": "ready", "devices": len(self.ingest.keys)})
 
     async def shutdown(self) -> None:
         for task in self._tasks:
@@ -131,10 +133,16 @@ class Server:
         loop = asyncio.get_running_loop()
         while True:
             cutoff = time.time() - self.config.retain_s
-            n = await loop.run_in_executor(None, self.store.delete_before, cutoff)
-            if n:
-                log.info("retention: deleted %d fixes older than %s", n, time.strftime("%Y-%m-%d %H:%M:%S",
-                                                                                      time.gmtime(cutoff)))
+            try:
+                n = await loop.run_in_executor(None, self.store.delete_before, cutoff)
+            except Exception as exc:  # the database is down: try again next time
+                if not _is_database_error(exc):
+                    raise
+                log.warning("retention: %s; trying again later", _first_line(exc), extra={"event": "retention_failed"})
+            else:
+                if n:
+                    log.info("retention: deleted %d fixes older than %s", n, _iso(cutoff),
+                             extra={"event": "retention", "deleted": n, "before": _iso(cutoff)})
             await asyncio.sleep(min(3600.0, max(1.0, self.config.retain_s / 100.0)))
 
     # ---- ASGI --------------------------------------------------------------------------------------
@@ -312,6 +320,10 @@ def _is_database_error(exc: BaseException) -> bool:
     """A database driver's error (the database is down, a connection broke, a pool timed out)."""
     mod = type(exc).__module__
     return mod.startswith(("psycopg", "sqlite3"))
+
+
+def _iso(t: float) -> str:
+    return time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime(t))
 
 
 def _first_line(exc: BaseException) -> str:

@@ -46,6 +46,8 @@ CHANNEL = "mptrack_fixes"
 _STREAM_LOCK = (0x6D707472, 1)   # "mptr", 1
 #: The advisory lock held while the schema is created or upgraded.
 _SCHEMA_LOCK = (0x6D707472, 2)
+#: The advisory lock held by the process that deletes old fixes (--retain).
+_RETENTION_LOCK = (0x6D707472, 3)
 #: Most bytes of one NOTIFY payload (PostgreSQL's limit is 8000).
 _PAYLOAD = 7900
 
@@ -85,6 +87,9 @@ _INSERT_ARRAYS = (f"INSERT INTO fixes ({', '.join(_ALL)}) SELECT * FROM unnest("
                   + ", ".join(f"%s::{_TYPES.get(c, 'float8')}[]" for c in _ALL) + ")")
 _INSERT_LATE = (f"INSERT INTO fixes ({', '.join(_ALL)}) SELECT {', '.join(['%s'] * len(_ALL))} WHERE NOT EXISTS "
                 "(SELECT 1 FROM fixes WHERE dev = %s AND t = %s AND lat = %s AND lon = %s)")
+# retention: a batch of old fixes (found by the block-range index on t) deleted by their (device, time) index
+_DELETE_OLD = ("DELETE FROM fixes f USING (SELECT dev, t, seq FROM fixes WHERE t < %s LIMIT %s) o "
+               "WHERE f.dev = o.dev AND f.t = o.t AND f.seq = o.seq")
 # the batch's devices locked in sorted order; the state of each whose version is not the one this process has
 _LOCK = ("SELECT s.dev, s.version, s.version <> c.v, CASE WHEN s.version <> c.v THEN s.state END "
          "FROM device_state s JOIN unnest(%s::bigint[], %s::bigint[]) AS c(dev, v) ON s.dev = c.dev "
@@ -184,14 +189,23 @@ class PostgresStore:
             raise ParameterError(f"name: a {what} named {name!r} exists already") from None
 
     def delete_before(self, t: float, batch: int = 10_000) -> int:
+        """(see :class:`._store.Store`) One process at a time (the others return 0 at once): each batch
+        its own short transaction, which locks only the old fix rows it deletes -- ingest inserts new
+        rows and locks state rows, so neither waits for the other."""
         total = 0
-        while True:   # short transactions; ingest only inserts, so nothing it needs is locked
-            with self.pool.connection() as con:
-                n = con.execute("DELETE FROM fixes f USING (SELECT dev, t, seq FROM fixes WHERE t < %s LIMIT %s) o "
-                                "WHERE f.dev = o.dev AND f.t = o.t AND f.seq = o.seq", (t, batch)).rowcount
-            total += n
-            if n < batch:
-                return total
+        with self.pool.connection() as con:
+            if not con.execute("SELECT pg_try_advisory_lock(%s, %s)", _RETENTION_LOCK).fetchone()[0]:
+                return 0
+            try:
+                while True:
+                    n = con.execute(_DELETE_OLD, (t, batch)).rowcount
+                    total += n
+                    if n < batch:
+                        return total
+            finally:
+                if not con.closed:
+                    with contextlib.suppress(self._psycopg.Error):
+                        con.execute("SELECT pg_advisory_unlock(%s, %s)", _RETENTION_LOCK)
 
     # ---- copying (mptrack db copy) -------------------------------------------------------------------------
     def load_fixes(self, rows: StoredRows) -> None:
