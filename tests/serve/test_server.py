@@ -351,9 +351,7 @@ def test_retention_and_state_across_a_restart(tmp_path, new_db):
         before = srv.json("/api/devices/new/position")
     finally:
         assert srv.stop() == 0
-    srv = Server(tmp_path, "--retain", "1h", db=srv.db)
-    srv.port = srv.port
-    srv.start()
+    srv = Server(tmp_path, "--retain", "1h", "--log-format", "json", db=srv.db).start()
     try:
         deadline = time.time() + 30
         while len(_stored(srv.db, "old")) and time.time() < deadline:
@@ -364,3 +362,9 @@ def test_retention_and_state_across_a_restart(tmp_path, new_db):
         assert after["ell_major_m"] == before["ell_major_m"]
     finally:
         assert srv.stop() == 0
+    # structured logs: one JSON object a line, the events with their fields
+    logged = [json.loads(line) for line in srv.output().splitlines() if line.startswith("{")]
+    events = {e.get("event"): e for e in logged}
+    assert events["ready"]["devices"] == 2 and events["ready"]["level"] == "info", logged
+    assert events["retention"]["deleted"] == 5, logged
+    assert all({"time", "level", "logger", "message", "pid"} <= set(e) for e in logged), logged
