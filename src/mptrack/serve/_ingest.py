@@ -289,11 +289,9 @@ class Ingest:
                         states, ready, watermark = self._states_of(touched), [], None
                     else:             # the states that changed checkpoint_s ago go in with this batch
                         ready = self._due_states()
-                        due = set(ready)
-                        rest = [row for d, (row, _) in self._dirty.items() if d not in due]
+                        watermark = self._oldest_row(set(ready))
                         if any(d not in self._dirty for d in touched.tolist()):   # newly changed: not covered
-                            rest.append(self._seq)
-                        watermark = min(rest, default=None)
+                            watermark = self._seq if watermark is None else min(watermark, self._seq)
                         states = [(d, self.ids[d], self.live.state_bytes(d), np.nan) for d in ready]
                 rows = _rows(fixes, dev, sel, est, now)
                 late_rows = _rows(fixes, dev, order[late], None, now)
@@ -340,6 +338,17 @@ class Ingest:
                 break
             ready.append(d)
         return ready
+
+    def _oldest_row(self, stored: set) -> int | None:
+        """The watermark once the states of ``stored`` are stored: the row before the oldest change not
+        among them (None: none left).  ``_dirty`` keeps its changes oldest first with non-decreasing rows
+        (a device enters at its end, with the last row then stored), so this reads only as far as the
+        first device not in ``stored`` -- a batch's checkpoints are the oldest changes, so this is
+        O(checkpoints), not O(devices changed)."""
+        for d, (row, _) in self._dirty.items():
+            if d not in stored:
+                return row
+        return None
 
     def _noise(self, final: bool = False) -> None:
         """Apply the noise estimates that are ready, the devices' states stored at once (a replay, or
@@ -395,10 +404,9 @@ class Ingest:
         with self.lock:
             states = [(d, self.ids[d], self.live.state_bytes(d), np.nan) for d in devices]
         stored = set(devices)
-        rest = [row for d, (row, _) in self._dirty.items() if d not in stored]
         keys = np.array(sorted(stored), dtype=np.int64)
         with self.store.batch(keys, self._version[keys]) as tx:
-            tx.write(states=states, watermark=min(rest, default=None))
+            tx.write(states=states, watermark=self._oldest_row(stored))
         for d in devices:
             self._dirty.pop(d, None)
 
