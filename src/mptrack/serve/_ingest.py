@@ -29,6 +29,7 @@ there.
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import json
 import logging
 import threading
@@ -270,11 +271,8 @@ class Ingest:
         prev_t = np.where(first, np.nan, np.r_[np.nan, ts[:-1]])
         prev_same = ~first & (ts == prev_t) & (la == np.r_[np.nan, la[:-1]]) & (lo == np.r_[np.nan, lo[:-1]])
         devs = d[first]
-        with self.lock:
-            saved = self.live.save_states(devs)
-            saved_version = self._version[devs].copy()
-        try:
-            with self.store.batch(devs, saved_version) as tx:
+        with self._undone_on_failure(devs) as versions:
+            with self.store.batch(devs, versions) as tx:
                 with self.lock:
                     self._load(tx.stale)      # what other processes committed for these devices
                     last = self.live.last_fixes(d)
@@ -298,11 +296,6 @@ class Ingest:
                 stream = self.store.streaming() if self.shared else bool(self.listeners)
                 events = self._events(sel, fixes, est) if stream and len(sel) else None
                 tx.write(rows, late_rows, states, [f"{k}\t{e}" for k, e in events or ()], watermark)
-        except BaseException:
-            with self.lock:
-                self.live.restore_states(saved)
-                self._version[devs] = saved_version
-            raise
         stored_late = tx.stored_late
         np.add.at(self._since_calibration, dev[sel], 1)
         if not self.shared:
@@ -377,25 +370,32 @@ class Ingest:
     def _set_noise(self, due: np.ndarray, noise: dict) -> None:
         """Apply a noise estimate and store the devices' states at once (so that a replay, or another
         process, sees the noise the live filter saw)."""
-        if not self.shared:
-            with self.lock:
-                self.live.set_noise(due, noise)
-            self._store_states(due.tolist())
-            return
-        with self.lock:
-            saved = self.live.save_states(due)
-            saved_version = self._version[due].copy()
-        try:
-            with self.store.batch(due, saved_version) as tx:
+        with self._undone_on_failure(due) as versions:
+            if not self.shared:
+                with self.lock:
+                    self.live.set_noise(due, noise)
+                self._store_states(due.tolist())
+                return
+            with self.store.batch(due, versions) as tx:
                 with self.lock:
                     self._load(tx.stale)
                     self.live.set_noise(due, noise)
                     states = self._states_of(due)
-                tx.write([], (), states)
+                tx.write(states=states)
+
+    @contextlib.contextmanager
+    def _undone_on_failure(self, devs: np.ndarray):
+        """The live states of ``devs`` (sorted keys) and their versions put back as they were if the block
+        fails (its transaction rolled back); yields the versions held now."""
+        with self.lock:
+            saved = self.live.save_states(devs)
+            versions = self._version[devs].copy()
+        try:
+            yield versions
         except BaseException:
             with self.lock:
                 self.live.restore_states(saved)
-                self._version[due] = saved_version
+                self._version[devs] = versions
             raise
 
     def _store_states(self, devices: list[int]) -> None:
