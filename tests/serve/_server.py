@@ -117,6 +117,18 @@ def stored(db: str, device: str | None = None) -> pd.DataFrame:
     return pd.DataFrame(rows, columns=cols).astype({c: float for c in ALL if c not in ("dev", "attrs", "flag")})
 
 
+def check_acked(db: str, acked: list) -> None:
+    """Every acknowledged fix (device, t, lat, lon) is stored, and no fix is stored twice."""
+    rows = stored(db)
+    count: dict = {}
+    for r in zip(rows["device_id"], rows["t"], rows["lat"], rows["lon"]):
+        count[r] = count.get(r, 0) + 1
+    missing = [x for x in acked if count.get(x, 0) == 0]
+    twice = [r for r, n in count.items() if n > 1]
+    assert not missing, f"{len(missing)} acknowledged fixes lost, e.g. {missing[:3]}"
+    assert not twice, f"stored more than once: {twice[:3]}"
+
+
 def error_of(r: httpx.Response) -> dict:
     """The JSON error body of a 4xx answer (asserting its shape)."""
     assert 400 <= r.status_code < 500, (r.status_code, r.text)

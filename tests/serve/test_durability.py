@@ -9,7 +9,7 @@ import time
 import httpx
 import numpy as np
 import pytest
-from _server import Server, stored
+from _server import Server, check_acked, stored
 
 
 def _client(url: str, devices: list[str], t0: int, acked: list, stop: threading.Event, seed: int) -> None:
@@ -48,14 +48,7 @@ def test_kill_9_under_load_loses_nothing_acknowledged(tmp_path, seed, new_db):
         th.join(30)
     assert len(acked) > 100, f"only {len(acked)} fixes acknowledged before the kill"
 
-    rows = stored(srv.db)
-    count: dict = {}
-    for r in zip(rows["device_id"], rows["t"], rows["lat"], rows["lon"]):
-        count[r] = count.get(r, 0) + 1
-    missing = [a for a in acked if count.get(a, 0) == 0]
-    twice = [r for r, n in count.items() if n > 1]
-    assert not missing, f"{len(missing)} acknowledged fixes lost, e.g. {missing[:3]}"
-    assert not twice, f"stored more than once: {twice[:3]}"
+    check_acked(srv.db, acked)
 
     srv2 = Server(tmp_path, db=srv.db).start()
     try:

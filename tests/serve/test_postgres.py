@@ -19,7 +19,7 @@ import httpx
 import numpy as np
 import pytest
 from _postgres import postgres_or_skip
-from _server import SRC, Server, query, stored
+from _server import SRC, Server, check_acked, query, stored
 
 from mptrack.errors import OutputError
 from mptrack.tracking import LiveTracks, TrackOptions
@@ -183,17 +183,6 @@ def _load(url: str, devices: list[str], acked: list, stop: threading.Event, code
                 time.sleep(0.05)
 
 
-def _check_acked(db: str, acked: list) -> None:
-    rows = stored(db)
-    count: dict = {}
-    for r in zip(rows["device_id"], rows["t"], rows["lat"], rows["lon"]):
-        count[r] = count.get(r, 0) + 1
-    missing = [x for x in acked if count.get(x, 0) == 0]
-    twice = [r for r, n in count.items() if n > 1]
-    assert not missing, f"{len(missing)} acknowledged fixes lost, e.g. {missing[:3]}"
-    assert not twice, f"stored more than once: {twice[:3]}"
-
-
 def test_kill_9_of_a_worker_under_load(tmp_path, postgres):
     """--workers 2: one worker killed -9 under load loses nothing acknowledged; the server keeps serving."""
     db = postgres.create_database("kill_worker")
@@ -221,7 +210,7 @@ def test_kill_9_of_a_worker_under_load(tmp_path, postgres):
         for th in threads:
             th.join(60)
         assert before > 50 and len(acked) > after_kill > before, (before, after_kill, len(acked))
-        _check_acked(db, acked)
+        check_acked(db, acked)
         assert srv.get("/healthz").status_code == 200
     finally:
         assert srv.stop() == 0, srv.output()
@@ -256,7 +245,7 @@ def test_postgres_restart_under_load(tmp_path):
                 th.join(60)
             assert 503 in down, sorted(set(down))
             assert len(acked) >= n + 50, "the server did not recover after PostgreSQL came back"
-            _check_acked(db, acked)
+            check_acked(db, acked)
             m = _metrics(srv.url)
             assert m['mptrack_requests_refused_total{reason="not_committed"}'] >= 1
             assert srv.get("/healthz").status_code == 200
