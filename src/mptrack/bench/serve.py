@@ -173,22 +173,16 @@ def _sqlite_floor(rows: int, tmp: Path) -> float:
 
 def _cpu_s(pid: int) -> float:
     """CPU-seconds (user + system) of a process and of its children that are alive."""
-    tick = os.sysconf("SC_CLK_TCK")
-    total = 0.0
-    for d in Path("/proc").iterdir():
-        if not d.name.isdigit():
-            continue
-        try:
-            stat = (d / "stat").read_text().rsplit(")", 1)[1].split()
-        except OSError:
-            continue
-        if int(d.name) == pid or int(stat[1]) == pid:
-            total += (int(stat[11]) + int(stat[12])) / tick
-    return total
+    return _proc_cpu_s(lambda p, name, parent: p == pid or parent == pid)
 
 
 def _postgres_cpu_s() -> float:
     """CPU-seconds of every PostgreSQL server process on this machine (a local database's share)."""
+    return _proc_cpu_s(lambda p, name, parent: name == "postgres")
+
+
+def _proc_cpu_s(chosen) -> float:
+    """CPU-seconds (user + system) of the live processes for which ``chosen(pid, name, parent pid)``."""
     tick = os.sysconf("SC_CLK_TCK")
     total = 0.0
     for d in Path("/proc").iterdir():
@@ -198,8 +192,8 @@ def _postgres_cpu_s() -> float:
             head, tail = (d / "stat").read_text().rsplit(")", 1)
         except OSError:
             continue
-        if head.endswith("(postgres"):
-            stat = tail.split()
+        stat = tail.split()
+        if chosen(int(d.name), head.split("(", 1)[1], int(stat[1])):
             total += (int(stat[11]) + int(stat[12])) / tick
     return total
 
@@ -298,12 +292,16 @@ def _postgres_suite(db: str, quick: bool, load: float) -> dict:
                          f"process ({floor:,.0f} rows/s here)")
     finally:
         drop()
-    notes.append(f"load average before the run: {load:.2f} on {os.cpu_count()} cores (timings are meaningless above "
-                 f"0.5); PostgreSQL, wrk -t1 -c64 and the server share the machine")
+    notes.append(_load_note(load, "PostgreSQL, wrk -t1 -c64 and the server share the machine"))
     notes.append("goals (issue 33): --workers 2 within 1.15x the CPU per fix of --workers 1 and >= 0.95x its throughput; "
                  "bulk >= 100,000 fixes/s; p99 <= 50 ms at half the rate")
     return {"suite": "serve", "title": "mptrack serve on PostgreSQL, loopback (fixes/s; latency ms)",
             "columns": ["case", "fixes/s", "p50 ms", "p99 ms", "x floor"], "rows": rows, "notes": notes}
+
+
+def _load_note(load: float, sharing: str) -> str:
+    return (f"load average before the run: {load:.2f} on {os.cpu_count()} cores (timings are meaningless above 0.5); "
+            + sharing)
 
 
 @register_suite("serve")
@@ -392,8 +390,7 @@ def serve_suite(quick: bool, db: str | None = None) -> dict:
         rows.append([f"{many:,} devices: restart to ready (s)", restart.ready_s, None, None, restart_rss])
         notes.append("memory row: x floor = bytes per device (resident memory growth over the empty server); restart "
                      "row: x floor = the restarted server's resident memory (MiB)")
-    notes.append(f"load average before the run: {load:.2f} on {os.cpu_count()} cores (timings are meaningless above "
-                 f"0.5); wrk -t1 -c64 on the same machine")
+    notes.append(_load_note(load, "wrk -t1 -c64 on the same machine"))
     notes.append("goals (issue 31): OsmAnd >= 20,000 fixes/s and >= 0.4x the bare route, p99 <= 20 ms at half the "
                  "rate; bulk >= 200,000 fixes/s; 10^6 devices <= 1 GB, restart <= 10 s")
     return {"suite": "serve", "title": "mptrack serve on loopback (fixes/s; latency ms)",
