@@ -28,8 +28,21 @@ WORKER_APP = "mptrack.serve._app:app_from_environment"
 
 
 def worker_environment(config: ServeConfig, directory: str, workers: int) -> dict[str, str]:
-    """The environment variables that hand ``config`` to ``workers`` worker processes (of
-    :data:`WORKER_APP`), with the file of their shared counters created in ``directory``."""
+    """The environment that hands a configuration to the worker processes of :data:`WORKER_APP`.
+
+    Parameters
+    ----------
+    config : ServeConfig
+    directory : str
+        Where the file of the workers' shared counters is created.
+    workers : int
+        How many worker processes.
+
+    Returns
+    -------
+    dict
+        Environment variables to set before uvicorn starts the workers.
+    """
     import os
 
     path = os.path.join(directory, "metrics")

@@ -25,9 +25,27 @@ __all__ = ["copy_database", "fix_digest"]
 
 
 def copy_database(source: str, target: str, *, model: str | None = None) -> dict:
-    """Copy the server database at URL ``source`` into the empty one at ``target`` (see the module doc).
-    ``model``: the live filter's motion model (by default the one the stored states were made with, else
-    cv).  Returns what was copied: fixes, devices, device_keys, api_keys, states and the fixes' sha256."""
+    """Copy a server database into an empty one, losing nothing (see the module doc).
+
+    Parameters
+    ----------
+    source, target : str
+        Database URLs (``sqlite:///PATH`` or ``postgresql://...``); ``target`` must be empty.
+    model : str, optional
+        The live filter's motion model (by default the one the stored states were made with, else cv).
+
+    Returns
+    -------
+    dict
+        What was copied: fixes, devices, device_keys, api_keys, states, and the fixes' sha256.
+
+    Raises
+    ------
+    ParameterError
+        ``target`` is ``source``.
+    OutputError
+        ``target`` is not empty, the copy stopped, or the copy's counts or checksum differ.
+    """
     if source == target:
         raise ParameterError(f"target: the target is the source ({source})")
     src = open_store(source)

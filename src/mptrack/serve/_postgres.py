@@ -103,7 +103,17 @@ def _fail(exc: Exception, url: str) -> OutputError:
 
 
 def shown_url(url: str) -> str:
-    """The URL without its password."""
+    """A database URL without its password (for logs and messages).
+
+    Parameters
+    ----------
+    url : str
+
+    Returns
+    -------
+    str
+        ``url`` with the password replaced by ``***``.
+    """
     head, sep, tail = url.partition("@")
     if not sep or ":" not in head.split("//", 1)[-1]:
         return url
