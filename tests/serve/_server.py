@@ -6,12 +6,18 @@ import json
 import os
 import signal
 import socket
+import sqlite3
 import subprocess
 import sys
 import time
 from pathlib import Path
 
 import httpx
+import pandas as pd
+
+from mptrack.serve._store import ESTIMATE_COLUMNS, FIX_COLUMNS
+
+ALL = FIX_COLUMNS + ESTIMATE_COLUMNS
 
 SRC = Path(__file__).resolve().parents[2] / "src"
 
@@ -23,11 +29,12 @@ def free_port() -> int:
 
 
 class Server:
-    """A running ``mptrack serve --db sqlite:///DB --port P ARGS`` (started by :meth:`start`)."""
+    """A running ``mptrack serve --db URL --port P ARGS`` (started by :meth:`start`); the database
+    ``db`` is a URL (default: sqlite:///TMP/mptrack.db)."""
 
-    def __init__(self, tmp: Path, *args: str, db: Path | None = None):
+    def __init__(self, tmp: Path, *args: str, db: str | None = None):
         self.tmp = tmp
-        self.db = db or tmp / "mptrack.db"
+        self.db = db or f"sqlite:///{tmp / 'mptrack.db'}"
         self.args = args
         self.port = free_port()
         self.proc: subprocess.Popen | None = None
@@ -39,8 +46,7 @@ class Server:
 
     def start(self, timeout: float = 120.0) -> "Server":
         env = dict(os.environ, PYTHONPATH=str(SRC), PYTHONUNBUFFERED="1")
-        cmd = [sys.executable, "-m", "mptrack", "serve", "--port", str(self.port), "--db", f"sqlite:///{self.db}",
-               *self.args]
+        cmd = [sys.executable, "-m", "mptrack", "serve", "--port", str(self.port), "--db", self.db, *self.args]
         self._log = open(self.log, "ab")
         self.proc = subprocess.Popen(cmd, stdout=self._log, stderr=subprocess.STDOUT, env=env, cwd=self.tmp)
         deadline = time.monotonic() + timeout
@@ -86,6 +92,41 @@ class Server:
             self.proc.kill()
             self.proc.wait(30)
             self._log.close()
+
+
+def query(db: str, sql: str, params: tuple = ()) -> list[tuple]:
+    """Rows of ``sql`` (with ? placeholders) on the database at URL ``db`` (SQLite or PostgreSQL)."""
+    if db.startswith("sqlite:///"):
+        con = sqlite3.connect(db[len("sqlite:///"):])
+        try:
+            return con.execute(sql, params).fetchall()
+        finally:
+            con.close()
+    import psycopg
+
+    with psycopg.connect(db, autocommit=True) as con:
+        cur = con.execute(sql.replace("?", "%s"), params)
+        return cur.fetchall() if cur.description else []
+
+
+def stored(db: str, device: str | None = None) -> pd.DataFrame:
+    """The stored fixes (every column) with their device ids, of one device or all."""
+    cols = ["device_id", "seq", *ALL]
+    sql = f"SELECT k.device_id, f.seq, {', '.join('f.' + c for c in ALL)} FROM fixes f JOIN device_keys k ON k.dev = f.dev"
+    rows = query(db, sql + (" WHERE k.device_id = ?" if device else ""), (device,) if device else ())
+    return pd.DataFrame(rows, columns=cols).astype({c: float for c in ALL if c not in ("dev", "attrs", "flag")})
+
+
+def check_acked(db: str, acked: list) -> None:
+    """Every acknowledged fix (device, t, lat, lon) is stored, and no fix is stored twice."""
+    rows = stored(db)
+    count: dict = {}
+    for r in zip(rows["device_id"], rows["t"], rows["lat"], rows["lon"]):
+        count[r] = count.get(r, 0) + 1
+    missing = [x for x in acked if count.get(x, 0) == 0]
+    twice = [r for r, n in count.items() if n > 1]
+    assert not missing, f"{len(missing)} acknowledged fixes lost, e.g. {missing[:3]}"
+    assert not twice, f"stored more than once: {twice[:3]}"
 
 
 def error_of(r: httpx.Response) -> dict:

@@ -1,6 +1,6 @@
 """mptrack serve as a real process over real sockets: every client format, real traces fed fix by fix
 and queried (position, prediction, stored and smoothed track against ``mptrack track --smooth``),
-late and duplicate fixes, every bad input, auth, retention, restart."""
+late and duplicate fixes, every bad input, auth, retention, restart -- on each database backend."""
 
 from __future__ import annotations
 
@@ -8,38 +8,31 @@ import base64
 import io
 import json
 import math
-import sqlite3
 import subprocess
 import sys
 import time
-from pathlib import Path
 
 import numpy as np
 import pandas as pd
 import pytest
 from _data import REAL_TRACES, shared_data
-from _server import SRC, Server, error_of
+from _server import SRC, Server, error_of, query, stored
+from conftest import BACKENDS, new_database
 
 from mptrack.io import geodetic_to_enu, read_output, read_table
 
 NOW = time.time()
 
 
-@pytest.fixture(scope="module")
-def server(tmp_path_factory):
-    srv = Server(tmp_path_factory.mktemp("serve")).start()
+@pytest.fixture(scope="module", params=BACKENDS)
+def server(request, tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("serve")
+    srv = Server(tmp, db=new_database(request.param, tmp, request)).start()
     yield srv
     assert srv.stop() == 0, srv.output()
 
 
-def _stored(db: Path, device: str | None = None) -> pd.DataFrame:
-    con = sqlite3.connect(db)
-    try:
-        q = "SELECT k.device_id, f.* FROM fixes f JOIN device_keys k ON k.dev = f.dev"
-        return pd.read_sql_query(q + (" WHERE k.device_id = ?" if device else ""), con,
-                                 params=(device,) if device else None)
-    finally:
-        con.close()
+_stored = stored
 
 
 def _stats(srv) -> dict:
@@ -237,8 +230,7 @@ def test_bad_input_is_refused_by_name_and_nothing_is_stored(server, method, path
     assert err.get("field") == field, err
     assert len(_stored(server.db)) == before
     assert server.get("/healthz").status_code == 200
-    names = {r[0] for r in sqlite3.connect(server.db).execute("SELECT name FROM sqlite_master WHERE type='table'")}
-    assert "fixes" in names
+    assert query(server.db, "SELECT count(*) FROM fixes")[0][0] == before
 
 
 def test_a_10_mb_body_is_refused_with_413(server):
@@ -253,6 +245,42 @@ def test_unknown_device_and_route(server):
     assert error_of(server.get("/api/nothing"))["code"] == "not_found"
 
 
+# ---- operations -------------------------------------------------------------------------------------
+def _metrics(srv) -> dict[str, float]:
+    r = srv.get("/metrics")
+    assert r.status_code == 200 and r.headers["content-type"].startswith("text/plain; version=0.0.4")
+    out = {}
+    for line in r.text.splitlines():
+        if line.startswith("#"):
+            assert line.startswith(("# HELP mptrack_", "# TYPE mptrack_")), line
+            continue
+        name, value = line.rsplit(" ", 1)
+        out[name] = float(value)
+    return out
+
+
+def test_metrics_in_prometheus_format(server):
+    t = int(time.time()) - 10
+    before = _metrics(server)
+    assert server.get(f"/?id=metrics-1&timestamp={t}&lat=52.5&lon=13.4&accuracy=5").status_code == 200
+    assert server.get(f"/?id=metrics-1&timestamp={t}&lat=52.5&lon=13.4&accuracy=5").status_code == 200   # repeat
+    assert server.get(f"/?id=metrics-1&timestamp={t + 1}&lat=95&lon=13.4").status_code == 400
+    after = _metrics(server)
+
+    def delta(name):
+        return after[name] - before.get(name, 0.0)
+
+    assert delta("mptrack_fixes_accepted_total") == 2
+    assert delta('mptrack_fixes_total{kind="filtered"}') == 1 and delta('mptrack_fixes_total{kind="duplicate"}') == 1
+    assert delta('mptrack_requests_refused_total{reason="invalid_field"}') == 1
+    assert delta("mptrack_ingest_request_seconds_count") == 3 and delta("mptrack_commits_total") == 2
+    buckets = [v for k, v in after.items() if k.startswith("mptrack_ingest_request_seconds_bucket")]
+    assert buckets == sorted(buckets) and buckets[-1] == after["mptrack_ingest_request_seconds_count"]
+    assert after["mptrack_devices"] >= 1 and after["mptrack_devices_live"] >= 1
+    stats = server.json("/api/stats")
+    assert stats["accepted"] == after["mptrack_fixes_accepted_total"]
+
+
 # ---- auth -----------------------------------------------------------------------------------------------
 def _cli(*args, cwd=None) -> str:
     proc = subprocess.run([sys.executable, "-m", "mptrack", *args], capture_output=True, text=True, cwd=cwd,
@@ -261,11 +289,11 @@ def _cli(*args, cwd=None) -> str:
     return proc.stdout.strip()
 
 
-def test_auth(tmp_path):
-    db = tmp_path / "auth.db"
-    token = _cli("devices", "add", "car-7", "--db", f"sqlite:///{db}")
-    other = _cli("devices", "add", "jane/phone", "--db", f"sqlite:///{db}")
-    key = _cli("keys", "add", "dashboard", "--db", f"sqlite:///{db}")
+def test_auth(tmp_path, new_db):
+    db = new_db()
+    token = _cli("devices", "add", "car-7", "--db", db)
+    other = _cli("devices", "add", "jane/phone", "--db", db)
+    key = _cli("keys", "add", "dashboard", "--db", db)
     srv = Server(tmp_path, "--auth", db=db).start()
     try:
         t = int(NOW)
@@ -300,8 +328,8 @@ def test_a_public_address_needs_auth(tmp_path):
     assert proc.returncode == 2 and "--auth" in proc.stderr
 
 
-def test_rate_limit(tmp_path):
-    srv = Server(tmp_path, "--rate", "1", "--burst", "3").start()
+def test_rate_limit(tmp_path, new_db):
+    srv = Server(tmp_path, "--rate", "0.1", "--burst", "3", db=new_db()).start()   # one fix in 10 s after the burst
     try:
         t = int(NOW) - 100
         codes = [srv.get(f"/?id=fast&lat=52.5&lon={13.4 + k * 1e-5}&timestamp={t + k}").status_code for k in range(6)]
@@ -312,8 +340,8 @@ def test_rate_limit(tmp_path):
 
 
 # ---- retention and restart ------------------------------------------------------------------------------
-def test_retention_and_state_across_a_restart(tmp_path):
-    srv = Server(tmp_path, "--retain", "1h").start()
+def test_retention_and_state_across_a_restart(tmp_path, new_db):
+    srv = Server(tmp_path, "--retain", "1h", db=new_db()).start()
     t = int(time.time())
     try:
         for k in range(5):
@@ -323,9 +351,7 @@ def test_retention_and_state_across_a_restart(tmp_path):
         before = srv.json("/api/devices/new/position")
     finally:
         assert srv.stop() == 0
-    srv = Server(tmp_path, "--retain", "1h", db=srv.db)
-    srv.port = srv.port
-    srv.start()
+    srv = Server(tmp_path, "--retain", "1h", "--log-format", "json", db=srv.db).start()
     try:
         deadline = time.time() + 30
         while len(_stored(srv.db, "old")) and time.time() < deadline:
@@ -336,3 +362,9 @@ def test_retention_and_state_across_a_restart(tmp_path):
         assert after["ell_major_m"] == before["ell_major_m"]
     finally:
         assert srv.stop() == 0
+    # structured logs: one JSON object a line, the events with their fields
+    logged = [json.loads(line) for line in srv.output().splitlines() if line.startswith("{")]
+    events = {e.get("event"): e for e in logged}
+    assert events["ready"]["devices"] == 2 and events["ready"]["level"] == "info", logged
+    assert events["retention"]["deleted"] == 5, logged
+    assert all({"time", "level", "logger", "message", "pid"} <= set(e) for e in logged), logged

@@ -12,7 +12,7 @@ import importlib
 import pkgutil
 from typing import Callable
 
-from ..errors import UnknownNameError
+from ..errors import ParameterError, UnknownNameError
 
 __all__ = ["register_suite", "suites", "run_suites"]
 
@@ -44,7 +44,7 @@ def suites() -> dict[str, Callable[[bool], dict]]:
     return dict(_SUITES)
 
 
-def run_suites(names, quick: bool = False) -> list[dict]:
+def run_suites(names, quick: bool = False, db: str | None = None) -> list[dict]:
     """Run benchmark suites by name.
 
     Parameters
@@ -52,6 +52,9 @@ def run_suites(names, quick: bool = False) -> list[dict]:
     names : sequence of str
     quick : bool, optional
         Small sizes (smoke tests).
+    db : str, optional
+        A PostgreSQL database URL for the serve suite (only with ``names == ["serve"]``): the suite
+        then measures the server on that database.
 
     Returns
     -------
@@ -62,9 +65,13 @@ def run_suites(names, quick: bool = False) -> list[dict]:
     ------
     UnknownNameError
         An unknown suite.
+    ParameterError
+        ``db`` given for other suites than serve.
     """
     reg = suites()
     unknown = [n for n in names if n not in reg]
     if unknown:
         raise UnknownNameError(f"suite: unknown {unknown}; known: {', '.join(reg)}")
-    return [reg[n](quick) for n in names]
+    if db is not None and list(names) != ["serve"]:
+        raise ParameterError("db: a database is for the serve suite only (--suite serve --db URL)")
+    return [reg[n](quick, db=db) if db is not None else reg[n](quick) for n in names]

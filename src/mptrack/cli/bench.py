@@ -39,6 +39,9 @@ def bench(
     quick: bool = typer.Option(False, help="Small sizes, a few seconds."),
     suite: Optional[list[str]] = typer.Option(None, help="Run only these suites (repeatable)."),
     save: Optional[Path] = typer.Option(None, "--save", help="Also write the results as JSON to this file."),
+    db: Optional[str] = typer.Option(None, "--db", help="The serve suite on this PostgreSQL database "
+                                                        "(postgresql://...; it works in schemas of its own and drops "
+                                                        "them): workers 1 vs 2, bulk COPY."),
     list_: bool = typer.Option(False, "--list", help="List the suites and exit."),
     quiet: bool = QUIET,
     verbose: bool = VERBOSE,
@@ -62,7 +65,7 @@ def bench(
         with progress(quiet or json_out) as bar:
             for name in names:
                 with bar.task(f"bench {name}"):
-                    reports += run_suites([name], quick=quick)
+                    reports += run_suites([name], quick=quick, db=db)
         if save is not None:
             write_json(save, {"reports": reports})
     except KeyboardInterrupt:

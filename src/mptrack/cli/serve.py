@@ -1,11 +1,14 @@
-"""``mptrack serve`` (the live tracking server, docs/serve.md) and the commands that manage who may use
+"""``mptrack serve`` (the live tracking server, docs/serve.md), the commands that manage who may use
 it: ``mptrack devices add NAME`` (a device token for ingest) and ``mptrack keys add NAME`` (an API key
-for the query API and the map)."""
+for the query API and the map), and its database: ``mptrack db upgrade`` and ``mptrack db copy``."""
 
 from __future__ import annotations
 
 import contextlib
 import ipaddress
+import json
+import os
+import tempfile
 from pathlib import Path
 from typing import Optional
 
@@ -13,10 +16,12 @@ import typer
 
 from ..errors import MptrackError
 from ._common import QUIET, echo, err, fail, note
+from ._logs import log_config_of
 
-__all__ = ["serve", "devices", "keys"]
+__all__ = ["serve", "devices", "keys", "db"]
 
-_DB_HELP = "Database: sqlite:///PATH (default sqlite:///mptrack.db in the working directory)."
+_DB_HELP = ("Database: sqlite:///PATH (default sqlite:///mptrack.db in the working directory) or "
+            "postgresql://USER@HOST/DB (many workers and hosts on one database).")
 
 
 def _duration(text: str | None, option: str) -> float | None:
@@ -58,6 +63,10 @@ def serve(
     cells: Optional[Path] = typer.Option(None, "--cells", help="Cell table (OpenCelliD layout) for cell "
                                                                "geolocation."),
     model: str = typer.Option("cv", "--model", help="Motion model of the live filter: cv or ca."),
+    workers: int = typer.Option(1, "--workers", help="Server processes on this machine (PostgreSQL only: any number "
+                                                     "of processes and hosts may serve one database)."),
+    log_format: str = typer.Option("text", "--log-format", help="Log lines as text, or as json (one object per "
+                                                                "line: time, level, logger, message, pid, fields)."),
     max_body: int = typer.Option(1 << 20, "--max-body", help="Largest request body accepted (bytes)."),
     rate: float = typer.Option(20.0, "--rate", help="Per-device rate limit: fixes per second on average "
                                                     "(0: none)."),
@@ -78,8 +87,12 @@ def serve(
             fail(f"{name}: expected a positive number{' up to 65535' if name == '--port' else ''}, got {value}")
     if rate < 0 or burst < 1:
         fail("--rate must be >= 0 and --burst >= 1")
-    import logging
-
+    if log_format not in ("text", "json"):
+        fail(f"--log-format: expected text or json, got {log_format!r}")
+    if workers < 1:
+        fail(f"--workers: expected a positive number, got {workers}")
+    if workers > 1 and not _db_url(db).startswith(("postgresql://", "postgres://")):
+        fail(f"--workers {workers} needs a PostgreSQL database (--db postgresql://...): a SQLite file has one writer")
     import uvicorn
 
     _Server = _server_class()
@@ -95,13 +108,40 @@ def serve(
         app = create_app(config)
     except MptrackError as exc:
         fail(exc)
-    logging.basicConfig(level=logging.WARNING if quiet else logging.INFO, format="%(asctime)s %(message)s")
+    level = "WARNING" if quiet else "INFO"
+    log_config = log_config_of(log_format, level)
     if not quiet:
         where = "localhost" if _loopback(host) else host
         note(f"listening on http://{where}:{port}/ (live map there; OsmAnd/Traccar Client: server URL "
-             f"http://{where}:{port}; OwnTracks: http://{where}:{port}/pub), database {config.db}", "serve")
-    _Server(uvicorn.Config(app, host=host, port=port, log_level="warning" if quiet else "info", access_log=False,
-                           lifespan="on", timeout_graceful_shutdown=10)).run()
+             f"http://{where}:{port}; OwnTracks: http://{where}:{port}/pub), database {_shown(config.db)}"
+             + (f", {workers} workers" if workers > 1 else ""), "serve")
+    options = dict(host=host, port=port, log_level=level.lower(), access_log=False, lifespan="on",
+                   timeout_graceful_shutdown=10, log_config=log_config)
+    if workers == 1:
+        _Server(uvicorn.Config(app, **options)).run()
+        return
+    _run_workers(config, workers, options)
+
+
+def _run_workers(config, workers: int, options: dict) -> None:
+    """N worker processes on one listening socket (uvicorn's supervisor restarts one that dies), the
+    configuration handed on in the environment, their counters in one shared file."""
+    import uvicorn
+    from uvicorn.supervisors import Multiprocess
+
+    from ..serve import WORKER_APP, worker_environment
+
+    with tempfile.TemporaryDirectory(prefix="mptrack-serve-") as tmp:
+        os.environ.update(worker_environment(config, tmp, workers))
+        ucfg = uvicorn.Config(WORKER_APP, factory=True, workers=workers, **options)
+        Multiprocess(ucfg, sockets=[ucfg.bind_socket()]).run()
+
+
+def _shown(url: str) -> str:
+    """A database URL without its password."""
+    from ..serve import shown_url
+
+    return shown_url(url)
 
 
 def _server_class():
@@ -156,3 +196,43 @@ def add_key(name: str = typer.Argument(..., help="A name for the key (who uses i
     except MptrackError as exc:
         fail(exc)
     echo(key)
+
+
+db = typer.Typer(help="The database of mptrack serve: create or upgrade its schema, copy it into another.",
+                 no_args_is_help=True)
+
+
+@db.command("upgrade")
+def upgrade(db_url: str = typer.Option("sqlite:///mptrack.db", "--db", help=_DB_HELP)) -> None:
+    """Create the server's tables in a database, or upgrade them to this mptrack's schema (mptrack serve
+    does it too when it starts); prints the schema version."""
+    from ..serve import open_store
+
+    try:
+        store = open_store(_db_url(db_url))
+    except MptrackError as exc:
+        fail(exc)
+    try:
+        echo(f"{_shown(store.url)}: schema version {store.schema_version}")
+    finally:
+        store.close()
+
+
+@db.command("copy")
+def copy(source: str = typer.Argument(..., help="The database to copy (sqlite:///PATH or postgresql://...)."),
+         target: str = typer.Argument(..., help="An empty database to copy it into (created with its schema)."),
+         model: Optional[str] = typer.Option(None, "--model", help="Motion model of the live states (default: the "
+                                                                   "one they were made with).")) -> None:
+    """Copy a server database into another, e.g. a trial's SQLite file into PostgreSQL, losing nothing:
+    devices, keys, every fix with its estimate, and each device's live state; the counts and a SHA-256
+    of the fixes are compared at the end."""
+    from ..serve import copy_database
+
+    try:
+        got = copy_database(_db_url(source), _db_url(target), model=model)
+    except MptrackError as exc:
+        fail(exc)
+    echo(json.dumps(got))
+    err.print(f"copied {got['fixes']:,} fixes of {got['device_keys']:,} devices, {got['devices']} registered "
+              f"devices and {got['api_keys']} API keys; fixes' SHA-256 equal in both: {got['sha256'][:16]}…",
+              soft_wrap=True, highlight=False)

@@ -13,10 +13,41 @@ Run it with ``mptrack serve``, or in Python with uvicorn::
 
 from ._app import ServeConfig, create_app
 from ._auth import digest, new_secret
+from ._app import config_environment
+from ._copy import copy_database
 from ._database import open_store
+from ._metrics import METRICS_ENV, create_metrics_file
+from ._postgres import shown_url
 from ._store import DEFAULT_DB
 
-__all__ = ["ServeConfig", "create_app", "add_device", "add_api_key", "DEFAULT_DB"]
+__all__ = ["ServeConfig", "create_app", "add_device", "add_api_key", "copy_database", "open_store", "shown_url",
+           "worker_environment", "WORKER_APP", "DEFAULT_DB"]
+
+#: The application factory uvicorn runs in each worker of ``mptrack serve --workers N``.
+WORKER_APP = "mptrack.serve._app:app_from_environment"
+
+
+def worker_environment(config: ServeConfig, directory: str, workers: int) -> dict[str, str]:
+    """The environment that hands a configuration to the worker processes of :data:`WORKER_APP`.
+
+    Parameters
+    ----------
+    config : ServeConfig
+    directory : str
+        Where the file of the workers' shared counters is created.
+    workers : int
+        How many worker processes.
+
+    Returns
+    -------
+    dict
+        Environment variables to set before uvicorn starts the workers.
+    """
+    import os
+
+    path = os.path.join(directory, "metrics")
+    create_metrics_file(path, 2 * workers)   # room for restarted workers beside the dying ones
+    return {**config_environment(config), METRICS_ENV: path}
 
 
 def add_device(db: str, name: str) -> str:

@@ -15,8 +15,9 @@ from __future__ import annotations
 import asyncio
 import json
 import logging
+import os
 import time
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from urllib.parse import parse_qsl
 
 from .._core.validation import as_real, check_bool, check_int, check_path, check_positive, lookup
@@ -25,12 +26,16 @@ from ..tracking import MODELS, LiveTracks, TrackOptions
 from . import _bulk, _osmand, _owntracks, _traccar_json
 from ._auth import RateLimit, Registry, check_device, credentials
 from ._ingest import Ingest
+from ._metrics import Metrics
 from ._database import open_store
+from ._postgres import shown_url
 from ._store import DEFAULT_DB
 
-__all__ = ["ServeConfig", "create_app"]
+__all__ = ["ServeConfig", "create_app", "app_from_environment", "config_environment", "CONFIG_ENV"]
 
 log = logging.getLogger("mptrack.serve")
+#: The environment variable holding a worker's ServeConfig (JSON), for ``mptrack serve --workers N``.
+CONFIG_ENV = "MPTRACK_SERVE_CONFIG"
 
 MIB = 1 << 20
 
@@ -96,6 +101,7 @@ class Server:
         self.ingest: Ingest | None = None
         self.registry: Registry | None = None
         self.limits = RateLimit(config.rate, config.burst)
+        self.metrics = Metrics.from_environment()
         self.started = time.time()
         self.query = query_app(self)
         self._tasks: list[asyncio.Task] = []
@@ -106,13 +112,14 @@ class Server:
         self.store = await loop.run_in_executor(None, open_store, self.config.db, self.config.fsync)
         live = LiveTracks(TrackOptions(model=self.config.model))
         await loop.run_in_executor(None, live.warm_up)
-        self.ingest = Ingest(self.store, live, checkpoint_s=self.config.checkpoint_s)
+        self.ingest = Ingest(self.store, live, checkpoint_s=self.config.checkpoint_s, metrics=self.metrics)
         await loop.run_in_executor(None, self.ingest.recover)
         self.registry = Registry(self.store)
         self.ingest.start()
         if self.config.retain_s is not None:
             self._tasks.append(loop.create_task(self._retention()))
-        log.info("mptrack serve ready: %d devices, %s", len(self.ingest.ids), self.config.db)
+        log.info("mptrack serve ready: %d devices, %s", len(self.ingest.keys), shown_url(self.config.db),
+                 extra={"event": "ready", "devices": len(self.ingest.keys)})
 
     async def shutdown(self) -> None:
         for task in self._tasks:
@@ -126,10 +133,16 @@ class Server:
         loop = asyncio.get_running_loop()
         while True:
             cutoff = time.time() - self.config.retain_s
-            n = await loop.run_in_executor(None, self.store.delete_before, cutoff)
-            if n:
-                log.info("retention: deleted %d fixes older than %s", n, time.strftime("%Y-%m-%d %H:%M:%S",
-                                                                                      time.gmtime(cutoff)))
+            try:
+                n = await loop.run_in_executor(None, self.store.delete_before, cutoff)
+            except Exception as exc:  # the database is down: try again next time
+                if not _is_database_error(exc):
+                    raise
+                log.warning("retention: %s; trying again later", _first_line(exc), extra={"event": "retention_failed"})
+            else:
+                if n:
+                    log.info("retention: deleted %d fixes older than %s", n, _iso(cutoff),
+                             extra={"event": "retention", "deleted": n, "before": _iso(cutoff)})
             await asyncio.sleep(min(3600.0, max(1.0, self.config.retain_s / 100.0)))
 
     # ---- ASGI --------------------------------------------------------------------------------------
@@ -146,6 +159,8 @@ class Server:
                 return await self._guard(self._bulk, scope, receive, send)
             elif path == "/healthz" and method in ("GET", "HEAD"):
                 return await _respond(send, 200, b'{"status":"ok"}')
+            elif path == "/metrics" and method == "GET":
+                return await self._metrics(scope, send)
         elif kind == "lifespan":
             return await self._lifespan(receive, send)
         await self.query(scope, receive, send)
@@ -167,17 +182,42 @@ class Server:
 
     async def _guard(self, handler, scope, receive, send):
         """Run an ingest handler: RequestError -> its 4xx JSON; a failed commit -> 503."""
+        started = time.perf_counter()
         try:
             status, body, ctype = await handler(scope, receive)
         except RequestError as exc:
-            self.ingest.counters.refuse(exc.code)
-            return await _respond(send, exc.status, _error_body(exc))
-        except (ConnectionAbortedError, MptrackError, OSError, RuntimeError) as exc:
-            self.ingest.counters.refuse("not_committed")
-            log.warning("not committed: %s", exc)
-            body = json.dumps({"error": {"code": "not_committed", "message": f"not stored: {exc}"}}).encode()
-            return await _respond(send, 503, body)
+            self.metrics.refuse(exc.code)
+            status, body, ctype = exc.status, _error_body(exc), b"application/json"
+        except Exception as exc:  # the database (or the server) could not commit: nothing stored
+            if not isinstance(exc, (ConnectionAbortedError, MptrackError, OSError, RuntimeError)) and \
+                    not _is_database_error(exc):
+                raise
+            self.metrics.refuse("not_committed")
+            log.warning("not committed: %s", _first_line(exc), extra={"event": "not_committed"})
+            status, ctype = 503, b"application/json"
+            body = json.dumps({"error": {"code": "not_committed", "message": f"not stored: {_first_line(exc)}"}}).encode()
         await _respond(send, status, body, ctype)
+        self.metrics.observe("latency", time.perf_counter() - started)
+
+    async def _metrics(self, scope, send):
+        if self.config.auth:
+            params = dict(parse_qsl(scope["query_string"].decode("latin-1")))
+            try:
+                self.registry.check_key(credentials(dict(scope["headers"]), params.get(_osmand.TOKEN_PARAMETER))[0])
+            except RequestError as exc:
+                return await _respond(send, exc.status, _error_body(exc))
+        loop = asyncio.get_running_loop()
+        try:
+            known, live = await loop.run_in_executor(None, self.ingest.device_counts, 300.0)
+        except Exception as exc:  # the database is down: the counters still answer
+            if not _is_database_error(exc):
+                raise
+            known = live = float("nan")
+        text = self.metrics.prometheus({
+            "devices": ("Devices that have sent a fix.", known),
+            "devices_live": ("Devices whose last fix is at most 5 minutes old.", live),
+            "uptime_seconds": ("Seconds since this process started.", time.time() - self.started)})
+        await _respond(send, 200, text.encode(), b"text/plain; version=0.0.4; charset=utf-8")
 
     async def _ingest_root(self, scope, receive, send):
         return await self._guard(self._root, scope, receive, send)
@@ -263,6 +303,32 @@ def create_app(config: ServeConfig = ServeConfig()) -> Server:
     if not isinstance(config, ServeConfig):
         raise ParameterError(f"config: expected a ServeConfig, got {type(config).__name__}")
     return Server(config)
+
+
+def config_environment(config: ServeConfig) -> dict[str, str]:
+    """The environment that hands ``config`` to worker processes (:func:`app_from_environment`)."""
+    return {CONFIG_ENV: json.dumps(asdict(config))}
+
+
+def app_from_environment() -> Server:
+    """The application of one worker of ``mptrack serve --workers N``: the ServeConfig in
+    $MPTRACK_SERVE_CONFIG (uvicorn calls this factory in each worker process)."""
+    return create_app(ServeConfig(**json.loads(os.environ[CONFIG_ENV])))
+
+
+def _is_database_error(exc: BaseException) -> bool:
+    """A database driver's error (the database is down, a connection broke, a pool timed out)."""
+    mod = type(exc).__module__
+    return mod.startswith(("psycopg", "sqlite3"))
+
+
+def _iso(t: float) -> str:
+    return time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime(t))
+
+
+def _first_line(exc: BaseException) -> str:
+    text = str(exc).strip()
+    return text.splitlines()[0] if text else type(exc).__name__
 
 
 # ---- small ASGI helpers --------------------------------------------------------------------------------

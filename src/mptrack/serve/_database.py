@@ -10,13 +10,35 @@ __all__ = ["open_store"]
 
 
 def open_store(url: str, fsync: bool = False) -> Store:
-    """The store at ``url``: ``sqlite:///PATH`` (a file, created with its schema) or
-    ``postgresql://...`` (not in this release).  ``fsync``: every commit is flushed to disk before it
-    returns (also a power loss loses nothing acknowledged), not only written to the database file."""
+    """The store of the server database at a URL.
+
+    Parameters
+    ----------
+    url : str
+        ``sqlite:///PATH`` (a file, created with its schema) or ``postgresql://...`` (a database, its
+        schema created or upgraded).
+    fsync : bool, optional
+        Every commit is flushed to disk before it returns (also a power loss loses nothing
+        acknowledged), not only written to the database's log.
+
+    Returns
+    -------
+    Store
+        Close it when done.
+
+    Raises
+    ------
+    ParameterError
+        Not a database URL of a known kind.
+    OutputError
+        The database cannot be opened, or its schema is newer than this mptrack's.
+    """
     if not isinstance(url, str):
         raise ParameterError(f"db: expected a database URL such as {DEFAULT_DB}, got {type(url).__name__}")
     if url.startswith("sqlite:///"):
         return SqliteStore(url, fsync)
     if url.startswith(("postgresql://", "postgres://")):
-        raise ParameterError("db: PostgreSQL storage is not available in this release; use sqlite:///PATH")
+        from ._postgres import PostgresStore
+
+        return PostgresStore(url, fsync)
     raise ParameterError(f"db: expected sqlite:///PATH or postgresql://..., got {url!r}")

@@ -10,33 +10,40 @@ only then wakes the requests, which answer 200.  If the write fails, the filters
 devices are put back as they were and every request of the batch fails (503): nothing half-done
 is acknowledged.  While a batch commits, the next one gathers.
 
-The fixes are the log and the device states checkpoints of it.  A device's state is stored
-:attr:`Ingest.checkpoint_s` seconds after it changed (at most :data:`CHECKPOINT_ROWS` devices a batch,
-so a large fleet's checkpoints never stall ingest), with the last fix row it covers; the watermark is
+The fixes are the log and the device states checkpoints of it.  With a store of one writer (SQLite)
+a device's state is stored :attr:`Ingest.checkpoint_s` seconds after it changed, in the transaction
+of the next batch (at most :data:`CHECKPOINT_ROWS` devices a batch, so a large fleet's checkpoints
+never stall ingest), with the last fix row it covers; the watermark is
 the row up to which every device's stored state covers its fixes.  After a crash, the fixes after the
 watermark that a device's state does not cover are replayed through the same filter
 (:meth:`Ingest.recover`), which gives the states the filter had, so the live estimates resume exactly.
 Noise is re-estimated on another thread for devices with enough new fixes and applied between
 batches, the devices' states stored at once, so that a replay sees the noise the live filter saw.
+
+With a shared store (PostgreSQL, several processes) a batch locks its devices' states first, loads
+those another process changed, and stores the new state of every device it stepped with its fixes:
+the stored states are always current and whichever process gets a device's next fix goes on from
+there.
 """
 
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import json
 import logging
 import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass, field
 
 import numpy as np
 
 from ..tracking import ESTIMATE_FIELDS, FLAGS, LiveTracks, ellipse
 from ._fix import iso_time
+from ._metrics import Metrics
 from ._store import Store
 
-__all__ = ["Ingest", "Counters", "FLAG_NAMES", "LATE", "ESTIMATES"]
+__all__ = ["Ingest", "FLAG_NAMES", "LATE", "ESTIMATES"]
 
 log = logging.getLogger("mptrack.serve")
 #: The most devices whose noise one round re-estimates.
@@ -50,66 +57,54 @@ LATE = len(FLAGS)
 ESTIMATES = ESTIMATE_FIELDS
 
 
-@dataclass
-class Counters:
-    """What ingest has done since the server started."""
-
-    accepted: int = 0        # fixes answered 200
-    filtered: int = 0        # ... that went through the live filter
-    late: int = 0            # ... stored with history only (older than their device's last fix)
-    duplicates: int = 0      # ... exact repeats of a stored fix, not stored again
-    batches: int = 0         # group commits
-    refused: dict = field(default_factory=dict)   # refused requests by reason (code)
-
-    def refuse(self, code: str) -> None:
-        self.refused[code] = self.refused.get(code, 0) + 1
-
-
 class Ingest:
     """The group-commit writer (see the module doc)."""
 
     def __init__(self, store: Store, live: LiveTracks, *, checkpoint_s: float = 10.0,
-                 calibrate_after: int = 30, history_fixes: int = 2000):
+                 calibrate_after: int = 30, history_fixes: int = 2000, metrics: Metrics | None = None):
         self.store = store
+        self.shared = bool(store.shared)
         self.live = live
         self.checkpoint_s = checkpoint_s
         self.calibrate_after = calibrate_after
         self.history_fixes = history_fixes
-        self.counters = Counters()
+        self.metrics = metrics if metrics is not None else Metrics.local()
         self.keys: dict[str, int] = {}           # device id -> key (the live filter's track index)
-        self.ids: list[str] = []
-        self.lock = threading.Lock()             # the live state: the writer while it steps, readers
+        self.ids: list[str | None] = []          # key -> device id (None: a key this process has not seen)
+        self.lock = threading.Lock()             # the live state and the keys: the writer while it steps, readers
         self._writer = ThreadPoolExecutor(1, thread_name_prefix="mptrack-writer")
         self._estimator = ThreadPoolExecutor(1, thread_name_prefix="mptrack-noise")
         self._estimating = None                  # the noise estimate under way (a Future)
         self._pending: list = []                 # (fixes, future) waiting for the next batch
         self._wake: asyncio.Event | None = None
         self._task: asyncio.Task | None = None
+        self._loop: asyncio.AbstractEventLoop | None = None
         self._closing = False
         # devices changed since their last checkpoint, oldest first: key -> (the last fix row before
-        # the change, when it changed)
+        # the change, when it changed) (a store with one writer)
         self._dirty: dict[int, tuple[int, float]] = {}
-        self._seq = 0                            # the last fix row stored
+        self._seq = 0                            # the last fix row stored (a store with one writer)
         self._since_calibration = np.zeros(0, dtype=np.int64)
+        self._version = np.zeros(0, dtype=np.int64)   # a shared store: each device's state version held here
         self.listeners: set[asyncio.Queue] = set()
 
     # ---- start, recovery, stop --------------------------------------------------------------------
     def recover(self) -> None:
-        """Load the device keys, the last checkpoint and replay the fixes stored after it."""
-        for dev, device in self.store.device_keys():
-            if dev != len(self.ids):
-                raise RuntimeError(f"device keys are not contiguous at {dev}")  # pragma: no cover
-            self.ids.append(device)
-            self.keys[device] = dev
-        self._grow(len(self.ids))
+        """Load the device keys and the stored states; with a store of one writer, replay the fixes
+        stored after the last checkpoint."""
+        self._add_keys(self.store.device_keys())
         watermark, chunks = self.store.load_checkpoint()
         covered = np.zeros(len(self.ids), np.int64)      # each device's fixes up to this row are in its state
         for states in chunks:
-            known = [(self.keys[device], blob, upto) for device, blob, upto in states if device in self.keys]
+            known = [(self.keys[device], blob, upto, version) for device, blob, upto, version in states
+                     if device in self.keys]
             if known:
-                idx = [d for d, _, _ in known]
-                self.live.load_states(idx, [b for _, b, _ in known])
-                covered[idx] = [u for _, _, u in known]
+                idx = [d for d, _, _, _ in known]
+                self.live.load_states(idx, [b for _, b, _, _ in known])
+                covered[idx] = [u for _, _, u, _ in known]
+                self._version[idx] = [v for _, _, _, v in known]
+        if self.shared:
+            return   # every stored state is current
         self._seq = self.store.last_row()
         now = time.monotonic()
         for rows in self.store.replay(watermark):
@@ -123,8 +118,9 @@ class Ingest:
                 self._dirty.setdefault(d, (watermark, now))
 
     def start(self) -> None:
+        self._loop = asyncio.get_running_loop()
         self._wake = asyncio.Event()
-        self._task = asyncio.get_running_loop().create_task(self._run())
+        self._task = self._loop.create_task(self._run())
 
     async def close(self) -> None:
         """Commit what is pending, checkpoint, stop the writer."""
@@ -159,8 +155,9 @@ class Ingest:
             batch, self._pending = self._pending, []
             fixes = [f for fs, _ in batch for f in fs]
             try:
-                published = await loop.run_in_executor(self._writer, self._commit, fixes)
+                events = await loop.run_in_executor(self._writer, self._commit, fixes)
             except Exception as exc:  # every request of the batch fails; nothing was acknowledged
+                self.metrics.add("commit_failures")
                 for _, fut in batch:
                     if not fut.done():
                         fut.set_exception(exc)
@@ -168,95 +165,165 @@ class Ingest:
             for fs, fut in batch:
                 if not fut.done():
                     fut.set_result(None)
-            if published is not None and self.listeners:
-                events = self._events(published)   # once per batch, whatever the number of listeners
-                for q in list(self.listeners):
-                    if q.qsize() < 1000:           # a listener that does not read loses events, not memory
-                        q.put_nowait(events)
+            if events and not self.shared:
+                self._publish(events)
             if self._pending:
                 self._wake.set()
+
+    # ---- the stream ---------------------------------------------------------------------------------
+    def listen(self, queue: asyncio.Queue) -> None:
+        """``queue`` gets the events of every committed batch (a list of (device, JSON) each) from now
+        on: this process's own, or with a shared store every process's."""
+        self.listeners.add(queue)
+        if self.shared:
+            self.store.subscribe(self._deliver)
+
+    def _deliver(self, payload: str) -> None:
+        """A stream payload of a shared store (on its listener thread): to the event loop."""
+        events = [tuple(line.split("\t", 1)) for line in payload.split("\n") if "\t" in line]
+        if self._loop is not None and events:
+            self._loop.call_soon_threadsafe(self._publish, events)
+
+    def _publish(self, events: list[tuple[str, str]]) -> None:
+        for q in list(self.listeners):
+            if q.qsize() < 1000:           # a listener that does not read loses events, not memory
+                q.put_nowait(events)
+
+    def device_counts(self, window_s: float) -> tuple[int, int]:
+        """(devices that have sent a fix, those whose last fix is at most ``window_s`` old), over every
+        process of a shared store."""
+        since = time.time() - window_s
+        if self.shared:
+            return len(self.store.device_keys()), self.store.live_devices(since)
+        with self.lock:
+            t = self.live.last_fixes(np.arange(self.live.n))[:, 0]
+        return len(self.keys), int(np.count_nonzero(t >= since))
+
+    # ---- keys and states (a shared store: written by other processes too) ------------------------------
+    def _add_keys(self, pairs) -> None:
+        with self.lock:
+            for key, device in pairs:
+                if key >= len(self.ids):
+                    self.ids.extend([None] * (key + 1 - len(self.ids)))
+                self.ids[key] = device
+                self.keys[device] = key
+            self._grow(len(self.ids))
+
+    def key(self, device: str) -> int | None:
+        """The key of a device that has sent a fix (to any process of a shared store), or None."""
+        k = self.keys.get(device)
+        if k is None and self.shared:
+            self._add_keys(self.store.device_keys([device]))
+            k = self.keys.get(device)
+        return k
+
+    def refresh(self, devs=None) -> None:
+        """A shared store: the live state of ``devs`` (all devices when None) brought up to what any
+        process has committed (a reader's view; the writer locks and reads in its transaction)."""
+        if not self.shared:
+            return
+        if devs is None:
+            self._add_keys(self.store.device_keys())
+        with self.lock:
+            versions = self._version.copy()
+        rows = self.store.states(None if devs is None else np.asarray(devs, np.int64), versions)
+        if rows:
+            with self.lock:   # only what is newer than what this process has (its writer may be ahead)
+                self._load([r for r in rows if r[1] > self._version[r[0]]])
+
+    def _load(self, stale) -> None:
+        """Load (dev, version, blob) states into the live filter (the lock held)."""
+        with_state = [(d, b) for d, _, b in stale if b is not None]
+        if with_state:
+            self.live.load_states([d for d, _ in with_state], [b for _, b in with_state])
+        for d, v, _ in stale:
+            self._version[d] = v
 
     # ---- the writer thread ---------------------------------------------------------------------
     def _grow(self, n: int) -> None:
         if n > len(self._since_calibration):
             size = max(n, 2 * len(self._since_calibration), 1024)
-            self._since_calibration = np.r_[self._since_calibration,
-                                            np.zeros(size - len(self._since_calibration), np.int64)]
+            grow = size - len(self._since_calibration)
+            self._since_calibration = np.r_[self._since_calibration, np.zeros(grow, np.int64)]
+            self._version = np.r_[self._version, np.zeros(grow, np.int64)]
         if n > self.live.n:
             self.live.add(n - self.live.n)
 
+    def _keys_of(self, fixes: list[tuple]) -> np.ndarray:
+        """The keys of the fixes' devices, registering the new devices."""
+        keys = self.keys
+        new = sorted({f[0] for f in fixes if f[0] not in keys})
+        if new:
+            self._add_keys(self.store.register(new))
+        return np.array([keys[f[0]] for f in fixes], dtype=np.int64)
+
     def _commit(self, fixes: list[tuple]):
         now = time.time()
-        new_devices = []
-        keys = self.keys
-        dev = np.empty(len(fixes), dtype=np.int64)
-        for i, f in enumerate(fixes):
-            k = keys.get(f[0])
-            if k is None:
-                k = keys[f[0]] = len(self.ids)
-                self.ids.append(f[0])
-                new_devices.append((k, f[0]))
-            dev[i] = k
-        try:
-            self._grow(len(self.ids))
-            cols = list(zip(*fixes))
-            t = np.array(cols[1], dtype=float)
-            lat = np.array(cols[2], dtype=float)
-            lon = np.array(cols[3], dtype=float)
-            acc = np.array([np.nan if a is None else a for a in cols[4]], dtype=float)
-            order = np.lexsort((t, dev))
-            d, ts, la, lo = dev[order], t[order], lat[order], lon[order]
-            first = np.r_[True, d[1:] != d[:-1]]
-            prev_t = np.where(first, np.nan, np.r_[np.nan, ts[:-1]])
-            prev_same = ~first & (ts == prev_t) & (la == np.r_[np.nan, la[:-1]]) & (lo == np.r_[np.nan, lo[:-1]])
-            last = self.live.last_fixes(d)
-            dup_last = (ts == last[:, 0]) & (la == last[:, 1]) & (lo == last[:, 2])
-            duplicate = prev_same | dup_last
-            new = ~duplicate & ~(ts <= last[:, 0]) & ~(ts == prev_t)  # NaN last: a first fix is new
-            late = ~duplicate & ~new
-            sel = order[new]
-            with self.lock:
-                saved = self.live.save_states(np.unique(dev[sel]))
-                est = self.live.advance(dev[sel], t[sel], lat[sel], lon[sel], acc[sel])
-            rows = _rows(fixes, dev, sel, est, now)
-            late_rows = _rows(fixes, dev, order[late], None, now)
-            touched = np.unique(dev[sel]).tolist()
-            ready = self._due_states()          # their states after this batch go in with its fixes
-            watermark = self._oldest_row(set(ready))
-            if any(d not in self._dirty for d in touched):   # newly changed: not covered after this batch's rows
-                watermark = self._seq if watermark is None else min(watermark, self._seq)
-            with self.lock:
-                states = [(self.ids[d], self.live.state_bytes(d)) for d in ready]
-            try:
-                stored_late, last = self.store.write(rows, late_rows, new_devices, states, watermark)
-            except BaseException:
+        dev = self._keys_of(fixes)
+        cols = list(zip(*fixes))
+        t = np.array(cols[1], dtype=float)
+        lat = np.array(cols[2], dtype=float)
+        lon = np.array(cols[3], dtype=float)
+        acc = np.array([np.nan if a is None else a for a in cols[4]], dtype=float)
+        order = np.lexsort((t, dev))
+        d, ts, la, lo = dev[order], t[order], lat[order], lon[order]
+        first = np.r_[True, d[1:] != d[:-1]]
+        prev_t = np.where(first, np.nan, np.r_[np.nan, ts[:-1]])
+        prev_same = ~first & (ts == prev_t) & (la == np.r_[np.nan, la[:-1]]) & (lo == np.r_[np.nan, lo[:-1]])
+        devs = d[first]
+        with self._undone_on_failure(devs) as versions:
+            with self.store.batch(devs, versions) as tx:
                 with self.lock:
-                    self.live.restore_states(saved)
-                raise
-        except BaseException:
-            for k, device in new_devices:  # not stored: forget the keys given in this batch
-                del keys[device]
-            del self.ids[len(self.ids) - len(new_devices):]
-            raise
-        before, self._seq = self._seq, last
+                    self._load(tx.stale)      # what other processes committed for these devices
+                    last = self.live.last_fixes(d)
+                    dup_last = (ts == last[:, 0]) & (la == last[:, 1]) & (lo == last[:, 2])
+                    duplicate = prev_same | dup_last
+                    new = ~duplicate & ~(ts <= last[:, 0]) & ~(ts == prev_t)  # NaN last: a first fix is new
+                    late = ~duplicate & ~new
+                    sel = order[new]
+                    est = self.live.advance(dev[sel], t[sel], lat[sel], lon[sel], acc[sel])
+                    touched = np.unique(dev[sel])
+                    if self.shared:   # every state goes in with its fixes
+                        states, ready, watermark = self._states_of(touched), [], None
+                    else:             # the states that changed checkpoint_s ago go in with this batch
+                        ready = self._due_states()
+                        watermark = self._oldest_row(set(ready))
+                        if any(d not in self._dirty for d in touched.tolist()):   # newly changed: not covered
+                            watermark = self._seq if watermark is None else min(watermark, self._seq)
+                        states = [(d, self.ids[d], self.live.state_bytes(d), np.nan) for d in ready]
+                rows = _rows(fixes, dev, sel, est, now)
+                late_rows = _rows(fixes, dev, order[late], None, now)
+                stream = self.store.streaming() if self.shared else bool(self.listeners)
+                events = self._events(sel, fixes, est) if stream and len(sel) else None
+                tx.write(rows, late_rows, states, [f"{k}\t{e}" for k, e in events or ()], watermark)
+        stored_late = tx.stored_late
         np.add.at(self._since_calibration, dev[sel], 1)
-        for d in ready:
-            del self._dirty[d]
-        changed = time.monotonic()
-        for d in touched:
-            self._dirty.setdefault(d, (before, changed))
-        c = self.counters
-        c.accepted += len(fixes)
-        c.filtered += len(sel)
-        c.late += stored_late
-        c.duplicates += len(fixes) - len(sel) - stored_late
-        c.batches += 1
+        if not self.shared:
+            before, self._seq = self._seq, tx.last_row
+            for d in ready:
+                del self._dirty[d]
+            changed = time.monotonic()
+            for k in touched.tolist():
+                self._dirty.setdefault(k, (before, changed))
+        m = self.metrics
+        m.add("accepted", len(fixes))
+        m.add("filtered", len(sel))
+        m.add("late", stored_late)
+        m.add("duplicates", len(fixes) - len(sel) - stored_late)
+        m.add("batches")
+        m.observe("batch", len(fixes))
         self._noise()
-        return (sel, fixes, est, dev) if self.listeners else None
+        return events
+
+    def _states_of(self, devs: np.ndarray) -> list[tuple[int, str, bytes, float]]:
+        """A shared store: (key, id, blob, last fix time) of these devices, their versions raised (lock held)."""
+        self._version[devs] += 1
+        t_last = self.live.last_fixes(devs)[:, 0].tolist()
+        return [(k, self.ids[k], self.live.state_bytes(k), tk) for k, tk in zip(devs.tolist(), t_last)]
 
     def _due_states(self) -> list[int]:
         """The devices whose state changed more than ``checkpoint_s`` ago (oldest first, at most
-        CHECKPOINT_ROWS): stored with the next batch."""
+        CHECKPOINT_ROWS): stored with the next batch (a store with one writer)."""
         old = time.monotonic() - self.checkpoint_s
         ready = []
         for d, (_, changed) in self._dirty.items():   # oldest first
@@ -277,20 +344,17 @@ class Ingest:
         return None
 
     def _noise(self, final: bool = False) -> None:
-        """Apply the noise estimates that are ready, the devices' states stored at once (a replay must see
-        the noise the filter saw from here on), and start the next round (devices with enough new fixes,
-        estimated on another thread)."""
+        """Apply the noise estimates that are ready, the devices' states stored at once (a replay, or
+        another process, must see the noise the filter saw from here on), and start the next round
+        (devices with enough new fixes, estimated on another thread)."""
         fut = self._estimating
         if fut is not None and (fut.done() or final):
             self._estimating = None
             try:
                 due, noise = fut.result()
+                self._set_noise(due, noise)
             except Exception as exc:  # an estimate that fails leaves the devices' noise as it was
                 log.warning("noise estimation failed: %s", exc)
-            else:
-                with self.lock:
-                    self.live.set_noise(due, noise)
-                self._store_states(due.tolist())
         if self._estimating is None and not final:
             due = np.flatnonzero(self._since_calibration[:len(self.ids)] >= self.calibrate_after)[:MAX_ESTIMATED]
             if len(due):
@@ -300,13 +364,49 @@ class Ingest:
     def _checkpoint(self) -> None:
         """At shutdown: the noise estimate under way applied, every changed state stored."""
         self._noise(final=True)
-        self._store_states(list(self._dirty))
+        if not self.shared:
+            self._store_states(list(self._dirty))
+
+    def _set_noise(self, due: np.ndarray, noise: dict) -> None:
+        """Apply a noise estimate and store the devices' states at once (so that a replay, or another
+        process, sees the noise the live filter saw)."""
+        with self._undone_on_failure(due) as versions:
+            if not self.shared:
+                with self.lock:
+                    self.live.set_noise(due, noise)
+                self._store_states(due.tolist())
+                return
+            with self.store.batch(due, versions) as tx:
+                with self.lock:
+                    self._load(tx.stale)
+                    self.live.set_noise(due, noise)
+                    states = self._states_of(due)
+                tx.write(states=states)
+
+    @contextlib.contextmanager
+    def _undone_on_failure(self, devs: np.ndarray):
+        """The live states of ``devs`` (sorted keys) and their versions put back as they were if the block
+        fails (its transaction rolled back); yields the versions held now."""
+        with self.lock:
+            saved = self.live.save_states(devs)
+            versions = self._version[devs].copy()
+        try:
+            yield versions
+        except BaseException:
+            with self.lock:
+                self.live.restore_states(saved)
+                self._version[devs] = versions
+            raise
 
     def _store_states(self, devices: list[int]) -> None:
-        """Store these devices' states (they cover every fix stored so far) and the new watermark."""
+        """Store these devices' states (they cover every fix stored so far) and the new watermark (a store
+        with one writer)."""
         with self.lock:
-            states = [(self.ids[d], self.live.state_bytes(d)) for d in devices]
-        self.store.write(states=states, watermark=self._oldest_row(set(devices)))
+            states = [(d, self.ids[d], self.live.state_bytes(d), np.nan) for d in devices]
+        stored = set(devices)
+        keys = np.array(sorted(stored), dtype=np.int64)
+        with self.store.batch(keys, self._version[keys]) as tx:
+            tx.write(states=states, watermark=self._oldest_row(stored))
         for d in devices:
             self._dirty.pop(d, None)
 
@@ -319,11 +419,9 @@ class Ingest:
             histories.append({k: rows[k][use] for k in ("t", "lat", "lon", "accuracy_m")})
         return due, self.live.estimate_noise(histories)
 
-    # ---- the stream --------------------------------------------------------------------------------
     @staticmethod
-    def _events(published) -> list[tuple[str, str]]:
-        """(device, JSON) of every fix of one committed batch: the stream's ``data:`` payloads."""
-        sel, fixes, est, dev = published
+    def _events(sel: np.ndarray, fixes: list[tuple], est: dict) -> list[tuple[str, str]]:
+        """(device, JSON) of every filtered fix of one batch: the stream's ``data:`` payloads."""
         major, minor, az = ellipse(est["var_e"], est["cov_en"], est["var_n"])
         out = []
         for j, i in enumerate(sel.tolist()):

@@ -82,4 +82,12 @@ def ingest_paths() -> dict:
                 "type": "object", "properties": {"accepted": {"type": "integer"}}}}}}, **_ERRORS}}},
         "/healthz": {"get": {"summary": "200 when the server is ready", "operationId": "healthz", "tags": ["operations"],
                              "responses": {"200": {"description": "ready"}}}},
+        "/metrics": {"get": {"summary": "Counters, latency and batch-size histograms, devices (Prometheus text format; "
+                                        "the sums over the host's worker processes)", "operationId": "metrics",
+                             "tags": ["operations"], "parameters": [{"name": "key", "in": "query", "required": False,
+                                                                     "schema": {"type": "string"},
+                                                                     "description": "API key (with --auth)"}],
+                             "responses": {"200": {"description": "Prometheus text exposition format 0.0.4",
+                                                   "content": {"text/plain": {"schema": {"type": "string"}}}},
+                                           **{k: v for k, v in _ERRORS.items() if k == "401"}}}},
     }

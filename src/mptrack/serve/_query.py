@@ -64,7 +64,7 @@ class Position(BaseModel):
 
 
 class Stats(BaseModel):
-    devices: int
+    devices: int = Field(description="devices that have sent a fix")
     accepted: int
     filtered: int
     late: int
@@ -124,7 +124,7 @@ def query_app(server) -> FastAPI:
             server.registry.check_key(credentials(dict(request.scope["headers"]), key)[0])
 
     def device(device_id: str) -> int:
-        dev = server.ingest.keys.get(device_id)
+        dev = server.ingest.key(device_id)
         if dev is None:
             raise RequestError(f"no device {device_id!r} has sent a fix", status=404, code="not_found",
                                field="device_id")
@@ -134,14 +134,16 @@ def query_app(server) -> FastAPI:
              summary="Every device with its last fix and estimate")
     def devices():
         ing = server.ingest
+        ing.refresh()
         with ing.lock:
             last = ing.live.summaries()
-        return [{"id": ing.ids[i], "last_fix_time": iso_time(s["time"]) if s["time"] == s["time"] else None,
+            ids = list(ing.ids)
+        return [{"id": ids[i], "last_fix_time": iso_time(s["time"]) if s["time"] == s["time"] else None,
                  "raw_lat": _f(s["raw_lat"]), "raw_lon": _f(s["raw_lon"]), "lat": _f(s["lat"]), "lon": _f(s["lon"]),
                  "ell_major_m": _f(s["ell_major_m"]), "ell_minor_m": _f(s["ell_minor_m"]),
                  "ell_azimuth_deg": _f(s["ell_azimuth_deg"]),
                  "flag": FLAG_NAMES[int(s["flag"])] if s["flag"] == s["flag"] else None}
-                for i, s in enumerate(last[:len(ing.ids)])]
+                for i, s in enumerate(last[:len(ids)]) if ids[i] is not None]
 
     @app.get("/api/devices/{device_id:path}/position", response_model=Position, responses=_ERRORS,
              dependencies=[Depends(api_key)], summary="The current estimate, or the prediction at a time")
@@ -150,6 +152,7 @@ def query_app(server) -> FastAPI:
         dev = device(device_id)
         now = time.time()
         ing = server.ingest
+        ing.refresh([dev])
         with ing.lock:
             last_t = ing.live.last_fix(dev)[0]
             if not last_t == last_t:
@@ -199,7 +202,7 @@ def query_app(server) -> FastAPI:
         ing = server.ingest
 
         async def events():
-            ing.listeners.add(queue)
+            ing.listen(queue)
             try:
                 yield ": connected\n\n"
                 while True:
@@ -219,11 +222,11 @@ def query_app(server) -> FastAPI:
                                  headers={"Cache-Control": "no-cache", "X-Accel-Buffering": "no"})
 
     @app.get("/api/stats", response_model=Stats, dependencies=[Depends(api_key)], responses=_ERRORS,
-             summary="What ingest accepted and refused since the server started")
+             summary="What ingest accepted and refused since the server started (all its worker processes)")
     def stats():
-        c = server.ingest.counters
-        return {"devices": len(server.ingest.ids), "accepted": c.accepted, "filtered": c.filtered, "late": c.late,
-                "duplicates": c.duplicates, "batches": c.batches, "refused": dict(c.refused),
+        c = server.metrics.totals()
+        return {"devices": server.ingest.device_counts(300.0)[0], "accepted": c["accepted"], "filtered": c["filtered"],
+                "late": c["late"], "duplicates": c["duplicates"], "batches": c["batches"], "refused": c["refused"],
                 "uptime_s": time.time() - server.started}
 
     @app.get("/", response_class=HTMLResponse, dependencies=[Depends(api_key)], responses=_ERRORS,

@@ -15,6 +15,7 @@ them while the requests of the batch wait): a thread of its own does, with its o
 
 from __future__ import annotations
 
+import contextlib
 import sqlite3
 import threading
 import time
@@ -24,7 +25,7 @@ from typing import Iterator
 import numpy as np
 
 from ..errors import OutputError, ParameterError
-from ._store import ESTIMATE_COLUMNS, FIX_COLUMNS, StoredRows
+from ._store import ESTIMATE_COLUMNS, FIX_COLUMNS, StoredRows, stored_rows
 
 __all__ = ["SqliteStore", "SCHEMA_VERSION"]
 
@@ -55,11 +56,12 @@ _INSERT = f"INSERT INTO fixes ({', '.join(_ALL)}) VALUES ({', '.join('?' * len(_
 _INSERT_NEW = (f"INSERT INTO fixes ({', '.join(_ALL)}) SELECT {', '.join('?' * len(_ALL))} WHERE NOT EXISTS "
                "(SELECT 1 FROM fixes WHERE dev = ?1 AND t = ?2 AND lat = ?3 AND lon = ?4)")
 _SELECT = f"SELECT seq, {', '.join(_ALL)} FROM fixes"
-_TEXT = {"attrs"}
 
 
 class SqliteStore:
     """The SQLite store at ``sqlite:///PATH`` (created with its schema if absent)."""
+
+    shared = False
 
     def __init__(self, url: str, fsync: bool = False):
         self.url = url
@@ -75,6 +77,7 @@ class SqliteStore:
         except sqlite3.DatabaseError as exc:
             raise OutputError(f"db: cannot open {self.path} as an mptrack database: {exc}", path=self.path) from None
         version = self._w.execute("SELECT value FROM meta WHERE key = 'schema_version'").fetchone()[0]
+        self.schema_version = int(version)
         if int(version) > SCHEMA_VERSION:
             raise OutputError(f"db: {self.path} has schema version {version}, newer than this mptrack's "
                               f"{SCHEMA_VERSION}; upgrade mptrack", path=self.path)
@@ -113,32 +116,29 @@ class SqliteStore:
         return con
 
     # ---- writing (one writer) --------------------------------------------------------------------
-    def write(self, rows: list[tuple] = (), late: list[tuple] = (), new_devices: list[tuple[int, str]] = (),
-              states: list[tuple[str, bytes]] = (), watermark: int | None = None) -> tuple[int, int]:
+    @contextlib.contextmanager
+    def _transaction(self):
+        """The writer connection in one transaction (the writer's lock held)."""
         with self._lock:
             w = self._w
             w.execute("BEGIN IMMEDIATE")
             try:
-                if new_devices:
-                    w.executemany("INSERT INTO device_keys VALUES (?, ?)", new_devices)
-                if rows:
-                    w.executemany(_INSERT, rows)
-                before = w.total_changes
-                if late:
-                    w.executemany(_INSERT_NEW, late)
-                stored = w.total_changes - before
-                last = w.execute("SELECT COALESCE(MAX(seq), 0) FROM fixes").fetchone()[0]
-                if states:
-                    w.executemany("INSERT OR REPLACE INTO device_state VALUES (?, ?, ?)",
-                                  [(d, b, last) for d, b in states])
-                if states or watermark is not None:
-                    w.execute("UPDATE meta SET value = ? WHERE key = 'watermark'",
-                              (last if watermark is None else int(watermark),))
+                yield w
                 w.execute("COMMIT")
             except BaseException:
                 w.execute("ROLLBACK")
                 raise
-        return stored, last
+
+    def register(self, devices: list[str]) -> list[tuple[int, str]]:
+        with self._transaction() as w:
+            w.executemany("INSERT INTO device_keys SELECT (SELECT COALESCE(MAX(dev) + 1, 0) FROM device_keys), ? "
+                          "WHERE true ON CONFLICT (device_id) DO NOTHING", [(d,) for d in devices])
+        return self.device_keys(devices)
+
+    @contextlib.contextmanager
+    def batch(self, devs=None, versions=None):
+        with self._transaction() as w:
+            yield _Batch(w)
 
     def add_device(self, device: str, token_sha256: str) -> None:
         self._insert("INSERT INTO devices VALUES (?, ?, ?)", (device, token_sha256, time.time()), "device", device)
@@ -153,6 +153,25 @@ class SqliteStore:
             except sqlite3.IntegrityError:
                 raise ParameterError(f"name: a {what} named {name!r} exists already") from None
 
+    def add_device_keys(self, keys: list[tuple[int, str]]) -> None:
+        with self._transaction() as w:
+            w.executemany("INSERT INTO device_keys VALUES (?, ?)", keys)
+
+    def load_fixes(self, rows: StoredRows) -> None:
+        with self._transaction() as w:
+            w.executemany(f"INSERT INTO fixes ({', '.join(_ALL)}, seq) VALUES ({', '.join('?' * (len(_ALL) + 1))})",
+                          rows.records(with_seq=True))
+
+    def credentials(self) -> tuple[list[tuple], list[tuple]]:
+        con = self._reader()
+        return (con.execute("SELECT device_id, token_sha256, created FROM devices").fetchall(),
+                con.execute("SELECT name, key_sha256, created FROM api_keys").fetchall())
+
+    def add_credentials(self, devices: list[tuple], api_keys: list[tuple]) -> None:
+        with self._transaction() as w:
+            w.executemany("INSERT INTO devices VALUES (?, ?, ?)", devices)
+            w.executemany("INSERT INTO api_keys VALUES (?, ?, ?)", api_keys)
+
     def delete_before(self, t: float, batch: int = 10_000) -> int:
         total = 0
         while True:
@@ -164,14 +183,14 @@ class SqliteStore:
                 return total
 
     # ---- reading ---------------------------------------------------------------------------------
-    def load_checkpoint(self, batch: int = 50_000) -> tuple[int, Iterator[list[tuple[str, bytes, int]]]]:
+    def load_checkpoint(self, batch: int = 50_000) -> tuple[int, Iterator[list[tuple[str, bytes, int, int]]]]:
         con = self._reader()
         con.execute("BEGIN")   # the watermark and the states: one snapshot
         watermark = int(con.execute("SELECT value FROM meta WHERE key = 'watermark'").fetchone()[0])
 
         def chunks():
             try:
-                cur = con.execute("SELECT device_id, state, upto FROM device_state")
+                cur = con.execute("SELECT device_id, state, upto, 0 FROM device_state")
                 while rows := cur.fetchmany(batch):
                     yield rows
             finally:
@@ -185,7 +204,7 @@ class SqliteStore:
             rows = con.execute(f"{_SELECT} WHERE seq > ? ORDER BY seq LIMIT ?", (after, batch)).fetchall()
             if not rows:
                 return
-            out = _columns(rows)
+            out = stored_rows(rows)
             after = int(out["seq"][-1])
             yield out
 
@@ -201,14 +220,22 @@ class SqliteStore:
         if limit is not None:
             sql += " LIMIT ?"
             args += (int(limit),)
-        return _columns(self._reader().execute(sql, args).fetchall())
+        return stored_rows(self._reader().execute(sql, args).fetchall())
 
     def recent(self, dev: int, n: int) -> StoredRows:
         rows = self._reader().execute(f"{_SELECT} WHERE dev = ? ORDER BY t DESC LIMIT ?", (int(dev), int(n))).fetchall()
-        return _columns(rows[::-1])
+        return stored_rows(rows[::-1])
 
-    def device_keys(self) -> list[tuple[int, str]]:
-        return self._reader().execute("SELECT dev, device_id FROM device_keys ORDER BY dev").fetchall()
+    def device_keys(self, devices: list[str] | None = None) -> list[tuple[int, str]]:
+        con = self._reader()
+        if devices is None:
+            return con.execute("SELECT dev, device_id FROM device_keys ORDER BY dev").fetchall()
+        keys = []
+        for i in range(0, len(devices), 500):
+            part = devices[i:i + 500]
+            keys += con.execute(f"SELECT dev, device_id FROM device_keys WHERE device_id IN ({', '.join('?' * len(part))})",
+                                part).fetchall()
+        return keys
 
     def devices(self) -> list[tuple[str, str]]:
         return self._reader().execute("SELECT device_id, token_sha256 FROM devices").fetchall()
@@ -230,17 +257,28 @@ class SqliteStore:
             self._local.con = None
 
 
-def _columns(rows: list[tuple]) -> StoredRows:
-    names = ("seq",) + _ALL
-    if not rows:
-        return StoredRows({n: np.empty(0, dtype=object if n in _TEXT else float) for n in names})
-    cols = list(zip(*rows))
-    out = {}
-    for n, values in zip(names, cols):
-        if n in _TEXT:
-            out[n] = np.array(values, dtype=object)
-        elif n in ("seq", "flag", "dev"):
-            out[n] = np.array(values, dtype=np.int64)
-        else:
-            out[n] = np.array([np.nan if v is None else v for v in values], dtype=float)
-    return StoredRows(out)
+class _Batch:
+    """One batch's transaction on the writer connection (the store's lock held)."""
+
+    stale: list = []
+
+    def __init__(self, con: sqlite3.Connection):
+        self.con = con
+        self.stored_late = 0
+        self.last_row = 0
+
+    def write(self, rows: list[tuple] = (), late: list[tuple] = (), states=(), events=(),
+              watermark: int | None = None) -> None:
+        """(see :class:`._store.Batch`; the states are checkpoints in the batch's own transaction)"""
+        w = self.con
+        if rows:
+            w.executemany(_INSERT, rows)
+        before = w.total_changes
+        if late:
+            w.executemany(_INSERT_NEW, late)
+        self.stored_late = w.total_changes - before
+        last = self.last_row = w.execute("SELECT COALESCE(MAX(seq), 0) FROM fixes").fetchone()[0]
+        if states:
+            w.executemany("INSERT OR REPLACE INTO device_state VALUES (?, ?, ?)", [(d, b, last) for _, d, b, _ in states])
+        if states or watermark is not None:
+            w.execute("UPDATE meta SET value = ? WHERE key = 'watermark'", (last if watermark is None else int(watermark),))

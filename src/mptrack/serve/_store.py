@@ -1,5 +1,5 @@
-"""The server's storage, behind one small interface (SQLite embedded by default; PostgreSQL for many
-workers and hosts is the same interface).
+"""The server's storage, behind one small interface: SQLite embedded by default (one server process;
+:mod:`._sqlite`), PostgreSQL for many processes and hosts on one database (:mod:`._postgres`).
 
 What is stored, every table keyed by device first:
 
@@ -7,28 +7,35 @@ What is stored, every table keyed by device first:
                   arrived (NULL for a late fix), by device key and time; an exact duplicate
                   (device, time, lat, lon) is stored once
     device_keys   the device ids and their integer keys (the fixes' ``dev``)
-    device_state  each device's live filter state as of its last checkpoint (an opaque blob of
-                  the online filter) and the last fix row it covers
+    device_state  each device's live filter state (an opaque blob of the online filter): in SQLite
+                  as of its last checkpoint with the last fix row it covers; in PostgreSQL the
+                  current state with a version, written with every batch
     devices       registered devices and the SHA-256 of their tokens (``mptrack devices add``)
     api_keys      keys of the query API and the map (``mptrack keys add``)
-    meta          the schema version and the checkpoint watermark: every device's fixes up to that
-                  row are in its stored state
+    meta          the schema version (SQLite: and the checkpoint watermark: every device's fixes up
+                  to that row are in its stored state)
 
-One writer commits a batch of fixes in one transaction (:meth:`Store.write`); readers run
-concurrently.  Replaying the fixes after the watermark that each device's state does not cover yet
-through the same filter restores the
-live state exactly after a crash (:meth:`Store.replay`).
+A batch of fixes is committed in one transaction (:meth:`Store.batch`, :meth:`Batch.write`), with
+the device states it stores: so a 200 means the fixes and those states are committed together.  A
+store that is not ``shared`` has one writer, which stores a device's state some seconds after it
+changed (incremental checkpoints, a few with each batch) and the watermark; replaying the fixes
+after the watermark that each device's state does not cover restores the live state exactly after a
+crash (:meth:`Store.replay`).  A ``shared`` store has writers in many processes: a batch locks its
+devices' state rows (in sorted order), gets the states another process wrote since, and writes the
+new states of every device it stepped with the fixes; its states are always current, there is
+nothing to replay.
 """
 
 from __future__ import annotations
 
+import contextlib
 from dataclasses import dataclass
-from typing import Iterator, Protocol
+from typing import Callable, Iterator, Protocol
 
 import numpy as np
 
 
-__all__ = ["Store", "StoredRows", "FIX_COLUMNS", "ESTIMATE_COLUMNS", "DEFAULT_DB"]
+__all__ = ["Store", "Batch", "StoredRows", "stored_rows", "FIX_COLUMNS", "ESTIMATE_COLUMNS", "DEFAULT_DB"]
 
 DEFAULT_DB = "sqlite:///mptrack.db"
 #: Columns of a stored fix as the device sent it (the :data:`._fix.FIELDS` minus attrs, plus received).
@@ -51,25 +58,89 @@ class StoredRows:
     def __getitem__(self, name: str) -> np.ndarray:
         return self.columns[name]
 
+    def records(self, with_seq: bool = False) -> list[tuple]:
+        """The rows as tuples of FIX_COLUMNS + ESTIMATE_COLUMNS (+ seq) values, None for NULL."""
+        names = _ALL + (("seq",) if with_seq else ())
+        cols = [[None if v != v else v for v in self.columns[n].tolist()] if n not in _TEXT
+                else self.columns[n].tolist() for n in names]
+        return list(zip(*cols))
+
+
+_ALL = FIX_COLUMNS + ESTIMATE_COLUMNS
+_TEXT = {"attrs"}
+_INT = {"seq", "flag", "dev"}
+
+
+def stored_rows(rows: list[tuple]) -> StoredRows:
+    """StoredRows from rows of (seq,) + FIX_COLUMNS + ESTIMATE_COLUMNS values."""
+    names = ("seq",) + _ALL
+    if not rows:
+        return StoredRows({n: np.empty(0, dtype=object if n in _TEXT else np.int64 if n in _INT else float)
+                           for n in names})
+    out = {}
+    for n, values in zip(names, zip(*rows)):
+        if n in _TEXT:
+            out[n] = np.array(values, dtype=object)
+        elif n in _INT:
+            out[n] = np.array(values, dtype=np.int64)
+        else:
+            out[n] = np.array([np.nan if v is None else v for v in values], dtype=float)
+    return StoredRows(out)
+
+
+class Batch(Protocol):
+    """One batch's transaction (:meth:`Store.batch`)."""
+
+    #: (dev, version, state blob or None) of the batch's devices whose stored state is not the version
+    #: this process has (a shared store; empty otherwise)
+    stale: list[tuple[int, int, bytes | None]]
+
+    #: how many of the ``late`` rows were stored (not duplicates), once the transaction committed
+    stored_late: int
+    #: a store with one writer: the last fix row, this transaction's included
+    last_row: int
+
+    def write(self, rows: list[tuple] = (), late: list[tuple] = (), states: list[tuple[int, str, bytes, float]] = (),
+              events: list[str] = (), watermark: int | None = None) -> None:
+        """(Once per batch.) Insert the fix rows (FIX_COLUMNS + ESTIMATE_COLUMNS values) ``rows`` -- fixes later than every
+        stored fix of their device, which cannot be duplicates -- and the rows ``late`` that are not exact
+        duplicates of a stored fix (device, t, lat, lon); store device ``states`` (key, id, blob, time of
+        the last fix) that cover every fix of their device stored so far, this transaction's included
+        (a shared store: as the devices' current states).  A store with one writer also sets the
+        watermark (None: the last row) when states or a watermark are given; a shared store sends
+        ``events`` to the stream when the transaction commits."""
+
 
 class Store(Protocol):
     """The storage interface of ``mptrack serve`` (see the module doc)."""
 
     url: str
+    #: several processes write (PostgreSQL): states travel with every batch, see the module doc
+    shared: bool
+    #: the version of the database's schema
+    schema_version: int
 
-    def write(self, rows: list[tuple] = (), late: list[tuple] = (), new_devices: list[tuple[int, str]] = (),
-              states: list[tuple[str, bytes]] = (), watermark: int | None = None) -> tuple[int, int]:
-        """In one durable transaction: register ``new_devices`` (key, id); insert the fix rows
-        (FIX_COLUMNS + ESTIMATE_COLUMNS values) ``rows`` -- fixes later than every stored fix of their
-        device, which cannot be duplicates -- and the rows ``late`` that are not exact duplicates of a
-        stored fix (device, t, lat, lon); store device ``states`` (id, blob) that cover every fix of
-        their device stored so far, this transaction's included; set the watermark (None: the last
-        row) when states or a watermark are given.  Returns (how many of ``late`` were stored, the
-        last fix row)."""
+    def register(self, devices: list[str]) -> list[tuple[int, str]]:
+        """(key, id) of these device ids, registering (and committing) the new ones."""
 
-    def load_checkpoint(self, batch: int = 50_000) -> tuple[int, Iterator[list[tuple[str, bytes, int]]]]:
-        """(watermark, the device states (id, blob, upto) in chunks of ``batch``), read from one
-        snapshot (consume the chunks before writing)."""
+    def batch(self, devs: np.ndarray, versions: np.ndarray) -> contextlib.AbstractContextManager[Batch]:
+        """A durable transaction for a batch of the devices ``devs`` (sorted keys), committed when the
+        context exits without an exception, rolled back otherwise.  A shared store locks the devices'
+        rows first (in sorted order) and reports the states whose version is not in ``versions``."""
+
+    def load_checkpoint(self, batch: int = 50_000) -> tuple[int, Iterator[list[tuple[str, bytes, int, int]]]]:
+        """(watermark, the device states (id, blob, upto, version) in chunks of ``batch``), read from
+        one snapshot (consume the chunks before writing)."""
+
+    def states(self, devs: np.ndarray | None, versions: np.ndarray) -> list[tuple[int, int, bytes]]:
+        """A shared store: (dev, version, blob) of the devices (all when None) whose stored state is
+        newer than ``versions[dev]``."""
+
+    def streaming(self) -> bool:
+        """A shared store: whether some process has stream clients (batches then send events)."""
+
+    def subscribe(self, deliver: Callable[[str], None]) -> None:
+        """A shared store: ``deliver(payload)`` every committed batch's events, from any process."""
 
     def replay(self, after: int, batch: int = 50_000) -> Iterator[StoredRows]:
         """The stored fixes after row ``after`` in insertion order, in batches."""
@@ -84,8 +155,8 @@ class Store(Protocol):
     def recent(self, dev: int, n: int) -> StoredRows:
         """A device's last ``n`` stored fixes (by time), in time order."""
 
-    def device_keys(self) -> list[tuple[int, str]]:
-        """(key, device id) of every device that has sent a fix."""
+    def device_keys(self, devices: list[str] | None = None) -> list[tuple[int, str]]:
+        """(key, device id) of every device that has sent a fix (of these ``devices`` only, if given)."""
 
     def devices(self) -> list[tuple[str, str]]:
         """(device id, token SHA-256) of the registered devices."""
@@ -97,9 +168,23 @@ class Store(Protocol):
 
     def add_api_key(self, name: str, key_sha256: str) -> None: ...
 
+    def credentials(self) -> tuple[list[tuple], list[tuple]]:
+        """(devices (id, token SHA-256, created), API keys (name, key SHA-256, created)), to copy them."""
+
+    def add_credentials(self, devices: list[tuple], api_keys: list[tuple]) -> None: ...
+
+    def add_device_keys(self, keys: list[tuple[int, str]]) -> None:
+        """Register devices with given keys (copying a database)."""
+
+    def load_fixes(self, rows: StoredRows) -> None:
+        """Insert stored rows as they are, their ``seq`` included (copying a database)."""
+
     def delete_before(self, t: float, batch: int = 10_000) -> int:
         """Delete fixes older than ``t`` (seconds since 1970), in batches; returns how many."""
 
     def count(self) -> int: ...
+
+    def live_devices(self, since: float) -> int:
+        """A shared store: how many devices have a fix at or after ``since`` (s since 1970)."""
 
     def close(self) -> None: ...
