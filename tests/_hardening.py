@@ -896,6 +896,14 @@ target("serve.create_app", config=st.one_of(st.just(__import__("mptrack.serve").
                                             st.sampled_from([None, "sqlite:///x.db", {}])))
 target("serve.add_device", db=_DBS, name=_NAMES)
 target("serve.add_api_key", db=_DBS, name=_NAMES)
+_serve = __import__("mptrack.serve").serve
+target("serve.open_store", lambda db, fsync: _serve.open_store(db, fsync).close(), db=_DBS, fsync=flags())
+target("serve.copy_database", source=_DBS, target=_DBS, model=maybe(names("cv", "ca")))
+target("serve.shown_url", url=st.one_of(st.sampled_from(["postgresql://u:secret@h/db", "sqlite:///x.db"]),
+                                        st.text(max_size=40), st.sampled_from([None, 3, b"x"])))
+target("serve.worker_environment", config=st.one_of(st.just(_serve.ServeConfig(db=_DB)), st.sampled_from([None, {}])),
+       directory=st.one_of(st.just(str(WORKDIR)), st.sampled_from([None, 3, str(WORKDIR / "no" / "such")])),
+       workers=count(1, 8))
 
 # --- report -----------------------------------------------------------------------------------------------
 SUMMARY, EVALUATED = tracking.evaluate_tracks(POINTS, LOG)

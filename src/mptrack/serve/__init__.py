@@ -11,9 +11,9 @@ Run it with ``mptrack serve``, or in Python with uvicorn::
     uvicorn.run(create_app(ServeConfig(db="sqlite:///fleet.db")), port=5055)
 """
 
-from ._app import ServeConfig, create_app
+from ..errors import ParameterError
+from ._app import ServeConfig, config_environment, create_app
 from ._auth import digest, new_secret
-from ._app import config_environment
 from ._copy import copy_database
 from ._database import open_store
 from ._metrics import METRICS_ENV, create_metrics_file
@@ -22,6 +22,9 @@ from ._store import DEFAULT_DB
 
 __all__ = ["ServeConfig", "create_app", "add_device", "add_api_key", "copy_database", "open_store", "shown_url",
            "worker_environment", "WORKER_APP", "DEFAULT_DB"]
+
+#: The most worker processes of one server (each holds its share of the devices' live state).
+MAX_WORKERS = 256
 
 #: The application factory uvicorn runs in each worker of ``mptrack serve --workers N``.
 WORKER_APP = "mptrack.serve._app:app_from_environment"
@@ -45,6 +48,13 @@ def worker_environment(config: ServeConfig, directory: str, workers: int) -> dic
     """
     import os
 
+    from .._core.validation import check_int, check_path
+
+    if not isinstance(config, ServeConfig):
+        raise ParameterError(f"config: expected a ServeConfig, got {type(config).__name__}")
+    workers = check_int("workers", workers, minimum=1, maximum=MAX_WORKERS)
+    if not os.path.isdir(check_path("directory", directory)):
+        raise ParameterError(f"directory: {directory} is not a directory")
     path = os.path.join(directory, "metrics")
     create_metrics_file(path, 2 * workers)   # room for restarted workers beside the dying ones
     return {**config_environment(config), METRICS_ENV: path}

@@ -15,6 +15,7 @@ import hashlib
 
 import numpy as np
 
+from .._core.finiteness import renamed
 from ..errors import OutputError, ParameterError
 from ..tracking import MODELS, LiveTracks, TrackOptions
 from ._database import open_store
@@ -48,9 +49,11 @@ def copy_database(source: str, target: str, *, model: str | None = None) -> dict
     """
     if source == target:
         raise ParameterError(f"target: the target is the source ({source})")
-    src = open_store(source)
+    with renamed(db="source"):
+        src = open_store(source)
     try:
-        dst = open_store(target)
+        with renamed(db="target"):
+            dst = open_store(target)
         try:
             return _copy(src, dst, model)
         finally:

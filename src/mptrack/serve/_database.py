@@ -9,14 +9,14 @@ from ._store import DEFAULT_DB, Store
 __all__ = ["open_store"]
 
 
-def open_store(url: str, fsync: bool = False) -> Store:
+def open_store(db: str, fsync: bool = False) -> Store:
     """The store of the server database at a URL.
 
     Parameters
     ----------
-    url : str
-        ``sqlite:///PATH`` (a file, created with its schema) or ``postgresql://...`` (a database, its
-        schema created or upgraded).
+    db : str
+        The database URL: ``sqlite:///PATH`` (a file, created with its schema) or
+        ``postgresql://...`` (a database, its schema created or upgraded).
     fsync : bool, optional
         Every commit is flushed to disk before it returns (also a power loss loses nothing
         acknowledged), not only written to the database's log.
@@ -33,12 +33,12 @@ def open_store(url: str, fsync: bool = False) -> Store:
     OutputError
         The database cannot be opened, or its schema is newer than this mptrack's.
     """
-    if not isinstance(url, str):
-        raise ParameterError(f"db: expected a database URL such as {DEFAULT_DB}, got {type(url).__name__}")
-    if url.startswith("sqlite:///"):
-        return SqliteStore(url, fsync)
-    if url.startswith(("postgresql://", "postgres://")):
+    if not isinstance(db, str):
+        raise ParameterError(f"db: expected a database URL such as {DEFAULT_DB}, got {type(db).__name__}")
+    if db.startswith("sqlite:///"):
+        return SqliteStore(db, fsync)
+    if db.startswith(("postgresql://", "postgres://")):
         from ._postgres import PostgresStore
 
-        return PostgresStore(url, fsync)
-    raise ParameterError(f"db: expected sqlite:///PATH or postgresql://..., got {url!r}")
+        return PostgresStore(db, fsync)
+    raise ParameterError(f"db: expected sqlite:///PATH or postgresql://..., got {db!r}")

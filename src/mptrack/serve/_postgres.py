@@ -114,6 +114,8 @@ def shown_url(url: str) -> str:
     str
         ``url`` with the password replaced by ``***``.
     """
+    if not isinstance(url, str):
+        raise ParameterError(f"url: expected a database URL (text), got {type(url).__name__}")
     head, sep, tail = url.partition("@")
     if not sep or ":" not in head.split("//", 1)[-1]:
         return url
