@@ -38,7 +38,8 @@ from ..cellular import CELL_FIELDS, CONFIDENCE, RADIOS, RADIO_CODES, locate_cell
 from ..errors import RequestError
 from ._store import Store
 
-__all__ = ["GeolocateError", "Query", "Answer", "parse_request", "Geolocator", "answer_body", "error_body"]
+__all__ = ["GeolocateError", "Query", "Answer", "parse_request", "osmand_query", "Geolocator", "answer_body",
+           "error_body"]
 
 #: The most cells one request may list.
 MAX_CELLS = 64
@@ -70,6 +71,7 @@ class Query:
     lacf: bool = True
     incomplete: int = 0
     wifi: int = 0
+    timestamp: object = None   # the request's "timestamp" (a device's report of its cells), as sent
 
 
 @dataclass
@@ -133,7 +135,7 @@ def parse_request(body: bytes) -> Query:
     fallbacks = req.get("fallbacks")
     if fallbacks is not None and not isinstance(fallbacks, dict):
         raise GeolocateError(f"expected an object, got {_shown(fallbacks)}", field="fallbacks")
-    q = Query(lacf=_bool((fallbacks or {}).get("lacf"), "fallbacks.lacf", True))
+    q = Query(lacf=_bool((fallbacks or {}).get("lacf"), "fallbacks.lacf", True), timestamp=req.get("timestamp"))
     wifi = req.get("wifiAccessPoints")
     if wifi is not None:
         if not isinstance(wifi, list) or not all(isinstance(w, dict) for w in wifi):
@@ -184,6 +186,23 @@ def parse_request(body: bytes) -> Query:
         q.cells.append((-1 if radio is None else radio, mcc, mnc, area, cell,
                         math.nan if level is None else float(level), math.nan if ta is None else float(ta),
                         math.nan if age is None else float(age)))
+    return q
+
+
+def osmand_query(cells: list) -> Query:
+    """The :class:`Query` of the ``cell=mcc,mnc,lac,cid[,rssi]`` parameters of an OsmAnd report (their radio
+    unknown; an rssi that is not a level in dBm counts as none)."""
+    q = Query()
+    for c in cells:
+        mcc = _int(c[0], "cell", 0, 999)
+        mnc = _int(c[1], "cell", 0, 999)
+        area = _int(c[2], "cell", 0, (1 << 24) - 1)
+        cell = _int(c[3], "cell", 0, _MAX_NR)
+        level = c[4] if len(c) > 4 and _LEVEL[0] <= c[4] <= _LEVEL[1] else math.nan
+        if None in (mcc, mnc, area, cell):
+            q.incomplete += 1
+        else:
+            q.cells.append((-1, mcc, mnc, area, cell, float(level), math.nan, math.nan))
     return q
 
 
