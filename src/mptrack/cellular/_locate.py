@@ -59,7 +59,7 @@ FIT_BIAS_DB = 4.0      # ... and of an area's mean fit (where the crowd observed
 MISSING_DB = 12.0      # a cell heard without a level: the radio's typical level, this much less certain
 SECTOR_SD_DEG = 60.0   # a sector serves within about +-60 degrees of its azimuth
 SECTOR_OUTLIER = 0.4   # ... except where reflections serve it from elsewhere
-TA_OUTLIER = 0.2       # weight of the flat tail of a timing-advance ring
+TA_OUTLIER = 0.4       # weight of the flat tail of a timing-advance ring
 TA_FLOOR_M = 30.0      # the site's position error in a ring (m)
 TA_LONG = 1.0          # a ring's far side is softer by this fraction of its radius (excess delay, stale values)
 EXACT_SITE_M = 30.0    # site position uncertainty of an exact table position (changeable = 0)
