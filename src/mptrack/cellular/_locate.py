@@ -126,11 +126,11 @@ def _fix(cells, level, out):
     m = cells.shape[0]
     lat0 = 0.0
     lon0 = 0.0
-    for j in range(m):
+    for j in range(m):  # longitudes relative to the first cell's (a request across 180 degrees stays whole)
         lat0 += cells[j, 0]
-        lon0 += cells[j, 1]
+        lon0 += (cells[j, 1] - cells[0, 1] + 540.0) % 360.0 - 180.0
     lat0 /= m
-    lon0 /= m
+    lon0 = cells[0, 1] + lon0 / m
     ky = EARTH_M * math.pi / 180.0
     kx = ky * math.cos(math.radians(lat0))
     # sites: cells within 1 m of each other share one
@@ -139,7 +139,7 @@ def _fix(cells, level, out):
     sy = np.empty(m)
     ns = 0
     for j in range(m):
-        x = (cells[j, 1] - lon0) * kx
+        x = ((cells[j, 1] - lon0 + 540.0) % 360.0 - 180.0) * kx
         y = (cells[j, 0] - lat0) * ky
         k = 0
         while k < ns and math.hypot(x - sx[k], y - sy[k]) > 1.0:
@@ -277,8 +277,8 @@ def _fix(cells, level, out):
             radius = dist[order[p]]
             break
     cell_r2 = (hx * hx + hy * hy) / 12.0 + site_var
-    out[0] = lat0 + ey / ky
-    out[1] = lon0 + ex / kx
+    out[0] = min(max(lat0 + ey / ky, -90.0), 90.0)
+    out[1] = (lon0 + ex / kx + 540.0) % 360.0 - 180.0
     out[2] = math.sqrt(radius * radius - 2.0 * math.log(1.0 - level) * cell_r2)
     out[3] = vee
     out[4] = ven
@@ -297,7 +297,7 @@ def locate_cells(cells, offsets=None, *, level: float = CONFIDENCE) -> np.ndarra
 
     cells    (n, 13) float array, one row per cell heard, the columns CELL_FIELDS (or a mapping / DataFrame
              with those columns):
-               lat, lon          the cell's site (WGS-84 degrees)
+               lat, lon          the cell's site (WGS-84 degrees; latitudes within +-85)
                radio             radio code (index into RADIOS: 0 gsm, 1 wcdma, 2 lte, 3 nr, 4 cdma)
                intercept_dbm, slope_db   the prior path-loss model (:func:`signal_prior`)
                fit_offset_db     the table's fit of the cell (:func:`signal_fit`), NaN: none
@@ -326,7 +326,7 @@ def locate_cells(cells, offsets=None, *, level: float = CONFIDENCE) -> np.ndarra
 
 
 #: valid ranges of the columns (NaN allowed where the column doc says "NaN: ...")
-_RANGES = {"lat": (-90.0, 90.0, False), "lon": (-180.0, 180.0, False), "radio": (0, len(RADIOS) - 1, False),
+_RANGES = {"lat": (-85.0, 85.0, False), "lon": (-180.0, 180.0, False), "radio": (0, len(RADIOS) - 1, False),
            "intercept_dbm": (-250.0, 100.0, False), "slope_db": (1.0, 100.0, False),
            "fit_offset_db": (-100.0, 100.0, True), "area_fits": (0.0, 1e12, False),
            "area_offset_db": (-100.0, 100.0, True), "range_m": (0.0, 1e7, True), "changeable": (0, 1, True),

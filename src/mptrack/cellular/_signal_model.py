@@ -93,7 +93,7 @@ def radio_code(name: str) -> int:
     if code is None:
         code = RADIO_CODES.get(name.strip().lower()) if isinstance(name, str) else None
     if code is None:
-        raise ParameterError(f"radio: expected one of {', '.join(r.name for r in RADIOS)} (or the tables' "
+        raise ParameterError(f"name: expected one of {', '.join(r.name for r in RADIOS)} (or the tables' "
                              f"{', '.join(r.table_name for r in RADIOS)}), got {name!r}")
     return code
 
