@@ -138,13 +138,15 @@ def track(
                                                                  "INPUT.tracks.parquet beside the input."),
     cells: Optional[Path] = typer.Option(None, "--cells", help="Cell table (OpenCelliD layout): track cellular "
                                                                "measurements with --method."),
-    method: Optional[str] = typer.Option(None, help="With --cells: the cellular filter, ekf (default), fekf or "
-                                                    "fcs."),
-    motion: Optional[str] = typer.Option(None, help="With --cells: the motion model, random-walk (default) or "
-                                                    "cv."),
-    path_loss: Optional[str] = typer.Option(None, "--path-loss", help="With --cells: the path-loss model that turns "
-                                            "RSS into ranges: cost231-wi-nlos (default), cost231-wi-los, "
-                                            "cost231-hata, okumura-hata or free-space."),
+    method: Optional[str] = typer.Option(None, help="With --cells: locate (default: each scan placed as the "
+                                                    "server's /v1/geolocate places a request, co-sited cells one "
+                                                    "site, the covariance the posterior's), or a range filter over "
+                                                    "time (Bouzera et al. 2017): ekf, fekf or fcs."),
+    motion: Optional[str] = typer.Option(None, help="With --cells and a range filter: the motion model, "
+                                                    "random-walk (default) or cv."),
+    path_loss: Optional[str] = typer.Option(None, "--path-loss", help="With --cells and a range filter: the "
+                                            "path-loss model that turns RSS into ranges: cost231-wi-nlos (default), "
+                                            "cost231-wi-los, cost231-hata, okumura-hata or free-space."),
     range_sigma: Optional[float] = typer.Option(None, "--range-sigma", help="With --cells: the range noise "
                                                 "(1-sigma, m). Default 471 m (Bouzera et al. 2017's "
                                                 "R0 = 0.222 km^2)."),
