@@ -71,29 +71,35 @@ def load_cell_table(store: Store, path, *, force: bool = False) -> CellTableRepo
         return CellTableReport(file=str(p), loaded=False)
     report = ReadReport()
     out = CellTableReport(file=str(p))
-    areas: dict = {}
     now = time.time()
+    counted: list[int] = []
 
     def chunks():
         for chunk in read_chunks(p, CELLS, on_error="skip", report=report, chunk_rows=_CHUNK):
-            yield _cell_rows(chunk, now, areas, out)
+            yield _cell_rows(chunk, now, out)
 
-    stored = store.load_cells(chunks(), lambda: _area_rows(areas), stamp)
+    def areas(aggregates):
+        if not aggregates:  # raised inside the transaction: the table loaded before stays
+            examples = (list(report.examples) + out.examples)[:3]
+            raise DataError("no cell of the table could be read (" + "; ".join(examples) + ")", file=str(p))
+        rows = _area_rows(aggregates)
+        counted.append(len(rows))
+        return rows
+
+    stored = store.load_cells(chunks(), areas, stamp)
     out.rows_read = report.rows_read
     out.cells = stored
     out.duplicates = report.rows_read - report.rows_skipped - sum(out.skipped.values()) - stored
     for reason, count in report.reasons.items():
         out.skipped[reason] = out.skipped.get(reason, 0) + count
     out.examples = (list(report.examples) + out.examples)[:10]
-    out.areas = len(areas)
+    out.areas = counted[0] if counted else 0
     out.seconds = time.monotonic() - start
-    if stored == 0:
-        raise DataError("no cell of the table could be read (" + "; ".join(out.examples[:3]) + ")", file=str(p))
     return out
 
 
-def _cell_rows(chunk, now: float, areas: dict, out: CellTableReport) -> list[tuple]:
-    """The stored rows (CELL_COLUMNS of the store) of one validated chunk; accumulates the areas."""
+def _cell_rows(chunk, now: float, out: CellTableReport) -> list[tuple]:
+    """The stored rows (CELL_COLUMNS of the store) of one validated chunk."""
     n = len(chunk)
     if n == 0:
         return []
@@ -122,50 +128,21 @@ def _cell_rows(chunk, now: float, areas: dict, out: CellTableReport) -> list[tup
     score = station_score(samples, col("created"), col("updated"), now)
     lat, lon = col("lat"), col("lon")
     mcc, net, area, cell = (chunk[c].to_numpy(np.int64) for c in ("mcc", "net", "area", "cell"))
-    ok = np.isfinite(fit)
-    out.fitted += int(ok.sum())
-    # areas: count, sums of the positions (for the centre), bounding box (for the radius), fits
-    keys = np.column_stack([radio, mcc, net, area])
-    uniq, inv = np.unique(keys, axis=0, return_inverse=True)
-    inv = inv.ravel()
-    cnt = np.bincount(inv)
-    s_lat, s_lon = np.bincount(inv, lat), np.bincount(inv, lon)
-    nfit = np.bincount(inv, ok.astype(float))
-    sfit = np.bincount(inv, np.where(ok, fit, 0.0))
-    lo_lat = np.full(len(uniq), np.inf)
-    hi_lat = np.full(len(uniq), -np.inf)
-    lo_lon, hi_lon = lo_lat.copy(), hi_lat.copy()
-    np.minimum.at(lo_lat, inv, lat)
-    np.maximum.at(hi_lat, inv, lat)
-    np.minimum.at(lo_lon, inv, lon)
-    np.maximum.at(hi_lon, inv, lon)
-    for i, key in enumerate(map(tuple, uniq.tolist())):
-        a = areas.get(key)
-        if a is None:
-            areas[key] = [cnt[i], s_lat[i], s_lon[i], lo_lat[i], hi_lat[i], lo_lon[i], hi_lon[i], nfit[i], sfit[i]]
-        else:
-            a[0] += cnt[i]
-            a[1] += s_lat[i]
-            a[2] += s_lon[i]
-            a[3], a[4] = min(a[3], lo_lat[i]), max(a[4], hi_lat[i])
-            a[5], a[6] = min(a[5], lo_lon[i]), max(a[6], hi_lon[i])
-            a[7] += nfit[i]
-            a[8] += sfit[i]
+    out.fitted += int(np.isfinite(fit).sum())
     cols = [radio, mcc, net, area, cell, lat, lon, rng, samples, col("changeable"), col("azimuth_deg"), a0, n0, fit,
             score, col("unit"), col("earfcn")]
     return [tuple(_none(v) for v in row) for row in zip(*(c.tolist() for c in cols))]
 
 
-def _area_rows(areas: dict) -> list[tuple]:
-    """The stored area rows (AREA_COLUMNS): centre, radius (half the diagonal of the cells' bounding box,
-    at least 1 km), cells, fits and their mean offset."""
+def _area_rows(aggregates) -> list[tuple]:
+    """The stored area rows (AREA_COLUMNS) from the stored cells' aggregates (AREA_AGGREGATES): centre, radius
+    (half the diagonal of the cells' bounding box, at least 1 km), cells, fits and their mean offset."""
     rows = []
-    for (radio, mcc, net, area), (n, slat, slon, la0, la1, lo0, lo1, nfit, sfit) in areas.items():
-        lat, lon = slat / n, slon / n
+    for radio, mcc, net, area, n, lat, lon, la0, la1, lo0, lo1, nfit, offset in aggregates:
         dy = (la1 - la0) * math.pi / 180.0 * EARTH_M
         dx = (lo1 - lo0) * math.pi / 180.0 * EARTH_M * math.cos(math.radians(lat))
         radius = max(0.5 * math.hypot(dx, dy), 1000.0)
-        rows.append((radio, mcc, net, area, lat, lon, radius, int(n), int(nfit), sfit / nfit if nfit else None))
+        rows.append((radio, mcc, net, area, lat, lon, radius, int(n), int(nfit), offset if nfit else None))
     return rows
 
 

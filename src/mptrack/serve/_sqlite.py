@@ -25,7 +25,8 @@ from typing import Iterator
 import numpy as np
 
 from ..errors import OutputError, ParameterError
-from ._store import AREA_COLUMNS, CELL_COLUMNS, ESTIMATE_COLUMNS, FIX_COLUMNS, StoredRows, stored_rows
+from ._store import (AREA_AGGREGATES, AREA_COLUMNS, CELL_COLUMNS, ESTIMATE_COLUMNS, FIX_COLUMNS, StoredRows,
+                     stored_rows)
 
 __all__ = ["SqliteStore", "SCHEMA_VERSION"]
 
@@ -269,7 +270,7 @@ class SqliteStore:
                 for rows in chunks:
                     w.executemany(_INSERT_CELL, rows)
                 stored = w.total_changes - before
-                w.executemany(_INSERT_AREA, areas())
+                w.executemany(_INSERT_AREA, areas(w.execute(AREA_AGGREGATES).fetchall()))
                 w.execute("INSERT OR REPLACE INTO meta VALUES ('cell_source', ?)", (source,))
                 w.execute("COMMIT")
             except BaseException:

@@ -38,7 +38,7 @@ import numpy as np
 
 
 __all__ = ["Store", "Batch", "StoredRows", "stored_rows", "FIX_COLUMNS", "ESTIMATE_COLUMNS", "CELL_COLUMNS",
-           "AREA_COLUMNS", "DEFAULT_DB"]
+           "AREA_COLUMNS", "AREA_AGGREGATES", "DEFAULT_DB"]
 
 DEFAULT_DB = "sqlite:///mptrack.db"
 #: Columns of a stored fix as the device sent it (the :data:`._fix.FIELDS` minus attrs, plus received).
@@ -52,6 +52,10 @@ CELL_COLUMNS = ("radio", "mcc", "net", "area", "cell", "lat", "lon", "range_m", 
                 "azimuth_deg", "intercept_dbm", "slope_db", "fit_offset_db", "score", "unit", "earfcn")
 #: Columns of a stored location area: its centre and radius (m), its cells, and their fits' count and mean.
 AREA_COLUMNS = ("radio", "mcc", "net", "area", "lat", "lon", "radius_m", "cells", "fits", "offset_db")
+#: What each location area's row is made of, computed over the stored cells (plain SQL, every store's):
+#: its key, cell count, mean position, bounding box, and how many cells have a fit and their mean offset.
+AREA_AGGREGATES = ("SELECT radio, mcc, net, area, COUNT(*), AVG(lat), AVG(lon), MIN(lat), MAX(lat), MIN(lon), "
+                   "MAX(lon), COUNT(fit_offset_db), AVG(fit_offset_db) FROM cells GROUP BY radio, mcc, net, area")
 
 
 @dataclass
@@ -196,10 +200,12 @@ class Store(Protocol):
     def live_devices(self, since: float) -> int:
         """A shared store: how many devices have a fix at or after ``since`` (s since 1970)."""
 
-    def load_cells(self, chunks: Iterator[list[tuple]], areas: Callable[[], list[tuple]], source: str) -> int:
+    def load_cells(self, chunks: Iterator[list[tuple]], areas: Callable[[list[tuple]], list[tuple]],
+                   source: str) -> int:
         """In one transaction: replace the cell table by the rows (CELL_COLUMNS) of ``chunks`` (a cell listed
-        twice is stored once, the first), the areas by the rows (AREA_COLUMNS) ``areas()`` gives once the
-        chunks are consumed, and record ``source`` (what was loaded).  Returns how many cells were stored."""
+        twice is stored once, the first), the areas by the rows (AREA_COLUMNS) that ``areas`` makes of the
+        stored cells' AREA_AGGREGATES, and record ``source`` (what was loaded).  Returns how many cells were
+        stored."""
 
     def cell_source(self) -> str | None:
         """The ``source`` of the loaded cell table (None: none loaded)."""
