@@ -324,7 +324,7 @@ RECORDS = {
     "riccati.SteadyState", "riccati.LainiotisParameters", "continuous.BlockKernels",
     "continuous.GridDensity", "continuous.GridMixture", "continuous.FEMStep", "nonlinear.IMMResult", "radio.GsmBand", "radio.ValidityWarning",
     "fuzzy.AnfisResult", "tracking.GatedResult", "tracking.MotionModel", "io.ReadReport", "io.InputNotSorted",
-    "io.Column", "io.Schema", "result.FilterResult", "result.BatchFilterResult", "cellular.Radio",
+    "io.Column", "io.Schema", "result.FilterResult", "result.BatchFilterResult", "cellular.Radio", "io.Skipped",
 }
 
 
@@ -811,6 +811,18 @@ target("tracking.check_cell_ids", lambda rows, cells, on_error: tracking.check_c
     rows, cells, file="log", on_error=on_error, report=mio.ReadReport()),
     rows=frames(CELL_ROWS, ["cell_id"]), cells=frames(CELLS, ["lat"]), on_error=names("raise", "skip"),
     passed=("file", "report"))
+_PCI_CELLS = mio.read_cells(pd.DataFrame({"radio": "LTE", "mcc": 206, "net": 4, "area": 7, "cell": [1000, 1001, 1002],
+                                          "unit": [1, 2, 2], "earfcn": [1300, 1300, np.nan], "lon": [4.39, 4.39, 4.5],
+                                          "lat": [50.8, 50.8, 50.9]}))
+_PCI_ROWS = pd.DataFrame({"track_id": "1", "t": [0.0, 0.0, 0.0, 5.0], "cell_id": ["206-1-7-1000", "PCI 2 EARFCN 1300",
+                                                                                  "PCI 9 EARFCN 1300", "206-4-7-1001"],
+                          "role": ["serving", "neighbour", "neighbour", "serving"], "mcc": 206.0,
+                          "area": [7.0, np.nan, np.nan, 7.0], "pci": [1.0, 2.0, 9.0, 2.0], "earfcn": 1300.0,
+                          "rss_dbm": [-90.0, -95.0, -99.0, -92.0]})
+target("tracking.resolve_cells", lambda rows, cells: tracking.resolve_cells(rows, cells, file="log",
+                                                                            report=mio.ReadReport()),
+       rows=frames(_PCI_ROWS, ["cell_id", "pci", "t"]), cells=frames(_PCI_CELLS, ["lat", "unit"]),
+       passed=("file", "report"))
 target("tracking.ranges_km", rows=frames(CELL_ROWS, ["cell_id", "rss_dbm"]), cells=frames(CELLS, ["lat", "height_m"]),
        path_loss=names("cost231-wi-nlos", "free-space"), nan_result=True)
 target("radio.band_of_arfcn", arfcn=st.one_of(count(0, 1023), scalar()))
@@ -931,7 +943,7 @@ target("serve.shown_url", url=st.one_of(st.sampled_from(["postgresql://u:secret@
 target("serve.worker_environment", config=st.one_of(st.just(_serve.ServeConfig(db=_DB)), st.sampled_from([None, {}])),
        directory=st.one_of(st.just(str(WORKDIR)), st.sampled_from([None, 3, str(WORKDIR / "no" / "such")])),
        workers=count(1, 8))
-_CELL_TABLE = _file("cells.csv", pd.DataFrame({"radio": ["LTE", "GSM"], "mcc": [206, 206], "net": [4, 4],
+_CELL_TABLE = _file("geo_cells.csv", pd.DataFrame({"radio": ["LTE", "GSM"], "mcc": [206, 206], "net": [4, 4],
                                                "area": [7, 7], "cell": [1000, 12], "lon": [4.39, 4.4],
                                                "lat": [50.8, 50.81]}))
 _REQUESTS = WORKDIR / "requests.ndjson"

@@ -208,7 +208,8 @@ class ReadReport:
         list): counted by reason, one note each.  They are not bad rows (no --max-skip)."""
         while skipped:
             s = skipped.pop(0)
-            self.left_out[s.reason] += s.count
+            if s.count:  # a count of 0: a note on how the file was read
+                self.left_out[s.reason] += s.count
             self.note(s.detail)
 
     def reset(self) -> None:

@@ -28,7 +28,7 @@ import pandas as pd
 from .._core.data_checks import check_frame, check_on_error
 from .._core.validation import LATITUDE, LONGITUDE, lookup
 from ..errors import DataError, ParameterError
-from ..io import LocalFrame, ReadReport
+from ..io import LocalFrame, ReadReport, Skipped
 from ..models import constant_velocity_continuous
 from ..cellular import CELL_FIELDS, RADIO_CODES, RADIOS, locate_cells, motion_position, signal_fit, signal_prior
 from ..radio import PATH_LOSS_MODELS, TA_STEP_M, arfcn_to_frequency, band_of_arfcn, distance_from_rss
@@ -37,8 +37,10 @@ from ._fixes import TrackOptions, _time_like
 from ._output import point_table
 from ._registry import get_cell_method
 
-__all__ = ["track_cells", "check_cell_ids", "ranges_km"]
+__all__ = ["track_cells", "check_cell_ids", "resolve_cells", "ranges_km"]
 
+#: a neighbour cell is looked for within this distance of the serving cell's site (m)
+NEIGHBOUR_REACH_M = 20_000.0
 DEFAULT_FREQUENCY_MHZ = 1800.0
 
 
@@ -64,6 +66,82 @@ def _check_known(rows, cells, columns=("t", "row", "cell_id"), cell_columns=("la
     if unknown.any():
         raise ParameterError(f"rows: cell {rows['cell_id'][unknown].iloc[0]!r} is not in cells (check_cell_ids "
                              "drops such rows)")
+
+
+def resolve_cells(rows: pd.DataFrame, cells: pd.DataFrame, *, file, report: ReadReport) -> pd.DataFrame:
+    """Rows of cells logged by their physical identity (columns ``pci`` and ``earfcn``, as a drive-test log
+    lists neighbours, e.g. :mod:`mptrack.io` reading a G-NetTrack Pro log) given the ``cell_id`` of the one
+    cell of the table that matches: the same ``unit`` (PCI) and ``earfcn`` (a table without the
+    channel matches on the PCI alone), for a serving cell in its logged country and area (``mcc``,
+    ``area``), for a neighbour within NEIGHBOUR_REACH_M of its scan's serving cell.  A neighbour without
+    one such cell is left out and counted in ``report`` (it carries no identity of its own: not an
+    error); a serving cell without one keeps its logged identity (:func:`check_cell_ids` decides)."""
+    check_cell_rows("rows", rows, ("t", "cell_id", "pci"))
+    check_cells("cells", cells, ())
+    if not isinstance(report, ReadReport):
+        raise ParameterError(f"report: expected a ReadReport, got {type(report).__name__}")
+    ids = rows["cell_id"].astype(object).to_numpy().copy()
+    pci = rows["pci"].to_numpy(float)
+    todo = ~rows["cell_id"].isin(cells.index).to_numpy() & np.isfinite(pci)
+    if not todo.any():
+        return rows
+    tab = cells[cells["unit"].notna()] if "unit" in cells.columns else cells.iloc[:0]
+
+    def col(frame, name):
+        return frame[name].to_numpy(float) if name in frame.columns else np.full(len(frame), np.nan)
+
+    unit, channel, t_lat, t_lon = col(tab, "unit"), col(tab, "earfcn"), col(tab, "lat"), col(tab, "lon")
+    t_mcc, t_area = col(tab, "mcc"), col(tab, "area")
+    earfcn, mcc, area = col(rows, "earfcn"), col(rows, "mcc"), col(rows, "area")
+    role = rows["role"].astype(str).to_numpy() if "role" in rows.columns else np.full(len(rows), "neighbour")
+    found: dict = {}
+
+    def match(i: int, near) -> object:
+        ok = (unit == pci[i]) & (~np.isfinite(channel) | (channel == earfcn[i]))
+        if near is None:
+            ok &= (t_mcc == mcc[i]) & (t_area == area[i])
+        else:
+            lat0, lon0 = near
+            d = np.hypot((t_lat - lat0) * 111_195.0, (t_lon - lon0) * 111_195.0 * np.cos(np.radians(lat0)))
+            ok &= d <= NEIGHBOUR_REACH_M
+        hits = np.flatnonzero(ok)
+        return tab.index[hits[0]] if len(hits) == 1 else None
+
+    serving = role == "serving"
+    for i in np.flatnonzero(todo & serving):
+        key = ("s", pci[i], earfcn[i], mcc[i], area[i])
+        if key not in found:
+            found[key] = match(i, None)
+        if found[key] is not None:
+            ids[i] = found[key]
+    # each scan's serving site (the rows of one scan share track and time)
+    scan_key = list(zip(rows["track_id"].astype(str), rows["t"].to_numpy(float))) if "track_id" in rows.columns \
+        else list(zip(["" for _ in range(len(rows))], rows["t"].to_numpy(float)))
+    site = {}
+    for i in np.flatnonzero(serving):
+        if ids[i] in cells.index:
+            site.setdefault(scan_key[i], ids[i])
+    dropped = np.zeros(len(rows), bool)
+    for i in np.flatnonzero(todo & ~serving):
+        anchor = site.get(scan_key[i])
+        if anchor is None:
+            dropped[i] = True
+            continue
+        key = ("n", pci[i], earfcn[i], anchor)
+        if key not in found:
+            found[key] = match(i, (float(cells.at[anchor, "lat"]), float(cells.at[anchor, "lon"])))
+        if found[key] is None:
+            dropped[i] = True
+        else:
+            ids[i] = found[key]
+    out = rows.assign(cell_id=ids)
+    if dropped.any():
+        n = int(dropped.sum())
+        report.leave_out([Skipped("neighbour cell not in the cell table", n,
+                                  f"{file}: {n} neighbour cells logged by PCI and channel match no single cell of the "
+                                  f"table within {NEIGHBOUR_REACH_M / 1e3:g} km of their serving cell")])
+        out = out.loc[~dropped]
+    return out
 
 
 def check_cell_ids(rows: pd.DataFrame, cells: pd.DataFrame, *, file, on_error: str,
