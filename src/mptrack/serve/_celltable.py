@@ -104,7 +104,8 @@ def _cell_rows(chunk, now: float, out: CellTableReport) -> list[tuple]:
     if n == 0:
         return []
     radio_text = chunk["radio"].astype(str).str.strip()
-    radio = radio_text.map(lambda r: RADIO_CODES.get(r, RADIO_CODES.get(r.lower(), -1))).to_numpy(np.int64)
+    exact = radio_text.map(RADIO_CODES)  # the table's own spelling, else its lower case (a dict lookup per row)
+    radio = exact.fillna(radio_text.str.lower().map(RADIO_CODES)).fillna(-1).to_numpy(np.int64)
     bad = radio < 0
     if bad.any():
         out.skipped["radio: not one of GSM, UMTS, LTE, NR, CDMA"] = out.skipped.get(
@@ -131,7 +132,12 @@ def _cell_rows(chunk, now: float, out: CellTableReport) -> list[tuple]:
     out.fitted += int(np.isfinite(fit).sum())
     cols = [radio, mcc, net, area, cell, lat, lon, rng, samples, col("changeable"), col("azimuth_deg"), a0, n0, fit,
             score, col("unit"), col("earfcn")]
-    return [tuple(_none(v) for v in row) for row in zip(*(c.tolist() for c in cols))]
+    order = np.lexsort((radio, cell, area, net, mcc))  # in key order: the index is written in sequence (stable:
+    cols = [c[order] for c in cols]                     # of a cell listed twice, the first stays first)
+    # NULL for a missing value (NaN), integers as integers; only float columns can hold a NaN
+    lists = [c.tolist() if c.dtype.kind != "f" or np.isfinite(c).all() else
+             [None if v != v else v for v in c.tolist()] for c in cols]
+    return list(zip(*lists))
 
 
 def _area_rows(aggregates) -> list[tuple]:
@@ -144,7 +150,3 @@ def _area_rows(aggregates) -> list[tuple]:
         radius = max(0.5 * math.hypot(dx, dy), 1000.0)
         rows.append((radio, mcc, net, area, lat, lon, radius, int(n), int(nfit), offset if nfit else None))
     return rows
-
-
-def _none(v):
-    return None if isinstance(v, float) and v != v else v
