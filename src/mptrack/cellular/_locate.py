@@ -67,7 +67,7 @@ AVERAGED_SITE = 0.2    # ... of an averaged one, as a fraction of its range (at 
 MIN_DISTANCE_M = 10.0  # the path-loss models end here
 MAX_REACH_M = 40_000.0
 MIN_REACH_M = 200.0
-GRID = 20              # grid points per axis of each pass
+GRID = 16              # grid points per axis of each pass
 PASSES = 3
 EARTH_M = 6_371_008.8
 
@@ -314,12 +314,14 @@ def locate_cells(cells, offsets=None, *, level: float = CONFIDENCE) -> np.ndarra
     """
     table = _table(cells)
     level = as_real("level", level, low=0.01, high=0.999)
-    if offsets is None:
-        offsets = np.array([0, len(table)], dtype=np.int64)
-    off = as_array("offsets", offsets, ndim=1, low=0, high=len(table))
-    if len(off) < 1 or off[0] != 0 or off[-1] != len(table) or np.any(np.diff(off) < 1) or np.any(off != np.round(off)):
-        raise ParameterError(f"offsets: expected increasing integers from 0 to {len(table)} (every scan at least one "
-                             "cell), got " + (repr(off.tolist()) if len(off) < 8 else f"{len(off)} values"))
+    if offsets is None:  # one scan (a geolocation request): nothing to check
+        off = np.array([0, len(table)], dtype=np.int64)
+    else:
+        off = as_array("offsets", offsets, ndim=1, low=0, high=len(table))
+        if len(off) < 1 or off[0] != 0 or off[-1] != len(table) or np.any(np.diff(off) < 1) or \
+                np.any(off != np.round(off)):
+            raise ParameterError(f"offsets: expected increasing integers from 0 to {len(table)} (every scan at least "
+                                 "one cell), got " + (repr(off.tolist()) if len(off) < 8 else f"{len(off)} values"))
     out = np.empty((len(off) - 1, len(FIX_FIELDS)))
     _fixes(table, off.astype(np.int64), level, out)
     return out
@@ -333,6 +335,11 @@ _RANGES = {"lat": (-85.0, 85.0, False), "lon": (-180.0, 180.0, False), "radio": 
            "azimuth_deg": (0.0, 360.0, True), "rss_dbm": (-200.0, 0.0, True), "ta": (0.0, 1e5, True)}
 
 
+_LO = np.array([_RANGES[c][0] for c in CELL_FIELDS], dtype=float)
+_HI = np.array([_RANGES[c][1] for c in CELL_FIELDS], dtype=float)
+_NAN_OK = np.array([_RANGES[c][2] for c in CELL_FIELDS])
+
+
 def _table(cells) -> np.ndarray:
     if hasattr(cells, "keys") and not isinstance(cells, np.ndarray):
         missing = [c for c in CELL_FIELDS if c not in cells.keys()]
@@ -344,13 +351,13 @@ def _table(cells) -> np.ndarray:
         raise ShapeError(f"cells: expected an (n, {len(CELL_FIELDS)}) table with n >= 1 (columns "
                          f"{', '.join(CELL_FIELDS)}), got shape {table.shape}")
     table = np.ascontiguousarray(table, dtype=float)
-    for i, name in enumerate(CELL_FIELDS):
+    ok = ((table >= _LO) & (table <= _HI)) | (_NAN_OK & np.isnan(table))  # one pass over the table
+    if not ok.all():
+        i, row = (int(v[0]) for v in np.nonzero(~ok.T))  # the first column with a bad value, its first row
+        name = CELL_FIELDS[i]
         lo, hi, nan_ok = _RANGES[name]
-        col = table[:, i]
-        bad = ~((col >= lo) & (col <= hi)) & ~(nan_ok & np.isnan(col))
-        if bad.any():
-            raise ParameterError(f"cells: column {name} expects {lo:g}..{hi:g}{' or NaN' if nan_ok else ''}, got "
-                                 f"{col[bad][0]!r} in row {int(np.flatnonzero(bad)[0])}")
+        raise ParameterError(f"cells: column {name} expects {lo:g}..{hi:g}{' or NaN' if nan_ok else ''}, got "
+                             f"{table[row, i]!r} in row {row}")
     radio = table[:, 2]
     if np.any(radio != np.round(radio)):
         raise ParameterError("cells: column radio expects integer radio codes (RADIOS)")

@@ -55,6 +55,9 @@ _REASON_DOMAIN = {"parseError": "global", "keyInvalid": "usageLimits", "notFound
                   "payloadTooLarge": "global"}
 
 
+_M_PER_DEG = 6_371_008.8 * math.pi / 180.0
+
+
 class GeolocateError(RequestError):
     """A geolocate request refused: ``reason`` is Google's (parseError, keyInvalid, notFound)."""
 
@@ -317,16 +320,14 @@ def _pick(rows: list, radio: int):
 
 
 def _cluster(rows: list[tuple]) -> list[int]:
-    """The cells of the largest group whose members lie within CLUSTER_M of another member (ties: the first)."""
+    """The cells of the largest group whose members lie within CLUSTER_M of another member (ties: the first).
+    Plain Python: a request holds a few cells."""
     n = len(rows)
     if n == 1:
         return [0]
-    lat = np.radians([r[5] for r in rows])
-    lon = np.radians([r[6] for r in rows])
-    x = 6_371_008.8 * np.cos(lat.mean()) * lon
-    y = 6_371_008.8 * lat
-    near = np.hypot(x[:, None] - x, y[:, None] - y) <= CLUSTER_M
-    group = -np.ones(n, dtype=int)
+    k = math.cos(math.radians(sum(r[5] for r in rows) / n)) * _M_PER_DEG
+    xy = [(r[6] * k, r[5] * _M_PER_DEG) for r in rows]
+    group = [-1] * n
     g = 0
     for i in range(n):
         if group[i] >= 0:
@@ -334,13 +335,15 @@ def _cluster(rows: list[tuple]) -> list[int]:
         stack = [i]
         group[i] = g
         while stack:
-            j = stack.pop()
-            for k in np.flatnonzero(near[j] & (group < 0)):
-                group[k] = g
-                stack.append(k)
+            x, y = xy[stack.pop()]
+            for j in range(n):
+                if group[j] < 0 and math.hypot(xy[j][0] - x, xy[j][1] - y) <= CLUSTER_M:
+                    group[j] = g
+                    stack.append(j)
         g += 1
-    best = np.bincount(group).argmax()
-    return np.flatnonzero(group == best).tolist()
+    sizes = [group.count(h) for h in range(g)]
+    best = sizes.index(max(sizes))
+    return [i for i in range(n) if group[i] == best]
 
 
 def answer_body(a: Answer) -> bytes:
