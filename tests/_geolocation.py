@@ -86,20 +86,59 @@ def real_requests(ta: bool = True) -> tuple[list[dict], pd.DataFrame, Path]:
     return bodies, pd.DataFrame(truth, columns=["track_id", "place", "lat", "lon", "ref_lat", "ref_lon"]), cells_csv
 
 
-def simulated_requests(seed: int, n: int = 1500, azimuth: bool = True, mcc: int = 999) -> tuple[
-        list[dict], pd.DataFrame, pd.DataFrame]:
+_GRID = np.linspace(-2500.0, 2500.0, 201)
+
+
+def oracle_levels(network: dict) -> np.ndarray:
+    """(grid points, cells): the mean level of every cell of the network at every point of a 201 x 201 grid
+    over it (5 km wide), as the simulator draws it before shadowing (mptrack.sim._network: power, COST-231
+    Hata with the cell's height, the 3GPP sector pattern)."""
+    from mptrack.radio import cost231_hata
+
+    ge, gn = (a.ravel() for a in np.meshgrid(_GRID, _GRID))
+    de = ge[:, None] - network["east"]
+    dn = gn[:, None] - network["north"]
+    d_km = np.maximum(np.hypot(de, dn), 20.0) / 1000.0
+    mean = network["eirp_dbm"] + network["offset_db"] - cost231_hata(
+        d_km, 1800.0, h_base_m=np.broadcast_to(network["height_m"], d_km.shape), on_invalid="ignore")
+    off = np.abs((np.degrees(np.arctan2(de, dn)) - network["azimuth_deg"] + 540.0) % 360.0 - 180.0)
+    return mean + np.where(np.isnan(off), 0.0, -np.minimum(12.0 * (off / 65.0) ** 2, 20.0))
+
+
+def oracle_fix(network: dict, mean: np.ndarray, cells: np.ndarray, levels: np.ndarray) -> tuple[float, float]:
+    """(east, north) in metres: the posterior mean of a scan that knows the network exactly -- every cell's
+    power, height, pattern and azimuth (``mean``: :func:`oracle_levels`), the path-loss model and the
+    shadowing's law (7 dB shared by a site's cells, 4 dB each cell's) -- with a flat prior over the grid.
+    The best any method can do with the scan; written here from the simulator's description."""
+    ge, gn = (a.ravel() for a in np.meshgrid(_GRID, _GRID))
+    site = network["site"][cells]
+    cov = 16.0 * np.eye(len(cells)) + 49.0 * (site[:, None] == site[None, :])
+    r = levels[None, :] - mean[:, cells]
+    ll = -0.5 * np.einsum("gi,ij,gj->g", r, np.linalg.inv(cov), r)
+    w = np.exp(ll - ll.max())
+    return float(w @ ge / w.sum()), float(w @ gn / w.sum())
+
+
+def simulated_requests(seed: int, n: int = 1500, azimuth: bool = True, mcc: int = 999, sectors: bool = True,
+                       oracle: bool = False) -> tuple[list[dict], pd.DataFrame, pd.DataFrame]:
     """(bodies, truth, cell table) of ``n`` phones at random positions inside a simulated 19-site network
-    (mptrack.sim.simulate_network: three sectors a site, unknown transmit powers and heights, 8 dB of
-    shadowing; the table crowd-sourced, with the sectors' azimuths unless ``azimuth`` is False)."""
+    (mptrack.sim.simulate_network: three cells a site, sectors unless ``sectors`` is False, unknown transmit
+    powers and heights, 8 dB of shadowing; the table crowd-sourced, with the sectors' azimuths unless
+    ``azimuth`` is False).  truth: lat, lon, the reference centroid (ref_lat, ref_lon) and, with ``oracle``,
+    the posterior mean that knows the network (oracle_lat, oracle_lon; :func:`oracle_fix`)."""
     from mptrack.sim import network_scans, simulate_network
 
     rng = np.random.default_rng(seed)
-    table, net = simulate_network(rng, mcc=mcc)
+    table, net = simulate_network(rng, mcc=mcc, sectors=sectors)
     if not azimuth:
         table = table.drop(columns="azimuth_deg")
     east, north = rng.uniform(-1500, 1500, n), rng.uniform(-1500, 1500, n)
     scans = network_scans(net, east, north, rng)
     known = table.set_index("cell")
+    index = {c: i for i, c in enumerate(net["cell"])}
+    mean = oracle_levels(net) if oracle else None
+    k_lat = math.degrees(1.0 / EARTH_M)
+    k_lon = k_lat / math.cos(math.radians(net["lat0"]))
     bodies, truth = [], []
     for _, scan in scans.groupby("scan"):
         scan = scan[scan.cell.isin(known.index)]
@@ -111,9 +150,13 @@ def simulated_requests(seed: int, n: int = 1500, azimuth: bool = True, mcc: int 
         ref = reference_centroid([{"lat": known.lat[r.cell], "lon": known.lon[r.cell], "area": int(r.area),
                                    "samples": float(known.samples[r.cell]), "signal": r.rss_dbm, "age": None}
                                   for r in scan.itertuples()])
+        best = (math.nan, math.nan)
+        if oracle:
+            e, nn = oracle_fix(net, mean, np.array([index[c] for c in scan.cell]), scan.rss_dbm.to_numpy(float))
+            best = (net["lat0"] + nn * k_lat, net["lon0"] + e * k_lon)
         bodies.append({"cellTowers": towers})
-        truth.append((scan.true_lat.iloc[0], scan.true_lon.iloc[0], *ref))
-    return bodies, pd.DataFrame(truth, columns=["lat", "lon", "ref_lat", "ref_lon"]), table
+        truth.append((scan.true_lat.iloc[0], scan.true_lon.iloc[0], *ref, *best))
+    return bodies, pd.DataFrame(truth, columns=["lat", "lon", "ref_lat", "ref_lon", "oracle_lat", "oracle_lon"]), table
 
 
 def write_ndjson(path: Path, bodies: list[dict]) -> Path:

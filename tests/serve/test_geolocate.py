@@ -25,13 +25,14 @@ def data(tmp_path_factory):
     """The real walks' requests and a simulated network's, and one cell table holding both (MCC 206 / 999)."""
     tmp = tmp_path_factory.mktemp("geolocate")
     real, real_truth, real_cells = real_requests()
-    sim, sim_truth, sim_table = simulated_requests(seed=11)
-    omni, omni_truth, omni_table = simulated_requests(seed=12, azimuth=False, mcc=998)
-    table = pd.concat([pd.read_csv(real_cells), sim_table, omni_table], ignore_index=True)
+    sim, sim_truth, sim_table = simulated_requests(seed=11, oracle=True)
+    noaz, noaz_truth, noaz_table = simulated_requests(seed=12, azimuth=False, mcc=998)
+    omni, omni_truth, omni_table = simulated_requests(seed=13, sectors=False, mcc=997, oracle=True)
+    table = pd.concat([pd.read_csv(real_cells), sim_table, noaz_table, omni_table], ignore_index=True)
     cells = tmp / "cells.csv.gz"
     table.to_csv(cells, index=False)
     return {"tmp": tmp, "cells": cells, "real": real, "real_truth": real_truth, "sim": sim, "sim_truth": sim_truth,
-            "omni": omni, "omni_truth": omni_truth}
+            "noaz": noaz, "noaz_truth": noaz_truth, "omni": omni, "omni_truth": omni_truth}
 
 
 @pytest.fixture(scope="module")
@@ -53,9 +54,11 @@ def _answers(srv: Server, bodies: list[dict]) -> np.ndarray:
     return np.array(out)
 
 
-def _report(name: str, err: np.ndarray, ref: np.ndarray, acc: np.ndarray) -> dict:
+def _report(name: str, err: np.ndarray, ref: np.ndarray, acc: np.ndarray, truth: pd.DataFrame | None = None) -> dict:
     stats = {"median": np.median(err), "p90": np.percentile(err, 90), "ref_median": np.median(ref),
              "ref_p90": np.percentile(ref, 90), "coverage": np.mean(err <= acc)}
+    if truth is not None and "oracle_lat" in truth and truth.oracle_lat.notna().all():
+        stats["oracle_median"] = np.median(distance_m(truth.oracle_lat, truth.oracle_lon, truth.lat, truth.lon))
     print(name, {k: round(float(v), 3) for k, v in stats.items()})
     return stats
 
@@ -78,14 +81,15 @@ def test_real_walks(server, data):
 def test_simulated_network(server, data):
     """A simulated 19-site network of three-sector sites, transmit powers and heights unknown, 8 dB shadowing,
     the cell table crowd-sourced with the sectors' azimuths: the median error at most 0.8 x the weighted
-    centroid's.  The accuracy errs on the safe side here: the model expects a sector to serve off its axis as
-    often as the real walks show (Ixelles), the simulated sectors never do."""
+    centroid's (a posterior mean that knows every transmitter exactly reaches about 0.4 x).  The accuracy
+    errs on the safe side here: the model expects a sector to serve off its axis as often as the real walks
+    show (Ixelles), the simulated sectors never do."""
     ans = _answers(server, data["sim"])
     t = data["sim_truth"]
     err = distance_m(ans[:, 0], ans[:, 1], t.lat, t.lon)
     ref = distance_m(t.ref_lat, t.ref_lon, t.lat, t.lon)
-    s = _report("simulated", err, ref, ans[:, 2])
-    assert s["median"] <= 0.8 * s["ref_median"]
+    s = _report("simulated", err, ref, ans[:, 2], t)
+    assert s["oracle_median"] < s["median"] <= 0.8 * s["ref_median"]
     assert s["p90"] <= 0.85 * s["ref_p90"]
     assert LEVEL - 0.05 <= s["coverage"] <= LEVEL + 0.12
 
@@ -93,13 +97,28 @@ def test_simulated_network(server, data):
 def test_simulated_network_without_azimuths(server, data):
     """The same kind of network with an OpenCelliD-like table (no azimuths): better than the centroid, and the
     accuracy holds the truth in 68 +- 5 % of the requests."""
-    ans = _answers(server, data["omni"])
-    t = data["omni_truth"]
+    ans = _answers(server, data["noaz"])
+    t = data["noaz_truth"]
     err = distance_m(ans[:, 0], ans[:, 1], t.lat, t.lon)
     ref = distance_m(t.ref_lat, t.ref_lon, t.lat, t.lon)
     s = _report("simulated, no azimuths", err, ref, ans[:, 2])
     assert s["median"] <= 0.9 * s["ref_median"] and s["p90"] <= s["ref_p90"]
     assert abs(s["coverage"] - LEVEL) <= 0.05
+
+
+def test_simulated_network_of_omnidirectional_cells(server, data):
+    """Three omnidirectional cells a site (one shadowing per site, so a scan ranges to two or three sites): even
+    the posterior mean that knows every transmitter exactly is only about 0.86 x the centroid here, so the
+    issue's 0.8 x cannot be reached; ours is no worse than the centroid, and its accuracy errs on the safe side
+    (the prior allows environments the simulation does not draw)."""
+    ans = _answers(server, data["omni"])
+    t = data["omni_truth"]
+    err = distance_m(ans[:, 0], ans[:, 1], t.lat, t.lon)
+    ref = distance_m(t.ref_lat, t.ref_lon, t.lat, t.lon)
+    s = _report("simulated, omnidirectional", err, ref, ans[:, 2], t)
+    assert s["oracle_median"] > 0.8 * s["ref_median"]             # the goal is out of any method's reach here
+    assert s["oracle_median"] < s["median"] <= s["ref_median"] and s["p90"] <= 1.05 * s["ref_p90"]
+    assert LEVEL - 0.05 <= s["coverage"] <= LEVEL + 0.2
 
 
 def test_offline_twin_gives_the_servers_answers(server, data):

@@ -49,13 +49,15 @@ def _layout(rings: int, isd: float) -> np.ndarray:
 
 def simulate_network(rng, *, rings: int = 2, isd_m: float = 1000.0, eirp_dbm: float = 27.0, offset_db: float = 0.0,
                      crowd: int = 2000, max_cells: int = 7, sensitivity_dbm: float = -120.0,
-                     lat0: float = 50.85, lon0: float = 4.35, mcc: int = 999, mnc: int = 1, area: int = 1):
+                     lat0: float = 50.85, lon0: float = 4.35, mcc: int = 999, mnc: int = 1, area: int = 1,
+                     sectors: bool = True):
     """(cell table, network): a simulated LTE network (see the module doc) and its crowd-sourced table.
 
     The table is a DataFrame in the OpenCelliD layout (radio, mcc, net, area, cell, unit, lon, lat, range,
     samples, changeable, created, updated, averageSignal) plus ``azimuth_deg``; the network a dict of the
     cells' true parameters, which :func:`network_scans` reads.  Cell ids are eNB x 256 + sector (eNB =
-    1000 + site index).
+    1000 + site index).  ``sectors`` False: the three cells of a site are omnidirectional (no pattern,
+    azimuth_deg empty).
     """
     rng = check_rng(rng)
     rings = check_int("rings", rings, minimum=0, maximum=10)
@@ -65,8 +67,10 @@ def simulate_network(rng, *, rings: int = 2, isd_m: float = 1000.0, eirp_dbm: fl
     crowd = check_int("crowd", crowd, minimum=1, maximum=10**7)
     sites = _layout(rings, isd)
     ns = len(sites)
+    if not isinstance(sectors, (bool, np.bool_)):
+        raise ParameterError(f"sectors: expected True or False, got {sectors!r}")
     rot = rng.uniform(0.0, 120.0, ns)
-    az = (rot[:, None] + np.array([0.0, 120.0, 240.0])) % 360.0
+    az = (rot[:, None] + np.array([0.0, 120.0, 240.0])) % 360.0 if sectors else np.full((ns, 3), np.nan)
     cells_e = np.repeat(sites[:, 0], 3)
     cells_n = np.repeat(sites[:, 1], 3)
     net = {"east": cells_e, "north": cells_n, "site": np.repeat(np.arange(ns), 3), "azimuth_deg": az.ravel(),
@@ -103,7 +107,7 @@ def _levels(net: dict, pe: np.ndarray, pn: np.ndarray, rng) -> np.ndarray:
     loss = cost231_hata(d_km, 1800.0, h_base_m=np.broadcast_to(net["height_m"], d_km.shape), on_invalid="ignore")
     bearing = np.degrees(np.arctan2(de, dn))
     off = np.abs((bearing - net["azimuth_deg"] + 540.0) % 360.0 - 180.0)
-    gain = -np.minimum(12.0 * (off / 65.0) ** 2, 20.0)
+    gain = np.where(np.isnan(off), 0.0, -np.minimum(12.0 * (off / 65.0) ** 2, 20.0))
     ns = int(net["site"].max()) + 1
     site_shadow = rng.normal(0.0, _SITE_DB, (len(pe), ns))[:, net["site"]]
     return net["eirp_dbm"] - loss + net["offset_db"] + gain + site_shadow + rng.normal(0.0, _CELL_DB, d_km.shape)
