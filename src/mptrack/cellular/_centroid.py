@@ -33,8 +33,22 @@ EARTH_M = 6_371_008.8
 
 def station_score(samples, created, updated, now: float) -> np.ndarray:
     """Ichnaea's score of table rows (``score.py``, station_score): the age, collection and samples weights
-    of the module doc.  ``created``/``updated`` in seconds since 1970 (NaN: unknown, weight 1), ``samples``
-    NaN: one sample."""
+    of the module doc.
+
+    Parameters
+    ----------
+    samples : array_like
+        Observations behind each row (NaN: one).
+    created, updated : array_like
+        First and last seen, seconds since 1970 (NaN: unknown, weight 1).
+    now : float
+        The present, seconds since 1970.
+
+    Returns
+    -------
+    float or ndarray
+        The scores, broadcast over the arguments.
+    """
     k = as_array("samples", samples, allow_nan=True, low=0.0)
     c = as_array("created", created, allow_nan=True)
     u = as_array("updated", updated, allow_nan=True)
@@ -51,14 +65,30 @@ def station_score(samples, created, updated, now: float) -> np.ndarray:
 
 
 def weighted_centroid(lat, lon, area, range_m, score, rss_dbm, age_ms, min_signal_dbm) -> tuple[float, float, float]:
-    """(lat, lon, accuracy_m) of one request by Ichnaea's weighted centroid (the module doc).
+    """The position of one request by Ichnaea's weighted centroid (the module doc).
 
-    lat, lon        the known cells' positions (degrees), one per cell heard
-    area            their location-area keys (any integers: cells are grouped by equal keys)
-    range_m         their table range (NaN: unknown, the clamp's minimum)
-    score           their station score (:func:`station_score`)
-    rss_dbm         the levels reported (NaN or 0: none), age_ms the ages (NaN: none)
-    min_signal_dbm  each cell's radio minimum, used where a level is missing
+    Parameters
+    ----------
+    lat, lon : array_like
+        The known cells' positions (degrees), one per cell heard.
+    area : array_like
+        Their location-area keys (any integers: cells are grouped by equal keys).
+    range_m : array_like
+        Their table range (NaN: unknown, the clamp's minimum).
+    score : array_like
+        Their station score (:func:`station_score`).
+    rss_dbm : array_like
+        The levels reported (NaN or 0: none).
+    age_ms : array_like
+        The ages (ms; NaN: none).
+    min_signal_dbm : array_like
+        Each cell's radio minimum, used where a level is missing.
+
+    Returns
+    -------
+    lat, lon, accuracy_m : float
+        The centroid of the best-scored area and its accuracy (the 95th percentile of its cells'
+        distances, clamped to 1-50 km; one cell: its range).
     """
     lat = as_array("lat", lat, ndim=1, low=-90.0, high=90.0)
     arrays = {"lon": lon, "area": area, "range_m": range_m, "score": score, "rss_dbm": rss_dbm, "age_ms": age_ms,

@@ -295,8 +295,11 @@ def _fixes(cells, offsets, level, out):
 def locate_cells(cells, offsets=None, *, level: float = CONFIDENCE) -> np.ndarray:
     """Positions from scans of cells (the posterior of the module doc), one row per scan.
 
-    cells    (n, 13) float array, one row per cell heard, the columns CELL_FIELDS (or a mapping / DataFrame
-             with those columns):
+    Parameters
+    ----------
+    cells : array_like or mapping
+        (n, 13) float array, one row per cell heard, the columns CELL_FIELDS (or a mapping / DataFrame
+        with those columns):
                lat, lon          the cell's site (WGS-84 degrees; latitudes within +-85)
                radio             radio code (index into RADIOS: 0 gsm, 1 wcdma, 2 lte, 3 nr, 4 cdma)
                intercept_dbm, slope_db   the prior path-loss model (:func:`signal_prior`)
@@ -306,11 +309,22 @@ def locate_cells(cells, offsets=None, *, level: float = CONFIDENCE) -> np.ndarra
                range_m           the table's range (NaN: unknown), changeable 1 (averaged position) / 0 / NaN
                azimuth_deg       the sector's azimuth (NaN: omnidirectional or unknown)
                rss_dbm           the level the phone reports (NaN: none), ta its timing advance (NaN: none)
-    offsets  (B + 1,) int: scan b is rows offsets[b]:offsets[b + 1] (default: all rows are one scan)
-    level    the confidence level of the accuracy radius (default CONFIDENCE = 0.68)
-    Returns a (B, 7) array, columns FIX_FIELDS: lat, lon (degrees), accuracy_m (the radius holding the
-    true position with probability ``level``), the covariance var_e, cov_en, var_n (m^2) of the
-    position, and the number of distinct sites.
+    offsets : array_like of int, shape (B + 1,), optional
+        Scan b is rows offsets[b]:offsets[b + 1] (default: all rows are one scan).
+    level : float, optional
+        The confidence level of the accuracy radius (default CONFIDENCE = 0.68).
+
+    Returns
+    -------
+    ndarray, shape (B, 7)
+        Columns FIX_FIELDS: lat, lon (degrees), accuracy_m (the radius holding the true position with
+        probability ``level``), the covariance var_e, cov_en, var_n (m^2) of the position, and the
+        number of distinct sites.
+
+    Raises
+    ------
+    ParameterError, ShapeError
+        A column out of its range, a table of the wrong shape, offsets that do not cover the rows.
     """
     table = _table(cells)
     level = as_real("level", level, low=0.01, high=0.999)

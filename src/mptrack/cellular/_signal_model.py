@@ -88,7 +88,24 @@ _LEVELS = (-150.0, -25.0)
 
 
 def radio_code(name: str) -> int:
-    """The code of a radio named as in a request (``lte``) or a table (``LTE``)."""
+    """The code of a radio named as in a request (``lte``) or a table (``LTE``).
+
+    Parameters
+    ----------
+    name : str
+        ``gsm``, ``wcdma``/``umts``, ``lte``, ``nr``, ``cdma`` (any case), or the tables' ``GSM``, ``UMTS``,
+        ``LTE``, ``NR``, ``CDMA``.
+
+    Returns
+    -------
+    int
+        The radio's index in :data:`RADIOS`.
+
+    Raises
+    ------
+    ParameterError
+        An unknown name.
+    """
     code = RADIO_CODES.get(name) if isinstance(name, str) else None
     if code is None:
         code = RADIO_CODES.get(name.strip().lower()) if isinstance(name, str) else None
@@ -106,9 +123,21 @@ def _codes(radio) -> np.ndarray:
 
 
 def signal_prior(radio, height_m=30.0) -> tuple[np.ndarray, np.ndarray]:
-    """(intercept_dbm, slope_db) of the prior path-loss model of cells of radio code ``radio`` with
-    antennas ``height_m`` above ground (see the module doc): the level at 1 km on the antenna's axis,
-    and the loss per decade of distance.  Heights are taken within Hata's 30..200 m."""
+    """The prior path-loss model of cells (see the module doc).
+
+    Parameters
+    ----------
+    radio : int or array_like of int
+        Radio codes (indices into :data:`RADIOS`).
+    height_m : float or array_like, optional
+        Antenna heights above ground (m), taken within Hata's 30..200 m.
+
+    Returns
+    -------
+    intercept_dbm, slope_db : float or ndarray
+        The level at 1 km on the antenna's axis (dBm) and the loss per decade of distance (dB),
+        broadcast over the arguments.
+    """
     code = _codes(radio)
     h = as_array("height_m", height_m, low=0.0)
     shape = broadcast_shape(radio=code, height_m=h)
@@ -123,9 +152,25 @@ def signal_prior(radio, height_m=30.0) -> tuple[np.ndarray, np.ndarray]:
 
 
 def signal_fit(intercept_dbm, slope_db, range_m, average_signal_dbm, samples) -> np.ndarray:
-    """The offset (dB) of each cell's intercept fitted from the table, A_fit - A_prior (see the module
-    doc), or NaN where the table does not tell: ``average_signal_dbm`` outside -150..-25 dBm (0 is
-    OpenCelliD's "unknown"), ``range_m`` not above 0, or fewer than 2 ``samples``."""
+    """The offset of each cell's intercept fitted from the table, A_fit - A_prior (see the module doc).
+
+    Parameters
+    ----------
+    intercept_dbm, slope_db : array_like
+        The prior model of each cell (:func:`signal_prior`).
+    range_m : array_like
+        The table's ``range`` (m; NaN: unknown).
+    average_signal_dbm : array_like
+        The table's ``averageSignal`` (dBm; 0 is OpenCelliD's "unknown").
+    samples : array_like
+        The table's ``samples`` (NaN: unknown).
+
+    Returns
+    -------
+    float or ndarray
+        The offset (dB), NaN where the table does not tell: ``average_signal_dbm`` outside -150..-25 dBm,
+        ``range_m`` not above 0, or fewer than 2 ``samples``.
+    """
     a = as_array("intercept_dbm", intercept_dbm)
     n = as_array("slope_db", slope_db, low=0.0)
     r = as_array("range_m", range_m, allow_nan=True)

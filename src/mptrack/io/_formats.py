@@ -129,9 +129,8 @@ def raw_chunks(source, chunk_rows: int, skipped: list | None = None, *, cells: b
             yield from _csv_chunks(path, chunk_rows)
         elif fmt == "parquet":
             yield from _parquet_chunks(path, chunk_rows)
-        elif fmt == "gnettrack":
-            from ._gnettrack import read as read_log
-
+        elif fmt == "gnettrack":  # two readings of one log: its positions or its cells
+            read_log: Callable = importlib.import_module("._gnettrack", __package__).read
             yield from frame_chunks(read_log(path, skipped, cells=cells, timezone=timezone), chunk_rows)
         else:
             read: Callable = importlib.import_module(_DECODERS[fmt], __package__).read
@@ -240,16 +239,18 @@ def sniff_csv(text: str) -> tuple[str, str]:
     return sep, decimal
 
 
-def _is_gnettrack(path: Path) -> bool:
-    """Whether the first line of ``path`` is a G-NetTrack Pro header."""
-    from ._gnettrack import is_gnettrack
+#: the first fields of a G-NetTrack Pro log's header line
+GNETTRACK_HEADER = ("Timestamp", "Longitude", "Latitude", "Speed")
 
+
+def _is_gnettrack(path: Path) -> bool:
+    """Whether the first line of ``path`` is a G-NetTrack Pro header (:mod:`._gnettrack` reads the log)."""
     try:
         with open(path, "rb") as fh:
-            head = fh.read(4096)
+            first = fh.readline(4096).decode("utf-8", errors="replace")
     except OSError:
         return False
-    return is_gnettrack(head.decode("utf-8", errors="replace"))
+    return tuple(first.rstrip("\r\n").lstrip("\ufeff").split("\t")[:4]) == GNETTRACK_HEADER
 
 
 def _starts_with_nmea(path: Path) -> bool:

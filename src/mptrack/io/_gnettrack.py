@@ -36,22 +36,14 @@ import pandas as pd
 from ..errors import DataError, ParameterError
 from ._formats import Skipped
 
-__all__ = ["read", "is_gnettrack", "check_timezone"]
+__all__ = ["read", "check_timezone"]
 
-#: the first header fields of a G-NetTrack Pro log
-HEADER = ("Timestamp", "Longitude", "Latitude", "Speed")
 _NEEDED = ("Timestamp", "Longitude", "Latitude", "Operator", "LAC", "NetworkTech", "Level")
 _TECH = {"2G": "GSM", "3G": "UMTS", "4G": "LTE", "5G": "NR"}
 _TS = re.compile(r"^\d{4}\.\d{2}\.\d{2}_\d{2}\.\d{2}\.\d{2}$")
 _REGISTERED_TA = re.compile(r"mRegistered=YES.*?\bta=(\d+)")
 _UNAVAILABLE = 2147483647
 _KMH = 1.0 / 3.6
-
-
-def is_gnettrack(head: str) -> bool:
-    """Whether a file's first line is a G-NetTrack Pro header."""
-    first = head.split("\n", 1)[0].rstrip("\r").lstrip("\ufeff")
-    return tuple(first.split("\t")[:4]) == HEADER
 
 
 def check_timezone(timezone):

@@ -120,14 +120,28 @@ def add_api_key(db: str, name: str) -> str:
 def geolocate_requests(requests, *, cells=None, db: str | None = None):
     """Answer a file of cell geolocation requests as ``POST /v1/geolocate`` of ``mptrack serve`` does.
 
-    requests  an NDJSON file: one request body (Google's / Ichnaea's geolocate JSON) per line; empty lines
-              are skipped
-    cells     a cell table (OpenCelliD layout, CSV or CSV.gz) to load into the database (again only when
-              the file changed)
-    db        the database holding the cell table (``sqlite:///PATH``, e.g. the server's); None: a temporary
-              one, removed afterwards (then ``cells`` is needed)
-    Yields ``(line, status, answer)`` per request: its line number, the HTTP status the server would
-    answer (200, 400 or 404) and the answer's JSON object (the position, or the error in Google's format).
+    Parameters
+    ----------
+    requests : str or path-like
+        An NDJSON file: one request body (Google's / Ichnaea's geolocate JSON) per line; empty lines are
+        skipped.
+    cells : str or path-like, optional
+        A cell table (OpenCelliD layout, CSV or CSV.gz) to load into the database (again only when the
+        file changed).
+    db : str, optional
+        The database holding the cell table (``sqlite:///PATH``, e.g. the server's); None: a temporary
+        one, removed afterwards (then ``cells`` is needed).
+
+    Yields
+    ------
+    line, status, answer : int, int, dict
+        Per request: its line number, the HTTP status the server would answer (200, 400 or 404) and the
+        answer's JSON object (the position, or the error in Google's format).
+
+    Raises
+    ------
+    ParameterError
+        A missing file, or neither ``cells`` nor a database holding a table.
     """
     import json
     import shutil

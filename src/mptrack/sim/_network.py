@@ -51,13 +51,41 @@ def simulate_network(rng, *, rings: int = 2, isd_m: float = 1000.0, eirp_dbm: fl
                      crowd: int = 2000, max_cells: int = 7, sensitivity_dbm: float = -120.0,
                      lat0: float = 50.85, lon0: float = 4.35, mcc: int = 999, mnc: int = 1, area: int = 1,
                      sectors: bool = True):
-    """(cell table, network): a simulated LTE network (see the module doc) and its crowd-sourced table.
+    """A simulated LTE network (see the module doc) and its crowd-sourced cell table.
 
-    The table is a DataFrame in the OpenCelliD layout (radio, mcc, net, area, cell, unit, lon, lat, range,
-    samples, changeable, created, updated, averageSignal) plus ``azimuth_deg``; the network a dict of the
-    cells' true parameters, which :func:`network_scans` reads.  Cell ids are eNB x 256 + sector (eNB =
-    1000 + site index).  ``sectors`` False: the three cells of a site are omnidirectional (no pattern,
-    azimuth_deg empty).
+    Parameters
+    ----------
+    rng : numpy.random.Generator or int
+        The source of randomness.
+    rings : int, optional
+        Rings of sites around the centre site (2: 19 sites).
+    isd_m : float, optional
+        Distance between neighbouring sites (m).
+    eirp_dbm : float, optional
+        Mean radiated power of a cell (each cell's drawn around it, 3 dB).
+    offset_db : float, optional
+        Offset of the whole propagation (an environment the models do not know).
+    crowd : int, optional
+        Phones at random positions that build the table.
+    max_cells : int, optional
+        The strongest cells a phone reports.
+    sensitivity_dbm : float, optional
+        The weakest level a phone reports.
+    lat0, lon0 : float, optional
+        The network's centre (degrees).
+    mcc, mnc, area : int, optional
+        The network's identity (every cell in one area).
+    sectors : bool, optional
+        False: the three cells of a site are omnidirectional (no pattern, azimuth_deg empty).
+
+    Returns
+    -------
+    table : pandas.DataFrame
+        The OpenCelliD layout (radio, mcc, net, area, cell, unit, lon, lat, range, samples, changeable,
+        created, updated, averageSignal) plus ``azimuth_deg``, the cells heard by the crowd.  Cell ids are
+        eNB x 256 + sector (eNB = 1000 + site index).
+    network : dict
+        The cells' true parameters, which :func:`network_scans` reads.
     """
     rng = check_rng(rng)
     rings = check_int("rings", rings, minimum=0, maximum=10)
@@ -128,10 +156,24 @@ def _geodetic(net: dict, east, north) -> tuple[np.ndarray, np.ndarray]:
 
 
 def network_scans(network: dict, east_m, north_m, rng) -> pd.DataFrame:
-    """Scans of phones at ``east_m``, ``north_m`` (metres from the network's centre): one row per cell heard,
-    columns ``scan`` (the index of the position), ``true_lat``/``true_lon``, the cell's ``radio``, ``mcc``,
-    ``mnc``, ``area``, ``cell`` and its ``rss_dbm``, the strongest first within a scan.  Positions where no
-    cell is heard have no rows."""
+    """Scans of phones at given positions in a simulated network.
+
+    Parameters
+    ----------
+    network : dict
+        The network of :func:`simulate_network`.
+    east_m, north_m : array_like
+        The phones' positions (m from the network's centre).
+    rng : numpy.random.Generator or int
+        The source of the shadowing.
+
+    Returns
+    -------
+    pandas.DataFrame
+        One row per cell heard: ``scan`` (the index of the position), ``true_lat``/``true_lon``, the cell's
+        ``radio``, ``mcc``, ``mnc``, ``area``, ``cell`` and its ``rss_dbm``, the strongest first within a
+        scan.  Positions where no cell is heard have no rows.
+    """
     if not isinstance(network, dict) or "eirp_dbm" not in network:
         raise ParameterError("network: expected the network of simulate_network")
     rng = check_rng(rng)

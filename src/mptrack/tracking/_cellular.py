@@ -69,13 +69,33 @@ def _check_known(rows, cells, columns=("t", "row", "cell_id"), cell_columns=("la
 
 
 def resolve_cells(rows: pd.DataFrame, cells: pd.DataFrame, *, file, report: ReadReport) -> pd.DataFrame:
-    """Rows of cells logged by their physical identity (columns ``pci`` and ``earfcn``, as a drive-test log
-    lists neighbours, e.g. :mod:`mptrack.io` reading a G-NetTrack Pro log) given the ``cell_id`` of the one
-    cell of the table that matches: the same ``unit`` (PCI) and ``earfcn`` (a table without the
-    channel matches on the PCI alone), for a serving cell in its logged country and area (``mcc``,
-    ``area``), for a neighbour within NEIGHBOUR_REACH_M of its scan's serving cell.  A neighbour without
-    one such cell is left out and counted in ``report`` (it carries no identity of its own: not an
-    error); a serving cell without one keeps its logged identity (:func:`check_cell_ids` decides)."""
+    """Identify the cells a log names by their physical identity (PCI and channel) against the cell table.
+
+    A drive-test log lists neighbour cells by PCI and channel only (e.g. :mod:`mptrack.io` reading a
+    G-NetTrack Pro log).  A row whose ``cell_id`` is not in the table gets the id of the one cell with
+    the same ``unit`` (PCI) and ``earfcn`` (a table without the channel matches on the PCI alone): for a
+    serving cell in its logged country and area (``mcc``, ``area``), for a neighbour within
+    NEIGHBOUR_REACH_M of its scan's serving cell.
+
+    Parameters
+    ----------
+    rows : pandas.DataFrame
+        Cellular measurements with the columns ``t``, ``cell_id`` and ``pci`` (and ``earfcn``, ``role``,
+        ``mcc``, ``area``, ``track_id`` where the log has them).
+    cells : pandas.DataFrame
+        The cell table (:func:`mptrack.io.read_cells`), with ``unit`` and optionally ``earfcn``.
+    file : str or path-like
+        The measurements' name in the note.
+    report : ReadReport
+        Receives the count of neighbours left out.
+
+    Returns
+    -------
+    pandas.DataFrame
+        The rows, identified where one cell matches; a neighbour without one is left out and counted (it
+        carries no identity of its own: not an error); a serving cell without one keeps its logged
+        identity (:func:`check_cell_ids` decides).
+    """
     check_cell_rows("rows", rows, ("t", "cell_id", "pci"))
     check_cells("cells", cells, ())
     if not isinstance(report, ReadReport):
