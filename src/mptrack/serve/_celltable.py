@@ -134,9 +134,11 @@ def _cell_rows(chunk, now: float, out: CellTableReport) -> list[tuple]:
             score, col("unit"), col("earfcn")]
     order = np.lexsort((radio, cell, area, net, mcc))  # in key order: the index is written in sequence (stable:
     cols = [c[order] for c in cols]                     # of a cell listed twice, the first stays first)
-    # NULL for a missing value (NaN), integers as integers; only float columns can hold a NaN
+    # NULL for a missing value (NaN), integers as integers (unit and earfcn too: INTEGER columns in every
+    # store); only float columns can hold a NaN
     lists = [c.tolist() if c.dtype.kind != "f" or np.isfinite(c).all() else
-             [None if v != v else v for v in c.tolist()] for c in cols]
+             [None if v != v else v for v in c.tolist()] for c in cols[:15]]
+    lists += [[None if v != v else int(v) for v in c.tolist()] for c in cols[15:]]
     return list(zip(*lists))
 
 
