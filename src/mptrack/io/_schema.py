@@ -135,8 +135,9 @@ MEASUREMENTS = Schema("cellular measurements", (
            nullable=True),
     Column("range_m", "float", "m", "measured range to the cell's antenna", required=False, lo=0.0,
            nullable=True),
-    Column("ta", "int", "GSM TA steps", "timing advance; range = (ta + 0.5) x 553.5 m, 3GPP TS 45.010",
-           required=False, lo=0, hi=63, nullable=True),
+    Column("ta", "int", "TA steps", "timing advance in the steps of the cell's radio: range = (ta + 0.5) x "
+           "553.5 m for GSM (0..63, 3GPP TS 45.010), x 78.07 m for LTE (0..1282, TS 36.213)", required=False, lo=0,
+           hi=1282, nullable=True),
 ), one_of=(("rss_dbm",), ("range_m",), ("ta",)), row_needs_one_of=("rss_dbm", "range_m", "ta"))
 
 CELLS = Schema("cell table (OpenCelliD layout)", (

@@ -48,7 +48,7 @@ def check_cell_rows(name: str, rows, columns=("t", "row", "cell_id")) -> pd.Data
     """Cellular measurements as :func:`mptrack.io.iter_tracks` gives them (schema MEASUREMENTS)."""
     return check_frame(name, rows, columns, {
         "t": {}, "rss_dbm": dict(allow_nan=True, low=-160.0, high=0.0), "range_m": dict(allow_nan=True, low=0.0),
-        "ta": dict(allow_nan=True, low=0, high=63)})
+        "ta": dict(allow_nan=True, low=0, high=1282)})
 
 
 def check_cells(name: str, cells, columns=("lat", "lon", "height_m", "power_dbm", "arfcn")) -> pd.DataFrame:
