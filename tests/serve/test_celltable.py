@@ -1,10 +1,12 @@
-"""The cell table in the server's database: an OpenCelliD/MLS CSV streamed in once (one transaction,
-reloaded only when the file changes), its rows as the table gave them, bad and duplicate rows counted, and
-a country-sized table (10^6 rows) loaded in at most 30 s and looked up in at most 1 ms."""
+"""The cell table in the server's database, SQLite and PostgreSQL: an OpenCelliD/MLS CSV streamed in once
+(one transaction, reloaded only when the file changes), its rows as the table gave them, bad and duplicate
+rows counted, a server on PostgreSQL answering geolocation requests as one on SQLite does, and a
+country-sized table (10^6 rows) loaded in at most 30 s and looked up in at most 1 ms."""
 
 from __future__ import annotations
 
 import gzip
+import json
 import time
 
 import numpy as np
@@ -19,11 +21,34 @@ from mptrack.serve._celltable import load_cell_table
 HEADER = "radio,mcc,net,area,cell,unit,lon,lat,range,samples,changeable,created,updated,averageSignal\n"
 
 
-def _store(tmp_path):
-    return open_store(f"sqlite:///{tmp_path / 'cells.db'}")
+@pytest.fixture(scope="module")
+def postgres():
+    from _postgres import postgres_or_skip
+
+    pg = postgres_or_skip()
+    yield pg
+    pg.cleanup()
 
 
-def test_rows_round_trip_and_bad_rows_are_counted(tmp_path):
+@pytest.fixture(params=["sqlite", "postgresql"])
+def new_store(request, tmp_path):
+    """A function opening a new empty store of each backend (PostgreSQL: a new database on a throwaway server)."""
+    opened = []
+
+    def make():
+        if request.param == "sqlite":
+            store = open_store(f"sqlite:///{tmp_path / 'cells.db'}")
+        else:
+            pg = request.getfixturevalue("postgres")
+            store = open_store(pg.create_database(f"cells{len(opened)}_{abs(hash(request.node.name)) % 10**8}"))
+        opened.append(store)
+        return store
+    yield make
+    for store in opened:
+        store.close()
+
+
+def test_rows_round_trip_and_bad_rows_are_counted(tmp_path, new_store):
     path = tmp_path / "cells.csv.gz"
     with gzip.open(path, "wt") as f:
         f.write(HEADER)
@@ -32,7 +57,7 @@ def test_rows_round_trip_and_bad_rows_are_counted(tmp_path):
         f.write("LTE,206,4,7239,103059577,277,4.7,50.7,100,2,1,,,-90\n")       # the same cell again: left out
         f.write("NBIOT,206,4,7239,5,,4.6,50.6,,,0,,,0\n")                      # a radio we do not know
         f.write("UMTS,206,4,7239,9,,4.6,95.0,,,0,,,0\n")                       # latitude out of range
-    store = _store(tmp_path)
+    store = new_store()
     try:
         report = load_cell_table(store, path)
         assert (report.rows_read, report.cells, report.duplicates, report.areas) == (5, 2, 1, 2)
@@ -57,11 +82,11 @@ def test_rows_round_trip_and_bad_rows_are_counted(tmp_path):
         store.close()
 
 
-def test_a_table_of_nothing_readable_is_refused_and_the_old_one_kept(tmp_path):
+def test_a_table_of_nothing_readable_is_refused_and_the_old_one_kept(tmp_path, new_store):
     good, bad = tmp_path / "good.csv", tmp_path / "bad.csv"
     good.write_text(HEADER + "GSM,206,1,10,1234,,4.40,50.80,,,0,,,0\n")
     bad.write_text(HEADER + "XX,206,1,10,1234,,4.40,50.80,,,0,,,0\n")
-    store = _store(tmp_path)
+    store = new_store()
     try:
         load_cell_table(store, good)
         with pytest.raises(DataError, match="no cell of the table could be read"):
@@ -84,7 +109,7 @@ def test_a_million_cells_load_in_30_s_and_look_up_in_1_ms(tmp_path):
                           "averageSignal": rng.integers(-110, -60, n)})
     path = tmp_path / "cell_towers.csv.gz"
     table.to_csv(path, index=False, compression="gzip")
-    store = _store(tmp_path)
+    store = open_store(f"sqlite:///{tmp_path / 'cells.db'}")
     try:
         t0 = time.perf_counter()
         report = load_cell_table(store, path)
@@ -104,3 +129,28 @@ def test_a_million_cells_load_in_30_s_and_look_up_in_1_ms(tmp_path):
         assert np.median(times) <= 1e-3
     finally:
         store.close()
+
+
+def test_a_server_on_postgresql_answers_as_one_on_sqlite(tmp_path, postgres):
+    """The same geolocation requests (the real walks' first scans and the error cases) answered by a server whose
+    database is PostgreSQL and by the offline twin on SQLite: the same answers."""
+    import httpx
+    from _geolocation import real_requests
+    from _server import Server
+
+    from mptrack.serve import geolocate_requests
+
+    bodies, _, cells = real_requests()
+    bodies = bodies[:60] + [{"cellTowers": [{"radioType": "lte", "mobileCountryCode": 206, "mobileNetworkCode": 4,
+                                             "locationAreaCode": 7239, "cellId": 5}]}, {}]
+    requests = tmp_path / "requests.ndjson"
+    requests.write_text("".join(json.dumps(b) + "\n" for b in bodies))
+    expected = [(status, answer) for _, status, answer in geolocate_requests(requests, cells=cells)]
+    assert [s for s, _ in expected].count(200) == 61                 # the real scans and the area fallback
+    srv = Server(tmp_path, "--cells", str(cells), db=postgres.create_database("geolocate")).start()
+    try:
+        with httpx.Client(base_url=srv.url, timeout=60.0) as client:
+            got = [(r.status_code, r.json()) for r in (client.post("/v1/geolocate", json=b) for b in bodies)]
+    finally:
+        assert srv.stop() == 0, srv.output()
+    assert got == expected
