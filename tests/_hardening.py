@@ -54,6 +54,7 @@ import mptrack.report as report
 import mptrack.result
 import mptrack.riccati as riccati
 import mptrack.runs as runs
+import mptrack.serve as serve
 import mptrack.sim as sim
 import mptrack.tracking as tracking
 from mptrack.errors import DataError, MptrackError, OutputError
@@ -323,7 +324,7 @@ RECORDS = {
     "riccati.SteadyState", "riccati.LainiotisParameters", "continuous.BlockKernels",
     "continuous.GridDensity", "continuous.GridMixture", "continuous.FEMStep", "nonlinear.IMMResult", "radio.GsmBand", "radio.ValidityWarning",
     "fuzzy.AnfisResult", "tracking.GatedResult", "tracking.MotionModel", "io.ReadReport", "io.InputNotSorted",
-    "io.Column", "io.Schema", "result.FilterResult", "result.BatchFilterResult",
+    "io.Column", "io.Schema", "result.FilterResult", "result.BatchFilterResult", "cellular.Radio", "io.Skipped",
 }
 
 
@@ -626,6 +627,25 @@ target("continuous.pf_substep_study", lambda z, x0, P0, particles, runs, ref_par
     x0=arg((2,), valid=continuous.ZHAO2013_X0), P0=covariance(2), particles=count(1, 30), runs=count(1, 2),
     ref_particles=count(1, 40), passed=("model", "substeps", "schemes", "ref_runs", "ref_substeps"))
 
+_CELLS = np.array([[50.8, 4.39, 2, -109.2, 35.2, np.nan, 0, np.nan, np.nan, 0, 120.0, -90.0, 1.0],
+                   [50.8, 4.39, 2, -109.2, 35.2, np.nan, 0, np.nan, np.nan, 0, 240.0, -95.0, np.nan],
+                   [50.81, 4.40, 0, -69.4, 35.2, 2.0, 3, 1.5, 2000.0, 1, np.nan, np.nan, 2.0]])
+target("cellular.locate_cells", cells=arg((3, 13), valid=_CELLS), offsets=maybe(st.one_of(
+    st.just([0, 2, 3]), arg((3,), valid=[0, 1, 3]))), level=scalar(0, 1))
+_N = dict(lat=arg((3,), valid=[50.8, 50.81, 50.8]), lon=arg((3,), valid=[4.39, 4.4, 4.41]),
+          area=arg((3,), valid=[1, 1, 2]), range_m=arg((3,), valid=[1000.0, np.nan, 500.0]),
+          score=arg((3,), valid=[1.0, 0.5, 2.0]), rss_dbm=arg((3,), valid=[-90.0, np.nan, -100.0]),
+          age_ms=arg((3,), valid=[0.0, 5000.0, np.nan]), min_signal_dbm=arg((3,), valid=[-140.0] * 3))
+target("cellular.weighted_centroid", **_N)
+target("cellular.station_score", samples=arg((2,), valid=[10.0, np.nan]), created=arg((2,), valid=[1.6e9, np.nan]),
+       updated=arg((2,), valid=[1.7e9, 1.7e9]), now=scalar(1e9, 2e9))
+target("cellular.signal_prior", radio=st.one_of(arg((3,), valid=[0, 2, 4]), count(0, 4)),
+       height_m=st.one_of(scalar(0, 200), arg((3,), valid=[30.0, 10.0, 300.0])))
+target("cellular.signal_fit", intercept_dbm=arg((2,), valid=[-109.0, -70.0]), slope_db=arg((2,), valid=[35.0, 35.0]),
+       range_m=arg((2,), valid=[1500.0, np.nan]), average_signal_dbm=arg((2,), valid=[-95.0, 0.0]),
+       samples=arg((2,), valid=[20.0, 3.0]))
+target("cellular.radio_code", name=names("lte", "GSM", "umts", "NR"))
+
 # --- radio ------------------------------------------------------------------------------------------------
 _D = dict(distance_km=arg((3,), valid=[0.1, 1.0, 2.0]))
 target("radio.arfcn_to_frequency", arfcn=st.one_of(arg((2,), valid=[10, 20]), count(0, 124)),
@@ -730,6 +750,13 @@ target("burden.speedup", slow=scalar(0, 10), fast=scalar(0, 10))
 target("sim.simulate_linear", lambda model, steps, rng, x0: sim.simulate_linear(_model(model), steps, rng, x0),
        passed=MODEL_PASSED, model=MODEL, steps=count(), rng=rngs(), x0=maybe(arg((2,))))
 
+target("sim.simulate_network", rng=rngs(), rings=count(0, 1), isd_m=scalar(50, 5000), eirp_dbm=scalar(-30, 90),
+       offset_db=scalar(-40, 40), crowd=count(1, 200), max_cells=count(1, 7), sensitivity_dbm=scalar(-200, 0),
+       lat0=scalar(-80, 80), lon0=scalar(-180, 180))
+_NET = sim.simulate_network(np.random.default_rng(1), rings=1, crowd=100)[1]
+target("sim.network_scans", network=st.one_of(st.just(_NET), st.sampled_from([None, {}, 3])),
+       east_m=arg((2,), valid=[0.0, 300.0]), north_m=arg((2,), valid=[0.0, -200.0]), rng=rngs())
+
 # --- tracking ---------------------------------------------------------------------------------------------
 _OPTIONS = dict(model=names("cv", "ca"), filter=names("kf", "sskf", "fir"), q=maybe(scalar(0, 10)),
                 sigma_m=maybe(scalar(0, 100)), gate_probability=maybe(scalar(0, 1)), gap_s=scalar(0, 100))
@@ -784,6 +811,18 @@ target("tracking.check_cell_ids", lambda rows, cells, on_error: tracking.check_c
     rows, cells, file="log", on_error=on_error, report=mio.ReadReport()),
     rows=frames(CELL_ROWS, ["cell_id"]), cells=frames(CELLS, ["lat"]), on_error=names("raise", "skip"),
     passed=("file", "report"))
+_PCI_CELLS = mio.read_cells(pd.DataFrame({"radio": "LTE", "mcc": 206, "net": 4, "area": 7, "cell": [1000, 1001, 1002],
+                                          "unit": [1, 2, 2], "earfcn": [1300, 1300, np.nan], "lon": [4.39, 4.39, 4.5],
+                                          "lat": [50.8, 50.8, 50.9]}))
+_PCI_ROWS = pd.DataFrame({"track_id": "1", "t": [0.0, 0.0, 0.0, 5.0], "cell_id": ["206-1-7-1000", "PCI 2 EARFCN 1300",
+                                                                                  "PCI 9 EARFCN 1300", "206-4-7-1001"],
+                          "role": ["serving", "neighbour", "neighbour", "serving"], "mcc": 206.0,
+                          "area": [7.0, np.nan, np.nan, 7.0], "pci": [1.0, 2.0, 9.0, 2.0], "earfcn": 1300.0,
+                          "rss_dbm": [-90.0, -95.0, -99.0, -92.0]})
+target("tracking.resolve_cells", lambda rows, cells: tracking.resolve_cells(rows, cells, file="log",
+                                                                            report=mio.ReadReport()),
+       rows=frames(_PCI_ROWS, ["cell_id", "pci", "t"]), cells=frames(_PCI_CELLS, ["lat", "unit"]),
+       passed=("file", "report"))
 target("tracking.ranges_km", rows=frames(CELL_ROWS, ["cell_id", "rss_dbm"]), cells=frames(CELLS, ["lat", "height_m"]),
        path_loss=names("cost231-wi-nlos", "free-space"), nan_result=True)
 target("radio.band_of_arfcn", arfcn=st.one_of(count(0, 1023), scalar()))
@@ -904,6 +943,17 @@ target("serve.shown_url", url=st.one_of(st.sampled_from(["postgresql://u:secret@
 target("serve.worker_environment", config=st.one_of(st.just(_serve.ServeConfig(db=_DB)), st.sampled_from([None, {}])),
        directory=st.one_of(st.just(str(WORKDIR)), st.sampled_from([None, 3, str(WORKDIR / "no" / "such")])),
        workers=count(1, 8))
+_CELL_TABLE = _file("geo_cells.csv", pd.DataFrame({"radio": ["LTE", "GSM"], "mcc": [206, 206], "net": [4, 4],
+                                               "area": [7, 7], "cell": [1000, 12], "lon": [4.39, 4.4],
+                                               "lat": [50.8, 50.81]}))
+_REQUESTS = WORKDIR / "requests.ndjson"
+_REQUESTS.write_text('{"cellTowers": [{"radioType": "lte", "mobileCountryCode": 206, "mobileNetworkCode": 4, '
+                     '"locationAreaCode": 7, "cellId": 1000, "signalStrength": -90}]}\n{"cellTowers": 3}\n')
+target("serve.geolocate_requests", lambda requests, cells, db: list(serve.geolocate_requests(requests, cells=cells,
+                                                                                               db=db)),
+       requests=st.one_of(st.just(str(_REQUESTS)), st.sampled_from([None, 3, str(WORKDIR), str(LOG_CSV)])),
+       cells=st.one_of(st.just(str(_CELL_TABLE)), st.sampled_from([None, 3, str(WORKDIR), str(_REQUESTS)])),
+       db=maybe(_DBS))
 
 # --- report -----------------------------------------------------------------------------------------------
 SUMMARY, EVALUATED = tracking.evaluate_tracks(POINTS, LOG)
@@ -1376,6 +1426,7 @@ def warm_up() -> None:
     _ekf_ranges(np.full((2, 3), 500.0), [1.0, 1.0], np.eye(3))
     for fn in (cellular.fekf_ranges, cellular.fcs_ranges):
         fn(Z_KM, STATIONS3, [0.3, 0.4, 0.0015], 1e-3 * np.eye(3), np.diag([0.02, 0.02, 0.002]), 0.222)
+    cellular.locate_cells(_CELLS)
     nonlinear.ekf_filter_batch(NLM, np.stack([Z_RANGES] * 2), [300.0, 0.0, 400.0, 0.0], np.eye(4))
     nonlinear.ukf_filter(ZHAO, ZZ, continuous.ZHAO2013_X0, np.eye(2))
     _pf(np.eye(ZHAO_PRINTED.n))

@@ -16,7 +16,11 @@ HOOKS = Path(__file__).with_name("_fuzz_hooks.py")
 
 @pytest.fixture(scope="module")
 def fuzzed(tmp_path_factory):
-    srv = Server(tmp_path_factory.mktemp("fuzz")).start()
+    tmp = tmp_path_factory.mktemp("fuzz")
+    cells = tmp / "cells.csv"   # a cell table, so that geolocation is fuzzed beyond "not found"
+    cells.write_text("radio,mcc,net,area,cell,lon,lat,range,samples,averageSignal\n"
+                     "LTE,206,4,7239,103059577,4.616264,50.669577,1500,20,-95\nGSM,0,0,0,0,13.4,52.5,,,\n")
+    srv = Server(tmp, "--cells", str(cells)).start()
     assert srv.get("/?id=fuzz-1&lat=52.5&lon=13.4&timestamp=1767268800").status_code == 200
     yield srv
     assert srv.stop() == 0, srv.output()
@@ -44,4 +48,5 @@ def test_api_fuzzed_from_its_own_description(fuzzed, tmp_path):
 def test_the_description_lists_every_route(fuzzed):
     paths = fuzzed.json("/openapi.json")["paths"]
     assert {"/", "/pub", "/api/fixes", "/healthz", "/api/devices", "/api/devices/{device_id}/position",
-            "/api/devices/{device_id}/track", "/api/stream", "/api/stats"} <= set(paths)
+            "/api/devices/{device_id}/track", "/api/stream", "/api/stats", "/v1/geolocate",
+            "/api/devices/{device_id}/cells"} <= set(paths)

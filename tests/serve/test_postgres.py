@@ -307,12 +307,19 @@ def test_db_copy_round_trip(tmp_path, postgres):
 
 
 def test_schema_is_versioned(postgres):
+    from mptrack.serve import _postgres
     from mptrack.serve._database import open_store
 
     db = postgres.create_database("versioned")
     store = open_store(db)
     store.close()
-    assert query(db, "SELECT value FROM meta WHERE key = 'schema_version'") == [(1,)]
+    assert query(db, "SELECT value FROM meta WHERE key = 'schema_version'") == [(_postgres.SCHEMA_VERSION,)]
+    # a database of version 1 (before the cell table) is upgraded when a server opens it
+    query(db, "DROP TABLE cells, cell_areas, cell_source")
+    query(db, "UPDATE meta SET value = 1 WHERE key = 'schema_version'")
+    open_store(db).close()
+    assert query(db, "SELECT value FROM meta WHERE key = 'schema_version'") == [(2,)]
+    assert query(db, "SELECT count(*) FROM cells") == [(0,)]
     query(db, "UPDATE meta SET value = 99 WHERE key = 'schema_version'")
     with pytest.raises(OutputError, match="schema version 99, newer"):
         open_store(db)

@@ -276,7 +276,7 @@ def test_cellular_constant_velocity_tracks_position_and_speed():
     true_speed = np.median(np.hypot(np.diff(te), np.diff(tn))[same] / np.diff(t)[same])
     rmse = {}
     for motion in ("random-walk", "cv"):
-        out = mptrack.track(log, cells=cells, motion=motion)
+        out = mptrack.track(log, cells=cells, method="ekf", motion=motion)
         assert len(out) == len(truth)
         oe, on = frame.to_enu(out["lat"].to_numpy(), out["lon"].to_numpy())
         rmse[motion] = pd.Series((oe - te) ** 2 + (on - tn) ** 2).groupby(truth["track_id"].to_numpy()).mean()

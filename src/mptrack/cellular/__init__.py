@@ -6,6 +6,10 @@ I and III, as published: :data:`TABLE_I`, :data:`TABLE_III`), their forms over a
 runs, and the snapshot fix :func:`range_fix`.
 State: the position (random walk, the paper's eq. 1) or constant velocity ``[x, vx, y, vy]``, axis
 by axis like every model in mptrack.
+
+Positions from one scan of cells as a geolocation service answers them: :func:`locate_cells` (the
+posterior over a grid, with co-sited sector cells as one site, the path loss of :func:`signal_prior` /
+:func:`signal_fit` and timing-advance rings) and Ichnaea's :func:`weighted_centroid`, its baseline.
 """
 
 from ._ekf import (
@@ -18,6 +22,9 @@ from ._ekf import (
     range_fix,
     range_measurement,
 )
+from ._centroid import CENTROID_ACCURACY_M, station_score, weighted_centroid
+from ._locate import CELL_FIELDS, CONFIDENCE, FIX_FIELDS, locate_cells
+from ._signal_model import RADIO_CODES, RADIOS, Radio, radio_code, signal_fit, signal_prior
 from ._fekf import (
     TABLE_I,
     TABLE_III,
@@ -50,4 +57,17 @@ __all__ = [
     "local_solutions",
     "fuse_local_solutions",
     "range_fix",
+    "locate_cells",
+    "CELL_FIELDS",
+    "FIX_FIELDS",
+    "CONFIDENCE",
+    "RADIOS",
+    "RADIO_CODES",
+    "Radio",
+    "radio_code",
+    "signal_prior",
+    "signal_fit",
+    "weighted_centroid",
+    "station_score",
+    "CENTROID_ACCURACY_M",
 ]

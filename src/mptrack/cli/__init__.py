@@ -24,7 +24,7 @@ from ._common import EXIT_CODES  # noqa: E402
 from .bench import bench  # noqa: E402
 from .filters import filters  # noqa: E402
 from .reproduce import reproduce  # noqa: E402
-from .serve import db, devices, keys, serve  # noqa: E402
+from .serve import db, devices, geolocate, keys, serve  # noqa: E402
 from .tracking import evaluate, simulate, track  # noqa: E402
 
 __all__ = ["app", "main"]
@@ -53,7 +53,7 @@ def _root(version: bool = typer.Option(False, "--version", "-V", callback=_versi
     """mptrack: mobile-terminal position tracking and paper reproductions."""
 
 
-for _command in (track, simulate, evaluate, reproduce, bench, filters, serve):
+for _command in (track, simulate, evaluate, reproduce, bench, filters, serve, geolocate):
     app.command(epilog=EXIT_CODES)(_command)
 app.add_typer(devices, name="devices")
 app.add_typer(keys, name="keys")

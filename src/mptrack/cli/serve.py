@@ -1,6 +1,7 @@
 """``mptrack serve`` (the live tracking server, docs/serve.md), the commands that manage who may use
 it: ``mptrack devices add NAME`` (a device token for ingest) and ``mptrack keys add NAME`` (an API key
-for the query API and the map), and its database: ``mptrack db upgrade`` and ``mptrack db copy``."""
+for the query API and the map), its database: ``mptrack db upgrade`` and ``mptrack db copy``, and
+``mptrack geolocate`` (the server's cell geolocation on a file of requests)."""
 
 from __future__ import annotations
 
@@ -15,10 +16,10 @@ from typing import Optional
 import typer
 
 from ..errors import MptrackError
-from ._common import QUIET, echo, err, fail, note
+from ._common import QUIET, check_outputs, echo, err, fail, note
 from ._logs import log_config_of
 
-__all__ = ["serve", "devices", "keys", "db"]
+__all__ = ["serve", "devices", "keys", "db", "geolocate"]
 
 _DB_HELP = ("Database: sqlite:///PATH (default sqlite:///mptrack.db in the working directory) or "
             "postgresql://USER@HOST/DB (many workers and hosts on one database).")
@@ -60,8 +61,10 @@ def serve(
                                                       "server never does); costs one disk flush per group commit."),
     retain: Optional[str] = typer.Option(None, "--retain", help="Delete fixes older than this (e.g. 30d, 12h); "
                                                                 "default: keep everything."),
-    cells: Optional[Path] = typer.Option(None, "--cells", help="Cell table (OpenCelliD layout) for cell "
-                                                               "geolocation."),
+    cells: Optional[Path] = typer.Option(None, "--cells", help="Cell table (OpenCelliD/MLS CSV, gzip or plain) "
+                                                               "for cell geolocation: POST /v1/geolocate, and "
+                                                               "devices that report cells; loaded into the "
+                                                               "database once (again when the file changes)."),
     model: str = typer.Option("cv", "--model", help="Motion model of the live filter: cv or ca."),
     workers: int = typer.Option(1, "--workers", help="Server processes on this machine (PostgreSQL only: any number "
                                                      "of processes and hosts may serve one database)."),
@@ -236,3 +239,47 @@ def copy(source: str = typer.Argument(..., help="The database to copy (sqlite://
     err.print(f"copied {got['fixes']:,} fixes of {got['device_keys']:,} devices, {got['devices']} registered "
               f"devices and {got['api_keys']} API keys; fixes' SHA-256 equal in both: {got['sha256'][:16]}…",
               soft_wrap=True, highlight=False)
+
+
+def geolocate(
+    requests: Path = typer.Argument(..., help="NDJSON file: one geolocate request (Google's / Ichnaea's JSON) per "
+                                              "line."),
+    cells: Optional[Path] = typer.Option(None, "--cells", help="Cell table (OpenCelliD/MLS CSV, gzip or plain)."),
+    db: Optional[str] = typer.Option(None, "--db", help="Database holding the cell table (e.g. the server's, "
+                                                        "sqlite:///mptrack.db); default: a temporary one."),
+    out: Optional[Path] = typer.Option(None, "--out", help="Write the answers here (NDJSON) instead of stdout."),
+    quiet: bool = QUIET,
+) -> None:
+    """Answer a file of cell geolocation requests as the server's POST /v1/geolocate does: one JSON line per
+    request, the position ({"location": {"lat", "lng"}, "accuracy"}: the 68 % radius in metres) or the error
+    in Google's format, with the request's line number and the HTTP status the server would give."""
+    import json
+
+    from .._core.files import atomic_path
+    from ..serve import geolocate_requests
+
+    if cells is None and db is None:
+        fail("--cells: give the cell table (or --db, a database that holds one)")
+    check_outputs(requests, cells, out=out)
+    counts: dict[int, int] = {}
+    try:
+        lines = geolocate_requests(requests, cells=cells, db=None if db is None else _db_url(db))
+        if out is None:
+            for number, status, answer in lines:
+                counts[status] = counts.get(status, 0) + 1
+                echo(json.dumps({"line": number, "status": status, **answer}, separators=(",", ":")))
+        else:
+            with atomic_path(out) as tmp, open(tmp, "w") as f:
+                for number, status, answer in lines:
+                    counts[status] = counts.get(status, 0) + 1
+                    f.write(json.dumps({"line": number, "status": status, **answer}, separators=(",", ":")) + "\n")
+    except MptrackError as exc:
+        fail(exc)
+    except KeyboardInterrupt:
+        from ._common import interrupted
+
+        interrupted("nothing was written" if out is not None else "the answers printed so far")
+    if not quiet:
+        total = sum(counts.values())
+        note(f"{total} requests: {counts.get(200, 0)} located, {counts.get(404, 0)} not found, "
+             f"{counts.get(400, 0)} refused" + (f"; answers in {out}" if out is not None else ""), "geolocate")

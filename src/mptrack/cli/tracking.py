@@ -45,6 +45,7 @@ class _Reading(NamedTuple):
     time_unit: typer.models.OptionInfo
     time_format: typer.models.OptionInfo
     coord_unit: typer.models.OptionInfo
+    timezone: typer.models.OptionInfo
 
 
 def _reading_options(what: str) -> _Reading:
@@ -60,7 +61,9 @@ def _reading_options(what: str) -> _Reading:
         typer.Option(None, "--time-format", help=f"Layout of text time stamps of {what} that are not ISO 8601, "
                                                  "e.g. '%d/%m/%Y %H:%M:%S'."),
         typer.Option("auto", "--coord-unit", help=f"Unit of lat/lon of {what}: auto, deg, deg-e7 or deg-e6 "
-                                                  "(integer degrees x 10^7 / 10^6) or rad."))
+                                                  "(integer degrees x 10^7 / 10^6) or rad."),
+        typer.Option(None, "--timezone", help=f"Time zone of the local time stamps of {what} when it is a "
+                                              "G-NetTrack Pro log, e.g. Europe/Brussels (default: read as UTC)."))
 
 
 _TRACK_READING = _reading_options("the input")
@@ -68,7 +71,8 @@ _ALONG_READING = _reading_options("the --along file")
 _TRUTH_READING = _reading_options("the --truth file")
 
 
-def _read_options(ctx, columns, time_unit, time_format, coord_unit, *, file="", option: str = "", **more):
+def _read_options(ctx, columns, time_unit, time_format, coord_unit, timezone, *, file="", option: str = "",
+                  **more):
     """The :class:`mptrack.io.ReadOptions` of the reading options (errors name the option); given without
     the file they apply to (``file`` None, named by ``option``) they are refused."""
     from ..io import ReadOptions
@@ -77,7 +81,7 @@ def _read_options(ctx, columns, time_unit, time_format, coord_unit, *, file="", 
         reject_given(ctx, _Reading._fields, f"applies to the file read with {option}")
     with flags_named(ctx):
         return ReadOptions(columns=columns or (), time_unit=time_unit, time_format=time_format,
-                           coord_unit=coord_unit, **more)
+                           coord_unit=coord_unit, timezone=timezone, **more)
 
 
 def _skipped(read: dict, verbose: bool) -> None:
@@ -138,13 +142,15 @@ def track(
                                                                  "INPUT.tracks.parquet beside the input."),
     cells: Optional[Path] = typer.Option(None, "--cells", help="Cell table (OpenCelliD layout): track cellular "
                                                                "measurements with --method."),
-    method: Optional[str] = typer.Option(None, help="With --cells: the cellular filter, ekf (default), fekf or "
-                                                    "fcs."),
-    motion: Optional[str] = typer.Option(None, help="With --cells: the motion model, random-walk (default) or "
-                                                    "cv."),
-    path_loss: Optional[str] = typer.Option(None, "--path-loss", help="With --cells: the path-loss model that turns "
-                                            "RSS into ranges: cost231-wi-nlos (default), cost231-wi-los, "
-                                            "cost231-hata, okumura-hata or free-space."),
+    method: Optional[str] = typer.Option(None, help="With --cells: locate (default: each scan placed as the "
+                                                    "server's /v1/geolocate places a request, co-sited cells one "
+                                                    "site, the covariance the posterior's), or a range filter over "
+                                                    "time (Bouzera et al. 2017): ekf, fekf or fcs."),
+    motion: Optional[str] = typer.Option(None, help="With --cells and a range filter: the motion model, "
+                                                    "random-walk (default) or cv."),
+    path_loss: Optional[str] = typer.Option(None, "--path-loss", help="With --cells and a range filter: the "
+                                            "path-loss model that turns RSS into ranges: cost231-wi-nlos (default), "
+                                            "cost231-wi-los, cost231-hata, okumura-hata or free-space."),
     range_sigma: Optional[float] = typer.Option(None, "--range-sigma", help="With --cells: the range noise "
                                                 "(1-sigma, m). Default 471 m (Bouzera et al. 2017's "
                                                 "R0 = 0.222 km^2)."),
@@ -182,6 +188,7 @@ def track(
     time_unit: str = _TRACK_READING.time_unit,
     time_format: Optional[str] = _TRACK_READING.time_format,
     coord_unit: str = _TRACK_READING.coord_unit,
+    timezone: Optional[str] = _TRACK_READING.timezone,
     resume: bool = typer.Option(False, "--resume", help="Keep the work of an interrupted run of the same input "
                                                         "and options."),
     executor: str = typer.Option("serial", help="serial, processes or dask: who runs the chunks (the output "
@@ -228,7 +235,7 @@ def track(
             if range_sigma is not None:  # the option is a standard deviation in m, the setting a variance in km^2
                 values["r_km2"] = (check_positive("range_sigma", range_sigma) / 1e3) ** 2
             options = TrackOptions(**values)
-        read = _read_options(ctx, columns, time_unit, time_format, coord_unit, max_skip=max_skip)
+        read = _read_options(ctx, columns, time_unit, time_format, coord_unit, timezone, max_skip=max_skip)
         # track_file locks out and track_summary for its run; the report, written here, is locked here
         with output_lock(report, note=command_line()):
             try:
@@ -376,6 +383,7 @@ def simulate(
     time_unit: str = _ALONG_READING.time_unit,
     time_format: Optional[str] = _ALONG_READING.time_format,
     coord_unit: str = _ALONG_READING.coord_unit,
+    timezone: Optional[str] = _ALONG_READING.timezone,
     quiet: bool = QUIET,
     verbose: bool = VERBOSE,
     json_out: bool = JSON,
@@ -416,7 +424,8 @@ def simulate(
     try:
         check_outputs(along, out=out, cells_out=cells_to)
         with flags_named(ctx):
-            read = _read_options(ctx, columns, time_unit, time_format, coord_unit, file=along, option="--along")
+            read = _read_options(ctx, columns, time_unit, time_format, coord_unit, timezone, file=along,
+                                 option="--along")
             chunks = simulate_chunks(scenario, n_tracks, np.random.default_rng(seed), duration_s=duration,
                                      along=along, interval=interval, q=q, speed_mps=speed, sigma_m=sigma,
                                      outlier_rate=outliers, accuracy_column=accuracy, read=read,
@@ -461,6 +470,7 @@ def evaluate(
     time_unit: str = _TRUTH_READING.time_unit,
     time_format: Optional[str] = _TRUTH_READING.time_format,
     coord_unit: str = _TRUTH_READING.coord_unit,
+    timezone: Optional[str] = _TRUTH_READING.timezone,
     quiet: bool = QUIET,
     verbose: bool = VERBOSE,
     json_out: bool = JSON,
@@ -477,7 +487,8 @@ def evaluate(
     truth_report = ReadReport()
     try:
         check_outputs(tracks, truth, report=report)
-        read = _read_options(ctx, columns, time_unit, time_format, coord_unit, file=truth, option="--truth")
+        read = _read_options(ctx, columns, time_unit, time_format, coord_unit, timezone, file=truth,
+                             option="--truth")
         held.enter_context(output_lock(report, note=command_line()))
         if not tracks.exists():
             raise DataError("file not found", file=tracks)

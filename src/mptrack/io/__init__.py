@@ -11,7 +11,7 @@ with ``on_error="skip"`` bad rows are dropped and counted in a :class:`ReadRepor
 from .._core.moved import moved_names
 from ._geodesy import LocalFrame, enu_to_geodetic, geodetic_to_enu
 from ._gpx import NAMESPACE as GPX_EXTENSION_NAMESPACE
-from ._formats import FORMATS, input_format
+from ._formats import FORMATS, Skipped, input_format
 from ._interpret import ReadOptions
 from ._inputs import input_label, input_name, input_paths, resolve_input
 from ._readers import (InputNotSorted, input_columns, iter_track_chunks, iter_tracks, read_cells, read_chunks,
@@ -20,6 +20,7 @@ from ._schema import CELLS, FIXES, MEASUREMENTS, ON_ERROR, Column, ReadReport, S
 from ._outputs import OUTPUT_FORMATS, output_format, read_output, write_table
 
 __all__ = [
+    "Skipped",
     "Column",
     "Schema",
     "FIXES",

@@ -39,7 +39,7 @@ from ..errors import DataError
 __all__ = ["FORMATS", "FORMAT_NAMES", "Skipped", "input_format", "raw_chunks"]
 
 #: file suffix -> input format (".csv.gz" and ".tsv" are CSV, the delimiter sniffed; ".txt" and ".log" are NMEA
-#: when they hold NMEA sentences)
+#: when they hold NMEA sentences; a text file with G-NetTrack Pro's header is a G-NetTrack log)
 FORMATS = {".csv": "csv", ".tsv": "csv", ".txt": "csv", ".log": "csv", ".gz": "csv", ".parquet": "parquet",
            ".pq": "parquet",
            ".gpx": "gpx", ".nmea": "nmea", ".nme": "nmea", ".fit": "fit", ".tcx": "tcx", ".geojson": "geojson",
@@ -47,7 +47,7 @@ FORMATS = {".csv": "csv", ".tsv": "csv", ".txt": "csv", ".log": "csv", ".gz": "c
 
 #: input format -> the name messages use
 FORMAT_NAMES = {"csv": "CSV", "parquet": "Parquet", "gpx": "GPX", "nmea": "NMEA 0183", "fit": "FIT", "tcx": "TCX",
-                "geojson": "GeoJSON"}
+                "geojson": "GeoJSON", "gnettrack": "G-NetTrack Pro log"}
 
 #: formats decoded by a module of their own (imported on first use): format -> module
 _DECODERS = {"gpx": "._gpx", "nmea": "._nmea_reader", "fit": "._fit_reader", "tcx": "._tcx_reader",
@@ -75,7 +75,7 @@ def input_format(path) -> str:
     """The input format of a file from its name: one of the values of :data:`FORMATS`.
 
     ".txt" and ".log" files are NMEA 0183 when their first line (after ``#`` comments) is an NMEA
-    sentence, CSV otherwise.
+    sentence, CSV otherwise; a text file whose header is G-NetTrack Pro's is a G-NetTrack log.
 
     Parameters
     ----------
@@ -97,14 +97,19 @@ def input_format(path) -> str:
                         "or a directory of Parquet files", file=path)
     if suffix in (".txt", ".log") and _starts_with_nmea(path):
         return "nmea"
+    if FORMATS[suffix] == "csv" and suffix != ".gz" and path.is_file() and _is_gnettrack(path):
+        return "gnettrack"
     return FORMATS[suffix]
 
 
-def raw_chunks(source, chunk_rows: int, skipped: list | None = None) -> Iterator[pd.DataFrame]:
+def raw_chunks(source, chunk_rows: int, skipped: list | None = None, *, cells: bool = False,
+               timezone: str | None = None) -> Iterator[pd.DataFrame]:
     """Raw chunks of at most ``chunk_rows`` rows of a DataFrame, a file, or a directory of Parquet files.
 
     ``skipped``: a list to which the readers append a :class:`Skipped` for every kind
-    of record they leave out (see the module docstring).
+    of record they leave out (see the module docstring).  ``cells`` and ``timezone`` are for the
+    formats that hold both (:mod:`._gnettrack`): read the cells heard rather than the positions, local
+    time stamps in this zone.
     """
     skipped = [] if skipped is None else skipped
     if isinstance(source, pd.DataFrame):
@@ -124,6 +129,9 @@ def raw_chunks(source, chunk_rows: int, skipped: list | None = None) -> Iterator
             yield from _csv_chunks(path, chunk_rows)
         elif fmt == "parquet":
             yield from _parquet_chunks(path, chunk_rows)
+        elif fmt == "gnettrack":  # two readings of one log: its positions or its cells
+            read_log: Callable = importlib.import_module("._gnettrack", __package__).read
+            yield from frame_chunks(read_log(path, skipped, cells=cells, timezone=timezone), chunk_rows)
         else:
             read: Callable = importlib.import_module(_DECODERS[fmt], __package__).read
             yield from frame_chunks(read(path, skipped), chunk_rows)
@@ -229,6 +237,20 @@ def sniff_csv(text: str) -> tuple[str, str]:
         if any(re.fullmatch(r"-?\d+,\d+", v) for v in values):
             decimal = ","
     return sep, decimal
+
+
+#: the first fields of a G-NetTrack Pro log's header line
+GNETTRACK_HEADER = ("Timestamp", "Longitude", "Latitude", "Speed")
+
+
+def _is_gnettrack(path: Path) -> bool:
+    """Whether the first line of ``path`` is a G-NetTrack Pro header (:mod:`._gnettrack` reads the log)."""
+    try:
+        with open(path, "rb") as fh:
+            first = fh.readline(4096).decode("utf-8", errors="replace")
+    except OSError:
+        return False
+    return tuple(first.rstrip("\r\n").lstrip("\ufeff").split("\t")[:4]) == GNETTRACK_HEADER
 
 
 def _starts_with_nmea(path: Path) -> bool:

@@ -91,6 +91,8 @@ class ReadOptions:
     coord_unit   unit of lat/lon: auto, deg, deg-e6, deg-e7 (integer degrees x 10^6 / 10^7), rad
     max_skip     with on_error="skip": the most rows that may be dropped, "1%" of the rows read or a
                  count ("50"); beyond it the run fails with the reasons
+    timezone     the time zone (IANA name, "Europe/Brussels") of logs that write the phone's local time
+                 (G-NetTrack Pro); None: read as UTC, with a note
     """
 
     columns: tuple = ()
@@ -98,6 +100,7 @@ class ReadOptions:
     time_format: str | None = None
     coord_unit: str = "auto"
     max_skip: str = "1%"
+    timezone: str | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "columns", parse_columns(self.columns))
@@ -106,6 +109,11 @@ class ReadOptions:
                 raise ParameterError(f"{name}: expected one of {', '.join(allowed)}, got {getattr(self, name)!r}")
         object.__setattr__(self, "max_skip", str(self.max_skip).strip())
         self.skip_limit(0)  # validates
+        if self.timezone is not None:
+            from ._gnettrack import check_timezone
+
+            check_timezone(self.timezone)
+            object.__setattr__(self, "timezone", self.timezone.strip())
 
     @property
     def column_map(self) -> dict:

@@ -19,7 +19,7 @@ from ._inputs import InputFiles, file_labels, input_label, resolve_input
 from ..errors import DataError, ParameterError
 from ._formats import Skipped, input_format, raw_chunks
 from ._interpret import ReadOptions, interpret
-from ._schema import CELLS, FIXES, ReadReport, Schema, cell_key, validate_chunk
+from ._schema import CELLS, FIXES, MEASUREMENTS, ReadReport, Schema, cell_key, validate_chunk
 
 __all__ = ["read_chunks", "iter_track_chunks", "iter_tracks", "read_table", "read_cells",
            "input_columns"]
@@ -105,7 +105,7 @@ def read_chunks(path, schema: Schema = FIXES, *, on_error: str = "raise", chunk_
     first = 1
     plan = None
     skipped: list = []
-    for raw in raw_chunks(path, chunk_rows, skipped):
+    for raw in raw_chunks(path, chunk_rows, skipped, cells=schema is MEASUREMENTS, timezone=read.timezone):
         report.leave_out(skipped)
         if plan is None:
             plan = interpret(raw, schema, read, file=label)
@@ -470,7 +470,7 @@ def _without_repeats(chunk: pd.DataFrame, open_id, open_last, report: ReadReport
     return chunk.loc[~repeat].reset_index(drop=True)
 
 
-def read_cells(path, *, wanted=None, on_error: str = "raise", report: ReadReport | None = None,
+def read_cells(path, *, wanted=None, units=None, on_error: str = "raise", report: ReadReport | None = None,
                chunk_rows: int = DEFAULT_CHUNK_ROWS) -> pd.DataFrame:
     """A cell table in the OpenCelliD CSV layout, indexed by ``cell_id`` = "mcc-net-area-cell".
 
@@ -483,6 +483,9 @@ def read_cells(path, *, wanted=None, on_error: str = "raise", report: ReadReport
         The table (CSV or Parquet).
     wanted : iterable of str, optional
         Keep only these cell ids (a country-sized table is then streamed, not held).
+    units : iterable of int, optional
+        With ``wanted``: keep the cells whose ``unit`` (PCI/PSC) is one of these too (cells a log names
+        by PCI, :func:`mptrack.tracking.resolve_cells`).
     on_error : {"raise", "skip"}, optional
         Raise a DataError naming file, row and column at the first bad row, or drop bad rows and count
         them by reason in ``report``.
@@ -501,12 +504,16 @@ def read_cells(path, *, wanted=None, on_error: str = "raise", report: ReadReport
         A cell id listed twice (naming the second row), or a table without rows.
     """
     wanted = None if wanted is None else set(wanted)
+    units = set() if units is None else {int(u) for u in units}
     report = report if report is not None else ReadReport()
     keep = []
     for chunk in read_chunks(path, CELLS, on_error=on_error, report=report, chunk_rows=chunk_rows):
         chunk["cell_id"] = cell_key(chunk["mcc"], chunk["net"], chunk["area"], chunk["cell"]).to_numpy()
         if wanted is not None:
-            chunk = chunk.loc[chunk["cell_id"].isin(wanted)]
+            keep_rows = chunk["cell_id"].isin(wanted)
+            if units and "unit" in chunk.columns:
+                keep_rows |= chunk["unit"].isin(units)
+            chunk = chunk.loc[keep_rows]
         keep.append(chunk)
     if report.rows_read == 0:
         raise DataError("the cell table is empty: it has a header only, no cells", file=source_label(path))

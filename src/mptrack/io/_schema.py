@@ -135,8 +135,9 @@ MEASUREMENTS = Schema("cellular measurements", (
            nullable=True),
     Column("range_m", "float", "m", "measured range to the cell's antenna", required=False, lo=0.0,
            nullable=True),
-    Column("ta", "int", "GSM TA steps", "timing advance; range = (ta + 0.5) x 553.5 m, 3GPP TS 45.010",
-           required=False, lo=0, hi=63, nullable=True),
+    Column("ta", "int", "TA steps", "timing advance in the steps of the cell's radio: range = (ta + 0.5) x "
+           "553.5 m for GSM (0..63, 3GPP TS 45.010), x 78.07 m for LTE (0..1282, TS 36.213)", required=False, lo=0,
+           hi=1282, nullable=True),
 ), one_of=(("rss_dbm",), ("range_m",), ("ta",)), row_needs_one_of=("rss_dbm", "range_m", "ta"))
 
 CELLS = Schema("cell table (OpenCelliD layout)", (
@@ -147,14 +148,27 @@ CELLS = Schema("cell table (OpenCelliD layout)", (
     Column("cell", "int", "", "cell identity (CID / ECI)", lo=0),
     Column("lon", "float", "degrees", "antenna longitude (WGS-84)", lo=-180.0, hi=180.0),
     Column("lat", "float", "degrees", "antenna latitude (WGS-84)", lo=-90.0, hi=90.0),
-    Column("range", "float", "m", "OpenCelliD's coverage estimate (not used by the filters)", required=False,
-           lo=0.0, nullable=True),
+    Column("range", "float", "m", "coverage radius estimate (geolocation: single-cell accuracy and the path-loss "
+           "fit)", required=False, lo=0.0, nullable=True),
     Column("height_m", "float", "m", "antenna height above ground (default 30)", required=False, lo=0.0,
            nullable=True),
     Column("power_dbm", "float", "dBm", "transmit power incl. antenna gain (default 43)", required=False,
            nullable=True),
     Column("arfcn", "int", "", "GSM channel number; sets the carrier frequency (default 1800 MHz)",
            required=False, lo=0, hi=1023, nullable=True),
+    Column("unit", "int", "", "PSC (UMTS) or PCI (LTE, NR)", required=False, lo=0, nullable=True),
+    Column("samples", "int", "", "observations behind the row (geolocation: weight and fit)", required=False,
+           lo=0, nullable=True),
+    Column("changeable", "int", "", "1: position averaged from observations, 0: exact", required=False, lo=0,
+           hi=1, nullable=True),
+    Column("created", "int", "s since 1970", "first seen", required=False, lo=0, nullable=True),
+    Column("updated", "int", "s since 1970", "last seen", required=False, lo=0, nullable=True),
+    Column("averageSignal", "float", "dBm", "mean signal of the observations (0 = unknown; geolocation fits the "
+           "path loss from it and range)", required=False, nullable=True),
+    Column("azimuth_deg", "float", "degrees", "sector antenna azimuth, clockwise from north (empty: "
+           "omnidirectional or unknown)", required=False, lo=0.0, hi=360.0, nullable=True),
+    Column("earfcn", "int", "", "LTE/NR channel number (resolves neighbour cells logged by PCI)",
+           required=False, lo=0, nullable=True),
 ), mapped=False)
 
 
@@ -195,7 +209,8 @@ class ReadReport:
         list): counted by reason, one note each.  They are not bad rows (no --max-skip)."""
         while skipped:
             s = skipped.pop(0)
-            self.left_out[s.reason] += s.count
+            if s.count:  # a count of 0: a note on how the file was read
+                self.left_out[s.reason] += s.count
             self.note(s.detail)
 
     def reset(self) -> None:

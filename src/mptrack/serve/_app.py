@@ -1,7 +1,8 @@
 """The server: one ASGI application.
 
 The ingest routes (``/`` with OsmAnd parameters or Traccar Client JSON, ``/pub`` for OwnTracks,
-``/api/fixes`` for bulk files) are plain ASGI: they read the request, parse it with their protocol
+``/api/fixes`` for bulk files, ``/api/devices/{id}/cells`` for devices that report cells) and cell
+geolocation (``/v1/geolocate``, :mod:`._geolocate`) are plain ASGI: they read the request, parse it with their protocol
 module into fix records, wait for the group commit (:class:`._ingest.Ingest`) and answer in the
 client's format.  Everything else -- the query API, its OpenAPI description, the stream and the
 map -- is a FastAPI application (:mod:`._query`).
@@ -25,6 +26,9 @@ from ..errors import MptrackError, ParameterError, RequestError
 from ..tracking import MODELS, LiveTracks, TrackOptions
 from . import _bulk, _osmand, _owntracks, _traccar_json
 from ._auth import RateLimit, Registry, check_device, credentials
+from ._celltable import load_cell_table
+from ._fix import device_id, timestamp
+from ._geolocate import GeolocateError, Geolocator, answer_body, error_body, osmand_query, parse_request
 from ._ingest import Ingest
 from ._metrics import Metrics
 from ._database import open_store
@@ -100,6 +104,7 @@ class Server:
         self.store = None
         self.ingest: Ingest | None = None
         self.registry: Registry | None = None
+        self.geolocator: Geolocator | None = None
         self.limits = RateLimit(config.rate, config.burst)
         self.metrics = Metrics.from_environment()
         self.started = time.time()
@@ -115,6 +120,14 @@ class Server:
         self.ingest = Ingest(self.store, live, checkpoint_s=self.config.checkpoint_s, metrics=self.metrics)
         await loop.run_in_executor(None, self.ingest.recover)
         self.registry = Registry(self.store)
+        if self.config.cells is not None:
+            report = await loop.run_in_executor(None, load_cell_table, self.store, self.config.cells)
+            log.info("cell table %s: %s", self.config.cells, "unchanged, not reloaded" if not report.loaded else
+                     f"{report.cells} cells, {report.areas} areas in {report.seconds:.1f} s; "
+                     f"{report.duplicates} duplicates and {sum(report.skipped.values())} bad rows left out "
+                     f"{report.examples[:3] if report.examples else ''}")
+        if self.store.cell_source() is not None:
+            self.geolocator = Geolocator(self.store)
         self.ingest.start()
         if self.config.retain_s is not None:
             self._tasks.append(loop.create_task(self._retention()))
@@ -157,6 +170,10 @@ class Server:
                 return await self._guard(self._owntracks, scope, receive, send)
             elif path == "/api/fixes" and method == "POST":
                 return await self._guard(self._bulk, scope, receive, send)
+            elif path == "/v1/geolocate" and method == "POST":
+                return await self._geolocate(scope, receive, send)
+            elif path.startswith("/api/devices/") and path.endswith("/cells") and method == "POST":
+                return await self._guard(self._cells, scope, receive, send)
             elif path == "/healthz" and method in ("GET", "HEAD"):
                 return await _respond(send, 200, b'{"status":"ok"}')
             elif path == "/metrics" and method == "GET":
@@ -238,7 +255,7 @@ class Server:
                 raise RequestError(f"expected application/x-www-form-urlencoded (OsmAnd) or application/json "
                                    f"(Traccar Client), got {ctype or 'no content type'}", status=415,
                                    code="unsupported_media_type", field="Content-Type")
-        await self._accept(fixes, headers, key)
+        await self._accept(self._place(fixes), headers, key)
         return 200, b"", b"text/plain"
 
     async def _owntracks(self, scope, receive):
@@ -273,6 +290,47 @@ class Server:
         fixes = await loop.run_in_executor(None, _bulk.parse_body, body, kind, params)
         await self.ingest.submit(fixes)
         return 200, json.dumps({"accepted": len(fixes)}).encode(), b"application/json"
+
+    async def _geolocate(self, scope, receive, send):
+        """POST /v1/geolocate: the position of the cells of a Google/Ichnaea request, errors in their format."""
+        try:
+            headers = dict(scope["headers"])
+            if self.config.auth:
+                try:
+                    self.registry.check_key(credentials(headers, _query_key(scope))[0])
+                except RequestError as exc:  # Google answers a bad key with 400 keyInvalid
+                    raise GeolocateError(exc.reason, reason="keyInvalid", field="key") from None
+            answer = self._locate(parse_request(await _body(receive, headers, self.config.max_body)))
+        except RequestError as exc:
+            return await _respond(send, exc.status, error_body(exc))
+        await _respond(send, 200, answer_body(answer))
+
+    def _locate(self, query):
+        if self.geolocator is None:
+            raise GeolocateError("Not found: this server has no cell table (start it with --cells FILE)",
+                                 reason="notFound", status=404)
+        return self.geolocator.locate(query)
+
+    async def _cells(self, scope, receive):
+        """POST /api/devices/{id}/cells: a geolocate body of a device; its position feeds the device's track."""
+        headers = dict(scope["headers"])
+        device = device_id(scope["path"][len("/api/devices/"):-len("/cells")], "device_id")
+        body = await _body(receive, headers, self.config.max_body)
+        query = parse_request(body)
+        answer = self._locate(query)
+        t = timestamp(query.timestamp, "timestamp") if query.timestamp is not None else time.time()
+        await self._accept([_cell_fix(device, t, answer)], headers, _query_key(scope))
+        return 200, answer_body(answer), b"application/json"
+
+    def _place(self, fixes: list[tuple]) -> list[tuple]:
+        """Fixes without a position (an OsmAnd report of cells only) placed from their cells."""
+        out = []
+        for f in fixes:
+            if f[2] is None:
+                out.append(_cell_fix(f[0], f[1], self._locate(osmand_query(f[8]["cells"])), f[8]))
+            else:
+                out.append(f)
+        return out
 
     async def _accept(self, fixes: list[tuple], headers: dict, key: str | None, *, device: str | None = None,
                       checked: bool = False) -> None:
@@ -338,6 +396,12 @@ _OSMAND = (b"id=", b"deviceid=", b"lat=", b"lon=", b"location=")
 def _is_osmand(query: bytes) -> bool:
     """A GET / with a device id or a position is an OsmAnd fix (without any it is the map page)."""
     return query.startswith(_OSMAND) or any(b"&" + p in query for p in _OSMAND)
+
+
+def _cell_fix(device: str, t: float, answer, attrs: dict | None = None) -> tuple:
+    """The fix of a device placed from its cells (its accuracy the 68 % radius, as a phone's own)."""
+    extra = {"source": "lacf" if answer.fallback else "cells", "cells_known": answer.known}
+    return (device, t, answer.lat, answer.lon, answer.accuracy, None, None, None, {**(attrs or {}), **extra})
 
 
 def _one(parsed) -> tuple[list[tuple], str | None]:

@@ -47,6 +47,32 @@ _OWNTRACKS = {"type": "object", "required": ["_type"], "properties": {
     "tid": {"type": "string"}}}
 
 
+_INT = {"type": "integer"}
+_TOWER = {"type": "object", "properties": {
+    "radioType": {"type": "string", "enum": ["gsm", "wcdma", "lte", "nr", "cdma"]},
+    "mobileCountryCode": _INT, "mobileNetworkCode": _INT, "locationAreaCode": _INT, "cellId": _INT,
+    "newRadioCellId": _INT, "signalStrength": {"type": "number", "description": "dBm (0: unknown)"},
+    "timingAdvance": _INT, "age": {"type": "integer", "description": "milliseconds"}}}
+_GEOLOCATE = {"type": "object", "properties": {
+    "radioType": {"type": "string", "enum": ["gsm", "wcdma", "lte", "nr", "cdma"]}, "considerIp": {"type": "boolean"},
+    "cellTowers": {"type": "array", "items": _TOWER},
+    "wifiAccessPoints": {"type": "array", "items": {"type": "object"}, "description": "accepted, not used"},
+    "fallbacks": {"type": "object", "properties": {"lacf": {"type": "boolean"}, "ipf": {"type": "boolean"}}}}}
+_POSITION = {"type": "object", "required": ["location", "accuracy"], "properties": {
+    "location": {"type": "object", "properties": {"lat": {"type": "number"}, "lng": {"type": "number"}}},
+    "accuracy": {"type": "number", "description": "radius (m) holding the true position with probability 68 %"},
+    "fallback": {"type": "string", "enum": ["lacf"]}}}
+_GOOGLE_ERROR = {"type": "object", "properties": {"error": {"type": "object", "properties": {
+    "errors": {"type": "array", "items": {"type": "object", "properties": {
+        "domain": {"type": "string"}, "reason": {"type": "string"}, "message": {"type": "string"}}}},
+    "code": {"type": "integer"}, "message": {"type": "string"}}}}}
+_GEO_ERRORS = {str(code): {"description": why, "content": {"application/json": {"schema": _GOOGLE_ERROR}}}
+               for code, why in ((400, "parseError: a field is malformed (named); keyInvalid: no or unknown API key "
+                                       "(--auth)"),
+                                 (404, "notFound: no cell of the request is known"),
+                                 (413, "the body is larger than the server takes"))}
+
+
 def ingest_paths() -> dict:
     """The OpenAPI ``paths`` of the ingest routes."""
     ok = {"description": "committed: every fix of the request is stored with its estimate"}
@@ -80,6 +106,26 @@ def ingest_paths() -> dict:
                                                           "text/csv": {"schema": {"type": "string"}}}},
             "responses": {"200": {"description": "committed", "content": {"application/json": {"schema": {
                 "type": "object", "properties": {"accepted": {"type": "integer"}}}}}}, **_ERRORS}}},
+        "/v1/geolocate": {"post": {
+            "summary": "Cell geolocation: Google's Geolocation API / Mozilla Ichnaea request and answer (needs "
+                       "--cells)", "operationId": "geolocate", "tags": ["geolocation"],
+            "parameters": [_q("key", "API key (--auth)")],
+            "requestBody": {"required": False, "content": {"application/json": {"schema": _GEOLOCATE}}},
+            "responses": {"200": {"description": "the position", "content": {"application/json": {
+                "schema": _POSITION}}}, **_GEO_ERRORS}}},
+        "/api/devices/{device_id}/cells": {"post": {
+            "summary": "A device's cells (a geolocate body, optionally with a timestamp): placed from the cell "
+                       "table, the position feeds the device's track", "operationId": "device_cells",
+            "tags": ["ingest"],
+            "parameters": [{"name": "device_id", "in": "path", "required": True, "schema": {"type": "string"}},
+                           _q("key", "the device's token (--auth)")],
+            "requestBody": {"required": True, "content": {"application/json": {"schema": {
+                **_GEOLOCATE, "properties": {**_GEOLOCATE["properties"], "timestamp": {
+                    "description": "time of the scan: epoch s or ms, or ISO 8601 (the server's clock if absent)"}}}}}},
+            "responses": {"200": {"description": "committed; the position", "content": {"application/json": {
+                "schema": _POSITION}}}, **_ERRORS, "404": {
+                "description": "no cell of the request is known", "content": {"application/json": {
+                    "schema": _ERROR}}}}}},
         "/healthz": {"get": {"summary": "200 when the server is ready", "operationId": "healthz", "tags": ["operations"],
                              "responses": {"200": {"description": "ready"}}}},
         "/metrics": {"get": {"summary": "Counters, latency and batch-size histograms, devices (Prometheus text format; "

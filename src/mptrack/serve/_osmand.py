@@ -9,8 +9,9 @@ the same parameters::
 ``id`` or ``deviceid``; ``lat``, ``lon`` or ``location=lat,lon``; ``timestamp`` in epoch seconds,
 epoch milliseconds or ISO 8601 (the server's clock when absent); ``speed`` in knots; ``bearing`` or
 ``heading`` (degrees); ``altitude`` (m); ``accuracy`` (m); ``hdop``; ``batt``;
-``cell=mcc,mnc,lac,cid[,rssi]`` and ``wifi=mac,rssi`` (both repeatable); any other parameter is kept
-as an attribute (a number, true/false, or text).  ``key`` is the device's token (``--auth``), not
+``cell=mcc,mnc,lac,cid[,rssi]`` and ``wifi=mac,rssi`` (both repeatable; a report with cells and no
+position is placed from the server's cell table); any other parameter is kept as an attribute (a
+number, true/false, or text).  ``key`` is the device's token (``--auth``), not
 an attribute.  The answer is 200 with an empty body.
 """
 
@@ -76,6 +77,8 @@ def parse_pairs(pairs, now: float | None = None) -> tuple[tuple, str | None]:
         if len(parts) != 2:
             raise RequestError(f"expected location=lat,lon, got {p['location']!r}", field="location")
         lat, lon = position(parts[0], parts[1], "location", "location")
+    elif cells and not p.get("lat") and not p.get("lon"):
+        lat = lon = None  # cells only: the server places the fix from its cell table
     else:
         lat, lon = position(p.get("lat"), p.get("lon"), "lat", "lon")
     now = time.time() if now is None else now

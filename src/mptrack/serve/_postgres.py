@@ -33,7 +33,8 @@ from typing import Callable, Iterator
 import numpy as np
 
 from ..errors import OutputError, ParameterError
-from ._store import ESTIMATE_COLUMNS, FIX_COLUMNS, StoredRows, stored_rows
+from ._store import (AREA_AGGREGATES, AREA_COLUMNS, CELL_COLUMNS, ESTIMATE_COLUMNS, FIX_COLUMNS, StoredRows,
+                     stored_rows)
 
 __all__ = ["PostgresStore", "SCHEMA_VERSION", "CHANNEL", "shown_url"]
 
@@ -74,10 +75,28 @@ _MIGRATIONS = {
         "created double precision NOT NULL)",
         "INSERT INTO meta VALUES ('schema_version', 0)",
     ],
+    2: [  # the cell table of cell geolocation (serve/_celltable.py), its location areas, what was loaded
+        "CREATE TABLE cells (radio smallint NOT NULL, mcc integer NOT NULL, net integer NOT NULL, area bigint NOT NULL, "
+        "cell bigint NOT NULL, lat double precision NOT NULL, lon double precision NOT NULL, range_m double precision, "
+        "samples double precision, changeable double precision, azimuth_deg double precision, "
+        "intercept_dbm double precision NOT NULL, slope_db double precision NOT NULL, fit_offset_db double precision, "
+        "score double precision NOT NULL, unit integer, earfcn integer, PRIMARY KEY (mcc, net, area, cell, radio))",
+        "CREATE TABLE cell_areas (radio smallint NOT NULL, mcc integer NOT NULL, net integer NOT NULL, "
+        "area bigint NOT NULL, lat double precision NOT NULL, lon double precision NOT NULL, "
+        "radius_m double precision NOT NULL, cells integer NOT NULL, fits integer NOT NULL, offset_db double precision, "
+        "PRIMARY KEY (radio, mcc, net, area))",
+        "CREATE TABLE cell_source (id smallint PRIMARY KEY, source text NOT NULL)",
+    ],
 }
 SCHEMA_VERSION = max(_MIGRATIONS)
 
 _SELECT = f"SELECT seq, {', '.join(_ALL)} FROM fixes"
+_INSERT_AREA = f"INSERT INTO cell_areas ({', '.join(AREA_COLUMNS)}) VALUES ({', '.join(['%s'] * len(AREA_COLUMNS))})"
+#: the cells (areas) of a list of keys: one statement, the keys as arrays
+_FIND_CELLS = (f"SELECT {', '.join(CELL_COLUMNS)} FROM cells WHERE (mcc, net, area, cell) IN "
+               "(SELECT * FROM unnest(%s::int[], %s::int[], %s::bigint[], %s::bigint[]))")
+_FIND_AREAS = (f"SELECT {', '.join(AREA_COLUMNS)} FROM cell_areas WHERE (radio, mcc, net, area) IN "
+               "(SELECT * FROM unnest(%s::smallint[], %s::int[], %s::int[], %s::bigint[]))")
 _COPY = f"COPY fixes ({', '.join(_ALL)}) FROM STDIN"
 _COPY_SEQ = f"COPY fixes ({', '.join(_ALL)}, seq) FROM STDIN"
 #: From this many rows a batch's fixes go in by COPY (fewer: one INSERT of arrays, sent with COMMIT).
@@ -358,6 +377,43 @@ class PostgresStore:
             except psycopg.Error as exc:
                 log.warning("stream listener: %s; reconnecting", str(exc).strip().splitlines()[0] if str(exc) else exc)
                 self._closing.wait(1.0)
+
+    # ---- the cell table (cell geolocation) ---------------------------------------------------------------------
+    def load_cells(self, chunks, areas, source: str) -> int:
+        """(see :class:`._store.Store`) In one transaction: the rows are copied into a temporary table in file
+        order and the first of each cell kept (DISTINCT ON); readers see the old table until the commit."""
+        cols = ", ".join(CELL_COLUMNS)
+        with self.pool.connection() as con, con.transaction(), con.cursor() as cur:
+            cur.execute("CREATE TEMP TABLE cells_in (LIKE cells, ord bigserial) ON COMMIT DROP")
+            with cur.copy(f"COPY cells_in ({cols}) FROM STDIN") as cp:
+                for rows in chunks:
+                    for r in rows:
+                        cp.write_row(r)
+            cur.execute("DELETE FROM cells")
+            cur.execute("DELETE FROM cell_areas")
+            cur.execute(f"INSERT INTO cells ({cols}) SELECT DISTINCT ON (mcc, net, area, cell, radio) {cols} "
+                        "FROM cells_in ORDER BY mcc, net, area, cell, radio, ord")
+            stored = cur.rowcount
+            cur.executemany(_INSERT_AREA, areas(cur.execute(AREA_AGGREGATES).fetchall()))
+            cur.execute("INSERT INTO cell_source VALUES (1, %s) ON CONFLICT (id) DO UPDATE SET source = excluded.source",
+                        (source,))
+        return stored
+
+    def cell_source(self) -> str | None:
+        rows = self._all("SELECT source FROM cell_source WHERE id = 1")
+        return str(rows[0][0]) if rows else None
+
+    def find_cells(self, keys: list[tuple[int, int, int, int]]) -> list[tuple]:
+        return self._find(_FIND_CELLS, keys)
+
+    def find_cell_areas(self, keys: list[tuple[int, int, int, int]]) -> list[tuple]:
+        return self._find(_FIND_AREAS, keys)
+
+    def _find(self, sql: str, keys: list) -> list[tuple]:
+        if not keys:
+            return []
+        columns = [list(c) for c in zip(*((int(v) for v in k) for k in keys))]
+        return self._all(sql, tuple(columns))
 
     def close(self) -> None:
         self._closing.set()

@@ -72,6 +72,9 @@ class Stats(BaseModel):
     batches: int
     refused: dict[str, int]
     uptime_s: float
+    geolocate: Optional[dict[str, int]] = Field(None, description="cell geolocation (with a cell table): "
+                                                "requests, found, lacf, not_found, cells_known, cells_unknown, "
+                                                "cells_incomplete, wifi_ignored")
 
 
 class ErrorBody(BaseModel):
@@ -227,7 +230,8 @@ def query_app(server) -> FastAPI:
         c = server.metrics.totals()
         return {"devices": server.ingest.device_counts(300.0)[0], "accepted": c["accepted"], "filtered": c["filtered"],
                 "late": c["late"], "duplicates": c["duplicates"], "batches": c["batches"], "refused": c["refused"],
-                "uptime_s": time.time() - server.started}
+                "uptime_s": time.time() - server.started,
+                "geolocate": None if server.geolocator is None else dict(server.geolocator.counters)}
 
     @app.get("/", response_class=HTMLResponse, dependencies=[Depends(api_key)], responses=_ERRORS,
              summary="The live map")

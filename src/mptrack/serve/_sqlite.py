@@ -25,7 +25,8 @@ from typing import Iterator
 import numpy as np
 
 from ..errors import OutputError, ParameterError
-from ._store import ESTIMATE_COLUMNS, FIX_COLUMNS, StoredRows, stored_rows
+from ._store import (AREA_AGGREGATES, AREA_COLUMNS, CELL_COLUMNS, ESTIMATE_COLUMNS, FIX_COLUMNS, StoredRows,
+                     stored_rows)
 
 __all__ = ["SqliteStore", "SCHEMA_VERSION"]
 
@@ -48,6 +49,13 @@ CREATE TABLE IF NOT EXISTS devices (device_id TEXT PRIMARY KEY, token_sha256 TEX
     created REAL NOT NULL) WITHOUT ROWID;
 CREATE TABLE IF NOT EXISTS api_keys (name TEXT PRIMARY KEY, key_sha256 TEXT NOT NULL UNIQUE,
     created REAL NOT NULL) WITHOUT ROWID;
+CREATE TABLE IF NOT EXISTS cells (radio INTEGER NOT NULL, mcc INTEGER NOT NULL, net INTEGER NOT NULL,
+    area INTEGER NOT NULL, cell INTEGER NOT NULL, lat REAL NOT NULL, lon REAL NOT NULL, range_m REAL, samples REAL,
+    changeable REAL, azimuth_deg REAL, intercept_dbm REAL NOT NULL, slope_db REAL NOT NULL, fit_offset_db REAL,
+    score REAL NOT NULL, unit INTEGER, earfcn INTEGER, PRIMARY KEY (mcc, net, area, cell, radio)) WITHOUT ROWID;
+CREATE TABLE IF NOT EXISTS cell_areas (radio INTEGER NOT NULL, mcc INTEGER NOT NULL, net INTEGER NOT NULL,
+    area INTEGER NOT NULL, lat REAL NOT NULL, lon REAL NOT NULL, radius_m REAL NOT NULL, cells INTEGER NOT NULL,
+    fits INTEGER NOT NULL, offset_db REAL, PRIMARY KEY (radio, mcc, net, area)) WITHOUT ROWID;
 INSERT OR IGNORE INTO meta VALUES ('schema_version', {SCHEMA_VERSION});
 INSERT OR IGNORE INTO meta VALUES ('watermark', 0);
 """
@@ -56,6 +64,10 @@ _INSERT = f"INSERT INTO fixes ({', '.join(_ALL)}) VALUES ({', '.join('?' * len(_
 _INSERT_NEW = (f"INSERT INTO fixes ({', '.join(_ALL)}) SELECT {', '.join('?' * len(_ALL))} WHERE NOT EXISTS "
                "(SELECT 1 FROM fixes WHERE dev = ?1 AND t = ?2 AND lat = ?3 AND lon = ?4)")
 _SELECT = f"SELECT seq, {', '.join(_ALL)} FROM fixes"
+_INSERT_CELL = f"INSERT OR IGNORE INTO cells ({', '.join(CELL_COLUMNS)}) VALUES ({', '.join('?' * len(CELL_COLUMNS))})"
+_INSERT_AREA = f"INSERT INTO cell_areas ({', '.join(AREA_COLUMNS)}) VALUES ({', '.join('?' * len(AREA_COLUMNS))})"
+#: the most keys one look-up statement takes (more are looked up in several statements)
+_KEYS_PER_QUERY = 32
 
 
 class SqliteStore:
@@ -245,6 +257,46 @@ class SqliteStore:
 
     def count(self) -> int:
         return int(self._reader().execute("SELECT COUNT(*) FROM fixes").fetchone()[0])
+
+    # ---- the cell table ---------------------------------------------------------------------------
+    def load_cells(self, chunks, areas, source: str) -> int:
+        with self._lock:
+            w = self._w
+            w.execute("BEGIN IMMEDIATE")
+            try:
+                w.execute("DELETE FROM cells")
+                w.execute("DELETE FROM cell_areas")
+                before = w.total_changes
+                for rows in chunks:
+                    w.executemany(_INSERT_CELL, rows)
+                stored = w.total_changes - before
+                w.executemany(_INSERT_AREA, areas(w.execute(AREA_AGGREGATES).fetchall()))
+                w.execute("INSERT OR REPLACE INTO meta VALUES ('cell_source', ?)", (source,))
+                w.execute("COMMIT")
+            except BaseException:
+                w.execute("ROLLBACK")
+                raise
+        return stored
+
+    def cell_source(self) -> str | None:
+        row = self._reader().execute("SELECT value FROM meta WHERE key = 'cell_source'").fetchone()
+        return None if row is None else str(row[0])
+
+    def find_cells(self, keys: list[tuple[int, int, int, int]]) -> list[tuple]:
+        return self._find("cells", CELL_COLUMNS, ("mcc", "net", "area", "cell"), keys)
+
+    def find_cell_areas(self, keys: list[tuple[int, int, int, int]]) -> list[tuple]:
+        return self._find("cell_areas", AREA_COLUMNS, ("radio", "mcc", "net", "area"), keys)
+
+    def _find(self, table: str, columns: tuple, key: tuple, keys: list) -> list[tuple]:
+        con = self._reader()
+        out: list[tuple] = []
+        one = "(" + " AND ".join(f"{k} = ?" for k in key) + ")"
+        for i in range(0, len(keys), _KEYS_PER_QUERY):
+            part = keys[i:i + _KEYS_PER_QUERY]
+            sql = f"SELECT {', '.join(columns)} FROM {table} WHERE " + " OR ".join([one] * len(part))
+            out.extend(con.execute(sql, [int(v) for k in part for v in k]).fetchall())
+        return out
 
     def close(self) -> None:
         self._closed.set()

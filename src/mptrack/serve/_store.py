@@ -14,6 +14,8 @@ What is stored, every table keyed by device first:
     api_keys      keys of the query API and the map (``mptrack keys add``)
     meta          the schema version (SQLite: and the checkpoint watermark: every device's fixes up
                   to that row are in its stored state)
+    cells         the cell table of cell geolocation (CELL_COLUMNS), keyed by (mcc, net, area, cell, radio)
+    cell_areas    its location areas (AREA_COLUMNS), keyed by (radio, mcc, net, area)
 
 A batch of fixes is committed in one transaction (:meth:`Store.batch`, :meth:`Batch.write`), with
 the device states it stores: so a 200 means the fixes and those states are committed together.  A
@@ -35,7 +37,8 @@ from typing import Callable, Iterator, Protocol
 import numpy as np
 
 
-__all__ = ["Store", "Batch", "StoredRows", "stored_rows", "FIX_COLUMNS", "ESTIMATE_COLUMNS", "DEFAULT_DB"]
+__all__ = ["Store", "Batch", "StoredRows", "stored_rows", "FIX_COLUMNS", "ESTIMATE_COLUMNS", "CELL_COLUMNS",
+           "AREA_COLUMNS", "AREA_AGGREGATES", "DEFAULT_DB"]
 
 DEFAULT_DB = "sqlite:///mptrack.db"
 #: Columns of a stored fix as the device sent it (the :data:`._fix.FIELDS` minus attrs, plus received).
@@ -43,6 +46,16 @@ FIX_COLUMNS = ("dev", "t", "lat", "lon", "accuracy_m", "speed_mps", "heading_deg
                "received")
 #: Columns of the live estimate stored with each fix (flag: an index into :data:`._online.FLAG_NAMES`).
 ESTIMATE_COLUMNS = ("est_lat", "est_lon", "var_e", "cov_en", "var_n", "vel_e", "vel_n", "nis", "flag")
+#: Columns of a stored cell (serve/_celltable.py): its key, position, what the table says of it, and its
+#: path-loss model (radio: a code of mptrack.cellular.RADIOS; NULL where unknown).
+CELL_COLUMNS = ("radio", "mcc", "net", "area", "cell", "lat", "lon", "range_m", "samples", "changeable",
+                "azimuth_deg", "intercept_dbm", "slope_db", "fit_offset_db", "score", "unit", "earfcn")
+#: Columns of a stored location area: its centre and radius (m), its cells, and their fits' count and mean.
+AREA_COLUMNS = ("radio", "mcc", "net", "area", "lat", "lon", "radius_m", "cells", "fits", "offset_db")
+#: What each location area's row is made of, computed over the stored cells (plain SQL, every store's):
+#: its key, cell count, mean position, bounding box, and how many cells have a fit and their mean offset.
+AREA_AGGREGATES = ("SELECT radio, mcc, net, area, COUNT(*), AVG(lat), AVG(lon), MIN(lat), MAX(lat), MIN(lon), "
+                   "MAX(lon), COUNT(fit_offset_db), AVG(fit_offset_db) FROM cells GROUP BY radio, mcc, net, area")
 
 
 @dataclass
@@ -186,5 +199,21 @@ class Store(Protocol):
 
     def live_devices(self, since: float) -> int:
         """A shared store: how many devices have a fix at or after ``since`` (s since 1970)."""
+
+    def load_cells(self, chunks: Iterator[list[tuple]], areas: Callable[[list[tuple]], list[tuple]],
+                   source: str) -> int:
+        """In one transaction: replace the cell table by the rows (CELL_COLUMNS) of ``chunks`` (a cell listed
+        twice is stored once, the first), the areas by the rows (AREA_COLUMNS) that ``areas`` makes of the
+        stored cells' AREA_AGGREGATES, and record ``source`` (what was loaded).  Returns how many cells were
+        stored."""
+
+    def cell_source(self) -> str | None:
+        """The ``source`` of the loaded cell table (None: none loaded)."""
+
+    def find_cells(self, keys: list[tuple[int, int, int, int]]) -> list[tuple]:
+        """The stored cells (CELL_COLUMNS) whose (mcc, net, area, cell) is one of ``keys`` (any radio)."""
+
+    def find_cell_areas(self, keys: list[tuple[int, int, int, int]]) -> list[tuple]:
+        """The stored areas (AREA_COLUMNS) whose (radio, mcc, net, area) is one of ``keys``."""
 
     def close(self) -> None: ...

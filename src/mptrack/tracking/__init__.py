@@ -6,7 +6,7 @@ from .._core.moved import moved_names
 from ._advice import far_from_band
 from ._consistency import USED_FLAGS as NIS_FLAGS
 from ._consistency import nis_sentence, nis_stats
-from ._cellular import check_cell_ids, ranges_km, track_cells
+from ._cellular import check_cell_ids, ranges_km, resolve_cells, track_cells
 from ._evaluate import TRUTH_COLUMNS, attach_truth, evaluate_tracks
 from ._fixes import CELL_ONLY, FIX_ONLY, TrackOptions, track_fixes
 from ._live import ESTIMATE_FIELDS, LiveTracks
@@ -56,6 +56,7 @@ __all__ = [
     "track_cells",
     "point_table",
     "check_cell_ids",
+    "resolve_cells",
     "ranges_km",
     "kalman_filter_gated",
     "rts_smoother_gated",

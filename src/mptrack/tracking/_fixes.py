@@ -69,7 +69,8 @@ class TrackOptions:
     gap_s             an interval longer than this flags the point after it as following a gap (s)
     max_gap_s         a gap longer than this starts a new segment: the fix after it initialises the filter
                       again (s; None: never)
-    method            cellular filter (CELL_METHODS): "ekf", "fekf" or "fcs"
+    method            cellular method (CELL_METHODS): "locate" (each scan placed as a geolocation request),
+                      or a range filter over time, "ekf", "fekf" or "fcs"
     motion            cellular motion model: "random-walk" (the paper's) or "cv"
     path_loss         path-loss model for RSS -> range (mptrack.radio.PATH_LOSS_MODELS)
     q_km2             cellular process noise: random walk, km^2 per scan; cv, km^2/s^3; None: the
@@ -87,7 +88,7 @@ class TrackOptions:
     smooth: bool = False
     gap_s: float = 30.0
     max_gap_s: float | None = MAX_GAP_S
-    method: str = "ekf"
+    method: str = "locate"
     motion: str = "random-walk"
     path_loss: str = "cost231-wi-nlos"
     q_km2: float | None = None

@@ -34,7 +34,7 @@ from ..io import (FIXES, MEASUREMENTS, InputNotSorted, ReadOptions, ReadReport, 
                   iter_track_chunks, output_format, read_cells, read_chunks, resolve_input)
 from ..runs import Chunk, PartStore, output_lock, read_part, resumable_outputs, run_stream
 from ._advice import far_from_band, nis_advice
-from ._cellular import check_cell_ids, track_cells
+from ._cellular import check_cell_ids, resolve_cells, track_cells
 from ._columns import FixTable
 from ._fixes import CELL_ONLY, FIX_ONLY, TrackOptions
 from ._consistency import flag_counts, nis_sentence, nis_stats, pooled_nis
@@ -127,6 +127,8 @@ def _source_chunks(source, schema, on_error: str, chunk_rows: int, report: ReadR
     for i, rows in enumerate(iter_track_chunks(source, schema, on_error=on_error, chunk_rows=chunk_rows,
                                                report=report, read=read, sort=sort)):
         if cells is not None:
+            if "pci" in rows.columns:
+                rows = resolve_cells(rows, cells, file=label, report=report)
             rows = check_cell_ids(rows, cells, file=label, on_error=on_error, report=report)
         yield Chunk(i, 0, len(rows), data=rows)
 
@@ -146,11 +148,13 @@ def _manifest(input, options: TrackOptions, cells, chunk_rows: int, read: ReadOp
 
 def _cell_table(input, cells, on_error: str, chunk_rows: int, read: ReadOptions) -> tuple[pd.DataFrame, ReadReport]:
     cell_report = ReadReport()
-    wanted = set()
+    wanted, units = set(), set()
     for chunk in read_chunks(input, MEASUREMENTS, on_error="skip", chunk_rows=chunk_rows, report=ReadReport(),
                              read=read):
         wanted.update(chunk["cell_id"].dropna().unique())
-    return read_cells(cells, wanted=wanted, on_error=on_error, report=cell_report), cell_report
+        if "pci" in chunk.columns:  # cells logged by PCI (resolve_cells): the table's cells of those PCIs
+            units.update(chunk["pci"].dropna().astype(int).tolist())
+    return read_cells(cells, wanted=wanted, units=units, on_error=on_error, report=cell_report), cell_report
 
 
 def _file_noise(chunks, options: TrackOptions):

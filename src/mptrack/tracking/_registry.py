@@ -9,7 +9,7 @@ from typing import Callable
 from .._core.validation import lookup
 from ..linear import FILTERS as LINEAR_FILTERS
 from ..models import ContinuousLinearModel, constant_acceleration_continuous, constant_velocity_continuous
-from ..cellular import ekf_ranges, fcs_ranges, fekf_ranges
+from ..cellular import ekf_ranges, fcs_ranges, fekf_ranges, locate_cells
 
 __all__ = ["MotionModel", "MODELS", "get_model", "FIX_FILTERS", "get_fix_filter", "CELL_METHODS",
            "get_cell_method", "DEFAULT_SIGMA_M"]
@@ -57,8 +57,10 @@ FIX_FILTERS: dict[str, str] = {
        for name, spec in LINEAR_FILTERS.items() if name != "KF"},
 }
 
-#: Cellular-range filters of :mod:`mptrack.cellular` (Bouzera et al. 2017).
-CELL_METHODS: dict[str, Callable] = {"ekf": ekf_ranges, "fekf": fekf_ranges, "fcs": fcs_ranges}
+#: Cellular methods: "locate" places each scan as a geolocation request (mptrack.cellular.locate_cells); the
+#: range filters of Bouzera et al. (2017) filter one range per site over time.
+CELL_METHODS: dict[str, Callable] = {"locate": locate_cells, "ekf": ekf_ranges, "fekf": fekf_ranges,
+                                     "fcs": fcs_ranges}
 
 
 def get_model(name: str) -> MotionModel:
