@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numba
 
-__all__ = ["launch", "SMALL_WORK"]
+__all__ = ["launch", "SMALL_WORK", "background"]
 
 SMALL_WORK = 1 << 20   # values below which one thread beats waking the others
 
@@ -25,3 +25,10 @@ def launch(kernel, work: int, *args):
         return kernel(*args)
     finally:
         numba.set_num_threads(previous)
+
+
+def background() -> None:
+    """Make the calling thread a background one: its parallel kernels run on this thread only
+    (numba's thread count is per thread), so that work beside a latency-bound one (a server's noise
+    estimates beside its ingest) never takes every core from it."""
+    numba.set_num_threads(1)

@@ -38,6 +38,7 @@ from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
+from .._core.threads import background
 from ..tracking import ESTIMATE_FIELDS, FLAGS, LiveTracks, ellipse
 from ._fix import iso_time
 from ._metrics import Metrics
@@ -73,7 +74,8 @@ class Ingest:
         self.ids: list[str | None] = []          # key -> device id (None: a key this process has not seen)
         self.lock = threading.Lock()             # the live state and the keys: the writer while it steps, readers
         self._writer = ThreadPoolExecutor(1, thread_name_prefix="mptrack-writer")
-        self._estimator = ThreadPoolExecutor(1, thread_name_prefix="mptrack-noise")
+        # the noise estimates run their kernels on one core: ingest keeps the other
+        self._estimator = ThreadPoolExecutor(1, thread_name_prefix="mptrack-noise", initializer=background)
         self._estimating = None                  # the noise estimate under way (a Future)
         self._pending: list = []                 # (fixes, future) waiting for the next batch
         self._wake: asyncio.Event | None = None
