@@ -257,8 +257,8 @@ class LiveTracks:
         independent component d of variance g in the position and -d in the slow part (P += g u u'
         with u = +1 at the position, -1 at the slow part), which leaves the fixes' prediction p + b
         as certain as it was and makes the position as uncertain as the total error says, as a track
-        estimated from its start is (without it the slow part grew only over its time constant, an
-        hour, and the position's variance fell from 25 to 0.4 m^2 within 100 fixes)."""
+        estimated from its start is (without it the slow part would grow only over its time constant,
+        an hour, while the position's variance shrank to the new white part's)."""
         tracks = self._check(tracks)
         ok = np.isfinite(noise["c"])
         idx = tracks[ok]
@@ -272,8 +272,8 @@ class LiveTracks:
         n = self.order + 1
         _, p0, _, pc0 = state_layout.py_func(n)[:4]
         b = self.order                             # the slow part's index; the position's is 0
+        st = self._states
         for start in (p0, pc0):                    # the filter's and the coasting covariance (n x n, row-major)
-            st = self._states
             st[idx, start] += grow
             st[idx, start + b * n + b] += grow
             st[idx, start + b] -= grow
