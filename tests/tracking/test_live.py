@@ -9,7 +9,7 @@ import pytest
 from _data import REAL_TRACES
 
 import mptrack
-from mptrack.errors import ParameterError
+from mptrack.errors import ParameterError, ShapeError
 from mptrack.io import geodetic_to_enu, read_table
 from mptrack.tracking import ESTIMATE_FIELDS, FLAGS, LiveTracks, TrackOptions, get_model
 from mptrack.tracking._fix_error import SLOW_TAU_S
@@ -114,6 +114,15 @@ def test_bad_calls_are_refused_by_name():
     live.advance(np.array([0]), np.array([1.7e9]), np.array([50.0]), np.array([8.0]), np.full(1, np.nan))
     with pytest.raises(ParameterError, match="before its last fix"):
         live.advance(np.array([0]), np.array([1.7e9 - 5]), np.array([50.0]), np.array([8.0]), np.full(1, np.nan))
+    with pytest.raises(ParameterError, match="time order"):
+        live.advance(np.array([1, 1]), np.array([1.7e9, 1.7e9 - 1]), np.array([50.0, 50.0]), np.array([8.0, 8.0]),
+                     np.full(2, np.nan))
+    for lat, t in ((91.0, 1.7e9), (np.nan, 1.7e9), (50.0, np.inf)):
+        with pytest.raises(ParameterError, match="t, lat, lon"):
+            live.advance(np.array([1]), np.array([t]), np.array([lat]), np.array([8.0]), np.full(1, np.nan))
+    with pytest.raises(ShapeError, match="one length"):
+        live.advance(np.array([1]), np.array([1.7e9]), np.array([50.0, 50.0]), np.array([8.0]), np.full(1, np.nan))
+    assert np.isnan(live.last_fix(1)[0])           # nothing refused reached the track
 
 
 def test_a_smoothing_receiver_keeps_metres_of_uncertainty_after_its_noise_is_estimated():

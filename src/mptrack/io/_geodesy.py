@@ -308,6 +308,27 @@ def enu_to_geodetic(east, north, lat0, lon0, h0=0.0):
     return _shaped(lat, shape), _shaped(lon, shape)
 
 
+def enu_columns(lat: np.ndarray, lon: np.ndarray, lat0: np.ndarray, lon0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`geodetic_to_enu` (h = 0) of float64 columns of one length that the caller has checked
+    (finite, in range): east, north.  For hot paths of a few rows, where the checks and the
+    broadcasting cost more than the conversion."""
+    east, north = np.empty(lat.size), np.empty(lat.size)
+    _run(_enu_rows, _enu_parallel, [lat, lon, lat0, lon0, _NO_HEIGHT], [east, north])
+    return east, north
+
+
+def geodetic_columns(east: np.ndarray, north: np.ndarray, lat0: np.ndarray,
+                     lon0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`enu_to_geodetic` of float64 columns of one length that the caller has checked: lat, lon,
+    NaN where a point is so far from its origin that the vertical misses the ellipsoid."""
+    lat, lon = np.empty(east.size), np.empty(east.size)
+    _run(_geodetic_rows, _geodetic_parallel, [east, north, lat0, lon0], [lat, lon])
+    return lat, lon
+
+
+_NO_HEIGHT = np.zeros(1)
+
+
 @dataclass(frozen=True)
 class LocalFrame:
     """A local ENU frame at geodetic origin (lat0, lon0 in degrees, h0 in metres).

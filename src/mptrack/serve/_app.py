@@ -14,6 +14,7 @@ request that cannot be committed gets 503 and nothing of it is stored.
 from __future__ import annotations
 
 import asyncio
+import gc
 import json
 import logging
 import os
@@ -129,6 +130,10 @@ class Server:
         if self.store.cell_source() is not None:
             self.geolocator = Geolocator(self.store)
         self.ingest.start()
+        # what is loaded now (modules, the cell table's geolocator, ...) lives as long as the server: out
+        # of the cyclic garbage collector's reach, whose full collections otherwise scan it all (~100 ms
+        # pauses of every request, several a minute under load)
+        gc.freeze()
         if self.config.retain_s is not None:
             self._tasks.append(loop.create_task(self._retention()))
         log.info("mptrack serve ready: %d devices, %s", len(self.ingest.keys), shown_url(self.config.db),

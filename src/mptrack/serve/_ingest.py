@@ -157,7 +157,10 @@ class Ingest:
             batch, self._pending = self._pending, []
             fixes = [f for fs, _ in batch for f in fs]
             try:
-                events = await loop.run_in_executor(self._writer, self._commit, fixes)
+                if self.store.quick_commit:
+                    events = self._commit(fixes)
+                else:
+                    events = await loop.run_in_executor(self._writer, self._commit, fixes)
             except Exception as exc:  # every request of the batch fails; nothing was acknowledged
                 self.metrics.add("commit_failures")
                 for _, fut in batch:
@@ -269,9 +272,9 @@ class Ingest:
         acc = np.array([np.nan if a is None else a for a in cols[4]], dtype=float)
         order = np.lexsort((t, dev))
         d, ts, la, lo = dev[order], t[order], lat[order], lon[order]
-        first = np.r_[True, d[1:] != d[:-1]]
-        prev_t = np.where(first, np.nan, np.r_[np.nan, ts[:-1]])
-        prev_same = ~first & (ts == prev_t) & (la == np.r_[np.nan, la[:-1]]) & (lo == np.r_[np.nan, lo[:-1]])
+        first = np.concatenate(([True], d[1:] != d[:-1]))
+        prev_t = np.where(first, np.nan, _previous(ts))
+        prev_same = ~first & (ts == prev_t) & (la == _previous(la)) & (lo == _previous(lo))
         devs = d[first]
         with self._undone_on_failure(devs) as versions:
             with self.store.batch(devs, versions) as tx:
@@ -443,6 +446,11 @@ def _rows(fixes: list[tuple], dev: np.ndarray, sel: np.ndarray, est: dict | None
         tail = (None,) * 8 + (LATE,)
         return [h + tail for h in head]
     return [h + e for h, e in zip(head, zip(*(_nullable(est[k]) for k in ESTIMATES)))]
+
+
+def _previous(values: np.ndarray) -> np.ndarray:
+    """Each row's previous value (NaN for the first)."""
+    return np.concatenate(([np.nan], values[:-1]))
 
 
 def _nullable(values: np.ndarray) -> np.ndarray:

@@ -147,6 +147,7 @@ class PostgresStore:
     for its flush to disk (``synchronous_commit=on``, whatever the server's default)."""
 
     shared = True
+    quick_commit = False
 
     def __init__(self, url: str, fsync: bool = False, *, pool_size: int = 8, upgrade: bool = True):
         try:

@@ -78,6 +78,7 @@ class SqliteStore:
     def __init__(self, url: str, fsync: bool = False):
         self.url = url
         self.fsync = bool(fsync)
+        self.quick_commit = not self.fsync
         self.path = Path(url[len("sqlite:///"):])
         if not str(self.path):
             raise ParameterError(f"db: expected sqlite:///PATH, got {url!r}")

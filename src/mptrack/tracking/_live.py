@@ -21,11 +21,12 @@ import struct
 import numpy as np
 import pandas as pd
 
-from ..errors import ParameterError
-from ..io import enu_to_geodetic, geodetic_to_enu
+from ..errors import ParameterError, ShapeError
+from ..io import enu_to_geodetic
+from ..io._geodesy import enu_columns, geodetic_columns
 from ._chain import transition
 from ._columns import FixTable
-from ._engine import advance_tracks
+from ._engine import step_tracks
 from ._state import empty_states, state_from_bytes, state_layout, state_to_bytes
 from ._fix_error import SLOW_TAU_S, slow_error_variance
 from ._fixes import TrackOptions
@@ -100,13 +101,26 @@ class LiveTracks:
         each fix (:data:`ESTIMATE_FIELDS`, arrays of the rows)."""
         tracks = self._check(tracks)
         t, lat, lon, acc = (np.ascontiguousarray(a, dtype=float) for a in (t, lat, lon, accuracy))
+        if not tracks.ndim == t.ndim == lat.ndim == lon.ndim == acc.ndim == 1 or \
+                not len(tracks) == len(lat) == len(lon) == len(acc) == len(t):
+            raise ShapeError("tracks, t, lat, lon, accuracy: expected 1-D columns of one length")
         N = len(t)
         if N == 0:
             return {k: np.empty(0) for k in ESTIMATE_FIELDS}
-        if np.any(np.diff(tracks) < 0):
+        if not (np.isfinite(t).all() and (np.abs(lat) <= 90.0).all() and (np.abs(lon) <= 180.0).all()):
+            raise ParameterError("t, lat, lon: expected finite times and positions within [-90, 90] and "
+                                 "[-180, 180] degrees")
+        step = np.diff(tracks)
+        if (step < 0).any():
             raise ParameterError("tracks: expected the rows sorted by track")
-        uniq, starts = np.unique(tracks, return_index=True)
-        offsets = np.r_[starts, N].astype(np.int64)
+        if (np.diff(t)[step == 0] < 0).any():
+            raise ParameterError("t: expected each track's new fixes in time order")
+        starts = np.flatnonzero(np.concatenate(([True], step != 0)))
+        uniq = tracks[starts]
+        if (t[starts] < self._track[uniq, _T]).any():   # NaN: a track without a fix
+            raise ParameterError("t: a track's first new fix is before its last fix; a late fix cannot enter "
+                                 "the filter's past")
+        offsets = np.append(starts, N)
         tr = self._track
         new = tr[uniq, _MODE] == UNSET
         if new.any():
@@ -121,7 +135,7 @@ class LiveTracks:
             tr[uniq, _C] = 1.0
         if self.options.q is not None:
             tr[uniq, _Q] = self.options.q
-        east, north = geodetic_to_enu(lat, lon, tr[tracks, _LAT0], tr[tracks, _LON0])
+        east, north = enu_columns(lat, lon, tr[tracks, _LAT0], tr[tracks, _LON0])
         good = np.isfinite(acc) & (acc > 0)
         sigma_mode = tr[tracks, _MODE] == SIGMA
         if self.options.sigma_m is not None:
@@ -135,10 +149,9 @@ class LiveTracks:
         nis = np.empty(N)
         flag = np.empty(N, dtype=np.int8)
         stats = np.empty((len(uniq), 6))
-        advance_tracks(states, offsets, t, np.ascontiguousarray(east), np.ascontiguousarray(north),
-                       np.ascontiguousarray(w), np.ascontiguousarray(tr[uniq, _C]), np.ascontiguousarray(tr[uniq, _Q]),
-                       self._slow_var(uniq), np.full(len(uniq), SLOW_TAU_S), order, self.spec.prior, self.spec.gate,
-                       self.spec.max_rej, self.spec.max_gap_s, X, P, nis, flag, stats)
+        step_tracks(states, offsets, t, east, north, w, tr[uniq, _C], tr[uniq, _Q], self._slow_var(uniq),
+                    np.full(len(uniq), SLOW_TAU_S), order, self.spec.prior, self.spec.gate, self.spec.max_rej,
+                    self.spec.max_gap_s, X, P, nis, flag, stats)
         self._states[uniq] = states
         est = self._estimates(tracks, X, P, nis, flag)
         last = offsets[1:] - 1
@@ -158,7 +171,10 @@ class LiveTracks:
 
     def _estimates(self, tracks, X, P, nis, flag) -> dict:
         tr = self._track
-        lat, lon = enu_to_geodetic(X[:, 0, 0], X[:, 1, 0], tr[tracks, _LAT0], tr[tracks, _LON0])
+        lat, lon = geodetic_columns(X[:, 0, 0].copy(), X[:, 1, 0].copy(), tr[tracks, _LAT0], tr[tracks, _LON0])
+        if np.isnan(lat).any():
+            raise ParameterError("tracks: an estimate is so far from its track's first fix that the vertical "
+                                 "through it misses the ellipsoid")
         var = P[:, 0, 0].copy()
         return {"lat": lat, "lon": lon, "var_e": var, "cov_en": np.zeros(len(var)), "var_n": var.copy(),
                 "vel_e": X[:, 0, 1].copy(), "vel_n": X[:, 1, 1].copy(), "nis": nis, "flag": flag.astype(np.int64)}
