@@ -145,3 +145,47 @@ def test_a_smoothing_receiver_keeps_metres_of_uncertainty_after_its_noise_is_est
     est = live.advance(np.zeros(len(df) - first, np.int64), t[first:], lat[first:], lon[first:], nan[first:])
     np.testing.assert_allclose(est["var_e"][-100:], want["var_east_m2"].to_numpy()[-100:], rtol=0.05)
     assert np.all(est["var_e"] >= 20.0)
+
+
+def test_runs_of_rejected_fixes_carry_across_batches_and_bytes():
+    """A track keeps its run of rejected fixes only while it is in one (the rest of the fleet holds
+    half the memory): runs that span batches -- isolated outliers, a jump that ends in a restart --
+    give what one call gives, also through state_bytes in the middle of a run, with run buffers
+    freed and reused among tracks."""
+    rng = np.random.default_rng(11)
+    n, tracks = 120, 6
+    t = 1.7e9 + np.arange(n, dtype=float)
+    rows = []
+    for k in range(tracks):
+        north = 3.0 * np.arange(n) + rng.normal(0.0, 3.0, n)
+        north[20 + k] += 400.0                        # an isolated outlier
+        north[60 + 3 * k:] += 900.0                   # a jump that stays: a run, then a restart
+        lat = 50.0 + north / 111_000.0
+        rows.append((np.full(n, k), t, lat, np.full(n, 8.0 + 0.01 * k)))
+    dev, tt, lat, lon = (np.concatenate(c) for c in zip(*rows))
+    acc = np.full(len(dev), 3.0)
+    whole = LiveTracks()
+    whole.add(tracks)
+    want = whole.advance(dev, tt, lat, lon, acc)
+    assert {"outlier", "reset"} <= {FLAGS[f] for f in want["flag"]}
+    piece = LiveTracks()
+    piece.add(tracks)
+    got = {k: np.empty(len(dev)) for k in ESTIMATE_FIELDS}
+    for i in range(n):                                # fix by fix, every track at each time
+        sel = np.flatnonzero(tt == t[i])
+        est = piece.advance(dev[sel], tt[sel], lat[sel], lon[sel], acc[sel])
+        for k in ESTIMATE_FIELDS:
+            got[k][sel] = est[k]
+        if i == 62:                                   # in the middle of runs: a state survives bytes
+            moved = LiveTracks()
+            moved.add(tracks)
+            moved.load_states(np.arange(tracks), [piece.state_bytes(j) for j in range(tracks)])
+            piece = moved
+    # one call relabels a run's rejected fixes once the restart comes; fix by fix they were answered
+    # as rejected when they came: every other estimate, and every final state, is the same
+    kept = got["flag"] != FLAGS.index("outlier")
+    assert (~kept).sum() < 0.1 * len(dev)
+    for k in ESTIMATE_FIELDS:
+        np.testing.assert_array_equal(got[k][kept], want[k][kept])
+    assert [piece.state_bytes(j) for j in range(tracks)] == [whole.state_bytes(j) for j in range(tracks)]
+    assert len(piece._free) == len(piece._runs) > 0   # every run ended: every buffer is free again

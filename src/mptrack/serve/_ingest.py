@@ -8,7 +8,10 @@ live filter of every device in the batch in one call of the compiled engine
 (:class:`mptrack.tracking.LiveTracks`); writes fixes and estimates in one durable transaction; and
 only then wakes the requests, which answer 200.  If the write fails, the filters of the batch's
 devices are put back as they were and every request of the batch fails (503): nothing half-done
-is acknowledged.  While a batch commits, the next one gathers.
+is acknowledged.  While a batch commits, the next one gathers.  With a store whose commit waits on
+no disk flush or network (SQLite without fsync), a batch of at most :data:`INLINE_FIXES` fixes is
+committed on the event loop's own thread instead: two threads taking turns at the interpreter lock
+cost more than such a commit.
 
 The fixes are the log and the device states checkpoints of it.  With a store of one writer (SQLite)
 a device's state is stored :attr:`Ingest.checkpoint_s` seconds after it changed, in the transaction
@@ -49,6 +52,10 @@ __all__ = ["Ingest", "FLAG_NAMES", "LATE", "ESTIMATES"]
 log = logging.getLogger("mptrack.serve")
 #: The most devices whose noise one round re-estimates.
 MAX_ESTIMATED = 2000
+#: The most fixes a batch may have to be committed on the event loop's thread when the store's commit
+#: is quick (a handoff to the writer thread costs more CPU than such a batch; a larger one, a bulk
+#: upload, goes to the writer thread, so the server keeps answering while it commits).
+INLINE_FIXES = 512
 #: The most device states one batch checkpoints.
 CHECKPOINT_ROWS = 2000
 #: Names of the stored ``flag`` values: the tracking engine's flags, then "late" (stored, not filtered).
@@ -157,7 +164,7 @@ class Ingest:
             batch, self._pending = self._pending, []
             fixes = [f for fs, _ in batch for f in fs]
             try:
-                if self.store.quick_commit:
+                if self.store.quick_commit and len(fixes) <= INLINE_FIXES:
                     events = self._commit(fixes)
                 else:
                     events = await loop.run_in_executor(self._writer, self._commit, fixes)

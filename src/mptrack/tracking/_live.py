@@ -27,7 +27,7 @@ from ..io._geodesy import enu_columns, geodetic_columns
 from ._chain import transition
 from ._columns import FixTable
 from ._engine import step_tracks
-from ._state import empty_states, state_from_bytes, state_layout, state_to_bytes
+from ._state import ST_STREAK, state_from_bytes, state_layout, state_to_bytes
 from ._fix_error import SLOW_TAU_S, slow_error_variance
 from ._fixes import TrackOptions
 from ._noise import estimate_noise as _estimate
@@ -63,7 +63,15 @@ class LiveTracks:
         self.spec = noise_spec(options)
         self.order = self.spec.order
         self.model = get_model(options.model)
-        self._states = empty_states(0, self.order)
+        # the engine's state row of each track (:mod:`._state`) in two parts: everything before the run of
+        # rejected fixes for every track (384 of 896 bytes a row for cv), the run's buffer only for the
+        # tracks in a run (a pool of rows, _slot[track] its row or -1): a server's 10^6 devices, few in
+        # a run at once, hold half the memory
+        self._split, size = state_layout.py_func(self.order + 1)[5:]
+        self._head = np.zeros((0, self._split))
+        self._slot = np.zeros(0, np.int32)
+        self._runs = np.zeros((0, size - self._split))
+        self._free: list[int] = []
         self._track = np.zeros((0, len(_TRACK_FIELDS)))
         self.n = 0
         # the population's current noise: accuracy scale, sigma^2 (tracks without accuracy), q
@@ -75,18 +83,53 @@ class LiveTracks:
         """Add ``count`` empty tracks; returns their indices."""
         first = self.n
         need = first + int(count)
-        if need > len(self._states):
-            size = max(need, 2 * len(self._states), 1024)
-            states = empty_states(size, self.order)
-            states[:first] = self._states[:first]
+        if need > len(self._head):
+            size = max(need, 2 * len(self._head), 1024)
+            head = np.zeros((size, self._split))
+            head[:first] = self._head[:first]
+            slot = np.full(size, -1, np.int32)
+            slot[:first] = self._slot[:first]
             track = np.full((size, len(_TRACK_FIELDS)), np.nan)
             track[:first] = self._track[:first]
-            self._states, self._track = states, track
+            self._head, self._slot, self._track = head, slot, track
         self._track[first:need] = np.nan
         self._track[first:need, _MODE] = UNSET
-        self._states[first:need] = 0.0
+        self._head[first:need] = 0.0
         self.n = need
         return np.arange(first, need)
+
+    def _rows(self, idx: np.ndarray) -> np.ndarray:
+        """The engine's state rows of tracks ``idx`` (a copy)."""
+        rows = np.zeros((len(idx), self._split + self._runs.shape[1]))
+        rows[:, :self._split] = self._head[idx]
+        slot = self._slot[idx]
+        run = slot >= 0
+        if run.any():
+            rows[run, self._split:] = self._runs[slot[run]]
+        return rows
+
+    def _put(self, idx: np.ndarray, rows: np.ndarray) -> None:
+        """Tracks ``idx`` (distinct) <- the engine's state ``rows``; a track's run buffer is kept while it is in
+        a run of rejected fixes (the engine reads no more of it than the run)."""
+        self._head[idx] = rows[:, :self._split]
+        slot = self._slot[idx]
+        run = rows[:, ST_STREAK] > 0
+        ended = (slot >= 0) & ~run
+        if ended.any():
+            self._free.extend(slot[ended].tolist())
+            self._slot[idx[ended]] = -1
+        new = run & (slot < 0)
+        if new.any():
+            k = int(new.sum())
+            if len(self._free) < k:
+                old = len(self._runs)
+                size = max(2 * old, old + k, 64)
+                self._runs = np.concatenate([self._runs, np.zeros((size - old, self._runs.shape[1]))])
+                self._free.extend(range(old, size))
+            self._slot[idx[new]] = self._free[-k:]
+            del self._free[-k:]
+        if run.any():
+            self._runs[self._slot[idx[run]]] = rows[run, self._split:]
 
     def _check(self, tracks) -> np.ndarray:
         idx = np.asarray(tracks, dtype=np.int64)
@@ -143,7 +186,7 @@ class LiveTracks:
         else:
             w = np.where(sigma_mode, 1.0, np.where(good, acc * acc, tr[tracks, _W_FILL]))
         order, n = self.order, self.order + 1
-        states = self._states[uniq]
+        states = self._rows(uniq)
         X = np.empty((N, 2, n))
         P = np.empty((N, n, n))
         nis = np.empty(N)
@@ -152,7 +195,7 @@ class LiveTracks:
         step_tracks(states, offsets, t, east, north, w, tr[uniq, _C], tr[uniq, _Q], self._slow_var(uniq),
                     np.full(len(uniq), SLOW_TAU_S), order, self.spec.prior, self.spec.gate, self.spec.max_rej,
                     self.spec.max_gap_s, X, P, nis, flag, stats)
-        self._states[uniq] = states
+        self._put(uniq, states)
         est = self._estimates(tracks, X, P, nis, flag)
         last = offsets[1:] - 1
         tr[uniq, _T], tr[uniq, _RAW_LAT], tr[uniq, _RAW_LON] = t[last], lat[last], lon[last]
@@ -230,7 +273,7 @@ class LiveTracks:
         part (n = order + 1)."""
         n = self.order + 1
         x0, p0 = state_layout.py_func(n)[:2]
-        row = self._states[i]
+        row = self._head[i]
         return row[x0:x0 + 2 * n].reshape(2, n).copy(), row[p0:p0 + n * n].reshape(n, n).copy()
 
     def origin(self, i: int) -> tuple[float, float]:
@@ -288,7 +331,7 @@ class LiveTracks:
         n = self.order + 1
         _, p0, _, pc0 = state_layout.py_func(n)[:4]
         b = self.order                             # the slow part's index; the position's is 0
-        st = self._states
+        st = self._head
         for start in (p0, pc0):                    # the filter's and the coasting covariance (n x n, row-major)
             st[idx, start] += grow
             st[idx, start + b * n + b] += grow
@@ -312,18 +355,19 @@ class LiveTracks:
     def save_states(self, tracks) -> tuple:
         """A copy of ``tracks``' rows (for :meth:`restore_states`)."""
         idx = self._check(tracks)
-        return idx, self._states[idx].copy(), self._track[idx].copy(), dict(self.population)
+        return idx, self._rows(idx), self._track[idx].copy(), dict(self.population)
 
     def restore_states(self, saved: tuple) -> None:
         idx, states, track, population = saved
-        self._states[idx], self._track[idx] = states, track
+        self._put(idx, states)
+        self._track[idx] = track
         self.population = population
 
     def state_bytes(self, i: int) -> bytes:
         """Track i's whole state (engine state, frame, noise, last fix and estimate) as bytes."""
         i = int(self._check([i])[0])
         return (_BLOB.pack(_MAGIC, _VERSION, len(_TRACK_FIELDS)) + self._track[i].astype("<f8").tobytes()
-                + state_to_bytes(self._states[i], self.order))
+                + state_to_bytes(self._rows(np.array([i]))[0], self.order))
 
     def load_states(self, tracks, blobs: list[bytes]) -> None:
         """Tracks <- their :meth:`state_bytes`, all at once (a restart with 10^6 devices reads them in
@@ -350,7 +394,7 @@ class LiveTracks:
         if not ((raw[:, :_BLOB.size] == raw[0, :_BLOB.size]).all() and (raw[:, end:head] == raw[0, end:head]).all()):
             raise ParameterError("blobs: states of different layouts (written by different versions of mptrack)")
         self._track[tracks] = raw[:, _BLOB.size:end].copy().view("<f8")
-        self._states[tracks] = raw[:, head:].copy().view("<f8")
+        self._put(tracks, raw[:, head:].copy().view("<f8"))
 
     def warm_up(self) -> None:
         """Compile the kernels (a few seconds the first time, cached on disk), so the first fixes are fast."""
