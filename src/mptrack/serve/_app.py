@@ -22,6 +22,7 @@ import time
 from dataclasses import asdict, dataclass
 from urllib.parse import parse_qsl
 
+from .._core.memory import trim_heap
 from .._core.validation import as_real, check_bool, check_int, check_path, check_positive, lookup
 from ..errors import MptrackError, ParameterError, RequestError
 from ..tracking import MODELS, LiveTracks, TrackOptions
@@ -134,6 +135,7 @@ class Server:
         # of the cyclic garbage collector's reach, whose full collections otherwise scan it all (~100 ms
         # pauses of every request, several a minute under load)
         gc.freeze()
+        trim_heap()
         if self.config.retain_s is not None:
             self._tasks.append(loop.create_task(self._retention()))
         log.info("mptrack serve ready: %d devices, %s", len(self.ingest.keys), shown_url(self.config.db),

@@ -41,6 +41,7 @@ from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
+from .._core.memory import trim_heap
 from .._core.threads import background
 from ..tracking import ESTIMATE_FIELDS, FLAGS, LiveTracks, ellipse
 from ._fix import iso_time
@@ -89,9 +90,11 @@ class Ingest:
         self._task: asyncio.Task | None = None
         self._loop: asyncio.AbstractEventLoop | None = None
         self._closing = False
-        # devices changed since their last checkpoint, oldest first: key -> (the last fix row before
-        # the change, when it changed) (a store with one writer)
-        self._dirty: dict[int, tuple[int, float]] = {}
+        # devices changed since their last checkpoint, oldest first (an ordered set), with the last fix
+        # row before the change and when it changed (monotonic) by key (a store with one writer)
+        self._dirty: dict[int, None] = {}
+        self._changed_row = np.zeros(0, dtype=np.int64)
+        self._changed_at = np.zeros(0)
         self._seq = 0                            # the last fix row stored (a store with one writer)
         self._since_calibration = np.zeros(0, dtype=np.int64)
         self._version = np.zeros(0, dtype=np.int64)   # a shared store: each device's state version held here
@@ -123,8 +126,7 @@ class Ingest:
             dev, t = dev[order], t[order]
             lat, lon, acc = rows["lat"][use][order], rows["lon"][use][order], rows["accuracy_m"][use][order]
             self.live.advance(dev, t, lat, lon, acc)
-            for d in np.unique(dev).tolist():
-                self._dirty.setdefault(d, (watermark, now))
+            self._mark(np.unique(dev).tolist(), watermark, now)
 
     def start(self) -> None:
         self._loop = asyncio.get_running_loop()
@@ -177,6 +179,8 @@ class Ingest:
             for fs, fut in batch:
                 if not fut.done():
                     fut.set_result(None)
+            if len(fixes) > INLINE_FIXES:   # a bulk upload's rows are gone: so is their memory
+                loop.run_in_executor(self._writer, trim_heap)
             if events and not self.shared:
                 self._publish(events)
             if self._pending:
@@ -255,9 +259,8 @@ class Ingest:
     def _grow(self, n: int) -> None:
         if n > len(self._since_calibration):
             size = max(n, 2 * len(self._since_calibration), 1024)
-            grow = size - len(self._since_calibration)
-            self._since_calibration = np.r_[self._since_calibration, np.zeros(grow, np.int64)]
-            self._version = np.r_[self._version, np.zeros(grow, np.int64)]
+            self._since_calibration, self._version, self._changed_row, self._changed_at = (
+                _grown(a, size) for a in (self._since_calibration, self._version, self._changed_row, self._changed_at))
         if n > self.live.n:
             self.live.add(n - self.live.n)
 
@@ -314,9 +317,7 @@ class Ingest:
             before, self._seq = self._seq, tx.last_row
             for d in ready:
                 del self._dirty[d]
-            changed = time.monotonic()
-            for k in touched.tolist():
-                self._dirty.setdefault(k, (before, changed))
+            self._mark(touched.tolist(), before, time.monotonic())
         m = self.metrics
         m.add("accepted", len(fixes))
         m.add("filtered", len(sel))
@@ -337,9 +338,9 @@ class Ingest:
         """The devices whose state changed more than ``checkpoint_s`` ago (oldest first, at most
         CHECKPOINT_ROWS): stored with the next batch (a store with one writer)."""
         old = time.monotonic() - self.checkpoint_s
-        ready = []
-        for d, (_, changed) in self._dirty.items():   # oldest first
-            if changed > old or len(ready) == CHECKPOINT_ROWS:
+        ready, at = [], self._changed_at
+        for d in self._dirty:   # oldest first
+            if at[d] > old or len(ready) == CHECKPOINT_ROWS:
                 break
             ready.append(d)
         return ready
@@ -350,10 +351,17 @@ class Ingest:
         (a device enters at its end, with the last row then stored), so this reads only as far as the
         first device not in ``stored`` -- a batch's checkpoints are the oldest changes, so this is
         O(checkpoints), not O(devices changed)."""
-        for d, (row, _) in self._dirty.items():
+        for d in self._dirty:
             if d not in stored:
-                return row
+                return int(self._changed_row[d])
         return None
+
+    def _mark(self, keys: list[int], row: int, at: float) -> None:
+        """Devices ``keys`` changed at ``at`` after fix row ``row`` (those not changed already)."""
+        new = [k for k in keys if k not in self._dirty]
+        self._dirty.update(dict.fromkeys(new))
+        self._changed_row[new] = row
+        self._changed_at[new] = at
 
     def _noise(self, final: bool = False) -> None:
         """Apply the noise estimates that are ready, the devices' states stored at once (a replay, or
@@ -453,6 +461,13 @@ def _rows(fixes: list[tuple], dev: np.ndarray, sel: np.ndarray, est: dict | None
         tail = (None,) * 8 + (LATE,)
         return [h + tail for h in head]
     return [h + e for h, e in zip(head, zip(*(_nullable(est[k]) for k in ESTIMATES)))]
+
+
+def _grown(values: np.ndarray, size: int) -> np.ndarray:
+    """``values`` followed by zeros up to ``size`` (the zeros' pages take no memory until written)."""
+    out = np.zeros(size, values.dtype)
+    out[:len(values)] = values
+    return out
 
 
 def _previous(values: np.ndarray) -> np.ndarray:

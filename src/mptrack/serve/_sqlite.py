@@ -226,6 +226,7 @@ class SqliteStore:
                     yield rows
             finally:
                 con.execute("COMMIT")
+                con.execute("PRAGMA shrink_memory")   # a restart reads every state once: not worth a cache
 
         return watermark, chunks()
 

@@ -85,16 +85,18 @@ class LiveTracks:
         need = first + int(count)
         if need > len(self._head):
             size = max(need, 2 * len(self._head), 1024)
-            head = np.zeros((size, self._split))
+            # rows past ``need`` are written when tracks are added: left untouched, their pages take no memory
+            head = np.empty((size, self._split))
             head[:first] = self._head[:first]
-            slot = np.full(size, -1, np.int32)
+            slot = np.empty(size, np.int32)
             slot[:first] = self._slot[:first]
-            track = np.full((size, len(_TRACK_FIELDS)), np.nan)
+            track = np.empty((size, len(_TRACK_FIELDS)))
             track[:first] = self._track[:first]
             self._head, self._slot, self._track = head, slot, track
         self._track[first:need] = np.nan
         self._track[first:need, _MODE] = UNSET
         self._head[first:need] = 0.0
+        self._slot[first:need] = -1
         self.n = need
         return np.arange(first, need)
 
