@@ -108,13 +108,15 @@ class Ingest:
         watermark, chunks = self.store.load_checkpoint()
         covered = np.zeros(len(self.ids), np.int64)      # each device's fixes up to this row are in its state
         for states in chunks:
-            known = [(self.keys[device], blob, upto, version) for device, blob, upto, version in states
-                     if device in self.keys]
-            if known:
-                idx = [d for d, _, _, _ in known]
-                self.live.load_states(idx, [b for _, b, _, _ in known])
-                covered[idx] = [u for _, _, u, _ in known]
-                self._version[idx] = [v for _, _, _, v in known]
+            devices, blobs, upto, versions = zip(*states)
+            idx = np.array([self.keys.get(d, -1) for d in devices], dtype=np.int64)
+            known = idx >= 0
+            if not known.all():
+                blobs = [b for b, k in zip(blobs, known.tolist()) if k]
+            if known.any():
+                self.live.load_states(idx[known], blobs)
+                covered[idx[known]] = np.array(upto, np.int64)[known]
+                self._version[idx[known]] = np.array(versions, np.int64)[known]
         if self.shared:
             return   # every stored state is current
         self._seq = self.store.last_row()
@@ -217,12 +219,15 @@ class Ingest:
 
     # ---- keys and states (a shared store: written by other processes too) ------------------------------
     def _add_keys(self, pairs) -> None:
+        if not pairs:
+            return
+        keys, devices = zip(*pairs)
         with self.lock:
+            if max(keys) >= len(self.ids):
+                self.ids.extend([None] * (max(keys) + 1 - len(self.ids)))
             for key, device in pairs:
-                if key >= len(self.ids):
-                    self.ids.extend([None] * (key + 1 - len(self.ids)))
                 self.ids[key] = device
-                self.keys[device] = key
+            self.keys.update(zip(devices, keys))
             self._grow(len(self.ids))
 
     def key(self, device: str) -> int | None:

@@ -322,7 +322,10 @@ class SqliteStore:
         self._closed.set()
         self._checkpointer.join()
         with self._lock:
-            self._w.close()   # SQLite checkpoints the log as its last connection closes
+            # the whole log into the database file and the log emptied, so that the next start reads one
+            # file (readers of other threads may keep connections open: closing this one would not do it)
+            self._w.execute("PRAGMA wal_checkpoint(TRUNCATE)")
+            self._w.close()
         con = getattr(self._local, "con", None)
         if con is not None:
             con.close()

@@ -86,7 +86,8 @@ class LiveTracks:
         if need > len(self._head):
             size = max(need, 2 * len(self._head), 1024)
             # rows past ``need`` are written when tracks are added: left untouched, their pages take no memory
-            head = np.empty((size, self._split))
+            # (the head's are zeros, an empty state, from the start)
+            head = np.zeros((size, self._split))
             head[:first] = self._head[:first]
             slot = np.empty(size, np.int32)
             slot[:first] = self._slot[:first]
@@ -95,7 +96,6 @@ class LiveTracks:
             self._head, self._slot, self._track = head, slot, track
         self._track[first:need] = np.nan
         self._track[first:need, _MODE] = UNSET
-        self._head[first:need] = 0.0
         self._slot[first:need] = -1
         self.n = need
         return np.arange(first, need)
