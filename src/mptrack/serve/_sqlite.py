@@ -319,6 +319,8 @@ class SqliteStore:
         return out
 
     def close(self) -> None:
+        if self._closed.is_set():
+            return
         self._closed.set()
         self._checkpointer.join()
         with self._lock:
