@@ -116,6 +116,22 @@ class Server:
     # ---- life ------------------------------------------------------------------------------------
     async def startup(self) -> None:
         loop = asyncio.get_running_loop()
+        collecting = gc.isenabled()
+        gc.disable()   # a restart makes millions of objects that live on: no collection while it does
+        try:
+            await self._start(loop)
+        finally:
+            # what is loaded now (modules, the device ids, ...) lives as long as the server: out of the
+            # cyclic garbage collector's reach, whose full collections otherwise scan it all (~100 ms
+            # pauses of every request, several a minute under load)
+            gc.freeze()
+            if collecting:
+                gc.enable()
+        trim_heap()
+        log.info("mptrack serve ready: %d devices, %s", len(self.ingest.keys), shown_url(self.config.db),
+                 extra={"event": "ready", "devices": len(self.ingest.keys)})
+
+    async def _start(self, loop) -> None:
         self.store = await loop.run_in_executor(None, open_store, self.config.db, self.config.fsync)
         live = LiveTracks(TrackOptions(model=self.config.model))
         await loop.run_in_executor(None, live.warm_up)
@@ -131,15 +147,8 @@ class Server:
         if self.store.cell_source() is not None:
             self.geolocator = Geolocator(self.store)
         self.ingest.start()
-        # what is loaded now (modules, the cell table's geolocator, ...) lives as long as the server: out
-        # of the cyclic garbage collector's reach, whose full collections otherwise scan it all (~100 ms
-        # pauses of every request, several a minute under load)
-        gc.freeze()
-        trim_heap()
         if self.config.retain_s is not None:
             self._tasks.append(loop.create_task(self._retention()))
-        log.info("mptrack serve ready: %d devices, %s", len(self.ingest.keys), shown_url(self.config.db),
-                 extra={"event": "ready", "devices": len(self.ingest.keys)})
 
     async def shutdown(self) -> None:
         for task in self._tasks:
