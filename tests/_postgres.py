@@ -80,9 +80,10 @@ class PostgresServer:
         self._run("pg_ctl", "-D", str(self.data), "-l", str(self.log), "-w", "-t", "60", "start")
         return self
 
-    def stop(self, mode: str = "fast") -> None:
-        """``mode`` immediate is a crash (no shutdown checkpoint; the WAL replays at the next start)."""
-        self._run("pg_ctl", "-D", str(self.data), "-m", mode, "-w", "stop", check=False)
+    def stop(self, mode: str = "fast", check: bool = False) -> None:
+        """``mode`` immediate is a crash (no shutdown checkpoint; the WAL replays at the next start);
+        ``check``: raise if the server was not running or did not stop."""
+        self._run("pg_ctl", "-D", str(self.data), "-m", mode, "-w", "stop", check=check)
 
     def restart(self, mode: str = "fast") -> None:
         self.stop(mode)
