@@ -23,7 +23,7 @@ import pandas as pd
 
 from ..errors import ParameterError, ShapeError
 from ..io import enu_to_geodetic
-from ..io._geodesy import enu_columns, geodetic_columns
+from .._core.geodesy import enu_columns, geodetic_columns
 from ._chain import transition
 from ._columns import FixTable
 from ._engine import step_tracks
