@@ -105,7 +105,8 @@ class SqliteStore:
                               f"{SCHEMA_VERSION}; upgrade mptrack", path=self.path)
         self._lock = threading.Lock()
         if version < SCHEMA_VERSION:
-            with self._transaction() as w:
+            with self._transaction() as w:   # read again under the write lock: another process may have upgraded it
+                version = int(w.execute("SELECT value FROM meta WHERE key = 'schema_version'").fetchone()[0])
                 for v in range(version + 1, SCHEMA_VERSION + 1):
                     for sql in _MIGRATIONS[v]:
                         w.execute(sql)
