@@ -39,7 +39,8 @@ def test_a_version_1_database_is_upgraded_with_its_device_states(tmp_path):
     try:
         assert store.schema_version == SCHEMA_VERSION == _version(path) == 2
         _, chunks = store.load_checkpoint()
-        assert {device: blob for chunk in chunks for device, blob, _, _ in chunk} == states
+        device = dict(keys)
+        assert {device[k]: blob for chunk in chunks for k, blob, _, _ in chunk} == states
     finally:
         store.close()
 

@@ -107,10 +107,12 @@ class Ingest:
         self._add_keys(self.store.device_keys())
         watermark, chunks = self.store.load_checkpoint()
         covered = np.zeros(len(self.ids), np.int64)      # each device's fixes up to this row are in its state
+        ids = self.ids
         for states in chunks:
-            devices, blobs, upto, versions = zip(*states)
-            idx = np.array([self.keys.get(d, -1) for d in devices], dtype=np.int64)
-            known = idx >= 0
+            keys, blobs, upto, versions = zip(*states)
+            idx = np.array(keys, dtype=np.int64)
+            # a shared store: a device another process registered after the keys were read is left out
+            known = np.array([k < len(ids) and ids[k] is not None for k in keys], dtype=bool)
             if not known.all():
                 blobs = [b for b, k in zip(blobs, known.tolist()) if k]
             if known.any():

@@ -286,11 +286,10 @@ class PostgresStore:
                                "%s::bigint[]) AS c(dev, v) ON s.dev = c.dev WHERE s.version > c.v AND s.state IS NOT NULL",
                                (np.asarray(devs).tolist(), _at(versions, devs))).fetchall()
 
-    def load_checkpoint(self, batch: int = 50_000) -> tuple[int, Iterator[list[tuple[str, bytes, int, int]]]]:
+    def load_checkpoint(self, batch: int = 50_000) -> tuple[int, Iterator[list[tuple[int, bytes, int, int]]]]:
         def chunks():
             with self.pool.connection() as con, con.transaction(), con.cursor(name="mptrack_states") as cur:
-                cur.execute("SELECT k.device_id, s.state, 0, s.version FROM device_state s JOIN device_keys k "
-                            "ON k.dev = s.dev WHERE s.state IS NOT NULL")
+                cur.execute("SELECT dev, state, 0, version FROM device_state WHERE state IS NOT NULL")
                 while rows := cur.fetchmany(batch):
                     yield rows
 

@@ -214,15 +214,14 @@ class SqliteStore:
                 return total
 
     # ---- reading ---------------------------------------------------------------------------------
-    def load_checkpoint(self, batch: int = 50_000) -> tuple[int, Iterator[list[tuple[str, bytes, int, int]]]]:
+    def load_checkpoint(self, batch: int = 50_000) -> tuple[int, Iterator[list[tuple[int, bytes, int, int]]]]:
         con = self._reader()
         con.execute("BEGIN")   # the watermark and the states: one snapshot
         watermark = int(con.execute("SELECT value FROM meta WHERE key = 'watermark'").fetchone()[0])
 
         def chunks():
             try:
-                cur = con.execute("SELECT k.device_id, s.state, s.upto, 0 FROM device_state s JOIN device_keys k "
-                                  "ON k.dev = s.dev")
+                cur = con.execute("SELECT dev, state, upto, 0 FROM device_state")
                 while rows := cur.fetchmany(batch):
                     yield rows
             finally:

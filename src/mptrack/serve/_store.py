@@ -145,8 +145,8 @@ class Store(Protocol):
         context exits without an exception, rolled back otherwise.  A shared store locks the devices'
         rows first (in sorted order) and reports the states whose version is not in ``versions``."""
 
-    def load_checkpoint(self, batch: int = 50_000) -> tuple[int, Iterator[list[tuple[str, bytes, int, int]]]]:
-        """(watermark, the device states (id, blob, upto, version) in chunks of ``batch``), read from
+    def load_checkpoint(self, batch: int = 50_000) -> tuple[int, Iterator[list[tuple[int, bytes, int, int]]]]:
+        """(watermark, the device states (key, blob, upto, version) in chunks of ``batch``), read from
         one snapshot (consume the chunks before writing)."""
 
     def states(self, devs: np.ndarray | None, versions: np.ndarray) -> list[tuple[int, int, bytes]]:
