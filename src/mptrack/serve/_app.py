@@ -29,13 +29,13 @@ from ..tracking import MODELS, LiveTracks, TrackOptions
 from . import _bulk, _osmand, _owntracks, _traccar_json
 from ._auth import RateLimit, Registry, check_device, credentials
 from ._celltable import load_cell_table
-from ._fix import device_id, timestamp
+from ._fix import device_id, iso_time, timestamp
 from ._geolocate import GeolocateError, Geolocator, answer_body, error_body, osmand_query, parse_request
 from ._ingest import Ingest
 from ._metrics import Metrics
 from ._database import open_store
 from ._postgres import shown_url
-from ._store import DEFAULT_DB
+from ._store import DEFAULT_DB, first_line
 
 __all__ = ["ServeConfig", "create_app", "app_from_environment", "config_environment", "CONFIG_ENV"]
 
@@ -167,11 +167,11 @@ class Server:
             except Exception as exc:  # the database is down: try again next time
                 if not _is_database_error(exc):
                     raise
-                log.warning("retention: %s; trying again later", _first_line(exc), extra={"event": "retention_failed"})
+                log.warning("retention: %s; trying again later", first_line(exc), extra={"event": "retention_failed"})
             else:
                 if n:
-                    log.info("retention: deleted %d fixes older than %s", n, _iso(cutoff),
-                             extra={"event": "retention", "deleted": n, "before": _iso(cutoff)})
+                    log.info("retention: deleted %d fixes older than %s", n, iso_time(cutoff),
+                             extra={"event": "retention", "deleted": n, "before": iso_time(cutoff)})
             await asyncio.sleep(min(3600.0, max(1.0, self.config.retain_s / 100.0)))
 
     # ---- ASGI --------------------------------------------------------------------------------------
@@ -226,9 +226,9 @@ class Server:
                     not _is_database_error(exc):
                 raise
             self.metrics.refuse("not_committed")
-            log.warning("not committed: %s", _first_line(exc), extra={"event": "not_committed"})
+            log.warning("not committed: %s", first_line(exc), extra={"event": "not_committed"})
             status, ctype = 503, b"application/json"
-            body = json.dumps({"error": {"code": "not_committed", "message": f"not stored: {_first_line(exc)}"}}).encode()
+            body = json.dumps({"error": {"code": "not_committed", "message": f"not stored: {first_line(exc)}"}}).encode()
         await _respond(send, status, body, ctype)
         self.metrics.observe("latency", time.perf_counter() - started)
 
@@ -394,15 +394,6 @@ def _is_database_error(exc: BaseException) -> bool:
     """A database driver's error (the database is down, a connection broke, a pool timed out)."""
     mod = type(exc).__module__
     return mod.startswith(("psycopg", "sqlite3"))
-
-
-def _iso(t: float) -> str:
-    return time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime(t))
-
-
-def _first_line(exc: BaseException) -> str:
-    text = str(exc).strip()
-    return text.splitlines()[0] if text else type(exc).__name__
 
 
 # ---- small ASGI helpers --------------------------------------------------------------------------------

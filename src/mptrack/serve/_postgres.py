@@ -34,7 +34,7 @@ import numpy as np
 
 from ..errors import OutputError, ParameterError
 from ._store import (AREA_AGGREGATES, AREA_COLUMNS, CELL_COLUMNS, ESTIMATE_COLUMNS, FIX_COLUMNS, StoredRows,
-                     stored_rows)
+                     first_line, stored_rows)
 
 __all__ = ["PostgresStore", "SCHEMA_VERSION", "CHANNEL", "shown_url"]
 
@@ -118,7 +118,7 @@ _WRITE_STATES = ("UPDATE device_state s SET version = s.version + 1, state = c.s
 
 
 def _fail(exc: Exception, url: str) -> OutputError:
-    return OutputError(f"db: cannot use the PostgreSQL database {shown_url(url)}: {str(exc).strip().splitlines()[0]}")
+    return OutputError(f"db: cannot use the PostgreSQL database {shown_url(url)}: {first_line(exc)}")
 
 
 def shown_url(url: str) -> str:
@@ -375,7 +375,7 @@ class PostgresStore:
                         for note in con.notifies(timeout=1.0):
                             deliver(note.payload)
             except psycopg.Error as exc:
-                log.warning("stream listener: %s; reconnecting", str(exc).strip().splitlines()[0] if str(exc) else exc)
+                log.warning("stream listener: %s; reconnecting", first_line(exc))
                 self._closing.wait(1.0)
 
     # ---- the cell table (cell geolocation) ---------------------------------------------------------------------

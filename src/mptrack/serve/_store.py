@@ -38,7 +38,7 @@ import numpy as np
 
 
 __all__ = ["Store", "Batch", "StoredRows", "stored_rows", "FIX_COLUMNS", "ESTIMATE_COLUMNS", "CELL_COLUMNS",
-           "AREA_COLUMNS", "AREA_AGGREGATES", "DEFAULT_DB"]
+           "AREA_COLUMNS", "AREA_AGGREGATES", "DEFAULT_DB", "first_line"]
 
 DEFAULT_DB = "sqlite:///mptrack.db"
 #: Columns of a stored fix as the device sent it (the :data:`._fix.FIELDS` minus attrs, plus received).
@@ -99,6 +99,13 @@ def stored_rows(rows: list[tuple]) -> StoredRows:
         else:
             out[n] = np.array([np.nan if v is None else v for v in values], dtype=float)
     return StoredRows(out)
+
+
+def first_line(exc: BaseException) -> str:
+    """The first line of what an error (a database driver's, most often) says, for a log line or a
+    one-line message; its type's name when it says nothing."""
+    text = str(exc).strip()
+    return text.splitlines()[0] if text else type(exc).__name__
 
 
 class Batch(Protocol):
