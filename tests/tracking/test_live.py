@@ -64,7 +64,7 @@ def test_a_state_survives_bytes_and_a_failed_batch_can_be_undone():
     a.add(2)
     b.add(2)
     a.advance(np.zeros(50, np.int64), t[:50], lat[:50], lon[:50], acc[:50])
-    b.load_states([1], [a.state_bytes(0)])
+    b.load_states([1], [a.states_bytes([0])[0]])
     saved = a.save_states([0])
     ra = a.advance(np.zeros(54, np.int64), t[50:], lat[50:], lon[50:], acc[50:])
     rb = b.advance(np.ones(54, np.int64), t[50:], lat[50:], lon[50:], acc[50:])
@@ -76,7 +76,7 @@ def test_a_state_survives_bytes_and_a_failed_batch_can_be_undone():
     with pytest.raises(ParameterError, match="layout|order"):
         ca = LiveTracks(TrackOptions(model="ca"))
         ca.add(1)
-        ca.load_states([0], [a.state_bytes(0)])
+        ca.load_states([0], [a.states_bytes([0])[0]])
 
 
 def test_the_prediction_is_the_exact_discretisation_of_the_model():
@@ -150,7 +150,7 @@ def test_a_smoothing_receiver_keeps_metres_of_uncertainty_after_its_noise_is_est
 def test_runs_of_rejected_fixes_carry_across_batches_and_bytes():
     """A track keeps its run of rejected fixes only while it is in one (the rest of the fleet holds
     half the memory): runs that span batches -- isolated outliers, a jump that ends in a restart --
-    give what one call gives, also through state_bytes in the middle of a run, with run buffers
+    give what one call gives, also through states_bytes in the middle of a run, with run buffers
     freed and reused among tracks."""
     rng = np.random.default_rng(11)
     n, tracks = 120, 6
@@ -179,7 +179,7 @@ def test_runs_of_rejected_fixes_carry_across_batches_and_bytes():
         if i == 62:                                   # in the middle of runs: a state survives bytes
             moved = LiveTracks()
             moved.add(tracks)
-            moved.load_states(np.arange(tracks), [piece.state_bytes(j) for j in range(tracks)])
+            moved.load_states(np.arange(tracks), piece.states_bytes(np.arange(tracks)))
             piece = moved
     # one call relabels a run's rejected fixes once the restart comes; fix by fix they were answered
     # as rejected when they came: every other estimate, and every final state, is the same
@@ -187,5 +187,5 @@ def test_runs_of_rejected_fixes_carry_across_batches_and_bytes():
     assert (~kept).sum() < 0.1 * len(dev)
     for k in ESTIMATE_FIELDS:
         np.testing.assert_array_equal(got[k][kept], want[k][kept])
-    assert [piece.state_bytes(j) for j in range(tracks)] == [whole.state_bytes(j) for j in range(tracks)]
+    assert piece.states_bytes(np.arange(tracks)) == whole.states_bytes(np.arange(tracks))
     assert len(piece._free) == len(piece._runs) > 0   # every run ended: every buffer is free again

@@ -273,7 +273,8 @@ def _copy_floor(url: str, rows: int) -> float:
         start = time.perf_counter()
         for i in range(0, rows, 5000):
             with con.transaction(), con.cursor() as cur, cur.copy("COPY f (dev, t, lat, lon, acc, a, b, c, d, r, e1, e2, "
-                                                                 "e3, e4, e5, e6, e7, e8, e9) FROM STDIN") as cp:
+                                                                 "e3, e4, e5, e6, e7, e8, e9) FROM STDIN (FORMAT BINARY)") as cp:
+                cp.set_types(["bigint"] + ["float8"] * 7 + ["text"] + ["float8"] * 9 + ["smallint"])
                 for r in data[i:i + 5000]:
                     cp.write_row(r)
         return rows / (time.perf_counter() - start)

@@ -118,8 +118,10 @@ def serve(
         note(f"listening on http://{where}:{port}/ (live map there; OsmAnd/Traccar Client: server URL "
              f"http://{where}:{port}; OwnTracks: http://{where}:{port}/pub), database {_shown(config.db)}"
              + (f", {workers} workers" if workers > 1 else ""), "serve")
+    # the server reads no client address or scheme: uvicorn's rewriting of them from a proxy's
+    # X-Forwarded-* headers would only cost every request (~7 microseconds, 7 % of an OsmAnd fix)
     options = dict(host=host, port=port, log_level=level.lower(), access_log=False, lifespan="on",
-                   timeout_graceful_shutdown=10, log_config=log_config)
+                   timeout_graceful_shutdown=10, log_config=log_config, proxy_headers=False)
     if workers == 1:
         _Server(uvicorn.Config(app, **options)).run()
         return

@@ -79,7 +79,7 @@ def _copy(src: Store, dst: Store, model: str | None) -> dict:
             last = max(last, int(rows["seq"].max()))
         t_last = live.last_fixes(np.arange(live.n))[:, 0]
         started = [k for k in np.flatnonzero(np.isfinite(t_last)).tolist() if ingest.ids[k] is not None]
-        states = [(k, ingest.ids[k], live.state_bytes(k), float(t_last[k])) for k in started]
+        states = [(k, ingest.ids[k], b, float(t_last[k])) for k, b in zip(started, live.states_bytes(started))]
         for i in range(0, len(states), 10_000):   # each covers every fix copied
             part = states[i:i + 10_000]
             keys = np.array([k for k, _, _, _ in part], dtype=np.int64)

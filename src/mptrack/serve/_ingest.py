@@ -312,7 +312,7 @@ class Ingest:
                         watermark = self._oldest_row(set(ready))
                         if any(d not in self._dirty for d in touched.tolist()):   # newly changed: not covered
                             watermark = self._seq if watermark is None else min(watermark, self._seq)
-                        states = [(d, self.ids[d], self.live.state_bytes(d), np.nan) for d in ready]
+                        states = self._checkpoints(ready)
                 rows = _rows(fixes, dev, sel, est, now)
                 late_rows = _rows(fixes, dev, order[late], None, now)
                 stream = self.store.streaming() if self.shared else bool(self.listeners)
@@ -339,7 +339,11 @@ class Ingest:
         """A shared store: (key, id, blob, last fix time) of these devices, their versions raised (lock held)."""
         self._version[devs] += 1
         t_last = self.live.last_fixes(devs)[:, 0].tolist()
-        return [(k, self.ids[k], self.live.state_bytes(k), tk) for k, tk in zip(devs.tolist(), t_last)]
+        return [(k, self.ids[k], b, tk) for k, b, tk in zip(devs.tolist(), self.live.states_bytes(devs), t_last)]
+
+    def _checkpoints(self, devices: list[int]) -> list[tuple[int, str, bytes, float]]:
+        """(key, id, blob, NaN) of these devices' states: checkpoints (a store with one writer; lock held)."""
+        return [(d, self.ids[d], b, np.nan) for d, b in zip(devices, self.live.states_bytes(devices))]
 
     def _due_states(self) -> list[int]:
         """The devices whose state changed more than ``checkpoint_s`` ago (oldest first, at most
@@ -429,7 +433,7 @@ class Ingest:
         """Store these devices' states (they cover every fix stored so far) and the new watermark (a store
         with one writer)."""
         with self.lock:
-            states = [(d, self.ids[d], self.live.state_bytes(d), np.nan) for d in devices]
+            states = self._checkpoints(devices)
         stored = set(devices)
         keys = np.array(sorted(stored), dtype=np.int64)
         with self.store.batch(keys, self._version[keys]) as tx:

@@ -97,13 +97,14 @@ _FIND_CELLS = (f"SELECT {', '.join(CELL_COLUMNS)} FROM cells WHERE (mcc, net, ar
                "(SELECT * FROM unnest(%s::int[], %s::int[], %s::bigint[], %s::bigint[]))")
 _FIND_AREAS = (f"SELECT {', '.join(AREA_COLUMNS)} FROM cell_areas WHERE (radio, mcc, net, area) IN "
                "(SELECT * FROM unnest(%s::smallint[], %s::int[], %s::int[], %s::bigint[]))")
-_COPY = f"COPY fixes ({', '.join(_ALL)}) FROM STDIN"
-_COPY_SEQ = f"COPY fixes ({', '.join(_ALL)}, seq) FROM STDIN"
 #: From this many rows a batch's fixes go in by COPY (fewer: one INSERT of arrays, sent with COMMIT).
 _COPY_ROWS = 500
-_TYPES = {"dev": "bigint", "attrs": "text", "flag": "smallint"}
+_TYPES = {"dev": "bigint", "attrs": "text", "flag": "smallint", "seq": "bigint"}
+# fixes go in binary (COPY and the arrays): a float's decimal text costs more to write and to read
+_COPY = f"COPY fixes ({', '.join(_ALL)}) FROM STDIN (FORMAT BINARY)"
+_COPY_SEQ = f"COPY fixes ({', '.join(_ALL)}, seq) FROM STDIN (FORMAT BINARY)"
 _INSERT_ARRAYS = (f"INSERT INTO fixes ({', '.join(_ALL)}) SELECT * FROM unnest("
-                  + ", ".join(f"%s::{_TYPES.get(c, 'float8')}[]" for c in _ALL) + ")")
+                  + ", ".join(f"%b::{_TYPES.get(c, 'float8')}[]" for c in _ALL) + ")")
 _INSERT_LATE = (f"INSERT INTO fixes ({', '.join(_ALL)}) SELECT {', '.join(['%s'] * len(_ALL))} WHERE NOT EXISTS "
                 "(SELECT 1 FROM fixes WHERE dev = %s AND t = %s AND lat = %s AND lon = %s)")
 # retention: a batch of old fixes (found by the block-range index on t) deleted by their (device, time) index
@@ -114,7 +115,7 @@ _LOCK = ("SELECT s.dev, s.version, s.version <> c.v, CASE WHEN s.version <> c.v 
          "FROM device_state s JOIN unnest(%s::bigint[], %s::bigint[]) AS c(dev, v) ON s.dev = c.dev "
          "ORDER BY s.dev FOR UPDATE OF s")
 _WRITE_STATES = ("UPDATE device_state s SET version = s.version + 1, state = c.state, t_last = c.t "
-                 "FROM unnest(%s::bigint[], %s::bytea[], %s::float8[]) AS c(dev, state, t) WHERE s.dev = c.dev")
+                 "FROM unnest(%b::bigint[], %b::bytea[], %b::float8[]) AS c(dev, state, t) WHERE s.dev = c.dev")
 
 
 def _fail(exc: Exception, url: str) -> OutputError:
@@ -242,9 +243,7 @@ class PostgresStore:
     # ---- copying (mptrack db copy) -------------------------------------------------------------------------
     def load_fixes(self, rows: StoredRows) -> None:
         with self.pool.connection() as con, con.transaction(), con.cursor() as cur:
-            with cur.copy(_COPY_SEQ) as cp:
-                for r in rows.records(with_seq=True):
-                    cp.write_row(r)
+            _copy_fixes(cur, _COPY_SEQ, rows.records(with_seq=True), _ALL + ("seq",))
             cur.execute("SELECT setval(pg_get_serial_sequence('fixes', 'seq'), GREATEST((SELECT max(seq) FROM fixes), 1))")
 
     def add_device_keys(self, keys: list[tuple[int, str]]) -> None:
@@ -442,9 +441,7 @@ class _Batch:
         with COMMIT (one INSERT of arrays for the rows of a small batch: a round trip less than COPY);
         ``watermark`` is ignored (every state written is current)."""
         if len(rows) >= _COPY_ROWS:
-            with self._cur.copy(_COPY) as cp:
-                for r in rows:
-                    cp.write_row(r)
+            _copy_fixes(self._cur, _COPY, rows, _ALL)
         elif rows:
             self._rows = rows
         self._late, self._states, self._events = list(late), list(states), list(events)
@@ -463,6 +460,14 @@ class _Batch:
                 con.cursor().executemany("SELECT pg_notify(%s, %s)", [(CHANNEL, p) for p in _payloads(self._events)])
             con.execute("COMMIT")
         self.stored_late = max(self._cur.rowcount, 0) if self._late else 0
+
+
+def _copy_fixes(cur, sql: str, rows, columns: tuple) -> None:
+    """Rows of fixes (values of ``columns``) in by binary COPY."""
+    with cur.copy(sql) as cp:
+        cp.set_types([_TYPES.get(c, "float8") for c in columns])
+        for r in rows:
+            cp.write_row(r)
 
 
 def _payloads(events: list[str]) -> list[str]:

@@ -27,7 +27,7 @@ from .._core.geodesy import enu_columns, geodetic_columns
 from ._chain import transition
 from ._columns import FixTable
 from ._engine import step_tracks
-from ._state import ST_STREAK, state_from_bytes, state_layout, state_to_bytes
+from ._state import ST_STREAK, state_from_bytes, state_layout, states_to_bytes
 from ._fix_error import SLOW_TAU_S, slow_error_variance
 from ._fixes import TrackOptions
 from ._noise import estimate_noise as _estimate
@@ -365,14 +365,20 @@ class LiveTracks:
         self._track[idx] = track
         self.population = population
 
-    def state_bytes(self, i: int) -> bytes:
-        """Track i's whole state (engine state, frame, noise, last fix and estimate) as bytes."""
-        i = int(self._check([i])[0])
-        return (_BLOB.pack(_MAGIC, _VERSION, len(_TRACK_FIELDS)) + self._track[i].astype("<f8").tobytes()
-                + state_to_bytes(self._rows(np.array([i]))[0], self.order))
+    def states_bytes(self, tracks) -> list[bytes]:
+        """Each track's whole state (engine state, frame, noise, last fix and estimate) as bytes."""
+        idx = self._check(tracks)
+        head = np.frombuffer(_BLOB.pack(_MAGIC, _VERSION, len(_TRACK_FIELDS)), dtype=np.uint8)
+        engine = states_to_bytes(self._rows(idx), self.order)
+        out = np.empty((len(idx), head.size + 8 * len(_TRACK_FIELDS) + engine.shape[1]), dtype=np.uint8)
+        out[:, :head.size] = head
+        out[:, head.size:-engine.shape[1]] = self._track[idx].astype("<f8").view(np.uint8)
+        out[:, -engine.shape[1]:] = engine
+        blob, size = out.tobytes(), out.shape[1]
+        return [blob[j * size:(j + 1) * size] for j in range(len(idx))]
 
     def load_states(self, tracks, blobs: list[bytes]) -> None:
-        """Tracks <- their :meth:`state_bytes`, all at once (a restart with 10^6 devices reads them in
+        """Tracks <- their :meth:`states_bytes`, all at once (a restart with 10^6 devices reads them in
         one pass); a ParameterError says what does not match this mptrack's layout or model."""
         tracks = self._check(tracks)
         if len(tracks) != len(blobs):

@@ -20,7 +20,7 @@ from ..errors import DTypeError, ParameterError, ShapeError
 from ._chain import INLINE
 
 __all__ = ["STREAK_CAP", "STATE_VERSION", "STATE_FIELDS", "state_layout", "state_size", "empty_states",
-           "load_block", "save_block", "check_order", "state_to_bytes", "state_from_bytes"]
+           "load_block", "save_block", "check_order", "state_to_bytes", "states_to_bytes", "state_from_bytes"]
 
 #: The rejected fixes in a row that a track's state keeps (the restart test's run and the fixes
 #: before it that a restart may relabel).
@@ -117,7 +117,22 @@ def state_to_bytes(state, order: int) -> bytes:
     if row.shape != (state_size(order),):
         raise ShapeError(f"state: expected one state row of {state_size(order)} values for order {order}, "
                          f"got shape {row.shape}")
-    return _HEAD.pack(_MAGIC, STATE_VERSION, order, STREAK_CAP, row.size) + row.astype("<f8").tobytes()
+    return states_to_bytes(row[None, :], order).tobytes()
+
+
+def states_to_bytes(states, order: int) -> np.ndarray:
+    """Track state rows (K, size) as K rows of bytes (uint8 (K, bytes)), each what :func:`state_to_bytes`
+    gives for its row."""
+    order = check_order(order)
+    rows = np.asarray(states, dtype=np.float64)
+    if rows.ndim != 2 or rows.shape[1] != state_size(order):
+        raise ShapeError(f"states: expected state rows of {state_size(order)} values for order {order}, "
+                         f"got shape {rows.shape}")
+    head = np.frombuffer(_HEAD.pack(_MAGIC, STATE_VERSION, order, STREAK_CAP, rows.shape[1]), dtype=np.uint8)
+    out = np.empty((len(rows), head.size + 8 * rows.shape[1]), dtype=np.uint8)
+    out[:, :head.size] = head
+    out[:, head.size:] = rows.astype("<f8").view(np.uint8)
+    return out
 
 
 def state_from_bytes(data: bytes) -> tuple[np.ndarray, int]:
