@@ -111,6 +111,25 @@ def test_late_fixes_are_stored_and_duplicates_are_not(server):
         time.strftime("%Y-%m-%dT%H:%M:%S", time.gmtime(t0 + 20)))
 
 
+def test_a_bulk_upload_of_late_fixes_is_stored_once(server):
+    """A bulk batch's late fixes (a device's history uploaded after newer fixes; more than the stores write
+    row by row) are stored, each exactly once: a repeat of the upload, or a fix twice in it, is not."""
+    t0 = int(NOW) - 5000
+    assert server.get(f"/?id=late-bulk&timestamp={t0 + 2000}&lat=50.0&lon=8.0").status_code == 200
+    lines = [{"track_id": "late-bulk", "time": t0 + i, "lat": 50.0 + 1e-5 * i, "lon": 8.0} for i in range(600)]
+    lines += [{"track_id": "late-bulk", "time": t0 + 700, "lat": lat, "lon": 8.0} for lat in (50.1, 50.2, 50.1)]
+    body = "\n".join(json.dumps(x) for x in lines)
+    before = _stats(server)
+    for _ in range(2):
+        r = server.post("/api/fixes", content=body, headers={"Content-Type": "application/x-ndjson"})
+        assert r.status_code == 200 and r.json() == {"accepted": 603}
+    after = _stats(server)
+    rows = _stored(server.db, "late-bulk")
+    assert len(rows) == 1 + 602 and rows["est_lat"].isna().sum() == 602
+    assert sorted(rows.loc[rows["t"] == t0 + 700, "lat"]) == [50.1, 50.2]
+    assert after["late"] - before["late"] == 602 and after["duplicates"] - before["duplicates"] == 1 + 603
+
+
 # ---- real traces fed fix by fix, then every query ----------------------------------------------------
 def _traces() -> dict[str, pd.DataFrame]:
     car = read_table(REAL_TRACES["car"])

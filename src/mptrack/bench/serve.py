@@ -179,7 +179,7 @@ def _bulk(url: str, bodies: list[bytes], clients: int) -> float:
                 with lock:
                     if not queue:
                         return
-                    body = queue.pop()
+                    body = queue.pop(0)   # in order, as a gateway replays (two clients interleave some)
                 r = http.post(url + "/api/fixes", content=body, headers={"Content-Type": "application/x-ndjson"})
                 r.raise_for_status()
 

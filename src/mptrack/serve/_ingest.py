@@ -43,12 +43,12 @@ import numpy as np
 
 from .._core.memory import trim_heap
 from .._core.threads import background
-from ..tracking import ESTIMATE_FIELDS, FLAGS, LiveTracks, ellipse
+from ..tracking import ESTIMATE_FIELDS, LiveTracks, ellipse
 from ._fix import iso_time
 from ._metrics import Metrics
-from ._store import Store
+from ._store import FLAG_NAMES, HISTORY_COLUMNS, LATE, Store
 
-__all__ = ["Ingest", "FLAG_NAMES", "LATE", "ESTIMATES"]
+__all__ = ["Ingest", "ESTIMATES"]
 
 log = logging.getLogger("mptrack.serve")
 #: The most devices whose noise one round re-estimates.
@@ -59,9 +59,6 @@ MAX_ESTIMATED = 2000
 INLINE_FIXES = 512
 #: The most device states one batch checkpoints.
 CHECKPOINT_ROWS = 2000
-#: Names of the stored ``flag`` values: the tracking engine's flags, then "late" (stored, not filtered).
-FLAG_NAMES = tuple(FLAGS) + ("late",)
-LATE = len(FLAGS)
 #: What :meth:`mptrack.tracking.LiveTracks.advance` returns for each fix, in the order stored (ESTIMATE_COLUMNS).
 ESTIMATES = ESTIMATE_FIELDS
 
@@ -445,9 +442,8 @@ class Ingest:
         """(due, noise) from the devices' recent stored fixes (on the estimator thread)."""
         histories = []
         for d in due.tolist():
-            rows = self.store.recent(d, self.history_fixes)
-            use = rows["flag"] != LATE
-            histories.append({k: rows[k][use] for k in ("t", "lat", "lon", "accuracy_m")})
+            rows = self.store.history(d, self.history_fixes)
+            histories.append(dict(zip(HISTORY_COLUMNS, rows.T)))
         return due, self.live.estimate_noise(histories)
 
     @staticmethod

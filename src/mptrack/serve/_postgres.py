@@ -33,8 +33,8 @@ from typing import Callable, Iterator
 import numpy as np
 
 from ..errors import OutputError, ParameterError
-from ._store import (AREA_AGGREGATES, AREA_COLUMNS, CELL_COLUMNS, ESTIMATE_COLUMNS, FIX_COLUMNS, StoredRows,
-                     first_line, stored_rows)
+from ._store import (AREA_AGGREGATES, AREA_COLUMNS, CELL_COLUMNS, ESTIMATE_COLUMNS, FIX_COLUMNS, HISTORY_COLUMNS,
+                     LATE, StoredRows, first_line, history_array, stored_rows)
 
 __all__ = ["PostgresStore", "SCHEMA_VERSION", "CHANNEL", "shown_url"]
 
@@ -102,11 +102,18 @@ _COPY_ROWS = 500
 _TYPES = {"dev": "bigint", "attrs": "text", "flag": "smallint", "seq": "bigint"}
 # fixes go in binary (COPY and the arrays): a float's decimal text costs more to write and to read
 _COPY = f"COPY fixes ({', '.join(_ALL)}) FROM STDIN (FORMAT BINARY)"
+_HISTORY = f"SELECT {', '.join(HISTORY_COLUMNS)} FROM fixes WHERE dev = %s AND flag <> %s ORDER BY t DESC LIMIT %s"
 _COPY_SEQ = f"COPY fixes ({', '.join(_ALL)}, seq) FROM STDIN (FORMAT BINARY)"
-_INSERT_ARRAYS = (f"INSERT INTO fixes ({', '.join(_ALL)}) SELECT * FROM unnest("
-                  + ", ".join(f"%b::{_TYPES.get(c, 'float8')}[]" for c in _ALL) + ")")
-_INSERT_LATE = (f"INSERT INTO fixes ({', '.join(_ALL)}) SELECT {', '.join(['%s'] * len(_ALL))} WHERE NOT EXISTS "
-                "(SELECT 1 FROM fixes WHERE dev = %s AND t = %s AND lat = %s AND lon = %s)")
+_ARRAYS = "unnest(" + ", ".join(f"%b::{_TYPES.get(c, 'float8')}[]" for c in _ALL) + f") AS c ({', '.join(_ALL)})"
+_INSERT_ARRAYS = f"INSERT INTO fixes ({', '.join(_ALL)}) SELECT * FROM {_ARRAYS}"
+# late fixes: each stored unless the same fix (device, time, position) is, found by the (dev, t) index; a
+# bulk batch's go by COPY into a temporary table first
+_LATE_TABLE = "late_fixes"
+_CREATE_LATE = (f"CREATE TEMP TABLE IF NOT EXISTS {_LATE_TABLE} ON COMMIT DELETE ROWS AS SELECT {', '.join(_ALL)} "
+                "FROM fixes WITH NO DATA")
+_COPY_LATE = f"COPY {_LATE_TABLE} ({', '.join(_ALL)}) FROM STDIN (FORMAT BINARY)"
+_INSERT_LATE = (f"INSERT INTO fixes ({', '.join(_ALL)}) SELECT DISTINCT ON (dev, t, lat, lon) * FROM {{}} WHERE NOT "
+                "EXISTS (SELECT 1 FROM fixes f WHERE f.dev = c.dev AND f.t = c.t AND f.lat = c.lat AND f.lon = c.lon)")
 # retention: a batch of old fixes (found by the block-range index on t) deleted by their (device, time) index
 _DELETE_OLD = ("DELETE FROM fixes f USING (SELECT dev, t, seq FROM fixes WHERE t < %s LIMIT %s) o "
                "WHERE f.dev = o.dev AND f.t = o.t AND f.seq = o.seq")
@@ -312,8 +319,9 @@ class PostgresStore:
             args += (int(limit),)
         return stored_rows(self._all(sql, args))
 
-    def recent(self, dev: int, n: int) -> StoredRows:
-        return stored_rows(self._all(f"{_SELECT} WHERE dev = %s ORDER BY t DESC LIMIT %s", (int(dev), int(n)))[::-1])
+    def history(self, dev: int, n: int) -> np.ndarray:
+        with self.pool.connection() as con:
+            return history_array(con.execute(_HISTORY, (int(dev), LATE, int(n)), binary=True).fetchall())
 
     def device_keys(self, devices: list[str] | None = None) -> list[tuple[int, str]]:
         if devices is None:
@@ -427,7 +435,7 @@ class _Batch:
     def __init__(self, con, stale: list[tuple[int, int, bytes | None]]):
         self.con = con
         self.stale = stale
-        self._late: list[tuple] = []
+        self._late: tuple | None = None     # the statement that stores the late fixes, and its arrays
         self._states: list[tuple[int, str, bytes, float]] = []
         self._events: list[str] = []
         self._cur = con.cursor()
@@ -444,7 +452,13 @@ class _Batch:
             _copy_fixes(self._cur, _COPY, rows, _ALL)
         elif rows:
             self._rows = rows
-        self._late, self._states, self._events = list(late), list(states), list(events)
+        if len(late) >= _COPY_ROWS:
+            self._cur.execute(_CREATE_LATE)
+            _copy_fixes(self._cur, _COPY_LATE, late, _ALL)
+            self._late = _INSERT_LATE.format(f"{_LATE_TABLE} c"), None
+        elif late:
+            self._late = _INSERT_LATE.format(_ARRAYS), [list(c) for c in zip(*late)]
+        self._states, self._events = list(states), list(events)
 
     def commit(self) -> None:
         con = self.con
@@ -452,7 +466,7 @@ class _Batch:
             if self._rows:
                 con.execute(_INSERT_ARRAYS, [list(c) for c in zip(*self._rows)])
             if self._late:
-                self._cur.executemany(_INSERT_LATE, [r + r[:4] for r in self._late])
+                self._cur.execute(*self._late)
             if self._states:
                 con.execute(_WRITE_STATES, ([d for d, _, _, _ in self._states], [b for _, _, b, _ in self._states],
                                             [t for _, _, _, t in self._states]))

@@ -27,7 +27,7 @@ from .. import __version__
 from ..errors import RequestError
 from ._auth import credentials
 from ._fix import iso_time, timestamp
-from ._ingest import FLAG_NAMES
+from ._store import FLAG_NAMES
 from ._openapi import ingest_paths
 from ._tracks import FORMATS, track_body
 

@@ -36,11 +36,18 @@ from typing import Callable, Iterator, Protocol
 
 import numpy as np
 
+from ..tracking import FLAGS
 
 __all__ = ["Store", "Batch", "StoredRows", "stored_rows", "FIX_COLUMNS", "ESTIMATE_COLUMNS", "CELL_COLUMNS",
-           "AREA_COLUMNS", "AREA_AGGREGATES", "DEFAULT_DB", "first_line"]
+           "AREA_COLUMNS", "AREA_AGGREGATES", "DEFAULT_DB", "first_line", "history_array", "FLAG_NAMES", "LATE",
+           "HISTORY_COLUMNS"]
 
 DEFAULT_DB = "sqlite:///mptrack.db"
+#: Names of the stored ``flag`` values: the tracking engine's flags, then "late" (stored, not filtered).
+FLAG_NAMES = tuple(FLAGS) + ("late",)
+LATE = len(FLAGS)
+#: The columns of a device's filtered history (:meth:`Store.history`), what its noise is estimated from.
+HISTORY_COLUMNS = ("t", "lat", "lon", "accuracy_m")
 #: Columns of a stored fix as the device sent it (the :data:`._fix.FIELDS` minus attrs, plus received).
 FIX_COLUMNS = ("dev", "t", "lat", "lon", "accuracy_m", "speed_mps", "heading_deg", "altitude_m", "attrs",
                "received")
@@ -99,6 +106,11 @@ def stored_rows(rows: list[tuple]) -> StoredRows:
         else:
             out[n] = np.array([np.nan if v is None else v for v in values], dtype=float)
     return StoredRows(out)
+
+
+def history_array(rows: list[tuple]) -> np.ndarray:
+    """A device's history (:meth:`Store.history`) from its rows newest first."""
+    return np.array(rows[::-1], dtype=float).reshape(len(rows), len(HISTORY_COLUMNS))
 
 
 def first_line(exc: BaseException) -> str:
@@ -176,8 +188,9 @@ class Store(Protocol):
               limit: int | None = None) -> StoredRows:
         """A device's stored fixes with t0 <= t <= t1, in time order."""
 
-    def recent(self, dev: int, n: int) -> StoredRows:
-        """A device's last ``n`` stored fixes (by time), in time order."""
+    def history(self, dev: int, n: int) -> np.ndarray:
+        """A device's last ``n`` fixes that went through the live filter (not late), in time order: a
+        float array (rows, HISTORY_COLUMNS), NaN where a value is missing."""
 
     def device_keys(self, devices: list[str] | None = None) -> list[tuple[int, str]]:
         """(key, device id) of every device that has sent a fix (of these ``devices`` only, if given)."""

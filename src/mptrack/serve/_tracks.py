@@ -19,7 +19,7 @@ import pandas as pd
 
 from ..io import write_table
 from ..tracking import ellipse
-from ._ingest import FLAG_NAMES
+from ._store import FLAG_NAMES
 from ._store import StoredRows
 
 __all__ = ["FORMATS", "track_body", "live_frame", "fix_frame"]
