@@ -296,9 +296,9 @@ class LiveTracks:
         keep = [j for j, h in enumerate(histories) if len(h["t"]) >= 2]
         if not keep:
             return out
-        frame = pd.concat([pd.DataFrame({"track_id": str(j), "time": h["t"], "t": h["t"], "lat": h["lat"],
-                                         "lon": h["lon"], "accuracy_m": h["accuracy_m"]})
-                           for j in keep for h in (histories[j],)], ignore_index=True)
+        cols = {k: np.concatenate([histories[j][k] for j in keep]) for k in ("t", "lat", "lon", "accuracy_m")}
+        ids = np.repeat(np.array([str(j) for j in keep], dtype=object), [len(histories[j]["t"]) for j in keep])
+        frame = pd.DataFrame({"track_id": ids, "time": cols["t"], **cols})
         frame["row"] = np.arange(1, len(frame) + 1)
         table = FixTable.from_frame(frame)
         w, has_acc = fix_weights(table, self.options.sigma_m)
