@@ -338,17 +338,19 @@ def test_retention_does_not_block_ingest_and_runs_in_one_process(postgres):
     nothing and returns (one process deletes at a time); then everything old goes, the new stays."""
     from mptrack.serve import _postgres
     from mptrack.serve._database import open_store
+    from mptrack.serve._store import stored_rows
 
     db = postgres.create_database("retention")
     a, b = open_store(db), open_store(db)
     try:
         (dev, _), = a.register(["old-and-new"])
 
-        def row(t):
-            return (dev, t, 52.5, 13.4, 5.0, None, None, None, None, t, 52.5, 13.4, 1.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0)
+        def rows(times):   # (seq: not written) + the stored columns
+            return stored_rows([(0, dev, t, 52.5, 13.4, 5.0, None, None, None, None, t, 52.5, 13.4, 1.0, 0.0, 1.0, 0.0,
+                                 0.0, 0.0, 0) for t in times])
 
         with a.batch(np.array([dev]), np.array([0])) as tx:
-            tx.write([row(float(t)) for t in range(1000, 1600)])
+            tx.write(rows([float(t) for t in range(1000, 1600)]))
         held = a.pool.getconn()
         try:
             held.execute("SELECT pg_advisory_lock(%s, %s)", _postgres._RETENTION_LOCK)
@@ -358,7 +360,7 @@ def test_retention_does_not_block_ingest_and_runs_in_one_process(postgres):
 
                 def ingest():
                     with b.batch(np.array([dev]), np.array([0])) as tx:
-                        tx.write([row(2000.0 + k) for k in range(10)])
+                        tx.write(rows([2000.0 + k for k in range(10)]))
                     done.set()
 
                 th = threading.Thread(target=ingest, daemon=True)

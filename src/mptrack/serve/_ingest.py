@@ -46,7 +46,7 @@ from .._core.threads import background
 from ..tracking import ESTIMATE_FIELDS, LiveTracks, ellipse
 from ._fix import iso_time
 from ._metrics import Metrics
-from ._store import FLAG_NAMES, HISTORY_COLUMNS, LATE, Store
+from ._store import ESTIMATE_COLUMNS, FIX_COLUMNS, FLAG_NAMES, HISTORY_COLUMNS, LATE, Store, StoredRows
 
 __all__ = ["Ingest", "ESTIMATES"]
 
@@ -280,10 +280,10 @@ class Ingest:
         now = time.time()
         dev = self._keys_of(fixes)
         cols = list(zip(*fixes))
-        t = np.array(cols[1], dtype=float)
-        lat = np.array(cols[2], dtype=float)
-        lon = np.array(cols[3], dtype=float)
-        acc = np.array([np.nan if a is None else a for a in cols[4]], dtype=float)
+        # the fixes' columns as stored (None: NaN, stored as NULL)
+        stored = {name: np.array(cols[k], dtype=float) for k, name in enumerate(FIX_COLUMNS[1:8], start=1)}
+        stored["dev"] = dev
+        t, lat, lon, acc = stored["t"], stored["lat"], stored["lon"], stored["accuracy_m"]
         order = np.lexsort((t, dev))
         d, ts, la, lo = dev[order], t[order], lat[order], lon[order]
         first = np.concatenate(([True], d[1:] != d[:-1]))
@@ -310,8 +310,8 @@ class Ingest:
                         if any(d not in self._dirty for d in touched.tolist()):   # newly changed: not covered
                             watermark = self._seq if watermark is None else min(watermark, self._seq)
                         states = self._checkpoints(ready)
-                rows = _rows(fixes, dev, sel, est, now)
-                late_rows = _rows(fixes, dev, order[late], None, now)
+                rows = _rows(stored, cols[8], sel, est, now)
+                late_rows = _rows(stored, cols[8], order[late], None, now)
                 stream = self.store.streaming() if self.shared else bool(self.listeners)
                 events = self._events(sel, fixes, est) if stream and len(sel) else None
                 tx.write(rows, late_rows, states, [f"{k}\t{e}" for k, e in events or ()], watermark)
@@ -461,13 +461,17 @@ class Ingest:
         return out
 
 
-def _rows(fixes: list[tuple], dev: np.ndarray, sel: np.ndarray, est: dict | None, now: float) -> list[tuple]:
-    """The stored rows (FIX_COLUMNS + ESTIMATE_COLUMNS) of ``fixes[sel]`` with their estimates."""
-    head = [(k,) + f[1:8] + (_attrs(f[8]), now) for k, f in zip(dev[sel].tolist(), (fixes[i] for i in sel.tolist()))]
-    if est is None:
-        tail = (None,) * 8 + (LATE,)
-        return [h + tail for h in head]
-    return [h + e for h, e in zip(head, zip(*(_nullable(est[k]) for k in ESTIMATES)))]
+def _rows(stored: dict, attrs: tuple, sel: np.ndarray, est: dict | None, now: float) -> StoredRows:
+    """The stored rows of fixes ``sel`` (their columns ``stored``, their ``attrs``) with their estimates
+    (None: late fixes, without)."""
+    n = len(sel)
+    out = {name: values[sel] for name, values in stored.items()}
+    out["attrs"] = np.array([_attrs(attrs[i]) for i in sel.tolist()], dtype=object)
+    out["received"] = np.full(n, now)
+    for name, field in zip(ESTIMATE_COLUMNS, ESTIMATES):
+        out[name] = est[field] if est is not None else np.full(n, LATE if name == "flag" else np.nan)
+    out["flag"] = out["flag"].astype(np.int64)
+    return StoredRows(out)
 
 
 def _grown(values: np.ndarray, size: int) -> np.ndarray:
@@ -480,13 +484,6 @@ def _grown(values: np.ndarray, size: int) -> np.ndarray:
 def _previous(values: np.ndarray) -> np.ndarray:
     """Each row's previous value (NaN for the first)."""
     return np.concatenate(([np.nan], values[:-1]))
-
-
-def _nullable(values: np.ndarray) -> np.ndarray:
-    """``values`` as Python numbers, NaN as None (stored as NULL)."""
-    out = values.astype(object)
-    out[values != values] = None
-    return out
 
 
 def _attrs(attrs) -> str | None:

@@ -250,7 +250,7 @@ class PostgresStore:
     # ---- copying (mptrack db copy) -------------------------------------------------------------------------
     def load_fixes(self, rows: StoredRows) -> None:
         with self.pool.connection() as con, con.transaction(), con.cursor() as cur:
-            _copy_fixes(cur, _COPY_SEQ, rows.records(with_seq=True), _ALL + ("seq",))
+            _copy_fixes(cur, _COPY_SEQ, rows, _ALL + ("seq",))
             cur.execute("SELECT setval(pg_get_serial_sequence('fixes', 'seq'), GREATEST((SELECT max(seq) FROM fixes), 1))")
 
     def add_device_keys(self, keys: list[tuple[int, str]]) -> None:
@@ -439,32 +439,35 @@ class _Batch:
         self._states: list[tuple[int, str, bytes, float]] = []
         self._events: list[str] = []
         self._cur = con.cursor()
-        self._rows: list[tuple] = []
+        self._rows: list[list] = []          # a small batch's fixes: a list of values for each column
         self.stored_late = 0
         self.last_row = 0   # (a shared store has no watermark: not counted)
 
-    def write(self, rows: list[tuple] = (), late: list[tuple] = (), states: list[tuple[int, str, bytes, float]] = (),
-              events: list[str] = (), watermark: int | None = None) -> None:
+    def write(self, rows: StoredRows | None = None, late: StoredRows | None = None,
+              states: list[tuple[int, str, bytes, float]] = (), events: list[str] = (),
+              watermark: int | None = None) -> None:
         """(see :class:`._store.Batch`) A bulk batch's ``rows`` go in now by COPY; everything else is sent
         with COMMIT (one INSERT of arrays for the rows of a small batch: a round trip less than COPY);
         ``watermark`` is ignored (every state written is current)."""
-        if len(rows) >= _COPY_ROWS:
+        rows = rows if rows is not None and len(rows) else None
+        late = late if late is not None and len(late) else None
+        if rows is not None and len(rows) >= _COPY_ROWS:
             _copy_fixes(self._cur, _COPY, rows, _ALL)
-        elif rows:
-            self._rows = rows
-        if len(late) >= _COPY_ROWS:
+        elif rows is not None:
+            self._rows = rows.lists(_ALL)
+        if late is not None and len(late) >= _COPY_ROWS:
             self._cur.execute(_CREATE_LATE)
             _copy_fixes(self._cur, _COPY_LATE, late, _ALL)
             self._late = _INSERT_LATE.format(f"{_LATE_TABLE} c"), None
-        elif late:
-            self._late = _INSERT_LATE.format(_ARRAYS), [list(c) for c in zip(*late)]
+        elif late is not None:
+            self._late = _INSERT_LATE.format(_ARRAYS), late.lists(_ALL)
         self._states, self._events = list(states), list(events)
 
     def commit(self) -> None:
         con = self.con
         with con.pipeline():
             if self._rows:
-                con.execute(_INSERT_ARRAYS, [list(c) for c in zip(*self._rows)])
+                con.execute(_INSERT_ARRAYS, self._rows)
             if self._late:
                 self._cur.execute(*self._late)
             if self._states:
@@ -476,11 +479,11 @@ class _Batch:
         self.stored_late = max(self._cur.rowcount, 0) if self._late else 0
 
 
-def _copy_fixes(cur, sql: str, rows, columns: tuple) -> None:
-    """Rows of fixes (values of ``columns``) in by binary COPY."""
+def _copy_fixes(cur, sql: str, rows: StoredRows, columns: tuple) -> None:
+    """Fixes (their ``columns``) in by binary COPY."""
     with cur.copy(sql) as cp:
         cp.set_types([_TYPES.get(c, "float8") for c in columns])
-        for r in rows:
+        for r in zip(*rows.lists(columns)):
             cp.write_row(r)
 
 

@@ -344,15 +344,15 @@ class _Batch:
         self.stored_late = 0
         self.last_row = 0
 
-    def write(self, rows: list[tuple] = (), late: list[tuple] = (), states=(), events=(),
+    def write(self, rows: StoredRows | None = None, late: StoredRows | None = None, states=(), events=(),
               watermark: int | None = None) -> None:
         """(see :class:`._store.Batch`; the states are checkpoints in the batch's own transaction)"""
         w = self.con
-        if rows:
-            w.executemany(_INSERT, rows)
+        if rows is not None and len(rows):
+            w.executemany(_INSERT, rows.records())
         before = w.total_changes
-        if late:
-            w.executemany(_INSERT_NEW, late)
+        if late is not None and len(late):
+            w.executemany(_INSERT_NEW, late.records())
         self.stored_late = w.total_changes - before
         last = self.last_row = w.execute("SELECT COALESCE(MAX(seq), 0) FROM fixes").fetchone()[0]
         if states:

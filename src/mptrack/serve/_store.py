@@ -39,7 +39,7 @@ import numpy as np
 from ..tracking import FLAGS
 
 __all__ = ["Store", "Batch", "StoredRows", "stored_rows", "FIX_COLUMNS", "ESTIMATE_COLUMNS", "CELL_COLUMNS",
-           "AREA_COLUMNS", "AREA_AGGREGATES", "DEFAULT_DB", "first_line", "history_array", "FLAG_NAMES", "LATE",
+           "AREA_COLUMNS", "AREA_AGGREGATES", "DEFAULT_DB", "first_line", "history_array", "nullable", "FLAG_NAMES", "LATE",
            "HISTORY_COLUMNS"]
 
 DEFAULT_DB = "sqlite:///mptrack.db"
@@ -80,10 +80,20 @@ class StoredRows:
 
     def records(self, with_seq: bool = False) -> list[tuple]:
         """The rows as tuples of FIX_COLUMNS + ESTIMATE_COLUMNS (+ seq) values, None for NULL."""
-        names = _ALL + (("seq",) if with_seq else ())
-        cols = [[None if v != v else v for v in self.columns[n].tolist()] if n not in _TEXT
-                else self.columns[n].tolist() for n in names]
-        return list(zip(*cols))
+        return list(zip(*self.lists(_ALL + (("seq",) if with_seq else ()))))
+
+    def lists(self, names) -> list[list]:
+        """The columns ``names`` as lists of Python values, None for NULL (NaN)."""
+        return [nullable(self.columns[n]).tolist() for n in names]
+
+
+def nullable(values: np.ndarray) -> np.ndarray:
+    """``values`` with NaN as None (an object array) if they are floats, else as they are."""
+    if values.dtype.kind != "f":
+        return values
+    out = values.astype(object)
+    out[values != values] = None
+    return out
 
 
 _ALL = FIX_COLUMNS + ESTIMATE_COLUMNS
@@ -132,9 +142,10 @@ class Batch(Protocol):
     #: a store with one writer: the last fix row, this transaction's included
     last_row: int
 
-    def write(self, rows: list[tuple] = (), late: list[tuple] = (), states: list[tuple[int, str, bytes, float]] = (),
-              events: list[str] = (), watermark: int | None = None) -> None:
-        """(Once per batch.) Insert the fix rows (FIX_COLUMNS + ESTIMATE_COLUMNS values) ``rows`` -- fixes later than every
+    def write(self, rows: StoredRows | None = None, late: StoredRows | None = None,
+              states: list[tuple[int, str, bytes, float]] = (), events: list[str] = (),
+              watermark: int | None = None) -> None:
+        """(Once per batch.) Insert the fix rows (columns FIX_COLUMNS + ESTIMATE_COLUMNS) ``rows`` -- fixes later than every
         stored fix of their device, which cannot be duplicates -- and the rows ``late`` that are not exact
         duplicates of a stored fix (device, t, lat, lon); store device ``states`` (key, id, blob, time of
         the last fix) that cover every fix of their device stored so far, this transaction's included
