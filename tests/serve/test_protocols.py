@@ -195,6 +195,27 @@ def test_bulk_csv_and_ndjson_in_the_columns_mptrack_track_reads():
     assert [r["t"] for r in rows] == [1767268800.0, 1767268801.0, 1767268802.0]
 
 
+_TIMES = ([1770000000, 1770000001], [1770000000000, 1770000001000], [1770000000.5, 1770000001.25],
+          ["2026-02-02T02:40:00Z", "2026-02-02T02:40:01Z"], ["2026-02-02T02:40:00.5Z", "2026-02-02T02:40:01.5Z"],
+          ["2026-02-02T04:40:00+02:00", "2026-02-02T04:40:01+02:00"], ["2026-02-02 02:40:00", "2026-02-02 02:40:01"])
+
+
+@pytest.mark.parametrize("column", ["time", "timestamp", "date", "fix_time", "ts"])
+@pytest.mark.parametrize("times", _TIMES)
+@pytest.mark.parametrize("extra", [[{}, {}], [{"batt": 87, "note": "x", "charging": True}, {"batt": 86.5}],
+                                   [{"cell": {"cid": 7}}, {"cell": {"lac": 3}}], [{"accuracy": "5"}, {}]])
+def test_bulk_ndjson_reads_the_same_by_arrow_and_by_pandas(column, times, extra, monkeypatch):
+    """Flat NDJSON goes through Arrow's reader, anything else through pandas': the same fixes either way."""
+    import mptrack.serve._bulk as bulk
+
+    body = "\n".join(json.dumps({"id": "d1", column: t, "lat": 48.1 + i * 1e-4, "lon": 11.6, "accuracy": 5, **more})
+                     for i, (t, more) in enumerate(zip(times, extra))).encode()
+    params = {"columns": f"time={column}"}   # pandas reads some names (date, *_time) as times itself
+    fast = parse_bulk(body, "ndjson", params, NOW)
+    monkeypatch.setattr(bulk, "_flat_ndjson", lambda body: None)
+    assert parse_bulk(body, "ndjson", params, NOW) == fast
+
+
 @pytest.mark.parametrize("body, kind, field", [
     (b"", "csv", None),
     (b"track_id,time,x,y\na,2026-01-01T00:00:00Z,1,2\n", "csv", "lat"),

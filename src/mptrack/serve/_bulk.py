@@ -13,6 +13,8 @@ import time
 
 import numpy as np
 import pandas as pd
+import pyarrow as pa
+from pyarrow import json as pa_json
 
 from ..errors import DataError, MptrackError, RequestError
 from ..io import FIXES, ReadOptions, read_table
@@ -88,11 +90,27 @@ def _frame(body: bytes, kind: str) -> pd.DataFrame:
     try:
         if kind == "csv":
             return pd.read_csv(_stdio.BytesIO(body))
-        return pd.read_json(_stdio.BytesIO(body), lines=True, dtype=False)
+        flat = _flat_ndjson(body)
+        return flat if flat is not None else pd.read_json(_stdio.BytesIO(body), lines=True, dtype=False)
     except (ValueError, UnicodeDecodeError, pd.errors.ParserError) as exc:
         what = "CSV" if kind == "csv" else "NDJSON (one JSON object per line)"
         raise RequestError(f"the body is not valid {what}: {str(exc).splitlines()[0][:200]}",
                            code="malformed_body") from None
+
+
+def _flat_ndjson(body: bytes) -> pd.DataFrame | None:
+    """NDJSON of flat objects (numbers, text, true/false, null) read by Arrow's reader, ~2x faster than
+    pandas'; None for anything else -- nested values, a column of mixed types, invalid JSON, and text
+    that Arrow takes for times (it reads some ISO 8601 forms as instants) -- which pandas reads (the
+    times as text, as everywhere else) or refuses, as before."""
+    try:
+        table = pa_json.read_json(_stdio.BytesIO(body))
+    except (pa.ArrowInvalid, pa.ArrowNotImplementedError):
+        return None
+    if not all(pa.types.is_integer(t) or pa.types.is_floating(t) or pa.types.is_string(t) or pa.types.is_boolean(t)
+               or pa.types.is_null(t) for t in table.schema.types):
+        return None
+    return table.to_pandas()
 
 
 def _optional(rows: pd.DataFrame, name: str, n: int) -> list:
