@@ -440,11 +440,8 @@ class Ingest:
 
     def _estimate(self, due: np.ndarray) -> tuple[np.ndarray, dict]:
         """(due, noise) from the devices' recent stored fixes (on the estimator thread)."""
-        histories = []
-        for d in due.tolist():
-            rows = self.store.history(d, self.history_fixes)
-            histories.append(dict(zip(HISTORY_COLUMNS, rows.T)))
-        return due, self.live.estimate_noise(histories)
+        histories = self.store.histories(due.tolist(), self.history_fixes)
+        return due, self.live.estimate_noise([dict(zip(HISTORY_COLUMNS, h.T)) for h in histories])
 
     @staticmethod
     def _events(sel: np.ndarray, fixes: list[tuple], est: dict) -> list[tuple[str, str]]:

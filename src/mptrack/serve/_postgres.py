@@ -34,7 +34,7 @@ import numpy as np
 
 from ..errors import OutputError, ParameterError
 from ._store import (AREA_AGGREGATES, AREA_COLUMNS, CELL_COLUMNS, ESTIMATE_COLUMNS, FIX_COLUMNS, HISTORY_COLUMNS,
-                     LATE, StoredRows, first_line, history_array, stored_rows)
+                     LATE, StoredRows, first_line, split_histories, stored_rows)
 
 __all__ = ["PostgresStore", "SCHEMA_VERSION", "CHANNEL", "shown_url"]
 
@@ -102,7 +102,10 @@ _COPY_ROWS = 500
 _TYPES = {"dev": "bigint", "attrs": "text", "flag": "smallint", "seq": "bigint"}
 # fixes go in binary (COPY and the arrays): a float's decimal text costs more to write and to read
 _COPY = f"COPY fixes ({', '.join(_ALL)}) FROM STDIN (FORMAT BINARY)"
-_HISTORY = f"SELECT {', '.join(HISTORY_COLUMNS)} FROM fixes WHERE dev = %s AND flag <> %s ORDER BY t DESC LIMIT %s"
+# each device's last fixes by its (dev, t) index: one statement for the devices of a noise estimate
+_HISTORY = (f"SELECT d.dev, h.* FROM unnest(%b::bigint[]) WITH ORDINALITY AS d (dev, k) CROSS JOIN LATERAL "
+            f"(SELECT {', '.join(HISTORY_COLUMNS)} FROM fixes f WHERE f.dev = d.dev AND f.flag <> %s "
+            "ORDER BY f.t DESC LIMIT %s) h ORDER BY d.k, h.t")
 _COPY_SEQ = f"COPY fixes ({', '.join(_ALL)}, seq) FROM STDIN (FORMAT BINARY)"
 _ARRAYS = "unnest(" + ", ".join(f"%b::{_TYPES.get(c, 'float8')}[]" for c in _ALL) + f") AS c ({', '.join(_ALL)})"
 _INSERT_ARRAYS = f"INSERT INTO fixes ({', '.join(_ALL)}) SELECT * FROM {_ARRAYS}"
@@ -319,9 +322,10 @@ class PostgresStore:
             args += (int(limit),)
         return stored_rows(self._all(sql, args))
 
-    def history(self, dev: int, n: int) -> np.ndarray:
+    def histories(self, devs: list[int], n: int) -> list[np.ndarray]:
         with self.pool.connection() as con:
-            return history_array(con.execute(_HISTORY, (int(dev), LATE, int(n)), binary=True).fetchall())
+            return split_histories(devs, con.execute(_HISTORY, ([int(d) for d in devs], LATE, int(n)),
+                                                     binary=True).fetchall())
 
     def device_keys(self, devices: list[str] | None = None) -> list[tuple[int, str]]:
         if devices is None:

@@ -26,7 +26,7 @@ import numpy as np
 
 from ..errors import OutputError, ParameterError
 from ._store import (AREA_AGGREGATES, AREA_COLUMNS, CELL_COLUMNS, ESTIMATE_COLUMNS, FIX_COLUMNS, HISTORY_COLUMNS,
-                     LATE, StoredRows, history_array, stored_rows)
+                     LATE, StoredRows, split_histories, stored_rows)
 
 __all__ = ["SqliteStore", "SCHEMA_VERSION"]
 
@@ -74,7 +74,8 @@ _INSERT = f"INSERT INTO fixes ({', '.join(_ALL)}) VALUES ({', '.join('?' * len(_
 _INSERT_NEW = (f"INSERT INTO fixes ({', '.join(_ALL)}) SELECT {', '.join('?' * len(_ALL))} WHERE NOT EXISTS "
                "(SELECT 1 FROM fixes WHERE dev = ?1 AND t = ?2 AND lat = ?3 AND lon = ?4)")
 _SELECT = f"SELECT seq, {', '.join(_ALL)} FROM fixes"
-_HISTORY = f"SELECT {', '.join(HISTORY_COLUMNS)} FROM fixes WHERE dev = ? AND flag <> ? ORDER BY t DESC LIMIT ?"
+_HISTORY = (f"SELECT * FROM (SELECT dev, {', '.join(HISTORY_COLUMNS)} FROM fixes WHERE dev = ? AND flag <> ? "
+            "ORDER BY t DESC LIMIT ?) ORDER BY t")
 _INSERT_CELL = f"INSERT OR IGNORE INTO cells ({', '.join(CELL_COLUMNS)}) VALUES ({', '.join('?' * len(CELL_COLUMNS))})"
 _INSERT_AREA = f"INSERT INTO cell_areas ({', '.join(AREA_COLUMNS)}) VALUES ({', '.join('?' * len(AREA_COLUMNS))})"
 #: the most keys one look-up statement takes (more are looked up in several statements)
@@ -255,8 +256,9 @@ class SqliteStore:
             args += (int(limit),)
         return stored_rows(self._reader().execute(sql, args).fetchall())
 
-    def history(self, dev: int, n: int) -> np.ndarray:
-        return history_array(self._reader().execute(_HISTORY, (int(dev), LATE, int(n))).fetchall())
+    def histories(self, devs: list[int], n: int) -> list[np.ndarray]:
+        con = self._reader()
+        return split_histories(devs, [r for d in devs for r in con.execute(_HISTORY, (int(d), LATE, int(n)))])
 
     def device_keys(self, devices: list[str] | None = None) -> list[tuple[int, str]]:
         con = self._reader()

@@ -39,7 +39,7 @@ import numpy as np
 from ..tracking import FLAGS
 
 __all__ = ["Store", "Batch", "StoredRows", "stored_rows", "FIX_COLUMNS", "ESTIMATE_COLUMNS", "CELL_COLUMNS",
-           "AREA_COLUMNS", "AREA_AGGREGATES", "DEFAULT_DB", "first_line", "history_array", "nullable", "FLAG_NAMES", "LATE",
+           "AREA_COLUMNS", "AREA_AGGREGATES", "DEFAULT_DB", "first_line", "split_histories", "nullable", "FLAG_NAMES", "LATE",
            "HISTORY_COLUMNS"]
 
 DEFAULT_DB = "sqlite:///mptrack.db"
@@ -118,9 +118,15 @@ def stored_rows(rows: list[tuple]) -> StoredRows:
     return StoredRows(out)
 
 
-def history_array(rows: list[tuple]) -> np.ndarray:
-    """A device's history (:meth:`Store.history`) from its rows newest first."""
-    return np.array(rows[::-1], dtype=float).reshape(len(rows), len(HISTORY_COLUMNS))
+def split_histories(devs: list[int], rows: list[tuple]) -> list[np.ndarray]:
+    """The devices' histories (:meth:`Store.histories`) from rows (dev,) + HISTORY_COLUMNS, each device's
+    together and in time order."""
+    k = len(HISTORY_COLUMNS)
+    values = np.array(rows, dtype=float).reshape(len(rows), 1 + k)
+    dev = values[:, 0].astype(np.int64)
+    cuts = np.flatnonzero(dev[1:] != dev[:-1]) + 1
+    found = {int(part[0, 0]): part[:, 1:] for part in np.split(values, cuts) if len(part)}
+    return [found.get(int(d), np.empty((0, k))) for d in devs]
 
 
 def first_line(exc: BaseException) -> str:
@@ -199,9 +205,9 @@ class Store(Protocol):
               limit: int | None = None) -> StoredRows:
         """A device's stored fixes with t0 <= t <= t1, in time order."""
 
-    def history(self, dev: int, n: int) -> np.ndarray:
-        """A device's last ``n`` fixes that went through the live filter (not late), in time order: a
-        float array (rows, HISTORY_COLUMNS), NaN where a value is missing."""
+    def histories(self, devs: list[int], n: int) -> list[np.ndarray]:
+        """Each device's last ``n`` fixes that went through the live filter (not late), in time order: a
+        float array (rows, HISTORY_COLUMNS) a device, NaN where a value is missing."""
 
     def device_keys(self, devices: list[str] | None = None) -> list[tuple[int, str]]:
         """(key, device id) of every device that has sent a fix (of these ``devices`` only, if given)."""
