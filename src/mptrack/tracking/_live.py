@@ -27,7 +27,7 @@ from .._core.geodesy import enu_columns, geodetic_columns
 from ._chain import transition
 from ._columns import FixTable
 from ._engine import step_tracks
-from ._state import ST_STREAK, state_from_bytes, state_layout, states_to_bytes
+from ._state import ST_PENDING, ST_STREAK, state_from_bytes, state_layout, states_to_bytes
 from ._fix_error import SLOW_TAU_S, slow_error_variance
 from ._fixes import TrackOptions
 from ._noise import estimate_noise as _estimate
@@ -63,11 +63,13 @@ class LiveTracks:
         self.spec = noise_spec(options)
         self.order = self.spec.order
         self.model = get_model(options.model)
-        # the engine's state row of each track (:mod:`._state`) in two parts: everything before the run of
-        # rejected fixes for every track (384 of 896 bytes a row for cv), the run's buffer only for the
-        # tracks in a run (a pool of rows, _slot[track] its row or -1): a server's 10^6 devices, few in
-        # a run at once, hold half the memory
-        self._split, size = state_layout.py_func(self.order + 1)[5:]
+        # the engine's state row of each track (:mod:`._state`) in two parts: the filter's state for every
+        # track (240 of 896 bytes a row for cv); the coasting state, the candidate's fix and the buffer of
+        # the run of rejected fixes only for the tracks with a manoeuvre candidate pending or in a run (a
+        # pool of rows, _slot[track] its row or -1; the engine reads them only then): a server's 10^6
+        # devices, few of them pending or in a run at once, hold a quarter of the memory
+        layout = state_layout.py_func(self.order + 1)
+        self._split, size = layout[2], layout[-1]
         self._head = np.zeros((0, self._split))
         self._slot = np.zeros(0, np.int32)
         self._runs = np.zeros((0, size - self._split))
@@ -111,11 +113,12 @@ class LiveTracks:
         return rows
 
     def _put(self, idx: np.ndarray, rows: np.ndarray) -> None:
-        """Tracks ``idx`` (distinct) <- the engine's state ``rows``; a track's run buffer is kept while it is in
-        a run of rejected fixes (the engine reads no more of it than the run)."""
+        """Tracks ``idx`` (distinct) <- the engine's state ``rows``; a track's coasting state and run buffer are
+        kept while it has a manoeuvre candidate pending or is in a run of rejected fixes (the engine reads
+        them only then, and no more of the buffer than the run)."""
         self._head[idx] = rows[:, :self._split]
         slot = self._slot[idx]
-        run = rows[:, ST_STREAK] > 0
+        run = (rows[:, ST_STREAK] > 0) | (rows[:, ST_PENDING] != 0)
         ended = (slot >= 0) & ~run
         if ended.any():
             self._free.extend(slot[ended].tolist())
@@ -333,12 +336,14 @@ class LiveTracks:
         n = self.order + 1
         _, p0, _, pc0 = state_layout.py_func(n)[:4]
         b = self.order                             # the slow part's index; the position's is 0
-        st = self._head
-        for start in (p0, pc0):                    # the filter's and the coasting covariance (n x n, row-major)
-            st[idx, start] += grow
-            st[idx, start + b * n + b] += grow
-            st[idx, start + b] -= grow
-            st[idx, start + b * n] -= grow
+        slot = self._slot[idx]
+        pooled = slot >= 0                         # the coasting covariance is kept only for these
+        for rows, at, g, start in ((self._head, idx, grow, p0),
+                                   (self._runs, slot[pooled], grow[pooled], pc0 - self._split)):
+            rows[at, start] += g                   # the filter's and the coasting covariance (n x n, row-major)
+            rows[at, start + b * n + b] += g
+            rows[at, start + b] -= g
+            rows[at, start + b * n] -= g
         cal = tr[:self.n]
         for key, mode in (("c_accuracy", ACCURACY), ("c_sigma", SIGMA)):
             sel = (cal[:, _MODE] == mode) & np.isfinite(cal[:, _C])
