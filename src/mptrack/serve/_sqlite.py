@@ -42,6 +42,11 @@ _MIGRATIONS = {
         "ALTER TABLE device_state_v2 RENAME TO device_state"),
 }
 SCHEMA_VERSION = max(_MIGRATIONS)
+#: The page cache of the writer's connection (KiB): the (device, time) index pages of the devices reporting.
+WRITER_CACHE_KIB = 65536
+#: The page cache of each reading thread's connection (KiB): a query's pages (the OS caches the file too);
+#: small, as every reading thread has one.
+READER_CACHE_KIB = 8192
 #: How often the checkpointer moves the write-ahead log into the database file (s).
 CHECKPOINT_S = 1.0
 _ALL = FIX_COLUMNS + ESTIMATE_COLUMNS
@@ -97,7 +102,7 @@ class SqliteStore:
         if self.path.is_dir():
             raise ParameterError(f"db: {self.path} is a directory; give a file, e.g. sqlite:///{self.path}/mptrack.db")
         try:
-            self._w = self._connect()
+            self._w = self._connect(WRITER_CACHE_KIB)
             self._w.executescript(_SCHEMA)
         except sqlite3.DatabaseError as exc:
             raise OutputError(f"db: cannot open {self.path} as an mptrack database: {exc}", path=self.path) from None
@@ -123,7 +128,7 @@ class SqliteStore:
 
     def _checkpoints(self) -> None:
         """The checkpointer thread: a passive checkpoint every CHECKPOINT_S seconds until close."""
-        con = self._connect()
+        con = self._connect(READER_CACHE_KIB)
         try:
             while not self._closed.wait(CHECKPOINT_S):
                 try:
@@ -133,19 +138,19 @@ class SqliteStore:
         finally:
             con.close()
 
-    def _connect(self) -> sqlite3.Connection:
+    def _connect(self, cache_kib: int) -> sqlite3.Connection:
         con = sqlite3.connect(self.path, timeout=30.0, isolation_level=None, check_same_thread=False)
         con.execute("PRAGMA journal_mode=WAL")
         con.execute(f"PRAGMA synchronous={'FULL' if self.fsync else 'NORMAL'}")
         con.execute("PRAGMA busy_timeout=30000")
         con.execute("PRAGMA journal_size_limit=67108864")   # the log file cut back to 64 MiB once checkpointed
-        con.execute("PRAGMA cache_size=-65536")  # 64 MiB: the (device, time) index of the hot devices
+        con.execute(f"PRAGMA cache_size=-{int(cache_kib)}")
         return con
 
     def _reader(self) -> sqlite3.Connection:
         con = getattr(self._local, "con", None)
         if con is None:
-            con = self._local.con = self._connect()
+            con = self._local.con = self._connect(READER_CACHE_KIB)
         return con
 
     # ---- writing (one writer) --------------------------------------------------------------------
