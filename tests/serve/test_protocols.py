@@ -255,3 +255,27 @@ def test_osmand_any_query_is_a_fix_or_a_named_refusal(params):
 def test_seconds_and_milliseconds():
     assert timestamp(1767268800, "t", NOW) == timestamp(1767268800000, "t", NOW) == 1767268800.0
     assert KNOT_MPS == pytest.approx(0.514444, rel=1e-6)
+
+
+# ---- the rate limit ---------------------------------------------------------------------------------------
+def test_rate_limit_buckets_by_device_key():
+    """A token bucket per device key: bursts, then the average rate; a device without a key yet (its first
+    fix being committed) is not limited; buckets of other devices are their own."""
+    from mptrack.serve._auth import RateLimit
+
+    limit = RateLimit(rate=2.0, burst=3.0)
+    for _ in range(10):
+        limit.take("new", None, now=0.0)              # no key yet: not limited
+    for k in range(3):
+        limit.take("dev", 5, now=100.0)
+    with pytest.raises(RequestError) as e:
+        limit.take("dev", 5, now=100.0)
+    assert e.value.status == 429 and e.value.code == "rate_limited" and "dev " in str(e.value)
+    limit.take("other", 0, n=3, now=100.0)            # another device's bucket is full
+    limit.take("dev", 5, now=100.5)                   # half a second at 2 fixes/s: one token
+    with pytest.raises(RequestError):
+        limit.take("dev", 5, now=100.5)
+    limit.take("dev", 5, n=3, now=1000.0)             # refilled to the burst, no more
+    with pytest.raises(RequestError):
+        limit.take("dev", 5, now=1000.0)
+    assert len(limit._level) >= 6

@@ -357,7 +357,7 @@ class Server:
                 check_device(claimed, owner)
         if not fixes:
             return
-        self.limits.take(fixes[0][0], len(fixes))
+        self.limits.take(fixes[0][0], self.ingest.keys.get(fixes[0][0]), len(fixes))
         await self.ingest.submit(fixes)
 
 
