@@ -102,13 +102,13 @@ _COPY_ROWS = 500
 _TYPES = {"dev": "bigint", "attrs": "text", "flag": "smallint", "seq": "bigint"}
 # fixes go in binary (COPY and the arrays): a float's decimal text costs more to write and to read
 _COPY = f"COPY fixes ({', '.join(_ALL)}) FROM STDIN (FORMAT BINARY)"
+_COPY_SEQ = f"COPY fixes ({', '.join(_ALL)}, seq) FROM STDIN (FORMAT BINARY)"
+_ARRAYS = "unnest(" + ", ".join(f"%b::{_TYPES.get(c, 'float8')}[]" for c in _ALL) + f") AS c ({', '.join(_ALL)})"
+_INSERT_ARRAYS = f"INSERT INTO fixes ({', '.join(_ALL)}) SELECT * FROM {_ARRAYS}"
 # each device's last fixes by its (dev, t) index: one statement for the devices of a noise estimate
 _HISTORY = (f"SELECT d.dev, h.* FROM unnest(%b::bigint[]) WITH ORDINALITY AS d (dev, k) CROSS JOIN LATERAL "
             f"(SELECT {', '.join(HISTORY_COLUMNS)} FROM fixes f WHERE f.dev = d.dev AND f.flag <> %s "
             "ORDER BY f.t DESC LIMIT %s) h ORDER BY d.k, h.t")
-_COPY_SEQ = f"COPY fixes ({', '.join(_ALL)}, seq) FROM STDIN (FORMAT BINARY)"
-_ARRAYS = "unnest(" + ", ".join(f"%b::{_TYPES.get(c, 'float8')}[]" for c in _ALL) + f") AS c ({', '.join(_ALL)})"
-_INSERT_ARRAYS = f"INSERT INTO fixes ({', '.join(_ALL)}) SELECT * FROM {_ARRAYS}"
 # late fixes: each stored unless the same fix (device, time, position) is, found by the (dev, t) index; a
 # bulk batch's go by COPY into a temporary table first
 _LATE_TABLE = "late_fixes"

@@ -39,14 +39,14 @@ import numpy as np
 from ..tracking import FLAGS
 
 __all__ = ["Store", "Batch", "StoredRows", "stored_rows", "FIX_COLUMNS", "ESTIMATE_COLUMNS", "CELL_COLUMNS",
-           "AREA_COLUMNS", "AREA_AGGREGATES", "DEFAULT_DB", "first_line", "split_histories", "nullable", "FLAG_NAMES", "LATE",
+           "AREA_COLUMNS", "AREA_AGGREGATES", "DEFAULT_DB", "first_line", "split_histories", "FLAG_NAMES", "LATE",
            "HISTORY_COLUMNS"]
 
 DEFAULT_DB = "sqlite:///mptrack.db"
 #: Names of the stored ``flag`` values: the tracking engine's flags, then "late" (stored, not filtered).
 FLAG_NAMES = tuple(FLAGS) + ("late",)
 LATE = len(FLAGS)
-#: The columns of a device's filtered history (:meth:`Store.history`), what its noise is estimated from.
+#: The columns of a device's filtered history (:meth:`Store.histories`), what its noise is estimated from.
 HISTORY_COLUMNS = ("t", "lat", "lon", "accuracy_m")
 #: Columns of a stored fix as the device sent it (the :data:`._fix.FIELDS` minus attrs, plus received).
 FIX_COLUMNS = ("dev", "t", "lat", "lon", "accuracy_m", "speed_mps", "heading_deg", "altitude_m", "attrs",
@@ -84,10 +84,10 @@ class StoredRows:
 
     def lists(self, names) -> list[list]:
         """The columns ``names`` as lists of Python values, None for NULL (NaN)."""
-        return [nullable(self.columns[n]).tolist() for n in names]
+        return [_nullable(self.columns[n]).tolist() for n in names]
 
 
-def nullable(values: np.ndarray) -> np.ndarray:
+def _nullable(values: np.ndarray) -> np.ndarray:
     """``values`` with NaN as None (an object array) if they are floats, else as they are."""
     if values.dtype.kind != "f":
         return values
