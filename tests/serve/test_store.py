@@ -32,3 +32,46 @@ def test_histories_are_each_devices_last_filtered_fixes_in_time_order(backend, t
         assert got[2][:, 1].tolist() == [50.0 + t * 1e-6 for t in got[2][:, 0]] and (got[2][:, 3] == 5.0).all()
     finally:
         store.close()
+
+
+def test_noise_is_estimated_again_as_a_device_gathers_fixes(tmp_path):
+    """A device's noise is estimated after calibrate_after fixes, then again once it has RENEW times as
+    many new fixes as the last estimate used: a long history is not read again every 30 fixes."""
+    import asyncio
+
+    from mptrack.serve._ingest import RENEW, Ingest
+    from mptrack.tracking import LiveTracks
+
+    store = open_store(f"sqlite:///{tmp_path / 'noise.db'}")
+    ingest = Ingest(store, LiveTracks(), calibrate_after=30, history_fixes=400)
+    fed, estimates = [0], []                      # (fixes fed when an estimate started, fixes it used)
+    estimate = ingest._estimate
+
+    def recorded(due):
+        out = estimate(due)
+        if 0 in due:
+            estimates.append((fed[0], int(out[2][list(due).index(0)])))
+        return out
+
+    ingest._estimate = recorded
+
+    async def feed():
+        ingest.start()
+        rng = np.random.default_rng(5)
+        for k in range(0, 1500, 10):
+            t = 1.77e9 + np.arange(k, k + 10, dtype=float)
+            lat = 50.0 + 1e-5 * np.arange(k, k + 10) + rng.normal(0, 3e-5, 10)
+            await ingest.submit([("walker", tk, la, 8.0, 5.0, None, None, None, None) for tk, la in zip(t, lat)])
+            fed[0] = k + 10
+            if ingest._estimating is not None:
+                ingest._estimating.result()          # this round's estimate, applied with the next batch
+        await ingest.close()
+
+    try:
+        asyncio.run(feed())
+    finally:
+        store.close()
+    at, used = np.array(estimates).T
+    assert used[0] >= 30 and used[-1] == 400 and (at[-1] >= 1400)   # estimated to the end, the window full
+    assert (np.diff(at) >= np.maximum(30, RENEW * used[:-1]) - 10).all()
+    assert len(at) < 1500 / 30 / 2                                  # not every 30 fixes

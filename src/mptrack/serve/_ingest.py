@@ -20,7 +20,8 @@ never stall ingest), with the last fix row it covers; the watermark is
 the row up to which every device's stored state covers its fixes.  After a crash, the fixes after the
 watermark that a device's state does not cover are replayed through the same filter
 (:meth:`Ingest.recover`), which gives the states the filter had, so the live estimates resume exactly.
-Noise is re-estimated on another thread for devices with enough new fixes and applied between
+Noise is re-estimated on another thread for devices with enough new fixes (``calibrate_after``, or
+:data:`RENEW` times the fixes the device's last estimate used, whichever is more) and applied between
 batches, the devices' states stored at once, so that a replay sees the noise the live filter saw.
 
 With a shared store (PostgreSQL, several processes) a batch locks its devices' states first, loads
@@ -57,6 +58,10 @@ MAX_ESTIMATED = 2000
 #: is quick (a handoff to the writer thread costs more CPU than such a batch; a larger one, a bulk
 #: upload, goes to the writer thread, so the server keeps answering while it commits).
 INLINE_FIXES = 512
+#: A device's noise is estimated again once it has this fraction of the fixes its last estimate used
+#: as new fixes (and at least ``calibrate_after``): the estimates follow a device's recent history while
+#: a fix costs a few history rows read (re-estimating every 30 fixes from up to 2000 read ~67 a fix).
+RENEW = 0.25
 #: The most device states one batch checkpoints.
 CHECKPOINT_ROWS = 2000
 #: What :meth:`mptrack.tracking.LiveTracks.advance` returns for each fix, in the order stored (ESTIMATE_COLUMNS).
@@ -94,6 +99,7 @@ class Ingest:
         self._changed_at = np.zeros(0)
         self._seq = 0                            # the last fix row stored (a store with one writer)
         self._since_calibration = np.zeros(0, dtype=np.int64)
+        self._estimated_on = np.zeros(0, dtype=np.int64)   # fixes each device's last noise estimate used
         self._version = np.zeros(0, dtype=np.int64)   # a shared store: each device's state version held here
         self.listeners: set[asyncio.Queue] = set()
 
@@ -263,8 +269,9 @@ class Ingest:
     def _grow(self, n: int) -> None:
         if n > len(self._since_calibration):
             size = max(n, 2 * len(self._since_calibration), 1024)
-            self._since_calibration, self._version, self._changed_row, self._changed_at = (
-                _grown(a, size) for a in (self._since_calibration, self._version, self._changed_row, self._changed_at))
+            self._since_calibration, self._estimated_on, self._version, self._changed_row, self._changed_at = (
+                _grown(a, size) for a in (self._since_calibration, self._estimated_on, self._version,
+                                          self._changed_row, self._changed_at))
         if n > self.live.n:
             self.live.add(n - self.live.n)
 
@@ -379,12 +386,16 @@ class Ingest:
         if fut is not None and (fut.done() or final):
             self._estimating = None
             try:
-                due, noise = fut.result()
+                due, noise, used = fut.result()
                 self._set_noise(due, noise)
+                self._estimated_on[due] = used
             except Exception as exc:  # an estimate that fails leaves the devices' noise as it was
                 log.warning("noise estimation failed: %s", exc)
         if self._estimating is None and not final:
-            due = np.flatnonzero(self._since_calibration[:len(self.ids)] >= self.calibrate_after)[:MAX_ESTIMATED]
+            n = len(self.ids)
+            due = np.flatnonzero(self._since_calibration[:n] >= np.maximum(self.calibrate_after,
+                                                                           RENEW * self._estimated_on[:n]))
+            due = due[:MAX_ESTIMATED]
             if len(due):
                 self._since_calibration[due] = 0
                 self._estimating = self._estimator.submit(self._estimate, due)
@@ -438,10 +449,11 @@ class Ingest:
         for d in devices:
             self._dirty.pop(d, None)
 
-    def _estimate(self, due: np.ndarray) -> tuple[np.ndarray, dict]:
-        """(due, noise) from the devices' recent stored fixes (on the estimator thread)."""
+    def _estimate(self, due: np.ndarray) -> tuple[np.ndarray, dict, np.ndarray]:
+        """(due, noise, fixes used) from the devices' recent stored fixes (on the estimator thread)."""
         histories = self.store.histories(due.tolist(), self.history_fixes)
-        return due, self.live.estimate_noise([dict(zip(HISTORY_COLUMNS, h.T)) for h in histories])
+        noise = self.live.estimate_noise([dict(zip(HISTORY_COLUMNS, h.T)) for h in histories])
+        return due, noise, np.array([len(h) for h in histories], dtype=np.int64)
 
     @staticmethod
     def _events(sel: np.ndarray, fixes: list[tuple], est: dict) -> list[tuple[str, str]]:
