@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import itertools
 import json
 import logging
 import threading
@@ -100,6 +101,7 @@ class Ingest:
         self._seq = 0                            # the last fix row stored (a store with one writer)
         self._since_calibration = np.zeros(0, dtype=np.int64)
         self._estimated_on = np.zeros(0, dtype=np.int64)   # fixes each device's last noise estimate used
+        self._noise_due: dict[int, None] = {}     # devices due for a noise estimate, first due first
         self._version = np.zeros(0, dtype=np.int64)   # a shared store: each device's state version held here
         self.listeners: set[asyncio.Queue] = set()
 
@@ -324,6 +326,9 @@ class Ingest:
                 tx.write(rows, late_rows, states, [f"{k}\t{e}" for k, e in events or ()], watermark)
         stored_late = tx.stored_late
         np.add.at(self._since_calibration, dev[sel], 1)
+        used = self._estimated_on[touched]
+        due = touched[self._since_calibration[touched] >= np.maximum(self.calibrate_after, RENEW * used)]
+        self._noise_due.update(dict.fromkeys(due.tolist()))
         if not self.shared:
             before, self._seq = self._seq, tx.last_row
             for d in ready:
@@ -392,10 +397,9 @@ class Ingest:
             except Exception as exc:  # an estimate that fails leaves the devices' noise as it was
                 log.warning("noise estimation failed: %s", exc)
         if self._estimating is None and not final:
-            n = len(self.ids)
-            due = np.flatnonzero(self._since_calibration[:n] >= np.maximum(self.calibrate_after,
-                                                                           RENEW * self._estimated_on[:n]))
-            due = due[:MAX_ESTIMATED]
+            due = np.array(list(itertools.islice(self._noise_due, MAX_ESTIMATED)), dtype=np.int64)
+            for d in due.tolist():
+                del self._noise_due[d]
             if len(due):
                 self._since_calibration[due] = 0
                 self._estimating = self._estimator.submit(self._estimate, due)
