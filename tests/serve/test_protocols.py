@@ -224,6 +224,10 @@ def test_bulk_ndjson_reads_the_same_by_arrow_and_by_pandas(column, times, extra,
     (b"track_id,time,lat,lon\na;b,2026-01-01T00:00:00Z,5,2\n", "csv", "track_id"),
     (b"track_id,time,lat,lon\na,2026-01-01T00:00:00Z,0.5,0.2\na,2026-01-01T00:00:01Z,0.5,0.21\n", "csv", "lat"),
     (b'{"track_id": "a", "time": 1767268800, "lat": 1}\n{', "ndjson", None),
+    (b'{"track_id": "a\xff", "time": 1767268800, "lat": 50, "lon": 8}\n', "ndjson", None),        # not UTF-8
+    (b'{"track_id": "a", "time": 1767268800, "lat": 50, "lon": 8}{"track_id": "a", "time": 1767268801, "lat": 50, '
+     b'"lon": 8}\n', "ndjson", None),                                                          # two on a line
+    (b'{"track_id": "a", "time": 1767268800, "lat": 50, "lon": 8, "note": "\xff"}\n', "ndjson", None),
 ])
 def test_bulk_bad_input(body, kind, field):
     with pytest.raises(RequestError) as e:

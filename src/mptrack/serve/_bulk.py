@@ -104,13 +104,16 @@ def _flat_ndjson(body: bytes) -> pd.DataFrame | None:
     that Arrow takes for times (it reads some ISO 8601 forms as instants) -- which pandas reads (the
     times as text, as everywhere else) or refuses, as before."""
     try:
+        body.decode("utf-8")     # Arrow's reader lets text that is not UTF-8 through to its strings
         table = pa_json.read_json(_stdio.BytesIO(body))
-    except (pa.ArrowInvalid, pa.ArrowNotImplementedError):
+        if table.num_rows != sum(1 for line in body.split(b"\n") if line.strip()):
+            return None          # objects not one a line (Arrow reads two on a line, pandas refuses them)
+        if not all(pa.types.is_integer(t) or pa.types.is_floating(t) or pa.types.is_string(t)
+                   or pa.types.is_boolean(t) or pa.types.is_null(t) for t in table.schema.types):
+            return None
+        return table.to_pandas()
+    except (UnicodeDecodeError, pa.ArrowException):
         return None
-    if not all(pa.types.is_integer(t) or pa.types.is_floating(t) or pa.types.is_string(t) or pa.types.is_boolean(t)
-               or pa.types.is_null(t) for t in table.schema.types):
-        return None
-    return table.to_pandas()
 
 
 def _optional(rows: pd.DataFrame, name: str, n: int) -> list:
