@@ -483,7 +483,6 @@ def _rows(stored: dict, attrs: tuple, sel: np.ndarray, est: dict | None, now: fl
     out["received"] = np.full(n, now)
     for name, field in zip(ESTIMATE_COLUMNS, ESTIMATES):
         out[name] = est[field] if est is not None else np.full(n, LATE if name == "flag" else np.nan)
-    out["flag"] = out["flag"].astype(np.int64)
     return StoredRows(out)
 
 

@@ -106,14 +106,14 @@ class SqliteStore:
             self._w.executescript(_SCHEMA)
         except sqlite3.DatabaseError as exc:
             raise OutputError(f"db: cannot open {self.path} as an mptrack database: {exc}", path=self.path) from None
-        version = int(self._w.execute("SELECT value FROM meta WHERE key = 'schema_version'").fetchone()[0])
+        version = _schema_version(self._w)
         if version > SCHEMA_VERSION:
             raise OutputError(f"db: {self.path} has schema version {version}, newer than this mptrack's "
                               f"{SCHEMA_VERSION}; upgrade mptrack", path=self.path)
         self._lock = threading.Lock()
         if version < SCHEMA_VERSION:
             with self._transaction() as w:   # read again under the write lock: another process may have upgraded it
-                version = int(w.execute("SELECT value FROM meta WHERE key = 'schema_version'").fetchone()[0])
+                version = _schema_version(w)
                 for v in range(version + 1, SCHEMA_VERSION + 1):
                     for sql in _MIGRATIONS[v]:
                         w.execute(sql)
@@ -339,6 +339,10 @@ class SqliteStore:
         if con is not None:
             con.close()
             self._local.con = None
+
+
+def _schema_version(con: sqlite3.Connection) -> int:
+    return int(con.execute("SELECT value FROM meta WHERE key = 'schema_version'").fetchone()[0])
 
 
 class _Batch:

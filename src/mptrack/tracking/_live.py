@@ -374,11 +374,8 @@ class LiveTracks:
         """Each track's whole state (engine state, frame, noise, last fix and estimate) as bytes."""
         idx = self._check(tracks)
         head = np.frombuffer(_BLOB.pack(_MAGIC, _VERSION, len(_TRACK_FIELDS)), dtype=np.uint8)
-        engine = states_to_bytes(self._rows(idx), self.order)
-        out = np.empty((len(idx), head.size + 8 * len(_TRACK_FIELDS) + engine.shape[1]), dtype=np.uint8)
-        out[:, :head.size] = head
-        out[:, head.size:-engine.shape[1]] = self._track[idx].astype("<f8").view(np.uint8)
-        out[:, -engine.shape[1]:] = engine
+        out = np.hstack([np.broadcast_to(head, (len(idx), head.size)), self._track[idx].astype("<f8").view(np.uint8),
+                         states_to_bytes(self._rows(idx), self.order)])
         blob, size = out.tobytes(), out.shape[1]
         return [blob[j * size:(j + 1) * size] for j in range(len(idx))]
 

@@ -129,10 +129,7 @@ def states_to_bytes(states, order: int) -> np.ndarray:
         raise ShapeError(f"states: expected state rows of {state_size(order)} values for order {order}, "
                          f"got shape {rows.shape}")
     head = np.frombuffer(_HEAD.pack(_MAGIC, STATE_VERSION, order, STREAK_CAP, rows.shape[1]), dtype=np.uint8)
-    out = np.empty((len(rows), head.size + 8 * rows.shape[1]), dtype=np.uint8)
-    out[:, :head.size] = head
-    out[:, head.size:] = rows.astype("<f8").view(np.uint8)
-    return out
+    return np.hstack([np.broadcast_to(head, (len(rows), head.size)), rows.astype("<f8").view(np.uint8)])
 
 
 def state_from_bytes(data: bytes) -> tuple[np.ndarray, int]:
