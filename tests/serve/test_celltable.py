@@ -96,6 +96,30 @@ def test_a_table_of_nothing_readable_is_refused_and_the_old_one_kept(tmp_path, n
         store.close()
 
 
+def test_cells_the_position_model_cannot_take_are_not_used(tmp_path, new_store):
+    """A cell the table may hold but the position from cells cannot use (within 5 degrees of a pole) counts as
+    unknown: the other cells of the request are used, alone it gets the area's fallback (it was a 500)."""
+    from mptrack.serve._geolocate import Geolocator, parse_request
+
+    path = tmp_path / "cells.csv"
+    path.write_text(HEADER + "GSM,206,1,10,1234,,4.40,50.80,,,0,,,-80\n" + "GSM,206,1,11,77,,20.0,87.5,,,0,,,-80\n")
+    store = new_store()
+    try:
+        load_cell_table(store, path)
+        geo = Geolocator(store)
+
+        def request(*cells):
+            return parse_request(json.dumps({"cellTowers": [
+                {"radioType": "gsm", "mobileCountryCode": 206, "mobileNetworkCode": 1, "locationAreaCode": area,
+                 "cellId": cell, "signalStrength": -80} for area, cell in cells]}).encode())
+        both = geo.locate(request((11, 77), (10, 1234)))
+        assert (both.known, both.unknown, both.fallback) == (1, 1, None) and abs(both.lat - 50.8) < 0.1
+        polar = geo.locate(request((11, 77)))
+        assert (polar.fallback, polar.lat) == ("lacf", 87.5)
+    finally:
+        store.close()
+
+
 @pytest.mark.slow
 def test_a_million_cells_load_in_30_s_and_look_up_in_1_ms(tmp_path):
     n = 1_000_000

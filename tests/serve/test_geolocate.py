@@ -2,13 +2,14 @@
 from the shipped real LTE walks and from a simulated multi-site network, against Mozilla's weighted
 centroid written in the test from its published description (tests/_geolocation.py); the accuracy's
 68 % coverage; every error case in Google's format; devices that report cells instead of positions; the
-offline twin ``mptrack geolocate`` giving the same answers."""
+offline twin ``mptrack geolocate`` giving the same answers, as do concurrent requests."""
 
 from __future__ import annotations
 
 import json
 import subprocess
 import sys
+from concurrent.futures import ThreadPoolExecutor
 
 import httpx
 import numpy as np
@@ -132,10 +133,19 @@ def test_offline_twin_gives_the_servers_answers(server, data):
     assert "82 requests: 80 located, 1 not found, 1 refused" in proc.stderr
     lines = [json.loads(x) for x in out.read_text().splitlines()]
     assert [x["line"] for x in lines] == list(range(1, 83))
+    expected = [(line.pop("status"), {k: v for k, v in line.items() if k != "line"}) for line in lines]
     with httpx.Client(base_url=server.url, timeout=60.0) as client:
-        for body, line in zip(bodies, lines):
+        for body, want in zip(bodies, expected):
             r = client.post("/v1/geolocate", json=body)
-            assert r.status_code == line.pop("status") and r.json() == {k: v for k, v in line.items() if k != "line"}
+            assert (r.status_code, r.json()) == want
+
+        def post(body):
+            r = client.post("/v1/geolocate", json=body)
+            return r.status_code, r.json()
+
+        # concurrent requests are located together (one call of the compiled kernel): each its own answer
+        with ThreadPoolExecutor(16) as pool:
+            assert list(pool.map(post, bodies * 3)) == expected * 3
 
 
 def _google_error(r: httpx.Response, status: int, reason: str) -> str:

@@ -39,7 +39,7 @@ from .._core.validation import as_array, as_real, check_int
 from ..errors import ParameterError, ShapeError
 from ._signal_model import RADIOS
 
-__all__ = ["locate_cells", "CELL_FIELDS", "FIX_FIELDS", "CONFIDENCE"]
+__all__ = ["locate_cells", "locate_checked", "check_cells", "CELL_FIELDS", "FIX_FIELDS", "CONFIDENCE"]
 
 #: The columns of the table :func:`locate_cells` reads, one row per cell heard (see its doc).
 CELL_FIELDS = ("lat", "lon", "radio", "intercept_dbm", "slope_db", "fit_offset_db", "area_fits",
@@ -326,18 +326,25 @@ def locate_cells(cells, offsets=None, *, level: float = CONFIDENCE) -> np.ndarra
     ParameterError, ShapeError
         A column out of its range, a table of the wrong shape, offsets that do not cover the rows.
     """
-    table = _table(cells)
+    table = check_cells(cells)
     level = as_real("level", level, low=0.01, high=0.999)
     if offsets is None:  # one scan (a geolocation request): nothing to check
-        off = np.array([0, len(table)], dtype=np.int64)
-    else:
-        off = as_array("offsets", offsets, ndim=1, low=0, high=len(table))
-        if len(off) < 1 or off[0] != 0 or off[-1] != len(table) or np.any(np.diff(off) < 1) or \
-                np.any(off != np.round(off)):
-            raise ParameterError(f"offsets: expected increasing integers from 0 to {len(table)} (every scan at least "
-                                 "one cell), got " + (repr(off.tolist()) if len(off) < 8 else f"{len(off)} values"))
+        return locate_checked(table, level)
+    off = as_array("offsets", offsets, ndim=1, low=0, high=len(table))
+    if len(off) < 1 or off[0] != 0 or off[-1] != len(table) or np.any(np.diff(off) < 1) or \
+            np.any(off != np.round(off)):
+        raise ParameterError(f"offsets: expected increasing integers from 0 to {len(table)} (every scan at least "
+                             "one cell), got " + (repr(off.tolist()) if len(off) < 8 else f"{len(off)} values"))
+    return locate_checked(table, level, off)
+
+
+def locate_checked(table: np.ndarray, level: float, offsets=None) -> np.ndarray:
+    """:func:`locate_cells` of a table that :func:`check_cells` made (or that holds rows it checked, and
+    observations in their ranges), with valid ``level`` and ``offsets`` (default: one scan): no checks
+    (a server checks the table's rows once, when it reads them)."""
+    off = np.array([0, len(table)] if offsets is None else offsets, dtype=np.int64)
     out = np.empty((len(off) - 1, len(FIX_FIELDS)))
-    _fixes(table, off.astype(np.int64), level, out)
+    _fixes(table, off, level, out)
     return out
 
 
@@ -354,7 +361,8 @@ _HI = np.array([_RANGES[c][1] for c in CELL_FIELDS], dtype=float)
 _NAN_OK = np.array([_RANGES[c][2] for c in CELL_FIELDS])
 
 
-def _table(cells) -> np.ndarray:
+def check_cells(cells) -> np.ndarray:
+    """``cells`` (see :func:`locate_cells`) as a contiguous float table, its columns checked against their ranges."""
     if hasattr(cells, "keys") and not isinstance(cells, np.ndarray):
         missing = [c for c in CELL_FIELDS if c not in cells.keys()]
         if missing:

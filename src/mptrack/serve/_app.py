@@ -155,6 +155,8 @@ class Server:
             task.cancel()
         if self.ingest is not None:
             await self.ingest.close()
+        if self.geolocator is not None:
+            self.geolocator.close()
         if self.store is not None:
             self.store.close()
 
@@ -316,16 +318,19 @@ class Server:
                     self.registry.check_key(credentials(headers, _query_key(scope))[0])
                 except RequestError as exc:  # Google answers a bad key with 400 keyInvalid
                     raise GeolocateError(exc.reason, reason="keyInvalid", field="key") from None
-            answer = self._locate(parse_request(await _body(receive, headers, self.config.max_body)))
+            answer = await self._answer(parse_request(await _body(receive, headers, self.config.max_body)))
         except RequestError as exc:
             return await _respond(send, exc.status, error_body(exc))
         await _respond(send, 200, answer_body(answer))
 
-    def _locate(self, query):
+    def _geolocator(self) -> Geolocator:
         if self.geolocator is None:
             raise GeolocateError("Not found: this server has no cell table (start it with --cells FILE)",
                                  reason="notFound", status=404)
-        return self.geolocator.locate(query)
+        return self.geolocator
+
+    async def _answer(self, query):
+        return await self._geolocator().answer(query)
 
     async def _cells(self, scope, receive):
         """POST /api/devices/{id}/cells: a geolocate body of a device; its position feeds the device's track."""
@@ -333,7 +338,7 @@ class Server:
         device = device_id(scope["path"][len("/api/devices/"):-len("/cells")], "device_id")
         body = await _body(receive, headers, self.config.max_body)
         query = parse_request(body)
-        answer = self._locate(query)
+        answer = await self._answer(query)
         t = timestamp(query.timestamp, "timestamp") if query.timestamp is not None else time.time()
         await self._accept([_cell_fix(device, t, answer)], headers, _query_key(scope))
         return 200, answer_body(answer), b"application/json"
@@ -343,7 +348,7 @@ class Server:
         out = []
         for f in fixes:
             if f[2] is None:
-                out.append(_cell_fix(f[0], f[1], self._locate(osmand_query(f[8]["cells"])), f[8]))
+                out.append(_cell_fix(f[0], f[1], self._geolocator().locate(osmand_query(f[8]["cells"])), f[8]))
             else:
                 out.append(f)
         return out

@@ -27,15 +27,17 @@ parseError 400, keyInvalid 400 (``--auth``), notFound 404.
 
 from __future__ import annotations
 
+import asyncio
 import json
 import math
 import threading
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..cellular import CELL_FIELDS, CONFIDENCE, RADIOS, RADIO_CODES, locate_cells
-from ..errors import RequestError
+from ..cellular import CELL_FIELDS, CONFIDENCE, RADIOS, RADIO_CODES, check_cells, locate_checked
+from ..errors import ParameterError, RequestError
 from ._store import Store
 
 __all__ = ["GeolocateError", "Query", "Answer", "parse_request", "osmand_query", "Geolocator", "answer_body",
@@ -56,6 +58,8 @@ _REASON_DOMAIN = {"parseError": "global", "keyInvalid": "usageLimits", "notFound
 
 
 _M_PER_DEG = 6_371_008.8 * math.pi / 180.0
+#: The CELL_FIELDS the table gives (the phone's level and timing advance follow).
+_OBSERVED = CELL_FIELDS.index("rss_dbm")
 
 
 class GeolocateError(RequestError):
@@ -219,11 +223,16 @@ class Geolocator:
         self._cache: dict = {}
         self._cache_size = cache
         self._lock = threading.Lock()
+        self._thread = ThreadPoolExecutor(1, thread_name_prefix="mptrack-geolocate")
+        self._waiting: list = []
+        self._solving = False
         self.counters = {"requests": 0, "found": 0, "lacf": 0, "not_found": 0, "cells_known": 0,
                          "cells_unknown": 0, "cells_incomplete": 0, "wifi_ignored": 0}
 
     def _rows(self, keys: list[tuple]) -> dict:
-        """{(mcc, mnc, area, cell): the stored rows of that cell (any radio; [] when unknown)}."""
+        """{(mcc, mnc, area, cell): that cell's rows of the table, any radio ([] when unknown)}, each row
+        (radio, score, its CELL_FIELDS up to the phone's observations); its stored values checked once,
+        when read."""
         cache = self._cache
         out, missing = {}, []
         for k in keys:
@@ -234,8 +243,17 @@ class Geolocator:
                 out[k] = v
         if missing:
             found: dict = {k: [] for k in missing}
-            for row in self.store.find_cells(missing):
-                found[(row[1], row[2], row[3], row[4])].append(row)
+            stored = self.store.find_cells(missing)
+            if stored:
+                areas = self._areas({(r[0], r[1], r[2], r[3]) for r in stored})
+                values = []
+                for r in stored:
+                    fits, offset = areas[(r[0], r[1], r[2], r[3])]
+                    values.append((r[5], r[6], r[0], r[11], r[12], _nan(r[13]), fits, _nan(offset), _nan(r[7]),
+                                   _nan(r[9]), _nan(r[10]), math.nan, math.nan))
+                for r, v in zip(stored, _checked(values)):
+                    if v is not None:
+                        found[(r[1], r[2], r[3], r[4])].append((r[0], r[14], v))
             out.update(found)
             with self._lock:
                 if len(cache) + len(found) > self._cache_size:
@@ -245,28 +263,47 @@ class Geolocator:
 
     def locate(self, query: Query) -> Answer:
         """The position of ``query``; GeolocateError notFound when nothing of it is known."""
+        known = self._prepare(query)
+        if isinstance(known, Answer):
+            return known
+        return _answer(locate_checked(known.table, self.level)[0], known)
+
+    async def answer(self, query: Query) -> Answer:
+        """:meth:`locate` in an event loop: the posteriors of concurrent requests are computed together, on
+        the geolocator's thread (the compiled kernel releases the interpreter lock, so the loop goes on
+        answering meanwhile), while the next requests gather."""
+        known = self._prepare(query)
+        if isinstance(known, Answer):
+            return known
+        fut = asyncio.get_running_loop().create_future()
+        self._waiting.append((known, fut))
+        if not self._solving:
+            self._solve_waiting()
+        return await fut
+
+    def close(self) -> None:
+        self._thread.shutdown(wait=True)
+
+    def _prepare(self, query: Query):
+        """The :class:`_Known` cells of ``query`` for the posterior, or the Answer without one (the area
+        fallback); GeolocateError notFound when nothing of it is known."""
         c = self.counters
         c["requests"] += 1
         c["cells_incomplete"] += query.incomplete
         c["wifi_ignored"] += query.wifi
         cells = query.cells
         rows = self._rows([x[1:5] for x in cells]) if cells else {}
-        table, known_cells = [], []
+        table = []
         for x in cells:
             row = _pick(rows[x[1:5]], x[0])
             if row is not None:
-                table.append(row)
-                known_cells.append(x)
+                table.append(row + (x[5], x[6]))
         known = len(table)
         c["cells_known"] += known
         c["cells_unknown"] += len(cells) - known
         if known:
-            keep = _cluster(table)
-            table = [table[i] for i in keep]
-            obs = [known_cells[i] for i in keep]
-            fit = self._fit(table, obs)
             c["found"] += 1
-            return Answer(*fit, known=known, unknown=len(cells) - known)
+            return _Known(np.array(_cluster(table)), known, len(cells) - known)
         if query.lacf and cells:
             areas = self.store.find_cell_areas(sorted({(x[0], x[1], x[2], x[3]) for x in cells if x[0] >= 0} |
                                                       {(r, x[1], x[2], x[3]) for x in cells if x[0] < 0
@@ -279,16 +316,26 @@ class Geolocator:
         c["not_found"] += 1
         raise GeolocateError("Not found", reason="notFound", status=404)
 
-    def _fit(self, table: list[tuple], obs: list[tuple]) -> tuple:
-        """locate_cells of the known cells (their stored rows and what the phone reported)."""
-        areas = self._areas({(r[0], r[1], r[2], r[3]) for r in table})
-        arr = np.empty((len(table), len(CELL_FIELDS)))
-        for i, (r, x) in enumerate(zip(table, obs)):
-            fits, offset = areas.get((r[0], r[1], r[2], r[3]), (0, None))
-            arr[i] = (r[5], r[6], r[0], r[11], r[12], _nan(r[13]), fits, _nan(offset), _nan(r[7]), _nan(r[9]),
-                      _nan(r[10]), x[5], x[6])
-        out = locate_cells(arr, level=self.level)[0]
-        return float(out[0]), float(out[1]), float(out[2]), float(out[3]), float(out[4]), float(out[5])
+    def _solve_waiting(self) -> None:
+        batch, self._waiting = self._waiting, []
+        self._solving = True
+        tables = [k.table for k, _ in batch]
+        offsets = np.cumsum([0] + [len(t) for t in tables])
+        job = asyncio.get_running_loop().run_in_executor(self._thread, locate_checked, np.concatenate(tables),
+                                                         self.level, offsets)
+        job.add_done_callback(lambda done: self._solved(batch, done))
+
+    def _solved(self, batch: list, done) -> None:
+        self._solving = False
+        exc = done.exception()
+        for i, (known, fut) in enumerate(batch):
+            if not fut.done():
+                if exc is not None:
+                    fut.set_exception(exc)
+                else:
+                    fut.set_result(_answer(done.result()[i], known))
+        if self._waiting:
+            self._solve_waiting()
 
     def _areas(self, keys: set) -> dict:
         """(fits, mean fit offset) of the areas ``keys`` (cached with the cells)."""
@@ -303,30 +350,59 @@ class Geolocator:
         return {k: cache.get(("area",) + k, (0, None)) for k in keys}
 
 
+def _checked(values: list[tuple]) -> list:
+    """The rows ``values`` (CELL_FIELDS) checked, without their observations; None for a row out of the
+    ranges locate_cells takes (a cell within 5 degrees of a pole, a range beyond 10,000 km: not used)."""
+    try:
+        return [tuple(v) for v in check_cells(np.array(values))[:, :_OBSERVED].tolist()]
+    except ParameterError:
+        if len(values) == 1:
+            return [None]
+        return [v for row in values for v in _checked([row])]
+
+
+@dataclass
+class _Known:
+    """The cells of a request the table knows (CELL_FIELDS rows, of one cluster), and how many were known
+    and unknown."""
+    table: np.ndarray
+    known: int
+    unknown: int
+
+
+def _answer(fix: np.ndarray, known: _Known) -> Answer:
+    """The Answer of a row of locate_cells."""
+    return Answer(*fix[:6].tolist(), known=known.known, unknown=known.unknown)
+
+
 def _nan(v) -> float:
     return math.nan if v is None else float(v)
 
 
 def _pick(rows: list, radio: int):
-    """The row of a cell: the one of the request's radio (none: not known); without a radio, the best scored."""
+    """The CELL_FIELDS up to the observations of a cell: its row of the request's radio (none: not known);
+    without a radio, the best scored."""
     if not rows:
         return None
     if radio >= 0:
         for r in rows:
             if r[0] == radio:
-                return r
+                return r[2]
         return None
-    return max(rows, key=lambda r: r[14])
+    return max(rows, key=lambda r: r[1])[2]
 
 
-def _cluster(rows: list[tuple]) -> list[int]:
-    """The cells of the largest group whose members lie within CLUSTER_M of another member (ties: the first).
-    Plain Python: a request holds a few cells."""
+def _cluster(rows: list[tuple]) -> list[tuple]:
+    """The rows (CELL_FIELDS) of the largest group of cells whose members lie within CLUSTER_M of another
+    member (ties: the first).  Plain Python: a request holds a few cells."""
     n = len(rows)
     if n == 1:
-        return [0]
-    k = math.cos(math.radians(sum(r[5] for r in rows) / n)) * _M_PER_DEG
-    xy = [(r[6] * k, r[5] * _M_PER_DEG) for r in rows]
+        return rows
+    k = math.cos(math.radians(sum(r[0] for r in rows) / n)) * _M_PER_DEG
+    xy = [(r[1] * k, r[0] * _M_PER_DEG) for r in rows]
+    xs, ys = [p[0] for p in xy], [p[1] for p in xy]
+    if math.hypot(max(xs) - min(xs), max(ys) - min(ys)) <= CLUSTER_M:
+        return rows  # no two farther apart than their box's diagonal: one group
     group = [-1] * n
     g = 0
     for i in range(n):
@@ -343,7 +419,7 @@ def _cluster(rows: list[tuple]) -> list[int]:
         g += 1
     sizes = [group.count(h) for h in range(g)]
     best = sizes.index(max(sizes))
-    return [i for i in range(n) if group[i] == best]
+    return [rows[i] for i in range(n) if group[i] == best]
 
 
 def answer_body(a: Answer) -> bytes:
