@@ -2,17 +2,17 @@
 advances it reports and what the cell table knows, evaluated on a grid.
 
 For one request (the cells a phone hears at one time) with the cells' sites, intercepts and slopes
-(:mod:`._signal_model`), the level of cell j of site s is modelled as
+(:mod:`._signal_model`), each site s (cells within 1 m of each other are one site: co-sited sector cells
+are one range measurement, not m independent ones) ranges by the first of its cells listed with a level
+(a phone lists its serving cell first):
 
-    s_j = A_j + delta - n_j log10(d_s / 1 km) + G_j(theta_s) + u_s + e_j
+    s_s = A_s - n_s log10(d_s / 1 km) + e_s,   e_s ~ N(0, SITE_DB^2 + CELL_DB^2 + the intercept's errors)
 
-with u_s ~ N(0, SITE_DB^2) the shadowing of the path to site s (shared by its co-sited sector cells:
-they are one site for ranging, their levels one range measurement with their errors combined, not
-m independent ones), e_j ~ N(0, CELL_DB^2 + the cell's own intercept uncertainty) and delta, common to
-the request, ~ N(0, DEVICE_DB^2 + the intercepts' shared uncertainty).  G_j is the sector pattern of a
-cell whose azimuth is known, -min(12 (dtheta / 65 deg)^2, 20 dB) (3GPP TR 36.942, sec. 4.2.1).  The
-residual covariance C of the request's levels is fixed, so the log-likelihood of a position is
--r' C^-1 r / 2 with r the residuals, delta and the u_s integrated out in closed form.
+the intercept's errors being its own and its environment's (the prior's, shrunk by the fits of the cell's
+area).  A site whose sectors' azimuths the table gives has a bearing prior: a wrapped normal of
+SECTOR_SD_DEG around its first sector's azimuth, mixed with a flat tail of weight SECTOR_OUTLIER
+(reflections serve a sector from elsewhere), tabulated at BEARING_STEPS steps over 0..180 degrees
+(linear interpolation, within 1e-7 of the formula).  The distances have a scale-free (log-uniform) prior.
 
 A timing advance TA of a GSM or LTE cell is a range ring: d ~ N((TA + 1/2) step, step^2 / 12 +
 step^2 + TA_FLOOR_M^2) (the step's quantisation, one step of timing error, the site's position),
@@ -51,7 +51,6 @@ CONFIDENCE = 0.68
 
 SITE_DB = 5.0          # shadowing of the path to one site, shared by its sector cells
 CELL_DB = 3.0          # each cell's own share (antenna, band, fading)
-DEVICE_DB = 5.0        # the request's common offset: handset gain, body and indoor loss
 PRIOR_COMMON_DB = 11.0  # the prior intercept's error shared by an area's cells (environment class, band)
 PRIOR_CELL_DB = 4.0    # ... and each cell's own (power, antenna, tilt)
 FIT_DB = 6.0           # the error of an intercept fitted from averageSignal and range
@@ -89,16 +88,32 @@ def _intercept(a0, area_n, area_off):
     return a0, PRIOR_CELL_DB, PRIOR_COMMON_DB
 
 
-@nb.njit(**_JIT)
-def _bearing_prior(az, bearing):
-    """log of the sector's bearing prior: a wrapped normal around the azimuth mixed with a flat tail."""
-    d = abs((bearing - az + 540.0) % 360.0 - 180.0) / SECTOR_SD_DEG
-    return math.log((1.0 - SECTOR_OUTLIER) * math.exp(-0.5 * d * d) / (SECTOR_SD_DEG * 2.5066282746310002)
-                    + SECTOR_OUTLIER / 360.0)
+def _bearing_log(delta_deg: np.ndarray) -> np.ndarray:
+    """log of the sector's bearing prior at ``delta_deg`` (0..180) from its azimuth: a wrapped normal around
+    the azimuth mixed with a flat tail."""
+    d = delta_deg / SECTOR_SD_DEG
+    return np.log((1.0 - SECTOR_OUTLIER) * np.exp(-0.5 * d * d) / (SECTOR_SD_DEG * math.sqrt(2.0 * math.pi))
+                  + SECTOR_OUTLIER / 360.0)
+
+
+#: _bearing_log tabulated at BEARING_STEPS steps over 0..180 degrees (linear interpolation between them is
+#: within 1e-7 of it: its second derivative is at most 1 / SECTOR_SD_DEG^2 a square degree)
+BEARING_STEPS = 4096
+_BEARING_TABLE = _bearing_log(np.linspace(0.0, 180.0, BEARING_STEPS + 1))
+_STEPS_PER_DEG = BEARING_STEPS / 180.0
 
 
 @nb.njit(**_JIT)
-def _loglik(px, py, sx, sy, a, n, rss, inv_var, site_az, ta_site, ta_mu, ta_sd, ta_tail, ns, logd):
+def _bearing_prior(sin_az, cos_az, dx, dy):
+    """log of the bearing prior (_bearing_log) of a sector whose azimuth has sine and cosine ``sin_az``,
+    ``cos_az``, at the offset (dx, dy) (east, north) from its site."""
+    u = math.degrees(math.atan2(abs(dx * cos_az - dy * sin_az), dx * sin_az + dy * cos_az)) * _STEPS_PER_DEG
+    i = min(int(u), BEARING_STEPS - 1)
+    return _BEARING_TABLE[i] + (u - i) * (_BEARING_TABLE[i + 1] - _BEARING_TABLE[i])
+
+
+@nb.njit(**_JIT)
+def _loglik(px, py, sx, sy, a, n, rss, inv_var, site_az, sin_az, cos_az, ta_site, ta_mu, ta_sd, ta_tail, ns, logd):
     """The log-posterior (up to a constant) of position (px, py) (scratch array logd, per site)."""
     ll = 0.0
     for s in range(ns):
@@ -107,7 +122,7 @@ def _loglik(px, py, sx, sy, a, n, rss, inv_var, site_az, ta_site, ta_mu, ta_sd, 
         logd[s] = (ln_d - _LN_KM) * _INV_LN10
         ll -= 2.0 * ln_d / ns  # the scale-free prior on the distances (log-uniform)
         if site_az[s] == site_az[s]:
-            ll += _bearing_prior(site_az[s], math.degrees(math.atan2(dx, dy)))
+            ll += _bearing_prior(sin_az[s], cos_az[s], dx, dy)
         r = rss[s] - a[s] + n[s] * logd[s]
         ll -= 0.5 * r * r * inv_var[s]
     for s in range(ns):
@@ -203,6 +218,8 @@ def _fix(cells, level, out):
             reach[s] = max(reach[s], ta_mu[s] + 3.0 * ta_sd[s])
         ta_tail[s] = 1.0 / reach[s]
     inv_var = 1.0 / var_s
+    sin_az = np.sin(np.radians(site_az))
+    cos_az = np.cos(np.radians(site_az))
     # the region: where every site reaches (their boxes' intersection; their union if it is empty)
     x0, x1, y0, y1 = -1e300, 1e300, -1e300, 1e300
     for s in range(ns):
@@ -228,8 +245,8 @@ def _fix(cells, level, out):
                 p = i * G + k
                 px[p] = x0 + (i + 0.5) * hx
                 py[p] = y0 + (k + 0.5) * hy
-                ll[p] = _loglik(px[p], py[p], sx, sy, a, n, rss, inv_var, site_az, ta_site, ta_mu, ta_sd,
-                                ta_tail, ns, logd)
+                ll[p] = _loglik(px[p], py[p], sx, sy, a, n, rss, inv_var, site_az, sin_az, cos_az, ta_site, ta_mu,
+                                ta_sd, ta_tail, ns, logd)
                 best = max(best, ll[p])
         for p in range(G * G):
             w[p] = math.exp(ll[p] - best)
