@@ -96,6 +96,8 @@ class Answer:
 
 def _int(value, name: str, lo: int, hi: int) -> int | None:
     """An integer field (None: absent or Android's unavailable)."""
+    if type(value) is int and lo <= value <= hi and value != UNAVAILABLE:  # the common case, at once
+        return value
     if value is None:
         return None
     if isinstance(value, bool) or not isinstance(value, (int, float)) or value != value or \
