@@ -120,6 +120,37 @@ def test_cells_the_position_model_cannot_take_are_not_used(tmp_path, new_store):
         store.close()
 
 
+def test_concurrent_answers_are_each_requests_own_and_a_closed_geolocator_fails_them(tmp_path):
+    """Geolocator.answer computes the requests that gather together: each gets what locate gives it alone;
+    once closed, a request fails at once instead of waiting for ever."""
+    import asyncio
+
+    from mptrack.serve._geolocate import Geolocator, parse_request
+
+    path = tmp_path / "cells.csv"
+    path.write_text(HEADER + "".join(f"GSM,206,1,10,{c},,{4.40 + 0.01 * c},{50.80 + 0.005 * c},,,0,,,-80\n"
+                                     for c in range(1, 6)))
+    store = open_store(f"sqlite:///{tmp_path / 'cells.db'}")
+    try:
+        load_cell_table(store, path)
+        geo = Geolocator(store)
+        queries = [parse_request(json.dumps({"cellTowers": [
+            {"radioType": "gsm", "mobileCountryCode": 206, "mobileNetworkCode": 1, "locationAreaCode": 10,
+             "cellId": c, "signalStrength": level} for c, level in zip(cells, (-70, -85, -95))]}).encode())
+            for cells in ((1, 2, 3), (2, 3, 4), (3, 4, 5), (5, 1, 2), (4,), (1, 5))]
+        alone = [geo.locate(q) for q in queries]
+
+        async def together():
+            return await asyncio.gather(*(geo.answer(q) for q in queries * 5))
+        assert asyncio.run(together()) == alone * 5
+        geo.close()
+        for q in queries[:2]:
+            with pytest.raises(RuntimeError):
+                asyncio.run(asyncio.wait_for(geo.answer(q), 10.0))
+    finally:
+        store.close()
+
+
 @pytest.mark.slow
 def test_a_million_cells_load_in_30_s_and_look_up_in_1_ms(tmp_path):
     n = 1_000_000

@@ -320,11 +320,17 @@ class Geolocator:
 
     def _solve_waiting(self) -> None:
         batch, self._waiting = self._waiting, []
-        self._solving = True
         tables = [k.table for k, _ in batch]
         offsets = np.cumsum([0] + [len(t) for t in tables])
-        job = asyncio.get_running_loop().run_in_executor(self._thread, locate_checked, np.concatenate(tables),
-                                                         self.level, offsets)
+        try:
+            job = asyncio.get_running_loop().run_in_executor(self._thread, locate_checked, np.concatenate(tables),
+                                                             self.level, offsets)
+        except RuntimeError as exc:  # closed: the requests fail, later ones are not left waiting
+            for _, fut in batch:
+                if not fut.done():
+                    fut.set_exception(exc)
+            return
+        self._solving = True
         job.add_done_callback(lambda done: self._solved(batch, done))
 
     def _solved(self, batch: list, done) -> None:
