@@ -630,6 +630,7 @@ target("continuous.pf_substep_study", lambda z, x0, P0, particles, runs, ref_par
 _CELLS = np.array([[50.8, 4.39, 2, -109.2, 35.2, np.nan, 0, np.nan, np.nan, 0, 120.0, -90.0, 1.0],
                    [50.8, 4.39, 2, -109.2, 35.2, np.nan, 0, np.nan, np.nan, 0, 240.0, -95.0, np.nan],
                    [50.81, 4.40, 0, -69.4, 35.2, 2.0, 3, 1.5, 2000.0, 1, np.nan, np.nan, 2.0]])
+target("cellular.check_cells", cells=arg((3, 13), valid=_CELLS))
 target("cellular.locate_cells", cells=arg((3, 13), valid=_CELLS), offsets=maybe(st.one_of(
     st.just([0, 2, 3]), arg((3,), valid=[0, 1, 3]))), level=scalar(0, 1))
 _N = dict(lat=arg((3,), valid=[50.8, 50.81, 50.8]), lon=arg((3,), valid=[4.39, 4.4, 4.41]),

@@ -23,7 +23,7 @@ from ._ekf import (
     range_measurement,
 )
 from ._centroid import CENTROID_ACCURACY_M, station_score, weighted_centroid
-from ._locate import CELL_FIELDS, CONFIDENCE, FIX_FIELDS, check_cells, locate_cells, locate_checked
+from ._locate import CELL_FIELDS, CONFIDENCE, FIX_FIELDS, check_cells, locate_cells
 from ._signal_model import RADIO_CODES, RADIOS, Radio, radio_code, signal_fit, signal_prior
 from ._fekf import (
     TABLE_I,
@@ -58,7 +58,6 @@ __all__ = [
     "fuse_local_solutions",
     "range_fix",
     "locate_cells",
-    "locate_checked",
     "check_cells",
     "CELL_FIELDS",
     "FIX_FIELDS",

@@ -39,7 +39,7 @@ from .._core.validation import as_array, as_real, check_int
 from ..errors import ParameterError, ShapeError
 from ._signal_model import RADIOS
 
-__all__ = ["locate_cells", "locate_checked", "check_cells", "CELL_FIELDS", "FIX_FIELDS", "CONFIDENCE"]
+__all__ = ["locate_cells", "check_cells", "CELL_FIELDS", "FIX_FIELDS", "CONFIDENCE"]
 
 #: The columns of the table :func:`locate_cells` reads, one row per cell heard (see its doc).
 CELL_FIELDS = ("lat", "lon", "radio", "intercept_dbm", "slope_db", "fit_offset_db", "area_fits",
@@ -346,22 +346,16 @@ def locate_cells(cells, offsets=None, *, level: float = CONFIDENCE) -> np.ndarra
     table = check_cells(cells)
     level = as_real("level", level, low=0.01, high=0.999)
     if offsets is None:  # one scan (a geolocation request): nothing to check
-        return locate_checked(table, level)
-    off = as_array("offsets", offsets, ndim=1, low=0, high=len(table))
-    if len(off) < 1 or off[0] != 0 or off[-1] != len(table) or np.any(np.diff(off) < 1) or \
-            np.any(off != np.round(off)):
-        raise ParameterError(f"offsets: expected increasing integers from 0 to {len(table)} (every scan at least "
-                             "one cell), got " + (repr(off.tolist()) if len(off) < 8 else f"{len(off)} values"))
-    return locate_checked(table, level, off)
-
-
-def locate_checked(table: np.ndarray, level: float, offsets=None) -> np.ndarray:
-    """:func:`locate_cells` of a table that :func:`check_cells` made (or that holds rows it checked, and
-    observations in their ranges), with valid ``level`` and ``offsets`` (default: one scan): no checks
-    (a server checks the table's rows once, when it reads them)."""
-    off = np.array([0, len(table)] if offsets is None else offsets, dtype=np.int64)
+        off = np.array([0, len(table)], dtype=np.int64)
+    else:
+        off = as_array("offsets", offsets, ndim=1, low=0, high=len(table))
+        if len(off) < 1 or off[0] != 0 or off[-1] != len(table) or np.any(np.diff(off) < 1) or \
+                np.any(off != np.round(off)):
+            raise ParameterError(f"offsets: expected increasing integers from 0 to {len(table)} (every scan at "
+                                 "least one cell), got " + (repr(off.tolist()) if len(off) < 8 else
+                                                            f"{len(off)} values"))
     out = np.empty((len(off) - 1, len(FIX_FIELDS)))
-    _fixes(table, off, level, out)
+    _fixes(table, off.astype(np.int64), level, out)
     return out
 
 
@@ -376,15 +370,37 @@ _RANGES = {"lat": (-85.0, 85.0, False), "lon": (-180.0, 180.0, False), "radio": 
 _LO = np.array([_RANGES[c][0] for c in CELL_FIELDS], dtype=float)
 _HI = np.array([_RANGES[c][1] for c in CELL_FIELDS], dtype=float)
 _NAN_OK = np.array([_RANGES[c][2] for c in CELL_FIELDS])
+_RADIO = CELL_FIELDS.index("radio")
 
 
 def check_cells(cells) -> np.ndarray:
-    """``cells`` (see :func:`locate_cells`) as a contiguous float table, its columns checked against their ranges."""
+    """A table of cells for :func:`locate_cells`, its columns checked against their ranges.
+
+    Parameters
+    ----------
+    cells : array_like or mapping
+        (n, 13) float array, one row per cell, the columns CELL_FIELDS (or a mapping / DataFrame with
+        those columns), as :func:`locate_cells` takes them.
+
+    Returns
+    -------
+    ndarray, shape (n, 13)
+        The table as a C-contiguous float64 array (``cells`` itself when it is one).
+
+    Raises
+    ------
+    ParameterError, ShapeError, DTypeError, NonFiniteError
+        A column out of its range (naming it and the row), a table of the wrong shape or type.
+    """
     if hasattr(cells, "keys") and not isinstance(cells, np.ndarray):
         missing = [c for c in CELL_FIELDS if c not in cells.keys()]
         if missing:
             raise ShapeError(f"cells: missing columns {missing} (expected {', '.join(CELL_FIELDS)})")
         cells = np.column_stack([np.asarray(cells[c], dtype=float) for c in CELL_FIELDS])
+    if isinstance(cells, np.ndarray) and cells.dtype == np.float64 and cells.ndim == 2 and \
+            cells.shape[0] >= 1 and cells.shape[1] == len(CELL_FIELDS) and cells.flags.c_contiguous and \
+            _all_in_range(cells, _LO, _HI, _NAN_OK):
+        return cells   # a request's few cells: one compiled pass, no temporaries
     table = as_array("cells", cells, ndim=2, allow_nan=True)
     if table.shape[1] != len(CELL_FIELDS) or table.shape[0] < 1:
         raise ShapeError(f"cells: expected an (n, {len(CELL_FIELDS)}) table with n >= 1 (columns "
@@ -397,7 +413,24 @@ def check_cells(cells) -> np.ndarray:
         lo, hi, nan_ok = _RANGES[name]
         raise ParameterError(f"cells: column {name} expects {lo:g}..{hi:g}{' or NaN' if nan_ok else ''}, got "
                              f"{table[row, i]!r} in row {row}")
-    radio = table[:, 2]
+    radio = table[:, _RADIO]
     if np.any(radio != np.round(radio)):
         raise ParameterError("cells: column radio expects integer radio codes (RADIOS)")
     return table
+
+
+@nb.njit(**_JIT)
+def _all_in_range(table, lo, hi, nan_ok):
+    """Whether every value of ``table`` is within its column's [lo, hi] (or NaN where nan_ok) and the radio
+    codes are integers (False: :func:`check_cells` looks closer and says what is wrong)."""
+    for i in range(table.shape[0]):
+        for j in range(table.shape[1]):
+            v = table[i, j]
+            if v != v:
+                if not nan_ok[j]:
+                    return False
+            elif not lo[j] <= v <= hi[j]:
+                return False
+        if table[i, _RADIO] != math.floor(table[i, _RADIO]):
+            return False
+    return True

@@ -33,11 +33,12 @@ import math
 import threading
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
+from functools import partial
 
 import numpy as np
 
-from ..cellular import CELL_FIELDS, CONFIDENCE, RADIOS, RADIO_CODES, check_cells, locate_checked
-from ..errors import ParameterError, RequestError
+from ..cellular import CELL_FIELDS, CONFIDENCE, RADIOS, RADIO_CODES, check_cells, locate_cells
+from ..errors import MptrackError, RequestError
 from ._store import Store
 
 __all__ = ["GeolocateError", "Query", "Answer", "parse_request", "osmand_query", "Geolocator", "answer_body",
@@ -268,7 +269,7 @@ class Geolocator:
         known = self._prepare(query)
         if isinstance(known, Answer):
             return known
-        return _answer(locate_checked(known.table, self.level)[0], known)
+        return _answer(locate_cells(known.table, level=self.level)[0], known)
 
     async def answer(self, query: Query) -> Answer:
         """:meth:`locate` in an event loop: the posteriors of concurrent requests are computed together, on
@@ -323,8 +324,8 @@ class Geolocator:
         tables = [k.table for k, _ in batch]
         offsets = np.cumsum([0] + [len(t) for t in tables])
         try:
-            job = asyncio.get_running_loop().run_in_executor(self._thread, locate_checked, np.concatenate(tables),
-                                                             self.level, offsets)
+            job = asyncio.get_running_loop().run_in_executor(self._thread, partial(
+                locate_cells, np.concatenate(tables), offsets, level=self.level))
         except RuntimeError as exc:  # closed: the requests fail, later ones are not left waiting
             for _, fut in batch:
                 if not fut.done():
@@ -359,11 +360,12 @@ class Geolocator:
 
 
 def _checked(values: list[tuple]) -> list:
-    """The rows ``values`` (CELL_FIELDS) checked, without their observations; None for a row out of the
-    ranges locate_cells takes (a cell within 5 degrees of a pole, a range beyond 10,000 km: not used)."""
+    """The rows ``values`` (CELL_FIELDS) checked (check_cells), without their observations; None for a row
+    out of the ranges locate_cells takes (a cell within 5 degrees of a pole, a range beyond 10,000 km: not
+    used)."""
     try:
         return [tuple(v) for v in check_cells(np.array(values))[:, :_OBSERVED].tolist()]
-    except ParameterError:
+    except MptrackError:
         if len(values) == 1:
             return [None]
         return [v for row in values for v in _checked([row])]
