@@ -75,3 +75,50 @@ def test_noise_is_estimated_again_as_a_device_gathers_fixes(tmp_path):
     assert used[0] >= 30 and used[-1] == 400 and (at[-1] >= 1400)   # estimated to the end, the window full
     assert (np.diff(at) >= np.maximum(30, RENEW * used[:-1]) - 10).all()
     assert len(at) < 1500 / 30 / 2                                  # not every 30 fixes
+
+
+def test_noise_estimates_take_at_most_their_share_of_a_core(tmp_path):
+    """While a device stays due (every batch brings it enough new fixes), a noise round starts only after a
+    rest of (1 / ESTIMATOR_SHARE - 1) times the round before; closing does not wait for the rest."""
+    import asyncio
+    import time
+
+    from mptrack.serve._ingest import ESTIMATOR_SHARE, Ingest
+    from mptrack.tracking import LiveTracks
+
+    store = open_store(f"sqlite:///{tmp_path / 'share.db'}")
+    ingest = Ingest(store, LiveTracks(), calibrate_after=30)
+    read, rounds = store.histories, []
+
+    def slow(devices, n):                         # a round that takes 0.2 s
+        if not ingest._stopping.is_set():          # (the round at closing does not rest)
+            rounds.append(time.monotonic())
+        time.sleep(0.2)
+        return read(devices, n)
+
+    store.histories = slow
+
+    async def feed():
+        ingest.start()
+        t = 1.77e9
+        until = time.monotonic() + 2.5
+        while time.monotonic() < until:           # 30 new fixes a batch: the device is always due
+            await ingest.submit([("walker", t + i, 50.0 + 1e-5 * i, 8.0, 5.0, None, None, None, None)
+                                 for i in range(30)])
+            t += 30
+            await asyncio.sleep(0.02)
+        while not ingest._estimating.done():     # a round has just ended: the one the next batch starts rests
+            await asyncio.sleep(0.01)
+        await ingest.submit([("walker", t + i, 50.0, 8.0, 5.0, None, None, None, None) for i in range(30)])
+        started = time.monotonic()
+        await ingest.close()
+        return time.monotonic() - started
+
+    try:
+        closing = asyncio.run(feed())
+    finally:
+        store.close()
+    gaps = np.diff(rounds)
+    assert len(rounds) >= 2 and (gaps >= 0.2 / ESTIMATOR_SHARE - 0.02).all(), gaps
+    assert len(rounds) <= 4                       # not back to back (~12 rounds of 0.2 s in 2.5 s)
+    assert closing < 0.6, closing                 # the last round's 0.2 s, not its rest's 0.6 s too

@@ -21,8 +21,9 @@ the row up to which every device's stored state covers its fixes.  After a crash
 watermark that a device's state does not cover are replayed through the same filter
 (:meth:`Ingest.recover`), which gives the states the filter had, so the live estimates resume exactly.
 Noise is re-estimated on another thread for devices with enough new fixes (``calibrate_after``, or
-:data:`RENEW` times the fixes the device's last estimate used, whichever is more) and applied between
-batches, the devices' states stored at once, so that a replay sees the noise the live filter saw.
+:data:`RENEW` times the fixes the device's last estimate used, whichever is more), taking at most
+:data:`ESTIMATOR_SHARE` of a core while devices keep it busy, and applied between batches, the devices'
+states stored at once, so that a replay sees the noise the live filter saw.
 
 With a shared store (PostgreSQL, several processes) a batch locks its devices' states first, loads
 those another process changed, and stores the new state of every device it stepped with its fixes:
@@ -63,6 +64,11 @@ INLINE_FIXES = 512
 #: as new fixes (and at least ``calibrate_after``): the estimates follow a device's recent history while
 #: a fix costs a few history rows read (re-estimating every 30 fixes from up to 2000 read ~67 a fix).
 RENEW = 0.25
+#: The share of a core the noise estimates take at most while devices keep them due: after a round the
+#: next waits (1 / share - 1) times as long as that round took, so a busy server's estimates (a bulk
+#: upload makes every device due every few batches) leave the cores to its commits and its database;
+#: they catch up when ingest slows.
+ESTIMATOR_SHARE = 0.25
 #: The most device states one batch checkpoints.
 CHECKPOINT_ROWS = 2000
 #: What :meth:`mptrack.tracking.LiveTracks.advance` returns for each fix, in the order stored (ESTIMATE_COLUMNS).
@@ -88,6 +94,8 @@ class Ingest:
         # the noise estimates run their kernels on one core: ingest keeps the other
         self._estimator = ThreadPoolExecutor(1, thread_name_prefix="mptrack-noise", initializer=background)
         self._estimating = None                  # the noise estimate under way (a Future)
+        self._rest_until = 0.0                   # when the next estimate may start (monotonic)
+        self._stopping = threading.Event()       # set at close: an estimate waiting to start goes at once
         self._pending: list = []                 # (fixes, future) waiting for the next batch
         self._wake: asyncio.Event | None = None
         self._task: asyncio.Task | None = None
@@ -145,6 +153,7 @@ class Ingest:
     async def close(self) -> None:
         """Commit what is pending, checkpoint, stop the writer."""
         self._closing = True
+        self._stopping.set()
         if self._wake is not None:
             self._wake.set()
         if self._task is not None:
@@ -454,9 +463,14 @@ class Ingest:
             self._dirty.pop(d, None)
 
     def _estimate(self, due: np.ndarray) -> tuple[np.ndarray, dict, np.ndarray]:
-        """(due, noise, fixes used) from the devices' recent stored fixes (on the estimator thread)."""
+        """(due, noise, fixes used) from the devices' recent stored fixes (on the estimator thread, after the
+        rest that ESTIMATOR_SHARE asks of the round before)."""
+        self._stopping.wait(self._rest_until - time.monotonic())
+        started = time.monotonic()
         histories = self.store.histories(due.tolist(), self.history_fixes)
         noise = self.live.estimate_noise([dict(zip(HISTORY_COLUMNS, h.T)) for h in histories])
+        now = time.monotonic()
+        self._rest_until = now + (1.0 / ESTIMATOR_SHARE - 1.0) * (now - started)
         return due, noise, np.array([len(h) for h in histories], dtype=np.int64)
 
     @staticmethod
