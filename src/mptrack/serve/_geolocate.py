@@ -337,12 +337,13 @@ class Geolocator:
     def _solved(self, batch: list, done) -> None:
         self._solving = False
         exc = done.exception()
+        fixes = done.result() if exc is None else None
         for i, (known, fut) in enumerate(batch):
             if not fut.done():
                 if exc is not None:
                     fut.set_exception(exc)
                 else:
-                    fut.set_result(_answer(done.result()[i], known))
+                    fut.set_result(_answer(fixes[i], known))
         if self._waiting:
             self._solve_waiting()
 

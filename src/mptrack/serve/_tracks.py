@@ -19,8 +19,7 @@ import pandas as pd
 
 from ..io import write_table
 from ..tracking import ellipse
-from ._store import FLAG_NAMES
-from ._store import StoredRows
+from ._store import FLAG_NAMES, StoredRows
 
 __all__ = ["FORMATS", "track_body", "live_frame", "fix_frame"]
 
