@@ -4,7 +4,17 @@ from __future__ import annotations
 
 import ctypes
 
-__all__ = ["trim_heap"]
+import numpy as np
+
+__all__ = ["trim_heap", "grown"]
+
+
+def grown(values: np.ndarray, size: int) -> np.ndarray:
+    """``values`` followed by zeros up to ``size``: an array's room to grow, whose pages take no memory
+    until written (a large zeroed allocation is fresh pages from the OS)."""
+    out = np.zeros(size, values.dtype)
+    out[:len(values)] = values
+    return out
 
 
 def trim_heap() -> None:
@@ -15,3 +25,4 @@ def trim_heap() -> None:
         ctypes.CDLL(None).malloc_trim(0)
     except (AttributeError, OSError):
         pass
+

@@ -128,8 +128,8 @@ class Server:
             if collecting:
                 gc.enable()
         trim_heap()
-        log.info("mptrack serve ready: %d devices, %s", len(self.ingest.keys), shown_url(self.config.db),
-                 extra={"event": "ready", "devices": len(self.ingest.keys)})
+        log.info("mptrack serve ready: %d devices, %s", len(self.ingest.devices), shown_url(self.config.db),
+                 extra={"event": "ready", "devices": len(self.ingest.devices)})
 
     async def _start(self, loop) -> None:
         self.store = await loop.run_in_executor(None, open_store, self.config.db, self.config.fsync)
@@ -362,7 +362,7 @@ class Server:
                 check_device(claimed, owner)
         if not fixes:
             return
-        self.limits.take(fixes[0][0], self.ingest.keys.get(fixes[0][0]), len(fixes))
+        self.limits.take(fixes[0][0], self.ingest.devices.get(fixes[0][0]), len(fixes))
         await self.ingest.submit(fixes)
 
 

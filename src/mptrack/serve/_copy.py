@@ -78,8 +78,10 @@ def _copy(src: Store, dst: Store, model: str | None) -> dict:
             dst.load_fixes(rows)
             last = max(last, int(rows["seq"].max()))
         t_last = live.last_fixes(np.arange(live.n))[:, 0]
-        started = [k for k in np.flatnonzero(np.isfinite(t_last)).tolist() if ingest.ids[k] is not None]
-        states = [(k, ingest.ids[k], b, float(t_last[k])) for k, b in zip(started, live.states_bytes(started))]
+        started = np.flatnonzero(np.isfinite(t_last))
+        started = started[ingest.devices.known(started)]
+        states = list(zip(started.tolist(), ingest.devices.ids_of(started), live.states_bytes(started),
+                          t_last[started].tolist()))
         for i in range(0, len(states), 10_000):   # each covers every fix copied
             part = states[i:i + 10_000]
             keys = np.array([k for k, _, _, _ in part], dtype=np.int64)

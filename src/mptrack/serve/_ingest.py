@@ -35,7 +35,6 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-import itertools
 import json
 import logging
 import threading
@@ -44,10 +43,12 @@ from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
-from .._core.memory import trim_heap
+from .._core.memory import grown, trim_heap
 from .._core.threads import background
 from ..tracking import ESTIMATE_FIELDS, LiveTracks, ellipse
+from ._device_ids import DeviceIds
 from ._fix import iso_time
+from ._key_queue import KeyQueue
 from ._metrics import Metrics
 from ._store import ESTIMATE_COLUMNS, FIX_COLUMNS, FLAG_NAMES, HISTORY_COLUMNS, LATE, Store, StoredRows
 
@@ -87,8 +88,7 @@ class Ingest:
         self.calibrate_after = calibrate_after
         self.history_fixes = history_fixes
         self.metrics = metrics if metrics is not None else Metrics.local()
-        self.keys: dict[str, int] = {}           # device id -> key (the live filter's track index)
-        self.ids: list[str | None] = []          # key -> device id (None: a key this process has not seen)
+        self.devices = DeviceIds()               # device id <-> key (the live filter's track index)
         self.lock = threading.Lock()             # the live state and the keys: the writer while it steps, readers
         self._writer = ThreadPoolExecutor(1, thread_name_prefix="mptrack-writer")
         # the noise estimates run their kernels on one core: ingest keeps the other
@@ -103,13 +103,13 @@ class Ingest:
         self._closing = False
         # devices changed since their last checkpoint, oldest first (an ordered set), with the last fix
         # row before the change and when it changed (monotonic) by key (a store with one writer)
-        self._dirty: dict[int, None] = {}
+        self._changed = KeyQueue()
         self._changed_row = np.zeros(0, dtype=np.int64)
         self._changed_at = np.zeros(0)
         self._seq = 0                            # the last fix row stored (a store with one writer)
-        self._since_calibration = np.zeros(0, dtype=np.int64)
-        self._estimated_on = np.zeros(0, dtype=np.int64)   # fixes each device's last noise estimate used
-        self._noise_due: dict[int, None] = {}     # devices due for a noise estimate, first due first
+        self._since_calibration = np.zeros(0, dtype=np.int32)
+        self._estimated_on = np.zeros(0, dtype=np.int32)   # fixes each device's last noise estimate used
+        self._noise_due = KeyQueue()              # devices due for a noise estimate, first due first
         self._version = np.zeros(0, dtype=np.int64)   # a shared store: each device's state version held here
         self.listeners: set[asyncio.Queue] = set()
 
@@ -119,13 +119,12 @@ class Ingest:
         stored after the last checkpoint."""
         self._add_keys(self.store.device_keys())
         watermark, chunks = self.store.load_checkpoint()
-        covered = np.zeros(len(self.ids), np.int64)      # each device's fixes up to this row are in its state
-        ids = self.ids
+        covered = np.zeros(self.devices.size, np.int64)      # each device's fixes up to this row are in its state
         for states in chunks:
             keys, blobs, upto, versions = zip(*states)
             idx = np.array(keys, dtype=np.int64)
             # a shared store: a device another process registered after the keys were read is left out
-            known = np.array([k < len(ids) and ids[k] is not None for k in keys], dtype=bool)
+            known = self.devices.known(idx)
             if not known.all():
                 blobs = [b for b, k in zip(blobs, known.tolist()) if k]
             if known.any():
@@ -143,7 +142,7 @@ class Ingest:
             dev, t = dev[order], t[order]
             lat, lon, acc = rows["lat"][use][order], rows["lon"][use][order], rows["accuracy_m"][use][order]
             self.live.advance(dev, t, lat, lon, acc)
-            self._mark(np.unique(dev).tolist(), watermark, now)
+            self._mark(np.unique(dev), watermark, now)
 
     def start(self) -> None:
         self._loop = asyncio.get_running_loop()
@@ -231,27 +230,22 @@ class Ingest:
             return len(self.store.device_keys()), self.store.live_devices(since)
         with self.lock:
             t = self.live.last_fixes(np.arange(self.live.n))[:, 0]
-        return len(self.keys), int(np.count_nonzero(t >= since))
+        return len(self.devices), int(np.count_nonzero(t >= since))
 
     # ---- keys and states (a shared store: written by other processes too) ------------------------------
     def _add_keys(self, pairs) -> None:
         if not pairs:
             return
-        keys, devices = zip(*pairs)
         with self.lock:
-            if max(keys) >= len(self.ids):
-                self.ids.extend([None] * (max(keys) + 1 - len(self.ids)))
-            for key, device in pairs:
-                self.ids[key] = device
-            self.keys.update(zip(devices, keys))
-            self._grow(len(self.ids))
+            self.devices.add(pairs)
+            self._grow(self.devices.size)
 
     def key(self, device: str) -> int | None:
         """The key of a device that has sent a fix (to any process of a shared store), or None."""
-        k = self.keys.get(device)
+        k = self.devices.get(device)
         if k is None and self.shared:
             self._add_keys(self.store.device_keys([device]))
-            k = self.keys.get(device)
+            k = self.devices.get(device)
         return k
 
     def refresh(self, devs=None) -> None:
@@ -281,18 +275,19 @@ class Ingest:
         if n > len(self._since_calibration):
             size = max(n, 2 * len(self._since_calibration), 1024)
             self._since_calibration, self._estimated_on, self._version, self._changed_row, self._changed_at = (
-                _grown(a, size) for a in (self._since_calibration, self._estimated_on, self._version,
+                grown(a, size) for a in (self._since_calibration, self._estimated_on, self._version,
                                           self._changed_row, self._changed_at))
         if n > self.live.n:
             self.live.add(n - self.live.n)
 
     def _keys_of(self, fixes: list[tuple]) -> np.ndarray:
         """The keys of the fixes' devices, registering the new devices."""
-        keys = self.keys
-        new = sorted({f[0] for f in fixes if f[0] not in keys})
-        if new:
-            self._add_keys(self.store.register(new))
-        return np.array([keys[f[0]] for f in fixes], dtype=np.int64)
+        devices = [f[0] for f in fixes]
+        keys = self.devices.keys_of(devices)
+        if (keys < 0).any():
+            self._add_keys(self.store.register(sorted({d for d, k in zip(devices, keys.tolist()) if k < 0})))
+            keys = self.devices.keys_of(devices)
+        return keys
 
     def _commit(self, fixes: list[tuple]):
         now = time.time()
@@ -325,7 +320,7 @@ class Ingest:
                     else:             # the states that changed checkpoint_s ago go in with this batch
                         ready = self._due_states()
                         watermark = self._oldest_row(set(ready))
-                        if any(d not in self._dirty for d in touched.tolist()):   # newly changed: not covered
+                        if not self._changed.has(touched).all():   # newly changed: not covered
                             watermark = self._seq if watermark is None else min(watermark, self._seq)
                         states = self._checkpoints(ready)
                 rows = _rows(stored, cols[8], sel, est, now)
@@ -337,12 +332,11 @@ class Ingest:
         np.add.at(self._since_calibration, dev[sel], 1)
         used = self._estimated_on[touched]
         due = touched[self._since_calibration[touched] >= np.maximum(self.calibrate_after, RENEW * used)]
-        self._noise_due.update(dict.fromkeys(due.tolist()))
+        self._noise_due.add(due)
         if not self.shared:
             before, self._seq = self._seq, tx.last_row
-            for d in ready:
-                del self._dirty[d]
-            self._mark(touched.tolist(), before, time.monotonic())
+            self._changed.discard(ready)
+            self._mark(touched, before, time.monotonic())
         m = self.metrics
         m.add("accepted", len(fixes))
         m.add("filtered", len(sel))
@@ -357,38 +351,31 @@ class Ingest:
         """A shared store: (key, id, blob, last fix time) of these devices, their versions raised (lock held)."""
         self._version[devs] += 1
         t_last = self.live.last_fixes(devs)[:, 0].tolist()
-        return [(k, self.ids[k], b, tk) for k, b, tk in zip(devs.tolist(), self.live.states_bytes(devs), t_last)]
+        return list(zip(devs.tolist(), self.devices.ids_of(devs), self.live.states_bytes(devs), t_last))
 
     def _checkpoints(self, devices: list[int]) -> list[tuple[int, str, bytes, float]]:
         """(key, id, blob, NaN) of these devices' states: checkpoints (a store with one writer; lock held)."""
-        return [(d, self.ids[d], b, np.nan) for d, b in zip(devices, self.live.states_bytes(devices))]
+        return [(d, i, b, np.nan) for d, i, b in zip(devices, self.devices.ids_of(devices),
+                                                      self.live.states_bytes(devices))]
 
     def _due_states(self) -> list[int]:
         """The devices whose state changed more than ``checkpoint_s`` ago (oldest first, at most
         CHECKPOINT_ROWS): stored with the next batch (a store with one writer)."""
-        old = time.monotonic() - self.checkpoint_s
-        ready, at = [], self._changed_at
-        for d in self._dirty:   # oldest first
-            if at[d] > old or len(ready) == CHECKPOINT_ROWS:
-                break
-            ready.append(d)
-        return ready
+        oldest = self._changed.oldest(CHECKPOINT_ROWS)
+        return oldest[:np.count_nonzero(self._changed_at[oldest] <= time.monotonic() - self.checkpoint_s)].tolist()
 
     def _oldest_row(self, stored: set) -> int | None:
         """The watermark once the states of ``stored`` are stored: the row before the oldest change not
-        among them (None: none left).  ``_dirty`` keeps its changes oldest first with non-decreasing rows
+        among them (None: none left).  ``_changed`` keeps its changes oldest first with non-decreasing rows
         (a device enters at its end, with the last row then stored), so this reads only as far as the
         first device not in ``stored`` -- a batch's checkpoints are the oldest changes, so this is
         O(checkpoints), not O(devices changed)."""
-        for d in self._dirty:
-            if d not in stored:
-                return int(self._changed_row[d])
-        return None
+        rest = [d for d in self._changed.oldest(len(stored) + 1).tolist() if d not in stored]
+        return int(self._changed_row[rest[0]]) if rest else None
 
-    def _mark(self, keys: list[int], row: int, at: float) -> None:
-        """Devices ``keys`` changed at ``at`` after fix row ``row`` (those not changed already)."""
-        new = [k for k in keys if k not in self._dirty]
-        self._dirty.update(dict.fromkeys(new))
+    def _mark(self, keys: np.ndarray, row: int, at: float) -> None:
+        """Devices ``keys`` (distinct) changed at ``at`` after fix row ``row`` (those not changed already)."""
+        new = self._changed.add(keys)
         self._changed_row[new] = row
         self._changed_at[new] = at
 
@@ -406,9 +393,8 @@ class Ingest:
             except Exception as exc:  # an estimate that fails leaves the devices' noise as it was
                 log.warning("noise estimation failed: %s", exc)
         if self._estimating is None and not final:
-            due = np.array(list(itertools.islice(self._noise_due, MAX_ESTIMATED)), dtype=np.int64)
-            for d in due.tolist():
-                del self._noise_due[d]
+            due = self._noise_due.oldest(MAX_ESTIMATED)
+            self._noise_due.discard(due)
             if len(due):
                 self._since_calibration[due] = 0
                 self._estimating = self._estimator.submit(self._estimate, due)
@@ -417,7 +403,7 @@ class Ingest:
         """At shutdown: the noise estimate under way applied, every changed state stored."""
         self._noise(final=True)
         if not self.shared:
-            self._store_states(list(self._dirty))
+            self._store_states(self._changed.oldest(len(self._changed)).tolist())
 
     def _set_noise(self, due: np.ndarray, noise: dict) -> None:
         """Apply a noise estimate and store the devices' states at once (so that a replay, or another
@@ -459,8 +445,7 @@ class Ingest:
         keys = np.array(sorted(stored), dtype=np.int64)
         with self.store.batch(keys, self._version[keys]) as tx:
             tx.write(states=states, watermark=self._oldest_row(stored))
-        for d in devices:
-            self._dirty.pop(d, None)
+        self._changed.discard(devices)
 
     def _estimate(self, due: np.ndarray) -> tuple[np.ndarray, dict, np.ndarray]:
         """(due, noise, fixes used) from the devices' recent stored fixes (on the estimator thread, after the
@@ -498,13 +483,6 @@ def _rows(stored: dict, attrs: tuple, sel: np.ndarray, est: dict | None, now: fl
     for name, field in zip(ESTIMATE_COLUMNS, ESTIMATES):
         out[name] = est[field] if est is not None else np.full(n, LATE if name == "flag" else np.nan)
     return StoredRows(out)
-
-
-def _grown(values: np.ndarray, size: int) -> np.ndarray:
-    """``values`` followed by zeros up to ``size`` (the zeros' pages take no memory until written)."""
-    out = np.zeros(size, values.dtype)
-    out[:len(values)] = values
-    return out
 
 
 def _previous(values: np.ndarray) -> np.ndarray:

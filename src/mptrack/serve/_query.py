@@ -140,7 +140,7 @@ def query_app(server) -> FastAPI:
         ing.refresh()
         with ing.lock:
             last = ing.live.summaries()
-            ids = list(ing.ids)
+            ids = ing.devices.ids_of(range(ing.devices.size))
         return [{"id": ids[i], "last_fix_time": iso_time(s["time"]) if s["time"] == s["time"] else None,
                  "raw_lat": _f(s["raw_lat"]), "raw_lon": _f(s["raw_lon"]), "lat": _f(s["lat"]), "lon": _f(s["lon"]),
                  "ell_major_m": _f(s["ell_major_m"]), "ell_minor_m": _f(s["ell_minor_m"]),
