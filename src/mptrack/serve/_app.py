@@ -22,7 +22,7 @@ import time
 from dataclasses import asdict, dataclass
 from urllib.parse import parse_qsl
 
-from .._core.memory import trim_heap
+from .._core.memory import arrow_gives_memory_back, trim_heap
 from .._core.validation import as_real, check_bool, check_int, check_path, check_positive, lookup
 from ..errors import MptrackError, ParameterError, RequestError
 from ..tracking import MODELS, LiveTracks, TrackOptions
@@ -115,6 +115,7 @@ class Server:
 
     # ---- life ------------------------------------------------------------------------------------
     async def startup(self) -> None:
+        arrow_gives_memory_back()
         loop = asyncio.get_running_loop()
         collecting = gc.isenabled()
         gc.disable()   # a restart makes millions of objects that live on: no collection while it does
