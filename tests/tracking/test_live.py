@@ -79,6 +79,24 @@ def test_a_state_survives_bytes_and_a_failed_batch_can_be_undone():
         ca.load_states([0], [a.states_bytes([0])[0]])
 
 
+def test_states_stored_whole_by_the_first_layout_still_load():
+    """Layout 1 stored the run's part of every state (zeros without a run); layout 2 leaves it out then."""
+    df = read_table(REAL_TRACES["car"])
+    live = LiveTracks()
+    live.add(1)
+    live.advance(np.zeros(30, np.int64), df["t"].to_numpy()[:30], df["lat"].to_numpy()[:30],
+                 df["lon"].to_numpy()[:30], np.full(30, 6.0))
+    short = live.states_bytes([0])[0]
+    whole = short[:4] + (1).to_bytes(2, "little") + short[6:] + bytes(8 * live._runs.shape[1])
+    assert len(short) < 0.4 * len(whole)
+    again = LiveTracks()
+    again.add(2)
+    again.load_states([1, 0], [whole, short])
+    assert again.states_bytes([0, 1]) == [short, short]
+    with pytest.raises(ParameterError, match="layout"):
+        again.load_states([0], [short[:4] + (1).to_bytes(2, "little") + short[6:]])   # layout 1 is always whole
+
+
 def test_the_prediction_is_the_exact_discretisation_of_the_model():
     """position(t) = F x, F P F' + Q with F, Q of the model discretised by Van Loan's method (an
     independent route to the engine's closed form)."""
@@ -178,10 +196,12 @@ def test_runs_of_rejected_fixes_carry_across_batches_and_bytes():
         est = piece.advance(dev[sel], tt[sel], lat[sel], lon[sel], acc[sel])
         for k in ESTIMATE_FIELDS:
             got[k][sel] = est[k]
-        if i == 62:                                   # in the middle of runs: a state survives bytes
+        if i == 63:                                   # track 1 in a run, the others not: a state survives bytes
+            blobs = piece.states_bytes(np.arange(tracks))
+            assert len({len(b) for b in blobs}) == 2    # with the run's part while in a run, short otherwise
             moved = LiveTracks()
             moved.add(tracks)
-            moved.load_states(np.arange(tracks), piece.states_bytes(np.arange(tracks)))
+            moved.load_states(np.arange(tracks), blobs)
             piece = moved
     # one call relabels a run's rejected fixes once the restart comes, and a candidate manoeuvre once the
     # next fix says it was an outlier; fix by fix they were answered as they came: every other estimate,

@@ -47,7 +47,10 @@ _LAT0, _LON0, _C, _Q, _MODE, _W_FILL, _T, _RAW_LAT, _RAW_LON = range(9)
 _EST = 9
 UNSET, ACCURACY, SIGMA = 0, 1, 2   # a track's fix-noise mode: not started, c scales accuracy^2, c = sigma^2
 _BLOB = struct.Struct("<4sHH")     # magic, layout version, number of track scalars
-_MAGIC, _VERSION = b"MPLT", 1
+# version 2: the engine's coasting state and run buffer only while the track has a manoeuvre candidate
+# pending or is in a run (the engine reads them only then; they are zeros otherwise): a cv state is 404
+# bytes instead of 1,060.  Version 1 (always whole) is read as well.
+_MAGIC, _VERSION = b"MPLT", 2
 
 
 class LiveTracks:
@@ -371,13 +374,17 @@ class LiveTracks:
         self.population = population
 
     def states_bytes(self, tracks) -> list[bytes]:
-        """Each track's whole state (engine state, frame, noise, last fix and estimate) as bytes."""
+        """Each track's whole state (engine state, frame, noise, last fix and estimate) as bytes; the
+        engine's coasting state and run buffer only while the track has a manoeuvre candidate pending or
+        is in a run (its bytes are shorter otherwise)."""
         idx = self._check(tracks)
         head = np.frombuffer(_BLOB.pack(_MAGIC, _VERSION, len(_TRACK_FIELDS)), dtype=np.uint8)
         out = np.hstack([np.broadcast_to(head, (len(idx), head.size)), self._track[idx].astype("<f8").view(np.uint8),
                          states_to_bytes(self._rows(idx), self.order)])
         blob, size = out.tobytes(), out.shape[1]
-        return [blob[j * size:(j + 1) * size] for j in range(len(idx))]
+        short = size - 8 * self._runs.shape[1]
+        return [blob[j * size:(j + 1) * size] if run else blob[j * size:j * size + short]
+                for j, run in enumerate((self._slot[idx] >= 0).tolist())]
 
     def load_states(self, tracks, blobs: list[bytes]) -> None:
         """Tracks <- their :meth:`states_bytes`, all at once (a restart with 10^6 devices reads them in
@@ -387,24 +394,30 @@ class LiveTracks:
             raise ParameterError("blobs: expected one state per track")
         if not len(tracks):
             return
-        first = bytes(blobs[0])
-        size = len(first)
-        if any(len(b) != size for b in blobs):
-            raise ParameterError("blobs: states of different layouts (written by different versions of mptrack)")
         k = len(_TRACK_FIELDS)
-        end = _BLOB.size + 8 * k
-        magic, version, fields = _BLOB.unpack_from(first)
-        if magic != _MAGIC or version != _VERSION or fields != k:
-            raise ParameterError(f"blobs: not live track states of this mptrack (layout {version}, {fields} fields)")
-        state, order = state_from_bytes(first[end:])   # checks the engine's layout once
-        if order != self.order:
-            raise ParameterError(f"blobs: states of a model of order {order}, not {self.order}")
-        head = size - 8 * state.size   # the engine's header ends, its float64 begin
-        raw = np.frombuffer(b"".join(blobs), dtype=np.uint8).reshape(len(blobs), size)
-        if not ((raw[:, :_BLOB.size] == raw[0, :_BLOB.size]).all() and (raw[:, end:head] == raw[0, end:head]).all()):
-            raise ParameterError("blobs: states of different layouts (written by different versions of mptrack)")
-        self._track[tracks] = raw[:, _BLOB.size:end].copy().view("<f8")
-        self._put(tracks, raw[:, head:].copy().view("<f8"))
+        end = _BLOB.size + 8 * k          # the track scalars end, the engine's state begins
+        width = self._split + self._runs.shape[1]
+        engine = states_to_bytes(np.zeros((1, width)), self.order)[0]
+        head = end + engine.size - 8 * width   # the engine's header ends, its float64 begin
+        sizes = np.fromiter(map(len, blobs), np.int64, len(blobs))
+        for size in np.unique(sizes).tolist():
+            sel = np.flatnonzero(sizes == size)
+            raw = np.frombuffer(b"".join([blobs[i] for i in sel.tolist()]), dtype=np.uint8).reshape(len(sel), size)
+            magic, version, fields = _BLOB.unpack_from(raw[0].tobytes())
+            if magic != _MAGIC or version not in (1, _VERSION) or fields != k:
+                raise ParameterError(f"blobs: not live track states of this mptrack (layout {version}, {fields} fields)")
+            stored = raw[0, end:].tobytes()
+            if version == _VERSION:   # the run's part may be left out: zeros
+                stored += bytes(max(0, end + engine.size - size))
+            _, order = state_from_bytes(stored)   # says what does not match the engine's layout
+            if order != self.order:
+                raise ParameterError(f"blobs: states of a model of order {order}, not {self.order}")
+            if not ((raw[:, :_BLOB.size] == raw[0, :_BLOB.size]).all() and (raw[:, end:head] == engine[:head - end]).all()):
+                raise ParameterError("blobs: states of different layouts (written by different versions of mptrack)")
+            rows = np.zeros((len(sel), width))
+            rows[:, :(size - head) // 8] = raw[:, head:].copy().view("<f8")
+            self._track[tracks[sel]] = raw[:, _BLOB.size:end].copy().view("<f8")
+            self._put(tracks[sel], rows)
 
     def warm_up(self) -> None:
         """Compile the kernels (a few seconds the first time, cached on disk), so the first fixes are fast."""
