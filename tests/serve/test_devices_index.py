@@ -81,3 +81,15 @@ def test_key_queue_behaves_as_an_ordered_set(ops):
         probe = np.array(keys + [0, 5000], np.int64)
         assert queue.has(probe).tolist() == [k in model for k in probe.tolist()]
     assert queue.oldest(len(queue)).tolist() == list(model)
+
+
+def test_device_ids_recently_looked_up_stay_bounded_and_right(monkeypatch):
+    from mptrack.serve import _device_ids
+
+    monkeypatch.setattr(_device_ids, "RECENT", 4)
+    index = DeviceIds()
+    index.add([(k, f"d{k}") for k in range(10)])
+    for _ in range(3):
+        assert index.keys_of([f"d{k}" for k in range(10)] + ["x"]).tolist() == list(range(10)) + [-1]
+        assert [index.get(f"d{k}") for k in (9, 3, 3, 0)] == [9, 3, 3, 0] and index.get("x") is None
+        assert len(index._recent) <= 4

@@ -5,7 +5,9 @@ the ids of 10^6 devices took ~135 bytes a device (the string, an int, a dict slo
 made among a bulk upload's short-lived rows, they kept the interpreter's heap pages from ever emptying.
 Here: the ids' UTF-8 bytes one after the other in a buffer, each key's place and length in it, and a
 hash table of keys (open addressing, linear probing, FNV-1a over the bytes, at most half full) --
-~20 bytes a device beside its id's own bytes.  A batch's ids are looked up in one compiled call.
+~20 bytes a device beside its id's own bytes.  A batch's ids are looked up in one compiled call; the
+ids looked up lately are in a small dict in front (:data:`RECENT`), which answers ~10x faster: a fleet's
+active devices are there.  A key never changes for an id (none is ever removed), so it never goes stale.
 
 One writer adds (the ingest's lock held); readers do not lock: the compiled calls hold the interpreter
 lock, a key's bytes are written before it enters the table, and a grown set of arrays replaces the old
@@ -26,6 +28,8 @@ _JIT = dict(cache=True, error_model="numpy")   # not nogil: a lookup must not in
 _ENCODING = ("utf-8", "surrogatepass")          # every str has bytes and is read back as it was
 _FNV_OFFSET = np.uint64(14695981039346656037)
 _FNV_PRIME = np.uint64(1099511628211)
+#: How many recently looked-up ids the dict in front holds (~130 bytes each); emptied when full.
+RECENT = 65536
 
 
 @nb.njit(**_JIT)
@@ -98,6 +102,7 @@ class DeviceIds:
         self._used = 0     # bytes of buf in use
         self._count = 0    # keys known
         self._size = 0     # the largest key known + 1
+        self._recent: dict[str, int] = {}
 
     def __len__(self) -> int:
         return self._count
@@ -109,18 +114,40 @@ class DeviceIds:
 
     def get(self, device: str) -> int | None:
         """The key of ``device``, or None."""
+        k = self._recent.get(device)
+        if k is not None:
+            return k
         table, buf, start, length = self._arrays
         q = device.encode(*_ENCODING)
         k = _find(table, buf, start, length, q, 0, len(q))
-        return None if k < 0 else k
+        if k < 0:
+            return None
+        self._remember([device], [k])
+        return k
 
     def keys_of(self, devices) -> np.ndarray:
         """The keys of ``devices`` (a sequence of ids), -1 where unknown."""
+        recent = self._recent
+        keys = [recent.get(d, -1) for d in devices]
+        if -1 not in keys:
+            return np.array(keys, np.int64)
+        missed = [i for i, k in enumerate(keys) if k < 0]
+        asked = [devices[i] for i in missed]
         table, buf, start, length = self._arrays
-        q, off = _encoded(devices)
-        out = np.empty(len(off) - 1, np.int64)
-        _lookup(table, buf, start, length, q, off, out)
+        q, off = _encoded(asked)
+        found = np.empty(len(asked), np.int64)
+        _lookup(table, buf, start, length, q, off, found)
+        out = np.array(keys, np.int64)
+        out[missed] = found
+        known = found >= 0
+        if known.any():
+            self._remember([d for d, k in zip(asked, known.tolist()) if k], found[known].tolist())
         return out
+
+    def _remember(self, devices: list[str], keys: list[int]) -> None:
+        if len(self._recent) + len(devices) > RECENT:
+            self._recent = {}   # one assignment: a reader holds the old dict or the new
+        self._recent.update(zip(devices[-RECENT:], keys[-RECENT:]))
 
     def id_of(self, key: int) -> str | None:
         """The id of ``key``, or None when not known here."""

@@ -48,8 +48,11 @@ class KeyQueue:
     def has(self, keys: np.ndarray) -> np.ndarray:
         """Whether each of ``keys`` is in the set."""
         keys = np.asarray(keys, np.int64)
-        inside = keys < len(self._place)
-        return inside & (self._place[np.where(inside, keys, 0)] > 0)
+        try:
+            return self._place[keys] > 0
+        except IndexError:   # keys never added, beyond the places held
+            inside = keys < len(self._place)
+            return inside & (self._place[np.where(inside, keys, 0)] > 0)
 
     def add(self, keys: np.ndarray) -> np.ndarray:
         """Append those of ``keys`` (distinct) not in the set yet, in their order; returns them."""
