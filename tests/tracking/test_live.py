@@ -80,21 +80,25 @@ def test_a_state_survives_bytes_and_a_failed_batch_can_be_undone():
 
 
 def test_states_stored_whole_by_the_first_layout_still_load():
-    """Layout 1 stored the run's part of every state (zeros without a run); layout 2 leaves it out then."""
+    """Layout 1 stored the run's part of every state (zeros without a run); layout 2 leaves it out then.
+    A server upgraded in place reads both, mixed, and whole states of both layouts have one size."""
     df = read_table(REAL_TRACES["car"])
+    t, lat, lon = df["t"].to_numpy()[:30], df["lat"].to_numpy()[:30], df["lon"].to_numpy()[:30]
+    lat = np.concatenate([lat, lat + np.r_[np.zeros(29), 0.05]])          # track 1 ends with an outlier: a run
     live = LiveTracks()
-    live.add(1)
-    live.advance(np.zeros(30, np.int64), df["t"].to_numpy()[:30], df["lat"].to_numpy()[:30],
-                 df["lon"].to_numpy()[:30], np.full(30, 6.0))
-    short = live.states_bytes([0])[0]
+    live.add(2)
+    live.advance(np.repeat([0, 1], 30), np.tile(t, 2), lat, np.tile(lon, 2), np.full(60, 6.0))
+    short, in_run = live.states_bytes([0, 1])
     whole = short[:4] + (1).to_bytes(2, "little") + short[6:] + bytes(8 * live._runs.shape[1])
-    assert len(short) < 0.4 * len(whole)
+    assert len(short) < 0.4 * len(whole) and len(in_run) == len(whole)
     again = LiveTracks()
-    again.add(2)
-    again.load_states([1, 0], [whole, short])
-    assert again.states_bytes([0, 1]) == [short, short]
+    again.add(3)
+    again.load_states([2, 0, 1], [whole, short, in_run])
+    assert again.states_bytes([0, 1, 2]) == [short, in_run, short]
     with pytest.raises(ParameterError, match="layout"):
         again.load_states([0], [short[:4] + (1).to_bytes(2, "little") + short[6:]])   # layout 1 is always whole
+    with pytest.raises(ParameterError, match="layout"):
+        again.load_states([0, 1], [in_run, whole[:4] + (7).to_bytes(2, "little") + whole[6:]])
 
 
 def test_the_prediction_is_the_exact_discretisation_of_the_model():

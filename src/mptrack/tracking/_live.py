@@ -399,20 +399,24 @@ class LiveTracks:
         width = self._split + self._runs.shape[1]
         engine = states_to_bytes(np.zeros((1, width)), self.order)[0]
         head = end + engine.size - 8 * width   # the engine's header ends, its float64 begin
+        layouts = np.array([np.frombuffer(_BLOB.pack(_MAGIC, v, k), np.uint8) for v in (1, _VERSION)])
         sizes = np.fromiter(map(len, blobs), np.int64, len(blobs))
         for size in np.unique(sizes).tolist():
             sel = np.flatnonzero(sizes == size)
             raw = np.frombuffer(b"".join([blobs[i] for i in sel.tolist()]), dtype=np.uint8).reshape(len(sel), size)
-            magic, version, fields = _BLOB.unpack_from(raw[0].tobytes())
-            if magic != _MAGIC or version not in (1, _VERSION) or fields != k:
-                raise ParameterError(f"blobs: not live track states of this mptrack (layout {version}, {fields} fields)")
-            stored = raw[0, end:].tobytes()
-            if version == _VERSION:   # the run's part may be left out: zeros
-                stored += bytes(max(0, end + engine.size - size))
-            _, order = state_from_bytes(stored)   # says what does not match the engine's layout
-            if order != self.order:
-                raise ParameterError(f"blobs: states of a model of order {order}, not {self.order}")
-            if not ((raw[:, :_BLOB.size] == raw[0, :_BLOB.size]).all() and (raw[:, end:head] == engine[:head - end]).all()):
+            which = (raw[:, None, :_BLOB.size] == layouts[None]).all(axis=2)   # (rows, layouts)
+            for j in {0, int(np.argmin(which.any(axis=1))), int(np.argmax(which[:, 0]))}:   # one of each kind
+                magic, version, fields = _BLOB.unpack_from(raw[j].tobytes())
+                if magic != _MAGIC or version not in (1, _VERSION) or fields != k:
+                    raise ParameterError(f"blobs: not live track states of this mptrack (layout {version}, {fields} "
+                                         "fields)")
+                stored = raw[j, end:].tobytes()
+                if version == _VERSION:   # the run's part may be left out: zeros
+                    stored += bytes(max(0, end + engine.size - size))
+                _, order = state_from_bytes(stored)   # says what does not match the engine's layout
+                if order != self.order:
+                    raise ParameterError(f"blobs: states of a model of order {order}, not {self.order}")
+            if not (which.any(axis=1).all() and (raw[:, end:head] == engine[:head - end]).all()):
                 raise ParameterError("blobs: states of different layouts (written by different versions of mptrack)")
             rows = np.zeros((len(sel), width))
             rows[:, :(size - head) // 8] = raw[:, head:].copy().view("<f8")
