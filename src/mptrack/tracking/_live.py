@@ -79,6 +79,11 @@ class LiveTracks:
         self._free: list[int] = []
         self._track = np.zeros((0, len(_TRACK_FIELDS)))
         self.n = 0
+        # what every stored state of this model starts with: the track header of each layout, the engine's
+        # header (see states_bytes)
+        self._layouts = np.array([np.frombuffer(_BLOB.pack(_MAGIC, v, len(_TRACK_FIELDS)), np.uint8)
+                                  for v in (1, _VERSION)])
+        self._engine_head = states_to_bytes(np.zeros((1, size)), self.order)[0, :-8 * size].copy()
         # the population's current noise: accuracy scale, sigma^2 (tracks without accuracy), q
         self.population = {"c_accuracy": 1.0, "c_sigma": (options.sigma_m or DEFAULT_SIGMA_M) ** 2,
                            "q": options.q if options.q is not None else self.model.default_q}
@@ -394,34 +399,35 @@ class LiveTracks:
             raise ParameterError("blobs: expected one state per track")
         if not len(tracks):
             return
-        k = len(_TRACK_FIELDS)
-        end = _BLOB.size + 8 * k          # the track scalars end, the engine's state begins
+        end = _BLOB.size + 8 * len(_TRACK_FIELDS)   # the track scalars end, the engine's state begins
+        head = end + self._engine_head.size           # the engine's header ends, its float64 begin
         width = self._split + self._runs.shape[1]
-        engine = states_to_bytes(np.zeros((1, width)), self.order)[0]
-        head = end + engine.size - 8 * width   # the engine's header ends, its float64 begin
-        layouts = np.array([np.frombuffer(_BLOB.pack(_MAGIC, v, k), np.uint8) for v in (1, _VERSION)])
+        full, short = head + 8 * width, head + 8 * self._split
         sizes = np.fromiter(map(len, blobs), np.int64, len(blobs))
         for size in np.unique(sizes).tolist():
             sel = np.flatnonzero(sizes == size)
             raw = np.frombuffer(b"".join([blobs[i] for i in sel.tolist()]), dtype=np.uint8).reshape(len(sel), size)
-            which = (raw[:, None, :_BLOB.size] == layouts[None]).all(axis=2)   # (rows, layouts)
-            for j in {0, int(np.argmin(which.any(axis=1))), int(np.argmax(which[:, 0]))}:   # one of each kind
-                magic, version, fields = _BLOB.unpack_from(raw[j].tobytes())
-                if magic != _MAGIC or version not in (1, _VERSION) or fields != k:
-                    raise ParameterError(f"blobs: not live track states of this mptrack (layout {version}, {fields} "
-                                         "fields)")
-                stored = raw[j, end:].tobytes()
-                if version == _VERSION:   # the run's part may be left out: zeros
-                    stored += bytes(max(0, end + engine.size - size))
-                _, order = state_from_bytes(stored)   # says what does not match the engine's layout
-                if order != self.order:
-                    raise ParameterError(f"blobs: states of a model of order {order}, not {self.order}")
-            if not (which.any(axis=1).all() and (raw[:, end:head] == engine[:head - end]).all()):
-                raise ParameterError("blobs: states of different layouts (written by different versions of mptrack)")
+            which = (raw[:, None, :_BLOB.size] == self._layouts[None]).all(axis=2)   # (rows, layouts)
+            known = which[:, 1] if size == short else which.any(axis=1) if size == full else np.zeros(len(sel), bool)
+            if not (known.all() and (raw[:, end:head] == self._engine_head).all()):
+                self._refuse(raw[int(np.argmin(known))] if not known.all() else raw[0], end, full)
             rows = np.zeros((len(sel), width))
             rows[:, :(size - head) // 8] = raw[:, head:].copy().view("<f8")
             self._track[tracks[sel]] = raw[:, _BLOB.size:end].copy().view("<f8")
             self._put(tracks[sel], rows)
+
+    def _refuse(self, blob: np.ndarray, end: int, full: int) -> None:
+        """The ParameterError that says what in this stored state does not match this mptrack's layout."""
+        magic, version, fields = _BLOB.unpack_from(blob.tobytes())
+        if magic != _MAGIC or version not in (1, _VERSION) or fields != len(_TRACK_FIELDS):
+            raise ParameterError(f"blobs: not live track states of this mptrack (layout {version}, {fields} fields)")
+        stored = blob[end:].tobytes()
+        if version == _VERSION:   # the run's part may be left out: zeros
+            stored += bytes(max(0, full - blob.size))
+        _, order = state_from_bytes(stored)   # says what does not match the engine's layout
+        if order != self.order:
+            raise ParameterError(f"blobs: states of a model of order {order}, not {self.order}")
+        raise ParameterError("blobs: states of different layouts (written by different versions of mptrack)")
 
     def warm_up(self) -> None:
         """Compile the kernels (a few seconds the first time, cached on disk), so the first fixes are fast."""
