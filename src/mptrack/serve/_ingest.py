@@ -119,7 +119,7 @@ class Ingest:
         stored after the last checkpoint."""
         self._add_keys(self.store.device_keys())
         watermark, chunks = self.store.load_checkpoint()
-        covered = np.zeros(self.devices.size, np.int64)      # each device's fixes up to this row are in its state
+        covered = np.zeros(self.devices.size, np.int64)   # each device's fixes up to this row are in its state
         for states in chunks:
             keys, blobs, upto, versions = zip(*states)
             idx = np.array(keys, dtype=np.int64)
@@ -276,7 +276,7 @@ class Ingest:
             size = max(n, 2 * len(self._since_calibration), 1024)
             self._since_calibration, self._estimated_on, self._version, self._changed_row, self._changed_at = (
                 grown(a, size) for a in (self._since_calibration, self._estimated_on, self._version,
-                                          self._changed_row, self._changed_at))
+                                         self._changed_row, self._changed_at))
         if n > self.live.n:
             self.live.add(n - self.live.n)
 

@@ -383,7 +383,7 @@ class LiveTracks:
         engine's coasting state and run buffer only while the track has a manoeuvre candidate pending or
         is in a run (its bytes are shorter otherwise)."""
         idx = self._check(tracks)
-        head = np.frombuffer(_BLOB.pack(_MAGIC, _VERSION, len(_TRACK_FIELDS)), dtype=np.uint8)
+        head = self._layouts[-1]
         out = np.hstack([np.broadcast_to(head, (len(idx), head.size)), self._track[idx].astype("<f8").view(np.uint8),
                          states_to_bytes(self._rows(idx), self.order)])
         blob, size = out.tobytes(), out.shape[1]
