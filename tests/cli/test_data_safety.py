@@ -3,6 +3,7 @@ run), no output over an input, OS failures and Ctrl-C as one line with nothing h
 the temporary files of killed runs removed (issue 13, item 1)."""
 
 import contextlib
+import io
 import json
 import os
 import shlex
@@ -562,3 +563,22 @@ def test_two_outputs_at_one_path_are_refused(tmp_path, logs, case):
     assert one_line(res.stderr) == (f"error: {flag[second]}: {given[second]} is also given as {flag[first]}; each "
                                     "output of a run needs a file of its own")
     assert [p.name for p in tmp_path.iterdir()] == (["here.parquet"] if case == "out-symlink" else [])
+
+
+def test_ctrl_c_that_a_library_swallowed_stops_the_next_step():
+    """numpy clears an error raised while it compares a dtype (pandas compares its string dtype so on column
+    lookups), so Ctrl-C landing there was lost and `mptrack track` ran to its end with exit 0: the progress
+    display remembers Ctrl-C and its next step raises it again; its handler is the default one outside."""
+    from rich.console import Console
+
+    from mptrack.cli._progress import progress_for
+
+    with progress_for(Console(file=io.StringIO()), disable=True) as bar, bar.task("chunks", total=3) as step:
+        step()
+        try:
+            signal.raise_signal(signal.SIGINT)
+        except KeyboardInterrupt:
+            pass   # swallowed, as numpy does
+        with pytest.raises(KeyboardInterrupt):
+            step()
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
