@@ -84,6 +84,9 @@ class LiveTracks:
         self._layouts = np.array([np.frombuffer(_BLOB.pack(_MAGIC, v, len(_TRACK_FIELDS)), np.uint8)
                                   for v in (1, _VERSION)])
         self._engine_head = states_to_bytes(np.zeros((1, size)), self.order)[0, :-8 * size].copy()
+        # a stored state's length: without the run's part, and whole
+        head = _BLOB.size + 8 * len(_TRACK_FIELDS) + self._engine_head.size
+        self._stored_sizes = (head + 8 * self._split, head + 8 * size)
         # the population's current noise: accuracy scale, sigma^2 (tracks without accuracy), q
         self.population = {"c_accuracy": 1.0, "c_sigma": (options.sigma_m or DEFAULT_SIGMA_M) ** 2,
                            "q": options.q if options.q is not None else self.model.default_q}
@@ -387,7 +390,7 @@ class LiveTracks:
         out = np.hstack([np.broadcast_to(head, (len(idx), head.size)), self._track[idx].astype("<f8").view(np.uint8),
                          states_to_bytes(self._rows(idx), self.order)])
         blob, size = out.tobytes(), out.shape[1]
-        short = size - 8 * self._runs.shape[1]
+        short = self._stored_sizes[0]
         return [blob[j * size:(j + 1) * size] if run else blob[j * size:j * size + short]
                 for j, run in enumerate((self._slot[idx] >= 0).tolist())]
 
@@ -402,7 +405,7 @@ class LiveTracks:
         end = _BLOB.size + 8 * len(_TRACK_FIELDS)   # the track scalars end, the engine's state begins
         head = end + self._engine_head.size           # the engine's header ends, its float64 begin
         width = self._split + self._runs.shape[1]
-        full, short = head + 8 * width, head + 8 * self._split
+        short, full = self._stored_sizes
         sizes = np.fromiter(map(len, blobs), np.int64, len(blobs))
         for size in np.unique(sizes).tolist():
             sel = np.flatnonzero(sizes == size)
