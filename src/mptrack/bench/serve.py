@@ -50,7 +50,7 @@ local n = 0
 math.randomseed(%(seed)d)
 request = function()
   n = n + 1
-  local path = string.format("/?id=dev%%d&timestamp=%%d&lat=%%.6f&lon=%%.6f&accuracy=8", math.random(0, %(devices)d - 1),
+  local path = string.format("/?id=dev%%d&timestamp=%%.0f&lat=%%.6f&lon=%%.6f&accuracy=8", math.random(0, %(devices)d - 1),
                              %(t0)d + n, 52.5 + math.random() * 0.01, 13.4 + math.random() * 0.01)
   return wrk.format("GET", path)
 end
@@ -130,7 +130,10 @@ def _wrk(url: str, seconds: int, tmp: Path, *, devices: int = 10_000, delay_ms: 
     elif devices:
         script = tmp / f"osmand-{seed}.lua"
         delay = f"delay = function() return {delay_ms:.3f} end" if delay_ms else ""
-        script.write_text(_OSMAND_LUA % {"seed": seed, "devices": devices, "t0": int(time.time()) - 86000,
+        # epoch milliseconds, 1 ms a request, each seed 1000 s after the one before: one server's runs (seeds
+        # in increasing order) send every device's fixes in time order, ~10 s apart with 10^4 devices
+        t0 = int(time.time() * 1000) - 86_000_000 + seed * 1_000_000
+        script.write_text(_OSMAND_LUA % {"seed": seed, "devices": devices, "t0": t0,
                                           "delay": delay})
         cmd += ["-s", str(script)]
     out = subprocess.run(cmd + [url + "/"], capture_output=True, text=True, check=True).stdout
