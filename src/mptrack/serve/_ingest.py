@@ -11,7 +11,9 @@ devices are put back as they were and every request of the batch fails (503): no
 is acknowledged.  While a batch commits, the next one gathers.  With a store whose commit waits on
 no disk flush or network (SQLite without fsync), a batch of at most :data:`INLINE_FIXES` fixes is
 committed on the event loop's own thread instead: two threads taking turns at the interpreter lock
-cost more than such a commit.
+cost more than such a commit.  Before it takes a batch, the writer lets the event loop turn as long as
+each turn brings more requests (:data:`GATHER_TURNS`): a busy server's batches are larger and cost less
+a fix.
 
 The fixes are the log and the device states checkpoints of it.  With a store of one writer (SQLite)
 a device's state is stored :attr:`Ingest.checkpoint_s` seconds after it changed, in the transaction
@@ -61,6 +63,11 @@ MAX_ESTIMATED = 2000
 #: is quick (a handoff to the writer thread costs more CPU than such a batch; a larger one, a bulk
 #: upload, goes to the writer thread, so the server keeps answering while it commits).
 INLINE_FIXES = 512
+#: The most turns of the event loop a batch waits while each brings more requests: under load the requests
+#: read in one turn join the batch instead of starting the next (64 connections: batches of ~64 fixes
+#: instead of ~26, -15 % CPU a fix: a batch has a fixed cost of ~0.5 ms); an idle server's lone request
+#: waits one turn.
+GATHER_TURNS = 8
 #: A device's noise is estimated again once it has this fraction of the fixes its last estimate used
 #: as new fixes (and at least ``calibrate_after``): the estimates follow a device's recent history while
 #: a fix costs a few history rows read (re-estimating every 30 fixes from up to 2000 read ~67 a fix).
@@ -176,6 +183,11 @@ class Ingest:
         while True:
             await self._wake.wait()
             self._wake.clear()
+            for _ in range(GATHER_TURNS):    # the requests the loop has read meanwhile join this batch
+                waiting = len(self._pending)
+                await asyncio.sleep(0)
+                if len(self._pending) == waiting:
+                    break
             if not self._pending:
                 if self._closing:
                     return

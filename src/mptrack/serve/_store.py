@@ -48,6 +48,9 @@ FLAG_NAMES = tuple(FLAGS) + ("late",)
 LATE = len(FLAGS)
 #: The columns of a device's filtered history (:meth:`Store.histories`), what its noise is estimated from.
 HISTORY_COLUMNS = ("t", "lat", "lon", "accuracy_m")
+#: History rows converted to an array in one call: the noise estimates read histories on their own thread,
+#: and one call holds the interpreter lock (~0.2 us a row) while ingest on the event loop waits for it.
+HISTORY_PIECE = 4096
 #: Columns of a stored fix as the device sent it (the :data:`._fix.FIELDS` minus attrs, plus received).
 FIX_COLUMNS = ("dev", "t", "lat", "lon", "accuracy_m", "speed_mps", "heading_deg", "altitude_m", "attrs",
                "received")
@@ -122,7 +125,9 @@ def split_histories(devs: list[int], rows: list[tuple]) -> list[np.ndarray]:
     """The devices' histories (:meth:`Store.histories`) from rows (dev,) + HISTORY_COLUMNS, each device's
     together and in time order."""
     k = len(HISTORY_COLUMNS)
-    values = np.array(rows, dtype=float).reshape(len(rows), 1 + k)
+    values = np.empty((len(rows), 1 + k))
+    for i in range(0, len(rows), HISTORY_PIECE):   # pieces: the interpreter lock is let go between them
+        values[i:i + HISTORY_PIECE] = np.array(rows[i:i + HISTORY_PIECE], dtype=float).reshape(-1, 1 + k)
     dev = values[:, 0].astype(np.int64)
     cuts = np.flatnonzero(dev[1:] != dev[:-1]) + 1
     found = {int(part[0, 0]): part[:, 1:] for part in np.split(values, cuts) if len(part)}
