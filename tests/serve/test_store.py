@@ -122,3 +122,35 @@ def test_noise_estimates_take_at_most_their_share_of_a_core(tmp_path):
     assert len(rounds) >= 2 and (gaps >= 0.2 / ESTIMATOR_SHARE - 0.02).all(), gaps
     assert len(rounds) <= 4                       # not back to back (~12 rounds of 0.2 s in 2.5 s)
     assert closing < 0.6, closing                 # the last round's 0.2 s, not its rest's 0.6 s too
+
+
+def test_requests_that_arrive_over_a_few_turns_of_the_event_loop_commit_as_one_batch(tmp_path):
+    """Requests read while a batch gathers join it (at most GATHER_TURNS turns, while each brings more):
+    64 requests arriving over 4 turns of the loop are one commit, not four; a lone request still commits."""
+    import asyncio
+
+    from mptrack.serve._ingest import GATHER_TURNS, Ingest
+    from mptrack.tracking import LiveTracks
+
+    assert GATHER_TURNS >= 4
+    store = open_store(f"sqlite:///{tmp_path / 'gather.db'}")
+    ingest = Ingest(store, LiveTracks())
+
+    async def request(k: int, turns: int):
+        for _ in range(turns):
+            await asyncio.sleep(0)
+        await ingest.submit([(f"d{k}", 1.77e9 + k, 50.0 + 1e-4 * k, 8.0, 5.0, None, None, None, None)])
+
+    async def feed():
+        ingest.start()
+        await asyncio.gather(*(request(k, k % 4) for k in range(64)))
+        after_burst = ingest.metrics.totals()["batches"]
+        await request(64, 0)
+        await ingest.close()
+        return after_burst, ingest.metrics.totals()["batches"]
+
+    try:
+        burst, total = asyncio.run(feed())
+    finally:
+        store.close()
+    assert (burst, total) == (1, 2)
