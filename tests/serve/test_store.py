@@ -34,13 +34,16 @@ def test_histories_are_each_devices_last_filtered_fixes_in_time_order(backend, t
         store.close()
 
 
-def test_noise_is_estimated_again_as_a_device_gathers_fixes(tmp_path):
+def test_noise_is_estimated_again_as_a_device_gathers_fixes(tmp_path, monkeypatch):
     """A device's noise is estimated after calibrate_after fixes, then again once it has RENEW times as
     many new fixes as the last estimate used: a long history is not read again every 30 fixes."""
     import asyncio
 
+    from mptrack.serve import _ingest
     from mptrack.serve._ingest import RENEW, Ingest
     from mptrack.tracking import LiveTracks
+
+    monkeypatch.setattr(_ingest, "ROUND_MIN", 1)   # one device: its rounds as soon as it is due
 
     store = open_store(f"sqlite:///{tmp_path / 'noise.db'}")
     ingest = Ingest(store, LiveTracks(), calibrate_after=30, history_fixes=400)
@@ -77,14 +80,17 @@ def test_noise_is_estimated_again_as_a_device_gathers_fixes(tmp_path):
     assert len(at) < 1500 / 30 / 2                                  # not every 30 fixes
 
 
-def test_noise_estimates_take_at_most_their_share_of_a_core(tmp_path):
+def test_noise_estimates_take_at_most_their_share_of_a_core(tmp_path, monkeypatch):
     """While a device stays due (every batch brings it enough new fixes), a noise round starts only after a
     rest of (1 / ESTIMATOR_SHARE - 1) times the round before; closing does not wait for the rest."""
     import asyncio
     import time
 
+    from mptrack.serve import _ingest
     from mptrack.serve._ingest import ESTIMATOR_SHARE, Ingest
     from mptrack.tracking import LiveTracks
+
+    monkeypatch.setattr(_ingest, "ROUND_MIN", 1)
 
     store = open_store(f"sqlite:///{tmp_path / 'share.db'}")
     ingest = Ingest(store, LiveTracks(), calibrate_after=30)
@@ -122,6 +128,54 @@ def test_noise_estimates_take_at_most_their_share_of_a_core(tmp_path):
     assert len(rounds) >= 2 and (gaps >= 0.2 / ESTIMATOR_SHARE - 0.02).all(), gaps
     assert len(rounds) <= 4                       # not back to back (~12 rounds of 0.2 s in 2.5 s)
     assert closing < 0.6, closing                 # the last round's 0.2 s, not its rest's 0.6 s too
+
+
+def test_noise_rounds_wait_for_enough_devices_or_for_the_first_to_have_waited(tmp_path, monkeypatch):
+    """Devices that fall due one at a time are estimated together: a round starts once ROUND_MIN are due,
+    or once the first of fewer has waited checkpoint_s (a round's fixed cost is paid once for many)."""
+    import asyncio
+
+    from mptrack.serve import _ingest
+    from mptrack.serve._ingest import Ingest
+    from mptrack.tracking import LiveTracks
+
+    monkeypatch.setattr(_ingest, "ROUND_MIN", 8)
+    store = open_store(f"sqlite:///{tmp_path / 'rounds.db'}")
+    ingest = Ingest(store, LiveTracks(), calibrate_after=30, checkpoint_s=0.5)
+    submit, sizes = ingest._estimator.submit, []
+
+    def recorded(fn, due):                        # the rounds as they start
+        sizes.append(len(due))
+        return submit(fn, due)
+
+    ingest._estimator.submit = recorded
+
+    def fixes(device: int, t: float, n: int = 30) -> list[tuple]:
+        return [(f"d{device}", t + i, 50.0 + 1e-5 * i + 1e-3 * device, 8.0, 5.0, None, None, None, None)
+                for i in range(n)]
+
+    async def feed():
+        ingest.start()
+        seen = []
+        for d in range(8):                        # each batch makes one more device due
+            await ingest.submit(fixes(d, 1.77e9))
+            seen.append(len(sizes))
+        while not ingest._estimating.done():
+            await asyncio.sleep(0.01)
+        for d in (8, 9):
+            await ingest.submit(fixes(d, 1.77e9))
+        seen.append(len(sizes))
+        await asyncio.sleep(0.6)
+        await ingest.submit(fixes(0, 1.77e9 + 100, 1))   # any batch after the wait starts the round
+        seen.append(len(sizes))
+        await ingest.close()
+        return seen
+
+    try:
+        seen = asyncio.run(feed())
+    finally:
+        store.close()
+    assert (seen, sizes) == ([0] * 7 + [1, 1, 2], [8, 2])
 
 
 def test_requests_that_arrive_over_a_few_turns_of_the_event_loop_commit_as_one_batch(tmp_path):
