@@ -94,7 +94,7 @@ def test_states_stored_whole_by_the_first_layout_still_load():
     again = LiveTracks()
     again.add(3)
     again.load_states([2, 0, 1], [whole, short, in_run])
-    assert again.states_bytes([0, 1, 2]) == [short, in_run, short]
+    assert again.states_bytes([0, 1, 2]) == [short, in_run, short] and again.states_bytes([]) == []
     with pytest.raises(ParameterError, match="layout"):
         again.load_states([0], [short[:4] + (1).to_bytes(2, "little") + short[6:]])   # layout 1 is always whole
     with pytest.raises(ParameterError, match="layout"):

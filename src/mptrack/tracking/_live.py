@@ -386,6 +386,8 @@ class LiveTracks:
         engine's coasting state and run buffer only while the track has a manoeuvre candidate pending or
         is in a run (its bytes are shorter otherwise)."""
         idx = self._check(tracks)
+        if not len(idx):
+            return []
         head = self._layouts[-1]
         out = np.hstack([np.broadcast_to(head, (len(idx), head.size)), self._track[idx].astype("<f8").view(np.uint8),
                          states_to_bytes(self._rows(idx), self.order)])
