@@ -28,7 +28,6 @@ def test_device_ids_answer_as_a_dict_and_a_list(batches, probes):
     keys = list(range(-2, index.size + 3))
     assert index.ids_of(keys) == [by_key.get(k) for k in keys]
     assert index.known(keys).tolist() == [k in by_key for k in keys]
-    assert [index.id_of(k) for k in keys[:5]] == [by_key.get(k) for k in keys[:5]]
 
 
 def test_device_ids_keep_readers_of_old_arrays_consistent():

@@ -149,10 +149,6 @@ class DeviceIds:
             self._recent = {}   # one assignment: a reader holds the old dict or the new
         self._recent.update(zip(devices[-RECENT:], keys[-RECENT:]))
 
-    def id_of(self, key: int) -> str | None:
-        """The id of ``key``, or None when not known here."""
-        return self.ids_of([key])[0]
-
     def ids_of(self, keys) -> list[str | None]:
         """The ids of ``keys`` (None where not known here)."""
         _, buf, start, length = self._arrays
