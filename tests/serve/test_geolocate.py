@@ -165,6 +165,8 @@ CELL = {"radioType": "lte", "mobileCountryCode": 206, "mobileNetworkCode": 4, "l
 
 @pytest.mark.parametrize("body, field", [
     (b"{", "not JSON"),
+    (b"[" * 100_000, "not JSON"),                 # nested past any parser's depth: refused, not a crash
+    (json.dumps({"cellTowers": [CELL]}).replace("-96", "NaN").encode(), "not JSON"),
     (b"[1, 2]", "expected a JSON object"),
     (json.dumps({"cellTowers": {"cellId": 1}}).encode(), "cellTowers: expected a list"),
     (json.dumps({"cellTowers": [5]}).encode(), "cellTowers[0]: expected an object"),

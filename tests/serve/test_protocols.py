@@ -140,6 +140,7 @@ def test_traccar_client_json_unknowns_are_negative():
     (json.dumps({"device_id": "1", "location": dict(_tsoft(), timestamp="2099-01-01T00:00:00Z")}).encode(),
      "location.timestamp"),
     (json.dumps([1, 2]).encode(), None),
+    (b"[" * 100_000, None),                       # nested past any parser's depth: refused, not a crash
 ])
 def test_traccar_client_json_bad_input(body, field):
     with pytest.raises(RequestError) as e:
@@ -158,6 +159,9 @@ def test_owntracks_location_and_other_types():
     assert f["attrs"] == {"vac": 6, "tid": "NE", "batt": 99, "t": "u"}
     assert parse_owntracks(json.dumps({"_type": "waypoint", "desc": "home"}).encode(), "jane/phone", NOW) == []
     assert parse_owntracks(json.dumps({"_type": "transition", "event": "enter"}).encode(), "jane/phone", NOW) == []
+    for bad in (b"[" * 100_000, b'{"_type": "location", "lat": NaN, "lon": 1, "tst": 1767268800}'):
+        with pytest.raises(RequestError, match="not valid JSON"):
+            parse_owntracks(bad, "jane/phone", NOW)
 
 
 def test_owntracks_device_ids():

@@ -36,6 +36,7 @@ from dataclasses import dataclass, field
 from functools import partial
 
 import numpy as np
+import orjson
 
 from ..cellular import CELL_FIELDS, CONFIDENCE, RADIOS, RADIO_CODES, check_cells, locate_cells
 from ..errors import MptrackError, RequestError
@@ -135,8 +136,8 @@ def parse_request(body: bytes) -> Query:
     if not body.strip():
         return Query()
     try:
-        req = json.loads(body)
-    except (ValueError, UnicodeDecodeError) as exc:
+        req = orjson.loads(body)
+    except orjson.JSONDecodeError as exc:
         raise GeolocateError(f"the body is not JSON ({exc})") from None
     if not isinstance(req, dict):
         raise GeolocateError(f"expected a JSON object, got {type(req).__name__}")
@@ -437,7 +438,7 @@ def answer_body(a: Answer) -> bytes:
     out = {"location": {"lat": round(a.lat, 7), "lng": round(a.lon, 7)}, "accuracy": round(a.accuracy, 1)}
     if a.fallback:
         out["fallback"] = a.fallback
-    return json.dumps(out, separators=(",", ":")).encode()
+    return orjson.dumps(out)
 
 
 def error_body(exc: RequestError) -> bytes:

@@ -15,7 +15,7 @@ means "unknown".  Everything outside ``coords`` and ``timestamp`` is kept as att
 
 from __future__ import annotations
 
-import json
+import orjson
 
 from ..errors import RequestError
 from ._fix import device_id, fix, optional_number, position, timestamp
@@ -29,10 +29,11 @@ def parse_body(body: bytes, now: float | None = None) -> list[tuple]:
 
 
 def load_json(body: bytes):
-    """The JSON document of a body; NaN and Infinity (not JSON, though Python writes them) are refused."""
+    """The JSON document of a body (orjson: NaN and Infinity, which are not JSON though Python writes them,
+    and documents nested deeper than 1024 are refused, as any other malformed body)."""
     try:
-        return json.loads(body, parse_constant=_not_json)
-    except (UnicodeDecodeError, ValueError) as exc:
+        return orjson.loads(body)
+    except orjson.JSONDecodeError as exc:
         raise RequestError(f"the body is not valid JSON: {exc}", code="malformed_json") from None
 
 
@@ -74,7 +75,3 @@ def _location(device: str, loc, where: str, now: float | None) -> tuple:
                optional_number(coords.get("heading"), f"{c}.heading", unknown_below=0.0),
                optional_number(coords.get("altitude"), f"{c}.altitude"),
                attrs)
-
-
-def _not_json(name: str):
-    raise ValueError(f"{name} is not a JSON number")
