@@ -6,7 +6,7 @@ import ctypes
 
 import numpy as np
 
-__all__ = ["trim_heap", "grown", "arrow_gives_memory_back"]
+__all__ = ["trim_heap", "grown", "values_at", "arrow_gives_memory_back"]
 
 
 def grown(values: np.ndarray, size: int) -> np.ndarray:
@@ -15,6 +15,16 @@ def grown(values: np.ndarray, size: int) -> np.ndarray:
     out = np.zeros(size, values.dtype)
     out[:len(values)] = values
     return out
+
+
+def values_at(values: np.ndarray, keys, fill=0) -> np.ndarray:
+    """``values[keys]``, with ``fill`` where a key is outside the array (negative, or beyond the room it has
+    grown to so far)."""
+    keys = np.asarray(keys, np.int64)
+    if not len(values):
+        return np.full(keys.shape, fill, values.dtype)
+    inside = (keys >= 0) & (keys < len(values))
+    return np.where(inside, values[np.where(inside, keys, 0)], fill)
 
 
 def trim_heap() -> None:

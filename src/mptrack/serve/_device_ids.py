@@ -20,7 +20,7 @@ import numba as nb
 import numpy as np
 
 from .._core import jit_cache  # noqa: F401 - compiled kernels cache in the user's cache directory
-from .._core.memory import grown
+from .._core.memory import grown, values_at
 
 __all__ = ["DeviceIds"]
 
@@ -152,19 +152,13 @@ class DeviceIds:
     def ids_of(self, keys) -> list[str | None]:
         """The ids of ``keys`` (None where not known here)."""
         _, buf, start, length = self._arrays
-        keys = np.asarray(keys, np.int64)
-        inside = (keys >= 0) & (keys < len(length))
-        at = np.where(inside, keys, 0)
-        n = (np.where(inside, length[at], 0) - 1).tolist()
+        n = (values_at(length, keys) - 1).tolist()
         mv = memoryview(buf)
-        return [None if m < 0 else str(mv[s:s + m], *_ENCODING) for s, m in zip(start[at].tolist(), n)]
+        return [None if m < 0 else str(mv[s:s + m], *_ENCODING) for s, m in zip(values_at(start, keys).tolist(), n)]
 
     def known(self, keys) -> np.ndarray:
         """Whether each of ``keys`` is known here."""
-        keys = np.asarray(keys, np.int64)
-        length = self._arrays[3]
-        inside = (keys >= 0) & (keys < len(length))
-        return inside & (length[np.where(inside, keys, 0)] > 0)
+        return values_at(self._arrays[3], keys) > 0
 
     def add(self, pairs) -> None:
         """Learn (key, id) pairs (keys already known are left as they are).  The caller is the one writer."""

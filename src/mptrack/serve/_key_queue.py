@@ -12,7 +12,7 @@ import numba as nb
 import numpy as np
 
 from .._core import jit_cache  # noqa: F401 - compiled kernels cache in the user's cache directory
-from .._core.memory import grown
+from .._core.memory import grown, values_at
 
 __all__ = ["KeyQueue"]
 
@@ -47,12 +47,7 @@ class KeyQueue:
 
     def has(self, keys: np.ndarray) -> np.ndarray:
         """Whether each of ``keys`` is in the set."""
-        keys = np.asarray(keys, np.int64)
-        try:
-            return self._place[keys] > 0
-        except IndexError:   # keys never added, beyond the places held
-            inside = keys < len(self._place)
-            return inside & (self._place[np.where(inside, keys, 0)] > 0)
+        return values_at(self._place, keys) > 0
 
     def add(self, keys: np.ndarray) -> np.ndarray:
         """Append those of ``keys`` (distinct) not in the set yet, in their order; returns them."""

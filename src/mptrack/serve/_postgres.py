@@ -32,6 +32,7 @@ from typing import Callable, Iterator
 
 import numpy as np
 
+from .._core.memory import values_at
 from ..errors import OutputError, ParameterError
 from ._store import (AREA_AGGREGATES, AREA_COLUMNS, CELL_COLUMNS, ESTIMATE_COLUMNS, FIX_COLUMNS, HISTORY_COLUMNS,
                      LATE, StoredRows, first_line, split_histories, stored_rows)
@@ -285,15 +286,12 @@ class PostgresStore:
                 if not rows:
                     return []
                 dv = np.array(rows, dtype=np.int64)
-                known = np.full(len(dv), -1, np.int64)
-                inside = dv[:, 0] < len(versions)
-                known[inside] = versions[dv[inside, 0]]
-                devs = dv[dv[:, 1] > known, 0]
+                devs = dv[dv[:, 1] > values_at(versions, dv[:, 0], -1), 0]
             if not len(devs):
                 return []
             return con.execute("SELECT s.dev, s.version, s.state FROM device_state s JOIN unnest(%s::bigint[], "
                                "%s::bigint[]) AS c(dev, v) ON s.dev = c.dev WHERE s.version > c.v AND s.state IS NOT NULL",
-                               (np.asarray(devs).tolist(), _at(versions, devs))).fetchall()
+                               (np.asarray(devs).tolist(), values_at(versions, devs, -1).tolist())).fetchall()
 
     def load_checkpoint(self, batch: int = 50_000) -> tuple[int, Iterator[list[tuple[int, bytes, int, int]]]]:
         def chunks():
@@ -504,14 +502,6 @@ def _payloads(events: list[str]) -> list[str]:
     if part:
         out.append("\n".join(part))
     return out
-
-
-def _at(versions: np.ndarray, devs) -> list[int]:
-    devs = np.asarray(devs, dtype=np.int64)
-    out = np.full(len(devs), -1, np.int64)
-    inside = devs < len(versions)
-    out[inside] = versions[devs[inside]]
-    return out.tolist()
 
 
 def _schema(con, upgrade: bool) -> int:
