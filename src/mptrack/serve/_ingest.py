@@ -332,7 +332,8 @@ class Ingest:
                     new = ~duplicate & ~(ts <= last[:, 0]) & ~(ts == prev_t)  # NaN last: a first fix is new
                     late = ~duplicate & ~new
                     sel = order[new]
-                    est = self.live.advance(dev[sel], t[sel], lat[sel], lon[sel], acc[sel])
+                    # checked: the fixes were checked as they came, sorted above, each after its device's last
+                    est = self.live.advance(dev[sel], t[sel], lat[sel], lon[sel], acc[sel], checked=True)
                     touched = np.unique(dev[sel])
                     if self.shared:   # every state goes in with its fixes
                         states, ready, watermark = self._states_of(touched), [], None
@@ -343,7 +344,7 @@ class Ingest:
                             watermark = self._seq if watermark is None else min(watermark, self._seq)
                         states = self._checkpoints(ready)
                 rows = _rows(stored, cols[8], sel, est, now)
-                late_rows = _rows(stored, cols[8], order[late], None, now)
+                late_rows = _rows(stored, cols[8], order[late], None, now) if late.any() else None
                 stream = self.store.streaming() if self.shared else bool(self.listeners)
                 events = self._events(sel, fixes, est) if stream and len(sel) else None
                 tx.write(rows, late_rows, states, [f"{k}\t{e}" for k, e in events or ()], watermark)
@@ -376,6 +377,8 @@ class Ingest:
 
     def _checkpoints(self, devices: list[int]) -> list[tuple[int, str, bytes, float]]:
         """(key, id, blob, NaN) of these devices' states: checkpoints (a store with one writer; lock held)."""
+        if not devices:
+            return []
         return [(d, i, b, np.nan) for d, i, b in zip(devices, self.devices.ids_of(devices),
                                                       self.live.states_bytes(devices))]
 
