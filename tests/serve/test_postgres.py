@@ -379,3 +379,44 @@ def test_retention_does_not_block_ingest_and_runs_in_one_process(postgres):
     finally:
         a.close()
         b.close()
+
+
+def test_small_batches_store_every_value_as_sent(postgres):
+    """A small batch's fixes go in as numpy arrays in binary (a matrix of the float columns, NaN for NULL):
+    each value comes back exactly, a missing one as NULL (NaN), text and flags as they were; a late
+    fix is stored once, its exact twin not again."""
+    from mptrack.serve._database import open_store
+    from mptrack.serve._store import ESTIMATE_COLUMNS, FIX_COLUMNS, StoredRows
+
+    db = postgres.create_database("arrays")
+    store = open_store(db)
+    try:
+        (k0, _), (k1, _) = store.register(["arr-a", "arr-b"])
+        rng = np.random.default_rng(7)
+        n = 5
+        cols = {c: rng.normal(50.0, 20.0, n) for c in FIX_COLUMNS + ESTIMATE_COLUMNS}
+        cols["dev"] = np.array([k0, k0, k0, k1, k1], np.int64)
+        cols["t"] = T0 + np.arange(n) * 1.5
+        cols["speed_mps"][[1, 3]] = np.nan
+        cols["attrs"] = np.array(['{"batt":"81"}', None, '{"a":1}', None, None], dtype=object)
+        cols["flag"] = np.array([0, 1, 2, 0, 3], np.int64)
+        rows = StoredRows(cols)
+        late = StoredRows({**cols, "t": cols["t"] - 100.0, "flag": np.full(n, 4, np.int64)})
+        devs = np.array([k0, k1], np.int64)
+        for again in (False, True):
+            with store.batch(devs, np.zeros(2, np.int64)) as tx:
+                tx.write(None if again else rows, late)
+            assert tx.stored_late == (0 if again else n)
+        for k, dev in ((k0, slice(0, 3)), (k1, slice(3, 5))):
+            got = store.fixes(k)
+            assert len(got) == 2 * (dev.stop - dev.start)
+            new = got["flag"] != 4
+            for c in FIX_COLUMNS + ESTIMATE_COLUMNS:
+                want, have = cols[c][dev], got[c][new]
+                if c == "attrs":
+                    assert have.tolist() == want.tolist()
+                else:
+                    np.testing.assert_array_equal(have, want, err_msg=c)   # exactly: binary, not text
+        assert query(db, "SELECT count(*) FROM fixes WHERE speed_mps IS NULL") == [(4,)]   # NULL, not NaN
+    finally:
+        store.close()
