@@ -22,9 +22,10 @@ def _traces() -> pd.DataFrame:
     return pd.concat([car, hike], ignore_index=True)
 
 
-def _feed(live: LiveTracks, df: pd.DataFrame, ids: dict, batches: np.ndarray) -> dict:
+def _feed(live: LiveTracks, df: pd.DataFrame, ids: dict, batches: np.ndarray, checked: bool = False) -> dict:
     """Advance ``live`` with the fixes of ``df`` in arrival order, cut into batches at ``batches``
-    (row positions of the time-ordered interleaving of every track); returns the estimates by row."""
+    (row positions of the time-ordered interleaving of every track); returns the estimates by row.
+    ``checked``: the caller's checks only (as the server's ingest calls it)."""
     order = np.argsort(df["t"].to_numpy(), kind="stable")
     out = {k: np.full(len(df), np.nan) for k in ESTIMATE_FIELDS}
     for rows in np.split(order, batches):
@@ -32,14 +33,15 @@ def _feed(live: LiveTracks, df: pd.DataFrame, ids: dict, batches: np.ndarray) ->
         srt = np.lexsort((df["t"].to_numpy()[rows], dev))
         rows, dev = rows[srt], dev[srt]
         est = live.advance(dev, df["t"].to_numpy()[rows], df["lat"].to_numpy()[rows], df["lon"].to_numpy()[rows],
-                           np.full(len(rows), np.nan))
+                           np.full(len(rows), np.nan), checked=checked)
         for k in ESTIMATE_FIELDS:
             out[k][rows] = est[k]
     return out
 
 
+@pytest.mark.parametrize("checked", [False, True])
 @pytest.mark.parametrize("cuts", ["one", "every fix", "random"])
-def test_batches_of_any_size_give_the_estimates_of_mptrack_track(cuts):
+def test_batches_of_any_size_give_the_estimates_of_mptrack_track(cuts, checked):
     df = _traces()
     sigma, q = 4.0, 0.5
     want = mptrack.track(df, sigma_m=sigma, q=q)
@@ -49,7 +51,7 @@ def test_batches_of_any_size_give_the_estimates_of_mptrack_track(cuts):
     n = len(df)
     batches = {"one": np.array([], int), "every fix": np.arange(1, n),
                "random": np.sort(np.random.default_rng(3).choice(np.arange(1, n), 60, replace=False))}[cuts]
-    got = _feed(live, df, ids, batches)
+    got = _feed(live, df, ids, batches, checked)
     e, nn = geodetic_to_enu(got["lat"], got["lon"], want["lat"].to_numpy(), want["lon"].to_numpy())
     assert np.max(np.hypot(e, nn)) < 1e-6
     np.testing.assert_allclose(got["var_e"], want["var_east_m2"], rtol=1e-9)
