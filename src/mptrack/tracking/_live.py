@@ -161,15 +161,14 @@ class LiveTracks:
         checked all that itself (known tracks; 1-D float arrays of one length; finite times, positions
         in range; rows in that order): a live server's batch of a few dozen fixes spent a third of
         this call in the checks."""
-        if checked:
-            N = len(t)
-        else:
+        acc = accuracy
+        if not checked:
             tracks = self._check(tracks)
-            t, lat, lon, accuracy = (np.ascontiguousarray(a, dtype=float) for a in (t, lat, lon, accuracy))
-            N = self._check_fixes(tracks, t, lat, lon, accuracy)
+            t, lat, lon, acc = (np.ascontiguousarray(a, dtype=float) for a in (t, lat, lon, acc))
+            self._check_fixes(tracks, t, lat, lon, acc)
+        N = len(t)
         if N == 0:
             return {k: np.empty(0) for k in ESTIMATE_FIELDS}
-        acc = accuracy
         starts = np.flatnonzero(np.concatenate(([True], tracks[1:] != tracks[:-1])))
         uniq = tracks[starts]
         offsets = np.append(starts, N)
@@ -211,13 +210,13 @@ class LiveTracks:
         tr[uniq, _EST:_EST + len(ESTIMATE_FIELDS)] = np.stack([est[k] for k in ESTIMATE_FIELDS], axis=1)[last]
         return est
 
-    def _check_fixes(self, tracks, t, lat, lon, acc) -> int:
-        """The checks of :meth:`advance` (``tracks`` in range already); returns the number of rows."""
+    def _check_fixes(self, tracks, t, lat, lon, acc) -> None:
+        """The checks of :meth:`advance` (``tracks`` in range already)."""
         if not tracks.ndim == t.ndim == lat.ndim == lon.ndim == acc.ndim == 1 or \
                 not len(tracks) == len(lat) == len(lon) == len(acc) == len(t):
             raise ShapeError("tracks, t, lat, lon, accuracy: expected 1-D columns of one length")
         if not len(t):
-            return 0
+            return
         if not (np.isfinite(t).all() and (np.abs(lat) <= 90.0).all() and (np.abs(lon) <= 180.0).all()):
             raise ParameterError("t, lat, lon: expected finite times and positions within [-90, 90] and "
                                  "[-180, 180] degrees")
@@ -230,7 +229,6 @@ class LiveTracks:
         if (t[first] < self._track[tracks[first], _T]).any():   # NaN: a track without a fix
             raise ParameterError("t: a track's first new fix is before its last fix; a late fix cannot enter "
                                  "the filter's past")
-        return len(t)
 
     def _slow_var(self, tracks) -> np.ndarray:
         """The variance of the fix error's slow part of ``tracks`` (:func:`._fix_error.slow_error_variance`):
