@@ -11,9 +11,9 @@ its connection, even during COMMIT) leaves the database's state and fixes consis
 reads the version it finds.  There is no checkpoint and nothing to replay: every state is current.
 
 Connections come from a pool (psycopg_pool; one that broke fails its batch and is replaced, so the
-server recovers by itself when PostgreSQL restarts); fixes go in binary: a bulk batch's by COPY, a small batch's as numpy
-arrays in one INSERT sent with COMMIT.  The schema is created or upgraded when the
-store opens (under an advisory lock, so workers starting together do it once) and versioned in
+server recovers by itself when PostgreSQL restarts); fixes go in binary: a bulk batch's by COPY, a
+small batch's as numpy arrays in one INSERT sent with COMMIT.  The schema is created or upgraded when
+the store opens (under an advisory lock, so workers starting together do it once) and versioned in
 ``meta``; every table is keyed by device first (``dev``, or the device id), so the schema
 distributes on Citus by ``dev`` (``fixes`` and ``device_state``) with the small tables as reference
 tables.
