@@ -420,3 +420,29 @@ def test_small_batches_store_every_value_as_sent(postgres):
         assert query(db, "SELECT count(*) FROM fixes WHERE speed_mps IS NULL") == [(4,)]   # NULL, not NaN
     finally:
         store.close()
+
+
+def test_batches_commit_on_the_event_loop_only_while_postgres_is_quick(postgres, monkeypatch):
+    """A batch goes on the event loop's thread while the one before committed quickly; after a failed or
+    slow one, on the writer thread (the server keeps answering while PostgreSQL is slow or down)."""
+    from mptrack.serve import _postgres
+    from mptrack.serve._database import open_store
+
+    store = open_store(postgres.create_database("quick"))
+    try:
+        (k, _), = store.register(["quick-a"])
+        devs, versions = np.array([k], np.int64), np.zeros(1, np.int64)
+        assert store.quick_commit
+        with pytest.raises(ZeroDivisionError):
+            with store.batch(devs, versions):
+                1 / 0
+        assert not store.quick_commit
+        with store.batch(devs, versions) as tx:
+            tx.write()
+        assert store.quick_commit
+        monkeypatch.setattr(_postgres, "QUICK_COMMIT_S", 0.0)
+        with store.batch(devs, versions) as tx:
+            tx.write()
+        assert not store.quick_commit
+    finally:
+        store.close()

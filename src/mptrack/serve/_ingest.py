@@ -8,10 +8,10 @@ live filter of every device in the batch in one call of the compiled engine
 (:class:`mptrack.tracking.LiveTracks`); writes fixes and estimates in one durable transaction; and
 only then wakes the requests, which answer 200.  If the write fails, the filters of the batch's
 devices are put back as they were and every request of the batch fails (503): nothing half-done
-is acknowledged.  While a batch commits, the next one gathers.  With a store whose commit waits on
-no disk flush or network (SQLite without fsync), a batch of at most :data:`INLINE_FIXES` fixes is
-committed on the event loop's own thread instead: two threads taking turns at the interpreter lock
-cost more than such a commit.  Before it takes a batch, the writer lets the event loop turn as long as
+is acknowledged.  While a batch commits, the next one gathers.  With a store whose commit is quick
+(``Store.quick_commit``: SQLite without fsync, PostgreSQL while it answers quickly), a batch of at most
+:data:`INLINE_FIXES` fixes is committed on the event loop's own thread instead: two threads taking
+turns at the interpreter lock cost more than such a commit.  Before it takes a batch, the writer lets the event loop turn as long as
 each turn brings more requests (:data:`GATHER_TURNS`): a busy server's batches are larger and cost less
 a fix.
 

@@ -171,9 +171,10 @@ class Store(Protocol):
     url: str
     #: several processes write (PostgreSQL): states travel with every batch, see the module doc
     shared: bool
-    #: a batch's commit waits on neither a disk flush nor a network (SQLite without fsync: its log is
-    #: written to the OS, a few hundred microseconds of CPU): the group commit runs it on the event
-    #: loop's own thread rather than handing it to a writer thread (docs/design.md, "group commit")
+    #: a batch's commit is quick now (SQLite without fsync: its log is written to the OS, a few hundred
+    #: microseconds of CPU; PostgreSQL while its batches commit within a few milliseconds): the group
+    #: commit runs it on the event loop's own thread rather than handing it to a writer thread
+    #: (docs/design.md, "group commit")
     quick_commit: bool
     #: the version of the database's schema
     schema_version: int
