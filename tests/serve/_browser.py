@@ -4,6 +4,7 @@ holds (a live page never "finishes loading", so --dump-dom cannot tell), read va
 from __future__ import annotations
 
 import base64
+import contextlib
 import json
 import shutil
 import subprocess
@@ -43,7 +44,9 @@ class Browser:
         if target is None:
             self.close()
             raise RuntimeError("chromium did not open its DevTools port")
-        self.ws = connect(target["webSocketDebuggerUrl"], max_size=None)
+        # websockets wants its connection entered as a context manager (a plain call is deprecated)
+        self._ws = contextlib.ExitStack()
+        self.ws = self._ws.enter_context(connect(target["webSocketDebuggerUrl"], max_size=None))
         self._id = 0
 
     def call(self, method: str, **params) -> dict:
@@ -75,7 +78,7 @@ class Browser:
         return path
 
     def close(self) -> None:
-        if getattr(self, "ws", None) is not None:
-            self.ws.close()
+        if getattr(self, "_ws", None) is not None:
+            self._ws.close()
         self.proc.kill()
         self.proc.wait(30)
