@@ -11,9 +11,9 @@ devices are put back as they were and every request of the batch fails (503): no
 is acknowledged.  While a batch commits, the next one gathers.  With a store whose commit is quick
 (``Store.quick_commit``: SQLite without fsync, PostgreSQL while it answers quickly), a batch of at most
 :data:`INLINE_FIXES` fixes is committed on the event loop's own thread instead: two threads taking
-turns at the interpreter lock cost more than such a commit.  Before it takes a batch, the writer lets the event loop turn as long as
-each turn brings more requests (:data:`GATHER_TURNS`): a busy server's batches are larger and cost less
-a fix.
+turns at the interpreter lock cost more than such a commit.  Before it takes a batch, the writer lets
+the event loop turn as long as each turn brings more requests (:data:`GATHER_TURNS`): a busy server's
+batches are larger and cost less a fix.
 
 The fixes are the log and the device states checkpoints of it.  With a store of one writer (SQLite)
 a device's state is stored :attr:`Ingest.checkpoint_s` seconds after it changed, in the transaction
@@ -71,7 +71,7 @@ ROUND_MIN = 256
 INLINE_FIXES = 512
 #: The most turns of the event loop a batch waits while each brings more requests: under load the requests
 #: read in one turn join the batch instead of starting the next (64 connections: batches of ~64 fixes
-#: instead of ~26, -15 % CPU a fix: a batch has a fixed cost of ~0.5 ms); an idle server's lone request
+#: instead of ~26, -15 % CPU a fix: a batch has a fixed cost of ~0.35 ms); an idle server's lone request
 #: waits one turn.
 GATHER_TURNS = 8
 #: A device's noise is estimated again once it has this fraction of the fixes its last estimate used

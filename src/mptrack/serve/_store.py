@@ -172,7 +172,7 @@ class Store(Protocol):
     #: several processes write (PostgreSQL): states travel with every batch, see the module doc
     shared: bool
     #: a batch's commit is quick now (SQLite without fsync: its log is written to the OS, a few hundred
-    #: microseconds of CPU; PostgreSQL while its batches commit within a few milliseconds): the group
+    #: microseconds of CPU; PostgreSQL while its last batch committed within 20 ms): the group
     #: commit runs it on the event loop's own thread rather than handing it to a writer thread
     #: (docs/design.md, "group commit")
     quick_commit: bool
