@@ -10,7 +10,9 @@ One connection writes (under a lock); each reading thread has its own connection
 read while the writer writes.  The writer never checkpoints the log into the database file itself
 (SQLite's automatic checkpoint would run inside a group commit, every ~1000 pages, copying and syncing
 them while the requests of the batch wait): a thread of its own does, with its own connection, every
-:data:`CHECKPOINT_S` seconds (a passive checkpoint, which never blocks the writer or the readers).
+:data:`CHECKPOINT_S` seconds (a passive checkpoint, which never blocks the writer or the readers), and
+once the log has :data:`RESTART_FRAMES` frames it finishes the checkpoint under the writer's lock so that
+the log starts again from its beginning (a few milliseconds at 15,000 fixes/s).
 """
 
 from __future__ import annotations
@@ -49,6 +51,13 @@ WRITER_CACHE_KIB = 65536
 READER_CACHE_KIB = 8192
 #: How often the checkpointer moves the write-ahead log into the database file (s).
 CHECKPOINT_S = 1.0
+#: Frames of the write-ahead log (4 KiB pages) from which the checkpointer makes the log start again
+#: (64 MiB).  SQLite starts it again only when a write begins after a complete checkpoint while no reader
+#: holds an older snapshot: under sustained ingest a passive checkpoint is never complete when the next
+#: batch begins, and the log grew by a page a fix without end (400 MiB in 8 s at 15,000 fixes/s).
+RESTART_FRAMES = 16384
+#: The most a restarting checkpoint waits for readers of older snapshots (ms) while the writer waits for it.
+RESTART_WAIT_MS = 10
 _ALL = FIX_COLUMNS + ESTIMATE_COLUMNS
 _SCHEMA = f"""
 CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value) WITHOUT ROWID;
@@ -127,12 +136,21 @@ class SqliteStore:
         self._checkpointer.start()
 
     def _checkpoints(self) -> None:
-        """The checkpointer thread: a passive checkpoint every CHECKPOINT_S seconds until close."""
+        """The checkpointer thread: a passive checkpoint every CHECKPOINT_S seconds until close, the log
+        started again once it has RESTART_FRAMES frames."""
         con = self._connect(READER_CACHE_KIB)
+        con.execute(f"PRAGMA busy_timeout={RESTART_WAIT_MS}")
         try:
             while not self._closed.wait(CHECKPOINT_S):
                 try:
-                    con.execute("PRAGMA wal_checkpoint(PASSIVE)")
+                    _, frames, _ = con.execute("PRAGMA wal_checkpoint(PASSIVE)").fetchone()
+                    if frames >= RESTART_FRAMES:
+                        # then, under the writer's lock, the last few frames are copied and the log starts
+                        # again from its beginning once the readers of older snapshots are done (3-10 ms at
+                        # 15,000 fixes/s, two fsyncs included; a reader slower than RESTART_WAIT_MS: next round)
+                        con.execute("PRAGMA wal_checkpoint(PASSIVE)")   # what came meanwhile, still unblocked
+                        with self._lock:
+                            con.execute("PRAGMA wal_checkpoint(RESTART)")
                 except sqlite3.OperationalError:   # busy or locked: the next round does it
                     pass
         finally:
