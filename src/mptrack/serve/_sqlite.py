@@ -61,6 +61,9 @@ RESTART_FRAMES = 65536
 #: The most a restarting checkpoint waits for readers of older snapshots (ms) while the writer waits for it.
 RESTART_WAIT_MS = 10
 _ALL = FIX_COLUMNS + ESTIMATE_COLUMNS
+#: A batch of retention's deletes: the oldest fixes found by the time index (fixes_time; without it each
+#: round read the whole table under the writer's lock -- the last batch of every round found nothing).
+_DELETE_OLD = "DELETE FROM fixes WHERE seq IN (SELECT seq FROM fixes WHERE t < ? LIMIT ?)"
 _SCHEMA = f"""
 CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value) WITHOUT ROWID;
 CREATE TABLE IF NOT EXISTS device_keys (dev INTEGER PRIMARY KEY, device_id TEXT NOT NULL UNIQUE);
@@ -70,6 +73,7 @@ CREATE TABLE IF NOT EXISTS fixes (seq INTEGER PRIMARY KEY AUTOINCREMENT,
     est_lat REAL, est_lon REAL, var_e REAL, cov_en REAL, var_n REAL, vel_e REAL, vel_n REAL, nis REAL,
     flag INTEGER NOT NULL);
 CREATE INDEX IF NOT EXISTS fixes_device_time ON fixes (dev, t);
+CREATE INDEX IF NOT EXISTS fixes_time ON fixes (t);
 CREATE TABLE IF NOT EXISTS device_state (dev INTEGER PRIMARY KEY, state BLOB NOT NULL, upto INTEGER NOT NULL);
 CREATE TABLE IF NOT EXISTS devices (device_id TEXT PRIMARY KEY, token_sha256 TEXT NOT NULL UNIQUE,
     created REAL NOT NULL) WITHOUT ROWID;
@@ -235,8 +239,7 @@ class SqliteStore:
         total = 0
         while True:
             with self._lock:  # short transactions: ingest goes on between the batches
-                n = self._w.execute("DELETE FROM fixes WHERE seq IN (SELECT seq FROM fixes WHERE t < ? LIMIT ?)",
-                                    (t, batch)).rowcount
+                n = self._w.execute(_DELETE_OLD, (t, batch)).rowcount
             total += n
             if n < batch:
                 return total
