@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import sqlite3
 import threading
+import time
 
 import numpy as np
 
@@ -78,3 +79,47 @@ def test_retention_finds_old_fixes_by_the_time_index_also_in_an_older_database(t
         store.close()
     with sqlite3.connect(path) as con:
         assert con.execute("SELECT count(*), min(t) FROM fixes").fetchone() == (400, 1100.0)
+
+
+def test_retention_leaves_ingest_the_writers_lock_between_its_batches(tmp_path):
+    """A backlog of old fixes deleted while batches of new ones commit back to back: the batches keep
+    committing during the deletion (the deleting thread took the lock again at once after each of its
+    batches, and ingest waited for the whole backlog)."""
+    path = tmp_path / "backlog.db"
+    store = open_store(f"sqlite:///{path}")
+    keys = [k for k, _ in store.register([f"d{i}" for i in range(1000)])]
+    store.close()
+    with sqlite3.connect(path) as con:
+        con.executemany("INSERT INTO fixes (dev, t, lat, lon, received, flag) VALUES (?, ?, 50.0, 8.0, 0, 0)",
+                        ((i % 1000, 1000.0 + i) for i in range(60_000)))
+    store = open_store(f"sqlite:///{path}")
+    rng = np.random.default_rng(2)
+    stop, commits = threading.Event(), []
+
+    def ingest():
+        b = 0
+        while not stop.is_set():
+            b += 1
+            devs = np.sort(rng.choice(keys, 16, replace=False))
+            rows = stored_rows([(0, int(d), 1e6 + b, 50.0, 8.0, 5.0, None, None, None, None, 1e6 + b, 50.0, 8.0,
+                                 1.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0) for d in devs])
+            with store.batch(devs, np.zeros(len(devs), np.int64)) as tx:
+                tx.write(rows)
+            commits.append(time.perf_counter())
+
+    thread = threading.Thread(target=ingest)
+    thread.start()
+    try:
+        while not commits:
+            time.sleep(0.01)
+        started = time.perf_counter()
+        assert store.delete_before(51_000.0) == 50_000
+        ended = time.perf_counter()
+    finally:
+        stop.set()
+        thread.join()
+        store.close()
+    during = [c for c in commits if started < c < ended]
+    assert len(during) >= 20, (len(during), ended - started)
+    gaps = np.diff([started] + during + [ended])
+    assert gaps.max() < (ended - started) / 4, (gaps.max(), ended - started)

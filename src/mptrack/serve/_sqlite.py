@@ -235,14 +235,18 @@ class SqliteStore:
             w.executemany("INSERT INTO devices VALUES (?, ?, ?)", devices)
             w.executemany("INSERT INTO api_keys VALUES (?, ?, ?)", api_keys)
 
-    def delete_before(self, t: float, batch: int = 10_000) -> int:
+    def delete_before(self, t: float, batch: int = 1000) -> int:
+        """(see :class:`._store.Store`) In batches of ``batch`` fixes (~10 ms each under the writer's lock),
+        each followed by a pause as long, so that ingest has the lock at least half the time."""
         total = 0
         while True:
-            with self._lock:  # short transactions: ingest goes on between the batches
+            started = time.perf_counter()
+            with self._lock:
                 n = self._w.execute(_DELETE_OLD, (t, batch)).rowcount
             total += n
             if n < batch:
                 return total
+            time.sleep(time.perf_counter() - started)
 
     # ---- reading ---------------------------------------------------------------------------------
     def load_checkpoint(self, batch: int = 50_000) -> tuple[int, Iterator[list[tuple[int, bytes, int, int]]]]:
