@@ -152,8 +152,8 @@ class SqliteStore:
                     _, frames, _ = con.execute("PRAGMA wal_checkpoint(PASSIVE)").fetchone()
                     if frames >= RESTART_FRAMES:
                         # then, under the writer's lock, the last few frames are copied and the log starts
-                        # again from its beginning once the readers of older snapshots are done (3-10 ms at
-                        # 15,000 fixes/s, two fsyncs included; a reader slower than RESTART_WAIT_MS: next round)
+                        # again from its beginning once the readers of older snapshots are done (1-7 ms here,
+                        # two fsyncs included; a reader slower than RESTART_WAIT_MS: the next round)
                         con.execute("PRAGMA wal_checkpoint(PASSIVE)")   # what came meanwhile, still unblocked
                         with self._lock:
                             con.execute("PRAGMA wal_checkpoint(RESTART)")
