@@ -1,5 +1,6 @@
 """The SQLite store under a long-running server: its write-ahead log stays bounded under sustained
-ingest while queries read, and retention finds old fixes without reading the whole table."""
+ingest while queries read, and retention finds old fixes without reading the whole table and leaves
+ingest the writer's lock."""
 
 from __future__ import annotations
 
@@ -52,33 +53,28 @@ def test_the_log_starts_again_under_sustained_writes_and_reads(tmp_path, monkeyp
     assert largest < written * 4096 / 10, (largest, written)
 
 
-def _plan(path) -> str:
-    with sqlite3.connect(path) as con:
-        return " | ".join(r[-1] for r in con.execute("EXPLAIN QUERY PLAN " + _sqlite._DELETE_OLD, (0.0, 10)))
-
-
-def test_retention_finds_old_fixes_by_the_time_index_also_in_an_older_database(tmp_path):
-    """--retain's batches search the time index (each round's last batch, which finds nothing, read
-    the whole table under the writer's lock before it); a database made before the index gets it when
-    a server opens it; the oldest fixes go first and the rest stay."""
+def test_retention_finds_each_devices_old_fixes_by_its_index(tmp_path):
+    """--retain's deletes probe the (device, time) index device by device (found by time alone, each round's
+    last batch, which finds nothing, read the whole index under the writer's lock); the old fixes go, every
+    device's, the rest stay, also when a device has more old fixes than a transaction takes."""
     path = tmp_path / "retain.db"
     store = open_store(f"sqlite:///{path}")
+    keys = [k for k, _ in store.register([f"d{i}" for i in range(7)])]
     store.close()
     with sqlite3.connect(path) as con:
-        con.execute("DROP INDEX fixes_time")
-        con.executemany("INSERT INTO fixes (dev, t, lat, lon, received, flag) VALUES (?, ?, 50.0, 8.0, ?, 0)",
-                        [(i % 7, 1000.0 + (i * 37) % 500, 2000.0) for i in range(500)])
-    assert "SCAN fixes" in _plan(path)
+        plan = " | ".join(r[-1] for r in con.execute("EXPLAIN QUERY PLAN " + _sqlite._DELETE_OLD, (0, 0.0, 10)))
+        assert "USING COVERING INDEX fixes_device_time (dev=? AND t<?)" in plan and "SCAN" not in plan, plan
+        con.executemany("INSERT INTO fixes (dev, t, lat, lon, received, flag) VALUES (?, ?, 50.0, 8.0, 2000.0, 0)",
+                        [(keys[i % 7], 1000.0 + (i * 37) % 500) for i in range(500)]
+                        + [(keys[3], 900.0 + i * 1e-3) for i in range(95)])
     store = open_store(f"sqlite:///{path}")
     try:
-        plan = _plan(path)
-        assert "USING COVERING INDEX fixes_time" in plan and "SCAN" not in plan, plan
-        assert store.delete_before(1100.0, batch=30) == 100
+        assert store.delete_before(1100.0, batch=30) == 195
         assert store.delete_before(1100.0, batch=30) == 0
     finally:
         store.close()
     with sqlite3.connect(path) as con:
-        assert con.execute("SELECT count(*), min(t) FROM fixes").fetchone() == (400, 1100.0)
+        assert con.execute("SELECT count(*), min(t), count(DISTINCT dev) FROM fixes").fetchone() == (400, 1100.0, 7)
 
 
 def test_retention_leaves_ingest_the_writers_lock_between_its_batches(tmp_path):
