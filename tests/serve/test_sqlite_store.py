@@ -53,10 +53,12 @@ def test_the_log_starts_again_under_sustained_writes_and_reads(tmp_path, monkeyp
     assert largest < written * 4096 / 10, (largest, written)
 
 
-def test_retention_finds_each_devices_old_fixes_by_its_index(tmp_path):
+def test_retention_finds_each_devices_old_fixes_by_its_index(tmp_path, monkeypatch):
     """--retain's deletes probe the (device, time) index device by device (found by time alone, each round's
     last batch, which finds nothing, read the whole index under the writer's lock); the old fixes go, every
-    device's, the rest stay, also when a device has more old fixes than a transaction takes."""
+    device's, the rest stay, also when a device has more old fixes than a transaction takes and when each
+    transaction's time is up at once (one device each)."""
+    monkeypatch.setattr(_sqlite, "RETAIN_HOLD_S", 0.0)
     path = tmp_path / "retain.db"
     store = open_store(f"sqlite:///{path}")
     keys = [k for k, _ in store.register([f"d{i}" for i in range(7)])]
