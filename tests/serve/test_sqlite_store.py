@@ -98,7 +98,7 @@ def test_retention_leaves_ingest_the_writers_lock_between_its_batches(tmp_path):
     store.close()
     with sqlite3.connect(path) as con:
         con.executemany("INSERT INTO fixes (dev, t, lat, lon, received, flag) VALUES (?, ?, 50.0, 8.0, 0, 0)",
-                        ((i % 1000, 1000.0 + i) for i in range(60_000)))
+                        ((i % 1000, 1000.0 + i) for i in range(150_000)))
     store = open_store(f"sqlite:///{path}")
     rng = np.random.default_rng(2)
     stop, commits = threading.Event(), []
@@ -118,13 +118,13 @@ def test_retention_leaves_ingest_the_writers_lock_between_its_batches(tmp_path):
         while not commits:
             time.sleep(0.01)
         started = time.perf_counter()
-        assert store.delete_before(51_000.0) == 50_000
+        assert store.delete_before(141_000.0) == 140_000
         ended = time.perf_counter()
     finally:
         stop.set()
         thread.join()
         store.close()
     during = [c for c in commits if started < c < ended]
-    assert len(during) >= 20, (len(during), ended - started)
-    gaps = np.diff([started] + during + [ended])
-    assert gaps.max() < (ended - started) / 4, (gaps.max(), ended - started)
+    assert len(during) >= 50, (len(during), ended - started)
+    gaps = np.diff([started] + during + [ended])   # here ~10 ms at most in a deletion of ~0.9 s
+    assert gaps.max() < (ended - started) / 3, (gaps.max(), ended - started)
