@@ -27,6 +27,7 @@ from .. import __version__
 from ..errors import RequestError
 from ._auth import credentials
 from ._fix import iso_time, timestamp
+from ._ingest import StreamQueue
 from ._store import FLAG_NAMES
 from ._openapi import ingest_paths
 from ._tracks import FORMATS, track_body
@@ -201,7 +202,7 @@ def query_app(server) -> FastAPI:
              summary="Every accepted fix's estimate as it happens (Server-Sent Events)")
     async def stream(request: Request, device_id: Optional[str] = Query(None, alias="device",
                                                                         description="only this device")):
-        queue: asyncio.Queue = asyncio.Queue()
+        queue = StreamQueue()
         ing = server.ingest
 
         async def events():
@@ -210,7 +211,7 @@ def query_app(server) -> FastAPI:
                 yield ": connected\n\n"
                 while True:
                     try:
-                        events = await asyncio.wait_for(queue.get(), 15.0)
+                        events = await asyncio.wait_for(queue.take(), 15.0)
                     except asyncio.TimeoutError:
                         yield ": keep-alive\n\n"
                         continue
