@@ -227,7 +227,7 @@ class Ingest:
                 self._wake.set()
 
     # ---- the stream ---------------------------------------------------------------------------------
-    def listen(self, queue: "StreamQueue") -> None:
+    def listen(self, queue: StreamQueue) -> None:
         """``queue`` gets the events of every committed batch (a list of (device, JSON) each) from now
         on: this process's own, or with a shared store every process's."""
         self.listeners.add(queue)

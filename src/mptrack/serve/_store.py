@@ -239,8 +239,9 @@ class Store(Protocol):
     def load_fixes(self, rows: StoredRows) -> None:
         """Insert stored rows as they are, their ``seq`` included (copying a database)."""
 
-    def delete_before(self, t: float, batch: int = 10_000) -> int:
-        """Delete fixes older than ``t`` (seconds since 1970), in batches; returns how many."""
+    def delete_before(self, t: float, batch: int = ...) -> int:
+        """Delete fixes older than ``t`` (seconds since 1970), in transactions of at most ``batch`` fixes
+        (each store has its own default: they must not stall its ingest); returns how many."""
 
     def count(self) -> int: ...
 
