@@ -18,7 +18,7 @@ def test_a_queue_is_bounded_by_events_and_an_empty_one_takes_any_batch():
     q.offer(_batch(25_000))                  # a bulk upload's batch: an empty queue takes it whole
     q.offer(_batch(64))                      # beyond STREAM_EVENTS: dropped for this client
     assert (q.qsize(), q.events) == (1, 25_000)
-    assert len(asyncio.run(q.take())) == 25_000 and q.events == 0
+    assert len(asyncio.run(q.get())) == 25_000 and q.events == 0
     for _ in range(1000):                    # OsmAnd-sized batches until the client has STREAM_EVENTS unread
         q.offer(_batch(64))
     assert q.events == 64 * (STREAM_EVENTS // 64) and q.qsize() == STREAM_EVENTS // 64
@@ -37,7 +37,7 @@ def test_a_stalled_client_of_the_ingest_holds_at_most_a_batch_beyond_the_bound(t
         got = 0
         for b in range(40):
             ingest._publish(_batch(20_000, tag=str(b)))
-            got += len(asyncio.run(reading.take()))
+            got += len(asyncio.run(reading.get()))
         assert got == 40 * 20_000                          # a client that reads gets every event
         assert stalled.qsize() == 1 and stalled.events == 20_000
     finally:

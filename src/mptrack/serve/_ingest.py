@@ -539,10 +539,14 @@ class StreamQueue(asyncio.Queue):
     def offer(self, events: list[tuple[str, str]]) -> None:
         """Queue a batch's events, unless the client has not read STREAM_EVENTS of them yet."""
         if self.events == 0 or self.events + len(events) <= STREAM_EVENTS:
-            self.events += len(events)
             self.put_nowait(events)
 
-    async def take(self) -> list[tuple[str, str]]:
-        events = await self.get()
+    # asyncio.Queue's hooks for its storage: the count follows every way in and out
+    def _put(self, events) -> None:
+        super()._put(events)
+        self.events += len(events)
+
+    def _get(self):
+        events = super()._get()
         self.events -= len(events)
         return events

@@ -211,7 +211,7 @@ def query_app(server) -> FastAPI:
                 yield ": connected\n\n"
                 while True:
                     try:
-                        events = await asyncio.wait_for(queue.take(), 15.0)
+                        events = await asyncio.wait_for(queue.get(), 15.0)
                     except asyncio.TimeoutError:
                         yield ": keep-alive\n\n"
                         continue
