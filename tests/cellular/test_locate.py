@@ -52,3 +52,25 @@ def test_scans_located_together_equal_each_alone():
     alone = np.vstack([locate_cells(CELLS[a:b]) for a, b in zip(offsets[:-1], offsets[1:])])
     np.testing.assert_array_equal(together, alone)
     assert np.all(np.isfinite(together))
+
+
+@pytest.mark.parametrize("sigma", [7.1, 9.0, 13.0, 20.0])
+def test_a_levels_likelihood_averages_the_serving_sectors_loss_over_its_bearing(sigma):
+    """The tabulated likelihood of a level (the residual s - A + n log10 d, in dB) against scipy's quadrature of
+    the Gaussian averaged over the serving sector's bearing theta, uniform over 0..60 degrees, with the loss
+    12 (theta / 65)^2 dB of 3GPP TR 36.814's pattern: equal up to one constant (the Gaussian's), within 3e-3."""
+    from scipy import integrate, stats
+
+    from mptrack.cellular._locate import _level_loglik, _level_row
+
+    def exact(r):
+        return integrate.quad(lambda th: stats.norm.pdf(r + 12.0 * (th / 65.0) ** 2, scale=sigma) / 60.0, 0.0, 60.0,
+                              epsabs=0.0, epsrel=1e-12)[0]
+
+    r = np.linspace(-5.0 * sigma - 10.2, 5.0 * sigma, 61)
+    kappa = 12.0 * (60.0 / 65.0) ** 2 / sigma
+    got = np.array([_level_loglik(v, 1.0 / sigma, kappa, _level_row(kappa)) for v in r])
+    want = np.log([exact(v) for v in r]) + np.log(sigma * np.sqrt(2.0 * np.pi))
+    np.testing.assert_allclose(got, want, rtol=0, atol=3e-3)
+    # the most likely residual is a loss, not 0: a level is most likely ~3-5 dB below the axis's
+    assert -6.0 < r[np.argmax(want)] < -2.0

@@ -96,14 +96,15 @@ def test_simulated_network(server, data):
 
 
 def test_simulated_network_without_azimuths(server, data):
-    """The same kind of network with an OpenCelliD-like table (no azimuths): better than the centroid, and the
-    accuracy holds the truth in 68 +- 5 % of the requests."""
+    """The same kind of network with an OpenCelliD-like table (no azimuths): better than the centroid (0.83 x
+    here: 0.88 x while the serving sector's loss off its axis was taken for noise, every range ~25 % too long),
+    and the accuracy holds the truth in 68 +- 5 % of the requests."""
     ans = _answers(server, data["noaz"])
     t = data["noaz_truth"]
     err = distance_m(ans[:, 0], ans[:, 1], t.lat, t.lon)
     ref = distance_m(t.ref_lat, t.ref_lon, t.lat, t.lon)
     s = _report("simulated, no azimuths", err, ref, ans[:, 2])
-    assert s["median"] <= 0.9 * s["ref_median"] and s["p90"] <= s["ref_p90"]
+    assert s["median"] <= 0.85 * s["ref_median"] and s["p90"] <= 0.95 * s["ref_p90"]
     assert abs(s["coverage"] - LEVEL) <= 0.05
 
 
