@@ -34,6 +34,11 @@ def test_live_map_shows_every_device_and_follows_new_fixes(served, tmp_path, tmp
         assert browser.eval("document.body.dataset.devices") == "3"
         assert browser.eval("document.documentElement.dataset.jsErrors || ''") == ""
         assert browser.eval("document.querySelectorAll('#device-list li').length") == 3
+        # each device's id on its line, its last fix's time, flag and uncertainty below, within the list's width
+        assert browser.eval("document.querySelector('#device-list li b').textContent") == "bus-1"
+        assert "±" in browser.eval("document.querySelector('#device-list li small').textContent")
+        assert browser.eval("(function (l) { return l.scrollWidth <= l.clientWidth; })"
+                            "(document.getElementById('device-list'))") is True
         browser.wait_for("document.getElementById('status').textContent === 'live'")
         # a new device and a moving one: the page follows the stream
         for k in range(3):

@@ -19,7 +19,7 @@
   }
   L.control.scale({imperial: false}).addTo(map);
   map.setView([20, 0], 2);
-  var devices = {};   // id -> {marker, raw, ellipse, item, track}
+  var devices = {};   // id -> {marker, raw, ellipse, item, details, track}
   var events = 0, fitted = false;
   var list = document.getElementById("device-list");
 
@@ -33,10 +33,11 @@
     }
     return pts;
   }
-  function text(d) {
-    return d.id + (d.time ? " · " + d.time.replace("T", " ").replace(".000Z", "Z") : "") +
-      (d.flag ? " · " + d.flag : "") + (d.ell_major_m != null ? " · ±" + d.ell_major_m.toPrecision(2) + " m" : "");
+  function details(d) {
+    return (d.time ? d.time.replace("T", " ").replace(".000Z", "Z") : "") + (d.flag ? " · " + d.flag : "") +
+      (d.ell_major_m != null ? " · ±" + d.ell_major_m.toPrecision(2) + " m" : "");
   }
+  function text(d) { return d.id + " · " + details(d); }
   function update(d) {
     if (d.lat == null || d.lon == null) return;
     var dev = devices[d.id];
@@ -47,6 +48,9 @@
         ellipse: L.polygon([[d.lat, d.lon]], {color: "#1f77b4", weight: 1, fillOpacity: 0.08}).addTo(map),
         item: document.createElement("li")
       };
+      // the id on its line, the time, flag and uncertainty below it (one line was wider than the list)
+      dev.item.appendChild(document.createElement("b")).textContent = d.id;
+      dev.details = dev.item.appendChild(document.createElement("small"));
       dev.marker.on("click", function () { showTrack(d.id); });
       dev.item.addEventListener("click", function () { showTrack(d.id); map.panTo(dev.marker.getLatLng()); });
       list.appendChild(dev.item);
@@ -57,7 +61,7 @@
     if (d.raw_lat != null) dev.raw.setLatLng([d.raw_lat, d.raw_lon]);
     if (d.ell_major_m != null) dev.ellipse.setLatLngs(ellipsePoints(d.lat, d.lon, d.ell_major_m, d.ell_minor_m, d.ell_azimuth_deg || 0));
     dev.marker.bindTooltip(text(d));
-    dev.item.textContent = text(d);
+    dev.details.textContent = details(d);
   }
   function showTrack(id) {
     var from = new Date(Date.now() - 3600e3).toISOString();
