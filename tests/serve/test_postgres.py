@@ -136,6 +136,9 @@ def test_two_servers_apply_each_device_in_order_once(tmp_path, postgres):
         stats = [s.json("/api/stats") for s in (a, b)]   # each process counts its own requests
         assert sum(s["accepted"] for s in stats) == requests and sum(s["filtered"] for s in stats) == len(rows)
         assert sum(s["duplicates"] for s in stats) == requests - len(rows)
+        retries = [float(re.search(r"^mptrack_commit_retries_total (\S+)$", s.get("/metrics").text, re.M).group(1))
+                   for s in (a, b)]
+        assert sum(retries) > 0              # optimistic batches that met the other's states, filtered again
         deadline = time.monotonic() + 10
         while len(events) < len(rows) and time.monotonic() < deadline:
             time.sleep(0.2)
@@ -381,14 +384,16 @@ def test_retention_does_not_block_ingest_and_runs_in_one_process(postgres):
         b.close()
 
 
-def test_small_batches_store_every_value_as_sent(postgres):
+@pytest.mark.parametrize("optimistic", [False, True])
+def test_small_batches_store_every_value_as_sent(postgres, optimistic):
     """A small batch's fixes go in as numpy arrays in binary (a matrix of the float columns, NaN for NULL):
     each value comes back exactly, a missing one as NULL (NaN), text and flags as they were; a late
-    fix is stored once, its exact twin not again."""
+    fix is stored once, its exact twin not again -- with the rows locked first or optimistically (one
+    statement)."""
     from mptrack.serve._database import open_store
     from mptrack.serve._store import ESTIMATE_COLUMNS, FIX_COLUMNS, StoredRows
 
-    db = postgres.create_database("arrays")
+    db = postgres.create_database(f"arrays_{int(optimistic)}")
     store = open_store(db)
     try:
         (k0, _), (k1, _) = store.register(["arr-a", "arr-b"])
@@ -404,7 +409,7 @@ def test_small_batches_store_every_value_as_sent(postgres):
         late = StoredRows({**cols, "t": cols["t"] - 100.0, "flag": np.full(n, 4, np.int64)})
         devs = np.array([k0, k1], np.int64)
         for again in (False, True):
-            with store.batch(devs, np.zeros(2, np.int64)) as tx:
+            with store.batch(devs, np.zeros(2, np.int64), optimistic) as tx:
                 tx.write(None if again else rows, late)
             assert tx.stored_late == (0 if again else n)
         for k, dev in ((k0, slice(0, 3)), (k1, slice(3, 5))):
@@ -420,6 +425,60 @@ def test_small_batches_store_every_value_as_sent(postgres):
         assert query(db, "SELECT count(*) FROM fixes WHERE speed_mps IS NULL") == [(4,)]   # NULL, not NaN
     finally:
         store.close()
+
+
+def test_an_optimistic_batch_writes_nothing_when_another_process_changed_a_device(postgres):
+    """An optimistic batch (one statement, no lock taken before) whose versions are behind what another
+    process stored writes nothing -- no fix, no late fix, no state, no event -- and reports the changed
+    states; with the versions stored, it writes everything and its event goes out.  A batch that needs
+    COPY locks its rows first and is refused before it writes."""
+    import psycopg
+
+    from mptrack.serve._database import open_store
+    from mptrack.serve._postgres import CHANNEL
+    from mptrack.serve._store import ESTIMATE_COLUMNS, FIX_COLUMNS, StaleStates, StoredRows
+
+    db = postgres.create_database("optimistic")
+    store, other = open_store(db), open_store(db)          # two processes
+    listener = psycopg.connect(db, autocommit=True)
+    listener.execute(f"LISTEN {CHANNEL}")
+    try:
+        (k0, _), (k1, _) = store.register(["opt-a", "opt-b"])
+        devs, held = np.array([k0, k1], np.int64), np.zeros(2, np.int64)
+        with other.batch(devs, held) as tx:                 # the other process steps opt-b
+            tx.write(states=[(k1, "opt-b", b"theirs", T0)])
+
+        def rows(n, t0):
+            cols = {c: np.full(n, 1.0) for c in FIX_COLUMNS + ESTIMATE_COLUMNS}
+            cols.update(dev=np.repeat(devs, n // 2), t=t0 + np.arange(n) % (n // 2), attrs=np.full(n, None),
+                        flag=np.zeros(n, np.int64))
+            return StoredRows(cols)
+
+        mine = [(k0, "opt-a", b"mine-a", T0), (k1, "opt-b", b"mine-b", T0)]
+        with pytest.raises(StaleStates) as stale:
+            with store.batch(devs, held, optimistic=True) as tx:
+                assert tx.stale == []
+                tx.write(rows(4, T0), rows(2, T0 - 50), mine, ["opt-a\t{}"])
+        assert stale.value.stale == [(k1, 1, b"theirs")]
+        assert query(db, "SELECT count(*) FROM fixes") == [(0,)]
+        assert query(db, "SELECT dev, version, state FROM device_state ORDER BY dev") == [(k0, 0, None),
+                                                                                       (k1, 1, b"theirs")]
+        assert list(listener.notifies(timeout=0.5)) == []
+        with store.batch(devs, np.array([0, 1], np.int64), optimistic=True) as tx:
+            tx.write(rows(4, T0), rows(2, T0 - 50), mine, ["opt-a\t{}"])
+        assert tx.stored_late == 2
+        assert query(db, "SELECT count(*) FROM fixes") == [(6,)]
+        assert query(db, "SELECT dev, version, state FROM device_state ORDER BY dev") == [(k0, 1, b"mine-a"),
+                                                                                       (k1, 2, b"mine-b")]
+        assert [n.payload for n in listener.notifies(timeout=5, stop_after=1)] == ["opt-a\t{}"]
+        with pytest.raises(StaleStates):                    # COPY-sized: locked first, refused before writing
+            with store.batch(devs, held, optimistic=True) as tx:
+                tx.write(rows(1000, T0 + 10))
+        assert query(db, "SELECT count(*) FROM fixes") == [(6,)]
+    finally:
+        listener.close()
+        store.close()
+        other.close()
 
 
 def test_batches_commit_on_the_event_loop_only_while_postgres_is_quick(postgres, monkeypatch):

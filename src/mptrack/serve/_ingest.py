@@ -53,7 +53,8 @@ from ._device_ids import DeviceIds
 from ._fix import iso_time
 from ._key_queue import KeyQueue
 from ._metrics import Metrics
-from ._store import ESTIMATE_COLUMNS, FIX_COLUMNS, FLAG_NAMES, HISTORY_COLUMNS, LATE, Store, StoredRows
+from ._store import (ESTIMATE_COLUMNS, FIX_COLUMNS, FLAG_NAMES, HISTORY_COLUMNS, LATE, StaleStates, Store,
+                     StoredRows)
 
 __all__ = ["Ingest", "ESTIMATES", "StreamQueue"]
 
@@ -312,6 +313,19 @@ class Ingest:
         return keys
 
     def _commit(self, fixes: list[tuple]):
+        """Filter and commit one batch (a shared store: optimistic first, then, if another process changed
+        one of its devices meanwhile, again from the states it wrote, the rows locked first)."""
+        if not self.shared:
+            return self._commit_batch(fixes, optimistic=False)
+        try:
+            return self._commit_batch(fixes, optimistic=True)
+        except StaleStates as exc:       # nothing was written, the live states are as they were
+            self.metrics.add("commit_retries")
+            with self.lock:
+                self._load(exc.stale)
+            return self._commit_batch(fixes, optimistic=False)
+
+    def _commit_batch(self, fixes: list[tuple], optimistic: bool):
         now = time.time()
         dev = self._keys_of(fixes)
         cols = list(zip(*fixes))
@@ -326,7 +340,7 @@ class Ingest:
         prev_same = ~first & (ts == prev_t) & (la == _previous(la)) & (lo == _previous(lo))
         devs = d[first]
         with self._undone_on_failure(devs) as versions:
-            with self.store.batch(devs, versions) as tx:
+            with self.store.batch(devs, versions, optimistic) as tx:
                 with self.lock:
                     self._load(tx.stale)      # what other processes committed for these devices
                     last = self.live.last_fixes(d)

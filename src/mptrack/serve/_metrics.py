@@ -21,7 +21,7 @@ __all__ = ["Metrics", "METRICS_ENV", "create_metrics_file"]
 
 #: The environment variable naming the shared file of the worker processes.
 METRICS_ENV = "MPTRACK_METRICS_FILE"
-_COUNTERS = ("accepted", "filtered", "late", "duplicates", "batches", "commit_failures")
+_COUNTERS = ("accepted", "filtered", "late", "duplicates", "batches", "commit_failures", "commit_retries")
 #: Reasons a request is refused (RequestError codes, 503 "not_committed"); others count as "other".
 REASONS = ("missing_field", "invalid_field", "malformed_json", "malformed_body", "incomplete_body", "body_too_large",
            "unsupported_media_type", "unauthorized", "forbidden", "rate_limited", "not_found", "not_committed",
@@ -110,7 +110,7 @@ class Metrics:
     # ---- reading (the sums over every process) ---------------------------------------------------------
     def totals(self) -> dict:
         """The counters summed over the processes: accepted, filtered, late, duplicates, batches,
-        commit_failures, and refused (reason -> count, the reasons seen)."""
+        commit_failures, commit_retries, and refused (reason -> count, the reasons seen)."""
         s = self.rows.sum(axis=0)
         out = {name: int(s[_AT[name]]) for name in _COUNTERS}
         out["refused"] = {code: int(s[_AT["refused:" + code]]) for code in REASONS if s[_AT["refused:" + code]]}
@@ -138,6 +138,10 @@ class Metrics:
         out.append(f"mptrack_commits_total {_n(s[_AT['batches']])}")
         metric("commit_failures_total", "counter", "Group commits that failed (every request of the batch got 503).")
         out.append(f"mptrack_commit_failures_total {_n(s[_AT['commit_failures']])}")
+        metric("commit_retries_total", "counter", "Group commits filtered again because another worker had changed "
+                                                  "one of their devices meanwhile (PostgreSQL; none with routing by "
+                                                  "device).")
+        out.append(f"mptrack_commit_retries_total {_n(s[_AT['commit_retries']])}")
         for name, bounds, key, text in (
                 ("ingest_request_seconds", LATENCY_S, "latency", "Ingest request latency, from the request to the "
                                                                  "answer (s)."),

@@ -201,7 +201,7 @@ class SqliteStore:
         return self.device_keys(devices)
 
     @contextlib.contextmanager
-    def batch(self, devs=None, versions=None):
+    def batch(self, devs=None, versions=None, optimistic=False):
         with self._transaction() as w:
             yield _Batch(w)
 

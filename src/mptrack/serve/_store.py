@@ -25,7 +25,10 @@ after the watermark that each device's state does not cover restores the live st
 crash (:meth:`Store.replay`).  A ``shared`` store has writers in many processes: a batch locks its
 devices' state rows (in sorted order), gets the states another process wrote since, and writes the
 new states of every device it stepped with the fixes; its states are always current, there is
-nothing to replay.
+nothing to replay.  Ingest's batches are optimistic there: the fixes are filtered with the states
+this process holds, and one statement locks the rows, writes only if no state changed meanwhile and
+reports those that did (:class:`StaleStates`); the batch is then filtered again from them and
+written the locking way.
 """
 
 from __future__ import annotations
@@ -38,8 +41,8 @@ import numpy as np
 
 from ..tracking import FLAGS
 
-__all__ = ["Store", "Batch", "StoredRows", "stored_rows", "FIX_COLUMNS", "ESTIMATE_COLUMNS", "CELL_COLUMNS",
-           "AREA_COLUMNS", "AREA_AGGREGATES", "DEFAULT_DB", "first_line", "split_histories", "FLAG_NAMES", "LATE",
+__all__ = ["Store", "Batch", "StaleStates", "StoredRows", "stored_rows", "FIX_COLUMNS", "ESTIMATE_COLUMNS",
+           "CELL_COLUMNS", "AREA_COLUMNS", "AREA_AGGREGATES", "DEFAULT_DB", "first_line", "split_histories", "FLAG_NAMES", "LATE",
            "HISTORY_COLUMNS"]
 
 DEFAULT_DB = "sqlite:///mptrack.db"
@@ -141,6 +144,15 @@ def first_line(exc: BaseException) -> str:
     return text.splitlines()[0] if text else type(exc).__name__
 
 
+class StaleStates(Exception):
+    """An optimistic batch (:meth:`Store.batch`) wrote nothing: other processes changed these states
+    (``stale``: (dev, version, state blob or None)) since the versions it was given."""
+
+    def __init__(self, stale: list[tuple[int, int, bytes | None]]):
+        super().__init__(f"{len(stale)} device states changed by another process")
+        self.stale = stale
+
+
 class Batch(Protocol):
     """One batch's transaction (:meth:`Store.batch`)."""
 
@@ -182,10 +194,13 @@ class Store(Protocol):
     def register(self, devices: list[str]) -> list[tuple[int, str]]:
         """(key, id) of these device ids, registering (and committing) the new ones."""
 
-    def batch(self, devs: np.ndarray, versions: np.ndarray) -> contextlib.AbstractContextManager[Batch]:
+    def batch(self, devs: np.ndarray, versions: np.ndarray,
+              optimistic: bool = False) -> contextlib.AbstractContextManager[Batch]:
         """A durable transaction for a batch of the devices ``devs`` (sorted keys), committed when the
         context exits without an exception, rolled back otherwise.  A shared store locks the devices'
-        rows first (in sorted order) and reports the states whose version is not in ``versions``."""
+        rows first (in sorted order) and reports the states whose version is not in ``versions``;
+        ``optimistic``: it reports none, and the commit (or a write that needs the rows locked first)
+        raises :class:`StaleStates`, having written nothing, if some version is not in ``versions``."""
 
     def load_checkpoint(self, batch: int = 50_000) -> tuple[int, Iterator[list[tuple[int, bytes, int, int]]]]:
         """(watermark, the device states (key, blob, upto, version) in chunks of ``batch``), read from
