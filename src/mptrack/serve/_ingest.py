@@ -90,6 +90,13 @@ RENEW = 0.25
 ESTIMATOR_SHARE = 0.25
 #: The most device states one batch checkpoints.
 CHECKPOINT_ROWS = 2000
+#: A shared store: a batch is written optimistically (one statement; filtered again if it met a state another
+#: process changed meanwhile) while fewer than OPTIMISTIC_BELOW of the recent batches met one (a moving
+#: average of weight STALE_WEIGHT), else with its rows locked first.  With routing by device a batch never
+#: meets one; without, a worker meets the others' states in nearly every batch (each device's last fix went
+#: to another worker half the time with two), and filtering twice cost more than the round trip saved.
+OPTIMISTIC_BELOW = 0.05
+STALE_WEIGHT = 0.1
 #: What :meth:`mptrack.tracking.LiveTracks.advance` returns for each fix, in the order stored (ESTIMATE_COLUMNS).
 ESTIMATES = ESTIMATE_FIELDS
 
@@ -130,6 +137,7 @@ class Ingest:
         self._noise_due = KeyQueue()              # devices due for a noise estimate, first due first
         self._due_since = 0.0                     # when the first of them fell due (monotonic)
         self._version = np.zeros(0, dtype=np.int64)   # a shared store: each device's state version held here
+        self._stale_rate = 0.0                    # a shared store: how often batches met others' states lately
         self.listeners: set[StreamQueue] = set()
 
     # ---- start, recovery, stop --------------------------------------------------------------------
@@ -315,15 +323,19 @@ class Ingest:
     def _commit(self, fixes: list[tuple]):
         """Filter and commit one batch (a shared store: optimistic first, then, if another process changed
         one of its devices meanwhile, again from the states it wrote, the rows locked first)."""
-        if not self.shared:
+        if not self.shared or self._stale_rate >= OPTIMISTIC_BELOW:
             return self._commit_batch(fixes, optimistic=False)
         try:
             return self._commit_batch(fixes, optimistic=True)
         except StaleStates as exc:       # nothing was written, the live states are as they were
             self.metrics.add("commit_retries")
+            self._met_stale(True)
             with self.lock:
                 self._load(exc.stale)
             return self._commit_batch(fixes, optimistic=False)
+
+    def _met_stale(self, met: bool) -> None:
+        self._stale_rate += STALE_WEIGHT * (float(met) - self._stale_rate)
 
     def _commit_batch(self, fixes: list[tuple], optimistic: bool):
         now = time.time()
@@ -343,6 +355,8 @@ class Ingest:
             with self.store.batch(devs, versions, optimistic) as tx:
                 with self.lock:
                     self._load(tx.stale)      # what other processes committed for these devices
+                    if self.shared:
+                        self._met_stale(bool(tx.stale))
                     last = self.live.last_fixes(d)
                     dup_last = (ts == last[:, 0]) & (la == last[:, 1]) & (lo == last[:, 2])
                     duplicate = prev_same | dup_last
