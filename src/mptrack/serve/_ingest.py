@@ -335,6 +335,7 @@ class Ingest:
             return self._commit_batch(fixes, optimistic=False)
 
     def _met_stale(self, met: bool) -> None:
+        """One batch into the moving average of those that met another process's states."""
         self._stale_rate += STALE_WEIGHT * (float(met) - self._stale_rate)
 
     def _commit_batch(self, fixes: list[tuple], optimistic: bool):
