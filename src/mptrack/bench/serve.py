@@ -18,7 +18,8 @@ small deployment would.  Each figure is set beside an anchor measured in the sam
 
 With ``--db postgresql://...`` the suite measures the scale-out instead, on that database (in schemas
 of its own, dropped afterwards): OsmAnd GETs with ``--workers 1`` and ``--workers 2`` in the same run,
-with the CPU-seconds of all the server's processes per acknowledged fix; p99 at about half the rate;
+and to two single-worker servers each sent half the devices (routing by device), with the CPU-seconds
+of all the server's processes per acknowledged fix; p99 at about half the rate;
 bulk NDJSON (bodies posted in order by two clients, as a gateway replays) against PostgreSQL's binary
 COPY of the same rows from one process (the storage floor).
 """
@@ -50,7 +51,8 @@ local n = 0
 math.randomseed(%(seed)d)
 request = function()
   n = n + 1
-  local path = string.format("/?id=dev%%d&timestamp=%%.0f&lat=%%.6f&lon=%%.6f&accuracy=8", math.random(0, %(devices)d - 1),
+  local path = string.format("/?id=dev%%d&timestamp=%%.0f&lat=%%.6f&lon=%%.6f&accuracy=8",
+                             %(first)d + math.random(0, %(devices)d - 1),
                              %(t0)d + n, 52.5 + math.random() * 0.01, 13.4 + math.random() * 0.01)
   return wrk.format("GET", path)
 end
@@ -122,18 +124,19 @@ class _Process:
 
 
 def _wrk(url: str, seconds: int, tmp: Path, *, devices: int = 10_000, delay_ms: float | None = None,
-         connections: int = 64, seed: int = 1, script: Path | None = None) -> dict:
-    """requests/s and latency percentiles (ms) of wrk with the OsmAnd script, ``script``, or a plain GET."""
+         connections: int = 64, seed: int = 1, script: Path | None = None, first: int = 0) -> dict:
+    """requests/s and latency percentiles (ms) of wrk with the OsmAnd script (devices ``first`` ..
+    ``first + devices - 1``), ``script``, or a plain GET."""
     cmd = [_WRK, "-t1", f"-c{connections}", f"-d{seconds}s", "--latency"]
     if script is not None:
         cmd += ["-s", str(script)]
     elif devices:
-        script = tmp / f"osmand-{seed}.lua"
+        script = tmp / f"osmand-{seed}-{first}.lua"
         delay = f"delay = function() return {delay_ms:.3f} end" if delay_ms else ""
         # epoch milliseconds, 1 ms a request, each seed 1000 s after the one before: one server's runs (seeds
         # in increasing order) send every device's fixes in time order, ~10 s apart with 10^4 devices
         t0 = int(time.time() * 1000) - 86_000_000 + seed * 1_000_000
-        script.write_text(_OSMAND_LUA % {"seed": seed, "devices": devices, "t0": t0,
+        script.write_text(_OSMAND_LUA % {"seed": seed, "devices": devices, "first": first, "t0": t0,
                                           "delay": delay})
         cmd += ["-s", str(script)]
     out = subprocess.run(cmd + [url + "/"], capture_output=True, text=True, check=True).stdout
@@ -344,6 +347,12 @@ def _postgres_suite(db: str, quick: bool, load: float) -> dict:
                 (f1, c1, _), (f2, c2, _) = by_workers[1], by_workers[2]
                 notes.append(f"--workers 2 vs 1 in this run: throughput x{f2['rps'] / f1['rps']:.2f}, server CPU-seconds "
                              f"per acknowledged fix x{c2 / c1:.2f} (goal: >= 0.95 and <= 1.15)")
+                routed, cr = _routed(urls[4], seconds, tmp)
+                rows.append(["OsmAnd GET on PostgreSQL, 2 servers routed by device", routed["rps"], routed["p50"],
+                             routed["p99"], 1e6 * cr])
+                notes.append(f"routed by device (two single-worker servers on one database, each sent half the devices "
+                             f"by a wrk of its own, 32 connections each) vs --workers 1: throughput "
+                             f"x{routed['rps'] / f1['rps']:.2f}, server CPU-seconds per acknowledged fix x{cr / c1:.2f}")
                 notes.append("OsmAnd rows: x floor = server CPU-microseconds per acknowledged fix (all its processes)")
             devices, per = (1000, 5) if quick else (2000, 10)
             bodies = [_ndjson(devices, per, int(time.time()) - 80000, 100 * b) for b in range(4 if quick else 20)]
@@ -367,6 +376,38 @@ def _postgres_suite(db: str, quick: bool, load: float) -> dict:
                  "bulk >= 100,000 fixes/s; p99 <= 50 ms at half the rate")
     return {"suite": "serve", "title": "mptrack serve on PostgreSQL, loopback (fixes/s; latency ms)",
             "columns": ["case", "fixes/s", "p50 ms", "p99 ms", "x floor"], "rows": rows, "notes": notes}
+
+
+def _routed(url: str, seconds: int, tmp: Path) -> tuple[dict, float]:
+    """(wrk's figures summed, server CPU-seconds per acknowledged fix) of two single-worker servers on one
+    database, each sent its half of the devices (what nginx's ``hash $arg_id`` gives)."""
+    servers = [_Process(["mptrack", "serve", "-q", "--db", url, "--rate", "0"], tmp) for _ in range(2)]
+    try:
+        _known_devices(servers[0].url)
+
+        def both(secs: int, seed: int) -> list[dict]:
+            out: list = [None, None]
+
+            def run(i: int) -> None:
+                out[i] = _wrk(servers[i].url, secs, tmp, devices=5000, first=5000 * i, connections=32, seed=seed)
+
+            threads = [threading.Thread(target=run, args=(i,)) for i in range(2)]
+            for t in threads:
+                t.start()
+            for t in threads:
+                t.join()
+            return out
+
+        both(2, 2)
+        cpu0 = sum(_cpu_s(s.proc.pid) for s in servers)
+        runs = both(seconds, 3)
+        cpu = sum(_cpu_s(s.proc.pid) for s in servers) - cpu0
+    finally:
+        for s in servers:
+            s.stop()
+    rps = sum(r["rps"] for r in runs)
+    return ({"rps": rps, "p50": max(r["p50"] for r in runs), "p99": max(r["p99"] for r in runs)},
+            cpu / (rps * seconds))
 
 
 def _load_note(load: float, sharing: str) -> str:
