@@ -449,7 +449,7 @@ def test_an_optimistic_batch_writes_nothing_when_another_process_changed_a_devic
         (k0, _), (k1, _) = store.register(["opt-a", "opt-b"])
         devs, held = np.array([k0, k1], np.int64), np.zeros(2, np.int64)
         with other.batch(devs, held) as tx:                 # the other process steps opt-b
-            tx.write(states=[(k1, "opt-b", b"theirs", T0)])
+            tx.write(states=[(k1, b"theirs", T0)])
 
         def rows(n, t0):
             cols = {c: np.full(n, 1.0) for c in FIX_COLUMNS + ESTIMATE_COLUMNS}
@@ -457,7 +457,7 @@ def test_an_optimistic_batch_writes_nothing_when_another_process_changed_a_devic
                         flag=np.zeros(n, np.int64))
             return StoredRows(cols)
 
-        mine = [(k0, "opt-a", b"mine-a", T0), (k1, "opt-b", b"mine-b", T0)]
+        mine = [(k0, b"mine-a", T0), (k1, b"mine-b", T0)]
         with pytest.raises(StaleStates) as stale:
             with store.batch(devs, held, optimistic=True) as tx:
                 assert tx.stale == []

@@ -24,7 +24,7 @@ def test_a_version_1_database_is_upgraded_with_its_device_states(tmp_path):
     keys = store.register(["a", "b"])
     states = {device: bytes([k + 1]) * 1100 for k, device in keys}   # as large as a live state
     with store.batch(np.array([0, 1]), np.zeros(2, np.int64)) as tx:
-        tx.write(states=[(k, device, states[device], np.nan) for k, device in keys])
+        tx.write(states=[(k, states[device], np.nan) for k, device in keys])
     store.close()
     # version 1 kept the states by device id in a WITHOUT ROWID table
     con = sqlite3.connect(path)

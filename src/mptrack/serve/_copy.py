@@ -80,11 +80,10 @@ def _copy(src: Store, dst: Store, model: str | None) -> dict:
         t_last = live.last_fixes(np.arange(live.n))[:, 0]
         started = np.flatnonzero(np.isfinite(t_last))
         started = started[ingest.devices.known(started)]
-        states = list(zip(started.tolist(), ingest.devices.ids_of(started), live.states_bytes(started),
-                          t_last[started].tolist()))
+        states = list(zip(started.tolist(), live.states_bytes(started), t_last[started].tolist()))
         for i in range(0, len(states), 10_000):   # each covers every fix copied
             part = states[i:i + 10_000]
-            keys = np.array([k for k, _, _, _ in part], dtype=np.int64)
+            keys = np.array([k for k, _, _ in part], dtype=np.int64)
             with dst.batch(keys, np.zeros(len(keys), np.int64)) as tx:
                 tx.write(states=part, watermark=last)
     except Exception as exc:

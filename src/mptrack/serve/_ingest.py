@@ -401,18 +401,17 @@ class Ingest:
         self._noise()
         return events
 
-    def _states_of(self, devs: np.ndarray) -> list[tuple[int, str, bytes, float]]:
-        """A shared store: (key, id, blob, last fix time) of these devices, their versions raised (lock held)."""
+    def _states_of(self, devs: np.ndarray) -> list[tuple[int, bytes, float]]:
+        """A shared store: (key, blob, last fix time) of these devices, their versions raised (lock held)."""
         self._version[devs] += 1
         t_last = self.live.last_fixes(devs)[:, 0].tolist()
-        return list(zip(devs.tolist(), self.devices.ids_of(devs), self.live.states_bytes(devs), t_last))
+        return list(zip(devs.tolist(), self.live.states_bytes(devs), t_last))
 
-    def _checkpoints(self, devices: list[int]) -> list[tuple[int, str, bytes, float]]:
-        """(key, id, blob, NaN) of these devices' states: checkpoints (a store with one writer; lock held)."""
+    def _checkpoints(self, devices: list[int]) -> list[tuple[int, bytes, float]]:
+        """(key, blob, NaN) of these devices' states: checkpoints (a store with one writer; lock held)."""
         if not devices:
             return []
-        return [(d, i, b, np.nan) for d, i, b in zip(devices, self.devices.ids_of(devices),
-                                                      self.live.states_bytes(devices))]
+        return [(d, b, np.nan) for d, b in zip(devices, self.live.states_bytes(devices))]
 
     def _due_states(self) -> list[int]:
         """The devices whose state changed more than ``checkpoint_s`` ago (oldest first, at most

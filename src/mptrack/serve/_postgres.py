@@ -490,7 +490,7 @@ class _Batch:
         self.stale: list[tuple[int, int, bytes | None]] = []
         self._late: tuple | None = None     # the statement that stores the late fixes, and its arrays
         self._late_rows: tuple = ()          # a small batch's late fixes (_row_arrays)
-        self._states: list[tuple[int, str, bytes, float]] = []
+        self._states: list[tuple[int, bytes, float]] = []
         self._events: list[str] = []
         self._cur = con.cursor()
         self._rows: tuple = ()               # a small batch's fixes (_row_arrays)
@@ -511,7 +511,7 @@ class _Batch:
         self.stale = [(d, v, s) for d, v, stale, s in locked if stale]
 
     def write(self, rows: StoredRows | None = None, late: StoredRows | None = None,
-              states: list[tuple[int, str, bytes, float]] = (), events: list[str] = (),
+              states: list[tuple[int, bytes, float]] = (), events: list[str] = (),
               watermark: int | None = None) -> None:
         """(see :class:`._store.Batch`) A bulk batch's ``rows`` go in now by COPY; everything else is sent
         with COMMIT (one INSERT of arrays for the rows of a small batch: a round trip less than COPY);
@@ -546,7 +546,7 @@ class _Batch:
             if self._late:
                 self._cur.execute(*self._late)
             if self._states:
-                dev, _, blobs, t = zip(*self._states)
+                dev, blobs, t = zip(*self._states)
                 con.execute(_WRITE_STATES, (np.array(dev, np.int64), list(blobs), np.array(t, float)))
             if self._events:
                 con.cursor().executemany("SELECT pg_notify(%s, %s)", [(CHANNEL, p) for p in _payloads(self._events)])
@@ -557,7 +557,7 @@ class _Batch:
         """The batch in one statement (:func:`_optimistic`); :class:`StaleStates` if it wrote nothing."""
         params = [self.devs.tolist(), self.versions.tolist(), *self._rows, *self._late_rows]
         if self._states:
-            dev, _, blobs, t = zip(*self._states)
+            dev, blobs, t = zip(*self._states)
             params += [np.array(dev, np.int64), list(blobs), np.array(t, float)]
         if self._events:
             params += [CHANNEL, _payloads(self._events)]

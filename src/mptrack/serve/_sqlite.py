@@ -405,6 +405,6 @@ class _Batch:
         self.stored_late = w.total_changes - before
         last = self.last_row = w.execute("SELECT COALESCE(MAX(seq), 0) FROM fixes").fetchone()[0]
         if states:
-            w.executemany("INSERT OR REPLACE INTO device_state VALUES (?, ?, ?)", [(k, b, last) for k, _, b, _ in states])
+            w.executemany("INSERT OR REPLACE INTO device_state VALUES (?, ?, ?)", [(k, b, last) for k, b, _ in states])
         if states or watermark is not None:
             w.execute("UPDATE meta SET value = ? WHERE key = 'watermark'", (last if watermark is None else int(watermark),))

@@ -166,11 +166,11 @@ class Batch(Protocol):
     last_row: int
 
     def write(self, rows: StoredRows | None = None, late: StoredRows | None = None,
-              states: list[tuple[int, str, bytes, float]] = (), events: list[str] = (),
+              states: list[tuple[int, bytes, float]] = (), events: list[str] = (),
               watermark: int | None = None) -> None:
         """(Once per batch.) Insert the fix rows (columns FIX_COLUMNS + ESTIMATE_COLUMNS) ``rows`` -- fixes later than every
         stored fix of their device, which cannot be duplicates -- and the rows ``late`` that are not exact
-        duplicates of a stored fix (device, t, lat, lon); store device ``states`` (key, id, blob, time of
+        duplicates of a stored fix (device, t, lat, lon); store device ``states`` (key, blob, time of
         the last fix) that cover every fix of their device stored so far, this transaction's included
         (a shared store: as the devices' current states).  A store with one writer also sets the
         watermark (None: the last row) when states or a watermark are given; a shared store sends
