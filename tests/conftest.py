@@ -17,9 +17,15 @@ os.environ.setdefault("MPLBACKEND", "Agg")
 
 import numpy as np
 import pytest
+from hypothesis import settings
 
 from mptrack.models import assimakis_model_a, assimakis_model_b
 from mptrack.sim import simulate_linear
+
+# Property tests draw the same examples in every run (randomness only through explicit seeds): a draw that
+# differs from run to run made CI fail one run in tens on examples no run before had met.
+settings.register_profile("mptrack", derandomize=True, database=None)
+settings.load_profile("mptrack")
 
 PAPER_MODELS = {
     f"{label}-{measurement}": (lambda f=factory, m=measurement: f(m))
