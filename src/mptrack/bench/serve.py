@@ -352,7 +352,8 @@ def _postgres_suite(db: str, quick: bool, load: float) -> dict:
                              routed["p99"], 1e6 * cr])
                 notes.append(f"routed by device (two single-worker servers on one database, each sent half the devices "
                              f"by a wrk of its own, 32 connections each) vs --workers 1: throughput "
-                             f"x{routed['rps'] / f1['rps']:.2f}, server CPU-seconds per acknowledged fix x{cr / c1:.2f}")
+                             f"x{routed['rps'] / f1['rps']:.2f}, server CPU-seconds per acknowledged fix "
+                             f"x{cr / c1:.2f}")
                 notes.append("OsmAnd rows: x floor = server CPU-microseconds per acknowledged fix (all its processes)")
             devices, per = (1000, 5) if quick else (2000, 10)
             bodies = [_ndjson(devices, per, int(time.time()) - 80000, 100 * b) for b in range(4 if quick else 20)]

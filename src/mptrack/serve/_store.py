@@ -42,8 +42,8 @@ import numpy as np
 from ..tracking import FLAGS
 
 __all__ = ["Store", "Batch", "StaleStates", "StoredRows", "stored_rows", "FIX_COLUMNS", "ESTIMATE_COLUMNS",
-           "CELL_COLUMNS", "AREA_COLUMNS", "AREA_AGGREGATES", "DEFAULT_DB", "first_line", "split_histories", "FLAG_NAMES", "LATE",
-           "HISTORY_COLUMNS"]
+           "CELL_COLUMNS", "AREA_COLUMNS", "AREA_AGGREGATES", "DEFAULT_DB", "first_line", "split_histories",
+           "FLAG_NAMES", "LATE", "HISTORY_COLUMNS"]
 
 DEFAULT_DB = "sqlite:///mptrack.db"
 #: Names of the stored ``flag`` values: the tracking engine's flags, then "late" (stored, not filtered).
