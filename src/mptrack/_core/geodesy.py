@@ -1,7 +1,8 @@
 """The compiled WGS-84 <-> local East-North kernels, one origin per row (the method and its accuracy:
 :func:`mptrack.io.geodetic_to_enu` and :func:`mptrack.io.enu_to_geodetic`, their checked public
-forms), and unchecked column forms for hot paths that have checked their columns themselves (the
-live filter of ``mptrack serve``: a batch of a few dozen fixes)."""
+forms), and the inline one-point functions (:func:`origin_terms`, :func:`enu_row`, :func:`geodetic_row`) for other
+compiled kernels (the live filter of ``mptrack serve``, which converts a batch of a few dozen fixes
+inside its own kernel)."""
 
 from __future__ import annotations
 
@@ -12,7 +13,7 @@ import numpy as np
 
 from . import jit_cache  # noqa: F401 - compiled kernels cache in the user's cache directory
 
-__all__ = ["enu_columns", "geodetic_columns"]
+__all__ = ["origin_terms", "enu_row", "geodetic_row"]
 
 # WGS-84 defining parameters (NIMA TR8350.2, 3rd ed., 2000, Table 3.1): semi-major axis a (m)
 # and flattening f; e2 is the first eccentricity squared, ep2 the second.
@@ -43,7 +44,7 @@ def _sincosd(deg):
 
 
 @nb.njit(inline="always")
-def _origin_terms(lat0):
+def origin_terms(lat0):
     """(sin lat0, cos lat0, sqrt(1 - e2 sin^2 lat0)) of an origin latitude (degrees)."""
     s0, c0 = _sincosd(lat0)
     return s0, c0, math.sqrt(1.0 - _E2 * s0 * s0)
@@ -62,7 +63,7 @@ def _dlon_rad(lon, lon0):
 
 
 @nb.njit(inline="always")
-def _enu_row(lat, lon, lat0, lon0, h, s0, c0, w0):
+def enu_row(lat, lon, lat0, lon0, h, s0, c0, w0):
     """East, north (m) of one point; s0, c0 = sin, cos lat0, w0 = sqrt(1 - e2 s0^2)."""
     dphi = (lat - lat0) * _RAD
     sd = math.sin(dphi)
@@ -83,7 +84,7 @@ def _enu_row(lat, lon, lat0, lon0, h, s0, c0, w0):
 
 
 @nb.njit(inline="always")
-def _geodetic_row(east, north, lat0, lon0, s0, c0, w0):
+def geodetic_row(east, north, lat0, lon0, s0, c0, w0):
     """Latitude, longitude (degrees) of the ellipsoid point at east, north (m); NaN if the
     origin's vertical through (east, north) misses the ellipsoid (thousands of km away)."""
     n0 = WGS84_A / w0
@@ -122,9 +123,9 @@ def _enu_rows(lat, lon, lat0, lon0, h, east, north, start, stop):
     for i in range(start, stop):
         phi0 = lat0[i * k_lat0]
         if phi0 != last:                        # once per run of equal origins (per track)
-            s0, c0, w0 = _origin_terms(phi0)
+            s0, c0, w0 = origin_terms(phi0)
             last = phi0
-        east[i], north[i] = _enu_row(lat[i * k_lat], lon[i * k_lon], phi0, lon0[i * k_lon0],
+        east[i], north[i] = enu_row(lat[i * k_lat], lon[i * k_lon], phi0, lon0[i * k_lon0],
                                      h[i * k_h], s0, c0, w0)
     return 0
 
@@ -141,9 +142,9 @@ def _geodetic_rows(east, north, lat0, lon0, lat, lon, start, stop):
     for i in range(start, stop):
         phi0 = lat0[i * k_lat0]
         if phi0 != last:
-            s0, c0, w0 = _origin_terms(phi0)
+            s0, c0, w0 = origin_terms(phi0)
             last = phi0
-        lat[i], lon[i] = _geodetic_row(east[i * k_e], north[i * k_n], phi0, lon0[i * k_lon0], s0, c0, w0)
+        lat[i], lon[i] = geodetic_row(east[i * k_e], north[i * k_n], phi0, lon0[i * k_lon0], s0, c0, w0)
         missed += np.isnan(lat[i])
     return missed
 
@@ -172,24 +173,3 @@ def _run(rows_kernel, parallel_kernel, columns: list[np.ndarray], outputs: list[
     if n < _SERIAL_ROWS:
         return int(rows_kernel(*columns, *outputs, 0, n))
     return int(parallel_kernel(*columns, *outputs))
-
-
-def enu_columns(lat: np.ndarray, lon: np.ndarray, lat0: np.ndarray, lon0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`geodetic_to_enu` (h = 0) of float64 columns of one length that the caller has checked
-    (finite, in range): east, north.  For hot paths of a few rows, where the checks and the
-    broadcasting cost more than the conversion."""
-    east, north = np.empty(lat.size), np.empty(lat.size)
-    _run(_enu_rows, _enu_parallel, [lat, lon, lat0, lon0, _NO_HEIGHT], [east, north])
-    return east, north
-
-
-def geodetic_columns(east: np.ndarray, north: np.ndarray, lat0: np.ndarray,
-                     lon0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`enu_to_geodetic` of float64 columns of one length that the caller has checked: lat, lon,
-    NaN where a point is so far from its origin that the vertical misses the ellipsoid."""
-    lat, lon = np.empty(east.size), np.empty(east.size)
-    _run(_geodetic_rows, _geodetic_parallel, [east, north, lat0, lon0], [lat, lon])
-    return lat, lon
-
-
-_NO_HEIGHT = np.zeros(1)

@@ -228,19 +228,9 @@ def advance_tracks(states, offsets, t, ze, zn, w, c, q, sb2, tau, order, prior, 
             raise ShapeError(f"{name}: expected shape {shape}, got {a.shape}")
     if flag.dtype != np.int8:
         raise DTypeError(f"flag: expected int8, got {flag.dtype}")
-    step_tracks(states, offsets, t, ze, zn, w, c, q, sb2, tau, order, prior, gate, max_rej, max_gap, X, P, nis, flag,
-                stats, revisions, store=store)
-
-
-def step_tracks(states, offsets, t, ze, zn, w, c, q, sb2, tau, order, prior, gate, max_rej, max_gap, X, P, nis, flag,
-                stats, revisions: Revisions | None = None, *, store: bool = True) -> None:
-    """:func:`advance_tracks` without its argument checks, for a caller that builds every argument
-    itself and has checked the fixes (:class:`._live.LiveTracks`: a live server's batch of a few
-    dozen fixes would spend more time in the checks than in the filter)."""
-    B = states.shape[0]
     rev = _no_revisions(B, order) if revisions is None else (revisions.n, revisions.flag, revisions.nis,
                                                              revisions.X, revisions.P)
-    # a live server's batches are small: on the calling thread, not waking the others (_core.threads)
+    # small batches run on the calling thread, not waking the others (_core.threads)
     launch(_kernel(order), len(t), states, offsets, t, ze, zn, w, c, q, sb2, tau, prior, float(gate), int(max_rej),
            float(max_gap), bool(store), False, X, P, nis, flag, stats, *rev)
 

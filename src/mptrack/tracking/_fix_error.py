@@ -29,17 +29,21 @@ smartphones show in cities, Merry & Bettinger 2019).  A receiver that smooths it
 output (white part ~0) keeps its whole stated error as the slow part, so the
 reported covariance is metres, not the millimetres between its fixes; simulated
 white noise whose accuracy states that noise has no slow part left, and the filter
-is the white-noise filter.  The time constant is :data:`SLOW_TAU_S` (60 s, the
-tens of seconds the issue's receivers and Soundy et al. 2020 show).
+is the white-noise filter.  The time constant is :data:`SLOW_TAU_S`, an hour: on
+real logs the fixes' likelihood grows with it from 30 s to an hour and beyond (their
+slow error looks constant over the log), so the data do not identify it, and an hour
+lets a static receiver's covariance average down only over hours (docs/tracking.md).
 """
 
 from __future__ import annotations
 
+import numba as nb
 import numpy as np
 
+from .._core import jit_cache  # noqa: F401 - compiled kernels cache in the user's cache directory
 from ._registry import DEFAULT_SIGMA_M
 
-__all__ = ["TOTAL_SIGMA_M", "SLOW_TAU_S", "slow_error_variance"]
+__all__ = ["TOTAL_SIGMA_M", "SLOW_TAU_S", "slow_error_variance", "slow_variance"]
 
 #: A fix's total error (1-sigma per axis, m) where the input states none: a consumer receiver's.
 TOTAL_SIGMA_M = DEFAULT_SIGMA_M
@@ -56,5 +60,21 @@ def slow_error_variance(c: np.ndarray, typical_w: np.ndarray, has_accuracy: np.n
     has_accuracy  (B,) the track's fixes state an accuracy: the total is that accuracy (w), else
                   TOTAL_SIGMA_M^2
     """
-    total = np.where(has_accuracy, typical_w, TOTAL_SIGMA_M ** 2)
-    return np.maximum(total - c * typical_w, 0.0)
+    c, typical_w, has_accuracy = np.broadcast_arrays(np.asarray(c, float), np.asarray(typical_w, float),
+                                                     np.asarray(has_accuracy, bool))
+    return _slow_rows(np.ascontiguousarray(c), np.ascontiguousarray(typical_w), np.ascontiguousarray(has_accuracy))
+
+
+@nb.njit(inline="always")
+def slow_variance(c, typical_w, has_accuracy):
+    """:func:`slow_error_variance` of one track (for compiled kernels; NaN stays NaN)."""
+    x = (typical_w if has_accuracy else TOTAL_SIGMA_M ** 2) - c * typical_w
+    return x if x >= 0.0 or x != x else 0.0
+
+
+@nb.njit(cache=True, nogil=True)
+def _slow_rows(c, typical_w, has_accuracy):
+    out = np.empty(c.shape)
+    for k in range(c.size):
+        out.flat[k] = slow_variance(c.flat[k], typical_w.flat[k], has_accuracy.flat[k])
+    return out

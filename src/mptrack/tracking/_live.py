@@ -1,9 +1,12 @@
 """The tracking engine advanced fix by fix for many devices at once: the filter of ``mptrack serve``.
 
 :class:`LiveTracks` keeps one row per track (a device) in flat arrays -- the engine's filter state
-(:func:`._engine.advance_tracks`), the track's local frame (its first fix), its noise parameters and
-its last fix and estimate -- and advances any subset of tracks with their new fixes in one call of
-the compiled kernel.  It is the gated filter of ``mptrack track`` (same model, gating, manoeuvre,
+(:mod:`._state`), the track's local frame (its first fix), its noise parameters and its last fix and
+estimate -- and advances any subset of tracks with their new fixes in one call of a compiled kernel
+that converts the fixes to each track's frame, steps the engine's per-track filter
+(:func:`._track_filter.advance_track`) on the stored state in place and converts the estimates back
+(a server's batch of a few dozen fixes spent 3/4 of its time in the ~60 array calls around the
+engine's kernel before).  It is the gated filter of ``mptrack track`` (same model, gating, manoeuvre,
 outlier and restart logic, flags): a track advanced piece by piece ends where one run over all its
 fixes ends.
 
@@ -16,19 +19,21 @@ then).  The noise of tracks is re-estimated from their recent fixes by the maxim
 
 from __future__ import annotations
 
+import math
 import struct
 
+import numba as nb
 import numpy as np
 import pandas as pd
 
 from ..errors import ParameterError, ShapeError
 from ..io import enu_to_geodetic
-from .._core.geodesy import enu_columns, geodetic_columns
-from ._chain import transition
+from .._core.geodesy import enu_row, geodetic_row, origin_terms
+from ._chain import SEQ, transition, work
 from ._columns import FixTable
-from ._engine import step_tracks
-from ._state import ST_PENDING, ST_STREAK, state_from_bytes, state_layout, states_to_bytes
-from ._fix_error import SLOW_TAU_S, slow_error_variance
+from ._state import ST_PENDING, ST_STREAK, STREAK_CAP, state_from_bytes, state_layout, states_to_bytes
+from ._fix_error import SLOW_TAU_S, slow_error_variance, slow_variance
+from ._track_filter import advance_track
 from ._fixes import TrackOptions
 from ._noise import estimate_noise as _estimate
 from ._noise import fix_weights
@@ -130,22 +135,10 @@ class LiveTracks:
         self._head[idx] = rows[:, :self._split]
         slot = self._slot[idx]
         run = (rows[:, ST_STREAK] > 0) | (rows[:, ST_PENDING] != 0)
-        ended = (slot >= 0) & ~run
-        if ended.any():
-            self._free.extend(slot[ended].tolist())
-            self._slot[idx[ended]] = -1
-        new = run & (slot < 0)
-        if new.any():
-            k = int(new.sum())
-            if len(self._free) < k:
-                old = len(self._runs)
-                size = max(2 * old, old + k, 64)
-                self._runs = np.concatenate([self._runs, np.zeros((size - old, self._runs.shape[1]))])
-                self._free.extend(range(old, size))
-            self._slot[idx[new]] = self._free[-k:]
-            del self._free[-k:]
-        if run.any():
-            self._runs[self._slot[idx[run]]] = rows[run, self._split:]
+        kept = run & (slot >= 0)
+        self._runs[slot[kept]] = rows[kept, self._split:]
+        start = run & (slot < 0)
+        self._reslot(idx[(slot >= 0) & ~run], idx[start], rows[start, self._split:])
 
     def _check(self, tracks) -> np.ndarray:
         idx = np.asarray(tracks, dtype=np.int64)
@@ -169,46 +162,41 @@ class LiveTracks:
         N = len(t)
         if N == 0:
             return {k: np.empty(0) for k in ESTIMATE_FIELDS}
-        starts = np.flatnonzero(np.concatenate(([True], tracks[1:] != tracks[:-1])))
-        uniq = tracks[starts]
-        offsets = np.append(starts, N)
-        tr = self._track
-        new = tr[uniq, _MODE] == UNSET
-        if new.any():
-            first = starts[new]
-            tr[uniq[new], _LAT0], tr[uniq[new], _LON0] = lat[first], lon[first]
-            has = np.isfinite(acc[first]) & (acc[first] > 0)
-            tr[uniq[new], _MODE] = np.where(has, ACCURACY, SIGMA)
-            tr[uniq[new], _W_FILL] = np.where(has, acc[first] ** 2, 1.0)
-            tr[uniq[new], _C] = np.where(has, self.population["c_accuracy"], self.population["c_sigma"])
-            tr[uniq[new], _Q] = self.population["q"]
-        if self.options.sigma_m is not None:
-            tr[uniq, _C] = 1.0
-        if self.options.q is not None:
-            tr[uniq, _Q] = self.options.q
-        east, north = enu_columns(lat, lon, tr[tracks, _LAT0], tr[tracks, _LON0])
-        good = np.isfinite(acc) & (acc > 0)
-        sigma_mode = tr[tracks, _MODE] == SIGMA
-        if self.options.sigma_m is not None:
-            w = np.where(good, acc * acc, self.options.sigma_m ** 2)
-        else:
-            w = np.where(sigma_mode, 1.0, np.where(good, acc * acc, tr[tracks, _W_FILL]))
-        order, n = self.order, self.order + 1
-        states = self._rows(uniq)
-        X = np.empty((N, 2, n))
-        P = np.empty((N, n, n))
-        nis = np.empty(N)
+        out = np.empty((len(ESTIMATE_FIELDS), N))
+        X = np.empty((N, 2, self.order + 1))
+        P = np.empty((N, self.order + 1, self.order + 1))
         flag = np.empty(N, dtype=np.int8)
-        stats = np.empty((len(uniq), 6))
-        step_tracks(states, offsets, t, east, north, w, tr[uniq, _C], tr[uniq, _Q], self._slow_var(uniq),
-                    np.full(len(uniq), SLOW_TAU_S), order, self.spec.prior, self.spec.gate, self.spec.max_rej,
-                    self.spec.max_gap_s, X, P, nis, flag, stats)
-        self._put(uniq, states)
-        est = self._estimates(tracks, X, P, nis, flag)
-        last = offsets[1:] - 1
-        tr[uniq, _T], tr[uniq, _RAW_LAT], tr[uniq, _RAW_LON] = t[last], lat[last], lon[last]
-        tr[uniq, _EST:_EST + len(ESTIMATE_FIELDS)] = np.stack([est[k] for k in ESTIMATE_FIELDS], axis=1)[last]
+        runs = np.empty((N, self._runs.shape[1]))   # the run's part of the tracks that start a run
+        moved = np.empty((2, N), np.int64)            # the tracks whose run ended, those that started one
+        spec, options, pop = self.spec, self.options, self.population
+        missed, ended, started = _step_kernel(self.order)(
+            tracks, t, lat, lon, acc, self._track, self._head, self._runs, self._slot,
+            pop["c_accuracy"], pop["c_sigma"], pop["q"], _unset(options.sigma_m), _unset(options.q), spec.prior,
+            float(spec.gate), int(spec.max_rej), float(spec.max_gap_s), X, P, flag, out, runs, moved)
+        self._reslot(moved[0, :ended], moved[1, :started], runs[:started])
+        if missed:
+            raise ParameterError("tracks: an estimate is so far from its track's first fix that the vertical "
+                                 "through it misses the ellipsoid")
+        est = dict(zip(ESTIMATE_FIELDS, out))
+        est["flag"] = flag.astype(np.int64)
         return est
+
+    def _reslot(self, ended: np.ndarray, started: np.ndarray, rows: np.ndarray) -> None:
+        """The runs' pool after a step: tracks ``ended`` give their rows back, tracks ``started`` take one
+        for their run's part ``rows``."""
+        if len(ended):
+            self._free.extend(self._slot[ended].tolist())
+            self._slot[ended] = -1
+        k = len(started)
+        if k:
+            if len(self._free) < k:
+                old = len(self._runs)
+                size = max(2 * old, old + k, 64)
+                self._runs = np.concatenate([self._runs, np.zeros((size - old, self._runs.shape[1]))])
+                self._free.extend(range(old, size))
+            self._slot[started] = self._free[-k:]
+            del self._free[-k:]
+            self._runs[self._slot[started]] = rows
 
     def _check_fixes(self, tracks, t, lat, lon, acc) -> None:
         """The checks of :meth:`advance` (``tracks`` in range already)."""
@@ -238,16 +226,6 @@ class LiveTracks:
         accuracy = tr[tracks, _MODE] == ACCURACY
         other = 1.0 if self.options.sigma_m is None else self.options.sigma_m ** 2
         return slow_error_variance(tr[tracks, _C], np.where(accuracy, tr[tracks, _W_FILL], other), accuracy)
-
-    def _estimates(self, tracks, X, P, nis, flag) -> dict:
-        tr = self._track
-        lat, lon = geodetic_columns(X[:, 0, 0].copy(), X[:, 1, 0].copy(), tr[tracks, _LAT0], tr[tracks, _LON0])
-        if np.isnan(lat).any():
-            raise ParameterError("tracks: an estimate is so far from its track's first fix that the vertical "
-                                 "through it misses the ellipsoid")
-        var = P[:, 0, 0].copy()
-        return {"lat": lat, "lon": lon, "var_e": var, "cov_en": np.zeros(len(var)), "var_n": var.copy(),
-                "vel_e": X[:, 0, 1].copy(), "vel_n": X[:, 1, 1].copy(), "nis": nis, "flag": flag.astype(np.int64)}
 
     # ---- what a track knows now --------------------------------------------------------------------
     def last_fix(self, i: int) -> tuple[float, float, float]:
@@ -456,3 +434,111 @@ class LiveTracks:
         probe.estimate_noise([{"t": 1.7e9 + np.arange(40.0), "lat": 50.0 + 1e-5 * np.arange(40), "lon": np.full(40, 8.0),
                                "accuracy_m": np.full(40, 5.0)}])
 
+
+
+def _unset(value) -> float:
+    """An option's value for the kernel: NaN when it is not set."""
+    return math.nan if value is None else float(value)
+
+
+_KERNELS = {}
+
+
+def _step_kernel(order: int):
+    """The live filter's step (:meth:`LiveTracks.advance`) with the model's order a compile-time constant."""
+    if order not in _KERNELS:
+        _KERNELS[order] = _make_step(order)
+    return _KERNELS[order]
+
+
+def _make_step(order: int):
+    n = order + 1
+    split = state_layout.py_func(n)[2]
+
+    @nb.njit(**SEQ)
+    def step(tracks, t, lat, lon, acc, tr, head, runs, slot, c_accuracy, c_sigma, q_population, sigma_m, q_option,
+             prior, gate, max_rej, max_gap, X, P, flag, out, started_rows, moved):
+        """Every track's new fixes (rows grouped by track) through the engine's gated filter, in place: the
+        track's scalars ``tr``, its state (``head``, and ``runs[slot]`` while it is in a run), each fix's
+        estimate into ``out`` (ESTIMATE_FIELDS by row).  Returns (fixes whose estimate is off the
+        ellipsoid, tracks whose run ended -> moved[0, :ended], tracks that started one -> moved[1, :started]
+        with their run's part in started_rows[:started])."""
+        N = t.shape[0]
+        wk = work(n, STREAK_CAP, STREAK_CAP)
+        stats = np.empty(6)
+        rev_n = np.zeros(1, np.int64)
+        rev_flag, rev_nis = np.zeros(0, np.int8), np.zeros(0)
+        rev_X, rev_P = np.zeros((0, 2, n)), np.zeros((0, n, n))
+        ze, zn, w = np.empty(N), np.empty(N), np.empty(N)
+        st = np.empty(head.shape[1] + runs.shape[1])
+        nis = out[7]
+        missed = ended = started = 0
+        a0 = 0
+        while a0 < N:
+            i = tracks[a0]
+            b0 = a0 + 1
+            while b0 < N and tracks[b0] == i:
+                b0 += 1
+            row = tr[i]
+            if row[_MODE] == UNSET:   # a new track: its frame and noise from its first fix
+                has = math.isfinite(acc[a0]) and acc[a0] > 0.0
+                row[_LAT0], row[_LON0] = lat[a0], lon[a0]
+                row[_MODE] = ACCURACY if has else SIGMA
+                row[_W_FILL] = acc[a0] ** 2 if has else 1.0
+                row[_C] = c_accuracy if has else c_sigma
+                row[_Q] = q_population
+            if sigma_m == sigma_m:
+                row[_C] = 1.0
+            if q_option == q_option:
+                row[_Q] = q_option
+            lat0, lon0 = row[_LAT0], row[_LON0]
+            s0, c0, w0 = origin_terms(lat0)
+            by_accuracy = row[_MODE] == ACCURACY
+            for k in range(a0, b0):
+                ze[k], zn[k] = enu_row(lat[k], lon[k], lat0, lon0, 0.0, s0, c0, w0)
+                good = math.isfinite(acc[k]) and acc[k] > 0.0
+                if sigma_m == sigma_m:
+                    w[k] = acc[k] * acc[k] if good else sigma_m ** 2
+                elif row[_MODE] == SIGMA:
+                    w[k] = 1.0
+                else:
+                    w[k] = acc[k] * acc[k] if good else row[_W_FILL]
+            other = 1.0 if sigma_m != sigma_m else sigma_m ** 2
+            sb2 = slow_variance(row[_C], row[_W_FILL] if by_accuracy else other, by_accuracy)
+            st[:split] = head[i]
+            s = slot[i]
+            if s >= 0:
+                st[split:] = runs[s]
+            else:
+                st[split:] = 0.0
+            advance_track(st, t[a0:b0], ze[a0:b0], zn[a0:b0], w[a0:b0], row[_C], row[_Q], sb2, SLOW_TAU_S, order,
+                          prior, gate, max_rej, max_gap, True, X[a0:b0], P[a0:b0], nis[a0:b0], flag[a0:b0], stats,
+                          rev_n, rev_flag, rev_nis, rev_X, rev_P, wk)
+            head[i] = st[:split]
+            in_run = st[ST_STREAK] > 0.0 or st[ST_PENDING] != 0.0
+            if s >= 0 and in_run:
+                runs[s] = st[split:]
+            elif s >= 0:
+                moved[0, ended] = i
+                ended += 1
+            elif in_run:
+                moved[1, started] = i
+                started_rows[started] = st[split:]
+                started += 1
+            for k in range(a0, b0):
+                out[0, k], out[1, k] = geodetic_row(X[k, 0, 0], X[k, 1, 0], lat0, lon0, s0, c0, w0)
+                missed += out[0, k] != out[0, k]
+                out[2, k] = P[k, 0, 0]
+                out[3, k] = 0.0
+                out[4, k] = P[k, 0, 0]
+                out[5, k] = X[k, 0, 1]
+                out[6, k] = X[k, 1, 1]
+                out[8, k] = flag[k]
+            last = b0 - 1
+            row[_T], row[_RAW_LAT], row[_RAW_LON] = t[last], lat[last], lon[last]
+            for j in range(out.shape[0]):
+                row[_EST + j] = out[j, last]
+            a0 = b0
+        return missed, ended, started
+
+    return step
