@@ -81,6 +81,32 @@ def test_a_state_survives_bytes_and_a_failed_batch_can_be_undone():
         ca.load_states([0], [a.states_bytes([0])[0]])
 
 
+def test_an_undone_batch_leaves_every_state_as_it_was_runs_included():
+    """A batch that starts runs of rejected fixes on some tracks and ends them on others, undone: every
+    track's whole state (the run's part in the pool included) is what it was."""
+    rng = np.random.default_rng(3)
+    live = LiveTracks()
+    tracks = live.add(40)
+    t = 1.7e9
+
+    def batch(jump):
+        nonlocal t
+        t += 5.0
+        lat = 50.0 + 1e-5 * tracks + np.where(jump, 0.05, 0.0) + rng.normal(0, 3e-5, 40)
+        return live.advance(tracks, np.full(40, t), lat, 8.0 + rng.normal(0, 3e-5, 40), np.full(40, 5.0))
+
+    for _ in range(10):
+        batch(np.zeros(40, bool))
+    batch(tracks % 2 == 0)                     # even tracks: an outlier, a run begins
+    in_run = [len(b) for b in live.states_bytes(tracks)]
+    assert len(set(in_run)) == 2
+    before, saved = live.states_bytes(tracks), live.save_states(tracks)
+    batch(tracks % 3 == 0)                     # runs go on, end and begin
+    assert [len(b) for b in live.states_bytes(tracks)] != in_run
+    live.restore_states(saved)
+    assert live.states_bytes(tracks) == before
+
+
 def test_states_stored_whole_by_the_first_layout_still_load():
     """Layout 1 stored the run's part of every state (zeros without a run); layout 2 leaves it out then.
     A server upgraded in place reads both, mixed, and whole states of both layouts have one size."""

@@ -362,11 +362,15 @@ class LiveTracks:
     def save_states(self, tracks) -> tuple:
         """A copy of ``tracks``' rows (for :meth:`restore_states`)."""
         idx = self._check(tracks)
-        return idx, self._rows(idx), self._track[idx].copy(), dict(self.population)
+        slot = self._slot[idx]
+        return idx, self._head[idx], slot >= 0, self._runs[slot[slot >= 0]], self._track[idx], dict(self.population)
 
     def restore_states(self, saved: tuple) -> None:
-        idx, states, track, population = saved
-        self._put(idx, states)
+        idx, head, in_run, runs, track, population = saved
+        rows = np.zeros((len(idx), self._split + self._runs.shape[1]))
+        rows[:, :self._split] = head
+        rows[in_run, self._split:] = runs
+        self._put(idx, rows)
         self._track[idx] = track
         self.population = population
 
