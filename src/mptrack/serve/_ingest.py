@@ -366,7 +366,7 @@ class Ingest:
                     sel = order[new]
                     # checked: the fixes were checked as they came, sorted above, each after its device's last
                     est = self.live.advance(dev[sel], t[sel], lat[sel], lon[sel], acc[sel], checked=True)
-                    touched = np.unique(dev[sel])
+                    touched, filtered = np.unique(dev[sel], return_counts=True)
                     if self.shared:   # every state goes in with its fixes
                         states, ready, watermark = self._states_of(touched), [], None
                     else:             # the states that changed checkpoint_s ago go in with this batch
@@ -381,7 +381,7 @@ class Ingest:
                 events = self._events(sel, fixes, est) if stream and len(sel) else None
                 tx.write(rows, late_rows, states, [f"{k}\t{e}" for k, e in events or ()], watermark)
         stored_late = tx.stored_late
-        np.add.at(self._since_calibration, dev[sel], 1)
+        self._since_calibration[touched] += filtered
         used = self._estimated_on[touched]
         due = touched[self._since_calibration[touched] >= np.maximum(self.calibrate_after, RENEW * used)]
         if len(due) and not len(self._noise_due):
@@ -535,7 +535,9 @@ def _rows(stored: dict, attrs: tuple, sel: np.ndarray, est: dict | None, now: fl
     (None: late fixes, without)."""
     n = len(sel)
     out = {name: values[sel] for name, values in stored.items()}
-    out["attrs"] = np.array([_attrs(attrs[i]) for i in sel.tolist()], dtype=object)
+    out["attrs"] = np.full(n, None, dtype=object)
+    if any(attrs):
+        out["attrs"][:] = [_attrs(attrs[i]) for i in sel.tolist()]
     out["received"] = np.full(n, now)
     for name, field in zip(ESTIMATE_COLUMNS, ESTIMATES):
         out[name] = est[field] if est is not None else np.full(n, LATE if name == "flag" else np.nan)

@@ -90,16 +90,20 @@ class StoredRows:
 
     def lists(self, names) -> list[list]:
         """The columns ``names`` as lists of Python values, None for NULL (NaN)."""
-        return [_nullable(self.columns[n]).tolist() for n in names]
+        return [_nullable(self.columns[n]) for n in names]
 
 
-def _nullable(values: np.ndarray) -> np.ndarray:
-    """``values`` with NaN as None (an object array) if they are floats, else as they are."""
+def _nullable(values: np.ndarray) -> list:
+    """``values`` as a list, NaN as None if they are floats (a server's batch has whole columns of
+    either: the fields a client does not send, the estimates)."""
     if values.dtype.kind != "f":
-        return values
-    out = values.astype(object)
-    out[values != values] = None
-    return out
+        return values.tolist()
+    nan = values != values
+    if not nan.any():
+        return values.tolist()
+    if nan.all():
+        return [None] * len(values)
+    return [None if m else x for x, m in zip(values.tolist(), nan.tolist())]
 
 
 _ALL = FIX_COLUMNS + ESTIMATE_COLUMNS
