@@ -89,7 +89,9 @@
   fetch(url("/api/devices")).then(function (r) { return r.json(); }).then(function (rows) {
     rows.forEach(function (d) { d.time = d.last_fix_time; update(d); });
     var pts = rows.filter(function (d) { return d.lat != null; }).map(function (d) { return [d.lat, d.lon]; });
-    if (pts.length) { map.fitBounds(L.latLngBounds(pts).pad(0.2), {maxZoom: 16}); fitted = true; }
+    // the first view is placed, not animated (a screenshot taken at once, as chromium --screenshot does, caught
+    // the zoom half-way: the markers' canvas scaled and blurred)
+    if (pts.length) { map.fitBounds(L.latLngBounds(pts).pad(0.2), {maxZoom: 16, animate: false}); fitted = true; }
     document.body.setAttribute("data-ready", "1");
   });
   var source = new EventSource(url("/api/stream"));
@@ -101,6 +103,6 @@
             ell_major_m: d.ell_major_m, ell_minor_m: d.ell_minor_m, ell_azimuth_deg: d.ell_azimuth_deg, flag: d.flag});
     events += 1;
     document.body.setAttribute("data-events", String(events));
-    if (!fitted) { map.setView([d.lat, d.lon], 15); fitted = true; }
+    if (!fitted) { map.setView([d.lat, d.lon], 15, {animate: false}); fitted = true; }
   });
 })();
