@@ -166,8 +166,9 @@ class LiveTracks:
         X = np.empty((N, 2, self.order + 1))
         P = np.empty((N, self.order + 1, self.order + 1))
         flag = np.empty(N, dtype=np.int8)
-        runs = np.empty((N, self._runs.shape[1]))   # the run's part of the tracks that start a run
-        moved = np.empty((2, N), np.int64)            # the tracks whose run ended, those that started one
+        B = 1 + int(np.count_nonzero(tracks[1:] != tracks[:-1]))   # tracks in the batch
+        runs = np.empty((B, self._runs.shape[1]))   # the run's part of the tracks that start a run
+        moved = np.empty((2, B), np.int64)            # the tracks whose run ended, those that started one
         spec, options, pop = self.spec, self.options, self.population
         missed, ended, started = _step_kernel(self.order)(
             tracks, t, lat, lon, acc, self._track, self._head, self._runs, self._slot,
