@@ -126,7 +126,7 @@ def _enu_rows(lat, lon, lat0, lon0, h, east, north, start, stop):
             s0, c0, w0 = origin_terms(phi0)
             last = phi0
         east[i], north[i] = enu_row(lat[i * k_lat], lon[i * k_lon], phi0, lon0[i * k_lon0],
-                                     h[i * k_h], s0, c0, w0)
+                                    h[i * k_h], s0, c0, w0)
     return 0
 
 

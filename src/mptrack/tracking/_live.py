@@ -5,10 +5,10 @@
 estimate -- and advances any subset of tracks with their new fixes in one call of a compiled kernel
 that converts the fixes to each track's frame, steps the engine's per-track filter
 (:func:`._track_filter.advance_track`) on the stored state in place and converts the estimates back
-(a server's batch of a few dozen fixes spent 3/4 of its time in the ~60 array calls around the
-engine's kernel before).  It is the gated filter of ``mptrack track`` (same model, gating, manoeuvre,
-outlier and restart logic, flags): a track advanced piece by piece ends where one run over all its
-fixes ends.
+(a server's batch of a few dozen fixes spent more than half of its time in the ~60 array calls
+around the engine's kernel before).  It is the gated filter of ``mptrack track`` (same model,
+gating, manoeuvre, outlier and restart logic, flags): a track advanced piece by piece ends where one
+run over all its fixes ends.
 
 Noise.  A new track starts from what its first fix says: with an accuracy, fix variance
 c * accuracy^2 with c the population's current accuracy scale (1 until tracks are calibrated);
@@ -438,7 +438,6 @@ class LiveTracks:
         probe.position(0, 1.7e9 + n)
         probe.estimate_noise([{"t": 1.7e9 + np.arange(40.0), "lat": 50.0 + 1e-5 * np.arange(40), "lon": np.full(40, 8.0),
                                "accuracy_m": np.full(40, 5.0)}])
-
 
 
 def _unset(value) -> float:
