@@ -184,7 +184,7 @@ class Server:
             path, method = scope["path"], scope["method"]
             if path == "/":
                 if method == "POST" or (method == "GET" and _is_osmand(scope["query_string"])):
-                    return await self._ingest_root(scope, receive, send)
+                    return await self._guard(self._root, scope, receive, send)
             elif path == "/pub" and method == "POST":
                 return await self._guard(self._owntracks, scope, receive, send)
             elif path == "/api/fixes" and method == "POST":
@@ -254,9 +254,6 @@ class Server:
             "devices_live": ("Devices whose last fix is at most 5 minutes old.", live),
             "uptime_seconds": ("Seconds since this process started.", time.time() - self.started)})
         await _respond(send, 200, text.encode(), b"text/plain; version=0.0.4; charset=utf-8")
-
-    async def _ingest_root(self, scope, receive, send):
-        return await self._guard(self._root, scope, receive, send)
 
     async def _root(self, scope, receive):
         headers = dict(scope["headers"])
