@@ -40,9 +40,11 @@ import asyncio
 import contextlib
 import json
 import logging
+import math
 import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
+from json.encoder import encode_basestring
 
 import numpy as np
 
@@ -517,16 +519,18 @@ class Ingest:
 
     @staticmethod
     def _events(sel: np.ndarray, fixes: list[tuple], est: dict) -> list[tuple[str, str]]:
-        """(device, JSON) of every filtered fix of one batch: the stream's ``data:`` payloads."""
+        """(device, JSON) of every filtered fix of one batch: the stream's ``data:`` payloads (written from
+        a template, numbers as ``repr`` writes them as json does: 18 -> 5 us a fix with a map open)."""
         major, minor, az = ellipse(est["var_e"], est["cov_en"], est["var_n"])
+        columns = [_json_numbers(est[k]) if k != "flag" else [_FLAG_JSON[x] for x in est[k].tolist()]
+                   for k in ESTIMATE_FIELDS]
+        shape = [_json_numbers(c) for c in (major, minor, az)]
         out = []
         for j, i in enumerate(sel.tolist()):
             f = fixes[i]
-            e = {k: _num(v[j]) for k, v in est.items()}
-            e.update(device=f[0], time=iso_time(f[1]), raw_lat=f[2], raw_lon=f[3], accuracy_m=f[4],
-                     flag=FLAG_NAMES[int(est["flag"][j])], ell_major_m=_num(major[j]), ell_minor_m=_num(minor[j]),
-                     ell_azimuth_deg=_num(az[j]))
-            out.append((f[0], json.dumps(e, separators=(",", ":"))))
+            out.append((f[0], _EVENT % (*[c[j] for c in columns], encode_basestring(f[0]),
+                                        encode_basestring(iso_time(f[1])), _json_number(f[2]), _json_number(f[3]),
+                                        _json_number(f[4]), *[c[j] for c in shape])))
         return out
 
 
@@ -553,9 +557,26 @@ def _attrs(attrs) -> str | None:
     return None if not attrs else json.dumps(attrs, separators=(",", ":"), allow_nan=False, default=str)
 
 
-def _num(v):
-    v = v.item() if isinstance(v, np.generic) else v
-    return None if isinstance(v, float) and v != v else v
+def _json_number(x) -> str:
+    """A number as JSON (json's own text for it): null for None, NaN and the infinities."""
+    return "null" if x is None or not math.isfinite(x) else repr(x)
+
+
+def _json_numbers(values: np.ndarray) -> list[str]:
+    """:func:`_json_number` of each of float ``values``."""
+    texts = list(map(repr, values.tolist()))
+    bad = ~np.isfinite(values)
+    if bad.any():
+        for k in np.flatnonzero(bad).tolist():
+            texts[k] = "null"
+    return texts
+
+
+#: A stream event's JSON: a fix's estimate (ESTIMATE_FIELDS, its flag by name), then its device, time,
+#: the fix as sent and the estimate's 1-sigma ellipse (:meth:`Ingest._events` fills it)
+_EVENT = "{" + ",".join(f'"{k}":%s' for k in ESTIMATE_FIELDS + ("device", "time", "raw_lat", "raw_lon", "accuracy_m",
+                                                                "ell_major_m", "ell_minor_m", "ell_azimuth_deg")) + "}"
+_FLAG_JSON = [encode_basestring(name) for name in FLAG_NAMES]
 
 
 class StreamQueue(asyncio.Queue):
