@@ -520,11 +520,11 @@ class Ingest:
     @staticmethod
     def _events(sel: np.ndarray, fixes: list[tuple], est: dict) -> list[tuple[str, str]]:
         """(device, JSON) of every filtered fix of one batch: the stream's ``data:`` payloads (written from
-        a template, numbers as ``repr`` writes them as json does: 18 -> 5 us a fix with a map open)."""
+        a template, each number as json writes it: 22.5 -> 11.5 us a fix with a map open)."""
         major, minor, az = ellipse(est["var_e"], est["cov_en"], est["var_n"])
-        columns = [_json_numbers(est[k]) if k != "flag" else [_FLAG_JSON[x] for x in est[k].tolist()]
+        columns = [[_FLAG_JSON[x] if k == "flag" else _json_number(x) for x in est[k].tolist()]
                    for k in ESTIMATE_FIELDS]
-        shape = [_json_numbers(c) for c in (major, minor, az)]
+        shape = [[_json_number(x) for x in c.tolist()] for c in (major, minor, az)]
         out = []
         for j, i in enumerate(sel.tolist()):
             f = fixes[i]
@@ -560,16 +560,6 @@ def _attrs(attrs) -> str | None:
 def _json_number(x) -> str:
     """A number as JSON (json's own text for it): null for None, NaN and the infinities."""
     return "null" if x is None or not math.isfinite(x) else repr(x)
-
-
-def _json_numbers(values: np.ndarray) -> list[str]:
-    """:func:`_json_number` of each of float ``values``."""
-    texts = list(map(repr, values.tolist()))
-    bad = ~np.isfinite(values)
-    if bad.any():
-        for k in np.flatnonzero(bad).tolist():
-            texts[k] = "null"
-    return texts
 
 
 #: A stream event's JSON: a fix's estimate (ESTIMATE_FIELDS, its flag by name), then its device, time,
