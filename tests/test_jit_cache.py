@@ -9,10 +9,11 @@ from pathlib import Path
 import mptrack
 
 PACKAGE = Path(mptrack.__file__).resolve().parent
-KERNEL_MODULES = ["_core.float_scan", "_core.geodesy", "_core.kalman", "_core.rts", "batch._kernels", "bench._timing", "continuous._fem_kernels",
-                  "continuous._kernels", "linear._kernels", "nonlinear._named_kernels",
-                  "nonlinear._pf_kernels", "nonlinear._step_kernels", "tracking._chain", "tracking._fix_error", "tracking._state",
-                  "tracking._kernels", "tracking._likelihood", "tracking._track_filter"]
+KERNEL_MODULES = ["_core.float_scan", "_core.geodesy", "_core.kalman", "_core.rts", "batch._kernels",
+                  "bench._timing", "continuous._fem_kernels", "continuous._kernels", "linear._kernels",
+                  "nonlinear._named_kernels", "nonlinear._pf_kernels", "nonlinear._step_kernels", "tracking._chain",
+                  "tracking._fix_error", "tracking._live", "tracking._state", "tracking._kernels",
+                  "tracking._likelihood", "tracking._track_filter"]
 
 
 def _python(code: str, **env) -> str:

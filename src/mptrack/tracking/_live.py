@@ -32,7 +32,7 @@ from .._core.geodesy import enu_row, geodetic_row, origin_terms
 from ._chain import SEQ, transition, work
 from ._columns import FixTable
 from ._state import ST_PENDING, ST_STREAK, STREAK_CAP, state_from_bytes, state_layout, states_to_bytes
-from ._fix_error import SLOW_TAU_S, slow_error_variance, slow_variance
+from ._fix_error import SLOW_TAU_S, slow_variance
 from ._track_filter import advance_track
 from ._fixes import TrackOptions
 from ._noise import estimate_noise as _estimate
@@ -220,13 +220,10 @@ class LiveTracks:
                                  "the filter's past")
 
     def _slow_var(self, tracks) -> np.ndarray:
-        """The variance of the fix error's slow part of ``tracks`` (:func:`._fix_error.slow_error_variance`):
+        """The variance of the fix error's slow part of ``tracks`` (:func:`_track_slow_variance` of each):
         what the total error (the fixes' accuracy, else 5 m) leaves after the white part, as ``mptrack
         track`` takes it."""
-        tr = self._track
-        accuracy = tr[tracks, _MODE] == ACCURACY
-        other = 1.0 if self.options.sigma_m is None else self.options.sigma_m ** 2
-        return slow_error_variance(tr[tracks, _C], np.where(accuracy, tr[tracks, _W_FILL], other), accuracy)
+        return _slow_variances(self._track, np.asarray(tracks, np.int64), _unset(self.options.sigma_m))
 
     # ---- what a track knows now --------------------------------------------------------------------
     def last_fix(self, i: int) -> tuple[float, float, float]:
@@ -445,6 +442,24 @@ def _unset(value) -> float:
     return math.nan if value is None else float(value)
 
 
+@nb.njit(inline="always")
+def _track_slow_variance(row, sigma_m):
+    """The variance of the fix error's slow part of a track (its scalars ``row``; ``sigma_m`` NaN when the
+    option is not set): :func:`._fix_error.slow_variance` of the accuracy^2 it was started with where its
+    fixes state one, else of 1 (or sigma_m^2) -- what ``mptrack track`` takes."""
+    by_accuracy = row[_MODE] == ACCURACY
+    other = 1.0 if sigma_m != sigma_m else sigma_m ** 2
+    return slow_variance(row[_C], row[_W_FILL] if by_accuracy else other, by_accuracy)
+
+
+@nb.njit(**SEQ)
+def _slow_variances(tr, tracks, sigma_m):
+    out = np.empty(len(tracks))
+    for j in range(len(tracks)):
+        out[j] = _track_slow_variance(tr[tracks[j]], sigma_m)
+    return out
+
+
 _KERNELS = {}
 
 
@@ -497,7 +512,6 @@ def _make_step(order: int):
                 row[_Q] = q_option
             lat0, lon0 = row[_LAT0], row[_LON0]
             s0, c0, w0 = origin_terms(lat0)
-            by_accuracy = row[_MODE] == ACCURACY
             for k in range(a0, b0):
                 ze[k], zn[k] = enu_row(lat[k], lon[k], lat0, lon0, 0.0, s0, c0, w0)
                 good = math.isfinite(acc[k]) and acc[k] > 0.0
@@ -507,8 +521,7 @@ def _make_step(order: int):
                     w[k] = 1.0
                 else:
                     w[k] = acc[k] * acc[k] if good else row[_W_FILL]
-            other = 1.0 if sigma_m != sigma_m else sigma_m ** 2
-            sb2 = slow_variance(row[_C], row[_W_FILL] if by_accuracy else other, by_accuracy)
+            sb2 = _track_slow_variance(row, sigma_m)
             st[:split] = head[i]
             s = slot[i]
             if s >= 0:
