@@ -16,7 +16,7 @@ import numpy as np
 import pandas as pd
 import pytest
 from _data import REAL_TRACES, shared_data
-from _server import SRC, Server, error_of, query, stored
+from _server import SRC, Server, error_of, free_port, query, stored
 from conftest import BACKENDS, new_database
 
 from mptrack.io import geodetic_to_enu, read_output, read_table
@@ -354,6 +354,36 @@ def test_a_public_address_needs_auth(tmp_path):
                            f"sqlite:///{tmp_path / 'x.db'}"], capture_output=True, text=True, timeout=60,
                           env={"PYTHONPATH": str(SRC), "PATH": "/usr/bin:/bin"})
     assert proc.returncode == 2 and "--auth" in proc.stderr
+
+
+def _serve(*args, cwd) -> subprocess.CompletedProcess:
+    """``mptrack serve ARGS`` run to its end (one that cannot start)."""
+    return subprocess.run([sys.executable, "-m", "mptrack", "serve", *args], capture_output=True, text=True,
+                          timeout=120, cwd=cwd, env={"PYTHONPATH": str(SRC), "PATH": "/usr/bin:/bin"})
+
+
+def test_a_second_server_of_one_sqlite_file_is_refused_and_a_busy_port_named(tmp_path):
+    """Two servers of one SQLite file would each filter with its own live states and checkpoint over the
+    other's: the second is refused (exit 2, naming the first's process), the first serves on, and once
+    it has stopped the file is served again.  A port in use is named before any database is touched."""
+    first = Server(tmp_path).start()
+    try:
+        second = _serve("--port", str(free_port()), "--db", first.db, cwd=tmp_path)
+        assert second.returncode == 2, second.stderr
+        assert (f"error: db: {tmp_path / 'mptrack.db'}: another run (pid {first.proc.pid}: mptrack serve) is "
+                "writing it; stop that server first, or serve another database") in second.stderr
+        assert first.get(f"/?id=car&lat=52.5&lon=13.4&timestamp={int(NOW)}").status_code == 200
+        busy = _serve("--port", str(first.port), "--db", f"sqlite:///{tmp_path / 'other.db'}", cwd=tmp_path)
+        assert busy.returncode == 2, busy.stderr
+        assert f"error: --port: 127.0.0.1:{first.port} is in use" in busy.stderr
+        assert not (tmp_path / "other.db").exists()
+    finally:
+        assert first.stop() == 0
+    again = Server(tmp_path, db=first.db).start()
+    try:
+        assert [d["id"] for d in again.json("/api/devices")] == ["car"]
+    finally:
+        assert again.stop() == 0
 
 
 def test_rate_limit(tmp_path, new_db):

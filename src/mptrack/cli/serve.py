@@ -111,6 +111,8 @@ def serve(
         app = create_app(config)
     except MptrackError as exc:
         fail(exc)
+    sock = _listen(host, port)
+    port = sock.getsockname()[1]
     level = "WARNING" if quiet else "INFO"
     log_config = log_config_of(log_format, level)
     if not quiet:
@@ -122,13 +124,37 @@ def serve(
     # X-Forwarded-* headers would only cost every request (~7 microseconds, 7 % of an OsmAnd fix)
     options = dict(host=host, port=port, log_level=level.lower(), access_log=False, lifespan="on",
                    timeout_graceful_shutdown=10, log_config=log_config, proxy_headers=False)
-    if workers == 1:
-        _Server(uvicorn.Config(app, **options)).run()
+    if workers > 1:
+        _run_workers(config, workers, options, sock)
         return
-    _run_workers(config, workers, options)
+    try:
+        _Server(uvicorn.Config(app, **options)).run(sockets=[sock])
+    except SystemExit:
+        if app.startup_error is not None:   # uvicorn exits 3 when the app cannot start: say why, exit 2
+            fail(app.startup_error)
+        raise
 
 
-def _run_workers(config, workers: int, options: dict) -> None:
+def _listen(host: str, port: int):
+    """A TCP socket bound to ``host``:``port`` (as uvicorn binds one), or one line naming the option
+    and exit status 2 (a port in use: before the database is opened)."""
+    import errno
+    import socket
+
+    sock = socket.socket(socket.AF_INET6 if ":" in host else socket.AF_INET, socket.SOCK_STREAM)
+    sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+    try:
+        sock.bind((host, port))
+    except OSError as exc:
+        sock.close()
+        if exc.errno == errno.EADDRINUSE:
+            fail(f"--port: {host}:{port} is in use (another server is listening there); give another --port")
+        fail(f"--host/--port: cannot listen on {host}:{port}: {exc.strerror or exc}")
+    sock.set_inheritable(True)
+    return sock
+
+
+def _run_workers(config, workers: int, options: dict, sock) -> None:
     """N worker processes on one listening socket (uvicorn's supervisor restarts one that dies), the
     configuration handed on in the environment, their counters in one shared file."""
     import uvicorn
@@ -139,7 +165,7 @@ def _run_workers(config, workers: int, options: dict) -> None:
     with tempfile.TemporaryDirectory(prefix="mptrack-serve-") as tmp:
         os.environ.update(worker_environment(config, tmp, workers))
         ucfg = uvicorn.Config(WORKER_APP, factory=True, workers=workers, **options)
-        Multiprocess(ucfg, sockets=[ucfg.bind_socket()]).run()
+        Multiprocess(ucfg, sockets=[sock]).run()
 
 
 def _shown(url: str) -> str:

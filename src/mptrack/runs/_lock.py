@@ -49,6 +49,8 @@ __all__ = ["output_lock", "lock_path"]
 #: Tries of the lock protocol before giving up (each retry means another process released the lock
 #: between two of our steps).
 _LOCK_TRIES = 20
+#: What a refused process is told to do (after "another run (its pid and note) is writing it; ").
+_ADVICE = "wait for it to finish or choose another output"
 #: The outputs whose lock this process holds: lock path -> [descriptor, depth].
 _HELD: dict[Path, list] = {}
 
@@ -70,7 +72,7 @@ def lock_path(path: str | os.PathLike) -> Path:
 
 
 @contextlib.contextmanager
-def output_lock(*paths, note: str = "") -> Iterator[None]:
+def output_lock(*paths, note: str = "", advice: str = _ADVICE) -> Iterator[None]:
     """Hold the exclusive lock of every output for the block, and remove their stale temporary files
     once locked.
 
@@ -83,6 +85,9 @@ def output_lock(*paths, note: str = "") -> Iterator[None]:
         The outputs (None is skipped).
     note : str, optional
         Stored with the holder's pid and shown to a process that is refused (e.g. the command line).
+    advice : str, optional
+        What the refusal tells a second process to do (default: wait for the run to finish or choose
+        another output).
 
     Yields
     ------
@@ -98,12 +103,12 @@ def output_lock(*paths, note: str = "") -> Iterator[None]:
     wanted = {lock_path(p): p for p in outs}
     with contextlib.ExitStack() as stack:
         for lock, out in wanted.items():
-            stack.enter_context(_held(lock, out, note))
+            stack.enter_context(_held(lock, out, note, advice))
         yield
 
 
 @contextlib.contextmanager
-def _held(lock: Path, out: Path, note: str) -> Iterator[None]:
+def _held(lock: Path, out: Path, note: str, advice: str) -> Iterator[None]:
     if lock in _HELD:  # this process holds it already (a writer inside a locked run)
         _HELD[lock][1] += 1
         try:
@@ -117,7 +122,7 @@ def _held(lock: Path, out: Path, note: str) -> Iterator[None]:
         lock.parent.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise write_error(out, exc) from exc
-    fd = _acquire(lock, out, note)
+    fd = _acquire(lock, out, note, advice)
     _HELD[lock] = [fd, 1]
     try:
         for tmp in stale_temp_files(out):
@@ -128,11 +133,11 @@ def _held(lock: Path, out: Path, note: str) -> Iterator[None]:
         _release(lock, fd)
 
 
-def _acquire(lock: Path, out: Path, note: str) -> int:
+def _acquire(lock: Path, out: Path, note: str, advice: str) -> int:
     """Take the lock file ``lock`` of output ``out`` (the protocol in the module docstring); its
     descriptor."""
     for _ in range(_LOCK_TRIES):
-        fd = _open_lock(lock, out)
+        fd = _open_lock(lock, out, advice)
         if fd is None:
             continue  # (no fcntl) the holder removed it meanwhile
         if fcntl is None:
@@ -144,7 +149,7 @@ def _acquire(lock: Path, out: Path, note: str) -> int:
             same = _names(lock, fd)
             os.close(fd)
             if same:
-                raise _locked(out, lock, holder) from None
+                raise _locked(out, lock, holder, advice) from None
             continue  # the holder released it meanwhile
         if _names(lock, fd):
             break
@@ -158,7 +163,7 @@ def _acquire(lock: Path, out: Path, note: str) -> int:
     return fd
 
 
-def _open_lock(lock: Path, out: Path) -> int | None:
+def _open_lock(lock: Path, out: Path, advice: str) -> int | None:
     try:
         if fcntl is not None:
             return os.open(lock, os.O_RDWR | os.O_CREAT, 0o666)
@@ -167,7 +172,7 @@ def _open_lock(lock: Path, out: Path) -> int | None:
         holder = _holder(lock)
         if holder is None:
             return None
-        raise _locked(out, lock, holder) from None
+        raise _locked(out, lock, holder, advice) from None
     except OSError as exc:
         raise write_error(out, exc) from exc
 
@@ -195,10 +200,10 @@ def _holder(lock: Path) -> str | None:
     return f"pid {pid.strip()}" + (f": {note}" if note else "") if pid.strip() else ""
 
 
-def _locked(out: Path, lock: Path, holder: str | None) -> OutputError:
+def _locked(out: Path, lock: Path, holder: str | None, advice: str) -> OutputError:
     who = f"another run ({holder})" if holder else "another run"
     hint = "" if fcntl is not None else f"; if that process is gone, delete {lock}"
-    return OutputError(f"{out}: {who} is writing it; wait for it to finish or choose another output{hint}",
+    return OutputError(f"{out}: {who} is writing it; {advice}{hint}",
                        path=out)
 
 

@@ -110,6 +110,7 @@ class Server:
         self.limits = RateLimit(config.rate, config.burst)
         self.metrics = Metrics.from_environment()
         self.started = time.time()
+        self.startup_error: Exception | None = None   # why startup failed (the command line says it)
         self.query = query_app(self)
         self._tasks: list[asyncio.Task] = []
 
@@ -133,7 +134,7 @@ class Server:
                  extra={"event": "ready", "devices": len(self.ingest.devices)})
 
     async def _start(self, loop) -> None:
-        self.store = await loop.run_in_executor(None, open_store, self.config.db, self.config.fsync)
+        self.store = await loop.run_in_executor(None, open_store, self.config.db, self.config.fsync, True)
         live = LiveTracks(TrackOptions(model=self.config.model))
         await loop.run_in_executor(None, live.warm_up)
         self.ingest = Ingest(self.store, live, checkpoint_s=self.config.checkpoint_s, metrics=self.metrics)
@@ -208,6 +209,7 @@ class Server:
                 try:
                     await self.startup()
                 except Exception as exc:  # the server cannot start: say why in one line
+                    self.startup_error = exc
                     await send({"type": "lifespan.startup.failed", "message": str(exc)})
                     return
                 await send({"type": "lifespan.startup.complete"})

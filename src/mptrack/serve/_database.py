@@ -9,7 +9,7 @@ from ._store import DEFAULT_DB, Store
 __all__ = ["open_store"]
 
 
-def open_store(db: str, fsync: bool = False) -> Store:
+def open_store(db: str, fsync: bool = False, server: bool = False) -> Store:
     """The store of the server database at a URL.
 
     Parameters
@@ -20,6 +20,9 @@ def open_store(db: str, fsync: bool = False) -> Store:
     fsync : bool, optional
         Every commit is flushed to disk before it returns (also a power loss loses nothing
         acknowledged), not only written to the database's log.
+    server : bool, optional
+        The store of a running server: a database with one writer (SQLite) is locked against a
+        second server while the store is open.
 
     Returns
     -------
@@ -31,12 +34,13 @@ def open_store(db: str, fsync: bool = False) -> Store:
     ParameterError
         Not a database URL of a known kind.
     OutputError
-        The database cannot be opened, or its schema is newer than this mptrack's.
+        The database cannot be opened, its schema is newer than this mptrack's, or (``server``) another
+        server has it.
     """
     if not isinstance(db, str):
         raise ParameterError(f"db: expected a database URL such as {DEFAULT_DB}, got {type(db).__name__}")
     if db.startswith("sqlite:///"):
-        return SqliteStore(db, fsync)
+        return SqliteStore(db, fsync, server)
     if db.startswith(("postgresql://", "postgres://")):
         from ._postgres import PostgresStore
 

@@ -6,6 +6,11 @@ setting for WAL, leaves the log's flush to disk to the next checkpoint, so a pow
 crash may lose the last commits; ``fsync=True`` (``mptrack serve --fsync``) flushes every commit
 (``synchronous=FULL``): one fsync per group commit, ~4 ms on this project's machines.
 
+A server's store (``server=True``) holds the database's lock (:func:`mptrack.runs.output_lock`, the file
+``.NAME.lock`` beside it) while it is open: a second server of the same file is refused at once, since
+each would filter with its own live states and checkpoint over the other's.  Other processes (adding a
+device, copying the database) may still open it.
+
 One connection writes (under a lock); each reading thread has its own connection, and WAL lets them
 read while the writer writes.  The writer never checkpoints the log into the database file itself
 (SQLite's automatic checkpoint would run inside a group commit, every ~1000 pages, copying and syncing
@@ -27,6 +32,7 @@ from typing import Iterator
 import numpy as np
 
 from ..errors import OutputError, ParameterError
+from ..runs import output_lock
 from ._store import (AREA_AGGREGATES, AREA_COLUMNS, CELL_COLUMNS, ESTIMATE_COLUMNS, FIX_COLUMNS, HISTORY_COLUMNS,
                      LATE, StoredRows, split_histories, stored_rows)
 
@@ -109,7 +115,7 @@ class SqliteStore:
 
     shared = False
 
-    def __init__(self, url: str, fsync: bool = False):
+    def __init__(self, url: str, fsync: bool = False, server: bool = False):
         self.url = url
         self.fsync = bool(fsync)
         self.quick_commit = not self.fsync
@@ -118,6 +124,20 @@ class SqliteStore:
             raise ParameterError(f"db: expected sqlite:///PATH, got {url!r}")
         if self.path.is_dir():
             raise ParameterError(f"db: {self.path} is a directory; give a file, e.g. sqlite:///{self.path}/mptrack.db")
+        self._held = contextlib.ExitStack()
+        if server:
+            try:
+                self._held.enter_context(output_lock(self.path, note="mptrack serve",
+                                                     advice="stop that server first, or serve another database"))
+            except OutputError as exc:
+                raise OutputError(f"db: {exc}", path=self.path) from None
+        try:
+            self._open()
+        except BaseException:
+            self._held.close()
+            raise
+
+    def _open(self) -> None:
         try:
             self._w = self._connect(WRITER_CACHE_KIB)
             self._w.executescript(_SCHEMA)
@@ -377,6 +397,7 @@ class SqliteStore:
         if con is not None:
             con.close()
             self._local.con = None
+        self._held.close()
 
 
 def _schema_version(con: sqlite3.Connection) -> int:
