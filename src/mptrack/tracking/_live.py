@@ -31,7 +31,7 @@ from ..io import enu_to_geodetic
 from .._core.geodesy import enu_row, geodetic_row, origin_terms
 from ._chain import SEQ, transition, work
 from ._columns import FixTable
-from ._state import ST_PENDING, ST_STREAK, STREAK_CAP, state_from_bytes, state_layout, states_to_bytes
+from ._state import ST_PENDING, ST_STREAK, STREAK_CAP, state_from_bytes, state_layout, state_order, states_to_bytes
 from ._fix_error import SLOW_TAU_S, slow_variance
 from ._track_filter import advance_track
 from ._fixes import TrackOptions
@@ -39,7 +39,7 @@ from ._noise import estimate_noise as _estimate
 from ._noise import fix_weights
 from ._output import ellipse
 from ._run import noise_spec
-from ._registry import DEFAULT_SIGMA_M, get_model
+from ._registry import DEFAULT_SIGMA_M, MODELS, get_model
 
 __all__ = ["LiveTracks", "ESTIMATE_FIELDS"]
 
@@ -418,11 +418,14 @@ class LiveTracks:
         if magic != _MAGIC or version not in (1, _VERSION) or fields != len(_TRACK_FIELDS):
             raise ParameterError(f"blobs: not live track states of this mptrack (layout {version}, {fields} fields)")
         stored = blob[end:].tobytes()
+        order = state_order(stored)
+        if order is not None and order != self.order:
+            was = next((m.name for m in MODELS.values() if m.order == order), f"order-{order}")
+            raise ParameterError(f"model: the stored states are of the {was} model, not {self.model.name}: continue "
+                                 f"these tracks with the {was} model, or start new tracks (a new database) for another")
         if version == _VERSION:   # the run's part may be left out: zeros
             stored += bytes(max(0, full - blob.size))
-        _, order = state_from_bytes(stored)   # says what does not match the engine's layout
-        if order != self.order:
-            raise ParameterError(f"blobs: states of a model of order {order}, not {self.order}")
+        state_from_bytes(stored)   # says what does not match the engine's layout
         raise ParameterError("blobs: states of different layouts (written by different versions of mptrack)")
 
     def warm_up(self) -> None:

@@ -19,7 +19,7 @@ import numpy as np
 from ..errors import DTypeError, ParameterError, ShapeError
 from ._chain import INLINE
 
-__all__ = ["STREAK_CAP", "STATE_VERSION", "STATE_FIELDS", "state_layout", "state_size", "empty_states",
+__all__ = ["STREAK_CAP", "STATE_VERSION", "STATE_FIELDS", "state_layout", "state_size", "empty_states", "state_order",
            "load_block", "save_block", "check_order", "state_to_bytes", "states_to_bytes", "state_from_bytes"]
 
 #: The rejected fixes in a row that a track's state keeps (the restart test's run and the fixes
@@ -130,6 +130,15 @@ def states_to_bytes(states, order: int) -> np.ndarray:
                          f"got shape {rows.shape}")
     head = np.frombuffer(_HEAD.pack(_MAGIC, STATE_VERSION, order, STREAK_CAP, rows.shape[1]), dtype=np.uint8)
     return np.hstack([np.broadcast_to(head, (len(rows), head.size)), rows.astype("<f8").view(np.uint8)])
+
+
+def state_order(data: bytes) -> int | None:
+    """The model order a track state's header (:func:`state_to_bytes`) names, whatever follows it; None
+    if ``data`` does not start with one."""
+    if len(data) < _HEAD.size:
+        return None
+    magic, _, order, _, _ = _HEAD.unpack_from(data)
+    return int(order) if magic == _MAGIC else None
 
 
 def state_from_bytes(data: bytes) -> tuple[np.ndarray, int]:
