@@ -386,6 +386,29 @@ def test_a_second_server_of_one_sqlite_file_is_refused_and_a_busy_port_named(tmp
         assert again.stop() == 0
 
 
+def test_a_server_of_the_other_model_is_refused_by_name_and_leaves_the_database_as_it_was(tmp_path):
+    """Devices tracked with cv, the server started again with --model ca: one line naming both models,
+    exit 2, the database's lock released and nothing stored (the states were half loaded); cv serves on."""
+    db = f"sqlite:///{tmp_path / 'mptrack.db'}"
+    first = Server(tmp_path, db=db).start()
+    try:
+        for k in range(3):
+            assert first.get(f"/?id=car&lat={52.5 + 1e-4 * k}&lon=13.4&timestamp={int(NOW) + 10 * k}").status_code == 200
+    finally:
+        assert first.stop() == 0
+    before = query(db, "SELECT dev, state, upto FROM device_state")
+    other = _serve("--port", str(free_port()), "--db", db, "--model", "ca", cwd=tmp_path)
+    assert other.returncode == 2, other.stderr
+    assert "error: model: the stored states are of the cv model, not ca" in other.stderr
+    assert not (tmp_path / ".mptrack.db.lock").exists()
+    assert query(db, "SELECT dev, state, upto FROM device_state") == before
+    again = Server(tmp_path, db=db).start()
+    try:
+        assert again.json("/api/devices/car/position")["lat"] > 52.5
+    finally:
+        assert again.stop() == 0
+
+
 def test_rate_limit(tmp_path, new_db):
     srv = Server(tmp_path, "--rate", "0.1", "--burst", "3", db=new_db()).start()   # one fix in 10 s after the burst
     try:

@@ -14,6 +14,7 @@ request that cannot be committed gets 503 and nothing of it is stored.
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import gc
 import json
 import logging
@@ -162,6 +163,14 @@ class Server:
         if self.store is not None:
             self.store.close()
 
+    def _abandon(self) -> None:
+        """After a failed start: close what was opened (the database's lock released), storing nothing --
+        the live states may be half loaded."""
+        for part in (self.geolocator, self.store):
+            if part is not None:
+                with contextlib.suppress(Exception):
+                    part.close()
+
     async def _retention(self) -> None:
         loop = asyncio.get_running_loop()
         while True:
@@ -210,6 +219,7 @@ class Server:
                     await self.startup()
                 except Exception as exc:  # the server cannot start: say why in one line
                     self.startup_error = exc
+                    self._abandon()
                     await send({"type": "lifespan.startup.failed", "message": str(exc)})
                     return
                 await send({"type": "lifespan.startup.complete"})
