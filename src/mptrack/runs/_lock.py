@@ -122,7 +122,10 @@ def _held(lock: Path, out: Path, note: str, advice: str) -> Iterator[None]:
         lock.parent.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise write_error(out, exc) from exc
-    fd = _acquire(lock, out, note, advice)
+    try:
+        fd = _acquire(lock, out, note)
+    except _Busy as busy:
+        raise _locked(out, lock, busy.holder, advice) from None
     _HELD[lock] = [fd, 1]
     try:
         for tmp in stale_temp_files(out):
@@ -133,11 +136,11 @@ def _held(lock: Path, out: Path, note: str, advice: str) -> Iterator[None]:
         _release(lock, fd)
 
 
-def _acquire(lock: Path, out: Path, note: str, advice: str) -> int:
+def _acquire(lock: Path, out: Path, note: str) -> int:
     """Take the lock file ``lock`` of output ``out`` (the protocol in the module docstring); its
     descriptor."""
     for _ in range(_LOCK_TRIES):
-        fd = _open_lock(lock, out, advice)
+        fd = _open_lock(lock, out)
         if fd is None:
             continue  # (no fcntl) the holder removed it meanwhile
         if fcntl is None:
@@ -149,7 +152,7 @@ def _acquire(lock: Path, out: Path, note: str, advice: str) -> int:
             same = _names(lock, fd)
             os.close(fd)
             if same:
-                raise _locked(out, lock, holder, advice) from None
+                raise _Busy(holder)
             continue  # the holder released it meanwhile
         if _names(lock, fd):
             break
@@ -163,7 +166,7 @@ def _acquire(lock: Path, out: Path, note: str, advice: str) -> int:
     return fd
 
 
-def _open_lock(lock: Path, out: Path, advice: str) -> int | None:
+def _open_lock(lock: Path, out: Path) -> int | None:
     try:
         if fcntl is not None:
             return os.open(lock, os.O_RDWR | os.O_CREAT, 0o666)
@@ -172,7 +175,7 @@ def _open_lock(lock: Path, out: Path, advice: str) -> int | None:
         holder = _holder(lock)
         if holder is None:
             return None
-        raise _locked(out, lock, holder, advice) from None
+        raise _Busy(holder) from None
     except OSError as exc:
         raise write_error(out, exc) from exc
 
@@ -198,6 +201,14 @@ def _holder(lock: Path) -> str | None:
     pid, _, note = text.partition("\n")
     note = note.strip()
     return f"pid {pid.strip()}" + (f": {note}" if note else "") if pid.strip() else ""
+
+
+class _Busy(Exception):
+    """Another process holds the lock (``holder``: what :func:`_holder` read of it)."""
+
+    def __init__(self, holder: str | None):
+        super().__init__(holder)
+        self.holder = holder
 
 
 def _locked(out: Path, lock: Path, holder: str | None, advice: str) -> OutputError:
