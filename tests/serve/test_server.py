@@ -82,6 +82,19 @@ def test_owntracks_http_mode(server):
     assert server.json("/api/devices/jane/phone/position")["id"] == "jane/phone"
 
 
+def test_an_encrypted_owntracks_message_is_refused_by_name_and_logged_once_a_minute(server):
+    """OwnTracks takes every answer as delivered, so a refusal must reach the server's log, where the
+    app's user looks; a client repeating it does not flood the log."""
+    enc = {"_type": "encrypted", "data": "1Vu7OwpW4lMnh28FB+el22GsCrlnggvEcp4H8GR9iKJdi1qfwkejYpzrQ+491Mwunjg="}
+    for _ in range(3):
+        err = error_of(server.post("/pub?u=jane&d=sealed", json=enc))
+        assert err["code"] == "encrypted" and err["field"] == "_type"
+        assert "does not decrypt" in err["message"]
+    assert "jane/sealed" not in [d["id"] for d in server.json("/api/devices")]
+    lines = [line for line in server.output().splitlines() if "refused /pub (400 encrypted): _type: " in line]
+    assert len(lines) == 1 and "leave the app's encryption key empty" in lines[0], lines
+
+
 def test_bulk_ndjson_and_csv(server):
     lines = [json.dumps({"device": f"gw-{i % 3}", "time": int(NOW) - 1000 + i, "latitude": 48.1 + 1e-5 * i,
                          "longitude": 11.6, "accuracy": 5}) for i in range(30)]

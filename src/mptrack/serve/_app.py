@@ -18,6 +18,7 @@ import contextlib
 import gc
 import json
 import logging
+import math
 import os
 import time
 from dataclasses import asdict, dataclass
@@ -45,6 +46,9 @@ log = logging.getLogger("mptrack.serve")
 CONFIG_ENV = "MPTRACK_SERVE_CONFIG"
 
 MIB = 1 << 20
+#: The shortest time between two log lines of refused ingest requests of one reason (s): a client that
+#: keeps sending what is refused shows in the log without flooding it.
+REFUSAL_LOG_S = 60.0
 
 
 @dataclass(frozen=True)
@@ -97,6 +101,27 @@ def _error_body(exc: RequestError) -> bytes:
     return json.dumps({"error": err}).encode()
 
 
+class RefusalLog:
+    """Log lines of refused ingest requests: the first of each reason at once, then at most one every
+    :data:`REFUSAL_LOG_S` seconds, with how many more were refused meanwhile.  Some apps never show the
+    answer (OwnTracks takes every status as delivered): the log is where their user sees why."""
+
+    def __init__(self):
+        self._next: dict[str, float] = {}     # reason -> when its next line may be written (monotonic)
+        self._quiet: dict[str, int] = {}      # reason -> refused since its last line
+
+    def note(self, exc: RequestError, path: str) -> None:
+        now = time.monotonic()
+        if now < self._next.get(exc.code, -math.inf):
+            self._quiet[exc.code] = self._quiet.get(exc.code, 0) + 1
+            return
+        more = self._quiet.pop(exc.code, 0)
+        self._next[exc.code] = now + REFUSAL_LOG_S
+        log.warning("refused %s (%d %s): %s%s", path, exc.status, exc.code, exc,
+                    f" ({more} more refused so since the last such line)" if more else "",
+                    extra={"event": "refused", "reason": exc.code, "status": exc.status})
+
+
 class Server:
     """The ASGI application (see the module doc); ``create_app`` builds it."""
 
@@ -109,6 +134,7 @@ class Server:
         self.registry: Registry | None = None
         self.geolocator: Geolocator | None = None
         self.limits = RateLimit(config.rate, config.burst)
+        self.refusals = RefusalLog()
         self.metrics = Metrics.from_environment()
         self.started = time.time()
         self.startup_error: Exception | None = None   # why startup failed (the command line says it)
@@ -235,6 +261,7 @@ class Server:
             status, body, ctype = await handler(scope, receive)
         except RequestError as exc:
             self.metrics.refuse(exc.code)
+            self.refusals.note(exc, scope["path"])
             status, body, ctype = exc.status, _error_body(exc), b"application/json"
         except Exception as exc:  # the database (or the server) could not commit: nothing stored
             if not isinstance(exc, (ConnectionAbortedError, MptrackError, OSError, RuntimeError)) and \

@@ -10,8 +10,9 @@ app sends (the device id is ``USER/DEVICE``; with ``--auth``, HTTP Basic with th
 
 ``tst`` epoch seconds; ``acc``, ``alt`` metres; ``vel`` km/h; ``cog`` degrees; the rest is kept as
 attributes.  Messages of other types (waypoints, transitions, cards, ...) are acknowledged and not
-stored.  The answer is ``[]`` (the app treats any status as delivered, so a refused message is also
-logged by the server).
+stored; an encrypted message (the app's payload encryption) is refused, as the server has no key.
+The answer is ``[]`` (the app treats any status as delivered, so a refused message is also logged by
+the server).
 """
 
 from __future__ import annotations
@@ -43,6 +44,10 @@ def parse_body(body: bytes, device: str, now: float | None = None) -> list[tuple
         where = f"[{i}]." if many else ""
         if not isinstance(msg, dict):
             raise RequestError(f"expected a JSON object with _type, got {type(msg).__name__}", code="malformed_json")
+        if msg.get("_type") == "encrypted":
+            raise RequestError("an encrypted OwnTracks message: this server does not decrypt payloads; leave the "
+                               "app's encryption key empty (HTTPS protects the connection)", code="encrypted",
+                               field=f"{where}_type")
         if msg.get("_type") != "location":
             continue
         lat, lon = position(msg.get("lat"), msg.get("lon"), f"{where}lat", f"{where}lon")
