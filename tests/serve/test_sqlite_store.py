@@ -4,12 +4,16 @@ ingest the writer's lock."""
 
 from __future__ import annotations
 
+import re
 import sqlite3
 import threading
 import time
+from pathlib import Path
 
 import numpy as np
+import pytest
 
+from mptrack.errors import OutputError
 from mptrack.serve import _sqlite
 from mptrack.serve._database import open_store
 from mptrack.serve._store import stored_rows
@@ -128,3 +132,15 @@ def test_retention_leaves_ingest_the_writers_lock_between_its_batches(tmp_path):
     assert len(during) >= 50, (len(during), ended - started)
     gaps = np.diff([started] + during + [ended])   # here ~10 ms at most in a deletion of ~0.9 s
     assert gaps.max() < (ended - started) / 3, (gaps.max(), ended - started)
+
+
+def test_a_database_in_a_missing_directory_is_refused_and_nothing_is_created(tmp_path):
+    """A mistyped path (or a ~ that a URL does not expand) is named, not made: no directory appears."""
+    with pytest.raises(OutputError, match=re.escape(f"db: the directory {tmp_path / 'missing'} does not exist; "
+                                                    "create it first")):
+        open_store(f"sqlite:///{tmp_path / 'missing' / 'mptrack.db'}", server=True)
+    assert list(tmp_path.iterdir()) == []
+    with pytest.raises(OutputError, match=re.escape("db: the directory ~ does not exist (~ is not expanded in a URL: "
+                                                    "give the whole path); create it first")):
+        open_store("sqlite:///~/mptrack.db", server=True)
+    assert not Path("~").exists()

@@ -124,6 +124,10 @@ class SqliteStore:
             raise ParameterError(f"db: expected sqlite:///PATH, got {url!r}")
         if self.path.is_dir():
             raise ParameterError(f"db: {self.path} is a directory; give a file, e.g. sqlite:///{self.path}/mptrack.db")
+        if not self.path.parent.is_dir():
+            home = " (~ is not expanded in a URL: give the whole path)" if str(self.path).startswith("~") else ""
+            raise OutputError(f"db: the directory {self.path.parent} does not exist{home}; create it first",
+                              path=self.path)
         self._held = contextlib.ExitStack()
         if server:
             try:
