@@ -214,8 +214,7 @@ class _Busy(Exception):
 def _locked(out: Path, lock: Path, holder: str | None, advice: str) -> OutputError:
     who = f"another run ({holder})" if holder else "another run"
     hint = "" if fcntl is not None else f"; if that process is gone, delete {lock}"
-    return OutputError(f"{out}: {who} is writing it; {advice}{hint}",
-                       path=out)
+    return OutputError(f"{out}: {who} is writing it; {advice}{hint}", path=out)
 
 
 def _release(lock: Path, fd: int) -> None:

@@ -118,7 +118,7 @@ class RefusalLog:
         more = self._quiet.pop(exc.code, 0)
         self._next[exc.code] = now + REFUSAL_LOG_S
         log.warning("refused %s (%d %s): %s%s", path, exc.status, exc.code, exc,
-                    f" ({more} more refused so since the last such line)" if more else "",
+                    f" (and {more} more since the last such line)" if more else "",
                     extra={"event": "refused", "reason": exc.code, "status": exc.status})
 
 
