@@ -362,17 +362,15 @@ def test_auth(tmp_path, new_db):
         assert srv.stop() == 0
 
 
-def test_a_public_address_needs_auth(tmp_path):
-    proc = subprocess.run([sys.executable, "-m", "mptrack", "serve", "--host", "0.0.0.0", "--db",
-                           f"sqlite:///{tmp_path / 'x.db'}"], capture_output=True, text=True, timeout=60,
-                          env={"PYTHONPATH": str(SRC), "PATH": "/usr/bin:/bin"})
-    assert proc.returncode == 2 and "--auth" in proc.stderr
-
-
 def _serve(*args, cwd) -> subprocess.CompletedProcess:
     """``mptrack serve ARGS`` run to its end (one that cannot start)."""
     return subprocess.run([sys.executable, "-m", "mptrack", "serve", *args], capture_output=True, text=True,
                           timeout=120, cwd=cwd, env={"PYTHONPATH": str(SRC), "PATH": "/usr/bin:/bin"})
+
+
+def test_a_public_address_needs_auth(tmp_path):
+    proc = _serve("--host", "0.0.0.0", "--db", f"sqlite:///{tmp_path / 'x.db'}", cwd=tmp_path)
+    assert proc.returncode == 2 and "--auth" in proc.stderr
 
 
 def test_a_second_server_of_one_sqlite_file_is_refused_and_a_busy_port_named(tmp_path):
