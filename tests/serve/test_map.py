@@ -22,6 +22,10 @@ def _send(srv, device: str, k: int, t0: int, lat0: float) -> None:
     assert r.status_code == 200, r.text
 
 
+#: The names written on the map beside the markers, in order.
+_NAMES = "Array.from(document.querySelectorAll('.device-name')).map(function (e) { return e.textContent; }).sort().join()"
+
+
 @needs_chromium
 def test_live_map_shows_every_device_and_follows_new_fixes(served, tmp_path, tmp_path_factory):
     t0 = int(time.time()) - 600
@@ -36,6 +40,7 @@ def test_live_map_shows_every_device_and_follows_new_fixes(served, tmp_path, tmp
         assert browser.eval("document.querySelectorAll('#device-list li').length") == 3
         # each device's id on its line, its last fix's time, flag and uncertainty below, within the list's width
         assert browser.eval("document.querySelector('#device-list li b').textContent") == "bus-1"
+        assert browser.eval(_NAMES) == "bus-1,bus-2,bus-3"   # a small fleet is named on the map
         assert "±" in browser.eval("document.querySelector('#device-list li small').textContent")
         assert browser.eval("(function (l) { return l.scrollWidth <= l.clientWidth; })"
                             "(document.getElementById('device-list'))") is True
@@ -49,8 +54,14 @@ def test_live_map_shows_every_device_and_follows_new_fixes(served, tmp_path, tmp
         # a click on a device draws its track (its stored fixes of the last hour)
         browser.eval("document.querySelector('#device-list li').click()")
         assert browser.wait_for("document.body.dataset.trackPoints") == "6"
+        assert browser.eval(_NAMES) == "bus-1,bus-2,bus-3,bus-4"
         shot = browser.screenshot(tmp_path_factory.getbasetemp() / "live-map.png")
         print(f"screenshot: {shot}")
+        # past 30 devices the names would cover the map: they show on hover only, every marker's
+        for i in range(5, 32):
+            _send(served, f"bus-{i}", 0, t0 + 200, 52.50 + 0.001 * i)
+        browser.wait_for("document.body.dataset.devices === '31'")
+        assert browser.wait_for(f"({_NAMES}) === ''")   # (a name fades out in 0.2 s)
         assert browser.eval("document.documentElement.dataset.jsErrors || ''") == ""
     finally:
         browser.close()

@@ -1,6 +1,6 @@
 /* mptrack live map: devices from /api/devices, then every accepted fix from /api/stream (Server-Sent
    Events).  Each device shows its estimate (a marker with its 1-sigma ellipse) and its last raw fix;
-   clicking it draws its last hour (/api/devices/ID/track).  Works offline: the background tiles load
+   clicking it draws its last hour (/api/devices/ID/track); a small fleet's markers carry their names.  Works offline: the background tiles load
    only when the browser is online.  The page reports its state on <body>: data-devices (markers on
    the map), data-events (fixes received), data-ready. */
 (function () {
@@ -19,7 +19,10 @@
   }
   L.control.scale({imperial: false}).addTo(map);
   map.setView([20, 0], 2);
-  var devices = {};   // id -> {marker, raw, ellipse, item, details, track}
+  var devices = {};   // id -> {marker, raw, ellipse, item, details, track, named}
+  // up to this many devices, each is named on the map beside its marker (more names would cover it);
+  // beyond, a marker's name and last fix show when the pointer is on it, as the list shows them
+  var NAMED_UP_TO = 30;
   var events = 0, fitted = false;
   var list = document.getElementById("device-list");
 
@@ -54,13 +57,28 @@
       dev.marker.on("click", function () { showTrack(d.id); });
       dev.item.addEventListener("click", function () { showTrack(d.id); map.panTo(dev.marker.getLatLng()); });
       list.appendChild(dev.item);
-      document.getElementById("device-count").textContent = Object.keys(devices).length;
-      document.body.setAttribute("data-devices", String(Object.keys(devices).length));
+      var count = Object.keys(devices).length;
+      document.getElementById("device-count").textContent = count;
+      document.body.setAttribute("data-devices", String(count));
+      if (count === NAMED_UP_TO + 1) {   // too many names now: every marker's name on hover only
+        Object.keys(devices).forEach(function (id) {
+          var other = devices[id];
+          if (other.named) { other.marker.unbindTooltip().bindTooltip(id); other.named = false; }
+        });
+      }
     }
     dev.marker.setLatLng([d.lat, d.lon]);
     if (d.raw_lat != null) dev.raw.setLatLng([d.raw_lat, d.raw_lon]);
     if (d.ell_major_m != null) dev.ellipse.setLatLngs(ellipsePoints(d.lat, d.lon, d.ell_major_m, d.ell_minor_m, d.ell_azimuth_deg || 0));
-    dev.marker.bindTooltip(text(d));
+    if (Object.keys(devices).length <= NAMED_UP_TO) {
+      if (!dev.named) {
+        dev.marker.unbindTooltip().bindTooltip(d.id, {permanent: true, direction: "right", offset: [8, 0],
+                                                      className: "device-name"});
+        dev.named = true;
+      }
+    } else {
+      dev.marker.unbindTooltip().bindTooltip(text(d));
+    }
     dev.details.textContent = details(d);
   }
   function showTrack(id) {
