@@ -5,13 +5,17 @@ from __future__ import annotations
 
 import json
 import math
+import tempfile
+from pathlib import Path
 from urllib.parse import urlencode
 
 import pytest
+from _data import DATA
 from hypothesis import given, settings, strategies as st
 
 from mptrack.errors import RequestError
-from mptrack.serve._bulk import parse_body as parse_bulk
+from mptrack.io import FIXES, read_table
+from mptrack.serve._bulk import CONTENT_TYPES, parse_body as parse_bulk
 from mptrack.serve._fix import FIELDS, KNOT_MPS, timestamp
 from mptrack.serve._osmand import parse_query
 from mptrack.serve._owntracks import device_of, parse_body as parse_owntracks
@@ -197,6 +201,40 @@ def test_bulk_csv_and_ndjson_in_the_columns_mptrack_track_reads():
                     for i in range(3))
     rows = [_fix(f) for f in parse_bulk(nd, "ndjson", {}, NOW)]
     assert [r["t"] for r in rows] == [1767268800.0, 1767268801.0, 1767268802.0]
+
+
+@pytest.mark.parametrize("name, ctype", [("around-visnjan-with-car.gpx", "application/gpx+xml"),
+                                         ("formats/sup_activity_1.tcx", "application/vnd.garmin.tcx+xml"),
+                                         ("formats/garmin-fenix-5-run.fit", "application/vnd.ant.fit"),
+                                         ("formats/walk-1.json", "application/geo+json")])
+def test_bulk_recorded_track_files_give_the_fixes_mptrack_track_reads(name, ctype):
+    """A GPX, TCX, FIT or GeoJSON upload: the fixes read_table reads from the same file, in its order, as the
+    fixes of the device ?device= names (which a file's upload needs)."""
+    path = DATA / name
+    want = read_table(path, FIXES)
+    kind = CONTENT_TYPES[ctype]
+    rows = [_fix(f) for f in parse_bulk(path.read_bytes(), kind, {"device": "rider-1"}, NOW)]
+    assert [r["device"] for r in rows] == ["rider-1"] * len(want)
+    assert [(r["t"], r["lat"], r["lon"]) for r in rows] == list(zip(want["t"], want["lat"], want["lon"]))
+    with pytest.raises(RequestError, match="a recording's file names no device: give it as ") as e:
+        parse_bulk(path.read_bytes(), kind, {}, NOW)
+    assert e.value.field == "device"
+
+
+def test_bulk_files_bad_input_is_named():
+    gpx = CONTENT_TYPES["application/gpx+xml"]
+    for body, field, text in ((b"<gpx><trk><trkseg><trkpt lat='52.5' lon='13.4'/></trkseg></trk></gpx>", "time",
+                               "no time stamp"),
+                              (b"not xml", None, "cannot be read as GPX"),
+                              (b"", None, "the body is empty")):
+        with pytest.raises(RequestError, match=text) as e:
+            parse_bulk(body, gpx, {"device": "x"}, NOW)
+        assert e.value.field == field and "mptrack-upload" not in str(e.value)
+    with pytest.raises(RequestError) as e:
+        parse_bulk(b"track_id,time,lat,lon\n", "csv", {"device": "a b"}, NOW)
+    assert e.value.field == "device"
+    glob = list(Path(tempfile.gettempdir()).glob("mptrack-upload-*"))
+    assert glob == [], glob   # each upload's file is gone once read
 
 
 _TIMES = ([1770000000, 1770000001], [1770000000000, 1770000001000], [1770000000.5, 1770000001.25],

@@ -15,7 +15,7 @@ import time
 import numpy as np
 import pandas as pd
 import pytest
-from _data import REAL_TRACES, shared_data
+from _data import DATA, REAL_TRACES, shared_data
 from _server import SRC, Server, error_of, free_port, query, stored
 from conftest import BACKENDS, new_database
 
@@ -104,6 +104,11 @@ def test_bulk_ndjson_and_csv(server):
     r = server.post("/api/fixes", content=csv, headers={"Content-Type": "text/csv"})
     assert r.status_code == 200 and r.json() == {"accepted": 10}
     assert len(_stored(server.db, "gw-1")) == 10 and len(_stored(server.db, "gw-csv")) == 10
+    # a recording as a file (GPX here), the device named in the query
+    gpx = DATA / "around-visnjan-with-car.gpx"
+    r = server.post("/api/fixes?device=car-gpx", content=gpx.read_bytes(), headers={"Content-Type": "application/gpx+xml"})
+    assert r.status_code == 200 and r.json() == {"accepted": len(read_table(gpx))}
+    assert len(_stored(server.db, "car-gpx")) == r.json()["accepted"]
 
 
 # ---- late and duplicate fixes --------------------------------------------------------------------------

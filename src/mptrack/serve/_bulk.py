@@ -2,14 +2,21 @@
 ``Content-Type: application/x-ndjson``) or CSV (``text/csv``) in the columns ``mptrack track``
 reads: the same names and unit detection (:class:`mptrack.io.ReadOptions`; ``columns``,
 ``time_unit``, ``time_format`` and ``coord_unit`` may be given as query parameters), any number of
-devices (the track id column is the device id).  Times must be absolute (epoch or ISO 8601) and
-positions geographic (lat/lon): the server keeps fixes on the globe.
+devices (the track id column is the device id).  A recording as a file is read as ``mptrack track``
+reads it (:data:`FILE_TYPES`: GPX, TCX, FIT, GeoJSON), with ``?device=ID``: a file is one device's
+recording and names no device (its tracks' names are a ride's or a day's, or its file's).
+``?device=ID`` also makes every fix of a CSV or NDJSON body that device's.  Times must be absolute
+(epoch or ISO 8601) and positions geographic (lat/lon): the server keeps fixes on the globe.
 """
 
 from __future__ import annotations
 
+import contextlib
 import io as _stdio
+import tempfile
 import time
+from pathlib import Path
+from typing import Iterator
 
 import numpy as np
 import pandas as pd
@@ -20,31 +27,44 @@ from ..errors import DataError, MptrackError, RequestError
 from ..io import FIXES, ReadOptions, read_table
 from ._fix import DEVICE_ID, EARLIEST, MAX_FUTURE_S
 
-__all__ = ["parse_body", "CONTENT_TYPES", "READ_PARAMETERS"]
+__all__ = ["parse_body", "CONTENT_TYPES", "FILE_TYPES", "READ_PARAMETERS"]
 
+#: Content types of recorded tracks as files -> the suffix ``mptrack track`` reads them by.
+FILE_TYPES = {"application/gpx+xml": ".gpx", "application/vnd.garmin.tcx+xml": ".tcx", "application/vnd.ant.fit": ".fit",
+              "application/geo+json": ".geojson"}
 CONTENT_TYPES = {"application/x-ndjson": "ndjson", "application/ndjson": "ndjson", "application/jsonl": "ndjson",
-                 "application/json-lines": "ndjson", "text/csv": "csv"}
+                 "application/json-lines": "ndjson", "text/csv": "csv", **FILE_TYPES}
 #: Query parameters of ``POST /api/fixes`` passed to :class:`mptrack.io.ReadOptions`.
 READ_PARAMETERS = ("columns", "time_unit", "time_format", "coord_unit")
 _PASSED = ("speed_mps", "heading_deg", "altitude_m")
 
 
 def parse_body(body: bytes, kind: str, params: dict, now: float | None = None) -> list[tuple]:
-    """The fixes of one bulk body (``kind`` "ndjson" or "csv"), in the order of the body."""
+    """The fixes of one bulk body (``kind``: "ndjson", "csv" or a file suffix of :data:`FILE_TYPES`), in
+    the order of the body."""
     now = time.time() if now is None else now
-    raw = _frame(body, kind)
+    device = params.get("device")
+    if device is None and kind in FILE_TYPES.values():
+        raise RequestError("a recording's file names no device: give it as ?device=ID", code="missing_field",
+                           field="device")
+    if device is not None and not DEVICE_ID.fullmatch(device):
+        raise RequestError(f"a device id is 1 to 64 letters, digits and . _ : @ / + - (got {device[:40]!r})",
+                           field="device")
     try:
         read = ReadOptions(**{k: params[k] for k in READ_PARAMETERS if k in params})
     except MptrackError as exc:
         raise RequestError(str(exc), field=next((k for k in READ_PARAMETERS if str(exc).startswith(k)), None)) \
             from None
     try:
-        rows = read_table(raw, FIXES, read=read)
+        with _readable(body, kind) as source:
+            rows = read_table(source, FIXES, read=read)
     except DataError as exc:
         where = f"row {exc.row}: " if exc.row is not None else ""
         raise RequestError(f"{where}{_parameters(exc.reason)}", status=422, field=exc.column) from None
     except MptrackError as exc:
         raise RequestError(_parameters(str(exc)), status=422) from None
+    if device is not None:
+        rows["track_id"] = device
     if "lat" not in rows.columns:
         raise RequestError("the server needs geographic positions (lat/lon columns), not local x/y metres",
                            status=422, field="lat")
@@ -62,7 +82,8 @@ def parse_body(body: bytes, kind: str, params: dict, now: float | None = None) -
         if not DEVICE_ID.fullmatch(str(dev)):
             i = int(np.flatnonzero(ids == dev)[0])
             raise RequestError(f"row {int(rows['row'].iloc[i])}: a device id is 1 to 64 letters, digits and "
-                               f". _ : @ / + - (got {str(dev)[:40]!r})", status=422, field="track_id")
+                               f". _ : @ / + - (got {str(dev)[:40]!r}); ?device=ID names the device of every fix",
+                               status=422, field="track_id")
     lat, lon = rows["lat"].to_numpy(dtype=float), rows["lon"].to_numpy(dtype=float)
     null = (lat == 0.0) & (lon == 0.0)
     if null.any():
@@ -82,6 +103,21 @@ def _parameters(message: str) -> str:
         message = message.replace(f"--{name.replace('_', '-')} ", f"?{name}=").replace(f"--{name.replace('_', '-')}",
                                                                                        f"?{name}")
     return message
+
+
+@contextlib.contextmanager
+def _readable(body: bytes, kind: str) -> Iterator[pd.DataFrame | Path]:
+    """What :func:`mptrack.io.read_table` reads the body from: its table (NDJSON, CSV), or the body as a file
+    of its format in a directory of its own, removed afterwards."""
+    if kind not in FILE_TYPES.values():
+        yield _frame(body, kind)
+        return
+    if not body.strip():
+        raise RequestError("the body is empty", code="missing_field")
+    with tempfile.TemporaryDirectory(prefix="mptrack-upload-") as tmp:
+        path = Path(tmp) / f"upload{kind}"
+        path.write_bytes(body)
+        yield path
 
 
 def _frame(body: bytes, kind: str) -> pd.DataFrame:

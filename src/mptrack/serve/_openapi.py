@@ -3,6 +3,8 @@ the query API's own at ``/openapi.json`` so that clients and fuzzers see the who
 
 from __future__ import annotations
 
+from ._bulk import FILE_TYPES
+
 __all__ = ["ingest_paths"]
 
 _ERROR = {"$ref": "#/components/schemas/Error"}
@@ -97,13 +99,16 @@ def ingest_paths() -> dict:
             "responses": {"200": {"description": "accepted; the body is [] (OwnTracks' answer)",
                                   "content": {"application/json": {"schema": {"type": "array"}}}}, **_ERRORS}}},
         "/api/fixes": {"post": {
-            "summary": "Bulk fixes of any number of devices: NDJSON or CSV in the columns mptrack track reads",
+            "summary": "Bulk fixes of any number of devices: NDJSON or CSV in the columns mptrack track reads, or "
+                       "one device's recording as a GPX, TCX, FIT or GeoJSON file",
             "operationId": "bulk", "tags": ["ingest"],
-            "parameters": [_q("columns", "which column is which, e.g. time=ts,lat=Latitude"),
+            "parameters": [_q("device", "the device of every fix (needed for a recording's file)"),
+                           _q("columns", "which column is which, e.g. time=ts,lat=Latitude"),
                            _q("time_unit", "auto, s, ms, us or ns"), _q("time_format", "strftime layout of text times"),
                            _q("coord_unit", "auto, deg, deg-e7, deg-e6 or rad"), _q("key", "API key (--auth)")],
-            "requestBody": {"required": True, "content": {"application/x-ndjson": {"schema": {"type": "string"}},
-                                                          "text/csv": {"schema": {"type": "string"}}}},
+            "requestBody": {"required": True, "content": {
+                **{t: {"schema": {"type": "string"}} for t in ("application/x-ndjson", "text/csv")},
+                **{t: {"schema": {"type": "string", "format": "binary"}} for t in FILE_TYPES}}},
             "responses": {"200": {"description": "committed", "content": {"application/json": {"schema": {
                 "type": "object", "properties": {"accepted": {"type": "integer"}}}}}}, **_ERRORS}}},
         "/v1/geolocate": {"post": {
