@@ -3,6 +3,7 @@ resume where they were (the recovered estimate of each device is the one stored 
 
 from __future__ import annotations
 
+import os
 import threading
 import time
 
@@ -67,3 +68,40 @@ def test_kill_9_under_load_loses_nothing_acknowledged(tmp_path, seed, new_db):
             assert track[-1]["flag"] == "update" and track[-1]["nis"] < 1e-3, track[-1]
     finally:
         assert srv2.stop() == 0, srv2.output()
+
+
+def _children(pid: int) -> list[int]:
+    path = f"/proc/{pid}/task/{pid}/children"
+    try:
+        with open(path) as f:
+            return [int(c) for c in f.read().split()]
+    except FileNotFoundError:
+        return []
+
+
+def _alive(pid: int) -> bool:
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            return f.read().split(") ")[-1][0] != "Z"
+    except FileNotFoundError:
+        return False
+
+
+@pytest.mark.skipif(not os.path.exists("/proc/self/task"), reason="needs Linux's /proc to see the processes")
+def test_the_noise_estimates_process_goes_with_its_server_even_after_kill_9(tmp_path):
+    """The noise estimates run in a process of the server's; a server killed with -9 cannot stop it, so it
+    leaves by itself once its server is gone (within ORPHAN_CHECK_S, 1 s)."""
+    srv = Server(tmp_path).start()
+    try:
+        deadline = time.monotonic() + 60
+        helpers: list[int] = []
+        while not helpers and time.monotonic() < deadline:   # started with the server, without waiting for it
+            helpers = [c for c in _children(srv.proc.pid) if "spawn_main" in open(f"/proc/{c}/cmdline").read()]
+            time.sleep(0.1)
+        assert helpers, "no noise estimates process"
+    finally:
+        srv.kill()
+    deadline = time.monotonic() + 10
+    while any(_alive(p) for p in helpers) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    assert not any(_alive(p) for p in helpers)

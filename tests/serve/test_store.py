@@ -94,15 +94,18 @@ def test_noise_estimates_take_at_most_their_share_of_a_core(tmp_path, monkeypatc
 
     store = open_store(f"sqlite:///{tmp_path / 'share.db'}")
     ingest = Ingest(store, LiveTracks(), calibrate_after=30)
-    read, rounds = store.histories, []
+    estimate, rounds = ingest.estimates.estimate, []
 
-    def slow(devices, n):                         # a round that takes 0.2 s
+    def slow(devices):                            # a round that takes 0.2 s
         if not ingest._stopping.is_set():          # (the round at closing does not rest)
             rounds.append(time.monotonic())
-        time.sleep(0.2)
-        return read(devices, n)
+        started = time.monotonic()
+        out = estimate(devices)
+        time.sleep(max(0.0, 0.2 - (time.monotonic() - started)))
+        return out
 
-    store.histories = slow
+    estimate([])                                  # the process started before the rounds are timed
+    ingest.estimates.estimate = slow
 
     async def feed():
         ingest.start()

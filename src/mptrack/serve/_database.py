@@ -9,7 +9,7 @@ from ._store import DEFAULT_DB, Store
 __all__ = ["open_store"]
 
 
-def open_store(db: str, fsync: bool = False, server: bool = False) -> Store:
+def open_store(db: str, fsync: bool = False, server: bool = False, reader: bool = False) -> Store:
     """The store of the server database at a URL.
 
     Parameters
@@ -23,6 +23,9 @@ def open_store(db: str, fsync: bool = False, server: bool = False) -> Store:
     server : bool, optional
         The store of a running server: a database with one writer (SQLite) is locked against a
         second server while the store is open.
+    reader : bool, optional
+        A store that only reads (a helper process's): no schema written, one connection, no background
+        work.
 
     Returns
     -------
@@ -40,9 +43,9 @@ def open_store(db: str, fsync: bool = False, server: bool = False) -> Store:
     if not isinstance(db, str):
         raise ParameterError(f"db: expected a database URL such as {DEFAULT_DB}, got {type(db).__name__}")
     if db.startswith("sqlite:///"):
-        return SqliteStore(db, fsync, server)
+        return SqliteStore(db, fsync, server, reader)
     if db.startswith(("postgresql://", "postgres://")):
         from ._postgres import PostgresStore
 
-        return PostgresStore(db, fsync)
+        return PostgresStore(db, fsync, pool_size=1, upgrade=False) if reader else PostgresStore(db, fsync)
     raise ParameterError(f"db: expected sqlite:///PATH or postgresql://..., got {db!r}")

@@ -49,13 +49,13 @@ from json.encoder import encode_basestring
 import numpy as np
 
 from .._core.memory import grown, trim_heap
-from .._core.threads import background
 from ..tracking import ESTIMATE_FIELDS, LiveTracks, ellipse
 from ._device_ids import DeviceIds
+from ._estimates import NoiseEstimates
 from ._fix import iso_time
 from ._key_queue import KeyQueue
 from ._metrics import Metrics
-from ._store import (ESTIMATE_COLUMNS, FIX_COLUMNS, FLAG_NAMES, HISTORY_COLUMNS, LATE, StaleStates, Store,
+from ._store import (ESTIMATE_COLUMNS, FIX_COLUMNS, FLAG_NAMES, LATE, StaleStates, Store,
                      StoredRows)
 
 __all__ = ["Ingest", "ESTIMATES", "StreamQueue"]
@@ -90,6 +90,10 @@ RENEW = 0.25
 #: upload makes every device due every few batches) leave the cores to its commits and its database;
 #: they catch up when ingest slows.
 ESTIMATOR_SHARE = 0.25
+#: The most devices whose new noise estimates one batch applies (a round's up to MAX_ESTIMATED devices are
+#: applied over several batches): applying them means storing their states at once, ~5 us a device on
+#: the event loop's thread, which 2000 devices at once stalled for ~11 ms.
+APPLY_ROWS = 256
 #: The most device states one batch checkpoints.
 CHECKPOINT_ROWS = 2000
 #: A shared store: a batch is written optimistically (one statement; filtered again if it met a state another
@@ -113,14 +117,15 @@ class Ingest:
         self.live = live
         self.checkpoint_s = checkpoint_s
         self.calibrate_after = calibrate_after
-        self.history_fixes = history_fixes
         self.metrics = metrics if metrics is not None else Metrics.local()
         self.devices = DeviceIds()               # device id <-> key (the live filter's track index)
         self.lock = threading.Lock()             # the live state and the keys: the writer while it steps, readers
         self._writer = ThreadPoolExecutor(1, thread_name_prefix="mptrack-writer")
-        # the noise estimates run their kernels on one core: ingest keeps the other
-        self._estimator = ThreadPoolExecutor(1, thread_name_prefix="mptrack-noise", initializer=background)
+        # the noise estimates: a thread that waits for the process computing them (serve/_estimates.py)
+        self._estimator = ThreadPoolExecutor(1, thread_name_prefix="mptrack-noise")
+        self.estimates = NoiseEstimates(store.url, live.options, history_fixes)
         self._estimating = None                  # the noise estimate under way (a Future)
+        self._applying = None                    # (due, noise, fixes used) of an estimate not yet all applied
         self._rest_until = 0.0                   # when the next estimate may start (monotonic)
         self._stopping = threading.Event()       # set at close: an estimate waiting to start goes at once
         self._pending: list = []                 # (fixes, future) waiting for the next batch
@@ -177,6 +182,7 @@ class Ingest:
         self._loop = asyncio.get_running_loop()
         self._wake = asyncio.Event()
         self._task = self._loop.create_task(self._run())
+        self.estimates.start()
 
     async def close(self) -> None:
         """Commit what is pending, checkpoint, stop the writer."""
@@ -189,6 +195,7 @@ class Ingest:
         await asyncio.get_running_loop().run_in_executor(self._writer, self._checkpoint)
         self._writer.shutdown(wait=True)
         self._estimator.shutdown(wait=True)
+        self.estimates.close()
 
     # ---- the request side ------------------------------------------------------------------------
     async def submit(self, fixes: list[tuple]) -> None:
@@ -437,20 +444,28 @@ class Ingest:
         self._changed_at[new] = at
 
     def _noise(self, final: bool = False) -> None:
-        """Apply the noise estimates that are ready, the devices' states stored at once (a replay, or
-        another process, must see the noise the filter saw from here on), and start the next round
-        (devices with enough new fixes, estimated on another thread)."""
+        """Apply the noise estimates that are ready, APPLY_ROWS devices a call, each one's state stored at
+        once (a replay, or another process, must see the noise the filter saw from here on), and once all
+        are applied start the next round (devices with enough new fixes, estimated in the estimates'
+        process)."""
         fut = self._estimating
         if fut is not None and (fut.done() or final):
             self._estimating = None
             try:
-                due, noise, used = fut.result()
-                self._set_noise(due, noise)
-                self._estimated_on[due] = used
+                self._applying = fut.result()
             except Exception as exc:  # an estimate that fails leaves the devices' noise as it was
                 log.warning("noise estimation failed: %s", exc)
+        if self._applying is not None:   # APPLY_ROWS devices a batch (at closing, all)
+            due, noise, used = self._applying
+            k = len(due) if final else APPLY_ROWS
+            self._applying = (due[k:], {name: v[k:] for name, v in noise.items()}, used[k:]) if k < len(due) else None
+            try:
+                self._set_noise(due[:k], {name: v[:k] for name, v in noise.items()})
+                self._estimated_on[due[:k]] = used[:k]
+            except Exception as exc:  # the devices' noise and states as they were (_set_noise put them back)
+                log.warning("noise estimates not applied: %s", exc)
         waiting = len(self._noise_due)
-        if self._estimating is None and not final and (
+        if self._estimating is None and self._applying is None and not final and (
                 waiting >= ROUND_MIN or (waiting and time.monotonic() - self._due_since >= self.checkpoint_s)):
             due = self._noise_due.oldest(MAX_ESTIMATED)
             self._noise_due.discard(due)
@@ -508,14 +523,13 @@ class Ingest:
 
     def _estimate(self, due: np.ndarray) -> tuple[np.ndarray, dict, np.ndarray]:
         """(due, noise, fixes used) from the devices' recent stored fixes (on the estimator thread, after the
-        rest that ESTIMATOR_SHARE asks of the round before)."""
+        rest that ESTIMATOR_SHARE asks of the round before; computed in the estimates' process)."""
         self._stopping.wait(self._rest_until - time.monotonic())
         started = time.monotonic()
-        histories = self.store.histories(due.tolist(), self.history_fixes)
-        noise = self.live.estimate_noise([dict(zip(HISTORY_COLUMNS, h.T)) for h in histories])
+        noise, used = self.estimates.estimate(due.tolist())
         now = time.monotonic()
         self._rest_until = now + (1.0 / ESTIMATOR_SHARE - 1.0) * (now - started)
-        return due, noise, np.array([len(h) for h in histories], dtype=np.int64)
+        return due, noise, used
 
     @staticmethod
     def _events(sel: np.ndarray, fixes: list[tuple], est: dict) -> list[tuple[str, str]]:

@@ -115,7 +115,7 @@ class SqliteStore:
 
     shared = False
 
-    def __init__(self, url: str, fsync: bool = False, server: bool = False):
+    def __init__(self, url: str, fsync: bool = False, server: bool = False, reader: bool = False):
         self.url = url
         self.fsync = bool(fsync)
         self.quick_commit = not self.fsync
@@ -129,6 +129,12 @@ class SqliteStore:
             raise OutputError(f"db: the directory {self.path.parent} does not exist{home}; create it first",
                               path=self.path)
         self._held = contextlib.ExitStack()
+        self._local = threading.local()
+        self._closed = threading.Event()
+        if reader:   # a helper process's store: it reads (no schema written, no writer, no checkpoints)
+            self._w = self._checkpointer = None
+            self.schema_version = _schema_version(self._reader())
+            return
         if server:
             try:
                 self._held.enter_context(output_lock(self.path, note="mptrack serve",
@@ -161,8 +167,6 @@ class SqliteStore:
                 w.execute("UPDATE meta SET value = ? WHERE key = 'schema_version'", (SCHEMA_VERSION,))
         self.schema_version = SCHEMA_VERSION
         self._w.execute("PRAGMA wal_autocheckpoint=0")   # the checkpointer's job, off the commit path
-        self._local = threading.local()
-        self._closed = threading.Event()
         self._checkpointer = threading.Thread(target=self._checkpoints, name="mptrack-sqlite-checkpoint",
                                               daemon=True)
         self._checkpointer.start()
@@ -391,12 +395,13 @@ class SqliteStore:
         if self._closed.is_set():
             return
         self._closed.set()
-        self._checkpointer.join()
-        with self._lock:
-            # the whole log into the database file and the log emptied, so that the next start reads one
-            # file (readers of other threads may keep connections open: closing this one would not do it)
-            self._w.execute("PRAGMA wal_checkpoint(TRUNCATE)")
-            self._w.close()
+        if self._w is not None:
+            self._checkpointer.join()
+            with self._lock:
+                # the whole log into the database file and the log emptied, so that the next start reads one
+                # file (readers of other threads may keep connections open: closing this one would not do it)
+                self._w.execute("PRAGMA wal_checkpoint(TRUNCATE)")
+                self._w.close()
         con = getattr(self._local, "con", None)
         if con is not None:
             con.close()
