@@ -26,6 +26,7 @@ COPY of the same rows from one process (the storage floor).
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import re
@@ -102,6 +103,14 @@ class _Process:
     def rss_mib(self) -> float:
         status = Path(f"/proc/{self.proc.pid}/status").read_text()
         return int(re.search(r"VmRSS:\s+(\d+)", status).group(1)) / 1024.0
+
+    def helpers_mib(self) -> float:
+        """The proportional set size of the server's child processes (its noise estimates'), MiB."""
+        total = 0
+        for child in Path(f"/proc/{self.proc.pid}/task/{self.proc.pid}/children").read_text().split():
+            with contextlib.suppress(OSError):
+                total += int(re.search(r"Pss:\s+(\d+)", Path(f"/proc/{child}/smaps_rollup").read_text()).group(1))
+        return total / 1024.0
 
     def settled_rss_mib(self, most_s: float = 10.0) -> float:
         """The resident memory once the work in flight is done (two readings 1 s apart within 1 MiB)."""
@@ -505,6 +514,7 @@ def serve_suite(quick: bool, db: str | None = None) -> dict:
                                              "lon": 9.0}) for d in range(start, min(many, start + chunk))).encode()
                 _bulk(server.url, [body], 1)
             just_after, held = server.rss_mib(), server.settled_rss_mib()
+            helpers = server.helpers_mib()
         finally:
             server.stop()
         restart = _Process(["mptrack", "serve", "-q", "--db", f"sqlite:///{db}"], tmp)
@@ -516,6 +526,8 @@ def serve_suite(quick: bool, db: str | None = None) -> dict:
                      (held - base) / many * 2 ** 20])
         rows.append([f"{many:,} devices: the same right after the last upload (MiB)", just_after, None, None,
                      (just_after - base) / many * 2 ** 20])
+        rows.append([f"{many:,} devices: the server's noise-estimates process beside it (MiB, proportional set size)",
+                     helpers, None, None, None])
         rows.append([f"{many:,} devices: restart to ready (s)", restart.ready_s, None, None, restart_rss])
         notes.append("memory rows: x floor = bytes per device (resident memory growth over the empty server); "
                      "settled: once two readings 1 s apart agree within 1 MiB (at most 10 s: the last upload's "

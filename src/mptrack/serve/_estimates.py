@@ -3,12 +3,12 @@
 Re-estimating the noise of a round of devices reads their recent fixes and runs ``mptrack track``'s
 maximum likelihood over them: tens of milliseconds of pandas, NumPy and compiled kernels, most of it
 holding the interpreter lock.  On a thread of the server's process that lock kept the event loop
-waiting, several milliseconds at a time, for as long as a round ran: OsmAnd requests at half the
-maximum rate answered within 11-22 ms in 99 % of cases with the estimates running, 5-6 ms without
-(docs/serve.md).  A process of its own -- started on first use, with its own read-only store and a
+waiting, milliseconds at a time, for as long as a round ran (OsmAnd requests at half the maximum rate:
+p99 12-16 ms with the estimates on a thread, 8-11 ms in this process, 5-6 ms with no estimates at all;
+docs/serve.md).  A process of its own -- started with the server, with its own read-only store and a
 live filter of the same options -- shares no lock with ingest; the server's estimator thread waits
-for its answer.  A process that dies (killed, out of memory) fails its round, and the next round
-starts another.
+for its answer.  It costs ~180 MB (proportional set size: the numerical libraries it imports).  A
+process that dies (killed, out of memory) fails its round, and the next round starts another.
 """
 
 from __future__ import annotations
