@@ -22,11 +22,12 @@ never stall ingest), with the last fix row it covers; the watermark is
 the row up to which every device's stored state covers its fixes.  After a crash, the fixes after the
 watermark that a device's state does not cover are replayed through the same filter
 (:meth:`Ingest.recover`), which gives the states the filter had, so the live estimates resume exactly.
-Noise is re-estimated on another thread for devices with enough new fixes (``calibrate_after``, or
-:data:`RENEW` times the fixes the device's last estimate used, whichever is more), in rounds of several
-devices (:data:`ROUND_MIN`, or fewer once the first has waited ``checkpoint_s``), taking at most
-:data:`ESTIMATOR_SHARE` of a core while devices keep it busy, and applied between batches, the devices'
-states stored at once, so that a replay sees the noise the live filter saw.
+Noise is re-estimated in a process of its own (:mod:`._estimates`) for devices with enough new fixes
+(``calibrate_after``, or :data:`RENEW` times the fixes the device's last estimate used, whichever is
+more), in rounds of several devices (:data:`ROUND_MIN`, or fewer once the first has waited
+``checkpoint_s``), taking at most :data:`ESTIMATOR_SHARE` of a core while devices keep it busy, and
+applied between batches (:data:`APPLY_ROWS` devices a batch), the devices' states stored at once, so
+that a replay sees the noise the live filter saw.
 
 With a shared store (PostgreSQL, several processes) a batch locks its devices' states first, loads
 those another process changed, and stores the new state of every device it stepped with its fixes:
