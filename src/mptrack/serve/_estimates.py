@@ -91,7 +91,8 @@ def _start(db: str, options: TrackOptions, server: int) -> None:
     thread, its store opened to read."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     threading.Thread(target=_orphaned, args=(server,), name="mptrack-noise-orphan", daemon=True).start()
-    os.nice(NICENESS)
+    if hasattr(os, "nice"):   # (POSIX)
+        os.nice(NICENESS)
     background()
     _WORKER["store"] = open_store(db, reader=True)
     _WORKER["live"] = LiveTracks(options)
