@@ -25,7 +25,7 @@ from pyarrow import json as pa_json
 
 from ..errors import DataError, MptrackError, RequestError
 from ..io import FIXES, ReadOptions, read_table
-from ._fix import DEVICE_ID, EARLIEST, MAX_FUTURE_S
+from ._fix import DEVICE_ID, EARLIEST, MAX_FUTURE_S, device_id
 
 __all__ = ["parse_body", "CONTENT_TYPES", "FILE_TYPES", "READ_PARAMETERS"]
 
@@ -47,9 +47,8 @@ def parse_body(body: bytes, kind: str, params: dict, now: float | None = None) -
     if device is None and kind in FILE_TYPES.values():
         raise RequestError("a recording's file names no device: give it as ?device=ID", code="missing_field",
                            field="device")
-    if device is not None and not DEVICE_ID.fullmatch(device):
-        raise RequestError(f"a device id is 1 to 64 letters, digits and . _ : @ / + - (got {device[:40]!r})",
-                           field="device")
+    if device is not None:
+        device = device_id(device, "device")
     try:
         read = ReadOptions(**{k: params[k] for k in READ_PARAMETERS if k in params})
     except MptrackError as exc:
@@ -109,11 +108,11 @@ def _parameters(message: str) -> str:
 def _readable(body: bytes, kind: str) -> Iterator[pd.DataFrame | Path]:
     """What :func:`mptrack.io.read_table` reads the body from: its table (NDJSON, CSV), or the body as a file
     of its format in a directory of its own, removed afterwards."""
+    if not body.strip():
+        raise RequestError("the body is empty", code="missing_field")
     if kind not in FILE_TYPES.values():
         yield _frame(body, kind)
         return
-    if not body.strip():
-        raise RequestError("the body is empty", code="missing_field")
     with tempfile.TemporaryDirectory(prefix="mptrack-upload-") as tmp:
         path = Path(tmp) / f"upload{kind}"
         path.write_bytes(body)
@@ -121,8 +120,6 @@ def _readable(body: bytes, kind: str) -> Iterator[pd.DataFrame | Path]:
 
 
 def _frame(body: bytes, kind: str) -> pd.DataFrame:
-    if not body.strip():
-        raise RequestError("the body is empty", code="missing_field")
     try:
         if kind == "csv":
             return pd.read_csv(_stdio.BytesIO(body))
