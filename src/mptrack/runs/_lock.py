@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import time
 from pathlib import Path
 from typing import Iterator
 
@@ -49,6 +50,8 @@ __all__ = ["output_lock", "lock_path"]
 #: Tries of the lock protocol before giving up (each retry means another process released the lock
 #: between two of our steps).
 _LOCK_TRIES = 20
+#: How long a refused process waits for the lock's holder to have written who it is (s).
+HOLDER_WAIT_S = 0.5
 #: What a refused process is told to do (after "another run (its pid and note) is writing it; ").
 _ADVICE = "wait for it to finish or choose another output"
 #: The outputs whose lock this process holds: lock path -> [descriptor, depth].
@@ -148,7 +151,7 @@ def _acquire(lock: Path, out: Path, note: str) -> int:
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
-            holder = _holder(lock)
+            holder = _written_holder(lock)
             same = _names(lock, fd)
             os.close(fd)
             if same:
@@ -187,6 +190,15 @@ def _names(lock: Path, fd: int) -> bool:
     except FileNotFoundError:
         return False
     return (here.st_dev, here.st_ino) == (there.st_dev, there.st_ino)
+
+
+def _written_holder(lock: Path) -> str | None:
+    """:func:`_holder`, waiting a moment (at most HOLDER_WAIT_S) for a holder that has just taken the lock
+    to write who it is (it writes after it locks: a refusal read in between named no one)."""
+    until = time.monotonic() + HOLDER_WAIT_S
+    while (holder := _holder(lock)) == "" and time.monotonic() < until:
+        time.sleep(0.002)
+    return holder
 
 
 def _holder(lock: Path) -> str | None:
