@@ -175,7 +175,7 @@ def _open_lock(lock: Path, out: Path) -> int | None:
             return os.open(lock, os.O_RDWR | os.O_CREAT, 0o666)
         return os.open(lock, os.O_RDWR | os.O_CREAT | os.O_EXCL, 0o666)
     except FileExistsError:
-        holder = _holder(lock)
+        holder = _written_holder(lock)
         if holder is None:
             return None
         raise _Busy(holder) from None

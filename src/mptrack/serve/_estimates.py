@@ -64,8 +64,9 @@ class NoiseEstimates:
         estimate used) of these devices.  Blocks until the process answers (call it from a thread)."""
         try:
             return self._process().submit(_estimate, devices, self.history_fixes).result()
-        except BrokenProcessPool:
-            self._pool = None   # the process died: this round fails, the next starts another
+        except BrokenProcessPool:   # the process died: this round fails, the next starts another
+            self._pool.shutdown(wait=False)
+            self._pool = None
             raise
 
     def _process(self) -> ProcessPoolExecutor:

@@ -1,7 +1,7 @@
 /* mptrack live map: devices from /api/devices, then every accepted fix from /api/stream (Server-Sent
    Events).  Each device shows its estimate (a marker with its 1-sigma ellipse) and its last raw fix;
-   clicking it draws its last hour (/api/devices/ID/track); a small fleet's markers carry their names.  Works offline: the background tiles load
-   only when the browser is online.  The page reports its state on <body>: data-devices (markers on
+   clicking it draws its last hour (/api/devices/ID/track); a small fleet's markers carry their names.
+   Works offline: the background tiles load only when the browser is online.  The page reports its state on <body>: data-devices (markers on
    the map), data-events (fixes received), data-ready. */
 (function () {
   "use strict";
