@@ -18,6 +18,7 @@ from mptrack.io import FIXES, read_table
 from mptrack.serve._bulk import CONTENT_TYPES, parse_body as parse_bulk
 from mptrack.serve._fix import FIELDS, KNOT_MPS, timestamp
 from mptrack.serve._osmand import parse_query
+from mptrack.serve._overland import is_batch, parse_document as parse_overland
 from mptrack.serve._owntracks import device_of, parse_body as parse_owntracks
 from mptrack.serve._traccar_json import parse_body as parse_traccar
 
@@ -150,6 +151,71 @@ def test_traccar_client_json_bad_input(body, field):
     with pytest.raises(RequestError) as e:
         parse_traccar(body, NOW)
     assert e.value.field == field and 400 <= e.value.status < 500, str(e.value)
+
+
+# ---- Overland ----------------------------------------------------------------------------------------------
+def _overland_point(lon=-122.030581, lat=37.3318, **props):
+    """A point as Overland's GLManager writes it (currentDictionaryFromLocation + addMetadataToUpdate)."""
+    p = {"timestamp": "2026-06-15T08:00:00-0700", "altitude": 12.5, "speed": 4.2, "course": 271.5,
+         "horizontal_accuracy": 30, "vertical_accuracy": 4, "speed_accuracy": 0.5, "course_accuracy": 10,
+         "motion": ["driving", "stationary"], "wifi": "", "battery_state": "charging", "battery_level": 0.89,
+         "device_id": "iphone"}
+    p.update(props)
+    return {"type": "Feature", "geometry": {"type": "Point", "coordinates": [lon, lat]}, "properties": p}
+
+
+def test_overland_batch_as_the_app_sends_it():
+    """Points in m/s and degrees, iOS's -1 for unknown, an invalid altitude dropped; the app's log entries and
+    trip records queued among the points are not positions."""
+    log_entry = {"type": "Feature", "geometry": {"type": "Point", "coordinates": [-122.03, 37.33]},
+                 "properties": {"timestamp": "2026-06-15T15:00:03Z", "action": "paused_location_updates",
+                                "battery_level": 0.8}}
+    trip = {"type": "Feature", "geometry": {"type": "Point", "coordinates": [-122.03, 37.33]},
+            "properties": {"type": "trip", "mode": "car", "start": "2026-06-15T14:00:00Z", "distance": 1200}}
+    doc = {"locations": [_overland_point(), log_entry, trip,
+                         _overland_point(lat=37.3319, timestamp="2026-06-15T15:00:05Z", speed=-1, course=-1,
+                                         horizontal_accuracy=-1, vertical_accuracy=-1)],
+           "current": _overland_point(lat=37.4), "trip": {"mode": "car", "distance": 1200}}
+    assert is_batch(doc)
+    first, second = (_fix(f) for f in parse_overland(doc, None, NOW))
+    assert first["device"] == "iphone" and first["t"] == 1781535600.0   # 08:00 at -07:00
+    assert (first["lat"], first["lon"]) == (37.3318, -122.030581)
+    assert (first["speed_mps"], first["heading_deg"], first["accuracy_m"], first["altitude_m"]) == (4.2, 271.5, 30, 12.5)
+    assert first["attrs"] == {"vertical_accuracy": 4, "speed_accuracy": 0.5, "course_accuracy": 10,
+                              "motion": ["driving", "stationary"], "wifi": "", "battery_state": "charging",
+                              "battery_level": 0.89}
+    assert second["t"] == 1781535605.0 and second["lat"] == 37.3319
+    assert (second["speed_mps"], second["heading_deg"], second["accuracy_m"], second["altitude_m"]) == (None,) * 4
+    assert parse_overland({"locations": [log_entry]}, None, NOW) == []
+    assert not is_batch({"device_id": "1", "location": _tsoft()})
+
+
+def test_overland_device_from_the_endpoint():
+    """A point without a device_id (the app's Device ID left empty) belongs to the endpoint's device."""
+    doc = {"locations": [_overland_point(device_id=""), _overland_point(timestamp="2026-06-15T15:00:09Z")]}
+    assert [_fix(f)["device"] for f in parse_overland(doc, "phone-2", NOW)] == ["phone-2", "iphone"]
+    del doc["locations"][0]["properties"]["device_id"]
+    with pytest.raises(RequestError) as e:
+        parse_overland(doc, None, NOW)
+    assert e.value.field == "locations[0].properties.device_id" and "?device=ID" in str(e.value)
+
+
+@pytest.mark.parametrize("doc, field", [
+    ({"locations": {"type": "Feature"}}, "locations"),
+    ({"locations": [1]}, "locations[0].properties"),
+    ({"locations": [{"type": "Feature", "properties": {"timestamp": "2026-06-15T15:00:00Z"}}]}, "locations[0].geometry"),
+    ({"locations": [dict(_overland_point(), geometry={"type": "LineString", "coordinates": [[1, 2], [3, 4]]})]},
+     "locations[0].geometry"),
+    ({"locations": [_overland_point(), _overland_point(lat=91)]}, "locations[1].geometry.coordinates[1]"),
+    ({"locations": [_overland_point(lon="x")]}, "locations[0].geometry.coordinates[0]"),
+    ({"locations": [_overland_point(timestamp="yesterday")]}, "locations[0].properties.timestamp"),
+    ({"locations": [_overland_point(speed="fast")]}, "locations[0].properties.speed"),
+    ({"locations": [_overland_point(device_id="a b")]}, "locations[0].properties.device_id"),
+])
+def test_overland_bad_input(doc, field):
+    with pytest.raises(RequestError) as e:
+        parse_overland(doc, None, NOW)
+    assert e.value.field == field and e.value.status == 400, str(e.value)
 
 
 # ---- OwnTracks --------------------------------------------------------------------------------------------
@@ -324,4 +390,9 @@ def test_rate_limit_buckets_by_device_key():
     limit.take("dev", 5, n=3, now=1000.0)             # refilled to the burst, no more
     with pytest.raises(RequestError):
         limit.take("dev", 5, now=1000.0)
+    with pytest.raises(RequestError):
+        limit.take("dev", 5, n=50, now=1001.0)         # a batch larger than the burst waits for a full bucket
+    limit.take("dev", 5, n=50, now=1002.0)             # ... and empties it (refused, it would be at every retry)
+    with pytest.raises(RequestError):
+        limit.take("dev", 5, now=1002.0)
     assert len(limit._level) >= 6

@@ -68,6 +68,32 @@ def test_traccar_client_json(server):
     assert len(rows) == 3 and set(rows["speed_mps"]) == {3.1}
 
 
+def _overland(lat: float, t: float, **props) -> dict:
+    p = {"timestamp": time.strftime("%Y-%m-%dT%H:%M:%S-0000", time.gmtime(t)), "altitude": 40, "speed": 1.5,
+         "course": 90, "horizontal_accuracy": 8, "vertical_accuracy": 3, "motion": ["walking"], "battery_level": 0.8}
+    p.update(props)
+    return {"type": "Feature", "geometry": {"type": "Point", "coordinates": [13.4, lat]}, "properties": p}
+
+
+def test_overland(server):
+    """Overland posts its queue in batches and deletes a batch only on {"result": "ok"}; its points name the
+    device, or the endpoint does (?device=)."""
+    t = int(NOW) - 400
+    batch = {"locations": [_overland(52.5, t, device_id="ov-1"), _overland(52.50002, t + 5, device_id="ov-1"),
+                           {"type": "Feature", "properties": {"timestamp": "2026-06-15T15:00:00Z",
+                                                              "action": "paused_location_updates"}}],
+             "current": _overland(52.6, t + 900, device_id="ov-1")}
+    r = server.post("/", json=batch)
+    assert r.status_code == 200 and r.json() == {"result": "ok"}
+    rows = _stored(server.db, "ov-1")
+    assert len(rows) == 2 and set(rows["speed_mps"]) == {1.5} and set(rows["accuracy_m"]) == {8.0}
+    r = server.post("/?device=ov-2", json={"locations": [_overland(52.5, t), _overland(52.5001, t + 5)]})
+    assert r.status_code == 200 and r.json() == {"result": "ok"}
+    assert len(_stored(server.db, "ov-2")) == 2
+    err = error_of(server.post("/", json={"locations": [_overland(52.5, t + 10)]}))
+    assert err["field"] == "locations[0].properties.device_id" and "Device ID" in err["message"]
+
+
 def test_owntracks_http_mode(server):
     msg = {"_type": "location", "tst": int(NOW) - 300, "acc": 10, "alt": 262, "lon": 13.602798, "vac": 6, "vel": 18,
            "lat": 51.062634, "cog": 82, "tid": "NE", "batt": 99}
@@ -355,7 +381,13 @@ def test_auth(tmp_path, new_db):
         msg = {"_type": "location", "lat": 51.0, "lon": 13.0, "tst": t}
         assert error_of(srv.post("/pub", json=msg))["code"] == "unauthorized"
         assert srv.post("/pub", json=msg, headers={"Authorization": f"Basic {basic}"}).status_code == 200
-        assert len(_stored(db)) == 3
+        overland = {"locations": [_overland(52.5, t + 2)]}      # no device_id: the token's device
+        assert error_of(srv.post("/", json=overland))["code"] == "unauthorized"
+        assert error_of(srv.post("/?device=jane/phone", json=overland, headers={
+            "Authorization": f"Bearer {token}"}))["code"] == "forbidden"
+        r = srv.post("/", json=overland, headers={"Authorization": f"Bearer {token}"})
+        assert r.status_code == 200 and r.json() == {"result": "ok"}
+        assert len(_stored(db)) == 4 and len(_stored(db, "car-7")) == 3
         assert error_of(srv.get("/api/devices"))["code"] == "unauthorized"
         assert error_of(srv.get("/"))["code"] == "unauthorized"
         assert srv.get("/api/devices", params={"key": key}).status_code == 200

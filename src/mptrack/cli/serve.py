@@ -77,7 +77,7 @@ def serve(
     quiet: bool = QUIET,
 ) -> None:
     """Run the live tracking server: phones and trackers report fixes (OsmAnd/Traccar Client, OwnTracks,
-    bulk files), every device gets a filtered track, a prediction and a live map at http://HOST:PORT/.
+    Overland, bulk files), every device gets a filtered track, a prediction and a live map at http://HOST:PORT/.
 
     Stops on Ctrl-C or SIGTERM after committing every acknowledged fix (exit 0)."""
     if not _loopback(host) and not auth:
@@ -118,7 +118,8 @@ def serve(
     if not quiet:
         where = "localhost" if _loopback(host) else host
         note(f"listening on http://{where}:{port}/ (live map there; OsmAnd/Traccar Client: server URL "
-             f"http://{where}:{port}; OwnTracks: http://{where}:{port}/pub), database {_shown(config.db)}"
+             f"http://{where}:{port}; OwnTracks: http://{where}:{port}/pub; Overland: receiver endpoint "
+             f"http://{where}:{port}/), database {_shown(config.db)}"
              + (f", {workers} workers" if workers > 1 else ""), "serve")
     # the server reads no client address or scheme: uvicorn's rewriting of them from a proxy's
     # X-Forwarded-* headers would only cost every request (~7 microseconds, 7 % of an OsmAnd fix)

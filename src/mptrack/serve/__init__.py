@@ -1,6 +1,6 @@
 """The live tracking server (``mptrack serve``, docs/serve.md): phones and trackers report fixes in
-the formats their apps already speak (OsmAnd / Traccar Client, OwnTracks, bulk NDJSON/CSV); every
-device's fixes go through the tracking engine's gated filter as they arrive, are committed durably
+the formats their apps already speak (OsmAnd / Traccar Client, OwnTracks, Overland, bulk NDJSON/CSV);
+every device's fixes go through the tracking engine's gated filter as they arrive, are committed durably
 with their estimates, and can be queried (current estimate, prediction, stored or smoothed track),
 streamed (Server-Sent Events) and watched on a live map.  With a cell table (``--cells``) it answers
 cell geolocation requests (``POST /v1/geolocate``, Google's and Ichnaea's format), and devices that

@@ -1,8 +1,8 @@
 """The server: one ASGI application.
 
-The ingest routes (``/`` with OsmAnd parameters or Traccar Client JSON, ``/pub`` for OwnTracks,
-``/api/fixes`` for bulk files, ``/api/devices/{id}/cells`` for devices that report cells) and cell
-geolocation (``/v1/geolocate``, :mod:`._geolocate`) are plain ASGI: they read the request, parse it with their protocol
+The ingest routes (``/`` with OsmAnd parameters, Traccar Client JSON or Overland batches, ``/pub``
+for OwnTracks, ``/api/fixes`` for bulk files, ``/api/devices/{id}/cells`` for devices that report
+cells) and cell geolocation (``/v1/geolocate``, :mod:`._geolocate`) are plain ASGI: they read the request, parse it with their protocol
 module into fix records, wait for the group commit (:class:`._ingest.Ingest`) and answer in the
 client's format.  Everything else -- the query API, its OpenAPI description, the stream and the
 map -- is a FastAPI application (:mod:`._query`).
@@ -28,7 +28,7 @@ from .._core.memory import arrow_gives_memory_back, trim_heap
 from .._core.validation import as_real, check_bool, check_int, check_path, check_positive, lookup
 from ..errors import MptrackError, ParameterError, RequestError
 from ..tracking import MODELS, LiveTracks, TrackOptions
-from . import _bulk, _osmand, _owntracks, _traccar_json
+from . import _bulk, _osmand, _overland, _owntracks, _traccar_json
 from ._auth import RateLimit, Registry, check_device, credentials
 from ._celltable import load_cell_table
 from ._fix import device_id, iso_time, timestamp
@@ -296,14 +296,20 @@ class Server:
 
     async def _root(self, scope, receive):
         headers = dict(scope["headers"])
+        answer = b""
         if scope["method"] == "GET":
             fixes, key = _one(_osmand.parse_query(scope["query_string"]))
         else:
             ctype = _content_type(headers)
             body = await _body(receive, headers, self.config.max_body)
             if ctype == "application/json":
-                fixes = _traccar_json.parse_body(body)
+                doc = _traccar_json.load_json(body)
                 key = _query_key(scope)
+                if _overland.is_batch(doc):
+                    fixes = _overland.parse_document(doc, self._endpoint_device(scope, headers, key))
+                    answer = _overland.REPLY
+                else:
+                    fixes = _traccar_json.parse_document(doc)
             elif ctype == "application/x-www-form-urlencoded" or (not ctype and not body):
                 fixes, key = _one(_osmand.parse_query(body or scope["query_string"]))
             else:
@@ -311,7 +317,15 @@ class Server:
                                    f"(Traccar Client), got {ctype or 'no content type'}", status=415,
                                    code="unsupported_media_type", field="Content-Type")
         await self._accept(self._place(fixes), headers, key)
-        return 200, b"", b"text/plain"
+        return 200, answer, b"application/json" if answer else b"text/plain"
+
+    def _endpoint_device(self, scope, headers: dict, key: str | None) -> str | None:
+        """The device of a batch's points that name none: the endpoint's ``?device=ID``, else (``--auth``)
+        the token's owner."""
+        named = dict(parse_qsl(scope["query_string"].decode("latin-1"))).get("device")
+        if named:
+            return device_id(named, "device")
+        return self.registry.device(credentials(headers, key)[0]) if self.config.auth else None
 
     async def _owntracks(self, scope, receive):
         headers = dict(scope["headers"])

@@ -96,7 +96,9 @@ class Registry:
 
 
 class RateLimit:
-    """A token bucket per device: ``rate`` fixes a second on average, bursts of ``burst``.
+    """A token bucket per device: ``rate`` fixes a second on average, bursts of ``burst``.  A request of
+    more fixes than ``burst`` (an app's queue sent after hours offline, in batches as large as its user
+    set) passes when the bucket is full and empties it: refused, it would be refused at every retry.
 
     The buckets are two arrays indexed by the device's key (16 bytes a device; a fleet of 10^6 in a
     dict of per-device lists took ~200 MB); a device without a key yet -- its first fix is being
@@ -115,6 +117,7 @@ class RateLimit:
             grow = max(key + 1, 2 * len(self._level)) - len(self._level)
             self._level.extend([self.burst] * grow)
             self._last.extend([0.0] * grow)
+        n = min(n, self.burst)
         level = min(self.burst, self._level[key] + (now - self._last[key]) * self.rate)
         if level < n:
             self._level[key], self._last[key] = level, now

@@ -43,6 +43,16 @@ _LOCATION = {"type": "object", "required": ["timestamp", "coords"],
 _TRACCAR = {"type": "object", "required": ["device_id", "location"], "properties": {
     "device_id": {"type": "string"},
     "location": {"oneOf": [_LOCATION, {"type": "array", "items": _LOCATION}]}}}
+_OVERLAND_POINT = {"type": "object", "required": ["geometry", "properties"], "properties": {
+    "type": {"type": "string", "enum": ["Feature"]},
+    "geometry": {"type": "object", "properties": {"type": {"type": "string", "enum": ["Point"]}, "coordinates": {
+        "type": "array", "items": {"type": "number"}, "description": "[longitude, latitude]"}}},
+    "properties": {"type": "object", "required": ["timestamp"], "properties": {
+        "timestamp": {"type": "string"}, "device_id": {"type": "string"},
+        **{k: {"type": "number"} for k in ("horizontal_accuracy", "speed", "course", "altitude", "vertical_accuracy")},
+        "action": {"type": "string", "description": "an app log entry: not stored"}}}}}
+_OVERLAND = {"type": "object", "required": ["locations"], "properties": {
+    "locations": {"type": "array", "items": _OVERLAND_POINT}, "current": _OVERLAND_POINT, "trip": {"type": "object"}}}
 _OWNTRACKS = {"type": "object", "required": ["_type"], "properties": {
     "_type": {"type": "string"}, "lat": {"type": "number"}, "lon": {"type": "number"}, "tst": {"type": "integer"},
     "acc": {"type": "number"}, "alt": {"type": "number"}, "vel": {"type": "number"}, "cog": {"type": "number"},
@@ -84,12 +94,19 @@ def ingest_paths() -> dict:
                                "(without)", "operationId": "osmand_get", "tags": ["ingest"], "parameters": _OSMAND,
                     "responses": {"200": {"description": "committed (empty body), or the map page (HTML)"},
                                   **_ERRORS}},
-            "post": {"summary": "OsmAnd fix as a form body, or Traccar Client JSON", "operationId": "osmand_post",
-                     "tags": ["ingest"], "parameters": [_q("key", "the device's token (--auth)")],
+            "post": {"summary": "OsmAnd fix as a form body, Traccar Client JSON, or an Overland batch",
+                     "operationId": "osmand_post", "tags": ["ingest"],
+                     "parameters": [_q("key", "the device's token (--auth)"),
+                                    _q("device", "Overland: the device of the points without a device_id")],
                      "requestBody": {"required": True, "content": {
                          "application/x-www-form-urlencoded": {"schema": _FORM},
-                         "application/json": {"schema": _TRACCAR}}},
-                     "responses": {"200": ok, **_ERRORS}},
+                         "application/json": {"schema": {"oneOf": [_TRACCAR, _OVERLAND]}}}},
+                     "responses": {"200": {
+                         "description": ok["description"] + "; an Overland batch is answered {\"result\": \"ok\"}, "
+                                                            "the others with an empty body",
+                         "content": {"application/json": {"schema": {
+                             "type": "object", "properties": {"result": {"type": "string", "enum": ["ok"]}}}}}},
+                         **_ERRORS}},
         },
         "/pub": {"post": {
             "summary": "OwnTracks HTTP mode (user and device from ?u=&d= or X-Limit-U / X-Limit-D)",
