@@ -385,7 +385,8 @@ def locate_cells(cells, offsets=None, *, level: float = CONFIDENCE) -> np.ndarra
                lat, lon          the cell's site (WGS-84 degrees; latitudes within +-85)
                radio             radio code (index into RADIOS: 0 gsm, 1 wcdma, 2 lte, 3 nr, 4 cdma)
                intercept_dbm, slope_db   the prior path-loss model (:func:`signal_prior`)
-               fit_offset_db     the table's fit of the cell (:func:`signal_fit`), NaN: none
+               fit_offset_db     the table's fit of the cell (:func:`signal_fit`), NaN: none (pooled by its
+                                 area into area_offset_db; alone it is noisier than the prior)
                area_fits, area_offset_db   the number and mean of the fits of the cell's location area
                                  (0 / NaN: none)
                range_m           the table's range (NaN: unknown), changeable 1 (averaged position) / 0 / NaN

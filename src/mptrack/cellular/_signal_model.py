@@ -7,7 +7,7 @@ The level a phone reports differs by radio (what Android's ``getDbm()`` and a ge
 the RSRP (one resource element of the reference signal), NR the SS-RSRP.  In dBm, at distance d from
 the site,
 
-    s = A + delta - n log10(d / 1 km) + G(theta) + site shadowing + e
+    s = A - n log10(d / 1 km) + G(theta) + site shadowing + e
 
 * A, the cell's *intercept* (the level at 1 km on the antenna's axis): the prior is the radio's typical
   effective radiated power of the measured signal (:data:`RADIOS`) minus the COST-231 Hata loss at
@@ -16,13 +16,12 @@ the site,
   sec. 4.4.1).
 * The fit from the table (:func:`signal_fit`): a cell whose ``averageSignal`` (mean level of its
   crowd-sourced observations) and ``range`` (the radius they cover) are known gives
-  A_fit = averageSignal + n (log10(range / 1 km) - 1 / (2 ln 10)), the mean of log10 d over a disc of
-  radius ``range`` being log10 range - 1/(2 ln 10).  Cells of one location area share their
-  environment, so the mean fitted offset A_fit - A_prior of an area's fitted cells moves the
-  intercepts of its other cells (:func:`mptrack.cellular.locate_cells` does the pooling, shrinking
-  the area's mean by its number of fits).
-* delta, one offset common to every cell of a request (the handset's gain and body loss, indoor
-  penetration, the environment class the prior got wrong), is estimated with the position.
+  A_fit = averageSignal + n log10(TYPICAL_FRACTION x range / 1 km): the average level is taken as the
+  level at 0.4 x the range.  Cells of one location area share their environment, so the mean fitted
+  offset A_fit - A_prior of an area's fitted cells moves the intercepts of its other cells
+  (:func:`mptrack.cellular.locate_cells` does the pooling, shrinking the area's mean by its number of
+  fits).
+* G(theta), the sector's pattern, and the shadowing are :func:`mptrack.cellular.locate_cells`'s.
 """
 
 from __future__ import annotations
