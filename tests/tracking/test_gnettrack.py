@@ -126,6 +126,10 @@ def test_track_then_evaluate_a_raw_log(tmp_path, converted, name):
     proc = _cli("track", log, "--cells", cells, "-o", tmp_path / "utc.csv")
     assert proc.returncode == 0 and "read as UTC" in proc.stderr, proc.stderr
     np.testing.assert_allclose(pd.read_csv(tmp_path / "utc.csv")[["lat", "lon"]], track[["lat", "lon"]])
+    # the zone given to one command and not the other: the refusal names the hour between them
+    proc = _cli("evaluate", tmp_path / "utc.csv", "--truth", log, "--timezone", "Europe/Brussels")
+    assert proc.returncode == 2 and "1 h before the estimates'" in proc.stderr and "--timezone" in proc.stderr, \
+        proc.stderr
 
 
 def test_bad_logs_and_zones(tmp_path):

@@ -125,3 +125,22 @@ def test_evaluation_summary_has_the_nis_advice_of_a_run(tmp_path):
     summary, _ = evaluate_tracks(read_output(tmp_path / "b.parquet"))
     assert summary["nis"]["far_low"] == run["nis"]["far_low"] == 1 and summary["nis"]["far_high"] == 0
     assert summary["nis"]["advice"][0].startswith("1 track(s) have a mean NIS far below its band")
+
+
+def test_truth_of_another_clock_is_named_by_its_offset():
+    """Truth whose times are a whole time-zone offset from the estimates' (local time stamps read in two
+    zones) matches nothing; the refusal says by how much they differ, and says nothing of zones when no
+    offset explains it."""
+    from mptrack.tracking import attach_truth
+
+    sim = mptrack.simulate("gps", tracks=1, seed=3, duration_s=120.0)
+    points = mptrack.track(sim.drop(columns=["true_lat", "true_lon"]))
+    truth = sim[["time", "true_lat", "true_lon"]].rename(columns={"true_lat": "lat", "true_lon": "lon"})
+    assert np.isfinite(attach_truth(points, truth)["error_m"]).all()
+    for hours, word in ((-2.0, "before"), (5.5, "after")):
+        shifted = truth.assign(time=truth["time"] + pd.Timedelta(hours=hours))
+        with pytest.raises(DataError, match=f"the truth's times are {abs(hours):g} h {word} the estimates'"):
+            attach_truth(points, shifted)
+    with pytest.raises(DataError, match=r"is it the truth of this run\?") as e:
+        attach_truth(points, truth.assign(time=truth["time"] + pd.Timedelta(seconds=1000)))
+    assert "zone" not in str(e.value)

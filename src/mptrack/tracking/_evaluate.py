@@ -116,9 +116,36 @@ def attach_truth(tracks: pd.DataFrame, truth, *, tolerance_s: float = 0.5, file=
     at = merged["_order"].to_numpy()
     a[at], b[at] = merged["true_a"].to_numpy(float), merged["true_b"].to_numpy(float)
     if len(tracks) and not np.isfinite(a).any():
+        shift = _clock_shift(keys["t"].to_numpy(float), tt["t"].to_numpy(float), tolerance_s)
+        hint = "; is it the truth of this run? (--tolerance widens the match)" if shift is None else (
+            f", but the truth's times are {abs(shift) / 3600:g} h {'after' if shift > 0 else 'before'} the "
+            "estimates': local time stamps read in different time zones? (give both commands the same --timezone)")
         raise DataError(f"no estimate has a truth sample within {tolerance_s:g} s of its time (of the same "
-                        "track); is it the truth of this run? (--tolerance widens the match)", file=file)
+                        f"track){hint}", file=file)
     return _with_errors(tracks.assign(track_id=keys["track_id"].array), a, b, geographic, file)
+
+
+#: The time-zone offsets :func:`_clock_shift` tries (s): every quarter hour within +-14 h.
+_ZONE_SHIFTS = 900.0 * np.arange(-56, 57)
+
+
+def _clock_shift(t: np.ndarray, truth_t: np.ndarray, tolerance_s: float) -> float | None:
+    """The time-zone offset (a whole number of quarter hours) by which the truth's times follow the
+    estimates' when shifting them by it matches most estimates (more than half), or None."""
+    truth_t = np.sort(truth_t[np.isfinite(truth_t)])
+    t = t[np.isfinite(t)]
+    if not len(truth_t) or not len(t):
+        return None
+    best, found = len(t) // 2, None
+    for shift in _ZONE_SHIFTS[_ZONE_SHIFTS != 0.0]:
+        want = t + shift
+        i = np.searchsorted(truth_t, want)
+        near = np.minimum(np.abs(truth_t[np.maximum(i - 1, 0)] - want),
+                          np.abs(truth_t[np.minimum(i, len(truth_t) - 1)] - want))
+        n = int(np.count_nonzero(near <= tolerance_s))
+        if n > best:
+            best, found = n, float(shift)
+    return found
 
 
 #: The truth columns a point table can carry (a simulated log's truth passed through ``mptrack track``):
