@@ -227,6 +227,22 @@ def test_position_and_prediction_of_fed_devices(server, fed):
         assert error_of(past)["field"] == "at"
 
 
+@pytest.mark.parametrize("path, params, field", [
+    ("position", {"at": "yesterday"}, "at"),
+    ("position", {"at": int(NOW) + 3 * 86400}, "at"),
+    ("track", {"from": "x"}, "from"),
+    ("track", {"to": "0"}, "to"),
+    ("track", {"from": int(NOW), "to": int(NOW) - 60}, "to"),
+    ("track", {"format": "kml"}, "format"),
+    ("track", {"smooth": "maybe"}, "smooth"),
+])
+def test_bad_query_parameters_are_422_naming_the_parameter(server, fed, path, params, field):
+    """One status for every parameter the query API cannot take (a time it cannot read was 400 for at=,
+    422 for from= and to=)."""
+    r = server.get(f"/api/devices/{next(iter(fed))}/{path}", params=params)
+    assert r.status_code == 422 and error_of(r)["field"] == field and error_of(r)["code"] == "invalid_field", r.text
+
+
 def test_smoothed_track_equals_mptrack_track_smooth(server, fed, tmp_path):
     """track?smooth=true and ``mptrack track FILE --smooth`` on the same fixes agree to 1e-6 m."""
     for dev, path in fed.items():

@@ -26,7 +26,7 @@ from starlette.exceptions import HTTPException as StarletteHTTPException
 from .. import __version__
 from ..errors import RequestError
 from ._auth import credentials
-from ._fix import iso_time, timestamp
+from ._fix import MAX_FUTURE_S, iso_time, timestamp
 from ._ingest import StreamQueue
 from ._store import FLAG_NAMES
 from ._openapi import ingest_paths
@@ -162,7 +162,7 @@ def query_app(server) -> FastAPI:
             if not last_t == last_t:
                 raise RequestError(f"device {device_id!r} has no filtered fix yet", status=404, code="not_found",
                                    field="device_id")
-            when = last_t if at is None else timestamp(at, "at", now)
+            when = last_t if at is None else _time_param(at, "at", now, future_s=MAX_FUTURE_S)
             if when < last_t:
                 raise RequestError(f"{iso_time(when)} is before the device's last fix ({iso_time(last_t)}); "
                                    "the track of the past is at /track", status=422, field="at")
@@ -258,8 +258,9 @@ def _f(v) -> float | None:
     return None if v is None or not math.isfinite(v) else float(v)
 
 
-def _time_param(value: str, name: str) -> float:
+def _time_param(value: str, name: str, now: float | None = None, future_s: float = math.inf) -> float:
+    """A time parameter of a query (by default any later time may bound one); 422 if it is not one."""
     try:
-        return timestamp(value, name, future_s=math.inf)  # any later time may bound a query
+        return timestamp(value, name, now, future_s=future_s)
     except RequestError as exc:
         raise RequestError(exc.reason, status=422, field=name) from None
