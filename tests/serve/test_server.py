@@ -155,6 +155,33 @@ def test_late_fixes_are_stored_and_duplicates_are_not(server):
         time.strftime("%Y-%m-%dT%H:%M:%S", time.gmtime(t0 + 20)))
 
 
+def test_a_fix_stamped_hours_ahead_does_not_hold_up_its_device(server):
+    """One fix stamped 20 h ahead (a receiver's bad time, within the day accepted) is stored with the
+    history, kept out of the live filter and logged: the device's later fixes are filtered as before
+    (they were all late until then); a device whose clock runs 2 h ahead all the time is filtered as any
+    other."""
+    t = int(time.time()) - 120
+    ahead_before = _stats(server)["ahead"]
+
+    def send(dev, tk, k):
+        assert server.get(f"/?id={dev}&timestamp={tk}&lat={52.5 + k * 1e-4}&lon=13.4&accuracy=5").status_code == 200
+
+    for k in range(5):
+        send("clk-1", t + 10 * k, k)
+    send("clk-1", t + 20 * 3600, 5)
+    for k in range(6, 9):
+        send("clk-1", t + 10 * k, k)
+    flags = [f["flag"] for f in server.json("/api/devices/clk-1/track")]
+    assert flags[-1] == "late" and "late" not in flags[:-1] and len(flags) == 9, flags   # the track is in time order
+    assert pd.Timestamp(server.json("/api/devices/clk-1/position")["last_fix_time"]).timestamp() == t + 80
+    assert _stats(server)["ahead"] == ahead_before + 1
+    assert "device clk-1 sent a fix stamped" in server.output() and "kept out of its live track" in server.output()
+    for k in range(6):
+        send("clk-2", t + 7200 + 10 * k, k)
+    assert [f["flag"] for f in server.json("/api/devices/clk-2/track")].count("late") == 0
+    assert _stats(server)["ahead"] == ahead_before + 1
+
+
 def test_a_bulk_upload_of_late_fixes_is_stored_once(server):
     """A bulk batch's late fixes (a device's history uploaded after newer fixes; more than the stores write
     row by row) are stored, each exactly once: a repeat of the upload, or a fix twice in it, is not."""

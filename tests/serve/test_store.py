@@ -96,9 +96,10 @@ def test_noise_estimates_take_at_most_their_share_of_a_core(tmp_path, monkeypatc
     ingest = Ingest(store, LiveTracks(), calibrate_after=30)
     estimate, rounds = ingest.estimates.estimate, []
 
+    closing_round = []
+
     def slow(devices):                            # a round that takes 0.2 s
-        if not ingest._stopping.is_set():          # (the round at closing does not rest)
-            rounds.append(time.monotonic())
+        (closing_round if ingest._stopping.is_set() else rounds).append(time.monotonic())
         started = time.monotonic()
         out = estimate(devices)
         time.sleep(max(0.0, 0.2 - (time.monotonic() - started)))
@@ -121,16 +122,18 @@ def test_noise_estimates_take_at_most_their_share_of_a_core(tmp_path, monkeypatc
         await ingest.submit([("walker", t + i, 50.0, 8.0, 5.0, None, None, None, None) for i in range(30)])
         started = time.monotonic()
         await ingest.close()
-        return time.monotonic() - started
+        return started
 
     try:
-        closing = asyncio.run(feed())
+        close_called = asyncio.run(feed())
     finally:
         store.close()
     gaps = np.diff(rounds)
     assert len(rounds) >= 2 and (gaps >= 0.2 / ESTIMATOR_SHARE - 0.02).all(), gaps
     assert len(rounds) <= 4                       # not back to back (~12 rounds of 0.2 s in 2.5 s)
-    assert closing < 0.6, closing                 # the last round's 0.2 s, not its rest's 0.6 s too
+    # the round at closing starts at once, not after its rest (0.2 / ESTIMATOR_SHARE - 0.2 = 0.6 s): timed
+    # from the call to its start, which a busy machine delays less than the whole close (the round's work)
+    assert len(closing_round) == 1 and closing_round[0] - close_called < 0.4, (closing_round, close_called)
 
 
 def test_noise_rounds_wait_for_enough_devices_or_for_the_first_to_have_waited(tmp_path, monkeypatch):

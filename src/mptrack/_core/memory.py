@@ -9,10 +9,10 @@ import numpy as np
 __all__ = ["trim_heap", "grown", "values_at", "arrow_gives_memory_back"]
 
 
-def grown(values: np.ndarray, size: int) -> np.ndarray:
-    """``values`` followed by zeros up to ``size``: an array's room to grow, whose pages take no memory
-    until written (a large zeroed allocation is fresh pages from the OS)."""
-    out = np.zeros(size, values.dtype)
+def grown(values: np.ndarray, size: int, fill=0) -> np.ndarray:
+    """``values`` followed by ``fill`` up to ``size``: an array's room to grow, whose pages take no memory
+    until written when ``fill`` is 0 (a large zeroed allocation is fresh pages from the OS)."""
+    out = np.zeros(size, values.dtype) if fill == 0 else np.full(size, fill, values.dtype)
     out[:len(values)] = values
     return out
 

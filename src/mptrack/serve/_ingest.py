@@ -3,7 +3,8 @@
 Requests hand their parsed fixes to :meth:`Ingest.submit` and wait.  One task gathers everything
 submitted meanwhile into a batch and, on one writer thread: sorts it by (device, time), tells each
 fix apart as new (later than every fix of its device: it goes through the live filter), late (stored
-with history, not filtered) or an exact duplicate (acknowledged, not stored again); advances the
+with history, not filtered; so is a fix stamped far ahead of its device's clock, :data:`AHEAD_S`) or
+an exact duplicate (acknowledged, not stored again); advances the
 live filter of every device in the batch in one call of the compiled engine
 (:class:`mptrack.tracking.LiveTracks`); writes fixes and estimates in one durable transaction; and
 only then wakes the requests, which answer 200.  If the write fails, the filters of the batch's
@@ -104,6 +105,15 @@ CHECKPOINT_ROWS = 2000
 #: to another worker half the time with two), and filtering twice cost more than the round trip saved.
 OPTIMISTIC_BELOW = 0.05
 STALE_WEIGHT = 0.1
+#: A fix more than this ahead of its device's clock offset -- how far ahead of the server's clock the
+#: device's last filtered fix was when it came -- and of the server's clock (s) is stored with the history,
+#: not filtered: one fix stamped hours ahead (a receiver's bad time) would otherwise make every later fix
+#: of its device late until then.  A device whose clock runs ahead all the time (local time sent as UTC)
+#: keeps its offset and is filtered as any other; a device's first fix, or the first after a restart of
+#: the server (the offsets are not stored), is trusted.
+AHEAD_S = 600.0
+#: The shortest time between two log lines about such fixes (s).
+AHEAD_LOG_S = 60.0
 #: What :meth:`mptrack.tracking.LiveTracks.advance` returns for each fix, in the order stored (ESTIMATE_COLUMNS).
 ESTIMATES = ESTIMATE_FIELDS
 
@@ -145,6 +155,8 @@ class Ingest:
         self._noise_due = KeyQueue()              # devices due for a noise estimate, first due first
         self._due_since = 0.0                     # when the first of them fell due (monotonic)
         self._version = np.zeros(0, dtype=np.int64)   # a shared store: each device's state version held here
+        self._clock = np.zeros(0, dtype=np.float32)   # each device's clock offset (AHEAD_S; NaN: unknown)
+        self._ahead_logged = (-math.inf, 0)           # when the last line about fixes ahead was logged, how many since
         self._stale_rate = 0.0                    # a shared store: how often batches met others' states lately
         self.listeners: set[StreamQueue] = set()
 
@@ -318,6 +330,7 @@ class Ingest:
             self._since_calibration, self._estimated_on, self._version, self._changed_row, self._changed_at = (
                 grown(a, size) for a in (self._since_calibration, self._estimated_on, self._version,
                                          self._changed_row, self._changed_at))
+            self._clock = grown(self._clock, size, np.nan)
         if n > self.live.n:
             self.live.add(n - self.live.n)
 
@@ -372,11 +385,17 @@ class Ingest:
                     dup_last = (ts == last[:, 0]) & (la == last[:, 1]) & (lo == last[:, 2])
                     duplicate = prev_same | dup_last
                     new = ~duplicate & ~(ts <= last[:, 0]) & ~(ts == prev_t)  # NaN last: a first fix is new
+                    ahead = new & (ts - now > AHEAD_S + np.nan_to_num(np.maximum(self._clock[d], 0.0), nan=np.inf))
+                    new &= ~ahead
                     late = ~duplicate & ~new
                     sel = order[new]
                     # checked: the fixes were checked as they came, sorted above, each after its device's last
                     est = self.live.advance(dev[sel], t[sel], lat[sel], lon[sel], acc[sel], checked=True)
                     touched, filtered = np.unique(dev[sel], return_counts=True)
+                    if len(sel):  # each device's clock offset: its last filtered fix's
+                        dn, tn = d[new], ts[new]
+                        ends = np.r_[dn[1:] != dn[:-1], True]
+                        self._clock[dn[ends]] = tn[ends] - now
                     if self.shared:   # every state goes in with its fixes
                         states, ready, watermark = self._states_of(touched), [], None
                     else:             # the states that changed checkpoint_s ago go in with this batch
@@ -405,11 +424,28 @@ class Ingest:
         m.add("accepted", len(fixes))
         m.add("filtered", len(sel))
         m.add("late", stored_late)
+        if ahead.any():
+            m.add("ahead", int(ahead.sum()))
+            self._log_ahead(fixes[order[ahead][0]], int(ahead.sum()))
         m.add("duplicates", len(fixes) - len(sel) - stored_late)
         m.add("batches")
         m.observe("batch", len(fixes))
         self._noise()
         return events
+
+    def _log_ahead(self, fix: tuple, n: int) -> None:
+        """A log line about fixes kept out of the live filter for their time (AHEAD_S): the first at once,
+        then at most one every AHEAD_LOG_S seconds with how many came meanwhile."""
+        last, quiet = self._ahead_logged
+        now = time.monotonic()
+        if now - last < AHEAD_LOG_S:
+            self._ahead_logged = (last, quiet + n)
+            return
+        self._ahead_logged = (now, 0)
+        log.warning("device %s sent a fix stamped %s, %.1f h after the server's clock and after its own clock so "
+                    "far: stored with its history, kept out of its live track%s", fix[0], iso_time(fix[1]),
+                    (fix[1] - time.time()) / 3600.0, f" ({n + quiet - 1} more such fixes since the last such line)"
+                    if n + quiet > 1 else "", extra={"event": "ahead", "device": fix[0]})
 
     def _states_of(self, devs: np.ndarray) -> list[tuple[int, bytes, float]]:
         """A shared store: (key, blob, last fix time) of these devices, their versions raised (lock held)."""

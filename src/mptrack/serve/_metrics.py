@@ -21,7 +21,7 @@ __all__ = ["Metrics", "METRICS_ENV", "create_metrics_file"]
 
 #: The environment variable naming the shared file of the worker processes.
 METRICS_ENV = "MPTRACK_METRICS_FILE"
-_COUNTERS = ("accepted", "filtered", "late", "duplicates", "batches", "commit_failures", "commit_retries")
+_COUNTERS = ("accepted", "filtered", "late", "duplicates", "ahead", "batches", "commit_failures", "commit_retries")
 #: Reasons a request is refused (RequestError codes, 503 "not_committed"); others count as "other".
 REASONS = ("missing_field", "invalid_field", "malformed_json", "malformed_body", "incomplete_body", "body_too_large",
            "unsupported_media_type", "unauthorized", "forbidden", "rate_limited", "not_found", "not_committed",
@@ -109,7 +109,7 @@ class Metrics:
 
     # ---- reading (the sums over every process) ---------------------------------------------------------
     def totals(self) -> dict:
-        """The counters summed over the processes: accepted, filtered, late, duplicates, batches,
+        """The counters summed over the processes: accepted, filtered, late, duplicates, ahead, batches,
         commit_failures, commit_retries, and refused (reason -> count, the reasons seen)."""
         s = self.rows.sum(axis=0)
         out = {name: int(s[_AT[name]]) for name in _COUNTERS}
@@ -130,6 +130,9 @@ class Metrics:
                                          "late (stored with history only), duplicate (not stored again).")
         for kind, name in (("filtered", "filtered"), ("late", "late"), ("duplicate", "duplicates")):
             out.append(f'mptrack_fixes_total{{kind="{kind}"}} {_n(s[_AT[name]])}')
+        metric("fixes_ahead_total", "counter", "Late fixes that were so for their time: ahead of the server's clock "
+                                              "and of their device's clock so far (kept out of the live filter).")
+        out.append(f"mptrack_fixes_ahead_total {_n(s[_AT['ahead']])}")
         metric("requests_refused_total", "counter", "Ingest requests refused, by reason (not_committed: 503, the "
                                                     "database could not commit).")
         for code in REASONS:

@@ -70,6 +70,8 @@ class Stats(BaseModel):
     filtered: int
     late: int
     duplicates: int
+    ahead: int = Field(description="late fixes that were so for their time: stamped ahead of the server's clock "
+                                   "and of their device's clock so far, kept out of the live filter")
     batches: int
     refused: dict[str, int]
     uptime_s: float
@@ -230,7 +232,8 @@ def query_app(server) -> FastAPI:
     def stats():
         c = server.metrics.totals()
         return {"devices": server.ingest.device_counts(300.0)[0], "accepted": c["accepted"], "filtered": c["filtered"],
-                "late": c["late"], "duplicates": c["duplicates"], "batches": c["batches"], "refused": c["refused"],
+                "late": c["late"], "duplicates": c["duplicates"], "ahead": c["ahead"], "batches": c["batches"],
+                "refused": c["refused"],
                 "uptime_s": time.time() - server.started,
                 "geolocate": None if server.geolocator is None else dict(server.geolocator.counters)}
 
