@@ -2,9 +2,9 @@
 
 The ingest routes (``/`` with OsmAnd parameters, Traccar Client JSON or Overland batches, ``/pub``
 for OwnTracks, ``/api/fixes`` for bulk files, ``/api/devices/{id}/cells`` for devices that report
-cells) and cell geolocation (``/v1/geolocate``, :mod:`._geolocate`) are plain ASGI: they read the request, parse it with their protocol
-module into fix records, wait for the group commit (:class:`._ingest.Ingest`) and answer in the
-client's format.  Everything else -- the query API, its OpenAPI description, the stream and the
+cells) and cell geolocation (``/v1/geolocate``, :mod:`._geolocate`) are plain ASGI: they read the
+request, parse it with their protocol module into fix records, wait for the group commit
+(:class:`._ingest.Ingest`) and answer in the client's format.  Everything else -- the query API, its OpenAPI description, the stream and the
 map -- is a FastAPI application (:mod:`._query`).
 
 Errors are JSON, ``{"error": {"code": ..., "message": ..., "field": ...}}``, with a 4xx status; a
@@ -314,7 +314,7 @@ class Server:
                 fixes, key = _one(_osmand.parse_query(body or scope["query_string"]))
             else:
                 raise RequestError(f"expected application/x-www-form-urlencoded (OsmAnd) or application/json "
-                                   f"(Traccar Client), got {ctype or 'no content type'}", status=415,
+                                   f"(Traccar Client, Overland), got {ctype or 'no content type'}", status=415,
                                    code="unsupported_media_type", field="Content-Type")
         await self._accept(self._place(fixes), headers, key)
         return 200, answer, b"application/json" if answer else b"text/plain"

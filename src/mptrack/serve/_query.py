@@ -106,8 +106,8 @@ def query_app(server) -> FastAPI:
     """The FastAPI application of ``server`` (a :class:`._app.Server`)."""
     app = FastAPI(title="mptrack live tracking server", version=__version__, docs_url="/docs", redoc_url=None,
                   description="Filtered live tracks of phones and trackers: the query API. Devices report "
-                              "with the OsmAnd protocol (GET/POST /), Traccar Client JSON (POST /), OwnTracks "
-                              "(POST /pub) or bulk files (POST /api/fixes): see docs/serve.md.")
+                              "with the OsmAnd protocol (GET/POST /), Traccar Client JSON or Overland (POST /), "
+                              "OwnTracks (POST /pub) or bulk files (POST /api/fixes): see docs/serve.md.")
 
     @app.exception_handler(RequestError)
     async def _request_error(request, exc: RequestError):
