@@ -117,6 +117,7 @@ def test_an_encrypted_owntracks_message_is_refused_by_name_and_logged_once_a_min
         assert err["code"] == "encrypted" and err["field"] == "_type"
         assert "does not decrypt" in err["message"]
     assert "jane/sealed" not in [d["id"] for d in server.json("/api/devices")]
+    assert _stats(server)["refused"].get("encrypted", 0) >= 3      # counted by its reason, not as "other"
     lines = [line for line in server.output().splitlines() if "refused /pub (400 encrypted): _type: " in line]
     assert len(lines) == 1 and "leave the app's encryption key empty" in lines[0], lines
 
