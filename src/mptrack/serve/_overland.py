@@ -1,5 +1,6 @@
-"""Overland (Aaron Parecki's GPS tracker for iOS; its Android port sends the same): ``POST`` of a batch
-of GeoJSON points to the *Receiver Endpoint* the user sets, ``Content-Type: application/json``::
+"""Overland (Aaron Parecki's GPS tracker for iOS, as its README and ``GLManager.m`` describe it):
+``POST`` of a batch of GeoJSON points to the *Receiver Endpoint* the user sets,
+``Content-Type: application/json``::
 
     {"locations": [{"type": "Feature",
                     "geometry": {"type": "Point", "coordinates": [-122.030581, 37.3318]},
