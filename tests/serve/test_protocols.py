@@ -234,6 +234,14 @@ def test_owntracks_location_and_other_types():
             parse_owntracks(bad, "jane/phone", NOW)
 
 
+def test_an_overland_batch_sent_to_owntracks_route_is_named():
+    """Overland pointed at /pub: its batch has no _type and was acknowledged as "other types", stored nowhere,
+    while the app resent it forever (it wants {"result": "ok"})."""
+    with pytest.raises(RequestError) as e:
+        parse_owntracks(json.dumps({"locations": [_overland_point()]}).encode(), "jane/phone", NOW)
+    assert e.value.code == "wrong_endpoint" and e.value.field == "locations" and "posts to /" in str(e.value)
+
+
 def test_owntracks_device_ids():
     assert device_of("jane", "phone") == "jane/phone" and device_of("jane", None) == "jane"
     with pytest.raises(RequestError) as e:

@@ -334,6 +334,12 @@ BAD = [
      "tst"),
     ("POST", "/api/fixes", b"track_id,time,lat,lon\nb,2026-01-01T00:00:00Z,95,13\n", "text/csv", "lat"),
     ("POST", "/api/fixes", b"a,b\n1,2\n", "application/pdf", "Content-Type"),
+    # an app pointed at the other app's route: named, not parsed as the wrong protocol (or dropped in silence)
+    ("POST", "/", f'{{"_type": "location", "lat": 52, "lon": 13, "tst": {int(NOW)}}}'.encode(), "application/json",
+     "_type"),
+    ("POST", "/pub?u=jane&d=phone", b'{"locations": [{"type": "Feature", "geometry": {"type": "Point", '
+     b'"coordinates": [13, 52]}, "properties": {"timestamp": "2026-01-01T00:00:00Z"}}]}', "application/json",
+     "locations"),
 ]
 
 

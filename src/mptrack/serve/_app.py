@@ -308,6 +308,9 @@ class Server:
                 if _overland.is_batch(doc):
                     fixes = _overland.parse_document(doc, self._endpoint_device(scope, headers, key))
                     answer = _overland.REPLY
+                elif _owntracks.is_message(doc):
+                    raise RequestError("an OwnTracks message: OwnTracks posts to /pub (set its URL to this "
+                                       "server's address followed by /pub)", code="wrong_endpoint", field="_type")
                 else:
                     fixes = _traccar_json.parse_document(doc)
             elif ctype == "application/x-www-form-urlencoded" or (not ctype and not body):

@@ -25,7 +25,7 @@ _COUNTERS = ("accepted", "filtered", "late", "duplicates", "ahead", "batches", "
 #: Reasons a request is refused (RequestError codes, 503 "not_committed"); others count as "other".
 REASONS = ("missing_field", "invalid_field", "malformed_json", "malformed_body", "incomplete_body", "body_too_large",
            "unsupported_media_type", "unauthorized", "forbidden", "rate_limited", "not_found", "encrypted",
-           "not_committed", "other")
+           "wrong_endpoint", "not_committed", "other")
 #: Upper bounds of the latency histogram's buckets (s) and of the batch-size histogram's (fixes).
 LATENCY_S = (0.001, 0.0025, 0.005, 0.01, 0.025, 0.05, 0.1, 0.25, 0.5, 1.0, 2.5, 10.0)
 BATCH_FIXES = (1, 2, 5, 10, 20, 50, 100, 200, 500, 1000, 2000, 5000, 10000, 50000)

@@ -19,9 +19,10 @@ from __future__ import annotations
 
 from ..errors import RequestError
 from ._fix import device_id, fix, optional_number, position, timestamp
+from ._overland import is_batch
 from ._traccar_json import load_json
 
-__all__ = ["parse_body", "device_of"]
+__all__ = ["parse_body", "device_of", "is_message"]
 
 _FIELDS = ("_type", "lat", "lon", "tst", "acc", "vel", "cog", "alt")
 
@@ -34,9 +35,18 @@ def device_of(user: str | None, device: str | None) -> str:
     return device_id(f"{user}/{device}" if device else user, "u" if not device else "d")
 
 
+def is_message(doc) -> bool:
+    """Whether a JSON document is OwnTracks' (an object with ``_type``, or a list of them)."""
+    first = doc[0] if isinstance(doc, list) and doc else doc
+    return isinstance(first, dict) and "_type" in first
+
+
 def parse_body(body: bytes, device: str, now: float | None = None) -> list[tuple]:
     """The location fixes of one OwnTracks body (an object, or a list of them) for ``device``."""
     doc = load_json(body)
+    if is_batch(doc):
+        raise RequestError("an Overland batch: Overland posts to / (set its receiver endpoint to this server's "
+                           "address without /pub)", code="wrong_endpoint", field="locations")
     many = isinstance(doc, list)
     items = doc if many else [doc]
     fixes = []
