@@ -234,12 +234,18 @@ def test_owntracks_location_and_other_types():
             parse_owntracks(bad, "jane/phone", NOW)
 
 
-def test_an_overland_batch_sent_to_owntracks_route_is_named():
-    """Overland pointed at /pub: its batch has no _type and was acknowledged as "other types", stored nowhere,
-    while the app resent it forever (it wants {"result": "ok"})."""
+@pytest.mark.parametrize("doc, code, field", [
+    ({"locations": [_overland_point()]}, "wrong_endpoint", "locations"),
+    ({"device_id": "1", "location": _tsoft()}, "wrong_endpoint", "location"),
+    ([{"_type": "waypoint"}, {"lat": 51.0, "lon": 13.0, "tst": 1767268800}], "missing_field", "[1]._type"),
+])
+def test_what_is_not_owntracks_on_its_route_is_named(doc, code, field):
+    """Another app pointed at /pub, or a message without _type: acknowledged as "another type" it was stored
+    nowhere, and Traccar Client and Overland took the answer as delivered or resent it forever."""
     with pytest.raises(RequestError) as e:
-        parse_owntracks(json.dumps({"locations": [_overland_point()]}).encode(), "jane/phone", NOW)
-    assert e.value.code == "wrong_endpoint" and e.value.field == "locations" and "posts to /" in str(e.value)
+        parse_owntracks(json.dumps(doc).encode(), "jane/phone", NOW)
+    assert e.value.code == code and e.value.field == field, str(e.value)
+    assert code != "wrong_endpoint" or "posts to /" in str(e.value)
 
 
 def test_owntracks_device_ids():

@@ -10,7 +10,8 @@ app sends (the device id is ``USER/DEVICE``; with ``--auth``, HTTP Basic with th
 
 ``tst`` epoch seconds; ``acc``, ``alt`` metres; ``vel`` km/h; ``cog`` degrees; the rest is kept as
 attributes.  Messages of other types (waypoints, transitions, cards, ...) are acknowledged and not
-stored; an encrypted message (the app's payload encryption) is refused, as the server has no key.
+stored; an encrypted message (the app's payload encryption) is refused, as the server has no key, and
+so is an object without ``_type`` (another app's body on this route is named with its own route).
 The answer is ``[]`` (the app treats any status as delivered, so a refused message is also logged by
 the server).
 """
@@ -44,9 +45,6 @@ def is_message(doc) -> bool:
 def parse_body(body: bytes, device: str, now: float | None = None) -> list[tuple]:
     """The location fixes of one OwnTracks body (an object, or a list of them) for ``device``."""
     doc = load_json(body)
-    if is_batch(doc):
-        raise RequestError("an Overland batch: Overland posts to / (set its receiver endpoint to this server's "
-                           "address without /pub)", code="wrong_endpoint", field="locations")
     many = isinstance(doc, list)
     items = doc if many else [doc]
     fixes = []
@@ -54,6 +52,8 @@ def parse_body(body: bytes, device: str, now: float | None = None) -> list[tuple
         where = f"[{i}]." if many else ""
         if not isinstance(msg, dict):
             raise RequestError(f"expected a JSON object with _type, got {type(msg).__name__}", code="malformed_json")
+        if "_type" not in msg:
+            raise _not_owntracks(msg, where)
         if msg.get("_type") == "encrypted":
             raise RequestError("an encrypted OwnTracks message: this server does not decrypt payloads; leave the "
                                "app's encryption key empty (HTTPS protects the connection)", code="encrypted",
@@ -69,3 +69,16 @@ def parse_body(body: bytes, device: str, now: float | None = None) -> list[tuple
                          optional_number(msg.get("alt"), f"{where}alt"),
                          attrs))
     return fixes
+
+
+def _not_owntracks(msg: dict, where: str) -> RequestError:
+    """The refusal of an object without ``_type`` (acknowledged, it would be stored nowhere): another app's
+    body on this route is named with the route it posts to."""
+    if is_batch(msg):
+        return RequestError("an Overland batch: Overland posts to / (set its receiver endpoint to this server's "
+                            "address without /pub)", code="wrong_endpoint", field=f"{where}locations")
+    if "device_id" in msg and "location" in msg:
+        return RequestError("Traccar Client's JSON: Traccar Client posts to / (set its server URL to this server's "
+                            "address without /pub)", code="wrong_endpoint", field=f"{where}location")
+    return RequestError("not an OwnTracks message: every one has a _type (location, waypoint, ...)",
+                        code="missing_field", field=f"{where}_type")
