@@ -119,7 +119,8 @@ def test_noise_estimates_take_at_most_their_share_of_a_core(tmp_path, monkeypatc
             await asyncio.sleep(0.02)
         while not ingest._estimating.done():     # a round has just ended: the one the next batch starts rests
             await asyncio.sleep(0.01)
-        await ingest.submit([("walker", t + i, 50.0, 8.0, 5.0, None, None, None, None) for i in range(30)])
+        # enough new fixes that the device is due whatever its last estimate used (RENEW x at most 2000)
+        await ingest.submit([("walker", t + i, 50.0, 8.0, 5.0, None, None, None, None) for i in range(500)])
         started = time.monotonic()
         await ingest.close()
         return started
