@@ -65,3 +65,35 @@ def test_live_map_shows_every_device_and_follows_new_fixes(served, tmp_path, tmp
         assert browser.eval("document.documentElement.dataset.jsErrors || ''") == ""
     finally:
         browser.close()
+
+
+#: The names shown on the map (not hidden for covering another), sorted.
+_SHOWN = ("Array.from(document.querySelectorAll('.device-name')).filter(function (e) { "
+          "return e.style.visibility !== 'hidden'; }).map(function (e) { return e.textContent; }).sort().join()")
+
+
+@needs_chromium
+def test_names_that_would_cover_each_other_are_not_both_shown(served, tmp_path):
+    """Two vans parked 11 m apart: one name is shown, marked +1, not two written over each other; a device a
+    kilometre away keeps its own; zoomed in far enough, both vans are named."""
+    t0 = int(time.time()) - 600
+    for dev, lat in (("van-a", 52.5), ("van-b", 52.5001), ("far-1", 52.51)):
+        for k in range(3):
+            assert served.get(f"/?id={dev}&lat={lat!r}&lon=13.4&timestamp={t0 + 5 * k}&accuracy=6").status_code == 200
+    browser = Browser(served.url + "/", tmp_path / "profile")
+    try:
+        browser.wait_for("document.body.dataset.ready === '1' && document.body.dataset.namesShown !== undefined")
+        assert browser.eval(_NAMES) == "far-1,van-a,van-b"
+        shown = browser.wait_for(f"({_SHOWN}).split(',').length === 2 && ({_SHOWN})")
+        assert "far-1" in shown and ("van-a" in shown) != ("van-b" in shown), shown
+        assert browser.eval("document.body.dataset.namesShown") == "2"
+        # the name shown says how many it hides ("van-a +1")
+        assert browser.eval("Array.from(document.querySelectorAll('.device-name[data-more]'))"
+                            ".map(function (e) { return e.dataset.more; }).join()") == "+1"
+        for _ in range(6):   # the zoom control, as a user zooms in
+            browser.eval("document.querySelector('.leaflet-control-zoom-in').click()")
+            time.sleep(0.4)
+        assert browser.wait_for(f"({_SHOWN}).indexOf('van-a') >= 0 && ({_SHOWN}).indexOf('van-b') >= 0")
+        assert browser.eval("document.documentElement.dataset.jsErrors || ''") == ""
+    finally:
+        browser.close()

@@ -1,8 +1,9 @@
 /* mptrack live map: devices from /api/devices, then every accepted fix from /api/stream (Server-Sent
    Events).  Each device shows its estimate (a marker with its 1-sigma ellipse) and its last raw fix;
-   clicking it draws its last hour (/api/devices/ID/track); a small fleet's markers carry their names.
-   Works offline: the background tiles load only when the browser is online.  The page reports its state on <body>: data-devices (markers on
-   the map), data-events (fixes received), data-ready. */
+   clicking it draws its last hour (/api/devices/ID/track); a small fleet's markers carry their names (a
+   name that would cover another is hidden until the view separates them).
+   Works offline: the background tiles load only when the browser is online.  The page reports its state
+   on <body>: data-devices (markers on the map), data-events (fixes received), data-names-shown, data-ready. */
 (function () {
   "use strict";
   var CFG = JSON.parse(document.getElementById("mptrack-live").textContent);
@@ -41,6 +42,31 @@
       (d.ell_major_m != null ? " · ±" + d.ell_major_m.toPrecision(2) + " m" : "");
   }
   function text(d) { return d.id + " · " + details(d); }
+  // names that would cover one another: each one that overlaps a name shown before it is hidden (its device
+  // stays in the list); checked once a frame after names move or the view changes
+  var declutterDue = false;
+  function declutter() {
+    if (declutterDue) return;
+    declutterDue = true;
+    requestAnimationFrame(function () {
+      declutterDue = false;
+      var shown = [];   // {r: the name's box, el, more: names it hides}
+      Object.keys(devices).forEach(function (id) {
+        var tip = devices[id].named && devices[id].marker.getTooltip(), el = tip && tip.getElement();
+        if (!el) return;
+        el.removeAttribute("data-more");
+        var r = el.getBoundingClientRect();
+        var under = shown.filter(function (s) {
+          return r.left < s.r.right && s.r.left < r.right && r.top < s.r.bottom && s.r.top < r.bottom;
+        })[0];
+        el.style.visibility = under ? "hidden" : "";
+        if (under) under.more += 1; else shown.push({r: r, el: el, more: 0});
+      });
+      shown.forEach(function (s) { if (s.more) s.el.setAttribute("data-more", "+" + s.more); });   // "van-a +2"
+      document.body.setAttribute("data-names-shown", String(shown.length));
+    });
+  }
+  map.on("zoomend moveend", declutter);
   function update(d) {
     if (d.lat == null || d.lon == null) return;
     var dev = devices[d.id];
@@ -76,6 +102,7 @@
                                                       className: "device-name"});
         dev.named = true;
       }
+      declutter();
     } else {
       dev.marker.unbindTooltip().bindTooltip(text(d));
     }
