@@ -410,3 +410,18 @@ def test_rate_limit_buckets_by_device_key():
     with pytest.raises(RequestError):
         limit.take("dev", 5, now=1002.0)
     assert len(limit._level) >= 6
+
+
+def test_log_throttle_says_how_many_it_held_back(monkeypatch):
+    """The first line of a kind at once, then one an interval with the count held back meanwhile; kinds
+    are their own."""
+    from mptrack.serve import _log_throttle
+
+    clock = [100.0]
+    monkeypatch.setattr(_log_throttle.time, "monotonic", lambda: clock[0])
+    t = _log_throttle.LogThrottle(60.0)
+    assert t.due("encrypted") == 0
+    assert t.due("encrypted") is None and t.due("encrypted", 5) is None
+    assert t.due("ahead", 3) == 0                       # another kind
+    clock[0] += 60.0
+    assert t.due("encrypted") == 6 and t.due("encrypted") is None

@@ -18,7 +18,6 @@ import contextlib
 import gc
 import json
 import logging
-import math
 import os
 import time
 from dataclasses import asdict, dataclass
@@ -34,6 +33,7 @@ from ._celltable import load_cell_table
 from ._fix import device_id, iso_time, timestamp
 from ._geolocate import GeolocateError, Geolocator, answer_body, error_body, osmand_query, parse_request
 from ._ingest import Ingest
+from ._log_throttle import LogThrottle
 from ._metrics import Metrics
 from ._database import open_store
 from ._postgres import shown_url
@@ -107,16 +107,12 @@ class RefusalLog:
     answer (OwnTracks takes every status as delivered): the log is where their user sees why."""
 
     def __init__(self):
-        self._next: dict[str, float] = {}     # reason -> when its next line may be written (monotonic)
-        self._quiet: dict[str, int] = {}      # reason -> refused since its last line
+        self._throttle = LogThrottle(REFUSAL_LOG_S)
 
     def note(self, exc: RequestError, path: str) -> None:
-        now = time.monotonic()
-        if now < self._next.get(exc.code, -math.inf):
-            self._quiet[exc.code] = self._quiet.get(exc.code, 0) + 1
+        more = self._throttle.due(exc.code)
+        if more is None:
             return
-        more = self._quiet.pop(exc.code, 0)
-        self._next[exc.code] = now + REFUSAL_LOG_S
         log.warning("refused %s (%d %s): %s%s", path, exc.status, exc.code, exc,
                     f" (and {more} more since the last such line)" if more else "",
                     extra={"event": "refused", "reason": exc.code, "status": exc.status})

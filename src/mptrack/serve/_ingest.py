@@ -56,6 +56,7 @@ from ._device_ids import DeviceIds
 from ._estimates import NoiseEstimates
 from ._fix import iso_time
 from ._key_queue import KeyQueue
+from ._log_throttle import LogThrottle
 from ._metrics import Metrics
 from ._store import (ESTIMATE_COLUMNS, FIX_COLUMNS, FLAG_NAMES, LATE, StaleStates, Store,
                      StoredRows)
@@ -156,7 +157,7 @@ class Ingest:
         self._due_since = 0.0                     # when the first of them fell due (monotonic)
         self._version = np.zeros(0, dtype=np.int64)   # a shared store: each device's state version held here
         self._clock = np.zeros(0, dtype=np.float32)   # each device's clock offset (AHEAD_S; NaN: unknown)
-        self._ahead_logged = (-math.inf, 0)           # when the last line about fixes ahead was logged, how many since
+        self._ahead_log = LogThrottle(AHEAD_LOG_S)    # the lines about fixes ahead (_log_ahead)
         self._stale_rate = 0.0                    # a shared store: how often batches met others' states lately
         self.listeners: set[StreamQueue] = set()
 
@@ -385,8 +386,10 @@ class Ingest:
                     dup_last = (ts == last[:, 0]) & (la == last[:, 1]) & (lo == last[:, 2])
                     duplicate = prev_same | dup_last
                     new = ~duplicate & ~(ts <= last[:, 0]) & ~(ts == prev_t)  # NaN last: a first fix is new
-                    ahead = new & (ts - now > AHEAD_S + np.nan_to_num(np.maximum(self._clock[d], 0.0), nan=np.inf))
-                    new &= ~ahead
+                    ahead = new & (ts - now > AHEAD_S)   # then also ahead of its device's clock offset
+                    if ahead.any():
+                        ahead &= ts - now > AHEAD_S + np.nan_to_num(np.maximum(self._clock[d], 0.0), nan=np.inf)
+                        new &= ~ahead
                     late = ~duplicate & ~new
                     sel = order[new]
                     # checked: the fixes were checked as they came, sorted above, each after its device's last
@@ -436,16 +439,13 @@ class Ingest:
     def _log_ahead(self, fix: tuple, n: int) -> None:
         """A log line about fixes kept out of the live filter for their time (AHEAD_S): the first at once,
         then at most one every AHEAD_LOG_S seconds with how many came meanwhile."""
-        last, quiet = self._ahead_logged
-        now = time.monotonic()
-        if now - last < AHEAD_LOG_S:
-            self._ahead_logged = (last, quiet + n)
+        held = self._ahead_log.due("ahead", n)
+        if held is None:
             return
-        self._ahead_logged = (now, 0)
         log.warning("device %s sent a fix stamped %s, %.1f h after the server's clock and after its own clock so "
                     "far: stored with its history, kept out of its live track%s", fix[0], iso_time(fix[1]),
-                    (fix[1] - time.time()) / 3600.0, f" ({n + quiet - 1} more such fixes since the last such line)"
-                    if n + quiet > 1 else "", extra={"event": "ahead", "device": fix[0]})
+                    (fix[1] - time.time()) / 3600.0, f" ({n + held - 1} more such fixes since the last such line)"
+                    if n + held > 1 else "", extra={"event": "ahead", "device": fix[0]})
 
     def _states_of(self, devs: np.ndarray) -> list[tuple[int, bytes, float]]:
         """A shared store: (key, blob, last fix time) of these devices, their versions raised (lock held)."""
