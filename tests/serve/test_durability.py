@@ -9,6 +9,7 @@ import time
 
 import httpx
 import numpy as np
+import pandas as pd
 import pytest
 from _server import Server, check_acked, stored
 
@@ -105,3 +106,26 @@ def test_the_noise_estimates_process_goes_with_its_server_even_after_kill_9(tmp_
     while any(_alive(p) for p in helpers) and time.monotonic() < deadline:
         time.sleep(0.1)
     assert not any(_alive(p) for p in helpers)
+
+
+def test_a_replay_repeats_a_live_track_started_again(tmp_path):
+    """The fixes replayed after kill -9 (no checkpoint yet) go through the filter in the order they were
+    stored, not in time order: a device whose clock was set back had its live track started again from
+    a fix before its last, and the recovered estimate is the one stored with its last fix."""
+    srv = Server(tmp_path, "--rate", "0").start()
+    t = int(time.time()) - 120
+    try:
+        for k in range(9):   # 2 h ahead, then set right (test_server: ..._clock_is_set_back_goes_on_at_once)
+            tk = t + 10 * k + (7200 if k < 5 else 0)
+            assert srv.get(f"/?id=back&timestamp={tk}&lat={52.5 + k * 1e-4}&lon=13.5&accuracy=5").status_code == 200
+    finally:
+        srv.kill()   # at once: the device's state is not checkpointed yet (--checkpoint's 10 s)
+    last = stored(srv.db).sort_values("seq").iloc[-1]
+    assert last["t"] == t + 80
+    srv2 = Server(tmp_path, db=srv.db).start()
+    try:
+        pos = srv2.json("/api/devices/back/position")
+        assert (pos["lat"], pos["lon"]) == (last["est_lat"], last["est_lon"]), (pos, last)
+        assert pd.Timestamp(pos["last_fix_time"]).timestamp() == t + 80
+    finally:
+        assert srv2.stop() == 0, srv2.output()

@@ -183,6 +183,38 @@ def test_a_fix_stamped_hours_ahead_does_not_hold_up_its_device(server):
     assert _stats(server)["ahead"] == ahead_before + 1
 
 
+def test_a_device_whose_clock_is_set_back_goes_on_at_once(server):
+    """A device whose last filtered fix is still hours ahead of the server's clock when fixes that are not
+    come -- its clock, 2 h ahead, was set right; or its first fix, trusted, had a bad time -- has its live
+    track started again from the first of them: before, all its fixes were late until the server's clock
+    passed that time, and the map held it there.  A late fix of a device whose last fix is not ahead is
+    still late."""
+    t = int(time.time()) - 120
+
+    def send(dev, tk, k):
+        assert server.get(f"/?id={dev}&timestamp={tk}&lat={52.5 + k * 1e-4}&lon=13.5&accuracy=5").status_code == 200
+
+    for k in range(5):
+        send("back-1", t + 7200 + 10 * k, k)           # 2 h ahead all the time
+    for k in range(5, 9):
+        send("back-1", t + 10 * k, k)                  # then set right
+    send("back-2", t + 20 * 3600, 0)                   # a first fix 20 h ahead: trusted (nothing to compare)
+    for k in range(1, 4):
+        send("back-2", t + 10 * k, k)
+    send("back-2", t + 20 * 3600 + 60, 4)              # ahead of the clock set back: kept out
+    for dev, last, n in (("back-1", t + 80, 9), ("back-2", t + 30, 5)):
+        track = server.json(f"/api/devices/{dev}/track")
+        flags = {round(pd.Timestamp(f["time"]).timestamp()) - t: f["flag"] for f in track}
+        assert len(flags) == n, flags
+        assert pd.Timestamp(server.json(f"/api/devices/{dev}/position")["last_fix_time"]).timestamp() == last
+        restart = 50 if dev == "back-1" else 10
+        assert flags[restart] == "init" and [f for d, f in flags.items() if d != restart].count("init") == 1, flags
+        assert list(flags.values()).count("late") == (dev == "back-2"), flags
+    assert "its live track starts again from this fix" in server.output()
+    send("back-1", t + 75, 20)                         # the device's clock is right now: late as any other
+    assert server.json("/api/devices/back-1/track", params={"from": t + 75, "to": t + 75})[0]["flag"] == "late"
+
+
 def test_a_bulk_upload_of_late_fixes_is_stored_once(server):
     """A bulk batch's late fixes (a device's history uploaded after newer fixes; more than the stores write
     row by row) are stored, each exactly once: a repeat of the upload, or a fix twice in it, is not."""

@@ -111,7 +111,10 @@ STALE_WEIGHT = 0.1
 #: not filtered: one fix stamped hours ahead (a receiver's bad time) would otherwise make every later fix
 #: of its device late until then.  A device whose clock runs ahead all the time (local time sent as UTC)
 #: keeps its offset and is filtered as any other; a device's first fix, or the first after a restart of
-#: the server (the offsets are not stored), is trusted.
+#: the server (the offsets are not stored), is trusted.  A device whose last filtered fix is still more
+#: than this ahead of the server's clock when a fix that is not comes (its clock was set back, or that
+#: trusted fix's time was wrong) has its live filter started again from that fix: else its fixes would
+#: all be late until the server's clock passed that time.
 AHEAD_S = 600.0
 #: The shortest time between two log lines about such fixes (s).
 AHEAD_LOG_S = 60.0
@@ -184,12 +187,21 @@ class Ingest:
         self._seq = self.store.last_row()
         now = time.monotonic()
         for rows in self.store.replay(watermark):
-            use = (rows["flag"] != LATE) & (rows["seq"] > covered[rows["dev"]])
-            dev, t = rows["dev"][use], rows["t"][use]
-            order = np.lexsort((t, dev))
-            dev, t = dev[order], t[order]
-            lat, lon, acc = rows["lat"][use][order], rows["lon"][use][order], rows["accuracy_m"][use][order]
-            self.live.advance(dev, t, lat, lon, acc)
+            use = np.flatnonzero((rows["flag"] != LATE) & (rows["seq"] > covered[rows["dev"]]))
+            order = use[np.lexsort((rows["seq"][use], rows["dev"][use]))]
+            dev, t, lat, lon, acc = (rows[c][order] for c in ("dev", "t", "lat", "lon", "accuracy_m"))
+            # each device's filtered fixes in the order stored: forward in time, except where its live filter
+            # started again (a clock set back, AHEAD_S), which the replay repeats
+            first = np.r_[True, dev[1:] != dev[:-1]]
+            back = np.r_[False, t[1:] < t[:-1]] & ~first
+            back[first] = t[first] < self.live.last_fixes(dev[first])[:, 0]
+            part = np.cumsum(back)
+            part -= np.maximum.accumulate(np.where(first, part - back, 0))   # the device's restarts so far
+            for k in range(int(part.max(initial=0)) + 1):
+                sel = part == k
+                if k:
+                    self.live.restart(dev[sel & back])
+                self.live.advance(dev[sel], t[sel], lat[sel], lon[sel], acc[sel])
             self._mark(np.unique(dev), watermark, now)
 
     def start(self) -> None:
@@ -383,6 +395,14 @@ class Ingest:
                     if self.shared:
                         self._met_stale(bool(tx.stale))
                     last = self.live.last_fixes(d)
+                    back = last[:, 0] > now + AHEAD_S
+                    if back.any():
+                        back &= (ts <= now + AHEAD_S) & ~prev_same
+                    if back.any():   # clocks set back: these devices' live filters start again
+                        restarted = np.unique(d[back])
+                        self.live.restart(restarted)
+                        self._clock[restarted] = 0.0
+                        last = self.live.last_fixes(d)
                     dup_last = (ts == last[:, 0]) & (la == last[:, 1]) & (lo == last[:, 2])
                     duplicate = prev_same | dup_last
                     new = ~duplicate & ~(ts <= last[:, 0]) & ~(ts == prev_t)  # NaN last: a first fix is new
@@ -427,6 +447,8 @@ class Ingest:
         m.add("accepted", len(fixes))
         m.add("filtered", len(sel))
         m.add("late", stored_late)
+        if back.any():
+            self._log_back(fixes[order[back][0]], len(np.unique(d[back])))
         if ahead.any():
             m.add("ahead", int(ahead.sum()))
             self._log_ahead(fixes[order[ahead][0]], int(ahead.sum()))
@@ -446,6 +468,18 @@ class Ingest:
                     "far: stored with its history, kept out of its live track%s", fix[0], iso_time(fix[1]),
                     (fix[1] - time.time()) / 3600.0, f" ({n + held - 1} more such fixes since the last such line)"
                     if n + held > 1 else "", extra={"event": "ahead", "device": fix[0]})
+
+    def _log_back(self, fix: tuple, n: int) -> None:
+        """A log line about live filters started again by a fix before their last (AHEAD_S), throttled as
+        _log_ahead's."""
+        held = self._ahead_log.due("back", n)
+        if held is None:
+            return
+        log.warning("device %s sent a fix stamped %s, before its last filtered fix, which is still more than "
+                    "%.0f min after the server's clock: its clock was set back, or that fix's time was wrong; its "
+                    "live track starts again from this fix%s", fix[0], iso_time(fix[1]), AHEAD_S / 60.0,
+                    f" ({n + held - 1} more such devices since the last such line)" if n + held > 1 else "",
+                    extra={"event": "clock_back", "device": fix[0]})
 
     def _states_of(self, devs: np.ndarray) -> list[tuple[int, bytes, float]]:
         """A shared store: (key, blob, last fix time) of these devices, their versions raised (lock held)."""

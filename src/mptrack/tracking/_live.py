@@ -118,6 +118,13 @@ class LiveTracks:
         self.n = need
         return np.arange(first, need)
 
+    def restart(self, tracks) -> None:
+        """Tracks start again from their next fix, which may be before their last (a device's clock set
+        back): the filter's state, last fix and estimate are cleared; the frame and the noise are kept."""
+        idx = np.unique(self._check(tracks))
+        self._put(idx, np.zeros((len(idx), self._split + self._runs.shape[1])))
+        self._track[idx, _T:] = np.nan
+
     def _rows(self, idx: np.ndarray) -> np.ndarray:
         """The engine's state rows of tracks ``idx`` (a copy)."""
         rows = np.zeros((len(idx), self._split + self._runs.shape[1]))
