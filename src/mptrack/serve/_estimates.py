@@ -7,8 +7,8 @@ waiting, milliseconds at a time, for as long as a round ran (OsmAnd requests at 
 p99 12-16 ms with the estimates on a thread, 8-11 ms in this process, 5-6 ms with no estimates at all;
 docs/serve.md).  A process of its own -- started with the server, with its own read-only store and a
 live filter of the same options -- shares no lock with ingest; the server's estimator thread waits
-for its answer.  It costs ~180 MB (proportional set size: the numerical libraries it imports).  A
-process that dies (killed, out of memory) fails its round, and the next round starts another.
+for its answer.  It costs ~160-180 MiB (proportional set size: the numerical libraries it imports).
+A process that dies (killed, out of memory) fails its round, and the next round starts another.
 """
 
 from __future__ import annotations
