@@ -131,6 +131,13 @@ def test_bulk_ndjson_and_csv(server):
     r = server.post("/api/fixes", content=csv, headers={"Content-Type": "text/csv"})
     assert r.status_code == 200 and r.json() == {"accepted": 10}
     assert len(_stored(server.db, "gw-1")) == 10 and len(_stored(server.db, "gw-csv")) == 10
+    # as a spreadsheet in much of Europe exports it (and mptrack track reads it): semicolons, decimal commas
+    semi = "track_id;time;lat;lon\n" + "".join(f"gw-semi;{int(NOW) - 500 + i};48,2;{11.6 + 1e-5 * i:.5f}\n".replace(
+        "11.", "11,") for i in range(10))
+    r = server.post("/api/fixes", content=semi, headers={"Content-Type": "text/csv"})
+    assert r.status_code == 200 and r.json() == {"accepted": 10}, r.text
+    a, b = _stored(server.db, "gw-csv"), _stored(server.db, "gw-semi")
+    assert np.allclose(a[["t", "lat", "lon"]].to_numpy(), b[["t", "lat", "lon"]].to_numpy(), rtol=0, atol=1e-9)
     # a recording as a file (GPX here), the device named in the query
     gpx = DATA / "around-visnjan-with-car.gpx"
     r = server.post("/api/fixes?device=car-gpx", content=gpx.read_bytes(), headers={"Content-Type": "application/gpx+xml"})

@@ -25,6 +25,7 @@ from pyarrow import json as pa_json
 
 from ..errors import DataError, MptrackError, RequestError
 from ..io import FIXES, ReadOptions, read_table
+from ..io._formats import csv_frame
 from ._fix import DEVICE_ID, EARLIEST, MAX_FUTURE_S, device_id
 
 __all__ = ["parse_body", "CONTENT_TYPES", "FILE_TYPES", "READ_PARAMETERS"]
@@ -122,7 +123,7 @@ def _readable(body: bytes, kind: str) -> Iterator[pd.DataFrame | Path]:
 def _frame(body: bytes, kind: str) -> pd.DataFrame:
     try:
         if kind == "csv":
-            return pd.read_csv(_stdio.BytesIO(body))
+            return csv_frame(body)
         flat = _flat_ndjson(body)
         return flat if flat is not None else pd.read_json(_stdio.BytesIO(body), lines=True, dtype=False)
     except (ValueError, UnicodeDecodeError, pd.errors.ParserError) as exc:
