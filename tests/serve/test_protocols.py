@@ -47,9 +47,13 @@ def test_old_traccar_client_android_query():
     ("id=902064&lat=42.06288&lon=-88.23412&timestamp=1442068686579&hdop=6.0", 1442068686.579),
     ("lat=49.60688&lon=6.15788&timestamp=2014-06-04+09%3A10%3A11&altitude=384.7&id=353861053849681", 1401873011.0),
     ("id=123456&timestamp=2026-01-01T12:00:00%2B02:00&lat=60.0&lon=30.0", 1767261600.0),
+    ("id=123456&timestamp=2026-01-01T12:00:00+02:00&lat=60.0&lon=30.0", 1767261600.0),
+    ("id=123456&timestamp=2026-01-01T12:00:00.5+0200&lat=60.0&lon=30.0", 1767261600.5),
+    ("id=123456&timestamp=2026-01-01+12:00:00&lat=60.0&lon=30.0", 1767268800.0),
 ])
 def test_osmand_time_forms(query, t):
-    """Epoch seconds, epoch milliseconds, ISO 8601 with Z or an offset, and 'yyyy-MM-dd HH:mm:ss' (UTC)."""
+    """Epoch seconds, epoch milliseconds, ISO 8601 with Z or an offset, and 'yyyy-MM-dd HH:mm:ss' (UTC); an
+    offset whose "+" came unencoded (a space once the query is decoded) is still the offset."""
     assert _fix(parse_query(query, NOW)[0])["t"] == pytest.approx(t, abs=1e-6)
 
 

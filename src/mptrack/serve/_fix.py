@@ -98,7 +98,8 @@ def position(lat, lon, lat_field: str, lon_field: str) -> tuple[float, float]:
 
 def timestamp(value, field: str, now: float | None = None, future_s: float = MAX_FUTURE_S) -> float:
     """Seconds since 1970 UTC from epoch seconds, epoch milliseconds (values above 1e11) or ISO 8601
-    (``2026-01-01T12:00:00Z``, an offset, or ``2026-01-01 12:00:00``; no zone means UTC); between
+    (``2026-01-01T12:00:00Z``, an offset, or ``2026-01-01 12:00:00``; no zone means UTC; an offset's "+" sent
+    unencoded in a URL, read as a space, is taken for what it was); between
     2000-01-01 and ``future_s`` after the server's clock ``now``."""
     now = time.time() if now is None else now
     if value is None or value == "":
@@ -129,9 +130,15 @@ def iso_time(t: float) -> str:
     return datetime.fromtimestamp(t, timezone.utc).isoformat(timespec="milliseconds").replace("+00:00", "Z")
 
 
+#: an ISO 8601 time whose offset's "+" became a space: an unencoded "+02:00" in a URL's query or a form
+_LOST_PLUS = re.compile(r"(.*\d:\d\d(?:\.\d+)?) (\d\d(?::?\d\d)?)")
+
+
 def _iso(text: str) -> float | None:
+    text = text.strip()
+    lost = _LOST_PLUS.fullmatch(text)
     try:
-        d = datetime.fromisoformat(text.strip())
+        d = datetime.fromisoformat(f"{lost[1]}+{lost[2]}" if lost else text)
     except ValueError:
         return None
     if d.tzinfo is None:
