@@ -499,6 +499,14 @@ def test_a_public_address_needs_auth(tmp_path):
     assert proc.returncode == 2 and "--auth" in proc.stderr
 
 
+@pytest.mark.parametrize("db", ["mysql://host/db", "sqlite://relative.db"])
+def test_a_database_url_of_no_known_kind_is_refused_before_the_server_starts(tmp_path, db):
+    proc = _serve("--port", str(free_port()), "--db", db, cwd=tmp_path)
+    assert proc.returncode == 2 and proc.stderr.strip() == (
+        f"error: db: expected sqlite:///PATH or postgresql://..., got '{db}'"), proc.stderr
+    assert not list(tmp_path.iterdir())
+
+
 def test_a_second_server_of_one_sqlite_file_is_refused_and_a_busy_port_named(tmp_path):
     """Two servers of one SQLite file would each filter with its own live states and checkpoint over the
     other's: the second is refused (exit 2, naming the first's process), the first serves on, and once

@@ -35,7 +35,7 @@ from ._geolocate import GeolocateError, Geolocator, answer_body, error_body, osm
 from ._ingest import Ingest
 from ._log_throttle import LogThrottle
 from ._metrics import Metrics
-from ._database import open_store
+from ._database import check_url, open_store
 from ._postgres import shown_url
 from ._store import DEFAULT_DB, first_line
 
@@ -79,8 +79,7 @@ class ServeConfig:
     cells: str | None = None
 
     def __post_init__(self) -> None:
-        if not isinstance(self.db, str) or "://" not in self.db:
-            raise ParameterError(f"db: expected a database URL such as {DEFAULT_DB}, got {self.db!r}"[:200])
+        check_url(self.db)
         for name in ("auth", "fsync"):
             check_bool(name, getattr(self, name))
         check_int("max_body", self.max_body, minimum=1)

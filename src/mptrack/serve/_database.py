@@ -6,7 +6,7 @@ from ..errors import ParameterError
 from ._sqlite import SqliteStore
 from ._store import DEFAULT_DB, Store
 
-__all__ = ["open_store"]
+__all__ = ["open_store", "check_url"]
 
 
 def open_store(db: str, fsync: bool = False, server: bool = False, reader: bool = False) -> Store:
@@ -40,12 +40,19 @@ def open_store(db: str, fsync: bool = False, server: bool = False, reader: bool 
         The database cannot be opened, its schema is newer than this mptrack's, or (``server``) another
         server has it.
     """
+    if check_url(db) == "sqlite":
+        return SqliteStore(db, fsync, server, reader)
+    from ._postgres import PostgresStore
+
+    return PostgresStore(db, fsync, pool_size=1, upgrade=False) if reader else PostgresStore(db, fsync)
+
+
+def check_url(db) -> str:
+    """The kind of database a URL names, ``sqlite`` or ``postgresql``; a ParameterError for anything else."""
     if not isinstance(db, str):
         raise ParameterError(f"db: expected a database URL such as {DEFAULT_DB}, got {type(db).__name__}")
     if db.startswith("sqlite:///"):
-        return SqliteStore(db, fsync, server, reader)
+        return "sqlite"
     if db.startswith(("postgresql://", "postgres://")):
-        from ._postgres import PostgresStore
-
-        return PostgresStore(db, fsync, pool_size=1, upgrade=False) if reader else PostgresStore(db, fsync)
-    raise ParameterError(f"db: expected sqlite:///PATH or postgresql://..., got {db!r}")
+        return "postgresql"
+    raise ParameterError(f"db: expected sqlite:///PATH or postgresql://..., got {db!r}"[:200])
