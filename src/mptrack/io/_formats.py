@@ -179,16 +179,14 @@ def utc_times(values) -> pd.Series:
 
 # --- CSV -------------------------------------------------------------------------------------------------------
 
-#: how pandas parses every delimited text, a file's or a server's CSV body (the C parser drops a BOM)
-_CSV_OPTIONS = {"dtype": {"track_id": "string", "cell_id": "string", "radio": "string"}, "skipinitialspace": True}
-
-
 def _csv_chunks(path: Path, chunk_rows: int) -> Iterator[pd.DataFrame]:
     """A delimited text file ``chunk_rows`` rows at a time: the delimiter (, ; tab |) and a decimal
     comma are sniffed from the first 64 KB and the C parser does the rest; a UTF-8 BOM is dropped."""
     sep, decimal = sniff_csv(_head_text(path))
     try:
-        reader = pd.read_csv(path, sep=sep, decimal=decimal, chunksize=chunk_rows, **_CSV_OPTIONS)
+        reader = pd.read_csv(path, sep=sep, decimal=decimal, chunksize=chunk_rows,  # the C parser drops a BOM
+                             dtype={"track_id": "string", "cell_id": "string", "radio": "string"},
+                             skipinitialspace=True)
         with reader:
             yield from reader
     except pd.errors.EmptyDataError:
@@ -212,22 +210,9 @@ def _head_text(path: Path) -> str:
             raw = fh.read(_SNIFF_BYTES)
     except (OSError, EOFError) as exc:
         raise DataError(f"cannot be read as CSV: {exc}", file=path) from None
-    return _sample(raw)
-
-
-def _sample(raw: bytes) -> str:
-    """The first 64 KB of a text, cut at the last full line, as the sniffers read it."""
-    raw = raw[:_SNIFF_BYTES]
     if len(raw) == _SNIFF_BYTES and b"\n" in raw:
         raw = raw[:raw.rindex(b"\n")]
     return raw.decode("utf-8-sig", errors="replace")
-
-
-def csv_frame(body: bytes) -> pd.DataFrame:
-    """A delimited text held in memory (a server's CSV body), read as a file of it is: the delimiter and
-    decimal mark sniffed from its first 64 KB (pandas' errors pass through)."""
-    sep, decimal = sniff_csv(_sample(body))
-    return pd.read_csv(io.BytesIO(body), sep=sep, decimal=decimal, **_CSV_OPTIONS)
 
 
 def sniff_csv(text: str) -> tuple[str, str]:

@@ -25,7 +25,6 @@ from pyarrow import json as pa_json
 
 from ..errors import DataError, MptrackError, RequestError
 from ..io import FIXES, ReadOptions, read_table
-from ..io._formats import csv_frame
 from ._fix import DEVICE_ID, EARLIEST, MAX_FUTURE_S, device_id
 
 __all__ = ["parse_body", "CONTENT_TYPES", "FILE_TYPES", "READ_PARAMETERS"]
@@ -107,29 +106,27 @@ def _parameters(message: str) -> str:
 
 @contextlib.contextmanager
 def _readable(body: bytes, kind: str) -> Iterator[pd.DataFrame | Path]:
-    """What :func:`mptrack.io.read_table` reads the body from: its table (NDJSON, CSV), or the body as a file
-    of its format in a directory of its own, removed afterwards."""
+    """What :func:`mptrack.io.read_table` reads the body from: its table (NDJSON), or the body as a file of
+    its format (CSV: read as ``mptrack track`` reads a CSV file, its delimiter and decimal mark sniffed) in
+    a directory of its own, removed afterwards."""
     if not body.strip():
         raise RequestError("the body is empty", code="missing_field")
-    if kind not in FILE_TYPES.values():
-        yield _frame(body, kind)
+    if kind == "ndjson":
+        yield _frame(body)
         return
     with tempfile.TemporaryDirectory(prefix="mptrack-upload-") as tmp:
-        path = Path(tmp) / f"upload{kind}"
+        path = Path(tmp) / f"upload{'.csv' if kind == 'csv' else kind}"
         path.write_bytes(body)
         yield path
 
 
-def _frame(body: bytes, kind: str) -> pd.DataFrame:
+def _frame(body: bytes) -> pd.DataFrame:
     try:
-        if kind == "csv":
-            return csv_frame(body)
         flat = _flat_ndjson(body)
         return flat if flat is not None else pd.read_json(_stdio.BytesIO(body), lines=True, dtype=False)
-    except (ValueError, UnicodeDecodeError, pd.errors.ParserError) as exc:
-        what = "CSV" if kind == "csv" else "NDJSON (one JSON object per line)"
-        raise RequestError(f"the body is not valid {what}: {str(exc).splitlines()[0][:200]}",
-                           code="malformed_body") from None
+    except (ValueError, UnicodeDecodeError) as exc:
+        raise RequestError(f"the body is not valid NDJSON (one JSON object per line): "
+                           f"{str(exc).splitlines()[0][:200]}", code="malformed_body") from None
 
 
 def _flat_ndjson(body: bytes) -> pd.DataFrame | None:
