@@ -126,22 +126,31 @@ def test_bulk_ndjson_and_csv(server):
     lines = [json.dumps({"device": f"gw-{i % 3}", "time": int(NOW) - 1000 + i, "latitude": 48.1 + 1e-5 * i,
                          "longitude": 11.6, "accuracy": 5}) for i in range(30)]
     r = server.post("/api/fixes", content="\n".join(lines), headers={"Content-Type": "application/x-ndjson"})
-    assert r.status_code == 200 and r.json() == {"accepted": 30}
+    assert r.status_code == 200 and r.json()["accepted"] == 30
     csv = "track_id,time,lat,lon\n" + "".join(f"gw-csv,{int(NOW) - 500 + i},48.2,{11.6 + 1e-5 * i}\n" for i in range(10))
     r = server.post("/api/fixes", content=csv, headers={"Content-Type": "text/csv"})
-    assert r.status_code == 200 and r.json() == {"accepted": 10}
+    assert r.status_code == 200 and r.json()["accepted"] == 10
     assert len(_stored(server.db, "gw-1")) == 10 and len(_stored(server.db, "gw-csv")) == 10
     # as a spreadsheet in much of Europe exports it (and mptrack track reads it): semicolons, decimal commas
     semi = "track_id;time;lat;lon\n" + "".join(f"gw-semi;{int(NOW) - 500 + i};48,2;{11.6 + 1e-5 * i:.5f}\n".replace(
         "11.", "11,") for i in range(10))
     r = server.post("/api/fixes", content=semi, headers={"Content-Type": "text/csv"})
-    assert r.status_code == 200 and r.json() == {"accepted": 10}, r.text
+    assert r.status_code == 200 and r.json()["accepted"] == 10, r.text
     a, b = _stored(server.db, "gw-csv"), _stored(server.db, "gw-semi")
     assert np.allclose(a[["t", "lat", "lon"]].to_numpy(), b[["t", "lat", "lon"]].to_numpy(), rtol=0, atol=1e-9)
+    # how a body was read is said in the answer, the reading options named as this route's parameters
+    swapped = "track_id,time,lat,lon\n" + "".join(f"gw-swap,{int(NOW) - 500 + i},{116.39 + 1e-5 * i},39.9\n"
+                                                   for i in range(10))
+    r = server.post("/api/fixes", content=swapped, headers={"Content-Type": "text/csv"})
+    assert r.status_code == 200 and r.json()["accepted"] == 10, r.text
+    notes = r.json()["notes"]
+    assert any("swapped back (?columns=lat=...,lon=... to override)" in n for n in notes), notes
+    assert any(n.startswith("time: epoch seconds") and n.endswith("set ?time_unit if that is wrong") for n in notes)
+    assert (_stored(server.db, "gw-swap")["lat"] == 39.9).all()
     # a recording as a file (GPX here), the device named in the query
     gpx = DATA / "around-visnjan-with-car.gpx"
     r = server.post("/api/fixes?device=car-gpx", content=gpx.read_bytes(), headers={"Content-Type": "application/gpx+xml"})
-    assert r.status_code == 200 and r.json() == {"accepted": len(read_table(gpx))}
+    assert r.status_code == 200 and r.json()["accepted"] == len(read_table(gpx))
     assert len(_stored(server.db, "car-gpx")) == r.json()["accepted"]
 
 
@@ -233,7 +242,7 @@ def test_a_bulk_upload_of_late_fixes_is_stored_once(server):
     before = _stats(server)
     for _ in range(2):
         r = server.post("/api/fixes", content=body, headers={"Content-Type": "application/x-ndjson"})
-        assert r.status_code == 200 and r.json() == {"accepted": 603}
+        assert r.status_code == 200 and r.json()["accepted"] == 603
     after = _stats(server)
     rows = _stored(server.db, "late-bulk")
     assert len(rows) == 1 + 602 and rows["est_lat"].isna().sum() == 602

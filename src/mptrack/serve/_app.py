@@ -354,9 +354,10 @@ class Server:
                                status=415, code="unsupported_media_type", field="Content-Type")
         body = await _body(receive, headers, self.config.max_body)
         loop = asyncio.get_running_loop()
-        fixes = await loop.run_in_executor(None, _bulk.parse_body, body, kind, params)
+        notes: list[str] = []
+        fixes = await loop.run_in_executor(None, _bulk.parse_body, body, kind, params, None, notes)
         await self.ingest.submit(fixes)
-        return 200, json.dumps({"accepted": len(fixes)}).encode(), b"application/json"
+        return 200, json.dumps({"accepted": len(fixes), "notes": notes}).encode(), b"application/json"
 
     async def _geolocate(self, scope, receive, send):
         """POST /v1/geolocate: the position of the cells of a Google/Ichnaea request, errors in their format."""

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import contextlib
 import io as _stdio
+import re
 import tempfile
 import time
 from pathlib import Path
@@ -24,7 +25,7 @@ import pyarrow as pa
 from pyarrow import json as pa_json
 
 from ..errors import DataError, MptrackError, RequestError
-from ..io import FIXES, ReadOptions, read_table
+from ..io import FIXES, ReadOptions, ReadReport, read_table
 from ._fix import DEVICE_ID, EARLIEST, MAX_FUTURE_S, device_id
 
 __all__ = ["parse_body", "CONTENT_TYPES", "FILE_TYPES", "READ_PARAMETERS"]
@@ -39,9 +40,11 @@ READ_PARAMETERS = ("columns", "time_unit", "time_format", "coord_unit")
 _PASSED = ("speed_mps", "heading_deg", "altitude_m")
 
 
-def parse_body(body: bytes, kind: str, params: dict, now: float | None = None) -> list[tuple]:
+def parse_body(body: bytes, kind: str, params: dict, now: float | None = None,
+               notes: list[str] | None = None) -> list[tuple]:
     """The fixes of one bulk body (``kind``: "ndjson", "csv" or a file suffix of :data:`FILE_TYPES`), in
-    the order of the body."""
+    the order of the body; ``notes``, if given, receives how it was read (the reader's notes: the time unit
+    found, columns recognised or swapped), its options named as this route's query parameters."""
     now = time.time() if now is None else now
     device = params.get("device")
     if device is None and kind in FILE_TYPES.values():
@@ -54,9 +57,10 @@ def parse_body(body: bytes, kind: str, params: dict, now: float | None = None) -
     except MptrackError as exc:
         raise RequestError(str(exc), field=next((k for k in READ_PARAMETERS if str(exc).startswith(k)), None)) \
             from None
+    report = ReadReport()
     try:
         with _readable(body, kind) as source:
-            rows = read_table(source, FIXES, read=read)
+            rows = read_table(source, FIXES, read=read, report=report)
     except DataError as exc:
         where = f"row {exc.row}: " if exc.row is not None else ""
         raise RequestError(f"{where}{_parameters(exc.reason)}", status=422, field=exc.column) from None
@@ -89,6 +93,8 @@ def parse_body(body: bytes, kind: str, params: dict, now: float | None = None) -
         i = int(np.flatnonzero(null)[0])
         raise RequestError(f"row {int(rows['row'].iloc[i])}: (0, 0) is what a device without a position fix sends",
                            status=422, field="lat, lon")
+    if notes is not None:
+        notes.extend(_parameters(note) for note in report.notes)
     n = len(rows)
     cols = [[str(d) for d in ids], t.tolist(), lat.tolist(), lon.tolist(), _optional(rows, "accuracy_m", n)]
     cols += [_optional(rows, name, n) for name in _PASSED]
@@ -96,12 +102,15 @@ def parse_body(body: bytes, kind: str, params: dict, now: float | None = None) -
     return list(zip(*cols))
 
 
+#: a reading option in a reader's message, and the space before its value if a value follows (not a word of
+#: the sentence: "set --time-unit ms" -> "?time_unit=ms", "set --time-unit if that is wrong" -> "?time_unit if")
+_OPTION = re.compile(r"--(" + "|".join(n.replace("_", "-") for n in READ_PARAMETERS) +
+                     r")( (?!(?:if|to|for|or|and)\b)(?=[\w%'.])|)")
+
+
 def _parameters(message: str) -> str:
     """A reader's message with its command-line options named as this route's query parameters."""
-    for name in READ_PARAMETERS:
-        message = message.replace(f"--{name.replace('_', '-')} ", f"?{name}=").replace(f"--{name.replace('_', '-')}",
-                                                                                       f"?{name}")
-    return message
+    return _OPTION.sub(lambda m: f"?{m[1].replace('-', '_')}{'=' if m[2] else ''}", message)
 
 
 @contextlib.contextmanager

@@ -127,7 +127,10 @@ def ingest_paths() -> dict:
                 **{t: {"schema": {"type": "string"}} for t in ("application/x-ndjson", "text/csv")},
                 **{t: {"schema": {"type": "string", "format": "binary"}} for t in FILE_TYPES}}},
             "responses": {"200": {"description": "committed", "content": {"application/json": {"schema": {
-                "type": "object", "properties": {"accepted": {"type": "integer"}}}}}}, **_ERRORS}}},
+                "type": "object", "properties": {"accepted": {"type": "integer"}, "notes": {
+                    "type": "array", "items": {"type": "string"}, "description": "how the body was read: the "
+                    "time unit found, the columns recognised or swapped (the query parameters that override)"}}}}}},
+                **_ERRORS}}},
         "/v1/geolocate": {"post": {
             "summary": "Cell geolocation: Google's Geolocation API / Mozilla Ichnaea request and answer (needs "
                        "--cells)", "operationId": "geolocate", "tags": ["geolocation"],
