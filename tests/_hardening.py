@@ -808,10 +808,9 @@ target("tracking.point_table", lambda east, north, var_e, nis: tracking.point_ta
     var_e=arg((3,), valid=[1.0, 1.0, 1.0]), nis=arg((3,), valid=[0.5, 1.0, 2.0]),
     passed=("ids", "offsets", "time", "t", "vel", "cov_en", "var_n", "nis_dof", "flag", "gap_s", "origin",
             "method"), nan_result=True)
-target("tracking.check_cell_ids", lambda rows, cells, on_error: tracking.check_cell_ids(
-    rows, cells, file="log", on_error=on_error, report=mio.ReadReport()),
-    rows=frames(CELL_ROWS, ["cell_id"]), cells=frames(CELLS, ["lat"]), on_error=names("raise", "skip"),
-    passed=("file", "report"))
+target("tracking.check_cell_ids", lambda rows, cells: tracking.check_cell_ids(
+    rows, cells, file="log", report=mio.ReadReport()),
+    rows=frames(CELL_ROWS, ["cell_id"]), cells=frames(CELLS, ["lat"]), passed=("file", "report"))
 _PCI_CELLS = mio.read_cells(pd.DataFrame({"radio": "LTE", "mcc": 206, "net": 4, "area": 7, "cell": [1000, 1001, 1002],
                                           "unit": [1, 2, 2], "earfcn": [1300, 1300, np.nan], "lon": [4.39, 4.39, 4.5],
                                           "lat": [50.8, 50.8, 50.9]}))

@@ -132,6 +132,30 @@ def test_track_then_evaluate_a_raw_log(tmp_path, converted, name):
         proc.stderr
 
 
+def test_the_converted_csv_is_tracked_as_it_comes(tmp_path):
+    """measurements.csv as shipped (its README: RSRP in ``rsrp_dbm``, an empty ``cell_id`` where a neighbour
+    matched no table cell, one invalid -205 dBm level), tracked as a new user would: RSRP is the level (the
+    RSSI column beside it is not), neighbours without an id are resolved by PCI and channel as in a raw log
+    or left out with a note -- no column options, no --max-skip; only the one bad level needs --on-error
+    skip.  Every scan of the walks gets a point (16 repeat their second: the first is kept), the error the
+    raw logs' path gives."""
+    meas, cells, truth = (shared_data("cellular", f) for f in ("measurements.csv", "cells.csv", "truth.csv"))
+    out = tmp_path / "walks.csv"
+    proc = _cli("track", meas, "--cells", cells, "-o", out)
+    assert proc.returncode == 2 and "row 1537, column 'rss_dbm': outside -160.0 .. 0.0 dBm: -205" in proc.stderr, \
+        proc.stderr
+    proc = _cli("track", meas, "--cells", cells, "--on-error", "skip", "-o", out, "--json")
+    assert proc.returncode == 0, proc.stderr
+    read = json.loads(proc.stdout)["read"]
+    assert read["skipped_by_reason"] == {"rss_dbm: outside -160.0 .. 0.0 dBm": 1}, read
+    assert sum(read["left_out"].values()) > 0, read   # neighbours no table cell matches
+    proc = _cli("evaluate", out, "--truth", truth, "--json")
+    assert proc.returncode == 0, proc.stderr
+    overall = json.loads(proc.stdout)["overall"]
+    assert overall["points"] == overall["matched_points"] == 953 - 16, overall
+    assert overall["rmse_m"] < 500.0, overall
+
+
 def test_bad_logs_and_zones(tmp_path):
     head = shared_data("cellular", "gnettrack", "lln_1.txt").read_text().splitlines()
     bad = tmp_path / "bad.txt"

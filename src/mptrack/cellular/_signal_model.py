@@ -129,7 +129,8 @@ def signal_prior(radio, height_m=30.0) -> tuple[np.ndarray, np.ndarray]:
     radio : int or array_like of int
         Radio codes (indices into :data:`RADIOS`).
     height_m : float or array_like, optional
-        Antenna heights above ground (m), taken within Hata's 30..200 m.
+        Antenna heights above ground (m), taken within Hata's 30..200 m; NaN: unknown (30 m, the
+        default, as for a table that gives none).
 
     Returns
     -------
@@ -138,9 +139,9 @@ def signal_prior(radio, height_m=30.0) -> tuple[np.ndarray, np.ndarray]:
         broadcast over the arguments.
     """
     code = _codes(radio)
-    h = as_array("height_m", height_m, low=0.0)
+    h = as_array("height_m", height_m, low=0.0, allow_nan=True)
     shape = broadcast_shape(radio=code, height_m=h)
-    code, h = np.broadcast_to(code, shape), np.clip(np.broadcast_to(h, shape), 30.0, 200.0)
+    code, h = np.broadcast_to(code, shape), np.clip(np.nan_to_num(np.broadcast_to(h, shape), nan=30.0), 30.0, 200.0)
     f = np.array([r.frequency_mhz for r in RADIOS])[code]
     eirp = np.array([r.eirp_dbm for r in RADIOS])[code]
     loss = np.where(f < 1500.0,

@@ -70,7 +70,9 @@ SYNONYMS = {
     "accuracy_m": ("accuracy", "accuracym", "horizontalaccuracy", "horizontalaccuracym", "hacc", "haccuracy",
                    "hacc_m", "acc", "accm"),
     "cell_id": ("cellid", "cell", "cellidentity"),
-    "rss_dbm": ("rssdbm", "rss", "rssi", "rsrp", "signaldbm", "dbm"),
+    # LTE's RSRP (the level of one reference-signal element, which the path-loss prior models) over the
+    # RSSI (the whole band's power, ~10 log10(12 x resource blocks) dB more), both logged by drive-test apps
+    "rss_dbm": (("rssdbm", "rss"), ("rsrpdbm", "rsrp"), ("rssidbm", "rssi"), ("signaldbm", "dbm")),
     "range_m": ("rangem", "range", "distance", "distancem"),
     "ta": ("ta", "timingadvance"),
 }

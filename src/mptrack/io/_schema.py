@@ -95,8 +95,8 @@ def cell_key(mcc, net, area, cell) -> pd.Series:
     if len(sizes) > 1:
         raise ShapeError(f"cell: expected mcc, net, area and cell of one length, got lengths "
                          f"{[len(p) for p in parts]}")
-    size = max(len(p) for p in parts)
-    parts = [p if len(p) == size else pd.Series([p.iloc[0]] * size) for p in parts]
+    size = sizes.pop() if sizes else 1   # a single value goes with every row of the others (none: no rows)
+    parts = [p if len(p) == size else pd.Series([p.iloc[0]] * size, dtype=object) for p in parts]
     return parts[0] + "-" + parts[1] + "-" + parts[2] + "-" + parts[3]
 
 
@@ -130,7 +130,8 @@ FIXES = Schema("position fixes", (
 
 MEASUREMENTS = Schema("cellular measurements", (
     _TRACK, _TIME,
-    Column("cell_id", "id", "", "serving/neighbour cell, \"mcc-net-area-cell\" as in the cell table"),
+    Column("cell_id", "id", "", "serving/neighbour cell, \"mcc-net-area-cell\" as in the cell table; empty: a "
+           "cell the log could not identify (left out, as a cell that is not in the table)", nullable=True),
     Column("rss_dbm", "float", "dBm", "received signal strength", required=False, lo=-160.0, hi=0.0,
            nullable=True),
     Column("range_m", "float", "m", "measured range to the cell's antenna", required=False, lo=0.0,
@@ -342,8 +343,8 @@ def validate_chunk(df: pd.DataFrame, schema: Schema, *, file, first_row: int, on
             continue
         values = df[col.name]
         if col.kind == "id":
-            missing = values.isna().to_numpy()
-            flag(missing, col.name, "empty identifier")
+            if not col.nullable:
+                flag(values.isna().to_numpy(), col.name, "empty identifier")
             out[col.name] = values.astype("string").str.strip().astype(object)  # object: cheap to compare
         elif col.kind == "time":
             num = _numeric_time(values)

@@ -122,8 +122,7 @@ def _cell_rows(chunk, now: float, out: CellTableReport) -> list[tuple]:
     def col(name):
         return chunk[name].to_numpy(float) if name in chunk.columns else np.full(n, np.nan)
 
-    height = col("height_m")
-    a0, n0 = signal_prior(radio, np.where(np.isfinite(height), height, 30.0))
+    a0, n0 = signal_prior(radio, col("height_m"))
     rng, avg, samples = col("range"), col("averageSignal"), col("samples")
     fit = signal_fit(a0, n0, rng, avg, samples)
     score = station_score(samples, col("created"), col("updated"), now)

@@ -25,7 +25,7 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from .._core.data_checks import check_frame, check_on_error
+from .._core.data_checks import check_frame
 from .._core.validation import LATITUDE, LONGITUDE, lookup
 from ..errors import DataError, ParameterError
 from ..io import LocalFrame, ReadReport, Skipped
@@ -45,17 +45,25 @@ DEFAULT_FREQUENCY_MHZ = 1800.0
 
 
 def check_cell_rows(name: str, rows, columns=("t", "row", "cell_id")) -> pd.DataFrame:
-    """Cellular measurements as :func:`mptrack.io.iter_tracks` gives them (schema MEASUREMENTS)."""
-    return check_frame(name, rows, columns, {
+    """Cellular measurements as :func:`mptrack.io.iter_tracks` gives them (schema MEASUREMENTS): cell ids as
+    text, or empty where the log does not identify the cell."""
+    check_frame(name, rows, columns, {
         "t": {}, "rss_dbm": dict(allow_nan=True, low=-160.0, high=0.0), "range_m": dict(allow_nan=True, low=0.0),
-        "ta": dict(allow_nan=True, low=0, high=1282)})
+        "ta": dict(allow_nan=True, low=0, high=1282), "pci": dict(allow_nan=True, low=0),
+        "earfcn": dict(allow_nan=True, low=0)})
+    if "cell_id" in rows.columns and pd.api.types.infer_dtype(rows["cell_id"], skipna=True) not in ("string", "empty"):
+        bad = next(v for v in rows["cell_id"].dropna() if not isinstance(v, str))
+        raise ParameterError(f"{name}.cell_id: expected text ids (mcc-net-area-cell), or empty for a cell the log "
+                             f"does not identify, got {bad!r}")
+    return rows
 
 
 def check_cells(name: str, cells, columns=("lat", "lon", "height_m", "power_dbm", "arfcn")) -> pd.DataFrame:
     """A cell table as :func:`mptrack.io.read_cells` gives it (indexed by cell_id, schema CELLS)."""
     return check_frame(name, cells, columns, {
         "lat": LATITUDE, "lon": LONGITUDE, "height_m": dict(low=0.0), "power_dbm": {},
-        "arfcn": dict(allow_nan=True, low=0, high=1023)})
+        "arfcn": dict(allow_nan=True, low=0, high=1023), "unit": dict(allow_nan=True, low=0),
+        "earfcn": dict(allow_nan=True, low=0)})
 
 
 def _check_known(rows, cells, columns=("t", "row", "cell_id"), cell_columns=("lat", "lon")) -> None:
@@ -97,7 +105,7 @@ def resolve_cells(rows: pd.DataFrame, cells: pd.DataFrame, *, file, report: Read
         identity (:func:`check_cell_ids` decides).
     """
     check_cell_rows("rows", rows, ("t", "cell_id", "pci"))
-    check_cells("cells", cells, ())
+    check_cells("cells", cells, ("lat", "lon"))   # a neighbour is matched near its serving cell
     if not isinstance(report, ReadReport):
         raise ParameterError(f"report: expected a ReadReport, got {type(report).__name__}")
     ids = rows["cell_id"].astype(object).to_numpy().copy()
@@ -164,46 +172,43 @@ def resolve_cells(rows: pd.DataFrame, cells: pd.DataFrame, *, file, report: Read
     return out
 
 
-def check_cell_ids(rows: pd.DataFrame, cells: pd.DataFrame, *, file, on_error: str,
-                   report: ReadReport) -> pd.DataFrame:
-    """The rows whose cell_id is in the cell table.
+def check_cell_ids(rows: pd.DataFrame, cells: pd.DataFrame, *, file, report: ReadReport) -> pd.DataFrame:
+    """The rows whose cell_id is in the cell table; the others are left out and counted.
+
+    A real log names cells that no table knows (crowd-sourced tables are incomplete; a drive-test log's
+    neighbours may match no cell): their measurements range to no known position, so they are left out
+    (not an error: no --max-skip), counted by cell in ``report`` with one note naming the first.
 
     Parameters
     ----------
     rows : pandas.DataFrame
-        Cellular measurements.
+        Cellular measurements (``cell_id`` empty where the log could not identify the cell).
     cells : pandas.DataFrame
         The cell table.
     file : str or path-like
-        The measurements' name in messages.
-    on_error : {"raise", "skip"}
+        The measurements' name in the note.
     report : ReadReport
-        Receives the count of skipped rows.
+        Receives the count of rows left out and the note.
 
     Returns
     -------
     pandas.DataFrame
-
-    Raises
-    ------
-    DataError
-        An unknown cell id (naming file, row and "cell_id"), with ``on_error="raise"``.
     """
     check_cell_rows("rows", rows, ("row", "cell_id"))
     check_cells("cells", cells, ())
-    check_on_error(on_error)
     if not isinstance(report, ReadReport):
         raise ParameterError(f"report: expected a ReadReport, got {type(report).__name__}")
     known = rows["cell_id"].isin(cells.index).to_numpy()
     if known.all():
         return rows
-    for i in np.flatnonzero(~known):
-        err = DataError(f"unknown cell {rows['cell_id'].iloc[i]!r} (not in the cell table)", file=file,
-                        row=int(rows["row"].iloc[i]), column="cell_id")
-        if on_error == "raise":
-            raise err
-        err.kind = "unknown cell id"
-        report.skip(err)
+    ids = rows["cell_id"][~known]
+    named = ids.dropna()
+    of = [f"{named.nunique()} cell(s) not in the cell table (first: {named.iloc[0]!r})"] if len(named) else []
+    if len(named) < len(ids):
+        of.append(f"cells the log does not identify ({len(ids) - len(named)})")
+    report.leave_out([Skipped("cell not in the cell table", len(ids),
+                              f"{file}: {len(ids)} measurement(s) of {' and of '.join(of)} left out (the first "
+                              f"at row {int(rows['row'][~known].iloc[0])}): they range to no known position")])
     return rows.loc[known]
 
 

@@ -129,7 +129,7 @@ def _source_chunks(source, schema, on_error: str, chunk_rows: int, report: ReadR
         if cells is not None:
             if "pci" in rows.columns:
                 rows = resolve_cells(rows, cells, file=label, report=report)
-            rows = check_cell_ids(rows, cells, file=label, on_error=on_error, report=report)
+            rows = check_cell_ids(rows, cells, file=label, report=report)
         yield Chunk(i, 0, len(rows), data=rows)
 
 
