@@ -24,7 +24,7 @@ from collections.abc import Mapping
 import numpy as np
 import scipy.special
 
-from .._core.validation import _to_array, as_array, as_real
+from .._core.validation import _to_array, as_array, as_real, check_int
 from ..errors import DTypeError, MptrackError, ParameterError, ShapeError
 from ._track_filter import FLAGS
 
@@ -125,8 +125,14 @@ def nis_sentence(stats: dict) -> str:
     """
     if not isinstance(stats, Mapping):
         raise ParameterError(f"stats: expected the dict of nis_stats, got {type(stats).__name__}")
-    n = stats.get("nis_fixes")
-    if not n or stats.get("mean_nis") is None or stats["mean_nis"] != stats["mean_nis"]:
+    n, mean = stats.get("nis_fixes"), stats.get("mean_nis")
+    try:   # a count and a number, or nothing (a track without updated fixes: nis_stats gives 0 and NaN)
+        n = 0 if n is None else check_int("nis_fixes", n, minimum=0)
+        nan = isinstance(mean, (float, np.floating)) and mean != mean
+        mean = None if mean is None or nan else as_real("mean_nis", mean, infinite=True)
+    except MptrackError as exc:
+        raise type(exc)(f"stats: {exc}") from None
+    if not n or mean is None:
         return "mean NIS: no fix was updated from a prediction"
     try:
         mean, lo, hi, d = (as_real(k, stats[k], infinite=k == "mean_nis")
