@@ -891,7 +891,7 @@ def _locked(lock, paths):
         pass
 
 
-target("runs.output_lock", lambda out: _locked(runs.output_lock, [out]), out=out_paths())
+target("runs.output_lock", lambda paths: _locked(runs.output_lock, [paths]), paths=out_paths())
 target("runs.lock_path", path=out_paths())
 target("runs.resumable_outputs", lambda out: _locked(lambda *p: runs.resumable_outputs(*p, last_part="tracks"), [out]),
        out=out_paths(), passed=("last_part",))

@@ -70,7 +70,7 @@ def _one_track_ids(truth: pd.DataFrame, tracks: pd.DataFrame, file) -> pd.DataFr
     return truth
 
 
-def _check_points(name: str, tracks, columns=()) -> None:
+def check_points(name: str, tracks, columns=()) -> None:
     """A point table with ``columns``, its numbers checked (:func:`mptrack._core.data_checks.point_numbers`)."""
     check_frame(name, tracks, columns, point_numbers(tracks, POINT_COLUMNS + _ADDED))
 
@@ -102,7 +102,7 @@ def attach_truth(tracks: pd.DataFrame, truth, *, tolerance_s: float = 0.5, file=
     -------
     pandas.DataFrame
     """
-    _check_points("tracks", tracks, ("track_id", "t", "origin_lat"))
+    check_points("tracks", tracks, ("track_id", "t", "origin_lat"))
     tolerance_s = check_positive("tolerance_s", tolerance_s, allow_zero=True)
     if not isinstance(truth, pd.DataFrame):
         check_path("truth", truth)
@@ -266,7 +266,7 @@ def evaluate_tracks(tracks: pd.DataFrame, truth=None, *, tolerance_s: float = 0.
     tracks : pandas.DataFrame
         With error columns when truth is given.
     """
-    _check_points("tracks", tracks)
+    check_points("tracks", tracks)
     truth_columns = check_bool("truth_columns", truth_columns)
     tolerance_s = check_positive("tolerance_s", tolerance_s, allow_zero=True)
     if truth is not None and truth_columns:

@@ -38,7 +38,7 @@ from ._cellular import check_cell_ids, resolve_cells, track_cells
 from ._columns import FixTable
 from ._fixes import CELL_ONLY, FIX_ONLY, TrackOptions
 from ._consistency import flag_counts, nis_sentence, nis_stats, pooled_nis
-from ._evaluate import TRUTH_COLUMNS, evaluate_tracks
+from ._evaluate import TRUTH_COLUMNS, check_points, evaluate_tracks
 from ._output import point_table
 from ._noise import SIGMA_FLOOR_M
 from ._run import TRACK_COLUMNS, track_table
@@ -559,6 +559,7 @@ def write_track_report(points: pd.DataFrame, path, *, run: dict | None = None, t
     """
     from ..report import write_report
 
+    check_points("points", points)   # (evaluate_tracks checks it again, naming its own argument)
     own = any(a in points.columns and b in points.columns for a, b, _ in TRUTH_COLUMNS)
     summary, table = evaluate_tracks(points, truth_columns=own)
     return write_report(table, path, summary=summary, run=run, title=title,
