@@ -293,6 +293,11 @@ def test_db_copy_round_trip(tmp_path, postgres):
     assert '"fixes": 201' in proc.stdout and '"devices": 1' in proc.stdout and '"api_keys": 1' in proc.stdout
     again = _cli("db", "copy", lite, pg)
     assert again.returncode == 2 and "not empty" in again.stderr
+    # a source file that is not there (a typo) is named, not created and copied as an empty database
+    typo = f"sqlite:///{tmp_path / 'mptrak.db'}"
+    wrong = _cli("db", "copy", typo, postgres.create_database("typo"))
+    assert wrong.returncode == 2 and f"source: {tmp_path / 'mptrak.db'} does not exist" in wrong.stderr, wrong.stderr
+    assert not (tmp_path / "mptrak.db").exists()
     srv = Server(tmp_path, "--rate", "0", db=pg).start()
     try:
         for d, pos in before.items():

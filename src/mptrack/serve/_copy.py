@@ -18,7 +18,8 @@ import numpy as np
 from .._core.finiteness import renamed
 from ..errors import OutputError, ParameterError
 from ..tracking import MODELS, LiveTracks, TrackOptions
-from ._database import open_store
+from ._database import check_url, open_store
+from ._sqlite import sqlite_path
 from ._ingest import Ingest
 from ._store import ESTIMATE_COLUMNS, FIX_COLUMNS, Store
 
@@ -43,12 +44,15 @@ def copy_database(source: str, target: str, *, model: str | None = None) -> dict
     Raises
     ------
     ParameterError
-        ``target`` is ``source``.
+        ``target`` is ``source``, or a SQLite ``source`` does not exist.
     OutputError
         ``target`` is not empty, the copy stopped, or the copy's counts or checksum differ.
     """
     if source == target:
         raise ParameterError(f"target: the target is the source ({source})")
+    if check_url(source) == "sqlite" and not sqlite_path(source).is_file():   # opening it would create it
+        raise ParameterError(f"source: {sqlite_path(source)} does not exist (give the database file of the server "
+                             "to copy)")
     with renamed(db="source"):
         src = open_store(source)
     try:

@@ -119,7 +119,7 @@ class SqliteStore:
         self.url = url
         self.fsync = bool(fsync)
         self.quick_commit = not self.fsync
-        self.path = Path(url[len("sqlite:///"):])
+        self.path = sqlite_path(url)
         if not str(self.path):
             raise ParameterError(f"db: expected sqlite:///PATH, got {url!r}")
         if self.path.is_dir():
@@ -407,6 +407,11 @@ class SqliteStore:
             con.close()
             self._local.con = None
         self._held.close()
+
+
+def sqlite_path(url: str) -> Path:
+    """The file a ``sqlite:///PATH`` URL names."""
+    return Path(url[len("sqlite:///"):])
 
 
 def _schema_version(con: sqlite3.Connection) -> int:
