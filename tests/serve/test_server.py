@@ -526,6 +526,8 @@ def test_a_second_server_of_one_sqlite_file_is_refused_and_a_busy_port_named(tmp
         assert second.returncode == 2, second.stderr
         assert (f"error: db: {tmp_path / 'mptrack.db'}: another run (pid {first.proc.pid}: mptrack serve) is "
                 "writing it; stop that server first, or serve another database") in second.stderr
+        # said once, by the command: not again in uvicorn's log lines about the failed startup
+        assert second.stderr.count("another run (pid") == 1 and "startup failed" not in second.stderr, second.stderr
         assert first.get(f"/?id=car&lat=52.5&lon=13.4&timestamp={int(NOW)}").status_code == 200
         busy = _serve("--port", str(first.port), "--db", f"sqlite:///{tmp_path / 'other.db'}", cwd=tmp_path)
         assert busy.returncode == 2, busy.stderr

@@ -8,6 +8,7 @@ from __future__ import annotations
 import contextlib
 import ipaddress
 import json
+import logging
 import os
 import tempfile
 from pathlib import Path
@@ -128,8 +129,10 @@ def serve(
     if workers > 1:
         _run_workers(config, workers, options, sock)
         return
+    server_config = uvicorn.Config(app, **options)   # (configures logging)
+    logging.getLogger("uvicorn.error").addFilter(_StartupFailed(app))
     try:
-        _Server(uvicorn.Config(app, **options)).run(sockets=[sock])
+        _Server(server_config).run(sockets=[sock])
     except SystemExit:
         if app.startup_error is not None:   # uvicorn exits 3 when the app cannot start: say why, exit 2
             fail(app.startup_error)
@@ -174,6 +177,21 @@ def _shown(url: str) -> str:
     from ..serve import shown_url
 
     return shown_url(url)
+
+
+class _StartupFailed(logging.Filter):
+    """Drops uvicorn's lines about an application that could not start (its reason, then "Application
+    startup failed"): the one line the command prints says why."""
+
+    def __init__(self, app):
+        super().__init__()
+        self.app = app
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        message = record.getMessage()
+        error = self.app.startup_error
+        return not (message.startswith("Application startup failed") or
+                    (error is not None and message == str(error)))
 
 
 def _server_class():
