@@ -50,10 +50,10 @@ def copy_database(source: str, target: str, *, model: str | None = None) -> dict
     """
     if source == target:
         raise ParameterError(f"target: the target is the source ({source})")
-    if check_url(source) == "sqlite" and not sqlite_path(source).is_file():   # opening it would create it
-        raise ParameterError(f"source: {sqlite_path(source)} does not exist (give the database file of the server "
-                             "to copy)")
     with renamed(db="source"):
+        if check_url(source) == "sqlite" and not sqlite_path(source).is_file():   # opening it would create it
+            raise ParameterError(f"db: {sqlite_path(source)} does not exist (give the database file of the server "
+                                 "to copy)")
         src = open_store(source)
     try:
         with renamed(db="target"):
