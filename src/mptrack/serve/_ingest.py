@@ -396,6 +396,7 @@ class Ingest:
                         self._met_stale(bool(tx.stale))
                     last = self.live.last_fixes(d)
                     back = last[:, 0] > now + AHEAD_S
+                    restarted = ()
                     if back.any():
                         back &= (ts <= now + AHEAD_S) & ~prev_same
                     if back.any():   # clocks set back: these devices' live filters start again
@@ -447,8 +448,8 @@ class Ingest:
         m.add("accepted", len(fixes))
         m.add("filtered", len(sel))
         m.add("late", stored_late)
-        if back.any():
-            self._log_back(fixes[order[back][0]], len(np.unique(d[back])))
+        if len(restarted):
+            self._log_back(fixes[order[back][0]], len(restarted))
         if ahead.any():
             m.add("ahead", int(ahead.sum()))
             self._log_ahead(fixes[order[ahead][0]], int(ahead.sum()))
