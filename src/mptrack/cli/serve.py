@@ -130,13 +130,16 @@ def serve(
         _run_workers(config, workers, options, sock)
         return
     server_config = uvicorn.Config(app, **options)   # (configures logging)
-    logging.getLogger("uvicorn.error").addFilter(_StartupFailed(app))
+    quiet_failure = _StartupFailed(app)
+    logging.getLogger("uvicorn.error").addFilter(quiet_failure)
     try:
         _Server(server_config).run(sockets=[sock])
     except SystemExit:
         if app.startup_error is not None:   # uvicorn exits 3 when the app cannot start: say why, exit 2
             fail(app.startup_error)
         raise
+    finally:   # (a command run again in one process, as the tests do, adds its own)
+        logging.getLogger("uvicorn.error").removeFilter(quiet_failure)
 
 
 def _listen(host: str, port: int):
