@@ -204,8 +204,8 @@ def check_cell_ids(rows: pd.DataFrame, cells: pd.DataFrame, *, file, report: Rea
     ids = rows["cell_id"][~known]
     named = ids.dropna()
     of = [f"{named.nunique()} cell(s) not in the cell table (first: {named.iloc[0]!r})"] if len(named) else []
-    if len(named) < len(ids):
-        of.append(f"cells the log does not identify ({len(ids) - len(named)})")
+    if len(named) < len(ids):   # (how many, when the note counts both kinds)
+        of.append("cells the log does not identify" + (f" ({len(ids) - len(named)})" if len(named) else ""))
     report.leave_out([Skipped("cell not in the cell table", len(ids),
                               f"{file}: {len(ids)} measurement(s) of {' and of '.join(of)} left out (the first "
                               f"at row {int(rows['row'][~known].iloc[0])}): they range to no known position")])
